@@ -1,0 +1,35 @@
+// Space-vector PWM (as min-max zero-sequence injection, which gives the same switching
+// pattern as classical SVPWM) and dead-time compensation.
+#pragma once
+
+#include <array>
+
+#include "pmsm/core/transforms.hpp"
+
+namespace pmsm::core {
+
+struct DeadTimeCompensation {
+  double dead_time_s = 0.0;       // the dead time the controller believes the bridge has
+  double device_drop_V = 0.0;     // the forward drop it believes the devices have
+  double current_band_A = 1.0;    // below this |i| the correction fades in linearly
+};
+
+struct Duties {
+  std::array<double, 3> value{0.5, 0.5, 0.5};  // high-side duty per phase, 0..1
+  bool clipped = false;                        // some phase hit 0 or 1
+};
+
+// Duty cycles that make the average phase-to-neutral voltage equal to inverse_clarke(v) on a
+// bus of vdc, with the common mode centred (SVPWM).
+[[nodiscard]] Duties svpwm(const AlphaBeta& v_V, double vdc_V);
+
+// As svpwm(), plus a correction per phase that cancels the expected dead-time and device-drop
+// error for the given phase currents (the error opposes the current).
+[[nodiscard]] Duties svpwm_compensated(const AlphaBeta& v_V, double vdc_V, const Abc& i_A,
+                                       const DeadTimeCompensation& comp, double period_s);
+
+// The phase-voltage error per phase the compensation assumes, as a fraction of one unit of
+// "sign(i)": a linear ramp through zero inside +-current_band and +-1 outside.
+[[nodiscard]] double soft_sign(double i_A, double current_band_A);
+
+}  // namespace pmsm::core

@@ -1,0 +1,63 @@
+// Motor parameters: Table I of the paper, as a plain struct with the unit in every name.
+//
+// Conventions (docs/parameters.md explains each reading of Table I):
+// - Resistances and inductances are per phase, phase-to-neutral (star equivalent).
+// - Currents in the dq frame are amplitude-invariant (Eq. 2), i.e. phase peak amperes.
+// - Table I's Ke and Kt are given in RMS line quantities; the dq model (Eq. 3) needs the
+//   phase-peak forms, which the free functions below derive.
+#pragma once
+
+#include <cmath>
+
+namespace pmsm::core {
+
+struct MotorParams {
+  double kt_Nm_per_A_rms = 2.08;          // Table I torque constant, per RMS phase ampere
+  double ke_V_s_per_rad = 1.19;           // Table I EMF constant: line-to-line RMS volts per mechanical rad/s
+  double rated_speed_rad_s = 314.0;       // mechanical
+  double rated_power_W = 11.9e3;
+  double continuous_current_A_rms = 31.9;
+  double stall_current_A_rms = 117.5;
+  double max_phase_voltage_V = 480.0;
+  double rs_ohm = 0.133;                  // phase-to-neutral stator resistance at rs_reference_temp_C
+  double rs_reference_temp_C = 25.0;
+  double inductance_line_to_line_H = 11e-3;
+  double ld_H = 5.5e-3;                   // d-axis synchronous inductance (L_ll / 2 for a round rotor)
+  double lq_H = 5.5e-3;                   // q-axis synchronous inductance
+  double inertia_kg_m2 = 0.00841;
+  int pole_pairs = 3;
+  double thermal_time_constant_s = 2880.0;
+  double coulomb_friction_Nm = 0.908;
+};
+
+// sqrt(2/3): from line-to-line RMS to phase peak.
+inline constexpr double kLineRmsToPhasePeak = 0.81649658092772603;
+inline constexpr double kSqrt2 = 1.41421356237309505;
+
+// The Ke of Eq. 3 (vqr = ... + Ke * wm): phase-peak volts per mechanical rad/s.
+[[nodiscard]] constexpr double emf_constant_dq_V_s_per_rad(const MotorParams& m) {
+  return m.ke_V_s_per_rad * kLineRmsToPhasePeak;
+}
+
+// Permanent-magnet flux linkage psi_m (phase-peak volts per electrical rad/s).
+[[nodiscard]] constexpr double flux_linkage_Wb(const MotorParams& m) {
+  return emf_constant_dq_V_s_per_rad(m) / m.pole_pairs;
+}
+
+// The Kt of Eq. 10 (Tem = Kt * iqr) for amplitude-invariant iqr, derived from power balance
+// (3/2 * p * psi_m). Table I's Kt (per RMS ampere) divided by sqrt(2) agrees within 1 %.
+[[nodiscard]] constexpr double torque_constant_dq_Nm_per_A(const MotorParams& m) {
+  return 1.5 * m.pole_pairs * flux_linkage_Wb(m);
+}
+
+[[nodiscard]] inline double rms_to_peak(double rms) { return rms * kSqrt2; }
+
+// Peak phase current (the dq-vector limit) for the continuous and the stall rating.
+[[nodiscard]] inline double continuous_current_peak_A(const MotorParams& m) {
+  return rms_to_peak(m.continuous_current_A_rms);
+}
+[[nodiscard]] inline double stall_current_peak_A(const MotorParams& m) {
+  return rms_to_peak(m.stall_current_A_rms);
+}
+
+}  // namespace pmsm::core

@@ -1,0 +1,87 @@
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "pmsm/core/machine_equations.hpp"
+#include "pmsm/core/motor_params.hpp"
+
+namespace pmsm::core {
+namespace {
+
+TEST(ResistanceTemperature, PaperNumbers) {
+  // Section II: 0.133 ohm at 25 C becomes 0.183 ohm at 120 C.
+  EXPECT_NEAR(resistance_at_temperature_ohm(0.133, 25.0, 120.0), 0.183, 0.0005);
+  EXPECT_NEAR(temperature_from_resistance_C(0.183, 0.133, 25.0), 120.0, 1.0);
+  // "For a 10 C resolution ... approximately 5 mOhm"; "10 mOhm result in a resolution of 20 C".
+  EXPECT_NEAR(temperature_from_resistance_C(0.138, 0.133, 25.0) - 25.0, 10.0, 0.5);
+  EXPECT_NEAR(temperature_from_resistance_C(0.143, 0.133, 25.0) - 25.0, 20.0, 1.0);
+  EXPECT_NEAR(0.005 * temperature_per_resistance_C_per_ohm(0.133), 9.57, 0.01);
+}
+
+TEST(ResistanceTemperature, InverseOfEachOther) {
+  for (double t : {-20.0, 25.0, 60.0, 155.0}) {
+    const double r = resistance_at_temperature_ohm(0.2, 20.0, t);
+    EXPECT_NEAR(temperature_from_resistance_C(r, 0.2, 20.0), t, 1e-9);
+  }
+}
+
+TEST(MotorParams, TableIConstantsAreConsistent) {
+  const MotorParams m;
+  // Kt ~ sqrt(3) Ke (DESIGN section 4): Table I's constants agree within 1 %.
+  EXPECT_NEAR(kSqrt3 * m.ke_V_s_per_rad / m.kt_Nm_per_A_rms, 1.0, 0.01);
+  // The dq torque constant from power balance, per peak ampere, equals Table I's Kt per RMS
+  // ampere divided by sqrt(2), within 1 %.
+  EXPECT_NEAR(torque_constant_dq_Nm_per_A(m) * std::sqrt(2.0) / m.kt_Nm_per_A_rms, 1.0, 0.01);
+  // Phase peak EMF at rated speed: 1.19 * sqrt(2/3) * 314 ~ 305 V, inside the 480 V maximum.
+  EXPECT_NEAR(emf_constant_dq_V_s_per_rad(m) * m.rated_speed_rad_s, 1.19 * std::sqrt(2.0 / 3.0) * 314.0,
+              1e-9);
+  EXPECT_NEAR(flux_linkage_Wb(m), 1.19 * std::sqrt(2.0 / 3.0) / 3.0, 1e-12);
+  EXPECT_NEAR(m.ld_H, m.inductance_line_to_line_H / 2.0, 1e-12);
+}
+
+// Eq. 3 evaluated by an independent route: build phase currents, differentiate numerically
+// in the stator frame, add the EMF, transform with the literal Eq. 2.
+TEST(VoltageModel, AgreesWithStatorFrameComputationForRoundRotor) {
+  const DqMachine machine{0.15, 6e-3, 6e-3, 0.97};
+  const int p = 3;
+  const double omega_m = 80.0;
+  const double omega_e = p * omega_m;
+  const double psi = machine.ke_V_s_per_rad / p;
+  // Currents varying in time in the rotor frame.
+  auto i_dq = [](double t) { return Dq{5.0 + 40.0 * t, -12.0 + 100.0 * t * t}; };
+  const double t = 0.01;
+  const double h = 1e-7;
+  auto stator_flux = [&](double tt) {
+    // For a round rotor the stator flux is L i + psi on the rotor axis, in the stator frame.
+    const double theta = omega_e * tt;
+    const Dq i = i_dq(tt);
+    return inverse_park({machine.ld_H * i.d + psi, machine.lq_H * i.q}, theta);
+  };
+  const AlphaBeta f_plus = stator_flux(t + h);
+  const AlphaBeta f_minus = stator_flux(t - h);
+  const AlphaBeta i_ab = inverse_park(i_dq(t), omega_e * t);
+  const AlphaBeta v_ab{machine.rs_ohm * i_ab.alpha + (f_plus.alpha - f_minus.alpha) / (2.0 * h),
+                       machine.rs_ohm * i_ab.beta + (f_plus.beta - f_minus.beta) / (2.0 * h)};
+  const Dq expected = park(v_ab, omega_e * t);
+
+  const Dq di_dt{40.0, 200.0 * t};
+  const Dq v = rotor_frame_voltage(machine, i_dq(t), di_dt, omega_e, omega_m);
+  EXPECT_NEAR(v.d, expected.d, 1e-4);
+  EXPECT_NEAR(v.q, expected.q, 1e-4);
+}
+
+TEST(Torque, Eq10AndReluctance) {
+  const double psi = 0.3239;
+  // Round rotor: Tem = Kt iqr with Kt = 3/2 p psi; d-axis current makes no torque.
+  EXPECT_NEAR(electromagnetic_torque_Nm(psi, 5e-3, 5e-3, 3, {0.0, 20.0}), 1.5 * 3 * psi * 20.0,
+              1e-12);
+  EXPECT_NEAR(electromagnetic_torque_Nm(psi, 5e-3, 5e-3, 3, {-30.0, 20.0}),
+              electromagnetic_torque_Nm(psi, 5e-3, 5e-3, 3, {30.0, 20.0}), 1e-12);
+  // Salient rotor (Lq = 1.5 Ld): injecting id changes torque by 3/2 p (Ld - Lq) id iq.
+  const double t0 = electromagnetic_torque_Nm(psi, 5e-3, 7.5e-3, 3, {0.0, 20.0});
+  const double t1 = electromagnetic_torque_Nm(psi, 5e-3, 7.5e-3, 3, {25.0, 20.0});
+  EXPECT_NEAR(t1 - t0, 1.5 * 3 * (5e-3 - 7.5e-3) * 25.0 * 20.0, 1e-12);
+}
+
+}  // namespace
+}  // namespace pmsm::core

@@ -1,0 +1,68 @@
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "pmsm/core/modulation.hpp"
+
+namespace pmsm::core {
+namespace {
+
+// The average phase-to-neutral voltages an ideal bridge makes from the duties.
+Abc phase_voltages(const Duties& d, double vdc) {
+  const double mean = (d.value[0] + d.value[1] + d.value[2]) / 3.0 * vdc;
+  return {d.value[0] * vdc - mean, d.value[1] * vdc - mean, d.value[2] * vdc - mean};
+}
+
+TEST(Svpwm, ProducesTheCommandedVoltageInsideTheLinearRange) {
+  const double vdc = 650.0;
+  const double linear_limit = vdc / std::sqrt(3.0);
+  for (double magnitude : {0.0, 50.0, 200.0, 0.999 * linear_limit}) {
+    for (int k = 0; k < 24; ++k) {
+      const double angle = k * kTwoPi / 24.0 + 0.01;
+      const AlphaBeta v{magnitude * std::cos(angle), magnitude * std::sin(angle)};
+      const Duties d = svpwm(v, vdc);
+      EXPECT_FALSE(d.clipped);
+      const Abc expected = inverse_clarke(v);
+      const Abc got = phase_voltages(d, vdc);
+      EXPECT_NEAR(got.a, expected.a, 1e-9);
+      EXPECT_NEAR(got.b, expected.b, 1e-9);
+      EXPECT_NEAR(got.c, expected.c, 1e-9);
+      // The common mode is centred: the largest and smallest duties are symmetric about 0.5.
+      const double hi = std::max({d.value[0], d.value[1], d.value[2]});
+      const double lo = std::min({d.value[0], d.value[1], d.value[2]});
+      EXPECT_NEAR(hi + lo, 1.0, 1e-12);
+    }
+  }
+}
+
+TEST(Svpwm, ClipsBeyondTheHexagon) {
+  const double vdc = 600.0;
+  // Along a hexagon vertex direction (phase a axis) the hexagon reaches 2/3 Vdc.
+  EXPECT_FALSE(svpwm({0.66 * vdc, 0.0}, vdc).clipped);
+  EXPECT_TRUE(svpwm({0.68 * vdc, 0.0}, vdc).clipped);
+  // Between vertices only Vdc / sqrt(3).
+  const double a = kPi / 6.0;
+  EXPECT_TRUE(svpwm({0.59 * vdc * std::cos(a), 0.59 * vdc * std::sin(a)}, vdc).clipped);
+}
+
+TEST(DeadTimeCompensation, AddsTheExpectedVoltageAgainstTheCurrent) {
+  const double vdc = 650.0, period = 1e-4;
+  const DeadTimeCompensation comp{0.9e-6, 0.0, 1.0};
+  const AlphaBeta v{100.0, -40.0};
+  const Abc i{20.0, -5.0, -15.0};
+  const Abc plain = phase_voltages(svpwm(v, vdc), vdc);
+  const Abc corrected = phase_voltages(svpwm_compensated(v, vdc, i, comp, period), vdc);
+  // Per-phase pole-voltage correction 0.9 us / 100 us * 650 V = 5.85 V with the sign of the
+  // current; phase-to-neutral removes the mean of (+1, -1, -1) * 5.85 V.
+  const double e = 5.85;
+  const double mean = (e - e - e) / 3.0;
+  EXPECT_NEAR(corrected.a - plain.a, e - mean, 1e-9);
+  EXPECT_NEAR(corrected.b - plain.b, -e - mean, 1e-9);
+  EXPECT_NEAR(corrected.c - plain.c, -e - mean, 1e-9);
+  EXPECT_NEAR(soft_sign(0.25, 1.0), 0.25, 1e-12);
+  EXPECT_NEAR(soft_sign(-7.0, 1.0), -1.0, 1e-12);
+  EXPECT_EQ(soft_sign(0.0, 0.0), 0.0);
+}
+
+}  // namespace
+}  // namespace pmsm::core
