@@ -95,6 +95,29 @@ double max_injection_current_A(double headroom_V, double ld_H, double rs_ohm, do
   return headroom_V / required_injection_voltage_V(1.0, ld_H, rs_ohm, tw_s, kind);
 }
 
+Dq motoring_voltage(const InjectionHeadroomInput& in) {
+  return {in.rs_ohm * in.id_A - in.omega_e_rad_s * in.lq_H * in.iq_A,
+          in.rs_ohm * in.iq_A + in.omega_e_rad_s * (in.ld_H * in.id_A + in.flux_linkage_Wb)};
+}
+
+double max_injection_current_at_operating_point_A(const InjectionHeadroomInput& in,
+                                                  double polarity) {
+  const Dq v0 = motoring_voltage(in);
+  const double limit_sq = in.voltage_limit_V * in.voltage_limit_V;
+  const double v0_sq = v0.d * v0.d + v0.q * v0.q;
+  if (v0_sq >= limit_sq) {
+    return 0.0;
+  }
+  // Direction of the added voltage per ampere of F.
+  const double ud = polarity * required_injection_voltage_V(1.0, in.ld_H, in.rs_ohm, in.tw_s, in.window);
+  const double uq = polarity * in.omega_e_rad_s * in.ld_H;
+  // |v0 + F u|^2 = limit^2  ->  |u|^2 F^2 + 2 (v0.u) F + |v0|^2 - limit^2 = 0, positive root.
+  const double a = ud * ud + uq * uq;
+  const double b = v0.d * ud + v0.q * uq;
+  const double c = v0_sq - limit_sq;  // < 0, so the discriminant is positive
+  return (-b + std::sqrt(b * b - a * c)) / a;
+}
+
 double per_phase_injection_current_A(double f_A) { return 2.0 / 3.0 * f_A; }  // Eq. 30
 
 double fixed_magnitude_average_loss_W(const InjectionSchedule& s) {

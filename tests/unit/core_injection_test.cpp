@@ -170,6 +170,35 @@ TEST(Budget, Eq29AndFig8) {
   EXPECT_NEAR(per_phase_injection_current_A(75.0), 50.0, 1e-12);  // Eq. 30
 }
 
+TEST(Budget, HeadroomAtAnOperatingPointTouchesTheLimit) {
+  InjectionHeadroomInput in;
+  in.omega_e_rad_s = 600.0;
+  in.iq_A = 20.0;
+  in.voltage_limit_V = 0.95 * 650.0 / std::sqrt(3.0);
+  for (double polarity : {1.0, -1.0}) {
+    const double f = max_injection_current_at_operating_point_A(in, polarity);
+    ASSERT_GT(f, 0.0);
+    // At F the worst-case voltage (computed here from Eq. 3 and Eq. 29 terms) is on the circle.
+    const double k = 1.81;
+    const double vd = in.rs_ohm * in.id_A - in.omega_e_rad_s * in.lq_H * in.iq_A +
+                      polarity * f * std::sqrt(std::pow(k * in.ld_H / in.tw_s, 2) + in.rs_ohm * in.rs_ohm);
+    const double vq = in.rs_ohm * in.iq_A + in.omega_e_rad_s * in.flux_linkage_Wb +
+                      polarity * in.omega_e_rad_s * in.ld_H * f;
+    EXPECT_NEAR(std::hypot(vd, vq) / in.voltage_limit_V, 1.0, 0.003) << polarity;
+  }
+  // Positive d current raises the q-axis voltage at speed, so it affords less than negative.
+  EXPECT_LT(max_injection_current_at_operating_point_A(in, 1.0),
+            max_injection_current_at_operating_point_A(in, -1.0));
+  // No headroom at all beyond the speed where the EMF alone fills the circle.
+  in.omega_e_rad_s = 1200.0;
+  EXPECT_EQ(max_injection_current_at_operating_point_A(in, 1.0), 0.0);
+  // At standstill with no load it reduces to Eq. 29 inverted.
+  in.omega_e_rad_s = 0.0;
+  in.iq_A = 0.0;
+  EXPECT_NEAR(max_injection_current_at_operating_point_A(in, 1.0),
+              max_injection_current_A(in.voltage_limit_V, in.ld_H, in.rs_ohm, in.tw_s, in.window), 1e-9);
+}
+
 TEST(Losses, Eqs31And32WithHandComputedNumbers) {
   InjectionSchedule s;
   s.f_A = 25.0; s.rs_ohm = 0.133; s.pulses = 3; s.elapsed_s = 10.0; s.ti_s = 0.2; s.tw_s = 0.01;

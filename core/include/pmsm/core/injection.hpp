@@ -99,6 +99,34 @@ struct SignalDirections {
 [[nodiscard]] double max_injection_current_A(double headroom_V, double ld_H, double rs_ohm,
                                              double tw_s, WindowKind kind);
 
+// Headroom at an operating point. Eq. 29 sizes the voltage a window edge needs on its own;
+// in a running machine the motoring voltage (Eq. 3) already uses part of the circle, and
+// fixed-magnitude injection adds w Ld F on the q-axis (Eq. 21). This finds the largest F for
+// which the worst case of the two stays inside the voltage limit:
+//   vd = vd0 + s F sqrt((k Ld / Tw)^2 + Rs^2),   vq = vq0 + s w Ld F,   s = polarity (+1/-1),
+// with (vd0, vq0) the steady-state motoring voltage of Eq. 3. Conservative: the window's
+// steepest slope and the full q-axis term are taken at the same instant.
+struct InjectionHeadroomInput {
+  double rs_ohm = 0.133;
+  double ld_H = 5.5e-3;
+  double lq_H = 5.5e-3;
+  double flux_linkage_Wb = 0.3239;
+  double omega_e_rad_s = 0.0;
+  double id_A = 0.0;              // motoring current before injection
+  double iq_A = 0.0;
+  double voltage_limit_V = 356.0; // usable voltage, e.g. 0.95 Vdc / sqrt(3)
+  double tw_s = 0.01;
+  WindowKind window = WindowKind::kBlackman;
+};
+
+// Steady-state motoring voltage (Eq. 3 with d/dt = 0).
+[[nodiscard]] Dq motoring_voltage(const InjectionHeadroomInput& in);
+
+// Largest F >= 0 for one polarity (+1 or -1); 0 when the motoring voltage alone is at or
+// beyond the limit.
+[[nodiscard]] double max_injection_current_at_operating_point_A(const InjectionHeadroomInput& in,
+                                                                double polarity);
+
 // Eq. 30: per-phase current requirement Iinj = 2/3 F.
 [[nodiscard]] double per_phase_injection_current_A(double f_A);
 

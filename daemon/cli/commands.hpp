@@ -1,0 +1,12 @@
+// Subcommands of the pmsm-thermal command-line tool. Each registers itself on the app and
+// reports its exit status through `exit_code` when it runs.
+#pragma once
+
+#include <CLI/CLI.hpp>
+
+namespace pmsm::app {
+
+void register_budget_command(CLI::App& app, int& exit_code);
+void register_losses_command(CLI::App& app, int& exit_code);
+
+}  // namespace pmsm::app

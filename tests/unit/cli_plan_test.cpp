@@ -1,0 +1,94 @@
+// The planning command as a commissioning engineer runs it.
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "run_process.hpp"
+
+namespace pmsm::test {
+namespace {
+
+const std::string kExe = PMSM_THERMAL_EXE;
+
+TEST(PlanCli, BudgetGivenVoltageMatchesEq29) {
+  const ProcessResult r =
+      run_process(kExe + " budget --Ld 0.009 --Rs 0.133 --Tw 0.01 --window blackman --voltage 40 --json");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const double expected = 40.0 / std::sqrt(std::pow(1.81 * 0.009 / 0.01, 2) + 0.133 * 0.133);
+  EXPECT_NEAR(json_number(r.out, "max_injection_current_A").value_or(-1) / expected, 1.0, 0.003);
+  EXPECT_NEAR(json_number(r.out, "max_slope_per_Tw").value_or(-1), 1.81, 0.005);
+  EXPECT_NEAR(json_number(r.out, "window_integral_per_Tw").value_or(-1), 0.84, 0.005);
+}
+
+TEST(PlanCli, BudgetGivenCurrentWithModifiedWindow) {
+  const ProcessResult r =
+      run_process(kExe + " budget --Ld 0.009 --Rs 0.133 --Tw 0.02 --window modified --current 50 --json");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const double expected = 50.0 * std::sqrt(std::pow(2.04 * 0.009 / 0.02, 2) + 0.133 * 0.133);
+  EXPECT_NEAR(json_number(r.out, "required_voltage_V").value_or(-1) / expected, 1.0, 0.003);
+  EXPECT_NEAR(json_number(r.out, "max_slope_per_Tw").value_or(-1), 2.04, 0.005);
+  EXPECT_NEAR(json_number(r.out, "window_integral_per_Tw").value_or(-1), 1.25, 0.005);
+}
+
+TEST(PlanCli, BudgetAtSpeedLeavesLessForPositiveInjection) {
+  const ProcessResult r = run_process(kExe + " budget --Ld 0.0055 --speed 200 --iq 30 --json");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const double pos = json_number(r.out, "max_positive_injection_current_A").value_or(-1);
+  const double neg = json_number(r.out, "max_negative_injection_current_A").value_or(-1);
+  EXPECT_GT(pos, 0.0);
+  EXPECT_LT(pos, neg);
+  EXPECT_DOUBLE_EQ(json_number(r.out, "max_injection_current_A").value_or(-1), pos);
+}
+
+TEST(PlanCli, LossesFixedMagnitudeMatchesEq32) {
+  const ProcessResult r = run_process(
+      kExe + " losses --method fixed-magnitude --F 25 --Rs 0.133 --pulses 3 --elapsed 10 --Ti 0.2 --Tw 0.01 --window blackman --json");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NEAR(json_number(r.out, "average_loss_W").value_or(-1), 625.0 * 3 * 0.133 / 10.0 * (0.2 + 0.84 * 0.01), 0.005);
+}
+
+TEST(PlanCli, LossesFixedAngleMatchesEq31) {
+  const ProcessResult r = run_process(
+      kExe + " losses --method fixed-angle --F 50 --Rs 0.133 --pulses 3 --elapsed 10 --Ti 0.003 --Tw 0.001 --omega 500 --json");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const double bracket = 2.0 / 500.0 * std::sin(500.0 * 0.003 / 2.0) + 0.84 * 0.001;
+  EXPECT_NEAR(json_number(r.out, "average_loss_W").value_or(-1), 2500.0 * 3 * 0.133 / 10.0 * bracket, 1e-4);
+  EXPECT_TRUE(r.err.empty()) << r.err;  // a 86 degree arc: no warning
+}
+
+TEST(PlanCli, HumanReadableByDefault) {
+  const ProcessResult r = run_process(kExe + " budget --voltage 40");
+  ASSERT_EQ(r.exit_code, 0);
+  EXPECT_NE(r.out.find("largest injection F"), std::string::npos) << r.out;
+  EXPECT_EQ(r.out.find('{'), std::string::npos);
+}
+
+struct BadInput {
+  std::string args;
+  std::string expected_in_message;
+};
+
+class PlanCliBadInput : public ::testing::TestWithParam<BadInput> {};
+
+TEST_P(PlanCliBadInput, NamesTheFlagAndFails) {
+  const ProcessResult r = run_process(kExe + " " + GetParam().args);
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.err.find(GetParam().expected_in_message), std::string::npos) << r.err;
+}
+
+INSTANTIATE_TEST_SUITE_P(
+    Flags, PlanCliBadInput,
+    ::testing::Values(BadInput{"budget --Ld -1 --voltage 3", "--Ld"},
+                      BadInput{"budget --Ld 0.009", "--voltage,--current,--speed"},
+                      BadInput{"budget --voltage 3 --current 2", "--voltage,--current,--speed"},
+                      BadInput{"budget --window hamming --voltage 3", "--window"},
+                      BadInput{"budget --Tw 0 --voltage 3", "--Tw"},
+                      BadInput{"losses --F abc", "--F"},
+                      BadInput{"losses --Rs 0.1", "--F"},
+                      BadInput{"losses --F 25 --pulses 0", "--pulses"},
+                      BadInput{"losses --F 25 --method fixed-angle", "--omega"},
+                      BadInput{"losses --F 25 --method trapezoid", "--method"},
+                      BadInput{"", "subcommand"}));
+
+}  // namespace
+}  // namespace pmsm::test
