@@ -1,0 +1,114 @@
+// SocketCAN backend: one CAN_RAW socket bound to one interface (can0, vcan0, ...), set up
+// in the order can-utils uses (candump.c / cansend.c / lib.c):
+//   socket(PF_CAN, SOCK_RAW, CAN_RAW) -> interface index by name -> SIOCGIFMTU check
+//   before CAN_RAW_FD_FRAMES -> CAN_RAW_FILTER / CAN_RAW_ERR_FILTER -> SO_RXQ_OVFL ->
+//   SO_TIMESTAMPING -> bind.
+// Raw CAN sockets need no capability; creating or configuring the interface does, and is
+// not this class's job (systemd-networkd .netdev, or scripts/vcan-env for tests).
+#pragma once
+
+#include <atomic>
+#include <chrono>
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "pmsm/hal/can_bus.hpp"
+#include "pmsm/hal/unique_fd.hpp"
+
+namespace pmsm::hal {
+
+struct SocketCanConfig {
+  std::string interface = "vcan0";
+  bool fd = false;  // enable CAN FD frames; the interface must have MTU 72 (CANFD_MTU)
+  // Receive filters (empty optional: every data frame; empty list: none).
+  std::optional<std::vector<CanFilter>> filters{};
+  std::uint32_t error_mask = 0;  // CanErrorClass bits of error frames to receive
+  // Socket receive buffer in bytes (SO_RCVBUF); 0 keeps the kernel default.
+  int receive_buffer_bytes = 0;
+};
+
+class SocketCanBus final : public CanBus {
+ public:
+  // Opens the socket. Throws HalError with a message naming the interface and the errno
+  // text, e.g.
+  //   "this kernel has no CAN support (socket(PF_CAN) failed: Address family not supported
+  //    by protocol); run under scripts/vcan-env"
+  //   "no such CAN interface 'can0'"
+  //   "CAN FD requested on 'vcan0' but its MTU is 16 (classic CAN only); set it with
+  //    'ip link set vcan0 mtu 72'"
+  explicit SocketCanBus(SocketCanConfig config);
+  // Non-throwing form: the bus, or nullptr and `error` filled in.
+  [[nodiscard]] static std::unique_ptr<SocketCanBus> open(SocketCanConfig config, Status& error);
+
+  ~SocketCanBus() override = default;
+  SocketCanBus(SocketCanBus&&) = delete;  // the counters are shared with reader threads
+  SocketCanBus& operator=(SocketCanBus&&) = delete;
+
+  Status set_filters(std::span<const CanFilter> filters) override;
+  // Back to "every data frame" (the kernel default).
+  Status accept_all_frames();
+  Status set_error_mask(std::uint32_t error_classes) override;
+  Status reopen() override;
+
+  [[nodiscard]] CanBusCounters counters() const noexcept override;
+  [[nodiscard]] CanBusState state() const noexcept override;
+  [[nodiscard]] bool interface_up() const noexcept override;
+  [[nodiscard]] bool fd_enabled() const noexcept override { return config_.fd; }
+
+  [[nodiscard]] const std::string& interface_name() const noexcept { return config_.interface; }
+  [[nodiscard]] int interface_index() const noexcept { return ifindex_; }
+  // errno of the last failed send/receive (0 if none yet). Read it on the I/O thread.
+  [[nodiscard]] int last_error_number() const noexcept { return last_errno_; }
+  // The socket, e.g. to wait on it together with other descriptors. Do not close it.
+  [[nodiscard]] int native_handle() const noexcept { return fd_.get(); }
+
+ protected:
+  SendResult do_send(const CanFrame& frame, std::chrono::nanoseconds max_wait) noexcept override;
+  ReceiveStatus do_receive(ReceivedFrame& out, std::chrono::nanoseconds timeout) noexcept override;
+
+ private:
+  struct AtomicCounters {
+    std::atomic<std::uint64_t> tx_frames{0};
+    std::atomic<std::uint64_t> rx_frames{0};
+    std::atomic<std::uint64_t> tx_dropped_enobufs{0};
+    std::atomic<std::uint64_t> tx_would_block{0};
+    std::atomic<std::uint64_t> tx_errors{0};
+    std::atomic<std::uint64_t> rx_overflow{0};
+    std::atomic<std::uint64_t> rx_errors{0};
+    std::atomic<std::uint64_t> error_frames{0};
+    std::atomic<std::uint64_t> bad_size_reads{0};
+    std::atomic<std::uint64_t> bus_off_events{0};
+    std::atomic<std::uint64_t> interface_down_events{0};
+  };
+
+  Status open_socket();
+  Status apply_filters();
+  Status apply_error_mask();
+  ReceiveStatus read_one(ReceivedFrame& out) noexcept;
+
+  SocketCanConfig config_;
+  UniqueFd fd_;
+  int ifindex_ = 0;
+  int last_errno_ = 0;
+  std::uint32_t last_drop_count_ = 0;  // SO_RXQ_OVFL's running count on this socket
+  std::atomic<CanBusState> state_{CanBusState::kErrorActive};
+  AtomicCounters counters_;
+};
+
+// Converts between CanFrame and the kernel's frame layout; exposed for unit tests.
+namespace socketcan_detail {
+inline constexpr std::size_t kClassicMtu = 16;  // sizeof(struct can_frame)
+inline constexpr std::size_t kFdMtu = 72;       // sizeof(struct canfd_frame)
+// Fills `bytes` (at least kFdMtu long) with the kernel image of `frame`; returns its size
+// (kClassicMtu or kFdMtu).
+[[nodiscard]] std::size_t encode(const CanFrame& frame, std::span<std::uint8_t, kFdMtu> bytes) noexcept;
+// Decodes a read of `size` bytes; false if the size is neither CAN_MTU nor CANFD_MTU or
+// the length field is out of range.
+[[nodiscard]] bool decode(std::span<const std::uint8_t> bytes, CanFrame& frame) noexcept;
+}  // namespace socketcan_detail
+
+}  // namespace pmsm::hal

@@ -1,0 +1,524 @@
+// SocketCAN backend (see socketcan.hpp for the set-up order, taken from can-utils).
+#include "pmsm/hal/socketcan.hpp"
+
+#include <linux/can.h>
+#include <linux/can/raw.h>
+#include <linux/net_tstamp.h>
+#include <net/if.h>
+#include <net/if_arp.h>
+#include <poll.h>
+#include <sys/ioctl.h>
+#include <sys/socket.h>
+#include <time.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <cstring>
+#include <utility>
+
+#include "filter_rule.hpp"
+#include "pmsm/hal/rt.hpp"
+
+namespace pmsm::hal {
+
+namespace {
+
+static_assert(socketcan_detail::kClassicMtu == CAN_MTU && socketcan_detail::kFdMtu == CANFD_MTU);
+
+std::string quoted(const std::string& name) { return "'" + name + "'"; }
+
+bool is_interface_gone(int error_number) {
+  return error_number == ENETDOWN || error_number == ENODEV || error_number == ENXIO;
+}
+
+// Copies the interface name into an ifreq; false if it does not fit.
+bool fill_ifreq(ifreq& ifr, const std::string& name) {
+  std::memset(&ifr, 0, sizeof ifr);
+  if (name.empty() || name.size() >= sizeof ifr.ifr_name) {
+    return false;
+  }
+  std::memcpy(ifr.ifr_name, name.data(), name.size());
+  return true;
+}
+
+template <typename T>
+Status set_option(int fd, int level, int option, const T& value, const char* option_name,
+                  const std::string& interface) {
+  if (::setsockopt(fd, level, option, &value, sizeof value) != 0) {
+    const int e = errno;
+    return Status::error(e, std::string{"setsockopt("} + option_name + ") on CAN interface " +
+                                quoted(interface) + " failed: " + errno_text(e));
+  }
+  return {};
+}
+
+std::int64_t to_ns(const timespec& ts) {
+  return std::int64_t{ts.tv_sec} * 1'000'000'000 + std::int64_t{ts.tv_nsec};
+}
+
+void bump(std::atomic<std::uint64_t>& counter, std::uint64_t by = 1) noexcept {
+  counter.fetch_add(by, std::memory_order_relaxed);
+}
+
+}  // namespace
+
+namespace socketcan_detail {
+
+std::size_t encode(const CanFrame& frame, std::span<std::uint8_t, kFdMtu> bytes) noexcept {
+  std::uint32_t can_id = frame.id;
+  if (frame.error) {
+    can_id = (frame.id & CAN_ERR_MASK) | CAN_ERR_FLAG;
+  } else if (frame.extended) {
+    can_id = (frame.id & CAN_EFF_MASK) | CAN_EFF_FLAG;
+  } else {
+    can_id = frame.id & CAN_SFF_MASK;
+  }
+  const std::size_t capacity = frame.fd ? CanFrame::kMaxFdLength : CanFrame::kMaxClassicLength;
+  const std::uint8_t length = static_cast<std::uint8_t>(std::min<std::size_t>(frame.length, capacity));
+  if (frame.fd) {
+    canfd_frame k{};
+    k.can_id = can_id;
+    k.len = length;
+    k.flags = static_cast<std::uint8_t>(CANFD_FDF | (frame.bitrate_switch ? CANFD_BRS : 0));
+    std::memcpy(k.data, frame.data.data(), length);
+    std::memcpy(bytes.data(), &k, sizeof k);
+    return sizeof k;
+  }
+  can_frame k{};
+  k.can_id = can_id;
+  k.len = length;
+  std::memcpy(k.data, frame.data.data(), length);
+  std::memcpy(bytes.data(), &k, sizeof k);
+  return sizeof k;
+}
+
+bool decode(std::span<const std::uint8_t> bytes, CanFrame& frame) noexcept {
+  if (bytes.size() != CAN_MTU && bytes.size() != CANFD_MTU) {
+    return false;
+  }
+  // Both layouts start with can_id and len; canfd_frame is the larger one.
+  canfd_frame k{};
+  std::memcpy(&k, bytes.data(), bytes.size());
+  const bool fd = bytes.size() == CANFD_MTU;
+  const std::size_t capacity = fd ? CanFrame::kMaxFdLength : CanFrame::kMaxClassicLength;
+  if (k.len > capacity || (fd && !is_valid_fd_length(k.len))) {
+    return false;
+  }
+  frame = CanFrame{};
+  frame.error = (k.can_id & CAN_ERR_FLAG) != 0U;
+  frame.extended = !frame.error && (k.can_id & CAN_EFF_FLAG) != 0U;
+  if (frame.error) {
+    frame.id = k.can_id & CAN_ERR_MASK;
+  } else {
+    frame.id = k.can_id & (frame.extended ? CAN_EFF_MASK : CAN_SFF_MASK);
+  }
+  frame.fd = fd;
+  frame.bitrate_switch = fd && (k.flags & CANFD_BRS) != 0U;
+  frame.length = k.len;
+  std::memcpy(frame.data.data(), k.data, k.len);
+  return true;
+}
+
+}  // namespace socketcan_detail
+
+SocketCanBus::SocketCanBus(SocketCanConfig config) : config_(std::move(config)) {
+  Status status = open_socket();
+  if (!status.ok()) {
+    throw HalError(status.error_number(), status.message());
+  }
+}
+
+std::unique_ptr<SocketCanBus> SocketCanBus::open(SocketCanConfig config, Status& error) {
+  try {
+    auto bus = std::make_unique<SocketCanBus>(std::move(config));
+    error = Status{};
+    return bus;
+  } catch (const HalError& e) {
+    error = Status::error(e.error_number(), e.what());
+    return nullptr;
+  }
+}
+
+Status SocketCanBus::open_socket() {
+  const std::string& name = config_.interface;
+  fd_.reset();
+  ifindex_ = 0;
+  last_drop_count_ = 0;
+  state_.store(CanBusState::kErrorActive);
+
+  UniqueFd fd{::socket(PF_CAN, SOCK_RAW | SOCK_CLOEXEC, CAN_RAW)};
+  if (!fd.valid()) {
+    const int e = errno;
+    if (e == EAFNOSUPPORT || e == EPROTONOSUPPORT) {
+      return Status::error(e, "this kernel has no CAN support (socket(PF_CAN, SOCK_RAW, CAN_RAW) failed: " +
+                                  errno_text(e) +
+                                  "); run under scripts/vcan-env, or load the can and can-raw modules");
+    }
+    return Status::error(e, "socket(PF_CAN, SOCK_RAW, CAN_RAW) for CAN interface " + quoted(name) +
+                                " failed: " + errno_text(e));
+  }
+
+  ifreq ifr{};
+  if (!fill_ifreq(ifr, name)) {
+    return Status::error(EINVAL, "invalid CAN interface name " + quoted(name) + " (1 to " +
+                                     std::to_string(IFNAMSIZ - 1) + " characters)");
+  }
+  if (::ioctl(fd.get(), SIOCGIFINDEX, &ifr) != 0) {
+    const int e = errno;
+    if (e == ENODEV) {
+      return Status::error(e, "no such CAN interface " + quoted(name));
+    }
+    return Status::error(e, "cannot look up CAN interface " + quoted(name) + ": " + errno_text(e));
+  }
+  const int ifindex = ifr.ifr_ifindex;
+
+  fill_ifreq(ifr, name);
+  if (::ioctl(fd.get(), SIOCGIFHWADDR, &ifr) != 0) {
+    const int e = errno;
+    return Status::error(e, "cannot read the link type of interface " + quoted(name) + ": " + errno_text(e));
+  }
+  if (ifr.ifr_hwaddr.sa_family != ARPHRD_CAN) {
+    return Status::error(ENODEV, "interface " + quoted(name) + " is not a CAN interface");
+  }
+
+  if (config_.fd) {
+    // can-utils: check the MTU before enabling FD frames; an MTU-16 interface would
+    // accept the option but drop every FD frame we send.
+    fill_ifreq(ifr, name);
+    if (::ioctl(fd.get(), SIOCGIFMTU, &ifr) != 0) {
+      const int e = errno;
+      return Status::error(e, "cannot read the MTU of CAN interface " + quoted(name) + ": " + errno_text(e));
+    }
+    if (ifr.ifr_mtu < static_cast<int>(CANFD_MTU)) {
+      return Status::error(EPROTONOSUPPORT,
+                           "CAN FD requested on " + quoted(name) + " but its MTU is " +
+                               std::to_string(ifr.ifr_mtu) + " (classic CAN only); set it with 'ip link set " +
+                               name + " mtu 72' or disable FD");
+    }
+    const int on = 1;
+    if (Status s = set_option(fd.get(), SOL_CAN_RAW, CAN_RAW_FD_FRAMES, on, "CAN_RAW_FD_FRAMES", name); !s) {
+      return s;
+    }
+  }
+
+  // The fd is in place from here on so that apply_filters / apply_error_mask can use it.
+  fd_ = std::move(fd);
+  if (Status s = apply_filters(); !s) {
+    fd_.reset();
+    return s;
+  }
+  if (Status s = apply_error_mask(); !s) {
+    fd_.reset();
+    return s;
+  }
+
+  const int on = 1;
+  if (Status s = set_option(fd_.get(), SOL_SOCKET, SO_RXQ_OVFL, on, "SO_RXQ_OVFL", name); !s) {
+    fd_.reset();
+    return s;
+  }
+  // Software receive timestamps always; hardware ones where the driver has them.
+  const int stamping = SOF_TIMESTAMPING_SOFTWARE | SOF_TIMESTAMPING_RX_SOFTWARE |
+                       SOF_TIMESTAMPING_RAW_HARDWARE | SOF_TIMESTAMPING_RX_HARDWARE;
+  if (Status s = set_option(fd_.get(), SOL_SOCKET, SO_TIMESTAMPING, stamping, "SO_TIMESTAMPING", name); !s) {
+    fd_.reset();
+    return s;
+  }
+  if (config_.receive_buffer_bytes > 0) {
+    if (Status s = set_option(fd_.get(), SOL_SOCKET, SO_RCVBUF, config_.receive_buffer_bytes, "SO_RCVBUF", name);
+        !s) {
+      fd_.reset();
+      return s;
+    }
+  }
+
+  sockaddr_can addr{};
+  addr.can_family = AF_CAN;
+  addr.can_ifindex = ifindex;
+  if (::bind(fd_.get(), reinterpret_cast<const sockaddr*>(&addr), sizeof addr) != 0) {
+    const int e = errno;
+    fd_.reset();
+    return Status::error(e, "cannot bind to CAN interface " + quoted(name) + ": " + errno_text(e));
+  }
+  ifindex_ = ifindex;
+  return {};
+}
+
+Status SocketCanBus::apply_filters() {
+  if (!config_.filters.has_value()) {
+    return {};  // never set: the kernel default (one filter passing everything)
+  }
+  std::vector<can_filter> kernel;
+  kernel.reserve(config_.filters->size());
+  for (const CanFilter& f : *config_.filters) {
+    const detail::KernelFilter k = detail::to_kernel_filter(f);
+    kernel.push_back(can_filter{k.id, k.mask});
+  }
+  const auto bytes = static_cast<socklen_t>(kernel.size() * sizeof(can_filter));
+  if (::setsockopt(fd_.get(), SOL_CAN_RAW, CAN_RAW_FILTER, kernel.empty() ? nullptr : kernel.data(), bytes) !=
+      0) {
+    const int e = errno;
+    return Status::error(e, "setsockopt(CAN_RAW_FILTER) with " + std::to_string(kernel.size()) +
+                                " filters on CAN interface " + quoted(config_.interface) +
+                                " failed: " + errno_text(e));
+  }
+  return {};
+}
+
+Status SocketCanBus::apply_error_mask() {
+  const can_err_mask_t mask = config_.error_mask & CAN_ERR_MASK;
+  return set_option(fd_.get(), SOL_CAN_RAW, CAN_RAW_ERR_FILTER, mask, "CAN_RAW_ERR_FILTER", config_.interface);
+}
+
+Status SocketCanBus::set_filters(std::span<const CanFilter> filters) {
+  auto previous = std::move(config_.filters);
+  config_.filters.emplace(filters.begin(), filters.end());
+  if (!fd_.valid()) {
+    return {};  // applied by the next reopen()
+  }
+  Status s = apply_filters();
+  if (!s) {
+    config_.filters = std::move(previous);
+  }
+  return s;
+}
+
+Status SocketCanBus::accept_all_frames() {
+  const CanFilter all = CanFilter::accept_all();
+  Status s = set_filters(std::span<const CanFilter>{&all, 1});
+  if (s) {
+    config_.filters.reset();
+  }
+  return s;
+}
+
+Status SocketCanBus::set_error_mask(std::uint32_t error_classes) {
+  const std::uint32_t previous = config_.error_mask;
+  config_.error_mask = error_classes;
+  if (!fd_.valid()) {
+    return {};
+  }
+  Status s = apply_error_mask();
+  if (!s) {
+    config_.error_mask = previous;
+  }
+  return s;
+}
+
+Status SocketCanBus::reopen() { return open_socket(); }
+
+CanBusCounters SocketCanBus::counters() const noexcept {
+  CanBusCounters c;
+  const auto get = [](const std::atomic<std::uint64_t>& a) { return a.load(std::memory_order_relaxed); };
+  c.tx_frames = get(counters_.tx_frames);
+  c.rx_frames = get(counters_.rx_frames);
+  c.tx_dropped_enobufs = get(counters_.tx_dropped_enobufs);
+  c.tx_would_block = get(counters_.tx_would_block);
+  c.tx_errors = get(counters_.tx_errors);
+  c.rx_overflow = get(counters_.rx_overflow);
+  c.rx_errors = get(counters_.rx_errors);
+  c.error_frames = get(counters_.error_frames);
+  c.bad_size_reads = get(counters_.bad_size_reads);
+  c.bus_off_events = get(counters_.bus_off_events);
+  c.interface_down_events = get(counters_.interface_down_events);
+  return c;
+}
+
+CanBusState SocketCanBus::state() const noexcept { return state_.load(std::memory_order_relaxed); }
+
+bool SocketCanBus::interface_up() const noexcept {
+  // A separate socket so that this works from any thread and while fd_ is being reopened.
+  UniqueFd probe{::socket(AF_CAN, SOCK_RAW | SOCK_CLOEXEC, CAN_RAW)};
+  ifreq ifr{};
+  if (!probe.valid() || !fill_ifreq(ifr, config_.interface)) {
+    return false;
+  }
+  if (::ioctl(probe.get(), SIOCGIFFLAGS, &ifr) != 0) {
+    return false;
+  }
+  const int flags = ifr.ifr_flags;
+  return (flags & IFF_UP) != 0 && (flags & IFF_RUNNING) != 0;
+}
+
+SendResult SocketCanBus::do_send(const CanFrame& frame, std::chrono::nanoseconds max_wait) noexcept {
+  if (!is_sendable(frame, config_.fd)) {
+    bump(counters_.tx_errors);
+    return SendResult::kInvalidFrame;
+  }
+  if (!fd_.valid()) {
+    bump(counters_.tx_errors);
+    bump(counters_.interface_down_events);
+    return SendResult::kInterfaceDown;
+  }
+  std::array<std::uint8_t, socketcan_detail::kFdMtu> bytes{};
+  const std::size_t size = socketcan_detail::encode(frame, bytes);
+  const std::int64_t deadline_ns = max_wait.count() > 0 ? monotonic_ns() + max_wait.count() : 0;
+
+  for (;;) {
+    const ssize_t n = ::send(fd_.get(), bytes.data(), size, MSG_DONTWAIT);
+    if (n == static_cast<ssize_t>(size)) {
+      bump(counters_.tx_frames);
+      return SendResult::kOk;
+    }
+    const int e = n < 0 ? errno : EIO;  // a short write of a CAN frame is an error
+    if (e == EINTR) {
+      continue;
+    }
+    last_errno_ = e;
+    if ((e == ENOBUFS || e == EAGAIN) && deadline_ns != 0) {
+      const std::int64_t left_ns = deadline_ns - monotonic_ns();
+      if (left_ns > 0) {
+        // As cangen does: wait for room, then retry. POLLOUT reflects the socket's send
+        // buffer; for a full device queue (ENOBUFS) it may return at once, so the wait is
+        // bounded by the deadline and retried in short steps.
+        pollfd p{fd_.get(), POLLOUT, 0};
+        const std::int64_t step_ns = std::min<std::int64_t>(left_ns, 100'000);
+        const timespec ts{0, static_cast<long>(step_ns)};
+        (void)::ppoll(&p, 1, &ts, nullptr);
+        if ((p.revents & POLLOUT) != 0 && e == ENOBUFS) {
+          // Room in the socket but not necessarily in the device queue: back off a little.
+          const timespec pause{0, static_cast<long>(std::min<std::int64_t>(step_ns, 20'000))};
+          (void)::clock_nanosleep(CLOCK_MONOTONIC, 0, &pause, nullptr);
+        }
+        continue;
+      }
+    }
+    if (e == ENOBUFS) {
+      bump(counters_.tx_dropped_enobufs);
+      return SendResult::kNoBufferSpace;
+    }
+    if (e == EAGAIN) {
+      bump(counters_.tx_would_block);
+      return SendResult::kWouldBlock;
+    }
+    bump(counters_.tx_errors);
+    if (is_interface_gone(e)) {
+      bump(counters_.interface_down_events);
+      return SendResult::kInterfaceDown;
+    }
+    return SendResult::kError;
+  }
+}
+
+ReceiveStatus SocketCanBus::do_receive(ReceivedFrame& out, std::chrono::nanoseconds timeout) noexcept {
+  if (!fd_.valid()) {
+    bump(counters_.interface_down_events);
+    return ReceiveStatus::kInterfaceDown;
+  }
+  // Try first: a frame already queued costs one system call instead of two.
+  ReceiveStatus status = read_one(out);
+  if (status != ReceiveStatus::kTimeout || timeout.count() == 0) {
+    return status;
+  }
+  const bool forever = timeout.count() < 0;
+  const std::int64_t deadline_ns = forever ? 0 : monotonic_ns() + timeout.count();
+  for (;;) {
+    timespec ts{};
+    if (!forever) {
+      const std::int64_t left_ns = deadline_ns - monotonic_ns();
+      if (left_ns <= 0) {
+        return ReceiveStatus::kTimeout;
+      }
+      ts.tv_sec = left_ns / 1'000'000'000;
+      ts.tv_nsec = left_ns % 1'000'000'000;
+    }
+    pollfd p{fd_.get(), POLLIN, 0};
+    const int n = ::ppoll(&p, 1, forever ? nullptr : &ts, nullptr);
+    if (n < 0) {
+      const int e = errno;
+      if (e == EINTR) {
+        continue;
+      }
+      last_errno_ = e;
+      bump(counters_.rx_errors);
+      return ReceiveStatus::kError;
+    }
+    if (n == 0) {
+      return ReceiveStatus::kTimeout;
+    }
+    status = read_one(out);
+    if (status != ReceiveStatus::kTimeout) {
+      return status;
+    }
+  }
+}
+
+ReceiveStatus SocketCanBus::read_one(ReceivedFrame& out) noexcept {
+  std::array<std::uint8_t, CANFD_MTU> buffer{};
+  iovec iov{buffer.data(), buffer.size()};
+  // Room for SO_TIMESTAMPING (3 timespecs) and SO_RXQ_OVFL (a u32), as candump sizes it.
+  alignas(cmsghdr) std::array<char, CMSG_SPACE(3 * sizeof(timespec)) + CMSG_SPACE(sizeof(std::uint32_t)) + 64>
+      control{};
+  msghdr msg{};
+  msg.msg_iov = &iov;
+  msg.msg_iovlen = 1;
+  msg.msg_control = control.data();
+  msg.msg_controllen = control.size();
+
+  ssize_t n = -1;
+  do {
+    n = ::recvmsg(fd_.get(), &msg, MSG_DONTWAIT);
+  } while (n < 0 && errno == EINTR);
+  if (n < 0) {
+    const int e = errno;
+    if (e == EAGAIN) {
+      return ReceiveStatus::kTimeout;  // nothing queued
+    }
+    last_errno_ = e;
+    if (is_interface_gone(e)) {
+      bump(counters_.interface_down_events);
+      return ReceiveStatus::kInterfaceDown;
+    }
+    bump(counters_.rx_errors);
+    return ReceiveStatus::kError;
+  }
+
+  std::int64_t software_ns = 0;
+  std::int64_t hardware_ns = 0;
+  for (cmsghdr* c = CMSG_FIRSTHDR(&msg); c != nullptr; c = CMSG_NXTHDR(&msg, c)) {
+    if (c->cmsg_level != SOL_SOCKET) {
+      continue;
+    }
+    if (c->cmsg_type == SO_TIMESTAMPING && c->cmsg_len >= CMSG_LEN(3 * sizeof(timespec))) {
+      std::array<timespec, 3> ts{};
+      std::memcpy(ts.data(), CMSG_DATA(c), sizeof ts);
+      software_ns = to_ns(ts[0]);
+      hardware_ns = to_ns(ts[2]);
+    } else if (c->cmsg_type == SO_RXQ_OVFL && c->cmsg_len >= CMSG_LEN(sizeof(std::uint32_t))) {
+      std::uint32_t dropped = 0;
+      std::memcpy(&dropped, CMSG_DATA(c), sizeof dropped);
+      // The kernel's count runs for the socket's life and wraps at 2^32.
+      const std::uint32_t delta = dropped - last_drop_count_;
+      last_drop_count_ = dropped;
+      if (delta != 0U) {
+        bump(counters_.rx_overflow, delta);
+      }
+    }
+  }
+
+  const auto size = static_cast<std::size_t>(n);
+  if ((size != CAN_MTU && size != CANFD_MTU) || (msg.msg_flags & MSG_TRUNC) != 0 ||
+      !socketcan_detail::decode(std::span<const std::uint8_t>{buffer.data(), size}, out.frame)) {
+    bump(counters_.bad_size_reads);
+    bump(counters_.rx_errors);
+    last_errno_ = EBADMSG;
+    return ReceiveStatus::kError;
+  }
+  out.hardware_timestamp = hardware_ns != 0;
+  out.timestamp_ns = hardware_ns != 0 ? hardware_ns : software_ns;
+
+  if (out.frame.error) {
+    bump(counters_.error_frames);
+    const CanBusState before = state_.load(std::memory_order_relaxed);
+    const CanBusState after = state_after_error_frame(out.frame, before);
+    if (after == CanBusState::kBusOff && before != CanBusState::kBusOff) {
+      bump(counters_.bus_off_events);
+    }
+    state_.store(after, std::memory_order_relaxed);
+  } else {
+    bump(counters_.rx_frames);
+  }
+  return ReceiveStatus::kFrame;
+}
+
+}  // namespace pmsm::hal

@@ -1,0 +1,335 @@
+// SocketCanBus on a real virtual CAN interface (PMSM_CAN_IFACE, default vcan0), run through
+// scripts/vcan-env. Under User-Mode Linux the bus is private to this run; natively it may be
+// shared with other tests, so every data frame here uses extended identifiers tagged with
+// this process's id and every receiver filters on them. Tests that change an interface or
+// inject error frames do it on a vcan of their own (skipped without CAP_NET_ADMIN).
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cstdint>
+#include <cstdlib>
+#include <string>
+#include <vector>
+
+#include "pmsm/hal/sim_bus.hpp"  // make_error_frame
+#include "pmsm/hal/socketcan.hpp"
+
+namespace pmsm::hal {
+namespace {
+
+using namespace std::chrono_literals;
+
+std::string iface() {
+  const char* name = std::getenv("PMSM_CAN_IFACE");
+  return name != nullptr && *name != '\0' ? name : "vcan0";
+}
+
+bool contains(const std::string& text, const std::string& part) { return text.find(part) != std::string::npos; }
+
+// Extended identifiers private to this process: 0x0PPPPnnn.
+std::uint32_t tagged(std::uint32_t n) {
+  return (static_cast<std::uint32_t>(::getpid()) & 0xFFFFU) << 12U | (n & 0xFFFU);
+}
+CanFilter tag_filter() { return CanFilter{tagged(0), 0x1FFF'F000, CanIdKind::kExtended}; }
+
+CanFrame frame(std::uint32_t n, std::uint8_t length, bool fd = false) {
+  CanFrame f;
+  f.id = tagged(n);
+  f.extended = true;
+  f.fd = fd;
+  f.bitrate_switch = fd;
+  f.length = length;
+  for (std::uint8_t i = 0; i < length; ++i) {
+    f.data[i] = static_cast<std::uint8_t>(n * 7U + i);
+  }
+  return f;
+}
+
+std::unique_ptr<SocketCanBus> open_bus(bool fd, std::vector<CanFilter> filters, const std::string& name = iface()) {
+  return std::make_unique<SocketCanBus>(SocketCanConfig{.interface = name, .fd = fd, .filters = std::move(filters)});
+}
+
+std::vector<ReceivedFrame> receive_all(CanBus& bus, std::chrono::nanoseconds quiet = 100ms) {
+  std::vector<ReceivedFrame> frames;
+  ReceivedFrame r;
+  while (bus.receive(r, quiet) == ReceiveStatus::kFrame) {
+    frames.push_back(r);
+  }
+  return frames;
+}
+
+bool run(const std::string& command) { return std::system((command + " 2>/dev/null").c_str()) == 0; }
+
+// A vcan interface of our own (needs CAP_NET_ADMIN: root in the UML guest), removed after.
+class ScratchVcan {
+ public:
+  explicit ScratchVcan(int mtu) : name_("pmsm" + std::to_string(::getpid() % 100000) + "m" + std::to_string(mtu)) {
+    created_ = run("ip link add dev " + name_ + " type vcan") &&
+               run("ip link set dev " + name_ + " mtu " + std::to_string(mtu)) &&
+               run("ip link set dev " + name_ + " up");
+  }
+  ~ScratchVcan() { (void)run("ip link del dev " + name_); }
+  ScratchVcan(const ScratchVcan&) = delete;
+  ScratchVcan& operator=(const ScratchVcan&) = delete;
+  [[nodiscard]] bool created() const { return created_; }
+  [[nodiscard]] const std::string& name() const { return name_; }
+
+ private:
+  std::string name_;
+  bool created_ = false;
+};
+
+TEST(SocketCanHil, ClassicFrameTravelsBetweenTwoSocketsWithTimestamp) {
+  auto tx = open_bus(false, {tag_filter()});
+  auto rx = open_bus(false, {tag_filter()});
+  EXPECT_TRUE(tx->interface_up());
+  EXPECT_FALSE(tx->fd_enabled());
+  EXPECT_GT(tx->interface_index(), 0);
+
+  const CanFrame sent = frame(1, 8);
+  ASSERT_EQ(tx->send(sent), SendResult::kOk);
+  ReceivedFrame r;
+  ASSERT_EQ(rx->receive(r, 2s), ReceiveStatus::kFrame);
+  EXPECT_EQ(r.frame.id, sent.id);
+  EXPECT_TRUE(r.frame.extended);
+  EXPECT_FALSE(r.frame.fd);
+  EXPECT_FALSE(r.frame.error);
+  EXPECT_EQ(r.frame.length, 8U);
+  EXPECT_EQ(r.frame.data, sent.data);
+
+  // The kernel's software receive timestamp, on the real-time clock.
+  const auto now_ns = std::chrono::duration_cast<std::chrono::nanoseconds>(
+                          std::chrono::system_clock::now().time_since_epoch())
+                          .count();
+  EXPECT_GT(r.timestamp_ns, 0);
+  EXPECT_LT(std::llabs(now_ns - r.timestamp_ns), 60'000'000'000LL);
+  EXPECT_FALSE(r.hardware_timestamp);
+
+  // The sender does not hear its own frame.
+  EXPECT_EQ(tx->receive(r, 50ms), ReceiveStatus::kTimeout);
+
+  const CanBusCounters tc = tx->counters();
+  const CanBusCounters rc = rx->counters();
+  EXPECT_EQ(tc.tx_frames, 1U);
+  EXPECT_EQ(rc.rx_frames, 1U);
+  EXPECT_EQ(rc.bad_size_reads, 0U);
+  EXPECT_EQ(rc.rx_errors, 0U);
+  EXPECT_EQ(rc.rx_overflow, 0U);
+}
+
+TEST(SocketCanHil, FdFramesReachFdSocketsOnlyAndReadsHaveExactSizes) {
+  auto fd_tx = open_bus(true, {tag_filter()});
+  auto fd_rx = open_bus(true, {tag_filter()});
+  auto classic_rx = open_bus(false, {tag_filter()});
+  ASSERT_TRUE(fd_tx->fd_enabled());
+
+  // Every FD length, then classic frames from the FD socket.
+  const std::vector<std::uint8_t> lengths{0, 1, 8, 12, 16, 20, 24, 32, 48, 64};
+  std::uint32_t n = 0x100;
+  for (const std::uint8_t length : lengths) {
+    ASSERT_EQ(fd_tx->send(frame(n++, length, true)), SendResult::kOk);
+  }
+  for (std::uint8_t length = 0; length <= 8; ++length) {
+    ASSERT_EQ(fd_tx->send(frame(n++, length, false)), SendResult::kOk);
+  }
+  const std::vector<ReceivedFrame> at_fd = receive_all(*fd_rx);
+  ASSERT_EQ(at_fd.size(), lengths.size() + 9);
+  for (std::size_t i = 0; i < at_fd.size(); ++i) {
+    const CanFrame& f = at_fd[i].frame;
+    const bool fd = i < lengths.size();
+    const std::uint8_t length = fd ? lengths[i] : static_cast<std::uint8_t>(i - lengths.size());
+    const CanFrame expected = frame(0x100U + static_cast<std::uint32_t>(i), length, fd);
+    EXPECT_EQ(f.id, expected.id);
+    EXPECT_EQ(f.fd, fd) << i;
+    EXPECT_EQ(f.bitrate_switch, fd) << i;
+    EXPECT_EQ(f.length, length) << i;
+    EXPECT_EQ(f.data, expected.data) << i;
+  }
+  // The classic socket sees only the classic frames: the kernel drops FD frames for it.
+  const std::vector<ReceivedFrame> at_classic = receive_all(*classic_rx);
+  ASSERT_EQ(at_classic.size(), 9U);
+  for (const ReceivedFrame& r : at_classic) {
+    EXPECT_FALSE(r.frame.fd);
+  }
+  EXPECT_EQ(fd_rx->counters().bad_size_reads, 0U);
+  EXPECT_EQ(classic_rx->counters().bad_size_reads, 0U);
+  EXPECT_EQ(fd_tx->counters().tx_frames, lengths.size() + 9);
+
+  // A classic socket refuses to send FD frames.
+  EXPECT_EQ(classic_rx->send(frame(0x200, 12, true)), SendResult::kInvalidFrame);
+  EXPECT_EQ(classic_rx->counters().tx_errors, 1U);
+}
+
+TEST(SocketCanHil, KernelFiltersDropUnselectedFrames) {
+  auto tx = open_bus(false, {tag_filter()});
+  // Exactly tagged(0x10), and the range tagged(0x20..0x2F).
+  auto rx = open_bus(false, {CanFilter::exact(tagged(0x10), true),
+                             CanFilter{tagged(0x20), 0x1FFF'FFF0, CanIdKind::kExtended}});
+  ASSERT_EQ(tx->send(frame(0x10, 1)), SendResult::kOk);  // pass
+  ASSERT_EQ(tx->send(frame(0x11, 1)), SendResult::kOk);  // no
+  ASSERT_EQ(tx->send(frame(0x2A, 1)), SendResult::kOk);  // pass
+  ASSERT_EQ(tx->send(frame(0x30, 1)), SendResult::kOk);  // no
+  CanFrame standard = frame(0x10, 1);                     // same number, standard kind: no
+  standard.extended = false;
+  standard.id &= kMaxStandardId;
+  ASSERT_EQ(tx->send(standard), SendResult::kOk);
+
+  const std::vector<ReceivedFrame> got = receive_all(*rx);
+  ASSERT_EQ(got.size(), 2U);
+  EXPECT_EQ(got[0].frame.id, tagged(0x10));
+  EXPECT_EQ(got[1].frame.id, tagged(0x2A));
+  EXPECT_EQ(rx->counters().rx_frames, 2U);
+
+  // An empty list passes nothing.
+  ASSERT_TRUE(rx->set_filters({}).ok());
+  ASSERT_EQ(tx->send(frame(0x10, 1)), SendResult::kOk);
+  EXPECT_TRUE(receive_all(*rx, 50ms).empty());
+}
+
+TEST(SocketCanHil, ErrorFramesFollowTheErrorMask) {
+  // Error frames carry no identifier to filter on: every socket with a matching error mask
+  // gets them. So this test injects them on an interface of its own, never on a bus that
+  // other tests (or a daemon) may share.
+  ScratchVcan private_if{16};
+  if (!private_if.created()) {
+    GTEST_SKIP() << "cannot create a private vcan interface here (needs CAP_NET_ADMIN)";
+  }
+  // Error frames written to vcan are looped back like data frames (can-utils canerrsim).
+  auto injector = open_bus(false, {tag_filter()}, private_if.name());
+  auto watcher = open_bus(false, {tag_filter()}, private_if.name());
+  auto deaf = open_bus(false, {tag_filter()}, private_if.name());
+  ASSERT_TRUE(watcher->set_error_mask(kCanErrBusOff | kCanErrController | kCanErrRestarted).ok());
+
+  ASSERT_EQ(injector->send(make_error_frame(CanBusState::kErrorPassive)), SendResult::kOk);
+  ReceivedFrame r;
+  ASSERT_EQ(watcher->receive(r, 2s), ReceiveStatus::kFrame);
+  EXPECT_TRUE(r.frame.error);
+  EXPECT_EQ(r.frame.id, kCanErrController);
+  EXPECT_EQ(watcher->state(), CanBusState::kErrorPassive);
+
+  ASSERT_EQ(injector->send(make_error_frame(CanBusState::kBusOff)), SendResult::kOk);
+  ASSERT_EQ(watcher->receive(r, 2s), ReceiveStatus::kFrame);
+  EXPECT_EQ(watcher->state(), CanBusState::kBusOff);
+
+  CanFrame restarted;
+  restarted.error = true;
+  restarted.id = kCanErrRestarted;
+  restarted.length = 8;
+  ASSERT_EQ(injector->send(restarted), SendResult::kOk);
+  ASSERT_EQ(watcher->receive(r, 2s), ReceiveStatus::kFrame);
+  EXPECT_EQ(watcher->state(), CanBusState::kErrorActive);
+
+  // A class outside the mask does not arrive.
+  CanFrame protocol;
+  protocol.error = true;
+  protocol.id = kCanErrProtocol;
+  protocol.length = 8;
+  ASSERT_EQ(injector->send(protocol), SendResult::kOk);
+  EXPECT_EQ(watcher->receive(r, 100ms), ReceiveStatus::kTimeout);
+
+  const CanBusCounters c = watcher->counters();
+  EXPECT_EQ(c.error_frames, 3U);
+  EXPECT_EQ(c.bus_off_events, 1U);
+  EXPECT_EQ(c.rx_frames, 0U);
+  // Without an error mask no error frame arrives at all.
+  EXPECT_EQ(deaf->receive(r, 100ms), ReceiveStatus::kTimeout);
+  EXPECT_EQ(deaf->counters().error_frames, 0U);
+  EXPECT_EQ(deaf->state(), CanBusState::kErrorActive);
+}
+
+TEST(SocketCanHil, KernelReceiveDropsAreCountedWithSoRxqOvfl) {
+  auto tx = open_bus(false, {tag_filter()});
+  auto rx = std::make_unique<SocketCanBus>(SocketCanConfig{
+      .interface = iface(), .fd = false, .filters = std::vector{tag_filter()}, .receive_buffer_bytes = 4096});
+  constexpr std::uint32_t kBurst = 400;
+  for (std::uint32_t i = 0; i < kBurst; ++i) {
+    ASSERT_EQ(tx->send(frame(i, 8), 100ms), SendResult::kOk);
+  }
+  // The drop count travels with the next queued frame: drain, then send one more.
+  std::vector<ReceivedFrame> got = receive_all(*rx);
+  ASSERT_EQ(tx->send(frame(kBurst, 8)), SendResult::kOk);
+  const std::vector<ReceivedFrame> last = receive_all(*rx);
+  ASSERT_EQ(last.size(), 1U);
+  const CanBusCounters c = rx->counters();
+  EXPECT_GT(c.rx_overflow, 0U) << "a " << kBurst << "-frame burst into a 4 KiB socket buffer should overflow";
+  EXPECT_EQ(c.rx_frames + c.rx_overflow, kBurst + 1);
+  EXPECT_EQ(c.rx_frames, got.size() + 1);
+}
+
+TEST(SocketCanHil, MissingOrNonCanInterfacesAreClearErrors) {
+  try {
+    (void)open_bus(false, {}, "pmsmnosuch0");
+    FAIL() << "expected HalError";
+  } catch (const HalError& e) {
+    EXPECT_TRUE(contains(e.what(), "no such CAN interface 'pmsmnosuch0'")) << e.what();
+  }
+  try {
+    (void)open_bus(false, {}, "lo");
+    FAIL() << "expected HalError";
+  } catch (const HalError& e) {
+    EXPECT_TRUE(contains(e.what(), "'lo' is not a CAN interface")) << e.what();
+  }
+}
+
+TEST(SocketCanHil, FdOnAClassicMtuInterfaceIsAClearError) {
+  ScratchVcan classic_only{16};
+  if (!classic_only.created()) {
+    GTEST_SKIP() << "cannot create a vcan interface here (needs CAP_NET_ADMIN)";
+  }
+  try {
+    (void)open_bus(true, {}, classic_only.name());
+    FAIL() << "expected HalError";
+  } catch (const HalError& e) {
+    EXPECT_TRUE(contains(e.what(), "CAN FD requested on '" + classic_only.name() + "' but its MTU is 16")) << e.what();
+  }
+  EXPECT_NO_THROW((void)open_bus(false, {}, classic_only.name()));
+}
+
+TEST(SocketCanHil, InterfaceDownIsReportedAndReopenReconnects) {
+  ScratchVcan bus_if{72};
+  if (!bus_if.created()) {
+    GTEST_SKIP() << "cannot create a vcan interface here (needs CAP_NET_ADMIN)";
+  }
+  const std::string& name = bus_if.name();
+  auto a = open_bus(true, {tag_filter()}, name);
+  auto b = open_bus(true, {tag_filter()}, name);
+  ASSERT_EQ(a->send(frame(1, 8)), SendResult::kOk);
+  ReceivedFrame r;
+  ASSERT_EQ(b->receive(r, 2s), ReceiveStatus::kFrame);
+
+  // Down: sends fail with ENETDOWN, the reader is told once.
+  ASSERT_TRUE(run("ip link set dev " + name + " down"));
+  EXPECT_FALSE(a->interface_up());
+  EXPECT_EQ(a->send(frame(2, 8)), SendResult::kInterfaceDown);
+  EXPECT_EQ(a->last_error_number(), ENETDOWN);
+  EXPECT_EQ(b->receive(r, 500ms), ReceiveStatus::kInterfaceDown);
+  // Up again: the binding survived, no reopen needed.
+  ASSERT_TRUE(run("ip link set dev " + name + " up"));
+  EXPECT_TRUE(a->interface_up());
+  ASSERT_EQ(a->send(frame(3, 8)), SendResult::kOk);
+  ASSERT_EQ(b->receive(r, 2s), ReceiveStatus::kFrame);
+  EXPECT_EQ(r.frame.id, tagged(3));
+
+  // Deleted and created again (a new interface index): the sockets lost their binding
+  // and reopen() reconnects them.
+  ASSERT_TRUE(run("ip link del dev " + name));
+  EXPECT_EQ(a->send(frame(4, 8)), SendResult::kInterfaceDown);
+  EXPECT_EQ(b->receive(r, 500ms), ReceiveStatus::kInterfaceDown);
+  ASSERT_TRUE(run("ip link add dev " + name + " type vcan") && run("ip link set dev " + name + " mtu 72") &&
+              run("ip link set dev " + name + " up"));
+  EXPECT_NE(a->send(frame(5, 8)), SendResult::kOk);
+  const Status ra = a->reopen();
+  ASSERT_TRUE(ra.ok()) << ra.message();
+  const Status rb = b->reopen();
+  ASSERT_TRUE(rb.ok()) << rb.message();
+  ASSERT_EQ(a->send(frame(6, 64, true)), SendResult::kOk);
+  ASSERT_EQ(b->receive(r, 2s), ReceiveStatus::kFrame);
+  EXPECT_EQ(r.frame.id, tagged(6));
+  EXPECT_EQ(r.frame.length, 64U);
+  EXPECT_GE(a->counters().interface_down_events, 2U);
+  EXPECT_GE(b->counters().interface_down_events, 2U);
+}
+
+}  // namespace
+}  // namespace pmsm::hal
