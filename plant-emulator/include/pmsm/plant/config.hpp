@@ -1,0 +1,226 @@
+// Every parameter of the plant emulator, with defaults that reproduce the Table I motor of
+// Wilson, Stewart & Taylor (2010) under the reference realism profile of DESIGN §5.
+//
+// A default-constructed PlantConfig equals plant-emulator/profiles/reference.toml. Each
+// field is described once, in the key table of config.cpp, which drives parsing, range
+// checks and the reference documentation (plant_config_reference_markdown()).
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <filesystem>
+#include <optional>
+#include <stdexcept>
+#include <string>
+#include <string_view>
+#include <vector>
+
+namespace pmsm::plant {
+
+// Thrown for every configuration problem; what() names the offending key, e.g.
+// "bad.toml:3: motor.Ld_H: must be > 0, got -1".
+class ConfigError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+// One point of a time table (load steps, drive cycles, speed profiles).
+struct TimePoint {
+  double time_s = 0.0;
+  double value = 0.0;  // N·m or rad/s, depending on the profile
+};
+
+struct SimulationConfig {
+  std::uint64_t seed = 1;  // seeds the sensor noise (std::mt19937_64)
+  int substeps = 4;        // RK4 steps per PWM period
+};
+
+// Table I motor in the amplitude-invariant dq model (Eq. 2, Eq. 3). See docs/plant.md for
+// the interpretation of each Table I entry.
+struct MotorConfig {
+  int pole_pairs = 3;
+  double Rs_ohm = 0.133;          // phase-to-neutral stator resistance at Rs_ref_temp_C
+  double Rs_ref_temp_C = 25.0;    // T0 of Eq. 1
+  double alpha_per_C = 3.93e-3;   // temperature coefficient of copper, Eq. 1
+  double Ke_V_s_rad = 1.19;       // line-to-line RMS volts per mechanical rad/s (Table I)
+  double Ld_H = 5.5e-3;           // half the line-to-line inductance of Table I
+  double Lq_H = 5.5e-3;
+  double magnet_temp_coeff_per_K = -0.0012;  // NdFeB remanence coefficient
+  double magnet_ref_temp_C = 25.0;           // magnet temperature at which Ke holds
+};
+
+// Optional magnetic saturation: each axis has the flux-current curve
+// psi(i) = L_sat·i + (L - L_sat)·i_knee·x/sqrt(1 + x²), x = i/i_knee (no cross-saturation).
+struct SaturationConfig {
+  bool enabled = false;
+  double Ld_sat_H = 4.5e-3;  // incremental d inductance far beyond the knee
+  double Lq_sat_H = 3.0e-3;
+  double id_knee_A = 150.0;
+  double iq_knee_A = 80.0;
+};
+
+enum class EmfShape { sinusoidal, modular, trapezoidal, custom };
+
+struct EmfConfig {
+  EmfShape shape = EmfShape::trapezoidal;
+  // Used when shape == custom: odd, non-triplen orders >= 5 and their amplitudes relative to
+  // the fundamental of the phase EMF (signed; see docs/plant.md for the sign convention).
+  std::vector<int> custom_orders;
+  std::vector<double> custom_amplitudes;
+};
+
+struct CoggingConfig {
+  bool enabled = false;
+  double amplitude_Nm = 0.2;
+  int order = 36;            // cycles per mechanical revolution (LCM of slots and poles)
+  double phase_rad = 0.0;
+};
+
+struct MechanicsConfig {
+  double J_kg_m2 = 0.00841;         // total inertia on the shaft
+  double coulomb_Nm = 0.908;        // kinetic Coulomb friction (Table I)
+  double breakaway_Nm = 0.908;      // static friction; the shaft stays stuck below it
+  double viscous_Nm_s_rad = 5.0e-4;
+  double initial_speed_rad_s = 0.0;
+  double initial_angle_rad = 0.0;   // mechanical angle of the rotor d-axis from phase a
+};
+
+enum class LoadProfile {
+  constant_torque,  // torque_Nm
+  torque_steps,     // torque_Nm until the first step, then piecewise constant
+  fan,              // torque_Nm + fan_k_Nm_s2·ω·|ω|
+  torque_cycle,     // piecewise linear torque table (drive cycle CSV with torque_Nm)
+  speed_cycle,      // imposed speed (dynamometer): constant or piecewise linear table
+};
+
+struct LoadConfig {
+  LoadProfile profile = LoadProfile::constant_torque;
+  double torque_Nm = 0.0;        // positive load torque opposes positive rotation
+  std::vector<TimePoint> points; // steps, torque cycle or speed cycle, times ascending
+  double fan_k_Nm_s2 = 0.0;
+  double speed_rad_s = 0.0;      // speed_cycle without points: constant imposed speed
+  double dyno_bandwidth_Hz = 0.0;  // 0: ideal dynamometer (speed imposed exactly)
+  std::filesystem::path csv_path;  // where points came from, for messages only
+  bool ripple_enabled = true;
+  double ripple_fraction = 0.02;   // load-torque ripple amplitude relative to the load torque
+  double ripple_order = 2.0;       // ripple cycles per mechanical revolution
+  double ripple_phase_rad = 0.0;
+};
+
+struct InverterConfig {
+  double pwm_frequency_Hz = 10000.0;  // also the sampling and control rate
+  double dc_bus_V = 650.0;
+  bool dc_ripple_enabled = true;
+  double dc_ripple_fraction = 0.01;   // peak ripple relative to dc_bus_V
+  double dc_ripple_frequency_Hz = 300.0;
+  bool dead_time_enabled = true;
+  double dead_time_s = 1.0e-6;
+  bool device_drop_enabled = true;
+  double device_drop_V = 1.0;
+  double zero_current_band_A = 0.75;  // half the peak-to-peak PWM ripple current
+  int computation_delay_periods = 1;  // 1: command from sample k acts in period k+1
+  bool overcurrent_trip_enabled = true;
+  double overcurrent_trip_A = 180.0;
+};
+
+struct CurrentAdcConfig {
+  int bits = 12;
+  double range_A = 200.0;  // full scale is ±range_A
+  bool noise_enabled = true;
+  double noise_A = 0.2;    // standard deviation per sample
+  bool offset_enabled = true;
+  std::array<double, 3> offset_A{0.10, -0.10, 0.05};
+  bool gain_error_enabled = true;
+  std::array<double, 3> gain_error{0.005, -0.005, 0.0025};  // relative, per phase
+};
+
+struct EncoderConfig {
+  int bits = 14;
+  double offset_rad = 0.0;  // mechanical angle read as count 0
+};
+
+struct DcBusAdcConfig {
+  int bits = 12;
+  double full_scale_V = 1000.0;  // code = V / (full_scale_V / 2^bits)
+  bool noise_enabled = true;
+  double noise_V = 0.5;
+};
+
+struct PhaseVoltageSensingConfig {
+  bool enabled = false;
+  int bits = 12;
+  double range_V = 400.0;  // full scale is ±range_V, phase-to-neutral
+  bool noise_enabled = true;
+  double noise_V = 0.2;
+};
+
+// Iron loss P = k_h·|ω_e| + k_e·ω_e², scaled by the square of the magnet flux ratio.
+struct IronLossConfig {
+  bool enabled = true;
+  double hysteresis_W_s_rad = 0.0637;    // k_h, W per electrical rad/s
+  double eddy_W_s2_rad2 = 1.014e-4;      // k_e, W per (electrical rad/s)²
+  double rotor_fraction = 0.1;           // share of the iron loss heating the rotor
+};
+
+struct ThermalConfig {
+  bool enabled = true;
+  double ambient_C = 25.0;
+  std::optional<double> initial_C;  // all nodes; ambient when absent
+  double acceleration = 1.0;        // thermal time runs this many times faster
+  double C_winding_J_K = 3000.0;
+  double C_housing_J_K = 16000.0;
+  double C_rotor_J_K = 4000.0;
+  double R_winding_housing_K_W = 0.05;
+  double R_housing_ambient_K_W = 0.1311;  // puts the dominant time constant at 2880 s
+  double R_rotor_housing_K_W = 0.1;
+  double R_rotor_ambient_K_W = 2.0;
+  double friction_heat_fraction = 0.5;  // share of the friction loss heating the housing
+};
+
+struct PlantConfig {
+  SimulationConfig simulation;
+  MotorConfig motor;
+  SaturationConfig saturation;
+  EmfConfig emf;
+  CoggingConfig cogging;
+  MechanicsConfig mechanics;
+  LoadConfig load;
+  InverterConfig inverter;
+  CurrentAdcConfig current_adc;
+  EncoderConfig encoder;
+  DcBusAdcConfig dc_bus_adc;
+  PhaseVoltageSensingConfig phase_voltage_sensing;
+  IronLossConfig iron_loss;
+  ThermalConfig thermal;
+};
+
+// Permanent-magnet flux linkage (phase peak V per electrical rad/s) from Table I's Ke
+// (line-to-line RMS V per mechanical rad/s): psi_m = Ke·sqrt(2/3)/p.
+double psi_m_from_Ke(double Ke_V_s_rad, int pole_pairs);
+
+// Parses a TOML file; relative CSV paths are taken relative to the file's directory.
+PlantConfig load_plant_config(const std::filesystem::path& path);
+
+// Parses TOML text; source_name prefixes every message. Relative CSV paths are taken
+// relative to base_dir.
+PlantConfig parse_plant_config(std::string_view toml_text, std::string_view source_name,
+                               const std::filesystem::path& base_dir = {});
+
+// Checks the cross-field rules (also run by the parsers); throws ConfigError naming the key.
+void validate_plant_config(const PlantConfig& config);
+
+// Reads a drive cycle: a header with time_s and one of speed_rad_s / torque_Nm, then rows.
+// Sets load.profile, load.points and load.csv_path. Errors name `key`.
+void load_drive_cycle_csv(const std::filesystem::path& path, LoadConfig& load,
+                          std::string_view key = "load.csv_path");
+
+// Every TOML key as "section.key", in table order.
+std::vector<std::string> plant_config_keys();
+
+// The key reference (key, type, default, range, meaning) as a Markdown table.
+std::string plant_config_reference_markdown();
+
+std::string_view to_string(EmfShape shape);
+std::string_view to_string(LoadProfile profile);
+
+}  // namespace pmsm::plant

@@ -1,0 +1,48 @@
+// Lumped thermal network: winding, stator iron/housing and rotor (magnet) nodes, with the
+// ambient as a boundary temperature.
+//
+//   C·dT/dt = -G·T + g_amb·T_amb + P
+//
+// C = diag(C_winding, C_housing, C_rotor); G is the conductance (Laplacian-like) matrix of
+// the links winding-housing, rotor-housing, housing-ambient and rotor-ambient; P holds the
+// losses fed into each node. The network is advanced by its exact discretisation for a
+// zero-order-hold loss input (matrix exponential), so any step length is exact.
+#pragma once
+
+#include <array>
+
+#include "pmsm/plant/config.hpp"
+
+namespace pmsm::plant {
+
+class ThermalNetwork {
+ public:
+  enum Node : int { kWinding = 0, kHousing = 1, kRotor = 2 };
+  static constexpr int kNodes = 3;
+  using Vector = std::array<double, kNodes>;
+  using Matrix = std::array<std::array<double, kNodes>, kNodes>;
+
+  // Prepares the exact discretisation for steps of step_s of thermal time (the caller
+  // multiplies by the acceleration factor).
+  ThermalNetwork(const ThermalConfig& config, double step_s);
+
+  // Advances by one step with losses loss_W (held constant over the step) and ambient_C.
+  void step(const Vector& loss_W, double ambient_C);
+
+  void set_temperatures_C(const Vector& temps_C) { temps_C_ = temps_C; }
+  [[nodiscard]] const Vector& temperatures_C() const { return temps_C_; }
+  [[nodiscard]] double step_s() const { return step_s_; }
+
+  // Slowest time constant of the network (-1/largest eigenvalue of -C^-1·G), in thermal
+  // seconds. For diagnostics and documentation.
+  [[nodiscard]] double dominant_time_constant_s() const;
+
+ private:
+  Matrix a_d_{};                      // exp(A·h)
+  std::array<std::array<double, kNodes + 1>, kNodes> b_d_{};  // ∫exp(A·s)ds·B, inputs P and T_amb
+  Matrix c_inv_g_{};                  // C^-1·G, for the time constant
+  Vector temps_C_{};
+  double step_s_ = 0.0;
+};
+
+}  // namespace pmsm::plant

@@ -1,0 +1,81 @@
+#include "pmsm/plant/thermal.hpp"
+
+#include <algorithm>
+
+#include <Eigen/Dense>
+#include <unsupported/Eigen/MatrixFunctions>
+
+namespace pmsm::plant {
+
+ThermalNetwork::ThermalNetwork(const ThermalConfig& config, double step_s) : step_s_(step_s) {
+  const double g_wh = 1.0 / config.R_winding_housing_K_W;
+  const double g_ha = 1.0 / config.R_housing_ambient_K_W;
+  const double g_rh = 1.0 / config.R_rotor_housing_K_W;
+  const double g_ra = 1.0 / config.R_rotor_ambient_K_W;
+
+  Eigen::Matrix3d g = Eigen::Matrix3d::Zero();
+  g(kWinding, kWinding) = g_wh;
+  g(kWinding, kHousing) = -g_wh;
+  g(kHousing, kWinding) = -g_wh;
+  g(kHousing, kHousing) = g_wh + g_rh + g_ha;
+  g(kHousing, kRotor) = -g_rh;
+  g(kRotor, kHousing) = -g_rh;
+  g(kRotor, kRotor) = g_rh + g_ra;
+  const Eigen::Vector3d g_amb(0.0, g_ha, g_ra);
+  const Eigen::Vector3d c(config.C_winding_J_K, config.C_housing_J_K, config.C_rotor_J_K);
+  const Eigen::Matrix3d c_inv = c.cwiseInverse().asDiagonal();
+
+  // Augmented system [T; u]' = [A B; 0 0]·[T; u] with u = (P_w, P_h, P_r, T_amb) held
+  // constant over a step: exp of the augmented matrix gives exp(A·h) and the input matrix
+  // of the exact zero-order-hold discretisation in one go.
+  Eigen::Matrix<double, 7, 7> m = Eigen::Matrix<double, 7, 7>::Zero();
+  m.block<3, 3>(0, 0) = -c_inv * g;
+  m.block<3, 3>(0, 3) = c_inv;
+  m.block<3, 1>(0, 6) = c_inv * g_amb;
+  const Eigen::Matrix<double, 7, 7> e = (m * step_s).exp();
+
+  const Eigen::Matrix3d c_inv_g = c_inv * g;
+  for (int i = 0; i < kNodes; ++i) {
+    for (int j = 0; j < kNodes; ++j) {
+      a_d_[static_cast<std::size_t>(i)][static_cast<std::size_t>(j)] = e(i, j);
+      c_inv_g_[static_cast<std::size_t>(i)][static_cast<std::size_t>(j)] = c_inv_g(i, j);
+    }
+    for (int j = 0; j < kNodes + 1; ++j) {
+      b_d_[static_cast<std::size_t>(i)][static_cast<std::size_t>(j)] = e(i, 3 + j);
+    }
+  }
+  const double t0 = config.initial_C.value_or(config.ambient_C);
+  temps_C_ = {t0, t0, t0};
+}
+
+void ThermalNetwork::step(const Vector& loss_W, double ambient_C) {
+  Vector next{};
+  for (std::size_t i = 0; i < kNodes; ++i) {
+    double acc = 0.0;
+    for (std::size_t j = 0; j < kNodes; ++j) {
+      acc += a_d_[i][j] * temps_C_[j] + b_d_[i][j] * loss_W[j];
+    }
+    acc += b_d_[i][kNodes] * ambient_C;
+    next[i] = acc;
+  }
+  temps_C_ = next;
+}
+
+double ThermalNetwork::dominant_time_constant_s() const {
+  Eigen::Matrix3d a;
+  for (int i = 0; i < kNodes; ++i) {
+    for (int j = 0; j < kNodes; ++j) {
+      a(i, j) = c_inv_g_[static_cast<std::size_t>(i)][static_cast<std::size_t>(j)];
+    }
+  }
+  // C^-1·G is similar to a symmetric positive-definite matrix, so its eigenvalues are real
+  // and positive; the smallest one is the slowest mode.
+  const Eigen::Vector3cd ev = a.eigenvalues();
+  double smallest = ev(0).real();
+  for (int i = 1; i < kNodes; ++i) {
+    smallest = std::min(smallest, ev(i).real());
+  }
+  return 1.0 / smallest;
+}
+
+}  // namespace pmsm::plant

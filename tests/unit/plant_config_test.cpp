@@ -1,0 +1,282 @@
+// Plant configuration: shipped profiles parse, bad files name the key, defaults are Table I.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+
+#include "pmsm/plant/config.hpp"
+
+namespace pmsm::plant {
+namespace {
+
+const std::filesystem::path kProfiles =
+    std::filesystem::path(PMSM_SOURCE_DIR) / "plant-emulator" / "profiles";
+
+// Parses `text` and returns the error message, or "" when it parsed.
+std::string error_of(const std::string& text,
+                     const std::filesystem::path& base = std::filesystem::path()) {
+  try {
+    (void)parse_plant_config(text, "test.toml", base);
+  } catch (const ConfigError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+TEST(plant_config, ShippedProfilesParse) {
+  for (const char* name : {"reference.toml", "voltage-sensed.toml", "ideal.toml"}) {
+    SCOPED_TRACE(name);
+    EXPECT_NO_THROW((void)load_plant_config(kProfiles / name));
+  }
+}
+
+TEST(plant_config, ReferenceProfileEqualsDefaultsAndDesign) {
+  const PlantConfig c = load_plant_config(kProfiles / "reference.toml");
+  // DESIGN §5 reference realism profile.
+  EXPECT_DOUBLE_EQ(c.inverter.pwm_frequency_Hz, 10000.0);
+  EXPECT_EQ(c.current_adc.bits, 12);
+  EXPECT_DOUBLE_EQ(c.current_adc.range_A, 200.0);
+  EXPECT_DOUBLE_EQ(c.current_adc.noise_A, 0.2);
+  EXPECT_EQ(c.encoder.bits, 14);
+  EXPECT_DOUBLE_EQ(c.inverter.dc_bus_V, 650.0);
+  EXPECT_DOUBLE_EQ(c.inverter.dc_ripple_fraction, 0.01);
+  EXPECT_DOUBLE_EQ(c.inverter.dc_ripple_frequency_Hz, 300.0);
+  EXPECT_DOUBLE_EQ(c.inverter.dead_time_s, 1.0e-6);
+  EXPECT_DOUBLE_EQ(c.inverter.device_drop_V, 1.0);
+  EXPECT_FALSE(c.phase_voltage_sensing.enabled);
+  EXPECT_EQ(c.emf.shape, EmfShape::trapezoidal);
+  EXPECT_DOUBLE_EQ(c.load.ripple_fraction, 0.02);
+  // Gain errors differ per phase.
+  EXPECT_NE(c.current_adc.gain_error[0], c.current_adc.gain_error[1]);
+  EXPECT_NE(c.current_adc.gain_error[1], c.current_adc.gain_error[2]);
+
+  // Table I defaults.
+  const PlantConfig d;
+  EXPECT_DOUBLE_EQ(d.motor.Rs_ohm, 0.133);
+  EXPECT_DOUBLE_EQ(d.motor.Ke_V_s_rad, 1.19);
+  EXPECT_EQ(d.motor.pole_pairs, 3);
+  EXPECT_DOUBLE_EQ(d.motor.Ld_H, 11e-3 / 2.0);
+  EXPECT_DOUBLE_EQ(d.mechanics.J_kg_m2, 0.00841);
+  EXPECT_DOUBLE_EQ(d.mechanics.coulomb_Nm, 0.908);
+
+  // The file and the defaults agree on everything the file sets.
+  EXPECT_EQ(c.current_adc.offset_A, d.current_adc.offset_A);
+  EXPECT_EQ(c.current_adc.gain_error, d.current_adc.gain_error);
+  EXPECT_EQ(c.dc_bus_adc.noise_V, d.dc_bus_adc.noise_V);
+}
+
+TEST(plant_config, VoltageSensedAndIdealProfiles) {
+  const PlantConfig v = load_plant_config(kProfiles / "voltage-sensed.toml");
+  EXPECT_TRUE(v.phase_voltage_sensing.enabled);
+  EXPECT_EQ(v.phase_voltage_sensing.bits, 12);
+  EXPECT_DOUBLE_EQ(v.phase_voltage_sensing.range_V, 400.0);
+  EXPECT_TRUE(v.inverter.dead_time_enabled);
+
+  const PlantConfig i = load_plant_config(kProfiles / "ideal.toml");
+  EXPECT_EQ(i.emf.shape, EmfShape::sinusoidal);
+  EXPECT_FALSE(i.current_adc.noise_enabled);
+  EXPECT_FALSE(i.inverter.dead_time_enabled);
+  EXPECT_FALSE(i.inverter.device_drop_enabled);
+}
+
+TEST(plant_config, PsiMFromKe) {
+  // Ke = 1.19 V·s/rad line-to-line RMS per mechanical rad/s: the phase peak EMF per
+  // electrical rad/s is 1.19·sqrt(2)/sqrt(3)/3.
+  EXPECT_NEAR(psi_m_from_Ke(1.19, 3), 1.19 * std::sqrt(2.0) / std::sqrt(3.0) / 3.0, 1e-12);
+  // Torque constant in A RMS: 1.5·p·psi_m·sqrt(2) ≈ Kt = 2.08 Nm/A within 1 %.
+  EXPECT_NEAR(1.5 * 3.0 * psi_m_from_Ke(1.19, 3) * std::sqrt(2.0), 2.08, 0.021);
+}
+
+TEST(plant_config, MissingKeysTakeDefaults) {
+  const PlantConfig c = parse_plant_config("[motor]\nLd_H = 0.004\n", "t.toml");
+  EXPECT_DOUBLE_EQ(c.motor.Ld_H, 0.004);
+  EXPECT_DOUBLE_EQ(c.motor.Lq_H, PlantConfig{}.motor.Lq_H);
+  EXPECT_EQ(c.encoder.bits, 14);
+  // Integers are accepted where a number is expected.
+  EXPECT_DOUBLE_EQ(parse_plant_config("[inverter]\ndc_bus_V = 600\n", "t").inverter.dc_bus_V,
+                   600.0);
+}
+
+TEST(plant_config, TimeTablesFromToml) {
+  const PlantConfig steps = parse_plant_config(
+      "[load]\nprofile = \"steps\"\ntorque_Nm = 1.0\nsteps = [[0.5, 10.0], [1.0, -2]]\n", "t");
+  EXPECT_EQ(steps.load.profile, LoadProfile::torque_steps);
+  ASSERT_EQ(steps.load.points.size(), 2U);
+  EXPECT_DOUBLE_EQ(steps.load.points[1].value, -2.0);
+
+  const PlantConfig speed = parse_plant_config(
+      "[load]\nprofile = \"speed\"\nspeed_points = [[0, 0], [1, 300]]\ndyno_bandwidth_Hz = 20\n",
+      "t");
+  EXPECT_EQ(speed.load.profile, LoadProfile::speed_cycle);
+  ASSERT_EQ(speed.load.points.size(), 2U);
+  EXPECT_DOUBLE_EQ(speed.load.points[1].value, 300.0);
+  EXPECT_DOUBLE_EQ(speed.load.dyno_bandwidth_Hz, 20.0);
+
+  const std::string bad = error_of("[load]\nprofile = \"speed\"\nspeed_points = [[0, 0], [1]]\n");
+  EXPECT_NE(bad.find("load.speed_points"), std::string::npos) << bad;
+}
+
+TEST(plant_config, OutOfRangeNamesKeyAndRange) {
+  const std::string e = error_of("[motor]\nLd_H = -1\n");
+  EXPECT_NE(e.find("motor.Ld_H"), std::string::npos) << e;
+  EXPECT_NE(e.find("must be"), std::string::npos) << e;
+  EXPECT_NE(e.find("> 0"), std::string::npos) << e;
+  EXPECT_NE(e.find("-1"), std::string::npos) << e;
+  EXPECT_NE(e.find("test.toml:2"), std::string::npos) << e;  // file and line
+
+  const std::string bits = error_of("[encoder]\nbits = 17\n");
+  EXPECT_NE(bits.find("encoder.bits"), std::string::npos) << bits;
+  EXPECT_NE(bits.find("[1, 16]"), std::string::npos) << bits;
+
+  const std::string arr = error_of("[current_adc]\ngain_error = [0.0, 0.9, 0.0]\n");
+  EXPECT_NE(arr.find("current_adc.gain_error"), std::string::npos) << arr;
+}
+
+TEST(plant_config, WrongTypeNamesKey) {
+  const std::string e = error_of("[motor]\nLd_H = \"five\"\n");
+  EXPECT_NE(e.find("motor.Ld_H"), std::string::npos) << e;
+  EXPECT_NE(e.find("expected a number"), std::string::npos) << e;
+
+  const std::string b = error_of("[thermal]\nenabled = 1\n");
+  EXPECT_NE(b.find("thermal.enabled"), std::string::npos) << b;
+
+  const std::string i = error_of("[encoder]\nbits = 14.5\n");
+  EXPECT_NE(i.find("encoder.bits"), std::string::npos) << i;
+  EXPECT_NE(i.find("integer"), std::string::npos) << i;
+
+  const std::string a = error_of("[current_adc]\noffset_A = [0.1, 0.2]\n");
+  EXPECT_NE(a.find("current_adc.offset_A"), std::string::npos) << a;
+
+  const std::string s = error_of("[emf]\nshape = \"square\"\n");
+  EXPECT_NE(s.find("emf.shape"), std::string::npos) << s;
+  EXPECT_NE(s.find("trapezoidal"), std::string::npos) << s;  // lists the choices
+}
+
+TEST(plant_config, UnknownKeyIsAnErrorWithSuggestion) {
+  const std::string e = error_of("[motor]\nLd_HH = 0.005\n");
+  EXPECT_NE(e.find("motor.Ld_HH"), std::string::npos) << e;
+  EXPECT_NE(e.find("unknown key"), std::string::npos) << e;
+  EXPECT_NE(e.find("did you mean motor.Ld_H"), std::string::npos) << e;
+
+  const std::string s = error_of("[motr]\nLd_H = 0.005\n");
+  EXPECT_NE(s.find("motr"), std::string::npos) << s;
+  EXPECT_NE(s.find("unknown section"), std::string::npos) << s;
+
+  const std::string top = error_of("seed = 3\n");
+  EXPECT_NE(top.find("seed"), std::string::npos) << top;
+}
+
+TEST(plant_config, SyntaxErrorNamesFileAndLine) {
+  const std::string e = error_of("[motor]\nLd_H = = 3\n");
+  EXPECT_NE(e.find("test.toml:2"), std::string::npos) << e;
+}
+
+TEST(plant_config, CrossFieldRules) {
+  const std::string sat = error_of("[saturation]\nenabled = true\nLq_sat_H = 0.01\n");
+  EXPECT_NE(sat.find("saturation.Lq_sat_H"), std::string::npos) << sat;
+
+  const std::string brk = error_of("[mechanics]\nbreakaway_Nm = 0.5\n");
+  EXPECT_NE(brk.find("mechanics.breakaway_Nm"), std::string::npos) << brk;
+
+  const std::string trip = error_of(
+      "[emf]\nshape = \"custom\"\nharmonic_orders = [5, 9]\nharmonic_amplitudes = [0.1, 0.1]\n");
+  EXPECT_NE(trip.find("emf.harmonic_orders"), std::string::npos) << trip;
+  EXPECT_NE(trip.find("9"), std::string::npos) << trip;
+
+  const std::string len = error_of(
+      "[emf]\nshape = \"custom\"\nharmonic_orders = [5, 7]\nharmonic_amplitudes = [0.1]\n");
+  EXPECT_NE(len.find("emf.harmonic_amplitudes"), std::string::npos) << len;
+
+  const std::string unused = error_of("[load]\nsteps = [[0.0, 1.0]]\n");
+  EXPECT_NE(unused.find("load.steps"), std::string::npos) << unused;
+
+  const std::string order =
+      error_of("[load]\nprofile = \"steps\"\nsteps = [[1.0, 1.0], [0.5, 2.0]]\n");
+  EXPECT_NE(order.find("load.steps"), std::string::npos) << order;
+  EXPECT_NE(order.find("ascending"), std::string::npos) << order;
+
+  const std::string dead = error_of("[inverter]\ndead_time_s = 6e-5\n");
+  EXPECT_NE(dead.find("inverter.dead_time_s"), std::string::npos) << dead;
+}
+
+TEST(plant_config, ValidateChecksConfigsBuiltInCode) {
+  PlantConfig c;
+  c.motor.Lq_H = -1.0;
+  try {
+    validate_plant_config(c);
+    FAIL() << "no error";
+  } catch (const ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("motor.Lq_H"), std::string::npos) << e.what();
+  }
+}
+
+class PlantConfigCsv : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = std::filesystem::temp_directory_path() /
+           ("pmsm_plant_config_" + std::to_string(::testing::UnitTest::GetInstance()->random_seed()) +
+            "_" + ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    std::filesystem::create_directories(dir_);
+  }
+  void TearDown() override { std::filesystem::remove_all(dir_); }
+  void write(const std::string& name, const std::string& text) {
+    std::ofstream(dir_ / name) << text;
+  }
+  std::filesystem::path dir_;
+};
+using plant_config_csv = PlantConfigCsv;
+
+TEST_F(plant_config_csv, TorqueAndSpeedCycles) {
+  write("torque.csv", "# a drive cycle\ntime_s, torque_Nm\n0, 0\n1.0, 10\n2.0, -5\n");
+  const PlantConfig t =
+      parse_plant_config("[load]\nprofile = \"csv\"\ncsv_path = \"torque.csv\"\n", "t", dir_);
+  EXPECT_EQ(t.load.profile, LoadProfile::torque_cycle);
+  ASSERT_EQ(t.load.points.size(), 3U);
+  EXPECT_DOUBLE_EQ(t.load.points[2].value, -5.0);
+
+  write("speed.csv", "speed_rad_s,time_s\n100,0\n200,1\n");
+  const PlantConfig s =
+      parse_plant_config("[load]\nprofile = \"csv\"\ncsv_path = \"speed.csv\"\n", "t", dir_);
+  EXPECT_EQ(s.load.profile, LoadProfile::speed_cycle);
+  ASSERT_EQ(s.load.points.size(), 2U);
+  EXPECT_DOUBLE_EQ(s.load.points[1].time_s, 1.0);
+  EXPECT_DOUBLE_EQ(s.load.points[1].value, 200.0);
+
+  // load_plant_config resolves the CSV relative to the TOML file.
+  write("cycle.toml", "[load]\nprofile = \"csv\"\ncsv_path = \"speed.csv\"\n");
+  EXPECT_EQ(load_plant_config(dir_ / "cycle.toml").load.profile, LoadProfile::speed_cycle);
+}
+
+TEST_F(plant_config_csv, BadCsvNamesKeyAndLine) {
+  write("bad.csv", "time_s,torque_Nm\n0,1\n1,abc\n");
+  const std::string e =
+      error_of("[load]\nprofile = \"csv\"\ncsv_path = \"bad.csv\"\n", dir_);
+  EXPECT_NE(e.find("load.csv_path"), std::string::npos) << e;
+  EXPECT_NE(e.find(":3"), std::string::npos) << e;
+
+  write("header.csv", "t,torque_Nm\n0,1\n");
+  const std::string h =
+      error_of("[load]\nprofile = \"csv\"\ncsv_path = \"header.csv\"\n", dir_);
+  EXPECT_NE(h.find("time_s"), std::string::npos) << h;
+
+  const std::string missing =
+      error_of("[load]\nprofile = \"csv\"\ncsv_path = \"nope.csv\"\n", dir_);
+  EXPECT_NE(missing.find("load.csv_path"), std::string::npos) << missing;
+}
+
+TEST(plant_config, DocsListEveryKey) {
+  std::ifstream in(std::filesystem::path(PMSM_SOURCE_DIR) / "docs" / "plant.md");
+  ASSERT_TRUE(in) << "docs/plant.md is missing";
+  std::stringstream text;
+  text << in.rdbuf();
+  const std::string doc = text.str();
+  for (const std::string& key : plant_config_keys()) {
+    EXPECT_NE(doc.find("`" + key + "`"), std::string::npos) << key << " is not documented";
+  }
+}
+
+}  // namespace
+}  // namespace pmsm::plant

@@ -1,0 +1,339 @@
+// Plant physics against results computed here, independently of the implementation:
+// Eq. 3 steady state, reluctance torque, EMF shapes (Fig. 11), the energy balance and the
+// magnet-temperature dependence of the EMF.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <complex>
+#include <numbers>
+#include <vector>
+
+#include "pmsm/plant/plant.hpp"
+
+namespace pmsm::plant {
+namespace {
+
+constexpr double kPi = std::numbers::pi;
+
+// Flux linkage from Table I's Ke, written out here rather than taken from the library.
+double psi_m_Wb(double Ke_V_s_rad, int p) {
+  return Ke_V_s_rad * std::sqrt(2.0) / std::sqrt(3.0) / static_cast<double>(p);
+}
+
+// A plant with no sensor or inverter imperfections, a frozen temperature and a sinusoidal
+// EMF, so that only the physics under test acts.
+PlantConfig quiet_config() {
+  PlantConfig c;
+  c.emf.shape = EmfShape::sinusoidal;
+  c.thermal.enabled = false;
+  c.current_adc.noise_enabled = false;
+  c.current_adc.offset_enabled = false;
+  c.current_adc.gain_error_enabled = false;
+  c.dc_bus_adc.noise_enabled = false;
+  c.inverter.dc_ripple_enabled = false;
+  c.inverter.dead_time_enabled = false;
+  c.inverter.device_drop_enabled = false;
+  c.load.ripple_enabled = false;
+  return c;
+}
+
+void impose_speed(PlantConfig& c, double speed_rad_s) {
+  c.load.profile = LoadProfile::speed_cycle;
+  c.load.speed_rad_s = speed_rad_s;
+  c.load.points.clear();
+  c.load.dyno_bandwidth_Hz = 0.0;
+}
+
+// Steady state of Eq. 3 (d/dt = 0): solves
+//   vd = R·id - ω·Lq·iq,   vq = R·iq + ω·Ld·id + ω·psi_m.
+void eq3_steady_state(double R, double Ld, double Lq, double psi, double we, double vd,
+                      double vq, double& id, double& iq) {
+  const double a = R;
+  const double b = -we * Lq;
+  const double c = we * Ld;
+  const double d = R;
+  const double r1 = vd;
+  const double r2 = vq - we * psi;
+  const double det = a * d - b * c;
+  id = (d * r1 - b * r2) / det;
+  iq = (a * r2 - c * r1) / det;
+}
+
+TEST(plant_physics, SteadyStateMatchesEq3WithSaliency) {
+  PlantConfig c = quiet_config();
+  c.motor.Ld_H = 5.5e-3;
+  c.motor.Lq_H = 8.0e-3;
+  impose_speed(c, 200.0);
+  Plant plant(c);
+  const double vd = -60.0;
+  const double vq = 250.0;
+  for (int i = 0; i < 8000; ++i) {
+    plant.step_with_dq_voltage(vd, vq);
+  }
+  double id = 0.0;
+  double iq = 0.0;
+  eq3_steady_state(0.133, 5.5e-3, 8.0e-3, psi_m_Wb(1.19, 3), 3.0 * 200.0, vd, vq, id, iq);
+  const PlantState s = plant.state();
+  const double magnitude = std::hypot(id, iq);
+  EXPECT_NEAR(s.id_A, id, 0.005 * magnitude) << "analytic id " << id;
+  EXPECT_NEAR(s.iq_A, iq, 0.005 * magnitude) << "analytic iq " << iq;
+  EXPECT_GT(magnitude, 10.0);  // a meaningful operating point
+}
+
+TEST(plant_physics, SteadyStateThroughIdealInverter) {
+  // The same check through the PWM average model: duties computed here from the desired
+  // rotor-frame voltage at the middle of the period they act in (one-period delay).
+  PlantConfig c = quiet_config();
+  const double speed = 100.0;
+  impose_speed(c, speed);
+  Plant plant(c);
+  const double vd = -20.0;
+  const double vq = 120.0;
+  const double we = 3.0 * speed;
+  const double Ts = 1.0 / c.inverter.pwm_frequency_Hz;
+  for (std::uint32_t k = 0; k < 8000; ++k) {
+    const double theta = we * (static_cast<double>(k) + 1.5) * Ts;
+    hal::InverterCommand cmd;
+    cmd.sequence = k;
+    cmd.enable = true;
+    for (std::size_t ph = 0; ph < 3; ++ph) {
+      const double ang = theta - 2.0 * kPi / 3.0 * static_cast<double>(ph);
+      const double v = vd * std::cos(ang) - vq * std::sin(ang);
+      cmd.duty[ph] = static_cast<std::uint16_t>(std::lround((0.5 + v / 650.0) * 65535.0));
+    }
+    plant.step(cmd);
+  }
+  double id = 0.0;
+  double iq = 0.0;
+  eq3_steady_state(0.133, 5.5e-3, 5.5e-3, psi_m_Wb(1.19, 3), we, vd, vq, id, iq);
+  const PlantState s = plant.state();
+  const double magnitude = std::hypot(id, iq);
+  EXPECT_NEAR(s.id_A, id, 0.005 * magnitude);
+  EXPECT_NEAR(s.iq_A, iq, 0.005 * magnitude);
+  EXPECT_EQ(plant.command_sequence_errors(), 0U);
+}
+
+TEST(plant_physics, SaliencyMakesReluctanceTorque) {
+  PlantConfig c = quiet_config();
+  c.motor.Ld_H = 4.0e-3;
+  c.motor.Lq_H = 7.0e-3;
+  c.mechanics.coulomb_Nm = 0.0;
+  c.mechanics.breakaway_Nm = 0.0;
+  c.mechanics.viscous_Nm_s_rad = 0.0;
+  c.iron_loss.enabled = false;
+  impose_speed(c, 0.0);
+  Plant plant(c);
+  // At standstill Eq. 3 is v = R·i: aim at id = -30 A, iq = 40 A.
+  const double vd = 0.133 * -30.0;
+  const double vq = 0.133 * 40.0;
+  for (int i = 0; i < 6000; ++i) {
+    plant.step_with_dq_voltage(vd, vq);
+  }
+  const double psi = psi_m_Wb(1.19, 3);
+  auto expected_torque = [&](const PlantState& s) {
+    return 1.5 * 3.0 * (psi * s.iq_A + (4.0e-3 - 7.0e-3) * s.id_A * s.iq_A);
+  };
+  PlantState s0 = plant.state();
+  ASSERT_NEAR(s0.id_A, -30.0, 0.05);
+  ASSERT_NEAR(s0.iq_A, 40.0, 0.05);
+  const double reluctance = 1.5 * 3.0 * (4.0e-3 - 7.0e-3) * s0.id_A * s0.iq_A;
+  EXPECT_NEAR(reluctance, 16.2, 0.1);  // large enough to matter
+  EXPECT_NEAR(s0.torque_em_Nm, expected_torque(s0), 0.005 * std::abs(expected_torque(s0)));
+  EXPECT_NEAR(static_cast<double>(plant.truth().torque_Nm), expected_torque(s0),
+              0.005 * expected_torque(s0));
+
+  // The mechanics feel it: release the shaft and compare the speed gained over a few
+  // periods with ∫T/J dt, T from the sampled currents (trapezoidal rule).
+  plant.set_load_torque_Nm(0.0);
+  double omega_expected = 0.0;
+  double torque_prev = expected_torque(s0);
+  for (int i = 0; i < 3; ++i) {
+    plant.step_with_dq_voltage(vd, vq);
+    const PlantState s = plant.state();
+    const double torque = expected_torque(s);
+    omega_expected += 0.5 * (torque_prev + torque) * plant.period_s() / c.mechanics.J_kg_m2;
+    torque_prev = torque;
+  }
+  EXPECT_NEAR(plant.state().omega_m_rad_s, omega_expected, 0.005 * omega_expected);
+}
+
+struct EmfCase {
+  EmfShape shape;
+  double fraction;
+};
+
+class plant_emf : public ::testing::TestWithParam<EmfCase> {};
+
+TEST_P(plant_emf, FundamentalFractionByDft) {
+  const EmfCase param = GetParam();
+  PlantConfig c = quiet_config();
+  c.emf.shape = param.shape;
+  // 10 Hz electrical: exactly 1000 samples per electrical period at 10 kHz.
+  const double speed = 2.0 * kPi * 10.0 / 3.0;
+  impose_speed(c, speed);
+  Plant plant(c);
+  // Gates stay off: the open-circuit phase-to-neutral terminal voltage is the phase EMF.
+  constexpr std::size_t kN = 1000;
+  std::vector<double> va;
+  std::vector<double> vb;
+  hal::InverterCommand off;
+  for (std::uint32_t k = 0; k < 2 * kN; ++k) {
+    off.sequence = k;
+    plant.step(off);
+    if (k >= kN) {
+      va.push_back(plant.state().phase_voltage_avg_V[0]);
+      vb.push_back(plant.state().phase_voltage_avg_V[1]);
+    }
+  }
+  std::complex<double> fa{};
+  std::complex<double> fab{};
+  double peak = 0.0;
+  for (std::size_t n = 0; n < kN; ++n) {
+    const std::complex<double> w = std::polar(1.0, -2.0 * kPi * static_cast<double>(n) / kN);
+    fa += va[n] * w;
+    fab += (va[n] - vb[n]) * w;
+    peak = std::max(peak, std::abs(va[n]));
+  }
+  const double fundamental = 2.0 * std::abs(fa) / static_cast<double>(kN);
+  EXPECT_NEAR(fundamental / peak, param.fraction, 0.01 * param.fraction);
+  // The fundamental keeps Table I's Ke whatever the shape: phase peak Ke·sqrt(2/3)·ω_m, and
+  // line-to-line RMS Ke·ω_m.
+  EXPECT_NEAR(fundamental, 1.19 * std::sqrt(2.0 / 3.0) * speed, 0.005 * fundamental);
+  const double line_rms = 2.0 * std::abs(fab) / static_cast<double>(kN) / std::sqrt(2.0);
+  EXPECT_NEAR(line_rms, 1.19 * speed, 0.005 * line_rms);
+}
+
+INSTANTIATE_TEST_SUITE_P(Shapes, plant_emf,
+                         ::testing::Values(EmfCase{EmfShape::sinusoidal, 1.00},
+                                           EmfCase{EmfShape::modular, 0.89},
+                                           EmfCase{EmfShape::trapezoidal, 0.77}));
+
+TEST(plant_physics, MagnetFluxFallsWithTemperature) {
+  PlantConfig c = quiet_config();
+  impose_speed(c, 100.0);
+  auto emf_peak = [&](double rotor_C) {
+    Plant plant(c);
+    plant.set_temperatures_C(25.0, 25.0, rotor_C);
+    double peak = 0.0;
+    hal::InverterCommand off;
+    for (std::uint32_t k = 0; k < 250; ++k) {  // more than one electrical period (209 samples)
+      off.sequence = k;
+      plant.step(off);
+      peak = std::max(peak, std::abs(plant.state().phase_emf_V[0]));
+    }
+    return peak;
+  };
+  // NdFeB, -0.12 %/K: 100 K hotter is 12 % less flux.
+  EXPECT_NEAR(emf_peak(125.0) / emf_peak(25.0), 0.88, 0.001);
+}
+
+// Field energy of one axis with the saturation curve of docs/plant.md:
+// psi(i) = Ls·i + (L - Ls)·k·x/sqrt(1 + x²), x = i/k; W = i·psi - ∫psi di.
+double axis_energy_J(double i, double L, double Ls, double knee, bool saturating) {
+  if (!saturating) {
+    return 0.5 * L * i * i;
+  }
+  const double x = i / knee;
+  const double psi = Ls * i + (L - Ls) * knee * x / std::sqrt(1.0 + x * x);
+  const double co = 0.5 * Ls * i * i + (L - Ls) * knee * knee * (std::sqrt(1.0 + x * x) - 1.0);
+  return i * psi - co;
+}
+
+TEST(plant_physics, EnergyBalanceWithVaryingLoad) {
+  // Everything on: saturation, saliency, trapezoidal EMF, cogging, iron loss, dead time,
+  // device drop, DC ripple, load steps with ripple, thermal coupling.
+  PlantConfig c;
+  c.motor.Lq_H = 7.5e-3;
+  c.saturation.enabled = true;
+  c.saturation.id_knee_A = 30.0;
+  c.saturation.iq_knee_A = 20.0;
+  c.cogging.enabled = true;
+  c.cogging.amplitude_Nm = 0.3;
+  c.mechanics.J_kg_m2 = 0.05;
+  c.load.profile = LoadProfile::torque_steps;
+  c.load.torque_Nm = 2.0;
+  c.load.points = {{0.1, 8.0}, {0.2, 4.0}};
+  Plant plant(c);
+
+  // A current controller on the true state, written here only to drive the plant through a
+  // varying operating point (it is not the product's controller).
+  const double Ts = plant.period_s();
+  double int_d = 0.0;
+  double int_q = 0.0;
+  const double id_ref = -5.0;
+  const double iq_ref = 15.0;
+  const PlantState first = plant.state();
+  for (std::uint32_t k = 0; k < 3000; ++k) {
+    const PlantState s = plant.state();
+    const double ed = id_ref - s.id_A;
+    const double eq = iq_ref - s.iq_A;
+    int_d += ed * Ts;
+    int_q += eq * Ts;
+    const double vd = 20.0 * ed + 500.0 * int_d;
+    const double vq = 20.0 * eq + 500.0 * int_q + 3.0 * s.omega_m_rad_s * 0.324;
+    const double theta = s.theta_e_rad + 1.5 * s.omega_e_rad_s * Ts;
+    hal::InverterCommand cmd;
+    cmd.sequence = k;
+    cmd.enable = true;
+    for (std::size_t ph = 0; ph < 3; ++ph) {
+      const double ang = theta - 2.0 * kPi / 3.0 * static_cast<double>(ph);
+      const double v = vd * std::cos(ang) - vq * std::sin(ang);
+      const double duty = std::clamp(0.5 + v / 650.0, 0.0, 1.0);
+      cmd.duty[ph] = static_cast<std::uint16_t>(std::lround(duty * 65535.0));
+    }
+    plant.step(cmd);
+  }
+  const PlantState last = plant.state();
+  ASSERT_GT(last.omega_m_rad_s, 20.0);  // it ran through a real operating range
+
+  auto stored_J = [&](const PlantState& s) {
+    const double magnetic =
+        1.5 * (axis_energy_J(s.id_A, c.motor.Ld_H, c.saturation.Ld_sat_H, c.saturation.id_knee_A, true) +
+               axis_energy_J(s.iq_A, c.motor.Lq_H, c.saturation.Lq_sat_H, c.saturation.iq_knee_A, true));
+    const double kinetic = 0.5 * c.mechanics.J_kg_m2 * s.omega_m_rad_s * s.omega_m_rad_s;
+    // Cogging torque A·sin(N·θ + φ) derives from the potential (A/N)·cos(N·θ + φ).
+    const double cogging = c.cogging.amplitude_Nm / c.cogging.order *
+                           std::cos(c.cogging.order * s.theta_m_rad + c.cogging.phase_rad);
+    return magnetic + kinetic + cogging;
+  };
+  const EnergyMeters& e = last.energy;
+  const double out = e.copper_J + e.iron_J + e.friction_J + e.load_J + stored_J(last) -
+                     stored_J(first);
+  EXPECT_GT(e.input_J, 100.0);
+  EXPECT_GT(e.iron_J, 0.0);
+  EXPECT_NEAR(out, e.input_J, 0.001 * e.input_J)
+      << "in " << e.input_J << " copper " << e.copper_J << " iron " << e.iron_J << " friction "
+      << e.friction_J << " load " << e.load_J;
+}
+
+TEST(plant_physics, EnergyBalanceWhileRectifying) {
+  // Gates off above the speed where the line EMF exceeds the bus: the diodes rectify, the
+  // motor brakes and power flows out of the terminals. The meters must still balance.
+  PlantConfig c = quiet_config();
+  c.load.profile = LoadProfile::speed_cycle;
+  c.load.points = {{0.0, 420.0}, {0.05, 470.0}};
+  Plant plant(c);
+  const PlantState first = plant.state();
+  hal::InverterCommand off;
+  double min_torque = 0.0;
+  for (std::uint32_t k = 0; k < 500; ++k) {
+    off.sequence = k;
+    plant.step(off);
+    min_torque = std::min(min_torque, plant.state().torque_em_Nm);
+  }
+  const PlantState last = plant.state();
+  auto stored_J = [&](const PlantState& s) {
+    return 1.5 * 0.5 * c.motor.Ld_H * (s.id_A * s.id_A + s.iq_A * s.iq_A) +
+           0.5 * c.mechanics.J_kg_m2 * s.omega_m_rad_s * s.omega_m_rad_s;
+  };
+  const EnergyMeters& e = last.energy;
+  EXPECT_LT(e.input_J, -1.0);   // generating into the DC bus
+  EXPECT_LT(min_torque, -1.0);  // braking torque
+  const double out = e.copper_J + e.iron_J + e.friction_J + e.load_J + stored_J(last) -
+                     stored_J(first);
+  EXPECT_NEAR(out, e.input_J, 0.001 * std::abs(e.load_J));
+}
+
+}  // namespace
+}  // namespace pmsm::plant
