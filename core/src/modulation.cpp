@@ -31,16 +31,21 @@ Duties svpwm(const AlphaBeta& v_V, double vdc_V) {
   return duties_from_phase_voltages({v.a, v.b, v.c}, vdc_V);
 }
 
+Abc dead_time_compensation_V(const Abc& i_A, const DeadTimeCompensation& comp, double vdc_V,
+                             double period_s) {
+  // The bridge loses dead_time/period of the bus voltage, plus the device drop, against the
+  // current in each phase.
+  const double error_V = comp.dead_time_s / period_s * vdc_V + comp.device_drop_V;
+  return {error_V * soft_sign(i_A.a, comp.current_band_A), error_V * soft_sign(i_A.b, comp.current_band_A),
+          error_V * soft_sign(i_A.c, comp.current_band_A)};
+}
+
 Duties svpwm_compensated(const AlphaBeta& v_V, double vdc_V, const Abc& i_A,
                          const DeadTimeCompensation& comp, double period_s) {
-  // The bridge loses dead_time/period of the bus voltage, plus the device drop, against the
-  // current in each phase; add it back before the common mode is chosen.
-  const double error_V = comp.dead_time_s / period_s * vdc_V + comp.device_drop_V;
+  // Add the expected loss back before the common mode is chosen.
   const Abc v = inverse_clarke(v_V);
-  const std::array<double, 3> corrected{v.a + error_V * soft_sign(i_A.a, comp.current_band_A),
-                                        v.b + error_V * soft_sign(i_A.b, comp.current_band_A),
-                                        v.c + error_V * soft_sign(i_A.c, comp.current_band_A)};
-  return duties_from_phase_voltages(corrected, vdc_V);
+  const Abc e = dead_time_compensation_V(i_A, comp, vdc_V, period_s);
+  return duties_from_phase_voltages({v.a + e.a, v.b + e.b, v.c + e.c}, vdc_V);
 }
 
 }  // namespace pmsm::core

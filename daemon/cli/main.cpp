@@ -10,6 +10,8 @@ int main(int argc, char** argv) {
   int exit_code = 0;
   pmsm::app::register_budget_command(app, exit_code);
   pmsm::app::register_losses_command(app, exit_code);
+  pmsm::app::register_simulate_command(app, exit_code);
+  pmsm::app::register_decode_command(app, exit_code);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -32,4 +32,8 @@ struct Duties {
 // "sign(i)": a linear ramp through zero inside +-current_band and +-1 outside.
 [[nodiscard]] double soft_sign(double i_A, double current_band_A);
 
+// The voltage per phase that svpwm_compensated() adds for the given currents.
+[[nodiscard]] Abc dead_time_compensation_V(const Abc& i_A, const DeadTimeCompensation& comp, double vdc_V,
+                                           double period_s);
+
 }  // namespace pmsm::core

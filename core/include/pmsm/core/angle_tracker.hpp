@@ -1,0 +1,60 @@
+// Rotor angle and speed from an absolute encoder.
+//
+// The electrical angle used for the Park transform is the encoder reading itself (no lag);
+// the speed comes from a type-2 phase-locked loop on the mechanical angle, which follows
+// constant acceleration without a steady-state error. An unbiased speed matters here more
+// than usual: the modulator advances the angle by 1.5 periods of rotation to cover the
+// computation and PWM delay, and any bias in that advance rotates the voltage frame and
+// leaks w Ld dId into the d-axis, where the resistive signal lives (docs/estimator.md).
+#pragma once
+
+#include <cstdint>
+
+namespace pmsm::core {
+
+struct AngleTrackerConfig {
+  int encoder_bits = 14;
+  int pole_pairs = 3;
+  double electrical_offset_rad = 0.0;  // electrical angle at encoder count 0 (commissioned)
+  double pll_bandwidth_rad_s = 300.0;
+  double period_s = 1e-4;
+};
+
+class AngleTracker {
+ public:
+  explicit AngleTracker(const AngleTrackerConfig& config);
+
+  // One sample of the encoder.
+  void update(std::uint32_t encoder_count);
+
+  [[nodiscard]] double mechanical_angle_rad() const { return theta_m_rad_; }   // [0, 2 pi)
+  [[nodiscard]] double electrical_angle_rad() const { return theta_e_rad_; }   // [0, 2 pi)
+  // Electrical angle accumulated since start (not wrapped): what recordings measure arcs in.
+  [[nodiscard]] double unwrapped_electrical_angle_rad() const { return unwrapped_e_rad_; }
+  // The PLL's electrical angle, unwrapped: smooth and monotonic at speed, which is what
+  // matching recordings by angle needs (the raw encoder angle steps in counts).
+  [[nodiscard]] double smooth_unwrapped_electrical_angle_rad() const {
+    return config_.pole_pairs * pll_theta_rad_ + config_.electrical_offset_rad;
+  }
+  [[nodiscard]] double mechanical_speed_rad_s() const { return speed_m_rad_s_; }
+  [[nodiscard]] double electrical_speed_rad_s() const { return speed_m_rad_s_ * config_.pole_pairs; }
+  [[nodiscard]] bool initialised() const { return initialised_; }
+
+  void reset();
+
+ private:
+  AngleTrackerConfig config_;
+  double counts_to_rad_;
+  double kp_;
+  double ki_;
+  bool initialised_ = false;
+  double theta_m_rad_ = 0.0;
+  double theta_e_rad_ = 0.0;
+  double previous_theta_m_rad_ = 0.0;
+  double unwrapped_e_rad_ = 0.0;
+  double pll_theta_rad_ = 0.0;   // the PLL's own (unwrapped) mechanical angle
+  double pll_measured_unwrapped_rad_ = 0.0;
+  double speed_m_rad_s_ = 0.0;
+};
+
+}  // namespace pmsm::core

@@ -1,0 +1,200 @@
+// The drive controller: one control period from sensor readings to duty cycles, with the
+// injection scheduler, the resistance estimator and the thermal observer running inside it.
+//
+// Pure and deterministic: physical inputs in, duties and a fixed-size telemetry record out;
+// no clock (the period is counted), no I/O, no allocation after construction. The daemon and
+// the in-process simulator both drive it the same way:
+//
+//   sample k -> step() -> command applied by the power stage in period k+1
+//
+// so the voltage applied during period k is the command computed at step k-2 from the
+// controller's point of view at step k; the estimator pairs it with the currents measured at
+// the two ends of that period (docs/estimator.md).
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <optional>
+
+#include "pmsm/core/angle_tracker.hpp"
+#include "pmsm/core/baseline_estimator.hpp"
+#include "pmsm/core/current_controller.hpp"
+#include "pmsm/core/injection_scheduler.hpp"
+#include "pmsm/core/modulation.hpp"
+#include "pmsm/core/motor_params.hpp"
+#include "pmsm/core/speed_controller.hpp"
+#include "pmsm/core/thermal_observer.hpp"
+
+namespace pmsm::core {
+
+enum class EstimatorKind : std::uint8_t {
+  kInjection,      // the scheduler's method (fixed-magnitude / fixed-angle / DC)
+  kNoInjection,    // the baseline of baseline_estimator.hpp
+  kNone,           // thermal model only
+};
+
+struct DriveConfig {
+  double period_s = 1e-4;
+  MotorParams motor{};               // the controller's (commissioned) motor parameters
+  AngleTrackerConfig angle{};
+  CurrentControllerConfig current{};
+  SpeedControllerConfig speed{};
+  int speed_decimation = 10;         // speed loop every N current-loop periods
+  DeadTimeCompensation dead_time{0.9e-6, 0.0, 1.0};
+  InjectionConfig injection{};
+  EstimatorKind estimator = EstimatorKind::kInjection;
+  BaselineConfig baseline{};
+  double baseline_publish_s = 1.0;   // how often the no-injection estimate is fused
+  ThermalModelConfig thermal{};
+  Calibration calibration{};
+  DeratingConfig derating{};
+  double thermal_update_s = 0.01;    // thermal model / filter period
+  double magnet_coefficient_per_C = -0.0012;  // NdFeB remanence (flux) temperature coefficient
+  double magnet_min_speed_rad_s = 50.0;       // electrical; below it the EMF is too small
+  int calibration_events = 3;        // events averaged into Rs0 / Ke0
+  std::size_t recording_capacity = 8192;      // periods per recording (preallocated)
+};
+
+enum class DriveMode : std::uint8_t { kDisabled, kTorque, kSpeed };
+
+struct DriveCommand {
+  DriveMode mode = DriveMode::kDisabled;
+  double speed_ref_rad_s = 0.0;     // mechanical
+  double torque_ref_Nm = 0.0;
+  double ambient_C = 25.0;          // from the drive's ambient / coolant sensor
+  bool request_injection = false;   // start an injection event now
+};
+
+struct DriveInput {
+  Abc i_A{};                        // phase currents (scaled by the controller's own calibration)
+  std::uint32_t encoder_count = 0;
+  double vdc_V = 0.0;
+  bool valid = true;                // false: no fresh sample this period
+};
+
+struct DriveOutput {
+  std::array<double, 3> duty{0.5, 0.5, 0.5};
+  bool enable = false;
+};
+
+// Counters of pair outcomes, indexed by PairOutcome.
+using OutcomeCounts = std::array<std::uint32_t, static_cast<std::size_t>(PairOutcome::kCount)>;
+
+struct DriveTelemetry {
+  std::uint64_t period = 0;
+  double time_s = 0.0;
+  double theta_e_rad = 0.0;
+  double speed_m_rad_s = 0.0;
+  Dq i_A{};
+  Dq i_ref_A{};
+  Dq injection_A{};                 // the injection's part of i_ref
+  Dq v_V{};
+  bool voltage_limited = false;
+  SchedulerPhase injection_phase = SchedulerPhase::kIdle;
+  bool injection_active = false;
+  ThermalEstimate thermal{};
+  double current_limit_A = 0.0;
+  bool derating = false;
+  bool time_to_limit_valid = false;
+  double time_to_limit_s = 0.0;
+  bool magnet_valid = false;
+  double magnet_C = 0.0;
+  double torque_estimate_Nm = 0.0;  // from the measured currents (with reluctance torque)
+  OutcomeCounts outcomes{};
+  std::uint32_t estimates_published = 0;
+  std::uint32_t estimates_gated = 0;  // implausible against the thermal filter's prediction
+  double vx_V = 0.0;                  // the inverter voltage estimate
+  double vx_std_V = 0.0;
+  bool calibrating = false;
+  bool calibrated = false;
+};
+
+// One published resistance estimate, from an event's accepted pairs (rejected pairs are
+// reported, never published as estimates).
+struct ResistanceEstimate {
+  double time_s = 0.0;
+  double rs_ohm = 0.0;
+  double rs_std_ohm = 0.0;
+  double winding_C = 0.0;           // Eq. 1 through the calibration
+  double vx_V = 0.0;                // the inverter voltage the estimate is conditioned on
+  double vx_std_V = 0.0;
+  int pairs = 0;
+  bool fused = false;               // the thermal filter took it (not gated out)
+};
+
+class DriveController {
+ public:
+  explicit DriveController(const DriveConfig& config);
+
+  // One control period.
+  const DriveOutput& step(const DriveInput& in, const DriveCommand& command);
+
+  // Starts an Rs0 calibration at a known winding temperature: the next calibration_pairs
+  // accepted pairs are averaged into Rs0 (and Ke0), and the thermal filter restarts there.
+  void start_calibration(double known_temp_C);
+
+  [[nodiscard]] const DriveTelemetry& telemetry() const { return telemetry_; }
+  // Set for the one period in which a pair finished (accepted, rejected or skipped).
+  [[nodiscard]] const std::optional<PairResult>& last_pair() const { return last_pair_; }
+  // Set for the one period in which an estimate was published.
+  [[nodiscard]] const std::optional<ResistanceEstimate>& last_estimate() const { return last_estimate_; }
+  // Set for the one period in which a calibration completed.
+  [[nodiscard]] const std::optional<Calibration>& calibration_completed() const { return calibration_done_; }
+  [[nodiscard]] const Calibration& calibration() const { return observer_.calibration(); }
+  [[nodiscard]] const DriveConfig& config() const { return config_; }
+
+ private:
+  void handle_pair(const PairResult& r);
+  void handle_estimate(const EventEstimate& e);
+  void update_thermal(double ambient_C);
+  [[nodiscard]] Dq motoring_reference(const DriveCommand& command);
+
+  DriveConfig config_;
+  double kt_dq_Nm_per_A_;
+  AngleTracker angle_;
+  CurrentController current_;
+  SpeedController speed_;
+  InjectionScheduler scheduler_;
+  BaselineEstimator baseline_;
+  ThermalObserver observer_;
+
+  DriveOutput output_{};
+  DriveTelemetry telemetry_{};
+  std::optional<PairResult> last_pair_;
+  std::optional<ResistanceEstimate> last_estimate_;
+  std::optional<Calibration> calibration_done_;
+
+  std::uint64_t period_ = 0;
+  bool was_enabled_ = false;
+  int speed_divider_ = 0;
+  double torque_demand_Nm_ = 0.0;
+  // History for the period record: the last two commands and the previous sample.
+  bool have_previous_ = false;
+  Dq previous_i_A_{};
+  Abc previous_i_abc_A_{};
+  double previous_theta_smooth_ = 0.0;
+  Dq v_applied_next_{};             // command of step k-1 (applies during period k)
+  Dq v_applied_now_{};              // command of step k-2 (applied during period k-1 -> k)
+  bool limited_next_ = false;
+  bool limited_now_ = false;
+  // Thermal accumulation.
+  double i_sq_sum_ = 0.0;
+  double speed_sum_ = 0.0;
+  int thermal_count_ = 0;
+  double thermal_elapsed_s_ = 0.0;
+  double last_baseline_publish_s_ = 0.0;
+  int thermal_updates_ = 0;
+  // Magnet.
+  double magnet_filtered_C_ = 0.0;
+  bool magnet_valid_ = false;
+  // Calibration.
+  bool calibrating_ = false;
+  double calibration_temp_C_ = 25.0;
+  int calibration_count_ = 0;
+  double calibration_rs_sum_ = 0.0;
+  double calibration_ke_sum_ = 0.0;
+  int calibration_ke_count_ = 0;
+  DeratingResult derating_{};
+};
+
+}  // namespace pmsm::core

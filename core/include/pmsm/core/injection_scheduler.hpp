@@ -1,0 +1,254 @@
+// The injection scheduler: when to inject, what current to inject, when to record, and what
+// to make of the recordings (Sections V, VIII and X of the paper).
+//
+// One injection event produces one or more pairs of recordings. A pair, for the default
+// fixed-magnitude bipolar method at speed:
+//
+//   idle -> ramp up to +F (window edge, Tw) -> settle -> record 1 over an arc ->
+//   ramp down (Tw) -> ramp up to -F (Tw) -> settle -> wait until the rotor is dTheta past the
+//   start of recording 1 -> record 2 over the same arc -> ramp down (Tw) -> fit -> guards
+//
+// Unipolar records without injection first and with injection second. Fixed-angle injection
+// places a windowed arc centred on theta_F (Eqs. 11-12, Fig. 9) and records the whole pulse.
+// DC injection (the baseline, Eqs. 4-7) injects a stator-fixed vector over whole revolutions.
+// Below a minimum speed the recordings are taken over time instead of rotor angle (there is
+// no EMF to separate; what the separation still removes is the inverter's error and the
+// sensor offsets).
+//
+// Guards (each with its own reason): total current within the limit and voltage headroom
+// (Eq. 29 at the operating point) before a pair starts, reducing F or skipping; speed change
+// and motoring-current change between the recordings, fit residual, conditioning and
+// plausibility after it. A rejected pair never contributes to an estimate.
+//
+// An event runs one pair per injection level (e.g. F and 0.4 F). The inverter's
+// uncompensated voltage Vx is nearly collinear with Rs within one pair, because the
+// current-sign pattern barely changes along the recording; across levels the ratio of the two
+// regressors changes, so the event's joint fit separates them (docs/estimator.md). Vx is a
+// property of the inverter and changes slowly, so its estimate is carried from event to event
+// as a prior and fused with each event's joint fit; the event's Rs is conditioned on the
+// fused Vx. One estimate is published per event.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <optional>
+#include <cmath>
+#include <string_view>
+
+#include "pmsm/core/pair_estimator.hpp"
+#include "pmsm/core/transforms.hpp"
+#include "pmsm/core/window.hpp"
+
+namespace pmsm::core {
+
+enum class InjectionMethod : std::uint8_t { kNone, kFixedMagnitude, kFixedAngle, kDc };
+enum class Separation : std::uint8_t { kBipolar, kUnipolar };
+
+[[nodiscard]] std::string_view to_string(InjectionMethod m);
+[[nodiscard]] std::string_view to_string(Separation s);
+
+// The outcome of one pair. The numbering is the one the CAN protocol's injection report
+// carries.
+enum class PairOutcome : std::uint8_t {
+  kAccepted = 0,
+  kRejectedSpeedChange = 1,
+  kRejectedLoadChange = 2,
+  kRejectedResidual = 3,
+  kRejectedVoltageHeadroom = 4,   // skipped before starting: not enough voltage
+  kRejectedCurrentLimit = 5,      // skipped before starting: not enough current budget
+  kRejectedImplausible = 6,       // Rs outside the plausibility window
+  kRejectedVoltageSaturation = 7, // the voltage limit was hit while recording
+  kRejectedIllConditioned = 8,    // too few samples or collinear regressors
+  kAborted = 9,                   // disabled, fault or lost speed in the middle of a pair
+  kCount = 10,
+};
+[[nodiscard]] std::string_view to_string(PairOutcome o);
+
+struct InjectionConfig {
+  InjectionMethod method = InjectionMethod::kFixedMagnitude;
+  Separation separation = Separation::kBipolar;
+  double f_A = 25.0;              // requested injection magnitude
+  double f_min_A = 5.0;           // after budget reduction, below this the pair is skipped
+  double interval_s = 10.0;       // from the start of one event to the next
+  double retry_s = 1.0;           // after a skipped event
+  static constexpr int kMaxLevels = 4;
+  std::array<double, kMaxLevels> levels{1.0, 0.4, 0.0, 0.0};  // F multipliers, one pair each
+  int level_count = 2;
+  double first_event_s = 1.0;     // time of the first event after start
+  WindowKind window = WindowKind::kModifiedBlackman;
+  double tw_s = 0.004;            // window period (each edge)
+  double settle_s = 0.002;        // after an edge, before recording (current loop settling)
+  double record_arc_rad = 6.283185307179586;  // angle-based recording length (one electrical turn)
+  double record_time_s = 0.05;    // time-based recording length (standstill)
+  double record_min_time_s = 0.04;  // angle-based recordings last at least this (whole turns)
+  bool mechanical_harmonics = false;  // dTheta a multiple of 2 pi p instead of 2 pi
+  int pole_pairs = 3;
+  double min_speed_for_angle_rad_s = 30.0;  // electrical; below: time-based recordings
+  int unipolar_polarity = -1;     // unipolar injects -F by default (it lowers the voltage)
+  // Fixed-angle and DC injection.
+  double theta_f_rad = 0.0;       // angle of the injection vector (electrical)
+  double beta = 0.0;              // regulation factor (Eq. 12); 1 for DC injection
+  double injection_arc_rad = 1.5707963267948966;  // theta_i, flat part of the arc
+  double window_arc_rad = 0.5235987755982988;     // theta_w, each edge (widened to tw_s at speed)
+  double dc_revolutions = 2.0;    // DC injection: recording length in electrical turns
+  // Budget.
+  double current_limit_A = 63.8;  // |i| limit shared by motoring and injection (peak)
+  // Guards.
+  double max_speed_change_fraction = 0.01;
+  double max_speed_change_rad_s = 2.0;   // electrical; the larger of the two limits applies
+  double max_load_change_A = 1.5;
+  double max_residual_V = 3.0;
+  double min_condition = 1e-4;
+  double rs_min_ohm = 0.09;       // plausibility window (about -60 C to 270 C for 0.133 ohm at 25 C)
+  double rs_max_ohm = 0.27;
+  // Fit.
+  bool fit_dead_time = true;      // model the inverter's uncompensated voltage Vx
+  bool fit_inductance = true;     // fit Ld d(dId/dt): the inductive voltage within a recording
+  double vx_initial_V = 0.0;      // prior before the first event
+  double vx_initial_std_V = 3.0;
+  double vx_drift_std_V = 0.02;   // how far Vx may wander between events
+  // Vx is learned only from events whose pairs reverse the current vector, i.e. whose
+  // motoring |iq| stays below this fraction of the smallest F of the event: then the
+  // current-sign pattern simply inverts and its plateaus carry the information. Under load
+  // the injection only swings the current angle, the information sits in the sector
+  // transitions at current zero crossings, where no sign model is exact, and the joint fit
+  // is biased in a way its own error bar cannot show (docs/estimator.md).
+  double vx_learning_max_iq_fraction = 0.5;
+  double lq_H = 5.5e-3;           // the controller's model, for the Eq. 37 correction
+  double ld_H = 5.5e-3;
+  double rs_nominal_ohm = 0.133;  // for the headroom calculation
+  double flux_linkage_Wb = 0.3239;
+};
+
+struct SchedulerInput {
+  double time_s = 0.0;
+  double theta_e_rad = 0.0;       // smooth, unwrapped electrical angle now
+  double omega_e_rad_s = 0.0;
+  Dq motoring_ref_A{};            // the motoring current reference this period
+  double voltage_limit_V = 356.0; // usable voltage now (from the DC bus)
+  double current_limit_A = 63.8;  // |i| limit now (may be derated)
+  bool enabled = false;           // the drive is running and healthy
+  bool request_now = false;       // start an event at the next opportunity
+};
+
+enum class SchedulerPhase : std::uint8_t {
+  kIdle, kRampUp, kSettle, kRecord1, kRampDown, kWaitArc, kRecord2, kPulseWait, kFinish
+};
+
+// One pair: its outcome and diagnostics. Its Rs uses the inverter voltage known when it
+// finished (the published estimate is the event's, below).
+struct PairResult {
+  PairOutcome outcome = PairOutcome::kAborted;
+  InjectionMethod method = InjectionMethod::kNone;
+  Separation separation = Separation::kBipolar;
+  double time_s = 0.0;
+  int level_index = 0;
+  double f_A = 0.0;                // magnitude actually used (after budget reduction)
+  double rs_ohm = 0.0;             // only meaningful when accepted
+  double rs_std_ohm = 0.0;
+  double delta_omega_e_rad_s = 0.0;
+  double delta_iq_A = 0.0;
+  double residual_rms_V = 0.0;
+  double condition = 0.0;
+  std::size_t samples = 0;
+  bool time_based = false;
+  PairConditions conditions{};
+};
+
+// The estimate of one event, from its accepted pairs.
+struct EventEstimate {
+  double time_s = 0.0;
+  int pairs = 0;                   // accepted pairs that went into it
+  double rs_ohm = 0.0;
+  double rs_std_ohm = 0.0;
+  double vx_V = 0.0;               // the fused inverter voltage after this event
+  double vx_std_V = 0.0;
+  bool vx_from_event = false;      // the event's own levels determined Vx (joint fit)
+  double joint_condition = 0.0;    // reciprocal condition of the event's joint (Rs, Vx) fit
+  bool vx_learning = false;        // the event reversed the current vector: Vx was fitted
+  double joint_rs_ohm = 0.0;       // the joint fit before fusion (diagnostics)
+  double joint_vx_V = 0.0;
+  bool has_emf = false;            // angle-based pairs: the EMF constant below is meaningful
+  double ke_V_s_per_rad = 0.0;     // Eq. 3's Ke from the q-axis means (see drive_controller)
+};
+
+struct SchedulerOutput {
+  Dq injection_A{};                // add to the motoring current reference
+  bool active = false;             // an event is in progress (injection may be zero)
+  SchedulerPhase phase = SchedulerPhase::kIdle;
+  std::optional<PairResult> completed;  // set in the period a pair finished or was skipped
+  std::optional<EventEstimate> estimate;  // set in the period an event produced an estimate
+};
+
+class InjectionScheduler {
+ public:
+  // `capacity` is the largest recording, in periods (preallocated).
+  InjectionScheduler(const InjectionConfig& config, double period_s, std::size_t capacity);
+
+  // One control period: `sample` is the period that just ended (nullptr when none).
+  SchedulerOutput step(const SchedulerInput& in, const PeriodSample* sample);
+
+  void set_config(const InjectionConfig& config);
+  [[nodiscard]] const InjectionConfig& config() const { return config_; }
+  [[nodiscard]] SchedulerPhase phase() const { return phase_; }
+  [[nodiscard]] double next_event_s() const { return next_event_s_; }
+
+  // The largest F the budget allows now, and the reason when it is below f_min.
+  struct Budget {
+    double f_A = 0.0;
+    PairOutcome limiting = PairOutcome::kAccepted;
+  };
+  [[nodiscard]] Budget budget(const SchedulerInput& in, double tw_s, double wanted_A) const;
+
+  // The inverter voltage prior carried between events.
+  [[nodiscard]] double vx_V() const { return vx_V_; }
+  [[nodiscard]] double vx_std_V() const { return std::sqrt(vx_var_); }
+
+ private:
+  void begin_pair(const SchedulerInput& in);
+  void abort(SchedulerOutput& out, const SchedulerInput& in);
+  PairResult finish_pair(const SchedulerInput& in);
+  std::optional<EventEstimate> finish_event(const SchedulerInput& in);
+  [[nodiscard]] FitOptions fit_options(bool fit_vx) const;
+  [[nodiscard]] bool plausible(double rs_ohm, double margin_ohm) const;
+  double level_for(int recording) const;       // injection level of recording 1 or 2 (in units of F)
+  Dq injection_current(const SchedulerInput& in) const;
+  double edge_value(double elapsed_s) const;   // 0..1 along a rising window edge
+  double delta_theta(double needed_rad) const;
+
+  InjectionConfig config_;
+  double period_s_;
+  PairRecorder recorder_;
+
+  SchedulerPhase phase_ = SchedulerPhase::kIdle;
+  double next_event_s_ = 0.0;
+  int level_index_ = 0;             // next level of the event in progress
+  bool in_event_ = false;
+  double f_event_A_ = 0.0;          // budgeted F of the event's first pair
+  BlockedSums event_sums_{};        // accepted pairs of the event
+  int event_pairs_ = 0;
+  double event_min_f_A_ = 0.0;      // smallest F among the event's accepted pairs
+  double event_max_iq_A_ = 0.0;     // largest motoring |iq| among them
+  std::array<PairConditions, InjectionConfig::kMaxLevels> event_q_{};
+  int event_q_pairs_ = 0;
+  double vx_V_ = 0.0;               // inverter voltage prior
+  double vx_var_ = 0.0;
+  bool time_based_ = false;
+  double direction_ = 1.0;
+  double f_A_ = 0.0;                // magnitude for this pair
+  double phase_start_s_ = 0.0;
+  double level_from_ = 0.0;         // ramp start level (units of F)
+  double level_to_ = 0.0;           // ramp end level
+  int ramp_count_ = 0;              // ramps done in this pair (to sequence down/up)
+  int recording_ = 0;               // 1 or 2 while recording, else 0
+  double origin2_ = 0.0;            // matching coordinate where recording 2 starts
+  double pulse_start_theta_ = 0.0;  // fixed-angle: unwrapped angle where the pulse starts
+  double pulse_arc_rad_ = 0.0;      // fixed-angle: total arc of the pulse (2 theta_w + theta_i)
+  double window_arc_rad_ = 0.0;
+  double record_arc_rad_ = 0.0;     // angle-based recording length of this pair
+  double theta_f_unwrapped_ = 0.0;  // fixed-angle: the centre of the current pulse
+  double dc_theta_f_rad_ = 0.0;     // DC: stator angle of the vector for this pair
+  std::size_t recorder_capacity_;
+};
+
+}  // namespace pmsm::core

@@ -1,0 +1,183 @@
+// Separation of the injected voltage from the motoring voltage (Section X) and the
+// resistance fit that follows it.
+//
+// Two recordings of the rotor-frame variables (idr, iqr, vdr, vqr, w, wm) are taken over the
+// same arc of rotor angle, dTheta apart (2 pi electrical, or 2 pi p for mechanical
+// harmonics). Recording 1 is stored; every sample of recording 2 is matched to recording 1 at
+// the same relative rotor angle (not time: linear interpolation between the two neighbouring
+// samples of recording 1), and the difference enters a least-squares fit at once, so the
+// end of a recording costs no more than any other period.
+//
+// The fit on the d-axis, from Eqs. 37 and 43 (unipolar / bipolar: the bipolar difference
+// simply holds twice the injected voltage and current):
+//
+//   dVd + Lq d(w iq)  =  Rs dId  +  Vx dGd  +  Ld d(dId/dt)
+//
+// with d(.) = recording 1 minus recording 2 at the same angle. The EMF harmonics kd(theta)
+// cancel because the samples are matched by angle. The other two regressors are this
+// project's additions, each optional:
+//  - Vx dGd: the inverter's dead-time and device-drop voltage. It opposes the sign pattern
+//    of the three phase currents, Gd being the d-axis projection of that pattern; it changes
+//    between the recordings because the injection turns the current vector, and what is left
+//    of it after compensation is as large as the resistive signal itself (DESIGN section 5),
+//    so it is fitted rather than ignored. The voltage the fit sees is the controller's
+//    command *including* the compensation it applied (from the reference current), and Vx is
+//    the bridge's whole per-phase error voltage (from the measured current): modelling only
+//    the residual would assume the compensation's signs equal the true currents' signs, which
+//    fails near every zero crossing in a way that differs between the recordings.
+//  - Ld d(dId/dt): the inductive voltage of a current that changes within the recording
+//    (fixed-angle injection, Eq. 14). This makes the fit the least-squares form of Eq. 22:
+//    the separated voltage resolved along the resistive (Id) and inductive (dId/dt)
+//    directions, over all matched samples rather than one.
+//
+// The q-axis of the same recordings gives the EMF constant once Rs is known (Eq. 34/40
+// averaged over both recordings), hence the magnet temperature.
+#pragma once
+
+#include <array>
+#include <cstddef>
+#include <cstdint>
+#include <optional>
+#include <span>
+#include <vector>
+
+#include "pmsm/core/transforms.hpp"
+
+namespace pmsm::core {
+
+// One control period as the estimator sees it: averages over the period during which the
+// voltage command was applied.
+struct PeriodSample {
+  double time_s = 0.0;
+  double theta_e_rad = 0.0;     // unwrapped electrical angle at the middle of the period
+  double omega_e_rad_s = 0.0;
+  double omega_m_rad_s = 0.0;
+  Dq i_A{};                     // measured current, average over the period
+  Dq di_dt_A_s{};               // its rate of change over the period
+  Dq v_V{};                     // voltage command applied during the period
+  Dq dead_time_pattern{};       // dq projection of the phase-current sign pattern (see above)
+  bool voltage_limited = false; // the applied command had been limited
+};
+
+enum class MatchBy : std::uint8_t { kAngle, kTime };
+
+// The regressors of the d-axis fit, always accumulated; a fit chooses which to use.
+enum Regressor : int { kRegRs = 0, kRegVx = 1, kRegLd = 2, kRegressors = 3 };
+
+// Normal-equation sums of the d-axis fit, additive over samples, blocks and pairs.
+struct FitSums {
+  std::array<std::array<double, kRegressors>, kRegressors> xtx{};
+  std::array<double, kRegressors> xty{};
+  double yty = 0.0;
+  double n = 0.0;
+
+  void add(const std::array<double, kRegressors>& x, double y);
+  void add(const FitSums& other, double sign = 1.0);
+};
+
+inline constexpr int kFitBlocks = 8;  // jackknife blocks
+
+// Sums of one or more pairs, kept per block so the jackknife can leave blocks out.
+struct BlockedSums {
+  std::array<FitSums, kFitBlocks> blocks{};
+  void add(const BlockedSums& other);
+  [[nodiscard]] FitSums total() const;
+};
+
+struct FitOptions {
+  bool fit_vx = true;           // estimate Vx; otherwise hold it at fixed_vx_V
+  double fixed_vx_V = 0.0;
+  bool fit_ld = false;          // include the Ld d(dId/dt) regressor
+};
+
+struct FitResult {
+  bool valid = false;           // enough samples, well conditioned, jackknife complete
+  double rs_ohm = 0.0;
+  double vx_V = 0.0;            // fitted, or the fixed value
+  double ld_H = 0.0;
+  // Jackknife covariance of (Rs, Vx); var_vx and cov are 0 when Vx is held fixed.
+  double var_rs = 0.0;
+  double var_vx = 0.0;
+  double cov_rs_vx = 0.0;
+  double residual_rms_V = 0.0;
+  double signal_rms_A = 0.0;    // RMS of dId
+  double condition = 0.0;       // reciprocal condition of the scaled normal matrix
+  double samples = 0.0;
+  // Sensitivity of the fixed-Vx Rs to the assumed Vx: dRs/dVx = -sum(dId dGd) / sum(dId^2).
+  double drs_dvx = 0.0;
+  // How much of dGd the resistive regressor dId cannot explain, 1 - rho^2 with rho their
+  // (uncentred) correlation: near 0 the two are collinear and Vx is not identifiable from
+  // these samples, whatever the jackknife says (the split is then decided by model error).
+  double vx_identifiability = 0.0;
+};
+
+// Least squares on blocked sums, with the jackknife over blocks for the covariance.
+[[nodiscard]] FitResult solve_fit(const BlockedSums& sums, const FitOptions& options);
+
+struct PairFitConfig {
+  double lq_H = 5.5e-3;         // the controller's Lq, for the Eq. 37 correction term
+};
+
+// Operating conditions of a pair, for the guards of Section X and the EMF constant.
+struct PairConditions {
+  std::size_t samples = 0;
+  double omega_e_mean_1_rad_s = 0.0;
+  double omega_e_mean_2_rad_s = 0.0;
+  double iq_mean_1_A = 0.0;
+  double iq_mean_2_A = 0.0;
+  double id_mean_1_A = 0.0;
+  double id_mean_2_A = 0.0;
+  bool any_voltage_limited = false;
+  // q-axis means over both recordings at the same angles.
+  double vq_mean_V = 0.0;
+  double iq_mean_A = 0.0;
+  double omega_e_id_mean_A_rad_s = 0.0;  // mean of w * id
+  double omega_m_mean_rad_s = 0.0;
+  double gq_mean = 0.0;
+};
+
+// Recording of one pair: add samples to recording 1, close it, then add samples of recording
+// 2; each is matched and accumulated immediately.
+class PairRecorder {
+ public:
+  explicit PairRecorder(std::size_t capacity);
+
+  void start(const PairFitConfig& config, MatchBy match_by, double direction);
+  // Recording 1. Returns false when full (the sample is dropped).
+  bool add_first(const PeriodSample& s);
+  // The extent of recording 1, in the matching coordinate (angle from its first sample, or
+  // time); recording 2 must cover the same.
+  [[nodiscard]] double first_extent() const;
+  [[nodiscard]] std::size_t first_size() const { return size1_; }
+  // Start of recording 1 in the matching coordinate (absolute angle or time).
+  [[nodiscard]] double first_origin() const { return origin1_; }
+  // Recording 2: origin is the matching coordinate of recording 1's origin plus dTheta.
+  void begin_second(double origin);
+  // Adds a sample of recording 2 (matched and accumulated); returns its relative coordinate.
+  double add_second(const PeriodSample& s);
+  [[nodiscard]] bool second_complete(const PeriodSample& s) const;
+
+  [[nodiscard]] const BlockedSums& sums() const { return sums_; }
+  [[nodiscard]] PairConditions conditions() const;
+
+  // Coordinate of a sample in the matching space (direction-signed angle, or time).
+  [[nodiscard]] double coordinate(const PeriodSample& s) const;
+
+ private:
+  std::vector<PeriodSample> first_;  // preallocated at construction; never grows
+  std::size_t size1_ = 0;
+  std::size_t cursor_ = 0;
+  PairFitConfig config_{};
+  MatchBy match_by_ = MatchBy::kAngle;
+  double direction_ = 1.0;
+  double origin1_ = 0.0;
+  double origin2_ = 0.0;
+  BlockedSums sums_{};
+  std::size_t matched_ = 0;
+  double sum_omega1_ = 0.0, sum_omega2_ = 0.0, sum_iq1_ = 0.0, sum_iq2_ = 0.0;
+  double sum_id1_ = 0.0, sum_id2_ = 0.0;
+  double sum_vq_ = 0.0, sum_iq_ = 0.0, sum_wid_ = 0.0, sum_wm_ = 0.0, sum_gq_ = 0.0;
+  bool any_limited_ = false;
+};
+
+}  // namespace pmsm::core

@@ -1,0 +1,106 @@
+// Continuous winding temperature between injections: a two-node thermal model (winding,
+// stator/housing, to ambient) driven by the losses the controller can compute, fused with the
+// resistance measurements by a Kalman filter. A third state, the error of the winding-loss
+// model, lets the filter learn a constant model mismatch from the measurements, which keeps
+// the prediction honest between measurements and the time-to-limit sensible.
+//
+// Also here: temperature from resistance (Eq. 1) through the calibration, time-to-limit at
+// the present load, and current-limit derating from the upper confidence bound.
+#pragma once
+
+#include <Eigen/Dense>
+
+namespace pmsm::core {
+
+struct ThermalModelConfig {
+  // The controller's model (from the motor data sheet or commissioning; need not be exact).
+  double winding_capacity_J_K = 2000.0;
+  double housing_capacity_J_K = 12500.0;
+  double winding_to_housing_K_W = 0.05;
+  double housing_to_ambient_K_W = 0.175;
+  // Iron loss model: P = k1 |wm| + k2 wm^2 (hysteresis + eddy), on the housing node.
+  double iron_loss_k1_W_s_rad = 0.3;
+  double iron_loss_k2_W_s2_rad2 = 1.5e-3;
+  // Thermal time runs this many times faster than controller time (test acceleration; 1 on a
+  // real machine).
+  double time_scale = 1.0;
+  // Kalman filter.
+  double initial_std_C = 5.0;
+  double winding_process_std_C_per_sqrt_s = 0.02;  // per sqrt(thermal second)
+  double housing_process_std_C_per_sqrt_s = 0.01;
+  double loss_error_process_std_W_per_sqrt_s = 0.5;
+  double initial_loss_error_std_W = 50.0;
+  double measurement_floor_std_C = 0.3;  // added in quadrature to each measurement's own error
+  double gate_sigma = 6.0;               // innovation gate
+};
+
+struct Calibration {
+  double rs0_ohm = 0.133;       // winding resistance at t0_C
+  double t0_C = 25.0;
+  double ke0_V_s_per_rad = 0.0; // EMF constant (Eq. 3 form) at t0_C; 0 when not calibrated
+  bool calibrated = false;      // from a calibration run rather than the nameplate
+};
+
+struct DeratingConfig {
+  double max_current_A = 63.8;      // |i| limit when cold (peak)
+  double min_current_A = 10.0;      // the floor at the temperature limit
+  double derate_start_C = 130.0;    // derating begins here (upper bound of the estimate)
+  double limit_C = 155.0;           // winding temperature limit (insulation class F)
+  double confidence_sigma = 2.0;    // derate on T + k sigma
+};
+
+struct ThermalEstimate {
+  double winding_C = 0.0;
+  double winding_std_C = 0.0;
+  double housing_C = 0.0;
+  double loss_error_W = 0.0;
+  double time_since_measurement_s = 0.0;
+};
+
+class ThermalObserver {
+ public:
+  ThermalObserver(const ThermalModelConfig& config, const Calibration& calibration,
+                  double initial_temp_C);
+
+  // Advances the model by dt (controller seconds) with the losses of that interval.
+  // copper_current_sq_A2 is the mean of id^2 + iq^2; the copper loss is computed with Rs at the
+  // estimated winding temperature (Eq. 1).
+  void predict(double dt_s, double copper_current_sq_A2, double omega_m_rad_s, double ambient_C);
+
+  // Fuses one resistance measurement (ohm, with its standard error). Returns false, leaving
+  // the state alone, when the measurement is further from the prediction than gate_sigma
+  // standard deviations of the innovation: one wild estimate must not swing the derating.
+  bool update_resistance(double rs_ohm, double rs_std_ohm);
+
+  void set_calibration(const Calibration& c) { calibration_ = c; }
+  [[nodiscard]] const Calibration& calibration() const { return calibration_; }
+
+  [[nodiscard]] ThermalEstimate estimate() const;
+  [[nodiscard]] double temperature_from_resistance_C(double rs_ohm) const;
+  [[nodiscard]] double resistance_at_C(double temp_C) const;
+
+  // Time (controller seconds) until the winding reaches limit_C if the present losses
+  // continue; nothing when the steady state stays below the limit.
+  [[nodiscard]] bool time_to_limit_s(double limit_C, double copper_current_sq_A2,
+                                     double omega_m_rad_s, double ambient_C, double* out_s) const;
+
+  // Copper loss for a mean current square at the estimated temperature.
+  [[nodiscard]] double copper_loss_W(double copper_current_sq_A2) const;
+  [[nodiscard]] double iron_loss_W(double omega_m_rad_s) const;
+
+ private:
+  ThermalModelConfig config_;
+  Calibration calibration_;
+  Eigen::Vector3d x_;   // winding C, housing C, winding-loss error W
+  Eigen::Matrix3d p_;
+  double since_measurement_s_ = 0.0;
+};
+
+// The derated current limit and whether derating is active, from the estimate's upper bound.
+struct DeratingResult {
+  double current_limit_A = 0.0;
+  bool derating = false;
+};
+[[nodiscard]] DeratingResult derate(const DeratingConfig& config, const ThermalEstimate& e);
+
+}  // namespace pmsm::core

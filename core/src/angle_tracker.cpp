@@ -1,0 +1,44 @@
+#include "pmsm/core/angle_tracker.hpp"
+
+#include "pmsm/core/transforms.hpp"
+
+namespace pmsm::core {
+
+AngleTracker::AngleTracker(const AngleTrackerConfig& config)
+    : config_(config),
+      counts_to_rad_(kTwoPi / static_cast<double>(std::uint64_t{1} << config.encoder_bits)),
+      // Critically damped type-2 loop: kp = 2 wn, ki = wn^2.
+      kp_(2.0 * config.pll_bandwidth_rad_s),
+      ki_(config.pll_bandwidth_rad_s * config.pll_bandwidth_rad_s) {}
+
+void AngleTracker::reset() {
+  initialised_ = false;
+  speed_m_rad_s_ = 0.0;
+  unwrapped_e_rad_ = 0.0;
+}
+
+void AngleTracker::update(std::uint32_t encoder_count) {
+  theta_m_rad_ = static_cast<double>(encoder_count) * counts_to_rad_;
+  theta_e_rad_ = wrap_angle_0_2pi(config_.pole_pairs * theta_m_rad_ + config_.electrical_offset_rad);
+  if (!initialised_) {
+    initialised_ = true;
+    previous_theta_m_rad_ = theta_m_rad_;
+    pll_measured_unwrapped_rad_ = theta_m_rad_;
+    pll_theta_rad_ = theta_m_rad_;
+    unwrapped_e_rad_ = theta_e_rad_;
+    return;
+  }
+  // Accumulate the measured angle: a step larger than half a turn between samples would need
+  // more than 150 000 rpm at 10 kHz, so the shortest way round is the true one.
+  const double step_m = wrap_angle_pm_pi(theta_m_rad_ - previous_theta_m_rad_);
+  previous_theta_m_rad_ = theta_m_rad_;
+  pll_measured_unwrapped_rad_ += step_m;
+  unwrapped_e_rad_ += config_.pole_pairs * step_m;
+
+  const double dt = config_.period_s;
+  const double error = pll_measured_unwrapped_rad_ - pll_theta_rad_;
+  speed_m_rad_s_ += ki_ * error * dt;
+  pll_theta_rad_ += (speed_m_rad_s_ + kp_ * error) * dt;
+}
+
+}  // namespace pmsm::core

@@ -1,0 +1,291 @@
+#include "pmsm/core/drive_controller.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+#include "pmsm/core/machine_equations.hpp"
+
+namespace pmsm::core {
+namespace {
+
+// The phase-current sign pattern in the rotor frame: the direction of the voltage the bridge
+// loses to dead time and device drop (per volt of per-phase error), see pair_estimator.hpp.
+Dq dead_time_pattern(const Abc& i, double band_A, double theta_rad) {
+  const Abc sign{soft_sign(i.a, band_A), soft_sign(i.b, band_A), soft_sign(i.c, band_A)};
+  return park(clarke(sign), theta_rad);
+}
+
+}  // namespace
+
+DriveController::DriveController(const DriveConfig& config)
+    : config_(config),
+      kt_dq_Nm_per_A_(1.5 * config.motor.pole_pairs * config.current.flux_linkage_Wb),
+      angle_(config.angle),
+      current_(config.current),
+      speed_(config.speed),
+      scheduler_(config.injection, config.period_s, config.recording_capacity),
+      baseline_(config.baseline),
+      observer_(config.thermal, config.calibration, config.calibration.t0_C),
+      derating_{config.derating.max_current_A, false} {}
+
+void DriveController::start_calibration(double known_temp_C) {
+  calibrating_ = true;
+  calibration_temp_C_ = known_temp_C;
+  calibration_count_ = 0;
+  calibration_rs_sum_ = 0.0;
+  calibration_ke_sum_ = 0.0;
+  calibration_ke_count_ = 0;
+}
+
+Dq DriveController::motoring_reference(const DriveCommand& command) {
+  const double limit = derating_.current_limit_A;
+  double torque = 0.0;
+  if (command.mode == DriveMode::kSpeed) {
+    if (++speed_divider_ >= config_.speed_decimation) {
+      speed_divider_ = 0;
+      torque_demand_Nm_ = speed_.step(command.speed_ref_rad_s, angle_.mechanical_speed_rad_s(),
+                                      limit * kt_dq_Nm_per_A_);
+    }
+    torque = torque_demand_Nm_;
+  } else if (command.mode == DriveMode::kTorque) {
+    torque = command.torque_ref_Nm;
+  }
+  // id = 0 control: Eq. 10, Tem = Kt iqr.
+  const double iq = std::clamp(torque / kt_dq_Nm_per_A_, -limit, limit);
+  return {0.0, iq};
+}
+
+void DriveController::handle_pair(const PairResult& r) {
+  ++telemetry_.outcomes[static_cast<std::size_t>(r.outcome)];
+  last_pair_ = r;
+}
+
+void DriveController::handle_estimate(const EventEstimate& e) {
+  telemetry_.vx_V = e.vx_V;
+  telemetry_.vx_std_V = e.vx_std_V;
+  if (calibrating_) {
+    calibration_rs_sum_ += e.rs_ohm;
+    ++calibration_count_;
+    if (e.has_emf) {
+      calibration_ke_sum_ += e.ke_V_s_per_rad;
+      ++calibration_ke_count_;
+    }
+    if (calibration_count_ >= config_.calibration_events) {
+      Calibration c;
+      c.rs0_ohm = calibration_rs_sum_ / calibration_count_;
+      c.t0_C = calibration_temp_C_;
+      c.ke0_V_s_per_rad = calibration_ke_count_ > 0 ? calibration_ke_sum_ / calibration_ke_count_ : 0.0;
+      c.calibrated = true;
+      calibrating_ = false;
+      observer_ = ThermalObserver(config_.thermal, c, calibration_temp_C_);
+      calibration_done_ = c;
+    }
+    return;
+  }
+  ResistanceEstimate out;
+  out.time_s = e.time_s;
+  out.rs_ohm = e.rs_ohm;
+  out.rs_std_ohm = e.rs_std_ohm;
+  out.winding_C = observer_.temperature_from_resistance_C(e.rs_ohm);
+  out.vx_V = e.vx_V;
+  out.vx_std_V = e.vx_std_V;
+  out.pairs = e.pairs;
+  out.fused = observer_.update_resistance(e.rs_ohm, e.rs_std_ohm);
+  if (out.fused) {
+    ++telemetry_.estimates_published;
+  } else {
+    ++telemetry_.estimates_gated;
+  }
+  last_estimate_ = out;
+
+  // Magnet temperature from the EMF constant relative to its calibrated value.
+  const Calibration& cal = observer_.calibration();
+  if (e.has_emf && cal.ke0_V_s_per_rad > 0.0) {
+    const double magnet_C =
+        cal.t0_C + (e.ke_V_s_per_rad / cal.ke0_V_s_per_rad - 1.0) / config_.magnet_coefficient_per_C;
+    magnet_filtered_C_ = magnet_valid_ ? 0.7 * magnet_filtered_C_ + 0.3 * magnet_C : magnet_C;
+    magnet_valid_ = true;
+  }
+}
+
+void DriveController::update_thermal(double ambient_C) {
+  const double dt = thermal_count_ * config_.period_s;
+  const double i_sq = i_sq_sum_ / thermal_count_;
+  const double speed = speed_sum_ / thermal_count_;
+  observer_.predict(dt, i_sq, speed, ambient_C);
+  i_sq_sum_ = 0.0;
+  speed_sum_ = 0.0;
+  thermal_count_ = 0;
+
+  const ThermalEstimate e = observer_.estimate();
+  derating_ = derate(config_.derating, e);
+  telemetry_.thermal = e;
+  telemetry_.current_limit_A = derating_.current_limit_A;
+  telemetry_.derating = derating_.derating;
+  // Time-to-limit is slower to compute; every tenth update is plenty.
+  if (++thermal_updates_ % 10 == 0) {
+    double t = 0.0;
+    telemetry_.time_to_limit_valid =
+        observer_.time_to_limit_s(config_.derating.limit_C, i_sq, speed, ambient_C, &t);
+    telemetry_.time_to_limit_s = telemetry_.time_to_limit_valid ? t : 0.0;
+  }
+}
+
+const DriveOutput& DriveController::step(const DriveInput& in, const DriveCommand& command) {
+  last_pair_.reset();
+  last_estimate_.reset();
+  calibration_done_.reset();
+  const double now = static_cast<double>(period_) * config_.period_s;
+  ++period_;
+
+  const bool enabled = command.mode != DriveMode::kDisabled && in.valid;
+  if (!in.valid) {
+    // No fresh sample: the safe output for this period, and the pair in progress is lost.
+    output_ = {};
+    was_enabled_ = false;
+    have_previous_ = false;
+    SchedulerInput s;
+    s.time_s = now;
+    const SchedulerOutput so = scheduler_.step(s, nullptr);
+    if (so.completed) {
+      handle_pair(*so.completed);
+    }
+    return output_;
+  }
+
+  angle_.update(in.encoder_count);
+  const double theta = angle_.electrical_angle_rad();
+  const double omega_e = angle_.electrical_speed_rad_s();
+  const double theta_smooth = angle_.smooth_unwrapped_electrical_angle_rad();
+  const Dq i = park(clarke(in.i_A), theta);
+
+  // The period that just ended, [k-1, k]: its voltage was commanded two steps ago.
+  std::optional<PeriodSample> sample;
+  if (have_previous_) {
+    PeriodSample s;
+    s.time_s = now - 0.5 * config_.period_s;
+    s.theta_e_rad = 0.5 * (previous_theta_smooth_ + theta_smooth);
+    s.omega_e_rad_s = omega_e;
+    s.omega_m_rad_s = angle_.mechanical_speed_rad_s();
+    s.i_A = {0.5 * (previous_i_A_.d + i.d), 0.5 * (previous_i_A_.q + i.q)};
+    s.di_dt_A_s = {(i.d - previous_i_A_.d) / config_.period_s, (i.q - previous_i_A_.q) / config_.period_s};
+    s.v_V = v_applied_now_;
+    const Abc i_mid{0.5 * (previous_i_abc_A_.a + in.i_A.a), 0.5 * (previous_i_abc_A_.b + in.i_A.b),
+                    0.5 * (previous_i_abc_A_.c + in.i_A.c)};
+    s.dead_time_pattern = dead_time_pattern(i_mid, config_.dead_time.current_band_A,
+                                            wrap_angle_0_2pi(s.theta_e_rad));
+    s.voltage_limited = limited_now_;
+    sample = s;
+    if (config_.estimator == EstimatorKind::kNoInjection && enabled) {
+      baseline_.add(s);
+    }
+  }
+
+  if (enabled && !was_enabled_) {
+    current_.reset();
+    speed_.reset();
+    torque_demand_Nm_ = 0.0;
+  }
+  was_enabled_ = enabled;
+
+  const Dq motoring = enabled ? motoring_reference(command) : Dq{};
+  SchedulerInput si;
+  si.time_s = now;
+  si.theta_e_rad = theta_smooth;
+  si.omega_e_rad_s = omega_e;
+  si.motoring_ref_A = motoring;
+  si.voltage_limit_V = current_.voltage_limit_V(in.vdc_V);
+  si.current_limit_A = derating_.current_limit_A;
+  si.enabled = enabled && config_.estimator == EstimatorKind::kInjection;
+  si.request_now = command.request_injection || (calibrating_ && enabled);
+  const SchedulerOutput so = scheduler_.step(si, sample ? &*sample : nullptr);
+  if (so.completed) {
+    handle_pair(*so.completed);
+  }
+  if (so.estimate) {
+    handle_estimate(*so.estimate);
+  }
+
+  Dq v{};
+  Dq v_total{};
+  bool limited = false;
+  if (enabled) {
+    const Dq i_ref{motoring.d + so.injection_A.d, motoring.q + so.injection_A.q};
+    const CurrentControllerStatus& cs = current_.step(i_ref, i, omega_e, in.vdc_V);
+    v = cs.v_V;
+    limited = cs.voltage_limited;
+    // The command is applied during the next period: rotate it to the angle at that period's
+    // middle (1.5 periods of rotation ahead) and compensate the dead time for the currents
+    // expected then.
+    const double theta_apply = theta + 1.5 * omega_e * config_.period_s;
+    const double c = std::cos(theta_apply);
+    const double sn = std::sin(theta_apply);
+    const Abc i_expected = inverse_clarke(inverse_park(i_ref, c, sn));
+    const Duties d = svpwm_compensated(inverse_park(v, c, sn), in.vdc_V, i_expected,
+                                       config_.dead_time, config_.period_s);
+    output_.duty = d.value;
+    // What the bridge was asked for in total: the current controller's voltage plus the
+    // compensation. The estimator models the bridge's whole error against this (see
+    // pair_estimator.hpp), so it must see the compensation actually applied.
+    const Dq comp = park(clarke(dead_time_compensation_V(i_expected, config_.dead_time, in.vdc_V, config_.period_s)), c, sn);
+    v_total = {v.d + comp.d, v.q + comp.q};
+    limited = limited || d.clipped;
+    output_.enable = true;
+    telemetry_.i_ref_A = i_ref;
+    telemetry_.injection_A = so.injection_A;
+  } else {
+    output_ = {};
+    telemetry_.i_ref_A = {};
+    telemetry_.injection_A = {};
+  }
+
+  // Shift the command history: what was "next" is applied during the coming period.
+  v_applied_now_ = v_applied_next_;
+  limited_now_ = limited_next_;
+  v_applied_next_ = v_total;
+  limited_next_ = limited;
+  previous_i_A_ = i;
+  previous_i_abc_A_ = in.i_A;
+  previous_theta_smooth_ = theta_smooth;
+  have_previous_ = true;
+
+  // Thermal model at its own rate.
+  i_sq_sum_ += i.d * i.d + i.q * i.q;
+  speed_sum_ += angle_.mechanical_speed_rad_s();
+  ++thermal_count_;
+  thermal_elapsed_s_ += config_.period_s;
+  if (thermal_elapsed_s_ >= config_.thermal_update_s) {
+    thermal_elapsed_s_ = 0.0;
+    update_thermal(command.ambient_C);
+  }
+  if (config_.estimator == EstimatorKind::kNoInjection && baseline_.updates() > 0 &&
+      now - last_baseline_publish_s_ >= config_.baseline_publish_s) {
+    last_baseline_publish_s_ = now;
+    EventEstimate e;
+    e.time_s = now;
+    e.rs_ohm = baseline_.rs_ohm();
+    e.rs_std_ohm = baseline_.rs_std_ohm();
+    handle_estimate(e);
+  }
+
+  telemetry_.period = period_;
+  telemetry_.time_s = now;
+  telemetry_.theta_e_rad = theta;
+  telemetry_.speed_m_rad_s = angle_.mechanical_speed_rad_s();
+  telemetry_.i_A = i;
+  telemetry_.v_V = v;
+  telemetry_.voltage_limited = limited;
+  telemetry_.injection_phase = so.phase;
+  telemetry_.injection_active = so.active;
+  telemetry_.magnet_valid = magnet_valid_;
+  telemetry_.magnet_C = magnet_filtered_C_;
+  telemetry_.torque_estimate_Nm = electromagnetic_torque_Nm(
+      config_.current.flux_linkage_Wb, config_.current.ld_H, config_.current.lq_H, config_.motor.pole_pairs, i);
+  telemetry_.calibrating = calibrating_;
+  telemetry_.vx_V = scheduler_.vx_V();
+  telemetry_.vx_std_V = scheduler_.vx_std_V();
+  telemetry_.calibrated = observer_.calibration().calibrated;
+  return output_;
+}
+
+}  // namespace pmsm::core

@@ -1,0 +1,598 @@
+#include "pmsm/core/injection_scheduler.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+#include "pmsm/core/injection.hpp"
+
+namespace pmsm::core {
+
+std::string_view to_string(InjectionMethod m) {
+  switch (m) {
+    case InjectionMethod::kNone: return "none";
+    case InjectionMethod::kFixedMagnitude: return "fixed-magnitude";
+    case InjectionMethod::kFixedAngle: return "fixed-angle";
+    case InjectionMethod::kDc: return "dc";
+  }
+  return "?";
+}
+
+std::string_view to_string(Separation s) {
+  return s == Separation::kBipolar ? "bipolar" : "unipolar";
+}
+
+std::string_view to_string(PairOutcome o) {
+  switch (o) {
+    case PairOutcome::kAccepted: return "accepted";
+    case PairOutcome::kRejectedSpeedChange: return "rejected_speed_change";
+    case PairOutcome::kRejectedLoadChange: return "rejected_load_change";
+    case PairOutcome::kRejectedResidual: return "rejected_residual";
+    case PairOutcome::kRejectedVoltageHeadroom: return "rejected_voltage_headroom";
+    case PairOutcome::kRejectedCurrentLimit: return "rejected_current_limit";
+    case PairOutcome::kRejectedImplausible: return "rejected_implausible";
+    case PairOutcome::kRejectedVoltageSaturation: return "rejected_voltage_saturation";
+    case PairOutcome::kRejectedIllConditioned: return "rejected_ill_conditioned";
+    case PairOutcome::kAborted: return "aborted";
+    case PairOutcome::kCount: break;
+  }
+  return "?";
+}
+
+InjectionScheduler::InjectionScheduler(const InjectionConfig& config, double period_s,
+                                       std::size_t capacity)
+    : config_(config),
+      period_s_(period_s),
+      recorder_(capacity),
+      next_event_s_(config.first_event_s),
+      vx_V_(config.vx_initial_V),
+      vx_var_(config.vx_initial_std_V * config.vx_initial_std_V),
+      recorder_capacity_(capacity) {}
+
+bool InjectionScheduler::plausible(double rs_ohm, double margin_ohm) const {
+  return rs_ohm >= config_.rs_min_ohm - margin_ohm && rs_ohm <= config_.rs_max_ohm + margin_ohm;
+}
+
+FitOptions InjectionScheduler::fit_options(bool fit_vx) const {
+  FitOptions o;
+  o.fit_vx = fit_vx && config_.fit_dead_time;
+  o.fixed_vx_V = config_.fit_dead_time ? vx_V_ : 0.0;
+  o.fit_ld = config_.fit_inductance;
+  return o;
+}
+
+void InjectionScheduler::set_config(const InjectionConfig& config) {
+  config_ = config;
+}
+
+double InjectionScheduler::edge_value(double elapsed_s) const {
+  // The rising half of the window: B(tn) with tn from -Tw to 0.
+  const double tn = std::clamp(elapsed_s, 0.0, config_.tw_s) - config_.tw_s;
+  return window_value(config_.window, tn, config_.tw_s);
+}
+
+double InjectionScheduler::level_for(int recording) const {
+  if (config_.separation == Separation::kBipolar) {
+    return recording == 1 ? 1.0 : -1.0;
+  }
+  return recording == 1 ? 0.0 : static_cast<double>(config_.unipolar_polarity >= 0 ? 1 : -1);
+}
+
+double InjectionScheduler::delta_theta(double needed_rad) const {
+  // dTheta = 2 pi (electrical harmonics) or 2 pi p (mechanical), times the smallest whole
+  // number that leaves room for recording 1 and the transition.
+  const double unit = config_.mechanical_harmonics ? kTwoPi * config_.pole_pairs : kTwoPi;
+  return unit * std::max(1.0, std::ceil(needed_rad / unit));
+}
+
+InjectionScheduler::Budget InjectionScheduler::budget(const SchedulerInput& in, double tw_s,
+                                                      double wanted_A) const {
+  Budget b;
+  const bool bipolar = config_.separation == Separation::kBipolar;
+  const double s_uni = config_.unipolar_polarity >= 0 ? 1.0 : -1.0;
+  const Dq im = in.motoring_ref_A;
+  const double limit = std::min(in.current_limit_A, config_.current_limit_A);
+
+  // Current: |i_motoring + s F e_d| <= limit for every polarity s the pair uses.
+  double f_current = wanted_A;
+  auto current_room = [&](double s) {
+    if (config_.method == InjectionMethod::kFixedMagnitude) {
+      const double room_sq = limit * limit - im.q * im.q;
+      return room_sq > 0.0 ? std::sqrt(room_sq) - s * im.d : 0.0;
+    }
+    // The injected vector turns relative to the rotor: take the worst direction.
+    return limit - std::hypot(im.d, im.q);
+  };
+  if (bipolar) {
+    f_current = std::min({f_current, current_room(1.0), current_room(-1.0)});
+  } else {
+    f_current = std::min(f_current, current_room(s_uni));
+  }
+
+  // Voltage: Eq. 29 at the operating point, for the polarities used.
+  InjectionHeadroomInput h;
+  h.rs_ohm = config_.rs_nominal_ohm;
+  h.ld_H = config_.ld_H;
+  h.lq_H = config_.lq_H;
+  h.flux_linkage_Wb = config_.flux_linkage_Wb;
+  h.omega_e_rad_s = in.omega_e_rad_s;
+  h.id_A = im.d;
+  h.iq_A = im.q;
+  h.voltage_limit_V = in.voltage_limit_V;
+  h.tw_s = tw_s;
+  h.window = config_.window;
+  double f_voltage = wanted_A;
+  const bool any_direction = config_.method != InjectionMethod::kFixedMagnitude;
+  if (bipolar || any_direction) {
+    f_voltage = std::min({f_voltage, max_injection_current_at_operating_point_A(h, 1.0),
+                          max_injection_current_at_operating_point_A(h, -1.0)});
+  } else {
+    f_voltage = std::min(f_voltage, max_injection_current_at_operating_point_A(h, s_uni));
+  }
+
+  b.f_A = std::max(0.0, std::min(f_current, f_voltage));
+  if (b.f_A < config_.f_min_A) {
+    b.limiting = f_current <= f_voltage ? PairOutcome::kRejectedCurrentLimit
+                                        : PairOutcome::kRejectedVoltageHeadroom;
+  }
+  return b;
+}
+
+void InjectionScheduler::begin_pair(const SchedulerInput& in) {
+  time_based_ = std::abs(in.omega_e_rad_s) < config_.min_speed_for_angle_rad_s;
+  direction_ = in.omega_e_rad_s >= 0.0 ? 1.0 : -1.0;
+  PairFitConfig fit;
+  fit.lq_H = config_.lq_H;
+  recorder_.start(fit, time_based_ ? MatchBy::kTime : MatchBy::kAngle, direction_);
+  ramp_count_ = 0;
+  recording_ = 0;
+  level_from_ = 0.0;
+  level_to_ = 0.0;
+  phase_start_s_ = in.time_s;
+
+  if (config_.method == InjectionMethod::kFixedAngle && !time_based_) {
+    // The pulse is an arc centred on the next theta_F ahead of the rotor, far enough ahead
+    // for the window edge to start.
+    window_arc_rad_ = std::max(config_.window_arc_rad, std::abs(in.omega_e_rad_s) * config_.tw_s);
+    pulse_arc_rad_ = 2.0 * window_arc_rad_ + config_.injection_arc_rad;
+    const double half = 0.5 * pulse_arc_rad_;
+    const double margin = 4.0 * std::abs(in.omega_e_rad_s) * period_s_;
+    // Signed distance (in the direction of rotation) from now to the next theta_F.
+    const double now = in.theta_e_rad;
+    double centre = now + direction_ * wrap_angle_0_2pi(direction_ * (config_.theta_f_rad - now));
+    while (direction_ * (centre - now) < half + margin) {
+      centre += direction_ * kTwoPi;
+    }
+    theta_f_unwrapped_ = centre;
+    pulse_start_theta_ = centre - direction_ * half;
+    recording_ = 1;
+    phase_ = SchedulerPhase::kPulseWait;
+    return;
+  }
+
+  if (config_.method == InjectionMethod::kDc) {
+    // A stator-fixed vector; at the rotor angle now it is theta_F.
+    dc_theta_f_rad_ = config_.theta_f_rad;
+  }
+  // Angle-based recordings span whole electrical turns (so the EMF harmonics average out of
+  // the fit as well as cancelling in the difference), at least record_arc_rad and at least
+  // record_min_time_s at the present speed.
+  const double base_arc = config_.method == InjectionMethod::kDc ? config_.dc_revolutions * kTwoPi
+                                                                 : config_.record_arc_rad;
+  const double arc = std::max(base_arc, std::abs(in.omega_e_rad_s) * config_.record_min_time_s);
+  record_arc_rad_ = kTwoPi * std::ceil(arc / kTwoPi - 1e-9);
+  const double first = level_for(1);
+  if (first != 0.0) {
+    level_from_ = 0.0;
+    level_to_ = first;
+    phase_ = SchedulerPhase::kRampUp;
+  } else {
+    phase_ = SchedulerPhase::kSettle;
+  }
+}
+
+Dq InjectionScheduler::injection_current(const SchedulerInput& in) const {
+  double level = 0.0;
+  double envelope = 1.0;
+  switch (phase_) {
+    case SchedulerPhase::kRampUp:
+    case SchedulerPhase::kRampDown: {
+      const double e = edge_value(in.time_s - phase_start_s_);
+      level = level_from_ + (level_to_ - level_from_) * e;
+      break;
+    }
+    case SchedulerPhase::kSettle:
+    case SchedulerPhase::kRecord1:
+    case SchedulerPhase::kWaitArc:
+    case SchedulerPhase::kRecord2:
+      level = level_to_;
+      break;
+    case SchedulerPhase::kPulseWait: {
+      // Fixed-angle pulse: the envelope follows the rotor angle across the arc.
+      const double phi = direction_ * (in.theta_e_rad - pulse_start_theta_);
+      const PulseEnvelope env{config_.window, window_arc_rad_, config_.injection_arc_rad};
+      envelope = env.value(phi);
+      level = level_for(recording_);
+      break;
+    }
+    case SchedulerPhase::kIdle:
+    case SchedulerPhase::kFinish:
+      return {};
+  }
+  const double f = level * f_A_ * envelope;
+  if (f == 0.0) {
+    return {};
+  }
+  switch (config_.method) {
+    case InjectionMethod::kFixedMagnitude:
+      return fixed_magnitude_injection_current(f);  // Eqs. 18-19
+    case InjectionMethod::kFixedAngle:
+      if (time_based_) {
+        return fixed_magnitude_injection_current(f);  // at standstill the arc is the d-axis
+      }
+      return fixed_angle_injection_current(f, theta_f_unwrapped_, config_.beta, in.theta_e_rad);  // Eqs. 11-12
+    case InjectionMethod::kDc:
+      return dc_injection_current_rotor(f, dc_theta_f_rad_, in.theta_e_rad);  // Eqs. 6-7
+    case InjectionMethod::kNone:
+      break;
+  }
+  return {};
+}
+
+void InjectionScheduler::abort(SchedulerOutput& out, const SchedulerInput& in) {
+  if (phase_ != SchedulerPhase::kIdle) {
+    PairResult r;
+    r.outcome = PairOutcome::kAborted;
+    r.method = config_.method;
+    r.separation = config_.separation;
+    r.time_s = in.time_s;
+    r.f_A = f_A_;
+    r.level_index = level_index_;
+    out.completed = r;
+    next_event_s_ = std::max(next_event_s_, in.time_s + config_.retry_s);
+  }
+  phase_ = SchedulerPhase::kIdle;
+  in_event_ = false;
+  out.injection_A = {};
+  out.active = false;
+  out.phase = phase_;
+}
+
+PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
+  PairResult r;
+  r.method = config_.method;
+  r.separation = config_.separation;
+  r.time_s = in.time_s;
+  r.f_A = f_A_;
+  r.level_index = level_index_;
+  r.time_based = time_based_;
+  const PairConditions c = recorder_.conditions();
+  r.conditions = c;
+  r.samples = c.samples;
+  // The pair on its own, with Vx held at the prior: its guards and its report.
+  const FitResult fit = solve_fit(recorder_.sums(), fit_options(false));
+  r.rs_ohm = fit.rs_ohm;
+  r.rs_std_ohm = std::sqrt(fit.var_rs + fit.drs_dvx * fit.drs_dvx * (config_.fit_dead_time ? vx_var_ : 0.0));
+  r.residual_rms_V = fit.residual_rms_V;
+  r.condition = fit.condition;
+  r.delta_omega_e_rad_s = c.omega_e_mean_1_rad_s - c.omega_e_mean_2_rad_s;
+  // The motoring current is what remains of iq after the injection's own q-axis part, which
+  // is zero on average for every method used here (fixed-magnitude, fixed-angle with beta = 0,
+  // DC over whole turns), so the means compare directly.
+  r.delta_iq_A = c.iq_mean_1_A - c.iq_mean_2_A;
+
+  const double omega = 0.5 * std::abs(c.omega_e_mean_1_rad_s + c.omega_e_mean_2_rad_s);
+  const double speed_limit = std::max(config_.max_speed_change_rad_s,
+                                      config_.max_speed_change_fraction * omega);
+  if (!fit.valid || fit.condition < config_.min_condition) {
+    r.outcome = PairOutcome::kRejectedIllConditioned;
+  } else if (c.any_voltage_limited) {
+    r.outcome = PairOutcome::kRejectedVoltageSaturation;
+  } else if (!time_based_ && std::abs(r.delta_omega_e_rad_s) > speed_limit) {
+    r.outcome = PairOutcome::kRejectedSpeedChange;
+  } else if (std::abs(r.delta_iq_A) > config_.max_load_change_A) {
+    r.outcome = PairOutcome::kRejectedLoadChange;
+  } else if (fit.residual_rms_V > config_.max_residual_V) {
+    r.outcome = PairOutcome::kRejectedResidual;
+  } else if (!plausible(fit.rs_ohm, 3.0 * std::abs(fit.drs_dvx) * (config_.fit_dead_time ? std::sqrt(vx_var_) : 0.0))) {
+    // The window widens by what the uncertain inverter voltage can move this pair's Rs.
+    r.outcome = PairOutcome::kRejectedImplausible;
+  } else {
+    r.outcome = PairOutcome::kAccepted;
+    event_sums_.add(recorder_.sums());
+    event_min_f_A_ = event_pairs_ == 0 ? f_A_ : std::min(event_min_f_A_, f_A_);
+    event_max_iq_A_ = std::max(event_max_iq_A_, 0.5 * std::abs(c.iq_mean_1_A + c.iq_mean_2_A));
+    if (event_q_pairs_ < InjectionConfig::kMaxLevels && !time_based_) {
+      event_q_[static_cast<std::size_t>(event_q_pairs_++)] = c;
+    }
+    ++event_pairs_;
+  }
+  return r;
+}
+
+std::optional<EventEstimate> InjectionScheduler::finish_event(const SchedulerInput& in) {
+  in_event_ = false;
+  if (event_pairs_ == 0) {
+    return std::nullopt;
+  }
+  EventEstimate e;
+  e.time_s = in.time_s;
+  e.pairs = event_pairs_;
+  double rs = 0.0;
+  double var_rs = 0.0;
+  double vx = config_.fit_dead_time ? vx_V_ : 0.0;
+  double var_vx = config_.fit_dead_time ? vx_var_ : 0.0;
+
+  // The event's own joint fit of Rs and Vx (several levels make it well conditioned) ...
+  const bool reverses = event_max_iq_A_ <= config_.vx_learning_max_iq_fraction * event_min_f_A_;
+  const FitResult joint =
+      config_.fit_dead_time && reverses ? solve_fit(event_sums_, fit_options(true)) : FitResult{};
+  e.joint_condition = joint.condition;
+  e.vx_learning = reverses && config_.fit_dead_time;
+  e.joint_rs_ohm = joint.rs_ohm;
+  e.joint_vx_V = joint.vx_V;
+  if (joint.valid && joint.condition >= config_.min_condition && joint.var_vx > 0.0) {
+    // ... fused with the prior on Vx: Gaussian conditioning of (Rs, Vx) on the combined Vx.
+    const double vx_post = (joint.vx_V * vx_var_ + vx_V_ * joint.var_vx) / (vx_var_ + joint.var_vx);
+    const double var_post = vx_var_ * joint.var_vx / (vx_var_ + joint.var_vx);
+    const double gain = joint.cov_rs_vx / joint.var_vx;
+    rs = joint.rs_ohm + gain * (vx_post - joint.vx_V);
+    var_rs = joint.var_rs - gain * joint.cov_rs_vx + gain * gain * var_post;
+    vx = vx_post;
+    var_vx = var_post;
+    e.vx_from_event = true;
+  } else {
+    // One level, or a collinear event: Rs with Vx held at the prior, whose uncertainty adds.
+    const FitResult fixed = solve_fit(event_sums_, fit_options(false));
+    if (!fixed.valid) {
+      return std::nullopt;
+    }
+    rs = fixed.rs_ohm;
+    var_rs = fixed.var_rs + fixed.drs_dvx * fixed.drs_dvx * var_vx;
+  }
+  if (!plausible(rs, 0.0) || !(var_rs >= 0.0)) {
+    return std::nullopt;
+  }
+  e.rs_ohm = rs;
+  e.rs_std_ohm = std::sqrt(var_rs);
+  if (config_.fit_dead_time) {
+    vx_V_ = vx;
+    vx_var_ = var_vx + config_.vx_drift_std_V * config_.vx_drift_std_V;
+  }
+  e.vx_V = vx;
+  e.vx_std_V = std::sqrt(var_vx);
+
+  // The EMF constant from the q-axis means of the angle-based pairs (Eqs. 34 / 40 averaged
+  // over both recordings): Ke wm = <vq> - Rs <iq> - Ld <w id> - Vx <Gq>.
+  double ke_sum = 0.0;
+  int ke_count = 0;
+  for (int k = 0; k < event_q_pairs_; ++k) {
+    const PairConditions& c = event_q_[static_cast<std::size_t>(k)];
+    if (std::abs(c.omega_m_mean_rad_s) * config_.pole_pairs < config_.min_speed_for_angle_rad_s) {
+      continue;
+    }
+    ke_sum += (c.vq_mean_V - rs * c.iq_mean_A - config_.ld_H * c.omega_e_id_mean_A_rad_s - vx * c.gq_mean) /
+              c.omega_m_mean_rad_s;
+    ++ke_count;
+  }
+  if (ke_count > 0) {
+    e.has_emf = true;
+    e.ke_V_s_per_rad = ke_sum / ke_count;
+  }
+  return e;
+}
+
+SchedulerOutput InjectionScheduler::step(const SchedulerInput& in, const PeriodSample* sample) {
+  SchedulerOutput out;
+  out.phase = phase_;
+  if (config_.method == InjectionMethod::kNone) {
+    phase_ = SchedulerPhase::kIdle;
+    return out;
+  }
+  const bool busy = phase_ != SchedulerPhase::kIdle;
+  if (!in.enabled) {
+    abort(out, in);
+    return out;
+  }
+  // An angle-based pair cannot survive the rotor stopping or reversing.
+  if (busy && !time_based_ &&
+      (direction_ * in.omega_e_rad_s < 0.5 * config_.min_speed_for_angle_rad_s)) {
+    abort(out, in);
+    return out;
+  }
+
+  const double elapsed = in.time_s - phase_start_s_;
+  auto enter = [&](SchedulerPhase p) {
+    phase_ = p;
+    phase_start_s_ = in.time_s;
+  };
+
+  switch (phase_) {
+    case SchedulerPhase::kIdle: {
+      if (!in_event_) {
+        if (in.time_s < next_event_s_ && !in.request_now) {
+          break;
+        }
+        in_event_ = true;
+        level_index_ = 0;
+        event_sums_ = {};
+        event_pairs_ = 0;
+        event_min_f_A_ = 0.0;
+        event_max_iq_A_ = 0.0;
+        event_q_pairs_ = 0;
+        next_event_s_ = in.time_s + config_.interval_s;
+      }
+      if (level_index_ >= std::clamp(config_.level_count, 1, InjectionConfig::kMaxLevels)) {
+        out.estimate = finish_event(in);
+        break;
+      }
+      double tw = config_.tw_s;
+      if (config_.method == InjectionMethod::kFixedAngle &&
+          std::abs(in.omega_e_rad_s) >= config_.min_speed_for_angle_rad_s) {
+        tw = std::max(config_.tw_s, config_.window_arc_rad / std::abs(in.omega_e_rad_s));
+      }
+      const double wanted = config_.f_A * config_.levels[static_cast<std::size_t>(level_index_)];
+      const Budget b = budget(in, tw, wanted);
+      if (b.f_A < config_.f_min_A) {
+        PairResult r;
+        r.outcome = b.limiting;
+        r.method = config_.method;
+        r.separation = config_.separation;
+        r.time_s = in.time_s;
+        r.f_A = b.f_A;
+        r.level_index = level_index_;
+        out.completed = r;
+        ++level_index_;
+        if (event_pairs_ == 0 && level_index_ >= config_.level_count) {
+          // Nothing at all this time: try again soon rather than a whole interval later.
+          next_event_s_ = in.time_s + config_.retry_s;
+        }
+        break;
+      }
+      f_A_ = b.f_A;
+      begin_pair(in);
+      phase_start_s_ = in.time_s;
+      break;
+    }
+
+    case SchedulerPhase::kRampUp:
+    case SchedulerPhase::kRampDown:
+      if (elapsed >= config_.tw_s) {
+        const double reached = level_to_;
+        if (recording_ == 0 && ramp_count_ == 0) {
+          // Up to the level of recording 1.
+          ++ramp_count_;
+          enter(SchedulerPhase::kSettle);
+        } else if (recording_ == 1) {
+          // Between the recordings: down to zero, then up to the level of recording 2.
+          ++ramp_count_;
+          const double second = level_for(2);
+          if (reached != second && reached != 0.0) {
+            level_from_ = reached;
+            level_to_ = 0.0;
+            enter(SchedulerPhase::kRampDown);
+          } else if (reached != second) {
+            level_from_ = 0.0;
+            level_to_ = second;
+            enter(SchedulerPhase::kRampUp);
+          } else {
+            enter(SchedulerPhase::kSettle);
+          }
+        } else {
+          // After recording 2: the pair is done.
+          enter(SchedulerPhase::kFinish);
+        }
+      }
+      break;
+
+    case SchedulerPhase::kSettle:
+      if (elapsed >= config_.settle_s) {
+        if (recording_ == 0) {
+          recording_ = 1;
+          enter(SchedulerPhase::kRecord1);
+        } else {
+          enter(time_based_ ? SchedulerPhase::kRecord2 : SchedulerPhase::kWaitArc);
+          if (time_based_) {
+            recorder_.begin_second(in.time_s + period_s_);
+          }
+        }
+      }
+      break;
+
+    case SchedulerPhase::kRecord1:
+      if (sample != nullptr) {
+        recorder_.add_first(*sample);
+        const double target = time_based_ ? config_.record_time_s : record_arc_rad_;
+        if (recorder_.first_extent() >= target ||
+            recorder_.first_size() >= recorder_capacity_) {
+          if (!time_based_) {
+            // Room for the transition: its ramps and settling at the present speed.
+            const int ramps = (level_for(1) != 0.0 ? 1 : 0) + (level_for(2) != 0.0 ? 1 : 0);
+            const double transition_s = ramps * config_.tw_s + config_.settle_s + 4.0 * period_s_;
+            const double needed = recorder_.first_extent() + std::abs(in.omega_e_rad_s) * transition_s;
+            origin2_ = recorder_.first_origin() + delta_theta(needed);
+            recorder_.begin_second(origin2_);
+          }
+          const double first = level_for(1);
+          const double second = level_for(2);
+          if (first != second) {
+            level_from_ = first;
+            level_to_ = first != 0.0 ? 0.0 : second;
+            enter(first != 0.0 ? SchedulerPhase::kRampDown : SchedulerPhase::kRampUp);
+          } else {
+            enter(SchedulerPhase::kSettle);
+          }
+        }
+      }
+      break;
+
+    case SchedulerPhase::kWaitArc:
+      if (sample != nullptr && recorder_.coordinate(*sample) >= origin2_) {
+        recording_ = 2;
+        enter(SchedulerPhase::kRecord2);
+        recorder_.add_second(*sample);
+      }
+      break;
+
+    case SchedulerPhase::kRecord2:
+      recording_ = 2;
+      if (sample != nullptr) {
+        recorder_.add_second(*sample);
+        if (recorder_.second_complete(*sample)) {
+          if (level_for(2) != 0.0) {
+            level_from_ = level_for(2);
+            level_to_ = 0.0;
+            enter(SchedulerPhase::kRampDown);
+          } else {
+            enter(SchedulerPhase::kFinish);
+          }
+        }
+      }
+      break;
+
+    case SchedulerPhase::kPulseWait: {
+      // Fixed-angle: recording_ says which pulse; record across the pulse arc plus a tail for
+      // the current to follow the envelope back to zero.
+      const double tail = config_.settle_s * std::abs(in.omega_e_rad_s);
+      if (sample != nullptr) {
+        const double phi_sample = direction_ * (sample->theta_e_rad - pulse_start_theta_);
+        if (recording_ == 1) {
+          if (phi_sample >= 0.0) {
+            recorder_.add_first(*sample);
+          }
+          if (phi_sample >= pulse_arc_rad_ + tail) {
+            const double needed = pulse_arc_rad_ + tail + 4.0 * std::abs(in.omega_e_rad_s) * period_s_;
+            const double dtheta = delta_theta(needed);
+            origin2_ = recorder_.first_origin() + dtheta;
+            recorder_.begin_second(origin2_);
+            pulse_start_theta_ += direction_ * dtheta;
+            theta_f_unwrapped_ += direction_ * dtheta;
+            recording_ = 2;
+          }
+        } else if (phi_sample >= 0.0) {
+          recorder_.add_second(*sample);
+          if (recorder_.second_complete(*sample)) {
+            enter(SchedulerPhase::kFinish);
+          }
+        }
+      }
+      break;
+    }
+
+    case SchedulerPhase::kFinish:
+      break;
+  }
+
+  if (phase_ == SchedulerPhase::kFinish) {
+    out.completed = finish_pair(in);
+    phase_ = SchedulerPhase::kIdle;
+    recording_ = 0;
+    ++level_index_;
+  }
+
+  out.phase = phase_;
+  out.active = phase_ != SchedulerPhase::kIdle;
+  out.injection_A = injection_current(in);
+  return out;
+}
+
+}  // namespace pmsm::core

@@ -1,0 +1,311 @@
+#include "pmsm/core/pair_estimator.hpp"
+
+#include <Eigen/Dense>
+#include <algorithm>
+#include <cmath>
+
+namespace pmsm::core {
+namespace {
+
+struct Interpolated {
+  Dq i{};
+  Dq di_dt{};
+  Dq v{};
+  Dq g{};
+  double omega_e = 0.0;
+  double omega_m = 0.0;
+  bool limited = false;
+};
+
+Dq lerp(const Dq& a, const Dq& b, double f) { return {a.d + f * (b.d - a.d), a.q + f * (b.q - a.q)}; }
+
+Interpolated interpolate(const PeriodSample& a, const PeriodSample& b, double f) {
+  return {lerp(a.i_A, b.i_A, f),
+          lerp(a.di_dt_A_s, b.di_dt_A_s, f),
+          lerp(a.v_V, b.v_V, f),
+          lerp(a.dead_time_pattern, b.dead_time_pattern, f),
+          a.omega_e_rad_s + f * (b.omega_e_rad_s - a.omega_e_rad_s),
+          a.omega_m_rad_s + f * (b.omega_m_rad_s - a.omega_m_rad_s),
+          a.voltage_limited || b.voltage_limited};
+}
+
+struct Solution {
+  Eigen::Vector3d theta = Eigen::Vector3d::Zero();
+  double rcond = 0.0;
+  double rss = 0.0;
+};
+
+// Solves the normal equations for the active regressors with the others held at `fixed`.
+bool solve_sums(const FitSums& s, const std::array<bool, kRegressors>& active,
+                const Eigen::Vector3d& fixed, Solution& out) {
+  // Move the fixed regressors to the left side: y' = y - sum_j fixed_j x_j.
+  Eigen::Matrix3d xtx;
+  Eigen::Vector3d xty;
+  for (int r = 0; r < kRegressors; ++r) {
+    for (int c = 0; c < kRegressors; ++c) {
+      xtx(r, c) = s.xtx[static_cast<std::size_t>(r)][static_cast<std::size_t>(c)];
+    }
+    xty(r) = s.xty[static_cast<std::size_t>(r)];
+  }
+  Eigen::Vector3d f = Eigen::Vector3d::Zero();
+  int p = 0;
+  for (int r = 0; r < kRegressors; ++r) {
+    if (active[static_cast<std::size_t>(r)]) {
+      ++p;
+    } else {
+      f(r) = fixed(r);
+    }
+  }
+  if (s.n < 4.0 * p || p == 0) {
+    return false;
+  }
+  const Eigen::Vector3d xty_adj = xty - xtx * f;
+  const double yty_adj = s.yty - 2.0 * f.dot(xty) + f.dot(xtx * f);
+
+  Eigen::Matrix3d a = Eigen::Matrix3d::Identity();
+  Eigen::Vector3d b = Eigen::Vector3d::Zero();
+  Eigen::Vector3d scale = Eigen::Vector3d::Ones();
+  for (int r = 0; r < kRegressors; ++r) {
+    if (!active[static_cast<std::size_t>(r)]) {
+      continue;
+    }
+    if (xtx(r, r) <= 0.0) {
+      return false;
+    }
+    scale(r) = 1.0 / std::sqrt(xtx(r, r));
+    b(r) = xty_adj(r);
+    for (int c = 0; c < kRegressors; ++c) {
+      if (active[static_cast<std::size_t>(c)]) {
+        a(r, c) = xtx(r, c);
+      }
+    }
+  }
+  // Scaled to unit diagonal: the condition says how collinear the regressors are, not how
+  // different their units are. Inactive rows are identity.
+  const Eigen::Matrix3d scaled = scale.asDiagonal() * a * scale.asDiagonal();
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(scaled, Eigen::EigenvaluesOnly);
+  out.rcond = eig.eigenvalues().minCoeff() / eig.eigenvalues().maxCoeff();
+  if (!(out.rcond > 1e-12)) {
+    return false;
+  }
+  const Eigen::Vector3d z = scaled.ldlt().solve(scale.asDiagonal() * b);
+  Eigen::Vector3d theta = scale.asDiagonal() * z;
+  for (int r = 0; r < kRegressors; ++r) {
+    if (!active[static_cast<std::size_t>(r)]) {
+      theta(r) = 0.0;
+    }
+  }
+  // RSS of the adjusted problem, y'y' - 2 t'X'y' + t'X'X t; theta is zero on inactive rows,
+  // where `a` holds identity, so they do not contribute.
+  out.rss = std::max(yty_adj - 2.0 * theta.dot(xty_adj) + theta.dot(a * theta), 0.0);
+  out.theta = theta + f;
+  return true;
+}
+
+}  // namespace
+
+void FitSums::add(const std::array<double, kRegressors>& x, double y) {
+  for (std::size_t r = 0; r < kRegressors; ++r) {
+    for (std::size_t c = 0; c < kRegressors; ++c) {
+      xtx[r][c] += x[r] * x[c];
+    }
+    xty[r] += x[r] * y;
+  }
+  yty += y * y;
+  n += 1.0;
+}
+
+void FitSums::add(const FitSums& other, double sign) {
+  for (std::size_t r = 0; r < kRegressors; ++r) {
+    for (std::size_t c = 0; c < kRegressors; ++c) {
+      xtx[r][c] += sign * other.xtx[r][c];
+    }
+    xty[r] += sign * other.xty[r];
+  }
+  yty += sign * other.yty;
+  n += sign * other.n;
+}
+
+void BlockedSums::add(const BlockedSums& other) {
+  for (std::size_t b = 0; b < blocks.size(); ++b) {
+    blocks[b].add(other.blocks[b]);
+  }
+}
+
+FitSums BlockedSums::total() const {
+  FitSums t;
+  for (const FitSums& b : blocks) {
+    t.add(b);
+  }
+  return t;
+}
+
+FitResult solve_fit(const BlockedSums& sums, const FitOptions& options) {
+  FitResult out;
+  const std::array<bool, kRegressors> active{true, options.fit_vx, options.fit_ld};
+  const Eigen::Vector3d fixed(0.0, options.fixed_vx_V, 0.0);
+  const FitSums total = sums.total();
+  out.samples = total.n;
+  if (total.n > 0.0) {
+    out.signal_rms_A = std::sqrt(total.xtx[kRegRs][kRegRs] / total.n);
+  }
+  if (total.xtx[kRegRs][kRegRs] > 0.0) {
+    out.drs_dvx = -total.xtx[kRegRs][kRegVx] / total.xtx[kRegRs][kRegRs];
+    if (total.xtx[kRegVx][kRegVx] > 0.0) {
+      const double rho_sq = total.xtx[kRegRs][kRegVx] * total.xtx[kRegRs][kRegVx] /
+                            (total.xtx[kRegRs][kRegRs] * total.xtx[kRegVx][kRegVx]);
+      out.vx_identifiability = 1.0 - rho_sq;
+    }
+  }
+  Solution full;
+  if (!solve_sums(total, active, fixed, full)) {
+    return out;
+  }
+  out.rs_ohm = full.theta(kRegRs);
+  out.vx_V = full.theta(kRegVx);
+  out.ld_H = full.theta(kRegLd);
+  out.condition = full.rcond;
+  out.residual_rms_V = std::sqrt(full.rss / total.n);
+
+  // Jackknife over blocks: samples within a recording are strongly correlated (the current
+  // loop, the EMF harmonics), so the textbook standard error would be far too small.
+  std::array<Eigen::Vector2d, kFitBlocks> leave_out{};
+  Eigen::Vector2d mean = Eigen::Vector2d::Zero();
+  for (int b = 0; b < kFitBlocks; ++b) {
+    FitSums s = total;
+    s.add(sums.blocks[static_cast<std::size_t>(b)], -1.0);
+    Solution partial;
+    if (!solve_sums(s, active, fixed, partial)) {
+      return out;  // removing a block made the system singular: no honest error bar
+    }
+    leave_out[static_cast<std::size_t>(b)] = {partial.theta(kRegRs), partial.theta(kRegVx)};
+    mean += leave_out[static_cast<std::size_t>(b)];
+  }
+  mean /= kFitBlocks;
+  Eigen::Matrix2d cov = Eigen::Matrix2d::Zero();
+  for (const Eigen::Vector2d& t : leave_out) {
+    const Eigen::Vector2d d = t - mean;
+    cov += d * d.transpose();
+  }
+  cov *= static_cast<double>(kFitBlocks - 1) / kFitBlocks;
+  out.var_rs = cov(0, 0);
+  out.var_vx = options.fit_vx ? cov(1, 1) : 0.0;
+  out.cov_rs_vx = options.fit_vx ? cov(0, 1) : 0.0;
+  out.valid = std::isfinite(out.rs_ohm) && std::isfinite(out.var_rs);
+  return out;
+}
+
+PairRecorder::PairRecorder(std::size_t capacity) : first_(capacity) {}
+
+void PairRecorder::start(const PairFitConfig& config, MatchBy match_by, double direction) {
+  config_ = config;
+  match_by_ = match_by;
+  direction_ = direction >= 0.0 ? 1.0 : -1.0;
+  size1_ = 0;
+  cursor_ = 0;
+  origin1_ = 0.0;
+  origin2_ = 0.0;
+  sums_ = {};
+  matched_ = 0;
+  sum_omega1_ = sum_omega2_ = sum_iq1_ = sum_iq2_ = sum_id1_ = sum_id2_ = 0.0;
+  sum_vq_ = sum_iq_ = sum_wid_ = sum_wm_ = sum_gq_ = 0.0;
+  any_limited_ = false;
+}
+
+double PairRecorder::coordinate(const PeriodSample& s) const {
+  return match_by_ == MatchBy::kAngle ? direction_ * s.theta_e_rad : s.time_s;
+}
+
+bool PairRecorder::add_first(const PeriodSample& s) {
+  if (size1_ >= first_.size()) {
+    return false;
+  }
+  if (size1_ == 0) {
+    origin1_ = coordinate(s);
+  }
+  first_[size1_++] = s;
+  sum_omega1_ += s.omega_e_rad_s;
+  sum_iq1_ += s.i_A.q;
+  sum_id1_ += s.i_A.d;
+  any_limited_ = any_limited_ || s.voltage_limited;
+  return true;
+}
+
+double PairRecorder::first_extent() const {
+  return size1_ == 0 ? 0.0 : coordinate(first_[size1_ - 1]) - origin1_;
+}
+
+void PairRecorder::begin_second(double origin) {
+  origin2_ = origin;
+  cursor_ = 0;
+}
+
+bool PairRecorder::second_complete(const PeriodSample& s) const {
+  return coordinate(s) - origin2_ >= first_extent();
+}
+
+double PairRecorder::add_second(const PeriodSample& s) {
+  const double phi = coordinate(s) - origin2_;
+  const double extent = first_extent();
+  if (size1_ < 2 || phi < 0.0 || phi > extent) {
+    return phi;
+  }
+  // Recording 1's samples are in increasing coordinate; advance the cursor to the pair that
+  // brackets phi.
+  auto c1 = [&](std::size_t k) { return coordinate(first_[k]) - origin1_; };
+  while (cursor_ + 2 < size1_ && c1(cursor_ + 1) < phi) {
+    ++cursor_;
+  }
+  const double c_lo = c1(cursor_);
+  const double span = c1(cursor_ + 1) - c_lo;
+  const double f = span > 1e-12 ? std::clamp((phi - c_lo) / span, 0.0, 1.0) : 0.0;
+  const Interpolated r1 = interpolate(first_[cursor_], first_[cursor_ + 1], f);
+
+  // Eqs. 37 / 43, recording 1 minus recording 2 at the same angle:
+  // dVd + Lq d(w iq) = Rs dId + Vx dGd + Ld d(dId/dt).
+  const double y = (r1.v.d - s.v_V.d) +
+                   config_.lq_H * (r1.omega_e * r1.i.q - s.omega_e_rad_s * s.i_A.q);
+  const std::array<double, kRegressors> x{r1.i.d - s.i_A.d, r1.g.d - s.dead_time_pattern.d,
+                                          r1.di_dt.d - s.di_dt_A_s.d};
+  const int block = std::clamp(static_cast<int>(phi / std::max(extent, 1e-12) * kFitBlocks), 0,
+                               kFitBlocks - 1);
+  sums_.blocks[static_cast<std::size_t>(block)].add(x, y);
+  ++matched_;
+
+  sum_omega2_ += s.omega_e_rad_s;
+  sum_iq2_ += s.i_A.q;
+  sum_id2_ += s.i_A.d;
+  any_limited_ = any_limited_ || s.voltage_limited || r1.limited;
+  sum_vq_ += 0.5 * (r1.v.q + s.v_V.q);
+  sum_iq_ += 0.5 * (r1.i.q + s.i_A.q);
+  sum_wid_ += 0.5 * (r1.omega_e * r1.i.d + s.omega_e_rad_s * s.i_A.d);
+  sum_wm_ += 0.5 * (r1.omega_m + s.omega_m_rad_s);
+  sum_gq_ += 0.5 * (r1.g.q + s.dead_time_pattern.q);
+  return phi;
+}
+
+PairConditions PairRecorder::conditions() const {
+  PairConditions c;
+  c.samples = matched_;
+  c.any_voltage_limited = any_limited_;
+  if (size1_ > 0) {
+    const auto n1 = static_cast<double>(size1_);
+    c.omega_e_mean_1_rad_s = sum_omega1_ / n1;
+    c.iq_mean_1_A = sum_iq1_ / n1;
+    c.id_mean_1_A = sum_id1_ / n1;
+  }
+  if (matched_ > 0) {
+    const auto m = static_cast<double>(matched_);
+    c.omega_e_mean_2_rad_s = sum_omega2_ / m;
+    c.iq_mean_2_A = sum_iq2_ / m;
+    c.id_mean_2_A = sum_id2_ / m;
+    c.vq_mean_V = sum_vq_ / m;
+    c.iq_mean_A = sum_iq_ / m;
+    c.omega_e_id_mean_A_rad_s = sum_wid_ / m;
+    c.omega_m_mean_rad_s = sum_wm_ / m;
+    c.gq_mean = sum_gq_ / m;
+  }
+  return c;
+}
+
+}  // namespace pmsm::core

@@ -1,0 +1,154 @@
+#include "pmsm/core/thermal_observer.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+#include "pmsm/core/machine_equations.hpp"
+
+namespace pmsm::core {
+namespace {
+
+// Continuous-time matrices of the two-node network with the loss-error state:
+// Cw dTw/dt = Pcu + dP - (Tw - Th)/Rwh
+// Ch dTh/dt = Pfe + (Tw - Th)/Rwh - (Th - Ta)/Rha
+// d(dP)/dt  = 0 (random walk)
+Eigen::Matrix3d system_matrix(const ThermalModelConfig& c) {
+  const double gwh = 1.0 / c.winding_to_housing_K_W;
+  const double gha = 1.0 / c.housing_to_ambient_K_W;
+  Eigen::Matrix3d a = Eigen::Matrix3d::Zero();
+  a(0, 0) = -gwh / c.winding_capacity_J_K;
+  a(0, 1) = gwh / c.winding_capacity_J_K;
+  a(0, 2) = 1.0 / c.winding_capacity_J_K;
+  a(1, 0) = gwh / c.housing_capacity_J_K;
+  a(1, 1) = -(gwh + gha) / c.housing_capacity_J_K;
+  return a;
+}
+
+}  // namespace
+
+ThermalObserver::ThermalObserver(const ThermalModelConfig& config, const Calibration& calibration,
+                                 double initial_temp_C)
+    : config_(config), calibration_(calibration) {
+  x_ << initial_temp_C, initial_temp_C, 0.0;
+  p_.setZero();
+  p_(0, 0) = config.initial_std_C * config.initial_std_C;
+  p_(1, 1) = config.initial_std_C * config.initial_std_C;
+  p_(2, 2) = config.initial_loss_error_std_W * config.initial_loss_error_std_W;
+}
+
+double ThermalObserver::resistance_at_C(double temp_C) const {
+  return resistance_at_temperature_ohm(calibration_.rs0_ohm, calibration_.t0_C, temp_C);  // Eq. 1
+}
+
+double ThermalObserver::temperature_from_resistance_C(double rs_ohm) const {
+  return core::temperature_from_resistance_C(rs_ohm, calibration_.rs0_ohm, calibration_.t0_C);  // Eq. 1
+}
+
+double ThermalObserver::copper_loss_W(double copper_current_sq_A2) const {
+  // Amplitude-invariant dq: P = 3/2 Rs (id^2 + iq^2).
+  return 1.5 * resistance_at_C(x_(0)) * copper_current_sq_A2;
+}
+
+double ThermalObserver::iron_loss_W(double omega_m_rad_s) const {
+  const double w = std::abs(omega_m_rad_s);
+  return config_.iron_loss_k1_W_s_rad * w + config_.iron_loss_k2_W_s2_rad2 * w * w;
+}
+
+void ThermalObserver::predict(double dt_s, double copper_current_sq_A2, double omega_m_rad_s,
+                              double ambient_C) {
+  const double dt = dt_s * config_.time_scale;  // thermal seconds
+  const Eigen::Matrix3d a = system_matrix(config_);
+  Eigen::Vector3d u;
+  u << copper_loss_W(copper_current_sq_A2) / config_.winding_capacity_J_K,
+      (iron_loss_W(omega_m_rad_s) + ambient_C / config_.housing_to_ambient_K_W) /
+          config_.housing_capacity_J_K,
+      0.0;
+  // Exact discretisation is not needed at the update rate used (dt far below the winding
+  // time constant); a second-order Taylor step keeps it accurate and allocation-free.
+  const Eigen::Matrix3d ad = Eigen::Matrix3d::Identity() + a * dt + 0.5 * a * a * dt * dt;
+  const Eigen::Matrix3d bd = Eigen::Matrix3d::Identity() * dt + 0.5 * a * dt * dt;
+  x_ = ad * x_ + bd * u;
+  Eigen::Matrix3d q = Eigen::Matrix3d::Zero();
+  q(0, 0) = config_.winding_process_std_C_per_sqrt_s * config_.winding_process_std_C_per_sqrt_s * dt;
+  q(1, 1) = config_.housing_process_std_C_per_sqrt_s * config_.housing_process_std_C_per_sqrt_s * dt;
+  q(2, 2) = config_.loss_error_process_std_W_per_sqrt_s * config_.loss_error_process_std_W_per_sqrt_s * dt;
+  p_ = ad * p_ * ad.transpose() + q;
+  since_measurement_s_ += dt_s;
+}
+
+bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm) {
+  // Measurement of the winding temperature through Eq. 1; its variance from the resistance's.
+  const double z = temperature_from_resistance_C(rs_ohm);
+  const double dt_dr = temperature_per_resistance_C_per_ohm(calibration_.rs0_ohm);
+  const double r = std::pow(rs_std_ohm * dt_dr, 2) + std::pow(config_.measurement_floor_std_C, 2);
+  const Eigen::RowVector3d h(1.0, 0.0, 0.0);
+  const double s = (h * p_ * h.transpose())(0, 0) + r;
+  if (!std::isfinite(z) || std::abs(z - x_(0)) > config_.gate_sigma * std::sqrt(s)) {
+    return false;
+  }
+  const Eigen::Vector3d k = p_ * h.transpose() / s;
+  x_ += k * (z - x_(0));
+  // Joseph form keeps P symmetric and positive.
+  const Eigen::Matrix3d i_kh = Eigen::Matrix3d::Identity() - k * h;
+  p_ = i_kh * p_ * i_kh.transpose() + k * r * k.transpose();
+  since_measurement_s_ = 0.0;
+  return true;
+}
+
+ThermalEstimate ThermalObserver::estimate() const {
+  return {x_(0), std::sqrt(std::max(p_(0, 0), 0.0)), x_(1), x_(2), since_measurement_s_};
+}
+
+bool ThermalObserver::time_to_limit_s(double limit_C, double copper_current_sq_A2,
+                                      double omega_m_rad_s, double ambient_C, double* out_s) const {
+  if (x_(0) >= limit_C) {
+    *out_s = 0.0;
+    return true;
+  }
+  // Losses held constant; copper loss taken at the limit temperature (resistance rises with
+  // temperature, so this errs towards a shorter time).
+  const double pcu = 1.5 * resistance_at_C(limit_C) * copper_current_sq_A2 + x_(2);
+  const double pfe = iron_loss_W(omega_m_rad_s);
+  const double gwh = 1.0 / config_.winding_to_housing_K_W;
+  const double gha = 1.0 / config_.housing_to_ambient_K_W;
+  // Steady state of the two-node network.
+  const double th_ss = ambient_C + (pcu + pfe) / gha;
+  const double tw_ss = th_ss + pcu / gwh;
+  if (tw_ss <= limit_C) {
+    return false;
+  }
+  // x(t) = x_ss + V exp(L t) V^-1 (x0 - x_ss) on the 2x2 network; bisection on t.
+  Eigen::Matrix2d a;
+  a << -gwh / config_.winding_capacity_J_K, gwh / config_.winding_capacity_J_K,
+      gwh / config_.housing_capacity_J_K, -(gwh + gha) / config_.housing_capacity_J_K;
+  const Eigen::EigenSolver<Eigen::Matrix2d> eig(a);
+  const Eigen::Matrix2d v = eig.eigenvectors().real();
+  const Eigen::Vector2d lambda = eig.eigenvalues().real();
+  const Eigen::Vector2d c = v.inverse() * Eigen::Vector2d(x_(0) - tw_ss, x_(1) - th_ss);
+  auto winding_at = [&](double t) {
+    return tw_ss + v(0, 0) * c(0) * std::exp(lambda(0) * t) + v(0, 1) * c(1) * std::exp(lambda(1) * t);
+  };
+  double lo = 0.0;
+  double hi = 10.0 / std::min(std::abs(lambda(0)), std::abs(lambda(1)));
+  if (winding_at(hi) < limit_C) {
+    return false;
+  }
+  for (int iteration = 0; iteration < 60; ++iteration) {
+    const double mid = 0.5 * (lo + hi);
+    (winding_at(mid) < limit_C ? lo : hi) = mid;
+  }
+  *out_s = hi / config_.time_scale;
+  return true;
+}
+
+DeratingResult derate(const DeratingConfig& config, const ThermalEstimate& e) {
+  const double upper = e.winding_C + config.confidence_sigma * e.winding_std_C;
+  if (upper <= config.derate_start_C) {
+    return {config.max_current_A, false};
+  }
+  const double fraction =
+      std::clamp((config.limit_C - upper) / (config.limit_C - config.derate_start_C), 0.0, 1.0);
+  return {config.min_current_A + fraction * (config.max_current_A - config.min_current_A), true};
+}
+
+}  // namespace pmsm::core

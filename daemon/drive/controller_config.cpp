@@ -1,0 +1,296 @@
+#include "controller_config.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+namespace pmsm::app {
+namespace {
+
+using core::EstimatorKind;
+using core::InjectionMethod;
+using core::Separation;
+using core::WindowKind;
+using C = ControllerConfig;
+
+ConfigSchema<C> build() {
+  ConfigSchema<C> s;
+  // [motor] — the controller's commissioned model of the machine.
+  s.real("motor.rs_ohm", [](C& c) -> double& { return c.drive.motor.rs_ohm; }, positive(10.0), "ohm",
+         "Nameplate phase-to-neutral resistance at motor.rs_reference_temp_C; the temperature scale until a calibration replaces it.");
+  s.real("motor.rs_reference_temp_C", [](C& c) -> double& { return c.drive.motor.rs_reference_temp_C; }, between(-50, 200), "C",
+         "Temperature at which motor.rs_ohm holds (T0 of Eq. 1).");
+  s.real("motor.ld_H", [](C& c) -> double& { return c.drive.motor.ld_H; }, positive(1.0), "H", "d-axis inductance as commissioned.");
+  s.real("motor.lq_H", [](C& c) -> double& { return c.drive.motor.lq_H; }, positive(1.0), "H", "q-axis inductance as commissioned.");
+  s.real("motor.ke_V_s_per_rad", [](C& c) -> double& { return c.drive.motor.ke_V_s_per_rad; }, positive(100.0), "V s/rad",
+         "EMF constant, line-to-line RMS volts per mechanical rad/s (Table I: 1.19).");
+  s.integer("motor.pole_pairs", [](C& c) -> int& { return c.drive.motor.pole_pairs; }, between(1, 64), "Pole pairs.");
+  s.real("motor.inertia_kg_m2", [](C& c) -> double& { return c.drive.motor.inertia_kg_m2; }, positive(100.0), "kg m^2",
+         "Total inertia the speed loop is designed for.");
+  // [sensors]
+  s.integer("sensors.current_adc_bits", [](C& c) -> int& { return c.sensors.current_adc_bits; }, between(8, 16), "Phase-current ADC resolution.");
+  s.real("sensors.current_range_A", [](C& c) -> double& { return c.sensors.current_range_A; }, positive(10000), "A",
+         "Phase-current ADC full scale (+-).");
+  s.integer("sensors.dc_bus_adc_bits", [](C& c) -> int& { return c.sensors.dc_bus_adc_bits; }, between(8, 16), "DC-bus ADC resolution.");
+  s.real("sensors.dc_bus_full_scale_V", [](C& c) -> double& { return c.sensors.dc_bus_full_scale_V; }, positive(10000), "V",
+         "DC-bus ADC full scale.");
+  s.integer("sensors.encoder_bits", [](C& c) -> int& { return c.drive.angle.encoder_bits; }, between(8, 24), "Absolute encoder resolution.");
+  s.real("sensors.encoder_offset_rad", [](C& c) -> double& { return c.drive.angle.electrical_offset_rad; }, between(-7, 7), "rad",
+         "Electrical angle at encoder count 0 (commissioned).");
+  s.real("sensors.offset_calibration_s", [](C& c) -> double& { return c.sensors.offset_calibration_s; }, between(0, 10), "s",
+         "Time at start-up, gates off, over which the current-ADC offsets are averaged (0: none).");
+  // [control]
+  s.real("control.period_s", [](C& c) -> double& { return c.drive.period_s; }, between(2e-5, 1e-3), "s", "Current-loop period (the PWM period).");
+  s.real("control.current_bandwidth_rad_s", [](C& c) -> double& { return c.drive.current.bandwidth_rad_s; }, positive(20000), "rad/s",
+         "Current-loop bandwidth (Kp = wc L, Ki = wc Rs).");
+  s.real("control.voltage_limit_fraction", [](C& c) -> double& { return c.drive.current.voltage_limit_fraction; }, between(0.5, 1.0), "",
+         "Usable fraction of Vdc/sqrt(3).");
+  s.real("control.speed_bandwidth_rad_s", [](C& c) -> double& { return c.drive.speed.bandwidth_rad_s; }, positive(2000), "rad/s", "Speed-loop bandwidth.");
+  s.integer("control.speed_decimation", [](C& c) -> int& { return c.drive.speed_decimation; }, between(1, 1000),
+            "Speed loop every N current-loop periods.");
+  s.real("control.max_torque_Nm", [](C& c) -> double& { return c.drive.speed.max_torque_Nm; }, positive(10000), "Nm", "Torque demand limit.");
+  s.real("control.pll_bandwidth_rad_s", [](C& c) -> double& { return c.drive.angle.pll_bandwidth_rad_s; }, positive(10000), "rad/s",
+         "Speed observer (PLL) bandwidth.");
+  s.real("control.nominal_dc_bus_V", [](C& c) -> double& { return c.nominal_dc_bus_V; }, positive(10000), "V",
+         "Nominal DC-bus voltage (sets the inverter-error prior).");
+  s.real("control.dead_time_s", [](C& c) -> double& { return c.drive.dead_time.dead_time_s; }, between(0, 1e-5), "s",
+         "Dead time the compensation assumes.");
+  s.real("control.device_drop_V", [](C& c) -> double& { return c.drive.dead_time.device_drop_V; }, between(0, 10), "V",
+         "Device forward drop the compensation assumes.");
+  s.real("control.dead_time_band_A", [](C& c) -> double& { return c.drive.dead_time.current_band_A; }, between(0, 20), "A",
+         "Below this |i| the compensation fades in linearly (PWM ripple).");
+  // [injection]
+  auto& inj = s;
+  inj.choice("injection.method",
+             {{"fixed-magnitude", static_cast<int>(InjectionMethod::kFixedMagnitude)},
+              {"fixed-angle", static_cast<int>(InjectionMethod::kFixedAngle)},
+              {"dc", static_cast<int>(InjectionMethod::kDc)},
+              {"none", static_cast<int>(InjectionMethod::kNone)}},
+             [](const C& c) { return static_cast<int>(c.drive.injection.method); },
+             [](C& c, int v) { c.drive.injection.method = static_cast<InjectionMethod>(v); },
+             "Injection profile: fixed-magnitude (Eqs. 16-21), fixed-angle (Eqs. 11-15), dc (Eqs. 4-9, baseline), none.");
+  inj.choice("injection.separation",
+             {{"bipolar", static_cast<int>(Separation::kBipolar)}, {"unipolar", static_cast<int>(Separation::kUnipolar)}},
+             [](const C& c) { return static_cast<int>(c.drive.injection.separation); },
+             [](C& c, int v) { c.drive.injection.separation = static_cast<Separation>(v); },
+             "Separation of the injected voltage: bipolar (Eqs. 39-44) or unipolar (Eqs. 33-38).");
+  inj.real("injection.F_A", [](C& c) -> double& { return c.drive.injection.f_A; }, positive(1000), "A",
+           "Injection magnitude F (phase peak) at level 1.");
+  inj.real("injection.F_min_A", [](C& c) -> double& { return c.drive.injection.f_min_A; }, at_least(0, 1000), "A",
+           "Below this, after the current and voltage budget, a pair is skipped.");
+  inj.list("injection.levels", 1, core::InjectionConfig::kMaxLevels, between(0.05, 1.0),
+           [](const C& c) {
+             const auto& i = c.drive.injection;
+             return std::vector<double>(i.levels.begin(), i.levels.begin() + i.level_count);
+           },
+           [](C& c, const std::vector<double>& v) {
+             auto& i = c.drive.injection;
+             i.levels.fill(0.0);
+             std::copy(v.begin(), v.end(), i.levels.begin());
+             i.level_count = static_cast<int>(v.size());
+           },
+           "", "Multipliers of F, one pair each per event; two or more separate Rs from the inverter's voltage error.");
+  inj.real("injection.interval_s", [](C& c) -> double& { return c.drive.injection.interval_s; }, positive(1e6), "s",
+           "Time between injection events.");
+  inj.real("injection.retry_s", [](C& c) -> double& { return c.drive.injection.retry_s; }, positive(1e6), "s",
+           "Retry delay after an event yielded nothing.");
+  inj.real("injection.first_event_s", [](C& c) -> double& { return c.drive.injection.first_event_s; }, at_least(0), "s",
+           "Time of the first event after start.");
+  inj.choice("injection.window",
+             {{"blackman", static_cast<int>(WindowKind::kBlackman)}, {"modified", static_cast<int>(WindowKind::kModifiedBlackman)}},
+             [](const C& c) { return static_cast<int>(c.drive.injection.window); },
+             [](C& c, int v) { c.drive.injection.window = static_cast<WindowKind>(v); },
+             "Window of the pulse edges: blackman (Eq. 23) or modified (Eq. 24).");
+  inj.real("injection.Tw_s", [](C& c) -> double& { return c.drive.injection.tw_s; }, positive(1.0), "s", "Window period of each edge.");
+  inj.real("injection.settle_s", [](C& c) -> double& { return c.drive.injection.settle_s; }, at_least(0, 1.0), "s",
+           "Wait after an edge before recording.");
+  inj.real("injection.record_arc_rad", [](C& c) -> double& { return c.drive.injection.record_arc_rad; }, positive(1000), "rad",
+           "Shortest angle-based recording (electrical; rounded up to whole turns).");
+  inj.real("injection.record_min_time_s", [](C& c) -> double& { return c.drive.injection.record_min_time_s; }, at_least(0, 10), "s",
+           "Shortest angle-based recording in time (whole turns).");
+  inj.real("injection.record_time_s", [](C& c) -> double& { return c.drive.injection.record_time_s; }, positive(10), "s",
+           "Time-based recording length (standstill, low speed).");
+  inj.boolean("injection.mechanical_harmonics", [](C& c) -> bool& { return c.drive.injection.mechanical_harmonics; },
+              "dTheta a multiple of 2 pi p (mechanical harmonics) instead of 2 pi.");
+  inj.real("injection.min_speed_for_angle_rad_s", [](C& c) -> double& { return c.drive.injection.min_speed_for_angle_rad_s; },
+           at_least(0, 10000), "rad/s", "Electrical speed below which recordings are time-based.");
+  inj.integer("injection.unipolar_polarity", [](C& c) -> int& { return c.drive.injection.unipolar_polarity; }, between(-1, 1),
+              "Sign of F for unipolar separation (-1 lowers the voltage).");
+  inj.real("injection.theta_f_rad", [](C& c) -> double& { return c.drive.injection.theta_f_rad; }, between(-7, 7), "rad",
+           "Angle of the fixed-angle / DC injection vector (electrical).");
+  inj.real("injection.beta", [](C& c) -> double& { return c.drive.injection.beta; }, between(0, 1), "", "Regulation factor (Eq. 12).");
+  inj.real("injection.injection_arc_rad", [](C& c) -> double& { return c.drive.injection.injection_arc_rad; }, positive(100), "rad",
+           "Fixed-angle: flat part of the arc (theta_i).");
+  inj.real("injection.window_arc_rad", [](C& c) -> double& { return c.drive.injection.window_arc_rad; }, positive(100), "rad",
+           "Fixed-angle: each window edge (theta_w), widened to Tw_s at speed.");
+  inj.real("injection.dc_revolutions", [](C& c) -> double& { return c.drive.injection.dc_revolutions; }, positive(100), "",
+           "DC injection: recording length in electrical turns.");
+  inj.real("injection.current_limit_A", [](C& c) -> double& { return c.drive.injection.current_limit_A; }, positive(10000), "A",
+           "|i| limit shared by motoring and injection.");
+  inj.real("injection.max_speed_change_fraction", [](C& c) -> double& { return c.drive.injection.max_speed_change_fraction; },
+           between(0, 1), "", "Reject a pair whose recordings differ in speed by more than this fraction...");
+  inj.real("injection.max_speed_change_rad_s", [](C& c) -> double& { return c.drive.injection.max_speed_change_rad_s; },
+           at_least(0), "rad/s", "... or by more than this (electrical), whichever is larger.");
+  inj.real("injection.max_load_change_A", [](C& c) -> double& { return c.drive.injection.max_load_change_A; }, at_least(0), "A",
+           "Reject a pair whose recordings differ in motoring iq by more than this.");
+  inj.real("injection.max_residual_V", [](C& c) -> double& { return c.drive.injection.max_residual_V; }, positive(1000), "V",
+           "Reject a pair whose fit residual (RMS) exceeds this.");
+  inj.real("injection.min_condition", [](C& c) -> double& { return c.drive.injection.min_condition; }, between(0, 1), "",
+           "Reject a fit whose regressors are more collinear than this (reciprocal condition).");
+  inj.real("injection.rs_min_ohm", [](C& c) -> double& { return c.drive.injection.rs_min_ohm; }, positive(10), "ohm",
+           "Plausibility window, lower end.");
+  inj.real("injection.rs_max_ohm", [](C& c) -> double& { return c.drive.injection.rs_max_ohm; }, positive(10), "ohm",
+           "Plausibility window, upper end.");
+  inj.boolean("injection.fit_dead_time", [](C& c) -> bool& { return c.drive.injection.fit_dead_time; },
+              "Model the inverter's uncompensated voltage Vx (learned across events).");
+  inj.boolean("injection.fit_inductance", [](C& c) -> bool& { return c.drive.injection.fit_inductance; },
+              "Fit the inductive voltage Ld d(dId/dt) within a recording.");
+  inj.real("injection.vx_initial_V", [](C& c) -> double& { return c.drive.injection.vx_initial_V; }, between(-50, 50), "V",
+           "The bridge's dead-time + drop voltage per phase before the first event (default: what the compensation assumes at control.nominal_dc_bus_V).");
+  inj.real("injection.vx_initial_std_V", [](C& c) -> double& { return c.drive.injection.vx_initial_std_V; }, positive(100), "V",
+           "Its uncertainty.");
+  inj.real("injection.vx_drift_std_V", [](C& c) -> double& { return c.drive.injection.vx_drift_std_V; }, at_least(0, 100), "V",
+           "How far it may wander between events.");
+  // [estimator]
+  s.choice("estimator.kind",
+           {{"injection", static_cast<int>(EstimatorKind::kInjection)},
+            {"no-injection", static_cast<int>(EstimatorKind::kNoInjection)},
+            {"none", static_cast<int>(EstimatorKind::kNone)}},
+           [](const C& c) { return static_cast<int>(c.drive.estimator); },
+           [](C& c, int v) { c.drive.estimator = static_cast<EstimatorKind>(v); },
+           "Resistance source: injection (the scheduler), no-injection (voltage-equation baseline), none (thermal model only).");
+  s.real("estimator.baseline_memory_s", [](C& c) -> double& { return c.drive.baseline.memory_s; }, positive(1e6), "s",
+         "No-injection baseline: RLS forgetting horizon.");
+  s.real("estimator.baseline_publish_s", [](C& c) -> double& { return c.drive.baseline_publish_s; }, positive(1e6), "s",
+         "No-injection baseline: how often its estimate is fused.");
+  // [thermal]
+  s.real("thermal.winding_capacity_J_K", [](C& c) -> double& { return c.drive.thermal.winding_capacity_J_K; }, positive(1e9), "J/K",
+         "Controller's model: winding heat capacity.");
+  s.real("thermal.housing_capacity_J_K", [](C& c) -> double& { return c.drive.thermal.housing_capacity_J_K; }, positive(1e9), "J/K",
+         "Controller's model: stator/housing heat capacity.");
+  s.real("thermal.winding_to_housing_K_W", [](C& c) -> double& { return c.drive.thermal.winding_to_housing_K_W; }, positive(100), "K/W",
+         "Controller's model: winding to housing.");
+  s.real("thermal.housing_to_ambient_K_W", [](C& c) -> double& { return c.drive.thermal.housing_to_ambient_K_W; }, positive(100), "K/W",
+         "Controller's model: housing to ambient.");
+  s.real("thermal.iron_loss_k1_W_s_rad", [](C& c) -> double& { return c.drive.thermal.iron_loss_k1_W_s_rad; }, at_least(0), "W s/rad",
+         "Iron loss per mechanical rad/s.");
+  s.real("thermal.iron_loss_k2_W_s2_rad2", [](C& c) -> double& { return c.drive.thermal.iron_loss_k2_W_s2_rad2; }, at_least(0), "W s^2/rad^2",
+         "Iron loss per (mechanical rad/s)^2.");
+  s.real("thermal.time_scale", [](C& c) -> double& { return c.drive.thermal.time_scale; }, positive(1e6), "",
+         "Thermal time runs this many times faster than controller time (1 on a real machine; the plant's acceleration in tests).");
+  s.real("thermal.update_s", [](C& c) -> double& { return c.drive.thermal_update_s; }, positive(10), "s", "Thermal filter period.");
+  s.real("thermal.initial_std_C", [](C& c) -> double& { return c.drive.thermal.initial_std_C; }, positive(1000), "C", "Initial uncertainty.");
+  s.real("thermal.winding_process_std_C_per_sqrt_s", [](C& c) -> double& { return c.drive.thermal.winding_process_std_C_per_sqrt_s; },
+         at_least(0), "C/sqrt(s)", "Process noise of the winding node (per thermal second).");
+  s.real("thermal.housing_process_std_C_per_sqrt_s", [](C& c) -> double& { return c.drive.thermal.housing_process_std_C_per_sqrt_s; },
+         at_least(0), "C/sqrt(s)", "Process noise of the housing node.");
+  s.real("thermal.loss_error_process_std_W_per_sqrt_s", [](C& c) -> double& { return c.drive.thermal.loss_error_process_std_W_per_sqrt_s; },
+         at_least(0), "W/sqrt(s)", "Random walk of the winding-loss model error.");
+  s.real("thermal.initial_loss_error_std_W", [](C& c) -> double& { return c.drive.thermal.initial_loss_error_std_W; }, at_least(0), "W",
+         "Initial uncertainty of the loss error.");
+  s.real("thermal.measurement_floor_std_C", [](C& c) -> double& { return c.drive.thermal.measurement_floor_std_C; }, at_least(0), "C",
+         "Added in quadrature to every measurement's own error.");
+  s.real("thermal.gate_sigma", [](C& c) -> double& { return c.drive.thermal.gate_sigma; }, positive(1000), "",
+         "A measurement further than this many sigma from the prediction is gated out.");
+  // [calibration]
+  s.real("calibration.rs0_ohm", [](C& c) -> double& { return c.drive.calibration.rs0_ohm; }, positive(10), "ohm",
+         "Rs0 of a stored calibration (defaults to motor.rs_ohm).");
+  s.real("calibration.t0_C", [](C& c) -> double& { return c.drive.calibration.t0_C; }, between(-50, 200), "C", "T0 of that calibration.");
+  s.real("calibration.ke0_V_s_per_rad", [](C& c) -> double& { return c.drive.calibration.ke0_V_s_per_rad; }, at_least(0, 100), "V s/rad",
+         "Eq. 3's Ke at T0 (0: not calibrated; no magnet temperature).");
+  s.integer("calibration.events", [](C& c) -> int& { return c.drive.calibration_events; }, between(1, 100),
+            "Injection events averaged by a calibration run.");
+  s.real("calibration.magnet_coefficient_per_C", [](C& c) -> double& { return c.drive.magnet_coefficient_per_C; }, between(-0.01, 0), "/C",
+         "Relative change of the magnet flux per degree (NdFeB about -0.0012).");
+  // [derating]
+  s.real("derating.max_current_A", [](C& c) -> double& { return c.drive.derating.max_current_A; }, positive(10000), "A",
+         "|i| limit when cold (phase peak).");
+  s.real("derating.min_current_A", [](C& c) -> double& { return c.drive.derating.min_current_A; }, at_least(0, 10000), "A",
+         "Current limit at the temperature limit.");
+  s.real("derating.start_C", [](C& c) -> double& { return c.drive.derating.derate_start_C; }, between(-50, 300), "C",
+         "Derating begins where the upper bound of the estimate crosses this.");
+  s.real("derating.limit_C", [](C& c) -> double& { return c.drive.derating.limit_C; }, between(-50, 300), "C", "Winding temperature limit.");
+  s.real("derating.confidence_sigma", [](C& c) -> double& { return c.drive.derating.confidence_sigma; }, at_least(0, 10), "",
+         "Derate on estimate + k sigma.");
+  return s;
+}
+
+}  // namespace
+
+const ConfigSchema<ControllerConfig>& controller_schema() {
+  static const ConfigSchema<ControllerConfig> schema = build();
+  return schema;
+}
+
+const std::vector<std::string>& controller_sections() {
+  static const std::vector<std::string> sections{"motor", "sensors", "control", "injection", "estimator",
+                                                 "thermal", "calibration", "derating"};
+  return sections;
+}
+
+ControllerConfig default_controller_config() {
+  ControllerConfig c;
+  finalize(c, "defaults");
+  return c;
+}
+
+void finalize(ControllerConfig& c, std::string_view source) {
+  core::DriveConfig& d = c.drive;
+  const double psi = core::flux_linkage_Wb(d.motor);
+  d.current.period_s = d.period_s;
+  d.current.rs_ohm = d.motor.rs_ohm;
+  d.current.ld_H = d.motor.ld_H;
+  d.current.lq_H = d.motor.lq_H;
+  d.current.flux_linkage_Wb = psi;
+  d.speed.period_s = d.period_s * d.speed_decimation;
+  d.speed.inertia_kg_m2 = d.motor.inertia_kg_m2;
+  d.angle.period_s = d.period_s;
+  d.angle.pole_pairs = d.motor.pole_pairs;
+  d.injection.lq_H = d.motor.lq_H;
+  d.injection.ld_H = d.motor.ld_H;
+  d.injection.rs_nominal_ohm = d.motor.rs_ohm;
+  d.injection.flux_linkage_Wb = psi;
+  d.injection.pole_pairs = d.motor.pole_pairs;
+  d.baseline.period_s = d.period_s;
+  d.baseline.ld_H = d.motor.ld_H;
+  d.baseline.initial_rs_ohm = d.motor.rs_ohm;
+  d.baseline.initial_ke_V_s_per_rad = core::emf_constant_dq_V_s_per_rad(d.motor);
+  if (c.vx_initial_from_compensation) {
+    d.injection.vx_initial_V = d.dead_time.dead_time_s / d.period_s * c.nominal_dc_bus_V + d.dead_time.device_drop_V;
+  }
+  const std::string at = std::string(source) + ": ";
+  if (d.injection.rs_min_ohm >= d.injection.rs_max_ohm) {
+    throw ConfigError(at + "injection.rs_min_ohm must be below injection.rs_max_ohm");
+  }
+  if (d.derating.derate_start_C >= d.derating.limit_C) {
+    throw ConfigError(at + "derating.start_C must be below derating.limit_C");
+  }
+  if (d.derating.min_current_A > d.derating.max_current_A) {
+    throw ConfigError(at + "derating.min_current_A must not exceed derating.max_current_A");
+  }
+  if (d.injection.f_min_A > d.injection.f_A) {
+    throw ConfigError(at + "injection.F_min_A must not exceed injection.F_A");
+  }
+  if (d.injection.settle_s + 2.0 * d.period_s > d.injection.record_time_s) {
+    throw ConfigError(at + "injection.record_time_s must be longer than injection.settle_s");
+  }
+}
+
+ControllerConfig parse_controller_config(const toml::table& table, std::string_view source,
+                                         const std::vector<std::string>& foreign, std::string_view key_prefix) {
+  ControllerConfig c;
+  // A stored calibration defaults to the nameplate unless the file says otherwise.
+  const bool rs0_given = static_cast<bool>(table.at_path("calibration.rs0_ohm"));
+  const bool t0_given = static_cast<bool>(table.at_path("calibration.t0_C"));
+  c.vx_initial_from_compensation = !table.at_path("injection.vx_initial_V");
+  controller_schema().apply(table, c, source, foreign, key_prefix);
+  if (!rs0_given) {
+    c.drive.calibration.rs0_ohm = c.drive.motor.rs_ohm;
+  }
+  if (!t0_given) {
+    c.drive.calibration.t0_C = c.drive.motor.rs_reference_temp_C;
+  }
+  finalize(c, source);
+  return c;
+}
+
+}  // namespace pmsm::app

@@ -1,0 +1,52 @@
+#include "sensor_frontend.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+namespace pmsm::app {
+
+SensorFrontend::SensorFrontend(const SensorScaling& scaling, double period_s)
+    : current_lsb_A_(scaling.current_range_A / std::ldexp(1.0, scaling.current_adc_bits - 1)),
+      dc_lsb_V_(scaling.dc_bus_full_scale_V / std::ldexp(1.0, scaling.dc_bus_adc_bits)),
+      calibration_samples_(static_cast<int>(std::lround(scaling.offset_calibration_s / period_s))),
+      calibrated_(calibration_samples_ <= 0) {}
+
+core::DriveInput SensorFrontend::convert(const hal::SensorSample& sample) {
+  core::DriveInput in;
+  std::array<double, 3> i{};
+  for (std::size_t n = 0; n < 3; ++n) {
+    i[n] = sample.phase_current_adc[n] * current_lsb_A_;
+  }
+  if (!calibrated_) {
+    // Gates off: whatever the ADCs read is their offset (plus noise, averaged away).
+    if ((sample.flags & hal::kSensorOutputEnabled) == 0U) {
+      for (std::size_t n = 0; n < 3; ++n) {
+        sums_[n] += i[n];
+      }
+      ++collected_;
+    }
+    if (collected_ >= calibration_samples_) {
+      for (std::size_t n = 0; n < 3; ++n) {
+        offsets_A_[n] = sums_[n] / collected_;
+      }
+      calibrated_ = true;
+    }
+  }
+  in.i_A = {i[0] - offsets_A_[0], i[1] - offsets_A_[1], i[2] - offsets_A_[2]};
+  in.encoder_count = sample.encoder_count;
+  in.vdc_V = sample.dc_bus_adc * dc_lsb_V_;
+  in.valid = calibrated_;
+  return in;
+}
+
+hal::InverterCommand SensorFrontend::command(const core::DriveOutput& out, std::uint32_t sequence) {
+  hal::InverterCommand c;
+  c.sequence = sequence;
+  c.enable = out.enable;
+  for (std::size_t n = 0; n < 3; ++n) {
+    c.duty[n] = static_cast<std::uint16_t>(std::lround(std::clamp(out.duty[n], 0.0, 1.0) * hal::kDutyFullScale));
+  }
+  return c;
+}
+
+}  // namespace pmsm::app

@@ -1,0 +1,113 @@
+// The in-process closed loop: plant library + sensor front end + drive controller, lockstep,
+// faster than real time; and the figures the accuracy benchmark reports (DESIGN section 9).
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "scenario.hpp"
+
+namespace pmsm::app {
+
+struct RunOptions {
+  bool progress = false;            // a progress line on stderr (for terminals)
+};
+
+// One row of the time series, every log_period_s.
+struct SeriesRow {
+  double time_s = 0.0;
+  double winding_true_C = 0.0;
+  double winding_est_C = 0.0;
+  double winding_std_C = 0.0;
+  double magnet_true_C = 0.0;
+  double magnet_est_C = 0.0;
+  bool magnet_valid = false;
+  double housing_true_C = 0.0;
+  double rs_true_ohm = 0.0;
+  double speed_ref_rad_s = 0.0;
+  double speed_rad_s = 0.0;         // true shaft speed
+  double torque_Nm = 0.0;           // true electromagnetic torque
+  double load_torque_Nm = 0.0;
+  double id_A = 0.0;
+  double iq_A = 0.0;
+  double current_limit_A = 0.0;
+  bool derating = false;
+  bool time_to_limit_valid = false;
+  double time_to_limit_s = 0.0;
+  bool injection_active = false;
+  bool counted = false;             // inside the error-metric window
+};
+
+struct EstimateRow {
+  double time_s = 0.0;
+  double rs_est_ohm = 0.0;
+  double rs_std_ohm = 0.0;
+  double rs_true_ohm = 0.0;
+  double winding_est_C = 0.0;       // Eq. 1 through the calibration
+  double winding_true_C = 0.0;
+  double vx_V = 0.0;
+  bool fused = false;
+};
+
+struct PairRow {
+  double time_s = 0.0;
+  int level = 0;
+  core::PairOutcome outcome = core::PairOutcome::kAborted;
+  double f_A = 0.0;
+  double rs_ohm = 0.0;
+  double residual_V = 0.0;
+  double delta_omega_e_rad_s = 0.0;
+  double delta_iq_A = 0.0;
+};
+
+struct SimulationResult {
+  std::string scenario;
+  std::string method;               // e.g. "fixed-magnitude bipolar", "no-injection", "none"
+  // Accuracy (winding: samples whose true winding temperature is above the threshold, after
+  // the calibration).
+  double winding_error_rms_C = 0.0;
+  double winding_error_max_C = 0.0;
+  double winding_error_mean_C = 0.0;
+  std::size_t winding_error_samples = 0;
+  double rs_error_rms_mohm = 0.0;   // published estimates against the true Rs at that time
+  double magnet_error_rms_C = 0.0;
+  std::size_t magnet_error_samples = 0;
+  std::size_t estimates_accepted = 0;   // fused by the thermal filter
+  std::size_t estimates_gated = 0;      // published but gated out as implausible
+  core::OutcomeCounts pairs{};          // every pair's outcome
+  // Disturbance (deviation from a moving average), during injection and outside it.
+  double speed_disturbance_pct = 0.0;
+  double torque_disturbance_pct = 0.0;
+  double speed_ripple_outside_pct = 0.0;
+  double torque_ripple_outside_pct = 0.0;
+  double injection_loss_W = 0.0;        // 3/2 Rs |i_injection|^2 averaged over the run
+  double injection_duty = 0.0;          // fraction of time an event was in progress
+  // Calibration.
+  bool calibrated = false;
+  double calibration_time_s = 0.0;
+  core::Calibration calibration{};
+  double vx_V = 0.0;
+  double vx_std_V = 0.0;
+  double max_winding_true_C = 0.0;
+  double sim_time_s = 0.0;
+  double wall_time_s = 0.0;
+  std::vector<SeriesRow> series;
+  std::vector<EstimateRow> estimates;
+  std::vector<PairRow> pair_log;
+};
+
+[[nodiscard]] SimulationResult run_scenario(const Scenario& scenario, const RunOptions& options = {});
+
+// One JSON object with the figures (not the series).
+[[nodiscard]] std::string result_json(const SimulationResult& r);
+// A human-readable summary.
+[[nodiscard]] std::string result_text(const SimulationResult& r);
+// The time series as CSV (one header line).
+void write_series_csv(const SimulationResult& r, const std::string& path);
+// True vs estimated winding (and magnet) temperature over time, plus speed and torque, as a
+// PNG drawn by gnuplot. Throws std::runtime_error with a clear message when gnuplot fails.
+void write_plot(const SimulationResult& r, const std::string& path);
+
+}  // namespace pmsm::app

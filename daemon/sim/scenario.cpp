@@ -1,0 +1,291 @@
+#include "scenario.hpp"
+
+#include <fstream>
+#include <regex>
+#include <sstream>
+
+#include <toml++/toml.h>
+
+#include "../common/config_schema.hpp"
+
+namespace pmsm::app {
+namespace {
+
+using S = ScenarioConfig;
+
+std::vector<ProfilePoint> to_points(const std::vector<double>& flat) {
+  std::vector<ProfilePoint> out;
+  for (std::size_t k = 0; k + 1 < flat.size(); k += 2) {
+    out.push_back({flat[k], flat[k + 1]});
+  }
+  return out;
+}
+
+std::vector<double> to_flat(const Profile& p) {
+  std::vector<double> out;
+  for (const ProfilePoint& q : p.points) {
+    out.push_back(q.time_s);
+    out.push_back(q.value);
+  }
+  return out;
+}
+
+// Reads a profile given as [[t, v], [t, v], ...]; times must ascend.
+Profile read_points(const toml::node& node, std::string_view source, std::string_view key) {
+  const std::string at = std::string(source) + ":" + std::to_string(node.source().begin.line) + ": " + std::string(key) + ": ";
+  const auto* array = node.as_array();
+  if (array == nullptr || array->empty()) {
+    throw ConfigError(at + "expected a non-empty array of [time_s, value] pairs");
+  }
+  Profile p;
+  for (const toml::node& item : *array) {
+    const auto* pair = item.as_array();
+    if (pair == nullptr || pair->size() != 2) {
+      throw ConfigError(at + "every point must be [time_s, value]");
+    }
+    double v[2] = {0.0, 0.0};
+    for (std::size_t k = 0; k < 2; ++k) {
+      const toml::node* n = pair->get(k);
+      if (n == nullptr) {
+        throw ConfigError(at + "every point must hold two numbers");
+      }
+      if (const auto* i = n->as_integer()) {
+        v[k] = static_cast<double>(i->get());
+      } else if (const auto* f = n->as_floating_point()) {
+        v[k] = f->get();
+      } else {
+        throw ConfigError(at + "every point must hold two numbers");
+      }
+    }
+    if (!p.points.empty() && v[0] <= p.points.back().time_s) {
+      throw ConfigError(at + "times must ascend (" + std::to_string(v[0]) + " after " +
+                        std::to_string(p.points.back().time_s) + ")");
+    }
+    p.points.push_back({v[0], v[1]});
+  }
+  return p;
+}
+
+// Reads a two-column CSV (time_s, value) with a header line.
+Profile read_csv(const std::filesystem::path& path, std::string_view key) {
+  std::ifstream in(path);
+  if (!in) {
+    throw ConfigError(std::string(key) + ": cannot open " + path.string());
+  }
+  Profile p;
+  std::string line;
+  int number = 0;
+  while (std::getline(in, line)) {
+    ++number;
+    if (line.empty() || line[0] == '#' || (number == 1 && line.find_first_of("0123456789") != 0 && line[0] != '-')) {
+      continue;
+    }
+    std::istringstream row(line);
+    double t = 0.0;
+    double v = 0.0;
+    char comma = 0;
+    if (!(row >> t >> comma >> v) || comma != ',') {
+      throw ConfigError(path.string() + ":" + std::to_string(number) + ": " + std::string(key) +
+                        ": expected 'time_s,value', got '" + line + "'");
+    }
+    if (!p.points.empty() && t <= p.points.back().time_s) {
+      throw ConfigError(path.string() + ":" + std::to_string(number) + ": " + std::string(key) + ": times must ascend");
+    }
+    p.points.push_back({t, v});
+  }
+  if (p.points.empty()) {
+    throw ConfigError(path.string() + ": " + std::string(key) + ": no data rows");
+  }
+  return p;
+}
+
+ConfigSchema<S> build_schema() {
+  ConfigSchema<S> s;
+  s.string("scenario.name", [](S& c) -> std::string& { return c.name; }, "Name used in reports.");
+  s.string("scenario.description", [](S& c) -> std::string& { return c.description; }, "One line for the reader.");
+  s.real("scenario.duration_s", [](S& c) -> double& { return c.duration_s; }, positive(1e6), "s", "Simulated time.");
+  s.real("scenario.thermal_acceleration", [](S& c) -> double& { return c.thermal_acceleration; }, positive(1e5), "",
+         "Thermal time runs this many times faster, in the plant and in the controller's thermal model alike.");
+  s.real("scenario.ambient_C", [](S& c) -> double& { return c.ambient_C; }, between(-40, 80), "C",
+         "Ambient temperature; the motor starts soaked at it.");
+  s.list("scenario.ambient_profile", 2, 200, between(-1e6, 1e6), [](const S& c) { return to_flat(c.ambient_profile); },
+         [](S& c, const std::vector<double>& v) { c.ambient_profile.points = to_points(v); }, "",
+         "Ambient over time as a flat list t0, C0, t1, C1, ... (the drive's ambient sensor reads it).");
+  s.choice("operation.mode", {{"speed", static_cast<int>(core::DriveMode::kSpeed)}, {"torque", static_cast<int>(core::DriveMode::kTorque)}},
+           [](const S& c) { return static_cast<int>(c.mode); },
+           [](S& c, int v) { c.mode = static_cast<core::DriveMode>(v); }, "Speed or torque control.");
+  s.boolean("operation.calibrate", [](S& c) -> bool& { return c.calibrate; },
+            "Calibrate Rs0 (and Ke0) at the start, when the winding is known to be at ambient.");
+  s.real("operation.calibrate_at_s", [](S& c) -> double& { return c.calibrate_at_s; }, at_least(0), "s", "When to start the calibration.");
+  s.real("metrics.log_period_s", [](S& c) -> double& { return c.log_period_s; }, positive(100), "s", "Time series and error sampling period.");
+  s.real("metrics.error_threshold_C", [](S& c) -> double& { return c.error_threshold_C; }, between(-50, 300), "C",
+         "Winding errors count where the true winding temperature is above this.");
+  s.real("metrics.disturbance_window_s", [](S& c) -> double& { return c.disturbance_window_s; }, positive(10), "s",
+         "Moving-average window against which speed and torque disturbance are measured.");
+  s.real("metrics.rated_torque_Nm", [](S& c) -> double& { return c.rated_torque_Nm; }, positive(1e5), "Nm",
+         "Torque disturbance is relative to this.");
+  return s;
+}
+
+const ConfigSchema<S>& schema() {
+  static const ConfigSchema<S> s = build_schema();
+  return s;
+}
+
+// Deep merge of `overrides` into `base`.
+void merge(toml::table& base, const toml::table& overrides) {
+  for (const auto& [key, node] : overrides) {
+    if (const auto* sub = node.as_table()) {
+      if (auto* existing = base.get_as<toml::table>(key.str())) {
+        merge(*existing, *sub);
+        continue;
+      }
+    }
+    base.insert_or_assign(key.str(), node);
+  }
+}
+
+std::string read_file(const std::filesystem::path& path) {
+  std::ifstream in(path);
+  if (!in) {
+    throw ConfigError(path.string() + ": cannot read");
+  }
+  std::stringstream buffer;
+  buffer << in.rdbuf();
+  return buffer.str();
+}
+
+plant::PlantConfig load_plant(const toml::table& root, const std::filesystem::path& source) {
+  const std::filesystem::path dir = source.parent_path();
+  const toml::table* plant_table = root.get_as<toml::table>("plant");
+  toml::table merged;
+  if (plant_table != nullptr) {
+    if (const auto profile = (*plant_table)["profile"].value<std::string>()) {
+      const std::filesystem::path profile_path = dir / *profile;
+      const std::string text = read_file(profile_path);
+      // The profile on its own first, so its own mistakes are reported with its own lines.
+      (void)plant::parse_plant_config(text, profile_path.string(), profile_path.parent_path());
+      merged = toml::parse(text, profile_path.string());
+    } else if ((*plant_table).contains("profile")) {
+      throw ConfigError(source.string() + ": plant.profile: expected a path (string)");
+    }
+    toml::table overrides = *plant_table;
+    overrides.erase("profile");
+    merge(merged, overrides);
+  }
+  std::ostringstream text;
+  text << merged;
+  try {
+    return plant::parse_plant_config(text.str(), source.string() + " [plant]", dir);
+  } catch (const plant::ConfigError& e) {
+    // Point at the scenario's own line when the offending key is one of its overrides.
+    const std::string message = e.what();
+    static const std::regex key_pattern(R"(: ([a-z_]+(?:\.[A-Za-z0-9_]+)+): (.*)$)");
+    std::smatch m;
+    if (plant_table != nullptr && std::regex_search(message, m, key_pattern)) {
+      const auto node = plant_table->at_path(m[1].str());
+      if (node) {
+        throw ConfigError(source.string() + ":" + std::to_string(node.node()->source().begin.line) + ": plant." +
+                          m[1].str() + ": " + m[2].str());
+      }
+    }
+    throw ConfigError(message);
+  }
+}
+
+}  // namespace
+
+double Profile::at(double t_s) const {
+  if (points.empty()) {
+    return 0.0;
+  }
+  if (t_s <= points.front().time_s) {
+    return points.front().value;
+  }
+  if (t_s >= points.back().time_s) {
+    return points.back().value;
+  }
+  for (std::size_t k = 1; k < points.size(); ++k) {
+    if (t_s < points[k].time_s) {
+      const ProfilePoint& a = points[k - 1];
+      const ProfilePoint& b = points[k];
+      return a.value + (b.value - a.value) * (t_s - a.time_s) / (b.time_s - a.time_s);
+    }
+  }
+  return points.back().value;
+}
+
+Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path& source) {
+  toml::table root;
+  try {
+    root = toml::parse(toml_text, source.string());
+  } catch (const toml::parse_error& e) {
+    throw ConfigError(source.string() + ":" + std::to_string(e.source().begin.line) + ": " + std::string(e.description()));
+  }
+  Scenario out;
+  out.source = source;
+  schema().apply(root, out.scenario, source.string(),
+                 {"plant", "controller", "scenario.seed", "operation.speed_rad_s", "operation.torque_Nm", "operation.speed_csv",
+                  "operation.torque_csv"});
+  // Set-point profiles, inline or from CSV.
+  const std::filesystem::path dir = source.parent_path();
+  if (const auto node = root.at_path("operation.speed_rad_s")) {
+    out.scenario.speed_rad_s = read_points(*node.node(), source.string(), "operation.speed_rad_s");
+  }
+  if (const auto csv = root.at_path("operation.speed_csv").value<std::string>()) {
+    out.scenario.speed_rad_s = read_csv(dir / *csv, "operation.speed_csv");
+  }
+  if (const auto node = root.at_path("operation.torque_Nm")) {
+    out.scenario.torque_Nm = read_points(*node.node(), source.string(), "operation.torque_Nm");
+  }
+  if (const auto csv = root.at_path("operation.torque_csv").value<std::string>()) {
+    out.scenario.torque_Nm = read_csv(dir / *csv, "operation.torque_csv");
+  }
+  const bool speed_mode = out.scenario.mode == core::DriveMode::kSpeed;
+  if (speed_mode && out.scenario.speed_rad_s.empty()) {
+    throw ConfigError(source.string() + ": operation.speed_rad_s (or operation.speed_csv) is required in speed mode");
+  }
+  if (!speed_mode && out.scenario.torque_Nm.empty()) {
+    throw ConfigError(source.string() + ": operation.torque_Nm (or operation.torque_csv) is required in torque mode");
+  }
+
+  out.plant = load_plant(root, source);
+  // The scenario's ambient, seed and acceleration apply to the plant unless it says otherwise.
+  const bool plant_ambient = static_cast<bool>(root.at_path("plant.thermal.ambient_C"));
+  if (!plant_ambient) {
+    out.plant.thermal.ambient_C = out.scenario.ambient_profile.empty() ? out.scenario.ambient_C
+                                                                        : out.scenario.ambient_profile.at(0.0);
+  }
+  if (root.at_path("scenario.thermal_acceleration")) {
+    out.plant.thermal.acceleration = out.scenario.thermal_acceleration;
+  }
+  if (const auto seed = root.at_path("scenario.seed").value<std::int64_t>()) {
+    if (*seed < 0) {
+      throw ConfigError(source.string() + ": scenario.seed: must be >= 0");
+    }
+    out.plant.simulation.seed = static_cast<std::uint64_t>(*seed);
+  }
+
+  // The controller: the same sections as pmsm-thermald's configuration, under [controller].
+  toml::table controller_table;
+  if (const auto* t = root.get_as<toml::table>("controller")) {
+    controller_table = *t;
+  }
+  if (root.at_path("scenario.thermal_acceleration") && !controller_table.at_path("thermal.time_scale")) {
+    controller_table.insert_or_assign("thermal", toml::table{});
+    if (const auto* existing = root.at_path("controller.thermal").as_table()) {
+      controller_table.insert_or_assign("thermal", *existing);
+    }
+    controller_table.get_as<toml::table>("thermal")->insert_or_assign("time_scale", out.scenario.thermal_acceleration);
+  }
+  out.controller = parse_controller_config(controller_table, source.string(), {}, "controller.");
+  return out;
+}
+
+Scenario load_scenario(const std::filesystem::path& path) {
+  return parse_scenario(read_file(path), path);
+}
+
+std::string scenario_keys_markdown() { return schema().markdown(ScenarioConfig{}); }
+
+}  // namespace pmsm::app
