@@ -8,10 +8,12 @@
 namespace pmsm::core {
 namespace {
 
-// The phase-current sign pattern in the rotor frame: the direction of the voltage the bridge
-// loses to dead time and device drop (per volt of per-phase error), see pair_estimator.hpp.
-Dq dead_time_pattern(const Abc& i, double band_A, double theta_rad) {
-  const Abc sign{soft_sign(i.a, band_A), soft_sign(i.b, band_A), soft_sign(i.c, band_A)};
+// The phase-current sign pattern in the rotor frame, averaged over a period in which the
+// currents moved from i0 to i1: the direction of the voltage the bridge loses to dead time
+// and device drop (per volt of per-phase error), see pair_estimator.hpp.
+Dq dead_time_pattern(const Abc& i0, const Abc& i1, double band_A, double theta_rad) {
+  const Abc sign{mean_soft_sign(i0.a, i1.a, band_A), mean_soft_sign(i0.b, i1.b, band_A),
+                 mean_soft_sign(i0.c, i1.c, band_A)};
   return park(clarke(sign), theta_rad);
 }
 
@@ -90,6 +92,9 @@ void DriveController::handle_estimate(const EventEstimate& e) {
   out.vx_V = e.vx_V;
   out.vx_std_V = e.vx_std_V;
   out.pairs = e.pairs;
+  out.vx_learning = e.vx_learning;
+  out.joint_rs_ohm = e.joint_rs_ohm;
+  out.joint_vx_V = e.joint_vx_V;
   out.fused = observer_.update_resistance(e.rs_ohm, e.rs_std_ohm);
   if (out.fused) {
     ++telemetry_.estimates_published;
@@ -170,9 +175,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     s.i_A = {0.5 * (previous_i_A_.d + i.d), 0.5 * (previous_i_A_.q + i.q)};
     s.di_dt_A_s = {(i.d - previous_i_A_.d) / config_.period_s, (i.q - previous_i_A_.q) / config_.period_s};
     s.v_V = v_applied_now_;
-    const Abc i_mid{0.5 * (previous_i_abc_A_.a + in.i_A.a), 0.5 * (previous_i_abc_A_.b + in.i_A.b),
-                    0.5 * (previous_i_abc_A_.c + in.i_A.c)};
-    s.dead_time_pattern = dead_time_pattern(i_mid, config_.dead_time.current_band_A,
+    s.dead_time_pattern = dead_time_pattern(previous_i_abc_A_, in.i_A, config_.dead_time.current_band_A,
                                             wrap_angle_0_2pi(s.theta_e_rad));
     s.voltage_limited = limited_now_;
     sample = s;
@@ -220,14 +223,17 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     const double theta_apply = theta + 1.5 * omega_e * config_.period_s;
     const double c = std::cos(theta_apply);
     const double sn = std::sin(theta_apply);
-    const Abc i_expected = inverse_clarke(inverse_park(i_ref, c, sn));
-    const Duties d = svpwm_compensated(inverse_park(v, c, sn), in.vdc_V, i_expected,
+    // The currents expected at the start and end of that period: the reference, turning.
+    const Abc i_start = inverse_clarke(inverse_park(i_ref, theta + omega_e * config_.period_s));
+    const Abc i_end = inverse_clarke(inverse_park(i_ref, theta + 2.0 * omega_e * config_.period_s));
+    const Duties d = svpwm_compensated(inverse_park(v, c, sn), in.vdc_V, i_start, i_end,
                                        config_.dead_time, config_.period_s);
     output_.duty = d.value;
     // What the bridge was asked for in total: the current controller's voltage plus the
     // compensation. The estimator models the bridge's whole error against this (see
     // pair_estimator.hpp), so it must see the compensation actually applied.
-    const Dq comp = park(clarke(dead_time_compensation_V(i_expected, config_.dead_time, in.vdc_V, config_.period_s)), c, sn);
+    const Dq comp =
+        park(clarke(dead_time_compensation_V(i_start, i_end, config_.dead_time, in.vdc_V, config_.period_s)), c, sn);
     v_total = {v.d + comp.d, v.q + comp.q};
     limited = limited || d.clipped;
     output_.enable = true;

@@ -117,7 +117,7 @@ InjectionScheduler::Budget InjectionScheduler::budget(const SchedulerInput& in, 
   h.omega_e_rad_s = in.omega_e_rad_s;
   h.id_A = im.d;
   h.iq_A = im.q;
-  h.voltage_limit_V = in.voltage_limit_V;
+  h.voltage_limit_V = in.voltage_limit_V - config_.headroom_margin_V;
   h.tw_s = tw_s;
   h.window = config_.window;
   double f_voltage = wanted_A;
@@ -299,8 +299,10 @@ PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
   } else {
     r.outcome = PairOutcome::kAccepted;
     event_sums_.add(recorder_.sums());
+    event_pair_sums_[static_cast<std::size_t>(std::min(event_pairs_, InjectionConfig::kMaxLevels - 1))] = recorder_.sums();
     event_min_f_A_ = event_pairs_ == 0 ? f_A_ : std::min(event_min_f_A_, f_A_);
     event_max_iq_A_ = std::max(event_max_iq_A_, 0.5 * std::abs(c.iq_mean_1_A + c.iq_mean_2_A));
+    event_max_speed_ = std::max(event_max_speed_, 0.5 * std::abs(c.omega_e_mean_1_rad_s + c.omega_e_mean_2_rad_s));
     if (event_q_pairs_ < InjectionConfig::kMaxLevels && !time_based_) {
       event_q_[static_cast<std::size_t>(event_q_pairs_++)] = c;
     }
@@ -323,14 +325,16 @@ std::optional<EventEstimate> InjectionScheduler::finish_event(const SchedulerInp
   double var_vx = config_.fit_dead_time ? vx_var_ : 0.0;
 
   // The event's own joint fit of Rs and Vx (several levels make it well conditioned) ...
-  const bool reverses = event_max_iq_A_ <= config_.vx_learning_max_iq_fraction * event_min_f_A_;
-  const FitResult joint =
-      config_.fit_dead_time && reverses ? solve_fit(event_sums_, fit_options(true)) : FitResult{};
-  e.joint_condition = joint.condition;
-  e.vx_learning = reverses && config_.fit_dead_time;
+  const bool reverses = event_max_iq_A_ <= config_.vx_learning_max_iq_fraction * event_min_f_A_ &&
+                        event_max_speed_ <= config_.vx_learning_max_speed_rad_s;
+  const MeansFit joint = config_.fit_dead_time && reverses && event_pairs_ >= 2
+                             ? solve_means_fit(event_pair_sums_.data(), std::min(event_pairs_, InjectionConfig::kMaxLevels))
+                             : MeansFit{};
+  e.joint_condition = joint.identifiability;
+  e.vx_learning = joint.valid && joint.identifiability >= config_.vx_min_identifiability;
   e.joint_rs_ohm = joint.rs_ohm;
   e.joint_vx_V = joint.vx_V;
-  if (joint.valid && joint.condition >= config_.min_condition && joint.var_vx > 0.0) {
+  if (e.vx_learning && joint.var_vx > 0.0) {
     // ... fused with the prior on Vx: Gaussian conditioning of (Rs, Vx) on the combined Vx.
     const double vx_post = (joint.vx_V * vx_var_ + vx_V_ * joint.var_vx) / (vx_var_ + joint.var_vx);
     const double var_post = vx_var_ * joint.var_vx / (vx_var_ + joint.var_vx);
@@ -418,6 +422,7 @@ SchedulerOutput InjectionScheduler::step(const SchedulerInput& in, const PeriodS
         event_pairs_ = 0;
         event_min_f_A_ = 0.0;
         event_max_iq_A_ = 0.0;
+        event_max_speed_ = 0.0;
         event_q_pairs_ = 0;
         next_event_s_ = in.time_s + config_.interval_s;
       }

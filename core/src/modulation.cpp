@@ -31,20 +31,35 @@ Duties svpwm(const AlphaBeta& v_V, double vdc_V) {
   return duties_from_phase_voltages({v.a, v.b, v.c}, vdc_V);
 }
 
-Abc dead_time_compensation_V(const Abc& i_A, const DeadTimeCompensation& comp, double vdc_V,
-                             double period_s) {
+double mean_soft_sign(double i0_A, double i1_A, double current_band_A) {
+  // Antiderivative of soft_sign: x^2 / 2b inside the band, |x| - b/2 outside (|x| for b = 0).
+  const double b = std::max(current_band_A, 0.0);
+  auto antiderivative = [b](double x) {
+    const double m = std::abs(x);
+    return m <= b && b > 0.0 ? x * x / (2.0 * b) : m - 0.5 * b;
+  };
+  const double span = i1_A - i0_A;
+  if (std::abs(span) < 1e-9) {
+    return soft_sign(0.5 * (i0_A + i1_A), b);
+  }
+  return (antiderivative(i1_A) - antiderivative(i0_A)) / span;
+}
+
+Abc dead_time_compensation_V(const Abc& i0_A, const Abc& i1_A, const DeadTimeCompensation& comp,
+                             double vdc_V, double period_s) {
   // The bridge loses dead_time/period of the bus voltage, plus the device drop, against the
   // current in each phase.
   const double error_V = comp.dead_time_s / period_s * vdc_V + comp.device_drop_V;
-  return {error_V * soft_sign(i_A.a, comp.current_band_A), error_V * soft_sign(i_A.b, comp.current_band_A),
-          error_V * soft_sign(i_A.c, comp.current_band_A)};
+  const double b = comp.current_band_A;
+  return {error_V * mean_soft_sign(i0_A.a, i1_A.a, b), error_V * mean_soft_sign(i0_A.b, i1_A.b, b),
+          error_V * mean_soft_sign(i0_A.c, i1_A.c, b)};
 }
 
-Duties svpwm_compensated(const AlphaBeta& v_V, double vdc_V, const Abc& i_A,
+Duties svpwm_compensated(const AlphaBeta& v_V, double vdc_V, const Abc& i0_A, const Abc& i1_A,
                          const DeadTimeCompensation& comp, double period_s) {
   // Add the expected loss back before the common mode is chosen.
   const Abc v = inverse_clarke(v_V);
-  const Abc e = dead_time_compensation_V(i_A, comp, vdc_V, period_s);
+  const Abc e = dead_time_compensation_V(i0_A, i1_A, comp, vdc_V, period_s);
   return duties_from_phase_voltages({v.a + e.a, v.b + e.b, v.c + e.c}, vdc_V);
 }
 

@@ -17,6 +17,7 @@ struct SimulateOptions {
   std::string csv_path;
   std::string plot_path;
   bool quiet = false;
+  bool events = false;
 };
 
 int run_simulate(const SimulateOptions& o) {
@@ -45,6 +46,9 @@ int run_simulate(const SimulateOptions& o) {
     std::fprintf(stderr, "simulate: %s\n", e.what());
     status = 3;
   }
+  if (o.events) {
+    std::printf("%s\n", estimates_text(result).c_str());
+  }
   std::printf("%s\n", o.json ? result_json(result).c_str() : result_text(result).c_str());
   return status;
 }
@@ -62,6 +66,7 @@ void register_simulate_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--csv", options->csv_path, "write the time series as CSV");
   cmd->add_option("--plot", options->plot_path, "draw true vs estimated temperatures as PNG (needs gnuplot)");
   cmd->add_flag("--quiet", options->quiet, "no progress line on a terminal");
+  cmd->add_flag("--events", options->events, "list every published estimate with the truth and diagnostics");
   cmd->callback([options, &exit_code] { exit_code = run_simulate(*options); });
 }
 

@@ -124,8 +124,8 @@ ConfigSchema<C> build() {
            "Fixed-angle: each window edge (theta_w), widened to Tw_s at speed.");
   inj.real("injection.dc_revolutions", [](C& c) -> double& { return c.drive.injection.dc_revolutions; }, positive(100), "",
            "DC injection: recording length in electrical turns.");
-  inj.real("injection.current_limit_A", [](C& c) -> double& { return c.drive.injection.current_limit_A; }, positive(10000), "A",
-           "|i| limit shared by motoring and injection.");
+  inj.real("injection.headroom_margin_V", [](C& c) -> double& { return c.drive.injection.headroom_margin_V; }, at_least(0, 1000), "V",
+           "Voltage kept free of the limit when budgeting F (compensation, transients).");
   inj.real("injection.max_speed_change_fraction", [](C& c) -> double& { return c.drive.injection.max_speed_change_fraction; },
            between(0, 1), "", "Reject a pair whose recordings differ in speed by more than this fraction...");
   inj.real("injection.max_speed_change_rad_s", [](C& c) -> double& { return c.drive.injection.max_speed_change_rad_s; },
@@ -250,6 +250,8 @@ void finalize(ControllerConfig& c, std::string_view source) {
   d.injection.rs_nominal_ohm = d.motor.rs_ohm;
   d.injection.flux_linkage_Wb = psi;
   d.injection.pole_pairs = d.motor.pole_pairs;
+  // Injection shares the drive's current budget with motoring (the derated limit at run time).
+  d.injection.current_limit_A = d.derating.max_current_A;
   d.baseline.period_s = d.period_s;
   d.baseline.ld_H = d.motor.ld_H;
   d.baseline.initial_rs_ohm = d.motor.rs_ohm;

@@ -33,6 +33,8 @@ std::string method_name(const ControllerConfig& c) {
   return fmt::format("{} {}", core::to_string(d.injection.method), core::to_string(d.injection.separation));
 }
 
+constexpr std::uint64_t kFastEvery = 10;  // 1 kHz at 10 kHz PWM
+
 // A fast-rate record for the disturbance figures: means over 1 ms, so that the torque
 // ripple of the EMF harmonics (hundreds of hertz) does not pose as a disturbance.
 struct FastRow {
@@ -47,33 +49,26 @@ struct Disturbance {
   double outside = 0.0;
 };
 
-// Largest deviation from a centred moving average, during injection and outside it.
+// Largest difference between two runs of the same scenario, during injection (and `after`
+// rows past it) and outside.
 template <typename Value, typename Scale>
-Disturbance disturbance(const std::vector<FastRow>& rows, std::size_t half_window, Value value, Scale scale) {
+Disturbance difference(const std::vector<FastRow>& run, const std::vector<FastRow>& twin, std::size_t after,
+                       Value value, Scale scale) {
   Disturbance d;
-  if (rows.size() < 2 * half_window + 1) {
-    return d;
-  }
-  double sum = 0.0;
-  for (std::size_t k = 0; k < 2 * half_window + 1; ++k) {
-    sum += value(rows[k]);
-  }
-  const double n = static_cast<double>(2 * half_window + 1);
-  for (std::size_t k = half_window; k + half_window + 1 < rows.size(); ++k) {
-    const double mean = sum / n;
-    const double deviation = std::abs(value(rows[k]) - mean) / scale(mean);
-    if (rows[k].counted) {
-      double& worst = rows[k].injection ? d.during : d.outside;
-      worst = std::max(worst, deviation);
+  std::size_t since_injection = after + 1;
+  for (std::size_t k = 0; k < std::min(run.size(), twin.size()); ++k) {
+    since_injection = run[k].injection ? 0 : since_injection + 1;
+    if (!run[k].counted) {
+      continue;
     }
-    sum += value(rows[k + half_window + 1]) - value(rows[k - half_window]);
+    const double deviation = std::abs(value(run[k]) - value(twin[k])) / scale(value(twin[k]));
+    double& worst = since_injection <= after ? d.during : d.outside;
+    worst = std::max(worst, deviation);
   }
   return d;
 }
 
-}  // namespace
-
-SimulationResult run_scenario(const Scenario& scenario, const RunOptions& options) {
+SimulationResult run_once(const Scenario& scenario, const RunOptions& options, std::vector<FastRow>& fast) {
   const ScenarioConfig& sc = scenario.scenario;
   SimulationResult result;
   result.scenario = sc.name;
@@ -86,11 +81,9 @@ SimulationResult run_scenario(const Scenario& scenario, const RunOptions& option
   const double ts = plant.period_s();
   const auto periods = static_cast<std::uint64_t>(std::llround(sc.duration_s / ts));
   const auto log_every = std::max<std::uint64_t>(1, static_cast<std::uint64_t>(std::llround(sc.log_period_s / ts)));
-  constexpr std::uint64_t kFastEvery = 10;  // 1 kHz at 10 kHz PWM
-  const double known_temp_C = plant.state().winding_temp_C;  // soaked at ambient: known
-  const double rated_speed_rad_s = scenario.controller.drive.motor.rated_speed_rad_s;
+    const double known_temp_C = plant.state().winding_temp_C;  // soaked at ambient: known
 
-  std::vector<FastRow> fast;
+  fast.clear();
   fast.reserve(periods / kFastEvery + 1);
   result.series.reserve(periods / log_every + 1);
 
@@ -146,8 +139,22 @@ SimulationResult run_scenario(const Scenario& scenario, const RunOptions& option
     }
     if (drive.last_estimate()) {
       const core::ResistanceEstimate& e = *drive.last_estimate();
-      result.estimates.push_back({t, e.rs_ohm, e.rs_std_ohm, truth.rs_ohm, e.winding_C, truth.winding_temp_C, e.vx_V,
-                                  e.fused});
+      EstimateRow row;
+      row.time_s = t;
+      row.rs_est_ohm = e.rs_ohm;
+      row.rs_std_ohm = e.rs_std_ohm;
+      row.rs_true_ohm = truth.rs_ohm;
+      row.winding_est_C = e.winding_C;
+      row.winding_true_C = truth.winding_temp_C;
+      row.vx_V = e.vx_V;
+      row.vx_std_V = e.vx_std_V;
+      row.vx_learning = e.vx_learning;
+      row.joint_rs_ohm = e.joint_rs_ohm;
+      row.joint_vx_V = e.joint_vx_V;
+      row.speed_rad_s = truth.omega_m_rad_s;
+      row.iq_A = tel.i_A.q;
+      row.fused = e.fused;
+      result.estimates.push_back(row);
       (e.fused ? result.estimates_accepted : result.estimates_gated) += 1;
       sq_rs += std::pow(e.rs_ohm - truth.rs_ohm, 2);
     }
@@ -239,16 +246,38 @@ SimulationResult run_scenario(const Scenario& scenario, const RunOptions& option
   result.vx_V = drive.telemetry().vx_V;
   result.vx_std_V = drive.telemetry().vx_std_V;
 
-  const auto half = static_cast<std::size_t>(std::llround(0.5 * sc.disturbance_window_s / (ts * kFastEvery)));
-  const Disturbance speed = disturbance(
-      fast, half, [](const FastRow& r) { return r.speed_rad_s; },
-      [&](double mean) { return std::max(std::abs(mean), 0.1 * rated_speed_rad_s); });
-  const Disturbance torque = disturbance(
-      fast, half, [](const FastRow& r) { return r.torque_Nm; }, [&](double) { return sc.rated_torque_Nm; });
+  return result;
+}
+
+}  // namespace
+
+SimulationResult run_scenario(const Scenario& scenario, const RunOptions& options) {
+  std::vector<FastRow> fast;
+  SimulationResult result = run_once(scenario, options, fast);
+  const core::DriveConfig& d = scenario.controller.drive;
+  const bool injects = d.estimator == core::EstimatorKind::kInjection && d.injection.method != core::InjectionMethod::kNone;
+  if (!injects || !options.twin_for_disturbance) {
+    return result;
+  }
+  Scenario twin = scenario;
+  twin.controller.drive.estimator = core::EstimatorKind::kNone;
+  std::vector<FastRow> twin_fast;
+  RunOptions twin_options = options;
+  (void)run_once(twin, twin_options, twin_fast);
+
+  const ScenarioConfig& sc = scenario.scenario;
+  const double rated_speed = d.motor.rated_speed_rad_s;
+  const auto after = static_cast<std::size_t>(std::llround(sc.disturbance_window_s / (scenario.controller.drive.period_s * kFastEvery)));
+  const Disturbance speed = difference(
+      fast, twin_fast, after, [](const FastRow& r) { return r.speed_rad_s; },
+      [&](double reference) { return std::max(std::abs(reference), 0.1 * rated_speed); });
+  const Disturbance torque = difference(
+      fast, twin_fast, after, [](const FastRow& r) { return r.torque_Nm; }, [&](double) { return sc.rated_torque_Nm; });
+  result.disturbance_measured = true;
   result.speed_disturbance_pct = 100.0 * speed.during;
-  result.speed_ripple_outside_pct = 100.0 * speed.outside;
+  result.speed_difference_outside_pct = 100.0 * speed.outside;
   result.torque_disturbance_pct = 100.0 * torque.during;
-  result.torque_ripple_outside_pct = 100.0 * torque.outside;
+  result.torque_difference_outside_pct = 100.0 * torque.outside;
   return result;
 }
 
@@ -275,10 +304,10 @@ std::string result_json(const SimulationResult& r) {
     j.field(core::to_string(static_cast<core::PairOutcome>(k)), static_cast<std::uint64_t>(r.pairs[k]));
   }
   j.end_object();
-  j.field("speed_disturbance_pct", r.speed_disturbance_pct)
-      .field("torque_disturbance_pct", r.torque_disturbance_pct)
-      .field("speed_ripple_outside_injection_pct", r.speed_ripple_outside_pct)
-      .field("torque_ripple_outside_injection_pct", r.torque_ripple_outside_pct)
+  j.field("speed_disturbance_pct", r.disturbance_measured ? r.speed_disturbance_pct : kNan)
+      .field("torque_disturbance_pct", r.disturbance_measured ? r.torque_disturbance_pct : kNan)
+      .field("speed_difference_outside_injection_pct", r.disturbance_measured ? r.speed_difference_outside_pct : kNan)
+      .field("torque_difference_outside_injection_pct", r.disturbance_measured ? r.torque_difference_outside_pct : kNan)
       .field("injection_loss_W", r.injection_loss_W)
       .field("injection_duty", r.injection_duty)
       .field("calibrated", r.calibrated);
@@ -326,10 +355,12 @@ std::string result_text(const SimulationResult& r) {
   }
   out += fmt::format("  estimates                       {} fused, {} gated; pairs {} accepted, {} rejected{}\n",
                      r.estimates_accepted, r.estimates_gated, r.pairs[0], rejected, reasons);
-  out += fmt::format("  disturbance during injection    speed {:.3f} %, torque {:.2f} % of rated\n", r.speed_disturbance_pct,
-                     r.torque_disturbance_pct);
-  out += fmt::format("  ripple outside injection        speed {:.3f} %, torque {:.2f} % of rated\n", r.speed_ripple_outside_pct,
-                     r.torque_ripple_outside_pct);
+  if (r.disturbance_measured) {
+    out += fmt::format("  disturbance by injection        speed {:.3f} %, torque {:.2f} % of rated (vs. the run without injection)\n",
+                       r.speed_disturbance_pct, r.torque_disturbance_pct);
+    out += fmt::format("  same difference outside         speed {:.3f} %, torque {:.2f} % of rated\n",
+                       r.speed_difference_outside_pct, r.torque_difference_outside_pct);
+  }
   out += fmt::format("  injection loss                  {:.2f} W average ({:.1f} % of the time injecting)\n", r.injection_loss_W,
                      100.0 * r.injection_duty);
   if (r.calibrated) {
@@ -339,6 +370,19 @@ std::string result_text(const SimulationResult& r) {
   out += fmt::format("  inverter voltage error Vx       {:.3f} +- {:.3f} V\n", r.vx_V, r.vx_std_V);
   out += fmt::format("  simulated {:.1f} s in {:.1f} s ({:.1f}x real time)\n", r.sim_time_s, r.wall_time_s,
                      r.wall_time_s > 0 ? r.sim_time_s / r.wall_time_s : 0.0);
+  return out;
+}
+
+std::string estimates_text(const SimulationResult& r) {
+  std::string out =
+      "    time_s  speed_rad_s   iq_A   rs_est_mohm  std_mohm  rs_true_mohm  err_mohm  winding_est_C  winding_true_C  "
+      "vx_V   vx_std_V  learn  joint_rs_mohm  joint_vx_V  fused\n";
+  for (const EstimateRow& e : r.estimates) {
+    out += fmt::format("{:10.3f} {:12.1f} {:6.1f} {:13.2f} {:9.2f} {:13.2f} {:9.2f} {:14.1f} {:15.1f} {:6.3f} {:10.3f} {:6} {:14.2f} {:11.3f}  {}\n",
+                       e.time_s, e.speed_rad_s, e.iq_A, 1e3 * e.rs_est_ohm, 1e3 * e.rs_std_ohm, 1e3 * e.rs_true_ohm,
+                       1e3 * (e.rs_est_ohm - e.rs_true_ohm), e.winding_est_C, e.winding_true_C, e.vx_V, e.vx_std_V,
+                       e.vx_learning ? "yes" : "no", 1e3 * e.joint_rs_ohm, e.joint_vx_V, e.fused ? "yes" : "gated");
+  }
   return out;
 }
 

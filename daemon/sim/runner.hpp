@@ -13,6 +13,9 @@ namespace pmsm::app {
 
 struct RunOptions {
   bool progress = false;            // a progress line on stderr (for terminals)
+  // Measure speed and torque disturbance against a twin run of the same scenario without
+  // injection (same seed, same cycle): the difference is what the injection caused.
+  bool twin_for_disturbance = true;
 };
 
 // One row of the time series, every log_period_s.
@@ -48,6 +51,12 @@ struct EstimateRow {
   double winding_est_C = 0.0;       // Eq. 1 through the calibration
   double winding_true_C = 0.0;
   double vx_V = 0.0;
+  double vx_std_V = 0.0;
+  bool vx_learning = false;
+  double joint_rs_ohm = 0.0;
+  double joint_vx_V = 0.0;
+  double speed_rad_s = 0.0;
+  double iq_A = 0.0;
   bool fused = false;
 };
 
@@ -77,11 +86,15 @@ struct SimulationResult {
   std::size_t estimates_accepted = 0;   // fused by the thermal filter
   std::size_t estimates_gated = 0;      // published but gated out as implausible
   core::OutcomeCounts pairs{};          // every pair's outcome
-  // Disturbance (deviation from a moving average), during injection and outside it.
+  // Disturbance: the largest difference from the twin run without injection, during an
+  // injection event and the disturbance window after it (speed relative to the speed, at
+  // least 10 % of rated; torque relative to rated torque), and the same difference outside
+  // (how far the two runs drift apart for other reasons).
+  bool disturbance_measured = false;
   double speed_disturbance_pct = 0.0;
   double torque_disturbance_pct = 0.0;
-  double speed_ripple_outside_pct = 0.0;
-  double torque_ripple_outside_pct = 0.0;
+  double speed_difference_outside_pct = 0.0;
+  double torque_difference_outside_pct = 0.0;
   double injection_loss_W = 0.0;        // 3/2 Rs |i_injection|^2 averaged over the run
   double injection_duty = 0.0;          // fraction of time an event was in progress
   // Calibration.
@@ -104,6 +117,8 @@ struct SimulationResult {
 [[nodiscard]] std::string result_json(const SimulationResult& r);
 // A human-readable summary.
 [[nodiscard]] std::string result_text(const SimulationResult& r);
+// One line per published estimate (time, estimate, truth, inverter voltage, diagnostics).
+[[nodiscard]] std::string estimates_text(const SimulationResult& r);
 // The time series as CSV (one header line).
 void write_series_csv(const SimulationResult& r, const std::string& path);
 // True vs estimated winding (and magnet) temperature over time, plus speed and torque, as a

@@ -1,6 +1,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <tuple>
 
 #include "pmsm/core/modulation.hpp"
 
@@ -51,7 +52,7 @@ TEST(DeadTimeCompensation, AddsTheExpectedVoltageAgainstTheCurrent) {
   const AlphaBeta v{100.0, -40.0};
   const Abc i{20.0, -5.0, -15.0};
   const Abc plain = phase_voltages(svpwm(v, vdc), vdc);
-  const Abc corrected = phase_voltages(svpwm_compensated(v, vdc, i, comp, period), vdc);
+  const Abc corrected = phase_voltages(svpwm_compensated(v, vdc, i, i, comp, period), vdc);
   // Per-phase pole-voltage correction 0.9 us / 100 us * 650 V = 5.85 V with the sign of the
   // current; phase-to-neutral removes the mean of (+1, -1, -1) * 5.85 V.
   const double e = 5.85;
@@ -62,6 +63,21 @@ TEST(DeadTimeCompensation, AddsTheExpectedVoltageAgainstTheCurrent) {
   EXPECT_NEAR(soft_sign(0.25, 1.0), 0.25, 1e-12);
   EXPECT_NEAR(soft_sign(-7.0, 1.0), -1.0, 1e-12);
   EXPECT_EQ(soft_sign(0.0, 0.0), 0.0);
+}
+
+TEST(DeadTimeCompensation, MeanSoftSignIsTheTimeAverageOverALinearCurrent) {
+  // Against a brute-force average of soft_sign along the straight line from i0 to i1.
+  for (const auto& [i0, i1, band] : {std::tuple{-3.0, 2.0, 1.0}, std::tuple{-0.4, 0.7, 1.0}, std::tuple{5.0, 9.0, 1.0},
+                                     std::tuple{2.0, -1.5, 0.75}, std::tuple{-1.0, 3.0, 0.0}, std::tuple{0.2, 0.2, 1.0}}) {
+    double sum = 0.0;
+    const int n = 200000;
+    for (int k = 0; k < n; ++k) {
+      sum += soft_sign(i0 + (i1 - i0) * (k + 0.5) / n, band);
+    }
+    EXPECT_NEAR(mean_soft_sign(i0, i1, band), sum / n, 1e-5) << i0 << " " << i1 << " " << band;
+  }
+  // A crossing in the middle of the period: half the time on each side.
+  EXPECT_NEAR(mean_soft_sign(-5.0, 5.0, 1.0), 0.0, 1e-12);
 }
 
 }  // namespace

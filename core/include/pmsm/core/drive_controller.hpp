@@ -51,7 +51,7 @@ struct DriveConfig {
   double thermal_update_s = 0.01;    // thermal model / filter period
   double magnet_coefficient_per_C = -0.0012;  // NdFeB remanence (flux) temperature coefficient
   double magnet_min_speed_rad_s = 50.0;       // electrical; below it the EMF is too small
-  int calibration_events = 3;        // events averaged into Rs0 / Ke0
+  int calibration_events = 6;        // events averaged into Rs0 / Ke0
   std::size_t recording_capacity = 8192;      // periods per recording (preallocated)
 };
 
@@ -120,6 +120,9 @@ struct ResistanceEstimate {
   double vx_std_V = 0.0;
   int pairs = 0;
   bool fused = false;               // the thermal filter took it (not gated out)
+  bool vx_learning = false;         // this event also refined the inverter voltage
+  double joint_rs_ohm = 0.0;        // the event's joint fit before fusion (diagnostics)
+  double joint_vx_V = 0.0;
 };
 
 class DriveController {

@@ -81,7 +81,7 @@ struct InjectionConfig {
   double record_arc_rad = 6.283185307179586;  // angle-based recording length (one electrical turn)
   double record_time_s = 0.05;    // time-based recording length (standstill)
   double record_min_time_s = 0.04;  // angle-based recordings last at least this (whole turns)
-  bool mechanical_harmonics = false;  // dTheta a multiple of 2 pi p instead of 2 pi
+  bool mechanical_harmonics = true;   // dTheta a multiple of 2 pi p (mechanical harmonics) instead of 2 pi
   int pole_pairs = 3;
   double min_speed_for_angle_rad_s = 30.0;  // electrical; below: time-based recordings
   int unipolar_polarity = -1;     // unipolar injects -F by default (it lowers the voltage)
@@ -92,7 +92,8 @@ struct InjectionConfig {
   double window_arc_rad = 0.5235987755982988;     // theta_w, each edge (widened to tw_s at speed)
   double dc_revolutions = 2.0;    // DC injection: recording length in electrical turns
   // Budget.
-  double current_limit_A = 63.8;  // |i| limit shared by motoring and injection (peak)
+  double current_limit_A = 80.0;  // |i| limit shared by motoring and injection (peak)
+  double headroom_margin_V = 15.0; // kept free of the voltage limit for dead-time compensation and transients
   // Guards.
   double max_speed_change_fraction = 0.01;
   double max_speed_change_rad_s = 2.0;   // electrical; the larger of the two limits applies
@@ -114,6 +115,10 @@ struct InjectionConfig {
   // transitions at current zero crossings, where no sign model is exact, and the joint fit
   // is biased in a way its own error bar cannot show (docs/estimator.md).
   double vx_learning_max_iq_fraction = 0.5;
+  double vx_min_identifiability = 0.05;  // of the event's means fit, to learn Vx from it
+  // ... and only below this electrical speed: at speed the EMF harmonics' current ripple
+  // interacts with the dead time near the zero crossings and biases what is learned.
+  double vx_learning_max_speed_rad_s = 600.0;
   double lq_H = 5.5e-3;           // the controller's model, for the Eq. 37 correction
   double ld_H = 5.5e-3;
   double rs_nominal_ohm = 0.133;  // for the headroom calculation
@@ -126,7 +131,7 @@ struct SchedulerInput {
   double omega_e_rad_s = 0.0;
   Dq motoring_ref_A{};            // the motoring current reference this period
   double voltage_limit_V = 356.0; // usable voltage now (from the DC bus)
-  double current_limit_A = 63.8;  // |i| limit now (may be derated)
+  double current_limit_A = 80.0;  // |i| limit now (may be derated)
   bool enabled = false;           // the drive is running and healthy
   bool request_now = false;       // start an event at the next opportunity
 };
@@ -225,10 +230,12 @@ class InjectionScheduler {
   int level_index_ = 0;             // next level of the event in progress
   bool in_event_ = false;
   double f_event_A_ = 0.0;          // budgeted F of the event's first pair
-  BlockedSums event_sums_{};        // accepted pairs of the event
+  BlockedSums event_sums_{};        // accepted pairs of the event, summed
+  std::array<BlockedSums, InjectionConfig::kMaxLevels> event_pair_sums_{};  // and one by one
   int event_pairs_ = 0;
   double event_min_f_A_ = 0.0;      // smallest F among the event's accepted pairs
   double event_max_iq_A_ = 0.0;     // largest motoring |iq| among them
+  double event_max_speed_ = 0.0;    // largest electrical speed among them
   std::array<PairConditions, InjectionConfig::kMaxLevels> event_q_{};
   int event_q_pairs_ = 0;
   double vx_V_ = 0.0;               // inverter voltage prior

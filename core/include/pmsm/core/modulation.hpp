@@ -24,16 +24,23 @@ struct Duties {
 [[nodiscard]] Duties svpwm(const AlphaBeta& v_V, double vdc_V);
 
 // As svpwm(), plus a correction per phase that cancels the expected dead-time and device-drop
-// error for the given phase currents (the error opposes the current).
-[[nodiscard]] Duties svpwm_compensated(const AlphaBeta& v_V, double vdc_V, const Abc& i_A,
+// error for the phase currents expected at the start (i0) and end (i1) of the period (the
+// error opposes the current).
+[[nodiscard]] Duties svpwm_compensated(const AlphaBeta& v_V, double vdc_V, const Abc& i0_A, const Abc& i1_A,
                                        const DeadTimeCompensation& comp, double period_s);
 
 // The phase-voltage error per phase the compensation assumes, as a fraction of one unit of
 // "sign(i)": a linear ramp through zero inside +-current_band and +-1 outside.
 [[nodiscard]] double soft_sign(double i_A, double current_band_A);
 
-// The voltage per phase that svpwm_compensated() adds for the given currents.
-[[nodiscard]] Abc dead_time_compensation_V(const Abc& i_A, const DeadTimeCompensation& comp, double vdc_V,
-                                           double period_s);
+// The mean of soft_sign over a period in which the current moves linearly from i0 to i1: a
+// zero crossing inside the period then counts for the fraction of the period spent on
+// each side, as it does in the bridge (at speed the current moves about an ampere per period).
+[[nodiscard]] double mean_soft_sign(double i0_A, double i1_A, double current_band_A);
+
+// The voltage per phase that svpwm_compensated() adds, for currents moving from i0 to i1
+// over the period the command applies to.
+[[nodiscard]] Abc dead_time_compensation_V(const Abc& i0_A, const Abc& i1_A, const DeadTimeCompensation& comp,
+                                           double vdc_V, double period_s);
 
 }  // namespace pmsm::core

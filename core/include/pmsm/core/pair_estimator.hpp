@@ -70,6 +70,8 @@ struct FitSums {
   std::array<double, kRegressors> xty{};
   double yty = 0.0;
   double n = 0.0;
+  std::array<double, kRegressors> sum_x{};  // for the means over whole turns
+  double sum_y = 0.0;
 
   void add(const std::array<double, kRegressors>& x, double y);
   void add(const FitSums& other, double sign = 1.0);
@@ -113,6 +115,24 @@ struct FitResult {
 
 // Least squares on blocked sums, with the jackknife over blocks for the covariance.
 [[nodiscard]] FitResult solve_fit(const BlockedSums& sums, const FitOptions& options);
+
+// Rs and Vx from the means of several pairs over their whole recordings (whole electrical
+// turns): mean(y) = Rs mean(dId) + Vx mean(dGd) per pair, weighted by the jackknife variance
+// of each pair's mean(y). Anything periodic within a turn (EMF harmonics and what they do to
+// the currents, the speed and the interpolation) averages out of the means, so this is how
+// Vx is learned: across levels, from the change of mean(dGd) / mean(dId) with F. The
+// sample-by-sample fit can also separate the two from the dead-time pattern's six-step
+// content within a turn, but at speed that content is exactly where harmonic residues sit.
+struct MeansFit {
+  bool valid = false;
+  double rs_ohm = 0.0;
+  double vx_V = 0.0;
+  double var_rs = 0.0;
+  double var_vx = 0.0;
+  double cov_rs_vx = 0.0;
+  double identifiability = 0.0;  // 1 - rho^2 of the weighted design
+};
+[[nodiscard]] MeansFit solve_means_fit(const BlockedSums* pairs, int count);
 
 struct PairFitConfig {
   double lq_H = 5.5e-3;         // the controller's Lq, for the Eq. 37 correction term

@@ -13,14 +13,18 @@
 namespace pmsm::core {
 
 struct ThermalModelConfig {
-  // The controller's model (from the motor data sheet or commissioning; need not be exact).
-  double winding_capacity_J_K = 2000.0;
-  double housing_capacity_J_K = 12500.0;
-  double winding_to_housing_K_W = 0.05;
-  double housing_to_ambient_K_W = 0.175;
-  // Iron loss model: P = k1 |wm| + k2 wm^2 (hysteresis + eddy), on the housing node.
-  double iron_loss_k1_W_s_rad = 0.3;
-  double iron_loss_k2_W_s2_rad2 = 1.5e-3;
+  // The controller's model, from the motor's thermal data as commissioned: a two-node
+  // simplification of the real machine (rotor lumped into the housing), each value within
+  // about 10 % of the Table I motor's network (docs/estimator.md). It need not be exact:
+  // the filter's loss-error state and the resistance measurements correct it.
+  double winding_capacity_J_K = 2800.0;
+  double housing_capacity_J_K = 18000.0;
+  double winding_to_housing_K_W = 0.055;
+  double housing_to_ambient_K_W = 0.125;
+  // Speed-dependent losses on the housing node, P = k1 |wm| + k2 wm^2: iron loss (hysteresis
+  // and eddy currents) and the friction heat that stays in the machine.
+  double iron_loss_k1_W_s_rad = 0.6;
+  double iron_loss_k2_W_s2_rad2 = 1.0e-3;
   // Thermal time runs this many times faster than controller time (test acceleration; 1 on a
   // real machine).
   double time_scale = 1.0;
@@ -42,7 +46,7 @@ struct Calibration {
 };
 
 struct DeratingConfig {
-  double max_current_A = 63.8;      // |i| limit when cold (peak)
+  double max_current_A = 80.0;      // |i| limit when cold (peak; Table I: Istall 166 A peak)
   double min_current_A = 10.0;      // the floor at the temperature limit
   double derate_start_C = 130.0;    // derating begins here (upper bound of the estimate)
   double limit_C = 155.0;           // winding temperature limit (insulation class F)
