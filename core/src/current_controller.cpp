@@ -1,12 +1,18 @@
 #include "pmsm/core/current_controller.hpp"
 
+#include <algorithm>
 #include <cmath>
 
 namespace pmsm::core {
 
 CurrentController::CurrentController(const CurrentControllerConfig& config) : config_(config) {
-  pi_d_.set_gains({config.bandwidth_rad_s * config.ld_H, config.bandwidth_rad_s * config.rs_ohm});
-  pi_q_.set_gains({config.bandwidth_rad_s * config.lq_H, config.bandwidth_rad_s * config.rs_ohm});
+  auto gains = [&](double l_H) {
+    const double kp = config.bandwidth_rad_s * l_H;
+    const double zero_rad_s = std::max(config.rs_ohm / l_H, config.integral_zero_fraction * config.bandwidth_rad_s);
+    return PiGains{kp, kp * zero_rad_s};
+  };
+  pi_d_.set_gains(gains(config.ld_H));
+  pi_q_.set_gains(gains(config.lq_H));
 }
 
 void CurrentController::reset() {

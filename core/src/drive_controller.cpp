@@ -31,10 +31,14 @@ DriveController::DriveController(const DriveConfig& config)
       derating_{config.derating.max_current_A, false} {}
 
 void DriveController::start_calibration(double known_temp_C) {
+  scheduler_.set_config(config_.calibration_injection);
   calibrating_ = true;
+  calibration_failed_ = false;
+  calibration_started_s_ = static_cast<double>(period_) * config_.period_s;
   calibration_temp_C_ = known_temp_C;
   calibration_count_ = 0;
   calibration_rs_sum_ = 0.0;
+  calibration_weight_sum_ = 0.0;
   calibration_ke_sum_ = 0.0;
   calibration_ke_count_ = 0;
 }
@@ -63,10 +67,19 @@ void DriveController::handle_pair(const PairResult& r) {
 }
 
 void DriveController::handle_estimate(const EventEstimate& e) {
+  last_event_ = e;
+  if (e.outcome != EventOutcome::kPublished) {
+    ++telemetry_.events_without_estimate;
+    return;
+  }
   telemetry_.vx_V = e.vx_V;
   telemetry_.vx_std_V = e.vx_std_V;
   if (calibrating_) {
-    calibration_rs_sum_ += e.rs_ohm;
+    // Inverse-variance weights: an event whose inverter voltage was still unknown carries
+    // a large error bar and must not pull Rs0.
+    const double w = 1.0 / std::max(e.rs_std_ohm * e.rs_std_ohm, 1e-12);
+    calibration_rs_sum_ += w * e.rs_ohm;
+    calibration_weight_sum_ += w;
     ++calibration_count_;
     if (e.has_emf) {
       calibration_ke_sum_ += e.ke_V_s_per_rad;
@@ -74,11 +87,12 @@ void DriveController::handle_estimate(const EventEstimate& e) {
     }
     if (calibration_count_ >= config_.calibration_events) {
       Calibration c;
-      c.rs0_ohm = calibration_rs_sum_ / calibration_count_;
+      c.rs0_ohm = calibration_rs_sum_ / calibration_weight_sum_;
       c.t0_C = calibration_temp_C_;
       c.ke0_V_s_per_rad = calibration_ke_count_ > 0 ? calibration_ke_sum_ / calibration_ke_count_ : 0.0;
       c.calibrated = true;
       calibrating_ = false;
+      scheduler_.set_config(config_.injection);
       observer_ = ThermalObserver(config_.thermal, c, calibration_temp_C_);
       calibration_done_ = c;
     }
@@ -139,6 +153,7 @@ void DriveController::update_thermal(double ambient_C) {
 const DriveOutput& DriveController::step(const DriveInput& in, const DriveCommand& command) {
   last_pair_.reset();
   last_estimate_.reset();
+  last_event_.reset();
   calibration_done_.reset();
   const double now = static_cast<double>(period_) * config_.period_s;
   ++period_;
@@ -177,6 +192,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     s.v_V = v_applied_now_;
     s.dead_time_pattern = dead_time_pattern(previous_i_abc_A_, in.i_A, config_.dead_time.current_band_A,
                                             wrap_angle_0_2pi(s.theta_e_rad));
+
     s.voltage_limited = limited_now_;
     sample = s;
     if (config_.estimator == EstimatorKind::kNoInjection && enabled) {
@@ -200,6 +216,13 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   si.voltage_limit_V = current_.voltage_limit_V(in.vdc_V);
   si.current_limit_A = derating_.current_limit_A;
   si.enabled = enabled && config_.estimator == EstimatorKind::kInjection;
+  if (calibrating_ && now - calibration_started_s_ > config_.calibration_timeout_s) {
+    // No usable events in time (the method cannot inject here, or every pair was
+    // rejected): keep the stored calibration and say so.
+    calibrating_ = false;
+    calibration_failed_ = true;
+    scheduler_.set_config(config_.injection);
+  }
   si.request_now = command.request_injection || (calibrating_ && enabled);
   const SchedulerOutput so = scheduler_.step(si, sample ? &*sample : nullptr);
   if (so.completed) {
@@ -271,6 +294,11 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     e.time_s = now;
     e.rs_ohm = baseline_.rs_ohm();
     e.rs_std_ohm = baseline_.rs_std_ohm();
+    // The same plausibility window as the injection methods.
+    if (!(e.rs_ohm >= config_.injection.rs_min_ohm && e.rs_ohm <= config_.injection.rs_max_ohm) ||
+        !std::isfinite(e.rs_std_ohm)) {
+      e.outcome = EventOutcome::kImplausible;
+    }
     handle_estimate(e);
   }
 
@@ -291,6 +319,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   telemetry_.vx_V = scheduler_.vx_V();
   telemetry_.vx_std_V = scheduler_.vx_std_V();
   telemetry_.calibrated = observer_.calibration().calibrated;
+  telemetry_.calibration_failed = calibration_failed_;
   return output_;
 }
 

@@ -21,6 +21,16 @@ std::string_view to_string(Separation s) {
   return s == Separation::kBipolar ? "bipolar" : "unipolar";
 }
 
+std::string_view to_string(EventOutcome o) {
+  switch (o) {
+    case EventOutcome::kPublished: return "published";
+    case EventOutcome::kNoAcceptedPairs: return "no_accepted_pairs";
+    case EventOutcome::kNoFit: return "no_fit";
+    case EventOutcome::kImplausible: return "implausible";
+  }
+  return "?";
+}
+
 std::string_view to_string(PairOutcome o) {
   switch (o) {
     case PairOutcome::kAccepted: return "accepted";
@@ -62,6 +72,9 @@ FitOptions InjectionScheduler::fit_options(bool fit_vx) const {
 
 void InjectionScheduler::set_config(const InjectionConfig& config) {
   config_ = config;
+  phase_ = SchedulerPhase::kIdle;
+  in_event_ = false;
+  recording_ = 0;
 }
 
 double InjectionScheduler::edge_value(double elapsed_s) const {
@@ -311,13 +324,14 @@ PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
   return r;
 }
 
-std::optional<EventEstimate> InjectionScheduler::finish_event(const SchedulerInput& in) {
+EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
   in_event_ = false;
-  if (event_pairs_ == 0) {
-    return std::nullopt;
-  }
   EventEstimate e;
   e.time_s = in.time_s;
+  if (event_pairs_ == 0) {
+    e.outcome = EventOutcome::kNoAcceptedPairs;
+    return e;
+  }
   e.pairs = event_pairs_;
   double rs = 0.0;
   double var_rs = 0.0;
@@ -325,10 +339,15 @@ std::optional<EventEstimate> InjectionScheduler::finish_event(const SchedulerInp
   double var_vx = config_.fit_dead_time ? vx_var_ : 0.0;
 
   // The event's own joint fit of Rs and Vx (several levels make it well conditioned) ...
-  const bool reverses = event_max_iq_A_ <= config_.vx_learning_max_iq_fraction * event_min_f_A_ &&
+  // Only bipolar pairs reverse the current vector; a unipolar pair's first recording sits at
+  // the motoring current, near zero at light load, where the bridge's error depends on the
+  // zero-current band that no sign model knows exactly.
+  const bool reverses = config_.separation == Separation::kBipolar &&
+                        event_max_iq_A_ <= config_.vx_learning_max_iq_fraction * event_min_f_A_ &&
                         event_max_speed_ <= config_.vx_learning_max_speed_rad_s;
   const MeansFit joint = config_.fit_dead_time && reverses && event_pairs_ >= 2
-                             ? solve_means_fit(event_pair_sums_.data(), std::min(event_pairs_, InjectionConfig::kMaxLevels))
+                             ? solve_means_fit(event_pair_sums_.data(), std::min(event_pairs_, InjectionConfig::kMaxLevels),
+                                               config_.fit_inductance)
                              : MeansFit{};
   e.joint_condition = joint.identifiability;
   e.vx_learning = joint.valid && joint.identifiability >= config_.vx_min_identifiability;
@@ -348,13 +367,16 @@ std::optional<EventEstimate> InjectionScheduler::finish_event(const SchedulerInp
     // One level, or a collinear event: Rs with Vx held at the prior, whose uncertainty adds.
     const FitResult fixed = solve_fit(event_sums_, fit_options(false));
     if (!fixed.valid) {
-      return std::nullopt;
+      e.outcome = EventOutcome::kNoFit;
+      return e;
     }
     rs = fixed.rs_ohm;
     var_rs = fixed.var_rs + fixed.drs_dvx * fixed.drs_dvx * var_vx;
   }
   if (!plausible(rs, 0.0) || !(var_rs >= 0.0)) {
-    return std::nullopt;
+    e.outcome = EventOutcome::kImplausible;
+    e.rs_ohm = rs;
+    return e;
   }
   e.rs_ohm = rs;
   e.rs_std_ohm = std::sqrt(var_rs);

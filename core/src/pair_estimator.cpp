@@ -235,7 +235,7 @@ FitResult solve_fit(const BlockedSums& sums, const FitOptions& options) {
   return out;
 }
 
-MeansFit solve_means_fit(const BlockedSums* pairs, int count) {
+MeansFit solve_means_fit(const BlockedSums* pairs, int count, bool fit_ld) {
   MeansFit out;
   Eigen::Matrix2d a = Eigen::Matrix2d::Zero();
   Eigen::Vector2d b = Eigen::Vector2d::Zero();
@@ -247,24 +247,17 @@ MeansFit solve_means_fit(const BlockedSums* pairs, int count) {
     }
     const double y = t.sum_y / t.n;
     const Eigen::Vector2d x(t.sum_x[kRegRs] / t.n, t.sum_x[kRegVx] / t.n);
-    // Jackknife variance of this pair's mean(y) - Rs mean(dId) - Vx mean(dGd) is dominated
-    // by mean(y); estimate it from the leave-one-block-out means.
-    std::array<double, kFitBlocks> loo{};
-    double mean = 0.0;
-    for (std::size_t k = 0; k < p.blocks.size(); ++k) {
-      const double n = t.n - p.blocks[k].n;
-      if (n <= 0.0) {
-        return out;
-      }
-      loo[k] = (t.sum_y - p.blocks[k].sum_y) / n;
-      mean += loo[k];
+    // The noise of this pair's mean(y): what the pair's own regression (Vx held, the
+    // inductive term fitted) says about its Rs, times mean(dId). A jackknife of block means
+    // would not do: for a fixed-angle pulse the blocks are different parts of the pulse.
+    FitOptions own;
+    own.fit_vx = false;
+    own.fit_ld = fit_ld;
+    const FitResult pair_fit = solve_fit(p, own);
+    if (!pair_fit.valid) {
+      continue;
     }
-    mean /= kFitBlocks;
-    double var = 0.0;
-    for (double v : loo) {
-      var += (v - mean) * (v - mean);
-    }
-    var *= static_cast<double>(kFitBlocks - 1) / kFitBlocks;
+    const double var = pair_fit.var_rs * x(0) * x(0);
     const double w = 1.0 / std::max(var, 1e-12);
     a += w * x * x.transpose();
     b += w * x * y;
@@ -299,6 +292,9 @@ void PairRecorder::start(const PairFitConfig& config, MatchBy match_by, double d
   origin2_ = 0.0;
   sums_ = {};
   matched_ = 0;
+  ring_sum_ = {};
+  ring_count_ = 0;
+  ring_next_ = 0;
   sum_omega1_ = sum_omega2_ = sum_iq1_ = sum_iq2_ = sum_id1_ = sum_id2_ = 0.0;
   sum_vq_ = sum_iq_ = sum_wid_ = sum_wm_ = sum_gq_ = 0.0;
   any_limited_ = false;
@@ -330,6 +326,9 @@ double PairRecorder::first_extent() const {
 void PairRecorder::begin_second(double origin) {
   origin2_ = origin;
   cursor_ = 0;
+  ring_sum_ = {};
+  ring_count_ = 0;
+  ring_next_ = 0;
 }
 
 bool PairRecorder::second_complete(const PeriodSample& s) const {
@@ -370,12 +369,29 @@ double PairRecorder::add_second(const PeriodSample& s) {
   // dVd + Lq d(w iq) = Rs dId + Vx dGd + Ld d(dId/dt).
   const double y = (r1.v.d - s.v_V.d) +
                    config_.lq_H * (r1.omega_e * r1.i.q - s.omega_e_rad_s * s.i_A.q);
-  const std::array<double, kRegressors> x{r1.i.d - s.i_A.d, r1.g.d - s.dead_time_pattern.d,
-                                          r1.di_dt.d - s.di_dt_A_s.d};
-  const int block = std::clamp(static_cast<int>(phi / std::max(extent, 1e-12) * kFitBlocks), 0,
-                               kFitBlocks - 1);
-  sums_.blocks[static_cast<std::size_t>(block)].add(x, y);
+  const std::array<double, kRegressors + 1> raw{r1.i.d - s.i_A.d, r1.g.d - s.dead_time_pattern.d,
+                                                r1.di_dt.d - s.di_dt_A_s.d, y};
+  // Moving average over the last filter_length matched samples (the same on every channel).
+  const int length = std::clamp(config_.filter_length, 1, kMaxFilter);
+  auto& slot = ring_[static_cast<std::size_t>(ring_next_)];
+  for (std::size_t c = 0; c <= kRegressors; ++c) {
+    if (ring_count_ >= length) {
+      ring_sum_[c] -= slot[c];
+    }
+    slot[c] = raw[c];
+    ring_sum_[c] += raw[c];
+  }
+
+  ring_next_ = (ring_next_ + 1) % length;
+  ring_count_ = std::min(ring_count_ + 1, length);
   ++matched_;
+  if (ring_count_ == length) {
+    const double inv = 1.0 / length;
+    const std::array<double, kRegressors> x{ring_sum_[0] * inv, ring_sum_[1] * inv, ring_sum_[2] * inv};
+    const int block = std::clamp(static_cast<int>(phi / std::max(extent, 1e-12) * kFitBlocks), 0,
+                                 kFitBlocks - 1);
+    sums_.blocks[static_cast<std::size_t>(block)].add(x, ring_sum_[kRegressors] * inv);
+  }
 
   sum_omega2_ += s.omega_e_rad_s;
   sum_iq2_ += s.i_A.q;

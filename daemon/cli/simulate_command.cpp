@@ -33,6 +33,7 @@ int run_simulate(const SimulateOptions& o) {
   }
   RunOptions run;
   run.progress = !o.quiet;
+  run.log_events = o.events;
   const SimulationResult result = run_scenario(scenario, run);
   int status = 0;
   try {
@@ -48,6 +49,9 @@ int run_simulate(const SimulateOptions& o) {
   }
   if (o.events) {
     std::printf("%s\n", estimates_text(result).c_str());
+    for (const std::string& line : result.event_log) {
+      std::printf("%s\n", line.c_str());
+    }
   }
   std::printf("%s\n", o.json ? result_json(result).c_str() : result_text(result).c_str());
   return status;

@@ -168,9 +168,11 @@ class ConfigSchema {
   }
 
   [[nodiscard]] std::string where(std::string_view source, const toml::node& node, std::string_view key) const {
+    // The file the node came from (a scenario may inherit keys from a base file).
     const auto& region = node.source();
+    const std::string file = region.path && !region.path->empty() ? *region.path : std::string(source);
     const std::string line = region.begin.line > 0 ? ":" + std::to_string(region.begin.line) : "";
-    return std::string(source) + line + ": " + prefix_ + std::string(key) + ": ";
+    return file + line + ": " + prefix_ + std::string(key) + ": ";
   }
 
   double number_of(const Entry& e, const toml::node& node, std::string_view source) const {

@@ -252,6 +252,12 @@ void finalize(ControllerConfig& c, std::string_view source) {
   d.injection.pole_pairs = d.motor.pole_pairs;
   // Injection shares the drive's current budget with motoring (the derated limit at run time).
   d.injection.current_limit_A = d.derating.max_current_A;
+  // The calibration procedure: the run-time settings, as fixed-magnitude bipolar at two levels.
+  d.calibration_injection = d.injection;
+  d.calibration_injection.method = core::InjectionMethod::kFixedMagnitude;
+  d.calibration_injection.separation = core::Separation::kBipolar;
+  d.calibration_injection.levels = {1.0, 0.4, 0.0, 0.0};
+  d.calibration_injection.level_count = 2;
   d.baseline.period_s = d.period_s;
   d.baseline.ld_H = d.motor.ld_H;
   d.baseline.initial_rs_ohm = d.motor.rs_ohm;

@@ -131,11 +131,23 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, s
       result.calibration_time_s = t;
       metrics_from_s = t;
     }
+    if (metrics_from_s < 0.0 && tel.calibration_failed) {
+      // The method could not calibrate: count from here on the stored (nameplate) values.
+      metrics_from_s = t;
+    }
     if (drive.last_pair()) {
       const core::PairResult& p = *drive.last_pair();
       ++result.pairs[static_cast<std::size_t>(p.outcome)];
       result.pair_log.push_back({t, p.level_index, p.outcome, p.f_A, p.rs_ohm, p.residual_rms_V,
                                  p.delta_omega_e_rad_s, p.delta_iq_A});
+    }
+    if (drive.last_event() && drive.last_event()->outcome != core::EventOutcome::kPublished) {
+      ++result.events_without_estimate[static_cast<std::size_t>(drive.last_event()->outcome)];
+      if (options.log_events) {
+        const core::EventEstimate& e = *drive.last_event();
+        result.event_log.push_back(fmt::format("{:10.3f}  event without estimate: {} (pairs {}, joint rs {:.2f} mOhm, vx {:.3f} V, ident {:.3f})",
+                                               t, core::to_string(e.outcome), e.pairs, 1e3 * e.rs_ohm, e.joint_vx_V, e.joint_condition));
+      }
     }
     if (drive.last_estimate()) {
       const core::ResistanceEstimate& e = *drive.last_estimate();
@@ -445,8 +457,7 @@ plot '{}' using 1:($3-2*$4):($3+2*$4) with filledcurves fc rgb "#cce0ff" fs soli
      '' using 1:2 with lines lw 2 lc rgb "#c00000" title "winding (true)", \
      '' using 1:3 with lines lw 1.5 lc rgb "#0050c0" title "winding (estimate)", \
      '' using 1:5 with lines lw 1.5 dt 2 lc rgb "#d08000" title "magnet (true)", \
-     '' using 1:6 with lines lw 1.2 lc rgb "#008000" title "magnet (estimate)", \
-     '{}' using 1:($3>0?$2:1/0) with points pt 7 ps 0.5 lc rgb "#303030" title "resistance estimates (Eq. 1)"
+     '' using 1:6 with lines lw 1.2 lc rgb "#008000" title "magnet (estimate)"{}
 set size 1,0.34
 set origin 0,0.0
 set ylabel "speed (rad/s), torque (Nm)"
@@ -456,8 +467,14 @@ plot '{}' using 1:7 with lines lw 1.2 lc rgb "#404040" title "speed (true)", \
      '' using 1:8 with lines lw 1 lc rgb "#8000a0" title "torque (true)"
 unset multiplot
 )gp",
-                                   path, title, data_path, points_path, data_path);
-  FILE* gp = popen("gnuplot 2>&1", "w");
+                                   path, title, data_path,
+                                   r.estimates.empty()
+                                       ? std::string()
+                                       : fmt::format(", \\\n     '{}' using 1:($3>0?$2:1/0) with points pt 7 ps 0.5 lc rgb \"#303030\" "
+                                                     "title \"resistance estimates (Eq. 1)\"",
+                                                     points_path),
+                                   data_path);
+  FILE* gp = popen("gnuplot", "w");  // its own messages go to stderr, not into our stdout
   if (gp == nullptr) {
     std::remove(data_path);
     std::remove(points_path);

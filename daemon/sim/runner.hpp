@@ -2,6 +2,7 @@
 // faster than real time; and the figures the accuracy benchmark reports (DESIGN section 9).
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <functional>
 #include <string>
@@ -16,6 +17,7 @@ struct RunOptions {
   // Measure speed and torque disturbance against a twin run of the same scenario without
   // injection (same seed, same cycle): the difference is what the injection caused.
   bool twin_for_disturbance = true;
+  bool log_events = false;          // keep a line per event that published nothing
 };
 
 // One row of the time series, every log_period_s.
@@ -109,6 +111,8 @@ struct SimulationResult {
   std::vector<SeriesRow> series;
   std::vector<EstimateRow> estimates;
   std::vector<PairRow> pair_log;
+  std::array<std::uint32_t, 4> events_without_estimate{};  // by EventOutcome
+  std::vector<std::string> event_log;
 };
 
 [[nodiscard]] SimulationResult run_scenario(const Scenario& scenario, const RunOptions& options = {});

@@ -215,13 +215,40 @@ double Profile::at(double t_s) const {
   return points.back().value;
 }
 
-Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path& source) {
-  toml::table root;
+namespace {
+
+toml::table parse_toml(std::string_view text, const std::filesystem::path& source) {
   try {
-    root = toml::parse(toml_text, source.string());
+    return toml::parse(text, source.string());
   } catch (const toml::parse_error& e) {
     throw ConfigError(source.string() + ":" + std::to_string(e.source().begin.line) + ": " + std::string(e.description()));
   }
+}
+
+// A scenario may name a base scenario (scenario.base, relative to itself) and override only
+// what differs; bases may chain.
+toml::table resolve_base(toml::table root, const std::filesystem::path& source, int depth) {
+  const auto base = root.at_path("scenario.base").value<std::string>();
+  if (!base) {
+    if (root.at_path("scenario.base")) {
+      throw ConfigError(source.string() + ": scenario.base: expected a path (string)");
+    }
+    return root;
+  }
+  if (depth > 8) {
+    throw ConfigError(source.string() + ": scenario.base: bases nest too deep (a cycle?)");
+  }
+  const std::filesystem::path base_path = source.parent_path() / *base;
+  toml::table merged = resolve_base(parse_toml(read_file(base_path), base_path), base_path, depth + 1);
+  root.get_as<toml::table>("scenario")->erase("base");
+  merge(merged, root);
+  return merged;
+}
+
+}  // namespace
+
+Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path& source) {
+  const toml::table root = resolve_base(parse_toml(toml_text, source), source, 0);
   Scenario out;
   out.source = source;
   schema().apply(root, out.scenario, source.string(),

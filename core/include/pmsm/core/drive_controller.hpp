@@ -42,6 +42,11 @@ struct DriveConfig {
   int speed_decimation = 10;         // speed loop every N current-loop periods
   DeadTimeCompensation dead_time{0.9e-6, 0.0, 1.0};
   InjectionConfig injection{};
+  // The calibration procedure, whatever the run-time method: fixed-magnitude bipolar at two
+  // levels, the one procedure that separates Rs0 from the inverter's voltage error without
+  // depending on the zero-current region (docs/estimator.md). Filled from `injection` by
+  // the configuration loader.
+  InjectionConfig calibration_injection{};
   EstimatorKind estimator = EstimatorKind::kInjection;
   BaselineConfig baseline{};
   double baseline_publish_s = 1.0;   // how often the no-injection estimate is fused
@@ -52,6 +57,7 @@ struct DriveConfig {
   double magnet_coefficient_per_C = -0.0012;  // NdFeB remanence (flux) temperature coefficient
   double magnet_min_speed_rad_s = 50.0;       // electrical; below it the EMF is too small
   int calibration_events = 6;        // events averaged into Rs0 / Ke0
+  double calibration_timeout_s = 20.0;  // give up (keep the stored calibration) after this
   std::size_t recording_capacity = 8192;      // periods per recording (preallocated)
 };
 
@@ -103,10 +109,12 @@ struct DriveTelemetry {
   OutcomeCounts outcomes{};
   std::uint32_t estimates_published = 0;
   std::uint32_t estimates_gated = 0;  // implausible against the thermal filter's prediction
+  std::uint32_t events_without_estimate = 0;
   double vx_V = 0.0;                  // the inverter voltage estimate
   double vx_std_V = 0.0;
   bool calibrating = false;
   bool calibrated = false;
+  bool calibration_failed = false;  // the last calibration run timed out
 };
 
 // One published resistance estimate, from an event's accepted pairs (rejected pairs are
@@ -141,6 +149,8 @@ class DriveController {
   [[nodiscard]] const std::optional<PairResult>& last_pair() const { return last_pair_; }
   // Set for the one period in which an estimate was published.
   [[nodiscard]] const std::optional<ResistanceEstimate>& last_estimate() const { return last_estimate_; }
+  // Set for the one period in which an injection event finished, whatever its outcome.
+  [[nodiscard]] const std::optional<EventEstimate>& last_event() const { return last_event_; }
   // Set for the one period in which a calibration completed.
   [[nodiscard]] const std::optional<Calibration>& calibration_completed() const { return calibration_done_; }
   [[nodiscard]] const Calibration& calibration() const { return observer_.calibration(); }
@@ -165,6 +175,7 @@ class DriveController {
   DriveTelemetry telemetry_{};
   std::optional<PairResult> last_pair_;
   std::optional<ResistanceEstimate> last_estimate_;
+  std::optional<EventEstimate> last_event_;
   std::optional<Calibration> calibration_done_;
 
   std::uint64_t period_ = 0;
@@ -192,9 +203,12 @@ class DriveController {
   bool magnet_valid_ = false;
   // Calibration.
   bool calibrating_ = false;
+  bool calibration_failed_ = false;
+  double calibration_started_s_ = 0.0;
   double calibration_temp_C_ = 25.0;
   int calibration_count_ = 0;
   double calibration_rs_sum_ = 0.0;
+  double calibration_weight_sum_ = 0.0;
   double calibration_ke_sum_ = 0.0;
   int calibration_ke_count_ = 0;
   DeratingResult derating_{};

@@ -95,8 +95,8 @@ struct InjectionConfig {
   double current_limit_A = 80.0;  // |i| limit shared by motoring and injection (peak)
   double headroom_margin_V = 15.0; // kept free of the voltage limit for dead-time compensation and transients
   // Guards.
-  double max_speed_change_fraction = 0.01;
-  double max_speed_change_rad_s = 2.0;   // electrical; the larger of the two limits applies
+  double max_speed_change_fraction = 0.02;
+  double max_speed_change_rad_s = 3.0;   // electrical; the larger of the two limits applies
   double max_load_change_A = 1.5;
   double max_residual_V = 3.0;
   double min_condition = 1e-4;
@@ -107,7 +107,7 @@ struct InjectionConfig {
   bool fit_inductance = true;     // fit Ld d(dId/dt): the inductive voltage within a recording
   double vx_initial_V = 0.0;      // prior before the first event
   double vx_initial_std_V = 3.0;
-  double vx_drift_std_V = 0.02;   // how far Vx may wander between events
+  double vx_drift_std_V = 0.005;  // how far Vx may wander between events
   // Vx is learned only from events whose pairs reverse the current vector, i.e. whose
   // motoring |iq| stays below this fraction of the smallest F of the event: then the
   // current-sign pattern simply inverts and its plateaus carry the information. Under load
@@ -160,8 +160,18 @@ struct PairResult {
   PairConditions conditions{};
 };
 
+// Why an event published nothing.
+enum class EventOutcome : std::uint8_t {
+  kPublished = 0,
+  kNoAcceptedPairs = 1,   // every pair was skipped or rejected (see their reports)
+  kNoFit = 2,             // the accepted pairs gave no solvable fit
+  kImplausible = 3,       // the event's Rs fell outside the plausibility window
+};
+[[nodiscard]] std::string_view to_string(EventOutcome o);
+
 // The estimate of one event, from its accepted pairs.
 struct EventEstimate {
+  EventOutcome outcome = EventOutcome::kPublished;
   double time_s = 0.0;
   int pairs = 0;                   // accepted pairs that went into it
   double rs_ohm = 0.0;
@@ -182,7 +192,7 @@ struct SchedulerOutput {
   bool active = false;             // an event is in progress (injection may be zero)
   SchedulerPhase phase = SchedulerPhase::kIdle;
   std::optional<PairResult> completed;  // set in the period a pair finished or was skipped
-  std::optional<EventEstimate> estimate;  // set in the period an event produced an estimate
+  std::optional<EventEstimate> estimate;  // set in the period an event finished (see its outcome)
 };
 
 class InjectionScheduler {
@@ -193,6 +203,8 @@ class InjectionScheduler {
   // One control period: `sample` is the period that just ended (nullptr when none).
   SchedulerOutput step(const SchedulerInput& in, const PeriodSample* sample);
 
+  // Replaces the configuration (e.g. for a calibration run). An event in progress is
+  // dropped; the inverter-voltage prior is kept, it belongs to the inverter.
   void set_config(const InjectionConfig& config);
   [[nodiscard]] const InjectionConfig& config() const { return config_; }
   [[nodiscard]] SchedulerPhase phase() const { return phase_; }
@@ -213,7 +225,7 @@ class InjectionScheduler {
   void begin_pair(const SchedulerInput& in);
   void abort(SchedulerOutput& out, const SchedulerInput& in);
   PairResult finish_pair(const SchedulerInput& in);
-  std::optional<EventEstimate> finish_event(const SchedulerInput& in);
+  EventEstimate finish_event(const SchedulerInput& in);
   [[nodiscard]] FitOptions fit_options(bool fit_vx) const;
   [[nodiscard]] bool plausible(double rs_ohm, double margin_ohm) const;
   double level_for(int recording) const;       // injection level of recording 1 or 2 (in units of F)

@@ -117,8 +117,8 @@ struct FitResult {
 [[nodiscard]] FitResult solve_fit(const BlockedSums& sums, const FitOptions& options);
 
 // Rs and Vx from the means of several pairs over their whole recordings (whole electrical
-// turns): mean(y) = Rs mean(dId) + Vx mean(dGd) per pair, weighted by the jackknife variance
-// of each pair's mean(y). Anything periodic within a turn (EMF harmonics and what they do to
+// turns, or the whole pulse): mean(y) = Rs mean(dId) + Vx mean(dGd) per pair, each weighted
+// by the noise its own regression shows. Anything periodic within a turn (EMF harmonics and what they do to
 // the currents, the speed and the interpolation) averages out of the means, so this is how
 // Vx is learned: across levels, from the change of mean(dGd) / mean(dId) with F. The
 // sample-by-sample fit can also separate the two from the dead-time pattern's six-step
@@ -132,10 +132,16 @@ struct MeansFit {
   double cov_rs_vx = 0.0;
   double identifiability = 0.0;  // 1 - rho^2 of the weighted design
 };
-[[nodiscard]] MeansFit solve_means_fit(const BlockedSums* pairs, int count);
+[[nodiscard]] MeansFit solve_means_fit(const BlockedSums* pairs, int count, bool fit_ld);
 
 struct PairFitConfig {
   double lq_H = 5.5e-3;         // the controller's Lq, for the Eq. 37 correction term
+  // Moving-average length (periods) applied alike to y and every regressor before the fit.
+  // The relation is linear with constant coefficients, so filtering both sides keeps it
+  // exact, while the noise of the two-sample derivative d(dId/dt) falls by this factor: with
+  // a deterministic inductive signal (fixed-angle pulses) the fitted Ld would otherwise carry
+  // sensor noise of tens of volts into the fit.
+  int filter_length = 8;
 };
 
 // Operating conditions of a pair, for the guards of Section X and the EMF constant.
@@ -194,6 +200,12 @@ class PairRecorder {
   double origin2_ = 0.0;
   BlockedSums sums_{};
   std::size_t matched_ = 0;
+  // Moving-average state of the matched differences (y and the regressors).
+  static constexpr int kMaxFilter = 32;
+  std::array<std::array<double, kRegressors + 1>, kMaxFilter> ring_{};
+  std::array<double, kRegressors + 1> ring_sum_{};
+  int ring_count_ = 0;
+  int ring_next_ = 0;
   double sum_omega1_ = 0.0, sum_omega2_ = 0.0, sum_iq1_ = 0.0, sum_iq2_ = 0.0;
   double sum_id1_ = 0.0, sum_id2_ = 0.0;
   double sum_vq_ = 0.0, sum_iq_ = 0.0, sum_wid_ = 0.0, sum_wm_ = 0.0, sum_gq_ = 0.0;
