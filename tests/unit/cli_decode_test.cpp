@@ -1,0 +1,200 @@
+// `pmsm-thermal decode` on the committed candump captures (tests/unit/data/candump/): every
+// candump format, stdin, --json, --strict, the default DBC lookup, and errors that name the
+// DBC file and line.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <cstdio>
+#include <fstream>
+#include <regex>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "run_process.hpp"
+
+namespace pmsm::test {
+namespace {
+
+const std::string kExe = PMSM_THERMAL_EXE;
+const std::string kSource = PMSM_SOURCE_DIR;
+const std::string kData = kSource + "/tests/unit/data/candump/";
+const std::string kDbc = kSource + "/can/pmsm-thermal.dbc";
+const std::string kDecode = kExe + " decode --dbc " + kDbc + " ";
+
+bool contains(const std::string& text, const std::string& part) { return text.find(part) != std::string::npos; }
+
+std::vector<std::string> lines_of(const std::string& text) {
+  std::vector<std::string> lines;
+  std::istringstream in(text);
+  for (std::string line; std::getline(in, line);) {
+    lines.push_back(line);
+  }
+  return lines;
+}
+
+std::string read_file(const std::string& path) {
+  std::ifstream in(path);
+  std::stringstream text;
+  text << in.rdbuf();
+  return text.str();
+}
+
+// What follows " :: " on each line.
+std::vector<std::string> decoded_parts(const std::string& out) {
+  std::vector<std::string> parts;
+  for (const std::string& line : lines_of(out)) {
+    const std::size_t at = line.find(" :: ");
+    parts.push_back(at == std::string::npos ? std::string{} : line.substr(at + 4));
+  }
+  return parts;
+}
+
+class TempFile {
+ public:
+  explicit TempFile(const std::string& text, const char* suffix = ".log") {
+    std::string name = std::string("/tmp/cli-decode-XXXXXX") + suffix;
+    const int fd = ::mkstemps(name.data(), static_cast<int>(std::string(suffix).size()));
+    if (fd >= 0) {
+      ::close(fd);
+    }
+    path_ = name;
+    std::ofstream(path_) << text;
+  }
+  ~TempFile() { std::remove(path_.c_str()); }
+  TempFile(const TempFile&) = delete;
+  TempFile& operator=(const TempFile&) = delete;
+  [[nodiscard]] const std::string& path() const { return path_; }
+
+ private:
+  std::string path_;
+};
+
+TEST(cli_decode, EveryProtocolMessageDecodesWithLabels) {
+  const ProcessResult r = run_process(kDecode + "--strict " + kData + "protocol_node0.log");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const std::vector<std::string> input = lines_of(read_file(kData + "protocol_node0.log"));
+  const std::vector<std::string> output = lines_of(r.out);
+  ASSERT_EQ(output.size(), input.size());
+  for (std::size_t i = 0; i < input.size(); ++i) {
+    // The original line, then the decoded message.
+    EXPECT_EQ(output[i].rfind(input[i] + " :: ", 0), 0U) << output[i];
+  }
+  EXPECT_TRUE(contains(r.out, ":: INVERTER_COMMAND(Sequence: 1000, DutyA: 0.500008,")) << r.out;
+  EXPECT_TRUE(contains(r.out, ":: DRIVE_COMMAND(Crc: 123, AliveCounter: 0, Enable: 1, Mode: SPEED, "
+                              "SpeedSetpoint: 157.080 rad/s, TorqueSetpoint: 0.000 Nm)"))
+      << r.out;
+  EXPECT_TRUE(contains(r.out, ":: PLANT_STATUS(Mode: LOCKSTEP, OutputEnabled: 1,")) << r.out;
+  EXPECT_TRUE(contains(r.out, "Result: ACCEPTED")) << r.out;
+  // Summary on stderr: all decoded, counts per message.
+  EXPECT_TRUE(contains(r.err, "15 frame(s): 15 decoded, 0 unknown")) << r.err;
+  EXPECT_TRUE(std::regex_search(r.err, std::regex("THERMAL_ESTIMATE +2\\n"))) << r.err;
+  EXPECT_TRUE(std::regex_search(r.err, std::regex("PLANT_STATUS +1\\n"))) << r.err;
+}
+
+TEST(cli_decode, DefaultAndLogFormatsDecodeAlike) {
+  const ProcessResult log = run_process(kDecode + kData + "protocol_node0.log");
+  const ProcessResult plain = run_process(kDecode + kData + "protocol_node0_default.log");
+  ASSERT_EQ(log.exit_code, 0) << log.err;
+  ASSERT_EQ(plain.exit_code, 0) << plain.err;
+  EXPECT_EQ(decoded_parts(log.out), decoded_parts(plain.out));
+}
+
+TEST(cli_decode, EveryCandumpFormatGivesTheSameResult) {
+  const ProcessResult reference = run_process(kDecode + kData + "formats_L.log");
+  ASSERT_EQ(reference.exit_code, 0) << reference.err;
+  const std::vector<std::string> expected = decoded_parts(reference.out);
+  ASSERT_EQ(expected.size(), 10U);
+  for (const char* name : {"formats_default.log", "formats_a.log", "formats_ta.log", "formats_tz.log",
+                           "formats_tA.log", "formats_x.log"}) {
+    const ProcessResult r = run_process(kDecode + kData + name);
+    ASSERT_EQ(r.exit_code, 0) << name << ": " << r.err;
+    EXPECT_EQ(decoded_parts(r.out), expected) << name;
+    EXPECT_TRUE(contains(r.err, "10 frame(s): 2 decoded, 7 unknown, 0 error frame(s), 0 mismatched")) << name << r.err;
+  }
+  EXPECT_TRUE(contains(reference.out, "vcan0 12345678#0011223344556677 :: Unknown frame id")) << reference.out;
+  EXPECT_TRUE(contains(reference.out, ":: SENSOR_SAMPLE(Sequence: 50462976,")) << reference.out;
+}
+
+TEST(cli_decode, StrictFailsOnUnknownFrames) {
+  const ProcessResult r = run_process(kDecode + "--strict " + kData + "formats_L.log");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_TRUE(contains(r.err, "--strict: 8 line(s)")) << r.err;  // 7 unknown + 1 out of range
+  // Everything is still printed.
+  EXPECT_EQ(lines_of(r.out).size(), 10U);
+}
+
+TEST(cli_decode, StrictFailsOnMismatchOutOfRangeAndMalformedLines) {
+  // PLANT_STATUS one byte short; DRIVE_STATUS with State 7 (range 0..4); a line that is no frame.
+  const TempFile bad("(1.000000) vcan0 220#03000001007F7E\n(1.000100) vcan0 100#0700000000000000\nhello\n\n");
+  const ProcessResult r = run_process(kDecode + "--strict " + bad.path());
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_TRUE(contains(r.out, ":: PLANT_STATUS(")) << r.out;
+  EXPECT_TRUE(contains(r.out, "[length mismatch]")) << r.out;
+  EXPECT_TRUE(contains(r.out, "[out of range: State]")) << r.out;
+  EXPECT_TRUE(contains(r.err, "line 3 is not a candump frame")) << r.err;
+  EXPECT_TRUE(contains(r.err, "1 mismatched")) << r.err;
+  EXPECT_TRUE(contains(r.err, "1 out of range, 1 malformed line(s)")) << r.err;
+  // Without --strict the same input is reported but does not fail.
+  EXPECT_EQ(run_process(kDecode + bad.path()).exit_code, 0);
+}
+
+TEST(cli_decode, ReadsStdin) {
+  const ProcessResult dash = run_process("cat " + kData + "protocol_node0.log | " + kDecode + "-");
+  const ProcessResult none = run_process("cat " + kData + "protocol_node0.log | " + kDecode);
+  const ProcessResult file = run_process(kDecode + kData + "protocol_node0.log");
+  ASSERT_EQ(dash.exit_code, 0) << dash.err;
+  ASSERT_EQ(none.exit_code, 0) << none.err;
+  EXPECT_EQ(dash.out, file.out);
+  EXPECT_EQ(none.out, file.out);
+}
+
+TEST(cli_decode, JsonLinesOnePerFrame) {
+  const ProcessResult r = run_process(kDecode + "--json " + kData + "protocol_node0.log");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const std::vector<std::string> lines = lines_of(r.out);
+  ASSERT_EQ(lines.size(), 15U);
+  for (const std::string& line : lines) {
+    EXPECT_EQ(line.front(), '{');
+    EXPECT_EQ(line.back(), '}');
+    EXPECT_TRUE(contains(line, "\"status\": \"ok\"")) << line;
+  }
+  EXPECT_TRUE(contains(lines[0], "\"timestamp_ns\": 1795248538055211000")) << lines[0];
+  EXPECT_TRUE(contains(lines[0], "\"message\": \"INVERTER_COMMAND\"")) << lines[0];
+  EXPECT_TRUE(contains(lines[0], "\"Sequence\": 1000")) << lines[0];
+  EXPECT_TRUE(contains(r.out, "\"labels\": {\"Mode\": \"SPEED\"}")) << r.out;
+  EXPECT_TRUE(contains(r.out, "\"units\": {\"SpeedSetpoint\": \"rad/s\", \"TorqueSetpoint\": \"Nm\"}")) << r.out;
+  // The summary is one JSON object on stderr.
+  EXPECT_TRUE(contains(r.err, "\"frames\": 15, \"decoded\": 15")) << r.err;
+  EXPECT_TRUE(contains(r.err, "\"THERMAL_ESTIMATE\": 2")) << r.err;
+}
+
+TEST(cli_decode, FindsTheDbcWithoutBeingTold) {
+  // The executable lives in a build directory under the source tree: can/pmsm-thermal.dbc
+  // of that tree is found.
+  const ProcessResult r = run_process(kExe + " decode --strict " + kData + "protocol_node0.log");
+  if (kExe.rfind(kSource + "/", 0) != 0) {
+    GTEST_SKIP() << "the build directory is outside the source tree";
+  }
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_TRUE(contains(r.err, "15 decoded")) << r.err;
+}
+
+TEST(cli_decode, AnUnreadableDbcIsNamedWithItsLine) {
+  const TempFile bad("VERSION \"\"\nBU_: A\nBO_ 12 X: 8 A\n SG_ S : 0|8@1+ (1,0) [0|0] \"\" A\nBO_ nonsense\n", ".dbc");
+  ProcessResult r = run_process(kExe + " decode --dbc " + bad.path() + " " + kData + "protocol_node0.log");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_TRUE(contains(r.err, bad.path() + ":5:")) << r.err;
+  r = run_process(kExe + " decode --dbc /nonexistent/x.dbc " + kData + "protocol_node0.log");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_TRUE(contains(r.err, "/nonexistent/x.dbc")) << r.err;
+}
+
+TEST(cli_decode, AMissingInputFileIsNamed) {
+  const ProcessResult r = run_process(kDecode + "/nonexistent/capture.log");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_TRUE(contains(r.err, "cannot open '/nonexistent/capture.log'")) << r.err;
+}
+
+}  // namespace
+}  // namespace pmsm::test
