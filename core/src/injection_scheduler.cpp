@@ -43,6 +43,7 @@ std::string_view to_string(PairOutcome o) {
     case PairOutcome::kRejectedVoltageSaturation: return "rejected_voltage_saturation";
     case PairOutcome::kRejectedIllConditioned: return "rejected_ill_conditioned";
     case PairOutcome::kAborted: return "aborted";
+    case PairOutcome::kSkippedTorqueDisturbance: return "skipped_torque_disturbance";
     case PairOutcome::kCount: break;
   }
   return "?";
@@ -142,10 +143,21 @@ InjectionScheduler::Budget InjectionScheduler::budget(const SchedulerInput& in, 
     f_voltage = std::min(f_voltage, max_injection_current_at_operating_point_A(h, s_uni));
   }
 
-  b.f_A = std::max(0.0, std::min(f_current, f_voltage));
+  // Torque: reluctance torque 3/2 p |Ld - Lq| F |iq| within the budget (salient machines).
+  double f_torque = wanted_A;
+  const double saliency = 1.5 * config_.pole_pairs * std::abs(config_.ld_H - config_.lq_H) * std::abs(im.q);
+  if (config_.max_torque_disturbance_Nm > 0.0 && saliency > 0.0) {
+    f_torque = std::min(f_torque, config_.max_torque_disturbance_Nm / saliency);
+  }
+
+  b.f_A = std::max(0.0, std::min({f_current, f_voltage, f_torque}));
   if (b.f_A < config_.f_min_A) {
-    b.limiting = f_current <= f_voltage ? PairOutcome::kRejectedCurrentLimit
-                                        : PairOutcome::kRejectedVoltageHeadroom;
+    if (f_torque <= std::min(f_current, f_voltage)) {
+      b.limiting = PairOutcome::kSkippedTorqueDisturbance;
+    } else {
+      b.limiting = f_current <= f_voltage ? PairOutcome::kRejectedCurrentLimit
+                                          : PairOutcome::kRejectedVoltageHeadroom;
+    }
   }
   return b;
 }

@@ -126,6 +126,8 @@ ConfigSchema<C> build() {
            "DC injection: recording length in electrical turns.");
   inj.real("injection.headroom_margin_V", [](C& c) -> double& { return c.drive.injection.headroom_margin_V; }, at_least(0, 1000), "V",
            "Voltage kept free of the limit when budgeting F (compensation, transients).");
+  inj.real("injection.max_torque_disturbance_Nm", [](C& c) -> double& { return c.drive.injection.max_torque_disturbance_Nm; },
+           at_least(0, 10000), "Nm", "Budget for the reluctance torque of an injection on a salient machine (0: none).");
   inj.real("injection.max_speed_change_fraction", [](C& c) -> double& { return c.drive.injection.max_speed_change_fraction; },
            between(0, 1), "", "Reject a pair whose recordings differ in speed by more than this fraction...");
   inj.real("injection.max_speed_change_rad_s", [](C& c) -> double& { return c.drive.injection.max_speed_change_rad_s; },

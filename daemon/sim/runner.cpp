@@ -47,25 +47,78 @@ struct FastRow {
 struct Disturbance {
   double during = 0.0;
   double outside = 0.0;
+  std::size_t during_row = 0;   // where the largest difference during injection occurred
 };
 
+// Where the twin run (no injection) is in steady operation: its speed within
+// `tolerance` of its own centred moving average. The scenario's own load and speed steps
+// are transients in both runs, and a millisecond's shift of such a transient would pose as
+// a disturbance; they are left out.
+std::vector<bool> steady_rows(const std::vector<FastRow>& twin, std::size_t half_window, double tolerance,
+                              double speed_floor) {
+  std::vector<bool> steady(twin.size(), false);
+  if (twin.size() < 2 * half_window + 1) {
+    return steady;
+  }
+  double sum = 0.0;
+  for (std::size_t k = 0; k < 2 * half_window + 1; ++k) {
+    sum += twin[k].speed_rad_s;
+  }
+  const double n = static_cast<double>(2 * half_window + 1);
+  for (std::size_t k = half_window; k + half_window + 1 < twin.size(); ++k) {
+    const double mean = sum / n;
+    steady[k] = std::abs(twin[k].speed_rad_s - mean) <= tolerance * std::max(std::abs(mean), speed_floor);
+    sum += twin[k + half_window + 1].speed_rad_s - twin[k - half_window].speed_rad_s;
+  }
+  // A window is steady only if it is steady throughout.
+  std::vector<bool> out(steady.size(), false);
+  for (std::size_t k = 0; k < steady.size(); ++k) {
+    bool all = true;
+    for (std::size_t j = k >= half_window ? k - half_window : 0; j <= std::min(k + half_window, steady.size() - 1); ++j) {
+      all = all && steady[j];
+    }
+    out[k] = all;
+  }
+  return out;
+}
+
 // Largest difference between two runs of the same scenario, during injection (and `after`
-// rows past it) and outside.
+// rows past it) and outside, in steady operation.
 template <typename Value, typename Scale>
-Disturbance difference(const std::vector<FastRow>& run, const std::vector<FastRow>& twin, std::size_t after,
-                       Value value, Scale scale) {
+Disturbance difference(const std::vector<FastRow>& run, const std::vector<FastRow>& twin, const std::vector<bool>& steady,
+                       std::size_t after, Value value, Scale scale) {
   Disturbance d;
   std::size_t since_injection = after + 1;
   for (std::size_t k = 0; k < std::min(run.size(), twin.size()); ++k) {
     since_injection = run[k].injection ? 0 : since_injection + 1;
-    if (!run[k].counted) {
+    if (!run[k].counted || !steady[k]) {
       continue;
     }
     const double deviation = std::abs(value(run[k]) - value(twin[k])) / scale(value(twin[k]));
-    double& worst = since_injection <= after ? d.during : d.outside;
-    worst = std::max(worst, deviation);
+    if (since_injection <= after) {
+      if (deviation > d.during) {
+        d.during = deviation;
+        d.during_row = k;
+      }
+    } else {
+      d.outside = std::max(d.outside, deviation);
+    }
   }
   return d;
+}
+
+// Replaces each row's torque with its trailing moving average over `rows` rows.
+void smooth_torque(std::vector<FastRow>& rows, std::size_t window) {
+  double sum = 0.0;
+  std::vector<double> original(rows.size());
+  for (std::size_t k = 0; k < rows.size(); ++k) {
+    original[k] = rows[k].torque_Nm;
+    sum += original[k];
+    if (k >= window) {
+      sum -= original[k - window];
+    }
+    rows[k].torque_Nm = sum / static_cast<double>(std::min(k + 1, window));
+  }
 }
 
 SimulationResult run_once(const Scenario& scenario, const RunOptions& options, std::vector<FastRow>& fast) {
@@ -280,13 +333,20 @@ SimulationResult run_scenario(const Scenario& scenario, const RunOptions& option
   const ScenarioConfig& sc = scenario.scenario;
   const double rated_speed = d.motor.rated_speed_rad_s;
   const auto after = static_cast<std::size_t>(std::llround(sc.disturbance_window_s / (scenario.controller.drive.period_s * kFastEvery)));
+  const std::vector<bool> steady = steady_rows(twin_fast, after / 2, 0.005, 0.1 * rated_speed);
+  // Torque is compared as a 10 ms moving average: the EMF harmonics' torque ripple (hundreds
+  // of hertz) is in both runs, but at rotor angles that drift apart over a long run.
+  smooth_torque(fast, 10);
+  smooth_torque(twin_fast, 10);
   const Disturbance speed = difference(
-      fast, twin_fast, after, [](const FastRow& r) { return r.speed_rad_s; },
+      fast, twin_fast, steady, after, [](const FastRow& r) { return r.speed_rad_s; },
       [&](double reference) { return std::max(std::abs(reference), 0.1 * rated_speed); });
   const Disturbance torque = difference(
-      fast, twin_fast, after, [](const FastRow& r) { return r.torque_Nm; }, [&](double) { return sc.rated_torque_Nm; });
+      fast, twin_fast, steady, after, [](const FastRow& r) { return r.torque_Nm; }, [&](double) { return sc.rated_torque_Nm; });
   result.disturbance_measured = true;
   result.speed_disturbance_pct = 100.0 * speed.during;
+  result.speed_disturbance_at_s = static_cast<double>(speed.during_row * kFastEvery) * scenario.controller.drive.period_s;
+  result.torque_disturbance_at_s = static_cast<double>(torque.during_row * kFastEvery) * scenario.controller.drive.period_s;
   result.speed_difference_outside_pct = 100.0 * speed.outside;
   result.torque_disturbance_pct = 100.0 * torque.during;
   result.torque_difference_outside_pct = 100.0 * torque.outside;
@@ -318,6 +378,8 @@ std::string result_json(const SimulationResult& r) {
   j.end_object();
   j.field("speed_disturbance_pct", r.disturbance_measured ? r.speed_disturbance_pct : kNan)
       .field("torque_disturbance_pct", r.disturbance_measured ? r.torque_disturbance_pct : kNan)
+      .field("speed_disturbance_at_s", r.disturbance_measured ? r.speed_disturbance_at_s : kNan)
+      .field("torque_disturbance_at_s", r.disturbance_measured ? r.torque_disturbance_at_s : kNan)
       .field("speed_difference_outside_injection_pct", r.disturbance_measured ? r.speed_difference_outside_pct : kNan)
       .field("torque_difference_outside_injection_pct", r.disturbance_measured ? r.torque_difference_outside_pct : kNan)
       .field("injection_loss_W", r.injection_loss_W)
@@ -368,8 +430,8 @@ std::string result_text(const SimulationResult& r) {
   out += fmt::format("  estimates                       {} fused, {} gated; pairs {} accepted, {} rejected{}\n",
                      r.estimates_accepted, r.estimates_gated, r.pairs[0], rejected, reasons);
   if (r.disturbance_measured) {
-    out += fmt::format("  disturbance by injection        speed {:.3f} %, torque {:.2f} % of rated (vs. the run without injection)\n",
-                       r.speed_disturbance_pct, r.torque_disturbance_pct);
+    out += fmt::format("  disturbance by injection        speed {:.3f} % (at {:.2f} s), torque {:.2f} % of rated (at {:.2f} s), vs. the run without injection\n",
+                       r.speed_disturbance_pct, r.speed_disturbance_at_s, r.torque_disturbance_pct, r.torque_disturbance_at_s);
     out += fmt::format("  same difference outside         speed {:.3f} %, torque {:.2f} % of rated\n",
                        r.speed_difference_outside_pct, r.torque_difference_outside_pct);
   }

@@ -91,10 +91,14 @@ struct SimulationResult {
   // Disturbance: the largest difference from the twin run without injection, during an
   // injection event and the disturbance window after it (speed relative to the speed, at
   // least 10 % of rated; torque relative to rated torque), and the same difference outside
-  // (how far the two runs drift apart for other reasons).
+  // (how far the two runs drift apart for other reasons); both only where the twin runs
+  // steadily (its speed within 0.5 % of its 50 ms moving average), so that the scenario's
+  // own steps do not count.
   bool disturbance_measured = false;
   double speed_disturbance_pct = 0.0;
   double torque_disturbance_pct = 0.0;
+  double speed_disturbance_at_s = 0.0;   // when the largest one occurred
+  double torque_disturbance_at_s = 0.0;
   double speed_difference_outside_pct = 0.0;
   double torque_difference_outside_pct = 0.0;
   double injection_loss_W = 0.0;        // 3/2 Rs |i_injection|^2 averaged over the run

@@ -47,8 +47,8 @@ enum class Separation : std::uint8_t { kBipolar, kUnipolar };
 [[nodiscard]] std::string_view to_string(InjectionMethod m);
 [[nodiscard]] std::string_view to_string(Separation s);
 
-// The outcome of one pair. The numbering is the one the CAN protocol's injection report
-// carries.
+// The outcome of one pair. The CAN protocol's injection report carries the same numbering
+// (hal protocol InjectionResult; a test checks they agree).
 enum class PairOutcome : std::uint8_t {
   kAccepted = 0,
   kRejectedSpeedChange = 1,
@@ -60,7 +60,8 @@ enum class PairOutcome : std::uint8_t {
   kRejectedVoltageSaturation = 7, // the voltage limit was hit while recording
   kRejectedIllConditioned = 8,    // too few samples or collinear regressors
   kAborted = 9,                   // disabled, fault or lost speed in the middle of a pair
-  kCount = 10,
+  kSkippedTorqueDisturbance = 10, // the reluctance torque of the injection would exceed its budget
+  kCount = 11,
 };
 [[nodiscard]] std::string_view to_string(PairOutcome o);
 
@@ -94,6 +95,13 @@ struct InjectionConfig {
   // Budget.
   double current_limit_A = 80.0;  // |i| limit shared by motoring and injection (peak)
   double headroom_margin_V = 15.0; // kept free of the voltage limit for dead-time compensation and transients
+  // On a salient (interior-magnet) machine d-axis injection makes reluctance torque,
+  // 3/2 p (Ld - Lq) F iq: F is reduced (or the pair skipped) so that this stays within the
+  // budget. Compensating it with iq instead would make the estimate hang on Lq: the
+  // Lq d(w iq) term of Eq. 37 would then be many times the resistive signal. Off (0) by
+  // default: on a surface-magnet machine the commissioned Ld and Lq differ only by their
+  // errors, and the budget would then skip injection under load for nothing.
+  double max_torque_disturbance_Nm = 0.0;
   // Guards.
   double max_speed_change_fraction = 0.02;
   double max_speed_change_rad_s = 3.0;   // electrical; the larger of the two limits applies

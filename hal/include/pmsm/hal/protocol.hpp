@@ -212,10 +212,13 @@ enum class InjectionResult : std::uint8_t {
   kRejectedVoltageHeadroom = 4, // not enough voltage for the injection (Eq. 29)
   kRejectedCurrentLimit = 5,    // injection would exceed the (derated) current limit
   kRejectedImplausible = 6,     // resistance outside its plausibility window
-  kSkipped = 7,                 // not attempted (operating point unsuitable)
-  kAborted = 8,                 // interrupted (disable, fault, mode change)
+  kRejectedVoltageSaturation = 7,  // the voltage limit was hit while recording
+  kRejectedIllConditioned = 8,  // too few samples or collinear regressors
+  kAborted = 9,                 // interrupted (disable, fault, mode change)
+  kSkippedTorqueDisturbance = 10,  // the injection would move the torque too much (saliency)
 };
-inline constexpr std::array<ValueLabel, 9> kInjectionResultLabels{{
+// The same numbering as core::PairOutcome (a test checks it).
+inline constexpr std::array<ValueLabel, 11> kInjectionResultLabels{{
     {0, "ACCEPTED"},
     {1, "REJECTED_SPEED_CHANGE"},
     {2, "REJECTED_LOAD_CHANGE"},
@@ -223,8 +226,10 @@ inline constexpr std::array<ValueLabel, 9> kInjectionResultLabels{{
     {4, "REJECTED_VOLTAGE_HEADROOM"},
     {5, "REJECTED_CURRENT_LIMIT"},
     {6, "REJECTED_IMPLAUSIBLE"},
-    {7, "SKIPPED"},
-    {8, "ABORTED"}}};
+    {7, "REJECTED_VOLTAGE_SATURATION"},
+    {8, "REJECTED_ILL_CONDITIONED"},
+    {9, "ABORTED"},
+    {10, "SKIPPED_TORQUE_DISTURBANCE"}}};
 
 enum class FaultCode : std::uint8_t {
   kNone = 0,
@@ -326,7 +331,7 @@ struct ResistanceEstimate {
 struct InjectionReport {
   std::uint8_t injection_count = 0;    // wraps at 256
   InjectionMethod method = InjectionMethod::kOff;
-  InjectionResult result = InjectionResult::kSkipped;
+  InjectionResult result = InjectionResult::kAborted;
   double amplitude_A = 0.0;            // F used
   bool rs_valid = false;               // guards measured_rs_ohm
   double measured_rs_ohm = 0.0;
@@ -539,7 +544,7 @@ inline constexpr SignalDef kInjectionCount{"InjectionCount", 0, 8, false, 1, 0, 
     "Injections attempted (wraps at 256)."};
 inline constexpr SignalDef kMethod{"Method", 8, 3, false, 1, 0, 0, 5, "", kInjectionMethodLabels,
     "Method used."};
-inline constexpr SignalDef kResult{"Result", 11, 4, false, 1, 0, 0, 8, "", kInjectionResultLabels,
+inline constexpr SignalDef kResult{"Result", 11, 4, false, 1, 0, 0, 10, "", kInjectionResultLabels,
     "Outcome of the injection."};
 inline constexpr SignalDef kRsValid{"RsValid", 15, 1, false, 1, 0, 0, 1, "", detail::kNoValues,
     "1: MeasuredRs holds a measurement."};
