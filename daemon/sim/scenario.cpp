@@ -132,16 +132,17 @@ const ConfigSchema<S>& schema() {
   return s;
 }
 
-// Deep merge of `overrides` into `base`.
-void merge(toml::table& base, const toml::table& overrides) {
-  for (const auto& [key, node] : overrides) {
-    if (const auto* sub = node.as_table()) {
+// Deep merge of `overrides` into `base`. The nodes are moved, not copied: toml++ keeps a
+// node's source position (file and line, for messages) only when it is moved.
+void merge(toml::table& base, toml::table&& overrides) {
+  for (auto&& [key, node] : overrides) {
+    if (auto* sub = node.as_table()) {
       if (auto* existing = base.get_as<toml::table>(key.str())) {
-        merge(*existing, *sub);
+        merge(*existing, std::move(*sub));
         continue;
       }
     }
-    base.insert_or_assign(key.str(), node);
+    base.insert_or_assign(key.str(), std::move(node));
   }
 }
 
@@ -169,9 +170,9 @@ plant::PlantConfig load_plant(const toml::table& root, const std::filesystem::pa
     } else if ((*plant_table).contains("profile")) {
       throw ConfigError(source.string() + ": plant.profile: expected a path (string)");
     }
-    toml::table overrides = *plant_table;
+    toml::table overrides = *plant_table;  // a copy: its positions are looked up in plant_table
     overrides.erase("profile");
-    merge(merged, overrides);
+    merge(merged, std::move(overrides));
   }
   std::ostringstream text;
   text << merged;
@@ -185,8 +186,10 @@ plant::PlantConfig load_plant(const toml::table& root, const std::filesystem::pa
     if (plant_table != nullptr && std::regex_search(message, m, key_pattern)) {
       const auto node = plant_table->at_path(m[1].str());
       if (node) {
-        throw ConfigError(source.string() + ":" + std::to_string(node.node()->source().begin.line) + ": plant." +
-                          m[1].str() + ": " + m[2].str());
+        const auto& where = node.node()->source();
+        const std::string file = where.path && !where.path->empty() ? *where.path : source.string();
+        const std::string line = where.begin.line > 0 ? ":" + std::to_string(where.begin.line) : "";
+        throw ConfigError(file + line + ": plant." + m[1].str() + ": " + m[2].str());
       }
     }
     throw ConfigError(message);
@@ -240,8 +243,15 @@ toml::table resolve_base(toml::table root, const std::filesystem::path& source, 
   }
   const std::filesystem::path base_path = source.parent_path() / *base;
   toml::table merged = resolve_base(parse_toml(read_file(base_path), base_path), base_path, depth + 1);
+  // Paths in the base are relative to the base, not to the file that inherits it.
+  for (const char* key : {"plant.profile", "plant.load.csv_path", "operation.speed_csv", "operation.torque_csv"}) {
+    auto node = merged.at_path(key);
+    if (auto* text = node.as_string(); text != nullptr && std::filesystem::path(text->get()).is_relative()) {
+      *text = (base_path.parent_path() / text->get()).lexically_normal().string();
+    }
+  }
   root.get_as<toml::table>("scenario")->erase("base");
-  merge(merged, root);
+  merge(merged, std::move(root));
   return merged;
 }
 
@@ -293,19 +303,17 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
     out.plant.simulation.seed = static_cast<std::uint64_t>(*seed);
   }
 
-  // The controller: the same sections as pmsm-thermald's configuration, under [controller].
-  toml::table controller_table;
-  if (const auto* t = root.get_as<toml::table>("controller")) {
-    controller_table = *t;
+  // The controller: the same sections as pmsm-thermald's configuration, under [controller]
+  // (parsed in place, so that messages keep the file's line numbers).
+  static const toml::table kEmpty;
+  const toml::table* controller_table = root.get_as<toml::table>("controller");
+  out.controller = parse_controller_config(controller_table != nullptr ? *controller_table : kEmpty, source.string(), {},
+                                           "controller.");
+  // The scenario's acceleration applies to the controller's thermal model too, unless the
+  // controller section sets its own.
+  if (root.at_path("scenario.thermal_acceleration") && !root.at_path("controller.thermal.time_scale")) {
+    out.controller.drive.thermal.time_scale = out.scenario.thermal_acceleration;
   }
-  if (root.at_path("scenario.thermal_acceleration") && !controller_table.at_path("thermal.time_scale")) {
-    controller_table.insert_or_assign("thermal", toml::table{});
-    if (const auto* existing = root.at_path("controller.thermal").as_table()) {
-      controller_table.insert_or_assign("thermal", *existing);
-    }
-    controller_table.get_as<toml::table>("thermal")->insert_or_assign("time_scale", out.scenario.thermal_acceleration);
-  }
-  out.controller = parse_controller_config(controller_table, source.string(), {}, "controller.");
   return out;
 }
 

@@ -1,0 +1,116 @@
+// The estimator closed around the plant library: accuracy bounds on short accelerated
+// scenarios, and the rule that a rejected pair never reaches a published estimate.
+//
+// The bounds leave room above what these scenarios measure (docs/accuracy.md lists the
+// figures) so that they catch a broken estimator, not the noise of one seed.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+
+#include "run_process.hpp"
+#include "runner.hpp"
+
+namespace pmsm::app {
+namespace {
+
+const std::filesystem::path kData = std::filesystem::path(PMSM_SOURCE_DIR) / "tests/integration/data";
+
+RunOptions quiet() {
+  RunOptions o;
+  o.twin_for_disturbance = false;  // not what these tests are about; halves the time
+  return o;
+}
+
+TEST(EstimatorClosedLoop, ShortHeatUpIsTracked) {
+  const SimulationResult r = run_scenario(load_scenario(kData / "heatup-short.toml"), quiet());
+  ASSERT_TRUE(r.calibrated);
+  // The calibration at 25 C finds the plant's Rs0 (0.133 ohm; the ADC gain errors scale
+  // what the controller sees by less than 0.1 %) within 1.5 %.
+  EXPECT_NEAR(r.calibration.rs0_ohm / 0.133, 1.0, 0.015);
+  ASSERT_GT(r.max_winding_true_C, 80.0) << "the scenario no longer heats the winding";
+  ASSERT_GT(r.winding_error_samples, 500U);
+  EXPECT_LT(r.winding_error_rms_C, 3.5);
+  EXPECT_LT(r.winding_error_max_C, 6.0);
+  EXPECT_LT(r.rs_error_rms_mohm, 2.5);
+  EXPECT_GT(r.estimates_accepted, 40U);
+  // The inverter's voltage error (plant: 1 us dead time at 650 V plus 1 V drop = 7.5 V per
+  // phase) is learned to within 2 %.
+  EXPECT_NEAR(r.vx_V, 7.5, 0.15);
+}
+
+TEST(EstimatorClosedLoop, EveryPublishedEstimateIsCloseToTheTruth) {
+  // A published estimate comes only from accepted pairs; with the guards working, none of
+  // them is far from the true resistance at its time.
+  const SimulationResult r = run_scenario(load_scenario(kData / "heatup-short.toml"), quiet());
+  ASSERT_FALSE(r.estimates.empty());
+  for (const EstimateRow& e : r.estimates) {
+    EXPECT_LT(std::abs(e.rs_est_ohm - e.rs_true_ohm), 0.006) << "estimate at " << e.time_s << " s";
+  }
+}
+
+TEST(EstimatorClosedLoop, RejectedPairsAreNeverPublished) {
+  // The load changes all the time: every pair sees it between its recordings.
+  const SimulationResult r = run_scenario(load_scenario(kData / "steps-every-event.toml"), quiet());
+  std::uint32_t rejected = 0;
+  for (std::size_t k = 1; k < r.pairs.size(); ++k) {
+    rejected += r.pairs[k];
+  }
+  EXPECT_GT(rejected, 10U);
+  EXPECT_EQ(r.pairs[static_cast<std::size_t>(core::PairOutcome::kAccepted)], 0U);
+  EXPECT_TRUE(r.estimates.empty()) << r.estimates.size() << " estimates published from rejected pairs";
+  // The events say why they published nothing.
+  EXPECT_GT(r.events_without_estimate[static_cast<std::size_t>(core::EventOutcome::kNoAcceptedPairs)], 5U);
+}
+
+TEST(EstimatorClosedLoop, SameSeedSameResult) {
+  Scenario s = load_scenario(kData / "heatup-short.toml");
+  s.scenario.duration_s = 6.0;
+  const SimulationResult a = run_scenario(s, quiet());
+  const SimulationResult b = run_scenario(s, quiet());
+  ASSERT_EQ(a.estimates.size(), b.estimates.size());
+  for (std::size_t k = 0; k < a.estimates.size(); ++k) {
+    EXPECT_EQ(a.estimates[k].rs_est_ohm, b.estimates[k].rs_est_ohm);
+  }
+}
+
+TEST(SimulateCli, JsonFiguresCsvAndPlot) {
+  const std::string exe = PMSM_THERMAL_EXE;
+  const std::filesystem::path dir = std::filesystem::temp_directory_path() / "pmsm-simulate-test";
+  std::filesystem::create_directories(dir);
+  Scenario s = load_scenario(kData / "heatup-short.toml");
+  // A short copy of the scenario, next to its data so relative paths still work.
+  const std::filesystem::path scenario = kData / "heatup-short.toml";
+  const test::ProcessResult r = test::run_process(exe + " simulate " + scenario.string() + " --json --quiet --csv " +
+                                                  (dir / "s.csv").string());
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  for (const char* key : {"winding_error_rms_C", "winding_error_max_C", "rs_error_rms_mohm", "estimates_accepted",
+                          "estimates_rejected", "speed_disturbance_pct", "torque_disturbance_pct", "injection_loss_W",
+                          "sim_time_s", "wall_time_s"}) {
+    EXPECT_NE(r.out.find(std::string("\"") + key + "\""), std::string::npos) << key;
+  }
+  EXPECT_TRUE(test::json_number(r.out, "winding_error_rms_C").has_value());
+  std::ifstream csv(dir / "s.csv");
+  std::string header;
+  std::getline(csv, header);
+  EXPECT_EQ(header.rfind("time_s,winding_true_C,winding_est_C", 0), 0U) << header;
+  std::filesystem::remove_all(dir);
+}
+
+TEST(SimulateCli, ABadScenarioNamesTheKeyAndFails) {
+  const std::string exe = PMSM_THERMAL_EXE;
+  const std::filesystem::path bad = std::filesystem::temp_directory_path() / "pmsm-bad-scenario.toml";
+  {
+    std::ofstream f(bad);
+    f << "[scenario]\nduration_s = 1.0\n[operation]\nspeed_rad_s = [[0.0, 10.0]]\n[controller.injection]\nF_A = -3.0\n";
+  }
+  const test::ProcessResult r = test::run_process(exe + " simulate " + bad.string() + " --quiet");
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.err.find("controller.injection.F_A"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find(":6:"), std::string::npos) << r.err;
+  std::filesystem::remove(bad);
+}
+
+}  // namespace
+}  // namespace pmsm::app
