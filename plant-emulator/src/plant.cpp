@@ -998,6 +998,13 @@ std::uint64_t Plant::command_sequence_errors() const { return impl_->sequence_er
 
 void Plant::set_ambient_C(double ambient_C) { impl_->ambient_C = ambient_C; }
 
+void Plant::set_thermal_acceleration(double acceleration) {
+  Impl& im = *impl_;
+  ThermalNetwork network(im.cfg.thermal, acceleration / im.cfg.inverter.pwm_frequency_Hz);
+  network.set_temperatures_C(im.thermal.temperatures_C());
+  im.thermal = network;
+}
+
 void Plant::set_temperatures_C(double winding_C, double housing_C, double rotor_C) {
   impl_->thermal.set_temperatures_C({winding_C, housing_C, rotor_C});
   impl_->update_temperature_parameters();

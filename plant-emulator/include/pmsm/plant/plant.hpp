@@ -99,6 +99,9 @@ class Plant {
   void set_temperatures_C(double winding_C, double housing_C, double rotor_C);
   void set_load_torque_Nm(double torque_Nm);         // switches to a constant load torque
   void set_imposed_speed_rad_s(double speed_rad_s);  // switches to a constant-speed dyno
+  // Changes the thermal acceleration (the temperatures carry on). Recomputes the network's
+  // discretisation: not for every period, but it does not allocate.
+  void set_thermal_acceleration(double acceleration);
 
  private:
   struct Impl;
