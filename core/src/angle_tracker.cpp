@@ -14,17 +14,22 @@ AngleTracker::AngleTracker(const AngleTrackerConfig& config)
 void AngleTracker::reset() {
   initialised_ = false;
   speed_m_rad_s_ = 0.0;
+  integrator_m_rad_s_ = 0.0;
   unwrapped_e_rad_ = 0.0;
 }
 
 void AngleTracker::update(std::uint32_t encoder_count) {
-  theta_m_rad_ = static_cast<double>(encoder_count) * counts_to_rad_;
+  // Counts beyond the encoder's range are wrapped into it (a corrupt reading must not put the
+  // angle outside [0, 2 pi)).
+  const std::uint64_t counts = std::uint64_t{1} << config_.encoder_bits;
+  theta_m_rad_ = static_cast<double>(encoder_count % counts) * counts_to_rad_;
   theta_e_rad_ = wrap_angle_0_2pi(config_.pole_pairs * theta_m_rad_ + config_.electrical_offset_rad);
   if (!initialised_) {
     initialised_ = true;
     previous_theta_m_rad_ = theta_m_rad_;
     pll_measured_unwrapped_rad_ = theta_m_rad_;
     pll_theta_rad_ = theta_m_rad_;
+    smooth_m_rad_ = theta_m_rad_;
     unwrapped_e_rad_ = theta_e_rad_;
     return;
   }
@@ -35,10 +40,15 @@ void AngleTracker::update(std::uint32_t encoder_count) {
   pll_measured_unwrapped_rad_ += step_m;
   unwrapped_e_rad_ += config_.pole_pairs * step_m;
 
+  // pll_theta_rad_ is the loop's prediction for this sample: that is the smooth angle now.
+  // The loop's velocity is its integrator plus the proportional path; the integrator alone
+  // lags a speed ramp by 2 a / wn.
   const double dt = config_.period_s;
   const double error = pll_measured_unwrapped_rad_ - pll_theta_rad_;
-  speed_m_rad_s_ += ki_ * error * dt;
-  pll_theta_rad_ += (speed_m_rad_s_ + kp_ * error) * dt;
+  smooth_m_rad_ = pll_theta_rad_;
+  integrator_m_rad_s_ += ki_ * error * dt;
+  speed_m_rad_s_ = integrator_m_rad_s_ + kp_ * error;
+  pll_theta_rad_ += speed_m_rad_s_ * dt;
 }
 
 }  // namespace pmsm::core

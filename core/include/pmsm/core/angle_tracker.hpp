@@ -34,7 +34,7 @@ class AngleTracker {
   // The PLL's electrical angle, unwrapped: smooth and monotonic at speed, which is what
   // matching recordings by angle needs (the raw encoder angle steps in counts).
   [[nodiscard]] double smooth_unwrapped_electrical_angle_rad() const {
-    return config_.pole_pairs * pll_theta_rad_ + config_.electrical_offset_rad;
+    return config_.pole_pairs * smooth_m_rad_ + config_.electrical_offset_rad;
   }
   [[nodiscard]] double mechanical_speed_rad_s() const { return speed_m_rad_s_; }
   [[nodiscard]] double electrical_speed_rad_s() const { return speed_m_rad_s_ * config_.pole_pairs; }
@@ -52,7 +52,9 @@ class AngleTracker {
   double theta_e_rad_ = 0.0;
   double previous_theta_m_rad_ = 0.0;
   double unwrapped_e_rad_ = 0.0;
-  double pll_theta_rad_ = 0.0;   // the PLL's own (unwrapped) mechanical angle
+  double pll_theta_rad_ = 0.0;   // the PLL's prediction for the next sample (unwrapped, mechanical)
+  double smooth_m_rad_ = 0.0;    // its estimate for the present sample
+  double integrator_m_rad_s_ = 0.0;
   double pll_measured_unwrapped_rad_ = 0.0;
   double speed_m_rad_s_ = 0.0;
 };

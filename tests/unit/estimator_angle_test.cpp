@@ -1,0 +1,160 @@
+// AngleTracker: encoder counts to angles, the PLL speed at constant speed and under
+// constant acceleration, wrapping through count 0 in both directions.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdint>
+
+#include "pmsm/core/angle_tracker.hpp"
+#include "pmsm/core/transforms.hpp"
+
+namespace pmsm::core {
+namespace {
+
+constexpr int kBits = 14;
+constexpr double kCounts = 16384.0;
+
+std::uint32_t count_of(double theta_m) {
+  const double turns = theta_m / kTwoPi;
+  const double frac = turns - std::floor(turns);
+  return static_cast<std::uint32_t>(std::floor(frac * kCounts)) % 16384U;
+}
+
+AngleTrackerConfig config() {
+  AngleTrackerConfig c;
+  c.encoder_bits = kBits;
+  c.pole_pairs = 3;
+  c.electrical_offset_rad = 0.4;
+  c.pll_bandwidth_rad_s = 300.0;
+  c.period_s = 1e-4;
+  return c;
+}
+
+TEST(AngleTracker, AnglesFromCounts) {
+  AngleTracker t(config());
+  t.update(4096);  // a quarter turn
+  EXPECT_NEAR(t.mechanical_angle_rad(), kPi / 2.0, 1e-12);
+  EXPECT_NEAR(t.electrical_angle_rad(), wrap_angle_0_2pi(3.0 * kPi / 2.0 + 0.4), 1e-12);
+  EXPECT_TRUE(t.initialised());
+  EXPECT_EQ(t.mechanical_speed_rad_s(), 0.0);
+  t.update(16383);
+  EXPECT_LT(t.mechanical_angle_rad(), kTwoPi);
+  EXPECT_GE(t.electrical_angle_rad(), 0.0);
+  EXPECT_LT(t.electrical_angle_rad(), kTwoPi);
+}
+
+TEST(AngleTracker, ConstantSpeedWithoutSteadyStateError) {
+  for (double w : {100.0, -37.0}) {
+    AngleTracker t(config());
+    const double dt = 1e-4;
+    double speed_error_sum = 0.0;
+    double max_error = 0.0;
+    double offset_first = 0.0;
+    double offset_second = 0.0;
+    double offset_min = 1e9;
+    double offset_max = -1e9;
+    int n = 0;
+    for (int k = 0; k < 4000; ++k) {
+      const double theta = 0.3 + w * k * dt;
+      t.update(count_of(theta));
+      if (k >= 2000) {  // 0.2 s: 60 loop time constants
+        const double err = t.mechanical_speed_rad_s() - w;
+        speed_error_sum += err;
+        max_error = std::max(max_error, std::abs(err));
+        ++n;
+        // The smooth angle keeps a constant offset from the true angle (type 2: no drift).
+        const double offset = t.smooth_unwrapped_electrical_angle_rad() - (3.0 * theta + 0.4);
+        (k < 3000 ? offset_first : offset_second) += offset / 1000.0;
+        offset_min = std::min(offset_min, offset);
+        offset_max = std::max(offset_max, offset);
+      }
+    }
+    EXPECT_NEAR(speed_error_sum / n, 0.0, 2e-3) << "w " << w;
+    EXPECT_LT(max_error, 0.5) << "w " << w;
+    EXPECT_NEAR(offset_first, offset_second, 1e-4) << "w " << w;
+    EXPECT_LT(offset_max - offset_min, 3.0 * 2.0 * kTwoPi / kCounts) << "w " << w;  // two counts, electrical
+    EXPECT_NEAR(t.electrical_speed_rad_s(), 3.0 * t.mechanical_speed_rad_s(), 1e-12);
+  }
+}
+
+// Speed error after the loop has settled on a constant acceleration a (mechanical rad/s^2).
+double settled_speed_error(double a, double* drift) {
+  AngleTracker t(config());
+  const double dt = 1e-4;
+  const double w0 = 50.0;
+  double err_early = 0.0;
+  double err_late = 0.0;
+  for (int k = 0; k <= 6000; ++k) {
+    const double time = k * dt;
+    const double theta = 0.1 + w0 * time + 0.5 * a * time * time;
+    t.update(count_of(theta));
+    const double err = t.mechanical_speed_rad_s() - (w0 + a * time);
+    if (k > 3000 && k <= 3500) err_early += err / 500.0;
+    if (k > 5500) err_late += err / 500.0;
+  }
+  *drift = err_late - err_early;
+  return err_late;
+}
+
+TEST(AngleTracker, ConstantAccelerationGivesABoundedSpeedError) {
+  // Type 2: under constant acceleration the error settles to a constant; it does not grow.
+  for (double a : {200.0, -500.0}) {
+    double drift = 0.0;
+    const double err = settled_speed_error(a, &drift);
+    EXPECT_LT(std::abs(drift), 0.02) << "a " << a;
+    EXPECT_TRUE(std::isfinite(err));
+  }
+}
+
+TEST(AngleTracker, WrapsThroughCountZeroInBothDirections) {
+  AngleTracker t(config());
+  const double count = kTwoPi / kCounts;
+  t.update(16380);
+  const double u0 = t.unwrapped_electrical_angle_rad();
+  for (std::uint32_t c : {16382U, 0U, 2U, 4U}) t.update(c);
+  EXPECT_NEAR(t.unwrapped_electrical_angle_rad() - u0, 3.0 * 8.0 * count, 1e-12);
+  EXPECT_NEAR(t.mechanical_angle_rad(), 4.0 * count, 1e-15);
+  EXPECT_GT(t.mechanical_speed_rad_s(), 0.0);
+  // And back again.
+  for (std::uint32_t c : {2U, 0U, 16382U, 16380U, 16378U}) t.update(c);
+  EXPECT_NEAR(t.unwrapped_electrical_angle_rad() - u0, -3.0 * 2.0 * count, 1e-12);
+  EXPECT_NEAR(t.mechanical_angle_rad(), 16378.0 * count, 1e-12);
+}
+
+TEST(AngleTracker, UnwrappedAngleAccumulatesOverManyTurns) {
+  AngleTracker t(config());
+  const double dt = 1e-4;
+  const double w = 400.0;  // about 64 turns per second
+  t.update(count_of(0.0));
+  const double u0 = t.unwrapped_electrical_angle_rad();
+  const int steps = 5000;  // 0.5 s: 200 rad, about 31.8 turns
+  for (int k = 1; k <= steps; ++k) t.update(count_of(w * k * dt));
+  const double theta_end = w * steps * dt;
+  // The accumulated angle is the true one to within a count.
+  EXPECT_NEAR(t.unwrapped_electrical_angle_rad() - u0, 3.0 * theta_end, 3.0 * kTwoPi / kCounts);
+  EXPECT_NEAR(t.mechanical_speed_rad_s(), w, 0.5);
+  // Backwards just as well.
+  AngleTracker r(config());
+  r.update(count_of(0.0));
+  const double r0 = r.unwrapped_electrical_angle_rad();
+  for (int k = 1; k <= steps; ++k) r.update(count_of(-w * k * dt));
+  EXPECT_NEAR(r.unwrapped_electrical_angle_rad() - r0, -3.0 * theta_end, 3.0 * kTwoPi / kCounts);
+  EXPECT_NEAR(r.mechanical_speed_rad_s(), -w, 0.5);
+}
+
+TEST(AngleTracker, ResetStartsAgainFromTheNextReading) {
+  AngleTracker t(config());
+  for (int k = 0; k < 1000; ++k) t.update(count_of(100.0 * k * 1e-4));
+  EXPECT_GT(t.mechanical_speed_rad_s(), 50.0);
+  t.reset();
+  EXPECT_FALSE(t.initialised());
+  EXPECT_EQ(t.mechanical_speed_rad_s(), 0.0);
+  t.update(8192);  // half a turn
+  EXPECT_TRUE(t.initialised());
+  EXPECT_EQ(t.mechanical_speed_rad_s(), 0.0);
+  EXPECT_NEAR(t.unwrapped_electrical_angle_rad(), wrap_angle_0_2pi(3.0 * kPi + 0.4), 1e-12);
+  EXPECT_NEAR(t.smooth_unwrapped_electrical_angle_rad(), 3.0 * kPi + 0.4, 1e-12);
+}
+
+}  // namespace
+}  // namespace pmsm::core
