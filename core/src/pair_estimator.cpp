@@ -83,12 +83,21 @@ bool solve_sums(const FitSums& s, const std::array<bool, kRegressors>& active,
     }
     xty(r) = s.xty[static_cast<std::size_t>(r)];
   }
+  // A regressor with no excitation at all (a current that never changed, a pattern that
+  // never moved) carries no information: leave it out rather than fail the whole fit. Rs's
+  // own regressor is the exception: without it there is nothing to estimate.
+  std::array<bool, kRegressors> use = active;
+  for (int r = 1; r < kRegressors; ++r) {
+    if (use[static_cast<std::size_t>(r)] && !(xtx(r, r) > 1e-12 * std::max(xtx(0, 0), 1e-300))) {
+      use[static_cast<std::size_t>(r)] = false;
+    }
+  }
   Eigen::Vector3d f = Eigen::Vector3d::Zero();
   int p = 0;
   for (int r = 0; r < kRegressors; ++r) {
-    if (active[static_cast<std::size_t>(r)]) {
+    if (use[static_cast<std::size_t>(r)]) {
       ++p;
-    } else {
+    } else if (!active[static_cast<std::size_t>(r)]) {
       f(r) = fixed(r);
     }
   }
@@ -102,7 +111,7 @@ bool solve_sums(const FitSums& s, const std::array<bool, kRegressors>& active,
   Eigen::Vector3d b = Eigen::Vector3d::Zero();
   Eigen::Vector3d scale = Eigen::Vector3d::Ones();
   for (int r = 0; r < kRegressors; ++r) {
-    if (!active[static_cast<std::size_t>(r)]) {
+    if (!use[static_cast<std::size_t>(r)]) {
       continue;
     }
     if (xtx(r, r) <= 0.0) {
@@ -111,7 +120,7 @@ bool solve_sums(const FitSums& s, const std::array<bool, kRegressors>& active,
     scale(r) = 1.0 / std::sqrt(xtx(r, r));
     b(r) = xty_adj(r);
     for (int c = 0; c < kRegressors; ++c) {
-      if (active[static_cast<std::size_t>(c)]) {
+      if (use[static_cast<std::size_t>(c)]) {
         a(r, c) = xtx(r, c);
       }
     }
@@ -127,7 +136,7 @@ bool solve_sums(const FitSums& s, const std::array<bool, kRegressors>& active,
   const Eigen::Vector3d z = scaled.ldlt().solve(scale.asDiagonal() * b);
   Eigen::Vector3d theta = scale.asDiagonal() * z;
   for (int r = 0; r < kRegressors; ++r) {
-    if (!active[static_cast<std::size_t>(r)]) {
+    if (!use[static_cast<std::size_t>(r)]) {
       theta(r) = 0.0;
     }
   }
@@ -368,7 +377,8 @@ double PairRecorder::add_second(const PeriodSample& s) {
   // Eqs. 37 / 43, recording 1 minus recording 2 at the same angle:
   // dVd + Lq d(w iq) = Rs dId + Vx dGd + Ld d(dId/dt).
   const double y = (r1.v.d - s.v_V.d) +
-                   config_.lq_H * (r1.omega_e * r1.i.q - s.omega_e_rad_s * s.i_A.q);
+                   config_.lq_H * (r1.omega_e * r1.i.q - s.omega_e_rad_s * s.i_A.q) -
+                   config_.ld_H * (r1.di_dt.d - s.di_dt_A_s.d);
   const std::array<double, kRegressors + 1> raw{r1.i.d - s.i_A.d, r1.g.d - s.dead_time_pattern.d,
                                                 r1.di_dt.d - s.di_dt_A_s.d, y};
   // Moving average over the last filter_length matched samples (the same on every channel).

@@ -9,9 +9,10 @@
 // end of a recording costs no more than any other period.
 //
 // The fit on the d-axis, from Eqs. 37 and 43 (unipolar / bipolar: the bipolar difference
-// simply holds twice the injected voltage and current):
+// simply holds twice the injected voltage and current), with Eq. 3's inductive term taken
+// to the left with the commissioned Ld0:
 //
-//   dVd + Lq d(w iq)  =  Rs dId  +  Vx dGd  +  Ld d(dId/dt)
+//   dVd + Lq d(w iq) - Ld0 d(dId/dt)  =  Rs dId  +  Vx dGd  +  (Ld - Ld0) d(dId/dt)
 //
 // with d(.) = recording 1 minus recording 2 at the same angle. The EMF harmonics kd(theta)
 // cancel because the samples are matched by angle. The other two regressors are this
@@ -136,6 +137,10 @@ struct MeansFit {
 
 struct PairFitConfig {
   double lq_H = 5.5e-3;         // the controller's Lq, for the Eq. 37 correction term
+  // The controller's Ld: Eq. 3's Ld dId/dt is moved to the left with it, so that a current
+  // still settling during a recording does not pose as resistance (the means fit has no
+  // inductive term; the sample fit's Ld regressor then fits only the residue of Ld's error).
+  double ld_H = 5.5e-3;
   // Moving-average length (periods) applied alike to y and every regressor before the fit.
   // The relation is linear with constant coefficients, so filtering both sides keeps it
   // exact, while the noise of the two-sample derivative d(dId/dt) falls by this factor: with
