@@ -27,6 +27,7 @@ std::string_view to_string(EventOutcome o) {
     case EventOutcome::kNoAcceptedPairs: return "no_accepted_pairs";
     case EventOutcome::kNoFit: return "no_fit";
     case EventOutcome::kImplausible: return "implausible";
+    case EventOutcome::kAborted: return "aborted";
   }
   return "?";
 }
@@ -146,13 +147,15 @@ InjectionScheduler::Budget InjectionScheduler::budget(const SchedulerInput& in, 
   // Torque: reluctance torque 3/2 p |Ld - Lq| F |iq| within the budget (salient machines).
   double f_torque = wanted_A;
   const double saliency = 1.5 * config_.pole_pairs * std::abs(config_.ld_H - config_.lq_H) * std::abs(im.q);
-  if (config_.max_torque_disturbance_Nm > 0.0 && saliency > 0.0) {
+  const bool torque_budget = config_.max_torque_disturbance_Nm > 0.0 && saliency > 0.0;
+  if (torque_budget) {
     f_torque = std::min(f_torque, config_.max_torque_disturbance_Nm / saliency);
   }
 
   b.f_A = std::max(0.0, std::min({f_current, f_voltage, f_torque}));
   if (b.f_A < config_.f_min_A) {
-    if (f_torque <= std::min(f_current, f_voltage)) {
+    // The tightest budget is the reason (the configuration guarantees wanted >= F_min).
+    if (torque_budget && f_torque < std::min(f_current, f_voltage)) {
       b.limiting = PairOutcome::kSkippedTorqueDisturbance;
     } else {
       b.limiting = f_current <= f_voltage ? PairOutcome::kRejectedCurrentLimit
@@ -167,6 +170,7 @@ void InjectionScheduler::begin_pair(const SchedulerInput& in) {
   direction_ = in.omega_e_rad_s >= 0.0 ? 1.0 : -1.0;
   PairFitConfig fit;
   fit.lq_H = config_.lq_H;
+  fit.ld_H = config_.ld_H;
   recorder_.start(fit, time_based_ ? MatchBy::kTime : MatchBy::kAngle, direction_);
   ramp_count_ = 0;
   recording_ = 0;
@@ -275,6 +279,14 @@ void InjectionScheduler::abort(SchedulerOutput& out, const SchedulerInput& in) {
     out.completed = r;
     next_event_s_ = std::max(next_event_s_, in.time_s + config_.retry_s);
   }
+  if (in_event_) {
+    // The event is incomplete: its accepted pairs (if any) are dropped with it, and it says so.
+    EventEstimate e;
+    e.outcome = EventOutcome::kAborted;
+    e.time_s = in.time_s;
+    e.pairs = event_pairs_;
+    out.estimate = e;
+  }
   phase_ = SchedulerPhase::kIdle;
   in_event_ = false;
   out.injection_A = {};
@@ -342,6 +354,7 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
   e.time_s = in.time_s;
   if (event_pairs_ == 0) {
     e.outcome = EventOutcome::kNoAcceptedPairs;
+    retry_after_s_ = std::max(retry_after_s_, in.time_s + config_.retry_s);
     return e;
   }
   e.pairs = event_pairs_;
@@ -447,7 +460,10 @@ SchedulerOutput InjectionScheduler::step(const SchedulerInput& in, const PeriodS
   switch (phase_) {
     case SchedulerPhase::kIdle: {
       if (!in_event_) {
-        if (in.time_s < next_event_s_ && !in.request_now) {
+        // A request starts an event early, but not before the retry delay that follows an
+        // event which yielded nothing (a calibration must not hammer a motor it cannot inject).
+        const bool requested = in.request_now && in.time_s >= retry_after_s_;
+        if (in.time_s < next_event_s_ && !requested) {
           break;
         }
         in_event_ = true;
@@ -484,6 +500,7 @@ SchedulerOutput InjectionScheduler::step(const SchedulerInput& in, const PeriodS
         if (event_pairs_ == 0 && level_index_ >= config_.level_count) {
           // Nothing at all this time: try again soon rather than a whole interval later.
           next_event_s_ = in.time_s + config_.retry_s;
+          retry_after_s_ = next_event_s_;
         }
         break;
       }

@@ -68,7 +68,7 @@ enum class PairOutcome : std::uint8_t {
 struct InjectionConfig {
   InjectionMethod method = InjectionMethod::kFixedMagnitude;
   Separation separation = Separation::kBipolar;
-  double f_A = 25.0;              // requested injection magnitude
+  double f_A = 35.0;              // requested injection magnitude (docs/estimator.md: why 35 A)
   double f_min_A = 5.0;           // after budget reduction, below this the pair is skipped
   double interval_s = 10.0;       // from the start of one event to the next
   double retry_s = 1.0;           // after a skipped event
@@ -78,7 +78,7 @@ struct InjectionConfig {
   double first_event_s = 1.0;     // time of the first event after start
   WindowKind window = WindowKind::kModifiedBlackman;
   double tw_s = 0.004;            // window period (each edge)
-  double settle_s = 0.002;        // after an edge, before recording (current loop settling)
+  double settle_s = 0.005;        // after an edge, before recording (current loop settling)
   double record_arc_rad = 6.283185307179586;  // angle-based recording length (one electrical turn)
   double record_time_s = 0.05;    // time-based recording length (standstill)
   double record_min_time_s = 0.04;  // angle-based recordings last at least this (whole turns)
@@ -174,6 +174,7 @@ enum class EventOutcome : std::uint8_t {
   kNoAcceptedPairs = 1,   // every pair was skipped or rejected (see their reports)
   kNoFit = 2,             // the accepted pairs gave no solvable fit
   kImplausible = 3,       // the event's Rs fell outside the plausibility window
+  kAborted = 4,           // interrupted (disable, fault, lost speed) before its last pair
 };
 [[nodiscard]] std::string_view to_string(EventOutcome o);
 
@@ -247,6 +248,7 @@ class InjectionScheduler {
 
   SchedulerPhase phase_ = SchedulerPhase::kIdle;
   double next_event_s_ = 0.0;
+  double retry_after_s_ = 0.0;      // a request waits until then after an event that yielded nothing
   int level_index_ = 0;             // next level of the event in progress
   bool in_event_ = false;
   double f_event_A_ = 0.0;          // budgeted F of the event's first pair

@@ -1,0 +1,828 @@
+// InjectionScheduler driven by a small synthetic plant written here: the current follows the
+// reference through a first-order lag, and every period's voltage is the model's
+//
+//   vd = Rs id - w Lq iq + Ld did/dt + Vx Gd + kd(theta) wm
+//   vq = Rs iq + w Ld id + Ke wm + Vx Gq + kq(theta) wm
+//
+// with G the dq projection of the phase currents' soft-sign pattern (the bridge's dead-time
+// error) and a 6th-harmonic EMF. The scheduler sees only SchedulerInput and PeriodSample.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <functional>
+#include <optional>
+#include <string_view>
+#include <vector>
+
+#include "pmsm/core/injection_scheduler.hpp"
+
+namespace pmsm::core {
+namespace {
+
+constexpr double kPeriod = 1e-4;
+
+struct PlantModel {
+  double rs_ohm = 0.16;
+  double vx_V = 1.5;
+  double ld_H = 5.5e-3;
+  double lq_H = 5.5e-3;
+  double ke_V_s_per_rad = 0.9716;  // phase peak per mechanical rad/s (Eq. 3)
+  int pole_pairs = 3;
+  double band_A = 1.0;             // soft-sign band of the bridge error
+  double kd6 = 0.05;               // EMF harmonics, V s/rad
+  double kq6 = 0.03;
+  double current_tau_s = 0.3e-3;   // closed current loop
+  double ripple_A = 0.005;
+  double ripple_Hz = 1700.0;
+};
+
+// Eq. 24, written out here independently of core/window.
+double modified_blackman(double tn, double tw) {
+  if (std::abs(tn) > tw) return 0.0;
+  return 0.625 + 0.5 * std::cos(kPi * tn / tw) - 0.125 * std::cos(2.0 * kPi * tn / tw);
+}
+
+double soft(double i, double band) { return std::clamp(i / band, -1.0, 1.0); }
+
+Dq sign_pattern(const Dq& i, double theta, double band) {
+  const AlphaBeta ab = inverse_park(i, theta);
+  const Abc abc = inverse_clarke(ab);
+  const Abc g{soft(abc.a, band), soft(abc.b, band), soft(abc.c, band)};
+  return park(clarke(g), theta);
+}
+
+// Every setting the tests depend on, spelled out (the library's defaults may move).
+InjectionConfig test_config() {
+  InjectionConfig c;
+  c.method = InjectionMethod::kFixedMagnitude;
+  c.separation = Separation::kBipolar;
+  c.f_A = 25.0;
+  c.f_min_A = 5.0;
+  c.levels = {1.0, 0.4, 0.0, 0.0};
+  c.level_count = 2;
+  c.first_event_s = 0.01;
+  c.interval_s = 0.5;
+  c.retry_s = 1.0;
+  c.window = WindowKind::kModifiedBlackman;
+  c.tw_s = 0.004;
+  c.settle_s = 0.002;
+  c.record_arc_rad = kTwoPi;
+  c.record_time_s = 0.05;
+  c.record_min_time_s = 0.01;  // one electrical turn at 300 rad/s
+  c.mechanical_harmonics = true;
+  c.pole_pairs = 3;
+  c.min_speed_for_angle_rad_s = 30.0;
+  c.unipolar_polarity = -1;
+  c.current_limit_A = 80.0;
+  c.headroom_margin_V = 15.0;
+  c.max_torque_disturbance_Nm = 0.0;
+  c.max_speed_change_fraction = 0.02;
+  c.max_speed_change_rad_s = 3.0;
+  c.max_load_change_A = 1.5;
+  c.max_residual_V = 3.0;
+  c.min_condition = 1e-4;
+  c.rs_min_ohm = 0.09;
+  c.rs_max_ohm = 0.27;
+  c.fit_dead_time = true;
+  c.fit_inductance = true;
+  c.vx_initial_V = 0.0;
+  c.vx_initial_std_V = 3.0;
+  c.vx_drift_std_V = 0.005;
+  c.vx_learning_max_iq_fraction = 0.5;
+  c.vx_min_identifiability = 0.05;
+  c.vx_learning_max_speed_rad_s = 600.0;
+  c.ld_H = 5.5e-3;
+  c.lq_H = 5.5e-3;
+  c.rs_nominal_ohm = 0.133;
+  c.flux_linkage_Wb = 0.3239;
+  return c;
+}
+
+struct StepRecord {
+  double time_s = 0.0;
+  double theta_e_rad = 0.0;
+  SchedulerOutput out;
+};
+
+class Harness {
+ public:
+  explicit Harness(const InjectionConfig& config, double omega_e = 300.0)
+      : scheduler(config, kPeriod, 4096), omega_e_rad_s(omega_e) {}
+
+  // Runs until time t_end; the hook may change the operating point before each step.
+  void run_until(double t_end) {
+    while (time_s < t_end) {
+      step();
+    }
+  }
+
+  void step() {
+    if (hook) hook(*this);
+    SchedulerInput in;
+    in.time_s = time_s;
+    in.theta_e_rad = theta_e_rad;
+    in.omega_e_rad_s = omega_e_rad_s;
+    in.motoring_ref_A = motoring_A;
+    in.voltage_limit_V = voltage_limit_V;
+    in.current_limit_A = current_limit_A;
+    in.enabled = enabled;
+    in.request_now = request_now;
+    const SchedulerOutput out = scheduler.step(in, previous ? &*previous : nullptr);
+    records.push_back({time_s, theta_e_rad, out});
+    if (out.completed) pairs.push_back(*out.completed);
+    if (out.estimate) estimates.push_back(*out.estimate);
+
+    // The period [t, t + T]: the current moves towards the reference (exact first-order step).
+    const Dq ref{motoring_A.d + out.injection_A.d, motoring_A.q + out.injection_A.q};
+    const double a = std::exp(-kPeriod / plant.current_tau_s);
+    const Dq i_end{ref.d + (current_A.d - ref.d) * a, ref.q + (current_A.q - ref.q) * a};
+    PeriodSample s;
+    s.time_s = time_s + 0.5 * kPeriod;
+    s.theta_e_rad = theta_e_rad + 0.5 * omega_e_rad_s * kPeriod;
+    s.omega_e_rad_s = omega_e_rad_s;
+    s.omega_m_rad_s = omega_e_rad_s / plant.pole_pairs;
+    // A small ripple on top (as the PWM and the controller leave in a real drive), so that
+    // no regressor is exactly zero; it enters the voltage like any other current.
+    const double wr = kTwoPi * plant.ripple_Hz;
+    const double ripple = plant.ripple_A * std::sin(wr * s.time_s);
+    const double ripple_dt = plant.ripple_A * wr * std::cos(wr * s.time_s);
+    s.i_A = {0.5 * (current_A.d + i_end.d) + ripple, 0.5 * (current_A.q + i_end.q)};
+    s.di_dt_A_s = {(i_end.d - current_A.d) / kPeriod + ripple_dt, (i_end.q - current_A.q) / kPeriod};
+    s.dead_time_pattern = sign_pattern(s.i_A, s.theta_e_rad, plant.band_A);
+    const double w = s.omega_e_rad_s;
+    const double wm = s.omega_m_rad_s;
+    const double th = s.theta_e_rad;
+    s.v_V.d = plant.rs_ohm * s.i_A.d - w * plant.lq_H * s.i_A.q + plant.ld_H * s.di_dt_A_s.d +
+              plant.vx_V * s.dead_time_pattern.d + plant.kd6 * std::sin(6.0 * th + 0.3) * wm;
+    s.v_V.q = plant.rs_ohm * s.i_A.q + w * plant.ld_H * s.i_A.d + plant.lq_H * s.di_dt_A_s.q +
+              plant.ke_V_s_per_rad * wm + plant.vx_V * s.dead_time_pattern.q +
+              plant.kq6 * std::cos(6.0 * th + 1.1) * wm;
+    s.voltage_limited = flag_voltage_limited;
+    previous = s;
+    current_A = i_end;
+    theta_e_rad += omega_e_rad_s * kPeriod;
+    time_s += kPeriod;
+  }
+
+  // Collapsed sequence of phases (consecutive duplicates removed).
+  [[nodiscard]] std::vector<SchedulerPhase> phase_runs(double from_s = 0.0) const {
+    std::vector<SchedulerPhase> out;
+    for (const StepRecord& r : records) {
+      if (r.time_s < from_s) continue;
+      if (out.empty() || out.back() != r.out.phase) out.push_back(r.out.phase);
+    }
+    return out;
+  }
+
+  InjectionScheduler scheduler;
+  PlantModel plant{};
+  double time_s = 0.0;
+  double theta_e_rad = 0.2;
+  double omega_e_rad_s;
+  Dq motoring_A{};
+  Dq current_A{};
+  double voltage_limit_V = 356.0;
+  double current_limit_A = 80.0;
+  bool enabled = true;
+  bool request_now = false;
+  bool flag_voltage_limited = false;
+  std::function<void(Harness&)> hook;
+  std::optional<PeriodSample> previous;
+  std::vector<StepRecord> records;
+  std::vector<PairResult> pairs;
+  std::vector<EventEstimate> estimates;
+};
+
+using P = SchedulerPhase;
+
+TEST(InjectionScheduler, BipolarPhaseSequence) {
+  Harness h(test_config());
+  h.run_until(0.4);
+  const std::vector<P> pair = {P::kRampUp, P::kSettle, P::kRecord1, P::kRampDown, P::kRampUp,
+                               P::kSettle, P::kWaitArc, P::kRecord2, P::kRampDown, P::kIdle};
+  std::vector<P> expected = {P::kIdle};
+  expected.insert(expected.end(), pair.begin(), pair.end());
+  expected.insert(expected.end(), pair.begin(), pair.end());
+  EXPECT_EQ(h.phase_runs(), expected);
+  ASSERT_EQ(h.pairs.size(), 2U);
+  ASSERT_EQ(h.estimates.size(), 1U);
+  EXPECT_EQ(h.pairs[0].level_index, 0);
+  EXPECT_EQ(h.pairs[1].level_index, 1);
+  EXPECT_DOUBLE_EQ(h.pairs[0].f_A, 25.0);
+  EXPECT_DOUBLE_EQ(h.pairs[1].f_A, 10.0);
+}
+
+TEST(InjectionScheduler, UnipolarPhaseSequence) {
+  InjectionConfig c = test_config();
+  c.separation = Separation::kUnipolar;
+  Harness h(c);
+  h.motoring_A = {0.0, 5.0};
+  h.run_until(0.4);
+  const std::vector<P> pair = {P::kSettle, P::kRecord1, P::kRampUp, P::kSettle, P::kWaitArc,
+                               P::kRecord2, P::kRampDown, P::kIdle};
+  std::vector<P> expected = {P::kIdle};
+  expected.insert(expected.end(), pair.begin(), pair.end());
+  expected.insert(expected.end(), pair.begin(), pair.end());
+  EXPECT_EQ(h.phase_runs(), expected);
+  // Recording 1 carries no injection, recording 2 carries -F (unipolar_polarity = -1).
+  for (const StepRecord& r : h.records) {
+    if (r.out.phase == P::kRecord1) {
+      EXPECT_EQ(r.out.injection_A.d, 0.0);
+    }
+    if (r.out.phase == P::kRecord2) {
+      EXPECT_TRUE(r.out.injection_A.d == -25.0 || r.out.injection_A.d == -10.0);
+    }
+  }
+}
+
+// Runs of one phase: index of the first step and the number of steps.
+struct PhaseRun {
+  P phase;
+  std::size_t first;
+  std::size_t length;
+};
+
+std::vector<PhaseRun> runs_of(const Harness& h) {
+  std::vector<PhaseRun> out;
+  for (std::size_t k = 0; k < h.records.size(); ++k) {
+    const P p = h.records[k].out.phase;
+    if (out.empty() || out.back().phase != p) {
+      out.push_back({p, k, 1});
+    } else {
+      ++out.back().length;
+    }
+  }
+  return out;
+}
+
+TEST(InjectionScheduler, InjectionCurrentFollowsTheWindowAndTheLevels) {
+  InjectionConfig c = test_config();
+  Harness h(c);
+  h.run_until(0.4);
+  const std::vector<PhaseRun> runs = runs_of(h);
+  int ramps_checked = 0;
+  int pair = 0;
+  int ramp_in_pair = 0;
+  double level_before = 0.0;  // level (units of F) at the end of the previous run
+  // Bipolar: up to +F, down to 0, up to -F, down to 0.
+  const std::array<double, 4> targets{1.0, 0.0, -1.0, 0.0};
+  for (const PhaseRun& run : runs) {
+    if (run.phase == P::kIdle) {
+      if (run.first > 0) ++pair;
+      level_before = 0.0;
+      ramp_in_pair = 0;
+      continue;
+    }
+    const double f = pair == 0 ? 25.0 : 10.0;
+    const double t_start = h.records[run.first].time_s;
+    if (run.phase == P::kRampUp || run.phase == P::kRampDown) {
+      ASSERT_LT(ramp_in_pair, 4);
+      const double to = targets[static_cast<std::size_t>(ramp_in_pair)];
+      EXPECT_EQ(run.phase == P::kRampDown, to == 0.0);
+      for (std::size_t k = run.first; k < run.first + run.length; ++k) {
+        const double elapsed = h.records[k].time_s - t_start;
+        const double e = modified_blackman(std::min(elapsed, c.tw_s) - c.tw_s, c.tw_s);
+        const double expected = f * (level_before + (to - level_before) * e);
+        EXPECT_NEAR(h.records[k].out.injection_A.d, expected, 1e-9) << "step " << k;
+        EXPECT_EQ(h.records[k].out.injection_A.q, 0.0);
+      }
+      // A ramp lasts Tw (one step of rounding either way).
+      EXPECT_NEAR(static_cast<double>(run.length) * kPeriod, c.tw_s, 1.5 * kPeriod);
+      level_before = to;
+      ++ramp_in_pair;
+      ++ramps_checked;
+    } else {
+      for (std::size_t k = run.first; k < run.first + run.length; ++k) {
+        EXPECT_NEAR(h.records[k].out.injection_A.d, f * level_before, 1e-12) << "step " << k;
+      }
+      if (run.phase == P::kSettle) {
+        EXPECT_NEAR(static_cast<double>(run.length) * kPeriod, c.settle_s, 1.5 * kPeriod);
+      }
+    }
+  }
+  EXPECT_EQ(ramps_checked, 8);
+}
+
+TEST(InjectionScheduler, BlackmanWindowEdge) {
+  InjectionConfig c = test_config();
+  c.window = WindowKind::kBlackman;
+  Harness h(c);
+  h.run_until(0.06);
+  const std::vector<PhaseRun> runs = runs_of(h);
+  ASSERT_GE(runs.size(), 2U);
+  ASSERT_EQ(runs[1].phase, P::kRampUp);
+  for (std::size_t k = runs[1].first; k < runs[1].first + runs[1].length; ++k) {
+    const double tn = h.records[k].time_s - h.records[runs[1].first].time_s - c.tw_s;
+    const double b = 0.42 + 0.5 * std::cos(kPi * tn / c.tw_s) + 0.08 * std::cos(2.0 * kPi * tn / c.tw_s);  // Eq. 23
+    EXPECT_NEAR(h.records[k].out.injection_A.d, 25.0 * b, 1e-9);
+  }
+}
+
+// Angles of the first sample of recording 1 and of recording 2 of every pair, from the phases:
+// recording 1 takes the sample handed over in the step after it was entered; recording 2 the
+// one handed over in the step that entered it.
+struct PairAngles {
+  double first1;
+  double first2;
+  double extent_end1;  // angle of the last sample of recording 1
+};
+
+std::vector<PairAngles> pair_angles(const Harness& h) {
+  std::vector<PairAngles> out;
+  const std::vector<PhaseRun> runs = runs_of(h);
+  const double half = 0.5 * h.omega_e_rad_s * kPeriod;
+  PairAngles current{};
+  for (const PhaseRun& run : runs) {
+    if (run.phase == P::kRecord1) {
+      current.first1 = h.records[run.first].theta_e_rad + half;  // sample of the period after step `first`
+      // The step that leaves Record1 has recorded the sample of the period before it.
+      current.extent_end1 = h.records[run.first + run.length].theta_e_rad - half;
+    }
+    if (run.phase == P::kRecord2) {
+      current.first2 = h.records[run.first].theta_e_rad - half;
+      out.push_back(current);
+    }
+  }
+  return out;
+}
+
+void check_dtheta(bool mechanical, double omega_e) {
+  InjectionConfig c = test_config();
+  c.mechanical_harmonics = mechanical;
+  Harness h(c, omega_e);
+  h.run_until(0.4);
+  const std::vector<PairAngles> angles = pair_angles(h);
+  ASSERT_EQ(angles.size(), 2U);
+  const double unit = mechanical ? kTwoPi * c.pole_pairs : kTwoPi;
+  for (const PairAngles& a : angles) {
+    const double extent = a.extent_end1 - a.first1;
+    // Recording 1 spans whole turns, at least one and at least record_min_time_s: at least
+    // that, less than a period more.
+    const double turns = std::ceil(std::max(kTwoPi, omega_e * c.record_min_time_s) / kTwoPi - 1e-9);
+    EXPECT_GE(extent, turns * kTwoPi - 1e-9);
+    EXPECT_LT(extent, turns * kTwoPi + h.omega_e_rad_s * kPeriod + 1e-9);
+    const double dtheta = a.first2 - a.first1;
+    // Recording 2 starts at the first sample at or past origin + dTheta.
+    const double multiple = std::floor(dtheta / unit + 1e-9);
+    EXPECT_GE(multiple, 1.0);
+    EXPECT_LT(dtheta - multiple * unit, h.omega_e_rad_s * kPeriod + 1e-9);
+    // The smallest multiple that leaves room for recording 1 and the transition (two ramps,
+    // settling and 4 periods at the present speed).
+    const double needed = extent + h.omega_e_rad_s * (2.0 * c.tw_s + c.settle_s + 4.0 * kPeriod);
+    EXPECT_EQ(multiple, std::max(1.0, std::ceil(needed / unit)));
+  }
+}
+
+TEST(InjectionScheduler, DThetaIsAMultipleOfTwoPiPForMechanicalHarmonics) {
+  check_dtheta(true, 300.0);
+  check_dtheta(true, 900.0);
+}
+TEST(InjectionScheduler, DThetaIsAMultipleOfTwoPiForElectricalHarmonics) {
+  check_dtheta(false, 300.0);
+  check_dtheta(false, 900.0);  // here the transition (ramps, settling) needs a turn of its own
+}
+
+TEST(InjectionScheduler, PublishesOneEstimatePerEventNearTheTruth) {
+  Harness h(test_config());
+  h.run_until(0.9);  // two events, 0.5 s apart
+  ASSERT_EQ(h.estimates.size(), 2U);
+  ASSERT_EQ(h.pairs.size(), 4U);
+  for (const PairResult& p : h.pairs) {
+    EXPECT_EQ(p.outcome, PairOutcome::kAccepted) << to_string(p.outcome);
+    EXPECT_FALSE(p.time_based);
+  }
+  for (const EventEstimate& e : h.estimates) {
+    EXPECT_EQ(e.outcome, EventOutcome::kPublished);
+    EXPECT_EQ(e.pairs, 2);
+    // Light load, bipolar, below the learning speed: the levels determine Vx.
+    EXPECT_TRUE(e.vx_learning);
+    EXPECT_TRUE(e.vx_from_event);
+    EXPECT_NEAR(e.rs_ohm, h.plant.rs_ohm, 2e-4);
+    EXPECT_NEAR(e.vx_V, h.plant.vx_V, 0.01);
+    EXPECT_GT(e.rs_std_ohm, 0.0);
+    EXPECT_TRUE(e.has_emf);
+    EXPECT_NEAR(e.ke_V_s_per_rad, h.plant.ke_V_s_per_rad, 5e-4);
+  }
+  // Events start interval_s apart.
+  std::vector<double> starts;
+  bool expecting_start = true;
+  for (const StepRecord& r : h.records) {
+    if (expecting_start && r.out.active) {
+      starts.push_back(r.time_s);
+      expecting_start = false;
+    }
+    if (r.out.estimate) expecting_start = true;
+  }
+  ASSERT_EQ(starts.size(), 2U);
+  EXPECT_NEAR(starts[1] - starts[0], 0.5, 1.5 * kPeriod);
+  // The prior carried to the next event is the fused value.
+  EXPECT_NEAR(h.scheduler.vx_V(), h.plant.vx_V, 0.01);
+}
+
+TEST(InjectionScheduler, EventRsIsConditionedOnTheFusedVx) {
+  // A confident but wrong prior (1.0 V +- 1 mV; the plant has 1.5 V): the fused Vx stays at
+  // the prior and Rs is the one that fits with Vx = 1.0 V. Each pair's mean satisfies
+  // mean(y) = Rs mean(dId) + Vx mean(dGd); with Vx off by -0.5 V a pair alone gives
+  // Rs + 0.5 mean(dGd) / mean(dId), about 0.16 + 0.5 * 2.54 / 50 = 0.185 ohm at F = 25 A and
+  // 0.16 + 0.5 * 2.54 / 20 = 0.224 ohm at 10 A; the weighted fit lies between them.
+  InjectionConfig c = test_config();
+  c.vx_initial_V = 1.0;
+  c.vx_initial_std_V = 0.001;
+  Harness h(c);
+  h.run_until(0.3);
+  ASSERT_EQ(h.estimates.size(), 1U);
+  const EventEstimate& e = h.estimates[0];
+  ASSERT_EQ(e.outcome, EventOutcome::kPublished);
+  EXPECT_TRUE(e.vx_from_event);
+  EXPECT_NEAR(e.joint_vx_V, 1.5, 0.01);  // the event alone sees the truth
+  EXPECT_NEAR(e.vx_V, 1.0, 0.01);        // fused: the prior dominates
+  EXPECT_LT(e.vx_std_V, 0.0011);
+  EXPECT_GT(e.rs_ohm, 0.180);
+  EXPECT_LT(e.rs_ohm, 0.230);
+}
+
+TEST(InjectionScheduler, UnipolarEventUsesTheVxPrior) {
+  InjectionConfig c = test_config();
+  c.separation = Separation::kUnipolar;
+  c.vx_initial_V = 1.5;     // the plant's true value
+  c.vx_initial_std_V = 0.01;
+  Harness h(c);
+  h.motoring_A = {0.0, 5.0};
+  h.run_until(0.45);
+  ASSERT_EQ(h.estimates.size(), 1U);
+  const EventEstimate& e = h.estimates[0];
+  EXPECT_EQ(e.outcome, EventOutcome::kPublished);
+  EXPECT_FALSE(e.vx_learning);  // unipolar pairs do not reverse the current vector
+  EXPECT_FALSE(e.vx_from_event);
+  EXPECT_NEAR(e.rs_ohm, h.plant.rs_ohm, 2e-4);
+  EXPECT_NEAR(e.vx_V, 1.5, 1e-12);
+  // The mean d current is -F/2 here, so Eq. 34's w Ld id term matters for Ke.
+  EXPECT_TRUE(e.has_emf);
+  EXPECT_NEAR(e.ke_V_s_per_rad, h.plant.ke_V_s_per_rad, 5e-4);
+}
+
+TEST(InjectionScheduler, StandstillRecordsOverTime) {
+  InjectionConfig c = test_config();
+  Harness h(c, 0.0);
+  h.plant.kd6 = 0.0;
+  h.plant.kq6 = 0.0;
+  h.run_until(0.5);
+  const std::vector<P> pair = {P::kRampUp, P::kSettle, P::kRecord1, P::kRampDown, P::kRampUp,
+                               P::kSettle, P::kRecord2, P::kRampDown, P::kIdle};
+  std::vector<P> expected = {P::kIdle};
+  expected.insert(expected.end(), pair.begin(), pair.end());
+  expected.insert(expected.end(), pair.begin(), pair.end());
+  EXPECT_EQ(h.phase_runs(), expected);
+  for (const PhaseRun& r : runs_of(h)) {
+    if (r.phase == P::kRecord1) {
+      EXPECT_NEAR(static_cast<double>(r.length) * kPeriod, c.record_time_s, 2.5 * kPeriod);
+    }
+  }
+  ASSERT_EQ(h.estimates.size(), 1U);
+  ASSERT_EQ(h.pairs.size(), 2U);
+  EXPECT_TRUE(h.pairs[0].time_based);
+  EXPECT_EQ(h.estimates[0].outcome, EventOutcome::kPublished);
+  EXPECT_NEAR(h.estimates[0].rs_ohm, h.plant.rs_ohm, 2e-4);
+  EXPECT_FALSE(h.estimates[0].has_emf);
+}
+
+// ---- budget ----
+
+// Largest F with |v0 + s F u| <= limit (Eq. 29 at the operating point), computed here.
+double voltage_budget(double omega_e, const Dq& im, double limit_V, const InjectionConfig& c, double s) {
+  // k = max |dB2/dt| Tw by dense sampling of Eq. 24's derivative.
+  double k = 0.0;
+  for (int n = 0; n <= 200000; ++n) {
+    const double x = -1.0 + 2.0 * n / 200000.0;
+    k = std::max(k, std::abs(0.5 * kPi * std::sin(kPi * x) - 0.25 * kPi * std::sin(2.0 * kPi * x)));
+  }
+  const double rs = c.rs_nominal_ohm;
+  const Dq v0{rs * im.d - omega_e * c.lq_H * im.q, rs * im.q + omega_e * (c.ld_H * im.d + c.flux_linkage_Wb)};
+  const double ud = s * std::hypot(k * c.ld_H / c.tw_s, rs);
+  const double uq = s * omega_e * c.ld_H;
+  // Bisection on F (monotone beyond the vertex; v0 is inside the circle).
+  auto inside = [&](double f) { return std::hypot(v0.d + f * ud, v0.q + f * uq) <= limit_V; };
+  double lo = 0.0, hi = 1e4;
+  for (int it = 0; it < 200; ++it) {
+    const double mid = 0.5 * (lo + hi);
+    (inside(mid) ? lo : hi) = mid;
+  }
+  return lo;
+}
+
+TEST(InjectionBudget, CurrentLimitReducesFForTheWorstPolarity) {
+  InjectionConfig c = test_config();
+  InjectionScheduler s(c, kPeriod, 64);
+  SchedulerInput in;
+  in.omega_e_rad_s = 300.0;
+  in.current_limit_A = 80.0;
+  in.motoring_ref_A = {0.0, 78.0};
+  // |(+-F, 78)| <= 80  ->  F <= sqrt(80^2 - 78^2).
+  InjectionScheduler::Budget b = s.budget(in, c.tw_s, 25.0);
+  EXPECT_NEAR(b.f_A, std::sqrt(80.0 * 80.0 - 78.0 * 78.0), 1e-9);
+  EXPECT_EQ(b.limiting, PairOutcome::kAccepted);  // still above F_min
+  // A derated limit from the drive applies when it is the smaller one.
+  in.current_limit_A = 79.0;
+  b = s.budget(in, c.tw_s, 25.0);
+  EXPECT_NEAR(b.f_A, std::sqrt(79.0 * 79.0 - 78.0 * 78.0), 1e-9);
+  // Field weakening current: bipolar takes the worse polarity, here +F (towards +id).
+  in.current_limit_A = 80.0;
+  in.motoring_ref_A = {10.0, 70.0};
+  b = s.budget(in, c.tw_s, 50.0);
+  EXPECT_NEAR(b.f_A, std::sqrt(80.0 * 80.0 - 70.0 * 70.0) - 10.0, 1e-9);
+  // Below F_min: skipped for the current limit.
+  in.motoring_ref_A = {-10.0, 79.5};
+  b = s.budget(in, c.tw_s, 25.0);
+  EXPECT_EQ(b.f_A, 0.0);
+  EXPECT_EQ(b.limiting, PairOutcome::kRejectedCurrentLimit);
+  // Unipolar -F only needs room towards -id: with id = +10 there is plenty.
+  InjectionConfig u = c;
+  u.separation = Separation::kUnipolar;
+  InjectionScheduler su(u, kPeriod, 64);
+  in.motoring_ref_A = {10.0, 79.5};
+  b = su.budget(in, c.tw_s, 25.0);
+  EXPECT_NEAR(b.f_A, std::sqrt(80.0 * 80.0 - 79.5 * 79.5) + 10.0, 1e-9);
+  // The configured limit applies when it is the smaller one.
+  InjectionConfig low = c;
+  low.current_limit_A = 60.0;
+  InjectionScheduler sl(low, kPeriod, 64);
+  in.motoring_ref_A = {0.0, 50.0};
+  EXPECT_NEAR(sl.budget(in, c.tw_s, 50.0).f_A, std::sqrt(60.0 * 60.0 - 50.0 * 50.0), 1e-9);
+}
+
+TEST(InjectionBudget, RotatingInjectionTakesTheWorstDirection) {
+  InjectionConfig c = test_config();
+  c.method = InjectionMethod::kFixedAngle;
+  InjectionScheduler s(c, kPeriod, 64);
+  SchedulerInput in;
+  in.omega_e_rad_s = 100.0;
+  in.motoring_ref_A = {-30.0, 40.0};
+  EXPECT_NEAR(s.budget(in, c.tw_s, 50.0).f_A, 80.0 - 50.0, 1e-9);
+}
+
+TEST(InjectionBudget, ReluctanceTorqueBudgetOnASalientMachine) {
+  // Tem = 3/2 p (Ld - Lq) id iq: an injection F at iq = 40 A makes 3/2 * 3 * 2.75 mH * 40 A
+  // = 0.495 Nm per ampere of F.
+  InjectionConfig c = test_config();
+  c.ld_H = 5.5e-3;
+  c.lq_H = 8.25e-3;
+  c.max_torque_disturbance_Nm = 4.0;
+  InjectionScheduler s(c, kPeriod, 64);
+  SchedulerInput in;
+  in.omega_e_rad_s = 100.0;
+  in.motoring_ref_A = {0.0, 40.0};
+  const double per_amp = 1.5 * 3.0 * (8.25e-3 - 5.5e-3) * 40.0;
+  InjectionScheduler::Budget b = s.budget(in, c.tw_s, 25.0);
+  EXPECT_NEAR(b.f_A, 4.0 / per_amp, 1e-9);
+  EXPECT_EQ(b.limiting, PairOutcome::kAccepted);
+  InjectionConfig tight = c;
+  tight.max_torque_disturbance_Nm = 2.0;  // 4.04 A < F_min
+  InjectionScheduler st(tight, kPeriod, 64);
+  b = st.budget(in, c.tw_s, 25.0);
+  EXPECT_NEAR(b.f_A, 2.0 / per_amp, 1e-9);
+  EXPECT_EQ(b.limiting, PairOutcome::kSkippedTorqueDisturbance);
+  // No motoring current, no reluctance torque: the full F.
+  in.motoring_ref_A = {0.0, 0.0};
+  EXPECT_EQ(st.budget(in, c.tw_s, 25.0).f_A, 25.0);
+  // Budget off (0): not limited by torque.
+  InjectionConfig off = c;
+  off.max_torque_disturbance_Nm = 0.0;
+  InjectionScheduler so(off, kPeriod, 64);
+  in.motoring_ref_A = {0.0, 40.0};
+  EXPECT_EQ(so.budget(in, c.tw_s, 25.0).f_A, 25.0);
+}
+
+TEST(InjectionBudget, VoltageHeadroomReducesFAtSpeed) {
+  InjectionConfig c = test_config();
+  InjectionScheduler s(c, kPeriod, 64);
+  SchedulerInput in;
+  in.voltage_limit_V = 356.0;
+  in.motoring_ref_A = {0.0, 20.0};
+  for (double w : {300.0, 900.0, 980.0, 1000.0}) {
+    in.omega_e_rad_s = w;
+    const double limit = in.voltage_limit_V - c.headroom_margin_V;
+    const double expected = std::min({25.0, voltage_budget(w, in.motoring_ref_A, limit, c, 1.0),
+                                      voltage_budget(w, in.motoring_ref_A, limit, c, -1.0)});
+    const InjectionScheduler::Budget b = s.budget(in, c.tw_s, 25.0);
+    EXPECT_NEAR(b.f_A, expected, 1e-3) << "w " << w;
+    if (expected < c.f_min_A) {
+      EXPECT_EQ(b.limiting, PairOutcome::kRejectedVoltageHeadroom) << "w " << w;
+    } else {
+      EXPECT_EQ(b.limiting, PairOutcome::kAccepted) << "w " << w;
+    }
+  }
+  // At 1000 rad/s the motoring voltage alone is close to the limit: F must be small.
+  in.omega_e_rad_s = 1000.0;
+  EXPECT_LT(s.budget(in, c.tw_s, 25.0).f_A, c.f_min_A);
+}
+
+TEST(InjectionScheduler, SkipsEveryLevelWhenTheBudgetIsTooSmallAndRetries) {
+  InjectionConfig c = test_config();
+  Harness h(c);
+  h.motoring_A = {0.0, 79.9};  // no current left for injection
+  h.run_until(0.0105);
+  ASSERT_GE(h.pairs.size(), 2U);
+  for (std::size_t k = 0; k < 2; ++k) {
+    EXPECT_EQ(h.pairs[k].outcome, PairOutcome::kRejectedCurrentLimit);
+    EXPECT_EQ(h.pairs[k].level_index, static_cast<int>(k));
+    EXPECT_LT(h.pairs[k].f_A, c.f_min_A);
+  }
+  ASSERT_EQ(h.estimates.size(), 1U);
+  EXPECT_EQ(h.estimates[0].outcome, EventOutcome::kNoAcceptedPairs);
+  // No injection at all, and the next attempt after retry_s rather than interval_s.
+  for (const StepRecord& r : h.records) EXPECT_EQ(r.out.injection_A.d, 0.0);
+  EXPECT_NEAR(h.scheduler.next_event_s(), c.first_event_s + kPeriod + c.retry_s, 2.5 * kPeriod);
+}
+
+TEST(InjectionScheduler, DisabledDriveAbortsThePair) {
+  InjectionConfig c = test_config();
+  Harness h(c);
+  double abort_time = -1.0;
+  h.hook = [&](Harness& x) {
+    if (abort_time < 0.0 && !x.records.empty() && x.records.back().out.phase == P::kRecord1) {
+      x.enabled = false;
+      abort_time = x.time_s;
+    }
+  };
+  h.run_until(0.45);
+  ASSERT_EQ(h.pairs.size(), 1U);
+  EXPECT_EQ(h.pairs[0].outcome, PairOutcome::kAborted);
+  EXPECT_EQ(h.pairs[0].level_index, 0);
+  // The event reports that it was aborted, and publishes nothing.
+  ASSERT_EQ(h.estimates.size(), 1U);
+  EXPECT_EQ(h.estimates[0].outcome, EventOutcome::kAborted);
+  for (const StepRecord& r : h.records) {
+    if (r.time_s >= abort_time) {
+      EXPECT_FALSE(r.out.active);
+      EXPECT_EQ(r.out.injection_A.d, 0.0);
+      EXPECT_EQ(r.out.phase, P::kIdle);
+    }
+  }
+  EXPECT_GE(h.scheduler.next_event_s(), abort_time + c.retry_s - 1e-9);
+}
+
+TEST(InjectionScheduler, LosingSpeedAbortsAnAngleBasedPair) {
+  InjectionConfig c = test_config();
+  Harness h(c);
+  h.hook = [&](Harness& x) {
+    if (!x.records.empty() && x.records.back().out.phase == P::kWaitArc) x.omega_e_rad_s = 10.0;
+  };
+  h.run_until(0.2);
+  ASSERT_FALSE(h.pairs.empty());
+  EXPECT_EQ(h.pairs[0].outcome, PairOutcome::kAborted);
+  for (const EventEstimate& e : h.estimates) EXPECT_NE(e.outcome, EventOutcome::kPublished);
+}
+
+// After recording 1 of every pair, `change` alters the operating point for the rest of it.
+void run_with_change_after_record1(Harness& h, const std::function<void(Harness&)>& change,
+                                   const std::function<void(Harness&)>& restore, double until) {
+  h.hook = [&](Harness& x) {
+    if (x.records.empty()) return;
+    const P last = x.records.back().out.phase;
+    if (last == P::kRampDown || last == P::kWaitArc || last == P::kRecord2) {
+      // Between the recordings or in recording 2 of the pair (not the final ramp-down: the
+      // recorder ignores it).
+      change(x);
+    } else {
+      restore(x);
+    }
+  };
+  h.run_until(until);
+}
+
+TEST(InjectionScheduler, SpeedChangeBetweenRecordingsRejectsThePair) {
+  Harness h(test_config());
+  run_with_change_after_record1(
+      h, [](Harness& x) { x.omega_e_rad_s = 310.0; }, [](Harness& x) { x.omega_e_rad_s = 300.0; }, 0.45);
+  ASSERT_EQ(h.pairs.size(), 2U);
+  for (const PairResult& p : h.pairs) {
+    EXPECT_EQ(p.outcome, PairOutcome::kRejectedSpeedChange) << to_string(p.outcome);
+    EXPECT_NEAR(p.delta_omega_e_rad_s, -10.0, 1e-9);
+  }
+  ASSERT_EQ(h.estimates.size(), 1U);
+  EXPECT_EQ(h.estimates[0].outcome, EventOutcome::kNoAcceptedPairs);
+  // A change within the limit (max(3, 2 % of 300) = 6 rad/s) is accepted.
+  Harness ok(test_config());
+  run_with_change_after_record1(
+      ok, [](Harness& x) { x.omega_e_rad_s = 305.0; }, [](Harness& x) { x.omega_e_rad_s = 300.0; }, 0.45);
+  ASSERT_EQ(ok.pairs.size(), 2U);
+  EXPECT_EQ(ok.pairs[0].outcome, PairOutcome::kAccepted) << to_string(ok.pairs[0].outcome);
+}
+
+TEST(InjectionScheduler, LoadChangeBetweenRecordingsRejectsThePair) {
+  Harness h(test_config());
+  run_with_change_after_record1(
+      h, [](Harness& x) { x.motoring_A = {0.0, 3.0}; }, [](Harness& x) { x.motoring_A = {0.0, 0.0}; }, 0.45);
+  ASSERT_EQ(h.pairs.size(), 2U);
+  for (const PairResult& p : h.pairs) {
+    EXPECT_EQ(p.outcome, PairOutcome::kRejectedLoadChange) << to_string(p.outcome);
+    EXPECT_NEAR(p.delta_iq_A, -3.0, 0.05);
+  }
+  ASSERT_EQ(h.estimates.size(), 1U);
+  EXPECT_EQ(h.estimates[0].outcome, EventOutcome::kNoAcceptedPairs);
+}
+
+TEST(InjectionScheduler, VoltageLimitWhileRecordingRejectsThePair) {
+  Harness h(test_config());
+  h.hook = [](Harness& x) {
+    x.flag_voltage_limited = !x.records.empty() && x.records.back().out.phase == P::kRecord2;
+  };
+  h.run_until(0.45);
+  ASSERT_EQ(h.pairs.size(), 2U);
+  for (const PairResult& p : h.pairs) {
+    EXPECT_EQ(p.outcome, PairOutcome::kRejectedVoltageSaturation) << to_string(p.outcome);
+  }
+  EXPECT_EQ(h.estimates.at(0).outcome, EventOutcome::kNoAcceptedPairs);
+}
+
+TEST(InjectionScheduler, ImplausiblePairsAreRejected) {
+  InjectionConfig c = test_config();
+  c.fit_dead_time = false;
+  Harness h(c);
+  h.plant.vx_V = 0.0;
+  h.plant.rs_ohm = 0.4;  // above rs_max_ohm = 0.27
+  h.run_until(0.45);
+  ASSERT_EQ(h.pairs.size(), 2U);
+  for (const PairResult& p : h.pairs) {
+    EXPECT_EQ(p.outcome, PairOutcome::kRejectedImplausible) << to_string(p.outcome);
+    EXPECT_NEAR(p.rs_ohm, 0.4, 2e-3);
+  }
+  EXPECT_EQ(h.estimates.at(0).outcome, EventOutcome::kNoAcceptedPairs);
+}
+
+TEST(InjectionScheduler, ImplausibleEventPublishesNothingAndKeepsThePrior) {
+  // Each pair, with Vx held at the uncertain prior, passes the widened window; the event's
+  // joint fit finds Rs = 0.29 ohm, outside [0.09, 0.27].
+  InjectionConfig c = test_config();
+  Harness h(c);
+  h.plant.rs_ohm = 0.29;
+  h.run_until(0.45);
+  ASSERT_EQ(h.pairs.size(), 2U);
+  EXPECT_EQ(h.pairs[0].outcome, PairOutcome::kAccepted) << to_string(h.pairs[0].outcome);
+  EXPECT_EQ(h.pairs[1].outcome, PairOutcome::kAccepted) << to_string(h.pairs[1].outcome);
+  ASSERT_EQ(h.estimates.size(), 1U);
+  EXPECT_EQ(h.estimates[0].outcome, EventOutcome::kImplausible);
+  EXPECT_NEAR(h.estimates[0].rs_ohm, 0.29, 2e-3);
+  EXPECT_EQ(h.scheduler.vx_V(), c.vx_initial_V);
+  EXPECT_EQ(h.scheduler.vx_std_V(), c.vx_initial_std_V);
+}
+
+TEST(InjectionScheduler, RequestNowStartsAnEventBeforeItsTime) {
+  InjectionConfig c = test_config();
+  c.first_event_s = 100.0;
+  Harness h(c);
+  h.run_until(0.005);
+  EXPECT_EQ(h.records.back().out.phase, P::kIdle);
+  h.request_now = true;
+  h.step();
+  h.request_now = false;
+  EXPECT_EQ(h.records.back().out.phase, P::kRampUp);
+  EXPECT_TRUE(h.records.back().out.active);
+}
+
+TEST(InjectionScheduler, SetConfigDropsTheEventAndKeepsTheVxPrior) {
+  Harness h(test_config());
+  h.run_until(0.3);
+  ASSERT_EQ(h.estimates.size(), 1U);
+  const double vx = h.scheduler.vx_V();
+  EXPECT_NE(vx, 0.0);
+  h.request_now = true;
+  h.run_until(0.32);
+  ASSERT_TRUE(h.records.back().out.active);
+  InjectionConfig other = test_config();
+  other.f_A = 20.0;
+  h.scheduler.set_config(other);
+  EXPECT_EQ(h.scheduler.phase(), P::kIdle);
+  EXPECT_EQ(h.scheduler.vx_V(), vx);
+  EXPECT_EQ(h.scheduler.config().f_A, 20.0);
+}
+
+TEST(InjectionScheduler, MethodNoneNeverInjects) {
+  InjectionConfig c = test_config();
+  c.method = InjectionMethod::kNone;
+  Harness h(c);
+  h.request_now = true;
+  h.run_until(0.2);
+  for (const StepRecord& r : h.records) {
+    EXPECT_FALSE(r.out.active);
+    EXPECT_EQ(r.out.injection_A.d, 0.0);
+  }
+  EXPECT_TRUE(h.pairs.empty());
+  EXPECT_TRUE(h.estimates.empty());
+}
+
+TEST(InjectionScheduler, OutcomeNamesAreDistinct) {
+  std::vector<std::string_view> names;
+  for (int k = 0; k < static_cast<int>(PairOutcome::kCount); ++k) {
+    names.push_back(to_string(static_cast<PairOutcome>(k)));
+  }
+  std::sort(names.begin(), names.end());
+  EXPECT_EQ(std::adjacent_find(names.begin(), names.end()), names.end());
+  EXPECT_EQ(to_string(EventOutcome::kPublished), "published");
+  EXPECT_EQ(to_string(PairOutcome::kRejectedSpeedChange), "rejected_speed_change");
+}
+
+}  // namespace
+}  // namespace pmsm::core
