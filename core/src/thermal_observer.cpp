@@ -83,7 +83,10 @@ bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm) {
   const double r = std::pow(rs_std_ohm * dt_dr, 2) + std::pow(config_.measurement_floor_std_C, 2);
   const Eigen::RowVector3d h(1.0, 0.0, 0.0);
   const double s = (h * p_ * h.transpose())(0, 0) + r;
-  if (!std::isfinite(z) || std::abs(z - x_(0)) > config_.gate_sigma * std::sqrt(s)) {
+  // A measurement without a finite value and error bar is no measurement (NaN compares false,
+  // so it would otherwise pass the gate and poison the state).
+  if (!std::isfinite(z) || !std::isfinite(r) || !(rs_std_ohm >= 0.0) ||
+      !(std::abs(z - x_(0)) <= config_.gate_sigma * std::sqrt(s))) {
     return false;
   }
   const Eigen::Vector3d k = p_ * h.transpose() / s;

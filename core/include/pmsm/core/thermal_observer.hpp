@@ -77,6 +77,7 @@ class ThermalObserver {
   bool update_resistance(double rs_ohm, double rs_std_ohm);
 
   void set_calibration(const Calibration& c) { calibration_ = c; }
+  void set_time_scale(double time_scale) { config_.time_scale = time_scale; }
   [[nodiscard]] const Calibration& calibration() const { return calibration_; }
 
   [[nodiscard]] ThermalEstimate estimate() const;

@@ -1,0 +1,284 @@
+// ThermalObserver and derate(): the prediction against the analytic two-node response, the
+// Kalman update against a gain computed by hand, the innovation gate, time-to-limit against a
+// brute-force simulation.
+#include <gtest/gtest.h>
+
+#include <Eigen/Dense>
+#include <cmath>
+
+#include "pmsm/core/thermal_observer.hpp"
+
+namespace pmsm::core {
+namespace {
+
+constexpr double kAlpha = 3.93e-3;  // Eq. 1, copper
+
+// The two-node network written out here: winding (Cw) and housing (Ch), Rwh between them,
+// Rha to ambient; copper loss on the winding with Rs(Tw) from Eq. 1, iron loss on the housing.
+struct Network {
+  double cw, ch, rwh, rha;
+  double rs0, t0;
+};
+
+Network network_of(const ThermalModelConfig& c, const Calibration& cal) {
+  return {c.winding_capacity_J_K, c.housing_capacity_J_K, c.winding_to_housing_K_W, c.housing_to_ambient_K_W,
+          cal.rs0_ohm, cal.t0_C};
+}
+
+// x' = A x + b, copper loss affine in Tw: Pcu = 1.5 I2 Rs0 (1 + alpha (Tw - T0)).
+void linear_system(const Network& n, double i2, double p_iron, double ambient, Eigen::Matrix2d& a, Eigen::Vector2d& b) {
+  const double gwh = 1.0 / n.rwh;
+  const double gha = 1.0 / n.rha;
+  const double k = 1.5 * i2 * n.rs0;
+  a << (-gwh + k * kAlpha) / n.cw, gwh / n.cw, gwh / n.ch, -(gwh + gha) / n.ch;
+  b << k * (1.0 - kAlpha * n.t0) / n.cw, (p_iron + gha * ambient) / n.ch;
+}
+
+// x(t) = x_ss + V exp(L t) V^-1 (x0 - x_ss).
+Eigen::Vector2d analytic(const Eigen::Matrix2d& a, const Eigen::Vector2d& b, const Eigen::Vector2d& x0, double t) {
+  const Eigen::Vector2d xss = -a.inverse() * b;
+  const Eigen::EigenSolver<Eigen::Matrix2d> eig(a);
+  const Eigen::Matrix2cd v = eig.eigenvectors();
+  const Eigen::Vector2cd l = eig.eigenvalues();
+  Eigen::Matrix2cd e = Eigen::Matrix2cd::Zero();
+  e(0, 0) = std::exp(l(0) * t);
+  e(1, 1) = std::exp(l(1) * t);
+  const Eigen::Vector2cd d = (x0 - xss).cast<std::complex<double>>();
+  return xss + (v * e * v.inverse() * d).real();
+}
+
+TEST(ThermalObserver, PredictionFollowsTheTwoNodeResponseWithIronLossOnly) {
+  ThermalModelConfig c;
+  Calibration cal;
+  ThermalObserver obs(c, cal, 25.0);
+  const double w = 200.0;
+  const double p_iron = c.iron_loss_k1_W_s_rad * w + c.iron_loss_k2_W_s2_rad2 * w * w;  // 160 W
+  EXPECT_DOUBLE_EQ(obs.iron_loss_W(-w), p_iron);  // |w|
+  Eigen::Matrix2d a;
+  Eigen::Vector2d b;
+  linear_system(network_of(c, cal), 0.0, p_iron, 40.0, a, b);
+  const double dt = 0.5;  // far below the 132 s winding time constant
+  int step = 0;
+  for (double t_check : {60.0, 600.0, 3000.0, 12000.0}) {
+    while (step * dt < t_check - 1e-9) {
+      obs.predict(dt, 0.0, w, 40.0);
+      ++step;
+    }
+    const Eigen::Vector2d x = analytic(a, b, Eigen::Vector2d(25.0, 25.0), t_check);
+    EXPECT_NEAR(obs.estimate().winding_C, x(0), 0.01) << "t " << t_check;
+    EXPECT_NEAR(obs.estimate().housing_C, x(1), 0.01) << "t " << t_check;
+  }
+  // Steady state (the slow time constant is about 2600 s): housing = ambient + P Rha, and the
+  // winding at the housing temperature (no copper loss).
+  for (int k = 0; k < 20000; ++k) obs.predict(2.0, 0.0, w, 40.0);
+  EXPECT_NEAR(obs.estimate().housing_C, 40.0 + p_iron * c.housing_to_ambient_K_W, 0.01);
+  EXPECT_NEAR(obs.estimate().winding_C, 40.0 + p_iron * c.housing_to_ambient_K_W, 0.01);
+  EXPECT_EQ(obs.estimate().loss_error_W, 0.0);
+  EXPECT_NEAR(obs.estimate().time_since_measurement_s, 52000.0, 1e-6);
+}
+
+TEST(ThermalObserver, PredictionWithTemperatureDependentCopperLoss) {
+  ThermalModelConfig c;
+  Calibration cal;
+  ThermalObserver obs(c, cal, 30.0);
+  const double i2 = 2000.0;  // mean id^2 + iq^2
+  EXPECT_NEAR(obs.copper_loss_W(i2), 1.5 * i2 * 0.133 * (1.0 + kAlpha * 5.0), 1e-9);
+  Eigen::Matrix2d a;
+  Eigen::Vector2d b;
+  linear_system(network_of(c, cal), i2, 0.0, 30.0, a, b);
+  const double dt = 0.2;
+  for (int k = 0; k < 10000; ++k) {
+    obs.predict(dt, i2, 0.0, 30.0);
+  }
+  const Eigen::Vector2d x = analytic(a, b, Eigen::Vector2d(30.0, 30.0), 2000.0);
+  EXPECT_NEAR(obs.estimate().winding_C, x(0), 0.02);
+  EXPECT_NEAR(obs.estimate().housing_C, x(1), 0.02);
+}
+
+TEST(ThermalObserver, TimeScaleRunsThermalTimeFaster) {
+  ThermalModelConfig slow;
+  ThermalModelConfig fast = slow;
+  fast.time_scale = 50.0;
+  ThermalObserver a(slow, Calibration{}, 25.0);
+  ThermalObserver b(fast, Calibration{}, 25.0);
+  for (int k = 0; k < 1000; ++k) {
+    a.predict(0.5, 1500.0, 150.0, 25.0);
+    b.predict(0.01, 1500.0, 150.0, 25.0);
+  }
+  EXPECT_NEAR(a.estimate().winding_C, b.estimate().winding_C, 1e-9);
+  EXPECT_NEAR(a.estimate().winding_std_C, b.estimate().winding_std_C, 1e-9);
+  EXPECT_NEAR(b.estimate().time_since_measurement_s, 10.0, 1e-9);  // controller seconds
+}
+
+TEST(ThermalObserver, ResistanceMeasurementUsesTheHandComputedKalmanGain) {
+  ThermalModelConfig c;
+  Calibration cal;  // 0.133 ohm at 25 C
+  ThermalObserver obs(c, cal, 40.0);
+  // Eq. 1 by hand: 0.1438 ohm is 25 + (0.1438 / 0.133 - 1) / 3.93e-3 C.
+  const double rs = 0.1438;
+  const double z = 25.0 + (rs / 0.133 - 1.0) / kAlpha;
+  EXPECT_NEAR(obs.temperature_from_resistance_C(rs), z, 1e-9);
+  EXPECT_NEAR(obs.resistance_at_C(z), rs, 1e-12);
+  const double rs_std = 0.0005;
+  const double r = std::pow(rs_std / (kAlpha * 0.133), 2) + std::pow(c.measurement_floor_std_C, 2);
+  const double p0 = c.initial_std_C * c.initial_std_C;
+  const double gain = p0 / (p0 + r);
+  ASSERT_TRUE(obs.update_resistance(rs, rs_std));
+  const ThermalEstimate e = obs.estimate();
+  EXPECT_NEAR(e.winding_C, 40.0 + gain * (z - 40.0), 1e-9);
+  EXPECT_NEAR(e.winding_std_C, std::sqrt(p0 * r / (p0 + r)), 1e-9);
+  // The housing and the loss error are uncorrelated with the winding at start: unchanged.
+  EXPECT_NEAR(e.housing_C, 40.0, 1e-12);
+  EXPECT_NEAR(e.loss_error_W, 0.0, 1e-12);
+  EXPECT_EQ(e.time_since_measurement_s, 0.0);
+}
+
+TEST(ThermalObserver, AfterPredictionAMeasurementAlsoMovesTheCorrelatedStates) {
+  ThermalModelConfig c;
+  ThermalObserver obs(c, Calibration{}, 40.0);
+  for (int k = 0; k < 600; ++k) obs.predict(0.1, 1000.0, 100.0, 40.0);
+  const ThermalEstimate before = obs.estimate();
+  const double rs = obs.resistance_at_C(before.winding_C + 4.0);  // 4 C hotter than predicted
+  ASSERT_TRUE(obs.update_resistance(rs, 0.0002));
+  const ThermalEstimate after = obs.estimate();
+  const double dw = after.winding_C - before.winding_C;
+  EXPECT_GT(dw, 0.0);
+  EXPECT_LT(dw, 4.0);
+  // The loss-error state learns that the winding runs hotter than the model says.
+  EXPECT_GT(after.loss_error_W, before.loss_error_W);
+  // The housing is positively correlated with the winding: it moves the same way, less.
+  const double dh = after.housing_C - before.housing_C;
+  EXPECT_GT(dh, 0.0);
+  EXPECT_LT(dh, dw);
+  EXPECT_LT(after.winding_std_C, before.winding_std_C);
+}
+
+TEST(ThermalObserver, OutlierBeyondTheGateIsRejectedAndLeavesTheState) {
+  ThermalModelConfig c;
+  Calibration cal;
+  const double rs_std = 0.001;
+  const double r = std::pow(rs_std / (kAlpha * 0.133), 2) + std::pow(c.measurement_floor_std_C, 2);
+  const double s = c.initial_std_C * c.initial_std_C + r;
+  const double gate_C = c.gate_sigma * std::sqrt(s);
+  auto rs_at = [&](double t) { return 0.133 * (1.0 + kAlpha * (t - 25.0)); };
+  {
+    ThermalObserver obs(c, cal, 50.0);
+    obs.predict(1.0, 100.0, 50.0, 25.0);
+    const ThermalEstimate before = obs.estimate();
+    EXPECT_FALSE(obs.update_resistance(rs_at(before.winding_C + gate_C * 1.01), rs_std));
+    EXPECT_FALSE(obs.update_resistance(rs_at(before.winding_C - gate_C * 1.01), rs_std));
+    const ThermalEstimate after = obs.estimate();
+    EXPECT_EQ(after.winding_C, before.winding_C);
+    EXPECT_EQ(after.winding_std_C, before.winding_std_C);
+    EXPECT_EQ(after.housing_C, before.housing_C);
+    EXPECT_EQ(after.loss_error_W, before.loss_error_W);
+    EXPECT_EQ(after.time_since_measurement_s, before.time_since_measurement_s);
+    // Not-a-number resistances are rejected too.
+    EXPECT_FALSE(obs.update_resistance(std::nan(""), rs_std));
+    EXPECT_EQ(obs.estimate().winding_C, before.winding_C);
+  }
+  {
+    // Just inside the gate: accepted. (The predict above changes P slightly; take a fresh one.)
+    ThermalObserver obs(c, cal, 50.0);
+    EXPECT_TRUE(obs.update_resistance(rs_at(50.0 + gate_C * 0.99), rs_std));
+  }
+}
+
+// Brute force: RK4 on the two-node network with the losses held constant, until the winding
+// reaches the limit. Returns thermal seconds.
+double brute_force_time(const Network& n, double tw0, double th0, double p_cu, double p_fe, double ambient,
+                        double limit, bool copper_follows_temperature, double i2) {
+  const double gwh = 1.0 / n.rwh;
+  const double gha = 1.0 / n.rha;
+  auto f = [&](const Eigen::Vector2d& x) {
+    const double pcu = copper_follows_temperature ? 1.5 * i2 * n.rs0 * (1.0 + kAlpha * (x(0) - n.t0)) : p_cu;
+    return Eigen::Vector2d((pcu - gwh * (x(0) - x(1))) / n.cw, (p_fe + gwh * (x(0) - x(1)) - gha * (x(1) - ambient)) / n.ch);
+  };
+  Eigen::Vector2d x(tw0, th0);
+  const double h = 0.2;
+  double t = 0.0;
+  while (t < 1e6) {
+    const Eigen::Vector2d k1 = f(x);
+    const Eigen::Vector2d k2 = f(x + 0.5 * h * k1);
+    const Eigen::Vector2d k3 = f(x + 0.5 * h * k2);
+    const Eigen::Vector2d k4 = f(x + h * k3);
+    const Eigen::Vector2d next = x + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4);
+    if (next(0) >= limit) {
+      return t + h * (limit - x(0)) / (next(0) - x(0));
+    }
+    x = next;
+    t += h;
+  }
+  return -1.0;
+}
+
+TEST(ThermalObserver, TimeToLimitMatchesABruteForceSimulation) {
+  ThermalModelConfig c;
+  Calibration cal;
+  ThermalObserver obs(c, cal, 25.0);
+  for (int k = 0; k < 600; ++k) obs.predict(0.5, 1500.0, 100.0, 25.0);  // warm up, housing lags
+  const ThermalEstimate e = obs.estimate();
+  const double i2 = 3000.0, w = 100.0, ambient = 25.0, limit = 155.0;
+  double t_out = -1.0;
+  ASSERT_TRUE(obs.time_to_limit_s(limit, i2, w, ambient, &t_out));
+  // As documented: the copper loss at the limit temperature, plus the learned loss error.
+  const double p_cu = 1.5 * i2 * 0.133 * (1.0 + kAlpha * (limit - 25.0)) + e.loss_error_W;
+  const double p_fe = c.iron_loss_k1_W_s_rad * w + c.iron_loss_k2_W_s2_rad2 * w * w;
+  const Network n = network_of(c, cal);
+  const double expected = brute_force_time(n, e.winding_C, e.housing_C, p_cu, p_fe, ambient, limit, false, i2);
+  ASSERT_GT(expected, 0.0);
+  EXPECT_NEAR(t_out, expected, 0.5) << "expected " << expected;
+  // Conservative: with the copper loss following the temperature it takes longer.
+  const double realistic = brute_force_time(n, e.winding_C, e.housing_C, 0.0, p_fe, ambient, limit, true, i2);
+  EXPECT_GT(realistic, t_out);
+  // Controller seconds under thermal acceleration.
+  ThermalModelConfig fast = c;
+  fast.time_scale = 20.0;
+  ThermalObserver obs_fast(fast, cal, 25.0);
+  double t_fast = -1.0;
+  double t_slow = -1.0;
+  ThermalObserver obs_slow(c, cal, 25.0);
+  ASSERT_TRUE(obs_fast.time_to_limit_s(limit, i2, w, ambient, &t_fast));
+  ASSERT_TRUE(obs_slow.time_to_limit_s(limit, i2, w, ambient, &t_slow));
+  EXPECT_NEAR(t_fast, t_slow / 20.0, 1e-6 * t_slow);
+}
+
+TEST(ThermalObserver, TimeToLimitWhenSafeOrAlreadyThere) {
+  ThermalModelConfig c;
+  Calibration cal;
+  double t = -1.0;
+  ThermalObserver cold(c, cal, 25.0);
+  // 500 A^2: the steady state is far below 155 C.
+  EXPECT_FALSE(cold.time_to_limit_s(155.0, 500.0, 50.0, 25.0, &t));
+  ThermalObserver hot(c, cal, 160.0);
+  ASSERT_TRUE(hot.time_to_limit_s(155.0, 0.0, 0.0, 25.0, &t));
+  EXPECT_EQ(t, 0.0);
+}
+
+TEST(Derate, MonotoneBetweenTheConfiguredEnds) {
+  DeratingConfig d;  // 80 A cold, 10 A at 155 C, from 130 C, on T + 2 sigma
+  ThermalEstimate e;
+  e.winding_std_C = 1.5;
+  double previous = 1e9;
+  for (double t = 20.0; t <= 200.0; t += 0.25) {
+    e.winding_C = t;
+    const DeratingResult r = derate(d, e);
+    EXPECT_LE(r.current_limit_A, previous + 1e-12) << t;
+    EXPECT_GE(r.current_limit_A, d.min_current_A);
+    EXPECT_LE(r.current_limit_A, d.max_current_A);
+    previous = r.current_limit_A;
+    const double upper = t + 3.0;
+    EXPECT_EQ(r.derating, upper > d.derate_start_C) << t;
+  }
+  e.winding_C = 127.0;  // upper bound exactly at the start
+  EXPECT_EQ(derate(d, e).current_limit_A, 80.0);
+  e.winding_C = 152.0;  // upper bound at the limit
+  EXPECT_NEAR(derate(d, e).current_limit_A, 10.0, 1e-12);
+  e.winding_C = 139.5;  // half way: (130 + 155) / 2 - 3
+  EXPECT_NEAR(derate(d, e).current_limit_A, 45.0, 1e-12);
+  e.winding_C = 190.0;
+  EXPECT_NEAR(derate(d, e).current_limit_A, 10.0, 1e-12);
+}
+
+}  // namespace
+}  // namespace pmsm::core
