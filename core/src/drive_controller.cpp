@@ -32,6 +32,9 @@ DriveController::DriveController(const DriveConfig& config)
 
 void DriveController::start_calibration(double known_temp_C) {
   scheduler_.set_config(config_.calibration_injection);
+  // The winding is at the known temperature now; the thermal model carries it through the
+  // calibration, whose own injections warm the winding a little.
+  observer_ = ThermalObserver(config_.thermal, observer_.calibration(), known_temp_C);
   calibrating_ = true;
   calibration_failed_ = false;
   calibration_started_s_ = static_cast<double>(period_) * config_.period_s;
@@ -77,8 +80,13 @@ void DriveController::handle_estimate(const EventEstimate& e) {
   if (calibrating_) {
     // Inverse-variance weights: an event whose inverter voltage was still unknown carries
     // a large error bar and must not pull Rs0.
+    // Each event's Rs is referred back to the known temperature through Eq. 1, at the winding
+    // temperature the thermal model predicts for the event (the calibration's own injection
+    // losses warm it).
+    const double rise_C = observer_.estimate().winding_C - calibration_temp_C_;
+    const double rs_at_known = e.rs_ohm / (1.0 + kCopperAlpha_per_C * rise_C);
     const double w = 1.0 / std::max(e.rs_std_ohm * e.rs_std_ohm, 1e-12);
-    calibration_rs_sum_ += w * e.rs_ohm;
+    calibration_rs_sum_ += w * rs_at_known;
     calibration_weight_sum_ += w;
     ++calibration_count_;
     if (e.has_emf) {
@@ -93,7 +101,9 @@ void DriveController::handle_estimate(const EventEstimate& e) {
       c.calibrated = true;
       calibrating_ = false;
       scheduler_.set_config(config_.injection);
-      observer_ = ThermalObserver(config_.thermal, c, calibration_temp_C_);
+      // The filter keeps its state (the winding has warmed during the calibration); only the
+      // temperature scale changes.
+      observer_.set_calibration(c);
       calibration_done_ = c;
     }
     return;

@@ -56,7 +56,7 @@ struct DriveConfig {
   double thermal_update_s = 0.01;    // thermal model / filter period
   double magnet_coefficient_per_C = -0.0012;  // NdFeB remanence (flux) temperature coefficient
   double magnet_min_speed_rad_s = 50.0;       // electrical; below it the EMF is too small
-  int calibration_events = 6;        // events averaged into Rs0 / Ke0
+  int calibration_events = 10;       // events averaged into Rs0 / Ke0
   double calibration_timeout_s = 20.0;  // give up (keep the stored calibration) after this
   std::size_t recording_capacity = 8192;      // periods per recording (preallocated)
 };
@@ -143,6 +143,9 @@ class DriveController {
   // Starts an Rs0 calibration at a known winding temperature: the next calibration_pairs
   // accepted pairs are averaged into Rs0 (and Ke0), and the thermal filter restarts there.
   void start_calibration(double known_temp_C);
+
+  // Thermal time scale of the controller's model (the test acceleration; 1 on a machine).
+  void set_thermal_time_scale(double time_scale) { observer_.set_time_scale(time_scale); }
 
   [[nodiscard]] const DriveTelemetry& telemetry() const { return telemetry_; }
   // Set for the one period in which a pair finished (accepted, rejected or skipped).
