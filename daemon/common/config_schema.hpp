@@ -114,14 +114,13 @@ class ConfigSchema {
   // Throws ConfigError.
   void apply(const toml::table& table, Config& config, std::string_view source,
              const std::vector<std::string>& foreign_tables = {}, std::string_view key_prefix = {}) const {
-    prefix_ = key_prefix;
-    check_unknown(table, "", source, foreign_tables);
+    check_unknown(table, "", source, foreign_tables, key_prefix);
     for (const Entry& e : entries_) {
       const toml::node_view<const toml::node> node = table.at_path(e.key);
       if (!node) {
         continue;
       }
-      apply_entry(e, *node.node(), config, source);
+      apply_entry(e, *node.node(), config, source, key_prefix);
     }
   }
 
@@ -167,22 +166,23 @@ class ConfigSchema {
     return e;
   }
 
-  [[nodiscard]] std::string where(std::string_view source, const toml::node& node, std::string_view key) const {
+  [[nodiscard]] static std::string where(std::string_view source, const toml::node& node, std::string_view key,
+                                         std::string_view prefix) {
     // The file the node came from (a scenario may inherit keys from a base file).
     const auto& region = node.source();
     const std::string file = region.path && !region.path->empty() ? *region.path : std::string(source);
     const std::string line = region.begin.line > 0 ? ":" + std::to_string(region.begin.line) : "";
-    return file + line + ": " + prefix_ + std::string(key) + ": ";
+    return file + line + ": " + std::string(prefix) + std::string(key) + ": ";
   }
 
-  double number_of(const Entry& e, const toml::node& node, std::string_view source) const {
+  static double number_of(const Entry& e, const toml::node& node, std::string_view source, std::string_view prefix) {
     if (const auto* i = node.as_integer()) {
       return static_cast<double>(i->get());
     }
     if (const auto* f = node.as_floating_point()) {
       return f->get();
     }
-    throw ConfigError(where(source, node, e.key) + "expected a number, got " + type_name(node));
+    throw ConfigError(where(source, node, e.key, prefix) + "expected a number, got " + type_name(node));
   }
 
   static std::string type_name(const toml::node& node) {
@@ -197,11 +197,12 @@ class ConfigSchema {
     }
   }
 
-  void apply_entry(const Entry& e, const toml::node& node, Config& config, std::string_view source) const {
-    const std::string at = where(source, node, e.key);
+  void apply_entry(const Entry& e, const toml::node& node, Config& config, std::string_view source,
+                   std::string_view prefix) const {
+    const std::string at = where(source, node, e.key, prefix);
     switch (e.kind) {
       case Kind::kReal: {
-        const double v = number_of(e, node, source);
+        const double v = number_of(e, node, source, prefix);
         if (!std::isfinite(v) || !e.range.contains(v)) {
           throw ConfigError(at + "must be " + e.range.describe() + ", got " + format_number(v));
         }
@@ -260,7 +261,7 @@ class ConfigSchema {
         }
         std::vector<double> values;
         for (const toml::node& item : *a) {
-          const double v = number_of(e, item, source);
+          const double v = number_of(e, item, source, prefix);
           if (!std::isfinite(v) || !e.range.contains(v)) {
             throw ConfigError(at + "every value must be " + e.range.describe() + ", got " + format_number(v));
           }
@@ -287,7 +288,7 @@ class ConfigSchema {
   }
 
   void check_unknown(const toml::table& table, const std::string& prefix, std::string_view source,
-                     const std::vector<std::string>& foreign_tables) const {
+                     const std::vector<std::string>& foreign_tables, std::string_view key_prefix) const {
     for (const auto& [k, node] : table) {
       const std::string key = prefix.empty() ? std::string(k.str()) : prefix + "." + std::string(k.str());
       bool foreign = false;
@@ -308,16 +309,16 @@ class ConfigSchema {
       }
       if (is_section) {
         if (const auto* sub = node.as_table()) {
-          check_unknown(*sub, key, source, foreign_tables);
+          check_unknown(*sub, key, source, foreign_tables, key_prefix);
           continue;
         }
-        throw ConfigError(where(source, node, key) + "expected a table (section)");
+        throw ConfigError(where(source, node, key, key_prefix) + "expected a table (section)");
       }
-      throw ConfigError(where(source, node, key) + "unknown key" + suggestion(key));
+      throw ConfigError(where(source, node, key, key_prefix) + "unknown key" + suggestion(key, key_prefix));
     }
   }
 
-  [[nodiscard]] std::string suggestion(const std::string& key) const {
+  [[nodiscard]] std::string suggestion(const std::string& key, std::string_view prefix) const {
     // The known key with the smallest edit distance, if it is close.
     std::size_t best = std::string::npos;
     std::string best_key;
@@ -328,7 +329,7 @@ class ConfigSchema {
         best_key = e.key;
       }
     }
-    return best <= 3 ? " (did you mean " + best_key + "?)" : "";
+    return best <= 3 ? " (did you mean " + std::string(prefix) + best_key + "?)" : "";
   }
 
   static std::size_t edit_distance(const std::string& a, const std::string& b) {
@@ -347,7 +348,6 @@ class ConfigSchema {
   }
 
   std::vector<Entry> entries_;
-  mutable std::string prefix_;  // set by apply(), for messages only
 };
 
 inline std::string ValueRange::describe() const {

@@ -201,6 +201,8 @@ ConfigSchema<C> build() {
          "Eq. 3's Ke at T0 (0: not calibrated; no magnet temperature).");
   s.integer("calibration.events", [](C& c) -> int& { return c.drive.calibration_events; }, between(1, 100),
             "Injection events averaged by a calibration run.");
+  s.real("calibration.F_A", [](C& c) -> double& { return c.calibration_f_A; }, positive(1000), "A",
+         "Injection magnitude of the calibration procedure (fixed-magnitude bipolar, levels 1 and 0.4), at no load.");
   s.real("calibration.magnet_coefficient_per_C", [](C& c) -> double& { return c.drive.magnet_coefficient_per_C; }, between(-0.01, 0), "/C",
          "Relative change of the magnet flux per degree (NdFeB about -0.0012).");
   // [derating]
@@ -260,6 +262,7 @@ void finalize(ControllerConfig& c, std::string_view source) {
   d.calibration_injection.separation = core::Separation::kBipolar;
   d.calibration_injection.levels = {1.0, 0.4, 0.0, 0.0};
   d.calibration_injection.level_count = 2;
+  d.calibration_injection.f_A = c.calibration_f_A;
   d.baseline.period_s = d.period_s;
   d.baseline.ld_H = d.motor.ld_H;
   d.baseline.initial_rs_ohm = d.motor.rs_ohm;
@@ -277,8 +280,15 @@ void finalize(ControllerConfig& c, std::string_view source) {
   if (d.derating.min_current_A > d.derating.max_current_A) {
     throw ConfigError(at + "derating.min_current_A must not exceed derating.max_current_A");
   }
-  if (d.injection.f_min_A > d.injection.f_A) {
-    throw ConfigError(at + "injection.F_min_A must not exceed injection.F_A");
+  double smallest_level = 1.0;
+  for (int k = 0; k < d.injection.level_count; ++k) {
+    smallest_level = std::min(smallest_level, d.injection.levels[static_cast<std::size_t>(k)]);
+  }
+  if (d.injection.f_min_A > d.injection.f_A * smallest_level) {
+    throw ConfigError(at + "injection.F_min_A must not exceed injection.F_A times the smallest of injection.levels");
+  }
+  if (d.injection.f_min_A > c.calibration_f_A * 0.4) {
+    throw ConfigError(at + "injection.F_min_A must not exceed 0.4 calibration.F_A (the calibration's smaller level)");
   }
   if (d.injection.settle_s + 2.0 * d.period_s > d.injection.record_time_s) {
     throw ConfigError(at + "injection.record_time_s must be longer than injection.settle_s");

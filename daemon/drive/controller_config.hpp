@@ -29,6 +29,9 @@ struct ControllerConfig {
   core::DriveConfig drive{};
   SensorScaling sensors{};
   double nominal_dc_bus_V = 650.0;
+  // The calibration procedure's injection magnitude: at no load the whole current budget is
+  // free, and a larger F makes the bridge's zero-current band matter less (docs/estimator.md).
+  double calibration_f_A = 50.0;
   // Unless injection.vx_initial_V is given, the inverter-error prior starts at what the
   // dead-time compensation assumes at the nominal bus voltage.
   bool vx_initial_from_compensation = true;

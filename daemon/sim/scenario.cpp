@@ -31,8 +31,16 @@ std::vector<double> to_flat(const Profile& p) {
 }
 
 // Reads a profile given as [[t, v], [t, v], ...]; times must ascend.
+// "file:line: key: " for a node, naming the file it came from (a scenario may inherit it).
+std::string where(const toml::node& node, std::string_view source, std::string_view key) {
+  const auto& region = node.source();
+  const std::string file = region.path && !region.path->empty() ? *region.path : std::string(source);
+  const std::string line = region.begin.line > 0 ? ":" + std::to_string(region.begin.line) : "";
+  return file + line + ": " + std::string(key) + ": ";
+}
+
 Profile read_points(const toml::node& node, std::string_view source, std::string_view key) {
-  const std::string at = std::string(source) + ":" + std::to_string(node.source().begin.line) + ": " + std::string(key) + ": ";
+  const std::string at = where(node, source, key);
   const auto* array = node.as_array();
   if (array == nullptr || array->empty()) {
     throw ConfigError(at + "expected a non-empty array of [time_s, value] pairs");
@@ -66,11 +74,11 @@ Profile read_points(const toml::node& node, std::string_view source, std::string
   return p;
 }
 
-// Reads a two-column CSV (time_s, value) with a header line.
-Profile read_csv(const std::filesystem::path& path, std::string_view key) {
+// Reads a two-column CSV (time_s, value) with a header line; `at` names where it was asked for.
+Profile read_csv(const std::filesystem::path& path, std::string_view key, const std::string& at) {
   std::ifstream in(path);
   if (!in) {
-    throw ConfigError(std::string(key) + ": cannot open " + path.string());
+    throw ConfigError(at + "cannot open " + path.string());
   }
   Profile p;
   std::string line;
@@ -94,7 +102,7 @@ Profile read_csv(const std::filesystem::path& path, std::string_view key) {
     p.points.push_back({t, v});
   }
   if (p.points.empty()) {
-    throw ConfigError(path.string() + ": " + std::string(key) + ": no data rows");
+    throw ConfigError(at + "no data rows in " + path.string());
   }
   return p;
 }
@@ -117,6 +125,8 @@ ConfigSchema<S> build_schema() {
   s.boolean("operation.calibrate", [](S& c) -> bool& { return c.calibrate; },
             "Calibrate Rs0 (and Ke0) at the start, when the winding is known to be at ambient.");
   s.real("operation.calibrate_at_s", [](S& c) -> double& { return c.calibrate_at_s; }, at_least(0), "s", "When to start the calibration.");
+  s.boolean("operation.calibration_real_time", [](S& c) -> bool& { return c.calibration_real_time; },
+            "Run the calibration at real thermal time (no test acceleration), as on a machine.");
   s.real("metrics.log_period_s", [](S& c) -> double& { return c.log_period_s; }, positive(100), "s", "Time series and error sampling period.");
   s.real("metrics.error_threshold_C", [](S& c) -> double& { return c.error_threshold_C; }, between(-50, 300), "C",
          "Winding errors count where the true winding temperature is above this.");
@@ -167,6 +177,11 @@ plant::PlantConfig load_plant(const toml::table& root, const std::filesystem::pa
       // The profile on its own first, so its own mistakes are reported with its own lines.
       (void)plant::parse_plant_config(text, profile_path.string(), profile_path.parent_path());
       merged = toml::parse(text, profile_path.string());
+      // Paths in the profile are relative to the profile.
+      if (auto* csv = merged.at_path("load.csv_path").as_string(); csv != nullptr &&
+                                                                    std::filesystem::path(csv->get()).is_relative()) {
+        *csv = std::filesystem::absolute(profile_path.parent_path() / csv->get()).lexically_normal().string();
+      }
     } else if ((*plant_table).contains("profile")) {
       throw ConfigError(source.string() + ": plant.profile: expected a path (string)");
     }
@@ -181,7 +196,7 @@ plant::PlantConfig load_plant(const toml::table& root, const std::filesystem::pa
   } catch (const plant::ConfigError& e) {
     // Point at the scenario's own line when the offending key is one of its overrides.
     const std::string message = e.what();
-    static const std::regex key_pattern(R"(: ([a-z_]+(?:\.[A-Za-z0-9_]+)+): (.*)$)");
+    static const std::regex key_pattern(R"(: ([a-z_]+(?:\.[A-Za-z0-9_]+)*): (.*)$)");
     std::smatch m;
     if (plant_table != nullptr && std::regex_search(message, m, key_pattern)) {
       const auto node = plant_table->at_path(m[1].str());
@@ -247,7 +262,7 @@ toml::table resolve_base(toml::table root, const std::filesystem::path& source, 
   for (const char* key : {"plant.profile", "plant.load.csv_path", "operation.speed_csv", "operation.torque_csv"}) {
     auto node = merged.at_path(key);
     if (auto* text = node.as_string(); text != nullptr && std::filesystem::path(text->get()).is_relative()) {
-      *text = (base_path.parent_path() / text->get()).lexically_normal().string();
+      *text = std::filesystem::absolute(base_path.parent_path() / text->get()).lexically_normal().string();
     }
   }
   root.get_as<toml::table>("scenario")->erase("base");
@@ -269,15 +284,23 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
   if (const auto node = root.at_path("operation.speed_rad_s")) {
     out.scenario.speed_rad_s = read_points(*node.node(), source.string(), "operation.speed_rad_s");
   }
-  if (const auto csv = root.at_path("operation.speed_csv").value<std::string>()) {
-    out.scenario.speed_rad_s = read_csv(dir / *csv, "operation.speed_csv");
-  }
+  auto csv_profile = [&](const char* key, Profile& into) {
+    const auto node = root.at_path(key);
+    if (!node) {
+      return;
+    }
+    const std::string at = where(*node.node(), source.string(), key);
+    const auto* text = node.as_string();
+    if (text == nullptr) {
+      throw ConfigError(at + "expected a path (string)");
+    }
+    into = read_csv(dir / text->get(), key, at);
+  };
+  csv_profile("operation.speed_csv", out.scenario.speed_rad_s);
   if (const auto node = root.at_path("operation.torque_Nm")) {
     out.scenario.torque_Nm = read_points(*node.node(), source.string(), "operation.torque_Nm");
   }
-  if (const auto csv = root.at_path("operation.torque_csv").value<std::string>()) {
-    out.scenario.torque_Nm = read_csv(dir / *csv, "operation.torque_csv");
-  }
+  csv_profile("operation.torque_csv", out.scenario.torque_Nm);
   const bool speed_mode = out.scenario.mode == core::DriveMode::kSpeed;
   if (speed_mode && out.scenario.speed_rad_s.empty()) {
     throw ConfigError(source.string() + ": operation.speed_rad_s (or operation.speed_csv) is required in speed mode");
@@ -296,11 +319,25 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
   if (root.at_path("scenario.thermal_acceleration")) {
     out.plant.thermal.acceleration = out.scenario.thermal_acceleration;
   }
-  if (const auto seed = root.at_path("scenario.seed").value<std::int64_t>()) {
-    if (*seed < 0) {
-      throw ConfigError(source.string() + ": scenario.seed: must be >= 0");
+  if (const auto node = root.at_path("scenario.seed")) {
+    const auto* seed = node.as_integer();
+    if (seed == nullptr || seed->get() < 0) {
+      throw ConfigError(where(*node.node(), source.string(), "scenario.seed") + "expected an integer >= 0");
     }
-    out.plant.simulation.seed = static_cast<std::uint64_t>(*seed);
+    out.plant.simulation.seed = static_cast<std::uint64_t>(seed->get());
+  }
+  // The ambient profile is a flat list t0, C0, t1, C1, ... with ascending times.
+  if (const auto node = root.at_path("scenario.ambient_profile")) {
+    const std::string at = where(*node.node(), source.string(), "scenario.ambient_profile");
+    const auto& points = out.scenario.ambient_profile.points;
+    if (node.as_array() != nullptr && node.as_array()->size() % 2 != 0) {
+      throw ConfigError(at + "expected pairs of time_s and temperature_C (an even number of values)");
+    }
+    for (std::size_t k = 1; k < points.size(); ++k) {
+      if (!(points[k].time_s > points[k - 1].time_s)) {
+        throw ConfigError(at + "times must ascend");
+      }
+    }
   }
 
   // The controller: the same sections as pmsm-thermald's configuration, under [controller]

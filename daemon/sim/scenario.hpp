@@ -38,6 +38,10 @@ struct ScenarioConfig {
   Profile torque_Nm;                    // for torque mode
   bool calibrate = true;                // calibrate Rs0 at the start, at the known temperature
   double calibrate_at_s = 0.5;
+  // Run the calibration at real thermal time (acceleration 1 in the plant and the
+  // controller's model alike), as it would be on a machine: a two-second calibration then
+  // barely warms the winding, where under test acceleration it would last thermal minutes.
+  bool calibration_real_time = true;
   // Metrics.
   double log_period_s = 0.02;
   double error_threshold_C = 40.0;      // winding errors count where the truth is above this

@@ -1,0 +1,9 @@
+# Configuration of the applications: the TOML schema, the controller's configuration and the
+# simulation scenarios (fixtures in data/config/). Fast (unit).
+pmsm_add_gtest(app_config_test LABEL unit
+  SOURCES
+    ${CMAKE_CURRENT_LIST_DIR}/app_config_schema_test.cpp
+    ${CMAKE_CURRENT_LIST_DIR}/app_config_controller_test.cpp
+    ${CMAKE_CURRENT_LIST_DIR}/app_config_scenario_test.cpp
+    ${CMAKE_CURRENT_LIST_DIR}/app_config_regression_test.cpp
+  LIBS pmsm_drive pmsm_sim)

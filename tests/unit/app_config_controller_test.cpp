@@ -1,0 +1,222 @@
+// The controller's configuration: defaults (Table I and the documented settings), the fields
+// finalize() derives, the cross-key rules, and errors that name file, line and key.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <string>
+
+#include <toml++/toml.h>
+
+#include "controller_config.hpp"
+
+namespace pmsm::app {
+namespace {
+
+ControllerConfig parse(std::string_view text) {
+  return parse_controller_config(toml::parse(text, std::string_view{"drive.toml"}), "drive.toml", {});
+}
+
+std::string error_of(std::string_view text) {
+  try {
+    (void)parse(text);
+  } catch (const ConfigError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+// sqrt(2/3): line-to-line RMS to phase peak.
+const double kLlRmsToPeak = std::sqrt(2.0 / 3.0);
+
+TEST(ControllerConfig, DefaultsAreTableIAndTheDocumentedSettings) {
+  const ControllerConfig c = default_controller_config();
+  const core::DriveConfig& d = c.drive;
+  // Table I.
+  EXPECT_EQ(d.motor.rs_ohm, 0.133);
+  EXPECT_EQ(d.motor.rs_reference_temp_C, 25.0);
+  EXPECT_EQ(d.motor.ke_V_s_per_rad, 1.19);
+  EXPECT_EQ(d.motor.pole_pairs, 3);
+  EXPECT_EQ(d.motor.inertia_kg_m2, 0.00841);
+  EXPECT_EQ(d.motor.ld_H, 5.5e-3);  // half of the 11 mH line-to-line inductance
+  EXPECT_EQ(d.motor.lq_H, 5.5e-3);
+  // The method's, the thermal model's and the derating's settings are the core structs'
+  // documented defaults (injection_scheduler.hpp, thermal_observer.hpp): the configuration
+  // must not change them behind the reader's back.
+  const core::InjectionConfig inj;
+  EXPECT_EQ(d.injection.method, inj.method);
+  EXPECT_EQ(d.injection.separation, inj.separation);
+  EXPECT_EQ(d.injection.f_A, inj.f_A);
+  EXPECT_EQ(d.injection.f_min_A, inj.f_min_A);
+  EXPECT_EQ(d.injection.level_count, inj.level_count);
+  EXPECT_EQ(d.injection.levels, inj.levels);
+  EXPECT_EQ(d.injection.tw_s, inj.tw_s);
+  EXPECT_EQ(d.injection.settle_s, inj.settle_s);
+  EXPECT_EQ(d.injection.rs_min_ohm, inj.rs_min_ohm);
+  EXPECT_EQ(d.injection.rs_max_ohm, inj.rs_max_ohm);
+  EXPECT_EQ(d.injection.mechanical_harmonics, inj.mechanical_harmonics);
+  EXPECT_EQ(d.injection.max_residual_V, inj.max_residual_V);
+  const core::DeratingConfig der;
+  EXPECT_EQ(d.derating.max_current_A, der.max_current_A);
+  EXPECT_EQ(d.derating.min_current_A, der.min_current_A);
+  EXPECT_EQ(d.derating.derate_start_C, der.derate_start_C);
+  EXPECT_EQ(d.derating.limit_C, der.limit_C);
+  EXPECT_EQ(d.derating.confidence_sigma, der.confidence_sigma);
+  const core::ThermalModelConfig th;
+  EXPECT_EQ(d.thermal.winding_capacity_J_K, th.winding_capacity_J_K);
+  EXPECT_EQ(d.thermal.gate_sigma, th.gate_sigma);
+  EXPECT_EQ(d.thermal.time_scale, 1.0);  // a real machine
+  // As DESIGN section 4 and the headers state them.
+  EXPECT_EQ(d.injection.rs_min_ohm, 0.09);
+  EXPECT_EQ(d.injection.rs_max_ohm, 0.27);
+  EXPECT_EQ(d.derating.limit_C, 155.0);
+  EXPECT_EQ(c.nominal_dc_bus_V, 650.0);
+}
+
+TEST(ControllerConfig, FinalizeDerivesTheDependentFields) {
+  const ControllerConfig c = default_controller_config();
+  const core::DriveConfig& d = c.drive;
+  const double psi = 1.19 * kLlRmsToPeak / 3.0;  // 0.3239 Wb
+  EXPECT_NEAR(d.injection.flux_linkage_Wb, psi, 1e-12);
+  EXPECT_NEAR(d.current.flux_linkage_Wb, psi, 1e-12);
+  EXPECT_NEAR(d.baseline.initial_ke_V_s_per_rad, 1.19 * kLlRmsToPeak, 1e-12);
+  EXPECT_EQ(d.injection.ld_H, d.motor.ld_H);
+  EXPECT_EQ(d.injection.lq_H, d.motor.lq_H);
+  EXPECT_EQ(d.injection.rs_nominal_ohm, d.motor.rs_ohm);
+  EXPECT_EQ(d.injection.pole_pairs, 3);
+  EXPECT_EQ(d.angle.pole_pairs, 3);
+  EXPECT_EQ(d.angle.period_s, d.period_s);
+  EXPECT_NEAR(d.speed.period_s, 10.0 * d.period_s, 1e-15);
+  EXPECT_EQ(d.current.rs_ohm, 0.133);
+  // The injection shares the derating's current budget.
+  EXPECT_EQ(d.injection.current_limit_A, d.derating.max_current_A);
+  // The inverter-error prior: what the compensation assumes at the nominal bus,
+  // 0.9 us / 100 us * 650 V + 0 V = 5.85 V.
+  EXPECT_NEAR(d.injection.vx_initial_V, 5.85, 1e-12);
+  // Calibration runs fixed-magnitude bipolar at two levels whatever the run-time method.
+  EXPECT_EQ(d.calibration_injection.method, core::InjectionMethod::kFixedMagnitude);
+  EXPECT_EQ(d.calibration_injection.separation, core::Separation::kBipolar);
+  EXPECT_EQ(d.calibration_injection.level_count, 2);
+  EXPECT_EQ(d.calibration_injection.levels[1], 0.4);
+}
+
+TEST(ControllerConfig, AnEmptyFileGivesTheDefaults) {
+  const ControllerConfig parsed = parse("");
+  const ControllerConfig defaults = default_controller_config();
+  EXPECT_EQ(controller_schema().markdown(parsed), controller_schema().markdown(defaults));
+  EXPECT_EQ(parsed.drive.calibration.rs0_ohm, 0.133);
+  EXPECT_EQ(parsed.drive.calibration.t0_C, 25.0);
+  EXPECT_NEAR(parsed.drive.injection.vx_initial_V, 5.85, 1e-12);
+}
+
+TEST(ControllerConfig, DerivedFieldsFollowTheFile) {
+  const ControllerConfig c = parse(R"(
+[motor]
+rs_ohm = 0.2
+rs_reference_temp_C = 20.0
+ke_V_s_per_rad = 1.3
+pole_pairs = 4
+ld_H = 7e-3
+[control]
+period_s = 5e-5
+speed_decimation = 20
+nominal_dc_bus_V = 600
+dead_time_s = 1.5e-6
+device_drop_V = 1.2
+[injection]
+method = "dc"
+levels = [1.0, 0.6, 0.3]
+[derating]
+max_current_A = 60
+)");
+  const core::DriveConfig& d = c.drive;
+  const double psi = 1.3 * kLlRmsToPeak / 4.0;
+  EXPECT_NEAR(d.injection.flux_linkage_Wb, psi, 1e-12);
+  EXPECT_NEAR(d.current.flux_linkage_Wb, psi, 1e-12);
+  EXPECT_EQ(d.injection.pole_pairs, 4);
+  EXPECT_EQ(d.angle.pole_pairs, 4);
+  EXPECT_EQ(d.injection.ld_H, 7e-3);
+  EXPECT_EQ(d.current.ld_H, 7e-3);
+  EXPECT_EQ(d.baseline.ld_H, 7e-3);
+  EXPECT_NEAR(d.speed.period_s, 1e-3, 1e-15);
+  EXPECT_EQ(d.baseline.period_s, 5e-5);
+  EXPECT_EQ(d.injection.current_limit_A, 60.0);
+  EXPECT_EQ(d.calibration_injection.current_limit_A, 60.0);
+  // 1.5 us / 50 us * 600 V + 1.2 V
+  EXPECT_NEAR(d.injection.vx_initial_V, 1.5e-6 / 5e-5 * 600.0 + 1.2, 1e-12);
+  // The stored calibration defaults to the nameplate.
+  EXPECT_EQ(d.calibration.rs0_ohm, 0.2);
+  EXPECT_EQ(d.calibration.t0_C, 20.0);
+  // Levels beyond the list are cleared.
+  EXPECT_EQ(d.injection.level_count, 3);
+  EXPECT_EQ(d.injection.levels[3], 0.0);
+  EXPECT_EQ(d.injection.method, core::InjectionMethod::kDc);
+  EXPECT_EQ(d.calibration_injection.method, core::InjectionMethod::kFixedMagnitude);
+  EXPECT_EQ(d.calibration_injection.level_count, 2);
+}
+
+TEST(ControllerConfig, GivenValuesAreNotOverwritten) {
+  const ControllerConfig c = parse(R"(
+[injection]
+vx_initial_V = 2.5
+[calibration]
+rs0_ohm = 0.14
+t0_C = 22.0
+)");
+  EXPECT_EQ(c.drive.injection.vx_initial_V, 2.5);
+  EXPECT_FALSE(c.vx_initial_from_compensation);
+  EXPECT_EQ(c.drive.calibration.rs0_ohm, 0.14);
+  EXPECT_EQ(c.drive.calibration.t0_C, 22.0);
+}
+
+TEST(ControllerConfig, ErrorsNameFileLineAndKey) {
+  EXPECT_EQ(error_of("[injection]\nF_A = 2000\n"), "drive.toml:2: injection.F_A: must be in (0, 1000], got 2000");
+  EXPECT_EQ(error_of("[injection]\nF_AA = 20\n"), "drive.toml:2: injection.F_AA: unknown key (did you mean injection.F_A?)");
+  EXPECT_EQ(error_of("[motor]\n\npole_pairs = 3.0\n"), "drive.toml:3: motor.pole_pairs: expected an integer, got a number");
+  EXPECT_EQ(error_of("[injection]\nlevels = [1.0, 0.8, 0.6, 0.4, 0.2]\n"),
+            "drive.toml:2: injection.levels: expected 1 to 4 values, got 5");
+  EXPECT_EQ(error_of("[injection]\nmethod = \"sinusoidal\"\n"),
+            "drive.toml:2: injection.method: expected one of \"fixed-magnitude\", \"fixed-angle\", \"dc\", \"none\", got \"sinusoidal\"");
+  EXPECT_EQ(error_of("[injection]\nfit_dead_time = \"yes\"\n"),
+            "drive.toml:2: injection.fit_dead_time: expected true or false, got a string");
+  EXPECT_EQ(error_of("[thermal]\ngate_sigma = 0\n"), "drive.toml:2: thermal.gate_sigma: must be in (0, 1000], got 0");
+  EXPECT_EQ(error_of("[motr]\nrs_ohm = 0.1\n"), "drive.toml:1: motr: unknown key");
+}
+
+TEST(ControllerConfig, CrossKeyRulesNameBothKeys) {
+  EXPECT_EQ(error_of("[injection]\nrs_min_ohm = 0.3\nrs_max_ohm = 0.2\n"),
+            "drive.toml: injection.rs_min_ohm must be below injection.rs_max_ohm");
+  EXPECT_EQ(error_of("[derating]\nstart_C = 160\nlimit_C = 155\n"), "drive.toml: derating.start_C must be below derating.limit_C");
+  EXPECT_EQ(error_of("[derating]\nmin_current_A = 90\n"),
+            "drive.toml: derating.min_current_A must not exceed derating.max_current_A");
+  EXPECT_EQ(error_of("[injection]\nF_A = 4\n"), "drive.toml: injection.F_min_A must not exceed injection.F_A times the smallest of injection.levels");
+  EXPECT_EQ(error_of("[injection]\nsettle_s = 0.05\n"),
+            "drive.toml: injection.record_time_s must be longer than injection.settle_s");
+  // Equal ends are rejected too (the derating would divide by zero).
+  EXPECT_NE(error_of("[derating]\nstart_C = 155\nlimit_C = 155\n"), "");
+}
+
+TEST(ControllerConfig, PrefixedForScenarios) {
+  try {
+    (void)parse_controller_config(toml::parse(std::string_view{"[injection]\nF_A = -1\n"}, std::string_view{"scen.toml"}), "scen.toml", {}, "controller.");
+    FAIL() << "no error";
+  } catch (const ConfigError& e) {
+    EXPECT_EQ(std::string(e.what()), "scen.toml:2: controller.injection.F_A: must be in (0, 1000], got -1");
+  }
+}
+
+TEST(ControllerConfig, SchemaCoversEverySection) {
+  const std::vector<std::string> keys = controller_schema().keys();
+  for (const std::string& section : controller_sections()) {
+    bool found = false;
+    for (const std::string& k : keys) found = found || k.rfind(section + ".", 0) == 0;
+    EXPECT_TRUE(found) << section;
+  }
+  for (const std::string& k : keys) {
+    bool owned = false;
+    for (const std::string& section : controller_sections()) owned = owned || k.rfind(section + ".", 0) == 0;
+    EXPECT_TRUE(owned) << k;
+  }
+}
+
+}  // namespace
+}  // namespace pmsm::app

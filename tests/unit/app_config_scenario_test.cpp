@@ -1,0 +1,276 @@
+// Scenario files: base inheritance, plant profiles with overrides, CSV set-points, Profile,
+// and error messages that point at the right file, line and key.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <string>
+
+#include "scenario.hpp"
+
+namespace pmsm::app {
+namespace {
+
+const std::filesystem::path kDir = std::filesystem::path(PMSM_SOURCE_DIR) / "tests/unit/data/config";
+
+// Parses inline text as if it were the file `name` in the fixture directory (so relative
+// paths resolve there).
+Scenario parse(std::string_view text, const std::string& name = "inline.toml") {
+  return parse_scenario(text, kDir / name);
+}
+
+// Message of the error (ConfigError or plant::ConfigError) that parsing throws; "" if none.
+template <typename F>
+std::string error_of(F f) {
+  try {
+    f();
+  } catch (const ConfigError& e) {
+    return e.what();
+  } catch (const plant::ConfigError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+std::string inline_error(std::string_view text) {
+  return error_of([&] { (void)parse(text); });
+}
+
+std::string path_of(const std::string& name) { return (kDir / name).string(); }
+
+constexpr std::string_view kMinimal = R"([operation]
+speed_rad_s = [[0.0, 100.0]]
+)";
+
+TEST(Scenario, MinimalScenarioTakesTheDefaults) {
+  const Scenario s = parse(kMinimal);
+  const ScenarioConfig defaults;
+  EXPECT_EQ(s.scenario.name, defaults.name);
+  EXPECT_EQ(s.scenario.duration_s, defaults.duration_s);
+  EXPECT_EQ(s.scenario.mode, core::DriveMode::kSpeed);
+  ASSERT_EQ(s.scenario.speed_rad_s.points.size(), 1U);
+  EXPECT_EQ(s.scenario.speed_rad_s.at(3.0), 100.0);
+  // The plant is the reference profile (PlantConfig defaults) at the scenario's ambient.
+  EXPECT_EQ(s.plant.motor.Rs_ohm, plant::PlantConfig{}.motor.Rs_ohm);
+  EXPECT_EQ(s.plant.thermal.ambient_C, 25.0);
+  // The controller is the default controller.
+  EXPECT_EQ(controller_schema().markdown(s.controller), controller_schema().markdown(default_controller_config()));
+  EXPECT_EQ(s.source, kDir / "inline.toml");
+}
+
+TEST(Scenario, BaseInheritanceOverrideWinsAndBaseKeysStay) {
+  const Scenario s = load_scenario(kDir / "scenario_child.toml");
+  EXPECT_EQ(s.scenario.name, "child");                // overridden
+  EXPECT_EQ(s.scenario.duration_s, 5.0);              // overridden
+  EXPECT_EQ(s.scenario.description, "the base");      // kept from the base
+  EXPECT_EQ(s.scenario.ambient_C, 30.0);              // kept
+  EXPECT_EQ(s.scenario.speed_rad_s.at(0.5), 50.0);    // the base's profile
+  EXPECT_EQ(s.controller.drive.injection.f_A, 20.0);  // the child's, in a table the base also has
+  EXPECT_EQ(s.controller.drive.injection.level_count, 2);  // the base's, same table
+  EXPECT_EQ(s.controller.drive.injection.levels[1], 0.5);
+  // Plant: the base's profile, the base's override and the child's override.
+  EXPECT_EQ(s.plant.emf.shape, plant::EmfShape::sinusoidal);  // profile
+  EXPECT_EQ(s.plant.motor.Ld_H, 6.0e-3);                      // profile
+  EXPECT_EQ(s.plant.mechanics.viscous_Nm_s_rad, 1.0e-3);      // base override
+  EXPECT_EQ(s.plant.motor.Rs_ohm, 0.15);                      // child override beats the profile
+  EXPECT_EQ(s.plant.thermal.ambient_C, 30.0);                 // the scenario's ambient
+}
+
+TEST(Scenario, ErrorInTheBaseNamesTheBaseFile) {
+  EXPECT_EQ(error_of([] { (void)load_scenario(kDir / "scenario_child_of_bad.toml"); }),
+            path_of("scenario_bad_base.toml") + ":4: scenario.duration_s: must be in (0, 1e+06], got -1");
+}
+
+TEST(Scenario, BaseCycleIsReported) {
+  const std::string e = error_of([] { (void)load_scenario(kDir / "cycle_a.toml"); });
+  EXPECT_NE(e.find("scenario.base: bases nest too deep"), std::string::npos) << e;
+}
+
+TEST(Scenario, MissingBaseIsReported) {
+  const std::string e = inline_error("[scenario]\nbase = \"no_such_base.toml\"\n");
+  EXPECT_EQ(e, path_of("no_such_base.toml") + ": cannot read");
+}
+
+TEST(Scenario, ErrorsInTheScenarioNameFileLineAndKey) {
+  EXPECT_EQ(inline_error("[scenario]\nname = \"x\"\nduration_s = -1\n[operation]\nspeed_rad_s = [[0, 1]]\n"),
+            path_of("inline.toml") + ":3: scenario.duration_s: must be in (0, 1e+06], got -1");
+  EXPECT_EQ(inline_error("[scenario]\ndurations = 3\n"),
+            path_of("inline.toml") + ":2: scenario.durations: unknown key (did you mean scenario.duration_s?)");
+  EXPECT_EQ(inline_error("[operation]\nmode = \"position\"\n"),
+            path_of("inline.toml") + ":2: operation.mode: expected one of \"speed\", \"torque\", got \"position\"");
+  // Set-point profiles.
+  EXPECT_EQ(inline_error("[operation]\n\nspeed_rad_s = [[0, 1], [0, 2]]\n"),
+            path_of("inline.toml") + ":3: operation.speed_rad_s: times must ascend (0.000000 after 0.000000)");
+  EXPECT_EQ(inline_error("[operation]\nspeed_rad_s = [[0, 1, 2]]\n"),
+            path_of("inline.toml") + ":2: operation.speed_rad_s: every point must be [time_s, value]");
+  EXPECT_EQ(inline_error("[operation]\nspeed_rad_s = []\n"),
+            path_of("inline.toml") + ":2: operation.speed_rad_s: expected a non-empty array of [time_s, value] pairs");
+  EXPECT_EQ(inline_error("[scenario]\nname = \"no profile\"\n"),
+            path_of("inline.toml") + ": operation.speed_rad_s (or operation.speed_csv) is required in speed mode");
+  EXPECT_EQ(inline_error("[operation]\nmode = \"torque\"\nspeed_rad_s = [[0, 1]]\n"),
+            path_of("inline.toml") + ": operation.torque_Nm (or operation.torque_csv) is required in torque mode");
+  EXPECT_EQ(inline_error("[scenario]\nseed = -3\n[operation]\nspeed_rad_s = [[0, 1]]\n"),
+            path_of("inline.toml") + ":2: scenario.seed: expected an integer >= 0");
+  // A TOML syntax error names the line.
+  EXPECT_EQ(inline_error("[scenario]\nname = \n").rfind(path_of("inline.toml") + ":2: ", 0), 0U)
+      << inline_error("[scenario]\nname = \n");
+}
+
+// The [controller] table keeps its lines (it is not copied).
+TEST(Scenario, ControllerErrorNamesTheLine) {
+  EXPECT_EQ(inline_error("[operation]\nspeed_rad_s = [[0, 1]]\n[controller.injection]\nF_A = 2000\n"),
+            path_of("inline.toml") + ":4: controller.injection.F_A: must be in (0, 1000], got 2000");
+}
+
+// Keys that override a base keep their lines.
+TEST(Scenario, ErrorInAnOverrideOfABaseNamesTheLine) {
+  EXPECT_EQ(inline_error("[scenario]\nbase = \"scenario_base.toml\"\nduration_s = -1\n"),
+            path_of("inline.toml") + ":3: scenario.duration_s: must be in (0, 1e+06], got -1");
+}
+
+// So do plant overrides in a scenario that has a base.
+TEST(Scenario, PlantOverrideErrorInAChildNamesTheLine) {
+  EXPECT_EQ(inline_error("[scenario]\nbase = \"scenario_base.toml\"\n[plant.motor]\nLd_H = -1.0\n")
+                .rfind(path_of("inline.toml") + ":4: plant.motor.Ld_H: must be", 0),
+            0U)
+      << inline_error("[scenario]\nbase = \"scenario_base.toml\"\n[plant.motor]\nLd_H = -1.0\n");
+}
+
+// The base's plant.profile and operation.speed_csv are relative to the base.
+TEST(Scenario, BasePathsAreRelativeToTheBase) {
+  const Scenario a = load_scenario(kDir / "sub/scenario_child_in_subdir.toml");
+  EXPECT_EQ(a.scenario.name, "child in a subdirectory");
+  EXPECT_EQ(a.plant.motor.Ld_H, 6.0e-3);  // from the base's profile, next to the base
+  const Scenario b = load_scenario(kDir / "sub/scenario_child_of_csv_base.toml");
+  EXPECT_EQ(b.scenario.speed_rad_s.at(2.0), 150.0);  // the base's CSV, next to the base
+}
+
+TEST(Scenario, PlantOverridesMergeOntoTheProfile) {
+  const Scenario s = parse(R"([operation]
+speed_rad_s = [[0, 100]]
+[plant]
+profile = "plant_profile.toml"
+[plant.motor]
+Rs_ohm = 0.2
+[plant.inverter]
+dead_time_s = 2e-6
+)");
+  EXPECT_EQ(s.plant.motor.Rs_ohm, 0.2);                        // override
+  EXPECT_EQ(s.plant.motor.Ld_H, 6.0e-3);                       // profile, same table as the override
+  EXPECT_EQ(s.plant.emf.shape, plant::EmfShape::sinusoidal);   // profile
+  EXPECT_EQ(s.plant.inverter.dead_time_s, 2e-6);               // override
+  EXPECT_EQ(s.plant.inverter.dc_bus_V, plant::PlantConfig{}.inverter.dc_bus_V);  // default
+}
+
+TEST(Scenario, PlantOverrideErrorPointsAtTheScenarioLine) {
+  const std::string text = R"([operation]
+speed_rad_s = [[0, 100]]
+[plant]
+profile = "plant_profile.toml"
+[plant.motor]
+Ld_H = -1.0
+)";
+  const std::string e = inline_error(text);
+  EXPECT_EQ(e.rfind(path_of("inline.toml") + ":6: plant.motor.Ld_H: must be", 0), 0U) << e;
+  const std::string unknown = inline_error(R"([operation]
+speed_rad_s = [[0, 100]]
+[plant.motor]
+Rs_ohmm = 0.2
+)");
+  EXPECT_EQ(unknown, path_of("inline.toml") + ":4: plant.motor.Rs_ohmm: unknown key (did you mean motor.Rs_ohm?)");
+}
+
+TEST(Scenario, ErrorInTheProfileNamesTheProfile) {
+  const std::string e = inline_error("[operation]\nspeed_rad_s = [[0, 100]]\n[plant]\nprofile = \"bad_profile.toml\"\n");
+  EXPECT_EQ(e.rfind(path_of("bad_profile.toml") + ":4: motor.Ld_H: must be", 0), 0U) << e;
+  EXPECT_EQ(inline_error("[operation]\nspeed_rad_s = [[0, 100]]\n[plant]\nprofile = 3\n"),
+            path_of("inline.toml") + ": plant.profile: expected a path (string)");
+}
+
+TEST(Scenario, AmbientSeedAndAccelerationReachPlantAndController) {
+  const Scenario s = parse(R"([scenario]
+ambient_C = 35.0
+thermal_acceleration = 50.0
+seed = 42
+[operation]
+speed_rad_s = [[0, 100]]
+)");
+  EXPECT_EQ(s.plant.thermal.ambient_C, 35.0);
+  EXPECT_EQ(s.plant.thermal.acceleration, 50.0);
+  EXPECT_EQ(s.controller.drive.thermal.time_scale, 50.0);
+  EXPECT_EQ(s.plant.simulation.seed, 42U);
+  // Explicit plant and controller values win.
+  const Scenario t = parse(R"([scenario]
+ambient_C = 35.0
+thermal_acceleration = 50.0
+[operation]
+speed_rad_s = [[0, 100]]
+[plant.thermal]
+ambient_C = 20.0
+[controller.thermal]
+time_scale = 10.0
+gate_sigma = 4.0
+)");
+  EXPECT_EQ(t.plant.thermal.ambient_C, 20.0);
+  EXPECT_EQ(t.plant.thermal.acceleration, 50.0);
+  EXPECT_EQ(t.controller.drive.thermal.time_scale, 10.0);
+  EXPECT_EQ(t.controller.drive.thermal.gate_sigma, 4.0);
+  // A controller.thermal table without time_scale keeps its keys and gets the acceleration.
+  const Scenario u = parse(R"([scenario]
+thermal_acceleration = 50.0
+[operation]
+speed_rad_s = [[0, 100]]
+[controller.thermal]
+gate_sigma = 4.0
+)");
+  EXPECT_EQ(u.controller.drive.thermal.time_scale, 50.0);
+  EXPECT_EQ(u.controller.drive.thermal.gate_sigma, 4.0);
+  // An ambient profile sets the plant's starting ambient.
+  const Scenario v = parse(R"([scenario]
+ambient_profile = [0, 18, 100, 40]
+[operation]
+speed_rad_s = [[0, 100]]
+)");
+  EXPECT_EQ(v.plant.thermal.ambient_C, 18.0);
+  EXPECT_EQ(v.scenario.ambient_profile.at(50.0), 29.0);
+}
+
+TEST(Scenario, CsvSetPoints) {
+  const Scenario s = parse("[operation]\nspeed_csv = \"speed_profile.csv\"\n");
+  ASSERT_EQ(s.scenario.speed_rad_s.points.size(), 3U);
+  EXPECT_EQ(s.scenario.speed_rad_s.points[1].time_s, 0.5);
+  EXPECT_EQ(s.scenario.speed_rad_s.points[1].value, 50.0);
+  EXPECT_EQ(s.scenario.speed_rad_s.at(1.25), 100.0);
+  EXPECT_EQ(inline_error("[operation]\nspeed_csv = \"speed_bad_times.csv\"\n"),
+            path_of("speed_bad_times.csv") + ":4: operation.speed_csv: times must ascend");
+  const Scenario t = parse("[operation]\nmode = \"torque\"\ntorque_csv = \"speed_profile.csv\"\n");
+  EXPECT_EQ(t.scenario.mode, core::DriveMode::kTorque);
+  EXPECT_EQ(t.scenario.torque_Nm.at(2.0), 150.0);
+}
+
+TEST(Profile, InterpolatesAndClamps) {
+  Profile p;
+  EXPECT_EQ(p.at(1.0), 0.0);
+  EXPECT_TRUE(p.empty());
+  p.points = {{1.0, 10.0}, {3.0, 30.0}, {4.0, -10.0}};
+  EXPECT_EQ(p.at(-5.0), 10.0);   // held before the first point
+  EXPECT_EQ(p.at(1.0), 10.0);
+  EXPECT_EQ(p.at(2.0), 20.0);
+  EXPECT_EQ(p.at(3.0), 30.0);
+  EXPECT_EQ(p.at(3.25), 20.0);
+  EXPECT_EQ(p.at(4.0), -10.0);
+  EXPECT_EQ(p.at(100.0), -10.0);  // held after the last
+  Profile one;
+  one.points = {{2.0, 7.0}};
+  EXPECT_EQ(one.at(0.0), 7.0);
+  EXPECT_EQ(one.at(9.0), 7.0);
+}
+
+TEST(Scenario, KeysMarkdownListsTheScenarioKeys) {
+  const std::string md = scenario_keys_markdown();
+  for (const char* key : {"scenario.duration_s", "scenario.ambient_profile", "operation.mode", "metrics.log_period_s"}) {
+    EXPECT_NE(md.find(std::string("`") + key + "`"), std::string::npos) << key;
+  }
+}
+
+}  // namespace
+}  // namespace pmsm::app

@@ -1,0 +1,197 @@
+// ConfigSchema: every error class names the file, the line and the key; values land in the
+// struct; defaults stay where no key is given.
+#include <gtest/gtest.h>
+
+#include <string>
+#include <vector>
+
+#include <toml++/toml.h>
+
+#include "config_schema.hpp"
+
+namespace pmsm::app {
+namespace {
+
+struct Demo {
+  double gain = 1.5;
+  int count = 3;
+  bool on = false;
+  std::string name = "x";
+  int mode = 0;
+  std::vector<double> levels{1.0};
+  double ratio = 0.5;
+};
+
+const ConfigSchema<Demo>& demo_schema() {
+  static const ConfigSchema<Demo> s = [] {
+    ConfigSchema<Demo> d;
+    d.real("motor.gain", [](Demo& c) -> double& { return c.gain; }, positive(10.0), "V", "A gain.");
+    d.integer("motor.count", [](Demo& c) -> int& { return c.count; }, between(1, 8), "A count.");
+    d.boolean("motor.on", [](Demo& c) -> bool& { return c.on; }, "A switch.");
+    d.string("motor.name", [](Demo& c) -> std::string& { return c.name; }, "A name.");
+    d.choice("control.mode", {{"speed", 0}, {"torque", 1}}, [](const Demo& c) { return c.mode; },
+             [](Demo& c, int v) { c.mode = v; }, "A mode.");
+    d.list("control.levels", 1, 3, between(0.05, 1.0), [](const Demo& c) { return c.levels; },
+           [](Demo& c, const std::vector<double>& v) { c.levels = v; }, "", "Levels.");
+    d.real("ratio", [](Demo& c) -> double& { return c.ratio; }, between(0.0, 1.0), "", "A top-level ratio.");
+    return d;
+  }();
+  return s;
+}
+
+Demo parse_demo(std::string_view text, const std::vector<std::string>& foreign = {}, std::string_view prefix = {}) {
+  const toml::table t = toml::parse(text, std::string_view{"demo.toml"});
+  Demo d;
+  demo_schema().apply(t, d, "fallback.toml", foreign, prefix);
+  return d;
+}
+
+// The message of the ConfigError that parsing `text` throws ("" when none).
+std::string error_of(std::string_view text, std::string_view prefix = {}) {
+  try {
+    (void)parse_demo(text, {}, prefix);
+  } catch (const ConfigError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+TEST(ConfigSchema, AppliesEveryKindOfValue) {
+  const Demo d = parse_demo(R"(ratio = 0.25
+[motor]
+gain = 2          # an integer is a fine real
+count = 8
+on = true
+name = "left"
+[control]
+mode = "torque"
+levels = [1.0, 0.4, 0.05]
+)");
+  EXPECT_EQ(d.gain, 2.0);
+  EXPECT_EQ(d.count, 8);
+  EXPECT_TRUE(d.on);
+  EXPECT_EQ(d.name, "left");
+  EXPECT_EQ(d.mode, 1);
+  EXPECT_EQ(d.levels, (std::vector<double>{1.0, 0.4, 0.05}));
+  EXPECT_EQ(d.ratio, 0.25);
+}
+
+TEST(ConfigSchema, AbsentKeysKeepTheirDefaults) {
+  const Demo d = parse_demo("[motor]\ncount = 2\n");
+  const Demo defaults;
+  EXPECT_EQ(d.count, 2);
+  EXPECT_EQ(d.gain, defaults.gain);
+  EXPECT_EQ(d.on, defaults.on);
+  EXPECT_EQ(d.name, defaults.name);
+  EXPECT_EQ(d.levels, defaults.levels);
+  EXPECT_EQ(d.ratio, defaults.ratio);
+}
+
+TEST(ConfigSchema, DottedKeysAndInlineTablesAreTheSameKeys) {
+  EXPECT_EQ(parse_demo("motor.gain = 3.5\n").gain, 3.5);
+  EXPECT_EQ(parse_demo("motor = { gain = 4.5 }\n").gain, 4.5);
+}
+
+TEST(ConfigSchema, UnknownKeyNamesFileLineKeyAndSuggests) {
+  EXPECT_EQ(error_of("[motor]\ngain = 2\ngian = 3\n"), "demo.toml:3: motor.gian: unknown key (did you mean motor.gain?)");
+  // Nothing close: no suggestion.
+  EXPECT_EQ(error_of("[motor]\nzzzzzzzzzz = 1\n"), "demo.toml:2: motor.zzzzzzzzzz: unknown key");
+  // An unknown section is an unknown key at its header.
+  EXPECT_EQ(error_of("\n[motr]\ngain = 1\n"), "demo.toml:2: motr: unknown key");
+  EXPECT_EQ(error_of("rato = 0.3\n"), "demo.toml:1: rato: unknown key (did you mean ratio?)");
+}
+
+TEST(ConfigSchema, ASectionGivenAsAValue) {
+  EXPECT_EQ(error_of("\nmotor = 3\n"), "demo.toml:2: motor: expected a table (section)");
+}
+
+TEST(ConfigSchema, WrongTypesNameTheExpectedAndTheGivenType) {
+  EXPECT_EQ(error_of("[motor]\ngain = \"big\"\n"), "demo.toml:2: motor.gain: expected a number, got a string");
+  EXPECT_EQ(error_of("[motor]\n\ncount = 2.5\n"), "demo.toml:3: motor.count: expected an integer, got a number");
+  EXPECT_EQ(error_of("[motor]\non = 1\n"), "demo.toml:2: motor.on: expected true or false, got an integer");
+  EXPECT_EQ(error_of("[motor]\nname = 7\n"), "demo.toml:2: motor.name: expected a string, got an integer");
+  EXPECT_EQ(error_of("[control]\nlevels = 0.5\n"), "demo.toml:2: control.levels: expected an array of numbers, got a number");
+  EXPECT_EQ(error_of("[motor]\ngain = [1]\n"), "demo.toml:2: motor.gain: expected a number, got an array");
+  EXPECT_EQ(error_of("[motor]\ngain = 1979-05-27\n"), "demo.toml:2: motor.gain: expected a number, got a date or time");
+}
+
+TEST(ConfigSchema, OutOfRangeNamesTheRangeAndTheValue) {
+  // positive(10): open at 0, closed at 10.
+  EXPECT_EQ(error_of("[motor]\ngain = 0\n"), "demo.toml:2: motor.gain: must be in (0, 10], got 0");
+  EXPECT_EQ(error_of("[motor]\ngain = 10.5\n"), "demo.toml:2: motor.gain: must be in (0, 10], got 10.5");
+  EXPECT_EQ(parse_demo("[motor]\ngain = 10\n").gain, 10.0);
+  EXPECT_EQ(parse_demo("[motor]\ngain = 1e-300\n").gain, 1e-300);
+  EXPECT_EQ(error_of("[motor]\ncount = 9\n"), "demo.toml:2: motor.count: must be in [1, 8], got 9");
+  EXPECT_EQ(error_of("[motor]\ncount = 0\n"), "demo.toml:2: motor.count: must be in [1, 8], got 0");
+  EXPECT_EQ(parse_demo("[motor]\ncount = 1\n").count, 1);
+  // Not-a-number and infinity are never in range.
+  EXPECT_EQ(error_of("[motor]\ngain = nan\n"), "demo.toml:2: motor.gain: must be in (0, 10], got nan");
+  EXPECT_EQ(error_of("ratio = -inf\n"), "demo.toml:1: ratio: must be in [0, 1], got -inf");
+}
+
+TEST(ConfigSchema, ListLengthAndElements) {
+  EXPECT_EQ(error_of("[control]\nlevels = [1.0, 0.8, 0.6, 0.4]\n"), "demo.toml:2: control.levels: expected 1 to 3 values, got 4");
+  EXPECT_EQ(error_of("[control]\nlevels = []\n"), "demo.toml:2: control.levels: expected 1 to 3 values, got 0");
+  EXPECT_EQ(error_of("[control]\nlevels = [1.0, 2.0]\n"), "demo.toml:2: control.levels: every value must be in [0.05, 1], got 2");
+  // A non-number element is reported at its own line.
+  EXPECT_EQ(error_of("[control]\nlevels = [\n  1.0,\n  \"half\",\n]\n"), "demo.toml:4: control.levels: expected a number, got a string");
+}
+
+TEST(ConfigSchema, BadChoiceListsTheChoices) {
+  EXPECT_EQ(error_of("[control]\nmode = \"position\"\n"),
+            "demo.toml:2: control.mode: expected one of \"speed\", \"torque\", got \"position\"");
+  EXPECT_EQ(error_of("[control]\nmode = 1\n"), "demo.toml:2: control.mode: expected one of \"speed\", \"torque\", got an integer");
+}
+
+TEST(ConfigSchema, ForeignTablesAreLeftAlone) {
+  const Demo d = parse_demo("[plant]\nanything = 1\n[plant.motor]\nx = 2\n[motor]\ncount = 4\n", {"plant"});
+  EXPECT_EQ(d.count, 4);
+  // Without the exemption the same file is an error.
+  try {
+    (void)parse_demo("[plant]\nanything = 1\n");
+    FAIL() << "no error";
+  } catch (const ConfigError& e) {
+    EXPECT_EQ(std::string(e.what()), "demo.toml:1: plant: unknown key");
+  }
+}
+
+TEST(ConfigSchema, KeyPrefixNamesTheKeyAsTheFileNestsIt) {
+  EXPECT_EQ(error_of("[motor]\ncount = 12\n", "controller."), "demo.toml:2: controller.motor.count: must be in [1, 8], got 12");
+}
+
+TEST(ConfigSchema, SourceNameWhenTheNodeHasNoFile) {
+  // A table built in code has no source region: the caller's name, and no line.
+  toml::table t;
+  t.insert("ratio", 3.0);
+  Demo d;
+  try {
+    demo_schema().apply(t, d, "built.toml");
+    FAIL() << "no error";
+  } catch (const ConfigError& e) {
+    EXPECT_EQ(std::string(e.what()), "built.toml: ratio: must be in [0, 1], got 3");
+  }
+}
+
+TEST(ConfigSchema, MarkdownListsEveryKeyWithItsDefault) {
+  const std::string md = demo_schema().markdown(Demo{});
+  EXPECT_NE(md.find("| `motor.gain` | 1.5 V | in (0, 10] | A gain. |"), std::string::npos) << md;
+  EXPECT_NE(md.find("| `motor.count` | 3 | in [1, 8] | A count. |"), std::string::npos) << md;
+  EXPECT_NE(md.find("| `motor.on` | false |"), std::string::npos) << md;
+  EXPECT_NE(md.find("| `control.mode` | \"speed\" | \"speed\", \"torque\" |"), std::string::npos) << md;
+  EXPECT_NE(md.find("| `control.levels` | [1] |"), std::string::npos) << md;
+  EXPECT_EQ(demo_schema().keys(),
+            (std::vector<std::string>{"motor.gain", "motor.count", "motor.on", "motor.name", "control.mode", "control.levels", "ratio"}));
+}
+
+TEST(ValueRange, Describe) {
+  EXPECT_EQ(positive().describe(), "> 0");
+  EXPECT_EQ(at_least(2.0).describe(), ">= 2");
+  EXPECT_EQ(between(-1.0, 1.0).describe(), "in [-1, 1]");
+  EXPECT_EQ(ValueRange{}.describe(), "any number");
+  EXPECT_FALSE(positive().contains(0.0));
+  EXPECT_TRUE(positive().contains(1e-300));
+  EXPECT_TRUE(at_least(2.0).contains(2.0));
+}
+
+}  // namespace
+}  // namespace pmsm::app
