@@ -11,6 +11,7 @@ int main(int argc, char** argv) {
   pmsm::app::register_budget_command(app, exit_code);
   pmsm::app::register_losses_command(app, exit_code);
   pmsm::app::register_simulate_command(app, exit_code);
+  pmsm::app::register_config_keys_command(app, exit_code);
   pmsm::app::register_decode_command(app, exit_code);
   try {
     app.parse(argc, argv);

@@ -141,6 +141,7 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, s
   result.series.reserve(periods / log_every + 1);
 
   bool calibration_started = false;
+  bool real_time_calibration = false;
   double metrics_from_s = sc.calibrate ? -1.0 : 0.0;  // -1: not yet (calibration pending)
   double injection_energy_J = 0.0;
   std::uint64_t injection_periods = 0;
@@ -170,6 +171,11 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, s
     if (sc.calibrate && !calibration_started && t >= sc.calibrate_at_s) {
       drive.start_calibration(known_temp_C);
       calibration_started = true;
+      if (sc.calibration_real_time) {
+        plant.set_thermal_acceleration(1.0);
+        drive.set_thermal_time_scale(1.0);
+        real_time_calibration = true;
+      }
     }
 
     const core::DriveOutput& out = drive.step(in, cmd);
@@ -178,6 +184,11 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, s
     const bool fast_now = k % kFastEvery == kFastEvery - 1;
     truth = plant.state();
 
+    if (real_time_calibration && (drive.calibration_completed() || tel.calibration_failed)) {
+      plant.set_thermal_acceleration(scenario.plant.thermal.acceleration);
+      drive.set_thermal_time_scale(scenario.controller.drive.thermal.time_scale);
+      real_time_calibration = false;
+    }
     if (drive.calibration_completed()) {
       result.calibrated = true;
       result.calibration = *drive.calibration_completed();

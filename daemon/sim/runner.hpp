@@ -115,7 +115,7 @@ struct SimulationResult {
   std::vector<SeriesRow> series;
   std::vector<EstimateRow> estimates;
   std::vector<PairRow> pair_log;
-  std::array<std::uint32_t, 4> events_without_estimate{};  // by EventOutcome
+  std::array<std::uint32_t, 5> events_without_estimate{};  // by EventOutcome
   std::vector<std::string> event_log;
 };
 

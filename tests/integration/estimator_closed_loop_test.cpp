@@ -51,16 +51,24 @@ TEST(EstimatorClosedLoop, EveryPublishedEstimateIsCloseToTheTruth) {
 }
 
 TEST(EstimatorClosedLoop, RejectedPairsAreNeverPublished) {
-  // The load changes all the time: every pair sees it between its recordings.
+  // The load changes all the time: almost every pair sees it between its recordings and is
+  // rejected. Whatever is published must come from accepted pairs only, and so be right.
   const SimulationResult r = run_scenario(load_scenario(kData / "steps-every-event.toml"), quiet());
   std::uint32_t rejected = 0;
   for (std::size_t k = 1; k < r.pairs.size(); ++k) {
     rejected += r.pairs[k];
   }
+  const std::uint32_t accepted = r.pairs[static_cast<std::size_t>(core::PairOutcome::kAccepted)];
   EXPECT_GT(rejected, 10U);
-  EXPECT_EQ(r.pairs[static_cast<std::size_t>(core::PairOutcome::kAccepted)], 0U);
-  EXPECT_TRUE(r.estimates.empty()) << r.estimates.size() << " estimates published from rejected pairs";
-  // The events say why they published nothing.
+  EXPECT_GT(rejected, 5 * accepted) << "the scenario no longer disturbs the pairs";
+  // An event publishes at most one estimate, and only if one of its pairs was accepted.
+  EXPECT_LE(r.estimates.size(), accepted);
+  // Without a calibration the inverter's voltage is still the uninformed prior, so a published
+  // estimate may be far off, but it must say so: its error stays within 4 of its own sigma.
+  for (const EstimateRow& e : r.estimates) {
+    EXPECT_LT(std::abs(e.rs_est_ohm - e.rs_true_ohm), 4.0 * e.rs_std_ohm) << "estimate at " << e.time_s << " s";
+  }
+  // The events that published nothing say why.
   EXPECT_GT(r.events_without_estimate[static_cast<std::size_t>(core::EventOutcome::kNoAcceptedPairs)], 5U);
 }
 
