@@ -115,6 +115,7 @@ void DriveController::handle_estimate(const EventEstimate& e) {
   out.winding_C = observer_.temperature_from_resistance_C(e.rs_ohm);
   out.vx_V = e.vx_V;
   out.vx_std_V = e.vx_std_V;
+  out.lq_H = e.lq_H;
   out.pairs = e.pairs;
   out.vx_learning = e.vx_learning;
   out.joint_rs_ohm = e.joint_rs_ohm;
@@ -328,6 +329,8 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   telemetry_.calibrating = calibrating_;
   telemetry_.vx_V = scheduler_.vx_V();
   telemetry_.vx_std_V = scheduler_.vx_std_V();
+  telemetry_.lq_H = scheduler_.lq_H();
+  telemetry_.lq_std_H = scheduler_.lq_std_H();
   telemetry_.calibrated = observer_.calibration().calibrated;
   telemetry_.calibration_failed = calibration_failed_;
   return output_;

@@ -58,6 +58,8 @@ InjectionScheduler::InjectionScheduler(const InjectionConfig& config, double per
       next_event_s_(config.first_event_s),
       vx_V_(config.vx_initial_V),
       vx_var_(config.vx_initial_std_V * config.vx_initial_std_V),
+      lq_H_(config.lq_H),
+      lq_var_(config.lq_initial_std_fraction * config.lq_H * config.lq_initial_std_fraction * config.lq_H),
       recorder_capacity_(capacity) {}
 
 bool InjectionScheduler::plausible(double rs_ohm, double margin_ohm) const {
@@ -169,7 +171,7 @@ void InjectionScheduler::begin_pair(const SchedulerInput& in) {
   time_based_ = std::abs(in.omega_e_rad_s) < config_.min_speed_for_angle_rad_s;
   direction_ = in.omega_e_rad_s >= 0.0 ? 1.0 : -1.0;
   PairFitConfig fit;
-  fit.lq_H = config_.lq_H;
+  fit.lq_H = config_.learn_lq ? lq_H_ : config_.lq_H;
   fit.ld_H = config_.ld_H;
   recorder_.start(fit, time_based_ ? MatchBy::kTime : MatchBy::kAngle, direction_);
   ramp_count_ = 0;
@@ -335,6 +337,7 @@ PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
     r.outcome = PairOutcome::kRejectedImplausible;
   } else {
     r.outcome = PairOutcome::kAccepted;
+    learn_lq(c, fit);
     event_sums_.add(recorder_.sums());
     event_pair_sums_[static_cast<std::size_t>(std::min(event_pairs_, InjectionConfig::kMaxLevels - 1))] = recorder_.sums();
     event_min_f_A_ = event_pairs_ == 0 ? f_A_ : std::min(event_min_f_A_, f_A_);
@@ -348,10 +351,42 @@ PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
   return r;
 }
 
+void InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit) {
+  if (!config_.learn_lq || time_based_) {
+    return;
+  }
+  const double w_iq = c.omega_e_iq_mean_A_rad_s;
+  if (!(std::abs(lq_H_ * w_iq) >= config_.lq_learning_min_voltage_V)) {
+    return;
+  }
+  // Over whole turns (Eq. 3, d-axis): Lq <w iq> = Rs <id> + Ld <dId/dt> + Vx <Gd> - <vd>.
+  const double vx = config_.fit_dead_time ? vx_V_ : 0.0;
+  const double var_vx = config_.fit_dead_time ? vx_var_ : 0.0;
+  const double lq =
+      (fit.rs_ohm * c.id_mean_A + config_.ld_H * c.did_dt_mean_A_s + vx * c.gd_mean - c.vd_mean_V) / w_iq;
+  // Its variance: what the uncertain Vx and Rs move it by, and the noise of <vd> (the pair's
+  // residual over its independent samples, about one per filter length).
+  const double independent = std::max(1.0, static_cast<double>(c.samples) / 8.0);
+  const double var = (c.gd_mean * c.gd_mean * var_vx + c.id_mean_A * c.id_mean_A * fit.var_rs +
+                      fit.residual_rms_V * fit.residual_rms_V / independent) /
+                     (w_iq * w_iq);
+  // Gross outliers (a pair that passed its guards but whose means are off) are left out.
+  if (!std::isfinite(lq) || !(var > 0.0) || lq < 0.5 * config_.lq_H || lq > 2.0 * config_.lq_H ||
+      std::abs(lq - lq_H_) > 4.0 * std::sqrt(var + lq_var_)) {
+    return;
+  }
+  const double k = lq_var_ / (lq_var_ + var);
+  const double drift = config_.lq_drift_fraction * config_.lq_H;
+  lq_H_ += k * (lq - lq_H_);
+  lq_var_ = (1.0 - k) * lq_var_ + drift * drift;
+}
+
 EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
   in_event_ = false;
   EventEstimate e;
   e.time_s = in.time_s;
+  e.lq_H = lq_H_;
+  e.lq_std_H = std::sqrt(lq_var_);
   if (event_pairs_ == 0) {
     e.outcome = EventOutcome::kNoAcceptedPairs;
     retry_after_s_ = std::max(retry_after_s_, in.time_s + config_.retry_s);
@@ -390,7 +425,21 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
     e.vx_from_event = true;
   } else {
     // One level, or a collinear event: Rs with Vx held at the prior, whose uncertainty adds.
-    const FitResult fixed = solve_fit(event_sums_, fit_options(false));
+    // Fixed-magnitude pulses are flat, so the pairs' means hold all of the resistive signal and
+    // none of the closed-loop noise correlation (solve_means_fit_fixed_vx). Fixed-angle and DC
+    // pulses turn in the rotor frame: their inductive voltage must be resolved sample by
+    // sample (Eq. 22), which the means cannot do.
+    MeansFit fixed;
+    if (config_.method == InjectionMethod::kFixedMagnitude) {
+      fixed = solve_means_fit_fixed_vx(event_pair_sums_.data(), std::min(event_pairs_, InjectionConfig::kMaxLevels),
+                                       config_.fit_inductance, vx);
+    } else {
+      const FitResult f = solve_fit(event_sums_, fit_options(false));
+      fixed.valid = f.valid;
+      fixed.rs_ohm = f.rs_ohm;
+      fixed.var_rs = f.var_rs;
+      fixed.drs_dvx = f.drs_dvx;
+    }
     if (!fixed.valid) {
       e.outcome = EventOutcome::kNoFit;
       return e;

@@ -3,6 +3,7 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
+#include <optional>
 
 namespace pmsm::core {
 namespace {
@@ -244,32 +245,48 @@ FitResult solve_fit(const BlockedSums& sums, const FitOptions& options) {
   return out;
 }
 
+namespace {
+
+// One pair's whole-recording means, mean(y) = Rs mean(dId) + Vx mean(dGd), with the weight
+// of the noise of its mean(y): what the pair's own regression (Vx held, the inductive term
+// fitted) says about its Rs, times mean(dId). A jackknife of block means would not do: for a
+// fixed-angle pulse the blocks are different parts of the pulse.
+struct PairMeans {
+  Eigen::Vector2d x = Eigen::Vector2d::Zero();
+  double y = 0.0;
+  double w = 0.0;
+};
+
+std::optional<PairMeans> pair_means(const BlockedSums& p, bool fit_ld) {
+  const FitSums t = p.total();
+  if (t.n < 8.0) {
+    return std::nullopt;
+  }
+  FitOptions own;
+  own.fit_vx = false;
+  own.fit_ld = fit_ld;
+  const FitResult pair_fit = solve_fit(p, own);
+  if (!pair_fit.valid) {
+    return std::nullopt;
+  }
+  PairMeans m;
+  m.y = t.sum_y / t.n;
+  m.x = Eigen::Vector2d(t.sum_x[kRegRs] / t.n, t.sum_x[kRegVx] / t.n);
+  m.w = 1.0 / std::max(pair_fit.var_rs * m.x(0) * m.x(0), 1e-12);
+  return m;
+}
+
+}  // namespace
+
 MeansFit solve_means_fit(const BlockedSums* pairs, int count, bool fit_ld) {
   MeansFit out;
   Eigen::Matrix2d a = Eigen::Matrix2d::Zero();
   Eigen::Vector2d b = Eigen::Vector2d::Zero();
   for (int j = 0; j < count; ++j) {
-    const BlockedSums& p = pairs[j];
-    const FitSums t = p.total();
-    if (t.n < 8.0) {
-      continue;
+    if (const auto m = pair_means(pairs[j], fit_ld)) {
+      a += m->w * m->x * m->x.transpose();
+      b += m->w * m->x * m->y;
     }
-    const double y = t.sum_y / t.n;
-    const Eigen::Vector2d x(t.sum_x[kRegRs] / t.n, t.sum_x[kRegVx] / t.n);
-    // The noise of this pair's mean(y): what the pair's own regression (Vx held, the
-    // inductive term fitted) says about its Rs, times mean(dId). A jackknife of block means
-    // would not do: for a fixed-angle pulse the blocks are different parts of the pulse.
-    FitOptions own;
-    own.fit_vx = false;
-    own.fit_ld = fit_ld;
-    const FitResult pair_fit = solve_fit(p, own);
-    if (!pair_fit.valid) {
-      continue;
-    }
-    const double var = pair_fit.var_rs * x(0) * x(0);
-    const double w = 1.0 / std::max(var, 1e-12);
-    a += w * x * x.transpose();
-    b += w * x * y;
   }
   if (!(a(0, 0) > 0.0) || !(a(1, 1) > 0.0)) {
     return out;
@@ -286,6 +303,29 @@ MeansFit solve_means_fit(const BlockedSums* pairs, int count, bool fit_ld) {
   out.var_vx = cov(1, 1);
   out.cov_rs_vx = cov(0, 1);
   out.valid = std::isfinite(out.rs_ohm) && std::isfinite(out.vx_V);
+  return out;
+}
+
+MeansFit solve_means_fit_fixed_vx(const BlockedSums* pairs, int count, bool fit_ld, double vx_V) {
+  MeansFit out;
+  double sxx = 0.0;
+  double sxg = 0.0;
+  double sxy = 0.0;
+  for (int j = 0; j < count; ++j) {
+    if (const auto m = pair_means(pairs[j], fit_ld)) {
+      sxx += m->w * m->x(0) * m->x(0);
+      sxg += m->w * m->x(0) * m->x(1);
+      sxy += m->w * m->x(0) * (m->y - vx_V * m->x(1));
+    }
+  }
+  if (!(sxx > 0.0)) {
+    return out;
+  }
+  out.rs_ohm = sxy / sxx;
+  out.vx_V = vx_V;
+  out.var_rs = 1.0 / sxx;
+  out.drs_dvx = -sxg / sxx;
+  out.valid = std::isfinite(out.rs_ohm);
   return out;
 }
 
@@ -306,6 +346,7 @@ void PairRecorder::start(const PairFitConfig& config, MatchBy match_by, double d
   ring_next_ = 0;
   sum_omega1_ = sum_omega2_ = sum_iq1_ = sum_iq2_ = sum_id1_ = sum_id2_ = 0.0;
   sum_vq_ = sum_iq_ = sum_wid_ = sum_wm_ = sum_gq_ = 0.0;
+  sum_vd_ = sum_id_ = sum_didt_ = sum_wiq_ = sum_gd_ = 0.0;
   any_limited_ = false;
 }
 
@@ -412,6 +453,11 @@ double PairRecorder::add_second(const PeriodSample& s) {
   sum_wid_ += 0.5 * (r1.omega_e * r1.i.d + s.omega_e_rad_s * s.i_A.d);
   sum_wm_ += 0.5 * (r1.omega_m + s.omega_m_rad_s);
   sum_gq_ += 0.5 * (r1.g.q + s.dead_time_pattern.q);
+  sum_vd_ += 0.5 * (r1.v.d + s.v_V.d);
+  sum_id_ += 0.5 * (r1.i.d + s.i_A.d);
+  sum_didt_ += 0.5 * (r1.di_dt.d + s.di_dt_A_s.d);
+  sum_wiq_ += 0.5 * (r1.omega_e * r1.i.q + s.omega_e_rad_s * s.i_A.q);
+  sum_gd_ += 0.5 * (r1.g.d + s.dead_time_pattern.d);
   return phi;
 }
 
@@ -435,6 +481,11 @@ PairConditions PairRecorder::conditions() const {
     c.omega_e_id_mean_A_rad_s = sum_wid_ / m;
     c.omega_m_mean_rad_s = sum_wm_ / m;
     c.gq_mean = sum_gq_ / m;
+    c.vd_mean_V = sum_vd_ / m;
+    c.id_mean_A = sum_id_ / m;
+    c.did_dt_mean_A_s = sum_didt_ / m;
+    c.omega_e_iq_mean_A_rad_s = sum_wiq_ / m;
+    c.gd_mean = sum_gd_ / m;
   }
   return c;
 }

@@ -152,6 +152,14 @@ ConfigSchema<C> build() {
            "Its uncertainty.");
   inj.real("injection.vx_drift_std_V", [](C& c) -> double& { return c.drive.injection.vx_drift_std_V; }, at_least(0, 100), "V",
            "How far it may wander between events.");
+  inj.boolean("injection.learn_lq", [](C& c) -> bool& { return c.drive.injection.learn_lq; },
+              "Learn the q-axis inductance from the pairs' d-axis means (the Eq. 37 correction needs the true Lq).");
+  inj.real("injection.lq_initial_std_fraction", [](C& c) -> double& { return c.drive.injection.lq_initial_std_fraction; },
+           positive(1), "", "Uncertainty of the commissioned motor.lq_H, as a fraction of it.");
+  inj.real("injection.lq_drift_fraction", [](C& c) -> double& { return c.drive.injection.lq_drift_fraction; }, at_least(0, 1), "",
+           "How far the learned Lq may wander between pairs, as a fraction of motor.lq_H.");
+  inj.real("injection.lq_learning_min_voltage_V", [](C& c) -> double& { return c.drive.injection.lq_learning_min_voltage_V; },
+           at_least(0, 1000), "V", "Learn Lq only from pairs whose Lq <w iq> is at least this.");
   // [estimator]
   s.choice("estimator.kind",
            {{"injection", static_cast<int>(EstimatorKind::kInjection)},

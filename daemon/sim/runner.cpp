@@ -224,6 +224,7 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, s
       row.winding_true_C = truth.winding_temp_C;
       row.vx_V = e.vx_V;
       row.vx_std_V = e.vx_std_V;
+      row.lq_H = e.lq_H;
       row.vx_learning = e.vx_learning;
       row.joint_rs_ohm = e.joint_rs_ohm;
       row.joint_vx_V = e.joint_vx_V;
@@ -321,6 +322,8 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, s
   result.injection_duty = periods > 0 ? static_cast<double>(injection_periods) / static_cast<double>(periods) : 0.0;
   result.vx_V = drive.telemetry().vx_V;
   result.vx_std_V = drive.telemetry().vx_std_V;
+  result.lq_H = drive.telemetry().lq_H;
+  result.lq_std_H = drive.telemetry().lq_std_H;
 
   return result;
 }
@@ -407,6 +410,8 @@ std::string result_json(const SimulationResult& r) {
   }
   j.field("vx_V", r.vx_V)
       .field("vx_std_V", r.vx_std_V)
+      .field("lq_H", r.lq_H)
+      .field("lq_std_H", r.lq_std_H)
       .field("max_winding_true_C", r.max_winding_true_C)
       .field("sim_time_s", r.sim_time_s)
       .field("wall_time_s", r.wall_time_s)
@@ -453,6 +458,7 @@ std::string result_text(const SimulationResult& r) {
                        r.calibration.rs0_ohm, r.calibration.t0_C, r.calibration.ke0_V_s_per_rad);
   }
   out += fmt::format("  inverter voltage error Vx       {:.3f} +- {:.3f} V\n", r.vx_V, r.vx_std_V);
+  out += fmt::format("  learned Lq                      {:.3f} +- {:.3f} mH\n", 1e3 * r.lq_H, 1e3 * r.lq_std_H);
   out += fmt::format("  simulated {:.1f} s in {:.1f} s ({:.1f}x real time)\n", r.sim_time_s, r.wall_time_s,
                      r.wall_time_s > 0 ? r.sim_time_s / r.wall_time_s : 0.0);
   return out;
@@ -461,12 +467,12 @@ std::string result_text(const SimulationResult& r) {
 std::string estimates_text(const SimulationResult& r) {
   std::string out =
       "    time_s  speed_rad_s   iq_A   rs_est_mohm  std_mohm  rs_true_mohm  err_mohm  winding_est_C  winding_true_C  "
-      "vx_V   vx_std_V  learn  joint_rs_mohm  joint_vx_V  fused\n";
+      "vx_V   vx_std_V  learn  joint_rs_mohm  joint_vx_V  lq_mH  fused\n";
   for (const EstimateRow& e : r.estimates) {
-    out += fmt::format("{:10.3f} {:12.1f} {:6.1f} {:13.2f} {:9.2f} {:13.2f} {:9.2f} {:14.1f} {:15.1f} {:6.3f} {:10.3f} {:6} {:14.2f} {:11.3f}  {}\n",
+    out += fmt::format("{:10.3f} {:12.1f} {:6.1f} {:13.2f} {:9.2f} {:13.2f} {:9.2f} {:14.1f} {:15.1f} {:6.3f} {:10.3f} {:6} {:14.2f} {:11.3f} {:6.3f}  {}\n",
                        e.time_s, e.speed_rad_s, e.iq_A, 1e3 * e.rs_est_ohm, 1e3 * e.rs_std_ohm, 1e3 * e.rs_true_ohm,
                        1e3 * (e.rs_est_ohm - e.rs_true_ohm), e.winding_est_C, e.winding_true_C, e.vx_V, e.vx_std_V,
-                       e.vx_learning ? "yes" : "no", 1e3 * e.joint_rs_ohm, e.joint_vx_V, e.fused ? "yes" : "gated");
+                       e.vx_learning ? "yes" : "no", 1e3 * e.joint_rs_ohm, e.joint_vx_V, 1e3 * e.lq_H, e.fused ? "yes" : "gated");
   }
   return out;
 }

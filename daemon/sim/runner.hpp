@@ -54,6 +54,7 @@ struct EstimateRow {
   double winding_true_C = 0.0;
   double vx_V = 0.0;
   double vx_std_V = 0.0;
+  double lq_H = 0.0;
   bool vx_learning = false;
   double joint_rs_ohm = 0.0;
   double joint_vx_V = 0.0;
@@ -109,6 +110,8 @@ struct SimulationResult {
   core::Calibration calibration{};
   double vx_V = 0.0;
   double vx_std_V = 0.0;
+  double lq_H = 0.0;                    // learned q-axis inductance at the end
+  double lq_std_H = 0.0;
   double max_winding_true_C = 0.0;
   double sim_time_s = 0.0;
   double wall_time_s = 0.0;

@@ -534,6 +534,118 @@ TEST(MeansFit, OneLevelOrProportionalLevelsCannotSeparateVx) {
   EXPECT_LT(fit.identifiability, 1e-6);
 }
 
+// ---- closed-loop sensor noise: the sample fit against the means ----
+
+// A d-axis current loop at standstill, simulated here period by period: a PI (Kp = wc L,
+// Ki = wc Rs) acting on the *measured* current, its voltage applied one period later to the
+// R-L winding, the sensor adding white noise. The recorder sees what a drive sees: the
+// measured currents and the commanded voltages. One bipolar pair, time-matched.
+BlockedSums closed_loop_pair(double f_A, double noise_A, std::mt19937_64& rng) {
+  const double rs = 0.15;
+  const double l = 5.5e-3;
+  const double wc = 2000.0;
+  const double kp = wc * l;
+  const double ki = wc * rs;
+  std::normal_distribution<double> noise(0.0, noise_A);
+  PairRecorder rec(2048);
+  PairFitConfig cfg;
+  cfg.ld_H = l;
+  cfg.lq_H = l;
+  cfg.filter_length = 8;
+  rec.start(cfg, MatchBy::kTime, 1.0);
+  double i_true = 0.0;
+  double integral = 0.0;
+  double v_next = 0.0;
+  double i_meas_prev = 0.0;
+  double t = 0.0;
+  // Each recording: 20 ms to settle at the level, then 50 ms recorded.
+  for (int recording = 1; recording <= 2; ++recording) {
+    const double ref = recording == 1 ? f_A : -f_A;
+    const double origin = t + 0.02;
+    if (recording == 2) {
+      rec.begin_second(origin);
+    }
+    while (t < origin + 0.05) {
+      // The period [t, t + T] under the voltage commanded one period earlier (exact R-L step).
+      const double v = v_next;
+      const double a = std::exp(-kPeriod * rs / l);
+      const double i_end = v / rs + (i_true - v / rs) * a;
+      const double i_meas = i_end + noise(rng);
+      // The controller at the end of the period.
+      const double e = ref - i_meas;
+      integral += ki * kPeriod * e;
+      v_next = kp * e + integral;
+      PeriodSample s;
+      s.time_s = t + 0.5 * kPeriod;
+      s.theta_e_rad = 0.0;
+      s.i_A = {0.5 * (i_meas_prev + i_meas), 0.0};
+      s.di_dt_A_s = {(i_meas - i_meas_prev) / kPeriod, 0.0};
+      s.v_V = {v, 0.0};
+      if (s.time_s >= origin) {
+        if (recording == 1) {
+          rec.add_first(s);
+        } else {
+          rec.add_second(s);
+        }
+      }
+      i_meas_prev = i_meas;
+      i_true = i_end;
+      t += kPeriod;
+    }
+  }
+  return rec.sums();
+}
+
+TEST(MeansFit, SensorNoiseInTheCurrentLoopPullsTheSampleFitLowButNotTheMeans) {
+  // Without noise both read Rs; with 1 A of sensor noise (exaggerated so that the effect
+  // stands far above the scatter of 40 pairs) the sample-by-sample slope is pulled low,
+  // because the loop answers each noise sample with -Kp times it in the very voltage the fit
+  // regresses on the noisy current. The means over the recordings are not.
+  std::mt19937_64 rng(7);
+  const double rs = 0.15;
+  double sample_sum = 0.0;
+  double means_sum = 0.0;
+  double means_sq = 0.0;
+  const int n = 40;
+  for (int k = 0; k < n; ++k) {
+    const BlockedSums sums = closed_loop_pair(10.0, 1.0, rng);
+    const FitResult sample = solve_fit(sums, options(false, true, 0.0));
+    const MeansFit means = solve_means_fit_fixed_vx(&sums, 1, true, 0.0);
+    ASSERT_TRUE(sample.valid);
+    ASSERT_TRUE(means.valid);
+    EXPECT_NEAR(means.drs_dvx, 0.0, 1e-12);  // no dead-time pattern in this loop
+    sample_sum += sample.rs_ohm;
+    means_sum += means.rs_ohm;
+    means_sq += means.rs_ohm * means.rs_ohm;
+  }
+  const double sample_mean = sample_sum / n;
+  const double means_mean = means_sum / n;
+  const double means_sem = std::sqrt((means_sq / n - means_mean * means_mean) / (n - 1));
+  EXPECT_LT(sample_mean, rs * 0.98) << "sample fit " << sample_mean;  // about -2.7 %
+  EXPECT_NEAR(means_mean, rs, std::max(4.0 * means_sem, 1e-4)) << "means " << means_mean << " +- " << means_sem;
+
+  std::mt19937_64 quiet(7);
+  const BlockedSums clean = closed_loop_pair(10.0, 0.0, quiet);
+  EXPECT_NEAR(solve_fit(clean, options(false, true, 0.0)).rs_ohm, rs, 1e-4);
+  EXPECT_NEAR(solve_means_fit_fixed_vx(&clean, 1, true, 0.0).rs_ohm, rs, 1e-4);
+}
+
+TEST(MeansFit, FixedVxTakesTheGivenInverterVoltage) {
+  Truth truth;
+  Shape shape;
+  shape.modulation = 0.0;
+  const std::array<BlockedSums, 2> pairs{pair_sums(1.0, truth, shape), pair_sums(0.4, truth, shape)};
+  const MeansFit right = solve_means_fit_fixed_vx(pairs.data(), 2, false, truth.vx_V);
+  ASSERT_TRUE(right.valid);
+  EXPECT_NEAR(right.rs_ohm, truth.rs_ohm, 2e-4);
+  EXPECT_DOUBLE_EQ(right.vx_V, truth.vx_V);
+  // A wrong Vx moves Rs by exactly drs_dvx per volt (the fit is linear in it).
+  const MeansFit wrong = solve_means_fit_fixed_vx(pairs.data(), 2, false, truth.vx_V + 0.5);
+  EXPECT_LT(right.drs_dvx, 0.0);
+  EXPECT_NEAR(wrong.rs_ohm - right.rs_ohm, 0.5 * right.drs_dvx, 1e-9);
+  EXPECT_FALSE(solve_means_fit_fixed_vx(pairs.data(), 0, false, truth.vx_V).valid);
+}
+
 TEST(BlockedSums, TotalIsTheSumOfTheBlocksAndAddIsBlockwise) {
   BlockedSums a;
   BlockedSums b;

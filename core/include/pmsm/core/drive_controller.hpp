@@ -56,7 +56,7 @@ struct DriveConfig {
   double thermal_update_s = 0.01;    // thermal model / filter period
   double magnet_coefficient_per_C = -0.0012;  // NdFeB remanence (flux) temperature coefficient
   double magnet_min_speed_rad_s = 50.0;       // electrical; below it the EMF is too small
-  int calibration_events = 10;       // events averaged into Rs0 / Ke0
+  int calibration_events = 6;        // events averaged into Rs0 / Ke0 (about 2.5 s at no load)
   double calibration_timeout_s = 20.0;  // give up (keep the stored calibration) after this
   std::size_t recording_capacity = 8192;      // periods per recording (preallocated)
 };
@@ -112,6 +112,8 @@ struct DriveTelemetry {
   std::uint32_t events_without_estimate = 0;
   double vx_V = 0.0;                  // the inverter voltage estimate
   double vx_std_V = 0.0;
+  double lq_H = 0.0;                  // the q-axis inductance the estimator has learned
+  double lq_std_H = 0.0;
   bool calibrating = false;
   bool calibrated = false;
   bool calibration_failed = false;  // the last calibration run timed out
@@ -126,6 +128,7 @@ struct ResistanceEstimate {
   double winding_C = 0.0;           // Eq. 1 through the calibration
   double vx_V = 0.0;                // the inverter voltage the estimate is conditioned on
   double vx_std_V = 0.0;
+  double lq_H = 0.0;                // the q-axis inductance the fits used
   int pairs = 0;
   bool fused = false;               // the thermal filter took it (not gated out)
   bool vx_learning = false;         // this event also refined the inverter voltage

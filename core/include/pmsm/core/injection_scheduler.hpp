@@ -128,6 +128,18 @@ struct InjectionConfig {
   // interacts with the dead time near the zero crossings and biases what is learned.
   double vx_learning_max_speed_rad_s = 600.0;
   double lq_H = 5.5e-3;           // the controller's model, for the Eq. 37 correction
+  // The Eq. 37 correction Lq d(w iq) is exact only with the true Lq, and on a salient machine
+  // under load it is not small: the speed loop answers the injection's reluctance torque
+  // with a change of iq proportional to the injection, so an Lq error becomes a resistance
+  // error (about w dLq (Lq - Ld) iq / psi relative to Rs: -10 % in Lq costs about 20 C on the
+  // salient benchmark). Lq is therefore learned from the pairs themselves: over whole turns
+  // Eq. 3 leaves <vd> = Rs <id> + Ld <dId/dt> - Lq <w iq> + Vx <Gd>, where Lq <w iq> is
+  // volts under any load while the other terms are known or cancel (bipolar: <id> = 0 and
+  // <Gd> = 0 by symmetry). The learned value replaces lq_H in the fits that follow.
+  bool learn_lq = true;
+  double lq_initial_std_fraction = 0.1;   // prior: the commissioned lq_H, +-10 %
+  double lq_drift_fraction = 0.002;       // how far Lq may wander between pairs (saturation)
+  double lq_learning_min_voltage_V = 2.0; // |Lq <w iq>| of a pair, to learn from it
   double ld_H = 5.5e-3;
   double rs_nominal_ohm = 0.133;  // for the headroom calculation
   double flux_linkage_Wb = 0.3239;
@@ -194,6 +206,8 @@ struct EventEstimate {
   double joint_vx_V = 0.0;
   bool has_emf = false;            // angle-based pairs: the EMF constant below is meaningful
   double ke_V_s_per_rad = 0.0;     // Eq. 3's Ke from the q-axis means (see drive_controller)
+  double lq_H = 0.0;               // the q-axis inductance the fits use after this event
+  double lq_std_H = 0.0;
 };
 
 struct SchedulerOutput {
@@ -229,6 +243,8 @@ class InjectionScheduler {
   // The inverter voltage prior carried between events.
   [[nodiscard]] double vx_V() const { return vx_V_; }
   [[nodiscard]] double vx_std_V() const { return std::sqrt(vx_var_); }
+  [[nodiscard]] double lq_H() const { return lq_H_; }
+  [[nodiscard]] double lq_std_H() const { return std::sqrt(lq_var_); }
 
  private:
   void begin_pair(const SchedulerInput& in);
@@ -237,6 +253,7 @@ class InjectionScheduler {
   EventEstimate finish_event(const SchedulerInput& in);
   [[nodiscard]] FitOptions fit_options(bool fit_vx) const;
   [[nodiscard]] bool plausible(double rs_ohm, double margin_ohm) const;
+  void learn_lq(const PairConditions& c, const FitResult& fit);
   double level_for(int recording) const;       // injection level of recording 1 or 2 (in units of F)
   Dq injection_current(const SchedulerInput& in) const;
   double edge_value(double elapsed_s) const;   // 0..1 along a rising window edge
@@ -262,6 +279,8 @@ class InjectionScheduler {
   int event_q_pairs_ = 0;
   double vx_V_ = 0.0;               // inverter voltage prior
   double vx_var_ = 0.0;
+  double lq_H_ = 0.0;               // learned q-axis inductance (see InjectionConfig::learn_lq)
+  double lq_var_ = 0.0;
   bool time_based_ = false;
   double direction_ = 1.0;
   double f_A_ = 0.0;                // magnitude for this pair
