@@ -9,7 +9,7 @@ pmsm_target_defaults(pmsm_app_common)
 file(GLOB PMSM_DRIVE_SOURCES CONFIGURE_DEPENDS ${CMAKE_CURRENT_LIST_DIR}/drive/*.cpp)
 add_library(pmsm_drive STATIC ${PMSM_DRIVE_SOURCES})
 target_include_directories(pmsm_drive PUBLIC ${CMAKE_CURRENT_LIST_DIR}/drive)
-target_link_libraries(pmsm_drive PUBLIC pmsm::core pmsm_messages pmsm_app_common tomlplusplus::tomlplusplus)
+target_link_libraries(pmsm_drive PUBLIC pmsm::core pmsm_messages pmsm_app_common tomlplusplus::tomlplusplus PRIVATE fmt::fmt)
 pmsm_target_defaults(pmsm_drive)
 
 # The in-process closed loop (scenario runner): controller + plant library.

@@ -11,6 +11,7 @@
 
 #include <fmt/format.h>
 
+#include "../drive/calibration_file.hpp"
 #include "../sim/runner.hpp"
 #include "commands.hpp"
 #include "pmsm/plant/config.hpp"
@@ -66,8 +67,19 @@ int run_one(const std::string& path, const SimulateOptions& o, std::string& tabl
   RunOptions run;
   run.progress = !o.quiet;
   run.log_events = o.events;
-  const SimulationResult result = run_scenario(scenario, run);
+  SimulationResult result;
+  try {
+    result = run_scenario(scenario, run);
+  } catch (const CalibrationFileError& e) {
+    std::fprintf(stderr, "simulate: the stored calibration cannot be used: %s\n", e.what());
+    return 2;
+  }
   int status = 0;
+  if (!result.calibration_file_error.empty()) {
+    // The run is reported in full; only the file kept its previous content.
+    std::fprintf(stderr, "simulate: the calibration was not stored: %s\n", result.calibration_file_error.c_str());
+    status = 3;
+  }
   const std::string stem = std::filesystem::path(path).stem().string();
   try {
     if (!o.csv_path.empty()) {

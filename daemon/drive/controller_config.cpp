@@ -1,5 +1,7 @@
 #include "controller_config.hpp"
 
+#include "calibration_file.hpp"
+
 #include <algorithm>
 #include <cmath>
 
@@ -207,6 +209,9 @@ ConfigSchema<C> build() {
   s.real("calibration.t0_C", [](C& c) -> double& { return c.drive.calibration.t0_C; }, between(-50, 200), "C", "T0 of that calibration.");
   s.real("calibration.ke0_V_s_per_rad", [](C& c) -> double& { return c.drive.calibration.ke0_V_s_per_rad; }, at_least(0, 100), "V s/rad",
          "Eq. 3's Ke at T0 (0: not calibrated; no magnet temperature).");
+  s.string("calibration.file", [](C& c) -> std::string& { return c.calibration_file; },
+           "Where the calibration is kept: read at start-up in place of the three keys above, replaced atomically when a "
+           "calibration run completes (relative to this file; empty: none).");
   s.integer("calibration.events", [](C& c) -> int& { return c.drive.calibration_events; }, between(1, 100),
             "Injection events averaged by a calibration run.");
   s.real("calibration.F_A", [](C& c) -> double& { return c.calibration_f_A; }, positive(1000), "A",
@@ -318,7 +323,32 @@ ControllerConfig parse_controller_config(const toml::table& table, std::string_v
     c.drive.calibration.t0_C = c.drive.motor.rs_reference_temp_C;
   }
   finalize(c, source);
+  if (!c.calibration_file.empty() && std::filesystem::path(c.calibration_file).is_relative()) {
+    const std::filesystem::path dir = std::filesystem::path(source).parent_path();
+    c.calibration_file = std::filesystem::absolute(dir / c.calibration_file).lexically_normal().string();
+  }
   return c;
+}
+
+std::string_view to_string(StoredCalibration s) {
+  switch (s) {
+    case StoredCalibration::kNotConfigured: return "not configured";
+    case StoredCalibration::kLoaded: return "loaded";
+    case StoredCalibration::kMissing: return "missing";
+  }
+  return "?";
+}
+
+StoredCalibration load_stored_calibration(ControllerConfig& config) {
+  if (config.calibration_file.empty()) {
+    return StoredCalibration::kNotConfigured;
+  }
+  std::error_code ec;
+  if (!std::filesystem::exists(config.calibration_file, ec)) {
+    return StoredCalibration::kMissing;
+  }
+  config.drive.calibration = read_calibration_file(config.calibration_file);
+  return StoredCalibration::kLoaded;
 }
 
 }  // namespace pmsm::app

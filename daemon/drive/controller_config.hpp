@@ -3,6 +3,7 @@
 // configure pmsm-thermald and the [controller] part of a simulation scenario.
 #pragma once
 
+#include <cstdint>
 #include <filesystem>
 #include <string>
 #include <string_view>
@@ -35,7 +36,24 @@ struct ControllerConfig {
   // Unless injection.vx_initial_V is given, the inverter-error prior starts at what the
   // dead-time compensation assumes at the nominal bus voltage.
   bool vx_initial_from_compensation = true;
+  // Where the calibration is kept (calibration_file.hpp): read at start-up in place of
+  // calibration.rs0_ohm / t0_C / ke0_V_s_per_rad, replaced when a calibration run completes.
+  // Empty: none. A relative path is relative to the configuration file.
+  std::string calibration_file;
 };
+
+// What became of the stored calibration at start-up.
+enum class StoredCalibration : std::uint8_t {
+  kNotConfigured,  // calibration.file not set: the keys (or the nameplate) hold
+  kLoaded,         // read from calibration.file
+  kMissing,        // calibration.file set but absent (not commissioned yet): the keys hold
+};
+
+// Loads calibration.file into config.drive.calibration when it exists. Throws
+// CalibrationFileError when it exists but is not a valid calibration (naming file, line and
+// key): a damaged calibration must be looked at, not silently replaced by the nameplate.
+StoredCalibration load_stored_calibration(ControllerConfig& config);
+[[nodiscard]] std::string_view to_string(StoredCalibration s);
 
 // The schema of every controller key (docs/configuration.md is generated from it).
 [[nodiscard]] const ConfigSchema<ControllerConfig>& controller_schema();

@@ -1,5 +1,7 @@
 #include "runner.hpp"
 
+#include "calibration_file.hpp"
+
 #include <unistd.h>
 
 #include <algorithm>
@@ -121,7 +123,8 @@ void smooth_torque(std::vector<FastRow>& rows, std::size_t window) {
   }
 }
 
-SimulationResult run_once(const Scenario& scenario, const RunOptions& options, std::vector<FastRow>& fast) {
+SimulationResult run_once(const Scenario& scenario, const RunOptions& options, std::vector<FastRow>& fast,
+                          bool store_calibration) {
   const ScenarioConfig& sc = scenario.scenario;
   SimulationResult result;
   result.scenario = sc.name;
@@ -194,6 +197,15 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, s
       result.calibration = *drive.calibration_completed();
       result.calibration_time_s = t;
       metrics_from_s = t;
+      if (store_calibration && !scenario.controller.calibration_file.empty()) {
+        try {
+          write_calibration_file(scenario.controller.calibration_file, result.calibration,
+                                 scenario.source.filename().string());
+          result.calibration_stored = true;
+        } catch (const CalibrationFileError& e) {
+          result.calibration_file_error = e.what();
+        }
+      }
     }
     if (metrics_from_s < 0.0 && tel.calibration_failed) {
       // The method could not calibrate: count from here on the stored (nameplate) values.
@@ -330,9 +342,14 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, s
 
 }  // namespace
 
-SimulationResult run_scenario(const Scenario& scenario, const RunOptions& options) {
+SimulationResult run_scenario(const Scenario& given, const RunOptions& options) {
+  // A stored calibration replaces the configured one before the drive starts, as in the daemon.
+  Scenario scenario = given;
+  const StoredCalibration stored = load_stored_calibration(scenario.controller);
   std::vector<FastRow> fast;
-  SimulationResult result = run_once(scenario, options, fast);
+  SimulationResult result = run_once(scenario, options, fast, true);
+  result.calibration_file = scenario.controller.calibration_file;
+  result.calibration_at_start = stored;
   const core::DriveConfig& d = scenario.controller.drive;
   const bool injects = d.estimator == core::EstimatorKind::kInjection && d.injection.method != core::InjectionMethod::kNone;
   if (!injects || !options.twin_for_disturbance) {
@@ -342,7 +359,7 @@ SimulationResult run_scenario(const Scenario& scenario, const RunOptions& option
   twin.controller.drive.estimator = core::EstimatorKind::kNone;
   std::vector<FastRow> twin_fast;
   RunOptions twin_options = options;
-  (void)run_once(twin, twin_options, twin_fast);
+  (void)run_once(twin, twin_options, twin_fast, false);
 
   const ScenarioConfig& sc = scenario.scenario;
   const double rated_speed = d.motor.rated_speed_rad_s;
@@ -408,6 +425,17 @@ std::string result_json(const SimulationResult& r) {
         .field("ke0_V_s_per_rad", r.calibration.ke0_V_s_per_rad)
         .end_object();
   }
+  if (!r.calibration_file.empty()) {
+    j.key("calibration_file")
+        .begin_object()
+        .field("path", r.calibration_file)
+        .field("at_start", std::string(to_string(r.calibration_at_start)))
+        .field("stored", r.calibration_stored);
+    if (!r.calibration_file_error.empty()) {
+      j.field("error", r.calibration_file_error);
+    }
+    j.end_object();
+  }
   j.field("vx_V", r.vx_V)
       .field("vx_std_V", r.vx_std_V)
       .field("lq_H", r.lq_H)
@@ -456,6 +484,10 @@ std::string result_text(const SimulationResult& r) {
   if (r.calibrated) {
     out += fmt::format("  calibration at {:.2f} s           Rs0 {:.5f} ohm at {:.1f} C, Ke0 {:.4f} V s/rad\n", r.calibration_time_s,
                        r.calibration.rs0_ohm, r.calibration.t0_C, r.calibration.ke0_V_s_per_rad);
+  }
+  if (!r.calibration_file.empty()) {
+    out += fmt::format("  calibration file                {} ({} at start{})\n", r.calibration_file, to_string(r.calibration_at_start),
+                       r.calibration_stored ? ", replaced by this run's calibration" : "");
   }
   out += fmt::format("  inverter voltage error Vx       {:.3f} +- {:.3f} V\n", r.vx_V, r.vx_std_V);
   out += fmt::format("  learned Lq                      {:.3f} +- {:.3f} mH\n", 1e3 * r.lq_H, 1e3 * r.lq_std_H);

@@ -108,6 +108,12 @@ struct SimulationResult {
   bool calibrated = false;
   double calibration_time_s = 0.0;
   core::Calibration calibration{};
+  // The stored calibration (controller calibration.file): what was found at the start, and
+  // whether this run's calibration was written back.
+  std::string calibration_file;
+  StoredCalibration calibration_at_start = StoredCalibration::kNotConfigured;
+  bool calibration_stored = false;
+  std::string calibration_file_error;   // the write failed: the result is in the report only
   double vx_V = 0.0;
   double vx_std_V = 0.0;
   double lq_H = 0.0;                    // learned q-axis inductance at the end

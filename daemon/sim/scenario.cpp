@@ -259,7 +259,8 @@ toml::table resolve_base(toml::table root, const std::filesystem::path& source, 
   const std::filesystem::path base_path = source.parent_path() / *base;
   toml::table merged = resolve_base(parse_toml(read_file(base_path), base_path), base_path, depth + 1);
   // Paths in the base are relative to the base, not to the file that inherits it.
-  for (const char* key : {"plant.profile", "plant.load.csv_path", "operation.speed_csv", "operation.torque_csv"}) {
+  for (const char* key : {"plant.profile", "plant.load.csv_path", "operation.speed_csv", "operation.torque_csv",
+                          "controller.calibration.file"}) {
     auto node = merged.at_path(key);
     if (auto* text = node.as_string(); text != nullptr && std::filesystem::path(text->get()).is_relative()) {
       *text = std::filesystem::absolute(base_path.parent_path() / text->get()).lexically_normal().string();

@@ -9,6 +9,9 @@
 #include <filesystem>
 #include <fstream>
 
+#include <unistd.h>
+
+#include "calibration_file.hpp"
 #include "run_process.hpp"
 #include "runner.hpp"
 
@@ -70,6 +73,57 @@ TEST(EstimatorClosedLoop, RejectedPairsAreNeverPublished) {
   }
   // The events that published nothing say why.
   EXPECT_GT(r.events_without_estimate[static_cast<std::size_t>(core::EventOutcome::kNoAcceptedPairs)], 5U);
+}
+
+// The calibration's result is stored (calibration.file) and a later start without a
+// calibration run uses it: with the right file the estimates are right; with a file whose Rs0
+// is 5 % high they all read about 12 C low (Eq. 1: -0.05 / 1.05 / 0.00393 per unit of R/R0).
+TEST(EstimatorClosedLoop, StoredCalibrationIsWrittenAndUsedAtTheNextStart) {
+  const std::filesystem::path dir =
+      std::filesystem::temp_directory_path() / ("pmsm-stored-calibration-" + std::to_string(::getpid()));
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  const std::string file = (dir / "calibration.toml").string();
+
+  Scenario commissioning = load_scenario(kData / "heatup-short.toml");
+  commissioning.scenario.duration_s = 5.0;
+  commissioning.controller.calibration_file = file;
+  const SimulationResult first = run_scenario(commissioning, quiet());
+  ASSERT_TRUE(first.calibrated);
+  EXPECT_EQ(first.calibration_at_start, StoredCalibration::kMissing);
+  ASSERT_TRUE(first.calibration_stored) << first.calibration_file_error;
+  const core::Calibration stored = read_calibration_file(file);
+  EXPECT_DOUBLE_EQ(stored.rs0_ohm, first.calibration.rs0_ohm);
+  EXPECT_DOUBLE_EQ(stored.t0_C, first.calibration.t0_C);
+
+  auto restart = [&](const std::string& path) {
+    Scenario s = load_scenario(kData / "heatup-short.toml");
+    s.scenario.duration_s = 14.0;
+    s.scenario.calibrate = false;
+    s.controller.calibration_file = path;
+    return run_scenario(s, quiet());
+  };
+  auto mean_error = [](const SimulationResult& r) {
+    double sum = 0.0;
+    for (const EstimateRow& e : r.estimates) sum += e.winding_est_C - e.winding_true_C;
+    return sum / static_cast<double>(r.estimates.size());
+  };
+  const SimulationResult right = restart(file);
+  EXPECT_EQ(right.calibration_at_start, StoredCalibration::kLoaded);
+  EXPECT_FALSE(right.calibrated);
+  ASSERT_GT(right.estimates.size(), 10U);
+  EXPECT_LT(std::abs(mean_error(right)), 3.0);
+
+  core::Calibration off = stored;
+  off.rs0_ohm *= 1.05;
+  const std::string off_file = (dir / "off.toml").string();
+  write_calibration_file(off_file, off, "test");
+  const SimulationResult wrong = restart(off_file);
+  ASSERT_GT(wrong.estimates.size(), 10U);
+  const double shift = mean_error(wrong) - mean_error(right);
+  EXPECT_LT(shift, -10.0);
+  EXPECT_GT(shift, -16.0);
+  std::filesystem::remove_all(dir);
 }
 
 TEST(EstimatorClosedLoop, SameSeedSameResult) {

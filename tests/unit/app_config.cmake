@@ -6,4 +6,5 @@ pmsm_add_gtest(app_config_test LABEL unit
     ${CMAKE_CURRENT_LIST_DIR}/app_config_controller_test.cpp
     ${CMAKE_CURRENT_LIST_DIR}/app_config_scenario_test.cpp
     ${CMAKE_CURRENT_LIST_DIR}/app_config_regression_test.cpp
+    ${CMAKE_CURRENT_LIST_DIR}/app_calibration_file_test.cpp
   LIBS pmsm_drive pmsm_sim)

@@ -1,0 +1,203 @@
+#include "calibration_file.hpp"
+
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <ctime>
+#include <fstream>
+#include <set>
+#include <sstream>
+
+#include <fmt/format.h>
+#include <toml++/toml.h>
+
+namespace pmsm::app {
+namespace {
+
+std::string errno_text(int e) { return std::strerror(e); }
+
+std::string utc_now() {
+  const std::time_t t = std::chrono::system_clock::to_time_t(std::chrono::system_clock::now());
+  std::tm tm{};
+  gmtime_r(&t, &tm);
+  char buffer[32];
+  std::strftime(buffer, sizeof buffer, "%Y-%m-%dT%H:%M:%SZ", &tm);
+  return buffer;
+}
+
+// TOML basic string: quotes, backslashes and control characters escaped.
+std::string quoted(std::string_view text) {
+  std::string out = "\"";
+  for (const char ch : text) {
+    const auto c = static_cast<unsigned char>(ch);
+    if (ch == '"' || ch == '\\') {
+      out += '\\';
+      out += ch;
+    } else if (c < 0x20 || c == 0x7f) {
+      out += fmt::format("\\u{:04x}", c);
+    } else {
+      out += ch;
+    }
+  }
+  return out + "\"";
+}
+
+// The shortest text that reads back as the same double, always a TOML float.
+std::string toml_float(double v) {
+  std::string text = fmt::format("{}", v);
+  if (text.find_first_of(".eE") == std::string::npos) {
+    text += ".0";
+  }
+  return text;
+}
+
+void write_all(int fd, const std::string& text, const std::filesystem::path& tmp) {
+  std::size_t done = 0;
+  while (done < text.size()) {
+    const ssize_t n = ::write(fd, text.data() + done, text.size() - done);
+    if (n < 0) {
+      if (errno == EINTR) {
+        continue;
+      }
+      throw CalibrationFileError(fmt::format("{}: cannot write: {}", tmp.string(), errno_text(errno)));
+    }
+    done += static_cast<std::size_t>(n);
+  }
+}
+
+// Removes the temporary file unless released (the rename consumed it).
+class TempFile {
+ public:
+  explicit TempFile(std::filesystem::path path) : path_(std::move(path)) {}
+  TempFile(const TempFile&) = delete;
+  TempFile& operator=(const TempFile&) = delete;
+  ~TempFile() {
+    if (fd_ >= 0) {
+      ::close(fd_);
+    }
+    if (!released_) {
+      ::unlink(path_.c_str());
+    }
+  }
+  void open() {
+    fd_ = ::open(path_.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+    if (fd_ < 0) {
+      throw CalibrationFileError(fmt::format("{}: cannot create: {}", path_.string(), errno_text(errno)));
+    }
+    opened_ = true;
+  }
+  void close_checked() {
+    const int fd = fd_;
+    fd_ = -1;
+    if (::close(fd) != 0) {
+      throw CalibrationFileError(fmt::format("{}: cannot close: {}", path_.string(), errno_text(errno)));
+    }
+  }
+  [[nodiscard]] int fd() const { return fd_; }
+  [[nodiscard]] bool opened() const { return opened_; }
+  void release() { released_ = true; }
+
+ private:
+  std::filesystem::path path_;
+  int fd_ = -1;
+  bool opened_ = false;
+  bool released_ = false;
+};
+
+double number(const toml::table& t, const char* key, const std::string& file, double lo, double hi, bool lo_open) {
+  const toml::node* node = t.get(key);
+  if (node == nullptr) {
+    throw CalibrationFileError(fmt::format("{}: {}: missing", file, key));
+  }
+  const auto line = node->source().begin.line;
+  const std::optional<double> v = node->value<double>();
+  if (!v || !node->is_number()) {
+    throw CalibrationFileError(fmt::format("{}:{}: {}: expected a number", file, line, key));
+  }
+  const bool below = lo_open ? !(*v > lo) : !(*v >= lo);
+  if (!std::isfinite(*v) || below || !(*v <= hi)) {
+    throw CalibrationFileError(
+        fmt::format("{}:{}: {}: {} is out of range, expected in {}{}, {}]", file, line, key, *v, lo_open ? "(" : "[", lo, hi));
+  }
+  return *v;
+}
+
+}  // namespace
+
+void write_calibration_file(const std::filesystem::path& path, const core::Calibration& c, std::string_view source) {
+  if (path.empty()) {
+    throw CalibrationFileError("calibration file: no path given");
+  }
+  if (!(c.rs0_ohm > 0.0) || !std::isfinite(c.rs0_ohm) || !std::isfinite(c.t0_C) || !std::isfinite(c.ke0_V_s_per_rad)) {
+    throw CalibrationFileError(fmt::format("{}: refusing to store an invalid calibration (Rs0 {}, T0 {}, Ke0 {})", path.string(),
+                                           c.rs0_ohm, c.t0_C, c.ke0_V_s_per_rad));
+  }
+  std::ostringstream text;
+  text << "# pmsm-thermal calibration (Eq. 1: Rs = Rs0 (1 + alpha (T - T0))); replaced atomically by the drive\n"
+       << "format = " << kCalibrationFileFormat << "\n"
+       << "rs0_ohm = " << toml_float(c.rs0_ohm) << "\n"
+       << "t0_C = " << toml_float(c.t0_C) << "\n"
+       << "ke0_V_s_per_rad = " << toml_float(c.ke0_V_s_per_rad) << "\n"
+       << "written_utc = " << quoted(utc_now()) << "\n"
+       << "source = " << quoted(source) << "\n";
+
+  const std::filesystem::path dir = path.has_parent_path() ? path.parent_path() : std::filesystem::path(".");
+  const std::filesystem::path tmp = dir / fmt::format(".{}.tmp.{}", path.filename().string(), ::getpid());
+  TempFile file(tmp);
+  file.open();
+  write_all(file.fd(), text.str(), tmp);
+  if (::fsync(file.fd()) != 0) {
+    throw CalibrationFileError(fmt::format("{}: cannot flush: {}", tmp.string(), errno_text(errno)));
+  }
+  file.close_checked();
+  if (::rename(tmp.c_str(), path.c_str()) != 0) {
+    throw CalibrationFileError(fmt::format("{}: cannot replace: {}", path.string(), errno_text(errno)));
+  }
+  file.release();
+  // The rename is durable only once the directory entry is.
+  const int dfd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (dfd >= 0) {
+    (void)::fsync(dfd);
+    ::close(dfd);
+  }
+}
+
+core::Calibration read_calibration_file(const std::filesystem::path& path) {
+  const std::string file = path.string();
+  std::ifstream in(path, std::ios::binary);
+  if (!in) {
+    throw CalibrationFileError(fmt::format("{}: cannot open: {}", file, errno_text(errno)));
+  }
+  std::ostringstream buffer;
+  buffer << in.rdbuf();
+  toml::table t;
+  try {
+    t = toml::parse(buffer.str(), file);
+  } catch (const toml::parse_error& e) {
+    throw CalibrationFileError(fmt::format("{}:{}: {}", file, e.source().begin.line, e.description()));
+  }
+  static const std::set<std::string, std::less<>> known{"format", "rs0_ohm", "t0_C", "ke0_V_s_per_rad", "written_utc", "source"};
+  for (const auto& [key, node] : t) {
+    if (!known.contains(key.str())) {
+      throw CalibrationFileError(fmt::format("{}:{}: unknown key '{}'", file, node.source().begin.line, key.str()));
+    }
+  }
+  const double format = number(t, "format", file, 1, 1e9, false);
+  if (format != kCalibrationFileFormat) {
+    throw CalibrationFileError(
+        fmt::format("{}: format: {} is not supported (this build reads format {})", file, format, kCalibrationFileFormat));
+  }
+  core::Calibration c;
+  c.rs0_ohm = number(t, "rs0_ohm", file, 0.0, 10.0, true);
+  c.t0_C = number(t, "t0_C", file, -50.0, 200.0, false);
+  c.ke0_V_s_per_rad = t.get("ke0_V_s_per_rad") != nullptr ? number(t, "ke0_V_s_per_rad", file, 0.0, 100.0, false) : 0.0;
+  c.calibrated = true;
+  return c;
+}
+
+}  // namespace pmsm::app

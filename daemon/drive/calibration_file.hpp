@@ -1,0 +1,44 @@
+// The calibration's result on disk: Rs0 and Ke0 at a known temperature T0 (Eq. 1), kept in a
+// small TOML file so that a drive restarted warm does not have to recalibrate (it could not:
+// the winding temperature is then unknown).
+//
+//   # pmsm-thermal calibration (Eq. 1: Rs = Rs0 (1 + alpha (T - T0)))
+//   format = 1
+//   rs0_ohm = 0.13231
+//   t0_C = 25.0
+//   ke0_V_s_per_rad = 0.9711
+//   written_utc = "2026-11-21T10:00:00Z"
+//   source = "reference-fm-bipolar.toml"
+//
+// Written atomically: to a temporary file in the same directory, flushed to the device
+// (fsync), renamed over the old file, and the directory flushed, so that a power cut leaves
+// either the old calibration or the new one, never a torn file. Read strictly: every key
+// checked, unknown keys and values out of range rejected with the file, line and key named.
+#pragma once
+
+#include <filesystem>
+#include <stdexcept>
+#include <string>
+#include <string_view>
+
+#include "pmsm/core/thermal_observer.hpp"
+
+namespace pmsm::app {
+
+class CalibrationFileError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+inline constexpr int kCalibrationFileFormat = 1;
+
+// Replaces `path` atomically with the calibration. Throws CalibrationFileError naming the
+// path and the system's reason; the old file is then untouched and no temporary is left.
+void write_calibration_file(const std::filesystem::path& path, const core::Calibration& calibration,
+                            std::string_view source);
+
+// Reads a calibration file (calibrated = true). Throws CalibrationFileError naming the file,
+// line and key when it cannot be read or is not a valid calibration.
+[[nodiscard]] core::Calibration read_calibration_file(const std::filesystem::path& path);
+
+}  // namespace pmsm::app

@@ -1,0 +1,169 @@
+// The stored calibration: written atomically and read strictly (calibration_file.hpp), and
+// the controller configuration's calibration.file (read at start-up, relative paths).
+#include <gtest/gtest.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+
+#include <toml++/toml.h>
+
+#include "calibration_file.hpp"
+#include "controller_config.hpp"
+
+namespace pmsm::app {
+namespace {
+
+namespace fs = std::filesystem;
+
+class CalibrationFile : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() / ("pmsm-calibration-test-" + std::to_string(::getpid()) + "-" +
+                                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+  void TearDown() override {
+    // A test may have taken the write permission away.
+    ::chmod(dir_.c_str(), 0755);
+    fs::remove_all(dir_);
+  }
+  void write_text(const fs::path& p, const std::string& text) { std::ofstream(p) << text; }
+  static std::string read_text(const fs::path& p) {
+    std::ifstream in(p);
+    std::ostringstream s;
+    s << in.rdbuf();
+    return s.str();
+  }
+  std::string error_of(const std::string& text) {
+    const fs::path p = dir_ / "bad.toml";
+    write_text(p, text);
+    try {
+      (void)read_calibration_file(p);
+    } catch (const CalibrationFileError& e) {
+      return e.what();
+    }
+    return "";
+  }
+  [[nodiscard]] std::size_t entries() const {
+    std::size_t n = 0;
+    for ([[maybe_unused]] const auto& e : fs::directory_iterator(dir_)) ++n;
+    return n;
+  }
+  fs::path dir_;
+};
+
+core::Calibration sample() {
+  core::Calibration c;
+  c.rs0_ohm = 0.1323127491;
+  c.t0_C = 24.75;
+  c.ke0_V_s_per_rad = 0.97105928;
+  c.calibrated = true;
+  return c;
+}
+
+TEST_F(CalibrationFile, RoundTripKeepsTheValues) {
+  const fs::path p = dir_ / "calibration.toml";
+  write_calibration_file(p, sample(), "bench \"A\"\\1");
+  const core::Calibration c = read_calibration_file(p);
+  EXPECT_NEAR(c.rs0_ohm, sample().rs0_ohm, 1e-12);
+  EXPECT_DOUBLE_EQ(c.t0_C, 24.75);
+  EXPECT_NEAR(c.ke0_V_s_per_rad, sample().ke0_V_s_per_rad, 1e-12);
+  EXPECT_TRUE(c.calibrated);
+  // The file is TOML a person can read; the source survived its quotes and backslash.
+  const toml::table t = toml::parse_file(p.string());
+  EXPECT_EQ(t["source"].value<std::string>(), std::optional<std::string>("bench \"A\"\\1"));
+  EXPECT_EQ(t["format"].value<int>(), std::optional<int>(kCalibrationFileFormat));
+  EXPECT_TRUE(t["written_utc"].is_string());
+}
+
+TEST_F(CalibrationFile, ReplacesTheOldFileAndLeavesNoTemporary) {
+  const fs::path p = dir_ / "calibration.toml";
+  write_text(p, "old content that is not TOML [");
+  write_calibration_file(p, sample(), "test");
+  EXPECT_NEAR(read_calibration_file(p).rs0_ohm, sample().rs0_ohm, 1e-12);
+  EXPECT_EQ(entries(), 1U);
+}
+
+TEST_F(CalibrationFile, AFailedWriteNamesThePathAndKeepsTheOldFile) {
+  // The directory refuses new files (root ignores permission bits, so take a path whose
+  // directory does not exist, and a target that is a non-empty directory).
+  const fs::path missing = dir_ / "no-such-dir" / "calibration.toml";
+  try {
+    write_calibration_file(missing, sample(), "test");
+    FAIL() << "no error";
+  } catch (const CalibrationFileError& e) {
+    EXPECT_NE(std::string(e.what()).find("no-such-dir"), std::string::npos) << e.what();
+  }
+  const fs::path occupied = dir_ / "calibration.toml";
+  fs::create_directories(occupied / "inside");
+  try {
+    write_calibration_file(occupied, sample(), "test");
+    FAIL() << "no error";
+  } catch (const CalibrationFileError& e) {
+    EXPECT_NE(std::string(e.what()).find("calibration.toml: cannot replace"), std::string::npos) << e.what();
+  }
+  EXPECT_TRUE(fs::is_directory(occupied / "inside"));
+  EXPECT_EQ(entries(), 1U);  // the temporary is gone
+}
+
+TEST_F(CalibrationFile, RefusesToStoreAnInvalidCalibration) {
+  core::Calibration c = sample();
+  c.rs0_ohm = std::nan("");
+  EXPECT_THROW(write_calibration_file(dir_ / "c.toml", c, "test"), CalibrationFileError);
+  EXPECT_EQ(entries(), 0U);
+}
+
+TEST_F(CalibrationFile, BadFilesAreRejectedWithFileLineAndKey) {
+  EXPECT_NE(error_of("format = 1\nrs0_ohm = 0.13\nt0_C = [\n").find("bad.toml:3"), std::string::npos);
+  EXPECT_NE(error_of("format = 1\nrs0_ohm = 0.13\nt0_C = 25.0\nrs0 = 1\n").find("bad.toml:4: unknown key 'rs0'"),
+            std::string::npos);
+  EXPECT_NE(error_of("format = 1\nrs0_ohm = -0.13\nt0_C = 25.0\n").find("bad.toml:2: rs0_ohm: -0.13 is out of range"),
+            std::string::npos);
+  EXPECT_NE(error_of("format = 1\nrs0_ohm = 0.13\nt0_C = 900.0\n").find("t0_C: 900 is out of range"), std::string::npos);
+  EXPECT_NE(error_of("format = 1\nrs0_ohm = \"0.13\"\nt0_C = 25.0\n").find("rs0_ohm: expected a number"), std::string::npos);
+  EXPECT_NE(error_of("format = 1\nt0_C = 25.0\n").find("rs0_ohm: missing"), std::string::npos);
+  EXPECT_NE(error_of("format = 2\nrs0_ohm = 0.13\nt0_C = 25.0\n").find("format: 2 is not supported"), std::string::npos);
+  EXPECT_NE(error_of("format = 1\nrs0_ohm = 0.13\nt0_C = 25.0\nke0_V_s_per_rad = nan\n").find("ke0_V_s_per_rad"),
+            std::string::npos);
+  // Ke0 may be absent (a calibration without EMF: standstill).
+  EXPECT_EQ(error_of("format = 1\nrs0_ohm = 0.13\nt0_C = 25.0\n"), "");
+  try {
+    (void)read_calibration_file(dir_ / "absent.toml");
+    FAIL() << "no error";
+  } catch (const CalibrationFileError& e) {
+    EXPECT_NE(std::string(e.what()).find("absent.toml: cannot open"), std::string::npos) << e.what();
+  }
+}
+
+TEST_F(CalibrationFile, ControllerConfigLoadsTheFileRelativeToItself) {
+  const fs::path config_path = dir_ / "drive.toml";
+  const std::string text = "[calibration]\nfile = \"state/calibration.toml\"\nrs0_ohm = 0.140\nt0_C = 20.0\n";
+  ControllerConfig c = parse_controller_config(toml::parse(text, config_path.string()), config_path.string(), {});
+  EXPECT_EQ(fs::path(c.calibration_file), dir_ / "state" / "calibration.toml");
+  // Not there yet (not commissioned): the keys hold.
+  ControllerConfig missing = c;
+  EXPECT_EQ(load_stored_calibration(missing), StoredCalibration::kMissing);
+  EXPECT_EQ(missing.drive.calibration.rs0_ohm, 0.140);
+  EXPECT_FALSE(missing.drive.calibration.calibrated);
+  // Stored: it replaces them.
+  fs::create_directories(dir_ / "state");
+  write_calibration_file(c.calibration_file, sample(), "test");
+  EXPECT_EQ(load_stored_calibration(c), StoredCalibration::kLoaded);
+  EXPECT_NEAR(c.drive.calibration.rs0_ohm, sample().rs0_ohm, 1e-12);
+  EXPECT_EQ(c.drive.calibration.t0_C, 24.75);
+  EXPECT_TRUE(c.drive.calibration.calibrated);
+  // Damaged: an error, not the nameplate.
+  write_text(c.calibration_file, "format = 1\nrs0_ohm = 0\nt0_C = 25\n");
+  EXPECT_THROW(load_stored_calibration(c), CalibrationFileError);
+  // Not configured.
+  ControllerConfig none = default_controller_config();
+  EXPECT_EQ(load_stored_calibration(none), StoredCalibration::kNotConfigured);
+}
+
+}  // namespace
+}  // namespace pmsm::app
