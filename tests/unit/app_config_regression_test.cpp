@@ -6,30 +6,16 @@
 #include <string>
 
 #include "controller_config.hpp"
+#include "app_config_test_support.hpp"
 #include "scenario.hpp"
 
 namespace pmsm::app {
 namespace {
 
-const std::filesystem::path kDir = std::filesystem::path(PMSM_SOURCE_DIR) / "tests/unit/data/config";
-
-template <typename F>
-std::string error_of(F f) {
-  try {
-    f();
-  } catch (const ConfigError& e) {
-    return e.what();
-  } catch (const plant::ConfigError& e) {
-    return e.what();
-  }
-  return "";
-}
-
-std::string inline_error(std::string_view text, const std::string& name = "inline.toml") {
-  return error_of([&] { (void)parse_scenario(text, kDir / name); });
-}
-
-std::string path_of(const std::string& name) { return (kDir / name).string(); }
+using test::error_of;
+using test::inline_error;
+using test::path_of;
+const std::filesystem::path& kDir = test::kConfigDir;
 
 // ISSUE scenario-points-file: read_points() names the scenario's own path with the line of a
 // node that came from the base file.

@@ -5,12 +5,15 @@
 #include <filesystem>
 #include <string>
 
+#include "app_config_test_support.hpp"
 #include "scenario.hpp"
 
 namespace pmsm::app {
 namespace {
 
-const std::filesystem::path kDir = std::filesystem::path(PMSM_SOURCE_DIR) / "tests/unit/data/config";
+using test::error_of;
+using test::path_of;
+const std::filesystem::path& kDir = test::kConfigDir;
 
 // Parses inline text as if it were the file `name` in the fixture directory (so relative
 // paths resolve there).
@@ -18,24 +21,7 @@ Scenario parse(std::string_view text, const std::string& name = "inline.toml") {
   return parse_scenario(text, kDir / name);
 }
 
-// Message of the error (ConfigError or plant::ConfigError) that parsing throws; "" if none.
-template <typename F>
-std::string error_of(F f) {
-  try {
-    f();
-  } catch (const ConfigError& e) {
-    return e.what();
-  } catch (const plant::ConfigError& e) {
-    return e.what();
-  }
-  return "";
-}
-
-std::string inline_error(std::string_view text) {
-  return error_of([&] { (void)parse(text); });
-}
-
-std::string path_of(const std::string& name) { return (kDir / name).string(); }
+std::string inline_error(std::string_view text) { return test::inline_error(text); }
 
 constexpr std::string_view kMinimal = R"([operation]
 speed_rad_s = [[0.0, 100.0]]
