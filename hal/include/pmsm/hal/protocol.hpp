@@ -661,7 +661,7 @@ inline constexpr std::array<MessageDef, kMessageCount> kMessages{{
      false, 100, "every 100 ms (plant only, never read by the daemon)", truth_electrical::kSignals,
      "Plant ground truth: resistance, speed, torque and load torque."},
     {MessageType::kPlantStatus, "PLANT_STATUS", 0x220, 8, false, Role::kPlant, detail::kToBench,
-     false, 1000, "every 1 s", plant_status::kSignals,
+     false, 100, "every 100 ms, with the truth frames", plant_status::kSignals,
      "Plant emulator status: time base, output, command timing."},
 }};
 
