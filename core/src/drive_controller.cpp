@@ -260,14 +260,13 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     // The currents expected at the start and end of that period: the reference, turning.
     const Abc i_start = inverse_clarke(inverse_park(i_ref, theta + omega_e * config_.period_s));
     const Abc i_end = inverse_clarke(inverse_park(i_ref, theta + 2.0 * omega_e * config_.period_s));
-    const Duties d = svpwm_compensated(inverse_park(v, c, sn), in.vdc_V, i_start, i_end,
-                                       config_.dead_time, config_.period_s);
+    const Abc correction = dead_time_compensation_V(i_start, i_end, config_.dead_time, in.vdc_V, config_.period_s);
+    const Duties d = svpwm_corrected(inverse_park(v, c, sn), in.vdc_V, correction);
     output_.duty = d.value;
     // What the bridge was asked for in total: the current controller's voltage plus the
     // compensation. The estimator models the bridge's whole error against this (see
     // pair_estimator.hpp), so it must see the compensation actually applied.
-    const Dq comp =
-        park(clarke(dead_time_compensation_V(i_start, i_end, config_.dead_time, in.vdc_V, config_.period_s)), c, sn);
+    const Dq comp = park(clarke(correction), c, sn);
     v_total = {v.d + comp.d, v.q + comp.q};
     limited = limited || d.clipped;
     output_.enable = true;

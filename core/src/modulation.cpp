@@ -58,9 +58,12 @@ Abc dead_time_compensation_V(const Abc& i0_A, const Abc& i1_A, const DeadTimeCom
 Duties svpwm_compensated(const AlphaBeta& v_V, double vdc_V, const Abc& i0_A, const Abc& i1_A,
                          const DeadTimeCompensation& comp, double period_s) {
   // Add the expected loss back before the common mode is chosen.
+  return svpwm_corrected(v_V, vdc_V, dead_time_compensation_V(i0_A, i1_A, comp, vdc_V, period_s));
+}
+
+Duties svpwm_corrected(const AlphaBeta& v_V, double vdc_V, const Abc& correction_V) {
   const Abc v = inverse_clarke(v_V);
-  const Abc e = dead_time_compensation_V(i0_A, i1_A, comp, vdc_V, period_s);
-  return duties_from_phase_voltages({v.a + e.a, v.b + e.b, v.c + e.c}, vdc_V);
+  return duties_from_phase_voltages({v.a + correction_V.a, v.b + correction_V.b, v.c + correction_V.c}, vdc_V);
 }
 
 }  // namespace pmsm::core

@@ -89,7 +89,6 @@ class TempFile {
     if (fd_ < 0) {
       throw CalibrationFileError(fmt::format("{}: cannot create: {}", path_.string(), errno_text(errno)));
     }
-    opened_ = true;
   }
   void close_checked() {
     const int fd = fd_;
@@ -99,13 +98,11 @@ class TempFile {
     }
   }
   [[nodiscard]] int fd() const { return fd_; }
-  [[nodiscard]] bool opened() const { return opened_; }
   void release() { released_ = true; }
 
  private:
   std::filesystem::path path_;
   int fd_ = -1;
-  bool opened_ = false;
   bool released_ = false;
 };
 

@@ -28,40 +28,31 @@ std::string located(int line, const std::string& message, const std::string& fil
 ParseError::ParseError(int line, const std::string& message, const std::string& file)
     : std::runtime_error(located(line, message, file)), line_(line), message_(message) {}
 
+namespace {
+
+// The first element of `range` that satisfies `pred`, or nullptr.
+template <typename Range, typename Pred>
+auto find_first(const Range& range, Pred pred) noexcept -> decltype(&*std::ranges::begin(range)) {
+  const auto it = std::ranges::find_if(range, pred);
+  return it == std::ranges::end(range) ? nullptr : &*it;
+}
+
+}  // namespace
+
 const ValueDescription* Signal::find_value(std::int64_t raw) const noexcept {
-  for (const ValueDescription& v : values) {
-    if (v.value == raw) {
-      return &v;
-    }
-  }
-  return nullptr;
+  return find_first(values, [raw](const ValueDescription& v) { return v.value == raw; });
 }
 
 const Signal* Message::find_signal(std::string_view signal_name) const noexcept {
-  for (const Signal& s : signals) {
-    if (s.name == signal_name) {
-      return &s;
-    }
-  }
-  return nullptr;
+  return find_first(signals, [signal_name](const Signal& s) { return s.name == signal_name; });
 }
 
 const Message* Database::find(std::uint32_t id, bool extended_id) const noexcept {
-  for (const Message& m : messages) {
-    if (m.id == id && m.extended == extended_id) {
-      return &m;
-    }
-  }
-  return nullptr;
+  return find_first(messages, [id, extended_id](const Message& m) { return m.id == id && m.extended == extended_id; });
 }
 
 const Message* Database::find(std::string_view message_name) const noexcept {
-  for (const Message& m : messages) {
-    if (m.name == message_name) {
-      return &m;
-    }
-  }
-  return nullptr;
+  return find_first(messages, [message_name](const Message& m) { return m.name == message_name; });
 }
 
 namespace {

@@ -29,6 +29,10 @@ struct Duties {
 [[nodiscard]] Duties svpwm_compensated(const AlphaBeta& v_V, double vdc_V, const Abc& i0_A, const Abc& i1_A,
                                        const DeadTimeCompensation& comp, double period_s);
 
+// As svpwm(), plus a given correction per phase (e.g. dead_time_compensation_V(), computed
+// once by a caller that also needs it) added before the common mode is chosen.
+[[nodiscard]] Duties svpwm_corrected(const AlphaBeta& v_V, double vdc_V, const Abc& correction_V);
+
 // The phase-voltage error per phase the compensation assumes, as a fraction of one unit of
 // "sign(i)": a linear ramp through zero inside +-current_band and +-1 outside.
 [[nodiscard]] double soft_sign(double i_A, double current_band_A);
