@@ -8,3 +8,8 @@ pmsm_add_gtest(app_config_test LABEL unit
     ${CMAKE_CURRENT_LIST_DIR}/app_config_regression_test.cpp
     ${CMAKE_CURRENT_LIST_DIR}/app_calibration_file_test.cpp
   LIBS pmsm_drive pmsm_sim)
+
+# Own binary: it replaces the global operator new to count allocations in the hot path.
+pmsm_add_gtest(drive_alloc_test LABEL unit
+  SOURCES ${CMAKE_CURRENT_LIST_DIR}/drive_alloc_test.cpp
+  LIBS pmsm_drive pmsm::plant)
