@@ -5,7 +5,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 build=${1:-build/release}
-if [ ! -x "$build/daemon/pmsm-thermal" ]; then
+if [ ! -x "$build/tools/pmsm-thermal" ]; then
   cmake --preset release >/dev/null
   cmake --build --preset release --target pmsm-thermal
 fi
@@ -21,4 +21,4 @@ scenarios=(
   bench/scenarios/standstill-fm-bipolar.toml
   bench/scenarios/load-steps-fm-bipolar.toml
 )
-"$build/daemon/pmsm-thermal" simulate "${scenarios[@]}" --markdown --plot-dir docs/accuracy --quiet
+"$build/tools/pmsm-thermal" simulate "${scenarios[@]}" --markdown --plot-dir docs/accuracy --quiet

@@ -35,7 +35,7 @@ fi
 
 plant_bin=${PMSM_PLANT_BIN:-$build/plant-emulator/pmsm-plant}
 sender_bin=${PMSM_SENDER_BIN:-$build/tests/plant_command_sender}
-decode_bin=${PMSM_THERMAL_BIN:-$build/daemon/pmsm-thermal}
+decode_bin=${PMSM_THERMAL_BIN:-$build/tools/pmsm-thermal}
 for b in "$plant_bin" "$sender_bin" "$decode_bin"; do
   [ -x "$b" ] || die "missing executable $b (build the targets pmsm-plant, plant_command_sender, pmsm-thermal)"
 done

@@ -9,10 +9,10 @@
 #include <string>
 #include <vector>
 
-#include "pmsm/hal/candump.hpp"
+#include "pmsm/tools/candump.hpp"
 #include "pmsm/hal/codec.hpp"
-#include "pmsm/hal/dbc.hpp"
-#include "pmsm/hal/dbc_writer.hpp"
+#include "pmsm/tools/dbc.hpp"
+#include "pmsm/tools/dbc_writer.hpp"
 
 namespace pmsm::hal::candump {
 namespace {

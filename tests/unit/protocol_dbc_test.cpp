@@ -20,8 +20,8 @@
 
 #include "pmsm/hal/codec.hpp"
 #include "pmsm/hal/crc8.hpp"
-#include "pmsm/hal/dbc.hpp"
-#include "pmsm/hal/dbc_writer.hpp"
+#include "pmsm/tools/dbc.hpp"
+#include "pmsm/tools/dbc_writer.hpp"
 #include "pmsm/hal/protocol.hpp"
 
 namespace pmsm::hal::protocol {

@@ -1,0 +1,157 @@
+// The CAN bus as the daemon and the plant see it: one endpoint on one bus.
+//
+// Backends: SocketCanBus (socketcan.hpp, a CAN_RAW socket on can0 / vcan0) and
+// SimBusEndpoint (sim_bus.hpp, in-process, for fast tests). Both follow the SocketCAN
+// semantics, so that a test on the simulated bus means the same on vcan:
+//   - an endpoint does not receive its own frames; every other endpoint does (loopback on,
+//     CAN_RAW_RECV_OWN_MSGS off);
+//   - an endpoint opened without CAN FD neither sends nor receives FD frames;
+//   - receive filters are {id, mask} pairs, a frame passes if any filter matches; an
+//     empty list passes no data frame; the default (before set_filters) passes all;
+//   - error frames reach an endpoint only if its error mask selects their class (default:
+//     none), and they arrive through receive() with CanFrame::error set, after the endpoint
+//     has updated its state() and counters from them.
+//
+// Threading: one thread does send/receive/set_*/reopen on an endpoint (the RT thread);
+// counters(), state() and interface_up() may be read from any thread.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <span>
+
+#include "pmsm/hal/can_frame.hpp"
+#include "pmsm/hal/status.hpp"
+
+namespace pmsm::hal {
+
+// Classes of error frames (the values are linux/can/error.h's CAN_ERR_* class bits, which
+// are also the bits of CanFrame::id of an error frame).
+enum CanErrorClass : std::uint32_t {
+  kCanErrTxTimeout = 0x001,
+  kCanErrLostArbitration = 0x002,
+  kCanErrController = 0x004,   // data[1]: warning / passive / active, rx/tx overflow
+  kCanErrProtocol = 0x008,
+  kCanErrTransceiver = 0x010,
+  kCanErrNoAck = 0x020,
+  kCanErrBusOff = 0x040,
+  kCanErrBusError = 0x080,     // may flood: select only when needed
+  kCanErrRestarted = 0x100,    // the controller left bus-off
+  kCanErrCounters = 0x200,
+  kCanErrAll = 0x1FFF'FFFF,
+};
+
+// Bits of data[1] of a kCanErrController error frame (CAN_ERR_CRTL_*).
+enum CanControllerError : std::uint8_t {
+  kCanCtrlRxOverflow = 0x01,
+  kCanCtrlTxOverflow = 0x02,
+  kCanCtrlRxWarning = 0x04,
+  kCanCtrlTxWarning = 0x08,
+  kCanCtrlRxPassive = 0x10,
+  kCanCtrlTxPassive = 0x20,
+  kCanCtrlActive = 0x40,
+};
+
+// The controller's fault-confinement state, as learnt from error frames. vcan never
+// leaves kErrorActive by itself (error frames can be injected, see can-utils canerrsim).
+enum class CanBusState : std::uint8_t { kErrorActive, kErrorWarning, kErrorPassive, kBusOff };
+
+[[nodiscard]] const char* to_string(CanBusState state) noexcept;
+
+enum class SendResult : std::uint8_t {
+  kOk,
+  kWouldBlock,      // the socket's send buffer is full (EAGAIN); frame not sent
+  kNoBufferSpace,   // the device queue is full (ENOBUFS); frame dropped and counted
+  kInterfaceDown,   // ENETDOWN / ENODEV / ENXIO: reconnect (reopen()) once it is back
+  kInvalidFrame,    // identifier or length out of range, or FD frame on a classic endpoint
+  kError,           // anything else (see the backend's last_error_number())
+};
+
+[[nodiscard]] const char* to_string(SendResult result) noexcept;
+
+enum class ReceiveStatus : std::uint8_t {
+  kFrame,          // `out` holds a frame (a data frame, or an error frame if error is set)
+  kTimeout,        // nothing arrived before the timeout
+  kInterfaceDown,  // ENETDOWN / ENODEV: reconnect once it is back
+  kError,          // a failed or malformed read (counted in rx_errors / bad_size_reads)
+};
+
+[[nodiscard]] const char* to_string(ReceiveStatus status) noexcept;
+
+struct ReceivedFrame {
+  CanFrame frame;
+  // Reception time, nanoseconds since the epoch (CLOCK_REALTIME: the kernel's software
+  // receive timestamp for SocketCAN, the hardware one when the driver provides it).
+  // 0 when the backend delivered none.
+  std::int64_t timestamp_ns = 0;
+  bool hardware_timestamp = false;
+};
+
+// Monotonic counts since the endpoint was created (reopen() keeps them).
+struct CanBusCounters {
+  std::uint64_t tx_frames = 0;           // frames handed to the kernel / bus
+  std::uint64_t rx_frames = 0;           // data frames received
+  std::uint64_t tx_dropped_enobufs = 0;  // frames dropped because the device queue was full
+  std::uint64_t tx_would_block = 0;      // sends refused with EAGAIN
+  std::uint64_t tx_errors = 0;           // other failed sends (incl. invalid frames, down)
+  std::uint64_t rx_overflow = 0;         // frames the kernel dropped for this socket (SO_RXQ_OVFL) or the simulated queue overflowed
+  std::uint64_t rx_errors = 0;           // failed reads
+  std::uint64_t error_frames = 0;        // error frames received
+  std::uint64_t bad_size_reads = 0;      // reads that were neither CAN_MTU nor CANFD_MTU bytes
+  std::uint64_t bus_off_events = 0;      // error frames that reported bus-off
+  std::uint64_t interface_down_events = 0; // sends/reads that failed with the interface down
+};
+
+class CanBus {
+ public:
+  CanBus() = default;
+  virtual ~CanBus() = default;
+  CanBus(const CanBus&) = delete;
+  CanBus& operator=(const CanBus&) = delete;
+
+  // Sends one frame without blocking. If the device queue is full (ENOBUFS) or the send
+  // buffer is (EAGAIN), waits up to `max_wait` for room and retries; 0 (the default)
+  // means no wait. A frame that still cannot be sent is dropped and counted.
+  SendResult send(const CanFrame& frame,
+                  std::chrono::nanoseconds max_wait = std::chrono::nanoseconds{0}) noexcept {
+    return do_send(frame, max_wait);
+  }
+
+  // Waits up to `timeout` for one frame (a negative timeout waits forever, zero polls).
+  ReceiveStatus receive(ReceivedFrame& out, std::chrono::nanoseconds timeout) noexcept {
+    return do_receive(out, timeout);
+  }
+
+  // Replaces the kernel receive filters (CAN_RAW_FILTER). Not for the hot path.
+  virtual Status set_filters(std::span<const CanFilter> filters) = 0;
+  // Selects which error-frame classes (CanErrorClass bits) reach receive() (CAN_RAW_ERR_FILTER).
+  virtual Status set_error_mask(std::uint32_t error_classes) = 0;
+
+  // Closes and reopens the endpoint with the same configuration, filters and error mask,
+  // e.g. after the interface was deleted and created again. Counters are kept.
+  virtual Status reopen() = 0;
+
+  [[nodiscard]] virtual CanBusCounters counters() const noexcept = 0;
+  [[nodiscard]] virtual CanBusState state() const noexcept = 0;
+  // Whether the interface is administratively up and running (SocketCanBus asks the kernel:
+  // one ioctl, not for the hot path).
+  [[nodiscard]] virtual bool interface_up() const noexcept = 0;
+  [[nodiscard]] virtual bool fd_enabled() const noexcept = 0;
+
+ protected:
+  virtual SendResult do_send(const CanFrame& frame, std::chrono::nanoseconds max_wait) noexcept = 0;
+  virtual ReceiveStatus do_receive(ReceivedFrame& out, std::chrono::nanoseconds timeout) noexcept = 0;
+};
+
+// Checks a frame against CAN / CAN FD limits (identifier range, length, FD lengths, no
+// FD-only flags on classic frames). `fd_allowed`: whether FD frames may be sent.
+[[nodiscard]] bool is_sendable(const CanFrame& frame, bool fd_allowed) noexcept;
+
+// Whether a data frame passes a filter list (the kernel's rule, shared with SimBus).
+[[nodiscard]] bool passes_filters(const CanFrame& frame, std::span<const CanFilter> filters) noexcept;
+
+// The state an error frame reports, or `current` if it reports none.
+[[nodiscard]] CanBusState state_after_error_frame(const CanFrame& error_frame,
+                                                  CanBusState current) noexcept;
+
+}  // namespace pmsm::hal

@@ -1,0 +1,237 @@
+// `pmsm-thermal budget` and `pmsm-thermal losses`: the commissioning engineer's questions
+// "how much injection current can I afford, and what does it cost" (paper Sections VII-VIII).
+#include <cmath>
+#include <cstdio>
+#include <memory>
+#include <string>
+
+#include <fmt/core.h>
+
+#include "json_writer.hpp"
+#include "commands.hpp"
+#include "validators.hpp"
+#include "pmsm/core/injection.hpp"
+#include "pmsm/core/motor_params.hpp"
+#include "pmsm/core/window.hpp"
+
+namespace pmsm::app {
+namespace {
+
+core::WindowKind window_from_name(const std::string& name) {
+  return name == "modified" ? core::WindowKind::kModifiedBlackman : core::WindowKind::kBlackman;
+}
+
+struct BudgetOptions {
+  double ld_H = 9e-3;   // Fig. 8's Ld
+  double lq_H = 0.0;    // 0: equal to Ld
+  double rs_ohm = 0.133;
+  double tw_s = 0.01;
+  std::string window_name = "blackman";
+  core::WindowKind window = core::WindowKind::kBlackman;
+  double voltage_V = 0.0;
+  double current_A = 0.0;
+  double speed_rad_s = 0.0;
+  double iq_A = 0.0;
+  double vdc_V = 650.0;
+  double voltage_fraction = 0.95;
+  double ke_V_s_per_rad = core::MotorParams{}.ke_V_s_per_rad;
+  int pole_pairs = core::MotorParams{}.pole_pairs;
+  bool json = false;
+};
+
+struct LossOptions {
+  std::string window_name = "blackman";
+  std::string method = "fixed-magnitude";
+  core::InjectionSchedule schedule{};
+  double omega_e_rad_s = 0.0;
+  bool omega_given = false;
+  bool json = false;
+};
+
+void add_window_option(CLI::App* cmd, std::string& window_name) {
+  cmd->add_option("--window", window_name, "window function: blackman (Eq. 23) or modified (Eq. 24)")
+      ->check(CLI::IsMember({"blackman", "modified"}))
+      ->capture_default_str();
+}
+
+int run_budget(const BudgetOptions& o, const CLI::App& cmd) {
+  const core::WindowConstants constants = core::compute_window_constants(o.window);
+  const bool by_voltage = cmd.count("--voltage") > 0;
+  const bool by_current = cmd.count("--current") > 0;
+  const bool by_speed = cmd.count("--speed") > 0;
+
+  JsonWriter json;
+  json.begin_object()
+      .field("window", core::to_string(o.window))
+      .field("Tw_s", o.tw_s)
+      .field("Ld_H", o.ld_H)
+      .field("Rs_ohm", o.rs_ohm)
+      .field("max_slope_per_Tw", constants.max_slope_times_tw)
+      .field("window_integral_per_Tw", constants.integral_per_tw);
+
+  std::string text = fmt::format(
+      "Injection budget: {} window, Tw = {:g} ms, Ld = {:g} mH, Rs = {:g} ohm\n"
+      "  window max slope       {:.3f} / Tw   (Eqs. 25-26)\n"
+      "  window integral        {:.3f} * Tw   (Eqs. 27-28)\n",
+      core::to_string(o.window), o.tw_s * 1e3, o.ld_H * 1e3, o.rs_ohm, constants.max_slope_times_tw,
+      constants.integral_per_tw);
+
+  if (by_voltage) {
+    const double f = core::max_injection_current_A(o.voltage_V, o.ld_H, o.rs_ohm, o.tw_s, o.window);
+    json.field("voltage_V", o.voltage_V).field("max_injection_current_A", f)
+        .field("per_phase_current_A", core::per_phase_injection_current_A(f));
+    text += fmt::format(
+        "  voltage available      {:.1f} V\n"
+        "  largest injection F    {:.2f} A   (Eq. 29 inverted; per phase {:.2f} A, Eq. 30)\n",
+        o.voltage_V, f, core::per_phase_injection_current_A(f));
+  } else if (by_current) {
+    const double v = core::required_injection_voltage_V(o.current_A, o.ld_H, o.rs_ohm, o.tw_s, o.window);
+    json.field("current_A", o.current_A).field("required_voltage_V", v)
+        .field("per_phase_current_A", core::per_phase_injection_current_A(o.current_A));
+    text += fmt::format(
+        "  injection F            {:.2f} A   (per phase {:.2f} A, Eq. 30)\n"
+        "  voltage required       {:.2f} V   (Eq. 29)\n",
+        o.current_A, core::per_phase_injection_current_A(o.current_A), v);
+  } else if (by_speed) {
+    core::InjectionHeadroomInput in;
+    in.rs_ohm = o.rs_ohm;
+    in.ld_H = o.ld_H;
+    in.lq_H = o.lq_H > 0.0 ? o.lq_H : o.ld_H;
+    core::MotorParams motor;
+    motor.ke_V_s_per_rad = o.ke_V_s_per_rad;
+    motor.pole_pairs = o.pole_pairs;
+    in.flux_linkage_Wb = core::flux_linkage_Wb(motor);
+    in.omega_e_rad_s = o.speed_rad_s * o.pole_pairs;
+    in.iq_A = o.iq_A;
+    in.voltage_limit_V = o.voltage_fraction * o.vdc_V / core::kSqrt3;
+    in.tw_s = o.tw_s;
+    in.window = o.window;
+    const core::Dq v0 = core::motoring_voltage(in);
+    const double f_pos = core::max_injection_current_at_operating_point_A(in, 1.0);
+    const double f_neg = core::max_injection_current_at_operating_point_A(in, -1.0);
+    const double motoring = std::hypot(v0.d, v0.q);
+    json.field("speed_rad_s", o.speed_rad_s).field("iq_A", o.iq_A).field("vdc_V", o.vdc_V)
+        .field("voltage_limit_V", in.voltage_limit_V).field("motoring_voltage_V", motoring)
+        .field("voltage_headroom_V", in.voltage_limit_V - motoring)
+        .field("max_positive_injection_current_A", f_pos)
+        .field("max_negative_injection_current_A", f_neg)
+        .field("max_injection_current_A", std::min(f_pos, f_neg));
+    text += fmt::format(
+        "  operating point        {:.1f} rad/s mech, iq {:.1f} A, Vdc {:.0f} V\n"
+        "  voltage limit          {:.1f} V   ({:.0f} % of Vdc/sqrt(3))\n"
+        "  motoring voltage       {:.1f} V   (Eq. 3, steady state)\n"
+        "  largest +F             {:.2f} A\n"
+        "  largest -F             {:.2f} A\n"
+        "  largest bipolar F      {:.2f} A   (+F and -F both fit)\n",
+        o.speed_rad_s, o.iq_A, o.vdc_V, in.voltage_limit_V, o.voltage_fraction * 100.0, motoring,
+        f_pos, f_neg, std::min(f_pos, f_neg));
+  }
+  json.end_object();
+  std::printf("%s\n", o.json ? json.str().c_str() : text.c_str());
+  return 0;
+}
+
+int run_losses(const LossOptions& o) {
+  const bool fixed_angle = o.method == "fixed-angle";
+  if (fixed_angle && !o.omega_given) {
+    std::fprintf(stderr, "losses: --omega is required for --method fixed-angle (Eq. 31 depends on the electrical speed)\n");
+    return 2;
+  }
+  const core::InjectionSchedule& s = o.schedule;
+  // Eq. 31 integrates cos over one arc centred on theta_F; beyond half a turn the integral of
+  // cos (rather than cos^2) no longer measures dissipation, so say so rather than print it.
+  const double arc_rad = o.omega_e_rad_s * s.ti_s;
+  const bool arc_too_long = fixed_angle && arc_rad > core::kPi;
+  if (arc_too_long) {
+    std::fprintf(stderr,
+                 "losses: warning: the fixed-angle arc w*Ti = %.1f deg exceeds 180 deg; Eq. 31 assumes one arc "
+                 "centred on theta_F and understates the loss there; see average_loss_exact_W\n",
+                 arc_rad * 180.0 / core::kPi);
+  }
+  const double paper = fixed_angle ? core::fixed_angle_average_loss_W(s, o.omega_e_rad_s)
+                                   : core::fixed_magnitude_average_loss_W(s);
+  const double exact = fixed_angle ? core::fixed_angle_average_loss_exact_W(s, o.omega_e_rad_s)
+                                   : core::fixed_magnitude_average_loss_exact_W(s);
+  const double rated_W = core::MotorParams{}.rated_power_W;
+  if (o.json) {
+    JsonWriter json;
+    json.begin_object()
+        .field("method", o.method)
+        .field("equation", fixed_angle ? "Eq. 31" : "Eq. 32")
+        .field("F_A", s.f_A).field("Rs_ohm", s.rs_ohm).field("pulses", s.pulses)
+        .field("elapsed_s", s.elapsed_s).field("Ti_s", s.ti_s).field("Tw_s", s.tw_s)
+        .field("window", core::to_string(s.window));
+    if (fixed_angle) {
+      json.field("omega_rad_s", o.omega_e_rad_s).field("arc_deg", arc_rad * 180.0 / core::kPi);
+    }
+    json.field("average_loss_W", paper)
+        .field("average_loss_exact_W", exact)
+        .field("fraction_of_rated_power", paper / rated_W)
+        .end_object();
+    std::printf("%s\n", json.str().c_str());
+    return 0;
+  }
+  std::printf(
+      "Injection losses: %s, F = %g A, Rs = %g ohm, %d pulses every %g s, Ti = %g ms, Tw = %g ms (%s)\n"
+      "  average loss           %.3f W   (%s as printed in the paper)\n"
+      "  average loss, exact    %.3f W   (integral of 3/2 Rs i^2; see docs/equations.md)\n"
+      "  share of rated power   %.4f %%  (%.1f kW, Table I)\n",
+      o.method.c_str(), s.f_A, s.rs_ohm, s.pulses, s.elapsed_s, s.ti_s * 1e3, s.tw_s * 1e3,
+      std::string(core::to_string(s.window)).c_str(), paper, fixed_angle ? "Eq. 31" : "Eq. 32", exact,
+      100.0 * paper / rated_W, rated_W / 1e3);
+  return 0;
+}
+
+}  // namespace
+
+void register_budget_command(CLI::App& app, int& exit_code) {
+  auto options = std::make_shared<BudgetOptions>();
+  CLI::App* cmd = app.add_subcommand(
+      "budget", "Largest injection current for a voltage headroom, or voltage for a current (Eqs. 29-30)");
+  cmd->add_option("--Ld", options->ld_H, "d-axis inductance, H")->check(positive())->capture_default_str();
+  cmd->add_option("--Lq", options->lq_H, "q-axis inductance, H (default: equal to Ld; --speed only)")->check(positive());
+  cmd->add_option("--Rs", options->rs_ohm, "stator resistance, ohm (phase to neutral)")->check(positive())->capture_default_str();
+  cmd->add_option("--Tw", options->tw_s, "window period, s")->check(positive())->capture_default_str();
+  add_window_option(cmd, options->window_name);
+  auto* mode = cmd->add_option_group("mode", "what to compute (exactly one)");
+  mode->add_option("--voltage", options->voltage_V, "voltage available for injection, V")->check(positive());
+  mode->add_option("--current", options->current_A, "injection current F, A")->check(positive());
+  mode->add_option("--speed", options->speed_rad_s, "mechanical speed, rad/s: largest F at this operating point")->check(non_negative());
+  mode->require_option(1);
+  cmd->add_option("--iq", options->iq_A, "motoring q-axis current, A peak (--speed only)")->capture_default_str();
+  cmd->add_option("--vdc", options->vdc_V, "DC-bus voltage, V (--speed only)")->check(positive())->capture_default_str();
+  cmd->add_option("--voltage-fraction", options->voltage_fraction, "usable fraction of Vdc/sqrt(3) (--speed only)")
+      ->check(number_in_range(0.1, 1.0))->capture_default_str();
+  cmd->add_option("--Ke", options->ke_V_s_per_rad, "EMF constant, line-to-line RMS V per mechanical rad/s (--speed only)")
+      ->check(positive())->capture_default_str();
+  cmd->add_option("--pole-pairs", options->pole_pairs, "pole pairs (--speed only)")->check(number_in_range(1, 100))->capture_default_str();
+  cmd->add_flag("--json", options->json, "print one JSON object");
+  cmd->callback([options, cmd, &exit_code] {
+    options->window = window_from_name(options->window_name);
+    exit_code = run_budget(*options, *cmd);
+  });
+}
+
+void register_losses_command(CLI::App& app, int& exit_code) {
+  auto options = std::make_shared<LossOptions>();
+  CLI::App* cmd = app.add_subcommand("losses", "Average copper loss of periodic injection (Eqs. 31-32)");
+  cmd->add_option("--method", options->method, "fixed-magnitude (Eq. 32) or fixed-angle (Eq. 31)")
+      ->check(CLI::IsMember({"fixed-magnitude", "fixed-angle"}))->capture_default_str();
+  core::InjectionSchedule& s = options->schedule;
+  cmd->add_option("--F", s.f_A, "injection current magnitude, A")->check(positive())->required();
+  cmd->add_option("--Rs", s.rs_ohm, "stator resistance, ohm")->check(positive())->capture_default_str();
+  cmd->add_option("--pulses", s.pulses, "injection pulses in the elapsed time (Ninj)")->check(number_in_range(1, 1000000))->capture_default_str();
+  cmd->add_option("--elapsed", s.elapsed_s, "elapsed time Tel, s")->check(positive())->capture_default_str();
+  cmd->add_option("--Ti", s.ti_s, "duration of the flat top of one pulse, s")->check(non_negative())->capture_default_str();
+  cmd->add_option("--Tw", s.tw_s, "window period, s")->check(positive())->capture_default_str();
+  add_window_option(cmd, options->window_name);
+  cmd->add_option("--omega", options->omega_e_rad_s, "electrical speed, rad/s (fixed-angle)")->check(non_negative());
+  cmd->add_flag("--json", options->json, "print one JSON object");
+  cmd->callback([options, cmd, &exit_code] {
+    options->omega_given = cmd->count("--omega") > 0;
+    options->schedule.window = window_from_name(options->window_name);
+    exit_code = run_losses(*options);
+  });
+}
+
+}  // namespace pmsm::app

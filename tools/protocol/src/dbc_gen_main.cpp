@@ -1,0 +1,123 @@
+// pmsm-dbc-gen: writes (or checks) the files generated from the protocol definition.
+//
+//   pmsm-dbc-gen                                  print the node-0 DBC on stdout
+//   pmsm-dbc-gen --node 3 --dbc axis3.dbc         the DBC of another node
+//   pmsm-dbc-gen --dbc can/pmsm-thermal.dbc --docs docs/protocol.md
+//   pmsm-dbc-gen --check --dbc ... --docs ...     exit 1 if a file is out of date
+#include <cstdio>
+#include <cstdlib>
+#include <fstream>
+#include <iostream>
+#include <optional>
+#include <sstream>
+#include <string>
+#include <string_view>
+
+#include "pmsm/tools/dbc_writer.hpp"
+
+namespace {
+
+constexpr std::string_view kUsage =
+    "usage: pmsm-dbc-gen [--node N] [--dbc FILE] [--docs FILE] [--check]\n"
+    "  --node N     node id 0..15 for the DBC's IDs (default 0, the committed file)\n"
+    "  --dbc FILE   write the DBC to FILE (without --dbc/--docs: to stdout)\n"
+    "  --docs FILE  rewrite the generated section of FILE (docs/protocol.md)\n"
+    "  --check      compare instead of writing; exit status 1 if a file differs\n";
+
+std::optional<std::string> read_file(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) {
+    return std::nullopt;
+  }
+  std::ostringstream buffer;
+  buffer << in.rdbuf();
+  return buffer.str();
+}
+
+bool write_file(const std::string& path, const std::string& text) {
+  std::ofstream out(path, std::ios::binary | std::ios::trunc);
+  out << text;
+  return static_cast<bool>(out.flush());
+}
+
+// Writes or checks one file; returns false on a difference (check) or an error.
+bool emit(const std::string& path, const std::string& wanted, bool check) {
+  if (check) {
+    const std::optional<std::string> current = read_file(path);
+    if (!current || *current != wanted) {
+      std::cerr << "pmsm-dbc-gen: " << path << " is out of date; regenerate with pmsm-dbc-gen\n";
+      return false;
+    }
+    return true;
+  }
+  if (!write_file(path, wanted)) {
+    std::cerr << "pmsm-dbc-gen: cannot write " << path << "\n";
+    return false;
+  }
+  return true;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  int node = 0;
+  std::string dbc_path;
+  std::string docs_path;
+  bool check = false;
+  for (int i = 1; i < argc; ++i) {
+    const std::string_view arg = argv[i];
+    const auto value = [&]() -> std::string {
+      if (i + 1 >= argc) {
+        std::cerr << "pmsm-dbc-gen: " << arg << " needs a value\n" << kUsage;
+        std::exit(2);
+      }
+      return argv[++i];
+    };
+    if (arg == "--node") {
+      const std::string text = value();
+      char* end = nullptr;
+      const long n = std::strtol(text.c_str(), &end, 10);
+      if (end == text.c_str() || *end != '\0' || n < 0 || n > pmsm::hal::protocol::kMaxNodeId) {
+        std::cerr << "pmsm-dbc-gen: --node must be 0..15, got '" << text << "'\n";
+        return 2;
+      }
+      node = static_cast<int>(n);
+    } else if (arg == "--dbc") {
+      dbc_path = value();
+    } else if (arg == "--docs") {
+      docs_path = value();
+    } else if (arg == "--check") {
+      check = true;
+    } else if (arg == "--help" || arg == "-h") {
+      std::cout << kUsage;
+      return 0;
+    } else {
+      std::cerr << "pmsm-dbc-gen: unknown argument '" << arg << "'\n" << kUsage;
+      return 2;
+    }
+  }
+
+  const std::string dbc = pmsm::hal::protocol::generate_dbc(static_cast<pmsm::hal::protocol::NodeId>(node));
+  if (dbc_path.empty() && docs_path.empty()) {
+    std::cout << dbc;
+    return 0;
+  }
+  bool ok = true;
+  if (!dbc_path.empty()) {
+    ok = emit(dbc_path, dbc, check) && ok;
+  }
+  if (!docs_path.empty()) {
+    const std::optional<std::string> document = read_file(docs_path);
+    if (!document) {
+      std::cerr << "pmsm-dbc-gen: cannot read " << docs_path << "\n";
+      return 1;
+    }
+    try {
+      ok = emit(docs_path, pmsm::hal::protocol::update_docs(*document), check) && ok;
+    } catch (const std::exception& e) {
+      std::cerr << "pmsm-dbc-gen: " << docs_path << ": " << e.what() << "\n";
+      return 1;
+    }
+  }
+  return ok ? 0 : 1;
+}

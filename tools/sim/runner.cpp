@@ -1,0 +1,604 @@
+#include "runner.hpp"
+
+#include "calibration_file.hpp"
+
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <limits>
+#include <stdexcept>
+
+#include <fmt/format.h>
+
+#include "json_writer.hpp"
+#include "sensor_frontend.hpp"
+#include "pmsm/plant/plant.hpp"
+
+namespace pmsm::app {
+namespace {
+
+// JSON writes a non-finite number as null: "no value", never a plausible-looking number.
+constexpr double kNan = std::numeric_limits<double>::quiet_NaN();
+
+std::string method_name(const ControllerConfig& c) {
+  const core::DriveConfig& d = c.drive;
+  if (d.estimator == core::EstimatorKind::kNoInjection) {
+    return "no-injection";
+  }
+  if (d.estimator == core::EstimatorKind::kNone || d.injection.method == core::InjectionMethod::kNone) {
+    return "thermal-model-only";
+  }
+  return fmt::format("{} {}", core::to_string(d.injection.method), core::to_string(d.injection.separation));
+}
+
+constexpr std::uint64_t kFastEvery = 10;  // 1 kHz at 10 kHz PWM
+
+// A fast-rate record for the disturbance figures: means over 1 ms, so that the torque
+// ripple of the EMF harmonics (hundreds of hertz) does not pose as a disturbance.
+struct FastRow {
+  double speed_rad_s;
+  double torque_Nm;
+  bool injection;
+  bool counted;   // inside the metric window (after start-up and calibration)
+};
+
+struct Disturbance {
+  double during = 0.0;
+  double outside = 0.0;
+  std::size_t during_row = 0;   // where the largest difference during injection occurred
+};
+
+// Where the twin run (no injection) is in steady operation: its speed within
+// `tolerance` of its own centred moving average. The scenario's own load and speed steps
+// are transients in both runs, and a millisecond's shift of such a transient would pose as
+// a disturbance; they are left out.
+std::vector<bool> steady_rows(const std::vector<FastRow>& twin, std::size_t half_window, double tolerance,
+                              double speed_floor) {
+  std::vector<bool> steady(twin.size(), false);
+  if (twin.size() < 2 * half_window + 1) {
+    return steady;
+  }
+  double sum = 0.0;
+  for (std::size_t k = 0; k < 2 * half_window + 1; ++k) {
+    sum += twin[k].speed_rad_s;
+  }
+  const double n = static_cast<double>(2 * half_window + 1);
+  for (std::size_t k = half_window; k + half_window + 1 < twin.size(); ++k) {
+    const double mean = sum / n;
+    steady[k] = std::abs(twin[k].speed_rad_s - mean) <= tolerance * std::max(std::abs(mean), speed_floor);
+    sum += twin[k + half_window + 1].speed_rad_s - twin[k - half_window].speed_rad_s;
+  }
+  // A window is steady only if it is steady throughout.
+  std::vector<bool> out(steady.size(), false);
+  for (std::size_t k = 0; k < steady.size(); ++k) {
+    bool all = true;
+    for (std::size_t j = k >= half_window ? k - half_window : 0; j <= std::min(k + half_window, steady.size() - 1); ++j) {
+      all = all && steady[j];
+    }
+    out[k] = all;
+  }
+  return out;
+}
+
+// Largest difference between two runs of the same scenario, during injection (and `after`
+// rows past it) and outside, in steady operation.
+template <typename Value, typename Scale>
+Disturbance difference(const std::vector<FastRow>& run, const std::vector<FastRow>& twin, const std::vector<bool>& steady,
+                       std::size_t after, Value value, Scale scale) {
+  Disturbance d;
+  std::size_t since_injection = after + 1;
+  for (std::size_t k = 0; k < std::min(run.size(), twin.size()); ++k) {
+    since_injection = run[k].injection ? 0 : since_injection + 1;
+    if (!run[k].counted || !steady[k]) {
+      continue;
+    }
+    const double deviation = std::abs(value(run[k]) - value(twin[k])) / scale(value(twin[k]));
+    if (since_injection <= after) {
+      if (deviation > d.during) {
+        d.during = deviation;
+        d.during_row = k;
+      }
+    } else {
+      d.outside = std::max(d.outside, deviation);
+    }
+  }
+  return d;
+}
+
+// Replaces each row's torque with its trailing moving average over `rows` rows.
+void smooth_torque(std::vector<FastRow>& rows, std::size_t window) {
+  double sum = 0.0;
+  std::vector<double> original(rows.size());
+  for (std::size_t k = 0; k < rows.size(); ++k) {
+    original[k] = rows[k].torque_Nm;
+    sum += original[k];
+    if (k >= window) {
+      sum -= original[k - window];
+    }
+    rows[k].torque_Nm = sum / static_cast<double>(std::min(k + 1, window));
+  }
+}
+
+SimulationResult run_once(const Scenario& scenario, const RunOptions& options, std::vector<FastRow>& fast,
+                          bool store_calibration) {
+  const ScenarioConfig& sc = scenario.scenario;
+  SimulationResult result;
+  result.scenario = sc.name;
+  result.method = method_name(scenario.controller);
+
+  plant::Plant plant(scenario.plant);
+  core::DriveController drive(scenario.controller.drive);
+  SensorFrontend frontend(scenario.controller.sensors, scenario.controller.drive.period_s);
+
+  const double ts = plant.period_s();
+  const auto periods = static_cast<std::uint64_t>(std::llround(sc.duration_s / ts));
+  const auto log_every = std::max<std::uint64_t>(1, static_cast<std::uint64_t>(std::llround(sc.log_period_s / ts)));
+    const double known_temp_C = plant.state().winding_temp_C;  // soaked at ambient: known
+
+  fast.clear();
+  fast.reserve(periods / kFastEvery + 1);
+  result.series.reserve(periods / log_every + 1);
+
+  bool calibration_started = false;
+  bool real_time_calibration = false;
+  double metrics_from_s = sc.calibrate ? -1.0 : 0.0;  // -1: not yet (calibration pending)
+  double injection_energy_J = 0.0;
+  std::uint64_t injection_periods = 0;
+  bool fast_injection = false;
+  double fast_speed_sum = 0.0;
+  double fast_torque_sum = 0.0;
+  plant::PlantState truth = plant.state();
+  double sq_err = 0.0, sum_err = 0.0, sq_rs = 0.0, sq_magnet = 0.0;
+
+  const auto wall_start = std::chrono::steady_clock::now();
+  auto last_progress = wall_start;
+  const bool tty = options.progress && isatty(STDERR_FILENO) != 0;
+
+  for (std::uint64_t k = 0; k < periods; ++k) {
+    const double t = plant.time_s();
+    const hal::SensorSample& sample = plant.sample();
+    const core::DriveInput in = frontend.convert(sample);
+
+    core::DriveCommand cmd;
+    cmd.mode = sc.mode;
+    cmd.speed_ref_rad_s = sc.speed_rad_s.at(t);
+    cmd.torque_ref_Nm = sc.torque_Nm.at(t);
+    cmd.ambient_C = sc.ambient_profile.empty() ? sc.ambient_C : sc.ambient_profile.at(t);
+    if (!sc.ambient_profile.empty()) {
+      plant.set_ambient_C(cmd.ambient_C);
+    }
+    if (sc.calibrate && !calibration_started && t >= sc.calibrate_at_s) {
+      drive.start_calibration(known_temp_C);
+      calibration_started = true;
+      if (sc.calibration_real_time) {
+        plant.set_thermal_acceleration(1.0);
+        drive.set_thermal_time_scale(1.0);
+        real_time_calibration = true;
+      }
+    }
+
+    const core::DriveOutput& out = drive.step(in, cmd);
+    const core::DriveTelemetry& tel = drive.telemetry();
+    const bool log_now = k % log_every == 0;
+    const bool fast_now = k % kFastEvery == kFastEvery - 1;
+    truth = plant.state();
+
+    if (real_time_calibration && (drive.calibration_completed() || tel.calibration_failed)) {
+      plant.set_thermal_acceleration(scenario.plant.thermal.acceleration);
+      drive.set_thermal_time_scale(scenario.controller.drive.thermal.time_scale);
+      real_time_calibration = false;
+    }
+    if (drive.calibration_completed()) {
+      result.calibrated = true;
+      result.calibration = *drive.calibration_completed();
+      result.calibration_time_s = t;
+      metrics_from_s = t;
+      if (store_calibration && !scenario.controller.calibration_file.empty()) {
+        try {
+          write_calibration_file(scenario.controller.calibration_file, result.calibration,
+                                 scenario.source.filename().string());
+          result.calibration_stored = true;
+        } catch (const CalibrationFileError& e) {
+          result.calibration_file_error = e.what();
+        }
+      }
+    }
+    if (metrics_from_s < 0.0 && tel.calibration_failed) {
+      // The method could not calibrate: count from here on the stored (nameplate) values.
+      metrics_from_s = t;
+    }
+    if (drive.last_pair()) {
+      const core::PairResult& p = *drive.last_pair();
+      ++result.pairs[static_cast<std::size_t>(p.outcome)];
+      result.pair_log.push_back({t, p.level_index, p.outcome, p.f_A, p.rs_ohm, p.residual_rms_V,
+                                 p.delta_omega_e_rad_s, p.delta_iq_A});
+    }
+    if (drive.last_event() && drive.last_event()->outcome != core::EventOutcome::kPublished) {
+      ++result.events_without_estimate[static_cast<std::size_t>(drive.last_event()->outcome)];
+      if (options.log_events) {
+        const core::EventEstimate& e = *drive.last_event();
+        result.event_log.push_back(fmt::format("{:10.3f}  event without estimate: {} (pairs {}, joint rs {:.2f} mOhm, vx {:.3f} V, ident {:.3f})",
+                                               t, core::to_string(e.outcome), e.pairs, 1e3 * e.rs_ohm, e.joint_vx_V, e.joint_condition));
+      }
+    }
+    if (drive.last_estimate()) {
+      const core::ResistanceEstimate& e = *drive.last_estimate();
+      EstimateRow row;
+      row.time_s = t;
+      row.rs_est_ohm = e.rs_ohm;
+      row.rs_std_ohm = e.rs_std_ohm;
+      row.rs_true_ohm = truth.rs_ohm;
+      row.winding_est_C = e.winding_C;
+      row.winding_true_C = truth.winding_temp_C;
+      row.vx_V = e.vx_V;
+      row.vx_std_V = e.vx_std_V;
+      row.lq_H = e.lq_H;
+      row.vx_learning = e.vx_learning;
+      row.joint_rs_ohm = e.joint_rs_ohm;
+      row.joint_vx_V = e.joint_vx_V;
+      row.speed_rad_s = truth.omega_m_rad_s;
+      row.iq_A = tel.i_A.q;
+      row.fused = e.fused;
+      result.estimates.push_back(row);
+      (e.fused ? result.estimates_accepted : result.estimates_gated) += 1;
+      sq_rs += std::pow(e.rs_ohm - truth.rs_ohm, 2);
+    }
+
+    // The injection's own copper loss: 3/2 Rs |i_injection|^2.
+    const double inj_sq = tel.injection_A.d * tel.injection_A.d + tel.injection_A.q * tel.injection_A.q;
+    injection_energy_J += 1.5 * truth.rs_ohm * inj_sq * ts;
+    injection_periods += tel.injection_active ? 1U : 0U;
+    fast_injection = fast_injection || tel.injection_active;
+    fast_speed_sum += truth.omega_m_rad_s;
+    fast_torque_sum += truth.torque_em_Nm;
+    if (fast_now) {
+      const bool counted = metrics_from_s >= 0.0 && t >= metrics_from_s;
+      fast.push_back({fast_speed_sum / kFastEvery, fast_torque_sum / kFastEvery, fast_injection, counted});
+      fast_injection = false;
+      fast_speed_sum = 0.0;
+      fast_torque_sum = 0.0;
+    }
+
+    if (log_now) {
+      SeriesRow row;
+      row.time_s = t;
+      row.winding_true_C = truth.winding_temp_C;
+      row.winding_est_C = tel.thermal.winding_C;
+      row.winding_std_C = tel.thermal.winding_std_C;
+      row.magnet_true_C = truth.magnet_temp_C;
+      row.magnet_est_C = tel.magnet_C;
+      row.magnet_valid = tel.magnet_valid;
+      row.housing_true_C = truth.housing_temp_C;
+      row.rs_true_ohm = truth.rs_ohm;
+      row.speed_ref_rad_s = cmd.speed_ref_rad_s;
+      row.speed_rad_s = truth.omega_m_rad_s;
+      row.torque_Nm = truth.torque_em_Nm;
+      row.load_torque_Nm = truth.load_torque_Nm;
+      row.id_A = tel.i_A.d;
+      row.iq_A = tel.i_A.q;
+      row.current_limit_A = tel.current_limit_A;
+      row.derating = tel.derating;
+      row.time_to_limit_valid = tel.time_to_limit_valid;
+      row.time_to_limit_s = tel.time_to_limit_s;
+      row.injection_active = tel.injection_active;
+      row.counted = metrics_from_s >= 0.0 && t >= metrics_from_s && truth.winding_temp_C > sc.error_threshold_C;
+      if (row.counted) {
+        const double err = row.winding_est_C - row.winding_true_C;
+        sq_err += err * err;
+        sum_err += err;
+        result.winding_error_max_C = std::max(result.winding_error_max_C, std::abs(err));
+        ++result.winding_error_samples;
+        if (row.magnet_valid) {
+          sq_magnet += std::pow(row.magnet_est_C - row.magnet_true_C, 2);
+          ++result.magnet_error_samples;
+        }
+      }
+      result.max_winding_true_C = std::max(result.max_winding_true_C, truth.winding_temp_C);
+      result.series.push_back(row);
+    }
+
+    plant.step(SensorFrontend::command(out, sample.sequence));
+
+    if (tty && (k & 0x3FFF) == 0) {
+      const auto now = std::chrono::steady_clock::now();
+      if (now - last_progress > std::chrono::milliseconds(250)) {
+        last_progress = now;
+        const double wall = std::chrono::duration<double>(now - wall_start).count();
+        std::fprintf(stderr, "\r  %s: %5.1f %%  %.1f of %.1f s simulated, %.1fx real time   ", sc.name.c_str(),
+                     100.0 * static_cast<double>(k) / static_cast<double>(periods), t, sc.duration_s, wall > 0 ? t / wall : 0.0);
+      }
+    }
+  }
+  if (tty) {
+    std::fprintf(stderr, "\r%*s\r", 90, "");
+  }
+
+  result.sim_time_s = plant.time_s();
+  result.wall_time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
+  if (result.winding_error_samples > 0) {
+    const auto n = static_cast<double>(result.winding_error_samples);
+    result.winding_error_rms_C = std::sqrt(sq_err / n);
+    result.winding_error_mean_C = sum_err / n;
+  }
+  if (result.magnet_error_samples > 0) {
+    result.magnet_error_rms_C = std::sqrt(sq_magnet / static_cast<double>(result.magnet_error_samples));
+  }
+  if (!result.estimates.empty()) {
+    result.rs_error_rms_mohm = 1e3 * std::sqrt(sq_rs / static_cast<double>(result.estimates.size()));
+  }
+  result.injection_loss_W = result.sim_time_s > 0.0 ? injection_energy_J / result.sim_time_s : 0.0;
+  result.injection_duty = periods > 0 ? static_cast<double>(injection_periods) / static_cast<double>(periods) : 0.0;
+  result.vx_V = drive.telemetry().vx_V;
+  result.vx_std_V = drive.telemetry().vx_std_V;
+  result.lq_H = drive.telemetry().lq_H;
+  result.lq_std_H = drive.telemetry().lq_std_H;
+
+  return result;
+}
+
+}  // namespace
+
+SimulationResult run_scenario(const Scenario& given, const RunOptions& options) {
+  // A stored calibration replaces the configured one before the drive starts, as in the daemon.
+  Scenario scenario = given;
+  const StoredCalibration stored = load_stored_calibration(scenario.controller);
+  std::vector<FastRow> fast;
+  SimulationResult result = run_once(scenario, options, fast, true);
+  result.calibration_file = scenario.controller.calibration_file;
+  result.calibration_at_start = stored;
+  const core::DriveConfig& d = scenario.controller.drive;
+  const bool injects = d.estimator == core::EstimatorKind::kInjection && d.injection.method != core::InjectionMethod::kNone;
+  if (!injects || !options.twin_for_disturbance) {
+    return result;
+  }
+  Scenario twin = scenario;
+  twin.controller.drive.estimator = core::EstimatorKind::kNone;
+  std::vector<FastRow> twin_fast;
+  RunOptions twin_options = options;
+  (void)run_once(twin, twin_options, twin_fast, false);
+
+  const ScenarioConfig& sc = scenario.scenario;
+  const double rated_speed = d.motor.rated_speed_rad_s;
+  const auto after = static_cast<std::size_t>(std::llround(sc.disturbance_window_s / (scenario.controller.drive.period_s * kFastEvery)));
+  const std::vector<bool> steady = steady_rows(twin_fast, after / 2, 0.005, 0.1 * rated_speed);
+  // Torque is compared as a 10 ms moving average: the EMF harmonics' torque ripple (hundreds
+  // of hertz) is in both runs, but at rotor angles that drift apart over a long run.
+  smooth_torque(fast, 10);
+  smooth_torque(twin_fast, 10);
+  const Disturbance speed = difference(
+      fast, twin_fast, steady, after, [](const FastRow& r) { return r.speed_rad_s; },
+      [&](double reference) { return std::max(std::abs(reference), 0.1 * rated_speed); });
+  const Disturbance torque = difference(
+      fast, twin_fast, steady, after, [](const FastRow& r) { return r.torque_Nm; }, [&](double) { return sc.rated_torque_Nm; });
+  result.disturbance_measured = true;
+  result.speed_disturbance_pct = 100.0 * speed.during;
+  result.speed_disturbance_at_s = static_cast<double>(speed.during_row * kFastEvery) * scenario.controller.drive.period_s;
+  result.torque_disturbance_at_s = static_cast<double>(torque.during_row * kFastEvery) * scenario.controller.drive.period_s;
+  result.speed_difference_outside_pct = 100.0 * speed.outside;
+  result.torque_disturbance_pct = 100.0 * torque.during;
+  result.torque_difference_outside_pct = 100.0 * torque.outside;
+  return result;
+}
+
+std::string result_json(const SimulationResult& r) {
+  JsonWriter j;
+  j.begin_object()
+      .field("scenario", r.scenario)
+      .field("method", r.method)
+      .field("winding_error_rms_C", r.winding_error_samples > 0 ? r.winding_error_rms_C : kNan)
+      .field("winding_error_max_C", r.winding_error_samples > 0 ? r.winding_error_max_C : kNan)
+      .field("winding_error_mean_C", r.winding_error_samples > 0 ? r.winding_error_mean_C : kNan)
+      .field("winding_error_samples", static_cast<std::uint64_t>(r.winding_error_samples))
+      .field("rs_error_rms_mohm", r.estimates.empty() ? kNan : r.rs_error_rms_mohm)
+      .field("magnet_error_rms_C", r.magnet_error_samples > 0 ? r.magnet_error_rms_C : kNan)
+      .field("estimates_accepted", static_cast<std::uint64_t>(r.estimates_accepted))
+      .field("estimates_gated", static_cast<std::uint64_t>(r.estimates_gated));
+  std::uint64_t rejected = 0;
+  for (std::size_t k = 1; k < r.pairs.size(); ++k) {
+    rejected += r.pairs[k];
+  }
+  j.field("estimates_rejected", rejected);
+  j.key("pairs").begin_object();
+  for (std::size_t k = 0; k < r.pairs.size(); ++k) {
+    j.field(core::to_string(static_cast<core::PairOutcome>(k)), static_cast<std::uint64_t>(r.pairs[k]));
+  }
+  j.end_object();
+  j.field("speed_disturbance_pct", r.disturbance_measured ? r.speed_disturbance_pct : kNan)
+      .field("torque_disturbance_pct", r.disturbance_measured ? r.torque_disturbance_pct : kNan)
+      .field("speed_disturbance_at_s", r.disturbance_measured ? r.speed_disturbance_at_s : kNan)
+      .field("torque_disturbance_at_s", r.disturbance_measured ? r.torque_disturbance_at_s : kNan)
+      .field("speed_difference_outside_injection_pct", r.disturbance_measured ? r.speed_difference_outside_pct : kNan)
+      .field("torque_difference_outside_injection_pct", r.disturbance_measured ? r.torque_difference_outside_pct : kNan)
+      .field("injection_loss_W", r.injection_loss_W)
+      .field("injection_duty", r.injection_duty)
+      .field("calibrated", r.calibrated);
+  if (r.calibrated) {
+    j.key("calibration")
+        .begin_object()
+        .field("time_s", r.calibration_time_s)
+        .field("rs0_ohm", r.calibration.rs0_ohm)
+        .field("t0_C", r.calibration.t0_C)
+        .field("ke0_V_s_per_rad", r.calibration.ke0_V_s_per_rad)
+        .end_object();
+  }
+  if (!r.calibration_file.empty()) {
+    j.key("calibration_file")
+        .begin_object()
+        .field("path", r.calibration_file)
+        .field("at_start", std::string(to_string(r.calibration_at_start)))
+        .field("stored", r.calibration_stored);
+    if (!r.calibration_file_error.empty()) {
+      j.field("error", r.calibration_file_error);
+    }
+    j.end_object();
+  }
+  j.field("vx_V", r.vx_V)
+      .field("vx_std_V", r.vx_std_V)
+      .field("lq_H", r.lq_H)
+      .field("lq_std_H", r.lq_std_H)
+      .field("max_winding_true_C", r.max_winding_true_C)
+      .field("sim_time_s", r.sim_time_s)
+      .field("wall_time_s", r.wall_time_s)
+      .field("sim_speed_ratio", r.wall_time_s > 0.0 ? r.sim_time_s / r.wall_time_s : kNan)
+      .end_object();
+  return j.str();
+}
+
+std::string result_text(const SimulationResult& r) {
+  std::uint64_t rejected = 0;
+  std::string reasons;
+  for (std::size_t k = 1; k < r.pairs.size(); ++k) {
+    rejected += r.pairs[k];
+    if (r.pairs[k] > 0) {
+      reasons += fmt::format(" {}={}", core::to_string(static_cast<core::PairOutcome>(k)), r.pairs[k]);
+    }
+  }
+  std::string out = fmt::format("{} — {}\n", r.scenario, r.method);
+  if (r.winding_error_samples > 0) {
+    out += fmt::format("  winding error above threshold   RMS {:.2f} C, max {:.2f} C, mean {:+.2f} C ({} samples)\n",
+                       r.winding_error_rms_C, r.winding_error_max_C, r.winding_error_mean_C, r.winding_error_samples);
+  } else {
+    out += "  winding error                   no samples above the threshold after calibration\n";
+  }
+  out += fmt::format("  true winding reached            {:.1f} C\n", r.max_winding_true_C);
+  if (!r.estimates.empty()) {
+    out += fmt::format("  Rs error (published estimates)  RMS {:.2f} mOhm\n", r.rs_error_rms_mohm);
+  }
+  if (r.magnet_error_samples > 0) {
+    out += fmt::format("  magnet error                    RMS {:.2f} C\n", r.magnet_error_rms_C);
+  }
+  out += fmt::format("  estimates                       {} fused, {} gated; pairs {} accepted, {} rejected{}\n",
+                     r.estimates_accepted, r.estimates_gated, r.pairs[0], rejected, reasons);
+  if (r.disturbance_measured) {
+    out += fmt::format("  disturbance by injection        speed {:.3f} % (at {:.2f} s), torque {:.2f} % of rated (at {:.2f} s), vs. the run without injection\n",
+                       r.speed_disturbance_pct, r.speed_disturbance_at_s, r.torque_disturbance_pct, r.torque_disturbance_at_s);
+    out += fmt::format("  same difference outside         speed {:.3f} %, torque {:.2f} % of rated\n",
+                       r.speed_difference_outside_pct, r.torque_difference_outside_pct);
+  }
+  out += fmt::format("  injection loss                  {:.2f} W average ({:.1f} % of the time injecting)\n", r.injection_loss_W,
+                     100.0 * r.injection_duty);
+  if (r.calibrated) {
+    out += fmt::format("  calibration at {:.2f} s           Rs0 {:.5f} ohm at {:.1f} C, Ke0 {:.4f} V s/rad\n", r.calibration_time_s,
+                       r.calibration.rs0_ohm, r.calibration.t0_C, r.calibration.ke0_V_s_per_rad);
+  }
+  if (!r.calibration_file.empty()) {
+    out += fmt::format("  calibration file                {} ({} at start{})\n", r.calibration_file, to_string(r.calibration_at_start),
+                       r.calibration_stored ? ", replaced by this run's calibration" : "");
+  }
+  out += fmt::format("  inverter voltage error Vx       {:.3f} +- {:.3f} V\n", r.vx_V, r.vx_std_V);
+  out += fmt::format("  learned Lq                      {:.3f} +- {:.3f} mH\n", 1e3 * r.lq_H, 1e3 * r.lq_std_H);
+  out += fmt::format("  simulated {:.1f} s in {:.1f} s ({:.1f}x real time)\n", r.sim_time_s, r.wall_time_s,
+                     r.wall_time_s > 0 ? r.sim_time_s / r.wall_time_s : 0.0);
+  return out;
+}
+
+std::string estimates_text(const SimulationResult& r) {
+  std::string out =
+      "    time_s  speed_rad_s   iq_A   rs_est_mohm  std_mohm  rs_true_mohm  err_mohm  winding_est_C  winding_true_C  "
+      "vx_V   vx_std_V  learn  joint_rs_mohm  joint_vx_V  lq_mH  fused\n";
+  for (const EstimateRow& e : r.estimates) {
+    out += fmt::format("{:10.3f} {:12.1f} {:6.1f} {:13.2f} {:9.2f} {:13.2f} {:9.2f} {:14.1f} {:15.1f} {:6.3f} {:10.3f} {:6} {:14.2f} {:11.3f} {:6.3f}  {}\n",
+                       e.time_s, e.speed_rad_s, e.iq_A, 1e3 * e.rs_est_ohm, 1e3 * e.rs_std_ohm, 1e3 * e.rs_true_ohm,
+                       1e3 * (e.rs_est_ohm - e.rs_true_ohm), e.winding_est_C, e.winding_true_C, e.vx_V, e.vx_std_V,
+                       e.vx_learning ? "yes" : "no", 1e3 * e.joint_rs_ohm, e.joint_vx_V, 1e3 * e.lq_H, e.fused ? "yes" : "gated");
+  }
+  return out;
+}
+
+void write_series_csv(const SimulationResult& r, const std::string& path) {
+  std::ofstream out(path);
+  if (!out) {
+    throw std::runtime_error("cannot write " + path);
+  }
+  out << "time_s,winding_true_C,winding_est_C,winding_std_C,magnet_true_C,magnet_est_C,magnet_valid,housing_true_C,"
+         "rs_true_ohm,speed_ref_rad_s,speed_rad_s,torque_Nm,load_torque_Nm,id_A,iq_A,current_limit_A,derating,"
+         "time_to_limit_s,injection_active\n";
+  for (const SeriesRow& s : r.series) {
+    out << fmt::format("{:.4f},{:.3f},{:.3f},{:.3f},{:.3f},{},{},{:.3f},{:.6f},{:.3f},{:.3f},{:.3f},{:.3f},{:.3f},{:.3f},{:.2f},{},{},{}\n",
+                       s.time_s, s.winding_true_C, s.winding_est_C, s.winding_std_C, s.magnet_true_C,
+                       s.magnet_valid ? fmt::format("{:.3f}", s.magnet_est_C) : "", s.magnet_valid ? 1 : 0,
+                       s.housing_true_C, s.rs_true_ohm, s.speed_ref_rad_s, s.speed_rad_s, s.torque_Nm, s.load_torque_Nm,
+                       s.id_A, s.iq_A, s.current_limit_A, s.derating ? 1 : 0,
+                       s.time_to_limit_valid ? fmt::format("{:.1f}", s.time_to_limit_s) : "", s.injection_active ? 1 : 0);
+  }
+}
+
+void write_plot(const SimulationResult& r, const std::string& path) {
+  char data_path[] = "/tmp/pmsm-plot-XXXXXX";
+  const int fd = mkstemp(data_path);
+  if (fd < 0) {
+    throw std::runtime_error("cannot create a temporary file for the plot data");
+  }
+  close(fd);
+  char points_path[] = "/tmp/pmsm-plot-points-XXXXXX";
+  const int fd2 = mkstemp(points_path);
+  if (fd2 < 0) {
+    std::remove(data_path);
+    throw std::runtime_error("cannot create a temporary file for the plot data");
+  }
+  close(fd2);
+  {
+    std::ofstream data(data_path);
+    for (const SeriesRow& s : r.series) {
+      data << fmt::format("{:.4f} {:.3f} {:.3f} {:.3f} {:.3f} {} {:.3f} {:.3f} {:.3f}\n", s.time_s, s.winding_true_C,
+                          s.winding_est_C, s.winding_std_C, s.magnet_true_C,
+                          s.magnet_valid ? fmt::format("{:.3f}", s.magnet_est_C) : "NaN", s.speed_rad_s, s.torque_Nm,
+                          s.speed_ref_rad_s);
+    }
+    std::ofstream points(points_path);
+    for (const EstimateRow& e : r.estimates) {
+      points << fmt::format("{:.4f} {:.3f} {}\n", e.time_s, e.winding_est_C, e.fused ? 1 : 0);
+    }
+  }
+  const std::string title = r.scenario + " — " + r.method;
+  std::string script = fmt::format(R"gp(set terminal pngcairo size 1280,860 font "DejaVu Sans,10"
+set output '{}'
+set multiplot layout 2,1 title "{}" font ",12"
+set grid
+set key left top
+set ylabel "temperature (°C)"
+set size 1,0.62
+set origin 0,0.36
+set xlabel ""
+plot '{}' using 1:($3-2*$4):($3+2*$4) with filledcurves fc rgb "#cce0ff" fs solid 0.6 title "estimate ± 2σ", \
+     '' using 1:2 with lines lw 2 lc rgb "#c00000" title "winding (true)", \
+     '' using 1:3 with lines lw 1.5 lc rgb "#0050c0" title "winding (estimate)", \
+     '' using 1:5 with lines lw 1.5 dt 2 lc rgb "#d08000" title "magnet (true)", \
+     '' using 1:6 with lines lw 1.2 lc rgb "#008000" title "magnet (estimate)"{}
+set size 1,0.34
+set origin 0,0.0
+set ylabel "speed (rad/s), torque (Nm)"
+set xlabel "simulated time (s)"
+plot '{}' using 1:7 with lines lw 1.2 lc rgb "#404040" title "speed (true)", \
+     '' using 1:9 with lines lw 1 dt 3 lc rgb "#808080" title "speed set-point", \
+     '' using 1:8 with lines lw 1 lc rgb "#8000a0" title "torque (true)"
+unset multiplot
+)gp",
+                                   path, title, data_path,
+                                   r.estimates.empty()
+                                       ? std::string()
+                                       : fmt::format(", \\\n     '{}' using 1:($3>0?$2:1/0) with points pt 7 ps 0.5 lc rgb \"#303030\" "
+                                                     "title \"resistance estimates (Eq. 1)\"",
+                                                     points_path),
+                                   data_path);
+  FILE* gp = popen("gnuplot", "w");  // its own messages go to stderr, not into our stdout
+  if (gp == nullptr) {
+    std::remove(data_path);
+    std::remove(points_path);
+    throw std::runtime_error("--plot needs gnuplot (apt-get install gnuplot-nox)");
+  }
+  std::fputs(script.c_str(), gp);
+  const int status = pclose(gp);
+  std::remove(data_path);
+  std::remove(points_path);
+  if (status != 0) {
+    throw std::runtime_error(fmt::format("gnuplot failed (status {}) writing {}; is gnuplot installed (apt-get install gnuplot-nox)?",
+                                         status, path));
+  }
+}
+
+}  // namespace pmsm::app

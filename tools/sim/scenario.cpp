@@ -1,0 +1,364 @@
+#include "scenario.hpp"
+
+#include <fstream>
+#include <regex>
+#include <sstream>
+
+#include <toml++/toml.h>
+
+#include "config_schema.hpp"
+
+namespace pmsm::app {
+namespace {
+
+using S = ScenarioConfig;
+
+std::vector<ProfilePoint> to_points(const std::vector<double>& flat) {
+  std::vector<ProfilePoint> out;
+  for (std::size_t k = 0; k + 1 < flat.size(); k += 2) {
+    out.push_back({flat[k], flat[k + 1]});
+  }
+  return out;
+}
+
+std::vector<double> to_flat(const Profile& p) {
+  std::vector<double> out;
+  for (const ProfilePoint& q : p.points) {
+    out.push_back(q.time_s);
+    out.push_back(q.value);
+  }
+  return out;
+}
+
+// Reads a profile given as [[t, v], [t, v], ...]; times must ascend.
+// "file:line: key: " for a node, naming the file it came from (a scenario may inherit it).
+std::string where(const toml::node& node, std::string_view source, std::string_view key) {
+  const auto& region = node.source();
+  const std::string file = region.path && !region.path->empty() ? *region.path : std::string(source);
+  const std::string line = region.begin.line > 0 ? ":" + std::to_string(region.begin.line) : "";
+  return file + line + ": " + std::string(key) + ": ";
+}
+
+Profile read_points(const toml::node& node, std::string_view source, std::string_view key) {
+  const std::string at = where(node, source, key);
+  const auto* array = node.as_array();
+  if (array == nullptr || array->empty()) {
+    throw ConfigError(at + "expected a non-empty array of [time_s, value] pairs");
+  }
+  Profile p;
+  for (const toml::node& item : *array) {
+    const auto* pair = item.as_array();
+    if (pair == nullptr || pair->size() != 2) {
+      throw ConfigError(at + "every point must be [time_s, value]");
+    }
+    double v[2] = {0.0, 0.0};
+    for (std::size_t k = 0; k < 2; ++k) {
+      const toml::node* n = pair->get(k);
+      if (n == nullptr) {
+        throw ConfigError(at + "every point must hold two numbers");
+      }
+      if (const auto* i = n->as_integer()) {
+        v[k] = static_cast<double>(i->get());
+      } else if (const auto* f = n->as_floating_point()) {
+        v[k] = f->get();
+      } else {
+        throw ConfigError(at + "every point must hold two numbers");
+      }
+    }
+    if (!p.points.empty() && v[0] <= p.points.back().time_s) {
+      throw ConfigError(at + "times must ascend (" + std::to_string(v[0]) + " after " +
+                        std::to_string(p.points.back().time_s) + ")");
+    }
+    p.points.push_back({v[0], v[1]});
+  }
+  return p;
+}
+
+// Reads a two-column CSV (time_s, value) with a header line; `at` names where it was asked for.
+Profile read_csv(const std::filesystem::path& path, std::string_view key, const std::string& at) {
+  std::ifstream in(path);
+  if (!in) {
+    throw ConfigError(at + "cannot open " + path.string());
+  }
+  Profile p;
+  std::string line;
+  int number = 0;
+  while (std::getline(in, line)) {
+    ++number;
+    if (line.empty() || line[0] == '#' || (number == 1 && line.find_first_of("0123456789") != 0 && line[0] != '-')) {
+      continue;
+    }
+    std::istringstream row(line);
+    double t = 0.0;
+    double v = 0.0;
+    char comma = 0;
+    if (!(row >> t >> comma >> v) || comma != ',') {
+      throw ConfigError(path.string() + ":" + std::to_string(number) + ": " + std::string(key) +
+                        ": expected 'time_s,value', got '" + line + "'");
+    }
+    if (!p.points.empty() && t <= p.points.back().time_s) {
+      throw ConfigError(path.string() + ":" + std::to_string(number) + ": " + std::string(key) + ": times must ascend");
+    }
+    p.points.push_back({t, v});
+  }
+  if (p.points.empty()) {
+    throw ConfigError(at + "no data rows in " + path.string());
+  }
+  return p;
+}
+
+ConfigSchema<S> build_schema() {
+  ConfigSchema<S> s;
+  s.string("scenario.name", [](S& c) -> std::string& { return c.name; }, "Name used in reports.");
+  s.string("scenario.description", [](S& c) -> std::string& { return c.description; }, "One line for the reader.");
+  s.real("scenario.duration_s", [](S& c) -> double& { return c.duration_s; }, positive(1e6), "s", "Simulated time.");
+  s.real("scenario.thermal_acceleration", [](S& c) -> double& { return c.thermal_acceleration; }, positive(1e5), "",
+         "Thermal time runs this many times faster, in the plant and in the controller's thermal model alike.");
+  s.real("scenario.ambient_C", [](S& c) -> double& { return c.ambient_C; }, between(-40, 80), "C",
+         "Ambient temperature; the motor starts soaked at it.");
+  s.list("scenario.ambient_profile", 2, 200, between(-1e6, 1e6), [](const S& c) { return to_flat(c.ambient_profile); },
+         [](S& c, const std::vector<double>& v) { c.ambient_profile.points = to_points(v); }, "",
+         "Ambient over time as a flat list t0, C0, t1, C1, ... (the drive's ambient sensor reads it).");
+  s.choice("operation.mode", {{"speed", static_cast<int>(core::DriveMode::kSpeed)}, {"torque", static_cast<int>(core::DriveMode::kTorque)}},
+           [](const S& c) { return static_cast<int>(c.mode); },
+           [](S& c, int v) { c.mode = static_cast<core::DriveMode>(v); }, "Speed or torque control.");
+  s.boolean("operation.calibrate", [](S& c) -> bool& { return c.calibrate; },
+            "Calibrate Rs0 (and Ke0) at the start, when the winding is known to be at ambient.");
+  s.real("operation.calibrate_at_s", [](S& c) -> double& { return c.calibrate_at_s; }, at_least(0), "s", "When to start the calibration.");
+  s.boolean("operation.calibration_real_time", [](S& c) -> bool& { return c.calibration_real_time; },
+            "Run the calibration at real thermal time (no test acceleration), as on a machine.");
+  s.real("metrics.log_period_s", [](S& c) -> double& { return c.log_period_s; }, positive(100), "s", "Time series and error sampling period.");
+  s.real("metrics.error_threshold_C", [](S& c) -> double& { return c.error_threshold_C; }, between(-50, 300), "C",
+         "Winding errors count where the true winding temperature is above this.");
+  s.real("metrics.disturbance_window_s", [](S& c) -> double& { return c.disturbance_window_s; }, positive(10), "s",
+         "Moving-average window against which speed and torque disturbance are measured.");
+  s.real("metrics.rated_torque_Nm", [](S& c) -> double& { return c.rated_torque_Nm; }, positive(1e5), "Nm",
+         "Torque disturbance is relative to this.");
+  return s;
+}
+
+const ConfigSchema<S>& schema() {
+  static const ConfigSchema<S> s = build_schema();
+  return s;
+}
+
+// Deep merge of `overrides` into `base`. The nodes are moved, not copied: toml++ keeps a
+// node's source position (file and line, for messages) only when it is moved.
+void merge(toml::table& base, toml::table&& overrides) {
+  for (auto&& [key, node] : overrides) {
+    if (auto* sub = node.as_table()) {
+      if (auto* existing = base.get_as<toml::table>(key.str())) {
+        merge(*existing, std::move(*sub));
+        continue;
+      }
+    }
+    base.insert_or_assign(key.str(), std::move(node));
+  }
+}
+
+std::string read_file(const std::filesystem::path& path) {
+  std::ifstream in(path);
+  if (!in) {
+    throw ConfigError(path.string() + ": cannot read");
+  }
+  std::stringstream buffer;
+  buffer << in.rdbuf();
+  return buffer.str();
+}
+
+plant::PlantConfig load_plant(const toml::table& root, const std::filesystem::path& source) {
+  const std::filesystem::path dir = source.parent_path();
+  const toml::table* plant_table = root.get_as<toml::table>("plant");
+  toml::table merged;
+  if (plant_table != nullptr) {
+    if (const auto profile = (*plant_table)["profile"].value<std::string>()) {
+      const std::filesystem::path profile_path = dir / *profile;
+      const std::string text = read_file(profile_path);
+      // The profile on its own first, so its own mistakes are reported with its own lines.
+      (void)plant::parse_plant_config(text, profile_path.string(), profile_path.parent_path());
+      merged = toml::parse(text, profile_path.string());
+      // Paths in the profile are relative to the profile.
+      if (auto* csv = merged.at_path("load.csv_path").as_string(); csv != nullptr &&
+                                                                    std::filesystem::path(csv->get()).is_relative()) {
+        *csv = std::filesystem::absolute(profile_path.parent_path() / csv->get()).lexically_normal().string();
+      }
+    } else if ((*plant_table).contains("profile")) {
+      throw ConfigError(source.string() + ": plant.profile: expected a path (string)");
+    }
+    toml::table overrides = *plant_table;  // a copy: its positions are looked up in plant_table
+    overrides.erase("profile");
+    merge(merged, std::move(overrides));
+  }
+  std::ostringstream text;
+  text << merged;
+  try {
+    return plant::parse_plant_config(text.str(), source.string() + " [plant]", dir);
+  } catch (const plant::ConfigError& e) {
+    // Point at the scenario's own line when the offending key is one of its overrides.
+    const std::string message = e.what();
+    static const std::regex key_pattern(R"(: ([a-z_]+(?:\.[A-Za-z0-9_]+)*): (.*)$)");
+    std::smatch m;
+    if (plant_table != nullptr && std::regex_search(message, m, key_pattern)) {
+      const auto node = plant_table->at_path(m[1].str());
+      if (node) {
+        const auto& where = node.node()->source();
+        const std::string file = where.path && !where.path->empty() ? *where.path : source.string();
+        const std::string line = where.begin.line > 0 ? ":" + std::to_string(where.begin.line) : "";
+        throw ConfigError(file + line + ": plant." + m[1].str() + ": " + m[2].str());
+      }
+    }
+    throw ConfigError(message);
+  }
+}
+
+}  // namespace
+
+double Profile::at(double t_s) const {
+  if (points.empty()) {
+    return 0.0;
+  }
+  if (t_s <= points.front().time_s) {
+    return points.front().value;
+  }
+  if (t_s >= points.back().time_s) {
+    return points.back().value;
+  }
+  for (std::size_t k = 1; k < points.size(); ++k) {
+    if (t_s < points[k].time_s) {
+      const ProfilePoint& a = points[k - 1];
+      const ProfilePoint& b = points[k];
+      return a.value + (b.value - a.value) * (t_s - a.time_s) / (b.time_s - a.time_s);
+    }
+  }
+  return points.back().value;
+}
+
+namespace {
+
+toml::table parse_toml(std::string_view text, const std::filesystem::path& source) {
+  try {
+    return toml::parse(text, source.string());
+  } catch (const toml::parse_error& e) {
+    throw ConfigError(source.string() + ":" + std::to_string(e.source().begin.line) + ": " + std::string(e.description()));
+  }
+}
+
+// A scenario may name a base scenario (scenario.base, relative to itself) and override only
+// what differs; bases may chain.
+toml::table resolve_base(toml::table root, const std::filesystem::path& source, int depth) {
+  const auto base = root.at_path("scenario.base").value<std::string>();
+  if (!base) {
+    if (root.at_path("scenario.base")) {
+      throw ConfigError(source.string() + ": scenario.base: expected a path (string)");
+    }
+    return root;
+  }
+  if (depth > 8) {
+    throw ConfigError(source.string() + ": scenario.base: bases nest too deep (a cycle?)");
+  }
+  const std::filesystem::path base_path = source.parent_path() / *base;
+  toml::table merged = resolve_base(parse_toml(read_file(base_path), base_path), base_path, depth + 1);
+  // Paths in the base are relative to the base, not to the file that inherits it.
+  for (const char* key : {"plant.profile", "plant.load.csv_path", "operation.speed_csv", "operation.torque_csv",
+                          "controller.calibration.file"}) {
+    auto node = merged.at_path(key);
+    if (auto* text = node.as_string(); text != nullptr && std::filesystem::path(text->get()).is_relative()) {
+      *text = std::filesystem::absolute(base_path.parent_path() / text->get()).lexically_normal().string();
+    }
+  }
+  root.get_as<toml::table>("scenario")->erase("base");
+  merge(merged, std::move(root));
+  return merged;
+}
+
+}  // namespace
+
+Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path& source) {
+  const toml::table root = resolve_base(parse_toml(toml_text, source), source, 0);
+  Scenario out;
+  out.source = source;
+  schema().apply(root, out.scenario, source.string(),
+                 {"plant", "controller", "scenario.seed", "operation.speed_rad_s", "operation.torque_Nm", "operation.speed_csv",
+                  "operation.torque_csv"});
+  // Set-point profiles, inline or from CSV.
+  const std::filesystem::path dir = source.parent_path();
+  if (const auto node = root.at_path("operation.speed_rad_s")) {
+    out.scenario.speed_rad_s = read_points(*node.node(), source.string(), "operation.speed_rad_s");
+  }
+  auto csv_profile = [&](const char* key, Profile& into) {
+    const auto node = root.at_path(key);
+    if (!node) {
+      return;
+    }
+    const std::string at = where(*node.node(), source.string(), key);
+    const auto* text = node.as_string();
+    if (text == nullptr) {
+      throw ConfigError(at + "expected a path (string)");
+    }
+    into = read_csv(dir / text->get(), key, at);
+  };
+  csv_profile("operation.speed_csv", out.scenario.speed_rad_s);
+  if (const auto node = root.at_path("operation.torque_Nm")) {
+    out.scenario.torque_Nm = read_points(*node.node(), source.string(), "operation.torque_Nm");
+  }
+  csv_profile("operation.torque_csv", out.scenario.torque_Nm);
+  const bool speed_mode = out.scenario.mode == core::DriveMode::kSpeed;
+  if (speed_mode && out.scenario.speed_rad_s.empty()) {
+    throw ConfigError(source.string() + ": operation.speed_rad_s (or operation.speed_csv) is required in speed mode");
+  }
+  if (!speed_mode && out.scenario.torque_Nm.empty()) {
+    throw ConfigError(source.string() + ": operation.torque_Nm (or operation.torque_csv) is required in torque mode");
+  }
+
+  out.plant = load_plant(root, source);
+  // The scenario's ambient, seed and acceleration apply to the plant unless it says otherwise.
+  const bool plant_ambient = static_cast<bool>(root.at_path("plant.thermal.ambient_C"));
+  if (!plant_ambient) {
+    out.plant.thermal.ambient_C = out.scenario.ambient_profile.empty() ? out.scenario.ambient_C
+                                                                        : out.scenario.ambient_profile.at(0.0);
+  }
+  if (root.at_path("scenario.thermal_acceleration")) {
+    out.plant.thermal.acceleration = out.scenario.thermal_acceleration;
+  }
+  if (const auto node = root.at_path("scenario.seed")) {
+    const auto* seed = node.as_integer();
+    if (seed == nullptr || seed->get() < 0) {
+      throw ConfigError(where(*node.node(), source.string(), "scenario.seed") + "expected an integer >= 0");
+    }
+    out.plant.simulation.seed = static_cast<std::uint64_t>(seed->get());
+  }
+  // The ambient profile is a flat list t0, C0, t1, C1, ... with ascending times.
+  if (const auto node = root.at_path("scenario.ambient_profile")) {
+    const std::string at = where(*node.node(), source.string(), "scenario.ambient_profile");
+    const auto& points = out.scenario.ambient_profile.points;
+    if (node.as_array() != nullptr && node.as_array()->size() % 2 != 0) {
+      throw ConfigError(at + "expected pairs of time_s and temperature_C (an even number of values)");
+    }
+    for (std::size_t k = 1; k < points.size(); ++k) {
+      if (!(points[k].time_s > points[k - 1].time_s)) {
+        throw ConfigError(at + "times must ascend");
+      }
+    }
+  }
+
+  // The controller: the same sections as pmsm-thermald's configuration, under [controller]
+  // (parsed in place, so that messages keep the file's line numbers).
+  static const toml::table kEmpty;
+  const toml::table* controller_table = root.get_as<toml::table>("controller");
+  out.controller = parse_controller_config(controller_table != nullptr ? *controller_table : kEmpty, source.string(), {},
+                                           "controller.");
+  // The scenario's acceleration applies to the controller's thermal model too, unless the
+  // controller section sets its own.
+  if (root.at_path("scenario.thermal_acceleration") && !root.at_path("controller.thermal.time_scale")) {
+    out.controller.drive.thermal.time_scale = out.scenario.thermal_acceleration;
+  }
+  return out;
+}
+
+Scenario load_scenario(const std::filesystem::path& path) {
+  return parse_scenario(read_file(path), path);
+}
+
+std::string scenario_keys_markdown() { return schema().markdown(ScenarioConfig{}); }
+
+}  // namespace pmsm::app
