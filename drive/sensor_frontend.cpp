@@ -42,7 +42,13 @@ core::DriveInput SensorFrontend::convert(const hal::SensorSample& sample) {
 hal::InverterCommand SensorFrontend::command(const core::DriveOutput& out, std::uint32_t sequence) {
   hal::InverterCommand c;
   c.sequence = sequence;
-  c.enable = out.enable;
+  const bool finite = std::isfinite(out.duty[0]) && std::isfinite(out.duty[1]) && std::isfinite(out.duty[2]);
+  // A non-finite duty never becomes a plausible number (0 would switch every low side on):
+  // the gates go off and the duties read zero.
+  c.enable = out.enable && finite && !out.fault;
+  if (!finite) {
+    return c;
+  }
   for (std::size_t n = 0; n < 3; ++n) {
     c.duty[n] = static_cast<std::uint16_t>(std::lround(std::clamp(out.duty[n], 0.0, 1.0) * hal::kDutyFullScale));
   }

@@ -19,6 +19,11 @@ Dq dead_time_pattern(const Abc& i0, const Abc& i1, double band_A, double theta_r
 
 }  // namespace
 
+bool controllable(const DriveInput& in) noexcept {
+  return in.valid && std::isfinite(in.i_A.a) && std::isfinite(in.i_A.b) && std::isfinite(in.i_A.c) &&
+         std::isfinite(in.vdc_V) && in.vdc_V > 0.0;
+}
+
 DriveController::DriveController(const DriveConfig& config)
     : config_(config),
       kt_dq_Nm_per_A_(1.5 * config.motor.pole_pairs * config.current.flux_linkage_Wb),
@@ -34,7 +39,10 @@ void DriveController::start_calibration(double known_temp_C) {
   scheduler_.set_config(config_.calibration_injection);
   // The winding is at the known temperature now; the thermal model carries it through the
   // calibration, whose own injections warm the winding a little.
+  // The time scale set by set_thermal_time_scale() holds whatever the order of the calls.
+  const double time_scale = observer_.time_scale();
   observer_ = ThermalObserver(config_.thermal, observer_.calibration(), known_temp_C);
+  observer_.set_time_scale(time_scale);
   calibrating_ = true;
   calibration_failed_ = false;
   calibration_started_s_ = static_cast<double>(period_) * config_.period_s;
@@ -44,6 +52,13 @@ void DriveController::start_calibration(double known_temp_C) {
   calibration_weight_sum_ = 0.0;
   calibration_ke_sum_ = 0.0;
   calibration_ke_count_ = 0;
+}
+
+void DriveController::abort_calibration() {
+  if (calibrating_) {
+    calibrating_ = false;
+    scheduler_.set_config(config_.injection);
+  }
 }
 
 Dq DriveController::motoring_reference(const DriveCommand& command) {
@@ -150,6 +165,7 @@ void DriveController::update_thermal(double ambient_C) {
   const ThermalEstimate e = observer_.estimate();
   derating_ = derate(config_.derating, e);
   telemetry_.thermal = e;
+  telemetry_.thermal_valid = true;
   telemetry_.current_limit_A = derating_.current_limit_A;
   telemetry_.derating = derating_.derating;
   // Time-to-limit is slower to compute; every tenth update is plenty.
@@ -166,11 +182,13 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   last_estimate_.reset();
   last_event_.reset();
   calibration_done_.reset();
+  calibration_failed_now_ = false;
   const double now = static_cast<double>(period_) * config_.period_s;
   ++period_;
 
-  const bool enabled = command.mode != DriveMode::kDisabled && in.valid;
-  if (!in.valid) {
+  const bool usable = controllable(in);
+  const bool enabled = command.mode != DriveMode::kDisabled && usable;
+  if (!usable) {
     // No fresh sample: the safe output for this period, and the pair in progress is lost.
     output_ = {};
     was_enabled_ = false;
@@ -232,6 +250,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     // rejected): keep the stored calibration and say so.
     calibrating_ = false;
     calibration_failed_ = true;
+    calibration_failed_now_ = true;
     scheduler_.set_config(config_.injection);
   }
   si.request_now = command.request_injection || (calibrating_ && enabled);
@@ -263,13 +282,21 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     const Abc correction = dead_time_compensation_V(i_start, i_end, config_.dead_time, in.vdc_V, config_.period_s);
     const Duties d = svpwm_corrected(inverse_park(v, c, sn), in.vdc_V, correction);
     output_.duty = d.value;
+    if (!std::isfinite(d.value[0]) || !std::isfinite(d.value[1]) || !std::isfinite(d.value[2])) {
+      // Never a plausible-looking command from an implausible computation: gates off, and
+      // the caller latches the fault.
+      output_ = {};
+      output_.fault = true;
+    } else {
+      output_.enable = true;
+      output_.fault = false;
+    }
     // What the bridge was asked for in total: the current controller's voltage plus the
     // compensation. The estimator models the bridge's whole error against this (see
     // pair_estimator.hpp), so it must see the compensation actually applied.
     const Dq comp = park(clarke(correction), c, sn);
     v_total = {v.d + comp.d, v.q + comp.q};
     limited = limited || d.clipped;
-    output_.enable = true;
     telemetry_.i_ref_A = i_ref;
     telemetry_.injection_A = so.injection_A;
   } else {

@@ -13,3 +13,8 @@ pmsm_add_gtest(app_config_test LABEL unit
 pmsm_add_gtest(drive_alloc_test LABEL unit
   SOURCES ${CMAKE_CURRENT_LIST_DIR}/drive_alloc_test.cpp
   LIBS pmsm_drive pmsm::plant)
+
+# The drive node (the one per-sample path) against the plant library.
+pmsm_add_gtest(drive_node_test LABEL unit
+  SOURCES ${CMAKE_CURRENT_LIST_DIR}/drive_node_test.cpp
+  LIBS pmsm_drive pmsm::plant)

@@ -12,3 +12,7 @@ pmsm_add_gtest(core_control_test LABEL unit
     ${CMAKE_CURRENT_LIST_DIR}/core_current_controller_test.cpp
     ${CMAKE_CURRENT_LIST_DIR}/core_speed_controller_test.cpp
   LIBS pmsm::core)
+
+pmsm_add_gtest(core_supervisor_test LABEL unit
+  SOURCES ${CMAKE_CURRENT_LIST_DIR}/core_supervisor_test.cpp
+  LIBS pmsm::core)

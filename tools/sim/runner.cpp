@@ -15,7 +15,7 @@
 #include <fmt/format.h>
 
 #include "json_writer.hpp"
-#include "sensor_frontend.hpp"
+#include "drive_node.hpp"
 #include "pmsm/plant/plant.hpp"
 
 namespace pmsm::app {
@@ -131,13 +131,14 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, s
   result.method = method_name(scenario.controller);
 
   plant::Plant plant(scenario.plant);
-  core::DriveController drive(scenario.controller.drive);
-  SensorFrontend frontend(scenario.controller.sensors, scenario.controller.drive.period_s);
+  // The drive's whole per-sample path, as pmsm-thermald runs it; the runner only feeds it
+  // the plant's samples and the scenario's set-points, and measures.
+  DriveNode node(scenario.controller, default_supervisor_config(scenario.controller), PublishRates{});
+  core::DriveController& drive = node.controller();
 
   const double ts = plant.period_s();
   const auto periods = static_cast<std::uint64_t>(std::llround(sc.duration_s / ts));
   const auto log_every = std::max<std::uint64_t>(1, static_cast<std::uint64_t>(std::llround(sc.log_period_s / ts)));
-    const double known_temp_C = plant.state().winding_temp_C;  // soaked at ambient: known
 
   fast.clear();
   fast.reserve(periods / kFastEvery + 1);
@@ -161,18 +162,20 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, s
   for (std::uint64_t k = 0; k < periods; ++k) {
     const double t = plant.time_s();
     const hal::SensorSample& sample = plant.sample();
-    const core::DriveInput in = frontend.convert(sample);
 
-    core::DriveCommand cmd;
+    NodeInputs cmd;
     cmd.mode = sc.mode;
     cmd.speed_ref_rad_s = sc.speed_rad_s.at(t);
     cmd.torque_ref_Nm = sc.torque_Nm.at(t);
+    // The drive's ambient / coolant sensor reads the scenario's ambient.
     cmd.ambient_C = sc.ambient_profile.empty() ? sc.ambient_C : sc.ambient_profile.at(t);
     if (!sc.ambient_profile.empty()) {
       plant.set_ambient_C(cmd.ambient_C);
     }
     if (sc.calibrate && !calibration_started && t >= sc.calibrate_at_s) {
-      drive.start_calibration(known_temp_C);
+      // The drive calibrates at what it knows: its ambient sensor (the motor is soaked at
+      // rest), never the plant's state.
+      cmd.start_calibration = true;
       calibration_started = true;
       if (sc.calibration_real_time) {
         plant.set_thermal_acceleration(1.0);
@@ -181,7 +184,7 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, s
       }
     }
 
-    const core::DriveOutput& out = drive.step(in, cmd);
+    const NodeStep& step = node.step(&sample, cmd);
     const core::DriveTelemetry& tel = drive.telemetry();
     const bool log_now = k % log_every == 0;
     const bool fast_now = k % kFastEvery == kFastEvery - 1;
@@ -192,9 +195,9 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, s
       drive.set_thermal_time_scale(scenario.controller.drive.thermal.time_scale);
       real_time_calibration = false;
     }
-    if (drive.calibration_completed()) {
+    if (step.calibration_to_store) {
       result.calibrated = true;
-      result.calibration = *drive.calibration_completed();
+      result.calibration = *step.calibration_to_store;
       result.calibration_time_s = t;
       metrics_from_s = t;
       if (store_calibration && !scenario.controller.calibration_file.empty()) {
@@ -301,7 +304,7 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, s
       result.series.push_back(row);
     }
 
-    plant.step(SensorFrontend::command(out, sample.sequence));
+    plant.step(*step.command);
 
     if (tty && (k & 0x3FFF) == 0) {
       const auto now = std::chrono::steady_clock::now();

@@ -78,9 +78,17 @@ struct DriveInput {
   bool valid = true;                // false: no fresh sample this period
 };
 
+// Whether a sample can be controlled on at all: finite currents and a finite, positive DC
+// bus (the modulator divides by it). The supervisor's windows are narrower; this is the
+// controller's own last line, so that NaN never reaches a duty cycle.
+[[nodiscard]] bool controllable(const DriveInput& in) noexcept;
+
 struct DriveOutput {
   std::array<double, 3> duty{0.5, 0.5, 0.5};
   bool enable = false;
+  // The controller could not compute a finite, in-range command from this period's input
+  // (enable is then false). The drive node turns it into a latched kInternal fault.
+  bool fault = false;
 };
 
 // Counters of pair outcomes, indexed by PairOutcome.
@@ -99,6 +107,7 @@ struct DriveTelemetry {
   SchedulerPhase injection_phase = SchedulerPhase::kIdle;
   bool injection_active = false;
   ThermalEstimate thermal{};
+  bool thermal_valid = false;       // thermal holds a model/filter output (not before the first update)
   double current_limit_A = 0.0;
   bool derating = false;
   bool time_to_limit_valid = false;
@@ -146,6 +155,8 @@ class DriveController {
   // Starts an Rs0 calibration at a known winding temperature: the next calibration_pairs
   // accepted pairs are averaged into Rs0 (and Ke0), and the thermal filter restarts there.
   void start_calibration(double known_temp_C);
+  // Stops a calibration in progress and keeps the calibration in use (nothing is stored).
+  void abort_calibration();
 
   // Thermal time scale of the controller's model (the test acceleration; 1 on a machine).
   void set_thermal_time_scale(double time_scale) { observer_.set_time_scale(time_scale); }
@@ -159,6 +170,8 @@ class DriveController {
   [[nodiscard]] const std::optional<EventEstimate>& last_event() const { return last_event_; }
   // Set for the one period in which a calibration completed.
   [[nodiscard]] const std::optional<Calibration>& calibration_completed() const { return calibration_done_; }
+  // True for the one period in which a calibration run timed out.
+  [[nodiscard]] bool calibration_just_failed() const { return calibration_failed_now_; }
   [[nodiscard]] const Calibration& calibration() const { return observer_.calibration(); }
   [[nodiscard]] const DriveConfig& config() const { return config_; }
 
@@ -210,6 +223,7 @@ class DriveController {
   // Calibration.
   bool calibrating_ = false;
   bool calibration_failed_ = false;
+  bool calibration_failed_now_ = false;
   double calibration_started_s_ = 0.0;
   double calibration_temp_C_ = 25.0;
   int calibration_count_ = 0;

@@ -78,6 +78,7 @@ class ThermalObserver {
 
   void set_calibration(const Calibration& c) { calibration_ = c; }
   void set_time_scale(double time_scale) { config_.time_scale = time_scale; }
+  [[nodiscard]] double time_scale() const { return config_.time_scale; }
   [[nodiscard]] const Calibration& calibration() const { return calibration_; }
 
   [[nodiscard]] ThermalEstimate estimate() const;

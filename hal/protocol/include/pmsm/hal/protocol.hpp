@@ -245,9 +245,15 @@ enum class FaultCode : std::uint8_t {
   kDeadlineOverrun = 10,     // the control loop missed too many deadlines
   kCalibrationFailed = 11,   // Rs0 calibration failed
   kStorage = 12,             // persisting calibration failed
-  kInternal = 13,            // anything else
+  kInternal = 13,            // the controller could not compute a finite command
+  kDcBusUndervoltage = 14,   // DC bus below its window
+  kDcBusOvervoltage = 15,    // DC bus above its window
+  kInputNotFinite = 16,      // NaN or infinity in a measurement
+  kEncoderJump = 17,         // the angle moved more in one period than the speed limit allows
+  kCurrentSum = 18,          // |ia + ib + ic| too large: a phase-current sensor is broken
 };
-inline constexpr std::array<ValueLabel, 14> kFaultCodeLabels{{
+inline constexpr std::size_t kFaultCodeCount = 19;
+inline constexpr std::array<ValueLabel, kFaultCodeCount> kFaultCodeLabels{{
     {0, "NONE"},
     {1, "SENSOR_TIMEOUT"},
     {2, "OVERCURRENT"},
@@ -261,7 +267,12 @@ inline constexpr std::array<ValueLabel, 14> kFaultCodeLabels{{
     {10, "DEADLINE_OVERRUN"},
     {11, "CALIBRATION_FAILED"},
     {12, "STORAGE"},
-    {13, "INTERNAL"}}};
+    {13, "INTERNAL"},
+    {14, "DC_BUS_UNDERVOLTAGE"},
+    {15, "DC_BUS_OVERVOLTAGE"},
+    {16, "INPUT_NOT_FINITE"},
+    {17, "ENCODER_JUMP"},
+    {18, "CURRENT_SUM"}}};
 
 enum class PlantMode : std::uint8_t { kRealtime = 0, kLockstep = 1 };
 inline constexpr std::array<ValueLabel, 2> kPlantModeLabels{{{0, "REALTIME"}, {1, "LOCKSTEP"}}};
@@ -467,7 +478,7 @@ inline constexpr std::array<SignalDef, 4> kSignals{e2e::kCrc, e2e::kAliveCounter
 }  // namespace calibration_command
 
 namespace fault {
-inline constexpr SignalDef kCode{"Code", 0, 8, false, 1, 0, 0, 13, "", kFaultCodeLabels, "Fault code."};
+inline constexpr SignalDef kCode{"Code", 0, 8, false, 1, 0, 0, 18, "", kFaultCodeLabels, "Fault code."};
 inline constexpr SignalDef kActive{"Active", 8, 1, false, 1, 0, 0, 1, "", detail::kNoValues,
     "1: the fault is active; 0: it has cleared."};
 inline constexpr SignalDef kOccurrenceCount{"OccurrenceCount", 16, 16, false, 1, 0, 0, 65535, "", detail::kNoValues,

@@ -1,0 +1,164 @@
+// The drive supervisor: the drive's state machine, input plausibility and latched faults.
+//
+// Pure and deterministic, like the rest of core/: the caller hands in one period's facts
+// (the sample or "no sample this period", whether the operator asks for torque, the age of
+// the last valid command, the thermal estimate) and gets back whether the power stage may
+// switch in the next period. No clock is read; time is counted in periods.
+//
+// Faults are kept apart from limits, as moteus keeps `errc` faults apart from limit reasons:
+//   - A fault is latched when its cause appears, puts the drive in kFault (gates off, the
+//     current loop does not run) and stays until a clear-faults request finds its cause gone.
+//     Each FaultCode has its own counter; a fault that is already latched is not counted
+//     again while it persists.
+//   - Sensor loss is the one fault that clears itself: when samples come back (for
+//     `sensor_recovery_periods` in a row) the drive resumes what the operator commands, so
+//     that a restarted plant or a reconnected power stage needs no operator (docs/drive.md).
+//   - Limits (derating from the thermal estimate, the voltage limit) are not faults: they
+//     never latch and never switch the gates off; the controller reports them.
+//
+// An implausible measurement never becomes a plausible number: a sample with a non-finite
+// value, a DC bus outside its window, an over-current, a phase-current sum far from zero or
+// an encoder jump is refused before the controller sees it, and the refusal is a fault.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <optional>
+
+#include "pmsm/core/transforms.hpp"
+
+namespace pmsm::core {
+
+// The protocol's DriveState numbering (hal/protocol: a unit test checks it).
+enum class DriveState : std::uint8_t {
+  kInit = 0,         // starting up (ADC offset calibration), gates off
+  kStandby = 1,      // ready, gates off (not enabled)
+  kRunning = 2,      // gates on, torque or speed control
+  kCalibrating = 3,  // gates on, Rs0 calibration in progress
+  kFault = 4,        // safe state: gates off until the faults are cleared
+};
+
+// The protocol's FaultCode numbering (hal/protocol: a unit test checks it).
+enum class FaultCode : std::uint8_t {
+  kNone = 0,
+  kSensorTimeout = 1,        // no sensor sample for sensor_timeout_periods
+  kOvercurrent = 2,          // a phase current above overcurrent_A
+  kOvertemperature = 3,      // winding estimate above trip_temp_C
+  kBusOff = 4,               // CAN controller bus-off (reported by the caller)
+  kInterfaceDown = 5,        // CAN interface down or gone (reported by the caller)
+  kCommandTimeout = 6,       // no valid, fresh command while enabled
+  kGpioFault = 7,            // GPIO fault input asserted (reported by the caller)
+  kConfig = 8,
+  kHardwareOvercurrent = 9,  // the power stage's own comparator (sensor flag)
+  kDeadlineOverrun = 10,     // (reported by the caller)
+  kCalibrationFailed = 11,
+  kStorage = 12,
+  kInternal = 13,            // the controller produced a non-finite or out-of-range output
+  kDcBusUndervoltage = 14,
+  kDcBusOvervoltage = 15,
+  kInputNotFinite = 16,      // NaN or infinity in a measurement
+  kEncoderJump = 17,         // the angle moved more in one period than the speed allows
+  kCurrentSum = 18,          // |ia + ib + ic| too large: a broken phase-current sensor
+  kCount = 19,
+};
+
+[[nodiscard]] const char* to_string(DriveState state) noexcept;
+[[nodiscard]] const char* to_string(FaultCode code) noexcept;
+
+inline constexpr std::size_t kFaultCodeCount = static_cast<std::size_t>(FaultCode::kCount);
+
+struct SupervisorConfig {
+  double dc_bus_min_V = 400.0;           // below: under-voltage trip
+  double dc_bus_max_V = 800.0;           // above: over-voltage trip
+  double overcurrent_A = 180.0;          // any phase current above: trip (below the ADC range)
+  double current_sum_max_A = 20.0;       // |ia + ib + ic| above: a phase sensor is broken
+  double max_speed_rad_s = 1000.0;       // mechanical; the encoder may not move faster
+  int encoder_counts = 16384;            // counts per mechanical revolution
+  int sensor_timeout_periods = 10;       // periods without a sample before the fault
+  int sensor_recovery_periods = 10;      // periods with samples before it clears itself
+  double command_timeout_s = 0.0;        // enabled without a fresh command this long: trip (0: off)
+  double trip_temp_C = 180.0;            // winding estimate above: over-temperature trip
+  double trip_hysteresis_C = 10.0;       // may be cleared once below trip - hysteresis
+};
+
+// The sample's measurements, as the sensor front end scaled them.
+struct SupervisedSample {
+  Abc i_A{};
+  double vdc_V = 0.0;
+  std::uint32_t encoder_count = 0;
+  bool hardware_overcurrent = false;
+};
+
+struct SupervisorInput {
+  std::optional<SupervisedSample> sample;  // empty: no sample this period
+  bool frontend_ready = false;             // the ADC offset calibration is done
+  bool enable_requested = false;           // the operator's command asks for torque
+  bool calibrating = false;                // the controller runs an Rs0 calibration
+  double command_age_s = 0.0;              // since the last valid, fresh command
+  std::optional<double> winding_C;         // the thermal estimate, if there is one
+};
+
+struct SupervisorStatus {
+  DriveState state = DriveState::kInit;
+  bool power_stage_enabled = false;        // the gates may switch in the next period
+  bool sample_usable = false;              // this period's sample passed every check
+  std::uint32_t latched_mask = 0;          // bit per FaultCode: latched now
+  FaultCode first_fault = FaultCode::kNone; // the fault that led into kFault
+  std::uint32_t missing_samples = 0;       // consecutive periods without a sample
+};
+
+class Supervisor {
+ public:
+  Supervisor(const SupervisorConfig& config, double period_s);
+
+  // One period. Plausibility of the sample first, then the state machine.
+  const SupervisorStatus& step(const SupervisorInput& in) noexcept;
+
+  // A condition the caller watches (interface down, GPIO fault input, bus-off, deadline
+  // overruns): while present it is a cause; it latches the fault at the next step() and
+  // keeps a clear request from clearing it.
+  void report(FaultCode code, bool present) noexcept;
+
+  // A one-off fault the caller detected (a non-finite controller output, ...): latched at
+  // once, gates off from now on; its cause is gone as soon as it is reported.
+  void trip(FaultCode code) noexcept;
+
+  // The operator's clear-faults request: every latched fault whose cause is gone is
+  // cleared at the next step(); the others stay (and stay counted once).
+  void request_clear() noexcept { clear_requested_ = true; }
+
+  [[nodiscard]] const SupervisorStatus& status() const noexcept { return status_; }
+  [[nodiscard]] bool latched(FaultCode code) const noexcept {
+    return (status_.latched_mask & bit(code)) != 0U;
+  }
+  [[nodiscard]] bool cause_present(FaultCode code) const noexcept {
+    return (cause_mask_ & bit(code)) != 0U;
+  }
+  // Times each fault was latched (indexed by FaultCode).
+  [[nodiscard]] const std::array<std::uint32_t, kFaultCodeCount>& counts() const noexcept { return counts_; }
+  [[nodiscard]] const SupervisorConfig& config() const noexcept { return config_; }
+
+  [[nodiscard]] static constexpr std::uint32_t bit(FaultCode code) noexcept {
+    return std::uint32_t{1} << static_cast<unsigned>(code);
+  }
+
+ private:
+  void latch(FaultCode code) noexcept;
+  // Sets cause_mask_ bits for this sample's implausible measurements.
+  void check_sample(const SupervisedSample& s) noexcept;
+
+  SupervisorConfig config_;
+  double period_s_;
+  double max_step_counts_;
+  SupervisorStatus status_{};
+  std::array<std::uint32_t, kFaultCodeCount> counts_{};
+  std::uint32_t cause_mask_ = 0;   // causes present this period
+  std::uint32_t external_mask_ = 0;  // caller-reported causes (cleared by request_clear when gone)
+  bool clear_requested_ = false;
+  bool have_encoder_ = false;
+  std::uint32_t last_encoder_ = 0;
+  std::uint32_t present_samples_ = 0;
+  bool overtemp_cause_ = false;
+};
+
+}  // namespace pmsm::core

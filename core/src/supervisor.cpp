@@ -1,0 +1,188 @@
+#include "pmsm/core/supervisor.hpp"
+
+#include <cmath>
+#include <numbers>
+
+namespace pmsm::core {
+
+const char* to_string(DriveState state) noexcept {
+  switch (state) {
+    case DriveState::kInit: return "init";
+    case DriveState::kStandby: return "standby";
+    case DriveState::kRunning: return "running";
+    case DriveState::kCalibrating: return "calibrating";
+    case DriveState::kFault: return "fault";
+  }
+  return "?";
+}
+
+const char* to_string(FaultCode code) noexcept {
+  switch (code) {
+    case FaultCode::kNone: return "none";
+    case FaultCode::kSensorTimeout: return "sensor-timeout";
+    case FaultCode::kOvercurrent: return "overcurrent";
+    case FaultCode::kOvertemperature: return "overtemperature";
+    case FaultCode::kBusOff: return "bus-off";
+    case FaultCode::kInterfaceDown: return "interface-down";
+    case FaultCode::kCommandTimeout: return "command-timeout";
+    case FaultCode::kGpioFault: return "gpio-fault";
+    case FaultCode::kConfig: return "config";
+    case FaultCode::kHardwareOvercurrent: return "hardware-overcurrent";
+    case FaultCode::kDeadlineOverrun: return "deadline-overrun";
+    case FaultCode::kCalibrationFailed: return "calibration-failed";
+    case FaultCode::kStorage: return "storage";
+    case FaultCode::kInternal: return "internal";
+    case FaultCode::kDcBusUndervoltage: return "dc-bus-undervoltage";
+    case FaultCode::kDcBusOvervoltage: return "dc-bus-overvoltage";
+    case FaultCode::kInputNotFinite: return "input-not-finite";
+    case FaultCode::kEncoderJump: return "encoder-jump";
+    case FaultCode::kCurrentSum: return "current-sum";
+    case FaultCode::kCount: break;
+  }
+  return "?";
+}
+
+Supervisor::Supervisor(const SupervisorConfig& config, double period_s)
+    : config_(config),
+      period_s_(period_s),
+      // The most the shaft can turn in one period at the speed limit, with margin for the
+      // encoder's quantisation and the speed limit itself being approximate.
+      max_step_counts_(1.5 * config.max_speed_rad_s * period_s / (2.0 * std::numbers::pi) * config.encoder_counts + 2.0) {}
+
+void Supervisor::latch(FaultCode code) noexcept {
+  const std::uint32_t b = bit(code);
+  if ((status_.latched_mask & b) == 0U) {
+    status_.latched_mask |= b;
+    ++counts_[static_cast<std::size_t>(code)];
+    if (status_.first_fault == FaultCode::kNone) {
+      status_.first_fault = code;
+    }
+  }
+}
+
+void Supervisor::report(FaultCode code, bool present) noexcept {
+  if (present) {
+    external_mask_ |= bit(code);
+  } else {
+    external_mask_ &= ~bit(code);
+  }
+}
+
+void Supervisor::trip(FaultCode code) noexcept {
+  latch(code);
+  status_.state = DriveState::kFault;
+  status_.power_stage_enabled = false;
+}
+
+void Supervisor::check_sample(const SupervisedSample& s) noexcept {
+  const Abc& i = s.i_A;
+  if (!std::isfinite(i.a) || !std::isfinite(i.b) || !std::isfinite(i.c) || !std::isfinite(s.vdc_V)) {
+    cause_mask_ |= bit(FaultCode::kInputNotFinite);
+    return;  // nothing else can be judged from NaN
+  }
+  if (s.vdc_V < config_.dc_bus_min_V) {
+    cause_mask_ |= bit(FaultCode::kDcBusUndervoltage);
+  }
+  if (s.vdc_V > config_.dc_bus_max_V) {
+    cause_mask_ |= bit(FaultCode::kDcBusOvervoltage);
+  }
+  if (std::fabs(i.a) > config_.overcurrent_A || std::fabs(i.b) > config_.overcurrent_A ||
+      std::fabs(i.c) > config_.overcurrent_A) {
+    cause_mask_ |= bit(FaultCode::kOvercurrent);
+  }
+  if (std::fabs(i.a + i.b + i.c) > config_.current_sum_max_A) {
+    cause_mask_ |= bit(FaultCode::kCurrentSum);
+  }
+  if (s.hardware_overcurrent) {
+    cause_mask_ |= bit(FaultCode::kHardwareOvercurrent);
+  }
+  const auto counts = static_cast<std::uint32_t>(config_.encoder_counts);
+  if (s.encoder_count >= counts) {
+    cause_mask_ |= bit(FaultCode::kEncoderJump);  // not an angle this encoder can report
+    return;
+  }
+  if (have_encoder_) {
+    // Shortest way round, in counts; periods without a sample allow proportionally more.
+    auto delta = static_cast<std::int64_t>(s.encoder_count) - static_cast<std::int64_t>(last_encoder_);
+    const auto half = static_cast<std::int64_t>(counts / 2U);
+    if (delta > half) {
+      delta -= counts;
+    } else if (delta < -half) {
+      delta += counts;
+    }
+    const double allowed = max_step_counts_ * static_cast<double>(status_.missing_samples + 1U);
+    if (std::fabs(static_cast<double>(delta)) > allowed) {
+      cause_mask_ |= bit(FaultCode::kEncoderJump);
+    }
+  }
+  have_encoder_ = true;
+  last_encoder_ = s.encoder_count;
+}
+
+const SupervisorStatus& Supervisor::step(const SupervisorInput& in) noexcept {
+  cause_mask_ = external_mask_;
+
+  if (in.sample) {
+    check_sample(*in.sample);
+    ++present_samples_;
+    if (present_samples_ >= static_cast<std::uint32_t>(config_.sensor_recovery_periods) &&
+        latched(FaultCode::kSensorTimeout)) {
+      // Sensor loss clears itself: the samples are back and plausible.
+      status_.latched_mask &= ~bit(FaultCode::kSensorTimeout);
+    }
+    status_.missing_samples = 0;
+  } else {
+    present_samples_ = 0;
+    ++status_.missing_samples;
+    if (status_.missing_samples >= static_cast<std::uint32_t>(config_.sensor_timeout_periods)) {
+      cause_mask_ |= bit(FaultCode::kSensorTimeout);
+    }
+  }
+  if (in.enable_requested && config_.command_timeout_s > 0.0 && !(in.command_age_s <= config_.command_timeout_s)) {
+    cause_mask_ |= bit(FaultCode::kCommandTimeout);
+  }
+  if (in.winding_C) {
+    if (*in.winding_C > config_.trip_temp_C) {
+      overtemp_cause_ = true;
+    } else if (*in.winding_C < config_.trip_temp_C - config_.trip_hysteresis_C) {
+      overtemp_cause_ = false;
+    }
+  }
+  if (overtemp_cause_) {
+    cause_mask_ |= bit(FaultCode::kOvertemperature);
+  }
+
+  // Every cause present latches its fault (counted once per latching).
+  for (std::size_t k = 1; k < kFaultCodeCount; ++k) {
+    const auto code = static_cast<FaultCode>(k);
+    if ((cause_mask_ & bit(code)) != 0U) {
+      latch(code);
+    }
+  }
+  if (clear_requested_) {
+    clear_requested_ = false;
+    status_.latched_mask &= cause_mask_;
+  }
+  if (status_.latched_mask == 0U) {
+    status_.first_fault = FaultCode::kNone;
+  }
+
+  status_.sample_usable = in.sample.has_value() && status_.latched_mask == 0U;
+  if (status_.latched_mask != 0U) {
+    status_.state = DriveState::kFault;
+    status_.power_stage_enabled = false;
+  } else if (!in.frontend_ready) {
+    status_.state = DriveState::kInit;
+    status_.power_stage_enabled = false;
+  } else if (in.enable_requested) {
+    status_.state = in.calibrating ? DriveState::kCalibrating : DriveState::kRunning;
+    // A missing sample (shorter than the timeout) switches the gates off for that period.
+    status_.power_stage_enabled = status_.sample_usable;
+  } else {
+    status_.state = DriveState::kStandby;
+    status_.power_stage_enabled = false;
+  }
+  return status_;
+}
+
+}  // namespace pmsm::core

@@ -1,0 +1,232 @@
+#include "drive_node.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+namespace pmsm::app {
+namespace {
+
+namespace protocol = hal::protocol;
+
+protocol::DriveState to_protocol(core::DriveState s) noexcept {
+  return static_cast<protocol::DriveState>(static_cast<std::uint8_t>(s));
+}
+
+}  // namespace
+
+core::SupervisorConfig default_supervisor_config(const ControllerConfig& config) {
+  const core::DriveConfig& d = config.drive;
+  core::SupervisorConfig s;
+  // A bus 40 % low cannot drive the motor at its rated point; 25 % high is beyond what the
+  // DC link of a drive built for this bus is rated for. Never above the ADC's full scale.
+  s.dc_bus_min_V = 0.6 * config.nominal_dc_bus_V;
+  s.dc_bus_max_V = std::min(1.25 * config.nominal_dc_bus_V, 0.98 * config.sensors.dc_bus_full_scale_V);
+  // 90 % of the current ADC's range: a saturated reading is never a valid current.
+  s.overcurrent_A = 0.9 * config.sensors.current_range_A;
+  // Three healthy sensors sum to noise and gain error; 10 % of full scale is a broken one.
+  s.current_sum_max_A = 0.1 * config.sensors.current_range_A;
+  s.max_speed_rad_s = 3.0 * d.motor.rated_speed_rad_s;
+  s.encoder_counts = 1 << d.angle.encoder_bits;
+  s.trip_temp_C = d.derating.limit_C + 25.0;
+  return s;
+}
+
+protocol::InjectionMethod protocol_method(const core::DriveConfig& drive) noexcept {
+  const bool bipolar = drive.injection.separation == core::Separation::kBipolar;
+  if (drive.estimator != core::EstimatorKind::kInjection) {
+    return protocol::InjectionMethod::kOff;
+  }
+  switch (drive.injection.method) {
+    case core::InjectionMethod::kFixedMagnitude:
+      return bipolar ? protocol::InjectionMethod::kFixedMagnitudeBipolar : protocol::InjectionMethod::kFixedMagnitudeUnipolar;
+    case core::InjectionMethod::kFixedAngle:
+      return bipolar ? protocol::InjectionMethod::kFixedAngleBipolar : protocol::InjectionMethod::kFixedAngleUnipolar;
+    case core::InjectionMethod::kDc:
+      return protocol::InjectionMethod::kDc;
+    case core::InjectionMethod::kNone:
+      break;
+  }
+  return protocol::InjectionMethod::kOff;
+}
+
+DriveNode::DriveNode(const ControllerConfig& config, const core::SupervisorConfig& supervisor, const PublishRates& rates)
+    : controller_(config.drive),
+      supervisor_(supervisor, config.drive.period_s),
+      frontend_(config.sensors, config.drive.period_s),
+      period_s_(config.drive.period_s),
+      rates_(rates),
+      method_(protocol_method(config.drive)),
+      thermal_every_(every(rates.thermal_estimate_s)),
+      resistance_every_(every(rates.resistance_estimate_s)),
+      status_every_(every(rates.drive_status_s)),
+      heartbeat_every_(every(rates.heartbeat_s)),
+      fault_every_(every(rates.fault_repeat_s)) {}
+
+std::uint64_t DriveNode::every(double seconds) const noexcept {
+  if (!(seconds > 0.0)) {
+    return 0;
+  }
+  return std::max<std::uint64_t>(1, static_cast<std::uint64_t>(std::llround(seconds / period_s_)));
+}
+
+const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInputs& in) noexcept {
+  out_.command.reset();
+  out_.publications = {};
+  out_.calibration_to_store.reset();
+  out_.calibration_failed = false;
+
+  // Front end first: codes to amperes and volts, with the power-up offset calibration.
+  core::DriveInput drive_in;
+  drive_in.valid = false;
+  core::SupervisorInput si;
+  if (sample != nullptr) {
+    drive_in = frontend_.convert(*sample);
+    si.sample = core::SupervisedSample{drive_in.i_A, drive_in.vdc_V, drive_in.encoder_count,
+                                       (sample->flags & hal::kSensorHardwareOvercurrent) != 0U};
+  }
+  si.frontend_ready = frontend_.ready();
+  si.enable_requested = in.mode != core::DriveMode::kDisabled;
+  si.calibrating = controller_.telemetry().calibrating;
+  si.command_age_s = in.command_age_s;
+  const core::ThermalEstimate& thermal = controller_.telemetry().thermal;
+  if (controller_.telemetry().thermal_valid && std::isfinite(thermal.winding_C)) {
+    si.winding_C = thermal.winding_C;
+  }
+  if (in.clear_faults) {
+    supervisor_.request_clear();
+  }
+  const core::SupervisorStatus& status = supervisor_.step(si);
+
+  if (in.abort_calibration) {
+    controller_.abort_calibration();
+  }
+  if (in.start_calibration) {
+    // The drive's own knowledge of the winding's temperature: the operator's value, or the
+    // ambient / coolant sensor of a motor at rest (soaked).
+    controller_.start_calibration(in.calibration_known_C.value_or(in.ambient_C));
+  }
+
+  // The controller sees a sample only when the supervisor found it plausible, and runs the
+  // current loop only when the supervisor lets the power stage switch.
+  drive_in.valid = drive_in.valid && status.sample_usable;
+  core::DriveCommand cmd;
+  cmd.mode = status.power_stage_enabled ? in.mode : core::DriveMode::kDisabled;
+  cmd.speed_ref_rad_s = in.speed_ref_rad_s;
+  cmd.torque_ref_Nm = in.torque_ref_Nm;
+  cmd.ambient_C = in.ambient_C;
+  cmd.request_injection = in.request_injection;
+  const core::DriveOutput& out = controller_.step(drive_in, cmd);
+  if (out.fault) {
+    supervisor_.trip(core::FaultCode::kInternal);
+  }
+  if (sample != nullptr) {
+    core::DriveOutput gated = out;
+    gated.enable = out.enable && supervisor_.status().power_stage_enabled;
+    out_.command = SensorFrontend::command(gated, sample->sequence);
+  }
+  if (controller_.calibration_completed()) {
+    out_.calibration_to_store = *controller_.calibration_completed();
+  }
+  out_.calibration_failed = controller_.calibration_just_failed();
+
+  publish(in);
+  ++period_;
+  return out_;
+}
+
+void DriveNode::publish(const NodeInputs& in) noexcept {
+  NodePublications& p = out_.publications;
+  const core::DriveTelemetry& tel = controller_.telemetry();
+  const core::SupervisorStatus& st = supervisor_.status();
+  const double now_s = uptime_s();
+
+  if (controller_.last_pair()) {
+    const core::PairResult& r = *controller_.last_pair();
+    protocol::InjectionReport rep;
+    rep.injection_count = injection_count_++;
+    rep.method = method_;
+    rep.result = static_cast<protocol::InjectionResult>(static_cast<std::uint8_t>(r.outcome));
+    rep.amplitude_A = r.f_A;
+    rep.rs_valid = r.outcome == core::PairOutcome::kAccepted && std::isfinite(r.rs_ohm);
+    rep.measured_rs_ohm = rep.rs_valid ? r.rs_ohm : 0.0;
+    // Electrical to mechanical.
+    rep.speed_change_rad_s = r.delta_omega_e_rad_s / controller_.config().motor.pole_pairs;
+    p.injection = rep;
+  }
+  const bool new_estimate = controller_.last_estimate().has_value();
+  if (new_estimate) {
+    last_estimate_ = *controller_.last_estimate();
+    if (last_estimate_->fused) {
+      last_estimate_s_ = now_s;
+      ++estimate_count_;
+    }
+  }
+  if ((new_estimate || due(resistance_every_)) && last_estimate_) {
+    protocol::ResistanceEstimate r;
+    r.valid = std::isfinite(last_estimate_->rs_ohm) && std::isfinite(last_estimate_->rs_std_ohm);
+    r.rs_ohm = r.valid ? last_estimate_->rs_ohm : 0.0;
+    r.rs_sigma_ohm = r.valid ? last_estimate_->rs_std_ohm : 0.0;
+    r.rs0_ohm = controller_.calibration().rs0_ohm;
+    r.estimate_count = estimate_count_;
+    p.resistance = r;
+  }
+  if (due(thermal_every_)) {
+    protocol::ThermalEstimate t;
+    t.valid = tel.thermal_valid && std::isfinite(tel.thermal.winding_C) && std::isfinite(tel.thermal.winding_std_C);
+    t.winding_temp_C = t.valid ? tel.thermal.winding_C : 0.0;
+    t.winding_temp_sigma_C = t.valid ? tel.thermal.winding_std_C : 0.0;
+    t.magnet_valid = tel.magnet_valid && std::isfinite(tel.magnet_C);
+    t.magnet_temp_C = t.magnet_valid ? tel.magnet_C : 0.0;
+    t.calibrated = tel.calibrated;
+    t.derating_active = tel.derating;
+    t.stale = !last_estimate_s_ || now_s - *last_estimate_s_ > rates_.stale_after_s;
+    p.thermal = t;
+  }
+  if (due(status_every_)) {
+    protocol::DriveStatus s;
+    s.state = to_protocol(st.state);
+    unsigned reasons = 0U;
+    reasons |= tel.derating ? unsigned{protocol::kLimitReasonWindingTemp} : 0U;
+    reasons |= tel.voltage_limited ? unsigned{protocol::kLimitReasonVoltage} : 0U;
+    s.limiting_reasons = static_cast<std::uint8_t>(reasons);
+    s.current_limit_A = tel.current_limit_A;
+    s.time_to_limit_valid = tel.time_to_limit_valid;
+    s.time_to_limit_s = tel.time_to_limit_valid ? tel.time_to_limit_s : 0.0;
+    s.speed_rad_s = tel.speed_m_rad_s;
+    s.torque_Nm = tel.torque_estimate_Nm;
+    p.status = s;
+  }
+  if (due(heartbeat_every_)) {
+    protocol::Heartbeat h;
+    h.uptime_s = now_s;
+    h.state = to_protocol(st.state);
+    h.counter = heartbeat_counter_++;
+    h.deadline_misses = in.deadline_misses;
+    p.heartbeat = h;
+  }
+  publish_fault_changes(due(fault_every_));
+}
+
+void DriveNode::publish_fault_changes(bool repeat_due) noexcept {
+  NodePublications& p = out_.publications;
+  const std::uint32_t latched = supervisor_.status().latched_mask;
+  const std::uint32_t changed = latched ^ published_latched_;
+  for (std::size_t k = 1; k < core::kFaultCodeCount; ++k) {
+    const auto code = static_cast<core::FaultCode>(k);
+    const std::uint32_t b = core::Supervisor::bit(code);
+    const bool active = (latched & b) != 0U;
+    if ((changed & b) != 0U) {
+      fault_changed_s_[k] = uptime_s();
+    }
+    if ((changed & b) != 0U || (repeat_due && active)) {
+      protocol::FaultReport& f = p.faults[p.fault_count++];
+      f.code = static_cast<protocol::FaultCode>(k);
+      f.active = active;
+      f.occurrence_count = supervisor_.counts()[k];
+      f.last_change_uptime_s = fault_changed_s_[k];
+    }
+  }
+  published_latched_ = latched;
+}
+
+}  // namespace pmsm::app

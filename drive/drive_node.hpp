@@ -1,0 +1,132 @@
+// The drive node: one sensor sample (or "no sample this period") plus the operator's latest
+// validated commands in, one inverter command plus the period's publications out. It owns
+// the sensor front end, the drive controller and the supervisor, and it is the only
+// per-sample path: pmsm-thermald's RT thread, `pmsm-thermal simulate` and the tests all run
+// it, so that what the simulator measures is what the daemon does.
+//
+//   sample k --> front end --> supervisor (plausibility, state, faults)
+//                          --> controller (current loop, injection, estimator)
+//            --> inverter command for period k+1, publications (protocol messages) due now,
+//                and the calibration to store when one has just completed
+//
+// The per-sample call allocates nothing, logs nothing, reads no clock (time is counted in
+// periods) and throws nothing; what happened is in the returned record, for a non-RT side
+// to publish, log and store.
+#pragma once
+
+#include <array>
+#include <cstddef>
+#include <cstdint>
+#include <optional>
+
+#include "controller_config.hpp"
+#include "pmsm/core/drive_controller.hpp"
+#include "pmsm/core/supervisor.hpp"
+#include "pmsm/hal/messages.hpp"
+#include "pmsm/hal/protocol.hpp"
+#include "sensor_frontend.hpp"
+
+namespace pmsm::app {
+
+// How often each user-facing frame is due, in seconds of drive time (0: never). Frames
+// that report an event (an injection pair, a new resistance estimate, a fault changing)
+// are sent when the event happens as well.
+struct PublishRates {
+  double thermal_estimate_s = 0.1;
+  double resistance_estimate_s = 1.0;
+  double drive_status_s = 0.1;
+  double heartbeat_s = 1.0;
+  double fault_repeat_s = 1.0;      // latched faults are repeated this often
+  double stale_after_s = 60.0;      // THERMAL_ESTIMATE says stale without an accepted estimate for this long
+};
+
+// The operator's side for one period, already validated (E2E, ranges) by whoever received it.
+struct NodeInputs {
+  core::DriveMode mode = core::DriveMode::kDisabled;
+  double speed_ref_rad_s = 0.0;      // mechanical
+  double torque_ref_Nm = 0.0;
+  double command_age_s = 0.0;        // since the last valid, fresh drive command
+  double ambient_C = 25.0;           // the drive's ambient / coolant sensor
+  bool request_injection = false;
+  // One-shot requests (act on the period they are given in).
+  bool start_calibration = false;
+  std::optional<double> calibration_known_C;  // the winding's temperature; empty: the ambient sensor
+  bool abort_calibration = false;
+  bool clear_faults = false;
+  std::uint32_t deadline_misses = 0; // the caller's count, for HEARTBEAT
+};
+
+// The frames due this period. A fixed-size record: it goes through the SPSC ring as is.
+struct NodePublications {
+  std::optional<hal::protocol::ThermalEstimate> thermal;
+  std::optional<hal::protocol::ResistanceEstimate> resistance;
+  std::optional<hal::protocol::InjectionReport> injection;
+  std::optional<hal::protocol::DriveStatus> status;
+  std::optional<hal::protocol::Heartbeat> heartbeat;
+  std::array<hal::protocol::FaultReport, core::kFaultCodeCount> faults{};
+  std::size_t fault_count = 0;
+};
+
+struct NodeStep {
+  // The command for the period after the sample; empty when there was no sample (nothing to
+  // answer: the power stage's own command timeout takes it to the safe state).
+  std::optional<hal::InverterCommand> command;
+  NodePublications publications;
+  std::optional<core::Calibration> calibration_to_store;  // a calibration just completed
+  bool calibration_failed = false;                        // a calibration just timed out
+};
+
+class DriveNode {
+ public:
+  DriveNode(const ControllerConfig& config, const core::SupervisorConfig& supervisor, const PublishRates& rates);
+
+  // One period. `sample` null: no sample arrived this period.
+  const NodeStep& step(const hal::SensorSample* sample, const NodeInputs& in) noexcept;
+
+  // A condition the caller watches (interface down, GPIO fault input, deadline overruns).
+  void report(core::FaultCode code, bool present) noexcept { supervisor_.report(code, present); }
+
+  [[nodiscard]] const core::DriveController& controller() const noexcept { return controller_; }
+  [[nodiscard]] core::DriveController& controller() noexcept { return controller_; }
+  [[nodiscard]] const core::Supervisor& supervisor() const noexcept { return supervisor_; }
+  [[nodiscard]] const SensorFrontend& frontend() const noexcept { return frontend_; }
+  [[nodiscard]] std::uint64_t periods() const noexcept { return period_; }
+  [[nodiscard]] double uptime_s() const noexcept { return static_cast<double>(period_) * period_s_; }
+
+ private:
+  void publish(const NodeInputs& in) noexcept;
+  void publish_fault_changes(bool repeat_due) noexcept;
+  [[nodiscard]] bool due(std::uint64_t every) const noexcept { return every != 0U && period_ % every == 0U; }
+  [[nodiscard]] std::uint64_t every(double seconds) const noexcept;
+
+  core::DriveController controller_;
+  core::Supervisor supervisor_;
+  SensorFrontend frontend_;
+  double period_s_;
+  PublishRates rates_;
+  hal::protocol::InjectionMethod method_;
+  std::uint64_t thermal_every_;
+  std::uint64_t resistance_every_;
+  std::uint64_t status_every_;
+  std::uint64_t heartbeat_every_;
+  std::uint64_t fault_every_;
+  std::uint64_t period_ = 0;
+  NodeStep out_{};
+  std::uint32_t published_latched_ = 0;   // the latched mask as last published
+  std::array<double, core::kFaultCodeCount> fault_changed_s_{};
+  std::uint8_t heartbeat_counter_ = 0;
+  std::uint8_t injection_count_ = 0;
+  std::uint16_t estimate_count_ = 0;
+  std::optional<double> last_estimate_s_;  // last accepted (fused) resistance estimate
+  std::optional<core::ResistanceEstimate> last_estimate_;
+};
+
+// The supervisor's limits for the configured drive, relative to it: the DC-bus window
+// around the nominal bus, the over-current trip below the current ADC's full scale, the
+// encoder speed limit from the rated speed, the trip temperature above the derating limit.
+[[nodiscard]] core::SupervisorConfig default_supervisor_config(const ControllerConfig& config);
+
+// The protocol's method code for the controller's injection configuration.
+[[nodiscard]] hal::protocol::InjectionMethod protocol_method(const core::DriveConfig& drive) noexcept;
+
+}  // namespace pmsm::app

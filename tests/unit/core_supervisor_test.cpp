@@ -1,0 +1,316 @@
+// The supervisor: every transition of the drive state machine, every fault with its own code,
+// latched until a clear request finds the cause gone, counted once per latching, and the
+// safe output (power stage off) asserted in every faulted case.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <limits>
+
+#include "pmsm/core/drive_controller.hpp"
+#include "pmsm/core/supervisor.hpp"
+
+namespace pmsm::core {
+namespace {
+
+constexpr double kPeriod = 1e-4;
+constexpr double kNan = std::numeric_limits<double>::quiet_NaN();
+
+SupervisorConfig config() {
+  SupervisorConfig c;
+  c.dc_bus_min_V = 400.0;
+  c.dc_bus_max_V = 800.0;
+  c.overcurrent_A = 180.0;
+  c.current_sum_max_A = 20.0;
+  c.max_speed_rad_s = 1000.0;  // 0.1 rad per period: about 260 counts of 16384, x1.5 + 2
+  c.encoder_counts = 16384;
+  c.sensor_timeout_periods = 5;
+  c.sensor_recovery_periods = 3;
+  c.command_timeout_s = 0.1;
+  c.trip_temp_C = 180.0;
+  c.trip_hysteresis_C = 10.0;
+  return c;
+}
+
+SupervisedSample healthy() {
+  SupervisedSample s;
+  s.i_A = {10.0, -5.0, -5.0};
+  s.vdc_V = 650.0;
+  s.encoder_count = 1000;
+  return s;
+}
+
+SupervisorInput running(const SupervisedSample& s = healthy()) {
+  SupervisorInput in;
+  in.sample = s;
+  in.frontend_ready = true;
+  in.enable_requested = true;
+  return in;
+}
+
+std::uint32_t count(const Supervisor& sup, FaultCode code) { return sup.counts()[static_cast<std::size_t>(code)]; }
+
+TEST(Supervisor, StartsInInitThenStandbyThenRunningAndBack) {
+  Supervisor sup(config(), kPeriod);
+  SupervisorInput in = running();
+  in.frontend_ready = false;
+  EXPECT_EQ(sup.step(in).state, DriveState::kInit);
+  EXPECT_FALSE(sup.status().power_stage_enabled);
+  in.frontend_ready = true;
+  in.enable_requested = false;
+  EXPECT_EQ(sup.step(in).state, DriveState::kStandby);
+  EXPECT_FALSE(sup.status().power_stage_enabled);
+  in.enable_requested = true;
+  EXPECT_EQ(sup.step(in).state, DriveState::kRunning);
+  EXPECT_TRUE(sup.status().power_stage_enabled);
+  EXPECT_TRUE(sup.status().sample_usable);
+  in.calibrating = true;
+  EXPECT_EQ(sup.step(in).state, DriveState::kCalibrating);
+  EXPECT_TRUE(sup.status().power_stage_enabled);
+  in.calibrating = false;
+  in.enable_requested = false;
+  EXPECT_EQ(sup.step(in).state, DriveState::kStandby);
+  EXPECT_FALSE(sup.status().power_stage_enabled);
+  EXPECT_EQ(sup.status().latched_mask, 0U);
+}
+
+// One implausible sample: fault latched with its own code, gates off in the same period,
+// counted once, kept while the cause persists, cleared only by a request once it is gone.
+struct SampleFaultCase {
+  const char* name;
+  FaultCode code;
+  SupervisedSample bad;
+};
+
+SupervisedSample with_currents(double a, double b, double c) {
+  SupervisedSample s = healthy();
+  s.i_A = {a, b, c};
+  return s;
+}
+SupervisedSample with_vdc(double v) {
+  SupervisedSample s = healthy();
+  s.vdc_V = v;
+  return s;
+}
+SupervisedSample with_encoder(std::uint32_t count) {
+  SupervisedSample s = healthy();
+  s.encoder_count = count;
+  return s;
+}
+SupervisedSample with_hardware_overcurrent() {
+  SupervisedSample s = healthy();
+  s.hardware_overcurrent = true;
+  return s;
+}
+
+class SampleFault : public ::testing::TestWithParam<SampleFaultCase> {};
+
+TEST_P(SampleFault, LatchesGatesOffCountsOnceAndClearsOnlyWhenGone) {
+  const SampleFaultCase& c = GetParam();
+  Supervisor sup(config(), kPeriod);
+  ASSERT_TRUE(sup.step(running()).power_stage_enabled);
+
+  const SupervisorStatus& s = sup.step(running(c.bad));
+  EXPECT_EQ(s.state, DriveState::kFault);
+  EXPECT_FALSE(s.power_stage_enabled) << "gates off in the period of the bad sample";
+  EXPECT_FALSE(s.sample_usable) << "the controller must not see it";
+  EXPECT_TRUE(sup.latched(c.code));
+  EXPECT_EQ(s.first_fault, c.code);
+  EXPECT_EQ(count(sup, c.code), 1U);
+
+  // The cause persists: still latched, counted once, a clear request does nothing. (A jump
+  // is an event between two samples: the same angle again is no jump.)
+  if (c.code != FaultCode::kEncoderJump) {
+    sup.request_clear();
+    sup.step(running(c.bad));
+    EXPECT_TRUE(sup.latched(c.code));
+    EXPECT_EQ(count(sup, c.code), 1U);
+    EXPECT_FALSE(sup.status().power_stage_enabled);
+  }
+
+  // The cause is gone: still latched (faults do not clear themselves) ...
+  for (int k = 0; k < 5; ++k) {
+    sup.step(running());
+  }
+  EXPECT_TRUE(sup.latched(c.code));
+  EXPECT_EQ(sup.status().state, DriveState::kFault);
+  EXPECT_FALSE(sup.status().power_stage_enabled);
+  // ... until a clear request.
+  sup.request_clear();
+  EXPECT_EQ(sup.step(running()).state, DriveState::kRunning);
+  EXPECT_TRUE(sup.status().power_stage_enabled);
+  EXPECT_EQ(sup.status().latched_mask, 0U);
+  EXPECT_EQ(sup.status().first_fault, FaultCode::kNone);
+  EXPECT_EQ(count(sup, c.code), 1U);
+}
+
+INSTANTIATE_TEST_SUITE_P(
+    EveryInput, SampleFault,
+    ::testing::Values(
+        SampleFaultCase{"NanCurrent", FaultCode::kInputNotFinite, with_currents(kNan, 0.0, 0.0)},
+        SampleFaultCase{"InfiniteCurrent", FaultCode::kInputNotFinite,
+                        with_currents(std::numeric_limits<double>::infinity(), 0.0, 0.0)},
+        SampleFaultCase{"NanDcBus", FaultCode::kInputNotFinite, with_vdc(kNan)},
+        SampleFaultCase{"ZeroDcBus", FaultCode::kDcBusUndervoltage, with_vdc(0.0)},
+        SampleFaultCase{"LowDcBus", FaultCode::kDcBusUndervoltage, with_vdc(399.0)},
+        SampleFaultCase{"HighDcBus", FaultCode::kDcBusOvervoltage, with_vdc(801.0)},
+        SampleFaultCase{"Overcurrent", FaultCode::kOvercurrent, with_currents(181.0, -90.5, -90.5)},
+        SampleFaultCase{"NegativeOvercurrent", FaultCode::kOvercurrent, with_currents(-90.5, -90.5, 181.0)},
+        SampleFaultCase{"CurrentSum", FaultCode::kCurrentSum, with_currents(30.0, 0.0, 0.0)},
+        SampleFaultCase{"EncoderJump", FaultCode::kEncoderJump, with_encoder(1000 + 500)},
+        SampleFaultCase{"EncoderOutOfRange", FaultCode::kEncoderJump, with_encoder(16384)},
+        SampleFaultCase{"HardwareOvercurrent", FaultCode::kHardwareOvercurrent, with_hardware_overcurrent()}),
+    [](const ::testing::TestParamInfo<SampleFaultCase>& param_info) { return std::string(param_info.param.name); });
+
+TEST(Supervisor, EncoderMovesFreelyWithinTheSpeedLimitAndAcrossTheWrap) {
+  Supervisor sup(config(), kPeriod);
+  SupervisedSample s = healthy();
+  std::uint32_t count_now = 16000;
+  for (int k = 0; k < 100; ++k) {
+    s.encoder_count = count_now;
+    ASSERT_TRUE(sup.step(running(s)).power_stage_enabled) << "period " << k;
+    count_now = (count_now + 250U) % 16384U;  // 0.096 rad per period, below 0.1
+  }
+  EXPECT_EQ(sup.status().latched_mask, 0U);
+}
+
+TEST(Supervisor, EncoderStepAfterMissingSamplesIsAllowedProportionally) {
+  Supervisor sup(config(), kPeriod);
+  sup.step(running(with_encoder(1000)));
+  SupervisorInput none = running();
+  none.sample.reset();
+  for (int k = 0; k < 3; ++k) {
+    EXPECT_FALSE(sup.step(none).power_stage_enabled) << "no sample, no switching";
+  }
+  // Four periods at 250 counts each: within the limit for four periods.
+  EXPECT_TRUE(sup.step(running(with_encoder(2000))).power_stage_enabled);
+  EXPECT_EQ(sup.status().latched_mask, 0U);
+}
+
+TEST(Supervisor, SensorTimeoutAfterNPeriodsAndRecoversByItself) {
+  Supervisor sup(config(), kPeriod);
+  sup.step(running());
+  SupervisorInput none = running();
+  none.sample.reset();
+  for (int k = 1; k < 5; ++k) {
+    const SupervisorStatus& s = sup.step(none);
+    EXPECT_FALSE(s.power_stage_enabled);
+    EXPECT_NE(s.state, DriveState::kFault) << "not yet a fault after " << k << " periods";
+  }
+  EXPECT_EQ(sup.step(none).state, DriveState::kFault);
+  EXPECT_TRUE(sup.latched(FaultCode::kSensorTimeout));
+  EXPECT_EQ(count(sup, FaultCode::kSensorTimeout), 1U);
+  for (int k = 0; k < 20; ++k) {
+    sup.step(none);
+  }
+  EXPECT_EQ(count(sup, FaultCode::kSensorTimeout), 1U) << "counted once while it persists";
+  // Samples return: after sensor_recovery_periods the fault clears without a request.
+  EXPECT_EQ(sup.step(running()).state, DriveState::kFault);
+  EXPECT_EQ(sup.step(running()).state, DriveState::kFault);
+  EXPECT_EQ(sup.step(running()).state, DriveState::kRunning);
+  EXPECT_TRUE(sup.status().power_stage_enabled);
+  EXPECT_FALSE(sup.latched(FaultCode::kSensorTimeout));
+}
+
+TEST(Supervisor, CommandTimeoutOnlyWhileEnabledAndClearedByAFreshCommandAndARequest) {
+  Supervisor sup(config(), kPeriod);
+  SupervisorInput in = running();
+  in.enable_requested = false;
+  in.command_age_s = 5.0;
+  EXPECT_EQ(sup.step(in).state, DriveState::kStandby) << "standby needs no commands";
+  in.enable_requested = true;
+  in.command_age_s = 0.05;
+  EXPECT_EQ(sup.step(in).state, DriveState::kRunning);
+  in.command_age_s = 0.11;
+  EXPECT_EQ(sup.step(in).state, DriveState::kFault);
+  EXPECT_FALSE(sup.status().power_stage_enabled);
+  EXPECT_TRUE(sup.latched(FaultCode::kCommandTimeout));
+  sup.request_clear();
+  EXPECT_EQ(sup.step(in).state, DriveState::kFault) << "still stale";
+  in.command_age_s = 0.0;
+  EXPECT_EQ(sup.step(in).state, DriveState::kFault) << "fresh, but not cleared";
+  sup.request_clear();
+  EXPECT_EQ(sup.step(in).state, DriveState::kRunning);
+  in.command_age_s = kNan;
+  EXPECT_EQ(sup.step(in).state, DriveState::kFault) << "an unknown age is not fresh";
+}
+
+TEST(Supervisor, OvertemperatureTripsAboveTheLimitAndClearsBelowTheHysteresis) {
+  Supervisor sup(config(), kPeriod);
+  SupervisorInput in = running();
+  in.winding_C = 179.0;
+  EXPECT_EQ(sup.step(in).state, DriveState::kRunning);
+  in.winding_C = 181.0;
+  EXPECT_EQ(sup.step(in).state, DriveState::kFault);
+  EXPECT_FALSE(sup.status().power_stage_enabled);
+  EXPECT_TRUE(sup.latched(FaultCode::kOvertemperature));
+  in.winding_C = 175.0;  // below the trip, within the hysteresis: the cause is still there
+  sup.request_clear();
+  EXPECT_EQ(sup.step(in).state, DriveState::kFault);
+  in.winding_C = 169.0;
+  sup.request_clear();
+  EXPECT_EQ(sup.step(in).state, DriveState::kRunning);
+  EXPECT_EQ(count(sup, FaultCode::kOvertemperature), 1U);
+}
+
+TEST(Supervisor, ReportedConditionsLatchAndBlockClearingWhilePresent) {
+  Supervisor sup(config(), kPeriod);
+  sup.report(FaultCode::kGpioFault, true);
+  EXPECT_EQ(sup.step(running()).state, DriveState::kFault);
+  EXPECT_FALSE(sup.status().power_stage_enabled);
+  sup.request_clear();
+  EXPECT_EQ(sup.step(running()).state, DriveState::kFault);
+  sup.report(FaultCode::kGpioFault, false);
+  EXPECT_EQ(sup.step(running()).state, DriveState::kFault) << "latched until cleared";
+  sup.request_clear();
+  EXPECT_EQ(sup.step(running()).state, DriveState::kRunning);
+}
+
+TEST(Supervisor, TripIsImmediateAndLatched) {
+  Supervisor sup(config(), kPeriod);
+  sup.step(running());
+  sup.trip(FaultCode::kInternal);
+  EXPECT_EQ(sup.status().state, DriveState::kFault);
+  EXPECT_FALSE(sup.status().power_stage_enabled);
+  EXPECT_EQ(sup.step(running()).state, DriveState::kFault);
+  sup.request_clear();
+  EXPECT_EQ(sup.step(running()).state, DriveState::kRunning);
+  EXPECT_EQ(count(sup, FaultCode::kInternal), 1U);
+}
+
+TEST(Supervisor, SeveralFaultsAtOnceAreEachLatchedAndTheFirstIsKept) {
+  Supervisor sup(config(), kPeriod);
+  sup.step(running(with_currents(181.0, 0.0, 0.0)));  // over-current and current sum
+  EXPECT_TRUE(sup.latched(FaultCode::kOvercurrent));
+  EXPECT_TRUE(sup.latched(FaultCode::kCurrentSum));
+  EXPECT_EQ(sup.status().first_fault, FaultCode::kOvercurrent);
+}
+
+// The controller's own last line: a zero or NaN DC bus, or NaN currents, never reach a duty
+// cycle, whatever the caller does.
+TEST(DriveControllerSafety, ImplausibleInputGivesTheSafeOutput) {
+  DriveConfig c;
+  DriveController drive(c);
+  DriveCommand cmd;
+  cmd.mode = DriveMode::kTorque;
+  cmd.torque_ref_Nm = 10.0;
+  DriveInput in;
+  in.i_A = {1.0, -0.5, -0.5};
+  in.vdc_V = 650.0;
+  for (int k = 0; k < 10; ++k) {
+    ASSERT_TRUE(drive.step(in, cmd).enable);
+  }
+  for (const double vdc : {0.0, -1.0, kNan, std::numeric_limits<double>::infinity()}) {
+    in.vdc_V = vdc;
+    const DriveOutput& out = drive.step(in, cmd);
+    EXPECT_FALSE(out.enable) << "vdc " << vdc;
+    for (const double d : out.duty) {
+      EXPECT_TRUE(std::isfinite(d)) << "vdc " << vdc;
+    }
+  }
+  in.vdc_V = 650.0;
+  in.i_A.b = kNan;
+  EXPECT_FALSE(drive.step(in, cmd).enable);
+}
+
+}  // namespace
+}  // namespace pmsm::core

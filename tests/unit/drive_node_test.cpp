@@ -1,0 +1,179 @@
+// The drive node against the plant library: the per-sample path of the daemon and the
+// simulator. Each implausible input on the wire (ADC codes, encoder, flags) switches the
+// gates off in the command computed from that very sample, latches its fault, counts it and
+// publishes it; publications come at their rates; calibration requests use the drive's own
+// temperature knowledge.
+#include <gtest/gtest.h>
+
+#include <functional>
+
+#include "controller_config.hpp"
+#include "drive_node.hpp"
+#include "pmsm/plant/plant.hpp"
+
+namespace pmsm::app {
+namespace {
+
+namespace protocol = hal::protocol;
+
+struct Rig {
+  ControllerConfig config = default_controller_config();
+  core::SupervisorConfig supervisor = default_supervisor_config(config);
+  plant::PlantConfig plant_config{};
+  std::unique_ptr<plant::Plant> plant;
+  std::unique_ptr<DriveNode> node;
+  NodeInputs in{};
+
+  Rig() {
+    plant_config.load.profile = plant::LoadProfile::constant_torque;
+    plant_config.load.torque_Nm = 5.0;
+    plant = std::make_unique<plant::Plant>(plant_config);
+    node = std::make_unique<DriveNode>(config, supervisor, PublishRates{});
+    in.mode = core::DriveMode::kSpeed;
+    in.speed_ref_rad_s = 50.0;
+  }
+
+  // Runs `periods` with the plant's samples, optionally altered.
+  const NodeStep& run(int periods, const std::function<void(hal::SensorSample&)>& alter = {}) {
+    const NodeStep* last = nullptr;
+    for (int k = 0; k < periods; ++k) {
+      hal::SensorSample s = plant->sample();
+      if (alter) {
+        alter(s);
+      }
+      last = &node->step(&s, in);
+      if (last->command) {
+        plant->step(*last->command);
+      }
+    }
+    return *last;
+  }
+};
+
+bool published(const NodeStep& step, protocol::FaultCode code, bool active) {
+  for (std::size_t k = 0; k < step.publications.fault_count; ++k) {
+    if (step.publications.faults[k].code == code && step.publications.faults[k].active == active) {
+      return true;
+    }
+  }
+  return false;
+}
+
+struct WireFault {
+  const char* name;
+  core::FaultCode code;
+  std::function<void(hal::SensorSample&)> alter;
+};
+
+class NodeWireFault : public ::testing::TestWithParam<WireFault> {};
+
+TEST_P(NodeWireFault, GatesOffInTheSamePeriodFaultLatchedCountedPublished) {
+  const WireFault& f = GetParam();
+  Rig rig;
+  const NodeStep& warm = rig.run(2000);  // offset calibration, then running at speed
+  ASSERT_TRUE(warm.command && warm.command->enable);
+  ASSERT_EQ(rig.node->supervisor().status().state, core::DriveState::kRunning);
+
+  const NodeStep& bad = rig.run(1, f.alter);
+  ASSERT_TRUE(bad.command.has_value());
+  EXPECT_FALSE(bad.command->enable) << "gates off in the command computed from the bad sample";
+  EXPECT_EQ(rig.node->supervisor().status().state, core::DriveState::kFault);
+  EXPECT_TRUE(rig.node->supervisor().latched(f.code));
+  EXPECT_EQ(rig.node->supervisor().counts()[static_cast<std::size_t>(f.code)], 1U);
+  EXPECT_TRUE(published(bad, static_cast<protocol::FaultCode>(f.code), true)) << "FAULT frame in the same period";
+
+  // Healthy samples again: the gates stay off until the faults are cleared.
+  const NodeStep& after = rig.run(50);
+  EXPECT_FALSE(after.command->enable);
+  rig.in.clear_faults = true;
+  const NodeStep& cleared = rig.run(1);
+  rig.in.clear_faults = false;
+  EXPECT_TRUE(published(cleared, static_cast<protocol::FaultCode>(f.code), false)) << "FAULT frame: cleared";
+  const NodeStep& again = rig.run(10);
+  EXPECT_TRUE(again.command->enable);
+  EXPECT_EQ(rig.node->supervisor().status().state, core::DriveState::kRunning);
+}
+
+INSTANTIATE_TEST_SUITE_P(
+    EveryInput, NodeWireFault,
+    ::testing::Values(
+        WireFault{"DcBusZero", core::FaultCode::kDcBusUndervoltage, [](hal::SensorSample& s) { s.dc_bus_adc = 0; }},
+        WireFault{"DcBusFullScale", core::FaultCode::kDcBusOvervoltage, [](hal::SensorSample& s) { s.dc_bus_adc = 4095; }},
+        WireFault{"CurrentAdcSaturated", core::FaultCode::kOvercurrent,
+                  [](hal::SensorSample& s) {
+                    s.phase_current_adc = {2047, -1024, -1023};
+                  }},
+        WireFault{"OnePhaseSensorDead", core::FaultCode::kCurrentSum,
+                  [](hal::SensorSample& s) { s.phase_current_adc[0] = static_cast<std::int16_t>(s.phase_current_adc[0] + 400); }},
+        WireFault{"EncoderJump", core::FaultCode::kEncoderJump,
+                  [](hal::SensorSample& s) { s.encoder_count = static_cast<std::uint16_t>((s.encoder_count + 4096U) % 16384U); }},
+        WireFault{"HardwareOvercurrent", core::FaultCode::kHardwareOvercurrent,
+                  [](hal::SensorSample& s) { s.flags = static_cast<std::uint8_t>(s.flags | hal::kSensorHardwareOvercurrent); }}),
+    [](const ::testing::TestParamInfo<WireFault>& param_info) { return std::string(param_info.param.name); });
+
+TEST(DriveNode, MissingSamplesNoCommandThenSensorTimeoutThenRecovery) {
+  Rig rig;
+  rig.run(2000);
+  const int timeout = rig.supervisor.sensor_timeout_periods;
+  for (int k = 0; k < timeout; ++k) {
+    const NodeStep& s = rig.node->step(nullptr, rig.in);
+    EXPECT_FALSE(s.command.has_value()) << "nothing to answer without a sample";
+  }
+  EXPECT_TRUE(rig.node->supervisor().latched(core::FaultCode::kSensorTimeout));
+  const NodeStep& back = rig.run(1);
+  EXPECT_FALSE(back.command->enable) << "not before the recovery periods";
+  const NodeStep& recovered = rig.run(rig.supervisor.sensor_recovery_periods + 5);
+  EXPECT_TRUE(recovered.command->enable) << "sensor loss clears itself when samples return";
+  EXPECT_FALSE(rig.node->supervisor().latched(core::FaultCode::kSensorTimeout));
+}
+
+TEST(DriveNode, PublicationsComeAtTheirRates) {
+  Rig rig;
+  int thermal = 0, status = 0, heartbeat = 0;
+  for (int k = 0; k < 10000; ++k) {  // 1 s
+    const NodeStep& s = rig.run(1);
+    thermal += s.publications.thermal ? 1 : 0;
+    status += s.publications.status ? 1 : 0;
+    heartbeat += s.publications.heartbeat ? 1 : 0;
+    if (s.publications.thermal && k > 1000) {  // after the ADC offset calibration (50 ms)
+      EXPECT_TRUE(s.publications.thermal->valid);
+      EXPECT_TRUE(s.publications.thermal->stale) << "no resistance estimate yet";
+    }
+  }
+  EXPECT_EQ(thermal, 10);
+  EXPECT_EQ(status, 10);
+  EXPECT_EQ(heartbeat, 1);
+}
+
+TEST(DriveNode, NoThermalEstimateBeforeTheModelRan) {
+  Rig rig;
+  const NodeStep& first = rig.run(1);
+  ASSERT_TRUE(first.publications.thermal.has_value());
+  EXPECT_FALSE(first.publications.thermal->valid) << "no estimate yet is not 0 degC";
+}
+
+TEST(DriveNode, CalibrationUsesTheOperatorsTemperatureOrTheAmbientSensor) {
+  Rig rig;
+  rig.in.mode = core::DriveMode::kSpeed;
+  rig.run(1000);
+  rig.in.ambient_C = 31.0;
+  rig.in.start_calibration = true;
+  rig.run(1);
+  rig.in.start_calibration = false;
+  rig.run(200);  // the thermal estimate is reported every 10 ms
+  EXPECT_TRUE(rig.node->controller().telemetry().calibrating);
+  EXPECT_NEAR(rig.node->controller().telemetry().thermal.winding_C, 31.0, 0.2) << "the ambient sensor";
+  rig.in.abort_calibration = true;
+  rig.run(1);
+  rig.in.abort_calibration = false;
+  EXPECT_FALSE(rig.node->controller().telemetry().calibrating);
+  rig.in.start_calibration = true;
+  rig.in.calibration_known_C = 18.5;
+  rig.run(1);
+  rig.in.start_calibration = false;
+  rig.run(200);
+  EXPECT_NEAR(rig.node->controller().telemetry().thermal.winding_C, 18.5, 0.2) << "the operator's value";
+}
+
+}  // namespace
+}  // namespace pmsm::app
