@@ -139,10 +139,10 @@ TEST(protocol_table, ValueTablesMatchEnums) {
   check(kCalibrationActionLabels, static_cast<std::size_t>(CalibrationAction::kAbort) + 1);
   check(kDriveStateLabels, static_cast<std::size_t>(DriveState::kFault) + 1);
   check(kInjectionResultLabels, static_cast<std::size_t>(InjectionResult::kSkippedTorqueDisturbance) + 1);
-  check(kFaultCodeLabels, static_cast<std::size_t>(FaultCode::kInternal) + 1);
+  check(kFaultCodeLabels, static_cast<std::size_t>(FaultCode::kCurrentSum) + 1);
   check(kPlantModeLabels, 2);
   EXPECT_EQ(drive_command::kMode.raw_max(), 2);
-  EXPECT_EQ(fault::kCode.raw_max(), static_cast<std::int64_t>(FaultCode::kInternal));
+  EXPECT_EQ(fault::kCode.raw_max(), static_cast<std::int64_t>(FaultCode::kCurrentSum));
   EXPECT_EQ(injection_report::kResult.raw_max(), static_cast<std::int64_t>(InjectionResult::kSkippedTorqueDisturbance));
 }
 
