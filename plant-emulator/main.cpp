@@ -29,6 +29,7 @@
 
 #include "pmsm/hal/protocol_filters.hpp"
 #include "pmsm/hal/rt.hpp"
+#include "pmsm/hal/signals.hpp"
 #include "pmsm/hal/socketcan.hpp"
 #include "pmsm/plant/config.hpp"
 #include "process/log.hpp"
@@ -42,21 +43,6 @@ using pmsm::plant::PlantNodeStats;
 
 constexpr int kExitBus = 1;
 constexpr int kExitConfig = 2;
-
-// Set from the signal handler; std::atomic<bool> is lock-free, so this is async-signal-safe.
-std::atomic<bool> g_stop{false};
-static_assert(std::atomic<bool>::is_always_lock_free);
-
-extern "C" void on_stop_signal(int /*signal*/) { g_stop.store(true, std::memory_order_relaxed); }
-
-void install_signal_handlers() {
-  struct sigaction action {};
-  action.sa_handler = on_stop_signal;
-  sigemptyset(&action.sa_mask);
-  action.sa_flags = 0;  // no SA_RESTART: a blocked wait returns early (it re-checks anyway)
-  sigaction(SIGINT, &action, nullptr);
-  sigaction(SIGTERM, &action, nullptr);
-}
 
 struct Options {
   std::string config_path;
@@ -214,7 +200,7 @@ std::string summary_line(const PlantNodeStats& s, double wall_s, const char* why
 
 void setup_realtime(int priority) {
   // Both are optional for an emulator: warn and run anyway (a development machine, CI).
-  if (const pmsm::hal::Status s = pmsm::hal::lock_memory(); !s.ok()) {
+  if (const pmsm::hal::Status s = pmsm::hal::prepare_memory_for_realtime(); !s.ok()) {
     spdlog::warn("{}", s.message());
   }
   pmsm::hal::prefault_stack();
@@ -280,7 +266,9 @@ int run(const Options& o) {
                    : std::string{},
                o.duration_s ? fmt::format(", stopping after {} s simulated", *o.duration_s) : std::string{});
 
-  install_signal_handlers();
+  if (const pmsm::hal::Status s = pmsm::hal::install_stop_signals(); !s.ok()) {
+    spdlog::warn("{}; stop with SIGKILL", s.message());
+  }
   const std::int64_t t0_ns = pmsm::hal::monotonic_ns();
   pmsm::plant::StopReason reason = pmsm::plant::StopReason::kStopRequested;
   {
@@ -290,7 +278,7 @@ int run(const Options& o) {
     if (node_options.mode == pmsm::plant::RunMode::kRealtime) {
       setup_realtime(o.rt_priority);
     }
-    reason = node->run(g_stop);
+    reason = node->run(pmsm::hal::stop_requested());
     monitor.stop();
   }
   const double wall_s = static_cast<double>(pmsm::hal::monotonic_ns() - t0_ns) * 1e-9;

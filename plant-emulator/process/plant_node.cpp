@@ -1,6 +1,5 @@
 #include "plant_node.hpp"
 
-#include <poll.h>
 #include <time.h>
 
 #include <cerrno>
@@ -53,7 +52,8 @@ PlantNode::PlantNode(const PlantConfig& config, hal::CanBus& bus, const PlantNod
       options.send_max_wait.count() < 0) {
     throw std::invalid_argument("truth period, command timeout, resend and reopen intervals must be > 0");
   }
-  wait_fd_ = options.wait_descriptor ? options.wait_descriptor() : -1;
+  have_wait_fd_ = static_cast<bool>(options.wait_descriptor);
+  bus_slot_ = wait_.add(have_wait_fd_ ? options.wait_descriptor() : -1);
   const double period_s = plant_.period_s();
   period_ = nanoseconds{std::llround(period_s * 1e9)};
   const double truth_periods = static_cast<double>(options.truth_period.count()) * 1e-9 / period_s;
@@ -140,20 +140,16 @@ void PlantNode::step(const hal::InverterCommand& command) noexcept {
 }
 
 PlantNode::Wake PlantNode::receive_command(nanoseconds timeout, hal::InverterCommand& out) noexcept {
-  const bool poll_first = timeout.count() > 0 && wait_fd_ >= 0;
+  const bool poll_first = timeout.count() > 0 && have_wait_fd_;
   if (poll_first) {
-    pollfd p{wait_fd_, POLLIN, 0};
-    timespec ts{};
-    ts.tv_sec = timeout.count() / 1'000'000'000;
-    ts.tv_nsec = timeout.count() % 1'000'000'000;
-    const int n = ::ppoll(&p, 1, &ts, nullptr);
-    if (n == 0) {
+    const hal::WaitResult w = wait_.wait_for(timeout);
+    if (w.timed_out) {
       return Wake::kTimeout;
     }
-    if (n < 0) {
-      if (errno == EINTR) {
-        return Wake::kNothing;  // a signal: the caller looks at its stop flag
-      }
+    if (w.interrupted) {
+      return Wake::kNothing;  // a signal: the caller looks at its stop flag
+    }
+    if (w.error != 0) {
       counters_.rx_errors.bump();
       return Wake::kError;
     }
@@ -204,7 +200,7 @@ bool PlantNode::recover_interface(const std::atomic<bool>& stop) {
     // Reopen even if the old binding might still work: after the interface was deleted and
     // created again it would not, and reopening a working socket costs nothing here.
     if (bus_.reopen().ok()) {
-      wait_fd_ = options_.wait_descriptor ? options_.wait_descriptor() : -1;
+      wait_.set(bus_slot_, have_wait_fd_ ? options_.wait_descriptor() : -1);
       counters_.reopens.bump();
       counters_.interface_down.store(false, std::memory_order_relaxed);
       return true;

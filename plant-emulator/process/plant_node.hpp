@@ -32,6 +32,8 @@
 
 #include "pmsm/hal/can_bus.hpp"
 #include "pmsm/hal/codec.hpp"
+#include "pmsm/hal/counters.hpp"
+#include "pmsm/hal/wait.hpp"
 #include "pmsm/hal/protocol.hpp"
 #include "pmsm/plant/config.hpp"
 #include "pmsm/plant/plant.hpp"
@@ -129,17 +131,8 @@ class PlantNode {
   [[nodiscard]] const Plant& plant() const noexcept { return plant_; }
 
  private:
-  // Single-writer counter: the run() thread stores, other threads load (no read-modify-write
-  // needed, so no locked instruction on the hot path).
-  class Counter {
-   public:
-    void bump(std::uint64_t n = 1) noexcept { value_.store(value_.load(std::memory_order_relaxed) + n, std::memory_order_relaxed); }
-    void set(std::uint64_t v) noexcept { value_.store(v, std::memory_order_relaxed); }
-    [[nodiscard]] std::uint64_t get() const noexcept { return value_.load(std::memory_order_relaxed); }
-
-   private:
-    std::atomic<std::uint64_t> value_{0};
-  };
+  // Written by the run() thread alone, read by anyone (hal/io counters.hpp).
+  using Counter = hal::SingleWriterCounter;
 
   struct Counters {
     Counter periods, samples_sent, sample_resends, bench_frames_sent, commands_applied;
@@ -186,7 +179,9 @@ class PlantNode {
   std::chrono::nanoseconds period_;
   std::uint64_t truth_every_ = 1;
   std::optional<std::uint64_t> stop_period_;
-  int wait_fd_ = -1;
+  hal::DescriptorWait wait_;       // the bus's descriptor, when the options give one
+  std::size_t bus_slot_ = 0;
+  bool have_wait_fd_ = false;
   hal::CanFrame frame_{};          // scratch, preallocated
   hal::ReceivedFrame received_{};  // scratch, preallocated
   // Lockstep: the last applied sequence, to tell duplicates from stale commands.

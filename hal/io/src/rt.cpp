@@ -2,6 +2,7 @@
 #include "pmsm/hal/rt.hpp"
 
 #include <alloca.h>
+#include <malloc.h>
 #include <pthread.h>
 #include <sched.h>
 #include <sys/mman.h>
@@ -48,6 +49,12 @@ Status lock_memory() {
                                 "page faults may delay the control loop");
   }
   return {};
+}
+
+Status prepare_memory_for_realtime() {
+  ::mallopt(M_TRIM_THRESHOLD, -1);
+  ::mallopt(M_MMAP_MAX, 0);
+  return lock_memory();
 }
 
 Status set_realtime_priority(int priority) {

@@ -18,6 +18,13 @@ namespace pmsm::hal {
 // memory on the hot path. Needs RLIMIT_MEMLOCK (LimitMEMLOCK=infinity) or CAP_IPC_LOCK.
 [[nodiscard]] Status lock_memory();
 
+// Memory for a real-time process, as cactus-rt sets it up: lock_memory(), then glibc's heap
+// is told never to give memory back (M_TRIM_THRESHOLD = -1) and never to serve a request
+// with a fresh mmap (M_MMAP_MAX = 0), so that a free() or a large allocation on another
+// thread cannot make the RT thread fault pages in. Returns lock_memory()'s status (the
+// mallopt calls cannot be refused).
+[[nodiscard]] Status prepare_memory_for_realtime();
+
 // SCHED_FIFO at `priority` (1..99) for the calling thread only. Needs RLIMIT_RTPRIO
 // (LimitRTPRIO=) or CAP_SYS_NICE, and no RestrictRealtime=yes.
 [[nodiscard]] Status set_realtime_priority(int priority);
