@@ -76,12 +76,22 @@ struct NodeStep {
   bool calibration_failed = false;                        // a calibration just timed out
 };
 
+// The protocol's method code for the controller's injection configuration.
+[[nodiscard]] hal::protocol::InjectionMethod protocol_method(const core::DriveConfig& drive) noexcept;
+
 class DriveNode {
  public:
   DriveNode(const ControllerConfig& config, const core::SupervisorConfig& supervisor, const PublishRates& rates);
 
   // One period. `sample` null: no sample arrived this period.
   const NodeStep& step(const hal::SensorSample* sample, const NodeInputs& in) noexcept;
+
+  // The operator's injection settings (see DriveController::configure_injection).
+  void configure_injection(core::InjectionMethod method, core::Separation separation, double f_A, double interval_s) noexcept {
+    if (controller_.configure_injection(method, separation, f_A, interval_s)) {
+      method_ = protocol_method(controller_.config());
+    }
+  }
 
   // A condition the caller watches (interface down, GPIO fault input, deadline overruns).
   void report(core::FaultCode code, bool present) noexcept { supervisor_.report(code, present); }
@@ -126,7 +136,5 @@ class DriveNode {
 // encoder speed limit from the rated speed, the trip temperature above the derating limit.
 [[nodiscard]] core::SupervisorConfig default_supervisor_config(const ControllerConfig& config);
 
-// The protocol's method code for the controller's injection configuration.
-[[nodiscard]] hal::protocol::InjectionMethod protocol_method(const core::DriveConfig& drive) noexcept;
 
 }  // namespace pmsm::app

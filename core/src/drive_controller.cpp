@@ -61,6 +61,27 @@ void DriveController::abort_calibration() {
   }
 }
 
+bool DriveController::configure_injection(InjectionMethod method, Separation separation, double f_A, double interval_s) {
+  // Events only on request: an interval no run reaches.
+  constexpr double kOnRequestOnly_s = 1e12;
+  InjectionConfig c = config_.injection;
+  c.method = method;
+  c.separation = separation;
+  if (f_A > 0.0 && std::isfinite(f_A)) {
+    c.f_A = f_A;
+  }
+  c.interval_s = interval_s > 0.0 && std::isfinite(interval_s) ? interval_s : kOnRequestOnly_s;
+  if (c.method == config_.injection.method && c.separation == config_.injection.separation && c.f_A == config_.injection.f_A &&
+      c.interval_s == config_.injection.interval_s) {
+    return false;
+  }
+  config_.injection = c;
+  if (!calibrating_) {
+    scheduler_.set_config(c);
+  }
+  return true;
+}
+
 Dq DriveController::motoring_reference(const DriveCommand& command) {
   const double limit = derating_.current_limit_A;
   double torque = 0.0;

@@ -158,6 +158,12 @@ class DriveController {
   // Stops a calibration in progress and keeps the calibration in use (nothing is stored).
   void abort_calibration();
 
+  // The operator's injection settings (the protocol's INJECTION_COMMAND): method and
+  // separation, amplitude F (<= 0: keep the configured one) and the interval between events
+  // (<= 0: only on request). An event in progress is abandoned when the settings change;
+  // during a calibration they take effect once it ends. Returns whether anything changed.
+  bool configure_injection(InjectionMethod method, Separation separation, double f_A, double interval_s);
+
   // Thermal time scale of the controller's model (the test acceleration; 1 on a machine).
   void set_thermal_time_scale(double time_scale) { observer_.set_time_scale(time_scale); }
 

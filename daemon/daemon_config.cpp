@@ -1,0 +1,232 @@
+#include "daemon_config.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <sstream>
+
+#include <fmt/format.h>
+#include <toml++/toml.h>
+
+#include "config_schema.hpp"
+#include "pmsm/hal/protocol.hpp"
+
+namespace pmsm::daemon {
+namespace {
+
+using app::ConfigError;
+using app::ConfigSchema;
+using D = DaemonConfig;
+
+const ConfigSchema<D>& schema() {
+  static const ConfigSchema<D> s = [] {
+    ConfigSchema<D> c;
+    // [can]
+    c.string("can.interface", [](D& d) -> std::string& { return d.can.interface; },
+             "CAN interface of the fast loop and the publications (vcan0 in tests, can0 on a controller); CAN FD (MTU 72).");
+    c.integer("can.node", [](D& d) -> int& { return d.can.node; }, app::between(0, 15),
+              "Node id of this axis, added to every CAN ID (several axes share one bus).");
+    c.real("can.nominal_bitrate_bit_s", [](D& d) -> double& { return d.can.nominal_bitrate_bit_s; }, app::between(1e4, 1e6),
+           "bit/s", "The real bus's nominal (arbitration) bit rate, for the load budget.");
+    c.real("can.data_bitrate_bit_s", [](D& d) -> double& { return d.can.data_bitrate_bit_s; }, app::between(1e4, 1.5e7),
+           "bit/s", "The real bus's CAN FD data-phase bit rate, for the load budget.");
+    c.real("can.max_bus_load", [](D& d) -> double& { return d.can.max_bus_load; }, app::between(0.05, 1.0), "",
+           "Refuse to start when the fast loop and the publications would load the real bus above this fraction.");
+    c.real("can.sample_timeout_ms", [](D& d) -> double& { return d.can.sample_timeout_ms; }, app::between(0.05, 1000), "ms",
+           "Wall time without a SENSOR_SAMPLE that counts as one missing period (supervisor.sensor_timeout_periods of "
+           "them trip the sensor-timeout fault). Above the period: lockstep plants run slower than real time.");
+    c.real("can.reopen_interval_ms", [](D& d) -> double& { return d.can.reopen_interval_ms; }, app::between(1, 60000), "ms",
+           "How often a lost interface is checked for and the socket reopened.");
+    // [rt]
+    c.integer("rt.priority", [](D& d) -> int& { return d.rt.priority; }, app::between(0, 99),
+              "SCHED_FIFO priority of the control thread (0: normal scheduling). Refused without LimitRTPRIO= or "
+              "CAP_SYS_NICE: a warning, not a failure.");
+    c.integer("rt.cpu", [](D& d) -> int& { return d.rt.cpu; }, app::between(-1, 1023), "Pin the control thread to this CPU (-1: no pinning).");
+    c.boolean("rt.lock_memory", [](D& d) -> bool& { return d.rt.lock_memory; },
+              "mlockall plus no heap trimming and no mmap'd allocations (cactus-rt's set-up).");
+    // [gpio]
+    c.string("gpio.chip", [](D& d) -> std::string& { return d.gpio.chip; },
+             "GPIO chip (e.g. gpiochip0 or /dev/gpiochip0); empty: no GPIO (null backend).");
+    c.integer("gpio.enable_line", [](D& d) -> int& { return d.gpio.enable_line; }, app::between(-1, 4095),
+              "Gate-enable output line offset (requested inactive; asserted only while the drive runs).");
+    c.integer("gpio.fault_line", [](D& d) -> int& { return d.gpio.fault_line; }, app::between(-1, 4095),
+              "Power-stage fault input line offset (-1: none); active trips the gpio-fault fault.");
+    c.boolean("gpio.enable_active_low", [](D& d) -> bool& { return d.gpio.enable_active_low; }, "The gate enable is active low.");
+    c.boolean("gpio.fault_active_low", [](D& d) -> bool& { return d.gpio.fault_active_low; }, "The fault input is active low.");
+    // [publish]
+    c.real("publish.thermal_estimate_s", [](D& d) -> double& { return d.publish.thermal_estimate_s; }, app::between(0, 3600), "s",
+           "THERMAL_ESTIMATE period (0: never).");
+    c.real("publish.resistance_estimate_s", [](D& d) -> double& { return d.publish.resistance_estimate_s; }, app::between(0, 3600), "s",
+           "RESISTANCE_ESTIMATE period, besides one per new estimate (0: only new estimates).");
+    c.real("publish.drive_status_s", [](D& d) -> double& { return d.publish.drive_status_s; }, app::between(0, 3600), "s",
+           "DRIVE_STATUS period (0: never).");
+    c.real("publish.heartbeat_s", [](D& d) -> double& { return d.publish.heartbeat_s; }, app::between(0, 3600), "s",
+           "HEARTBEAT period (0: never).");
+    c.real("publish.fault_repeat_s", [](D& d) -> double& { return d.publish.fault_repeat_s; }, app::between(0, 3600), "s",
+           "Latched faults are repeated this often, besides one FAULT frame per change (0: changes only).");
+    c.real("publish.stale_after_s", [](D& d) -> double& { return d.publish.stale_after_s; }, app::between(0.1, 1e6), "s",
+           "THERMAL_ESTIMATE says stale when no resistance estimate was accepted for this long.");
+    // [supervisor]
+    c.real("supervisor.dc_bus_min_V", [](D& d) -> double& { return d.supervisor.dc_bus_min_V; }, app::between(0, 10000), "V",
+           "DC-bus under-voltage trip (default: 0.6 x controller.control.nominal_dc_bus_V).");
+    c.real("supervisor.dc_bus_max_V", [](D& d) -> double& { return d.supervisor.dc_bus_max_V; }, app::between(0, 10000), "V",
+           "DC-bus over-voltage trip (default: 1.25 x nominal, at most 98 % of the DC-bus ADC's full scale).");
+    c.real("supervisor.overcurrent_A", [](D& d) -> double& { return d.supervisor.overcurrent_A; }, app::positive(100000), "A",
+           "Phase-current trip (default: 90 % of the current ADC's range).");
+    c.real("supervisor.current_sum_max_A", [](D& d) -> double& { return d.supervisor.current_sum_max_A; }, app::positive(100000), "A",
+           "|ia + ib + ic| above this: a phase-current sensor is broken (default: 10 % of the ADC's range).");
+    c.real("supervisor.max_speed_rad_s", [](D& d) -> double& { return d.supervisor.max_speed_rad_s; }, app::positive(100000), "rad/s",
+           "Mechanical speed the encoder may show; a larger step between samples is an encoder-jump fault (default: 3 x rated).");
+    c.integer("supervisor.sensor_timeout_periods", [](D& d) -> int& { return d.supervisor.sensor_timeout_periods; }, app::between(1, 100000),
+              "Missing samples in a row before the sensor-timeout fault (gates off).");
+    c.integer("supervisor.sensor_recovery_periods", [](D& d) -> int& { return d.supervisor.sensor_recovery_periods; },
+              app::between(1, 100000), "Samples in a row after which a sensor timeout clears itself.");
+    c.real("supervisor.command_timeout_s", [](D& d) -> double& { return d.supervisor.command_timeout_s; }, app::between(0, 3600), "s",
+           "Enabled without a valid, fresh DRIVE_COMMAND this long: command-timeout fault, gates off (0: off).");
+    c.real("supervisor.trip_temp_C", [](D& d) -> double& { return d.supervisor.trip_temp_C; }, app::between(-50, 400), "C",
+           "Winding-estimate trip (default: controller.derating.limit_C + 25 C; derating starts below).");
+    c.real("supervisor.trip_hysteresis_C", [](D& d) -> double& { return d.supervisor.trip_hysteresis_C; }, app::between(0, 100), "C",
+           "An over-temperature fault may be cleared this far below the trip.");
+    // [startup]
+    c.boolean("startup.calibrate_if_missing", [](D& d) -> bool& { return d.startup.calibrate_if_missing; },
+              "With controller.calibration.file set but absent, calibrate at the ambient sensor's temperature the first time the "
+              "drive runs.");
+    return c;
+  }();
+  return s;
+}
+
+std::string read_file(const std::filesystem::path& path) {
+  std::ifstream in(path);
+  if (!in) {
+    throw ConfigError(path.string() + ": cannot read the configuration file");
+  }
+  std::stringstream buffer;
+  buffer << in.rdbuf();
+  return buffer.str();
+}
+
+// Bits on the wire of one standard-ID frame: classic CAN at the nominal rate, or CAN FD with
+// the data phase (from the BRS bit to the CRC delimiter) at the data rate. Worst-case bit
+// stuffing on the stuffed fields; CAN FD's fixed stuff bits in the CRC field.
+double frame_time_s(std::size_t bytes, bool fd, double nominal, double data) {
+  const auto payload = static_cast<double>(8 * bytes);
+  if (!fd) {
+    // SOF, ID 11, RTR, IDE, r0, DLC 4, data, CRC 15 (stuffed: 34 + 8n bits), then CRC
+    // delimiter, ACK 2, EOF 7, IFS 3.
+    const double stuffed = 34.0 + payload;
+    return (stuffed + std::floor((stuffed - 1.0) / 4.0) + 13.0) / nominal;
+  }
+  // Arbitration phase at the nominal rate: SOF, ID 11, RRS, IDE, FDF, res, BRS (17 bits,
+  // stuffed) plus CRC delimiter, ACK 2, EOF 7, IFS 3 after the data phase.
+  const double arbitration = 17.0 + std::floor(16.0 / 4.0) + 13.0;
+  // Data phase: ESI, DLC 4, data (stuffed), stuff count 4, CRC 17 (up to 16 bytes) or 21,
+  // and one fixed stuff bit per 4 bits of the stuff count and CRC.
+  const double crc = bytes <= 16 ? 17.0 : 21.0;
+  const double stuffed = 5.0 + payload;
+  const double data_bits = stuffed + std::floor(stuffed / 4.0) + 4.0 + crc + std::ceil((4.0 + crc) / 4.0);
+  return arbitration / nominal + data_bits / data;
+}
+
+void check_cross_keys(const DaemonConfig& c, const std::string& source) {
+  const core::SupervisorConfig& s = c.supervisor;
+  if (!(s.dc_bus_min_V < s.dc_bus_max_V)) {
+    throw ConfigError(fmt::format("{}: supervisor.dc_bus_min_V ({} V) must be below supervisor.dc_bus_max_V ({} V)", source,
+                                  s.dc_bus_min_V, s.dc_bus_max_V));
+  }
+  if (c.controller.nominal_dc_bus_V < s.dc_bus_min_V || c.controller.nominal_dc_bus_V > s.dc_bus_max_V) {
+    throw ConfigError(fmt::format("{}: controller.control.nominal_dc_bus_V ({} V) lies outside supervisor.dc_bus_min_V .. "
+                                  "supervisor.dc_bus_max_V ({} .. {} V): the drive would trip at once",
+                                  source, c.controller.nominal_dc_bus_V, s.dc_bus_min_V, s.dc_bus_max_V));
+  }
+  if (s.overcurrent_A >= c.controller.sensors.current_range_A) {
+    throw ConfigError(fmt::format("{}: supervisor.overcurrent_A ({} A) must be below controller.sensors.current_range_A ({} A): "
+                                  "a saturated ADC reading is never a valid current",
+                                  source, s.overcurrent_A, c.controller.sensors.current_range_A));
+  }
+  if (s.trip_temp_C <= c.controller.drive.derating.limit_C) {
+    throw ConfigError(fmt::format("{}: supervisor.trip_temp_C ({} C) must be above controller.derating.limit_C ({} C): the "
+                                  "drive derates before it trips",
+                                  source, s.trip_temp_C, c.controller.drive.derating.limit_C));
+  }
+  if (c.gpio.chip.empty() != (c.gpio.enable_line < 0)) {
+    throw ConfigError(fmt::format("{}: gpio.chip and gpio.enable_line go together (chip '{}', enable_line {})", source,
+                                  c.gpio.chip, c.gpio.enable_line));
+  }
+  if (c.gpio.fault_line >= 0 && c.gpio.chip.empty()) {
+    throw ConfigError(fmt::format("{}: gpio.fault_line needs gpio.chip", source));
+  }
+}
+
+}  // namespace
+
+DaemonConfig parse_daemon_config(const std::string& text, const std::filesystem::path& source) {
+  toml::table root;
+  try {
+    root = toml::parse(text, source.string());
+  } catch (const toml::parse_error& e) {
+    throw ConfigError(source.string() + ":" + std::to_string(e.source().begin.line) + ": " + std::string(e.description()));
+  }
+  DaemonConfig c;
+  c.source = source;
+  // The drive first: the supervisor's defaults are relative to it.
+  static const toml::table kEmpty;
+  const toml::table* controller_table = root.get_as<toml::table>("controller");
+  c.controller = app::parse_controller_config(controller_table != nullptr ? *controller_table : kEmpty, source.string(), {},
+                                              "controller.");
+  c.supervisor = app::default_supervisor_config(c.controller);
+  // A daemon that is enabled expects a supervisor that keeps talking.
+  c.supervisor.command_timeout_s = 0.5;
+  std::vector<std::string> foreign{"controller"};
+  schema().apply(root, c, source.string(), foreign);
+  check_cross_keys(c, source.string());
+  const BusLoad load = bus_load(c);
+  // A vcan interface has no bit timing: the budget is logged at start-up, not enforced.
+  if (!is_virtual_interface(c.can.interface) && load.total_fraction > c.can.max_bus_load) {
+    throw ConfigError(fmt::format(
+        "{}: the fast loop ({:.0f} % of the bus: one SENSOR_SAMPLE and one INVERTER_COMMAND, {:.1f} us, every {:.1f} us "
+        "period) and the publications ({:.1f} %) need {:.0f} % of a bus at can.nominal_bitrate_bit_s {:.0f} / "
+        "can.data_bitrate_bit_s {:.0f}, above can.max_bus_load {:.0f} %: raise can.data_bitrate_bit_s or "
+        "controller.control.period_s, or lower the publish.* rates",
+        source.string(), 100.0 * load.fast_loop_fraction, load.fast_loop_frame_us, load.period_us,
+        100.0 * load.publications_fraction, 100.0 * load.total_fraction, c.can.nominal_bitrate_bit_s,
+        c.can.data_bitrate_bit_s, 100.0 * c.can.max_bus_load));
+  }
+  return c;
+}
+
+DaemonConfig load_daemon_config(const std::filesystem::path& path) {
+  return parse_daemon_config(read_file(path), path);
+}
+
+bool is_virtual_interface(const std::string& interface) { return interface.rfind("vcan", 0) == 0; }
+
+std::string daemon_keys_markdown() { return schema().markdown(DaemonConfig{}); }
+
+BusLoad bus_load(const DaemonConfig& c) {
+  namespace protocol = hal::protocol;
+  const double nominal = c.can.nominal_bitrate_bit_s;
+  const double data = c.can.data_bitrate_bit_s;
+  auto frame_s = [&](protocol::MessageType type) {
+    const protocol::MessageDef& m = protocol::kMessages[static_cast<std::size_t>(type)];
+    return frame_time_s(m.length, m.fd, nominal, data);
+  };
+  BusLoad b;
+  const double period = c.controller.drive.period_s;
+  b.period_us = 1e6 * period;
+  const double fast = frame_s(protocol::MessageType::kSensorSample) + frame_s(protocol::MessageType::kInverterCommand);
+  b.fast_loop_frame_us = 1e6 * fast;
+  b.fast_loop_fraction = fast / period;
+  auto rate = [](double every_s) { return every_s > 0.0 ? 1.0 / every_s : 0.0; };
+  // Events (injection reports, new estimates) at most a few per second: counted at 10 Hz.
+  b.publications_fraction = frame_s(protocol::MessageType::kThermalEstimate) * rate(c.publish.thermal_estimate_s) +
+                            frame_s(protocol::MessageType::kResistanceEstimate) * (rate(c.publish.resistance_estimate_s) + 1.0) +
+                            frame_s(protocol::MessageType::kDriveStatus) * rate(c.publish.drive_status_s) +
+                            frame_s(protocol::MessageType::kHeartbeat) * rate(c.publish.heartbeat_s) +
+                            frame_s(protocol::MessageType::kInjectionReport) * 10.0 +
+                            frame_s(protocol::MessageType::kFault) * 2.0 * rate(c.publish.fault_repeat_s);
+  b.total_fraction = b.fast_loop_fraction + b.publications_fraction;
+  return b;
+}
+
+}  // namespace pmsm::daemon

@@ -1,0 +1,80 @@
+// pmsm-thermald's configuration file: [can], [rt], [gpio], [publish], [supervisor],
+// [startup] and the drive's own sections under [controller] (the same schema as a
+// simulation scenario's [controller] block: one pastes into the other). Every key is in
+// docs/daemon.md with its default, range and meaning (generated: `pmsm-thermald --keys`).
+#pragma once
+
+#include <cstdint>
+#include <filesystem>
+#include <string>
+
+#include "controller_config.hpp"
+#include "drive_node.hpp"
+#include "pmsm/core/supervisor.hpp"
+
+namespace pmsm::daemon {
+
+struct CanSection {
+  std::string interface = "vcan0";
+  int node = 0;                          // node id 0..15, added to every CAN ID
+  // The real bus this deployment runs on, for the load budget checked at start-up.
+  double nominal_bitrate_bit_s = 1.0e6;  // arbitration phase (classic CAN: the whole frame)
+  double data_bitrate_bit_s = 8.0e6;     // CAN FD data phase
+  double max_bus_load = 0.7;             // refuse to start above this fraction of the bus
+  double sample_timeout_ms = 2.0;        // wall time without a sample counted as one missing period
+  double reopen_interval_ms = 200.0;     // how often a lost interface is checked for
+};
+
+struct RtSection {
+  int priority = 80;      // SCHED_FIFO priority of the control thread (0: leave it normal)
+  int cpu = -1;           // pin the control thread to this CPU (-1: no pinning)
+  bool lock_memory = true;
+};
+
+struct GpioSection {
+  std::string chip;       // empty: no GPIO (null backend)
+  int enable_line = -1;   // gate-enable output line offset
+  int fault_line = -1;    // fault input line offset (-1: none)
+  bool enable_active_low = false;
+  bool fault_active_low = true;
+};
+
+struct StartupSection {
+  // With controller.calibration.file configured but absent (a new motor): calibrate at the
+  // ambient sensor's temperature the first time the drive runs.
+  bool calibrate_if_missing = true;
+};
+
+struct DaemonConfig {
+  CanSection can;
+  RtSection rt;
+  GpioSection gpio;
+  app::PublishRates publish;
+  core::SupervisorConfig supervisor;
+  StartupSection startup;
+  app::ControllerConfig controller;
+  std::filesystem::path source;
+};
+
+// Loads and checks a daemon configuration file. Throws app::ConfigError naming file:line and
+// key, or the file when it cannot be read.
+[[nodiscard]] DaemonConfig load_daemon_config(const std::filesystem::path& path);
+[[nodiscard]] DaemonConfig parse_daemon_config(const std::string& text, const std::filesystem::path& source);
+
+// Markdown tables of the daemon's own keys (docs/daemon.md).
+[[nodiscard]] std::string daemon_keys_markdown();
+
+// The load the fast loop and the publications put on the configured real bus.
+struct BusLoad {
+  double fast_loop_fraction = 0.0;    // SENSOR_SAMPLE + INVERTER_COMMAND every period
+  double publications_fraction = 0.0; // the user-facing frames at their rates
+  double total_fraction = 0.0;
+  double fast_loop_frame_us = 0.0;    // one sample + one command on the wire
+  double period_us = 0.0;
+  bool fd_needed = true;              // the fast frames are CAN FD
+};
+[[nodiscard]] BusLoad bus_load(const DaemonConfig& config);
+// vcan*: no bit timing, so the load budget is reported, not enforced.
+[[nodiscard]] bool is_virtual_interface(const std::string& interface);
+
+}  // namespace pmsm::daemon

@@ -1,0 +1,266 @@
+#include "drive_loop.hpp"
+
+#include <bit>
+#include <cmath>
+#include <thread>
+#include <variant>
+
+#include "pmsm/hal/rt.hpp"
+
+namespace pmsm::daemon {
+namespace {
+
+namespace protocol = hal::protocol;
+using std::chrono::nanoseconds;
+
+core::DriveMode drive_mode(const protocol::DriveCommand& c) noexcept {
+  if (!c.enable) {
+    return core::DriveMode::kDisabled;
+  }
+  switch (c.mode) {
+    case protocol::DriveMode::kTorque: return core::DriveMode::kTorque;
+    case protocol::DriveMode::kSpeed: return core::DriveMode::kSpeed;
+    case protocol::DriveMode::kDisabled: break;
+  }
+  return core::DriveMode::kDisabled;
+}
+
+std::size_t timing_bucket(std::int64_t ns) noexcept {
+  const auto us = static_cast<std::uint64_t>(ns > 0 ? ns / 1000 : 0);
+  const std::size_t width = std::bit_width(us);  // 0 for < 1 us
+  return width < kTimingBuckets ? width : kTimingBuckets - 1;
+}
+
+}  // namespace
+
+DriveLoop::DriveLoop(const DaemonConfig& config, hal::CanBus& bus, PublicationRing& ring)
+    : node_(config.controller, config.supervisor, config.publish),
+      bus_(bus),
+      ring_(ring),
+      node_id_(static_cast<protocol::NodeId>(config.can.node)),
+      receiver_(node_id_),
+      sample_timeout_ns_(static_cast<std::int64_t>(config.can.sample_timeout_ms * 1e6)),
+      reopen_interval_ns_(static_cast<std::int64_t>(config.can.reopen_interval_ms * 1e6)),
+      period_ns_(static_cast<std::int64_t>(config.controller.drive.period_s * 1e9)),
+      calibrate_at_first_run_(config.startup.calibrate_if_missing && !config.controller.calibration_file.empty() &&
+                              !config.controller.drive.calibration.calibrated) {}
+
+void DriveLoop::send(const hal::CanFrame& frame) noexcept {
+  switch (bus_.send(frame, std::chrono::microseconds{200})) {
+    case hal::SendResult::kOk:
+      return;
+    case hal::SendResult::kNoBufferSpace:
+    case hal::SendResult::kWouldBlock:
+      counters_.tx_dropped.bump();
+      return;
+    case hal::SendResult::kInterfaceDown:
+      counters_.interface_down.store(true, std::memory_order_relaxed);
+      return;
+    case hal::SendResult::kInvalidFrame:
+    case hal::SendResult::kError:
+      break;
+  }
+  counters_.tx_failures.bump();
+}
+
+void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns) noexcept {
+  inputs_.command_age_s = last_drive_command_ns_ ? static_cast<double>(received_ns - *last_drive_command_ns_) * 1e-9
+                                                 : std::numeric_limits<double>::infinity();
+  inputs_.deadline_misses = static_cast<std::uint32_t>(counters_.deadline_misses.get());
+  node_.report(core::FaultCode::kGpioFault, gpio_fault_.load(std::memory_order_relaxed));
+  node_.report(core::FaultCode::kInterfaceDown, counters_.interface_down.load(std::memory_order_relaxed));
+  if (calibrate_at_first_run_ && node_.supervisor().status().state == core::DriveState::kRunning) {
+    inputs_.start_calibration = true;  // at the ambient sensor's temperature
+    calibrate_at_first_run_ = false;
+  }
+
+  const app::NodeStep& out = node_.step(sample, inputs_);
+  // One-shot requests act once.
+  inputs_.request_injection = false;
+  inputs_.start_calibration = false;
+  inputs_.calibration_known_C.reset();
+  inputs_.abort_calibration = false;
+  inputs_.clear_faults = false;
+
+  if (out.command) {
+    last_command_ = *out.command;
+    gates_enabled_.store(out.command->enable, std::memory_order_relaxed);
+    (void)protocol::encode(*out.command, node_id_, frame_);
+    send(frame_);
+    counters_.commands_sent.bump();
+    const std::int64_t took = hal::monotonic_ns() - received_ns;
+    counters_.timing_us[timing_bucket(took)].bump();
+    counters_.max_step_ns.raise_to(static_cast<std::uint64_t>(took > 0 ? took : 0));
+    if (took > period_ns_) {
+      counters_.deadline_misses.bump();
+    }
+  } else {
+    gates_enabled_.store(false, std::memory_order_relaxed);
+  }
+  counters_.periods.bump();
+
+  const app::NodePublications& p = out.publications;
+  if (p.thermal || p.resistance || p.injection || p.status || p.heartbeat || p.fault_count > 0 ||
+      out.calibration_to_store || out.calibration_failed) {
+    PublicationRecord r;
+    r.publications = p;
+    r.calibration_to_store = out.calibration_to_store;
+    r.calibration_failed = out.calibration_failed;
+    r.uptime_s = node_.uptime_s();
+    if (!ring_.try_push(r)) {
+      counters_.publications_dropped.bump();
+    }
+  }
+}
+
+void DriveLoop::on_frame(const hal::CanFrame& frame, std::int64_t now_ns) noexcept {
+  const protocol::DaemonInput input = receiver_.receive(frame, nanoseconds{now_ns});
+  if (const auto* sample = std::get_if<hal::SensorSample>(&input)) {
+    counters_.samples.bump();
+    if (last_sequence_ && sample->sequence == *last_sequence_) {
+      // The plant did not hear our answer and sent the sample again: the same answer.
+      counters_.resent_samples.bump();
+      (void)protocol::encode(last_command_, node_id_, frame_);
+      send(frame_);
+      return;
+    }
+    last_sequence_ = sample->sequence;
+    step(sample, now_ns);
+  } else if (const auto* drive = std::get_if<protocol::DriveCommand>(&input)) {
+    counters_.commands_accepted[0].bump();
+    last_drive_command_ns_ = now_ns;
+    inputs_.mode = drive_mode(*drive);
+    inputs_.speed_ref_rad_s = drive->speed_setpoint_rad_s;
+    inputs_.torque_ref_Nm = drive->torque_setpoint_Nm;
+    // A command to stop clears the faults whose cause is gone (as moteus's stop does).
+    if (!drive->enable || drive->mode == protocol::DriveMode::kDisabled) {
+      inputs_.clear_faults = true;
+    }
+  } else if (const auto* injection = std::get_if<protocol::InjectionCommand>(&input)) {
+    counters_.commands_accepted[1].bump();
+    core::InjectionMethod method = core::InjectionMethod::kNone;
+    core::Separation separation = core::Separation::kBipolar;
+    switch (injection->method) {
+      case protocol::InjectionMethod::kFixedMagnitudeBipolar: method = core::InjectionMethod::kFixedMagnitude; break;
+      case protocol::InjectionMethod::kFixedMagnitudeUnipolar:
+        method = core::InjectionMethod::kFixedMagnitude;
+        separation = core::Separation::kUnipolar;
+        break;
+      case protocol::InjectionMethod::kFixedAngleBipolar: method = core::InjectionMethod::kFixedAngle; break;
+      case protocol::InjectionMethod::kFixedAngleUnipolar:
+        method = core::InjectionMethod::kFixedAngle;
+        separation = core::Separation::kUnipolar;
+        break;
+      case protocol::InjectionMethod::kDc: method = core::InjectionMethod::kDc; break;
+      case protocol::InjectionMethod::kOff: break;
+    }
+    node_.configure_injection(method, separation, injection->amplitude_A, injection->interval_s);
+    inputs_.request_injection = injection->request_now;
+  } else if (const auto* calibration = std::get_if<protocol::CalibrationCommand>(&input)) {
+    counters_.commands_accepted[2].bump();
+    if (calibration->action == protocol::CalibrationAction::kStart) {
+      inputs_.start_calibration = true;
+      inputs_.calibration_known_C = calibration->known_temp_C;
+    } else if (calibration->action == protocol::CalibrationAction::kAbort) {
+      inputs_.abort_calibration = true;
+    }
+  } else if (const auto* rejected = std::get_if<protocol::Rejected>(&input)) {
+    counters_.rejected[static_cast<std::size_t>(rejected->reason)].bump();
+  }
+}
+
+void DriveLoop::recover_interface(const std::atomic<bool>& stop) noexcept {
+  counters_.interface_losses.bump();
+  counters_.interface_down.store(true, std::memory_order_relaxed);
+  std::int64_t next_try = hal::monotonic_ns() + reopen_interval_ns_;
+  while (!stop.load(std::memory_order_relaxed)) {
+    // The drive keeps its own time: every sample timeout is a missing period (the fault is
+    // latched and queued for publication once the bus is back).
+    std::this_thread::sleep_for(nanoseconds{sample_timeout_ns_});
+    counters_.missing_samples.bump();
+    step(nullptr, hal::monotonic_ns());
+    if (hal::monotonic_ns() < next_try) {
+      continue;
+    }
+    next_try += reopen_interval_ns_;
+    if (bus_.interface_up() && bus_.reopen().ok()) {
+      counters_.reopens.bump();
+      counters_.interface_down.store(false, std::memory_order_relaxed);
+      last_sequence_.reset();
+      return;
+    }
+  }
+}
+
+void DriveLoop::run(const std::atomic<bool>& stop) {
+  std::int64_t deadline = hal::monotonic_ns() + sample_timeout_ns_;
+  while (!stop.load(std::memory_order_relaxed)) {
+    const std::int64_t now = hal::monotonic_ns();
+    if (now >= deadline) {
+      // No sample within the timeout: a missing period for the supervisor.
+      counters_.missing_samples.bump();
+      step(nullptr, now);
+      deadline = now + sample_timeout_ns_;
+      continue;
+    }
+    switch (bus_.receive(received_, nanoseconds{deadline - now})) {
+      case hal::ReceiveStatus::kFrame: {
+        const std::int64_t at = hal::monotonic_ns();
+        if (received_.frame.error) {
+          break;  // no error classes are selected; ignore any that arrive anyway
+        }
+        const std::uint64_t samples_before = counters_.samples.get();
+        on_frame(received_.frame, at);
+        if (counters_.samples.get() != samples_before) {
+          deadline = at + sample_timeout_ns_;
+        }
+        break;
+      }
+      case hal::ReceiveStatus::kTimeout:
+        break;
+      case hal::ReceiveStatus::kInterfaceDown:
+        recover_interface(stop);
+        deadline = hal::monotonic_ns() + sample_timeout_ns_;
+        break;
+      case hal::ReceiveStatus::kError:
+        counters_.rx_errors.bump();
+        break;
+    }
+    if (counters_.interface_down.load(std::memory_order_relaxed)) {
+      // A send found the interface gone.
+      recover_interface(stop);
+      deadline = hal::monotonic_ns() + sample_timeout_ns_;
+    }
+  }
+}
+
+LoopStats DriveLoop::stats() const noexcept {
+  LoopStats s;
+  const Counters& c = counters_;
+  s.periods = c.periods.get();
+  s.samples = c.samples.get();
+  s.resent_samples = c.resent_samples.get();
+  s.missing_samples = c.missing_samples.get();
+  s.commands_sent = c.commands_sent.get();
+  for (std::size_t k = 0; k < s.commands_accepted.size(); ++k) {
+    s.commands_accepted[k] = c.commands_accepted[k].get();
+  }
+  for (std::size_t k = 0; k < s.rejected.size(); ++k) {
+    s.rejected[k] = c.rejected[k].get();
+  }
+  s.tx_dropped = c.tx_dropped.get();
+  s.tx_failures = c.tx_failures.get();
+  s.rx_errors = c.rx_errors.get();
+  s.publications_dropped = c.publications_dropped.get();
+  s.deadline_misses = c.deadline_misses.get();
+  s.interface_losses = c.interface_losses.get();
+  s.reopens = c.reopens.get();
+  s.interface_down = c.interface_down.load(std::memory_order_relaxed);
+  for (std::size_t k = 0; k < kTimingBuckets; ++k) {
+    s.timing_us[k] = c.timing_us[k].get();
+  }
+  s.max_step_ns = c.max_step_ns.get();
+  return s;
+}
+
+}  // namespace pmsm::daemon

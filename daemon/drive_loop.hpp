@@ -1,0 +1,125 @@
+// pmsm-thermald's real-time loop: event-driven by the sensor frame.
+//
+//   receive -> decode (E2E-checked commands update the operator's inputs; a sample goes on)
+//           -> DriveNode::step -> encode -> send INVERTER_COMMAND
+//           -> the period's publications into the SPSC ring (a normal thread sends them)
+//
+// A missing sample is noticed by the wait's deadline (can.sample_timeout_ms after the last
+// one): the node then steps without a sample, so the supervisor counts it and, after
+// supervisor.sensor_timeout_periods, latches the sensor-timeout fault, even when the plant is
+// silent. A re-sent sample (same sequence: the plant did not hear our command) is answered
+// with the same command, not stepped twice.
+//
+// After start-up the loop allocates nothing, logs nothing, takes no lock and throws nothing;
+// its counters are single-writer atomics that any thread may read.
+#pragma once
+
+#include <array>
+#include <atomic>
+#include <chrono>
+#include <cstdint>
+#include <optional>
+
+#include "daemon_config.hpp"
+#include "drive_node.hpp"
+#include "pmsm/hal/can_bus.hpp"
+#include "pmsm/hal/codec.hpp"
+#include "pmsm/hal/counters.hpp"
+#include "pmsm/hal/spsc_ring.hpp"
+
+namespace pmsm::daemon {
+
+// What leaves the RT thread each period that has something to say.
+struct PublicationRecord {
+  app::NodePublications publications;
+  std::optional<core::Calibration> calibration_to_store;
+  bool calibration_failed = false;
+  double uptime_s = 0.0;
+};
+using PublicationRing = hal::SpscRing<PublicationRecord, 512>;
+
+// Sample receive -> command send, in log2 buckets of microseconds: bucket 0 is < 1 us,
+// bucket k is [2^(k-1), 2^k) us, the last one everything above.
+inline constexpr std::size_t kTimingBuckets = 16;
+
+struct LoopStats {
+  std::uint64_t periods = 0;             // node steps (with or without a sample)
+  std::uint64_t samples = 0;             // SENSOR_SAMPLE frames stepped on
+  std::uint64_t resent_samples = 0;      // the same sequence again: answered, not stepped
+  std::uint64_t missing_samples = 0;     // deadlines without a sample
+  std::uint64_t commands_sent = 0;       // INVERTER_COMMAND frames
+  std::array<std::uint64_t, 3> commands_accepted{};  // drive, injection, calibration
+  std::array<std::uint64_t, hal::protocol::kDecodeStatusCount> rejected{};  // by DecodeStatus
+  std::uint64_t tx_dropped = 0;
+  std::uint64_t tx_failures = 0;
+  std::uint64_t rx_errors = 0;
+  std::uint64_t publications_dropped = 0;  // the ring was full
+  std::uint64_t deadline_misses = 0;       // receive -> send longer than one control period
+  std::uint64_t interface_losses = 0;
+  std::uint64_t reopens = 0;
+  bool interface_down = false;
+  std::array<std::uint64_t, kTimingBuckets> timing_us{};
+  std::uint64_t max_step_ns = 0;
+};
+
+class DriveLoop {
+ public:
+  // `bus` carries the daemon's kernel filters (sensor samples and commands of this node)
+  // and is used by the loop's thread only.
+  DriveLoop(const DaemonConfig& config, hal::CanBus& bus, PublicationRing& ring);
+  DriveLoop(const DriveLoop&) = delete;
+  DriveLoop& operator=(const DriveLoop&) = delete;
+
+  // Runs until `stop` becomes true (seen within one sample timeout). Call once.
+  void run(const std::atomic<bool>& stop);
+
+  // Any thread.
+  [[nodiscard]] LoopStats stats() const noexcept;
+  // Advances while the loop runs: what the systemd watchdog is fed on.
+  [[nodiscard]] std::uint64_t heartbeat() const noexcept { return counters_.periods.get(); }
+  // A condition another thread watches (GPIO fault input): handed to the supervisor.
+  void set_gpio_fault(bool active) noexcept { gpio_fault_.store(active, std::memory_order_relaxed); }
+  // The power stage's gate enable as the loop last commanded it (for the GPIO output).
+  [[nodiscard]] bool gates_enabled() const noexcept { return gates_enabled_.load(std::memory_order_relaxed); }
+
+  // The node, for tests after run() has returned.
+  [[nodiscard]] const app::DriveNode& node() const noexcept { return node_; }
+
+ private:
+  void on_frame(const hal::CanFrame& frame, std::int64_t now_ns) noexcept;
+  void step(const hal::SensorSample* sample, std::int64_t received_ns) noexcept;
+  void send(const hal::CanFrame& frame) noexcept;
+  void recover_interface(const std::atomic<bool>& stop) noexcept;
+  [[nodiscard]] std::int64_t sample_timeout_ns() const noexcept { return sample_timeout_ns_; }
+
+  app::DriveNode node_;
+  hal::CanBus& bus_;
+  PublicationRing& ring_;
+  hal::protocol::NodeId node_id_;
+  hal::protocol::DaemonReceiver receiver_;
+  std::int64_t sample_timeout_ns_;
+  std::int64_t reopen_interval_ns_;
+  std::int64_t period_ns_;
+  bool calibrate_at_first_run_;
+  app::NodeInputs inputs_{};
+  std::optional<std::int64_t> last_drive_command_ns_;
+  std::optional<std::uint32_t> last_sequence_;
+  hal::InverterCommand last_command_{};
+  hal::CanFrame frame_{};
+  hal::ReceivedFrame received_{};
+  std::atomic<bool> gpio_fault_{false};
+  std::atomic<bool> gates_enabled_{false};
+
+  struct Counters {
+    hal::SingleWriterCounter periods, samples, resent_samples, missing_samples, commands_sent;
+    std::array<hal::SingleWriterCounter, 3> commands_accepted;
+    std::array<hal::SingleWriterCounter, hal::protocol::kDecodeStatusCount> rejected;
+    hal::SingleWriterCounter tx_dropped, tx_failures, rx_errors, publications_dropped, deadline_misses;
+    hal::SingleWriterCounter interface_losses, reopens, max_step_ns;
+    std::array<hal::SingleWriterCounter, kTimingBuckets> timing_us;
+    std::atomic<bool> interface_down{false};
+  };
+  Counters counters_;
+};
+
+}  // namespace pmsm::daemon

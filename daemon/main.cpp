@@ -1,0 +1,288 @@
+// pmsm-thermald: the real-time drive daemon (one axis per process). See docs/daemon.md.
+//
+//   pmsm-thermald --config /etc/pmsm-thermal/axis1.toml [--check] [--keys] [--version]
+//
+// Start-up, in order, each step failing with one line that says what is wrong: the
+// configuration, the stored calibration, the CAN sockets (with kernel filters for exactly
+// the frames this node consumes), GPIO (gate enable requested inactive), memory locking, the
+// RT thread (SCHED_FIFO and affinity; a warning where not permitted), then READY=1 to
+// systemd (a no-op outside systemd). The main thread then feeds the watchdog while the RT
+// loop's heartbeat advances, mirrors the gate enable to GPIO and watches the fault input.
+//
+// Exit status: 0 after a clean stop (SIGINT, SIGTERM) or a passing --check; 1 when the bus
+// or GPIO cannot be opened; 2 for a bad configuration or calibration file.
+#include <systemd/sd-daemon.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <exception>
+#include <future>
+#include <memory>
+#include <optional>
+#include <string>
+#include <thread>
+
+#include <CLI/CLI.hpp>
+#include <fmt/format.h>
+#include <spdlog/sinks/stdout_color_sinks.h>
+#include <spdlog/sinks/systemd_sink.h>
+#include <spdlog/spdlog.h>
+
+#include "daemon_config.hpp"
+#include "drive_loop.hpp"
+#include "pmsm/hal/gpio.hpp"
+#include "pmsm/hal/protocol_filters.hpp"
+#include "pmsm/hal/record_drain.hpp"
+#include "pmsm/hal/rt.hpp"
+#include "pmsm/hal/signals.hpp"
+#include "pmsm/hal/socketcan.hpp"
+#include "publisher.hpp"
+
+#ifndef PMSM_VERSION
+#define PMSM_VERSION "unknown"
+#endif
+
+namespace {
+
+using namespace std::chrono_literals;
+namespace protocol = pmsm::hal::protocol;
+using pmsm::daemon::DaemonConfig;
+
+constexpr int kExitIo = 1;
+constexpr int kExitConfig = 2;
+
+void setup_logging(const std::string& level) {
+  // Under systemd (INVOCATION_ID, or stderr connected to the journal) log to the journal
+  // with priorities; elsewhere to stderr.
+  const bool journal = std::getenv("INVOCATION_ID") != nullptr || std::getenv("JOURNAL_STREAM") != nullptr;
+  std::shared_ptr<spdlog::logger> logger;
+  if (journal) {
+    logger = std::make_shared<spdlog::logger>("pmsm-thermald", std::make_shared<spdlog::sinks::systemd_sink_mt>("pmsm-thermald"));
+    logger->set_pattern("%v");
+  } else {
+    logger = std::make_shared<spdlog::logger>("pmsm-thermald", std::make_shared<spdlog::sinks::stderr_color_sink_mt>());
+    logger->set_pattern("%Y-%m-%d %H:%M:%S.%e pmsm-thermald %^%l%$: %v");
+  }
+  logger->set_level(spdlog::level::from_str(level));
+  logger->flush_on(spdlog::level::info);
+  spdlog::set_default_logger(logger);
+}
+
+// The RT thread's own set-up, reported back to the main thread for logging.
+struct RtSetup {
+  std::string priority_warning;
+  std::string affinity_warning;
+  bool priority_granted = false;
+};
+
+struct Options {
+  std::string config_path;
+  bool check = false;
+  bool keys = false;
+  std::string log_level = "info";
+};
+
+int run(const Options& o) {
+  setup_logging(o.log_level);
+  DaemonConfig config;
+  try {
+    config = pmsm::daemon::load_daemon_config(o.config_path);
+  } catch (const std::exception& e) {
+    spdlog::error("bad configuration: {}", e.what());
+    return kExitConfig;
+  }
+  const pmsm::daemon::BusLoad load = pmsm::daemon::bus_load(config);
+  const std::string budget = fmt::format(
+      "bus budget at {:.0f} kbit/s nominal / {:.0f} kbit/s data: fast loop {:.0f} % ({:.1f} us of frames every {:.0f} us period), "
+      "publications {:.2f} %, total {:.0f} %{}",
+      config.can.nominal_bitrate_bit_s * 1e-3, config.can.data_bitrate_bit_s * 1e-3, 100.0 * load.fast_loop_fraction,
+      load.fast_loop_frame_us, load.period_us, 100.0 * load.publications_fraction, 100.0 * load.total_fraction,
+      pmsm::daemon::is_virtual_interface(config.can.interface) ? " (virtual bus: reported, not enforced)" : "");
+  // The stored calibration replaces the configured one before the drive starts.
+  pmsm::app::StoredCalibration stored = pmsm::app::StoredCalibration::kNotConfigured;
+  try {
+    stored = pmsm::app::load_stored_calibration(config.controller);
+  } catch (const std::exception& e) {
+    spdlog::error("unreadable calibration file: {}", e.what());
+    return kExitConfig;
+  }
+  if (o.check) {
+    std::printf("%s: OK (node %d on %s, %s; calibration %s)\n", o.config_path.c_str(), config.can.node,
+                config.can.interface.c_str(), budget.c_str(), std::string(pmsm::app::to_string(stored)).c_str());
+    return 0;
+  }
+  spdlog::info("pmsm-thermald {} starting: config {}, node {} on {}", PMSM_VERSION, o.config_path, config.can.node,
+               config.can.interface);
+  spdlog::info("{}", budget);
+  spdlog::info("calibration: {}{}", pmsm::app::to_string(stored),
+               stored == pmsm::app::StoredCalibration::kLoaded
+                   ? fmt::format(" (Rs0 {:.5f} ohm at {:.1f} C)", config.controller.drive.calibration.rs0_ohm,
+                                 config.controller.drive.calibration.t0_C)
+                   : std::string{});
+
+  // CAN: the RT socket receives exactly this node's samples and commands; the publishing
+  // socket receives nothing.
+  const protocol::FilterSet filters = protocol::receive_filters(protocol::Role::kDaemon, static_cast<protocol::NodeId>(config.can.node));
+  pmsm::hal::SocketCanConfig rt_bus_config;
+  rt_bus_config.interface = config.can.interface;
+  rt_bus_config.fd = true;
+  rt_bus_config.filters = std::vector<pmsm::hal::CanFilter>(filters.view().begin(), filters.view().end());
+  pmsm::hal::Status error;
+  std::unique_ptr<pmsm::hal::SocketCanBus> rt_bus = pmsm::hal::SocketCanBus::open(rt_bus_config, error);
+  if (!rt_bus) {
+    spdlog::error("cannot open the CAN bus: {}", error.message());
+    return kExitIo;
+  }
+  pmsm::hal::SocketCanConfig pub_bus_config;
+  pub_bus_config.interface = config.can.interface;
+  pub_bus_config.fd = true;
+  pub_bus_config.filters = std::vector<pmsm::hal::CanFilter>{};
+  std::unique_ptr<pmsm::hal::SocketCanBus> pub_bus = pmsm::hal::SocketCanBus::open(pub_bus_config, error);
+  if (!pub_bus) {
+    spdlog::error("cannot open the CAN bus for publishing: {}", error.message());
+    return kExitIo;
+  }
+
+  // GPIO: the gate enable is requested inactive; a configured chip or line that is missing
+  // is an error, no chip configured is the null backend.
+  std::unique_ptr<pmsm::hal::GateEnableOutput> gate;
+  std::unique_ptr<pmsm::hal::FaultInput> fault_input;
+  try {
+    pmsm::hal::GpioLineConfig enable{config.gpio.chip, static_cast<unsigned>(std::max(config.gpio.enable_line, 0)),
+                                     config.gpio.enable_active_low};
+    gate = pmsm::hal::make_gate_enable_output(enable);
+    pmsm::hal::GpioLineConfig fault{config.gpio.fault_line >= 0 ? config.gpio.chip : std::string{},
+                                    static_cast<unsigned>(std::max(config.gpio.fault_line, 0)), config.gpio.fault_active_low};
+    fault_input = pmsm::hal::make_fault_input(fault);
+  } catch (const std::exception& e) {
+    spdlog::error("GPIO: {}", e.what());
+    return kExitIo;
+  }
+  spdlog::info("GPIO: gate enable {}, fault input {}", gate->describe(), fault_input->describe());
+
+  if (config.rt.lock_memory) {
+    if (const pmsm::hal::Status s = pmsm::hal::prepare_memory_for_realtime(); !s.ok()) {
+      spdlog::warn("{}", s.message());
+    } else {
+      spdlog::info("memory locked (mlockall), heap trimming and mmap'd allocations off");
+    }
+  }
+  if (const pmsm::hal::Status s = pmsm::hal::install_stop_signals(); !s.ok()) {
+    spdlog::warn("{}", s.message());
+  }
+  std::atomic<bool>& stop = pmsm::hal::stop_requested();
+
+  pmsm::daemon::PublicationRing ring;
+  pmsm::daemon::DriveLoop loop(config, *rt_bus, ring);
+  pmsm::daemon::Publisher publisher(config, *pub_bus, loop);
+  pmsm::hal::RecordDrain<pmsm::daemon::PublicationRecord, pmsm::daemon::PublicationRing::capacity()> drain(
+      ring, [&](const pmsm::daemon::PublicationRecord& r) { publisher.handle(r); }, 5ms, [&] { publisher.after_batch(); });
+
+  // The RT thread: the drain thread above was created first, so it keeps normal scheduling.
+  std::promise<RtSetup> setup_promise;
+  std::future<RtSetup> setup_future = setup_promise.get_future();
+  std::thread rt_thread([&] {
+    RtSetup setup;
+    if (config.rt.priority > 0) {
+      if (const pmsm::hal::Status s = pmsm::hal::set_realtime_priority(config.rt.priority); !s.ok()) {
+        setup.priority_warning = s.message();
+      } else {
+        setup.priority_granted = true;
+      }
+    }
+    if (config.rt.cpu >= 0) {
+      const int cpus[] = {config.rt.cpu};
+      if (const pmsm::hal::Status s = pmsm::hal::set_cpu_affinity(cpus); !s.ok()) {
+        setup.affinity_warning = s.message();
+      }
+    }
+    pmsm::hal::prefault_stack();
+    setup_promise.set_value(setup);
+    loop.run(stop);
+  });
+  const RtSetup setup = setup_future.get();
+  if (setup.priority_granted) {
+    spdlog::info("control thread: SCHED_FIFO priority {} granted", config.rt.priority);
+  } else if (config.rt.priority > 0) {
+    spdlog::warn("control thread runs without real-time priority: {}", setup.priority_warning);
+  }
+  if (!setup.affinity_warning.empty()) {
+    spdlog::warn("control thread not pinned: {}", setup.affinity_warning);
+  }
+
+  sd_notify(0, "READY=1\nSTATUS=controlling");
+  spdlog::info("ready: waiting for SENSOR_SAMPLE frames of node {} on {}", config.can.node, config.can.interface);
+
+  // Watchdog: WATCHDOG=1 only while the RT loop's heartbeat advances (a stalled control loop
+  // lets systemd kill and restart the daemon).
+  std::uint64_t watchdog_usec = 0;
+  const bool watchdog = sd_watchdog_enabled(0, &watchdog_usec) > 0 && watchdog_usec > 0;
+  const auto watchdog_every = std::chrono::microseconds{watchdog_usec / 2};
+  auto next_watchdog = std::chrono::steady_clock::now();
+  std::uint64_t last_heartbeat = loop.heartbeat();
+  bool gate_state = false;
+  while (!stop.load(std::memory_order_relaxed)) {
+    std::this_thread::sleep_for(1ms);
+    // The gate-enable line follows what the loop commands the power stage.
+    const bool gates = loop.gates_enabled();
+    if (gates != gate_state) {
+      gate_state = gates;
+      if (!gate->set_active(gates)) {
+        spdlog::error("GPIO: cannot set the gate enable {}", gates ? "on" : "off");
+      }
+    }
+    if (const std::optional<bool> f = fault_input->fault_active()) {
+      loop.set_gpio_fault(*f);
+    }
+    if (watchdog && std::chrono::steady_clock::now() >= next_watchdog) {
+      next_watchdog += watchdog_every;
+      const std::uint64_t beat = loop.heartbeat();
+      if (beat != last_heartbeat) {
+        last_heartbeat = beat;
+        sd_notify(0, "WATCHDOG=1");
+      }
+    }
+  }
+  sd_notify(0, "STOPPING=1");
+  rt_thread.join();
+  (void)gate->set_active(false);
+  drain.stop();
+  spdlog::info("stopped: {}", publisher.summary());
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"pmsm-thermald: PMSM drive controller with winding-temperature estimation, on CAN (one axis per process)"};
+  Options o;
+  app.add_option("--config", o.config_path, "configuration file (TOML), e.g. /etc/pmsm-thermal/axis1.toml");
+  app.add_flag("--check", o.check, "validate the configuration (and the stored calibration) and exit: 0 valid, 2 not");
+  app.add_flag("--keys", o.keys, "print every configuration key of the daemon's own sections as Markdown and exit");
+  app.add_option("--log-level", o.log_level, "trace, debug, info, warn, error")
+      ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error"}))
+      ->capture_default_str();
+  app.set_version_flag("--version", std::string("pmsm-thermald ") + PMSM_VERSION);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  }
+  if (o.keys) {
+    std::fputs(pmsm::daemon::daemon_keys_markdown().c_str(), stdout);
+    return 0;
+  }
+  if (o.config_path.empty()) {
+    std::fprintf(stderr, "pmsm-thermald: --config FILE is required (see --help)\n");
+    return kExitConfig;
+  }
+  try {
+    return run(o);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "pmsm-thermald: %s\n", e.what());
+    return kExitIo;
+  }
+}

@@ -1,0 +1,194 @@
+#include "publisher.hpp"
+
+#include <fmt/format.h>
+#include <spdlog/spdlog.h>
+
+#include "calibration_file.hpp"
+#include "pmsm/hal/codec.hpp"
+
+namespace pmsm::daemon {
+namespace {
+
+namespace protocol = hal::protocol;
+
+std::string fault_name(protocol::FaultCode code) {
+  for (const protocol::ValueLabel& l : protocol::kFaultCodeLabels) {
+    if (l.value == static_cast<std::int64_t>(code)) {
+      return std::string(l.label);
+    }
+  }
+  return fmt::format("FAULT_{}", static_cast<int>(code));
+}
+
+std::string rejected_text(const LoopStats& now, const LoopStats& before) {
+  std::string text;
+  for (std::size_t i = 1; i < now.rejected.size(); ++i) {
+    const std::uint64_t n = now.rejected[i] - before.rejected[i];
+    if (n != 0U) {
+      text += fmt::format("{}{} {}", text.empty() ? "" : ", ", protocol::to_string(static_cast<protocol::DecodeStatus>(i)), n);
+    }
+  }
+  return text;
+}
+
+// The median and the 99th percentile bucket of the timing histogram, as "< N us".
+std::string timing_text(const LoopStats& s) {
+  std::uint64_t total = 0;
+  for (const std::uint64_t n : s.timing_us) {
+    total += n;
+  }
+  if (total == 0U) {
+    return "no commands yet";
+  }
+  auto bucket_limit = [&](double q) {
+    std::uint64_t seen = 0;
+    for (std::size_t k = 0; k < s.timing_us.size(); ++k) {
+      seen += s.timing_us[k];
+      if (static_cast<double>(seen) >= q * static_cast<double>(total)) {
+        return std::uint64_t{1} << k;
+      }
+    }
+    return std::uint64_t{1} << (s.timing_us.size() - 1);
+  };
+  return fmt::format("sample->command median < {} us, p99 < {} us, max {:.0f} us", bucket_limit(0.5), bucket_limit(0.99),
+                     static_cast<double>(s.max_step_ns) * 1e-3);
+}
+
+}  // namespace
+
+Publisher::Publisher(const DaemonConfig& config, hal::CanBus& bus, const DriveLoop& loop)
+    : config_(config),
+      bus_(bus),
+      loop_(loop),
+      node_(static_cast<protocol::NodeId>(config.can.node)),
+      last_report_(std::chrono::steady_clock::now()) {}
+
+template <typename Message>
+void Publisher::send(const Message& m) {
+  hal::CanFrame frame{};
+  const protocol::EncodeStatus e = protocol::encode(m, node_, frame);
+  if (e != protocol::EncodeStatus::kOk && e != protocol::EncodeStatus::kSaturated) {
+    ++stats_.frames_failed;
+    return;
+  }
+  if (bus_.send(frame, std::chrono::milliseconds{2}) == hal::SendResult::kOk) {
+    ++stats_.frames_sent;
+  } else {
+    ++stats_.frames_failed;
+  }
+}
+
+void Publisher::log_fault(const protocol::FaultReport& f) {
+  const std::uint32_t bit = 1U << static_cast<unsigned>(f.code);
+  const bool was = (active_faults_ & bit) != 0U;
+  if (f.active && !was) {
+    spdlog::error("fault {}: the drive is in its safe state (gates off); {} time(s) since start", fault_name(f.code),
+                  f.occurrence_count);
+    active_faults_ |= bit;
+  } else if (!f.active && was) {
+    spdlog::info("fault {} cleared", fault_name(f.code));
+    active_faults_ &= ~bit;
+  }
+}
+
+void Publisher::handle(const PublicationRecord& r) {
+  const app::NodePublications& p = r.publications;
+  for (std::size_t k = 0; k < p.fault_count; ++k) {
+    send(p.faults[k]);
+    log_fault(p.faults[k]);
+  }
+  if (p.status) {
+    send(*p.status);
+  }
+  if (p.thermal) {
+    send(*p.thermal);
+    if (!first_thermal_logged_ && p.thermal->valid) {
+      first_thermal_logged_ = true;
+      spdlog::info("first THERMAL_ESTIMATE: winding {:.1f} +- {:.1f} C ({})", p.thermal->winding_temp_C,
+                   p.thermal->winding_temp_sigma_C, p.thermal->calibrated ? "calibrated" : "nameplate Rs0");
+    }
+  }
+  if (p.resistance) {
+    send(*p.resistance);
+  }
+  if (p.injection) {
+    send(*p.injection);
+  }
+  if (p.heartbeat) {
+    send(*p.heartbeat);
+  }
+  if (r.calibration_failed) {
+    spdlog::warn("calibration gave up (controller.calibration.timeout_s without enough accepted events); the previous "
+                 "calibration stays in use");
+  }
+  if (r.calibration_to_store) {
+    const core::Calibration& c = *r.calibration_to_store;
+    spdlog::info("calibration done: Rs0 {:.5f} ohm at {:.1f} C, Ke0 {:.4f} V s/rad", c.rs0_ohm, c.t0_C, c.ke0_V_s_per_rad);
+    if (!config_.controller.calibration_file.empty()) {
+      try {
+        app::write_calibration_file(config_.controller.calibration_file, c, config_.source.filename().string());
+        ++stats_.calibrations_stored;
+        spdlog::info("calibration stored in {}", config_.controller.calibration_file);
+      } catch (const app::CalibrationFileError& e) {
+        ++stats_.calibration_store_failures;
+        spdlog::error("cannot store the calibration: {} (it is used until the daemon stops)", e.what());
+      }
+    }
+  }
+}
+
+void Publisher::after_batch() {
+  const auto now = std::chrono::steady_clock::now();
+  if (now - last_report_ < std::chrono::seconds{1}) {
+    return;
+  }
+  last_report_ = now;
+  report();
+}
+
+void Publisher::report() {
+  const LoopStats s = loop_.stats();
+  const LoopStats& p = last_;
+  if (s.interface_down && !p.interface_down) {
+    spdlog::error("CAN interface '{}' is down or gone: the drive is in its safe state; reopening every {} ms",
+                  config_.can.interface, config_.can.reopen_interval_ms);
+  } else if (!s.interface_down && s.reopens != p.reopens) {
+    spdlog::warn("CAN interface '{}' is back: socket reopened ({} time(s) so far)", config_.can.interface, s.reopens);
+  }
+  if (const std::string text = rejected_text(s, p); !text.empty()) {
+    spdlog::warn("rejected frames since the last report: {}", text);
+  }
+  if (s.deadline_misses != p.deadline_misses) {
+    spdlog::warn("{} deadline miss(es) since the last report (sample->command longer than one period); {}",
+                 s.deadline_misses - p.deadline_misses, timing_text(s));
+  }
+  if (s.tx_dropped != p.tx_dropped || s.tx_failures != p.tx_failures || s.rx_errors != p.rx_errors) {
+    spdlog::warn("CAN I/O since the last report: {} command(s) dropped (queue full), {} failed send(s), {} failed read(s)",
+                 s.tx_dropped - p.tx_dropped, s.tx_failures - p.tx_failures, s.rx_errors - p.rx_errors);
+  }
+  if (s.publications_dropped != p.publications_dropped) {
+    spdlog::warn("{} publication record(s) dropped: this thread did not keep up with the control loop",
+                 s.publications_dropped - p.publications_dropped);
+  }
+  if (p.samples == 0U && s.samples != 0U) {
+    spdlog::info("sensor samples arriving: the control loop is running ({})", timing_text(s));
+  }
+  last_ = s;
+}
+
+std::string Publisher::summary() const {
+  const LoopStats s = loop_.stats();
+  std::uint64_t rejected = 0;
+  for (std::size_t i = 1; i < s.rejected.size(); ++i) {
+    rejected += s.rejected[i];
+  }
+  return fmt::format(
+      "periods {}, samples {} (re-sent {}, missing {}), commands sent {}, accepted drive/injection/calibration commands "
+      "{}/{}/{}, rejected frames {} ({}), deadline misses {}, {}, frames published {} (failed {}), calibrations stored {}, "
+      "interface losses {}",
+      s.periods, s.samples, s.resent_samples, s.missing_samples, s.commands_sent, s.commands_accepted[0], s.commands_accepted[1],
+      s.commands_accepted[2], rejected, rejected == 0U ? std::string("none") : rejected_text(s, LoopStats{}), s.deadline_misses,
+      timing_text(s), stats_.frames_sent, stats_.frames_failed, stats_.calibrations_stored, s.interface_losses);
+}
+
+}  // namespace pmsm::daemon

@@ -1,0 +1,57 @@
+// pmsm-thermald's normal-priority side: drains the RT loop's publication records, encodes
+// them with the protocol's codec and sends them on its own CAN endpoint (the user-facing
+// frames: THERMAL_ESTIMATE, RESISTANCE_ESTIMATE, INJECTION_REPORT, DRIVE_STATUS, HEARTBEAT,
+// FAULT), stores a completed calibration atomically, logs every fault change once, and
+// reports the loop's counters (rejections by reason, deadline misses, timing) at most once a
+// second and only when something changed.
+#pragma once
+
+#include <array>
+#include <chrono>
+#include <cstdint>
+#include <string>
+
+#include "daemon_config.hpp"
+#include "drive_loop.hpp"
+#include "pmsm/hal/can_bus.hpp"
+
+namespace pmsm::daemon {
+
+struct PublisherStats {
+  std::uint64_t frames_sent = 0;
+  std::uint64_t frames_failed = 0;       // not sent (queue full, interface down, encode refused)
+  std::uint64_t calibrations_stored = 0;
+  std::uint64_t calibration_store_failures = 0;
+};
+
+class Publisher {
+ public:
+  Publisher(const DaemonConfig& config, hal::CanBus& bus, const DriveLoop& loop);
+
+  // One record from the ring (the drain thread).
+  void handle(const PublicationRecord& record);
+  // After each batch: the periodic report (the drain thread).
+  void after_batch();
+
+  [[nodiscard]] const PublisherStats& stats() const noexcept { return stats_; }
+  // The summary line for the log at stop.
+  [[nodiscard]] std::string summary() const;
+
+ private:
+  template <typename Message>
+  void send(const Message& m);
+  void log_fault(const hal::protocol::FaultReport& f);
+  void report();
+
+  const DaemonConfig& config_;
+  hal::CanBus& bus_;
+  const DriveLoop& loop_;
+  hal::protocol::NodeId node_;
+  PublisherStats stats_{};
+  std::uint32_t active_faults_ = 0;  // as last logged
+  LoopStats last_{};
+  std::chrono::steady_clock::time_point last_report_{};
+  bool first_thermal_logged_ = false;
+};
+
+}  // namespace pmsm::daemon
