@@ -16,6 +16,13 @@
 
 namespace pmsm::app {
 
+// The one schema engine and its one error type (common/config_schema.hpp).
+using common::at_least;
+using common::between;
+using common::ConfigError;
+using common::ConfigSchema;
+using common::positive;
+
 // How the controller turns ADC codes into physical values: its own nominal calibration (the
 // plant's gain errors stay invisible to it, as a real sensor's would).
 struct SensorScaling {
