@@ -187,7 +187,7 @@ ConfigSchema<C> build() {
          "Iron loss per mechanical rad/s.");
   s.real("thermal.iron_loss_k2_W_s2_rad2", [](C& c) -> double& { return c.drive.thermal.iron_loss_k2_W_s2_rad2; }, at_least(0), "W s^2/rad^2",
          "Iron loss per (mechanical rad/s)^2.");
-  s.real("thermal.time_scale", [](C& c) -> double& { return c.drive.thermal.time_scale; }, positive(1e6), "",
+  s.real("thermal.acceleration", [](C& c) -> double& { return c.drive.thermal.time_scale; }, positive(1e6), "",
          "Thermal time runs this many times faster than controller time (1 on a real machine; the plant's acceleration in tests).");
   s.real("thermal.update_s", [](C& c) -> double& { return c.drive.thermal_update_s; }, positive(10), "s", "Thermal filter period.");
   s.real("thermal.initial_std_C", [](C& c) -> double& { return c.drive.thermal.initial_std_C; }, positive(1000), "C", "Initial uncertainty.");
@@ -216,7 +216,7 @@ ConfigSchema<C> build() {
             "Injection events averaged by a calibration run.");
   s.real("calibration.F_A", [](C& c) -> double& { return c.calibration_f_A; }, positive(1000), "A",
          "Injection magnitude of the calibration procedure (fixed-magnitude bipolar, levels 1 and 0.4), at no load.");
-  s.real("calibration.magnet_coefficient_per_C", [](C& c) -> double& { return c.drive.magnet_coefficient_per_C; }, between(-0.01, 0), "/C",
+  s.real("calibration.magnet_temp_coefficient_per_C", [](C& c) -> double& { return c.drive.magnet_coefficient_per_C; }, between(-0.01, 0), "/C",
          "Relative change of the magnet flux per degree (NdFeB about -0.0012).");
   // [derating]
   s.real("derating.max_current_A", [](C& c) -> double& { return c.drive.derating.max_current_A; }, positive(10000), "A",
