@@ -252,21 +252,6 @@ ControllerConfig default_controller_config() {
 
 void finalize(ControllerConfig& c, std::string_view source) {
   core::DriveConfig& d = c.drive;
-  const double psi = core::flux_linkage_Wb(d.motor);
-  d.current.period_s = d.period_s;
-  d.current.rs_ohm = d.motor.rs_ohm;
-  d.current.ld_H = d.motor.ld_H;
-  d.current.lq_H = d.motor.lq_H;
-  d.current.flux_linkage_Wb = psi;
-  d.speed.period_s = d.period_s * d.speed_decimation;
-  d.speed.inertia_kg_m2 = d.motor.inertia_kg_m2;
-  d.angle.period_s = d.period_s;
-  d.angle.pole_pairs = d.motor.pole_pairs;
-  d.injection.lq_H = d.motor.lq_H;
-  d.injection.ld_H = d.motor.ld_H;
-  d.injection.rs_nominal_ohm = d.motor.rs_ohm;
-  d.injection.flux_linkage_Wb = psi;
-  d.injection.pole_pairs = d.motor.pole_pairs;
   // Injection shares the drive's current budget with motoring (the derated limit at run time).
   d.injection.current_limit_A = d.derating.max_current_A;
   // The calibration procedure: the run-time settings, as fixed-magnitude bipolar at two levels.
@@ -276,10 +261,8 @@ void finalize(ControllerConfig& c, std::string_view source) {
   d.calibration_injection.levels = {1.0, 0.4, 0.0, 0.0};
   d.calibration_injection.level_count = 2;
   d.calibration_injection.f_A = c.calibration_f_A;
-  d.baseline.period_s = d.period_s;
-  d.baseline.ld_H = d.motor.ld_H;
-  d.baseline.initial_rs_ohm = d.motor.rs_ohm;
-  d.baseline.initial_ke_V_s_per_rad = core::emf_constant_dq_V_s_per_rad(d.motor);
+  // Every sub-configuration's copy of the motor model and the period, in one place (core).
+  d.derive_from_motor();
   if (c.vx_initial_from_compensation) {
     d.injection.vx_initial_V = d.dead_time.dead_time_s / d.period_s * c.nominal_dc_bus_V + d.dead_time.device_drop_V;
   }

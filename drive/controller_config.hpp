@@ -68,8 +68,9 @@ StoredCalibration load_stored_calibration(ControllerConfig& config);
 // The top-level sections the controller schema owns.
 [[nodiscard]] const std::vector<std::string>& controller_sections();
 
-// Fills the fields that follow from others (the controller's Ld, Lq and flux linkage in every
-// component, periods, pole pairs) and checks rules that involve several keys. Throws
+// Fills the fields that follow from others (every component's copy of the motor model and
+// the periods, through core::DriveConfig::derive_from_motor()) and checks rules that involve
+// several keys. Throws
 // ConfigError naming the keys.
 void finalize(ControllerConfig& config, std::string_view source);
 

@@ -195,6 +195,23 @@ TEST(ControllerConfig, CrossKeyRulesNameBothKeys) {
   EXPECT_NE(error_of("[derating]\nstart_C = 155\nlimit_C = 155\n"), "");
 }
 
+// The controller's components take the motor model from DriveConfig::motor whatever the
+// sub-configurations say: the copies cannot disagree.
+TEST(ControllerConfig, DriveControllerDerivesFromTheMotor) {
+  core::DriveConfig d = default_controller_config().drive;
+  d.motor.ld_H = 7e-3;
+  d.motor.rs_ohm = 0.2;
+  d.current.ld_H = 1.0;  // stale copies
+  d.injection.rs_nominal_ohm = 1.0;
+  const core::DriveController controller(d);
+  EXPECT_EQ(controller.config().current.ld_H, 7e-3);
+  EXPECT_EQ(controller.config().injection.ld_H, 7e-3);
+  EXPECT_EQ(controller.config().calibration_injection.ld_H, 7e-3);
+  EXPECT_EQ(controller.config().baseline.ld_H, 7e-3);
+  EXPECT_EQ(controller.config().injection.rs_nominal_ohm, 0.2);
+  EXPECT_EQ(controller.config().current.rs_ohm, 0.2);
+}
+
 TEST(ControllerConfig, PrefixedForScenarios) {
   try {
     (void)parse_controller_config(toml::parse(std::string_view{"[injection]\nF_A = -1\n"}, std::string_view{"scen.toml"}), "scen.toml", {}, "controller.");
