@@ -1,29 +1,46 @@
-// A schema for TOML configuration: one entry per key says where the value lives in the
-// configuration struct, its type, range, unit and meaning. Parsing, range checks, the
-// unknown-key check, defaults and the reference documentation all come from that one table.
+// The one schema engine for TOML configuration (drive, plant, scenarios): one entry per key
+// says where the value lives in the configuration struct, its type, range, unit and meaning.
+// Parsing, range checks (also of configurations built in code), the unknown-key check,
+// defaults and the reference documentation all come from that one table.
 //
 // Errors are thrown as ConfigError with a message that names the file, line and key:
 //   "drive.toml:12: injection.F_A: must be in [0, 200], got 350"
+//
+// Header only; depends on toml++ and the standard library (common/ may use nothing else).
 #pragma once
 
 #include <toml++/toml.h>
 
+#include <algorithm>
+#include <array>
 #include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <filesystem>
 #include <functional>
 #include <limits>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <string_view>
 #include <utility>
 #include <vector>
 
-namespace pmsm::app {
+namespace pmsm::common {
 
+// The one error type of every configuration file (drive, plant, scenario).
 class ConfigError : public std::runtime_error {
  public:
   using std::runtime_error::runtime_error;
 };
 
+// One point of a time table: load steps, drive cycles, speed and set-point profiles.
+struct TimePoint {
+  double time_s = 0.0;
+  double value = 0.0;
+};
+
+// A closed or lower-open numeric interval; infinite ends mean "no bound".
 struct ValueRange {
   double lo = -std::numeric_limits<double>::infinity();
   double hi = std::numeric_limits<double>::infinity();
@@ -35,6 +52,7 @@ struct ValueRange {
   [[nodiscard]] std::string describe() const;
 };
 
+[[nodiscard]] inline ValueRange any_number() { return {}; }
 [[nodiscard]] inline ValueRange positive(double hi = std::numeric_limits<double>::infinity()) {
   return {0.0, hi, true};
 }
@@ -43,13 +61,41 @@ struct ValueRange {
 }
 [[nodiscard]] inline ValueRange between(double lo, double hi) { return {lo, hi, false}; }
 
+// "%g" of a number, as every message and table prints it.
+[[nodiscard]] inline std::string format_number(double v) {
+  char buffer[32];
+  std::snprintf(buffer, sizeof buffer, "%g", v);
+  return buffer;
+}
+
+// "file:line: " of a node: the file it came from (a scenario may inherit keys from a base
+// file), else `source`.
+[[nodiscard]] inline std::string node_location(const toml::node& node, std::string_view source) {
+  const auto& region = node.source();
+  const std::string file = region.path && !region.path->empty() ? *region.path : std::string(source);
+  const std::string line = region.begin.line > 0 ? ":" + std::to_string(region.begin.line) : "";
+  return file + line + ": ";
+}
+
+// "file:line: " of `key` (a dotted path) in `table` when the file gives it, else "source: ".
+[[nodiscard]] inline std::string key_location(const toml::table& table, std::string_view key, std::string_view source) {
+  const auto node = table.at_path(key);
+  return node ? node_location(*node.node(), source) : std::string(source) + ": ";
+}
+
 template <typename Config>
 class ConfigSchema {
  public:
   using RealAccess = std::function<double&(Config&)>;
+  using OptionalRealAccess = std::function<std::optional<double>&(Config&)>;
   using IntAccess = std::function<int&(Config&)>;
+  using SeedAccess = std::function<std::uint64_t&(Config&)>;
   using BoolAccess = std::function<bool&(Config&)>;
   using StringAccess = std::function<std::string&(Config&)>;
+  using PathAccess = std::function<std::filesystem::path&(Config&)>;
+  using Real3Access = std::function<std::array<double, 3>&(Config&)>;
+  using IntListAccess = std::function<std::vector<int>&(Config&)>;
+  using PointsAccess = std::function<std::vector<TimePoint>&(Config&)>;
   // A list of reals with a length limit, stored wherever the config keeps it.
   using ListSet = std::function<void(Config&, const std::vector<double>&)>;
   using ListGet = std::function<std::vector<double>(const Config&)>;
@@ -57,54 +103,99 @@ class ConfigSchema {
   using ChoiceGet = std::function<int(const Config&)>;
 
   ConfigSchema& real(std::string key, RealAccess access, ValueRange range, std::string unit, std::string doc) {
-    Entry e = make(std::move(key), Kind::kReal, std::move(unit), std::move(doc));
+    Entry& e = add(std::move(key), Kind::kReal, std::move(unit), std::move(doc));
     e.range = range;
     e.real = std::move(access);
-    entries_.push_back(std::move(e));
+    return *this;
+  }
+
+  // A real that may be absent; `when_absent` says in the docs what holds then.
+  ConfigSchema& optional_real(std::string key, OptionalRealAccess access, ValueRange range, std::string unit,
+                              std::string when_absent, std::string doc) {
+    Entry& e = add(std::move(key), Kind::kOptionalReal, std::move(unit), std::move(doc));
+    e.range = range;
+    e.optional_real = std::move(access);
+    e.when_absent = std::move(when_absent);
     return *this;
   }
 
   ConfigSchema& integer(std::string key, IntAccess access, ValueRange range, std::string doc) {
-    Entry e = make(std::move(key), Kind::kInteger, "", std::move(doc));
+    Entry& e = add(std::move(key), Kind::kInteger, "", std::move(doc));
     e.range = range;
     e.integer = std::move(access);
-    entries_.push_back(std::move(e));
+    return *this;
+  }
+
+  // A non-negative 64-bit integer (random seeds).
+  ConfigSchema& seed(std::string key, SeedAccess access, std::string doc) {
+    Entry& e = add(std::move(key), Kind::kSeed, "", std::move(doc));
+    e.range = at_least(0);
+    e.seed = std::move(access);
     return *this;
   }
 
   ConfigSchema& boolean(std::string key, BoolAccess access, std::string doc) {
-    Entry e = make(std::move(key), Kind::kBoolean, "", std::move(doc));
+    Entry& e = add(std::move(key), Kind::kBoolean, "", std::move(doc));
     e.boolean = std::move(access);
-    entries_.push_back(std::move(e));
     return *this;
   }
 
   ConfigSchema& string(std::string key, StringAccess access, std::string doc) {
-    Entry e = make(std::move(key), Kind::kString, "", std::move(doc));
+    Entry& e = add(std::move(key), Kind::kString, "", std::move(doc));
     e.string = std::move(access);
-    entries_.push_back(std::move(e));
+    return *this;
+  }
+
+  // A file path, stored as given (the caller resolves relative paths).
+  ConfigSchema& path(std::string key, PathAccess access, std::string doc) {
+    Entry& e = add(std::move(key), Kind::kPath, "", std::move(doc));
+    e.path = std::move(access);
     return *this;
   }
 
   ConfigSchema& choice(std::string key, std::vector<std::pair<std::string, int>> names, ChoiceGet get,
                        ChoiceSet set, std::string doc) {
-    Entry e = make(std::move(key), Kind::kChoice, "", std::move(doc));
+    Entry& e = add(std::move(key), Kind::kChoice, "", std::move(doc));
     e.choices = std::move(names);
     e.choice_get = std::move(get);
     e.choice_set = std::move(set);
-    entries_.push_back(std::move(e));
+    return *this;
+  }
+
+  // Exactly three reals (one per phase a, b, c).
+  ConfigSchema& real3(std::string key, Real3Access access, ValueRange range, std::string unit, std::string doc) {
+    Entry& e = add(std::move(key), Kind::kReal3, std::move(unit), std::move(doc));
+    e.range = range;
+    e.real3 = std::move(access);
     return *this;
   }
 
   ConfigSchema& list(std::string key, std::size_t min_size, std::size_t max_size, ValueRange range, ListGet get,
                      ListSet set, std::string unit, std::string doc) {
-    Entry e = make(std::move(key), Kind::kList, std::move(unit), std::move(doc));
+    Entry& e = add(std::move(key), Kind::kList, std::move(unit), std::move(doc));
     e.range = range;
     e.min_size = min_size;
     e.max_size = max_size;
     e.list_get = std::move(get);
     e.list_set = std::move(set);
-    entries_.push_back(std::move(e));
+    return *this;
+  }
+
+  ConfigSchema& int_list(std::string key, std::size_t max_size, ValueRange range, IntListAccess access,
+                         std::string doc) {
+    Entry& e = add(std::move(key), Kind::kIntList, "", std::move(doc));
+    e.range = range;
+    e.max_size = max_size;
+    e.int_list = std::move(access);
+    return *this;
+  }
+
+  // A time table [[time_s, value], ...]: times >= 0 and ascending (equal times make a step),
+  // every value within `range`.
+  ConfigSchema& points(std::string key, ValueRange range, PointsAccess access, std::string unit, std::string doc) {
+    Entry& e = add(std::move(key), Kind::kPoints, std::move(unit), std::move(doc));
+    e.range = range;
+    e.points = std::move(access);
     return *this;
   }
 
@@ -124,6 +215,44 @@ class ConfigSchema {
     }
   }
 
+  // The range checks of apply() on a configuration built in code. Throws ConfigError
+  // "<source>: <key>: must be ..., got ...".
+  void validate(const Config& config, std::string_view source) const {
+    Config copy = config;
+    for (const Entry& e : entries_) {
+      const std::string at = std::string(source) + (source.empty() ? "" : ": ") + e.key + ": ";
+      auto check = [&](double v) {
+        if (!std::isfinite(v) || !e.range.contains(v)) {
+          throw ConfigError(at + "must be " + e.range.describe() + ", got " + format_number(v));
+        }
+      };
+      switch (e.kind) {
+        case Kind::kReal: check(e.real(copy)); break;
+        case Kind::kOptionalReal:
+          if (const std::optional<double>& v = e.optional_real(copy)) check(*v);
+          break;
+        case Kind::kInteger: check(e.integer(copy)); break;
+        case Kind::kReal3:
+          for (double v : e.real3(copy)) check(v);
+          break;
+        case Kind::kList:
+          for (double v : e.list_get(copy)) check(v);
+          break;
+        case Kind::kIntList:
+          for (int v : e.int_list(copy)) check(v);
+          break;
+        case Kind::kPoints:
+          for (const TimePoint& p : e.points(copy)) check(p.value);
+          break;
+        case Kind::kSeed:
+        case Kind::kBoolean:
+        case Kind::kString:
+        case Kind::kPath:
+        case Kind::kChoice: break;
+      }
+    }
+  }
+
   // Markdown table of every key with its default (from `defaults`), range and meaning.
   [[nodiscard]] std::string markdown(const Config& defaults) const;
 
@@ -136,20 +265,28 @@ class ConfigSchema {
   }
 
  private:
-  enum class Kind { kReal, kInteger, kBoolean, kString, kChoice, kList };
+  enum class Kind { kReal, kOptionalReal, kInteger, kSeed, kBoolean, kString, kPath, kChoice, kReal3, kList,
+                    kIntList, kPoints };
 
   struct Entry {
     std::string key;
     Kind kind = Kind::kReal;
     std::string unit;
     std::string doc;
+    std::string when_absent;
     ValueRange range{};
     std::size_t min_size = 0;
     std::size_t max_size = 0;
     RealAccess real;
+    OptionalRealAccess optional_real;
     IntAccess integer;
+    SeedAccess seed;
     BoolAccess boolean;
     StringAccess string;
+    PathAccess path;
+    Real3Access real3;
+    IntListAccess int_list;
+    PointsAccess points;
     std::vector<std::pair<std::string, int>> choices;
     ChoiceGet choice_get;
     ChoiceSet choice_set;
@@ -157,32 +294,37 @@ class ConfigSchema {
     ListSet list_set;
   };
 
-  static Entry make(std::string key, Kind kind, std::string unit, std::string doc) {
+  Entry& add(std::string key, Kind kind, std::string unit, std::string doc) {
     Entry e;
     e.key = std::move(key);
     e.kind = kind;
     e.unit = std::move(unit);
     e.doc = std::move(doc);
-    return e;
+    entries_.push_back(std::move(e));
+    return entries_.back();
   }
 
   [[nodiscard]] static std::string where(std::string_view source, const toml::node& node, std::string_view key,
                                          std::string_view prefix) {
-    // The file the node came from (a scenario may inherit keys from a base file).
-    const auto& region = node.source();
-    const std::string file = region.path && !region.path->empty() ? *region.path : std::string(source);
-    const std::string line = region.begin.line > 0 ? ":" + std::to_string(region.begin.line) : "";
-    return file + line + ": " + std::string(prefix) + std::string(key) + ": ";
+    return node_location(node, source) + std::string(prefix) + std::string(key) + ": ";
   }
 
-  static double number_of(const Entry& e, const toml::node& node, std::string_view source, std::string_view prefix) {
+  // A finite number (integers are accepted where a number is expected).
+  static double number_of(const toml::node& node, const std::string& at) {
     if (const auto* i = node.as_integer()) {
       return static_cast<double>(i->get());
     }
     if (const auto* f = node.as_floating_point()) {
-      return f->get();
+      return f->get();  // NaN and infinities fail every range check
     }
-    throw ConfigError(where(source, node, e.key, prefix) + "expected a number, got " + type_name(node));
+    throw ConfigError(at + "expected a number, got " + type_name(node));
+  }
+
+  static std::int64_t integer_of(const toml::node& node, const std::string& at) {
+    if (const auto* i = node.as_integer()) {
+      return i->get();
+    }
+    throw ConfigError(at + "expected an integer, got " + type_name(node));
   }
 
   static std::string type_name(const toml::node& node) {
@@ -197,28 +339,46 @@ class ConfigSchema {
     }
   }
 
+  static void check_range(const Entry& e, double v, const std::string& at, std::string_view what = "") {
+    if (!std::isfinite(v) || !e.range.contains(v)) {
+      throw ConfigError(at + std::string(what) + "must be " + e.range.describe() + ", got " + format_number(v));
+    }
+  }
+
+  static const toml::array& array_of(const toml::node& node, const std::string& at, std::string_view of) {
+    const auto* a = node.as_array();
+    if (a == nullptr) {
+      throw ConfigError(at + "expected an array of " + std::string(of) + ", got " + type_name(node));
+    }
+    return *a;
+  }
+
   void apply_entry(const Entry& e, const toml::node& node, Config& config, std::string_view source,
                    std::string_view prefix) const {
     const std::string at = where(source, node, e.key, prefix);
     switch (e.kind) {
       case Kind::kReal: {
-        const double v = number_of(e, node, source, prefix);
-        if (!std::isfinite(v) || !e.range.contains(v)) {
-          throw ConfigError(at + "must be " + e.range.describe() + ", got " + format_number(v));
-        }
+        const double v = number_of(node, at);
+        check_range(e, v, at);
         e.real(config) = v;
         break;
       }
+      case Kind::kOptionalReal: {
+        const double v = number_of(node, at);
+        check_range(e, v, at);
+        e.optional_real(config) = v;
+        break;
+      }
       case Kind::kInteger: {
-        const auto* i = node.as_integer();
-        if (i == nullptr) {
-          throw ConfigError(at + "expected an integer, got " + type_name(node));
-        }
-        const auto v = static_cast<double>(i->get());
-        if (!e.range.contains(v)) {
-          throw ConfigError(at + "must be " + e.range.describe() + ", got " + std::to_string(i->get()));
-        }
-        e.integer(config) = static_cast<int>(i->get());
+        const std::int64_t v = integer_of(node, at);
+        check_range(e, static_cast<double>(v), at);
+        e.integer(config) = static_cast<int>(v);
+        break;
+      }
+      case Kind::kSeed: {
+        const std::int64_t v = integer_of(node, at);
+        check_range(e, static_cast<double>(v), at);
+        e.seed(config) = static_cast<std::uint64_t>(v);
         break;
       }
       case Kind::kBoolean: {
@@ -229,12 +389,18 @@ class ConfigSchema {
         e.boolean(config) = b->get();
         break;
       }
-      case Kind::kString: {
+      case Kind::kString:
+      case Kind::kPath: {
         const auto* s = node.as_string();
         if (s == nullptr) {
-          throw ConfigError(at + "expected a string, got " + type_name(node));
+          throw ConfigError(at + (e.kind == Kind::kPath ? "expected a file path (string), got " : "expected a string, got ") +
+                            type_name(node));
         }
-        e.string(config) = s->get();
+        if (e.kind == Kind::kPath) {
+          e.path(config) = std::filesystem::path(s->get());
+        } else {
+          e.string(config) = s->get();
+        }
         break;
       }
       case Kind::kChoice: {
@@ -250,24 +416,81 @@ class ConfigSchema {
         }
         throw ConfigError(at + "expected one of " + choice_list(e) + ", got \"" + s->get() + "\"");
       }
-      case Kind::kList: {
-        const auto* a = node.as_array();
-        if (a == nullptr) {
-          throw ConfigError(at + "expected an array of numbers, got " + type_name(node));
+      case Kind::kReal3: {
+        const toml::array& a = array_of(node, at, "3 numbers (phases a, b, c)");
+        if (a.size() != 3) {
+          throw ConfigError(at + "expected an array of 3 numbers (phases a, b, c), got " + std::to_string(a.size()) +
+                            " elements");
         }
-        if (a->size() < e.min_size || a->size() > e.max_size) {
+        std::array<double, 3> v{};
+        std::size_t k = 0;
+        for (const toml::node& item : a) {
+          const std::string item_at = where(source, item, e.key, prefix);
+          v[k] = number_of(item, item_at);
+          check_range(e, v[k], item_at, "every value ");
+          ++k;
+        }
+        e.real3(config) = v;
+        break;
+      }
+      case Kind::kList: {
+        const toml::array& a = array_of(node, at, "numbers");
+        if (a.size() < e.min_size || a.size() > e.max_size) {
           throw ConfigError(at + "expected " + std::to_string(e.min_size) + " to " + std::to_string(e.max_size) +
-                            " values, got " + std::to_string(a->size()));
+                            " values, got " + std::to_string(a.size()));
         }
         std::vector<double> values;
-        for (const toml::node& item : *a) {
-          const double v = number_of(e, item, source, prefix);
-          if (!std::isfinite(v) || !e.range.contains(v)) {
-            throw ConfigError(at + "every value must be " + e.range.describe() + ", got " + format_number(v));
-          }
+        for (const toml::node& item : a) {
+          const std::string item_at = where(source, item, e.key, prefix);
+          const double v = number_of(item, item_at);
+          check_range(e, v, item_at, "every value ");
           values.push_back(v);
         }
         e.list_set(config, values);
+        break;
+      }
+      case Kind::kIntList: {
+        const toml::array& a = array_of(node, at, "integers");
+        if (a.size() > e.max_size) {
+          throw ConfigError(at + "at most " + std::to_string(e.max_size) + " values, got " + std::to_string(a.size()));
+        }
+        std::vector<int> values;
+        for (const toml::node& item : a) {
+          const std::string item_at = where(source, item, e.key, prefix);
+          const std::int64_t v = integer_of(item, item_at);
+          check_range(e, static_cast<double>(v), item_at, "every value ");
+          values.push_back(static_cast<int>(v));
+        }
+        e.int_list(config) = std::move(values);
+        break;
+      }
+      case Kind::kPoints: {
+        const toml::array& a = array_of(node, at, "[time_s, value] pairs");
+        std::vector<TimePoint> values;
+        std::size_t k = 0;
+        for (const toml::node& item : a) {
+          const std::string element = where(source, item, e.key, prefix) + "element " + std::to_string(k++) + ": ";
+          const auto* pair = item.as_array();
+          if (pair == nullptr || pair->size() != 2) {
+            throw ConfigError(element + "expected [time_s, value]");
+          }
+          double tv[2] = {0.0, 0.0};
+          std::size_t n = 0;
+          for (const toml::node& x : *pair) {
+            tv[n++] = number_of(x, element);
+          }
+          const TimePoint p{tv[0], tv[1]};
+          if (!std::isfinite(p.time_s) || p.time_s < 0.0) {
+            throw ConfigError(element + "time must be >= 0, got " + format_number(p.time_s));
+          }
+          if (!values.empty() && p.time_s < values.back().time_s) {
+            throw ConfigError(element + "times must be ascending, got " + format_number(p.time_s) + " after " +
+                              format_number(values.back().time_s));
+          }
+          check_range(e, p.value, element, "value ");
+          values.push_back(p);
+        }
+        e.points(config) = std::move(values);
         break;
       }
     }
@@ -279,12 +502,6 @@ class ConfigSchema {
       out += (out.empty() ? "" : ", ") + std::string("\"") + name + "\"";
     }
     return out;
-  }
-
-  static std::string format_number(double v) {
-    char buffer[32];
-    std::snprintf(buffer, sizeof buffer, "%g", v);
-    return buffer;
   }
 
   void check_unknown(const toml::table& table, const std::string& prefix, std::string_view source,
@@ -369,17 +586,28 @@ inline std::string ValueRange::describe() const {
 template <typename Config>
 std::string ConfigSchema<Config>::markdown(const Config& defaults) const {
   Config copy = defaults;
+  auto with_unit = [](std::string value, const std::string& unit) { return unit.empty() ? value : value + " " + unit; };
   std::string out = "| key | default | range | meaning |\n|---|---|---|---|\n";
   for (const Entry& e : entries_) {
     std::string value;
     std::string range;
     switch (e.kind) {
       case Kind::kReal:
-        value = format_number(e.real(copy)) + (e.unit.empty() ? "" : " " + e.unit);
+        value = with_unit(format_number(e.real(copy)), e.unit);
         range = e.range.describe();
         break;
+      case Kind::kOptionalReal: {
+        const std::optional<double>& v = e.optional_real(copy);
+        value = v ? with_unit(format_number(*v), e.unit) : e.when_absent;
+        range = e.range.describe();
+        break;
+      }
       case Kind::kInteger:
         value = std::to_string(e.integer(copy));
+        range = e.range.describe();
+        break;
+      case Kind::kSeed:
+        value = std::to_string(e.seed(copy));
         range = e.range.describe();
         break;
       case Kind::kBoolean:
@@ -387,6 +615,9 @@ std::string ConfigSchema<Config>::markdown(const Config& defaults) const {
         break;
       case Kind::kString:
         value = "\"" + e.string(copy) + "\"";
+        break;
+      case Kind::kPath:
+        value = "\"" + e.path(copy).string() + "\"";
         break;
       case Kind::kChoice: {
         const int v = e.choice_get(copy);
@@ -396,19 +627,49 @@ std::string ConfigSchema<Config>::markdown(const Config& defaults) const {
         range = choice_list(e);
         break;
       }
+      case Kind::kReal3: {
+        const std::array<double, 3>& v = e.real3(copy);
+        value = with_unit("[" + format_number(v[0]) + ", " + format_number(v[1]) + ", " + format_number(v[2]) + "]", e.unit);
+        range = "3 values, each " + e.range.describe();
+        break;
+      }
       case Kind::kList: {
         value = "[";
         for (double x : e.list_get(copy)) {
           value += (value.size() > 1 ? ", " : "") + format_number(x);
         }
-        value += "]" + (e.unit.empty() ? "" : " " + e.unit);
+        value = with_unit(value + "]", e.unit);
         range = std::to_string(e.min_size) + "–" + std::to_string(e.max_size) + " values, each " + e.range.describe();
         break;
       }
+      case Kind::kIntList: {
+        value = "[";
+        for (int x : e.int_list(copy)) {
+          value += (value.size() > 1 ? ", " : "") + std::to_string(x);
+        }
+        value += "]";
+        range = "0–" + std::to_string(e.max_size) + " values, each " + e.range.describe();
+        break;
+      }
+      case Kind::kPoints: {
+        value = "[";
+        for (const TimePoint& p : e.points(copy)) {
+          value += (value.size() > 1 ? ", " : "") + ("[" + format_number(p.time_s) + ", " + format_number(p.value) + "]");
+        }
+        value += "]";
+        range = "[time_s, value] pairs, times ascending, values " + e.range.describe();
+        break;
+      }
     }
-    out += "| `" + e.key + "` | " + value + " | " + range + " | " + e.doc + " |\n";
+    // A '|' inside a cell would end it: escape the ones in formulas such as ω·|ω|.
+    std::string doc;
+    for (char ch : e.doc) {
+      if (ch == '|') doc += '\\';
+      doc += ch;
+    }
+    out += "| `" + e.key + "` | " + value + " | " + range + " | " + doc + " |\n";
   }
   return out;
 }
 
-}  // namespace pmsm::app
+}  // namespace pmsm::common

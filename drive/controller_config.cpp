@@ -17,7 +17,7 @@ using C = ControllerConfig;
 ConfigSchema<C> build() {
   ConfigSchema<C> s;
   // [motor] — the controller's commissioned model of the machine.
-  s.real("motor.rs_ohm", [](C& c) -> double& { return c.drive.motor.rs_ohm; }, positive(10.0), "ohm",
+  s.real("motor.rs_ohm", [](C& c) -> double& { return c.drive.motor.rs_ohm; }, positive(100.0), "ohm",
          "Nameplate phase-to-neutral resistance at motor.rs_reference_temp_C; the temperature scale until a calibration replaces it.");
   s.real("motor.rs_reference_temp_C", [](C& c) -> double& { return c.drive.motor.rs_reference_temp_C; }, between(-50, 200), "C",
          "Temperature at which motor.rs_ohm holds (T0 of Eq. 1).");
@@ -26,6 +26,9 @@ ConfigSchema<C> build() {
   s.real("motor.ke_V_s_per_rad", [](C& c) -> double& { return c.drive.motor.ke_V_s_per_rad; }, positive(100.0), "V s/rad",
          "EMF constant, line-to-line RMS volts per mechanical rad/s (Table I: 1.19).");
   s.integer("motor.pole_pairs", [](C& c) -> int& { return c.drive.motor.pole_pairs; }, between(1, 64), "Pole pairs.");
+  s.real("motor.continuous_current_A_rms", [](C& c) -> double& { return c.drive.motor.continuous_current_A_rms; }, positive(10000), "A",
+         "Rated (continuous) phase current, RMS (Table I Icont: 31.9 A). The injection, calibration and load-change defaults scale with "
+         "its peak, the rated current I_rated = sqrt(2) times this.");
   s.real("motor.inertia_kg_m2", [](C& c) -> double& { return c.drive.motor.inertia_kg_m2; }, positive(100.0), "kg m^2",
          "Total inertia the speed loop is designed for.");
   // [sensors]
@@ -75,10 +78,11 @@ ConfigSchema<C> build() {
              [](const C& c) { return static_cast<int>(c.drive.injection.separation); },
              [](C& c, int v) { c.drive.injection.separation = static_cast<Separation>(v); },
              "Separation of the injected voltage: bipolar (Eqs. 39-44) or unipolar (Eqs. 33-38).");
-  inj.real("injection.F_A", [](C& c) -> double& { return c.drive.injection.f_A; }, positive(1000), "A",
-           "Injection magnitude F (phase peak) at level 1.");
-  inj.real("injection.F_min_A", [](C& c) -> double& { return c.drive.injection.f_min_A; }, at_least(0, 1000), "A",
-           "Below this, after the current and voltage budget, a pair is skipped.");
+  inj.optional_real("injection.F_A", [](C& c) -> std::optional<double>& { return c.relative.injection_f_A; }, positive(1000), "A",
+                    "0.776 I_rated", "Injection magnitude F (phase peak) at level 1 (Table I: 35 A).");
+  inj.optional_real("injection.F_min_A", [](C& c) -> std::optional<double>& { return c.relative.injection_f_min_A; },
+                    at_least(0, 1000), "A", "0.111 I_rated",
+                    "Below this, after the current and voltage budget, a pair is skipped (Table I: 5 A).");
   inj.list("injection.levels", 1, core::InjectionConfig::kMaxLevels, between(0.05, 1.0),
            [](const C& c) {
              const auto& i = c.drive.injection;
@@ -134,16 +138,17 @@ ConfigSchema<C> build() {
            between(0, 1), "", "Reject a pair whose recordings differ in speed by more than this fraction...");
   inj.real("injection.max_speed_change_rad_s", [](C& c) -> double& { return c.drive.injection.max_speed_change_rad_s; },
            at_least(0), "rad/s", "... or by more than this (electrical), whichever is larger.");
-  inj.real("injection.max_load_change_A", [](C& c) -> double& { return c.drive.injection.max_load_change_A; }, at_least(0), "A",
-           "Reject a pair whose recordings differ in motoring iq by more than this.");
+  inj.optional_real("injection.max_load_change_A", [](C& c) -> std::optional<double>& { return c.relative.max_load_change_A; },
+                    at_least(0), "A", "0.0332 I_rated",
+                    "Reject a pair whose recordings differ in motoring iq by more than this (Table I: 1.5 A).");
   inj.real("injection.max_residual_V", [](C& c) -> double& { return c.drive.injection.max_residual_V; }, positive(1000), "V",
            "Reject a pair whose fit residual (RMS) exceeds this.");
   inj.real("injection.min_condition", [](C& c) -> double& { return c.drive.injection.min_condition; }, between(0, 1), "",
            "Reject a fit whose regressors are more collinear than this (reciprocal condition).");
-  inj.real("injection.rs_min_ohm", [](C& c) -> double& { return c.drive.injection.rs_min_ohm; }, positive(10), "ohm",
-           "Plausibility window, lower end.");
-  inj.real("injection.rs_max_ohm", [](C& c) -> double& { return c.drive.injection.rs_max_ohm; }, positive(10), "ohm",
-           "Plausibility window, upper end.");
+  inj.optional_real("injection.rs_min_ohm", [](C& c) -> std::optional<double>& { return c.relative.rs_min_ohm; }, positive(100), "ohm",
+                    "0.677 motor.rs_ohm", "Plausibility window of a resistance estimate, lower end (Table I: 0.09 ohm, about -57 C).");
+  inj.optional_real("injection.rs_max_ohm", [](C& c) -> std::optional<double>& { return c.relative.rs_max_ohm; }, positive(100), "ohm",
+                    "2.03 motor.rs_ohm", "Plausibility window, upper end (Table I: 0.27 ohm, about 287 C).");
   inj.boolean("injection.fit_dead_time", [](C& c) -> bool& { return c.drive.injection.fit_dead_time; },
               "Model the inverter's uncompensated voltage Vx (learned across events).");
   inj.boolean("injection.fit_inductance", [](C& c) -> bool& { return c.drive.injection.fit_inductance; },
@@ -187,7 +192,7 @@ ConfigSchema<C> build() {
          "Iron loss per mechanical rad/s.");
   s.real("thermal.iron_loss_k2_W_s2_rad2", [](C& c) -> double& { return c.drive.thermal.iron_loss_k2_W_s2_rad2; }, at_least(0), "W s^2/rad^2",
          "Iron loss per (mechanical rad/s)^2.");
-  s.real("thermal.time_scale", [](C& c) -> double& { return c.drive.thermal.time_scale; }, positive(1e6), "",
+  s.real("thermal.acceleration", [](C& c) -> double& { return c.drive.thermal.time_scale; }, positive(1e6), "",
          "Thermal time runs this many times faster than controller time (1 on a real machine; the plant's acceleration in tests).");
   s.real("thermal.update_s", [](C& c) -> double& { return c.drive.thermal_update_s; }, positive(10), "s", "Thermal filter period.");
   s.real("thermal.initial_std_C", [](C& c) -> double& { return c.drive.thermal.initial_std_C; }, positive(1000), "C", "Initial uncertainty.");
@@ -204,7 +209,7 @@ ConfigSchema<C> build() {
   s.real("thermal.gate_sigma", [](C& c) -> double& { return c.drive.thermal.gate_sigma; }, positive(1000), "",
          "A measurement further than this many sigma from the prediction is gated out.");
   // [calibration]
-  s.real("calibration.rs0_ohm", [](C& c) -> double& { return c.drive.calibration.rs0_ohm; }, positive(10), "ohm",
+  s.real("calibration.rs0_ohm", [](C& c) -> double& { return c.drive.calibration.rs0_ohm; }, positive(100), "ohm",
          "Rs0 of a stored calibration (defaults to motor.rs_ohm).");
   s.real("calibration.t0_C", [](C& c) -> double& { return c.drive.calibration.t0_C; }, between(-50, 200), "C", "T0 of that calibration.");
   s.real("calibration.ke0_V_s_per_rad", [](C& c) -> double& { return c.drive.calibration.ke0_V_s_per_rad; }, at_least(0, 100), "V s/rad",
@@ -214,9 +219,10 @@ ConfigSchema<C> build() {
            "calibration run completes (relative to this file; empty: none).");
   s.integer("calibration.events", [](C& c) -> int& { return c.drive.calibration_events; }, between(1, 100),
             "Injection events averaged by a calibration run.");
-  s.real("calibration.F_A", [](C& c) -> double& { return c.calibration_f_A; }, positive(1000), "A",
-         "Injection magnitude of the calibration procedure (fixed-magnitude bipolar, levels 1 and 0.4), at no load.");
-  s.real("calibration.magnet_coefficient_per_C", [](C& c) -> double& { return c.drive.magnet_coefficient_per_C; }, between(-0.01, 0), "/C",
+  s.optional_real("calibration.F_A", [](C& c) -> std::optional<double>& { return c.relative.calibration_f_A; }, positive(1000), "A",
+                  "1.11 I_rated",
+                  "Injection magnitude of the calibration procedure (fixed-magnitude bipolar, levels 1 and 0.4), at no load (Table I: 50 A).");
+  s.real("calibration.magnet_temp_coefficient_per_C", [](C& c) -> double& { return c.drive.magnet_coefficient_per_C; }, between(-0.01, 0), "/C",
          "Relative change of the magnet flux per degree (NdFeB about -0.0012).");
   // [derating]
   s.real("derating.max_current_A", [](C& c) -> double& { return c.drive.derating.max_current_A; }, positive(10000), "A",
@@ -250,61 +256,112 @@ ControllerConfig default_controller_config() {
   return c;
 }
 
-void finalize(ControllerConfig& c, std::string_view source) {
+void finalize(ControllerConfig& c, std::string_view source, const toml::table* table, std::string_view key_prefix) {
   core::DriveConfig& d = c.drive;
-  const double psi = core::flux_linkage_Wb(d.motor);
-  d.current.period_s = d.period_s;
-  d.current.rs_ohm = d.motor.rs_ohm;
-  d.current.ld_H = d.motor.ld_H;
-  d.current.lq_H = d.motor.lq_H;
-  d.current.flux_linkage_Wb = psi;
-  d.speed.period_s = d.period_s * d.speed_decimation;
-  d.speed.inertia_kg_m2 = d.motor.inertia_kg_m2;
-  d.angle.period_s = d.period_s;
-  d.angle.pole_pairs = d.motor.pole_pairs;
-  d.injection.lq_H = d.motor.lq_H;
-  d.injection.ld_H = d.motor.ld_H;
-  d.injection.rs_nominal_ohm = d.motor.rs_ohm;
-  d.injection.flux_linkage_Wb = psi;
-  d.injection.pole_pairs = d.motor.pole_pairs;
+  const core::MotorParams& m = d.motor;
+  // The defaults that scale with the motor (exactly the Table I numbers at the Table I motor).
+  const core::MotorRelativeDefaults relative = core::motor_relative_defaults(m);
+  d.injection.f_A = c.relative.injection_f_A.value_or(relative.injection_f_A);
+  d.injection.f_min_A = c.relative.injection_f_min_A.value_or(relative.injection_f_min_A);
+  d.injection.rs_min_ohm = c.relative.rs_min_ohm.value_or(relative.rs_min_ohm);
+  d.injection.rs_max_ohm = c.relative.rs_max_ohm.value_or(relative.rs_max_ohm);
+  d.injection.max_load_change_A = c.relative.max_load_change_A.value_or(relative.max_load_change_A);
+  c.calibration_f_A = c.relative.calibration_f_A.value_or(relative.calibration_f_A);
   // Injection shares the drive's current budget with motoring (the derated limit at run time).
   d.injection.current_limit_A = d.derating.max_current_A;
   // The calibration procedure: the run-time settings, as fixed-magnitude bipolar at two levels.
+  // (Its vx_initial_V is never used: set_config() keeps the scheduler's learned Vx.)
   d.calibration_injection = d.injection;
   d.calibration_injection.method = core::InjectionMethod::kFixedMagnitude;
   d.calibration_injection.separation = core::Separation::kBipolar;
   d.calibration_injection.levels = {1.0, 0.4, 0.0, 0.0};
   d.calibration_injection.level_count = 2;
   d.calibration_injection.f_A = c.calibration_f_A;
-  d.baseline.period_s = d.period_s;
-  d.baseline.ld_H = d.motor.ld_H;
-  d.baseline.initial_rs_ohm = d.motor.rs_ohm;
-  d.baseline.initial_ke_V_s_per_rad = core::emf_constant_dq_V_s_per_rad(d.motor);
   if (c.vx_initial_from_compensation) {
     d.injection.vx_initial_V = d.dead_time.dead_time_s / d.period_s * c.nominal_dc_bus_V + d.dead_time.device_drop_V;
   }
-  const std::string at = std::string(source) + ": ";
-  if (d.injection.rs_min_ohm >= d.injection.rs_max_ohm) {
-    throw ConfigError(at + "injection.rs_min_ohm must be below injection.rs_max_ohm");
+  // Every sub-configuration's copy of the motor model and the period, in one place (core).
+  d.derive_from_motor();
+
+  // Rules that involve several keys. A message starts with the file and line of the first
+  // key the file gives and names both keys, each with its value and where it comes from.
+  auto given = [&](std::string_view key) { return table != nullptr && static_cast<bool>(table->at_path(key)); };
+  auto location = [&](std::string_view key) {
+    return given(key) ? common::key_location(*table, key, source) : std::string(source) + ": ";
+  };
+  auto lead = [&](std::string_view a, std::string_view b) { return given(a) || !given(b) ? a : b; };
+  auto ref = [&](std::string_view key, double v, std::string_view unit, std::string_view lead_key) {
+    std::string out = std::string(key_prefix) + std::string(key) + " (" + common::format_number(v) + " " + std::string(unit);
+    if (key != lead_key) {
+      const std::string where = location(key);
+      out += given(key) ? ", " + where.substr(0, where.size() - 2) : std::string(", its default");
+    }
+    return out + ")";
+  };
+  auto rule = [&](std::string_view a, std::string_view b, const std::string& text) {
+    throw ConfigError(location(lead(a, b)) + text);
+  };
+
+  // Both ends given and crossed: that is the contradiction (else the resistance checks below
+  // name the nameplate and the one end the file gives).
+  const bool window_given = given("injection.rs_min_ohm") && given("injection.rs_max_ohm");
+  if (window_given && d.injection.rs_min_ohm >= d.injection.rs_max_ohm) {
+    const std::string_view l = lead("injection.rs_min_ohm", "injection.rs_max_ohm");
+    rule("injection.rs_min_ohm", "injection.rs_max_ohm",
+         ref("injection.rs_min_ohm", d.injection.rs_min_ohm, "ohm", l) + " must be below " +
+             ref("injection.rs_max_ohm", d.injection.rs_max_ohm, "ohm", l));
+  }
+  // A nameplate resistance outside the plausibility window: every estimate near the reference
+  // temperature would be rejected (the Table I window never lets a 1.6 ohm servo calibrate).
+  // Likewise a stored Rs0, which holds at its own T0.
+  for (const std::string_view r : {std::string_view("motor.rs_ohm"), std::string_view("calibration.rs0_ohm")}) {
+    const double rs = r == "motor.rs_ohm" ? m.rs_ohm : d.calibration.rs0_ohm;
+    for (const std::string_view end : {std::string_view("injection.rs_min_ohm"), std::string_view("injection.rs_max_ohm")}) {
+      const bool lower = end == "injection.rs_min_ohm";
+      const double limit = lower ? d.injection.rs_min_ohm : d.injection.rs_max_ohm;
+      if (lower ? rs < limit : rs > limit) {
+        const std::string_view l = lead(end, r);
+        rule(end, r,
+             ref(r, rs, "ohm", l) + " lies " + (lower ? "below " : "above ") + ref(end, limit, "ohm", l) +
+                 ": the plausibility window would reject every resistance estimate near the reference temperature");
+      }
+    }
+  }
+  if (d.injection.rs_min_ohm >= d.injection.rs_max_ohm) {  // equal ends around the nameplate
+    rule("injection.rs_min_ohm", "injection.rs_max_ohm", "injection.rs_min_ohm must be below injection.rs_max_ohm");
+  }
+  // A reluctance-torque budget the load-change guard always rejects: the speed loop answers a
+  // torque disturbance dT with dT / kt of iq, and a pair whose recordings differ in iq by more
+  // than max_load_change_A is rejected.
+  const double budget_iq_A = d.injection.max_torque_disturbance_Nm / core::torque_constant_dq_Nm_per_A(m);
+  if (budget_iq_A > d.injection.max_load_change_A) {
+    const std::string_view l = lead("injection.max_torque_disturbance_Nm", "injection.max_load_change_A");
+    rule("injection.max_torque_disturbance_Nm", "injection.max_load_change_A",
+         ref("injection.max_torque_disturbance_Nm", d.injection.max_torque_disturbance_Nm, "Nm", l) +
+             " lets the speed loop move iq by up to " + common::format_number(budget_iq_A) + " A, more than " +
+             ref("injection.max_load_change_A", d.injection.max_load_change_A, "A", l) +
+             ": the load-change guard would reject every pair the torque budget lets through");
   }
   if (d.derating.derate_start_C >= d.derating.limit_C) {
-    throw ConfigError(at + "derating.start_C must be below derating.limit_C");
+    rule("derating.start_C", "derating.limit_C", "derating.start_C must be below derating.limit_C");
   }
   if (d.derating.min_current_A > d.derating.max_current_A) {
-    throw ConfigError(at + "derating.min_current_A must not exceed derating.max_current_A");
+    rule("derating.min_current_A", "derating.max_current_A", "derating.min_current_A must not exceed derating.max_current_A");
   }
   double smallest_level = 1.0;
   for (int k = 0; k < d.injection.level_count; ++k) {
     smallest_level = std::min(smallest_level, d.injection.levels[static_cast<std::size_t>(k)]);
   }
   if (d.injection.f_min_A > d.injection.f_A * smallest_level) {
-    throw ConfigError(at + "injection.F_min_A must not exceed injection.F_A times the smallest of injection.levels");
+    rule("injection.F_min_A", "injection.F_A",
+         "injection.F_min_A must not exceed injection.F_A times the smallest of injection.levels");
   }
   if (d.injection.f_min_A > c.calibration_f_A * 0.4) {
-    throw ConfigError(at + "injection.F_min_A must not exceed 0.4 calibration.F_A (the calibration's smaller level)");
+    rule("injection.F_min_A", "calibration.F_A",
+         "injection.F_min_A must not exceed 0.4 calibration.F_A (the calibration's smaller level)");
   }
   if (d.injection.settle_s + 2.0 * d.period_s > d.injection.record_time_s) {
-    throw ConfigError(at + "injection.record_time_s must be longer than injection.settle_s");
+    rule("injection.record_time_s", "injection.settle_s", "injection.record_time_s must be longer than injection.settle_s");
   }
 }
 
@@ -322,7 +379,7 @@ ControllerConfig parse_controller_config(const toml::table& table, std::string_v
   if (!t0_given) {
     c.drive.calibration.t0_C = c.drive.motor.rs_reference_temp_C;
   }
-  finalize(c, source);
+  finalize(c, source, &table, key_prefix);
   if (!c.calibration_file.empty() && std::filesystem::path(c.calibration_file).is_relative()) {
     const std::filesystem::path dir = std::filesystem::path(source).parent_path();
     c.calibration_file = std::filesystem::absolute(dir / c.calibration_file).lexically_normal().string();

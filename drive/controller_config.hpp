@@ -5,6 +5,7 @@
 
 #include <cstdint>
 #include <filesystem>
+#include <optional>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -16,6 +17,13 @@
 
 namespace pmsm::app {
 
+// The one schema engine and its one error type (common/config_schema.hpp).
+using common::at_least;
+using common::between;
+using common::ConfigError;
+using common::ConfigSchema;
+using common::positive;
+
 // How the controller turns ADC codes into physical values: its own nominal calibration (the
 // plant's gain errors stay invisible to it, as a real sensor's would).
 struct SensorScaling {
@@ -26,12 +34,25 @@ struct SensorScaling {
   double offset_calibration_s = 0.05;  // current-ADC offsets averaged with the gates off at start
 };
 
+// Keys whose default follows the configured motor: absent, finalize() takes the rule of
+// core::motor_relative_defaults() (which gives exactly the Table I numbers for Table I).
+struct MotorRelativeKeys {
+  std::optional<double> injection_f_A;
+  std::optional<double> injection_f_min_A;
+  std::optional<double> rs_min_ohm;
+  std::optional<double> rs_max_ohm;
+  std::optional<double> max_load_change_A;
+  std::optional<double> calibration_f_A;
+};
+
 struct ControllerConfig {
   core::DriveConfig drive{};
+  MotorRelativeKeys relative{};
   SensorScaling sensors{};
   double nominal_dc_bus_V = 650.0;
-  // The calibration procedure's injection magnitude: at no load the whole current budget is
-  // free, and a larger F makes the bridge's zero-current band matter less (docs/estimator.md).
+  // The calibration procedure's injection magnitude (filled by finalize() from
+  // calibration.F_A or the rated current): at no load the whole current budget is free, and a
+  // larger F makes the bridge's zero-current band matter less (docs/estimator.md).
   double calibration_f_A = 50.0;
   // Unless injection.vx_initial_V is given, the inverter-error prior starts at what the
   // dead-time compensation assumes at the nominal bus voltage.
@@ -61,10 +82,12 @@ StoredCalibration load_stored_calibration(ControllerConfig& config);
 // The top-level sections the controller schema owns.
 [[nodiscard]] const std::vector<std::string>& controller_sections();
 
-// Fills the fields that follow from others (the controller's Ld, Lq and flux linkage in every
-// component, periods, pole pairs) and checks rules that involve several keys. Throws
-// ConfigError naming the keys.
-void finalize(ControllerConfig& config, std::string_view source);
+// Fills the fields that follow from others (the motor-relative defaults, then every
+// component's copy of the motor model through core::DriveConfig::derive_from_motor()) and
+// checks rules that involve several keys. Throws ConfigError naming both keys, with the file
+// and line of those `table` gives (`key_prefix` as in parse_controller_config()).
+void finalize(ControllerConfig& config, std::string_view source, const toml::table* table = nullptr,
+              std::string_view key_prefix = {});
 
 // Parses the controller sections of `table`; sections in `foreign` belong to someone else.
 [[nodiscard]] ControllerConfig parse_controller_config(const toml::table& table, std::string_view source,

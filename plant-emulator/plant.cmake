@@ -1,5 +1,6 @@
 # pmsm_plant: the plant-emulator library (motor, inverter, thermal network, sensors).
-# Written independently of core/ (DESIGN §3): it links only the shared plain data types.
+# Written independently of core/ (DESIGN §3): it links only the shared plain data types and
+# the common configuration-schema engine (common/).
 add_library(pmsm_plant STATIC
   ${CMAKE_CURRENT_LIST_DIR}/src/config.cpp
   ${CMAKE_CURRENT_LIST_DIR}/src/emf.cpp
@@ -9,7 +10,7 @@ add_library(pmsm::plant ALIAS pmsm_plant)
 pmsm_target_defaults(pmsm_plant)
 target_include_directories(pmsm_plant PUBLIC ${CMAKE_CURRENT_LIST_DIR}/include)
 target_link_libraries(pmsm_plant
-  PUBLIC pmsm_messages
+  PUBLIC pmsm_messages pmsm_common
   PRIVATE Eigen3::Eigen tomlplusplus::tomlplusplus fmt::fmt)
 
 # pmsm-plant: the plant emulator as a process on a CAN bus (lockstep or real time). The bus

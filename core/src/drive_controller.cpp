@@ -25,15 +25,15 @@ bool controllable(const DriveInput& in) noexcept {
 }
 
 DriveController::DriveController(const DriveConfig& config)
-    : config_(config),
-      kt_dq_Nm_per_A_(1.5 * config.motor.pole_pairs * config.current.flux_linkage_Wb),
-      angle_(config.angle),
-      current_(config.current),
-      speed_(config.speed),
-      scheduler_(config.injection, config.period_s, config.recording_capacity),
-      baseline_(config.baseline),
-      observer_(config.thermal, config.calibration, config.calibration.t0_C),
-      derating_{config.derating.max_current_A, false} {}
+    : config_(with_motor_derived(config)),
+      kt_dq_Nm_per_A_(1.5 * config_.motor.pole_pairs * config_.current.flux_linkage_Wb),
+      angle_(config_.angle),
+      current_(config_.current),
+      speed_(config_.speed),
+      scheduler_(config_.injection, config_.period_s, config_.recording_capacity),
+      baseline_(config_.baseline),
+      observer_(config_.thermal, config_.calibration, config_.calibration.t0_C),
+      derating_{config_.derating.max_current_A, false} {}
 
 void DriveController::start_calibration(double known_temp_C) {
   scheduler_.set_config(config_.calibration_injection);

@@ -209,10 +209,10 @@ struct Plant::Impl {
     Ts_s = 1.0 / cfg.inverter.pwm_frequency_Hz;
     h_nominal_s = Ts_s / static_cast<double>(cfg.simulation.substeps);
     p = static_cast<double>(cfg.motor.pole_pairs);
-    psi_m0_Wb = psi_m_from_Ke(cfg.motor.Ke_V_s_rad, cfg.motor.pole_pairs);
-    d_axis = AxisFlux{cfg.motor.Ld_H, cfg.saturation.Ld_sat_H, cfg.saturation.id_knee_A,
+    psi_m0_Wb = psi_m_from_Ke(cfg.motor.ke_V_s_per_rad, cfg.motor.pole_pairs);
+    d_axis = AxisFlux{cfg.motor.ld_H, cfg.saturation.ld_sat_H, cfg.saturation.id_knee_A,
                       cfg.saturation.enabled};
-    q_axis = AxisFlux{cfg.motor.Lq_H, cfg.saturation.Lq_sat_H, cfg.saturation.iq_knee_A,
+    q_axis = AxisFlux{cfg.motor.lq_H, cfg.saturation.lq_sat_H, cfg.saturation.iq_knee_A,
                       cfg.saturation.enabled};
     dead_time_fraction = cfg.inverter.dead_time_enabled
                              ? cfg.inverter.dead_time_s * cfg.inverter.pwm_frequency_Hz
@@ -242,15 +242,15 @@ struct Plant::Impl {
     // PI speed loop of the dynamometer on the shaft inertia: critically damped, natural
     // frequency 2π·bandwidth, so J·s² + Kp·s + Ki has a double root at -ωn.
     const double wn = kTwoPi * cfg.load.dyno_bandwidth_Hz;
-    kp_dyno = 2.0 * wn * cfg.mechanics.J_kg_m2;
-    ki_dyno = wn * wn * cfg.mechanics.J_kg_m2;
+    kp_dyno = 2.0 * wn * cfg.mechanics.inertia_kg_m2;
+    ki_dyno = wn * wn * cfg.mechanics.inertia_kg_m2;
   }
 
   void update_temperature_parameters() {
     const auto& t = thermal.temperatures_C();
-    rs_ohm = cfg.motor.Rs_ohm *
-             (1.0 + cfg.motor.alpha_per_C * (t[ThermalNetwork::kWinding] - cfg.motor.Rs_ref_temp_C));  // Eq. 1
-    psi_m_Wb = psi_m0_Wb * (1.0 + cfg.motor.magnet_temp_coeff_per_K *
+    rs_ohm = cfg.motor.rs_ohm *
+             (1.0 + cfg.motor.alpha_per_C * (t[ThermalNetwork::kWinding] - cfg.motor.rs_reference_temp_C));  // Eq. 1
+    psi_m_Wb = psi_m0_Wb * (1.0 + cfg.motor.magnet_temp_coefficient_per_C *
                                       (t[ThermalNetwork::kRotor] - cfg.motor.magnet_ref_temp_C));
     const double ratio = psi_m_Wb / psi_m0_Wb;
     iron_scale = cfg.iron_loss.enabled ? ratio * ratio : 0.0;
@@ -460,7 +460,7 @@ struct Plant::Impl {
       // The dynamometer takes whatever torque keeps the speed on its profile.
       const double sgn = sign_of(omega);
       const double friction = sgn * (coulomb_Nm + fe_coulomb_Nm) + (viscous_Nm_s + fe_viscous_Nm_s) * omega;
-      torque_load = torque_em + torque_cog - friction - cfg.mechanics.J_kg_m2 * alpha_ref;
+      torque_load = torque_em + torque_cog - friction - cfg.mechanics.inertia_kg_m2 * alpha_ref;
       ds.theta_m_rad = omega;
       ds.omega_m_rad_s = alpha_ref;
       pw.friction_J = coulomb_Nm * std::abs(omega) + viscous_Nm_s * omega * omega;
@@ -469,7 +469,7 @@ struct Plant::Impl {
       if (cfg.load.profile == LoadProfile::speed_cycle) {
         const auto [w_ref, a_ref] = speed_reference(t);
         torque_load = (kp_dyno * (omega - w_ref) + ki_dyno * s.dyno_int_rad +
-                       cfg.mechanics.J_kg_m2 * a_ref) * ripple;
+                       cfg.mechanics.inertia_kg_m2 * a_ref) * ripple;
         ds.dyno_int_rad = omega - w_ref;
       } else {
         torque_load = load_torque_base(t, omega) * ripple;
@@ -484,7 +484,7 @@ struct Plant::Impl {
         const double drive = torque_em + torque_cog - torque_load;
         ds.theta_m_rad = omega;
         ds.omega_m_rad_s = (drive - sgn * (coulomb_Nm + fe_coulomb_Nm) -
-                            (viscous_Nm_s + fe_viscous_Nm_s) * omega) / cfg.mechanics.J_kg_m2;
+                            (viscous_Nm_s + fe_viscous_Nm_s) * omega) / cfg.mechanics.inertia_kg_m2;
         pw.friction_J = sgn * coulomb_Nm * omega + viscous_Nm_s * omega * omega;
         pw.iron_J = sgn * fe_coulomb_Nm * omega + fe_viscous_Nm_s * omega * omega;
       }

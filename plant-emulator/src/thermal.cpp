@@ -8,10 +8,10 @@
 namespace pmsm::plant {
 
 ThermalNetwork::ThermalNetwork(const ThermalConfig& config, double step_s) : step_s_(step_s) {
-  const double g_wh = 1.0 / config.R_winding_housing_K_W;
-  const double g_ha = 1.0 / config.R_housing_ambient_K_W;
-  const double g_rh = 1.0 / config.R_rotor_housing_K_W;
-  const double g_ra = 1.0 / config.R_rotor_ambient_K_W;
+  const double g_wh = 1.0 / config.winding_to_housing_K_W;
+  const double g_ha = 1.0 / config.housing_to_ambient_K_W;
+  const double g_rh = 1.0 / config.rotor_to_housing_K_W;
+  const double g_ra = 1.0 / config.rotor_to_ambient_K_W;
 
   Eigen::Matrix3d g = Eigen::Matrix3d::Zero();
   g(kWinding, kWinding) = g_wh;
@@ -22,7 +22,7 @@ ThermalNetwork::ThermalNetwork(const ThermalConfig& config, double step_s) : ste
   g(kRotor, kHousing) = -g_rh;
   g(kRotor, kRotor) = g_rh + g_ra;
   const Eigen::Vector3d g_amb(0.0, g_ha, g_ra);
-  const Eigen::Vector3d c(config.C_winding_J_K, config.C_housing_J_K, config.C_rotor_J_K);
+  const Eigen::Vector3d c(config.winding_capacity_J_K, config.housing_capacity_J_K, config.rotor_capacity_J_K);
   const Eigen::Matrix3d c_inv = c.cwiseInverse().asDiagonal();
 
   // Augmented system [T; u]' = [A B; 0 0]·[T; u] with u = (P_w, P_h, P_r, T_amb) held

@@ -184,15 +184,130 @@ TEST(ControllerConfig, ErrorsNameFileLineAndKey) {
 
 TEST(ControllerConfig, CrossKeyRulesNameBothKeys) {
   EXPECT_EQ(error_of("[injection]\nrs_min_ohm = 0.3\nrs_max_ohm = 0.2\n"),
-            "drive.toml: injection.rs_min_ohm must be below injection.rs_max_ohm");
-  EXPECT_EQ(error_of("[derating]\nstart_C = 160\nlimit_C = 155\n"), "drive.toml: derating.start_C must be below derating.limit_C");
+            "drive.toml:2: injection.rs_min_ohm (0.3 ohm) must be below injection.rs_max_ohm (0.2 ohm, drive.toml:3)");
+  EXPECT_EQ(error_of("[derating]\nstart_C = 160\nlimit_C = 155\n"), "drive.toml:2: derating.start_C must be below derating.limit_C");
   EXPECT_EQ(error_of("[derating]\nmin_current_A = 90\n"),
-            "drive.toml: derating.min_current_A must not exceed derating.max_current_A");
-  EXPECT_EQ(error_of("[injection]\nF_A = 4\n"), "drive.toml: injection.F_min_A must not exceed injection.F_A times the smallest of injection.levels");
+            "drive.toml:2: derating.min_current_A must not exceed derating.max_current_A");
+  EXPECT_EQ(error_of("[injection]\nF_A = 4\n"),
+            "drive.toml:2: injection.F_min_A must not exceed injection.F_A times the smallest of injection.levels");
   EXPECT_EQ(error_of("[injection]\nsettle_s = 0.05\n"),
-            "drive.toml: injection.record_time_s must be longer than injection.settle_s");
+            "drive.toml:2: injection.record_time_s must be longer than injection.settle_s");
   // Equal ends are rejected too (the derating would divide by zero).
   EXPECT_NE(error_of("[derating]\nstart_C = 155\nlimit_C = 155\n"), "");
+}
+
+// motor.rs_ohm outside the resistance plausibility window: no estimate near the reference
+// temperature would ever be accepted (the Table I window on a 1.6 ohm servo).
+TEST(ControllerConfig, NameplateResistanceOutsideTheWindowIsAnError) {
+  EXPECT_EQ(error_of("[motor]\nrs_ohm = 1.6\n[injection]\nrs_max_ohm = 0.27\n"),
+            "drive.toml:4: motor.rs_ohm (1.6 ohm, drive.toml:2) lies above injection.rs_max_ohm (0.27 ohm): the plausibility "
+            "window would reject every resistance estimate near the reference temperature");
+  EXPECT_EQ(error_of("[injection]\nrs_min_ohm = 0.15\n"),
+            "drive.toml:2: motor.rs_ohm (0.133 ohm, its default) lies below injection.rs_min_ohm (0.15 ohm): the plausibility "
+            "window would reject every resistance estimate near the reference temperature");
+  // Inside the window it is fine, and a window relative to the motor always holds it.
+  EXPECT_EQ(error_of("[motor]\nrs_ohm = 0.2\n[injection]\nrs_max_ohm = 0.27\n"), "");
+  EXPECT_EQ(error_of("[motor]\nrs_ohm = 5.0\n"), "");
+}
+
+// A stored calibration's Rs0 outside the window contradicts it the same way.
+TEST(ControllerConfig, CalibrationResistanceOutsideTheWindowIsAnError) {
+  EXPECT_EQ(error_of("[calibration]\nrs0_ohm = 0.05\n"),
+            "drive.toml:2: calibration.rs0_ohm (0.05 ohm) lies below injection.rs_min_ohm (0.09 ohm, its default): the "
+            "plausibility window would reject every resistance estimate near the reference temperature");
+  EXPECT_EQ(error_of("[injection]\nrs_max_ohm = 0.2\n[calibration]\nrs0_ohm = 0.25\n"),
+            "drive.toml:2: calibration.rs0_ohm (0.25 ohm, drive.toml:4) lies above injection.rs_max_ohm (0.2 ohm): the "
+            "plausibility window would reject every resistance estimate near the reference temperature");
+}
+
+// A reluctance-torque budget the load-change guard always rejects: the speed loop answers
+// 5 Nm with 5 / 1.457 = 3.4 A of iq, more than the 1.5 A guard.
+TEST(ControllerConfig, TorqueBudgetBeyondTheLoadGuardIsAnError) {
+  const std::string e = error_of("[injection]\nmax_torque_disturbance_Nm = 5.0\n");
+  EXPECT_EQ(e.rfind("drive.toml:2: injection.max_torque_disturbance_Nm (5 Nm) lets the speed loop move iq by up to 3.43", 0), 0U)
+      << e;
+  EXPECT_NE(e.find("more than injection.max_load_change_A (1.5 A, its default): the load-change guard would reject"),
+            std::string::npos)
+      << e;
+  const std::string both = error_of("[injection]\nmax_load_change_A = 0.2\nmax_torque_disturbance_Nm = 0.5\n");
+  EXPECT_EQ(both.rfind("drive.toml:3: injection.max_torque_disturbance_Nm (0.5 Nm) lets", 0), 0U) << both;
+  EXPECT_NE(both.find("injection.max_load_change_A (0.2 A, drive.toml:2)"), std::string::npos) << both;
+  // The salient benchmark's 0.5 Nm with the default guard is consistent.
+  EXPECT_EQ(error_of("[injection]\nmax_torque_disturbance_Nm = 0.5\n"), "");
+}
+
+// The defaults that scale with the motor give exactly the Table I numbers at Table I.
+TEST(ControllerConfig, MotorRelativeDefaultsAreTableIAtTableI) {
+  const ControllerConfig c = default_controller_config();
+  const core::DriveConfig& d = c.drive;
+  EXPECT_EQ(d.injection.rs_min_ohm, 0.09);
+  EXPECT_EQ(d.injection.rs_max_ohm, 0.27);
+  EXPECT_EQ(d.injection.max_load_change_A, 1.5);
+  EXPECT_EQ(d.injection.f_A, 35.0);
+  EXPECT_EQ(d.injection.f_min_A, 5.0);
+  EXPECT_EQ(c.calibration_f_A, 50.0);
+  EXPECT_EQ(d.calibration_injection.f_A, 50.0);
+  // Given keys win over the rule.
+  const ControllerConfig g = parse("[injection]\nF_A = 20\nrs_max_ohm = 0.3\n[calibration]\nF_A = 30\n");
+  EXPECT_EQ(g.drive.injection.f_A, 20.0);
+  EXPECT_EQ(g.drive.injection.rs_max_ohm, 0.3);
+  EXPECT_EQ(g.calibration_f_A, 30.0);
+  EXPECT_EQ(g.drive.calibration_injection.f_A, 30.0);
+}
+
+// A small servo (1.6 ohm, 4 A RMS continuous) gets a window around its own resistance and
+// injection currents sized to its own rating, where the Table I numbers would never calibrate
+// and would inject nine times its rated current.
+TEST(ControllerConfig, ServoMotorGetsDefaultsOfItsOwn) {
+  const ControllerConfig c = parse(R"(
+[motor]
+rs_ohm = 1.6
+continuous_current_A_rms = 4.0
+ld_H = 12e-3
+lq_H = 12e-3
+ke_V_s_per_rad = 0.6
+pole_pairs = 4
+inertia_kg_m2 = 2e-4
+[derating]
+max_current_A = 15.0
+min_current_A = 2.0
+)");
+  const core::DriveConfig& d = c.drive;
+  const double rated_A = 4.0 * std::sqrt(2.0);  // 5.66 A peak
+  EXPECT_NEAR(d.injection.rs_min_ohm, 1.6 * 0.09 / 0.133, 1e-12);  // 1.08 ohm (about -57 C)
+  EXPECT_NEAR(d.injection.rs_max_ohm, 1.6 * 0.27 / 0.133, 1e-12);  // 3.25 ohm (about 287 C)
+  EXPECT_LT(d.injection.rs_min_ohm, 1.6);
+  EXPECT_GT(d.injection.rs_max_ohm, 1.6);
+  EXPECT_NEAR(d.injection.f_A, rated_A * 35.0 / (31.9 * std::sqrt(2.0)), 1e-12);   // 4.39 A
+  EXPECT_NEAR(d.injection.f_min_A, rated_A * 5.0 / (31.9 * std::sqrt(2.0)), 1e-12);  // 0.63 A
+  EXPECT_NEAR(d.injection.max_load_change_A, rated_A * 1.5 / (31.9 * std::sqrt(2.0)), 1e-12);  // 0.19 A
+  EXPECT_NEAR(c.calibration_f_A, rated_A * 50.0 / (31.9 * std::sqrt(2.0)), 1e-12);  // 6.27 A
+  EXPECT_LT(d.injection.f_A, rated_A);
+  EXPECT_LT(c.calibration_f_A, d.derating.max_current_A);
+  // Every component's copy of the motor model is the servo's.
+  EXPECT_EQ(d.current.rs_ohm, 1.6);
+  EXPECT_EQ(d.injection.rs_nominal_ohm, 1.6);
+  EXPECT_EQ(d.calibration_injection.rs_nominal_ohm, 1.6);
+  EXPECT_EQ(d.baseline.initial_rs_ohm, 1.6);
+  EXPECT_EQ(d.speed.inertia_kg_m2, 2e-4);
+  EXPECT_EQ(d.calibration.rs0_ohm, 1.6);
+}
+
+// The controller's components take the motor model from DriveConfig::motor whatever the
+// sub-configurations say: the copies cannot disagree.
+TEST(ControllerConfig, DriveControllerDerivesFromTheMotor) {
+  core::DriveConfig d = default_controller_config().drive;
+  d.motor.ld_H = 7e-3;
+  d.motor.rs_ohm = 0.2;
+  d.current.ld_H = 1.0;  // stale copies
+  d.injection.rs_nominal_ohm = 1.0;
+  const core::DriveController controller(d);
+  EXPECT_EQ(controller.config().current.ld_H, 7e-3);
+  EXPECT_EQ(controller.config().injection.ld_H, 7e-3);
+  EXPECT_EQ(controller.config().calibration_injection.ld_H, 7e-3);
+  EXPECT_EQ(controller.config().baseline.ld_H, 7e-3);
+  EXPECT_EQ(controller.config().injection.rs_nominal_ohm, 0.2);
+  EXPECT_EQ(controller.config().current.rs_ohm, 0.2);
 }
 
 TEST(ControllerConfig, PrefixedForScenarios) {

@@ -33,7 +33,7 @@ TEST(RegressionScenario, ProfileCsvIsRelativeToTheProfile) {
 // ISSUE scenario-plant-unknown-section: an unknown section among the plant overrides is
 // reported at a line of the re-serialised merged table ("inline.toml [plant]:N: motr: ...").
 TEST(RegressionScenario, UnknownPlantSectionInAnOverrideNamesTheScenarioLine) {
-  const std::string e = inline_error("[operation]\nspeed_rad_s = [[0, 1]]\n\n[plant.motr]\nRs_ohm = 0.2\n");
+  const std::string e = inline_error("[operation]\nspeed_rad_s = [[0, 1]]\n\n[plant.motr]\nrs_ohm = 0.2\n");
   EXPECT_EQ(e.rfind(path_of("inline.toml") + ":4: plant.motr:", 0), 0U) << e;
 }
 

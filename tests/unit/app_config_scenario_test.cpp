@@ -36,7 +36,7 @@ TEST(Scenario, MinimalScenarioTakesTheDefaults) {
   ASSERT_EQ(s.scenario.speed_rad_s.points.size(), 1U);
   EXPECT_EQ(s.scenario.speed_rad_s.at(3.0), 100.0);
   // The plant is the reference profile (PlantConfig defaults) at the scenario's ambient.
-  EXPECT_EQ(s.plant.motor.Rs_ohm, plant::PlantConfig{}.motor.Rs_ohm);
+  EXPECT_EQ(s.plant.motor.rs_ohm, plant::PlantConfig{}.motor.rs_ohm);
   EXPECT_EQ(s.plant.thermal.ambient_C, 25.0);
   // The controller is the default controller.
   EXPECT_EQ(controller_schema().markdown(s.controller), controller_schema().markdown(default_controller_config()));
@@ -55,9 +55,9 @@ TEST(Scenario, BaseInheritanceOverrideWinsAndBaseKeysStay) {
   EXPECT_EQ(s.controller.drive.injection.levels[1], 0.5);
   // Plant: the base's profile, the base's override and the child's override.
   EXPECT_EQ(s.plant.emf.shape, plant::EmfShape::sinusoidal);  // profile
-  EXPECT_EQ(s.plant.motor.Ld_H, 6.0e-3);                      // profile
+  EXPECT_EQ(s.plant.motor.ld_H, 6.0e-3);                      // profile
   EXPECT_EQ(s.plant.mechanics.viscous_Nm_s_rad, 1.0e-3);      // base override
-  EXPECT_EQ(s.plant.motor.Rs_ohm, 0.15);                      // child override beats the profile
+  EXPECT_EQ(s.plant.motor.rs_ohm, 0.15);                      // child override beats the profile
   EXPECT_EQ(s.plant.thermal.ambient_C, 30.0);                 // the scenario's ambient
 }
 
@@ -115,17 +115,17 @@ TEST(Scenario, ErrorInAnOverrideOfABaseNamesTheLine) {
 
 // So do plant overrides in a scenario that has a base.
 TEST(Scenario, PlantOverrideErrorInAChildNamesTheLine) {
-  EXPECT_EQ(inline_error("[scenario]\nbase = \"scenario_base.toml\"\n[plant.motor]\nLd_H = -1.0\n")
-                .rfind(path_of("inline.toml") + ":4: plant.motor.Ld_H: must be", 0),
+  EXPECT_EQ(inline_error("[scenario]\nbase = \"scenario_base.toml\"\n[plant.motor]\nld_H = -1.0\n")
+                .rfind(path_of("inline.toml") + ":4: plant.motor.ld_H: must be", 0),
             0U)
-      << inline_error("[scenario]\nbase = \"scenario_base.toml\"\n[plant.motor]\nLd_H = -1.0\n");
+      << inline_error("[scenario]\nbase = \"scenario_base.toml\"\n[plant.motor]\nld_H = -1.0\n");
 }
 
 // The base's plant.profile and operation.speed_csv are relative to the base.
 TEST(Scenario, BasePathsAreRelativeToTheBase) {
   const Scenario a = load_scenario(kDir / "sub/scenario_child_in_subdir.toml");
   EXPECT_EQ(a.scenario.name, "child in a subdirectory");
-  EXPECT_EQ(a.plant.motor.Ld_H, 6.0e-3);  // from the base's profile, next to the base
+  EXPECT_EQ(a.plant.motor.ld_H, 6.0e-3);  // from the base's profile, next to the base
   const Scenario b = load_scenario(kDir / "sub/scenario_child_of_csv_base.toml");
   EXPECT_EQ(b.scenario.speed_rad_s.at(2.0), 150.0);  // the base's CSV, next to the base
 }
@@ -136,12 +136,12 @@ speed_rad_s = [[0, 100]]
 [plant]
 profile = "plant_profile.toml"
 [plant.motor]
-Rs_ohm = 0.2
+rs_ohm = 0.2
 [plant.inverter]
 dead_time_s = 2e-6
 )");
-  EXPECT_EQ(s.plant.motor.Rs_ohm, 0.2);                        // override
-  EXPECT_EQ(s.plant.motor.Ld_H, 6.0e-3);                       // profile, same table as the override
+  EXPECT_EQ(s.plant.motor.rs_ohm, 0.2);                        // override
+  EXPECT_EQ(s.plant.motor.ld_H, 6.0e-3);                       // profile, same table as the override
   EXPECT_EQ(s.plant.emf.shape, plant::EmfShape::sinusoidal);   // profile
   EXPECT_EQ(s.plant.inverter.dead_time_s, 2e-6);               // override
   EXPECT_EQ(s.plant.inverter.dc_bus_V, plant::PlantConfig{}.inverter.dc_bus_V);  // default
@@ -153,21 +153,21 @@ speed_rad_s = [[0, 100]]
 [plant]
 profile = "plant_profile.toml"
 [plant.motor]
-Ld_H = -1.0
+ld_H = -1.0
 )";
   const std::string e = inline_error(text);
-  EXPECT_EQ(e.rfind(path_of("inline.toml") + ":6: plant.motor.Ld_H: must be", 0), 0U) << e;
+  EXPECT_EQ(e.rfind(path_of("inline.toml") + ":6: plant.motor.ld_H: must be", 0), 0U) << e;
   const std::string unknown = inline_error(R"([operation]
 speed_rad_s = [[0, 100]]
 [plant.motor]
-Rs_ohmm = 0.2
+rs_ohmm = 0.2
 )");
-  EXPECT_EQ(unknown, path_of("inline.toml") + ":4: plant.motor.Rs_ohmm: unknown key (did you mean motor.Rs_ohm?)");
+  EXPECT_EQ(unknown, path_of("inline.toml") + ":4: plant.motor.rs_ohmm: unknown key (did you mean motor.rs_ohm?)");
 }
 
 TEST(Scenario, ErrorInTheProfileNamesTheProfile) {
   const std::string e = inline_error("[operation]\nspeed_rad_s = [[0, 100]]\n[plant]\nprofile = \"bad_profile.toml\"\n");
-  EXPECT_EQ(e.rfind(path_of("bad_profile.toml") + ":4: motor.Ld_H: must be", 0), 0U) << e;
+  EXPECT_EQ(e.rfind(path_of("bad_profile.toml") + ":4: motor.ld_H: must be", 0), 0U) << e;
   EXPECT_EQ(inline_error("[operation]\nspeed_rad_s = [[0, 100]]\n[plant]\nprofile = 3\n"),
             path_of("inline.toml") + ": plant.profile: expected a path (string)");
 }
@@ -193,14 +193,14 @@ speed_rad_s = [[0, 100]]
 [plant.thermal]
 ambient_C = 20.0
 [controller.thermal]
-time_scale = 10.0
+acceleration = 10.0
 gate_sigma = 4.0
 )");
   EXPECT_EQ(t.plant.thermal.ambient_C, 20.0);
   EXPECT_EQ(t.plant.thermal.acceleration, 50.0);
   EXPECT_EQ(t.controller.drive.thermal.time_scale, 10.0);
   EXPECT_EQ(t.controller.drive.thermal.gate_sigma, 4.0);
-  // A controller.thermal table without time_scale keeps its keys and gets the acceleration.
+  // A controller.thermal table without acceleration keeps its keys and gets the acceleration.
   const Scenario u = parse(R"([scenario]
 thermal_acceleration = 50.0
 [operation]

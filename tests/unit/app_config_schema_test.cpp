@@ -1,7 +1,12 @@
-// ConfigSchema: every error class names the file, the line and the key; values land in the
-// struct; defaults stay where no key is given.
+// ConfigSchema (common/, the one engine of the drive, plant and scenario files): every error
+// class names the file, the line and the key; values land in the struct; defaults stay where
+// no key is given.
 #include <gtest/gtest.h>
 
+#include <array>
+#include <cstdint>
+#include <filesystem>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -9,7 +14,7 @@
 
 #include "config_schema.hpp"
 
-namespace pmsm::app {
+namespace pmsm::common {
 namespace {
 
 struct Demo {
@@ -183,6 +188,99 @@ TEST(ConfigSchema, MarkdownListsEveryKeyWithItsDefault) {
             (std::vector<std::string>{"motor.gain", "motor.count", "motor.on", "motor.name", "control.mode", "control.levels", "ratio"}));
 }
 
+// The kinds the plant's table needs: seeds, optional reals, per-phase triples, integer lists,
+// time tables and paths; and range checks on configurations built in code.
+struct Plantish {
+  std::uint64_t seed = 1;
+  std::optional<double> initial_C;
+  std::array<double, 3> offset_A{0.1, -0.1, 0.0};
+  std::vector<int> orders;
+  std::vector<TimePoint> steps;
+  std::filesystem::path csv;
+};
+
+const ConfigSchema<Plantish>& plantish_schema() {
+  static const ConfigSchema<Plantish> s = [] {
+    ConfigSchema<Plantish> d;
+    d.seed("sim.seed", [](Plantish& c) -> std::uint64_t& { return c.seed; }, "A seed.");
+    d.optional_real("thermal.initial_C", [](Plantish& c) -> std::optional<double>& { return c.initial_C; }, between(-50, 250),
+                    "C", "ambient", "Start.");
+    d.real3("adc.offset_A", [](Plantish& c) -> std::array<double, 3>& { return c.offset_A; }, between(-1, 1), "A", "Offsets.");
+    d.int_list("emf.orders", 3, between(5, 99), [](Plantish& c) -> std::vector<int>& { return c.orders; }, "Orders.");
+    d.points("load.steps", between(-10, 10), [](Plantish& c) -> std::vector<TimePoint>& { return c.steps; }, "Nm", "Steps.");
+    d.path("load.csv", [](Plantish& c) -> std::filesystem::path& { return c.csv; }, "A file.");
+    return d;
+  }();
+  return s;
+}
+
+std::string plantish_error(std::string_view text) {
+  try {
+    Plantish p;
+    plantish_schema().apply(toml::parse(text, std::string_view{"p.toml"}), p, "p.toml");
+  } catch (const ConfigError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+TEST(ConfigSchema, PlantKindsParse) {
+  Plantish p;
+  plantish_schema().apply(toml::parse(std::string_view{R"([sim]
+seed = 12345678901
+[thermal]
+initial_C = 40
+[adc]
+offset_A = [0.2, 0, -0.2]
+[emf]
+orders = [5, 7]
+[load]
+steps = [[0, 1.0], [0.5, -2], [0.5, 3]]
+csv = "cycle.csv"
+)"}, std::string_view{"p.toml"}),
+                          p, "p.toml");
+  EXPECT_EQ(p.seed, 12345678901U);
+  EXPECT_EQ(p.initial_C, 40.0);
+  EXPECT_EQ(p.offset_A[2], -0.2);
+  EXPECT_EQ(p.orders, (std::vector<int>{5, 7}));
+  ASSERT_EQ(p.steps.size(), 3U);
+  EXPECT_EQ(p.steps[1].value, -2.0);
+  EXPECT_EQ(p.csv, std::filesystem::path("cycle.csv"));
+}
+
+TEST(ConfigSchema, PlantKindErrorsNameFileLineAndKey) {
+  EXPECT_EQ(plantish_error("[sim]\nseed = -1\n"), "p.toml:2: sim.seed: must be >= 0, got -1");
+  EXPECT_EQ(plantish_error("[adc]\noffset_A = [0.1, 0.2]\n"),
+            "p.toml:2: adc.offset_A: expected an array of 3 numbers (phases a, b, c), got 2 elements");
+  EXPECT_EQ(plantish_error("[adc]\noffset_A = [0.1, 2, 0]\n"), "p.toml:2: adc.offset_A: every value must be in [-1, 1], got 2");
+  EXPECT_EQ(plantish_error("[emf]\norders = [5, 7, 11, 13]\n"), "p.toml:2: emf.orders: at most 3 values, got 4");
+  EXPECT_EQ(plantish_error("[load]\nsteps = [[1, 0], [0.5, 1]]\n"),
+            "p.toml:2: load.steps: element 1: times must be ascending, got 0.5 after 1");
+  EXPECT_EQ(plantish_error("[load]\nsteps = [[0, 20]]\n"), "p.toml:2: load.steps: element 0: value must be in [-10, 10], got 20");
+  EXPECT_EQ(plantish_error("[load]\nsteps = [[0]]\n"), "p.toml:2: load.steps: element 0: expected [time_s, value]");
+  EXPECT_EQ(plantish_error("[load]\ncsv = 3\n"), "p.toml:2: load.csv: expected a file path (string), got an integer");
+  EXPECT_EQ(plantish_error("[thermal]\ninitial_C = 300\n"), "p.toml:2: thermal.initial_C: must be in [-50, 250], got 300");
+}
+
+TEST(ConfigSchema, ValidateChecksConfigsBuiltInCode) {
+  Plantish p;
+  EXPECT_NO_THROW(plantish_schema().validate(p, "code"));
+  p.offset_A[1] = 5.0;
+  try {
+    plantish_schema().validate(p, "code");
+    FAIL() << "no error";
+  } catch (const ConfigError& e) {
+    EXPECT_EQ(std::string(e.what()), "code: adc.offset_A: must be in [-1, 1], got 5");
+  }
+}
+
+TEST(ConfigSchema, MarkdownOfThePlantKinds) {
+  const std::string md = plantish_schema().markdown(Plantish{});
+  EXPECT_NE(md.find("| `thermal.initial_C` | ambient | in [-50, 250] | Start. |"), std::string::npos) << md;
+  EXPECT_NE(md.find("| `adc.offset_A` | [0.1, -0.1, 0] A |"), std::string::npos) << md;
+  EXPECT_NE(md.find("| `sim.seed` | 1 |"), std::string::npos) << md;
+}
+
 TEST(ValueRange, Describe) {
   EXPECT_EQ(positive().describe(), "> 0");
   EXPECT_EQ(at_least(2.0).describe(), ">= 2");
@@ -194,4 +292,4 @@ TEST(ValueRange, Describe) {
 }
 
 }  // namespace
-}  // namespace pmsm::app
+}  // namespace pmsm::common

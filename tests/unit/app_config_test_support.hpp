@@ -12,14 +12,12 @@ namespace pmsm::app::test {
 
 inline const std::filesystem::path kConfigDir = std::filesystem::path(PMSM_SOURCE_DIR) / "tests/unit/data/config";
 
-// Message of the error (ConfigError or plant::ConfigError) that f throws; "" if none.
+// Message of the ConfigError (plant, controller or scenario) that f throws; "" if none.
 template <typename F>
 std::string error_of(F f) {
   try {
     f();
   } catch (const ConfigError& e) {
-    return e.what();
-  } catch (const plant::ConfigError& e) {
     return e.what();
   }
   return "";

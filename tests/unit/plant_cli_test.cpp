@@ -47,10 +47,10 @@ TEST(plant_cli, CheckAcceptsEveryProfile) {
 }
 
 TEST(plant_cli, CheckRejectsABadValueNamingFileLineAndKey) {
-  const TempToml bad("[motor]\nLd_H = -1\n");
+  const TempToml bad("[motor]\nld_H = -1\n");
   const ProcessResult r = run_process(kPlant + " --check --config " + bad.path());
   EXPECT_EQ(r.exit_code, 2);
-  EXPECT_TRUE(contains(r.err, bad.path() + ":2: motor.Ld_H")) << r.err;
+  EXPECT_TRUE(contains(r.err, bad.path() + ":2: motor.ld_H")) << r.err;
 }
 
 TEST(plant_cli, CheckRejectsAnUnknownKey) {

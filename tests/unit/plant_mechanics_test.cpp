@@ -88,7 +88,7 @@ TEST(plant_mechanics, CoastDownStopsOnCoulombFrictionAndStays) {
 
 TEST(plant_mechanics, TorqueSteps) {
   PlantConfig c = shaft_config();
-  c.mechanics.J_kg_m2 = 100.0;  // the shaft hardly moves; we read the load torque
+  c.mechanics.inertia_kg_m2 = 100.0;  // the shaft hardly moves; we read the load torque
   c.load.profile = LoadProfile::torque_steps;
   c.load.torque_Nm = 1.0;
   c.load.points = {{0.01, 5.0}, {0.02, -3.0}};
@@ -118,7 +118,7 @@ TEST(plant_mechanics, FanLoadFollowsSpeedSquared) {
 
 TEST(plant_mechanics, TorqueCycleInterpolates) {
   PlantConfig c = shaft_config();
-  c.mechanics.J_kg_m2 = 100.0;
+  c.mechanics.inertia_kg_m2 = 100.0;
   c.load.profile = LoadProfile::torque_cycle;
   c.load.points = {{0.0, 0.0}, {0.02, 10.0}, {0.03, 10.0}};
   Plant plant(c);
@@ -168,7 +168,7 @@ TEST(plant_mechanics, PiDynamometerTracksSpeed) {
 
 TEST(plant_mechanics, LoadRippleAtMechanicalOrder) {
   PlantConfig c = shaft_config();
-  c.mechanics.J_kg_m2 = 1.0;
+  c.mechanics.inertia_kg_m2 = 1.0;
   c.mechanics.initial_speed_rad_s = 100.0;
   c.mechanics.coulomb_Nm = 0.0;
   c.mechanics.breakaway_Nm = 0.0;

@@ -17,8 +17,8 @@ namespace {
 constexpr double kPi = std::numbers::pi;
 
 // Flux linkage from Table I's Ke, written out here rather than taken from the library.
-double psi_m_Wb(double Ke_V_s_rad, int p) {
-  return Ke_V_s_rad * std::sqrt(2.0) / std::sqrt(3.0) / static_cast<double>(p);
+double psi_m_Wb(double ke_V_s_per_rad, int p) {
+  return ke_V_s_per_rad * std::sqrt(2.0) / std::sqrt(3.0) / static_cast<double>(p);
 }
 
 // A plant with no sensor or inverter imperfections, a frozen temperature and a sinusoidal
@@ -62,8 +62,8 @@ void eq3_steady_state(double R, double Ld, double Lq, double psi, double we, dou
 
 TEST(plant_physics, SteadyStateMatchesEq3WithSaliency) {
   PlantConfig c = quiet_config();
-  c.motor.Ld_H = 5.5e-3;
-  c.motor.Lq_H = 8.0e-3;
+  c.motor.ld_H = 5.5e-3;
+  c.motor.lq_H = 8.0e-3;
   impose_speed(c, 200.0);
   Plant plant(c);
   const double vd = -60.0;
@@ -116,8 +116,8 @@ TEST(plant_physics, SteadyStateThroughIdealInverter) {
 
 TEST(plant_physics, SaliencyMakesReluctanceTorque) {
   PlantConfig c = quiet_config();
-  c.motor.Ld_H = 4.0e-3;
-  c.motor.Lq_H = 7.0e-3;
+  c.motor.ld_H = 4.0e-3;
+  c.motor.lq_H = 7.0e-3;
   c.mechanics.coulomb_Nm = 0.0;
   c.mechanics.breakaway_Nm = 0.0;
   c.mechanics.viscous_Nm_s_rad = 0.0;
@@ -152,7 +152,7 @@ TEST(plant_physics, SaliencyMakesReluctanceTorque) {
     plant.step_with_dq_voltage(vd, vq);
     const PlantState s = plant.state();
     const double torque = expected_torque(s);
-    omega_expected += 0.5 * (torque_prev + torque) * plant.period_s() / c.mechanics.J_kg_m2;
+    omega_expected += 0.5 * (torque_prev + torque) * plant.period_s() / c.mechanics.inertia_kg_m2;
     torque_prev = torque;
   }
   EXPECT_NEAR(plant.state().omega_m_rad_s, omega_expected, 0.005 * omega_expected);
@@ -244,13 +244,13 @@ TEST(plant_physics, EnergyBalanceWithVaryingLoad) {
   // Everything on: saturation, saliency, trapezoidal EMF, cogging, iron loss, dead time,
   // device drop, DC ripple, load steps with ripple, thermal coupling.
   PlantConfig c;
-  c.motor.Lq_H = 7.5e-3;
+  c.motor.lq_H = 7.5e-3;
   c.saturation.enabled = true;
   c.saturation.id_knee_A = 30.0;
   c.saturation.iq_knee_A = 20.0;
   c.cogging.enabled = true;
   c.cogging.amplitude_Nm = 0.3;
-  c.mechanics.J_kg_m2 = 0.05;
+  c.mechanics.inertia_kg_m2 = 0.05;
   c.load.profile = LoadProfile::torque_steps;
   c.load.torque_Nm = 2.0;
   c.load.points = {{0.1, 8.0}, {0.2, 4.0}};
@@ -289,9 +289,9 @@ TEST(plant_physics, EnergyBalanceWithVaryingLoad) {
 
   auto stored_J = [&](const PlantState& s) {
     const double magnetic =
-        1.5 * (axis_energy_J(s.id_A, c.motor.Ld_H, c.saturation.Ld_sat_H, c.saturation.id_knee_A, true) +
-               axis_energy_J(s.iq_A, c.motor.Lq_H, c.saturation.Lq_sat_H, c.saturation.iq_knee_A, true));
-    const double kinetic = 0.5 * c.mechanics.J_kg_m2 * s.omega_m_rad_s * s.omega_m_rad_s;
+        1.5 * (axis_energy_J(s.id_A, c.motor.ld_H, c.saturation.ld_sat_H, c.saturation.id_knee_A, true) +
+               axis_energy_J(s.iq_A, c.motor.lq_H, c.saturation.lq_sat_H, c.saturation.iq_knee_A, true));
+    const double kinetic = 0.5 * c.mechanics.inertia_kg_m2 * s.omega_m_rad_s * s.omega_m_rad_s;
     // Cogging torque A·sin(N·θ + φ) derives from the potential (A/N)·cos(N·θ + φ).
     const double cogging = c.cogging.amplitude_Nm / c.cogging.order *
                            std::cos(c.cogging.order * s.theta_m_rad + c.cogging.phase_rad);
@@ -324,8 +324,8 @@ TEST(plant_physics, EnergyBalanceWhileRectifying) {
   }
   const PlantState last = plant.state();
   auto stored_J = [&](const PlantState& s) {
-    return 1.5 * 0.5 * c.motor.Ld_H * (s.id_A * s.id_A + s.iq_A * s.iq_A) +
-           0.5 * c.mechanics.J_kg_m2 * s.omega_m_rad_s * s.omega_m_rad_s;
+    return 1.5 * 0.5 * c.motor.ld_H * (s.id_A * s.id_A + s.iq_A * s.iq_A) +
+           0.5 * c.mechanics.inertia_kg_m2 * s.omega_m_rad_s * s.omega_m_rad_s;
   };
   const EnergyMeters& e = last.energy;
   EXPECT_LT(e.input_J, -1.0);   // generating into the DC bus

@@ -19,11 +19,11 @@ struct Network {
   Eigen::Vector3d g_amb;
 
   explicit Network(const ThermalConfig& t) {
-    c << t.C_winding_J_K, t.C_housing_J_K, t.C_rotor_J_K;
-    const double wh = 1.0 / t.R_winding_housing_K_W;
-    const double ha = 1.0 / t.R_housing_ambient_K_W;
-    const double rh = 1.0 / t.R_rotor_housing_K_W;
-    const double ra = 1.0 / t.R_rotor_ambient_K_W;
+    c << t.winding_capacity_J_K, t.housing_capacity_J_K, t.rotor_capacity_J_K;
+    const double wh = 1.0 / t.winding_to_housing_K_W;
+    const double ha = 1.0 / t.housing_to_ambient_K_W;
+    const double rh = 1.0 / t.rotor_to_housing_K_W;
+    const double ra = 1.0 / t.rotor_to_ambient_K_W;
     g << wh, -wh, 0.0,  //
         -wh, wh + ha + rh, -rh,  //
         0.0, -rh, rh + ra;

@@ -64,8 +64,8 @@ int run_budget(const BudgetOptions& o, const CLI::App& cmd) {
   json.begin_object()
       .field("window", core::to_string(o.window))
       .field("Tw_s", o.tw_s)
-      .field("Ld_H", o.ld_H)
-      .field("Rs_ohm", o.rs_ohm)
+      .field("ld_H", o.ld_H)
+      .field("rs_ohm", o.rs_ohm)
       .field("max_slope_per_Tw", constants.max_slope_times_tw)
       .field("window_integral_per_Tw", constants.integral_per_tw);
 
@@ -158,7 +158,7 @@ int run_losses(const LossOptions& o) {
     json.begin_object()
         .field("method", o.method)
         .field("equation", fixed_angle ? "Eq. 31" : "Eq. 32")
-        .field("F_A", s.f_A).field("Rs_ohm", s.rs_ohm).field("pulses", s.pulses)
+        .field("F_A", s.f_A).field("rs_ohm", s.rs_ohm).field("pulses", s.pulses)
         .field("elapsed_s", s.elapsed_s).field("Ti_s", s.ti_s).field("Tw_s", s.tw_s)
         .field("window", core::to_string(s.window));
     if (fixed_angle) {

@@ -1,11 +1,12 @@
 // `pmsm-thermal config-keys`: the reference tables of every configuration key, generated from
-// the same schema that parses the files (docs/configuration.md and docs/scenarios.md embed
-// them; a test keeps those files current).
+// the same schema that parses the files (docs/configuration.md, docs/scenarios.md and
+// docs/plant.md embed them; a test keeps those files current).
 #include <cstdio>
 #include <memory>
 #include <string>
 
 #include "controller_config.hpp"
+#include "pmsm/plant/config.hpp"
 #include "scenario.hpp"
 #include "commands.hpp"
 
@@ -14,12 +15,14 @@ namespace pmsm::app {
 void register_config_keys_command(CLI::App& app, int& exit_code) {
   auto which = std::make_shared<std::string>("controller");
   CLI::App* cmd = app.add_subcommand("config-keys", "Print the reference table of configuration keys (Markdown)");
-  cmd->add_option("which", *which, "controller (pmsm-thermald and [controller] of scenarios) or scenario")
-      ->check(CLI::IsMember({"controller", "scenario"}))
+  cmd->add_option("which", *which, "controller (pmsm-thermald and [controller] of scenarios), scenario or plant")
+      ->check(CLI::IsMember({"controller", "scenario", "plant"}))
       ->capture_default_str();
   cmd->callback([which, &exit_code] {
     if (*which == "scenario") {
       std::printf("%s", scenario_keys_markdown().c_str());
+    } else if (*which == "plant") {
+      std::printf("%s", plant::plant_config_reference_markdown().c_str());
     } else {
       std::printf("%s", controller_schema().markdown(default_controller_config()).c_str());
     }

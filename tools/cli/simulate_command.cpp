@@ -57,10 +57,7 @@ int run_one(const std::string& path, const SimulateOptions& o, std::string& tabl
   Scenario scenario;
   try {
     scenario = load_scenario(path);
-  } catch (const ConfigError& e) {
-    std::fprintf(stderr, "simulate: %s\n", e.what());
-    return 2;
-  } catch (const plant::ConfigError& e) {
+  } catch (const ConfigError& e) {  // the plant's, the controller's and the scenario's alike
     std::fprintf(stderr, "simulate: %s\n", e.what());
     return 2;
   }

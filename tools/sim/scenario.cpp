@@ -349,7 +349,7 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
                                            "controller.");
   // The scenario's acceleration applies to the controller's thermal model too, unless the
   // controller section sets its own.
-  if (root.at_path("scenario.thermal_acceleration") && !root.at_path("controller.thermal.time_scale")) {
+  if (root.at_path("scenario.thermal_acceleration") && !root.at_path("controller.thermal.acceleration")) {
     out.controller.drive.thermal.time_scale = out.scenario.thermal_acceleration;
   }
   return out;

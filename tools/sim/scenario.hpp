@@ -57,7 +57,7 @@ struct Scenario {
 };
 
 // Loads a scenario file. Paths inside it (plant profile, CSV files) are relative to the
-// file. Throws ConfigError (or plant::ConfigError) naming the file, line and key.
+// file. Throws ConfigError naming the file, line and key.
 [[nodiscard]] Scenario load_scenario(const std::filesystem::path& path);
 [[nodiscard]] Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path& source);
 

@@ -59,7 +59,17 @@ struct DriveConfig {
   int calibration_events = 6;        // events averaged into Rs0 / Ke0 (about 2.5 s at no load)
   double calibration_timeout_s = 20.0;  // give up (keep the stored calibration) after this
   std::size_t recording_capacity = 8192;      // periods per recording (preallocated)
+
+  // Fills every sub-configuration's copy of the motor model and of the period from `motor`
+  // and `period_s`: the current controller's Rs, Ld, Lq and flux linkage, the speed loop's
+  // inertia and period, the angle tracker's pole pairs, the injection's and the calibration
+  // injection's motor model, the baseline's. DriveController applies it to its own copy, so
+  // no sub-configuration can disagree with `motor`. Allocation-free.
+  void derive_from_motor();
 };
+
+// A copy of `config` with derive_from_motor() applied.
+[[nodiscard]] DriveConfig with_motor_derived(DriveConfig config);
 
 enum class DriveMode : std::uint8_t { kDisabled, kTorque, kSpeed };
 

@@ -108,7 +108,10 @@ struct InjectionConfig {
   double max_load_change_A = 1.5;
   double max_residual_V = 3.0;
   double min_condition = 1e-4;
-  double rs_min_ohm = 0.09;       // plausibility window (about -60 C to 270 C for 0.133 ohm at 25 C)
+  // Plausibility window (about -57 C to 287 C for 0.133 ohm at 25 C). These and the current
+  // defaults above are Table I's; the loader scales them to the configured motor
+  // (motor_relative_defaults() in motor_params.hpp).
+  double rs_min_ohm = 0.09;
   double rs_max_ohm = 0.27;
   // Fit.
   bool fit_dead_time = true;      // model the inverter's uncompensated voltage Vx

@@ -60,4 +60,35 @@ inline constexpr double kSqrt2 = 1.41421356237309505;
   return rms_to_peak(m.stall_current_A_rms);
 }
 
+// Defaults that scale with the configured motor: Table I's absolute numbers written as
+// fractions of its resistance and of its rated current (the continuous current, peak), so
+// that another motor gets sensible values (the Table I window 0.09-0.27 ohm never lets a
+// 1.6 ohm servo calibrate). Each fraction is the Table I number over the Table I quantity,
+// so the Table I motor gets exactly the old numbers ((a / b) * b == a for these operands in
+// IEEE double; a unit test checks it).
+struct MotorRelativeDefaults {
+  double rs_min_ohm;         // resistance plausibility window: 0.09 / 0.133 = 0.677 Rs (about -57 C)
+  double rs_max_ohm;         // 0.27 / 0.133 = 2.03 Rs (about 287 C)
+  double max_load_change_A;  // load-change guard: 1.5 A / 45.1 A = 0.0332 I_rated
+  double injection_f_A;      // injection magnitude F: 35 A / 45.1 A = 0.776 I_rated
+  double injection_f_min_A;  // smallest F worth a pair: 5 A / 45.1 A = 0.111 I_rated
+  double calibration_f_A;    // calibration magnitude at no load: 50 A / 45.1 A = 1.11 I_rated
+};
+
+inline constexpr double kTableIRs_ohm = 0.133;
+inline constexpr double kTableIRatedCurrent_A = 31.9 * kSqrt2;  // Icont, peak
+
+[[nodiscard]] constexpr MotorRelativeDefaults motor_relative_defaults(const MotorParams& m) {
+  const double rs = m.rs_ohm;
+  const double rated_A = m.continuous_current_A_rms * kSqrt2;
+  return {
+      .rs_min_ohm = 0.09 / kTableIRs_ohm * rs,
+      .rs_max_ohm = 0.27 / kTableIRs_ohm * rs,
+      .max_load_change_A = 1.5 / kTableIRatedCurrent_A * rated_A,
+      .injection_f_A = 35.0 / kTableIRatedCurrent_A * rated_A,
+      .injection_f_min_A = 5.0 / kTableIRatedCurrent_A * rated_A,
+      .calibration_f_A = 50.0 / kTableIRatedCurrent_A * rated_A,
+  };
+}
+
 }  // namespace pmsm::core

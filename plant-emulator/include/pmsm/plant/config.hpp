@@ -2,8 +2,9 @@
 // Wilson, Stewart & Taylor (2010) under the reference realism profile of DESIGN §5.
 //
 // A default-constructed PlantConfig equals plant-emulator/profiles/reference.toml. Each
-// field is described once, in the key table of config.cpp, which drives parsing, range
-// checks and the reference documentation (plant_config_reference_markdown()).
+// field is described once, in the key table of config.cpp (plant_schema(), on the common
+// schema engine the drive and the scenarios use too), which drives parsing, range checks and
+// the reference documentation (plant_config_reference_markdown()).
 #pragma once
 
 #include <array>
@@ -15,20 +16,17 @@
 #include <string_view>
 #include <vector>
 
+#include "config_schema.hpp"
+
 namespace pmsm::plant {
 
-// Thrown for every configuration problem; what() names the offending key, e.g.
-// "bad.toml:3: motor.Ld_H: must be > 0, got -1".
-class ConfigError : public std::runtime_error {
- public:
-  using std::runtime_error::runtime_error;
-};
+// Thrown for every configuration problem (the one ConfigError of every configuration file);
+// what() names the file, line and key, e.g. "bad.toml:3: motor.ld_H: must be > 0, got -1".
+using ConfigError = common::ConfigError;
 
-// One point of a time table (load steps, drive cycles, speed profiles).
-struct TimePoint {
-  double time_s = 0.0;
-  double value = 0.0;  // N·m or rad/s, depending on the profile
-};
+// One point of a time table (load steps, drive cycles, speed profiles); value in N·m or
+// rad/s, depending on the profile.
+using TimePoint = common::TimePoint;
 
 struct SimulationConfig {
   std::uint64_t seed = 1;  // seeds the sensor noise (std::mt19937_64)
@@ -39,13 +37,13 @@ struct SimulationConfig {
 // the interpretation of each Table I entry.
 struct MotorConfig {
   int pole_pairs = 3;
-  double Rs_ohm = 0.133;          // phase-to-neutral stator resistance at Rs_ref_temp_C
-  double Rs_ref_temp_C = 25.0;    // T0 of Eq. 1
+  double rs_ohm = 0.133;          // phase-to-neutral stator resistance at rs_reference_temp_C
+  double rs_reference_temp_C = 25.0;    // T0 of Eq. 1
   double alpha_per_C = 3.93e-3;   // temperature coefficient of copper, Eq. 1
-  double Ke_V_s_rad = 1.19;       // line-to-line RMS volts per mechanical rad/s (Table I)
-  double Ld_H = 5.5e-3;           // half the line-to-line inductance of Table I
-  double Lq_H = 5.5e-3;
-  double magnet_temp_coeff_per_K = -0.0012;  // NdFeB remanence coefficient
+  double ke_V_s_per_rad = 1.19;       // line-to-line RMS volts per mechanical rad/s (Table I)
+  double ld_H = 5.5e-3;           // half the line-to-line inductance of Table I
+  double lq_H = 5.5e-3;
+  double magnet_temp_coefficient_per_C = -0.0012;  // NdFeB remanence coefficient
   double magnet_ref_temp_C = 25.0;           // magnet temperature at which Ke holds
 };
 
@@ -53,8 +51,8 @@ struct MotorConfig {
 // psi(i) = L_sat·i + (L - L_sat)·i_knee·x/sqrt(1 + x²), x = i/i_knee (no cross-saturation).
 struct SaturationConfig {
   bool enabled = false;
-  double Ld_sat_H = 4.5e-3;  // incremental d inductance far beyond the knee
-  double Lq_sat_H = 3.0e-3;
+  double ld_sat_H = 4.5e-3;  // incremental d inductance far beyond the knee
+  double lq_sat_H = 3.0e-3;
   double id_knee_A = 150.0;
   double iq_knee_A = 80.0;
 };
@@ -77,7 +75,7 @@ struct CoggingConfig {
 };
 
 struct MechanicsConfig {
-  double J_kg_m2 = 0.00841;         // total inertia on the shaft
+  double inertia_kg_m2 = 0.00841;         // total inertia on the shaft
   double coulomb_Nm = 0.908;        // kinetic Coulomb friction (Table I)
   double breakaway_Nm = 0.908;      // static friction; the shaft stays stuck below it
   double viscous_Nm_s_rad = 5.0e-4;
@@ -167,13 +165,13 @@ struct ThermalConfig {
   double ambient_C = 25.0;
   std::optional<double> initial_C;  // all nodes; ambient when absent
   double acceleration = 1.0;        // thermal time runs this many times faster
-  double C_winding_J_K = 3000.0;
-  double C_housing_J_K = 16000.0;
-  double C_rotor_J_K = 4000.0;
-  double R_winding_housing_K_W = 0.05;
-  double R_housing_ambient_K_W = 0.1311;  // puts the dominant time constant at 2880 s
-  double R_rotor_housing_K_W = 0.1;
-  double R_rotor_ambient_K_W = 2.0;
+  double winding_capacity_J_K = 3000.0;
+  double housing_capacity_J_K = 16000.0;
+  double rotor_capacity_J_K = 4000.0;
+  double winding_to_housing_K_W = 0.05;
+  double housing_to_ambient_K_W = 0.1311;  // puts the dominant time constant at 2880 s
+  double rotor_to_housing_K_W = 0.1;
+  double rotor_to_ambient_K_W = 2.0;
   double friction_heat_fraction = 0.5;  // share of the friction loss heating the housing
 };
 
@@ -196,7 +194,7 @@ struct PlantConfig {
 
 // Permanent-magnet flux linkage (phase peak V per electrical rad/s) from Table I's Ke
 // (line-to-line RMS V per mechanical rad/s): psi_m = Ke·sqrt(2/3)/p.
-double psi_m_from_Ke(double Ke_V_s_rad, int pole_pairs);
+double psi_m_from_Ke(double ke_V_s_per_rad, int pole_pairs);
 
 // Parses a TOML file; relative CSV paths are taken relative to the file's directory.
 PlantConfig load_plant_config(const std::filesystem::path& path);
@@ -213,6 +211,9 @@ void validate_plant_config(const PlantConfig& config);
 // Sets load.profile, load.points and load.csv_path. Errors name `key`.
 void load_drive_cycle_csv(const std::filesystem::path& path, LoadConfig& load,
                           std::string_view key = "load.csv_path");
+
+// The key table (common schema engine) of every plant parameter.
+const common::ConfigSchema<PlantConfig>& plant_schema();
 
 // Every TOML key as "section.key", in table order.
 std::vector<std::string> plant_config_keys();
