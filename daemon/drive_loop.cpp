@@ -1,5 +1,6 @@
 #include "drive_loop.hpp"
 
+#include <algorithm>
 #include <bit>
 #include <cmath>
 #include <thread>
@@ -42,6 +43,7 @@ DriveLoop::DriveLoop(const DaemonConfig& config, hal::CanBus& bus, PublicationRi
       sample_timeout_ns_(static_cast<std::int64_t>(config.can.sample_timeout_ms * 1e6)),
       reopen_interval_ns_(static_cast<std::int64_t>(config.can.reopen_interval_ms * 1e6)),
       period_ns_(static_cast<std::int64_t>(config.controller.drive.period_s * 1e9)),
+      missing_periods_(static_cast<std::uint32_t>(std::max(1.0, std::round(config.can.sample_timeout_ms * 1e-3 / config.controller.drive.period_s)))),
       calibrate_at_first_run_(config.startup.calibrate_if_missing && !config.controller.calibration_file.empty() &&
                               !config.controller.drive.calibration.calibrated) {}
 
@@ -67,6 +69,7 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns) 
   inputs_.command_age_s = last_drive_command_ns_ ? static_cast<double>(received_ns - *last_drive_command_ns_) * 1e-9
                                                  : std::numeric_limits<double>::infinity();
   inputs_.deadline_misses = static_cast<std::uint32_t>(counters_.deadline_misses.get());
+  inputs_.missing_periods = missing_periods_;
   node_.report(core::FaultCode::kGpioFault, gpio_fault_.load(std::memory_order_relaxed));
   node_.report(core::FaultCode::kInterfaceDown, counters_.interface_down.load(std::memory_order_relaxed));
   if (calibrate_at_first_run_ && node_.supervisor().status().state == core::DriveState::kRunning) {

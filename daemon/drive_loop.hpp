@@ -100,6 +100,7 @@ class DriveLoop {
   std::int64_t sample_timeout_ns_;
   std::int64_t reopen_interval_ns_;
   std::int64_t period_ns_;
+  std::uint32_t missing_periods_;  // control periods in one sample timeout
   bool calibrate_at_first_run_;
   app::NodeInputs inputs_{};
   std::optional<std::int64_t> last_drive_command_ns_;

@@ -74,6 +74,7 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
   out_.publications = {};
   out_.calibration_to_store.reset();
   out_.calibration_failed = false;
+  advance_ = sample != nullptr ? 1U : std::max<std::uint64_t>(1U, in.missing_periods);
 
   // Front end first: codes to amperes and volts, with the power-up offset calibration.
   core::DriveInput drive_in;
@@ -130,7 +131,7 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
   out_.calibration_failed = controller_.calibration_just_failed();
 
   publish(in);
-  ++period_;
+  period_ += advance_;
   return out_;
 }
 

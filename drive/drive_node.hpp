@@ -54,6 +54,10 @@ struct NodeInputs {
   bool abort_calibration = false;
   bool clear_faults = false;
   std::uint32_t deadline_misses = 0; // the caller's count, for HEARTBEAT
+  // Without a sample: how many control periods this step stands for (a daemon waits longer
+  // than one period before it calls a sample missing), so that the drive's time and the
+  // publication rates stay right through an outage.
+  std::uint32_t missing_periods = 1;
 };
 
 // The frames due this period. A fixed-size record: it goes through the SPSC ring as is.
@@ -106,7 +110,10 @@ class DriveNode {
  private:
   void publish(const NodeInputs& in) noexcept;
   void publish_fault_changes(bool repeat_due) noexcept;
-  [[nodiscard]] bool due(std::uint64_t every) const noexcept { return every != 0U && period_ % every == 0U; }
+  // Whether a multiple of `every` periods falls in [period_, period_ + advance_).
+  [[nodiscard]] bool due(std::uint64_t every) const noexcept {
+    return every != 0U && (period_ == 0U || (period_ - 1U) / every != (period_ + advance_ - 1U) / every);
+  }
   [[nodiscard]] std::uint64_t every(double seconds) const noexcept;
 
   core::DriveController controller_;
@@ -121,6 +128,7 @@ class DriveNode {
   std::uint64_t heartbeat_every_;
   std::uint64_t fault_every_;
   std::uint64_t period_ = 0;
+  std::uint64_t advance_ = 1;  // periods this step stands for
   NodeStep out_{};
   std::uint32_t published_latched_ = 0;   // the latched mask as last published
   std::array<double, core::kFaultCodeCount> fault_changed_s_{};

@@ -123,6 +123,11 @@ const SupervisorStatus& Supervisor::step(const SupervisorInput& in) noexcept {
   cause_mask_ = external_mask_;
 
   if (in.sample) {
+    if (status_.missing_samples >= static_cast<std::uint32_t>(config_.sensor_timeout_periods)) {
+      // After a sensor loss nobody knows how far the shaft turned (a missing period may be a
+      // long wait): the angle is taken afresh, not judged against the one before the loss.
+      have_encoder_ = false;
+    }
     check_sample(*in.sample);
     ++present_samples_;
     if (present_samples_ >= static_cast<std::uint32_t>(config_.sensor_recovery_periods) &&

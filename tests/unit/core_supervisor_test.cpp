@@ -211,6 +211,21 @@ TEST(Supervisor, SensorTimeoutAfterNPeriodsAndRecoversByItself) {
   EXPECT_FALSE(sup.latched(FaultCode::kSensorTimeout));
 }
 
+TEST(Supervisor, TheAngleIsTakenAfreshAfterASensorLoss) {
+  Supervisor sup(config(), kPeriod);
+  sup.step(running(with_encoder(1000)));
+  SupervisorInput none = running();
+  none.sample.reset();
+  for (int k = 0; k < 5; ++k) {
+    sup.step(none);
+  }
+  ASSERT_TRUE(sup.latched(FaultCode::kSensorTimeout));
+  sup.step(running(with_encoder(9000)));  // a quarter turn and more: unknown time has passed
+  EXPECT_FALSE(sup.latched(FaultCode::kEncoderJump));
+  sup.step(running(with_encoder(9000 + 5000)));  // but the next step is judged again
+  EXPECT_TRUE(sup.latched(FaultCode::kEncoderJump));
+}
+
 TEST(Supervisor, CommandTimeoutOnlyWhileEnabledAndClearedByAFreshCommandAndARequest) {
   Supervisor sup(config(), kPeriod);
   SupervisorInput in = running();

@@ -1,0 +1,414 @@
+// pmsm-thermald's own loop and publisher (not a copy) against the plant node, on the
+// in-process bus: each on its own thread, as in the two processes, with a supervisor sending
+// E2E-protected commands and a monitor capturing every frame as candump would.
+//   - the heat-up: THERMAL_ESTIMATE frames decoded from the bus track the plant's
+//     TRUTH_THERMAL frames within the estimation tests' bounds;
+//   - plant outage -> sensor-timeout fault and gates off, recovery when a plant returns;
+//   - command timeout -> the safe state; a stop command clears it;
+//   - corrupt, repeated and malformed commands rejected and counted by reason, valid ones
+//     acted on;
+//   - two axes on one bus, each tracking its own plant.
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <memory>
+#include <optional>
+#include <thread>
+#include <vector>
+
+#include "daemon_config.hpp"
+#include "drive_loop.hpp"
+#include "pmsm/hal/codec.hpp"
+#include "pmsm/hal/protocol_filters.hpp"
+#include "pmsm/hal/record_drain.hpp"
+#include "pmsm/hal/sim_bus.hpp"
+#include "process/plant_node.hpp"
+#include "publisher.hpp"
+#include "scenario.hpp"
+
+namespace pmsm::daemon {
+namespace {
+
+using namespace std::chrono_literals;
+namespace protocol = hal::protocol;
+const std::filesystem::path kData = std::filesystem::path(PMSM_SOURCE_DIR) / "tests/integration/data";
+
+// One axis: a plant node and a daemon (loop + publisher) on a shared bus.
+class Axis {
+ public:
+  Axis(hal::SimBus& bus, protocol::NodeId node, double plant_duration_s, double ambient_C = 25.0,
+       double command_timeout_s = 0.5)
+      : node_(node) {
+    const app::Scenario scenario = app::load_scenario(kData / "heatup-short.toml");
+    plant_config_ = scenario.plant;
+    plant_config_.thermal.ambient_C = ambient_C;
+    config_.controller = scenario.controller;
+    config_.supervisor = app::default_supervisor_config(config_.controller);
+    config_.supervisor.command_timeout_s = command_timeout_s;
+    config_.supervisor.sensor_timeout_periods = 5;
+    config_.can.node = node;
+    config_.can.sample_timeout_ms = 20.0;  // threads on a loaded machine: generous
+    plant_options_.node = node;
+    plant_options_.mode = plant::RunMode::kLockstep;
+    plant_options_.duration_s = plant_duration_s;
+    plant_options_.resend_interval = 20ms;
+
+    plant_bus_ = bus.connect({.fd = true, .queue_capacity = 1024});
+    const protocol::FilterSet plant_filters = protocol::receive_filters(protocol::Role::kPlant, node);
+    EXPECT_TRUE(plant_bus_->set_filters(plant_filters.view()).ok());
+    rt_bus_ = bus.connect({.fd = true, .queue_capacity = 1024});
+    const protocol::FilterSet daemon_filters = protocol::receive_filters(protocol::Role::kDaemon, node);
+    EXPECT_TRUE(rt_bus_->set_filters(daemon_filters.view()).ok());
+    pub_bus_ = bus.connect({.fd = true, .queue_capacity = 16});
+    EXPECT_TRUE(pub_bus_->set_filters({}).ok());
+    loop_ = std::make_unique<DriveLoop>(config_, *rt_bus_, ring_);
+    publisher_ = std::make_unique<Publisher>(config_, *pub_bus_, *loop_);
+  }
+  ~Axis() { stop(); }
+
+  void start_daemon() {
+    drain_ = std::make_unique<hal::RecordDrain<PublicationRecord, PublicationRing::capacity()>>(
+        ring_, [this](const PublicationRecord& r) { publisher_->handle(r); }, 2ms);
+    daemon_thread_ = std::thread([this] { loop_->run(daemon_stop_); });
+  }
+  void start_plant() {
+    stop_plant();
+    plant_stop_ = false;
+    plant_done_ = false;
+    plant_node_ = std::make_unique<plant::PlantNode>(plant_config_, *plant_bus_, plant_options_);
+    plant_thread_ = std::thread([this] {
+      plant_node_->run(plant_stop_);
+      plant_done_ = true;
+    });
+  }
+  void stop_plant() {
+    plant_stop_ = true;
+    if (plant_thread_.joinable()) {
+      plant_thread_.join();
+    }
+  }
+  void stop() {
+    stop_plant();
+    daemon_stop_ = true;
+    if (daemon_thread_.joinable()) {
+      daemon_thread_.join();
+    }
+    if (drain_) {
+      drain_->stop();
+    }
+  }
+  [[nodiscard]] bool plant_done() const { return plant_done_; }
+  [[nodiscard]] const DriveLoop& loop() const { return *loop_; }
+  [[nodiscard]] protocol::NodeId node() const { return node_; }
+
+ private:
+  protocol::NodeId node_;
+  DaemonConfig config_;
+  plant::PlantConfig plant_config_;
+  plant::PlantNodeOptions plant_options_;
+  std::unique_ptr<hal::CanBus> plant_bus_, rt_bus_, pub_bus_;
+  PublicationRing ring_;
+  std::unique_ptr<DriveLoop> loop_;
+  std::unique_ptr<Publisher> publisher_;
+  std::unique_ptr<hal::RecordDrain<PublicationRecord, PublicationRing::capacity()>> drain_;
+  std::unique_ptr<plant::PlantNode> plant_node_;
+  std::atomic<bool> plant_stop_{false}, plant_done_{false}, daemon_stop_{false};
+  std::thread plant_thread_, daemon_thread_;
+};
+
+// The supervisor's endpoint and a monitor that keeps what a bench logs.
+struct Bench {
+  hal::SimBus bus;
+  std::unique_ptr<hal::CanBus> supervisor = bus.connect({.fd = false, .queue_capacity = 16});
+  std::unique_ptr<hal::CanBus> monitor = bus.connect({.fd = true, .queue_capacity = 1 << 18});
+  std::array<std::optional<protocol::CommandSender>, 16> senders;
+
+  Bench() { EXPECT_TRUE(supervisor->set_filters({}).ok()); }
+
+  protocol::CommandSender& sender(protocol::NodeId node) {
+    if (!senders[node]) {
+      senders[node].emplace(node);
+    }
+    return *senders[node];
+  }
+  template <typename Command>
+  void send(protocol::NodeId node, const Command& c) {
+    hal::CanFrame f{};
+    ASSERT_EQ(sender(node).encode(c, f), protocol::EncodeStatus::kOk);
+    ASSERT_EQ(supervisor->send(f, 10ms), hal::SendResult::kOk);
+  }
+  void run_speed(protocol::NodeId node, double speed) {
+    protocol::DriveCommand d;
+    d.enable = true;
+    d.mode = protocol::DriveMode::kSpeed;
+    d.speed_setpoint_rad_s = speed;
+    send(node, d);
+  }
+  void stop_drive(protocol::NodeId node) {
+    protocol::DriveCommand d;
+    send(node, d);
+  }
+  void calibrate(protocol::NodeId node, double known_C) {
+    protocol::CalibrationCommand c;
+    c.action = protocol::CalibrationAction::kStart;
+    c.known_temp_C = known_C;
+    send(node, c);
+  }
+  // Everything the monitor has received since the last call, decoded.
+  std::vector<protocol::AnyDecoded> drain() {
+    std::vector<protocol::AnyDecoded> out;
+    hal::ReceivedFrame r;
+    while (monitor->receive(r, 0ns) == hal::ReceiveStatus::kFrame) {
+      protocol::AnyDecoded d;
+      if (protocol::decode_any(r.frame, d) == protocol::DecodeStatus::kOk) {
+        out.push_back(d);
+      }
+    }
+    return out;
+  }
+};
+
+template <typename T>
+const T* as(const protocol::AnyDecoded& d) {
+  return std::get_if<T>(&d.message);
+}
+
+// Runs the bench until `done` or the wall-clock limit, sending a DRIVE_COMMAND to each node
+// every 50 ms; every decoded frame goes to `seen`.
+template <typename Done>
+void supervise(Bench& bench, const std::vector<protocol::NodeId>& nodes, double speed, std::chrono::seconds limit,
+               std::vector<protocol::AnyDecoded>& seen, Done done, bool send_commands = true) {
+  const auto until = std::chrono::steady_clock::now() + limit;
+  while (std::chrono::steady_clock::now() < until && !done()) {
+    if (send_commands) {
+      for (const protocol::NodeId n : nodes) {
+        bench.run_speed(n, speed);
+      }
+    }
+    for (protocol::AnyDecoded& d : bench.drain()) {
+      seen.push_back(std::move(d));
+    }
+    std::this_thread::sleep_for(50ms);
+  }
+  for (protocol::AnyDecoded& d : bench.drain()) {
+    seen.push_back(std::move(d));
+  }
+}
+
+bool has_state(const std::vector<protocol::AnyDecoded>& seen, protocol::NodeId node, protocol::DriveState state,
+               std::size_t from = 0) {
+  for (std::size_t k = from; k < seen.size(); ++k) {
+    const auto* s = as<protocol::DriveStatus>(seen[k]);
+    if (s != nullptr && seen[k].node == node && s->state == state) {
+      return true;
+    }
+  }
+  return false;
+}
+
+bool has_fault(const std::vector<protocol::AnyDecoded>& seen, protocol::NodeId node, protocol::FaultCode code, bool active,
+               std::size_t from = 0) {
+  for (std::size_t k = from; k < seen.size(); ++k) {
+    const auto* f = as<protocol::FaultReport>(seen[k]);
+    if (f != nullptr && seen[k].node == node && f->code == code && f->active == active) {
+      return true;
+    }
+  }
+  return false;
+}
+
+TEST(DaemonLoop, HeatUpOverTheBusTracksThePlantsTruth) {
+  Bench bench;
+  Axis axis(bench.bus, 1, 30.0);
+  axis.start_daemon();
+  axis.start_plant();
+  std::vector<protocol::AnyDecoded> seen;
+  // Enable, and calibrate at the ambient once the drive runs.
+  supervise(bench, {1}, 60.0, 30s, seen, [&] { return has_state(seen, 1, protocol::DriveState::kRunning); });
+  ASSERT_TRUE(has_state(seen, 1, protocol::DriveState::kRunning)) << "the drive never ran";
+  bench.calibrate(1, 25.0);
+  supervise(bench, {1}, 94.0, 600s, seen, [&] { return axis.plant_done(); });
+  ASSERT_TRUE(axis.plant_done()) << "the plant did not finish its 30 s in time";
+
+  // Pair each valid, calibrated THERMAL_ESTIMATE with the plant's latest truth before it.
+  std::optional<double> truth_C;
+  double sq = 0.0, max_err = 0.0, max_truth = 0.0;
+  std::size_t n = 0;
+  for (const protocol::AnyDecoded& d : seen) {
+    if (const auto* t = as<protocol::TruthThermal>(d)) {
+      truth_C = t->winding_temp_C;
+      max_truth = std::max(max_truth, t->winding_temp_C);
+    } else if (const auto* e = as<protocol::ThermalEstimate>(d); e != nullptr && e->valid && e->calibrated && truth_C &&
+                                                                 *truth_C > 40.0) {
+      const double err = e->winding_temp_C - *truth_C;
+      sq += err * err;
+      max_err = std::max(max_err, std::abs(err));
+      ++n;
+    }
+  }
+  ASSERT_GT(max_truth, 60.0) << "the run no longer heats the winding";
+  ASSERT_GT(n, 50U) << "too few calibrated estimates above 40 C on the bus";
+  const double rms = std::sqrt(sq / static_cast<double>(n));
+  EXPECT_LT(rms, 3.5) << n << " estimates";
+  EXPECT_LT(max_err, 6.0);
+  const LoopStats s = axis.loop().stats();
+  EXPECT_GT(s.commands_accepted[0], 10U);
+  EXPECT_EQ(s.commands_accepted[2], 1U) << "the calibration command";
+  EXPECT_EQ(s.publications_dropped, 0U);
+}
+
+TEST(DaemonLoop, PlantOutageSafeStateThenRecovery) {
+  Bench bench;
+  Axis axis(bench.bus, 2, 1e6);
+  axis.start_daemon();
+  axis.start_plant();
+  std::vector<protocol::AnyDecoded> seen;
+  supervise(bench, {2}, 50.0, 30s, seen, [&] { return has_state(seen, 2, protocol::DriveState::kRunning); });
+  ASSERT_TRUE(has_state(seen, 2, protocol::DriveState::kRunning));
+  axis.stop_plant();
+  const std::size_t outage = seen.size();
+  // 5 sample timeouts of 20 ms: the fault within about 100 ms of wall time.
+  supervise(bench, {2}, 50.0, 10s, seen, [&] { return has_fault(seen, 2, protocol::FaultCode::kSensorTimeout, true, outage); });
+  EXPECT_TRUE(has_fault(seen, 2, protocol::FaultCode::kSensorTimeout, true, outage));
+  EXPECT_TRUE(has_state(seen, 2, protocol::DriveState::kFault, outage));
+  axis.start_plant();
+  const std::size_t back = seen.size();
+  supervise(bench, {2}, 50.0, 30s, seen, [&] { return has_state(seen, 2, protocol::DriveState::kRunning, back); });
+  EXPECT_TRUE(has_fault(seen, 2, protocol::FaultCode::kSensorTimeout, false, back)) << "the fault clears itself";
+  EXPECT_TRUE(has_state(seen, 2, protocol::DriveState::kRunning, back)) << "recovered without a restart";
+}
+
+TEST(DaemonLoop, CommandTimeoutSafeStateAndAStopCommandClearsIt) {
+  Bench bench;
+  Axis axis(bench.bus, 3, 1e6, 25.0, 0.3);
+  axis.start_daemon();
+  axis.start_plant();
+  std::vector<protocol::AnyDecoded> seen;
+  supervise(bench, {3}, 50.0, 30s, seen, [&] { return has_state(seen, 3, protocol::DriveState::kRunning); });
+  ASSERT_TRUE(has_state(seen, 3, protocol::DriveState::kRunning));
+  const std::size_t silent = seen.size();
+  supervise(bench, {3}, 50.0, 10s, seen, [&] { return has_fault(seen, 3, protocol::FaultCode::kCommandTimeout, true, silent); },
+            false);
+  ASSERT_TRUE(has_fault(seen, 3, protocol::FaultCode::kCommandTimeout, true, silent));
+  // The power stage is commanded off.
+  std::this_thread::sleep_for(200ms);
+  std::vector<protocol::AnyDecoded> after = bench.drain();
+  std::size_t enabled = 0, disabled = 0;
+  for (const protocol::AnyDecoded& d : after) {
+    if (const auto* c = as<hal::InverterCommand>(d); c != nullptr && d.node == 3) {
+      (c->enable ? enabled : disabled) += 1;
+    }
+  }
+  EXPECT_GT(disabled, 0U);
+  EXPECT_EQ(enabled, 0U);
+  bench.stop_drive(3);
+  const std::size_t cleared = seen.size();
+  supervise(bench, {3}, 50.0, 10s, seen, [&] { return has_state(seen, 3, protocol::DriveState::kRunning, cleared); });
+  EXPECT_TRUE(has_fault(seen, 3, protocol::FaultCode::kCommandTimeout, false, cleared));
+  EXPECT_TRUE(has_state(seen, 3, protocol::DriveState::kRunning, cleared));
+}
+
+TEST(DaemonLoop, BadCommandsAreRejectedByReasonAndValidOnesActedOn) {
+  Bench bench;
+  Axis axis(bench.bus, 4, 1e6);
+  axis.start_daemon();
+  axis.start_plant();
+  std::vector<protocol::AnyDecoded> seen;
+  supervise(bench, {4}, 50.0, 30s, seen, [&] { return has_state(seen, 4, protocol::DriveState::kRunning); });
+  ASSERT_TRUE(has_state(seen, 4, protocol::DriveState::kRunning));
+  const LoopStats before = axis.loop().stats();
+
+  protocol::DriveCommand stop;  // acting on it would disable the drive
+  hal::CanFrame good{};
+  ASSERT_EQ(bench.sender(4).encode(stop, good), protocol::EncodeStatus::kOk);
+  hal::CanFrame bad_crc = good;
+  bad_crc.data[0] = static_cast<std::uint8_t>(bad_crc.data[0] ^ 0x5A);
+  hal::CanFrame short_frame = good;
+  short_frame.length = 7;
+  ASSERT_EQ(bench.supervisor->send(bad_crc, 10ms), hal::SendResult::kOk);
+  ASSERT_EQ(bench.supervisor->send(short_frame, 10ms), hal::SendResult::kOk);
+  // A replay of the last valid command (same alive counter).
+  protocol::DriveCommand run;
+  run.enable = true;
+  run.mode = protocol::DriveMode::kSpeed;
+  run.speed_setpoint_rad_s = 50.0;
+  hal::CanFrame last{};
+  ASSERT_EQ(bench.sender(4).encode(run, last), protocol::EncodeStatus::kOk);
+  ASSERT_EQ(bench.supervisor->send(last, 10ms), hal::SendResult::kOk);
+  hal::CanFrame replay = last;
+  replay.data = last.data;
+  ASSERT_EQ(bench.supervisor->send(replay, 10ms), hal::SendResult::kOk);
+  std::this_thread::sleep_for(300ms);
+  const LoopStats s = axis.loop().stats();
+  auto rejected = [&](protocol::DecodeStatus why) {
+    const auto k = static_cast<std::size_t>(why);
+    return s.rejected[k] - before.rejected[k];
+  };
+  EXPECT_EQ(rejected(protocol::DecodeStatus::kBadCrc), 1U);
+  EXPECT_EQ(rejected(protocol::DecodeStatus::kWrongLength), 1U);
+  EXPECT_EQ(rejected(protocol::DecodeStatus::kRepeatedCounter), 1U);
+  std::vector<protocol::AnyDecoded> later;
+  supervise(bench, {4}, 50.0, 1s, later, [] { return false; });
+  EXPECT_FALSE(has_state(later, 4, protocol::DriveState::kStandby)) << "a rejected stop was acted on";
+  EXPECT_TRUE(has_state(later, 4, protocol::DriveState::kRunning));
+  // A valid stop is acted on.
+  bench.stop_drive(4);
+  std::vector<protocol::AnyDecoded> stopped;
+  supervise(bench, {4}, 50.0, 10s, stopped, [&] { return has_state(stopped, 4, protocol::DriveState::kStandby); }, false);
+  EXPECT_TRUE(has_state(stopped, 4, protocol::DriveState::kStandby));
+}
+
+TEST(DaemonLoop, TwoAxesOnOneBusEachTrackItsOwnPlant) {
+  Bench bench;
+  Axis cold(bench.bus, 5, 1e6, 20.0);
+  Axis warm(bench.bus, 6, 1e6, 45.0);
+  cold.start_daemon();
+  warm.start_daemon();
+  cold.start_plant();
+  warm.start_plant();
+  std::vector<protocol::AnyDecoded> seen;
+  supervise(bench, {5, 6}, 50.0, 60s, seen, [&] {
+    return has_state(seen, 5, protocol::DriveState::kRunning) && has_state(seen, 6, protocol::DriveState::kRunning);
+  });
+  bench.calibrate(5, 20.0);
+  bench.calibrate(6, 45.0);
+  // Long enough for both calibrations (about 3 s of drive time).
+  supervise(bench, {5, 6}, 50.0, 120s, seen, [&] {
+    std::size_t calibrated_5 = 0, calibrated_6 = 0;
+    for (const protocol::AnyDecoded& d : seen) {
+      if (const auto* e = as<protocol::ThermalEstimate>(d); e != nullptr && e->calibrated) {
+        (d.node == 5 ? calibrated_5 : calibrated_6) += 1;
+      }
+    }
+    return calibrated_5 > 20 && calibrated_6 > 20;
+  });
+  std::optional<double> last_5, last_6, truth_5, truth_6;
+  for (const protocol::AnyDecoded& d : seen) {
+    if (const auto* e = as<protocol::ThermalEstimate>(d); e != nullptr && e->valid && e->calibrated) {
+      (d.node == 5 ? last_5 : last_6) = e->winding_temp_C;
+    }
+    if (const auto* t = as<protocol::TruthThermal>(d)) {
+      (d.node == 5 ? truth_5 : truth_6) = t->winding_temp_C;
+    }
+  }
+  ASSERT_TRUE(last_5 && last_6 && truth_5 && truth_6);
+  EXPECT_NEAR(*last_5, *truth_5, 3.0);
+  EXPECT_NEAR(*last_6, *truth_6, 3.0);
+  EXPECT_GT(*last_6 - *last_5, 15.0) << "each axis reports its own winding";
+  // No cross-talk: each daemon heard only its own supervisor's commands.
+  const LoopStats s5 = cold.loop().stats();
+  const LoopStats s6 = warm.loop().stats();
+  EXPECT_EQ(s5.commands_accepted[2], 1U);
+  EXPECT_EQ(s6.commands_accepted[2], 1U);
+  std::uint64_t rejected = 0;
+  for (std::size_t k = 1; k < s5.rejected.size(); ++k) {
+    rejected += s5.rejected[k] + s6.rejected[k];
+  }
+  EXPECT_EQ(rejected, 0U) << "the kernel filters keep the other axis's frames away";
+}
+
+}  // namespace
+}  // namespace pmsm::daemon
