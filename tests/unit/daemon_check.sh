@@ -1,0 +1,44 @@
+#!/usr/bin/env bash
+# pmsm-thermald --check: every shipped configuration passes; a broken one exits 2 and names
+# the key and the line.
+#   tests/unit/daemon_check.sh SOURCE_DIR THERMALD_EXE
+set -uo pipefail
+src=$1 exe=$2
+fail=0
+for f in "$src"/systemd/axis*.toml "$src"/tests/hil/data/*daemon*.toml; do
+  [ -e "$f" ] || continue
+  if ! out=$("$exe" --config "$f" --check 2>&1); then
+    echo "FAIL: $f does not pass --check: $out"
+    fail=1
+  else
+    echo "ok: $out"
+  fi
+done
+dir=$(mktemp -d)
+trap 'rm -rf "$dir"' EXIT
+# bad file, expected exit status, text the message must contain
+check_bad() {
+  local text=$1 expect=$2 want=$3
+  printf '%b' "$text" > "$dir/bad.toml"
+  out=$("$exe" --config "$dir/bad.toml" --check 2>&1)
+  rc=$?
+  if [ "$rc" -ne "$expect" ] || [[ "$out" != *"$want"* ]]; then
+    echo "FAIL: expected exit $expect and '$want' for:"; printf '%b\n' "$text"; echo "got exit $rc: $out"
+    fail=1
+  else
+    echo "ok (rejected): $out"
+  fi
+}
+check_bad '[can]\nnode = 22\n' 2 'bad.toml:2: can.node: must be in [0, 15], got 22'
+check_bad '[can]\ninterfaec = "vcan0"\n' 2 'can.interfaec'
+check_bad '[rt]\npriority = "high"\n' 2 'rt.priority'
+check_bad '[supervisor]\ntrip_temp_C = 100\n' 2 'supervisor.trip_temp_C'
+check_bad '[supervisor]\ndc_bus_min_V = 700\n' 2 'nominal_dc_bus_V'
+check_bad '[controller.motor]\nrs_ohm = -1\n' 2 'controller.motor.rs_ohm'
+check_bad '[gpio]\nchip = "gpiochip0"\n' 2 'gpio.chip and gpio.enable_line'
+check_bad '[can]\ninterface = "can0"\ndata_bitrate_bit_s = 2000000\n' 2 'raise can.data_bitrate_bit_s'
+check_bad 'this is not toml' 2 'bad.toml:1:'
+if "$exe" --config "$dir/missing.toml" --check >/dev/null 2>&1; then
+  echo "FAIL: a missing file passed"; fail=1
+fi
+exit $fail
