@@ -14,6 +14,7 @@ int main(int argc, char** argv) {
   pmsm::app::register_config_keys_command(app, exit_code);
   pmsm::app::register_decode_command(app, exit_code);
   pmsm::app::register_command_command(app, exit_code);
+  pmsm::app::register_monitor_command(app, exit_code);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -1,0 +1,139 @@
+#!/usr/bin/env bash
+# daemon_hil.sh BUILD_DIR: pmsm-plant and pmsm-thermald as two processes on a real (virtual)
+# CAN bus, checked from the bus alone, as a test engineer would.
+#
+#   scripts/vcan-env -- tests/hil/daemon_hil.sh build/dev
+#
+# 1. candump -L records the bus;
+# 2. pmsm-thermald (tests/hil/data/hil-daemon.toml, node NODE) and pmsm-plant (lockstep,
+#    tests/hil/data/hil-plant.toml: thermal time 400x, a load step at 4 s) start;
+#    `pmsm-thermal command` enables the drive in speed mode and asks for a calibration at
+#    the ambient temperature (25 C), as a supervisor would (E2E-protected frames);
+# 3. heat-up: the plant runs DURATION s of simulated time; then the THERMAL_ESTIMATE frames
+#    of the capture, decoded with the project's codec, are compared with the plant's
+#    TRUTH_THERMAL frames (pmsm-thermal monitor --check-*: the estimation tests' bounds,
+#    RMS 3.5 C and max 6 C above 40 C);
+# 4. plant outage: the plant is killed; the daemon must publish the SENSOR_TIMEOUT fault; a
+#    new plant starts and the daemon must clear it and run again, without a restart;
+# 5. daemon killed: the plant's lockstep stalls (no command: nothing is applied); the daemon
+#    restarted locks on again;
+# 6. every captured frame is decoded with the DBC (pmsm-thermal decode --strict).
+# Everything started is stopped on exit, pass or fail.
+#
+# Environment: DAEMON_HIL_DURATION (simulated seconds of the heat-up, default 10),
+# DAEMON_HIL_KEEP=1 keeps the work directory (kept anyway on failure), PMSM_CAN_IFACE.
+set -euo pipefail
+
+prog=daemon_hil
+die() {
+  echo "$prog: FAIL: $*" >&2
+  exit 1
+}
+[ $# -ge 1 ] || { echo "usage: $0 BUILD_DIR" >&2; exit 2; }
+build=$(cd "$1" && pwd) || die "no build directory '$1'"
+src=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
+duration=${DAEMON_HIL_DURATION:-10}
+iface=${PMSM_CAN_IFACE:-vcan0}
+node=1
+thermald=$build/daemon/pmsm-thermald
+plant=$build/plant-emulator/pmsm-plant
+tool=$build/tools/pmsm-thermal
+for b in "$thermald" "$plant" "$tool"; do
+  [ -x "$b" ] || die "missing executable $b"
+done
+command -v candump >/dev/null || die "candump is missing (apt-get install can-utils)"
+
+work=$(mktemp -d "${TMPDIR:-/tmp}/daemon-hil.XXXXXXXX")
+sed -e "s/^interface = .*/interface = \"$iface\"/" "$src/tests/hil/data/hil-daemon.toml" > "$work/daemon.toml"
+pids=()
+ok=0
+cleanup() {
+  local pid
+  for pid in "${pids[@]}"; do
+    kill -TERM "$pid" 2>/dev/null || true
+  done
+  for pid in "${pids[@]}"; do
+    wait "$pid" 2>/dev/null || true
+  done
+  if [ "$ok" = 1 ] && [ "${DAEMON_HIL_KEEP:-0}" != 1 ]; then
+    rm -rf "$work"
+  else
+    echo "$prog: work directory kept: $work" >&2
+  fi
+}
+trap cleanup EXIT
+
+candump -L "$iface" > "$work/candump.log" &
+candump_pid=$!
+pids+=("$candump_pid")
+"$thermald" --config "$work/daemon.toml" > "$work/daemon.log" 2>&1 &
+daemon_pid=$!
+pids+=("$daemon_pid")
+wait_for_ready() {  # FILE: the daemon says ready (READY=1 to systemd) within 10 s
+  local i
+  for i in $(seq 100); do
+    grep -q "ready: waiting" "$1" && return 0
+    sleep 0.1
+  done
+  die "pmsm-thermald did not get ready: $(tail -3 "$1")"
+}
+wait_for_ready "$work/daemon.log"
+"$tool" command --iface "$iface" --node $node --mode speed --speed 94 --calibrate-at 25 --period-ms 100 \
+  > "$work/command.log" 2>&1 &
+command_pid=$!
+pids+=("$command_pid")
+sleep 0.3
+t0=$(date +%s)
+"$plant" --config "$src/tests/hil/data/hil-plant.toml" --iface "$iface" --node $node --mode lockstep \
+  --duration-s "$duration" > "$work/plant-1.log" 2>&1 || die "pmsm-plant failed: $(tail -3 "$work/plant-1.log")"
+t1=$(date +%s)
+echo "$prog: heat-up of $duration s simulated took $((t1 - t0)) s of wall time"
+cp "$work/candump.log" "$work/heatup.log"
+echo "$prog: heat-up, estimates vs truth from the bus:"
+if ! "$tool" monitor --log "$work/heatup.log" --node $node --every 1 --check-rms 3.5 --check-max 6 --min-estimates 20 \
+  > "$work/heatup-monitor.txt"; then
+  tail -8 "$work/heatup-monitor.txt"
+  die "the estimates on the bus are not within the bounds (daemon log: $(grep -c . "$work/daemon.log") lines)"
+fi
+tail -4 "$work/heatup-monitor.txt"
+
+# Plant outage: the pmsm-plant above has exited (duration reached). The daemon must publish
+# the SENSOR_TIMEOUT fault within sensor_timeout_periods x sample_timeout_ms (5 x 50 ms).
+mark=$(wc -l < "$work/candump.log")
+sleep 1
+tail -n +"$mark" "$work/candump.log" | "$tool" monitor --log - --node $node > "$work/outage.txt" || true
+grep -q "SENSOR_TIMEOUT" "$work/outage.txt" ||
+  die "no SENSOR_TIMEOUT fault on the bus 1 s after the plant stopped"
+echo "$prog: plant gone: the daemon published SENSOR_TIMEOUT"
+mark=$(wc -l < "$work/candump.log")
+"$plant" --config "$src/tests/hil/data/hil-plant.toml" --iface "$iface" --node $node --mode lockstep \
+  --duration-s 1 > "$work/plant-2.log" 2>&1 || die "the second pmsm-plant failed: $(tail -3 "$work/plant-2.log")"
+tail -n +"$mark" "$work/candump.log" | "$tool" monitor --log - --node $node > "$work/recovery.txt" || true
+grep -q "fault SENSOR_TIMEOUT cleared" "$work/recovery.txt" || die "SENSOR_TIMEOUT did not clear when a plant came back"
+grep -q "RUNNING" "$work/recovery.txt" || die "the drive did not run again with the new plant"
+echo "$prog: plant back: the fault cleared and the drive runs again, same daemon process"
+
+# Daemon killed and restarted: a new daemon locks on to a running plant.
+kill -KILL "$daemon_pid"
+wait "$daemon_pid" 2>/dev/null || true
+"$plant" --config "$src/tests/hil/data/hil-plant.toml" --iface "$iface" --node $node --mode lockstep \
+  --duration-s 0.5 > "$work/plant-3.log" 2>&1 &
+plant3=$!
+pids+=("$plant3")
+sleep 1.5
+grep -q "waiting for a controller" "$work/plant-3.log" || die "the plant did not notice the missing controller"
+"$thermald" --config "$work/daemon.toml" > "$work/daemon-2.log" 2>&1 &
+pids+=("$!")
+wait "$plant3" || die "the plant did not finish with the restarted daemon: $(tail -3 "$work/plant-3.log")"
+grep -q "controller locked on" "$work/plant-3.log" || die "the restarted daemon did not lock on"
+grep -q "calibration stored in" "$work/daemon.log" || die "the first daemon did not store its calibration"
+grep -q "calibration: loaded" "$work/daemon-2.log" || die "the restarted daemon did not load the stored calibration"
+echo "$prog: daemon killed: the plant waited; the restarted daemon loaded the stored calibration, locked on, and the plant finished"
+
+# Every frame decodes with the DBC.
+kill -INT "$candump_pid" 2>/dev/null || true
+"$tool" decode --strict --dbc "$src/can/pmsm-thermal.dbc" "$work/candump.log" > "$work/decoded.txt" ||
+  die "pmsm-thermal decode --strict failed: $(grep -m3 -i 'unknown\|error' "$work/decoded.txt")"
+echo "$prog: $(wc -l < "$work/candump.log") captured frames, all decoded with the DBC"
+ok=1
+echo "$prog: PASS"

@@ -1,0 +1,303 @@
+// pmsm-thermal monitor: what a person watching the bus wants to see, per axis: winding
+// temperature +- sigma, magnet temperature, Rs, drive state, faults, current limit,
+// time-to-limit and whether the estimate is stale; with the plant's truth frames beside it
+// when a bench publishes them, and the error. Reads the bus itself (IFACE) or a candump log
+// (--log FILE, '-' for stdin), decodes with the project's codec (CRC and alive counter of
+// commands checked: rejected frames are counted and shown), prints a line per axis every
+// --every seconds of drive time, and a summary at the end. With --check-* it is the HIL
+// tests' judge: exit 1 when the estimates stray further from the truth than allowed.
+#include <unistd.h>
+
+#include <array>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <iostream>
+#include <map>
+#include <optional>
+#include <string>
+
+#include <fmt/format.h>
+
+#include "commands.hpp"
+#include "pmsm/hal/codec.hpp"
+#include "pmsm/hal/rt.hpp"
+#include "pmsm/hal/signals.hpp"
+#include "pmsm/hal/socketcan.hpp"
+#include "pmsm/tools/candump.hpp"
+
+namespace pmsm::app {
+namespace {
+
+namespace protocol = hal::protocol;
+namespace candump = hal::candump;
+
+struct MonitorOptions {
+  std::string iface;
+  std::string log;
+  std::optional<int> node;
+  double every_s = 1.0;
+  double threshold_C = 40.0;
+  std::optional<double> check_rms_C;
+  std::optional<double> check_max_C;
+  std::size_t min_estimates = 0;
+  std::optional<double> duration_s;
+};
+
+const char* label(std::span<const protocol::ValueLabel> labels, std::int64_t value) {
+  for (const protocol::ValueLabel& l : labels) {
+    if (l.value == value) {
+      return l.label.data();
+    }
+  }
+  return "?";
+}
+
+struct Axis {
+  std::optional<protocol::ThermalEstimate> thermal;
+  std::optional<protocol::ResistanceEstimate> rs;
+  std::optional<protocol::DriveStatus> status;
+  std::optional<double> truth_C;
+  std::optional<double> time_s;       // plant's simulated time, else the daemon's uptime
+  double next_print_s = 0.0;
+  std::uint32_t active_faults = 0;
+  std::uint64_t fault_reports = 0;
+  std::uint64_t injections = 0, injections_accepted = 0;
+  // Error statistics of calibrated estimates where the truth is above the threshold.
+  std::size_t n = 0;
+  double sq = 0.0, sum = 0.0, max = 0.0;
+};
+
+class Monitor {
+ public:
+  explicit Monitor(const MonitorOptions& o) : o_(o) {}
+
+  void on_frame(const hal::CanFrame& frame) {
+    ++frames_;
+    protocol::AnyDecoded d;
+    const protocol::DecodeStatus status = protocol::decode_any(frame, d);
+    if (status != protocol::DecodeStatus::kOk) {
+      ++rejected_[static_cast<std::size_t>(status)];
+      if (status != protocol::DecodeStatus::kUnknownId) {
+        std::printf("rejected frame 0x%03X: %s\n", static_cast<unsigned>(frame.id), protocol::to_string(status).data());
+      }
+      return;
+    }
+    if (o_.node && d.node != *o_.node) {
+      return;
+    }
+    Axis& a = axes_[d.node];
+    if (const auto* t = std::get_if<protocol::ThermalEstimate>(&d.message)) {
+      a.thermal = *t;
+      if (t->valid && t->calibrated && a.truth_C && *a.truth_C > o_.threshold_C) {
+        const double err = t->winding_temp_C - *a.truth_C;
+        a.sq += err * err;
+        a.sum += err;
+        a.max = std::max(a.max, std::abs(err));
+        ++a.n;
+      }
+      maybe_print(d.node, a);
+    } else if (const auto* r = std::get_if<protocol::ResistanceEstimate>(&d.message)) {
+      a.rs = *r;
+    } else if (const auto* s = std::get_if<protocol::DriveStatus>(&d.message)) {
+      a.status = *s;
+    } else if (const auto* h = std::get_if<protocol::Heartbeat>(&d.message)) {
+      if (!a.truth_C) {
+        a.time_s = h->uptime_s;
+      }
+    } else if (const auto* f = std::get_if<protocol::FaultReport>(&d.message)) {
+      ++a.fault_reports;
+      const std::uint32_t bit = 1U << static_cast<unsigned>(f->code);
+      const bool was = (a.active_faults & bit) != 0U;
+      if (f->active != was) {
+        std::printf("node %d: fault %s %s\n", d.node, label(protocol::kFaultCodeLabels, static_cast<std::int64_t>(f->code)),
+                    f->active ? "ACTIVE" : "cleared");
+      }
+      a.active_faults = f->active ? (a.active_faults | bit) : (a.active_faults & ~bit);
+    } else if (const auto* i = std::get_if<protocol::InjectionReport>(&d.message)) {
+      ++a.injections;
+      a.injections_accepted += i->result == protocol::InjectionResult::kAccepted ? 1U : 0U;
+    } else if (const auto* tt = std::get_if<protocol::TruthThermal>(&d.message)) {
+      a.truth_C = tt->winding_temp_C;
+    } else if (const auto* ps = std::get_if<protocol::PlantStatus>(&d.message)) {
+      a.time_s = ps->simulated_time_s;
+    }
+  }
+
+  void maybe_print(int node, Axis& a) {
+    const double t = a.time_s.value_or(0.0);
+    if (t + 1e-9 < a.next_print_s) {
+      return;
+    }
+    a.next_print_s = t + o_.every_s;
+    std::printf("%s\n", line(node, a).c_str());
+    std::fflush(stdout);
+  }
+
+  [[nodiscard]] std::string line(int node, const Axis& a) const {
+    std::string out = fmt::format("node {:2d}  t {:8.1f} s  ", node, a.time_s.value_or(0.0));
+    if (a.thermal && a.thermal->valid) {
+      out += fmt::format("winding {:6.1f} +- {:4.1f} C", a.thermal->winding_temp_C, a.thermal->winding_temp_sigma_C);
+      if (a.truth_C) {
+        out += fmt::format(" (true {:6.1f}, error {:+5.1f})", *a.truth_C, a.thermal->winding_temp_C - *a.truth_C);
+      }
+      out += a.thermal->calibrated ? "" : " uncalibrated";
+      out += a.thermal->stale ? " STALE" : "";
+      out += a.thermal->magnet_valid ? fmt::format("  magnet {:5.1f} C", a.thermal->magnet_temp_C) : "  magnet -";
+    } else {
+      out += "winding: no estimate yet";
+    }
+    out += a.rs && a.rs->valid ? fmt::format("  Rs {:.2f} mOhm", 1e3 * a.rs->rs_ohm) : "  Rs -";
+    if (a.status) {
+      out += fmt::format("  {}  limit {:.0f} A", label(protocol::kDriveStateLabels, static_cast<std::int64_t>(a.status->state)),
+                         a.status->current_limit_A);
+      out += a.status->time_to_limit_valid ? fmt::format("  to limit {:.0f} s", a.status->time_to_limit_s) : "";
+    }
+    if (a.active_faults != 0U) {
+      out += "  FAULTS:";
+      for (std::size_t k = 1; k < protocol::kFaultCodeCount; ++k) {
+        if ((a.active_faults & (1U << k)) != 0U) {
+          out += std::string(" ") + label(protocol::kFaultCodeLabels, static_cast<std::int64_t>(k));
+        }
+      }
+    }
+    return out;
+  }
+
+  // The summary; false when a --check bound is broken.
+  bool summary() const {
+    bool ok = true;
+    std::printf("\n%llu frame(s)", static_cast<unsigned long long>(frames_));
+    std::uint64_t rejected = 0;
+    for (std::size_t k = 1; k < rejected_.size(); ++k) {
+      rejected += rejected_[k];
+    }
+    std::printf(", %llu not decodable (", static_cast<unsigned long long>(rejected));
+    bool first = true;
+    for (std::size_t k = 1; k < rejected_.size(); ++k) {
+      if (rejected_[k] != 0U) {
+        std::printf("%s%s %llu", first ? "" : ", ", protocol::to_string(static_cast<protocol::DecodeStatus>(k)).data(),
+                    static_cast<unsigned long long>(rejected_[k]));
+        first = false;
+      }
+    }
+    std::printf("%s)\n", first ? "none" : "");
+    for (const auto& [node, a] : axes_) {
+      std::printf("%s\n", line(node, a).c_str());
+      std::printf("node %2d  injections %llu (%llu accepted), fault reports %llu\n", node,
+                  static_cast<unsigned long long>(a.injections), static_cast<unsigned long long>(a.injections_accepted),
+                  static_cast<unsigned long long>(a.fault_reports));
+      if (a.n > 0U) {
+        const double rms = std::sqrt(a.sq / static_cast<double>(a.n));
+        std::printf("node %2d  estimate vs truth above %.0f C: %zu calibrated estimates, error RMS %.2f C, max %.2f C, mean %+.2f C\n",
+                    node, o_.threshold_C, a.n, rms, a.max, a.sum / static_cast<double>(a.n));
+        if (o_.check_rms_C && rms > *o_.check_rms_C) {
+          std::printf("CHECK FAILED: node %d RMS %.2f C > %.2f C\n", node, rms, *o_.check_rms_C);
+          ok = false;
+        }
+        if (o_.check_max_C && a.max > *o_.check_max_C) {
+          std::printf("CHECK FAILED: node %d max %.2f C > %.2f C\n", node, a.max, *o_.check_max_C);
+          ok = false;
+        }
+      } else if (a.truth_C) {
+        std::printf("node %2d  no calibrated estimate with the truth above %.0f C to compare\n", node, o_.threshold_C);
+      }
+      if (a.n < o_.min_estimates) {
+        std::printf("CHECK FAILED: node %d has %zu compared estimates, fewer than %zu\n", node, a.n, o_.min_estimates);
+        ok = false;
+      }
+    }
+    if (axes_.empty() && o_.min_estimates > 0U) {
+      std::printf("CHECK FAILED: no axis seen\n");
+      ok = false;
+    }
+    return ok;
+  }
+
+ private:
+  const MonitorOptions& o_;
+  std::map<int, Axis> axes_;
+  std::uint64_t frames_ = 0;
+  std::array<std::uint64_t, protocol::kDecodeStatusCount> rejected_{};
+};
+
+int run_monitor(const MonitorOptions& o) {
+  Monitor m(o);
+  if (!o.log.empty()) {
+    std::ifstream file;
+    std::istream* in = &std::cin;
+    if (o.log != "-") {
+      file.open(o.log);
+      if (!file) {
+        std::fprintf(stderr, "monitor: cannot read '%s'\n", o.log.c_str());
+        return 2;
+      }
+      in = &file;
+    }
+    std::uint64_t malformed = 0;
+    for (std::string line; std::getline(*in, line);) {
+      const candump::ParseResult parsed = candump::parse_line(line);
+      if (parsed.ok()) {
+        m.on_frame(parsed.record->frame);
+      } else if (!line.empty()) {
+        ++malformed;
+      }
+    }
+    if (malformed != 0U) {
+      std::printf("%llu line(s) were not candump frames\n", static_cast<unsigned long long>(malformed));
+    }
+    return m.summary() ? 0 : 1;
+  }
+  hal::SocketCanConfig config;
+  config.interface = o.iface;
+  config.fd = true;
+  hal::Status error;
+  std::unique_ptr<hal::SocketCanBus> bus = hal::SocketCanBus::open(config, error);
+  if (!bus) {
+    config.fd = false;  // a classic-only interface still carries every user-facing frame
+    bus = hal::SocketCanBus::open(config, error);
+  }
+  if (!bus) {
+    std::fprintf(stderr, "monitor: cannot open the CAN bus: %s\n", error.message().c_str());
+    return 2;
+  }
+  (void)hal::install_stop_signals();
+  const std::int64_t start = hal::monotonic_ns();
+  hal::ReceivedFrame r;
+  while (!hal::stop_requested().load()) {
+    if (o.duration_s && static_cast<double>(hal::monotonic_ns() - start) * 1e-9 > *o.duration_s) {
+      break;
+    }
+    if (bus->receive(r, std::chrono::milliseconds{100}) == hal::ReceiveStatus::kFrame && !r.frame.error) {
+      m.on_frame(r.frame);
+    }
+  }
+  return m.summary() ? 0 : 1;
+}
+
+}  // namespace
+
+void register_monitor_command(CLI::App& app, int& exit_code) {
+  auto o = std::make_shared<MonitorOptions>();
+  CLI::App* cmd = app.add_subcommand("monitor", "Watch the axes on a bus (or in a candump log): temperatures, state, faults");
+  cmd->add_option("iface", o->iface, "CAN interface to open (e.g. vcan0)");
+  cmd->add_option("--log", o->log, "read a candump log instead ('-': stdin)");
+  cmd->add_option("--node", o->node, "only this node")->check(CLI::Range(0, 15));
+  cmd->add_option("--every", o->every_s, "seconds of drive time between lines per axis")->check(CLI::Range(0.0, 1e6))->capture_default_str();
+  cmd->add_option("--threshold", o->threshold_C, "compare with the truth above this winding temperature, C")->capture_default_str();
+  cmd->add_option("--check-rms", o->check_rms_C, "exit 1 when an axis's error RMS is above this, C");
+  cmd->add_option("--check-max", o->check_max_C, "exit 1 when an axis's largest error is above this, C");
+  cmd->add_option("--min-estimates", o->min_estimates, "exit 1 when an axis has fewer compared estimates");
+  cmd->add_option("--duration", o->duration_s, "stop watching a live bus after this many seconds");
+  cmd->callback([o, &exit_code, cmd] {
+    if (o->iface.empty() == o->log.empty()) {
+      std::fprintf(stderr, "monitor: give either an interface or --log FILE\n%s", cmd->help().c_str());
+      exit_code = 2;
+      return;
+    }
+    exit_code = run_monitor(*o);
+  });
+}
+
+}  // namespace pmsm::app
