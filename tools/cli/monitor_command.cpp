@@ -16,6 +16,7 @@
 #include <iostream>
 #include <map>
 #include <optional>
+#include <stdexcept>
 #include <string>
 
 #include <fmt/format.h>
@@ -43,6 +44,7 @@ struct MonitorOptions {
   std::optional<double> check_max_C;
   std::size_t min_estimates = 0;
   std::optional<double> duration_s;
+  std::string csv;  // one row per THERMAL_ESTIMATE: time, node, estimate, sigma, truth
 };
 
 const char* label(std::span<const protocol::ValueLabel> labels, std::int64_t value) {
@@ -62,6 +64,7 @@ struct Axis {
   std::optional<double> time_s;       // plant's simulated time, else the daemon's uptime
   double next_print_s = 0.0;
   std::uint32_t active_faults = 0;
+  std::uint32_t known_faults = 0;     // faults whose state a FAULT frame has told
   std::uint64_t fault_reports = 0;
   std::uint64_t injections = 0, injections_accepted = 0;
   // Error statistics of calibrated estimates where the truth is above the threshold.
@@ -71,7 +74,15 @@ struct Axis {
 
 class Monitor {
  public:
-  explicit Monitor(const MonitorOptions& o) : o_(o) {}
+  explicit Monitor(const MonitorOptions& o) : o_(o) {
+    if (!o.csv.empty()) {
+      csv_.open(o.csv);
+      if (!csv_) {
+        throw std::runtime_error("cannot write " + o.csv);
+      }
+      csv_ << "time_s,node,winding_est_C,winding_sigma_C,winding_true_C,calibrated\n";
+    }
+  }
 
   void on_frame(const hal::CanFrame& frame) {
     ++frames_;
@@ -90,6 +101,11 @@ class Monitor {
     Axis& a = axes_[d.node];
     if (const auto* t = std::get_if<protocol::ThermalEstimate>(&d.message)) {
       a.thermal = *t;
+      if (csv_.is_open() && t->valid) {
+        csv_ << fmt::format("{:.3f},{},{:.2f},{:.2f},{},{}\n", a.time_s.value_or(0.0), d.node, t->winding_temp_C,
+                            t->winding_temp_sigma_C, a.truth_C ? fmt::format("{:.2f}", *a.truth_C) : std::string{},
+                            t->calibrated ? 1 : 0);
+      }
       if (t->valid && t->calibrated && a.truth_C && *a.truth_C > o_.threshold_C) {
         const double err = t->winding_temp_C - *a.truth_C;
         a.sq += err * err;
@@ -110,7 +126,9 @@ class Monitor {
       ++a.fault_reports;
       const std::uint32_t bit = 1U << static_cast<unsigned>(f->code);
       const bool was = (a.active_faults & bit) != 0U;
-      if (f->active != was) {
+      const bool known = (a.known_faults & bit) != 0U;  // a log may start in the middle
+      a.known_faults |= bit;
+      if (f->active != was || !known) {
         std::printf("node %d: fault %s %s\n", d.node, label(protocol::kFaultCodeLabels, static_cast<std::int64_t>(f->code)),
                     f->active ? "ACTIVE" : "cleared");
       }
@@ -220,10 +238,18 @@ class Monitor {
   std::map<int, Axis> axes_;
   std::uint64_t frames_ = 0;
   std::array<std::uint64_t, protocol::kDecodeStatusCount> rejected_{};
+  std::ofstream csv_;
 };
 
 int run_monitor(const MonitorOptions& o) {
-  Monitor m(o);
+  std::optional<Monitor> monitor;
+  try {
+    monitor.emplace(o);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "monitor: %s\n", e.what());
+    return 2;
+  }
+  Monitor& m = *monitor;
   if (!o.log.empty()) {
     std::ifstream file;
     std::istream* in = &std::cin;
@@ -289,6 +315,7 @@ void register_monitor_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--check-rms", o->check_rms_C, "exit 1 when an axis's error RMS is above this, C");
   cmd->add_option("--check-max", o->check_max_C, "exit 1 when an axis's largest error is above this, C");
   cmd->add_option("--min-estimates", o->min_estimates, "exit 1 when an axis has fewer compared estimates");
+  cmd->add_option("--csv", o->csv, "write every THERMAL_ESTIMATE with the truth beside it as CSV");
   cmd->add_option("--duration", o->duration_s, "stop watching a live bus after this many seconds");
   cmd->callback([o, &exit_code, cmd] {
     if (o->iface.empty() == o->log.empty()) {
