@@ -38,7 +38,7 @@ node=1
 thermald=$build/daemon/pmsm-thermald
 plant=$build/plant-emulator/pmsm-plant
 tool=$build/tools/pmsm-thermal
-for b in "$thermald" "$plant" "$tool"; do
+for b in "$thermald" "$plant" "$tool" "$build/tools/pmsm-dbc-gen"; do
   [ -x "$b" ] || die "missing executable $b"
 done
 command -v candump >/dev/null || die "candump is missing (apt-get install can-utils)"
@@ -130,9 +130,11 @@ grep -q "calibration stored in" "$work/daemon.log" || die "the first daemon did 
 grep -q "calibration: loaded" "$work/daemon-2.log" || die "the restarted daemon did not load the stored calibration"
 echo "$prog: daemon killed: the plant waited; the restarted daemon loaded the stored calibration, locked on, and the plant finished"
 
-# Every frame decodes with the DBC.
+# Every frame decodes with the DBC (can/pmsm-thermal.dbc describes node 0; the DBC of node
+# NODE comes from the same generator: pmsm-dbc-gen --node NODE).
 kill -INT "$candump_pid" 2>/dev/null || true
-"$tool" decode --strict --dbc "$src/can/pmsm-thermal.dbc" "$work/candump.log" > "$work/decoded.txt" ||
+"$build/tools/pmsm-dbc-gen" --node $node --dbc "$work/node$node.dbc" > /dev/null || die "pmsm-dbc-gen failed"
+"$tool" decode --strict --dbc "$work/node$node.dbc" "$work/candump.log" > "$work/decoded.txt" ||
   die "pmsm-thermal decode --strict failed: $(grep -m3 -i 'unknown\|error' "$work/decoded.txt")"
 echo "$prog: $(wc -l < "$work/candump.log") captured frames, all decoded with the DBC"
 ok=1
