@@ -175,23 +175,16 @@ void DriveLoop::on_frame(const hal::CanFrame& frame, std::int64_t now_ns) noexce
 void DriveLoop::recover_interface(const std::atomic<bool>& stop) noexcept {
   counters_.interface_losses.bump();
   counters_.interface_down.store(true, std::memory_order_relaxed);
-  std::int64_t next_try = hal::monotonic_ns() + reopen_interval_ns_;
-  while (!stop.load(std::memory_order_relaxed)) {
-    // The drive keeps its own time: every sample timeout is a missing period (the fault is
-    // latched and queued for publication once the bus is back).
-    std::this_thread::sleep_for(nanoseconds{sample_timeout_ns_});
+  // The drive keeps its own time meanwhile: every sample timeout is a missing period (the
+  // fault is latched and queued for publication once the bus is back).
+  const bool back = hal::wait_and_reopen(bus_, nanoseconds{reopen_interval_ns_}, nanoseconds{sample_timeout_ns_}, stop, [this] {
     counters_.missing_samples.bump();
     step(nullptr, hal::monotonic_ns());
-    if (hal::monotonic_ns() < next_try) {
-      continue;
-    }
-    next_try += reopen_interval_ns_;
-    if (bus_.interface_up() && bus_.reopen().ok()) {
-      counters_.reopens.bump();
-      counters_.interface_down.store(false, std::memory_order_relaxed);
-      last_sequence_.reset();
-      return;
-    }
+  });
+  if (back) {
+    counters_.reopens.bump();
+    counters_.interface_down.store(false, std::memory_order_relaxed);
+    last_sequence_.reset();
   }
 }
 

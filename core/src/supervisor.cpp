@@ -130,10 +130,13 @@ const SupervisorStatus& Supervisor::step(const SupervisorInput& in) noexcept {
     }
     check_sample(*in.sample);
     ++present_samples_;
-    if (present_samples_ >= static_cast<std::uint32_t>(config_.sensor_recovery_periods) &&
-        latched(FaultCode::kSensorTimeout)) {
-      // Sensor loss clears itself: the samples are back and plausible.
+    if (present_samples_ >= static_cast<std::uint32_t>(config_.sensor_recovery_periods)) {
+      // Losing the power stage's samples clears itself once they are back: the sensor
+      // timeout, and a lost interface the caller no longer reports.
       status_.latched_mask &= ~bit(FaultCode::kSensorTimeout);
+      if ((external_mask_ & bit(FaultCode::kInterfaceDown)) == 0U) {
+        status_.latched_mask &= ~bit(FaultCode::kInterfaceDown);
+      }
     }
     status_.missing_samples = 0;
   } else {

@@ -185,27 +185,13 @@ PlantNode::Wake PlantNode::receive_command(nanoseconds timeout, hal::InverterCom
 
 bool PlantNode::recover_interface(const std::atomic<bool>& stop) {
   counters_.interface_down.store(true, std::memory_order_relaxed);
-  // Sleep in short slices so that a stop request is seen quickly.
-  const nanoseconds slice = std::min<nanoseconds>(options_.reopen_interval, std::chrono::milliseconds{50});
-  for (;;) {
-    for (nanoseconds slept{0}; slept < options_.reopen_interval; slept += slice) {
-      if (stop.load(std::memory_order_relaxed)) {
-        return false;
-      }
-      sleep_for(slice);
-    }
-    if (!bus_.interface_up()) {
-      continue;
-    }
-    // Reopen even if the old binding might still work: after the interface was deleted and
-    // created again it would not, and reopening a working socket costs nothing here.
-    if (bus_.reopen().ok()) {
-      wait_.set(bus_slot_, have_wait_fd_ ? options_.wait_descriptor() : -1);
-      counters_.reopens.bump();
-      counters_.interface_down.store(false, std::memory_order_relaxed);
-      return true;
-    }
+  if (!hal::wait_and_reopen(bus_, options_.reopen_interval, std::chrono::milliseconds{50}, stop, [] {})) {
+    return false;
   }
+  wait_.set(bus_slot_, have_wait_fd_ ? options_.wait_descriptor() : -1);
+  counters_.reopens.bump();
+  counters_.interface_down.store(false, std::memory_order_relaxed);
+  return true;
 }
 
 StopReason PlantNode::run_lockstep(const std::atomic<bool>& stop) {

@@ -361,6 +361,35 @@ TEST(DaemonLoop, BadCommandsAreRejectedByReasonAndValidOnesActedOn) {
   EXPECT_TRUE(has_state(stopped, 4, protocol::DriveState::kStandby));
 }
 
+TEST(DaemonLoop, InterfaceDownAndUpBothProcessesRecover) {
+  Bench bench;
+  Axis axis(bench.bus, 7, 1e6);
+  axis.start_daemon();
+  axis.start_plant();
+  std::vector<protocol::AnyDecoded> seen;
+  supervise(bench, {7}, 50.0, 30s, seen, [&] { return has_state(seen, 7, protocol::DriveState::kRunning); });
+  ASSERT_TRUE(has_state(seen, 7, protocol::DriveState::kRunning));
+  bench.bus.set_interface_up(false);
+  const auto until = std::chrono::steady_clock::now() + 10s;
+  while (!axis.loop().stats().interface_down && std::chrono::steady_clock::now() < until) {
+    std::this_thread::sleep_for(10ms);
+  }
+  EXPECT_TRUE(axis.loop().stats().interface_down) << "the loop noticed the interface going down";
+  std::this_thread::sleep_for(300ms);
+  bench.bus.set_interface_up(true);
+  // The supervisor's commands could not arrive either: the drive is in COMMAND_TIMEOUT too,
+  // which an operator clears with a stop, as after any latched fault.
+  std::this_thread::sleep_for(300ms);
+  bench.stop_drive(7);
+  const std::size_t back = seen.size();
+  supervise(bench, {7}, 50.0, 30s, seen, [&] { return has_state(seen, 7, protocol::DriveState::kRunning, back); });
+  EXPECT_TRUE(has_state(seen, 7, protocol::DriveState::kRunning, back)) << "both recovered without a restart";
+  const LoopStats s = axis.loop().stats();
+  EXPECT_GE(s.interface_losses, 1U);
+  EXPECT_GE(s.reopens, 1U);
+  EXPECT_FALSE(s.interface_down);
+}
+
 TEST(DaemonLoop, TwoAxesOnOneBusEachTrackItsOwnPlant) {
   Bench bench;
   Axis cold(bench.bus, 5, 1e6, 20.0);

@@ -280,6 +280,24 @@ TEST(Supervisor, ReportedConditionsLatchAndBlockClearingWhilePresent) {
   EXPECT_EQ(sup.step(running()).state, DriveState::kRunning);
 }
 
+TEST(Supervisor, AnInterfaceLossClearsItselfWhenTheInterfaceAndTheSamplesAreBack) {
+  Supervisor sup(config(), kPeriod);
+  sup.report(FaultCode::kInterfaceDown, true);
+  SupervisorInput none = running();
+  none.sample.reset();
+  EXPECT_EQ(sup.step(none).state, DriveState::kFault);
+  for (int k = 0; k < 5; ++k) {
+    sup.step(running());  // samples, but the caller still reports the interface down
+  }
+  EXPECT_TRUE(sup.latched(FaultCode::kInterfaceDown));
+  sup.report(FaultCode::kInterfaceDown, false);
+  for (int k = 0; k < 3; ++k) {
+    sup.step(running());
+  }
+  EXPECT_FALSE(sup.latched(FaultCode::kInterfaceDown));
+  EXPECT_EQ(sup.status().state, DriveState::kRunning);
+}
+
 TEST(Supervisor, TripIsImmediateAndLatched) {
   Supervisor sup(config(), kPeriod);
   sup.step(running());

@@ -10,9 +10,10 @@
 //     current loop does not run) and stays until a clear-faults request finds its cause gone.
 //     Each FaultCode has its own counter; a fault that is already latched is not counted
 //     again while it persists.
-//   - Sensor loss is the one fault that clears itself: when samples come back (for
-//     `sensor_recovery_periods` in a row) the drive resumes what the operator commands, so
-//     that a restarted plant or a reconnected power stage needs no operator (docs/drive.md).
+//   - Losing the power stage is the one fault that clears itself: a sensor timeout, and an
+//     interface loss the caller no longer reports, clear when samples come back (for
+//     `sensor_recovery_periods` in a row); the drive then resumes what the operator commands,
+//     so that a restarted plant or a reconnected bus needs no operator (docs/drive.md).
 //   - Limits (derating from the thermal estimate, the voltage limit) are not faults: they
 //     never latch and never switch the gates off; the controller reports them.
 //

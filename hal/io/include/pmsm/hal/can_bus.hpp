@@ -16,7 +16,10 @@
 // counters(), state() and interface_up() may be read from any thread.
 #pragma once
 
+#include <algorithm>
+#include <atomic>
 #include <chrono>
+#include <thread>
 #include <cstdint>
 #include <span>
 
@@ -153,5 +156,29 @@ class CanBus {
 // The state an error frame reports, or `current` if it reports none.
 [[nodiscard]] CanBusState state_after_error_frame(const CanFrame& error_frame,
                                                   CanBusState current) noexcept;
+
+// After an interface loss: waits until `bus`'s interface is back and reopens the endpoint,
+// trying every `interval`, in slices of at most `slice` so that `stop` is seen quickly and
+// `on_slice()` runs after each (a daemon keeps its drive's time there; the plant just waits).
+// Reopens even when the old binding might still work: after the interface was deleted and
+// created again it would not, and reopening a working socket costs nothing. Returns true once
+// reopened, false when stop became true. Not for the hot path: it sleeps.
+template <typename OnSlice>
+bool wait_and_reopen(CanBus& bus, std::chrono::nanoseconds interval, std::chrono::nanoseconds slice,
+                     const std::atomic<bool>& stop, OnSlice on_slice) {
+  slice = std::min(slice, interval);
+  for (;;) {
+    for (std::chrono::nanoseconds slept{0}; slept < interval; slept += slice) {
+      if (stop.load(std::memory_order_relaxed)) {
+        return false;
+      }
+      std::this_thread::sleep_for(slice);
+      on_slice();
+    }
+    if (bus.interface_up() && bus.reopen().ok()) {
+      return true;
+    }
+  }
+}
 
 }  // namespace pmsm::hal
