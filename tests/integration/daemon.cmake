@@ -3,3 +3,9 @@ pmsm_add_gtest(daemon_loop_test LABEL integration
   SOURCES ${CMAKE_CURRENT_LIST_DIR}/daemon_loop_test.cpp
   LIBS pmsm_daemon pmsm_plant_node pmsm_sim
   TIMEOUT 600)
+
+# Own binary: it replaces the global operator new to count allocations on the control thread.
+pmsm_add_gtest(daemon_alloc_test LABEL integration
+  SOURCES ${CMAKE_CURRENT_LIST_DIR}/daemon_alloc_test.cpp
+  LIBS pmsm_daemon pmsm_plant_node pmsm_sim
+  TIMEOUT 400)

@@ -1,0 +1,137 @@
+// pmsm-thermald's control thread allocates nothing: DriveLoop::run() on its own thread,
+// against the plant node on the in-process bus, through start-up, the ADC offset calibration,
+// an Rs0 calibration by command, injection events with published estimates, and every
+// publication pushed to the ring. The global operator new is replaced in this binary and
+// counts the calls made on the loop's thread only (the plant, the bus and the publishing
+// thread are not the daemon's control thread).
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <chrono>
+#include <cstdlib>
+#include <new>
+#include <thread>
+
+#include "daemon_config.hpp"
+#include "drive_loop.hpp"
+#include "pmsm/hal/codec.hpp"
+#include "pmsm/hal/protocol_filters.hpp"
+#include "pmsm/hal/sim_bus.hpp"
+#include "process/plant_node.hpp"
+#include "scenario.hpp"
+
+namespace {
+thread_local bool t_counting = false;
+std::atomic<long> g_loop_allocations{0};
+std::atomic<long> g_all_allocations{0};
+}  // namespace
+
+// GCC 12 sees the replaced new/delete pair inlined into gtest's factory and warns that free()
+// gets memory from "new": here both are ours and use malloc/free.
+#pragma GCC diagnostic ignored "-Wmismatched-new-delete"
+
+void* operator new(std::size_t size) {
+  g_all_allocations.fetch_add(1, std::memory_order_relaxed);
+  if (t_counting) {
+    g_loop_allocations.fetch_add(1, std::memory_order_relaxed);
+  }
+  if (void* p = std::malloc(size == 0 ? 1 : size)) {
+    return p;
+  }
+  throw std::bad_alloc();
+}
+void operator delete(void* p) noexcept { std::free(p); }
+void operator delete(void* p, std::size_t /*size*/) noexcept { std::free(p); }
+
+namespace pmsm::daemon {
+namespace {
+
+using namespace std::chrono_literals;
+namespace protocol = hal::protocol;
+
+TEST(DaemonAlloc, TheControlThreadAllocatesNothing) {
+  const app::Scenario scenario =
+      app::load_scenario(std::filesystem::path(PMSM_SOURCE_DIR) / "tests/integration/data/heatup-short.toml");
+  DaemonConfig config;
+  config.controller = scenario.controller;
+  config.controller.drive.injection.interval_s = 0.3;
+  config.supervisor = app::default_supervisor_config(config.controller);
+  config.supervisor.command_timeout_s = 5.0;
+  config.can.node = 1;
+  config.can.sample_timeout_ms = 50.0;
+
+  hal::SimBus bus;
+  auto plant_bus = bus.connect({.fd = true, .queue_capacity = 1024});
+  const protocol::FilterSet plant_filters = protocol::receive_filters(protocol::Role::kPlant, 1);
+  ASSERT_TRUE(plant_bus->set_filters(plant_filters.view()).ok());
+  auto rt_bus = bus.connect({.fd = true, .queue_capacity = 1024});
+  const protocol::FilterSet daemon_filters = protocol::receive_filters(protocol::Role::kDaemon, 1);
+  ASSERT_TRUE(rt_bus->set_filters(daemon_filters.view()).ok());
+  auto supervisor = bus.connect({.fd = false, .queue_capacity = 16});
+  ASSERT_TRUE(supervisor->set_filters({}).ok());
+
+  PublicationRing ring;
+  DriveLoop loop(config, *rt_bus, ring);
+  plant::PlantNodeOptions options;
+  options.node = 1;
+  options.duration_s = 5.0;
+  plant::PlantNode plant(scenario.plant, *plant_bus, options);
+
+  std::atomic<bool> stop{false};
+  std::atomic<bool> plant_done{false};
+  std::thread daemon_thread([&] {
+    t_counting = true;  // from here on, everything on this thread is the control loop
+    loop.run(stop);
+    t_counting = false;
+  });
+  std::thread plant_thread([&] {
+    plant.run(stop);
+    plant_done = true;
+  });
+  // The supervisor: enable, calibrate at 25 C, keep the commands fresh; drain the ring.
+  protocol::CommandSender sender(1);
+  hal::CanFrame frame{};
+  protocol::DriveCommand run;
+  run.enable = true;
+  run.mode = protocol::DriveMode::kSpeed;
+  run.speed_setpoint_rad_s = 94.0;
+  protocol::CalibrationCommand calibrate;
+  calibrate.action = protocol::CalibrationAction::kStart;
+  calibrate.known_temp_C = 25.0;
+  ASSERT_EQ(sender.encode(calibrate, frame), protocol::EncodeStatus::kOk);
+  ASSERT_EQ(supervisor->send(frame, 10ms), hal::SendResult::kOk);
+  std::size_t thermal = 0, estimates = 0, injections = 0;
+  PublicationRecord record;
+  const auto until = std::chrono::steady_clock::now() + 300s;
+  while (!plant_done && std::chrono::steady_clock::now() < until) {
+    ASSERT_EQ(sender.encode(run, frame), protocol::EncodeStatus::kOk);
+    ASSERT_EQ(supervisor->send(frame, 10ms), hal::SendResult::kOk);
+    for (int k = 0; k < 10; ++k) {
+      while (ring.try_pop(record)) {
+        thermal += record.publications.thermal ? 1U : 0U;
+        estimates += record.publications.resistance ? 1U : 0U;
+        injections += record.publications.injection ? 1U : 0U;
+      }
+      std::this_thread::sleep_for(5ms);
+    }
+  }
+  stop = true;
+  daemon_thread.join();
+  plant_thread.join();
+  while (ring.try_pop(record)) {
+  }
+  // The run exercised what it claims to.
+  const LoopStats s = loop.stats();
+  EXPECT_TRUE(plant_done);
+  EXPECT_GE(s.samples, 50000U);
+  EXPECT_EQ(s.commands_accepted[2], 1U) << "the calibration command";
+  EXPECT_TRUE(loop.node().controller().telemetry().calibrated);
+  EXPECT_GT(injections, 10U);
+  EXPECT_GT(estimates, 3U);
+  EXPECT_GE(thermal, 40U);
+  EXPECT_GT(g_all_allocations.load(), 0) << "the counter works";
+  EXPECT_EQ(g_loop_allocations.load(), 0) << "allocations on the control thread";
+}
+
+}  // namespace
+}  // namespace pmsm::daemon
