@@ -134,9 +134,22 @@ TEST(cli_decode, StrictFailsOnMismatchOutOfRangeAndMalformedLines) {
   EXPECT_TRUE(contains(r.out, "[out of range: State]")) << r.out;
   EXPECT_TRUE(contains(r.err, "line 3 is not a candump frame")) << r.err;
   EXPECT_TRUE(contains(r.err, "1 mismatched")) << r.err;
-  EXPECT_TRUE(contains(r.err, "1 out of range, 1 malformed line(s)")) << r.err;
+  EXPECT_TRUE(contains(r.err, "1 out of range, 0 with a bad CRC, 1 malformed line(s)")) << r.err;
   // Without --strict the same input is reported but does not fail.
   EXPECT_EQ(run_process(kDecode + bad.path()).exit_code, 0);
+}
+
+TEST(cli_decode, ACommandWithABadCrcIsReportedAsCorrupt) {
+  // The DRIVE_COMMAND of protocol_node0.log (CRC 0x7B), once as sent and once with its CRC
+  // byte changed: a DBC tool decodes both alike; the codec knows the second is corrupt.
+  const TempFile log("(1.000000) vcan0 040#7B50986502000000\n(1.000100) vcan0 040#7C50986502000000\n");
+  const ProcessResult r = run_process(kDecode + "--strict " + log.path());
+  EXPECT_EQ(r.exit_code, 1);
+  const std::vector<std::string> out = lines_of(r.out);
+  ASSERT_EQ(out.size(), 2U) << r.out;
+  EXPECT_FALSE(contains(out[0], "CRC-8")) << out[0];
+  EXPECT_TRUE(contains(out[1], "CRC-8 does not match")) << out[1];
+  EXPECT_TRUE(contains(r.err, "1 with a bad CRC")) << r.err;
 }
 
 TEST(cli_decode, ReadsStdin) {

@@ -37,6 +37,7 @@
 
 #include "json_writer.hpp"
 #include "commands.hpp"
+#include "pmsm/hal/codec.hpp"
 #include "pmsm/tools/candump.hpp"
 #include "pmsm/tools/dbc.hpp"
 
@@ -104,10 +105,11 @@ struct Counts {
   std::uint64_t malformed = 0;    // non-empty lines that are not candump frames
   std::uint64_t mismatched = 0;   // length or CAN FD/classic differs from the DBC
   std::uint64_t out_of_range = 0; // a signal outside the DBC's [minimum, maximum]
+  std::uint64_t bad_crc = 0;      // a command frame whose CRC-8 does not match (corrupt)
   std::vector<std::uint64_t> per_message;  // indexed like Database::messages
 
   [[nodiscard]] std::uint64_t bad() const noexcept {
-    return unknown + error_frames + malformed + mismatched + out_of_range;
+    return unknown + error_frames + malformed + mismatched + out_of_range + bad_crc;
   }
 };
 
@@ -178,8 +180,21 @@ class Decoder {
         out_of_range += (out_of_range.empty() ? "" : ", ") + d.signal->name;
       }
     }
+    // A DBC tool cannot check the E2E protection of the commands; the project's codec can: a
+    // frame of the protocol whose CRC-8 does not match is corrupt, whatever its signals say.
+    bool crc_mismatch = false;
+    if (!decoded->length_mismatch && !decoded->format_mismatch) {
+      hal::protocol::AnyDecoded any;
+      crc_mismatch = hal::protocol::decode_any(record.frame, any) == hal::protocol::DecodeStatus::kBadCrc;
+    }
+    if (crc_mismatch) {
+      out_of_range += (out_of_range.empty() ? "" : ", ") + std::string("Crc (CRC-8 does not match: corrupt frame)");
+    }
     LineKind kind = LineKind::kDecoded;
-    if (decoded->length_mismatch || decoded->format_mismatch) {
+    if (crc_mismatch) {
+      ++counts_.bad_crc;
+      kind = LineKind::kOutOfRange;
+    } else if (decoded->length_mismatch || decoded->format_mismatch) {
       ++counts_.mismatched;
       kind = LineKind::kMismatch;
     } else if (!out_of_range.empty()) {
@@ -208,6 +223,7 @@ class Decoder {
           .field("malformed", c.malformed)
           .field("mismatched", c.mismatched)
           .field("out_of_range", c.out_of_range)
+          .field("bad_crc", c.bad_crc)
           .key("messages")
           .begin_object();
       for (std::size_t i = 0; i < db_.messages.size(); ++i) {
@@ -221,8 +237,8 @@ class Decoder {
     }
     std::string text = fmt::format(
         "decode: {} line(s), {} frame(s): {} decoded, {} unknown, {} error frame(s), {} mismatched "
-        "(length or CAN FD/classic), {} out of range, {} malformed line(s)\n",
-        c.lines, c.frames, c.decoded, c.unknown, c.error_frames, c.mismatched, c.out_of_range, c.malformed);
+        "(length or CAN FD/classic), {} out of range, {} with a bad CRC, {} malformed line(s)\n",
+        c.lines, c.frames, c.decoded, c.unknown, c.error_frames, c.mismatched, c.out_of_range, c.bad_crc, c.malformed);
     for (std::size_t i = 0; i < db_.messages.size(); ++i) {
       if (c.per_message[i] != 0U) {
         text += fmt::format("  {:<22} {}\n", db_.messages[i].name, c.per_message[i]);
