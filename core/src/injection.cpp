@@ -6,7 +6,7 @@ namespace pmsm::core {
 namespace {
 
 double window_slope_constant(WindowKind kind) {
-  return compute_window_constants(kind).max_slope_times_tw;
+  return window_constants(kind).max_slope_times_tw;
 }
 
 }  // namespace
@@ -121,12 +121,12 @@ double max_injection_current_at_operating_point_A(const InjectionHeadroomInput& 
 double per_phase_injection_current_A(double f_A) { return 2.0 / 3.0 * f_A; }  // Eq. 30
 
 double fixed_magnitude_average_loss_W(const InjectionSchedule& s) {
-  const double c = compute_window_constants(s.window).integral_per_tw;
+  const double c = window_constants(s.window).integral_per_tw;
   return s.f_A * s.f_A * s.pulses * s.rs_ohm / s.elapsed_s * (s.ti_s + c * s.tw_s);  // Eq. 32
 }
 
 double fixed_angle_average_loss_W(const InjectionSchedule& s, double omega_e_rad_s) {
-  const double c = compute_window_constants(s.window).integral_per_tw;
+  const double c = window_constants(s.window).integral_per_tw;
   // Eq. 31; the flat-top term tends to Ti as w -> 0.
   const double flat = std::abs(omega_e_rad_s) > 1e-9
                           ? 2.0 / omega_e_rad_s * std::sin(omega_e_rad_s * s.ti_s / 2.0)
@@ -135,7 +135,7 @@ double fixed_angle_average_loss_W(const InjectionSchedule& s, double omega_e_rad
 }
 
 double fixed_magnitude_average_loss_exact_W(const InjectionSchedule& s) {
-  const double c2 = compute_window_constants(s.window).integral_squared_per_tw;
+  const double c2 = window_constants(s.window).integral_squared_per_tw;
   return 1.5 * s.f_A * s.f_A * s.rs_ohm * s.pulses / s.elapsed_s * (s.ti_s + c2 * s.tw_s);
 }
 

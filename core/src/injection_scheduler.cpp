@@ -1,4 +1,5 @@
 #include "pmsm/core/injection_scheduler.hpp"
+#include "pmsm/core/window.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -60,7 +61,11 @@ InjectionScheduler::InjectionScheduler(const InjectionConfig& config, double per
       vx_var_(config.vx_initial_std_V * config.vx_initial_std_V),
       lq_H_(config.lq_H),
       lq_var_(config.lq_initial_std_fraction * config.lq_H * config.lq_initial_std_fraction * config.lq_H),
-      recorder_capacity_(capacity) {}
+      recorder_capacity_(capacity) {
+  // The window constants the budget needs at every pair start are computed here, once, not
+  // in the first control period that needs them.
+  (void)window_constants(config.window);
+}
 
 bool InjectionScheduler::plausible(double rs_ohm, double margin_ohm) const {
   return rs_ohm >= config_.rs_min_ohm - margin_ohm && rs_ohm <= config_.rs_max_ohm + margin_ohm;

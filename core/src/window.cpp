@@ -1,5 +1,6 @@
 #include "pmsm/core/window.hpp"
 
+#include <array>
 #include <cmath>
 
 #include "pmsm/core/transforms.hpp"
@@ -94,6 +95,12 @@ WindowConstants compute_window_constants(WindowKind kind) {
   out.integral_per_tw = sum * h / 3.0;
   out.integral_squared_per_tw = sum_squared * h / 3.0;
   return out;
+}
+
+const WindowConstants& window_constants(WindowKind kind) {
+  static const std::array<WindowConstants, 2> table{compute_window_constants(WindowKind::kBlackman),
+                                                    compute_window_constants(WindowKind::kModifiedBlackman)};
+  return table[kind == WindowKind::kBlackman ? 0 : 1];
 }
 
 double PulseEnvelope::value(double t_s) const {

@@ -27,8 +27,14 @@ struct WindowConstants {
   double integral_squared_per_tw = 0.0; // integral of B^2 over [-Tw, Tw] / Tw (exact pulse energy)
 };
 
-// Computes the constants by dense sampling, golden-section refinement and Simpson's rule.
+// Computes the constants by dense sampling, golden-section refinement and Simpson's rule
+// (about 1.3 million instructions: never in a control period).
 [[nodiscard]] WindowConstants compute_window_constants(WindowKind kind);
+
+// The same constants, computed once per process for both windows (on the first call) and
+// looked up afterwards. The injection scheduler calls it at construction, so that no control
+// period pays for the computation.
+[[nodiscard]] const WindowConstants& window_constants(WindowKind kind);
 
 // Envelope of one injection pulse that starts at t = 0: a rising window edge of duration Tw,
 // a flat top of duration Ti at 1, and a falling window edge of duration Tw (Section VIII,
