@@ -202,16 +202,29 @@ class ConfigSchema {
   // Applies every key of `table` found in the schema to `config`. Keys under one of
   // `foreign_tables` (e.g. "plant") are left for someone else. `key_prefix` is how the
   // table's keys are named in messages when it is itself nested in a file ("controller.").
-  // Throws ConfigError.
+  // Throws ConfigError naming every bad key of the table, one line each (a file with three
+  // mistakes shows all three at once).
   void apply(const toml::table& table, Config& config, std::string_view source,
              const std::vector<std::string>& foreign_tables = {}, std::string_view key_prefix = {}) const {
-    check_unknown(table, "", source, foreign_tables, key_prefix);
+    std::vector<std::string> errors;
+    check_unknown(table, "", source, foreign_tables, key_prefix, errors);
     for (const Entry& e : entries_) {
       const toml::node_view<const toml::node> node = table.at_path(e.key);
       if (!node) {
         continue;
       }
-      apply_entry(e, *node.node(), config, source, key_prefix);
+      try {
+        apply_entry(e, *node.node(), config, source, key_prefix);
+      } catch (const ConfigError& error) {
+        errors.emplace_back(error.what());
+      }
+    }
+    if (!errors.empty()) {
+      std::string all = errors.front();
+      for (std::size_t k = 1; k < errors.size(); ++k) {
+        all += "\n" + errors[k];
+      }
+      throw ConfigError(all);
     }
   }
 
@@ -505,7 +518,8 @@ class ConfigSchema {
   }
 
   void check_unknown(const toml::table& table, const std::string& prefix, std::string_view source,
-                     const std::vector<std::string>& foreign_tables, std::string_view key_prefix) const {
+                     const std::vector<std::string>& foreign_tables, std::string_view key_prefix,
+                     std::vector<std::string>& errors) const {
     for (const auto& [k, node] : table) {
       const std::string key = prefix.empty() ? std::string(k.str()) : prefix + "." + std::string(k.str());
       bool foreign = false;
@@ -526,12 +540,13 @@ class ConfigSchema {
       }
       if (is_section) {
         if (const auto* sub = node.as_table()) {
-          check_unknown(*sub, key, source, foreign_tables, key_prefix);
+          check_unknown(*sub, key, source, foreign_tables, key_prefix, errors);
           continue;
         }
-        throw ConfigError(where(source, node, key, key_prefix) + "expected a table (section)");
+        errors.push_back(where(source, node, key, key_prefix) + "expected a table (section)");
+        continue;
       }
-      throw ConfigError(where(source, node, key, key_prefix) + "unknown key" + suggestion(key, key_prefix));
+      errors.push_back(where(source, node, key, key_prefix) + "unknown key" + suggestion(key, key_prefix));
     }
   }
 

@@ -172,13 +172,26 @@ DaemonConfig parse_daemon_config(const std::string& text, const std::filesystem:
   // The drive first: the supervisor's defaults are relative to it.
   static const toml::table kEmpty;
   const toml::table* controller_table = root.get_as<toml::table>("controller");
-  c.controller = app::parse_controller_config(controller_table != nullptr ? *controller_table : kEmpty, source.string(), {},
-                                              "controller.");
+  // Every bad key of the file at once: the drive's sections' errors, then the daemon's.
+  std::string errors;
+  try {
+    c.controller = app::parse_controller_config(controller_table != nullptr ? *controller_table : kEmpty, source.string(),
+                                                {}, "controller.");
+  } catch (const ConfigError& e) {
+    errors = e.what();
+  }
   c.supervisor = app::default_supervisor_config(c.controller);
   // A daemon that is enabled expects a supervisor that keeps talking.
   c.supervisor.command_timeout_s = 0.5;
   std::vector<std::string> foreign{"controller"};
-  schema().apply(root, c, source.string(), foreign);
+  try {
+    schema().apply(root, c, source.string(), foreign);
+  } catch (const ConfigError& e) {
+    errors += (errors.empty() ? "" : "\n") + std::string(e.what());
+  }
+  if (!errors.empty()) {
+    throw ConfigError(errors);
+  }
   check_cross_keys(c, source.string());
   const BusLoad load = bus_load(c);
   // A vcan interface has no bit timing: the budget is logged at start-up, not enforced.

@@ -38,6 +38,12 @@ check_bad '[controller.motor]\nrs_ohm = -1\n' 2 'controller.motor.rs_ohm'
 check_bad '[gpio]\nchip = "gpiochip0"\n' 2 'gpio.chip and gpio.enable_line'
 check_bad '[can]\ninterface = "can0"\ndata_bitrate_bit_s = 2000000\n' 2 'raise can.data_bitrate_bit_s'
 check_bad 'this is not toml' 2 'bad.toml:1:'
+# Every bad key at once, from the daemon's sections and the drive's.
+check_bad '[can]\nnode = 22\nbitrate = 5\n[rt]\npriority = 100\n[controller.motor]\nrs_ohm = -1\n' 2 'controller.motor.rs_ohm'
+out=$("$exe" --config "$dir/bad.toml" --check 2>&1)
+for want in 'bad.toml:2: can.node' 'bad.toml:3: can.bitrate: unknown key' 'bad.toml:5: rt.priority' 'bad.toml:7: controller.motor.rs_ohm'; do
+  if [[ "$out" != *"$want"* ]]; then echo "FAIL: '$want' missing from the list of bad keys: $out"; fail=1; fi
+done
 if "$exe" --config "$dir/missing.toml" --check >/dev/null 2>&1; then
   echo "FAIL: a missing file passed"; fail=1
 fi
