@@ -108,9 +108,11 @@ echo "$prog: plant gone: the daemon published SENSOR_TIMEOUT"
 mark=$(wc -l < "$work/candump.log")
 "$plant" --config "$src/tests/hil/data/hil-plant.toml" --iface "$iface" --node $node --mode lockstep \
   --duration-s 1 > "$work/plant-2.log" 2>&1 || die "the second pmsm-plant failed: $(tail -3 "$work/plant-2.log")"
+"$build/tools/pmsm-dbc-gen" --node $node --dbc "$work/node$node.dbc" > /dev/null || die "pmsm-dbc-gen failed"
 tail -n +"$mark" "$work/candump.log" | "$tool" monitor --log - --node $node > "$work/recovery.txt" || true
+tail -n +"$mark" "$work/candump.log" | "$tool" decode --dbc "$work/node$node.dbc" - > "$work/recovery-decoded.txt" 2>/dev/null || true
 grep -q "fault SENSOR_TIMEOUT cleared" "$work/recovery.txt" || die "SENSOR_TIMEOUT did not clear when a plant came back"
-grep -q "RUNNING" "$work/recovery.txt" || die "the drive did not run again with the new plant"
+grep -q "DRIVE_STATUS(State: RUNNING" "$work/recovery-decoded.txt" || die "the drive did not run again with the new plant"
 echo "$prog: plant back: the fault cleared and the drive runs again, same daemon process"
 
 # Daemon killed and restarted: a new daemon locks on to a running plant.
@@ -133,7 +135,6 @@ echo "$prog: daemon killed: the plant waited; the restarted daemon loaded the st
 # Every frame decodes with the DBC (can/pmsm-thermal.dbc describes node 0; the DBC of node
 # NODE comes from the same generator: pmsm-dbc-gen --node NODE).
 kill -INT "$candump_pid" 2>/dev/null || true
-"$build/tools/pmsm-dbc-gen" --node $node --dbc "$work/node$node.dbc" > /dev/null || die "pmsm-dbc-gen failed"
 "$tool" decode --strict --dbc "$work/node$node.dbc" "$work/candump.log" > "$work/decoded.txt" ||
   die "pmsm-thermal decode --strict failed: $(grep -m3 -i 'unknown\|error' "$work/decoded.txt")"
 echo "$prog: $(wc -l < "$work/candump.log") captured frames, all decoded with the DBC"

@@ -432,8 +432,9 @@ TEST(DaemonLoop, TwoAxesOnOneBusEachTrackItsOwnPlant) {
     }
   }
   ASSERT_TRUE(last_5 && last_6 && truth_5 && truth_6);
-  EXPECT_NEAR(*last_5, *truth_5, 3.0);
-  EXPECT_NEAR(*last_6, *truth_6, 3.0);
+  // The estimation tests' bound on a single estimate (max 6 C).
+  EXPECT_NEAR(*last_5, *truth_5, 6.0);
+  EXPECT_NEAR(*last_6, *truth_6, 6.0);
   EXPECT_GT(*last_6 - *last_5, 15.0) << "each axis reports its own winding";
   // No cross-talk: each daemon heard only its own supervisor's commands.
   const LoopStats s5 = cold.loop().stats();

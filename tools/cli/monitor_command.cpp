@@ -62,6 +62,7 @@ struct Axis {
   std::optional<protocol::DriveStatus> status;
   std::optional<double> truth_C;
   std::optional<double> time_s;       // plant's simulated time, else the daemon's uptime
+  bool plant_time = false;            // time_s comes from PLANT_STATUS
   double next_print_s = 0.0;
   std::uint32_t active_faults = 0;
   std::uint32_t known_faults = 0;     // faults whose state a FAULT frame has told
@@ -119,8 +120,8 @@ class Monitor {
     } else if (const auto* s = std::get_if<protocol::DriveStatus>(&d.message)) {
       a.status = *s;
     } else if (const auto* h = std::get_if<protocol::Heartbeat>(&d.message)) {
-      if (!a.truth_C) {
-        a.time_s = h->uptime_s;
+      if (!a.plant_time) {
+        set_time(a, h->uptime_s);
       }
     } else if (const auto* f = std::get_if<protocol::FaultReport>(&d.message)) {
       ++a.fault_reports;
@@ -139,8 +140,17 @@ class Monitor {
     } else if (const auto* tt = std::get_if<protocol::TruthThermal>(&d.message)) {
       a.truth_C = tt->winding_temp_C;
     } else if (const auto* ps = std::get_if<protocol::PlantStatus>(&d.message)) {
-      a.time_s = ps->simulated_time_s;
+      a.plant_time = true;
+      set_time(a, ps->simulated_time_s);
     }
+  }
+
+  // Time runs on, or starts again (a new plant, a restarted daemon): then so do the lines.
+  static void set_time(Axis& a, double t) {
+    if (a.time_s && t < *a.time_s) {
+      a.next_print_s = t;
+    }
+    a.time_s = t;
   }
 
   void maybe_print(int node, Axis& a) {
