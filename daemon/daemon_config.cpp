@@ -75,6 +75,10 @@ const ConfigSchema<D>& schema() {
            "Phase-current trip (default: 90 % of the current ADC's range).");
     c.real("supervisor.current_sum_max_A", [](D& d) -> double& { return d.supervisor.current_sum_max_A; }, app::positive(100000), "A",
            "|ia + ib + ic| above this: a phase-current sensor is broken (default: 10 % of the ADC's range).");
+    c.real("supervisor.ambient_min_C", [](D& d) -> double& { return d.supervisor.ambient_min_C; }, app::between(-273, 500), "C",
+           "The ambient / coolant sensor (in SENSOR_SAMPLE) reading below this is implausible: AMBIENT_IMPLAUSIBLE fault.");
+    c.real("supervisor.ambient_max_C", [](D& d) -> double& { return d.supervisor.ambient_max_C; }, app::between(-273, 500), "C",
+           "The ambient / coolant sensor reading above this is implausible: AMBIENT_IMPLAUSIBLE fault.");
     c.real("supervisor.max_speed_rad_s", [](D& d) -> double& { return d.supervisor.max_speed_rad_s; }, app::positive(100000), "rad/s",
            "Mechanical speed the encoder may show; a larger step between samples is an encoder-jump fault (default: 3 x rated).");
     c.integer("supervisor.sensor_timeout_periods", [](D& d) -> int& { return d.supervisor.sensor_timeout_periods; }, app::between(1, 100000),
@@ -129,32 +133,37 @@ double frame_time_s(std::size_t bytes, bool fd, double nominal, double data) {
 }
 
 void check_cross_keys(const DaemonConfig& c, const std::string& source) {
+  // Every broken rule, one line each.
+  std::string errors;
+  auto rule = [&](const std::string& text) { errors += (errors.empty() ? "" : "\n") + source + ": " + text; };
   const core::SupervisorConfig& s = c.supervisor;
   if (!(s.dc_bus_min_V < s.dc_bus_max_V)) {
-    throw ConfigError(fmt::format("{}: supervisor.dc_bus_min_V ({} V) must be below supervisor.dc_bus_max_V ({} V)", source,
-                                  s.dc_bus_min_V, s.dc_bus_max_V));
-  }
-  if (c.controller.nominal_dc_bus_V < s.dc_bus_min_V || c.controller.nominal_dc_bus_V > s.dc_bus_max_V) {
-    throw ConfigError(fmt::format("{}: controller.control.nominal_dc_bus_V ({} V) lies outside supervisor.dc_bus_min_V .. "
-                                  "supervisor.dc_bus_max_V ({} .. {} V): the drive would trip at once",
-                                  source, c.controller.nominal_dc_bus_V, s.dc_bus_min_V, s.dc_bus_max_V));
+    rule(fmt::format("supervisor.dc_bus_min_V ({} V) must be below supervisor.dc_bus_max_V ({} V)", s.dc_bus_min_V,
+                     s.dc_bus_max_V));
+  } else if (c.controller.nominal_dc_bus_V < s.dc_bus_min_V || c.controller.nominal_dc_bus_V > s.dc_bus_max_V) {
+    rule(fmt::format("controller.control.nominal_dc_bus_V ({} V) lies outside supervisor.dc_bus_min_V .. "
+                     "supervisor.dc_bus_max_V ({} .. {} V): the drive would trip at once",
+                     c.controller.nominal_dc_bus_V, s.dc_bus_min_V, s.dc_bus_max_V));
   }
   if (s.overcurrent_A >= c.controller.sensors.current_range_A) {
-    throw ConfigError(fmt::format("{}: supervisor.overcurrent_A ({} A) must be below controller.sensors.current_range_A ({} A): "
-                                  "a saturated ADC reading is never a valid current",
-                                  source, s.overcurrent_A, c.controller.sensors.current_range_A));
+    rule(fmt::format("supervisor.overcurrent_A ({} A) must be below controller.sensors.current_range_A ({} A): "
+                     "a saturated ADC reading is never a valid current",
+                     s.overcurrent_A, c.controller.sensors.current_range_A));
   }
   if (s.trip_temp_C <= c.controller.drive.derating.limit_C) {
-    throw ConfigError(fmt::format("{}: supervisor.trip_temp_C ({} C) must be above controller.derating.limit_C ({} C): the "
-                                  "drive derates before it trips",
-                                  source, s.trip_temp_C, c.controller.drive.derating.limit_C));
+    rule(fmt::format("supervisor.trip_temp_C ({} C) must be above controller.derating.limit_C ({} C): the "
+                     "drive derates before it trips",
+                     s.trip_temp_C, c.controller.drive.derating.limit_C));
   }
   if (c.gpio.chip.empty() != (c.gpio.enable_line < 0)) {
-    throw ConfigError(fmt::format("{}: gpio.chip and gpio.enable_line go together (chip '{}', enable_line {})", source,
-                                  c.gpio.chip, c.gpio.enable_line));
+    rule(fmt::format("gpio.chip and gpio.enable_line go together (chip '{}', enable_line {})", c.gpio.chip,
+                     c.gpio.enable_line));
   }
   if (c.gpio.fault_line >= 0 && c.gpio.chip.empty()) {
-    throw ConfigError(fmt::format("{}: gpio.fault_line needs gpio.chip", source));
+    rule("gpio.fault_line needs gpio.chip");
+  }
+  if (!errors.empty()) {
+    throw ConfigError(errors);
   }
 }
 
@@ -235,7 +244,9 @@ BusLoad bus_load(const DaemonConfig& c) {
   b.publications_fraction = frame_s(protocol::MessageType::kThermalEstimate) * rate(c.publish.thermal_estimate_s) +
                             frame_s(protocol::MessageType::kResistanceEstimate) * (rate(c.publish.resistance_estimate_s) + 1.0) +
                             frame_s(protocol::MessageType::kDriveStatus) * rate(c.publish.drive_status_s) +
-                            frame_s(protocol::MessageType::kHeartbeat) * rate(c.publish.heartbeat_s) +
+                            (frame_s(protocol::MessageType::kHeartbeat) + frame_s(protocol::MessageType::kLoopTiming)) *
+                                rate(c.publish.heartbeat_s) +
+                            frame_s(protocol::MessageType::kReceiveStatus) * (rate(c.publish.heartbeat_s) + 10.0) +
                             frame_s(protocol::MessageType::kInjectionReport) * 10.0 +
                             frame_s(protocol::MessageType::kFault) * 2.0 * rate(c.publish.fault_repeat_s);
   b.total_fraction = b.fast_loop_fraction + b.publications_fraction;

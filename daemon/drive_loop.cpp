@@ -91,12 +91,7 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns) 
     (void)protocol::encode(*out.command, node_id_, frame_);
     send(frame_);
     counters_.commands_sent.bump();
-    const std::int64_t took = hal::monotonic_ns() - received_ns;
-    counters_.timing_us[timing_bucket(took)].bump();
-    counters_.max_step_ns.raise_to(static_cast<std::uint64_t>(took > 0 ? took : 0));
-    if (took > period_ns_) {
-      counters_.deadline_misses.bump();
-    }
+    record_timing(hal::monotonic_ns() - received_ns);
   } else {
     gates_enabled_.store(false, std::memory_order_relaxed);
   }
@@ -110,10 +105,56 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns) 
     r.calibration_to_store = out.calibration_to_store;
     r.calibration_failed = out.calibration_failed;
     r.uptime_s = node_.uptime_s();
+    if (p.heartbeat) {
+      r.timing = close_timing_window();
+    }
     if (!ring_.try_push(r)) {
       counters_.publications_dropped.bump();
     }
   }
+}
+
+void DriveLoop::record_timing(std::int64_t took_ns) noexcept {
+  const auto took = static_cast<std::uint64_t>(took_ns > 0 ? took_ns : 0);
+  const std::size_t bucket = timing_bucket(took_ns);
+  counters_.timing_us[bucket].bump();
+  counters_.max_step_ns.raise_to(took);
+  ++window_timing_[bucket];
+  window_max_ns_ = std::max(window_max_ns_, took);
+  if (took_ns > period_ns_) {
+    counters_.deadline_misses.bump();
+    ++window_misses_;
+  }
+}
+
+protocol::LoopTiming DriveLoop::close_timing_window() noexcept {
+  protocol::LoopTiming t;
+  std::uint64_t total = 0;
+  for (const std::uint32_t n : window_timing_) {
+    total += n;
+  }
+  // The upper bound (us) of the bucket holding the q-quantile: bucket k holds [2^(k-1), 2^k).
+  auto bound = [&](std::uint64_t rank) {
+    std::uint64_t seen = 0;
+    for (std::size_t k = 0; k < kTimingBuckets; ++k) {
+      seen += window_timing_[k];
+      if (seen >= rank) {
+        return static_cast<double>(std::uint64_t{1} << k);
+      }
+    }
+    return static_cast<double>(std::uint64_t{1} << (kTimingBuckets - 1));
+  };
+  if (total > 0U) {
+    t.latency_p50_us = bound((total + 1) / 2);
+    t.latency_p99_us = bound(total - total / 100);
+  }
+  t.latency_max_us = static_cast<double>(window_max_ns_) * 1e-3;
+  t.periods = static_cast<std::uint32_t>(std::min<std::uint64_t>(total, UINT32_MAX));
+  t.deadline_misses = window_misses_;
+  window_timing_.fill(0);
+  window_max_ns_ = 0;
+  window_misses_ = 0;
+  return t;
 }
 
 void DriveLoop::on_frame(const hal::CanFrame& frame, std::int64_t now_ns) noexcept {
@@ -169,6 +210,8 @@ void DriveLoop::on_frame(const hal::CanFrame& frame, std::int64_t now_ns) noexce
     }
   } else if (const auto* rejected = std::get_if<protocol::Rejected>(&input)) {
     counters_.rejected[static_cast<std::size_t>(rejected->reason)].bump();
+    counters_.last_rejection.store(static_cast<std::uint32_t>(rejected->reason) << 16U | (rejected->can_id & 0xFFFFU),
+                                   std::memory_order_relaxed);
   }
 }
 
@@ -256,6 +299,9 @@ LoopStats DriveLoop::stats() const noexcept {
     s.timing_us[k] = c.timing_us[k].get();
   }
   s.max_step_ns = c.max_step_ns.get();
+  const std::uint32_t last = c.last_rejection.load(std::memory_order_relaxed);
+  s.last_rejection = static_cast<protocol::DecodeStatus>(last >> 16U);
+  s.last_rejected_id = last & 0xFFFFU;
   return s;
 }
 

@@ -33,6 +33,8 @@ namespace pmsm::daemon {
 struct PublicationRecord {
   app::NodePublications publications;
   std::optional<core::Calibration> calibration_to_store;
+  // With each heartbeat: the loop's timing since the previous one (LOOP_TIMING).
+  std::optional<hal::protocol::LoopTiming> timing;
   bool calibration_failed = false;
   double uptime_s = 0.0;
 };
@@ -50,6 +52,8 @@ struct LoopStats {
   std::uint64_t commands_sent = 0;       // INVERTER_COMMAND frames
   std::array<std::uint64_t, 3> commands_accepted{};  // drive, injection, calibration
   std::array<std::uint64_t, hal::protocol::kDecodeStatusCount> rejected{};  // by DecodeStatus
+  hal::protocol::DecodeStatus last_rejection = hal::protocol::DecodeStatus::kOk;  // kOk: none yet
+  std::uint32_t last_rejected_id = 0;
   std::uint64_t tx_dropped = 0;
   std::uint64_t tx_failures = 0;
   std::uint64_t rx_errors = 0;
@@ -91,6 +95,8 @@ class DriveLoop {
   void send(const hal::CanFrame& frame) noexcept;
   void recover_interface(const std::atomic<bool>& stop) noexcept;
   [[nodiscard]] std::int64_t sample_timeout_ns() const noexcept { return sample_timeout_ns_; }
+  void record_timing(std::int64_t took_ns) noexcept;
+  [[nodiscard]] hal::protocol::LoopTiming close_timing_window() noexcept;
 
   app::DriveNode node_;
   hal::CanBus& bus_;
@@ -108,6 +114,10 @@ class DriveLoop {
   hal::InverterCommand last_command_{};
   hal::CanFrame frame_{};
   hal::ReceivedFrame received_{};
+  // The timing window closed by each heartbeat (this thread only).
+  std::array<std::uint32_t, kTimingBuckets> window_timing_{};
+  std::uint64_t window_max_ns_ = 0;
+  std::uint32_t window_misses_ = 0;
   std::atomic<bool> gpio_fault_{false};
   std::atomic<bool> gates_enabled_{false};
 
@@ -119,6 +129,7 @@ class DriveLoop {
     hal::SingleWriterCounter interface_losses, reopens, max_step_ns;
     std::array<hal::SingleWriterCounter, kTimingBuckets> timing_us;
     std::atomic<bool> interface_down{false};
+    std::atomic<std::uint32_t> last_rejection{0};  // DecodeStatus << 16 | CAN ID
   };
   Counters counters_;
 };

@@ -20,6 +20,14 @@ std::string fault_name(protocol::FaultCode code) {
   return fmt::format("FAULT_{}", static_cast<int>(code));
 }
 
+std::uint64_t total_rejected(const LoopStats& s) {
+  std::uint64_t n = 0;
+  for (std::size_t i = 1; i < s.rejected.size(); ++i) {
+    n += s.rejected[i];
+  }
+  return n;
+}
+
 std::string rejected_text(const LoopStats& now, const LoopStats& before) {
   std::string text;
   for (std::size_t i = 1; i < now.rejected.size(); ++i) {
@@ -116,6 +124,10 @@ void Publisher::handle(const PublicationRecord& r) {
   }
   if (p.heartbeat) {
     send(*p.heartbeat);
+    send_receive_status(loop_.stats());
+  }
+  if (r.timing) {
+    send(*r.timing);
   }
   if (r.calibration_failed) {
     spdlog::warn("calibration gave up (controller.calibration.timeout_s without enough accepted events); the previous "
@@ -137,8 +149,31 @@ void Publisher::handle(const PublicationRecord& r) {
   }
 }
 
+void Publisher::send_receive_status(const LoopStats& s) {
+  using protocol::DecodeStatus;
+  auto n = [&](DecodeStatus d) { return s.rejected[static_cast<std::size_t>(d)]; };
+  protocol::ReceiveStatus m;
+  m.last_rejection = static_cast<std::uint8_t>(s.last_rejection);
+  m.last_rejected_id = static_cast<std::uint16_t>(s.last_rejected_id);
+  m.commands_accepted = s.commands_accepted[0] + s.commands_accepted[1] + s.commands_accepted[2];
+  m.rejected_crc = n(DecodeStatus::kBadCrc);
+  m.rejected_counter = n(DecodeStatus::kRepeatedCounter) + n(DecodeStatus::kCounterJump);
+  m.rejected_range = n(DecodeStatus::kOutOfRange);
+  m.rejected_format = n(DecodeStatus::kWrongLength) + n(DecodeStatus::kWrongFrameFormat);
+  m.rejected_other = n(DecodeStatus::kUnknownId) + n(DecodeStatus::kWrongNode);
+  send(m);
+  rejected_sent_ = total_rejected(s);
+  receive_status_sent_ = std::chrono::steady_clock::now();
+}
+
 void Publisher::after_batch() {
   const auto now = std::chrono::steady_clock::now();
+  // Rejections are on the bus within 100 ms, not only with the next heartbeat.
+  if (now - receive_status_sent_ >= std::chrono::milliseconds{100}) {
+    if (const LoopStats s = loop_.stats(); total_rejected(s) != rejected_sent_) {
+      send_receive_status(s);
+    }
+  }
   if (now - last_report_ < std::chrono::seconds{1}) {
     return;
   }
@@ -178,10 +213,7 @@ void Publisher::report() {
 
 std::string Publisher::summary() const {
   const LoopStats s = loop_.stats();
-  std::uint64_t rejected = 0;
-  for (std::size_t i = 1; i < s.rejected.size(); ++i) {
-    rejected += s.rejected[i];
-  }
+  const std::uint64_t rejected = total_rejected(s);
   return fmt::format(
       "periods {}, samples {} (re-sent {}, missing {}), commands sent {}, accepted drive/injection/calibration commands "
       "{}/{}/{}, rejected frames {} ({}), deadline misses {}, {}, frames published {} (failed {}), calibrations stored {}, "

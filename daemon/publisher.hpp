@@ -1,7 +1,7 @@
 // pmsm-thermald's normal-priority side: drains the RT loop's publication records, encodes
 // them with the protocol's codec and sends them on its own CAN endpoint (the user-facing
 // frames: THERMAL_ESTIMATE, RESISTANCE_ESTIMATE, INJECTION_REPORT, DRIVE_STATUS, HEARTBEAT,
-// FAULT), stores a completed calibration atomically, logs every fault change once, and
+// FAULT, RECEIVE_STATUS, LOOP_TIMING), stores a completed calibration atomically, logs every fault change once, and
 // reports the loop's counters (rejections by reason, deadline misses, timing) at most once a
 // second and only when something changed.
 #pragma once
@@ -42,6 +42,7 @@ class Publisher {
   void send(const Message& m);
   void log_fault(const hal::protocol::FaultReport& f);
   void report();
+  void send_receive_status(const LoopStats& s);
 
   const DaemonConfig& config_;
   hal::CanBus& bus_;
@@ -52,6 +53,8 @@ class Publisher {
   LoopStats last_{};
   std::chrono::steady_clock::time_point last_report_{};
   bool first_thermal_logged_ = false;
+  std::uint64_t rejected_sent_ = 0;  // total rejections in the last RECEIVE_STATUS
+  std::chrono::steady_clock::time_point receive_status_sent_{};
 };
 
 }  // namespace pmsm::daemon

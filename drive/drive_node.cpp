@@ -83,7 +83,10 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
   if (sample != nullptr) {
     drive_in = frontend_.convert(*sample);
     si.sample = core::SupervisedSample{drive_in.i_A, drive_in.vdc_V, drive_in.encoder_count,
-                                       (sample->flags & hal::kSensorHardwareOvercurrent) != 0U};
+                                       (sample->flags & hal::kSensorHardwareOvercurrent) != 0U, std::nullopt};
+    if ((sample->flags & hal::kSensorAmbientValid) != 0U) {
+      si.sample->ambient_C = 0.01 * static_cast<double>(sample->ambient_centi_C);
+    }
   }
   si.frontend_ready = frontend_.ready();
   si.enable_requested = in.mode != core::DriveMode::kDisabled;
@@ -97,6 +100,12 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
     supervisor_.request_clear();
   }
   const core::SupervisorStatus& status = supervisor_.step(si);
+  // The ambient / coolant sensor of the sample, once the supervisor found the sample
+  // plausible; without one (a power stage without the sensor) the caller's value.
+  if (status.sample_usable && si.sample && si.sample->ambient_C) {
+    sensed_ambient_C_ = *si.sample->ambient_C;
+  }
+  const double ambient_C = sensed_ambient_C_.value_or(in.ambient_C);
 
   if (in.abort_calibration) {
     controller_.abort_calibration();
@@ -104,7 +113,7 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
   if (in.start_calibration) {
     // The drive's own knowledge of the winding's temperature: the operator's value, or the
     // ambient / coolant sensor of a motor at rest (soaked).
-    controller_.start_calibration(in.calibration_known_C.value_or(in.ambient_C));
+    controller_.start_calibration(in.calibration_known_C.value_or(ambient_C));
   }
 
   // The controller sees a sample only when the supervisor found it plausible, and runs the
@@ -114,7 +123,7 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
   cmd.mode = status.power_stage_enabled ? in.mode : core::DriveMode::kDisabled;
   cmd.speed_ref_rad_s = in.speed_ref_rad_s;
   cmd.torque_ref_Nm = in.torque_ref_Nm;
-  cmd.ambient_C = in.ambient_C;
+  cmd.ambient_C = ambient_C;
   cmd.request_injection = in.request_injection;
   const core::DriveOutput& out = controller_.step(drive_in, cmd);
   if (out.fault) {

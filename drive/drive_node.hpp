@@ -46,7 +46,7 @@ struct NodeInputs {
   double speed_ref_rad_s = 0.0;      // mechanical
   double torque_ref_Nm = 0.0;
   double command_age_s = 0.0;        // since the last valid, fresh drive command
-  double ambient_C = 25.0;           // the drive's ambient / coolant sensor
+  double ambient_C = 25.0;           // ambient / coolant temperature where SENSOR_SAMPLE carries none
   bool request_injection = false;
   // One-shot requests (act on the period they are given in).
   bool start_calibration = false;
@@ -132,6 +132,7 @@ class DriveNode {
   NodeStep out_{};
   std::uint32_t published_latched_ = 0;   // the latched mask as last published
   std::array<double, core::kFaultCodeCount> fault_changed_s_{};
+  std::optional<double> sensed_ambient_C_;  // the sample's ambient sensor, last plausible reading
   std::uint8_t heartbeat_counter_ = 0;
   std::uint8_t injection_count_ = 0;
   std::uint16_t estimate_count_ = 0;

@@ -37,6 +37,7 @@ const char* to_string(FaultCode code) noexcept {
     case FaultCode::kInputNotFinite: return "input-not-finite";
     case FaultCode::kEncoderJump: return "encoder-jump";
     case FaultCode::kCurrentSum: return "current-sum";
+    case FaultCode::kAmbientImplausible: return "ambient-implausible";
     case FaultCode::kCount: break;
   }
   return "?";
@@ -95,6 +96,9 @@ void Supervisor::check_sample(const SupervisedSample& s) noexcept {
   }
   if (s.hardware_overcurrent) {
     cause_mask_ |= bit(FaultCode::kHardwareOvercurrent);
+  }
+  if (s.ambient_C && !(*s.ambient_C >= config_.ambient_min_C && *s.ambient_C <= config_.ambient_max_C)) {
+    cause_mask_ |= bit(FaultCode::kAmbientImplausible);
   }
   const auto counts = static_cast<std::uint32_t>(config_.encoder_counts);
   if (s.encoder_count >= counts) {

@@ -845,6 +845,9 @@ struct Plant::Impl {
       }
       out.flags |= hal::kSensorPhaseVoltageValid;
     }
+    // The drive's ambient / coolant sensor (a digital sensor: 0.01 C steps).
+    out.ambient_centi_C = static_cast<std::int16_t>(std::clamp(std::round(ambient_C * 100.0), -32768.0, 32767.0));
+    out.flags |= hal::kSensorAmbientValid;
     if (cfg.inverter.overcurrent_trip_enabled) {
       for (double i : aux.i_abc_A) {
         if (std::abs(i) > cfg.inverter.overcurrent_trip_A && !tripped) {
@@ -864,7 +867,7 @@ struct Plant::Impl {
   }
 
   void set_flags() {
-    sample.flags = static_cast<std::uint8_t>(sample.flags & hal::kSensorPhaseVoltageValid);
+    sample.flags = static_cast<std::uint8_t>(sample.flags & (hal::kSensorPhaseVoltageValid | hal::kSensorAmbientValid));
     if (gates_now) {
       sample.flags = static_cast<std::uint8_t>(sample.flags | hal::kSensorOutputEnabled);
     }

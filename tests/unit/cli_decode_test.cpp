@@ -87,7 +87,7 @@ TEST(cli_decode, EveryProtocolMessageDecodesWithLabels) {
   EXPECT_TRUE(contains(r.out, ":: PLANT_STATUS(Mode: LOCKSTEP, OutputEnabled: 1,")) << r.out;
   EXPECT_TRUE(contains(r.out, "Result: ACCEPTED")) << r.out;
   // Summary on stderr: all decoded, counts per message.
-  EXPECT_TRUE(contains(r.err, "15 frame(s): 15 decoded, 0 unknown")) << r.err;
+  EXPECT_TRUE(contains(r.err, "17 frame(s): 17 decoded, 0 unknown")) << r.err;
   EXPECT_TRUE(std::regex_search(r.err, std::regex("THERMAL_ESTIMATE +2\\n"))) << r.err;
   EXPECT_TRUE(std::regex_search(r.err, std::regex("PLANT_STATUS +1\\n"))) << r.err;
 }
@@ -166,19 +166,19 @@ TEST(cli_decode, JsonLinesOnePerFrame) {
   const ProcessResult r = run_process(kDecode + "--json " + kData + "protocol_node0.log");
   ASSERT_EQ(r.exit_code, 0) << r.err;
   const std::vector<std::string> lines = lines_of(r.out);
-  ASSERT_EQ(lines.size(), 15U);
+  ASSERT_EQ(lines.size(), 17U);
   for (const std::string& line : lines) {
     EXPECT_EQ(line.front(), '{');
     EXPECT_EQ(line.back(), '}');
     EXPECT_TRUE(contains(line, "\"status\": \"ok\"")) << line;
   }
-  EXPECT_TRUE(contains(lines[0], "\"timestamp_ns\": 1795248538055211000")) << lines[0];
+  EXPECT_TRUE(contains(lines[0], "\"timestamp_ns\": 1795493852250683000")) << lines[0];
   EXPECT_TRUE(contains(lines[0], "\"message\": \"INVERTER_COMMAND\"")) << lines[0];
   EXPECT_TRUE(contains(lines[0], "\"Sequence\": 1000")) << lines[0];
   EXPECT_TRUE(contains(r.out, "\"labels\": {\"Mode\": \"SPEED\"}")) << r.out;
   EXPECT_TRUE(contains(r.out, "\"units\": {\"SpeedSetpoint\": \"rad/s\", \"TorqueSetpoint\": \"Nm\"}")) << r.out;
   // The summary is one JSON object on stderr.
-  EXPECT_TRUE(contains(r.err, "\"frames\": 15, \"decoded\": 15")) << r.err;
+  EXPECT_TRUE(contains(r.err, "\"frames\": 17, \"decoded\": 17")) << r.err;
   EXPECT_TRUE(contains(r.err, "\"THERMAL_ESTIMATE\": 2")) << r.err;
 }
 
@@ -190,7 +190,7 @@ TEST(cli_decode, FindsTheDbcWithoutBeingTold) {
     GTEST_SKIP() << "the build directory is outside the source tree";
   }
   ASSERT_EQ(r.exit_code, 0) << r.err;
-  EXPECT_TRUE(contains(r.err, "15 decoded")) << r.err;
+  EXPECT_TRUE(contains(r.err, "17 decoded")) << r.err;
 }
 
 TEST(cli_decode, AnUnreadableDbcIsNamedWithItsLine) {

@@ -96,6 +96,11 @@ SupervisedSample with_encoder(std::uint32_t count) {
   s.encoder_count = count;
   return s;
 }
+SupervisedSample with_ambient(double celsius) {
+  SupervisedSample s = healthy();
+  s.ambient_C = celsius;
+  return s;
+}
 SupervisedSample with_hardware_overcurrent() {
   SupervisedSample s = healthy();
   s.hardware_overcurrent = true;
@@ -158,7 +163,9 @@ INSTANTIATE_TEST_SUITE_P(
         SampleFaultCase{"CurrentSum", FaultCode::kCurrentSum, with_currents(30.0, 0.0, 0.0)},
         SampleFaultCase{"EncoderJump", FaultCode::kEncoderJump, with_encoder(1000 + 500)},
         SampleFaultCase{"EncoderOutOfRange", FaultCode::kEncoderJump, with_encoder(16384)},
-        SampleFaultCase{"HardwareOvercurrent", FaultCode::kHardwareOvercurrent, with_hardware_overcurrent()}),
+        SampleFaultCase{"HardwareOvercurrent", FaultCode::kHardwareOvercurrent, with_hardware_overcurrent()},
+        SampleFaultCase{"AmbientTooHot", FaultCode::kAmbientImplausible, with_ambient(327.0)},
+        SampleFaultCase{"AmbientTooCold", FaultCode::kAmbientImplausible, with_ambient(-60.0)}),
     [](const ::testing::TestParamInfo<SampleFaultCase>& param_info) { return std::string(param_info.param.name); });
 
 TEST(Supervisor, EncoderMovesFreelyWithinTheSpeedLimitAndAcrossTheWrap) {

@@ -108,7 +108,12 @@ INSTANTIATE_TEST_SUITE_P(
         WireFault{"EncoderJump", core::FaultCode::kEncoderJump,
                   [](hal::SensorSample& s) { s.encoder_count = static_cast<std::uint16_t>((s.encoder_count + 4096U) % 16384U); }},
         WireFault{"HardwareOvercurrent", core::FaultCode::kHardwareOvercurrent,
-                  [](hal::SensorSample& s) { s.flags = static_cast<std::uint8_t>(s.flags | hal::kSensorHardwareOvercurrent); }}),
+                  [](hal::SensorSample& s) { s.flags = static_cast<std::uint8_t>(s.flags | hal::kSensorHardwareOvercurrent); }},
+        WireFault{"AmbientSensorShorted", core::FaultCode::kAmbientImplausible,
+                  [](hal::SensorSample& s) {
+                    s.flags = static_cast<std::uint8_t>(s.flags | hal::kSensorAmbientValid);
+                    s.ambient_centi_C = 32767;  // a shorted NTC reads full scale
+                  }}),
     [](const ::testing::TestParamInfo<WireFault>& param_info) { return std::string(param_info.param.name); });
 
 TEST(DriveNode, MissingSamplesNoCommandThenSensorTimeoutThenRecovery) {
@@ -156,7 +161,9 @@ TEST(DriveNode, CalibrationUsesTheOperatorsTemperatureOrTheAmbientSensor) {
   Rig rig;
   rig.in.mode = core::DriveMode::kSpeed;
   rig.run(1000);
-  rig.in.ambient_C = 31.0;
+  rig.plant->set_ambient_C(31.0);  // the power stage's ambient sensor, in SENSOR_SAMPLE
+  rig.in.ambient_C = 12.0;         // what the drive assumes without one: not used
+  rig.run(2);                      // the next samples carry it
   rig.in.start_calibration = true;
   rig.run(1);
   rig.in.start_calibration = false;
@@ -173,6 +180,18 @@ TEST(DriveNode, CalibrationUsesTheOperatorsTemperatureOrTheAmbientSensor) {
   rig.in.start_calibration = false;
   rig.run(200);
   EXPECT_NEAR(rig.node->controller().telemetry().thermal.winding_C, 18.5, 0.2) << "the operator's value";
+}
+
+TEST(DriveNode, WithoutAnAmbientSensorTheConfiguredAmbientIsUsed) {
+  Rig rig;
+  auto no_sensor = [](hal::SensorSample& s) { s.flags = static_cast<std::uint8_t>(s.flags & ~hal::kSensorAmbientValid); };
+  rig.run(1000, no_sensor);
+  rig.in.ambient_C = 12.0;
+  rig.in.start_calibration = true;
+  rig.run(1, no_sensor);
+  rig.in.start_calibration = false;
+  rig.run(200, no_sensor);
+  EXPECT_NEAR(rig.node->controller().telemetry().thermal.winding_C, 12.0, 0.2);
 }
 
 }  // namespace

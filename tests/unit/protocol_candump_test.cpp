@@ -259,7 +259,7 @@ TEST(protocol_candump, RealCaptureOfProtocolFramesDecodes) {
   const dbc::Database db = dbc::load(std::string(PMSM_SOURCE_DIR) + "/can/pmsm-thermal.dbc");
   const std::vector<std::string> log = read_lines(kDataDir + "protocol_node0.log");
   const std::vector<std::string> plain = read_lines(kDataDir + "protocol_node0_default.log");
-  ASSERT_EQ(log.size(), 15U);
+  ASSERT_EQ(log.size(), 17U);
   ASSERT_EQ(plain.size(), log.size());
   std::set<std::string> seen;
   protocol::DaemonReceiver daemon(0);
@@ -292,7 +292,7 @@ TEST(protocol_candump, RealCaptureOfProtocolFramesDecodes) {
   EXPECT_NE(sample.find("SENSOR_SAMPLE(Sequence: 1001, PhaseCurrentAdcA: 205, PhaseCurrentAdcB: -102"),
             std::string::npos)
       << sample;
-  const std::string invalid = decode_line(db, log[14]).text;
+  const std::string invalid = decode_line(db, log[16]).text;
   EXPECT_NE(invalid.find("Valid: 0"), std::string::npos) << invalid;
 }
 

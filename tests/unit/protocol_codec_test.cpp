@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <array>
+#include <cctype>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -139,10 +140,10 @@ TEST(protocol_table, ValueTablesMatchEnums) {
   check(kCalibrationActionLabels, static_cast<std::size_t>(CalibrationAction::kAbort) + 1);
   check(kDriveStateLabels, static_cast<std::size_t>(DriveState::kFault) + 1);
   check(kInjectionResultLabels, static_cast<std::size_t>(InjectionResult::kSkippedTorqueDisturbance) + 1);
-  check(kFaultCodeLabels, static_cast<std::size_t>(FaultCode::kCurrentSum) + 1);
+  check(kFaultCodeLabels, static_cast<std::size_t>(FaultCode::kAmbientImplausible) + 1);
   check(kPlantModeLabels, 2);
   EXPECT_EQ(drive_command::kMode.raw_max(), 2);
-  EXPECT_EQ(fault::kCode.raw_max(), static_cast<std::int64_t>(FaultCode::kCurrentSum));
+  EXPECT_EQ(fault::kCode.raw_max(), static_cast<std::int64_t>(FaultCode::kAmbientImplausible));
   EXPECT_EQ(injection_report::kResult.raw_max(), static_cast<std::int64_t>(InjectionResult::kSkippedTorqueDisturbance));
 }
 
@@ -367,6 +368,53 @@ TEST(protocol_codec, TelemetryRoundTrip) {
   EXPECT_EQ(hr.state, DriveState::kRunning);
   EXPECT_EQ(hr.counter, 200);
   EXPECT_EQ(hr.deadline_misses, 3U);
+
+  ReceiveStatus rcv;
+  rcv.last_rejection = static_cast<std::uint8_t>(DecodeStatus::kBadCrc);
+  rcv.last_rejected_id = 0x047;
+  rcv.commands_accepted = 300;  // sent modulo 256
+  rcv.rejected_crc = 3;
+  rcv.rejected_counter = 258;
+  rcv.rejected_range = 1;
+  rcv.rejected_format = 4;
+  rcv.rejected_other = 0;
+  const ReceiveStatus rcv_back = round_trip(rcv);
+  EXPECT_EQ(rcv_back.last_rejection, static_cast<std::uint8_t>(DecodeStatus::kBadCrc));
+  EXPECT_EQ(rcv_back.last_rejected_id, 0x047);
+  EXPECT_EQ(rcv_back.commands_accepted, 300U % 256U);
+  EXPECT_EQ(rcv_back.rejected_crc, 3U);
+  EXPECT_EQ(rcv_back.rejected_counter, 2U);
+  EXPECT_EQ(rcv_back.rejected_range, 1U);
+  EXPECT_EQ(rcv_back.rejected_format, 4U);
+
+  LoopTiming timing;
+  timing.latency_p50_us = 16;
+  timing.latency_p99_us = 8192;  // beyond the signal: saturates
+  timing.latency_max_us = 87.34;
+  timing.periods = 10000;
+  timing.deadline_misses = 2;
+  CanFrame f{};
+  EXPECT_EQ(encode(timing, 2, f), EncodeStatus::kSaturated);
+  LoopTiming timing_back;
+  ASSERT_EQ(decode(f, 2, timing_back), DecodeStatus::kOk);
+  EXPECT_EQ(timing_back.latency_p50_us, 16.0);
+  EXPECT_EQ(timing_back.latency_p99_us, 4095.0);
+  EXPECT_NEAR(timing_back.latency_max_us, 87.3, 0.051);
+  EXPECT_EQ(timing_back.periods, 10000U);
+  EXPECT_EQ(timing_back.deadline_misses, 2U);
+}
+
+// RECEIVE_STATUS's value table names the codec's DecodeStatus values.
+TEST(protocol_codec, ReceiveStatusLabelsAreTheDecodeStatuses) {
+  ASSERT_EQ(kDecodeStatusLabels.size(), kDecodeStatusCount);
+  for (std::size_t i = 1; i < kDecodeStatusCount; ++i) {
+    std::string label(kDecodeStatusLabels[i].label);
+    for (char& c : label) {
+      c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+    }
+    EXPECT_EQ(kDecodeStatusLabels[i].value, static_cast<std::int64_t>(i));
+    EXPECT_EQ(label, to_string(static_cast<DecodeStatus>(i)));
+  }
 }
 
 TEST(protocol_codec, BenchFramesRoundTrip) {

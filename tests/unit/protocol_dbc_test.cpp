@@ -279,7 +279,11 @@ TEST(protocol_agreement, SensorSample) {
                                static_cast<std::int16_t>(p.integer("PhaseVoltageAdcC"))};
         m.flags = static_cast<std::uint8_t>((p.coin() ? kSensorOutputEnabled : 0) |
                                             (p.coin() ? kSensorPhaseVoltageValid : 0) |
-                                            (p.coin() ? kSensorHardwareOvercurrent : 0));
+                                            (p.coin() ? kSensorHardwareOvercurrent : 0) |
+                                            (p.coin() ? kSensorAmbientValid : 0));
+        if ((m.flags & kSensorAmbientValid) != 0U) {
+          m.ambient_centi_C = static_cast<std::int16_t>(std::lround(100.0 * p.value("AmbientTemp")));
+        }
         return m;
       },
       [](const SensorSample& m) {
@@ -294,7 +298,9 @@ TEST(protocol_agreement, SensorSample) {
                         {"PhaseVoltageAdcC", m.phase_voltage_adc[2]},
                         {"OutputEnabled", b((m.flags & kSensorOutputEnabled) != 0)},
                         {"PhaseVoltageValid", b((m.flags & kSensorPhaseVoltageValid) != 0)},
-                        {"HardwareOvercurrent", b((m.flags & kSensorHardwareOvercurrent) != 0)}};
+                        {"HardwareOvercurrent", b((m.flags & kSensorHardwareOvercurrent) != 0)},
+                        {"AmbientValid", b((m.flags & kSensorAmbientValid) != 0)},
+                        {"AmbientTemp", 0.01 * m.ambient_centi_C}};
       }});
 }
 
@@ -469,6 +475,46 @@ TEST(protocol_agreement, Heartbeat) {
       },
       [](const Heartbeat& m) {
         return Expected{{"Uptime", m.uptime_s}, {"State", e(m.state)}, {"Counter", m.counter},
+                        {"DeadlineMisses", m.deadline_misses}};
+      }});
+}
+
+TEST(protocol_agreement, ReceiveStatus) {
+  check_agreement<ReceiveStatus>(MessageType::kReceiveStatus, {
+      [](Picker& p) {
+        ReceiveStatus m;
+        m.last_rejection = static_cast<std::uint8_t>(p.integer("LastRejection"));
+        m.last_rejected_id = static_cast<std::uint16_t>(p.integer("LastRejectedId"));
+        m.commands_accepted = static_cast<std::uint64_t>(p.integer("CommandsAccepted"));
+        m.rejected_crc = static_cast<std::uint64_t>(p.integer("RejectedCrc"));
+        m.rejected_counter = static_cast<std::uint64_t>(p.integer("RejectedCounter"));
+        m.rejected_range = static_cast<std::uint64_t>(p.integer("RejectedRange"));
+        m.rejected_format = static_cast<std::uint64_t>(p.integer("RejectedFormat"));
+        m.rejected_other = static_cast<std::uint64_t>(p.integer("RejectedOther"));
+        return m;
+      },
+      [](const ReceiveStatus& m) {
+        return Expected{{"LastRejection", m.last_rejection},    {"LastRejectedId", m.last_rejected_id},
+                        {"CommandsAccepted", m.commands_accepted}, {"RejectedCrc", m.rejected_crc},
+                        {"RejectedCounter", m.rejected_counter}, {"RejectedRange", m.rejected_range},
+                        {"RejectedFormat", m.rejected_format},   {"RejectedOther", m.rejected_other}};
+      }});
+}
+
+TEST(protocol_agreement, LoopTiming) {
+  check_agreement<LoopTiming>(MessageType::kLoopTiming, {
+      [](Picker& p) {
+        LoopTiming m;
+        m.latency_p50_us = p.value("LatencyP50");
+        m.latency_p99_us = p.value("LatencyP99");
+        m.latency_max_us = p.value("LatencyMax");
+        m.periods = static_cast<std::uint32_t>(p.integer("Periods"));
+        m.deadline_misses = static_cast<std::uint32_t>(p.integer("DeadlineMisses"));
+        return m;
+      },
+      [](const LoopTiming& m) {
+        return Expected{{"LatencyP50", m.latency_p50_us}, {"LatencyP99", m.latency_p99_us},
+                        {"LatencyMax", m.latency_max_us}, {"Periods", m.periods},
                         {"DeadlineMisses", m.deadline_misses}};
       }});
 }

@@ -9,3 +9,8 @@ set_tests_properties(systemd_units_verify PROPERTIES LABELS unit SKIP_RETURN_COD
 add_test(NAME daemon_config_check
   COMMAND ${CMAKE_CURRENT_LIST_DIR}/daemon_check.sh ${PROJECT_SOURCE_DIR} $<TARGET_FILE:pmsm-thermald>)
 set_tests_properties(daemon_config_check PROPERTIES LABELS unit)
+
+# pmsm-thermal monitor on candump logs: the daemon's status frames, and commands checked.
+add_test(NAME monitor_log
+  COMMAND ${CMAKE_CURRENT_LIST_DIR}/monitor_log.sh ${PROJECT_SOURCE_DIR} $<TARGET_FILE:pmsm-thermal>)
+set_tests_properties(monitor_log PROPERTIES LABELS unit)

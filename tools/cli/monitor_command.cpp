@@ -3,8 +3,11 @@
 // time-to-limit and whether the estimate is stale; with the plant's truth frames beside it
 // when a bench publishes them, and the error. Reads the bus itself (IFACE) or a candump log
 // (--log FILE, '-' for stdin), decodes with the project's codec (CRC and alive counter of
-// commands checked: rejected frames are counted and shown), prints a line per axis every
-// --every seconds of drive time, and a summary at the end. With --check-* it is the HIL
+// commands checked: rejected frames are counted and shown, and so are the daemon's own
+// rejections from RECEIVE_STATUS), and shows a line per axis every --every seconds of drive
+// time: redrawn in place on a terminal, appended otherwise (logs, pipes, --log). Events
+// (faults, rejections) are printed above the block. A summary ends it, with the loop timing
+// of LOOP_TIMING. With --check-* it is the HIL
 // tests' judge: exit 1 when the estimates stray further from the truth than allowed.
 #include <unistd.h>
 
@@ -45,6 +48,8 @@ struct MonitorOptions {
   std::size_t min_estimates = 0;
   std::optional<double> duration_s;
   std::string csv;  // one row per THERMAL_ESTIMATE: time, node, estimate, sigma, truth
+  bool plain = false;     // --plain: never redraw in place
+  bool in_place = false;  // redraw the axis block (a live bus on a terminal)
 };
 
 const char* label(std::span<const protocol::ValueLabel> labels, std::int64_t value) {
@@ -68,6 +73,12 @@ struct Axis {
   std::uint32_t known_faults = 0;     // faults whose state a FAULT frame has told
   std::uint64_t fault_reports = 0;
   std::uint64_t injections = 0, injections_accepted = 0;
+  std::optional<protocol::ReceiveStatus> receive;  // the daemon's own rejections
+  std::optional<protocol::LoopTiming> timing;
+  double worst_latency_us = 0.0;
+  std::uint64_t timing_windows = 0, deadline_misses = 0;
+  // The commands this monitor has seen, per stream: alive counter checked as the daemon does.
+  std::array<protocol::AliveCounterCheck, protocol::kMessageCount> counters;
   // Error statistics of calibrated estimates where the truth is above the threshold.
   std::size_t n = 0;
   double sq = 0.0, sum = 0.0, max = 0.0;
@@ -88,11 +99,14 @@ class Monitor {
   void on_frame(const hal::CanFrame& frame) {
     ++frames_;
     protocol::AnyDecoded d;
-    const protocol::DecodeStatus status = protocol::decode_any(frame, d);
+    protocol::DecodeStatus status = protocol::decode_any(frame, d);
+    if (status == protocol::DecodeStatus::kOk && protocol::message_def(d.type).e2e) {
+      status = axes_[d.node].counters[static_cast<std::size_t>(d.type)].check(d.alive_counter);
+    }
     if (status != protocol::DecodeStatus::kOk) {
       ++rejected_[static_cast<std::size_t>(status)];
       if (status != protocol::DecodeStatus::kUnknownId) {
-        std::printf("rejected frame 0x%03X: %s\n", static_cast<unsigned>(frame.id), protocol::to_string(status).data());
+        event(fmt::format("rejected frame 0x{:03X}: {} ({})", frame.id, protocol::to_string(status), protocol::describe(status)));
       }
       return;
     }
@@ -119,6 +133,18 @@ class Monitor {
       a.rs = *r;
     } else if (const auto* s = std::get_if<protocol::DriveStatus>(&d.message)) {
       a.status = *s;
+    } else if (const auto* rs = std::get_if<protocol::ReceiveStatus>(&d.message)) {
+      if (a.receive && rejections(*rs) != rejections(*a.receive)) {
+        event(fmt::format("node {}: the daemon rejected {} more frame(s); last 0x{:03X}: {}", d.node,
+                          (rejections(*rs) - rejections(*a.receive)) & 0xFFU, rs->last_rejected_id,
+                          label(protocol::kDecodeStatusLabels, rs->last_rejection)));
+      }
+      a.receive = *rs;
+    } else if (const auto* lt = std::get_if<protocol::LoopTiming>(&d.message)) {
+      a.timing = *lt;
+      a.worst_latency_us = std::max(a.worst_latency_us, lt->latency_max_us);
+      ++a.timing_windows;
+      a.deadline_misses += lt->deadline_misses;
     } else if (const auto* h = std::get_if<protocol::Heartbeat>(&d.message)) {
       if (!a.plant_time) {
         set_time(a, h->uptime_s);
@@ -130,8 +156,8 @@ class Monitor {
       const bool known = (a.known_faults & bit) != 0U;  // a log may start in the middle
       a.known_faults |= bit;
       if (f->active != was || !known) {
-        std::printf("node %d: fault %s %s\n", d.node, label(protocol::kFaultCodeLabels, static_cast<std::int64_t>(f->code)),
-                    f->active ? "ACTIVE" : "cleared");
+        event(fmt::format("node {}: fault {} {}", d.node, label(protocol::kFaultCodeLabels, static_cast<std::int64_t>(f->code)),
+                          f->active ? "ACTIVE" : "cleared"));
       }
       a.active_faults = f->active ? (a.active_faults | bit) : (a.active_faults & ~bit);
     } else if (const auto* i = std::get_if<protocol::InjectionReport>(&d.message)) {
@@ -153,14 +179,50 @@ class Monitor {
     a.time_s = t;
   }
 
+  // The daemon's rejections in one RECEIVE_STATUS (each count modulo 256).
+  static std::uint64_t rejections(const protocol::ReceiveStatus& r) {
+    return r.rejected_crc + r.rejected_counter + r.rejected_range + r.rejected_format + r.rejected_other;
+  }
+
   void maybe_print(int node, Axis& a) {
     const double t = a.time_s.value_or(0.0);
     if (t + 1e-9 < a.next_print_s) {
       return;
     }
     a.next_print_s = t + o_.every_s;
-    std::printf("%s\n", line(node, a).c_str());
+    if (o_.in_place) {
+      redraw();
+    } else {
+      std::printf("%s\n", line(node, a).c_str());
+    }
     std::fflush(stdout);
+  }
+
+  // A one-off line (a fault, a rejection): above the block on a terminal.
+  void event(const std::string& text) {
+    if (o_.in_place) {
+      erase_block();
+      std::printf("%s\n", text.c_str());
+      redraw();
+    } else {
+      std::printf("%s\n", text.c_str());
+    }
+    std::fflush(stdout);
+  }
+
+  // The block of axis lines, drawn over the previous one (ANSI: cursor up, erase below).
+  void redraw() {
+    erase_block();
+    for (const auto& [node, a] : axes_) {
+      std::printf("%s\n", line(node, a).c_str());
+    }
+    block_lines_ = axes_.size();
+  }
+  void erase_block() {
+    if (block_lines_ > 0U) {
+      std::printf("\x1b[%zuF\x1b[J", block_lines_);
+      block_lines_ = 0;
+    }
   }
 
   [[nodiscard]] std::string line(int node, const Axis& a) const {
@@ -182,6 +244,11 @@ class Monitor {
                          a.status->current_limit_A);
       out += a.status->time_to_limit_valid ? fmt::format("  to limit {:.0f} s", a.status->time_to_limit_s) : "";
     }
+    if (a.receive && rejections(*a.receive) != 0U) {
+      out += fmt::format("  daemon rejected {} (crc {}, counter {}, range {}, format {}, other {})", rejections(*a.receive),
+                         a.receive->rejected_crc, a.receive->rejected_counter, a.receive->rejected_range,
+                         a.receive->rejected_format, a.receive->rejected_other);
+    }
     if (a.active_faults != 0U) {
       out += "  FAULTS:";
       for (std::size_t k = 1; k < protocol::kFaultCodeCount; ++k) {
@@ -194,7 +261,8 @@ class Monitor {
   }
 
   // The summary; false when a --check bound is broken.
-  bool summary() const {
+  bool summary() {
+    erase_block();
     bool ok = true;
     std::printf("\n%llu frame(s)", static_cast<unsigned long long>(frames_));
     std::uint64_t rejected = 0;
@@ -216,6 +284,17 @@ class Monitor {
       std::printf("node %2d  injections %llu (%llu accepted), fault reports %llu\n", node,
                   static_cast<unsigned long long>(a.injections), static_cast<unsigned long long>(a.injections_accepted),
                   static_cast<unsigned long long>(a.fault_reports));
+      if (a.receive) {
+        std::printf("node %2d  daemon: %llu command(s) accepted, %llu frame(s) rejected (modulo 256)\n", node,
+                    static_cast<unsigned long long>(a.receive->commands_accepted),
+                    static_cast<unsigned long long>(rejections(*a.receive)));
+      }
+      if (a.timing) {
+        std::printf("node %2d  control loop (last window): sample->command median < %.0f us, p99 < %.0f us; worst %.1f us "
+                    "over %llu window(s), %llu deadline miss(es)\n",
+                    node, a.timing->latency_p50_us, a.timing->latency_p99_us, a.worst_latency_us,
+                    static_cast<unsigned long long>(a.timing_windows), static_cast<unsigned long long>(a.deadline_misses));
+      }
       if (a.n > 0U) {
         const double rms = std::sqrt(a.sq / static_cast<double>(a.n));
         std::printf("node %2d  estimate vs truth above %.0f C: %zu calibrated estimates, error RMS %.2f C, max %.2f C, mean %+.2f C\n",
@@ -249,9 +328,11 @@ class Monitor {
   std::uint64_t frames_ = 0;
   std::array<std::uint64_t, protocol::kDecodeStatusCount> rejected_{};
   std::ofstream csv_;
+  std::size_t block_lines_ = 0;  // axis lines on the terminal below the cursor's line
 };
 
-int run_monitor(const MonitorOptions& o) {
+int run_monitor(MonitorOptions o) {
+  o.in_place = o.log.empty() && isatty(STDOUT_FILENO) == 1 && o.csv.empty() && !o.plain;
   std::optional<Monitor> monitor;
   try {
     monitor.emplace(o);
@@ -327,6 +408,7 @@ void register_monitor_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--min-estimates", o->min_estimates, "exit 1 when an axis has fewer compared estimates");
   cmd->add_option("--csv", o->csv, "write every THERMAL_ESTIMATE with the truth beside it as CSV");
   cmd->add_option("--duration", o->duration_s, "stop watching a live bus after this many seconds");
+  cmd->add_flag("--plain", o->plain, "one line per update even on a terminal (no redraw in place)");
   cmd->callback([o, &exit_code, cmd] {
     if (o->iface.empty() == o->log.empty()) {
       std::fprintf(stderr, "monitor: give either an interface or --log FILE\n%s", cmd->help().c_str());

@@ -146,6 +146,8 @@ constexpr MessageType type_of(std::type_identity<ThermalEstimate> /*unused*/) { 
 constexpr MessageType type_of(std::type_identity<ResistanceEstimate> /*unused*/) { return MessageType::kResistanceEstimate; }
 constexpr MessageType type_of(std::type_identity<InjectionReport> /*unused*/) { return MessageType::kInjectionReport; }
 constexpr MessageType type_of(std::type_identity<Heartbeat> /*unused*/) { return MessageType::kHeartbeat; }
+constexpr MessageType type_of(std::type_identity<ReceiveStatus> /*unused*/) { return MessageType::kReceiveStatus; }
+constexpr MessageType type_of(std::type_identity<LoopTiming> /*unused*/) { return MessageType::kLoopTiming; }
 constexpr MessageType type_of(std::type_identity<TruthThermal> /*unused*/) { return MessageType::kTruthThermal; }
 constexpr MessageType type_of(std::type_identity<TruthElectrical> /*unused*/) { return MessageType::kTruthElectrical; }
 constexpr MessageType type_of(std::type_identity<PlantStatus> /*unused*/) { return MessageType::kPlantStatus; }
@@ -189,6 +191,9 @@ void write_body(Writer& w, const SensorSample& m) noexcept {
   w.boolean(kOutputEnabled, (m.flags & kSensorOutputEnabled) != 0U);
   w.boolean(kPhaseVoltageValid, (m.flags & kSensorPhaseVoltageValid) != 0U);
   w.boolean(kHardwareOvercurrent, (m.flags & kSensorHardwareOvercurrent) != 0U);
+  const bool ambient = (m.flags & kSensorAmbientValid) != 0U;
+  w.boolean(kAmbientValid, ambient);
+  w.raw(kAmbientTemp, ambient ? m.ambient_centi_C : 0);
 }
 void read_body(const Reader& r, SensorSample& m) noexcept {
   using namespace sensor_sample;
@@ -210,6 +215,10 @@ void read_body(const Reader& r, SensorSample& m) noexcept {
   }
   if (r.boolean(kHardwareOvercurrent)) {
     flags |= kSensorHardwareOvercurrent;
+  }
+  if (r.boolean(kAmbientValid)) {
+    flags |= kSensorAmbientValid;
+    m.ambient_centi_C = r.integer<std::int16_t>(kAmbientTemp);
   }
   m.flags = flags;
 }
@@ -384,6 +393,46 @@ void read_body(const Reader& r, Heartbeat& m) noexcept {
   m.uptime_s = r.physical(kUptime);
   m.state = r.enumeration<DriveState>(kState);
   m.counter = r.integer<std::uint8_t>(kCounter);
+  m.deadline_misses = r.integer<std::uint32_t>(kDeadlineMisses);
+}
+
+void write_body(Writer& w, const ReceiveStatus& m) noexcept {
+  using namespace receive_status;
+  w.saturating(kLastRejection, m.last_rejection);
+  w.saturating(kLastRejectedId, m.last_rejected_id);
+  w.wrapping(kCommandsAccepted, m.commands_accepted);
+  w.wrapping(kRejectedCrc, m.rejected_crc);
+  w.wrapping(kRejectedCounter, m.rejected_counter);
+  w.wrapping(kRejectedRange, m.rejected_range);
+  w.wrapping(kRejectedFormat, m.rejected_format);
+  w.wrapping(kRejectedOther, m.rejected_other);
+}
+void read_body(const Reader& r, ReceiveStatus& m) noexcept {
+  using namespace receive_status;
+  m.last_rejection = r.integer<std::uint8_t>(kLastRejection);
+  m.last_rejected_id = r.integer<std::uint16_t>(kLastRejectedId);
+  m.commands_accepted = r.integer<std::uint64_t>(kCommandsAccepted);
+  m.rejected_crc = r.integer<std::uint64_t>(kRejectedCrc);
+  m.rejected_counter = r.integer<std::uint64_t>(kRejectedCounter);
+  m.rejected_range = r.integer<std::uint64_t>(kRejectedRange);
+  m.rejected_format = r.integer<std::uint64_t>(kRejectedFormat);
+  m.rejected_other = r.integer<std::uint64_t>(kRejectedOther);
+}
+
+void write_body(Writer& w, const LoopTiming& m) noexcept {
+  using namespace loop_timing;
+  w.physical(kLatencyP50, m.latency_p50_us);
+  w.physical(kLatencyP99, m.latency_p99_us);
+  w.physical(kLatencyMax, m.latency_max_us);
+  w.saturating(kPeriods, m.periods);
+  w.saturating(kDeadlineMisses, m.deadline_misses);
+}
+void read_body(const Reader& r, LoopTiming& m) noexcept {
+  using namespace loop_timing;
+  m.latency_p50_us = r.physical(kLatencyP50);
+  m.latency_p99_us = r.physical(kLatencyP99);
+  m.latency_max_us = r.physical(kLatencyMax);
+  m.periods = r.integer<std::uint32_t>(kPeriods);
   m.deadline_misses = r.integer<std::uint32_t>(kDeadlineMisses);
 }
 
@@ -696,6 +745,12 @@ EncodeStatus encode(const InjectionReport& message, NodeId node, CanFrame& out) 
 EncodeStatus encode(const Heartbeat& message, NodeId node, CanFrame& out) noexcept {
   return encode_message(message, node, out);
 }
+EncodeStatus encode(const ReceiveStatus& message, NodeId node, CanFrame& out) noexcept {
+  return encode_message(message, node, out);
+}
+EncodeStatus encode(const LoopTiming& message, NodeId node, CanFrame& out) noexcept {
+  return encode_message(message, node, out);
+}
 EncodeStatus encode(const TruthThermal& message, NodeId node, CanFrame& out) noexcept {
   return encode_message(message, node, out);
 }
@@ -721,6 +776,12 @@ DecodeStatus decode(const CanFrame& frame, NodeId node, InjectionReport& out) no
   return decode_message(frame, node, out);
 }
 DecodeStatus decode(const CanFrame& frame, NodeId node, Heartbeat& out) noexcept {
+  return decode_message(frame, node, out);
+}
+DecodeStatus decode(const CanFrame& frame, NodeId node, ReceiveStatus& out) noexcept {
+  return decode_message(frame, node, out);
+}
+DecodeStatus decode(const CanFrame& frame, NodeId node, LoopTiming& out) noexcept {
   return decode_message(frame, node, out);
 }
 DecodeStatus decode(const CanFrame& frame, NodeId node, TruthThermal& out) noexcept {
@@ -797,6 +858,8 @@ DecodeStatus decode_any(const CanFrame& frame, AnyDecoded& out) noexcept {
     case MessageType::kResistanceEstimate: return decode_any_as<ResistanceEstimate>(frame, out);
     case MessageType::kInjectionReport: return decode_any_as<InjectionReport>(frame, out);
     case MessageType::kHeartbeat: return decode_any_as<Heartbeat>(frame, out);
+    case MessageType::kReceiveStatus: return decode_any_as<ReceiveStatus>(frame, out);
+    case MessageType::kLoopTiming: return decode_any_as<LoopTiming>(frame, out);
     case MessageType::kTruthThermal: return decode_any_as<TruthThermal>(frame, out);
     case MessageType::kTruthElectrical: return decode_any_as<TruthElectrical>(frame, out);
     case MessageType::kPlantStatus: return decode_any_as<PlantStatus>(frame, out);

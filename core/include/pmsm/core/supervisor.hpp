@@ -60,7 +60,8 @@ enum class FaultCode : std::uint8_t {
   kInputNotFinite = 16,      // NaN or infinity in a measurement
   kEncoderJump = 17,         // the angle moved more in one period than the speed allows
   kCurrentSum = 18,          // |ia + ib + ic| too large: a broken phase-current sensor
-  kCount = 19,
+  kAmbientImplausible = 19,  // the ambient / coolant sensor reads outside its plausible window
+  kCount = 20,
 };
 
 [[nodiscard]] const char* to_string(DriveState state) noexcept;
@@ -80,6 +81,8 @@ struct SupervisorConfig {
   double command_timeout_s = 0.0;        // enabled without a fresh command this long: trip (0: off)
   double trip_temp_C = 180.0;            // winding estimate above: over-temperature trip
   double trip_hysteresis_C = 10.0;       // may be cleared once below trip - hysteresis
+  double ambient_min_C = -50.0;          // ambient / coolant sensor window: outside, the
+  double ambient_max_C = 130.0;          // reading is implausible (the thermal model's input)
 };
 
 // The sample's measurements, as the sensor front end scaled them.
@@ -88,6 +91,7 @@ struct SupervisedSample {
   double vdc_V = 0.0;
   std::uint32_t encoder_count = 0;
   bool hardware_overcurrent = false;
+  std::optional<double> ambient_C;  // the ambient / coolant sensor, if the sample carries it
 };
 
 struct SupervisorInput {

@@ -148,6 +148,8 @@ EncodeStatus encode(const ThermalEstimate& message, NodeId node, CanFrame& out) 
 EncodeStatus encode(const ResistanceEstimate& message, NodeId node, CanFrame& out) noexcept;
 EncodeStatus encode(const InjectionReport& message, NodeId node, CanFrame& out) noexcept;
 EncodeStatus encode(const Heartbeat& message, NodeId node, CanFrame& out) noexcept;
+EncodeStatus encode(const ReceiveStatus& message, NodeId node, CanFrame& out) noexcept;
+EncodeStatus encode(const LoopTiming& message, NodeId node, CanFrame& out) noexcept;
 EncodeStatus encode(const TruthThermal& message, NodeId node, CanFrame& out) noexcept;
 EncodeStatus encode(const TruthElectrical& message, NodeId node, CanFrame& out) noexcept;
 EncodeStatus encode(const PlantStatus& message, NodeId node, CanFrame& out) noexcept;
@@ -157,6 +159,8 @@ EncodeStatus encode(const PlantStatus& message, NodeId node, CanFrame& out) noex
 [[nodiscard]] DecodeStatus decode(const CanFrame& frame, NodeId node, ResistanceEstimate& out) noexcept;
 [[nodiscard]] DecodeStatus decode(const CanFrame& frame, NodeId node, InjectionReport& out) noexcept;
 [[nodiscard]] DecodeStatus decode(const CanFrame& frame, NodeId node, Heartbeat& out) noexcept;
+[[nodiscard]] DecodeStatus decode(const CanFrame& frame, NodeId node, ReceiveStatus& out) noexcept;
+[[nodiscard]] DecodeStatus decode(const CanFrame& frame, NodeId node, LoopTiming& out) noexcept;
 [[nodiscard]] DecodeStatus decode(const CanFrame& frame, NodeId node, TruthThermal& out) noexcept;
 [[nodiscard]] DecodeStatus decode(const CanFrame& frame, NodeId node, TruthElectrical& out) noexcept;
 [[nodiscard]] DecodeStatus decode(const CanFrame& frame, NodeId node, PlantStatus& out) noexcept;
@@ -173,7 +177,7 @@ EncodeStatus encode(const PlantStatus& message, NodeId node, CanFrame& out) noex
 using AnyMessage =
     std::variant<InverterCommand, SensorSample, DriveCommand, InjectionCommand, CalibrationCommand,
                  FaultReport, DriveStatus, ThermalEstimate, ResistanceEstimate, InjectionReport,
-                 Heartbeat, TruthThermal, TruthElectrical, PlantStatus>;
+                 Heartbeat, ReceiveStatus, LoopTiming, TruthThermal, TruthElectrical, PlantStatus>;
 
 struct AnyDecoded {
   MessageType type = MessageType::kInverterCommand;

@@ -17,6 +17,7 @@ enum SensorFlag : std::uint8_t {
   kSensorOutputEnabled = 1U << 0,    // the inverter's gates are switching
   kSensorPhaseVoltageValid = 1U << 1, // phase_voltage_adc holds measurements
   kSensorHardwareOvercurrent = 1U << 2, // the power stage's own comparator tripped
+  kSensorAmbientValid = 1U << 3,     // ambient_centi_C holds a reading
 };
 
 // One period's sensor readings, plant -> controller. Sampled at the start of period
@@ -28,6 +29,7 @@ struct SensorSample {
   std::uint16_t dc_bus_adc = 0;                    // unsigned DC-bus voltage code
   std::array<std::int16_t, 3> phase_voltage_adc{}; // phase-to-neutral voltages, if sensed
   std::uint8_t flags = 0;                          // SensorFlag bits
+  std::int16_t ambient_centi_C = 0;                // ambient / coolant sensor, 0.01 C (if valid)
 };
 
 // The controller's command for one period, controller -> plant. The command computed from

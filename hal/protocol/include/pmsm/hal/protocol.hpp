@@ -80,11 +80,13 @@ enum class MessageType : std::uint8_t {
   kResistanceEstimate,
   kInjectionReport,
   kHeartbeat,
+  kReceiveStatus,
+  kLoopTiming,
   kTruthThermal,
   kTruthElectrical,
   kPlantStatus,
 };
-inline constexpr std::size_t kMessageCount = 14;
+inline constexpr std::size_t kMessageCount = 16;
 
 // ---------------------------------------------------------------------------------------
 // Definition types
@@ -251,8 +253,9 @@ enum class FaultCode : std::uint8_t {
   kInputNotFinite = 16,      // NaN or infinity in a measurement
   kEncoderJump = 17,         // the angle moved more in one period than the speed limit allows
   kCurrentSum = 18,          // |ia + ib + ic| too large: a phase-current sensor is broken
+  kAmbientImplausible = 19,  // the ambient / coolant sensor reads outside its window
 };
-inline constexpr std::size_t kFaultCodeCount = 19;
+inline constexpr std::size_t kFaultCodeCount = 20;
 inline constexpr std::array<ValueLabel, kFaultCodeCount> kFaultCodeLabels{{
     {0, "NONE"},
     {1, "SENSOR_TIMEOUT"},
@@ -272,7 +275,8 @@ inline constexpr std::array<ValueLabel, kFaultCodeCount> kFaultCodeLabels{{
     {15, "DC_BUS_OVERVOLTAGE"},
     {16, "INPUT_NOT_FINITE"},
     {17, "ENCODER_JUMP"},
-    {18, "CURRENT_SUM"}}};
+    {18, "CURRENT_SUM"},
+    {19, "AMBIENT_IMPLAUSIBLE"}}};
 
 enum class PlantMode : std::uint8_t { kRealtime = 0, kLockstep = 1 };
 inline constexpr std::array<ValueLabel, 2> kPlantModeLabels{{{0, "REALTIME"}, {1, "LOCKSTEP"}}};
@@ -356,6 +360,31 @@ struct Heartbeat {
   std::uint32_t deadline_misses = 0;   // since start; saturates at 65535 on the bus
 };
 
+// What the daemon did with the frames addressed to it (commands and sensor samples): counts
+// since start by reason, each sent modulo 256 (a watcher takes differences), and the last
+// rejection. The reasons are the codec's DecodeStatus values (a test checks the labels).
+struct ReceiveStatus {
+  std::uint8_t last_rejection = 0;        // DecodeStatus of the last rejected frame (0: none yet)
+  std::uint16_t last_rejected_id = 0;     // its CAN ID
+  std::uint64_t commands_accepted = 0;    // drive + injection + calibration commands acted on
+  std::uint64_t rejected_crc = 0;         // bad CRC
+  std::uint64_t rejected_counter = 0;     // repeated alive counter or a jump (stale, lost, replayed)
+  std::uint64_t rejected_range = 0;       // a signal out of its range
+  std::uint64_t rejected_format = 0;      // wrong length or frame format
+  std::uint64_t rejected_other = 0;       // unknown ID, another node's frame
+};
+
+// The control loop's sample -> command latency over the last window (one HEARTBEAT period),
+// from the loop's log2-bucket histogram: the percentiles are the upper bounds of the buckets
+// holding them, the maximum is exact.
+struct LoopTiming {
+  double latency_p50_us = 0.0;
+  double latency_p99_us = 0.0;
+  double latency_max_us = 0.0;
+  std::uint32_t periods = 0;              // commands sent in the window (saturates at 65535 on the bus)
+  std::uint32_t deadline_misses = 0;      // in the window (saturates at 255 on the bus)
+};
+
 struct TruthThermal {
   double winding_temp_C = 0.0;
   double housing_temp_C = 0.0;
@@ -437,10 +466,14 @@ inline constexpr SignalDef kPhaseVoltageValid{"PhaseVoltageValid", 161, 1, false
     "The PhaseVoltageAdc signals hold measurements."};
 inline constexpr SignalDef kHardwareOvercurrent{"HardwareOvercurrent", 162, 1, false, 1, 0, 0, 1, "", detail::kNoValues,
     "The power stage's own over-current comparator tripped."};
-inline constexpr std::array<SignalDef, 12> kSignals{
+inline constexpr SignalDef kAmbientValid{"AmbientValid", 163, 1, false, 1, 0, 0, 1, "", detail::kNoValues,
+    "AmbientTemp holds a reading of the drive's ambient / coolant sensor."};
+inline constexpr SignalDef kAmbientTemp{"AmbientTemp", 176, 16, true, 0.01, 0, -327.68, 327.67, "degC", detail::kNoValues,
+    "The drive's ambient / coolant temperature sensor (valid if AmbientValid): the thermal model's boundary."};
+inline constexpr std::array<SignalDef, 14> kSignals{
     kSequence, kPhaseCurrentAdcA, kPhaseCurrentAdcB, kPhaseCurrentAdcC, kEncoderCount, kDcBusAdc,
     kPhaseVoltageAdcA, kPhaseVoltageAdcB, kPhaseVoltageAdcC, kOutputEnabled, kPhaseVoltageValid,
-    kHardwareOvercurrent};
+    kHardwareOvercurrent, kAmbientValid, kAmbientTemp};
 }  // namespace sensor_sample
 
 namespace drive_command {
@@ -478,7 +511,7 @@ inline constexpr std::array<SignalDef, 4> kSignals{e2e::kCrc, e2e::kAliveCounter
 }  // namespace calibration_command
 
 namespace fault {
-inline constexpr SignalDef kCode{"Code", 0, 8, false, 1, 0, 0, 18, "", kFaultCodeLabels, "Fault code."};
+inline constexpr SignalDef kCode{"Code", 0, 8, false, 1, 0, 0, 19, "", kFaultCodeLabels, "Fault code."};
 inline constexpr SignalDef kActive{"Active", 8, 1, false, 1, 0, 0, 1, "", detail::kNoValues,
     "1: the fault is active; 0: it has cleared."};
 inline constexpr SignalDef kOccurrenceCount{"OccurrenceCount", 16, 16, false, 1, 0, 0, 65535, "", detail::kNoValues,
@@ -580,6 +613,46 @@ inline constexpr SignalDef kDeadlineMisses{"DeadlineMisses", 48, 16, false, 1, 0
 inline constexpr std::array<SignalDef, 4> kSignals{kUptime, kState, kCounter, kDeadlineMisses};
 }  // namespace heartbeat
 
+// The codec's DecodeStatus numbering (codec.hpp; a test checks the two agree).
+inline constexpr std::array<ValueLabel, 9> kDecodeStatusLabels{{
+    {0, "NONE"}, {1, "UNKNOWN_ID"}, {2, "WRONG_NODE"}, {3, "WRONG_FRAME_FORMAT"}, {4, "WRONG_LENGTH"},
+    {5, "BAD_CRC"}, {6, "REPEATED_COUNTER"}, {7, "COUNTER_JUMP"}, {8, "OUT_OF_RANGE"}}};
+
+namespace receive_status {
+inline constexpr SignalDef kLastRejection{"LastRejection", 0, 4, false, 1, 0, 0, 8, "", kDecodeStatusLabels,
+    "Why the last rejected frame was rejected (NONE: nothing rejected since start)."};
+inline constexpr SignalDef kLastRejectedId{"LastRejectedId", 4, 11, false, 1, 0, 0, 2047, "", detail::kNoValues,
+    "CAN ID of the last rejected frame."};
+inline constexpr SignalDef kCommandsAccepted{"CommandsAccepted", 16, 8, false, 1, 0, 0, 255, "", detail::kNoValues,
+    "Drive, injection and calibration commands acted on since start (modulo 256)."};
+inline constexpr SignalDef kRejectedCrc{"RejectedCrc", 24, 8, false, 1, 0, 0, 255, "", detail::kNoValues,
+    "Frames rejected for a bad CRC since start (modulo 256)."};
+inline constexpr SignalDef kRejectedCounter{"RejectedCounter", 32, 8, false, 1, 0, 0, 255, "", detail::kNoValues,
+    "Commands rejected for their alive counter (repeated: replayed or stale; jump: lost) since start (modulo 256)."};
+inline constexpr SignalDef kRejectedRange{"RejectedRange", 40, 8, false, 1, 0, 0, 255, "", detail::kNoValues,
+    "Frames rejected for a signal out of its range since start (modulo 256)."};
+inline constexpr SignalDef kRejectedFormat{"RejectedFormat", 48, 8, false, 1, 0, 0, 255, "", detail::kNoValues,
+    "Frames rejected for a wrong length or frame format since start (modulo 256)."};
+inline constexpr SignalDef kRejectedOther{"RejectedOther", 56, 8, false, 1, 0, 0, 255, "", detail::kNoValues,
+    "Frames rejected as unknown or another node's since start (modulo 256)."};
+inline constexpr std::array<SignalDef, 8> kSignals{kLastRejection, kLastRejectedId, kCommandsAccepted, kRejectedCrc,
+                                                   kRejectedCounter, kRejectedRange, kRejectedFormat, kRejectedOther};
+}  // namespace receive_status
+
+namespace loop_timing {
+inline constexpr SignalDef kLatencyP50{"LatencyP50", 0, 12, false, 1, 0, 0, 4095, "us", detail::kNoValues,
+    "Median sample -> command latency in the window: upper bound of its log2 bucket (saturates)."};
+inline constexpr SignalDef kLatencyP99{"LatencyP99", 12, 12, false, 1, 0, 0, 4095, "us", detail::kNoValues,
+    "99th percentile of the latency in the window: upper bound of its log2 bucket (saturates)."};
+inline constexpr SignalDef kLatencyMax{"LatencyMax", 24, 16, false, 0.1, 0, 0, 6553.5, "us", detail::kNoValues,
+    "Largest latency in the window (saturates)."};
+inline constexpr SignalDef kPeriods{"Periods", 40, 16, false, 1, 0, 0, 65535, "", detail::kNoValues,
+    "Commands sent in the window (saturates): the number of latencies behind the figures."};
+inline constexpr SignalDef kDeadlineMisses{"DeadlineMisses", 56, 8, false, 1, 0, 0, 255, "", detail::kNoValues,
+    "Latencies longer than one control period in the window (saturates)."};
+inline constexpr std::array<SignalDef, 5> kSignals{kLatencyP50, kLatencyP99, kLatencyMax, kPeriods, kDeadlineMisses};
+}  // namespace loop_timing
+
 namespace truth_thermal {
 inline constexpr SignalDef kWindingTemp{"WindingTemp", 0, 16, true, 0.01, 0, -327.68, 327.67, "degC", detail::kNoValues,
     "True winding temperature."};
@@ -665,6 +738,12 @@ inline constexpr std::array<MessageDef, kMessageCount> kMessages{{
     {MessageType::kHeartbeat, "HEARTBEAT", 0x140, 8, false, Role::kDaemon, detail::kToWatchers,
      false, 1000, "every 1 s", heartbeat::kSignals,
      "Daemon liveness: uptime, state, counter, deadline misses."},
+    {MessageType::kReceiveStatus, "RECEIVE_STATUS", 0x150, 8, false, Role::kDaemon, detail::kToWatchers,
+     false, 1000, "with every HEARTBEAT, and at most every 100 ms while frames are being rejected", receive_status::kSignals,
+     "What the daemon did with the frames sent to it: commands accepted, rejections by reason, the last one."},
+    {MessageType::kLoopTiming, "LOOP_TIMING", 0x160, 8, false, Role::kDaemon, detail::kToWatchers,
+     false, 1000, "with every HEARTBEAT", loop_timing::kSignals,
+     "Control-loop timing over the last HEARTBEAT period: sample -> command latency and deadline misses."},
     {MessageType::kTruthThermal, "TRUTH_THERMAL", 0x200, 8, false, Role::kPlant, detail::kToBench,
      false, 100, "every 100 ms (plant only, never read by the daemon)", truth_thermal::kSignals,
      "Plant ground truth: temperatures, as a bench's thermocouples would report them."},
