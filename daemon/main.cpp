@@ -33,6 +33,7 @@
 
 #include "daemon_config.hpp"
 #include "drive_loop.hpp"
+#include "fault_watch.hpp"
 #include "pmsm/hal/gpio.hpp"
 #include "pmsm/hal/protocol_filters.hpp"
 #include "pmsm/hal/record_drain.hpp"
@@ -213,6 +214,25 @@ int run(const Options& o) {
     spdlog::warn("control thread not pinned: {}", setup.affinity_warning);
   }
 
+  // The fault input: woken by its edge events (or polled), straight into the loop's flag.
+  pmsm::daemon::FaultWatchStats fault_watch_stats;
+  std::thread fault_thread([&] {
+    bool read_failing = false;
+    pmsm::daemon::watch_fault_input(
+        *fault_input, stop, pmsm::hal::stop_signal_fd(),
+        [&](bool fault, bool read_ok) {
+          loop.set_gpio_fault(fault);
+          if (!read_ok && !read_failing) {
+            spdlog::error("GPIO: cannot read the fault input {} ({}): treated as a fault", fault_input->describe(),
+                          pmsm::hal::errno_text(fault_input->last_error_number()));
+          } else if (read_ok && read_failing) {
+            spdlog::info("GPIO: the fault input reads again");
+          }
+          read_failing = !read_ok;
+        },
+        fault_watch_stats);
+  });
+
   sd_notify(0, "READY=1\nSTATUS=controlling");
   spdlog::info("ready: waiting for SENSOR_SAMPLE frames of node {} on {}", config.can.node, config.can.interface);
 
@@ -234,9 +254,6 @@ int run(const Options& o) {
         spdlog::error("GPIO: cannot set the gate enable {}", gates ? "on" : "off");
       }
     }
-    if (const std::optional<bool> f = fault_input->fault_active()) {
-      loop.set_gpio_fault(*f);
-    }
     if (watchdog && std::chrono::steady_clock::now() >= next_watchdog) {
       next_watchdog += watchdog_every;
       const std::uint64_t beat = loop.heartbeat();
@@ -247,6 +264,7 @@ int run(const Options& o) {
     }
   }
   sd_notify(0, "STOPPING=1");
+  fault_thread.join();
   rt_thread.join();
   (void)gate->set_active(false);
   drain.stop();

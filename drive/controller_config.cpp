@@ -298,8 +298,10 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
     }
     return out + ")";
   };
+  // Every broken rule is reported, one line each (like the per-key errors of the schema).
+  std::string errors;
   auto rule = [&](std::string_view a, std::string_view b, const std::string& text) {
-    throw ConfigError(location(lead(a, b)) + text);
+    errors += (errors.empty() ? "" : "\n") + location(lead(a, b)) + text;
   };
 
   // Both ends given and crossed: that is the contradiction (else the resistance checks below
@@ -314,20 +316,26 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
   // A nameplate resistance outside the plausibility window: every estimate near the reference
   // temperature would be rejected (the Table I window never lets a 1.6 ohm servo calibrate).
   // Likewise a stored Rs0, which holds at its own T0.
+  // (A stored Rs0 is named only where the file gives it: by default it is the nameplate.)
+  bool window_reported = window_given && d.injection.rs_min_ohm >= d.injection.rs_max_ohm;
   for (const std::string_view r : {std::string_view("motor.rs_ohm"), std::string_view("calibration.rs0_ohm")}) {
+    if (r == "calibration.rs0_ohm" && !given(r)) {
+      continue;
+    }
     const double rs = r == "motor.rs_ohm" ? m.rs_ohm : d.calibration.rs0_ohm;
     for (const std::string_view end : {std::string_view("injection.rs_min_ohm"), std::string_view("injection.rs_max_ohm")}) {
       const bool lower = end == "injection.rs_min_ohm";
       const double limit = lower ? d.injection.rs_min_ohm : d.injection.rs_max_ohm;
-      if (lower ? rs < limit : rs > limit) {
+      if (!window_reported && (lower ? rs < limit : rs > limit)) {
         const std::string_view l = lead(end, r);
         rule(end, r,
              ref(r, rs, "ohm", l) + " lies " + (lower ? "below " : "above ") + ref(end, limit, "ohm", l) +
                  ": the plausibility window would reject every resistance estimate near the reference temperature");
+        window_reported = true;
       }
     }
   }
-  if (d.injection.rs_min_ohm >= d.injection.rs_max_ohm) {  // equal ends around the nameplate
+  if (!window_reported && d.injection.rs_min_ohm >= d.injection.rs_max_ohm) {  // equal ends around the nameplate
     rule("injection.rs_min_ohm", "injection.rs_max_ohm", "injection.rs_min_ohm must be below injection.rs_max_ohm");
   }
   // A reluctance-torque budget the load-change guard always rejects: the speed loop answers a
@@ -362,6 +370,9 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
   }
   if (d.injection.settle_s + 2.0 * d.period_s > d.injection.record_time_s) {
     rule("injection.record_time_s", "injection.settle_s", "injection.record_time_s must be longer than injection.settle_s");
+  }
+  if (!errors.empty()) {
+    throw ConfigError(errors);
   }
 }
 

@@ -9,3 +9,8 @@ pmsm_add_gtest(daemon_alloc_test LABEL integration
   SOURCES ${CMAKE_CURRENT_LIST_DIR}/daemon_alloc_test.cpp
   LIBS pmsm_daemon pmsm_plant_node pmsm_sim
   TIMEOUT 400)
+
+# The GPIO fault-input watcher (edge events, a failed read is a fault).
+pmsm_add_gtest(daemon_fault_watch_test LABEL unit
+  SOURCES ${PROJECT_SOURCE_DIR}/tests/unit/daemon_fault_watch_test.cpp
+  LIBS pmsm_daemon)

@@ -1,15 +1,17 @@
 // pmsm-thermald's control thread allocates nothing: DriveLoop::run() on its own thread,
 // against the plant node on the in-process bus, through start-up, the ADC offset calibration,
 // an Rs0 calibration by command, injection events with published estimates, and every
-// publication pushed to the ring. The global operator new is replaced in this binary and
-// counts the calls made on the loop's thread only (the plant, the bus and the publishing
-// thread are not the daemon's control thread).
+// publication pushed to the ring. malloc, calloc, realloc and the memalign family are
+// replaced in this binary (glibc supports that; operator new comes through them too) and
+// count the calls made on the loop's thread only (the plant, the bus and the publishing thread
+// are not the daemon's control thread).
 #include <gtest/gtest.h>
 
 #include <atomic>
 #include <chrono>
+#include <cerrno>
 #include <cstdlib>
-#include <new>
+#include <cstring>
 #include <thread>
 
 #include "daemon_config.hpp"
@@ -26,28 +28,79 @@ std::atomic<long> g_loop_allocations{0};
 std::atomic<long> g_all_allocations{0};
 }  // namespace
 
-// GCC 12 sees the replaced new/delete pair inlined into gtest's factory and warns that free()
-// gets memory from "new": here both are ours and use malloc/free.
-#pragma GCC diagnostic ignored "-Wmismatched-new-delete"
+// glibc's allocator under its own names: the replacements below count, then hand over.
+extern "C" {
+void* __libc_malloc(std::size_t size);
+void* __libc_calloc(std::size_t count, std::size_t size);
+void* __libc_realloc(void* p, std::size_t size);
+void* __libc_memalign(std::size_t alignment, std::size_t size);
+void __libc_free(void* p);
+}
 
-void* operator new(std::size_t size) {
+namespace {
+void note_allocation() noexcept {
   g_all_allocations.fetch_add(1, std::memory_order_relaxed);
   if (t_counting) {
     g_loop_allocations.fetch_add(1, std::memory_order_relaxed);
   }
-  if (void* p = std::malloc(size == 0 ? 1 : size)) {
-    return p;
-  }
-  throw std::bad_alloc();
 }
-void operator delete(void* p) noexcept { std::free(p); }
-void operator delete(void* p, std::size_t /*size*/) noexcept { std::free(p); }
+}  // namespace
+
+extern "C" {
+void* malloc(std::size_t size) {
+  note_allocation();
+  return __libc_malloc(size);
+}
+void* calloc(std::size_t count, std::size_t size) {
+  note_allocation();
+  return __libc_calloc(count, size);
+}
+void* realloc(void* p, std::size_t size) {
+  note_allocation();
+  return __libc_realloc(p, size);
+}
+void* aligned_alloc(std::size_t alignment, std::size_t size) {
+  note_allocation();
+  return __libc_memalign(alignment, size);
+}
+void* memalign(std::size_t alignment, std::size_t size) {
+  note_allocation();
+  return __libc_memalign(alignment, size);
+}
+int posix_memalign(void** out, std::size_t alignment, std::size_t size) {
+  note_allocation();
+  void* p = __libc_memalign(alignment, size);
+  if (p == nullptr) {
+    return ENOMEM;
+  }
+  *out = p;
+  return 0;
+}
+void free(void* p) { __libc_free(p); }
+}
 
 namespace pmsm::daemon {
 namespace {
 
 using namespace std::chrono_literals;
 namespace protocol = hal::protocol;
+
+// The counter sees what it must: malloc itself, operator new, and libc's own allocations.
+TEST(DaemonAlloc, TheCounterSeesMallocNewAndLibc) {
+  long counted = 0;
+  std::thread t([&] {
+    t_counting = true;
+    void* (*volatile allocate)(std::size_t) = &std::malloc;
+    std::free(allocate(24));
+    int* volatile object = new int(3);  // volatile: the pair must not be elided
+    delete object;
+    std::free(strdup("a string"));
+    t_counting = false;
+    counted = g_loop_allocations.exchange(0);
+  });
+  t.join();
+  EXPECT_EQ(counted, 3);
+}
 
 TEST(DaemonAlloc, TheControlThreadAllocatesNothing) {
   const app::Scenario scenario =

@@ -7,6 +7,7 @@
 //   - command timeout -> the safe state; a stop command clears it;
 //   - corrupt, repeated and malformed commands rejected and counted by reason, valid ones
 //     acted on;
+//   - the GPIO fault input (through the watcher) trips the drive and clears when quiet;
 //   - two axes on one bus, each tracking its own plant.
 #include <gtest/gtest.h>
 
@@ -21,6 +22,8 @@
 
 #include "daemon_config.hpp"
 #include "drive_loop.hpp"
+#include "fault_watch.hpp"
+#include "pmsm/hal/gpio.hpp"
 #include "pmsm/hal/codec.hpp"
 #include "pmsm/hal/protocol_filters.hpp"
 #include "pmsm/hal/record_drain.hpp"
@@ -102,6 +105,7 @@ class Axis {
   }
   [[nodiscard]] bool plant_done() const { return plant_done_; }
   [[nodiscard]] const DriveLoop& loop() const { return *loop_; }
+  [[nodiscard]] DriveLoop& loop() { return *loop_; }
   [[nodiscard]] protocol::NodeId node() const { return node_; }
 
  private:
@@ -318,6 +322,51 @@ TEST(DaemonLoop, CommandTimeoutSafeStateAndAStopCommandClearsIt) {
   EXPECT_TRUE(has_state(seen, 3, protocol::DriveState::kRunning, cleared));
 }
 
+// The power stage's fault line, through the daemon's watcher (edge events): the drive trips
+// at once, gates off, FAULT on the bus; once the line is quiet a stop command clears it.
+TEST(DaemonLoop, GpioFaultInputTripsTheDriveAndClearsWhenQuiet) {
+  Bench bench;
+  Axis axis(bench.bus, 6, 1e6);
+  axis.start_daemon();
+  axis.start_plant();
+  hal::SimFaultInput line;
+  std::atomic<bool> watch_stop{false};
+  FaultWatchStats watch_stats;
+  std::thread watcher([&] {
+    watch_fault_input(line, watch_stop, -1, [&](bool fault, bool /*read_ok*/) { axis.loop().set_gpio_fault(fault); },
+                      watch_stats, 20ms);
+  });
+  std::vector<protocol::AnyDecoded> seen;
+  supervise(bench, {6}, 50.0, 30s, seen, [&] { return has_state(seen, 6, protocol::DriveState::kRunning); });
+  ASSERT_TRUE(has_state(seen, 6, protocol::DriveState::kRunning));
+  const std::size_t tripped = seen.size();
+  line.set_fault(true);
+  supervise(bench, {6}, 50.0, 10s, seen, [&] { return has_fault(seen, 6, protocol::FaultCode::kGpioFault, true, tripped); });
+  EXPECT_TRUE(has_fault(seen, 6, protocol::FaultCode::kGpioFault, true, tripped));
+  EXPECT_TRUE(has_state(seen, 6, protocol::DriveState::kFault, tripped));
+  EXPECT_FALSE(axis.loop().gates_enabled());
+  // Still asserted: a stop command does not clear it. (Kept short: the scenario's load is
+  // an active 60 Nm that spins the free shaft backwards once the gates are off, and beyond
+  // the encoder's plausible speed the supervisor latches ENCODER_JUMP, as it should.)
+  bench.stop_drive(6);
+  std::this_thread::sleep_for(50ms);
+  const std::vector<protocol::AnyDecoded> held = bench.drain();
+  EXPECT_FALSE(has_fault(held, 6, protocol::FaultCode::kGpioFault, false)) << "cleared while the line is active";
+  for (const protocol::AnyDecoded& d : held) {
+    seen.push_back(d);
+  }
+  line.set_fault(false);
+  std::this_thread::sleep_for(10ms);
+  bench.stop_drive(6);
+  const std::size_t quiet = seen.size();
+  supervise(bench, {6}, 50.0, 10s, seen, [&] { return has_state(seen, 6, protocol::DriveState::kRunning, quiet); });
+  EXPECT_TRUE(has_fault(seen, 6, protocol::FaultCode::kGpioFault, false, quiet));
+  EXPECT_TRUE(has_state(seen, 6, protocol::DriveState::kRunning, quiet));
+  watch_stop = true;
+  watcher.join();
+  EXPECT_TRUE(watch_stats.edge_driven);
+}
+
 TEST(DaemonLoop, BadCommandsAreRejectedByReasonAndValidOnesActedOn) {
   Bench bench;
   Axis axis(bench.bus, 4, 1e6);
@@ -361,6 +410,32 @@ TEST(DaemonLoop, BadCommandsAreRejectedByReasonAndValidOnesActedOn) {
   supervise(bench, {4}, 50.0, 1s, later, [] { return false; });
   EXPECT_FALSE(has_state(later, 4, protocol::DriveState::kStandby)) << "a rejected stop was acted on";
   EXPECT_TRUE(has_state(later, 4, protocol::DriveState::kRunning));
+  // The rejections are on the bus: RECEIVE_STATUS counts them by reason and names the last.
+  const protocol::ReceiveStatus* status = nullptr;
+  for (const protocol::AnyDecoded& d : later) {
+    if (const auto* r = as<protocol::ReceiveStatus>(d); r != nullptr && d.node == 4) {
+      status = r;
+    }
+  }
+  ASSERT_NE(status, nullptr) << "no RECEIVE_STATUS from node 4";
+  EXPECT_EQ(status->rejected_crc, s.rejected[static_cast<std::size_t>(protocol::DecodeStatus::kBadCrc)] % 256U);
+  EXPECT_GE(status->rejected_crc, 1U);
+  EXPECT_GE(status->rejected_format, 1U);
+  EXPECT_GE(status->rejected_counter, 1U);
+  EXPECT_EQ(status->last_rejection, static_cast<std::uint8_t>(protocol::DecodeStatus::kRepeatedCounter));
+  EXPECT_EQ(status->last_rejected_id, protocol::can_id(protocol::MessageType::kDriveCommand, 4));
+  EXPECT_GE(status->commands_accepted, 1U);
+  // And the loop's timing, with each heartbeat.
+  const protocol::LoopTiming* timing = nullptr;
+  for (const protocol::AnyDecoded& d : later) {
+    if (const auto* t = as<protocol::LoopTiming>(d); t != nullptr && d.node == 4) {
+      timing = t;
+    }
+  }
+  ASSERT_NE(timing, nullptr) << "no LOOP_TIMING from node 4";
+  EXPECT_GT(timing->periods, 0U);
+  EXPECT_GE(timing->latency_p99_us, timing->latency_p50_us);
+  EXPECT_LE(timing->latency_p50_us, 2.0 * timing->latency_max_us + 1.0);
   // A valid stop is acted on.
   bench.stop_drive(4);
   std::vector<protocol::AnyDecoded> stopped;

@@ -44,6 +44,17 @@ out=$("$exe" --config "$dir/bad.toml" --check 2>&1)
 for want in 'bad.toml:2: can.node' 'bad.toml:3: can.bitrate: unknown key' 'bad.toml:5: rt.priority' 'bad.toml:7: controller.motor.rs_ohm'; do
   if [[ "$out" != *"$want"* ]]; then echo "FAIL: '$want' missing from the list of bad keys: $out"; fail=1; fi
 done
+# Every broken cross-key rule at once, the daemon's and the drive's.
+check_bad '[supervisor]\ntrip_temp_C = 100\novercurrent_A = 5000\n[gpio]\nfault_line = 3\n' 2 'supervisor.trip_temp_C'
+out=$("$exe" --config "$dir/bad.toml" --check 2>&1)
+for want in 'supervisor.overcurrent_A (5000 A) must be below' 'gpio.fault_line needs gpio.chip'; do
+  if [[ "$out" != *"$want"* ]]; then echo "FAIL: '$want' missing from the broken rules: $out"; fail=1; fi
+done
+check_bad '[controller.derating]\nstart_C = 200\nlimit_C = 150\n[controller.injection]\nrecord_time_s = 0.01\nsettle_s = 0.5\n' 2 'derating.start_C must be below'
+out=$("$exe" --config "$dir/bad.toml" --check 2>&1)
+if [[ "$out" != *'injection.record_time_s must be longer'* ]]; then
+  echo "FAIL: the second broken drive rule is missing: $out"; fail=1
+fi
 if "$exe" --config "$dir/missing.toml" --check >/dev/null 2>&1; then
   echo "FAIL: a missing file passed"; fail=1
 fi

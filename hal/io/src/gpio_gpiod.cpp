@@ -3,7 +3,9 @@
 // so moving to it means rewriting this file only.
 #include <gpiod.h>
 
+#include <array>
 #include <cerrno>
+#include <ctime>
 #include <string>
 
 #include "pmsm/hal/gpio.hpp"
@@ -118,15 +120,28 @@ class GpiodFaultInput final : public FaultInput {
  public:
   explicit GpiodFaultInput(const GpioLineConfig& config) : line_(find_line(config, "fault input")) {
     const int flags = config.active_low ? GPIOD_LINE_REQUEST_FLAG_ACTIVE_LOW : 0;
-    if (gpiod_line_request_input_flags(line_.line, kConsumer.c_str(), flags) != 0) {
-      throw_request_failed(line_, "fault input", "an input");
+    // Edge events on both edges: the daemon wakes on the kernel's interrupt, not a poll.
+    if (gpiod_line_request_both_edges_events_flags(line_.line, kConsumer.c_str(), flags) != 0) {
+      throw_request_failed(line_, "fault input", "an input with edge events");
     }
+    event_fd_ = gpiod_line_event_get_fd(line_.line);
   }
   ~GpiodFaultInput() override { gpiod_line_release(line_.line); }
   GpiodFaultInput(const GpiodFaultInput&) = delete;
   GpiodFaultInput& operator=(const GpiodFaultInput&) = delete;
 
+  [[nodiscard]] int event_fd() const noexcept override { return event_fd_; }
+
   [[nodiscard]] std::optional<bool> fault_active() noexcept override {
+    // Consume the pending edges (the level below is what counts, not their number).
+    const timespec none{0, 0};
+    while (event_fd_ >= 0 && gpiod_line_event_wait(line_.line, &none) == 1) {
+      std::array<gpiod_line_event, 16> events{};
+      if (gpiod_line_event_read_multiple(line_.line, events.data(), static_cast<unsigned>(events.size())) < 0) {
+        last_errno_ = errno;
+        return std::nullopt;
+      }
+    }
     const int value = gpiod_line_get_value(line_.line);
     if (value < 0) {
       last_errno_ = errno;
@@ -141,6 +156,7 @@ class GpiodFaultInput final : public FaultInput {
  private:
   OpenLine line_;
   int last_errno_ = 0;
+  int event_fd_ = -1;
 };
 
 }  // namespace

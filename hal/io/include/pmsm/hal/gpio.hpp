@@ -53,7 +53,11 @@ class FaultInput {
 
   // True if the power stage reports a fault, false if not, nothing if the read failed
   // (a failed read is not "no fault": the caller decides, typically the safe state).
+  // Consumes the edge events that made event_fd() readable.
   [[nodiscard]] virtual std::optional<bool> fault_active() noexcept = 0;
+  // A descriptor that becomes readable when the line changes (the kernel's edge events), or
+  // -1 when the backend has none and must be polled.
+  [[nodiscard]] virtual int event_fd() const noexcept { return -1; }
   [[nodiscard]] virtual int last_error_number() const noexcept = 0;
   [[nodiscard]] virtual std::string_view backend_name() const noexcept = 0;
   [[nodiscard]] virtual std::string describe() const = 0;
@@ -113,15 +117,21 @@ class SimGateEnableOutput final : public GateEnableOutput {
   std::atomic<std::uint64_t> deactivations_{0};
 };
 
+// Signals each change on an eventfd, as the kernel signals an edge.
 class SimFaultInput final : public FaultInput {
  public:
+  SimFaultInput();
+  ~SimFaultInput() override;
+  SimFaultInput(const SimFaultInput&) = delete;
+  SimFaultInput& operator=(const SimFaultInput&) = delete;
   [[nodiscard]] std::optional<bool> fault_active() noexcept override;
+  [[nodiscard]] int event_fd() const noexcept override { return event_fd_; }
   [[nodiscard]] int last_error_number() const noexcept override { return last_errno_.load(); }
   [[nodiscard]] std::string_view backend_name() const noexcept override { return "sim"; }
   [[nodiscard]] std::string describe() const override { return "sim"; }
 
-  void set_fault(bool fault) noexcept { fault_.store(fault); }
-  void fail_with(int error_number) noexcept { fail_errno_.store(error_number); }
+  void set_fault(bool fault) noexcept;  // an edge when the level changes
+  void fail_with(int error_number) noexcept;
   [[nodiscard]] std::uint64_t reads() const noexcept { return reads_.load(); }
 
  private:
@@ -129,6 +139,7 @@ class SimFaultInput final : public FaultInput {
   std::atomic<int> last_errno_{0};
   std::atomic<int> fail_errno_{0};
   std::atomic<std::uint64_t> reads_{0};
+  int event_fd_ = -1;
 };
 
 // libgpiod 1.6 backends. The constructors throw HalError naming chip and line, e.g.
@@ -136,7 +147,8 @@ class SimFaultInput final : public FaultInput {
 //   "GPIO chip 'gpiochip0' (gpiochip0, pinctrl-bcm2711, 58 lines) has no line 'GATE_EN'
 //    for the gate enable: No such file or directory"
 //   "GPIO gpiochip0 line 17 ('GATE_EN') for the gate enable is busy (used by 'other')"
-// The enable line is requested as an output, inactive, with consumer "pmsm-thermald".
+// The enable line is requested as an output, inactive, with consumer "pmsm-thermald"; the
+// fault line as an input with events on both edges (event_fd() is the kernel's).
 std::unique_ptr<GateEnableOutput> open_gpiod_gate_enable(const GpioLineConfig& config);
 std::unique_ptr<FaultInput> open_gpiod_fault_input(const GpioLineConfig& config);
 

@@ -1,0 +1,35 @@
+#include "fault_watch.hpp"
+
+#include <thread>
+
+#include "pmsm/hal/wait.hpp"
+
+namespace pmsm::daemon {
+
+void watch_fault_input(hal::FaultInput& input, const std::atomic<bool>& stop, int stop_fd,
+                       const std::function<void(bool fault, bool read_ok)>& report, FaultWatchStats& stats,
+                       std::chrono::milliseconds recheck) {
+  hal::DescriptorWait wait;
+  const int event_fd = input.event_fd();
+  stats.edge_driven = event_fd >= 0;
+  (void)wait.add(event_fd);
+  (void)wait.add(stop_fd);
+  // Without edge events: a poll every millisecond.
+  const std::chrono::nanoseconds timeout = stats.edge_driven ? std::chrono::nanoseconds{recheck} : std::chrono::milliseconds{1};
+  while (!stop.load(std::memory_order_relaxed)) {
+    const std::optional<bool> level = input.fault_active();
+    ++stats.wakes;
+    if (!level) {
+      ++stats.read_failures;
+    }
+    report(level.value_or(true), level.has_value());
+    if (!level) {
+      // The descriptor may stay readable after a failed read: retry at a bounded pace.
+      std::this_thread::sleep_for(std::chrono::milliseconds{10});
+      continue;
+    }
+    (void)wait.wait_for(timeout);
+  }
+}
+
+}  // namespace pmsm::daemon
