@@ -9,8 +9,9 @@
 // systemd (a no-op outside systemd). The main thread then feeds the watchdog while the RT
 // loop's heartbeat advances, mirrors the gate enable to GPIO and watches the fault input.
 //
-// Exit status: 0 after a clean stop (SIGINT, SIGTERM) or a passing --check; 1 when the bus
-// or GPIO cannot be opened; 2 for a bad configuration or calibration file.
+// Exit status: 0 after a clean stop (SIGINT, SIGTERM); 1 when the bus or GPIO cannot be
+// opened; 2 for a bad configuration or calibration file (the unit does not restart on it:
+// RestartPreventExitStatus=2). --check: 0 valid, 1 not.
 #include <systemd/sd-daemon.h>
 #include <unistd.h>
 
@@ -93,7 +94,7 @@ int run(const Options& o) {
     config = pmsm::daemon::load_daemon_config(o.config_path);
   } catch (const std::exception& e) {
     spdlog::error("bad configuration: {}", e.what());
-    return kExitConfig;
+    return o.check ? 1 : kExitConfig;
   }
   const pmsm::daemon::BusLoad load = pmsm::daemon::bus_load(config);
   const std::string budget = fmt::format(
@@ -108,7 +109,7 @@ int run(const Options& o) {
     stored = pmsm::app::load_stored_calibration(config.controller);
   } catch (const std::exception& e) {
     spdlog::error("unreadable calibration file: {}", e.what());
-    return kExitConfig;
+    return o.check ? 1 : kExitConfig;
   }
   if (o.check) {
     std::printf("%s: OK (node %d on %s, %s; calibration %s)\n", o.config_path.c_str(), config.can.node,
@@ -278,7 +279,7 @@ int main(int argc, char** argv) {
   CLI::App app{"pmsm-thermald: PMSM drive controller with winding-temperature estimation, on CAN (one axis per process)"};
   Options o;
   app.add_option("--config", o.config_path, "configuration file (TOML), e.g. /etc/pmsm-thermal/axis1.toml");
-  app.add_flag("--check", o.check, "validate the configuration (and the stored calibration) and exit: 0 valid, 2 not");
+  app.add_flag("--check", o.check, "validate the configuration (and the stored calibration) and exit: 0 valid, 1 not");
   app.add_flag("--keys", o.keys, "print every configuration key of the daemon's own sections as Markdown and exit");
   app.add_option("--log-level", o.log_level, "trace, debug, info, warn, error")
       ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error"}))

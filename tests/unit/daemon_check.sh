@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# pmsm-thermald --check: every shipped configuration passes; a broken one exits 2 and names
+# pmsm-thermald --check: every shipped configuration passes; a broken one exits 1 and names
 # the key and the line.
 #   tests/unit/daemon_check.sh SOURCE_DIR THERMALD_EXE
 set -uo pipefail
@@ -29,28 +29,28 @@ check_bad() {
     echo "ok (rejected): $out"
   fi
 }
-check_bad '[can]\nnode = 22\n' 2 'bad.toml:2: can.node: must be in [0, 15], got 22'
-check_bad '[can]\ninterfaec = "vcan0"\n' 2 'can.interfaec'
-check_bad '[rt]\npriority = "high"\n' 2 'rt.priority'
-check_bad '[supervisor]\ntrip_temp_C = 100\n' 2 'supervisor.trip_temp_C'
-check_bad '[supervisor]\ndc_bus_min_V = 700\n' 2 'nominal_dc_bus_V'
-check_bad '[controller.motor]\nrs_ohm = -1\n' 2 'controller.motor.rs_ohm'
-check_bad '[gpio]\nchip = "gpiochip0"\n' 2 'gpio.chip and gpio.enable_line'
-check_bad '[can]\ninterface = "can0"\ndata_bitrate_bit_s = 2000000\n' 2 'raise can.data_bitrate_bit_s'
-check_bad 'this is not toml' 2 'bad.toml:1:'
+check_bad '[can]\nnode = 22\n' 1 'bad.toml:2: can.node: must be in [0, 15], got 22'
+check_bad '[can]\ninterfaec = "vcan0"\n' 1 'can.interfaec'
+check_bad '[rt]\npriority = "high"\n' 1 'rt.priority'
+check_bad '[supervisor]\ntrip_temp_C = 100\n' 1 'supervisor.trip_temp_C'
+check_bad '[supervisor]\ndc_bus_min_V = 700\n' 1 'nominal_dc_bus_V'
+check_bad '[controller.motor]\nrs_ohm = -1\n' 1 'controller.motor.rs_ohm'
+check_bad '[gpio]\nchip = "gpiochip0"\n' 1 'gpio.chip and gpio.enable_line'
+check_bad '[can]\ninterface = "can0"\ndata_bitrate_bit_s = 2000000\n' 1 'raise can.data_bitrate_bit_s'
+check_bad 'this is not toml' 1 'bad.toml:1:'
 # Every bad key at once, from the daemon's sections and the drive's.
-check_bad '[can]\nnode = 22\nbitrate = 5\n[rt]\npriority = 100\n[controller.motor]\nrs_ohm = -1\n' 2 'controller.motor.rs_ohm'
+check_bad '[can]\nnode = 22\nbitrate = 5\n[rt]\npriority = 100\n[controller.motor]\nrs_ohm = -1\n' 1 'controller.motor.rs_ohm'
 out=$("$exe" --config "$dir/bad.toml" --check 2>&1)
 for want in 'bad.toml:2: can.node' 'bad.toml:3: can.bitrate: unknown key' 'bad.toml:5: rt.priority' 'bad.toml:7: controller.motor.rs_ohm'; do
   if [[ "$out" != *"$want"* ]]; then echo "FAIL: '$want' missing from the list of bad keys: $out"; fail=1; fi
 done
 # Every broken cross-key rule at once, the daemon's and the drive's.
-check_bad '[supervisor]\ntrip_temp_C = 100\novercurrent_A = 5000\n[gpio]\nfault_line = 3\n' 2 'supervisor.trip_temp_C'
+check_bad '[supervisor]\ntrip_temp_C = 100\novercurrent_A = 5000\n[gpio]\nfault_line = 3\n' 1 'supervisor.trip_temp_C'
 out=$("$exe" --config "$dir/bad.toml" --check 2>&1)
 for want in 'supervisor.overcurrent_A (5000 A) must be below' 'gpio.fault_line needs gpio.chip'; do
   if [[ "$out" != *"$want"* ]]; then echo "FAIL: '$want' missing from the broken rules: $out"; fail=1; fi
 done
-check_bad '[controller.derating]\nstart_C = 200\nlimit_C = 150\n[controller.injection]\nrecord_time_s = 0.01\nsettle_s = 0.5\n' 2 'derating.start_C must be below'
+check_bad '[controller.derating]\nstart_C = 200\nlimit_C = 150\n[controller.injection]\nrecord_time_s = 0.01\nsettle_s = 0.5\n' 1 'derating.start_C must be below'
 out=$("$exe" --config "$dir/bad.toml" --check 2>&1)
 if [[ "$out" != *'injection.record_time_s must be longer'* ]]; then
   echo "FAIL: the second broken drive rule is missing: $out"; fail=1
