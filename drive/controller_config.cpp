@@ -1,6 +1,7 @@
 #include "controller_config.hpp"
 
 #include "calibration_file.hpp"
+#include "pmsm/core/machine_equations.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -21,6 +22,13 @@ ConfigSchema<C> build() {
          "Nameplate phase-to-neutral resistance at motor.rs_reference_temp_C; the temperature scale until a calibration replaces it.");
   s.real("motor.rs_reference_temp_C", [](C& c) -> double& { return c.drive.motor.rs_reference_temp_C; }, between(-50, 200), "C",
          "Temperature at which motor.rs_ohm holds (T0 of Eq. 1).");
+  s.choice("motor.conductor", {{"copper", 0}, {"aluminium", 1}},
+           [](const C& c) { return c.drive.thermal.conductor_inferred_zero_C == core::kAluminiumInferredZero_C ? 1 : 0; },
+           [](C& c, int v) {
+             c.drive.thermal.conductor_inferred_zero_C = v == 1 ? core::kAluminiumInferredZero_C : core::kCopperInferredZero_C;
+           },
+           "Winding conductor for Eq. 1 referred to any T0: resistance proportional to K + T, K = 234.5 C (copper: alpha "
+           "3.93e-3 /C at 20 C, 3.85e-3 at 25 C) or 225 C (aluminium).");
   s.real("motor.ld_H", [](C& c) -> double& { return c.drive.motor.ld_H; }, positive(1.0), "H", "d-axis inductance as commissioned.");
   s.real("motor.lq_H", [](C& c) -> double& { return c.drive.motor.lq_H; }, positive(1.0), "H", "q-axis inductance as commissioned.");
   s.real("motor.ke_V_s_per_rad", [](C& c) -> double& { return c.drive.motor.ke_V_s_per_rad; }, positive(100.0), "V s/rad",

@@ -32,7 +32,7 @@ DriveController::DriveController(const DriveConfig& config)
       speed_(config_.speed),
       scheduler_(config_.injection, config_.period_s, config_.recording_capacity),
       baseline_(config_.baseline),
-      observer_(config_.thermal, config_.calibration, config_.calibration.t0_C),
+      observer_(config_.thermal, config_.calibration, config_.calibration.t0_C, false),
       derating_{config_.derating.max_current_A, false} {}
 
 void DriveController::start_calibration(double known_temp_C) {
@@ -43,6 +43,7 @@ void DriveController::start_calibration(double known_temp_C) {
   const double time_scale = observer_.time_scale();
   observer_ = ThermalObserver(config_.thermal, observer_.calibration(), known_temp_C);
   observer_.set_time_scale(time_scale);
+  thermal_guess_pending_ = false;
   calibrating_ = true;
   calibration_failed_ = false;
   calibration_started_s_ = static_cast<double>(period_) * config_.period_s;
@@ -119,8 +120,9 @@ void DriveController::handle_estimate(const EventEstimate& e) {
     // Each event's Rs is referred back to the known temperature through Eq. 1, at the winding
     // temperature the thermal model predicts for the event (the calibration's own injection
     // losses warm it).
-    const double rise_C = observer_.estimate().winding_C - calibration_temp_C_;
-    const double rs_at_known = e.rs_ohm / (1.0 + kCopperAlpha_per_C * rise_C);
+    const double rs_at_known =
+        e.rs_ohm * resistance_at_temperature_ohm(1.0, observer_.estimate().winding_C, calibration_temp_C_,
+                                                 config_.thermal.conductor_inferred_zero_C);  // Eq. 1
     const double w = 1.0 / std::max(e.rs_std_ohm * e.rs_std_ohm, 1e-12);
     calibration_rs_sum_ += w * rs_at_known;
     calibration_weight_sum_ += w;
@@ -174,7 +176,20 @@ void DriveController::handle_estimate(const EventEstimate& e) {
   }
 }
 
+void DriveController::restore_thermal_state(const ThermalState& state, double downtime_s, double ambient_C) {
+  observer_.restore(state, downtime_s * observer_.time_scale(), ambient_C);
+  thermal_guess_pending_ = false;
+}
+
 void DriveController::update_thermal(double ambient_C) {
+  if (thermal_guess_pending_) {
+    // Nothing known about the winding yet: the ambient sensor is the best guess (a motor at
+    // rest), with a wide uncertainty; the first measurement decides.
+    const double time_scale = observer_.time_scale();
+    observer_.restart_unknown(ambient_C);
+    observer_.set_time_scale(time_scale);
+    thermal_guess_pending_ = false;
+  }
   const double dt = thermal_count_ * config_.period_s;
   const double i_sq = i_sq_sum_ / thermal_count_;
   const double speed = speed_sum_ / thermal_count_;

@@ -27,21 +27,70 @@ Eigen::Matrix3d system_matrix(const ThermalModelConfig& c) {
 }  // namespace
 
 ThermalObserver::ThermalObserver(const ThermalModelConfig& config, const Calibration& calibration,
-                                 double initial_temp_C)
-    : config_(config), calibration_(calibration) {
+                                 double initial_temp_C, bool known)
+    : config_(config), calibration_(calibration), anchored_(known) {
+  const double std_C = known ? config.initial_std_C : config.unknown_initial_std_C;
   x_ << initial_temp_C, initial_temp_C, 0.0;
   p_.setZero();
-  p_(0, 0) = config.initial_std_C * config.initial_std_C;
-  p_(1, 1) = config.initial_std_C * config.initial_std_C;
+  p_(0, 0) = std_C * std_C;
+  p_(1, 1) = std_C * std_C;
   p_(2, 2) = config.initial_loss_error_std_W * config.initial_loss_error_std_W;
 }
 
+void ThermalObserver::restart_unknown(double guess_C) {
+  *this = ThermalObserver(config_, calibration_, guess_C, false);
+}
+
+ThermalState ThermalObserver::state() const {
+  return {x_(0), x_(1), estimate().winding_std_C};
+}
+
+void ThermalObserver::restore(const ThermalState& state, double downtime_thermal_s, double ambient_C) {
+  // The two-node network without losses relaxes towards the ambient: x(t) = Ta + e^{A t} (x0 - Ta),
+  // e^{A t} by scaling and squaring of a Taylor step (A's time constants are far above t / 2^n).
+  Eigen::Matrix2d a;
+  const double gwh = 1.0 / config_.winding_to_housing_K_W;
+  const double gha = 1.0 / config_.housing_to_ambient_K_W;
+  a << -gwh / config_.winding_capacity_J_K, gwh / config_.winding_capacity_J_K, gwh / config_.housing_capacity_J_K,
+      -(gwh + gha) / config_.housing_capacity_J_K;
+  const double t = std::max(downtime_thermal_s, 0.0);
+  int squarings = 0;
+  double h = t;
+  while (h > 1.0 && squarings < 60) {
+    h *= 0.5;
+    ++squarings;
+  }
+  Eigen::Matrix2d e = Eigen::Matrix2d::Identity() + a * h + 0.5 * a * a * h * h + a * a * a * (h * h * h / 6.0);
+  for (int k = 0; k < squarings; ++k) {
+    e = e * e;
+  }
+  const Eigen::Vector2d x0(state.winding_C - ambient_C, state.housing_C - ambient_C);
+  const Eigen::Vector2d x1 = e * x0;
+  const double cooled_by = std::abs(x1(0) - x0(0));
+  x_ << ambient_C + x1(0), ambient_C + x1(1), 0.0;
+  // The stored uncertainty, the model error of the cooling, and the process noise of the
+  // downtime.
+  const double drift = config_.model_error_fraction * cooled_by;
+  const double stored = std::isfinite(state.winding_std_C) ? state.winding_std_C : config_.unknown_initial_std_C;
+  const double var = stored * stored + drift * drift +
+                     config_.winding_process_std_C_per_sqrt_s * config_.winding_process_std_C_per_sqrt_s * t;
+  p_.setZero();
+  p_(0, 0) = var;
+  p_(1, 1) = var;
+  p_(2, 2) = config_.initial_loss_error_std_W * config_.initial_loss_error_std_W;
+  drift_std_C_ = 0.0;
+  since_measurement_s_ = 0.0;
+  anchored_ = false;
+}
+
 double ThermalObserver::resistance_at_C(double temp_C) const {
-  return resistance_at_temperature_ohm(calibration_.rs0_ohm, calibration_.t0_C, temp_C);  // Eq. 1
+  return resistance_at_temperature_ohm(calibration_.rs0_ohm, calibration_.t0_C, temp_C,
+                                       config_.conductor_inferred_zero_C);  // Eq. 1
 }
 
 double ThermalObserver::temperature_from_resistance_C(double rs_ohm) const {
-  return core::temperature_from_resistance_C(rs_ohm, calibration_.rs0_ohm, calibration_.t0_C);  // Eq. 1
+  return core::temperature_from_resistance_C(rs_ohm, calibration_.rs0_ohm, calibration_.t0_C,
+                                             config_.conductor_inferred_zero_C);  // Eq. 1
 }
 
 double ThermalObserver::copper_loss_W(double copper_current_sq_A2) const {
@@ -67,7 +116,9 @@ void ThermalObserver::predict(double dt_s, double copper_current_sq_A2, double o
   // time constant); a second-order Taylor step keeps it accurate and allocation-free.
   const Eigen::Matrix3d ad = Eigen::Matrix3d::Identity() + a * dt + 0.5 * a * a * dt * dt;
   const Eigen::Matrix3d bd = Eigen::Matrix3d::Identity() * dt + 0.5 * a * dt * dt;
+  const double before_C = x_(0);
   x_ = ad * x_ + bd * u;
+  drift_std_C_ += config_.model_error_fraction * std::abs(x_(0) - before_C);
   Eigen::Matrix3d q = Eigen::Matrix3d::Zero();
   q(0, 0) = config_.winding_process_std_C_per_sqrt_s * config_.winding_process_std_C_per_sqrt_s * dt;
   q(1, 1) = config_.housing_process_std_C_per_sqrt_s * config_.housing_process_std_C_per_sqrt_s * dt;
@@ -79,16 +130,24 @@ void ThermalObserver::predict(double dt_s, double copper_current_sq_A2, double o
 bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm) {
   // Measurement of the winding temperature through Eq. 1; its variance from the resistance's.
   const double z = temperature_from_resistance_C(rs_ohm);
-  const double dt_dr = temperature_per_resistance_C_per_ohm(calibration_.rs0_ohm);
+  const double dt_dr =
+      temperature_per_resistance_C_per_ohm(calibration_.rs0_ohm, calibration_.t0_C, config_.conductor_inferred_zero_C);
   const double r = std::pow(rs_std_ohm * dt_dr, 2) + std::pow(config_.measurement_floor_std_C, 2);
   const Eigen::RowVector3d h(1.0, 0.0, 0.0);
-  const double s = (h * p_ * h.transpose())(0, 0) + r;
+  // The model error accumulated since the last measurement belongs to the prediction's
+  // variance (it is what the measurement corrects).
+  const double drift_var = drift_std_C_ * drift_std_C_;
+  const double s = (h * p_ * h.transpose())(0, 0) + drift_var + r;
   // A measurement without a finite value and error bar is no measurement (NaN compares false,
-  // so it would otherwise pass the gate and poison the state).
+  // so it would otherwise pass the gate and poison the state). Before the first measurement
+  // of a start from a guess there is no prediction to gate against.
   if (!std::isfinite(z) || !std::isfinite(r) || !(rs_std_ohm >= 0.0) ||
-      !(std::abs(z - x_(0)) <= config_.gate_sigma * std::sqrt(s))) {
+      (anchored_ && !(std::abs(z - x_(0)) <= config_.gate_sigma * std::sqrt(s)))) {
     return false;
   }
+  p_(0, 0) += drift_var;
+  drift_std_C_ = 0.0;
+  anchored_ = true;
   const Eigen::Vector3d k = p_ * h.transpose() / s;
   x_ += k * (z - x_(0));
   // Joseph form keeps P symmetric and positive.
@@ -99,7 +158,7 @@ bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm) {
 }
 
 ThermalEstimate ThermalObserver::estimate() const {
-  return {x_(0), std::sqrt(std::max(p_(0, 0), 0.0)), x_(1), x_(2), since_measurement_s_};
+  return {x_(0), std::sqrt(std::max(p_(0, 0), 0.0) + drift_std_C_ * drift_std_C_), x_(1), x_(2), since_measurement_s_};
 }
 
 bool ThermalObserver::time_to_limit_s(double limit_C, double copper_current_sq_A2,

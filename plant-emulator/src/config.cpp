@@ -55,9 +55,15 @@ common::ConfigSchema<PlantConfig> build_schema() {
                      "0.133 Ω at 25 °C).");
     real("motor.rs_reference_temp_C", PMSM_MEMBER(motor.rs_reference_temp_C), closed(-50, 250),
                      "Temperature T0 at which rs_ohm holds (Eq. 1).");
-    real("motor.alpha_per_C", PMSM_MEMBER(motor.alpha_per_C), closed(0, 0.01),
-                     "Temperature coefficient of the winding resistance, Eq. 1 (copper: "
-                     "3.93e-3 /°C).");
+    s.optional_real("motor.alpha_per_C", [](PlantConfig& c) -> std::optional<double>& { return c.motor.alpha_per_C; },
+                    closed(0, 0.01), "/°C", "the conductor's, 1 / (K + rs_reference_temp_C)",
+                    "Temperature coefficient of the winding resistance at rs_reference_temp_C, Eq. 1, held linear "
+                    "from there (copper: 3.85e-3 at 25 °C).");
+    s.choice("motor.conductor",
+             {{"copper", 0}, {"aluminium", 1}},
+             [](const PlantConfig& c) { return c.motor.conductor_inferred_zero_C == 225.0 ? 1 : 0; },
+             [](PlantConfig& c, int v) { c.motor.conductor_inferred_zero_C = v == 1 ? 225.0 : 234.5; },
+             "Winding conductor: resistance proportional to K + T, K = 234.5 °C for copper, 225 °C for aluminium.");
     real("motor.ke_V_s_per_rad", PMSM_MEMBER(motor.ke_V_s_per_rad), positive(100.0),
                      "EMF constant of Table I: line-to-line RMS volts per mechanical rad/s, "
                      "at magnet_ref_temp_C. psi_m = Ke·sqrt(2/3)/p.");

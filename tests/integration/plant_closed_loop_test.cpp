@@ -140,7 +140,8 @@ TEST(plant_closed_loop, AcceleratedHeatUpUnderLoad) {
   const double th = static_cast<double>(t.housing_temp_C);
   EXPECT_GT(tw, th + 5.0);
   EXPECT_GT(th, 30.0);
-  EXPECT_NEAR(static_cast<double>(t.rs_ohm), 0.133 * (1.0 + 3.93e-3 * (tw - 25.0)), 1e-5);
+  // Eq. 1 for copper: Rs proportional to 234.5 C + T.
+  EXPECT_NEAR(static_cast<double>(t.rs_ohm), 0.133 * (234.5 + tw) / (234.5 + 25.0), 1e-5);
   EXPECT_GT(static_cast<double>(t.iron_loss_W), 10.0);
   EXPECT_GT(static_cast<double>(t.copper_loss_W), 300.0);
 }

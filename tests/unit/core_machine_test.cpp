@@ -9,13 +9,35 @@ namespace pmsm::core {
 namespace {
 
 TEST(ResistanceTemperature, PaperNumbers) {
-  // Section II: 0.133 ohm at 25 C becomes 0.183 ohm at 120 C.
-  EXPECT_NEAR(resistance_at_temperature_ohm(0.133, 25.0, 120.0), 0.183, 0.0005);
-  EXPECT_NEAR(temperature_from_resistance_C(0.183, 0.133, 25.0), 120.0, 1.0);
+  // Section II applies alpha = 3.93e-3 /C at T0 = 25 C: a conductor with K = 1/alpha - T0.
+  const double k = 1.0 / 3.93e-3 - 25.0;
+  // 0.133 ohm at 25 C becomes 0.183 ohm at 120 C.
+  EXPECT_NEAR(resistance_at_temperature_ohm(0.133, 25.0, 120.0, k), 0.183, 0.0005);
+  EXPECT_NEAR(temperature_from_resistance_C(0.183, 0.133, 25.0, k), 120.0, 1.0);
   // "For a 10 C resolution ... approximately 5 mOhm"; "10 mOhm result in a resolution of 20 C".
-  EXPECT_NEAR(temperature_from_resistance_C(0.138, 0.133, 25.0) - 25.0, 10.0, 0.5);
-  EXPECT_NEAR(temperature_from_resistance_C(0.143, 0.133, 25.0) - 25.0, 20.0, 1.0);
-  EXPECT_NEAR(0.005 * temperature_per_resistance_C_per_ohm(0.133), 9.57, 0.01);
+  EXPECT_NEAR(temperature_from_resistance_C(0.138, 0.133, 25.0, k) - 25.0, 10.0, 0.5);
+  EXPECT_NEAR(temperature_from_resistance_C(0.143, 0.133, 25.0, k) - 25.0, 20.0, 1.0);
+  EXPECT_NEAR(0.005 * temperature_per_resistance_C_per_ohm(0.133, 25.0, k), 9.57, 0.01);
+}
+
+TEST(ResistanceTemperature, CopperAlphaIsReferredToT0) {
+  // The paper's 3.93e-3 /C is copper's alpha at 20 C; at 25 C it is 3.85e-3, at -10 C 4.45e-3.
+  EXPECT_NEAR(alpha_at_C(20.0), 3.93e-3, 5e-6);
+  EXPECT_NEAR(alpha_at_C(25.0), 3.854e-3, 5e-6);
+  EXPECT_NEAR(alpha_at_C(-10.0), 4.454e-3, 5e-6);
+  // The same winding calibrated at -10 C or at +45 C reads the same temperature from the same
+  // resistance: the conversion no longer depends on where it was calibrated.
+  const double r25 = 0.133;
+  const double r_cold = resistance_at_temperature_ohm(r25, 25.0, -10.0);
+  const double r_warm = resistance_at_temperature_ohm(r25, 25.0, 45.0);
+  for (const double t : {-20.0, 40.0, 86.0, 155.0, 187.0}) {
+    const double r = resistance_at_temperature_ohm(r25, 25.0, t);
+    EXPECT_NEAR(temperature_from_resistance_C(r, r_cold, -10.0), t, 1e-9);
+    EXPECT_NEAR(temperature_from_resistance_C(r, r_warm, 45.0), t, 1e-9);
+  }
+  // Aluminium rises faster per degree.
+  EXPECT_GT(resistance_at_temperature_ohm(1.0, 25.0, 125.0, kAluminiumInferredZero_C),
+            resistance_at_temperature_ohm(1.0, 25.0, 125.0));
 }
 
 TEST(ResistanceTemperature, InverseOfEachOther) {

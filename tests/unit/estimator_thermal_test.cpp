@@ -6,12 +6,13 @@
 #include <Eigen/Dense>
 #include <cmath>
 
+#include "pmsm/core/machine_equations.hpp"
 #include "pmsm/core/thermal_observer.hpp"
 
 namespace pmsm::core {
 namespace {
 
-constexpr double kAlpha = 3.93e-3;  // Eq. 1, copper
+constexpr double kAlpha = alpha_at_C(25.0);  // Eq. 1, copper, referred to the calibration's T0 = 25 C
 
 // The two-node network written out here: winding (Cw) and housing (Ch), Rwh between them,
 // Rha to ambient; copper loss on the winding with Rs(Tw) from Eq. 1, iron loss on the housing.
@@ -278,6 +279,64 @@ TEST(Derate, MonotoneBetweenTheConfiguredEnds) {
   EXPECT_NEAR(derate(d, e).current_limit_A, 45.0, 1e-12);
   e.winding_C = 190.0;
   EXPECT_NEAR(derate(d, e).current_limit_A, 10.0, 1e-12);
+}
+
+
+// A start without a known temperature (a warm motor after a power cycle): the first
+// measurement is taken however far it is from the guess; from then on the gate applies.
+TEST(ThermalObserver, AStartFromAGuessTakesItsFirstMeasurementUngated) {
+  ThermalModelConfig c;
+  ThermalObserver obs(c, Calibration{}, 25.0, false);
+  EXPECT_NEAR(obs.estimate().winding_std_C, c.unknown_initial_std_C, 1e-9);
+  EXPECT_FALSE(obs.anchored());
+  const double rs_90 = obs.resistance_at_C(90.0);
+  ASSERT_TRUE(obs.update_resistance(rs_90, 0.0002)) << "a warm motor is not an outlier";
+  EXPECT_NEAR(obs.estimate().winding_C, 90.0, 1.0);
+  EXPECT_TRUE(obs.anchored());
+  EXPECT_FALSE(obs.update_resistance(obs.resistance_at_C(25.0), 0.0002)) << "now the gate applies";
+  // A known start (a calibration at a soaked temperature) gates from the first measurement.
+  ThermalObserver known(c, Calibration{}, 25.0);
+  EXPECT_FALSE(known.update_resistance(known.resistance_at_C(90.0), 0.0002));
+}
+
+// Between measurements the band widens by the model's relative error of the change it
+// predicts: a heat-up of 60 C without a measurement ends at least 0.25 x 60 C wide (1 sigma).
+TEST(ThermalObserver, TheBandGrowsWithThePredictedChangeBetweenMeasurements) {
+  ThermalModelConfig c;
+  ThermalObserver obs(c, Calibration{}, 25.0);
+  ASSERT_TRUE(obs.update_resistance(obs.resistance_at_C(25.0), 0.0001));
+  const double start_std = obs.estimate().winding_std_C;
+  const double start_C = obs.estimate().winding_C;
+  for (int k = 0; k < 4000; ++k) {
+    obs.predict(1.0, 3000.0, 100.0, 25.0);
+  }
+  const double rise = obs.estimate().winding_C - start_C;
+  ASSERT_GT(rise, 40.0);
+  EXPECT_GE(obs.estimate().winding_std_C, c.model_error_fraction * rise);
+  EXPECT_GT(obs.estimate().winding_std_C, start_std);
+  // A measurement takes the drift into the prediction's variance and resets it.
+  ASSERT_TRUE(obs.update_resistance(obs.resistance_at_C(obs.estimate().winding_C + 5.0), 0.0001));
+  EXPECT_LT(obs.estimate().winding_std_C, 1.0);
+}
+
+// A stored state cools through the downtime towards the ambient, as the model's network does.
+TEST(ThermalObserver, AStoredStateIsCooledThroughTheDowntime) {
+  ThermalModelConfig c;
+  Calibration cal;
+  Eigen::Matrix2d a;
+  Eigen::Vector2d b;
+  linear_system(network_of(c, cal), 0.0, 0.0, 20.0, a, b);
+  ThermalObserver obs(c, cal, 25.0);
+  const ThermalState stored{120.0, 90.0, 1.0};
+  for (const double downtime : {0.0, 300.0, 3000.0, 30000.0}) {
+    obs.restore(stored, downtime, 20.0);
+    const Eigen::Vector2d x = analytic(a, b, Eigen::Vector2d(120.0, 90.0), downtime);
+    EXPECT_NEAR(obs.estimate().winding_C, x(0), 0.05) << downtime;
+    EXPECT_NEAR(obs.estimate().housing_C, x(1), 0.05) << downtime;
+    EXPECT_FALSE(obs.anchored());
+    EXPECT_GE(obs.estimate().winding_std_C, 1.0);
+  }
+  EXPECT_NEAR(obs.estimate().winding_C, 20.0, 1.0) << "long enough: at the ambient";
 }
 
 }  // namespace

@@ -35,9 +35,10 @@ std::string cell(double value, bool valid, const char* format = "{:.2f}") {
 }
 
 std::string markdown_header() {
-  return "| scenario | method | winding RMS (°C) | winding max (°C) | Rs RMS (mΩ) | magnet RMS (°C) | estimates | pairs "
-         "accepted / rejected | speed disturbance (%) | torque disturbance (% rated) | injection loss (W) | sim / wall (s) |\n"
-         "|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+  return "| scenario | method | winding RMS (°C) | winding max (°C) | winding mean (°C) | ±2σ coverage (%) | Rs RMS (mΩ) | "
+         "magnet RMS (°C) | estimates | pairs accepted / rejected | speed disturbance (%) | torque disturbance (% rated) | "
+         "injection loss (W) | sim / wall (s) |\n"
+         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
 }
 
 std::string markdown_row(const SimulationResult& r, const std::string& file) {
@@ -46,8 +47,9 @@ std::string markdown_row(const SimulationResult& r, const std::string& file) {
     rejected += r.pairs[k];
   }
   const bool w = r.winding_error_samples > 0;
-  return fmt::format("| {} (`{}`) | {} | {} | {} | {} | {} | {} | {} / {} | {} | {} | {:.1f} | {:.0f} / {:.1f} |\n", r.scenario,
-                     file, r.method, cell(r.winding_error_rms_C, w), cell(r.winding_error_max_C, w),
+  return fmt::format("| {} (`{}`) | {} | {} | {} | {} | {} | {} | {} | {} | {} / {} | {} | {} | {:.1f} | {:.0f} / {:.1f} |\n",
+                     r.scenario, file, r.method, cell(r.winding_error_rms_C, w), cell(r.winding_error_max_C, w),
+                     cell(r.winding_error_mean_C, w, "{:+.2f}"), cell(100.0 * r.coverage_2sigma, w, "{:.0f}"),
                      cell(r.rs_error_rms_mohm, !r.estimates.empty()), cell(r.magnet_error_rms_C, r.magnet_error_samples > 0),
                      r.estimates_accepted, r.pairs[0], rejected, cell(r.speed_disturbance_pct, r.disturbance_measured, "{:.3f}"),
                      cell(r.torque_disturbance_pct, r.disturbance_measured), r.injection_loss_W, r.sim_time_s, r.wall_time_s);

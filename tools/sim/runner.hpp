@@ -24,6 +24,7 @@ struct RunOptions {
 struct SeriesRow {
   double time_s = 0.0;
   double winding_true_C = 0.0;
+  bool winding_est_valid = false;  // no estimate yet: not 0 C (empty in CSV, a gap in plots)
   double winding_est_C = 0.0;
   double winding_std_C = 0.0;
   double magnet_true_C = 0.0;
@@ -83,6 +84,9 @@ struct SimulationResult {
   double winding_error_max_C = 0.0;
   double winding_error_mean_C = 0.0;
   std::size_t winding_error_samples = 0;
+  // Share of the counted samples whose truth lies inside the estimate's +-2 sigma band (an
+  // honest band holds about 95 %).
+  double coverage_2sigma = 0.0;
   double rs_error_rms_mohm = 0.0;   // published estimates against the true Rs at that time
   double magnet_error_rms_C = 0.0;
   std::size_t magnet_error_samples = 0;

@@ -176,6 +176,12 @@ class DriveController {
 
   // Thermal time scale of the controller's model (the test acceleration; 1 on a machine).
   void set_thermal_time_scale(double time_scale) { observer_.set_time_scale(time_scale); }
+  // The thermal filter's state kept from before a restart, `downtime_s` (controller seconds)
+  // old: cooled through the downtime by the model. Without it (or a calibration run) the
+  // filter starts from the ambient sensor with a wide uncertainty and takes its first
+  // measurement ungated, never from the calibration's T0 as if the motor were soaked there.
+  void restore_thermal_state(const ThermalState& state, double downtime_s, double ambient_C);
+  [[nodiscard]] ThermalState thermal_state() const { return observer_.state(); }
 
   [[nodiscard]] const DriveTelemetry& telemetry() const { return telemetry_; }
   // Set for the one period in which a pair finished (accepted, rejected or skipped).
@@ -205,6 +211,7 @@ class DriveController {
   InjectionScheduler scheduler_;
   BaselineEstimator baseline_;
   ThermalObserver observer_;
+  bool thermal_guess_pending_ = true;  // start from the ambient sensor at the first update
 
   DriveOutput output_{};
   DriveTelemetry telemetry_{};

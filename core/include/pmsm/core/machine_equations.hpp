@@ -23,26 +23,35 @@ struct DqMachine {
 [[nodiscard]] double electromagnetic_torque_Nm(double flux_linkage_Wb, double ld_H, double lq_H,
                                                int pole_pairs, const Dq& i_A);
 
-// Eq. 1: Rs = Rs0 + alpha * Rs0 * (Ts - T0), copper alpha = 3.93e-3 per degree C.
-inline constexpr double kCopperAlpha_per_C = 3.93e-3;
+// Eq. 1, Rs = Rs0 + alpha Rs0 (Ts - T0), with alpha referred to T0. A conductor's resistance
+// is proportional to (K + T), K its inferred zero-resistance temperature, so
+//   alpha(T0) = 1 / (K + T0)   and   Rs(T) / Rs(T0) = (K + T) / (K + T0).
+// Annealed copper: K = 234.5 C (IEEE Std 118, IEC 60034-1's 235), i.e. the paper's
+// alpha = 3.93e-3 /C at 20 C, 3.85e-3 at 25 C, 4.0e-3 at 15 C. Aluminium: K = 225 C
+// (IEC 60034-1). Applying one alpha at every T0 is wrong by several degrees once the
+// calibration's T0 is away from alpha's own reference (-10 C or +45 C).
+inline constexpr double kCopperInferredZero_C = 234.5;
+inline constexpr double kAluminiumInferredZero_C = 225.0;
 
-[[nodiscard]] constexpr double resistance_at_temperature_ohm(double rs0_ohm, double t0_C,
-                                                             double temp_C,
-                                                             double alpha_per_C = kCopperAlpha_per_C) {
-  return rs0_ohm + alpha_per_C * rs0_ohm * (temp_C - t0_C);
+[[nodiscard]] constexpr double alpha_at_C(double t0_C, double inferred_zero_C = kCopperInferredZero_C) {
+  return 1.0 / (inferred_zero_C + t0_C);
+}
+
+[[nodiscard]] constexpr double resistance_at_temperature_ohm(double rs0_ohm, double t0_C, double temp_C,
+                                                             double inferred_zero_C = kCopperInferredZero_C) {
+  return rs0_ohm * (inferred_zero_C + temp_C) / (inferred_zero_C + t0_C);  // Eq. 1
 }
 
 // Eq. 1 solved for the winding temperature.
-[[nodiscard]] constexpr double temperature_from_resistance_C(double rs_ohm, double rs0_ohm,
-                                                             double t0_C,
-                                                             double alpha_per_C = kCopperAlpha_per_C) {
-  return t0_C + (rs_ohm / rs0_ohm - 1.0) / alpha_per_C;
+[[nodiscard]] constexpr double temperature_from_resistance_C(double rs_ohm, double rs0_ohm, double t0_C,
+                                                             double inferred_zero_C = kCopperInferredZero_C) {
+  return rs_ohm / rs0_ohm * (inferred_zero_C + t0_C) - inferred_zero_C;
 }
 
-// Temperature change per resistance change, d(Ts)/d(Rs) = 1 / (alpha * Rs0) (from Eq. 1).
-[[nodiscard]] constexpr double temperature_per_resistance_C_per_ohm(
-    double rs0_ohm, double alpha_per_C = kCopperAlpha_per_C) {
-  return 1.0 / (alpha_per_C * rs0_ohm);
+// Temperature change per resistance change, d(Ts)/d(Rs) = (K + T0) / Rs0 = 1 / (alpha(T0) Rs0).
+[[nodiscard]] constexpr double temperature_per_resistance_C_per_ohm(double rs0_ohm, double t0_C,
+                                                                    double inferred_zero_C = kCopperInferredZero_C) {
+  return (inferred_zero_C + t0_C) / rs0_ohm;
 }
 
 }  // namespace pmsm::core

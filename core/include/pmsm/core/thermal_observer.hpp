@@ -25,6 +25,9 @@ struct ThermalModelConfig {
   // and eddy currents) and the friction heat that stays in the machine.
   double iron_loss_k1_W_s_rad = 0.6;
   double iron_loss_k2_W_s2_rad2 = 1.0e-3;
+  // The winding's conductor for Eq. 1: its inferred zero-resistance temperature (copper
+  // 234.5 C, aluminium 225 C; machine_equations.hpp).
+  double conductor_inferred_zero_C = 234.5;
   // Thermal time runs this many times faster than controller time (test acceleration; 1 on a
   // real machine).
   double time_scale = 1.0;
@@ -35,7 +38,23 @@ struct ThermalModelConfig {
   double loss_error_process_std_W_per_sqrt_s = 0.5;
   double initial_loss_error_std_W = 50.0;
   double measurement_floor_std_C = 0.3;  // added in quadrature to each measurement's own error
-  double gate_sigma = 6.0;               // innovation gate
+  double gate_sigma = 6.0;               // innovation gate (from the first fused measurement on)
+  // A start without a known winding temperature (no calibration run, no stored state): the
+  // filter starts at the ambient sensor with this uncertainty and takes its first
+  // measurement without the gate (a warm motor must not be rejected as implausible).
+  double unknown_initial_std_C = 30.0;
+  // The model's relative error in the temperature change it predicts (cooling path, losses):
+  // between measurements the winding's uncertainty grows by this fraction of the predicted
+  // change, so that a long spell without measurements widens the band as it should.
+  double model_error_fraction = 0.25;
+};
+
+// What the drive keeps across a restart (a warm motor): the filter's temperatures and their
+// uncertainty, and when they held.
+struct ThermalState {
+  double winding_C = 0.0;
+  double housing_C = 0.0;
+  double winding_std_C = 0.0;
 };
 
 struct Calibration {
@@ -63,8 +82,21 @@ struct ThermalEstimate {
 
 class ThermalObserver {
  public:
+  // known: the winding is at initial_temp_C (a soaked motor at a calibration) with
+  // config.initial_std_C; otherwise a guess with config.unknown_initial_std_C, and the first
+  // measurement passes without the gate.
   ThermalObserver(const ThermalModelConfig& config, const Calibration& calibration,
-                  double initial_temp_C);
+                  double initial_temp_C, bool known = true);
+
+  // A state kept from before a restart, cooled through the downtime by the model (no
+  // losses, the ambient given), its uncertainty grown by the model error of that cooling.
+  // The first measurement afterwards passes without the gate: the stored state is a
+  // prediction, not a measurement.
+  void restore(const ThermalState& state, double downtime_thermal_s, double ambient_C);
+  // Restarts from a guess (see the constructor), e.g. the ambient sensor's temperature.
+  void restart_unknown(double guess_C);
+  [[nodiscard]] bool anchored() const { return anchored_; }
+  [[nodiscard]] ThermalState state() const;
 
   // Advances the model by dt (controller seconds) with the losses of that interval.
   // copper_current_sq_A2 is the mean of id^2 + iq^2; the copper loss is computed with Rs at the
@@ -100,6 +132,8 @@ class ThermalObserver {
   Eigen::Vector3d x_;   // winding C, housing C, winding-loss error W
   Eigen::Matrix3d p_;
   double since_measurement_s_ = 0.0;
+  double drift_std_C_ = 0.0;  // model error accumulated since the last measurement
+  bool anchored_ = true;      // a measurement or a known temperature holds the state
 };
 
 // The derated current limit and whether derating is active, from the estimate's upper bound.

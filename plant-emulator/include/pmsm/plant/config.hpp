@@ -39,7 +39,15 @@ struct MotorConfig {
   int pole_pairs = 3;
   double rs_ohm = 0.133;          // phase-to-neutral stator resistance at rs_reference_temp_C
   double rs_reference_temp_C = 25.0;    // T0 of Eq. 1
-  double alpha_per_C = 3.93e-3;   // temperature coefficient of copper, Eq. 1
+  // Eq. 1's temperature coefficient at rs_reference_temp_C. Absent: the conductor's,
+  // 1 / (K + rs_reference_temp_C) with K its inferred zero-resistance temperature (copper
+  // 234.5 C: 3.85e-3 /C at 25 C; aluminium 225 C). A given value holds linearly from the
+  // reference (0: a resistance that does not change, for tests).
+  std::optional<double> alpha_per_C;
+  double conductor_inferred_zero_C = 234.5;
+  [[nodiscard]] double alpha_at_reference() const {
+    return alpha_per_C.value_or(1.0 / (conductor_inferred_zero_C + rs_reference_temp_C));
+  }
   double ke_V_s_per_rad = 1.19;       // line-to-line RMS volts per mechanical rad/s (Table I)
   double ld_H = 5.5e-3;           // half the line-to-line inductance of Table I
   double lq_H = 5.5e-3;
