@@ -35,6 +35,10 @@ struct PublicationRecord {
   std::optional<core::Calibration> calibration_to_store;
   // With each heartbeat: the loop's timing since the previous one (LOOP_TIMING).
   std::optional<hal::protocol::LoopTiming> timing;
+  // Every kThermalStateEvery_s of drive time, once the filter has an output: its state, for
+  // the thermal state file.
+  std::optional<core::ThermalState> thermal_state;
+  double ambient_C = 25.0;
   bool calibration_failed = false;
   double uptime_s = 0.0;
 };
@@ -66,6 +70,8 @@ struct LoopStats {
   std::uint64_t max_step_ns = 0;
 };
 
+inline constexpr double kThermalStateEvery_s = 10.0;
+
 class DriveLoop {
  public:
   // `bus` carries the daemon's kernel filters (sensor samples and commands of this node)
@@ -88,6 +94,10 @@ class DriveLoop {
 
   // The node, for tests after run() has returned.
   [[nodiscard]] const app::DriveNode& node() const noexcept { return node_; }
+  // Before run(): the thermal state kept from before a restart, `downtime_s` old.
+  void restore_thermal_state(const core::ThermalState& state, double downtime_s, double ambient_C) {
+    node_.controller().restore_thermal_state(state, downtime_s, ambient_C);
+  }
 
  private:
   void on_frame(const hal::CanFrame& frame, std::int64_t now_ns) noexcept;
@@ -107,6 +117,7 @@ class DriveLoop {
   std::int64_t reopen_interval_ns_;
   std::int64_t period_ns_;
   std::uint32_t missing_periods_;  // control periods in one sample timeout
+  double next_thermal_state_s_ = kThermalStateEvery_s;  // drive uptime of the next one
   bool calibrate_at_first_run_;
   app::NodeInputs inputs_{};
   std::optional<std::int64_t> last_drive_command_ns_;

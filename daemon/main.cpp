@@ -20,6 +20,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <exception>
+#include <filesystem>
 #include <future>
 #include <memory>
 #include <optional>
@@ -32,6 +33,7 @@
 #include <spdlog/sinks/systemd_sink.h>
 #include <spdlog/spdlog.h>
 
+#include "calibration_file.hpp"
 #include "daemon_config.hpp"
 #include "drive_loop.hpp"
 #include "fault_watch.hpp"
@@ -86,6 +88,37 @@ struct Options {
   bool keys = false;
   std::string log_level = "info";
 };
+
+// The thermal state kept from before this start: cooled through the downtime by the model. A
+// damaged, future or week-old file is not used (the filter then starts from the ambient
+// sensor, as without one): it is a prediction, never worth refusing to start for.
+void restore_thermal_state(const DaemonConfig& config, pmsm::daemon::DriveLoop& loop) {
+  const std::string& path = config.controller.thermal_state_file;
+  std::error_code ec;
+  if (path.empty()) {
+    return;
+  }
+  if (!std::filesystem::exists(path, ec)) {
+    spdlog::info("thermal state: {} not there yet: the filter starts from the ambient sensor", path);
+    return;
+  }
+  try {
+    const pmsm::app::StoredThermalState s = pmsm::app::read_thermal_state_file(path);
+    const double now = std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
+    const double downtime_s = now - s.saved_unix_s;
+    if (!(downtime_s >= 0.0) || downtime_s > 7.0 * 86400.0) {
+      spdlog::warn("thermal state in {} is {:.0f} s old (clock changed?): not used; the filter starts from the ambient "
+                   "sensor", path, downtime_s);
+      return;
+    }
+    loop.restore_thermal_state(s.state, downtime_s, s.ambient_C);
+    spdlog::info("thermal state restored from {}: winding {:.1f} +- {:.1f} C {:.0f} s ago, cooled to {:.1f} +- {:.1f} C",
+                 path, s.state.winding_C, s.state.winding_std_C, downtime_s,
+                 loop.node().controller().thermal_state().winding_C, loop.node().controller().thermal_state().winding_std_C);
+  } catch (const std::exception& e) {
+    spdlog::warn("thermal state not used: {}; the filter starts from the ambient sensor", e.what());
+  }
+}
 
 int run(const Options& o) {
   setup_logging(o.log_level);
@@ -179,6 +212,7 @@ int run(const Options& o) {
 
   pmsm::daemon::PublicationRing ring;
   pmsm::daemon::DriveLoop loop(config, *rt_bus, ring);
+  restore_thermal_state(config, loop);
   pmsm::daemon::Publisher publisher(config, *pub_bus, loop);
   pmsm::hal::RecordDrain<pmsm::daemon::PublicationRecord, pmsm::daemon::PublicationRing::capacity()> drain(
       ring, [&](const pmsm::daemon::PublicationRecord& r) { publisher.handle(r); }, 5ms, [&] { publisher.after_batch(); });
@@ -269,6 +303,9 @@ int run(const Options& o) {
   rt_thread.join();
   (void)gate->set_active(false);
   drain.stop();
+  if (loop.node().controller().telemetry().thermal_valid) {
+    publisher.store_final_thermal_state(loop.node().controller().thermal_state(), loop.node().ambient_C());
+  }
   spdlog::info("stopped: {}", publisher.summary());
   return 0;
 }

@@ -129,6 +129,9 @@ void Publisher::handle(const PublicationRecord& r) {
   if (r.timing) {
     send(*r.timing);
   }
+  if (r.thermal_state) {
+    store_thermal_state(*r.thermal_state, r.ambient_C);
+  }
   if (r.calibration_failed) {
     spdlog::warn("calibration gave up (controller.calibration.timeout_s without enough accepted events); the previous "
                  "calibration stays in use");
@@ -164,6 +167,26 @@ void Publisher::send_receive_status(const LoopStats& s) {
   send(m);
   rejected_sent_ = total_rejected(s);
   receive_status_sent_ = std::chrono::steady_clock::now();
+}
+
+void Publisher::store_thermal_state(const core::ThermalState& state, double ambient_C) {
+  const std::string& path = config_.controller.thermal_state_file;
+  if (path.empty()) {
+    return;
+  }
+  app::StoredThermalState stored;
+  stored.state = state;
+  stored.ambient_C = ambient_C;
+  stored.saved_unix_s =
+      std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
+  try {
+    app::write_thermal_state_file(path, stored);
+    ++stats_.thermal_states_stored;
+  } catch (const app::CalibrationFileError& e) {
+    if (stats_.thermal_state_store_failures++ == 0) {  // logged once: it repeats every 10 s
+      spdlog::error("cannot store the thermal state: {} (a restart will start the filter from the ambient sensor)", e.what());
+    }
+  }
 }
 
 void Publisher::after_batch() {

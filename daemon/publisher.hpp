@@ -22,6 +22,8 @@ struct PublisherStats {
   std::uint64_t frames_failed = 0;       // not sent (queue full, interface down, encode refused)
   std::uint64_t calibrations_stored = 0;
   std::uint64_t calibration_store_failures = 0;
+  std::uint64_t thermal_states_stored = 0;
+  std::uint64_t thermal_state_store_failures = 0;
 };
 
 class Publisher {
@@ -34,6 +36,8 @@ class Publisher {
   void after_batch();
 
   [[nodiscard]] const PublisherStats& stats() const noexcept { return stats_; }
+  // After the control thread has stopped: the final thermal state (drain thread stopped too).
+  void store_final_thermal_state(const core::ThermalState& state, double ambient_C) { store_thermal_state(state, ambient_C); }
   // The summary line for the log at stop.
   [[nodiscard]] std::string summary() const;
 
@@ -43,6 +47,7 @@ class Publisher {
   void log_fault(const hal::protocol::FaultReport& f);
   void report();
   void send_receive_status(const LoopStats& s);
+  void store_thermal_state(const core::ThermalState& state, double ambient_C);
 
   const DaemonConfig& config_;
   hal::CanBus& bus_;

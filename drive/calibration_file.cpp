@@ -124,6 +124,31 @@ double number(const toml::table& t, const char* key, const std::string& file, do
   return *v;
 }
 
+// Replaces `path` with `text`: temporary file in the same directory, fsync, rename, directory
+// fsync, so that a power cut leaves the old content or the new, never a torn file.
+void write_atomically(const std::filesystem::path& path, const std::string& text) {
+  const std::filesystem::path dir = path.has_parent_path() ? path.parent_path() : std::filesystem::path(".");
+  const std::filesystem::path tmp = dir / fmt::format(".{}.tmp.{}", path.filename().string(), ::getpid());
+  TempFile file(tmp);
+  file.open();
+  write_all(file.fd(), text, tmp);
+  if (::fsync(file.fd()) != 0) {
+    throw CalibrationFileError(fmt::format("{}: cannot flush: {}", tmp.string(), errno_text(errno)));
+  }
+  file.close_checked();
+  if (::rename(tmp.c_str(), path.c_str()) != 0) {
+    throw CalibrationFileError(fmt::format("{}: cannot replace: {}", path.string(), errno_text(errno)));
+  }
+  file.release();
+  // The rename is durable only once the directory entry is.
+  const int dfd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (dfd >= 0) {
+    (void)::fsync(dfd);
+    ::close(dfd);
+  }
+}
+
+
 }  // namespace
 
 void write_calibration_file(const std::filesystem::path& path, const core::Calibration& c, std::string_view source) {
@@ -143,28 +168,13 @@ void write_calibration_file(const std::filesystem::path& path, const core::Calib
        << "written_utc = " << quoted(utc_now()) << "\n"
        << "source = " << quoted(source) << "\n";
 
-  const std::filesystem::path dir = path.has_parent_path() ? path.parent_path() : std::filesystem::path(".");
-  const std::filesystem::path tmp = dir / fmt::format(".{}.tmp.{}", path.filename().string(), ::getpid());
-  TempFile file(tmp);
-  file.open();
-  write_all(file.fd(), text.str(), tmp);
-  if (::fsync(file.fd()) != 0) {
-    throw CalibrationFileError(fmt::format("{}: cannot flush: {}", tmp.string(), errno_text(errno)));
-  }
-  file.close_checked();
-  if (::rename(tmp.c_str(), path.c_str()) != 0) {
-    throw CalibrationFileError(fmt::format("{}: cannot replace: {}", path.string(), errno_text(errno)));
-  }
-  file.release();
-  // The rename is durable only once the directory entry is.
-  const int dfd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-  if (dfd >= 0) {
-    (void)::fsync(dfd);
-    ::close(dfd);
-  }
+  write_atomically(path, text.str());
 }
 
-core::Calibration read_calibration_file(const std::filesystem::path& path) {
+namespace {
+
+// Parses a stored file strictly: TOML, only the known keys, the supported format.
+toml::table read_stored(const std::filesystem::path& path, const std::set<std::string, std::less<>>& known) {
   const std::string file = path.string();
   std::ifstream in(path, std::ios::binary);
   if (!in) {
@@ -178,7 +188,6 @@ core::Calibration read_calibration_file(const std::filesystem::path& path) {
   } catch (const toml::parse_error& e) {
     throw CalibrationFileError(fmt::format("{}:{}: {}", file, e.source().begin.line, e.description()));
   }
-  static const std::set<std::string, std::less<>> known{"format", "rs0_ohm", "t0_C", "ke0_V_s_per_rad", "written_utc", "source"};
   for (const auto& [key, node] : t) {
     if (!known.contains(key.str())) {
       throw CalibrationFileError(fmt::format("{}:{}: unknown key '{}'", file, node.source().begin.line, key.str()));
@@ -189,12 +198,55 @@ core::Calibration read_calibration_file(const std::filesystem::path& path) {
     throw CalibrationFileError(
         fmt::format("{}: format: {} is not supported (this build reads format {})", file, format, kCalibrationFileFormat));
   }
+  return t;
+}
+
+}  // namespace
+
+core::Calibration read_calibration_file(const std::filesystem::path& path) {
+  const std::string file = path.string();
+  const toml::table t =
+      read_stored(path, {"format", "rs0_ohm", "t0_C", "ke0_V_s_per_rad", "written_utc", "source"});
   core::Calibration c;
   c.rs0_ohm = number(t, "rs0_ohm", file, 0.0, 10.0, true);
   c.t0_C = number(t, "t0_C", file, -50.0, 200.0, false);
   c.ke0_V_s_per_rad = t.get("ke0_V_s_per_rad") != nullptr ? number(t, "ke0_V_s_per_rad", file, 0.0, 100.0, false) : 0.0;
   c.calibrated = true;
   return c;
+}
+
+void write_thermal_state_file(const std::filesystem::path& path, const StoredThermalState& stored) {
+  if (path.empty()) {
+    throw CalibrationFileError("thermal state file: no path given");
+  }
+  const core::ThermalState& s = stored.state;
+  if (!std::isfinite(s.winding_C) || !std::isfinite(s.housing_C) || !(s.winding_std_C >= 0.0) ||
+      !std::isfinite(s.winding_std_C) || !std::isfinite(stored.ambient_C) || !std::isfinite(stored.saved_unix_s)) {
+    throw CalibrationFileError(fmt::format("{}: refusing to store an invalid thermal state (winding {} +- {} C, housing {} C)",
+                                           path.string(), s.winding_C, s.winding_std_C, s.housing_C));
+  }
+  std::ostringstream text;
+  text << "# pmsm-thermal thermal state; replaced atomically by the drive\n"
+       << "format = " << kCalibrationFileFormat << "\n"
+       << "winding_C = " << toml_float(s.winding_C) << "\n"
+       << "housing_C = " << toml_float(s.housing_C) << "\n"
+       << "winding_std_C = " << toml_float(s.winding_std_C) << "\n"
+       << "ambient_C = " << toml_float(stored.ambient_C) << "\n"
+       << "saved_unix_s = " << toml_float(stored.saved_unix_s) << "\n";
+  write_atomically(path, text.str());
+}
+
+StoredThermalState read_thermal_state_file(const std::filesystem::path& path) {
+  const std::string file = path.string();
+  const toml::table t =
+      read_stored(path, {"format", "winding_C", "housing_C", "winding_std_C", "ambient_C", "saved_unix_s"});
+  StoredThermalState s;
+  s.state.winding_C = number(t, "winding_C", file, -60.0, 400.0, false);
+  s.state.housing_C = number(t, "housing_C", file, -60.0, 400.0, false);
+  s.state.winding_std_C = number(t, "winding_std_C", file, 0.0, 1000.0, false);
+  s.ambient_C = number(t, "ambient_C", file, -60.0, 200.0, false);
+  s.saved_unix_s = number(t, "saved_unix_s", file, 0.0, 1e11, false);
+  return s;
 }
 
 }  // namespace pmsm::app

@@ -41,4 +41,22 @@ void write_calibration_file(const std::filesystem::path& path, const core::Calib
 // line and key when it cannot be read or is not a valid calibration.
 [[nodiscard]] core::Calibration read_calibration_file(const std::filesystem::path& path);
 
+// The thermal filter's state kept across a restart (a motor power-cycled warm), in the same
+// atomic, strictly read TOML form:
+//   # pmsm-thermal thermal state; replaced atomically by the drive
+//   format = 1
+//   winding_C = 92.4
+//   housing_C = 71.0
+//   winding_std_C = 1.3
+//   ambient_C = 25.0
+//   saved_unix_s = 1795493852.25
+// The drive cools it through the downtime with its model (ThermalObserver::restore).
+struct StoredThermalState {
+  core::ThermalState state;
+  double ambient_C = 25.0;
+  double saved_unix_s = 0.0;  // CLOCK_REALTIME when it held
+};
+void write_thermal_state_file(const std::filesystem::path& path, const StoredThermalState& stored);
+[[nodiscard]] StoredThermalState read_thermal_state_file(const std::filesystem::path& path);
+
 }  // namespace pmsm::app

@@ -225,6 +225,9 @@ ConfigSchema<C> build() {
   s.string("calibration.file", [](C& c) -> std::string& { return c.calibration_file; },
            "Where the calibration is kept: read at start-up in place of the three keys above, replaced atomically when a "
            "calibration run completes (relative to this file; empty: none).");
+  s.string("thermal.state_file", [](C& c) -> std::string& { return c.thermal_state_file; },
+           "Where the daemon keeps the thermal filter's state across a restart (written every 10 s and at stop, restored "
+           "cooled through the downtime; relative to this file; empty: none, the filter starts from the ambient sensor).");
   s.integer("calibration.events", [](C& c) -> int& { return c.drive.calibration_events; }, between(1, 100),
             "Injection events averaged by a calibration run.");
   s.optional_real("calibration.F_A", [](C& c) -> std::optional<double>& { return c.relative.calibration_f_A; }, positive(1000), "A",
@@ -399,9 +402,11 @@ ControllerConfig parse_controller_config(const toml::table& table, std::string_v
     c.drive.calibration.t0_C = c.drive.motor.rs_reference_temp_C;
   }
   finalize(c, source, &table, key_prefix);
-  if (!c.calibration_file.empty() && std::filesystem::path(c.calibration_file).is_relative()) {
-    const std::filesystem::path dir = std::filesystem::path(source).parent_path();
-    c.calibration_file = std::filesystem::absolute(dir / c.calibration_file).lexically_normal().string();
+  for (std::string* file : {&c.calibration_file, &c.thermal_state_file}) {
+    if (!file->empty() && std::filesystem::path(*file).is_relative()) {
+      const std::filesystem::path dir = std::filesystem::path(source).parent_path();
+      *file = std::filesystem::absolute(dir / *file).lexically_normal().string();
+    }
   }
   return c;
 }

@@ -61,6 +61,10 @@ struct ControllerConfig {
   // calibration.rs0_ohm / t0_C / ke0_V_s_per_rad, replaced when a calibration run completes.
   // Empty: none. A relative path is relative to the configuration file.
   std::string calibration_file;
+  // Where the thermal filter's state is kept across a restart (calibration_file.hpp): the
+  // daemon writes it while it runs and when it stops, and restores it, cooled through the
+  // downtime, when it starts. Empty: none (the filter starts from the ambient sensor).
+  std::string thermal_state_file;
 };
 
 // What became of the stored calibration at start-up.

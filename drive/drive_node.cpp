@@ -106,6 +106,7 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
     sensed_ambient_C_ = *si.sample->ambient_C;
   }
   const double ambient_C = sensed_ambient_C_.value_or(in.ambient_C);
+  ambient_used_C_ = ambient_C;
 
   if (in.abort_calibration) {
     controller_.abort_calibration();

@@ -102,6 +102,8 @@ class DriveNode {
 
   [[nodiscard]] const core::DriveController& controller() const noexcept { return controller_; }
   [[nodiscard]] core::DriveController& controller() noexcept { return controller_; }
+  // The ambient / coolant temperature the drive used last (the sample's sensor, or the input).
+  [[nodiscard]] double ambient_C() const noexcept { return ambient_used_C_; }
   [[nodiscard]] const core::Supervisor& supervisor() const noexcept { return supervisor_; }
   [[nodiscard]] const SensorFrontend& frontend() const noexcept { return frontend_; }
   [[nodiscard]] std::uint64_t periods() const noexcept { return period_; }
@@ -133,6 +135,7 @@ class DriveNode {
   std::uint32_t published_latched_ = 0;   // the latched mask as last published
   std::array<double, core::kFaultCodeCount> fault_changed_s_{};
   std::optional<double> sensed_ambient_C_;  // the sample's ambient sensor, last plausible reading
+  double ambient_used_C_ = 25.0;
   std::uint8_t heartbeat_counter_ = 0;
   std::uint8_t injection_count_ = 0;
   std::uint16_t estimate_count_ = 0;

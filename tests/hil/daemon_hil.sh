@@ -130,7 +130,8 @@ wait "$plant3" || die "the plant did not finish with the restarted daemon: $(tai
 grep -q "controller locked on" "$work/plant-3.log" || die "the restarted daemon did not lock on"
 grep -q "calibration stored in" "$work/daemon.log" || die "the first daemon did not store its calibration"
 grep -q "calibration: loaded" "$work/daemon-2.log" || die "the restarted daemon did not load the stored calibration"
-echo "$prog: daemon killed: the plant waited; the restarted daemon loaded the stored calibration, locked on, and the plant finished"
+grep -q "thermal state restored from" "$work/daemon-2.log" || die "the restarted daemon did not restore the stored thermal state: $(grep -m2 'thermal state' "$work/daemon-2.log")"
+echo "$prog: daemon killed: the plant waited; the restarted daemon loaded the stored calibration and thermal state ($(grep -o 'winding [0-9.]* +- [0-9.]* C [0-9]* s ago, cooled to [0-9.]* +- [0-9.]* C' "$work/daemon-2.log")), locked on, and the plant finished"
 
 # Every frame decodes with the DBC (can/pmsm-thermal.dbc describes node 0; the DBC of node
 # NODE comes from the same generator: pmsm-dbc-gen --node NODE).

@@ -4,6 +4,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -163,6 +164,38 @@ TEST_F(CalibrationFile, ControllerConfigLoadsTheFileRelativeToItself) {
   // Not configured.
   ControllerConfig none = default_controller_config();
   EXPECT_EQ(load_stored_calibration(none), StoredCalibration::kNotConfigured);
+}
+
+
+// The thermal state kept across a restart: the same atomic write and strict read.
+TEST_F(CalibrationFile, ThermalStateRoundTripAndBadFiles) {
+  const fs::path path = dir_ / "axis1.thermal";
+  StoredThermalState s;
+  s.state = {92.4, 71.25, 1.3};
+  s.ambient_C = 31.5;
+  s.saved_unix_s = 1795493852.25;
+  write_thermal_state_file(path, s);
+  const StoredThermalState back = read_thermal_state_file(path);
+  EXPECT_DOUBLE_EQ(back.state.winding_C, 92.4);
+  EXPECT_DOUBLE_EQ(back.state.housing_C, 71.25);
+  EXPECT_DOUBLE_EQ(back.state.winding_std_C, 1.3);
+  EXPECT_DOUBLE_EQ(back.ambient_C, 31.5);
+  EXPECT_DOUBLE_EQ(back.saved_unix_s, 1795493852.25);
+  for (const fs::directory_entry& e : fs::directory_iterator(dir_)) {
+    EXPECT_EQ(e.path().filename(), "axis1.thermal") << "a temporary was left";
+  }
+  // NaN is never stored as a plausible number.
+  StoredThermalState bad = s;
+  bad.state.winding_C = std::nan("");
+  EXPECT_THROW(write_thermal_state_file(path, bad), CalibrationFileError);
+  EXPECT_DOUBLE_EQ(read_thermal_state_file(path).state.winding_C, 92.4) << "the old file stays";
+  write_text(path, "format = 1\nwinding_C = 950.0\nhousing_C = 70.0\nwinding_std_C = 1.0\nambient_C = 25.0\nsaved_unix_s = 1.0\n");
+  try {
+    (void)read_thermal_state_file(path);
+    FAIL() << "950 C was accepted";
+  } catch (const CalibrationFileError& e) {
+    EXPECT_NE(std::string(e.what()).find(":2: winding_C"), std::string::npos) << e.what();
+  }
 }
 
 }  // namespace
