@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# Reproduces the figures of docs/accuracy.md: every benchmark scenario side by side, as one
-# Markdown table on stdout and a plot per scenario in docs/accuracy/.
+# Reproduces the figures of docs/accuracy.md: every benchmark scenario side by side, the
+# reference heat-up's seed spread and the robustness suite, as Markdown tables on stdout and a
+# plot per scenario in docs/accuracy/.
 #   bench/accuracy.sh [BUILD_DIR]     (default build/release; built if missing)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -21,4 +22,16 @@ scenarios=(
   bench/scenarios/standstill-fm-bipolar.toml
   bench/scenarios/load-steps-fm-bipolar.toml
 )
+echo "## Benchmark scenarios"
+echo
 "$build/tools/pmsm-thermal" simulate "${scenarios[@]}" --markdown --plot-dir docs/accuracy --quiet
+echo
+echo "## The reference heat-up, seeds 11-18"
+echo
+"$build/tools/pmsm-thermal" simulate bench/scenarios/seeds/reference-fm-bipolar-seed1[1-8].toml --markdown --quiet
+if compgen -G "bench/scenarios/robustness/*.toml" > /dev/null; then
+  echo
+  echo "## Robustness suite (other motors, ambients, restarts, duty cycles)"
+  echo
+  "$build/tools/pmsm-thermal" simulate bench/scenarios/robustness/*.toml --markdown --plot-dir docs/accuracy/robustness --quiet
+fi

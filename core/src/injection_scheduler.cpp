@@ -134,7 +134,9 @@ InjectionScheduler::Budget InjectionScheduler::budget(const SchedulerInput& in, 
   InjectionHeadroomInput h;
   h.rs_ohm = config_.rs_nominal_ohm;
   h.ld_H = config_.ld_H;
-  h.lq_H = config_.lq_H;
+  // Lq as learned from the pairs (§5.1 of docs/estimator.md), not as commissioned.
+  const double lq_H = config_.learn_lq ? lq_H_ : config_.lq_H;
+  h.lq_H = lq_H;
   h.flux_linkage_Wb = config_.flux_linkage_Wb;
   h.omega_e_rad_s = in.omega_e_rad_s;
   h.id_A = im.d;
@@ -153,7 +155,7 @@ InjectionScheduler::Budget InjectionScheduler::budget(const SchedulerInput& in, 
 
   // Torque: reluctance torque 3/2 p |Ld - Lq| F |iq| within the budget (salient machines).
   double f_torque = wanted_A;
-  const double saliency = 1.5 * config_.pole_pairs * std::abs(config_.ld_H - config_.lq_H) * std::abs(im.q);
+  const double saliency = 1.5 * config_.pole_pairs * std::abs(config_.ld_H - lq_H) * std::abs(im.q);
   const bool torque_budget = config_.max_torque_disturbance_Nm > 0.0 && saliency > 0.0;
   if (torque_budget) {
     f_torque = std::min(f_torque, config_.max_torque_disturbance_Nm / saliency);
