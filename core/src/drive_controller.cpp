@@ -161,6 +161,11 @@ void DriveController::handle_estimate(const EventEstimate& e) {
   out.fused = observer_.update_resistance(e.rs_ohm, e.rs_std_ohm);
   if (out.fused) {
     ++telemetry_.estimates_published;
+    // The published temperature follows the fused measurement at once, not at the next
+    // thermal update (a start from a guess would otherwise show the guess for one more period).
+    if (telemetry_.thermal_valid) {
+      telemetry_.thermal = observer_.estimate();
+    }
   } else {
     ++telemetry_.estimates_gated;
   }

@@ -34,6 +34,12 @@ ThermalObserver::ThermalObserver(const ThermalModelConfig& config, const Calibra
   p_.setZero();
   p_(0, 0) = std_C * std_C;
   p_(1, 1) = std_C * std_C;
+  if (!known) {
+    // Unknown means the whole machine's temperature is unknown: winding and housing move
+    // together (a warm motor is warm throughout), so the guess's error is shared; with
+    // independent errors the model would shrink the winding's band by itself.
+    p_(0, 1) = p_(1, 0) = 0.95 * std_C * std_C;
+  }
   p_(2, 2) = config.initial_loss_error_std_W * config.initial_loss_error_std_W;
 }
 
