@@ -1,0 +1,62 @@
+// The estimator away from the reference heat-up (issue: any motor, any ambient, warm
+// restarts): the robustness suite's scenarios of bench/scenarios/robustness, closed loop.
+//
+// Bounds from the physics, with room above what these runs measure (docs/accuracy.md):
+//   - a resistance resolved to about 1 % is 2.6 C of copper (Eq. 1: 1 / alpha(T0) = K + T0);
+//   - Eq. 1 with one alpha at every T0 (the old conversion) reads a rise from -20 C
+//     (4.66e-3 / 3.93e-3 - 1) = 19 % too large: about +11 C at the 60 K rise of that run,
+//     so a mean error under 1.5 C excludes it;
+//   - a filter started at the calibration's T0 on a motor at 90 C read 10-65 C low for
+//     minutes: a max error under 6 C excludes it.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+
+#include "runner.hpp"
+
+namespace pmsm::app {
+namespace {
+
+const std::filesystem::path kSuite = std::filesystem::path(PMSM_SOURCE_DIR) / "bench/scenarios/robustness";
+
+SimulationResult run(const char* file) {
+  RunOptions o;
+  o.twin_for_disturbance = false;
+  return run_scenario(load_scenario(kSuite / file), o);
+}
+
+TEST(EstimatorRobustness, CalibrationAtMinus20CReadsTheRiseRight) {
+  const SimulationResult r = run("cal-minus20.toml");
+  ASSERT_TRUE(r.calibrated);
+  // Copper at -20 C: 0.133 ohm x (234.5 - 20) / (234.5 + 25).
+  EXPECT_NEAR(r.calibration.rs0_ohm / (0.133 * 214.5 / 259.5), 1.0, 0.015);
+  EXPECT_NEAR(r.calibration.t0_C, -20.0, 0.01) << "calibrated at the ambient sensor's temperature";
+  ASSERT_GT(r.max_winding_true_C, 60.0) << "the scenario no longer heats the winding";
+  ASSERT_GT(r.winding_error_samples, 500U);
+  EXPECT_LT(r.winding_error_rms_C, 2.5);
+  EXPECT_LT(std::abs(r.winding_error_mean_C), 1.5);
+  EXPECT_GE(r.coverage_2sigma, 0.9);
+}
+
+TEST(EstimatorRobustness, AWarmRestartIsReadWarmFromTheFirstMeasurement) {
+  const SimulationResult r = run("warm-restart.toml");
+  EXPECT_FALSE(r.calibrated) << "a warm motor must not be calibrated";
+  ASSERT_GT(r.winding_error_samples, 500U);
+  EXPECT_LT(r.winding_error_max_C, 6.0);
+  EXPECT_LT(r.winding_error_rms_C, 2.5);
+  EXPECT_GE(r.coverage_2sigma, 0.9);
+}
+
+TEST(EstimatorRobustness, AOnePointSixOhmServoCalibratesAndIsTracked) {
+  const SimulationResult r = run("servo-1p6ohm.toml");
+  ASSERT_TRUE(r.calibrated) << "the defaults are relative to the motor: the window fits 1.6 ohm";
+  EXPECT_NEAR(r.calibration.rs0_ohm / 1.6, 1.0, 0.02);
+  ASSERT_GT(r.max_winding_true_C, 80.0);
+  EXPECT_GT(r.estimates_accepted, 50U);
+  EXPECT_LT(r.winding_error_rms_C, 3.5);
+  EXPECT_LT(r.winding_error_max_C, 9.0);
+}
+
+}  // namespace
+}  // namespace pmsm::app
