@@ -28,7 +28,7 @@ Eigen::Matrix3d system_matrix(const ThermalModelConfig& c) {
 
 ThermalObserver::ThermalObserver(const ThermalModelConfig& config, const Calibration& calibration,
                                  double initial_temp_C, bool known)
-    : config_(config), calibration_(calibration), anchored_(known) {
+    : config_(config), calibration_(calibration), anchor_C_(initial_temp_C), anchored_(known) {
   const double std_C = known ? config.initial_std_C : config.unknown_initial_std_C;
   x_ << initial_temp_C, initial_temp_C, 0.0;
   p_.setZero();
@@ -74,6 +74,7 @@ void ThermalObserver::restore(const ThermalState& state, double downtime_thermal
   const Eigen::Vector2d x1 = e * x0;
   const double cooled_by = std::abs(x1(0) - x0(0));
   x_ << ambient_C + x1(0), ambient_C + x1(1), 0.0;
+  anchor_C_ = x_(0);
   // The stored uncertainty, the model error of the cooling, and the process noise of the
   // downtime.
   const double drift = config_.model_error_fraction * cooled_by;
@@ -122,9 +123,11 @@ void ThermalObserver::predict(double dt_s, double copper_current_sq_A2, double o
   // time constant); a second-order Taylor step keeps it accurate and allocation-free.
   const Eigen::Matrix3d ad = Eigen::Matrix3d::Identity() + a * dt + 0.5 * a * a * dt * dt;
   const Eigen::Matrix3d bd = Eigen::Matrix3d::Identity() * dt + 0.5 * a * dt * dt;
-  const double before_C = x_(0);
   x_ = ad * x_ + bd * u;
-  drift_std_C_ += config_.model_error_fraction * std::abs(x_(0) - before_C);
+  // The model's error grows with how far it has carried the estimate from where a
+  // measurement (or the start) left it: a relative error of the cooling path or the losses
+  // scales the temperature change, and shrinks again as the machine returns there.
+  drift_std_C_ = config_.model_error_fraction * std::abs(x_(0) - anchor_C_);
   Eigen::Matrix3d q = Eigen::Matrix3d::Zero();
   q(0, 0) = config_.winding_process_std_C_per_sqrt_s * config_.winding_process_std_C_per_sqrt_s * dt;
   q(1, 1) = config_.housing_process_std_C_per_sqrt_s * config_.housing_process_std_C_per_sqrt_s * dt;
@@ -160,6 +163,7 @@ bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm) {
   const Eigen::Matrix3d i_kh = Eigen::Matrix3d::Identity() - k * h;
   p_ = i_kh * p_ * i_kh.transpose() + k * r * k.transpose();
   since_measurement_s_ = 0.0;
+  anchor_C_ = x_(0);
   return true;
 }
 

@@ -44,8 +44,9 @@ struct ThermalModelConfig {
   // measurement without the gate (a warm motor must not be rejected as implausible).
   double unknown_initial_std_C = 30.0;
   // The model's relative error in the temperature change it predicts (cooling path, losses):
-  // between measurements the winding's uncertainty grows by this fraction of the predicted
-  // change, so that a long spell without measurements widens the band as it should.
+  // between measurements the winding's uncertainty grows by this fraction of how far the
+  // model has carried the estimate since the last one, so that a long spell without
+  // measurements widens the band as it should.
   double model_error_fraction = 0.25;
 };
 
@@ -132,7 +133,8 @@ class ThermalObserver {
   Eigen::Vector3d x_;   // winding C, housing C, winding-loss error W
   Eigen::Matrix3d p_;
   double since_measurement_s_ = 0.0;
-  double drift_std_C_ = 0.0;  // model error accumulated since the last measurement
+  double anchor_C_ = 0.0;     // the winding estimate the last measurement (or the start) left
+  double drift_std_C_ = 0.0;  // the model's error since then: a fraction of |x - anchor|
   bool anchored_ = true;      // a measurement or a known temperature holds the state
 };
 
