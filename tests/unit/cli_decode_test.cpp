@@ -134,7 +134,7 @@ TEST(cli_decode, StrictFailsOnMismatchOutOfRangeAndMalformedLines) {
   EXPECT_TRUE(contains(r.out, "[out of range: State]")) << r.out;
   EXPECT_TRUE(contains(r.err, "line 3 is not a candump frame")) << r.err;
   EXPECT_TRUE(contains(r.err, "1 mismatched")) << r.err;
-  EXPECT_TRUE(contains(r.err, "1 out of range, 0 with a bad CRC, 1 malformed line(s)")) << r.err;
+  EXPECT_TRUE(contains(r.err, "1 out of range, 0 with a bad CRC, 0 with a bad alive counter, 1 malformed line(s)")) << r.err;
   // Without --strict the same input is reported but does not fail.
   EXPECT_EQ(run_process(kDecode + bad.path()).exit_code, 0);
 }
@@ -150,6 +150,19 @@ TEST(cli_decode, ACommandWithABadCrcIsReportedAsCorrupt) {
   EXPECT_FALSE(contains(out[0], "CRC-8")) << out[0];
   EXPECT_TRUE(contains(out[1], "CRC-8 does not match")) << out[1];
   EXPECT_TRUE(contains(r.err, "1 with a bad CRC")) << r.err;
+}
+
+TEST(cli_decode, AReplayedCommandIsReportedByItsAliveCounter) {
+  // The same DRIVE_COMMAND twice (a replay: the counter does not advance), then one whose
+  // counter advanced properly is taken again.
+  const TempFile log("(1.000000) vcan0 040#7B50986502000000\n(1.000100) vcan0 040#7B50986502000000\n");
+  const ProcessResult r = run_process(kDecode + "--strict " + log.path());
+  EXPECT_EQ(r.exit_code, 1);
+  const std::vector<std::string> out = lines_of(r.out);
+  ASSERT_EQ(out.size(), 2U) << r.out;
+  EXPECT_FALSE(contains(out[0], "AliveCounter (")) << out[0];
+  EXPECT_TRUE(contains(out[1], "AliveCounter (repeated_counter")) << out[1];
+  EXPECT_TRUE(contains(r.err, "1 with a bad alive counter")) << r.err;
 }
 
 TEST(cli_decode, ReadsStdin) {

@@ -27,6 +27,7 @@
 #include <fstream>
 #include <iostream>
 #include <memory>
+#include <map>
 #include <optional>
 #include <string>
 #include <string_view>
@@ -106,10 +107,11 @@ struct Counts {
   std::uint64_t mismatched = 0;   // length or CAN FD/classic differs from the DBC
   std::uint64_t out_of_range = 0; // a signal outside the DBC's [minimum, maximum]
   std::uint64_t bad_crc = 0;      // a command frame whose CRC-8 does not match (corrupt)
+  std::uint64_t bad_counter = 0;  // a command whose alive counter repeats or jumps (replayed, stale, lost)
   std::vector<std::uint64_t> per_message;  // indexed like Database::messages
 
   [[nodiscard]] std::uint64_t bad() const noexcept {
-    return unknown + error_frames + malformed + mismatched + out_of_range + bad_crc;
+    return unknown + error_frames + malformed + mismatched + out_of_range + bad_crc + bad_counter;
   }
 };
 
@@ -182,17 +184,30 @@ class Decoder {
     }
     // A DBC tool cannot check the E2E protection of the commands; the project's codec can: a
     // frame of the protocol whose CRC-8 does not match is corrupt, whatever its signals say.
+    // Likewise the alive counter, per command stream (CAN ID), as the daemon checks it.
     bool crc_mismatch = false;
+    hal::protocol::DecodeStatus counter = hal::protocol::DecodeStatus::kOk;
     if (!decoded->length_mismatch && !decoded->format_mismatch) {
       hal::protocol::AnyDecoded any;
-      crc_mismatch = hal::protocol::decode_any(record.frame, any) == hal::protocol::DecodeStatus::kBadCrc;
+      const hal::protocol::DecodeStatus status = hal::protocol::decode_any(record.frame, any);
+      crc_mismatch = status == hal::protocol::DecodeStatus::kBadCrc;
+      if (status == hal::protocol::DecodeStatus::kOk && hal::protocol::message_def(any.type).e2e) {
+        counter = counters_[record.frame.id].check(any.alive_counter);
+      }
     }
     if (crc_mismatch) {
       out_of_range += (out_of_range.empty() ? "" : ", ") + std::string("Crc (CRC-8 does not match: corrupt frame)");
     }
+    if (counter != hal::protocol::DecodeStatus::kOk) {
+      out_of_range += (out_of_range.empty() ? "" : ", ") +
+                      fmt::format("AliveCounter ({}: {})", hal::protocol::to_string(counter), hal::protocol::describe(counter));
+    }
     LineKind kind = LineKind::kDecoded;
     if (crc_mismatch) {
       ++counts_.bad_crc;
+      kind = LineKind::kOutOfRange;
+    } else if (counter != hal::protocol::DecodeStatus::kOk) {
+      ++counts_.bad_counter;
       kind = LineKind::kOutOfRange;
     } else if (decoded->length_mismatch || decoded->format_mismatch) {
       ++counts_.mismatched;
@@ -224,6 +239,7 @@ class Decoder {
           .field("mismatched", c.mismatched)
           .field("out_of_range", c.out_of_range)
           .field("bad_crc", c.bad_crc)
+          .field("bad_counter", c.bad_counter)
           .key("messages")
           .begin_object();
       for (std::size_t i = 0; i < db_.messages.size(); ++i) {
@@ -237,8 +253,9 @@ class Decoder {
     }
     std::string text = fmt::format(
         "decode: {} line(s), {} frame(s): {} decoded, {} unknown, {} error frame(s), {} mismatched "
-        "(length or CAN FD/classic), {} out of range, {} with a bad CRC, {} malformed line(s)\n",
-        c.lines, c.frames, c.decoded, c.unknown, c.error_frames, c.mismatched, c.out_of_range, c.bad_crc, c.malformed);
+        "(length or CAN FD/classic), {} out of range, {} with a bad CRC, {} with a bad alive counter, {} malformed line(s)\n",
+        c.lines, c.frames, c.decoded, c.unknown, c.error_frames, c.mismatched, c.out_of_range, c.bad_crc, c.bad_counter,
+        c.malformed);
     for (std::size_t i = 0; i < db_.messages.size(); ++i) {
       if (c.per_message[i] != 0U) {
         text += fmt::format("  {:<22} {}\n", db_.messages[i].name, c.per_message[i]);
@@ -346,6 +363,7 @@ class Decoder {
 
   const dbc::Database& db_;
   const DecodeOptions& options_;
+  std::map<std::uint32_t, hal::protocol::AliveCounterCheck> counters_;  // per command CAN ID
   Counts counts_;
 };
 
