@@ -145,6 +145,11 @@ void check_cross_keys(const DaemonConfig& c, const std::string& source) {
                      "supervisor.dc_bus_max_V ({} .. {} V): the drive would trip at once",
                      c.controller.nominal_dc_bus_V, s.dc_bus_min_V, s.dc_bus_max_V));
   }
+  if (!(s.ambient_min_C < s.ambient_max_C)) {
+    rule(fmt::format("supervisor.ambient_min_C ({} C) must be below supervisor.ambient_max_C ({} C): every ambient reading "
+                     "would be implausible",
+                     s.ambient_min_C, s.ambient_max_C));
+  }
   if (s.overcurrent_A >= c.controller.sensors.current_range_A) {
     rule(fmt::format("supervisor.overcurrent_A ({} A) must be below controller.sensors.current_range_A ({} A): "
                      "a saturated ADC reading is never a valid current",

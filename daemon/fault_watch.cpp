@@ -14,8 +14,11 @@ void watch_fault_input(hal::FaultInput& input, const std::atomic<bool>& stop, in
   stats.edge_driven = event_fd >= 0;
   (void)wait.add(event_fd);
   (void)wait.add(stop_fd);
-  // Without edge events: a poll every millisecond.
-  const std::chrono::nanoseconds timeout = stats.edge_driven ? std::chrono::nanoseconds{recheck} : std::chrono::milliseconds{1};
+  // Without edge events: a poll every millisecond; no fault line at all (the null backend,
+  // always quiet): only the re-check.
+  const bool polled = !stats.edge_driven && input.backend_name() != "null";
+  const std::chrono::nanoseconds timeout = polled ? std::chrono::nanoseconds{std::chrono::milliseconds{1}}
+                                                  : std::chrono::nanoseconds{recheck};
   while (!stop.load(std::memory_order_relaxed)) {
     const std::optional<bool> level = input.fault_active();
     ++stats.wakes;

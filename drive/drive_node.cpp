@@ -102,8 +102,8 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
   const core::SupervisorStatus& status = supervisor_.step(si);
   // The ambient / coolant sensor of the sample, once the supervisor found the sample
   // plausible; without one (a power stage without the sensor) the caller's value.
-  if (status.sample_usable && si.sample && si.sample->ambient_C) {
-    sensed_ambient_C_ = *si.sample->ambient_C;
+  if (status.sample_usable && si.sample) {
+    sensed_ambient_C_ = si.sample->ambient_C;  // a sample without the sensor: the input again
   }
   const double ambient_C = sensed_ambient_C_.value_or(in.ambient_C);
   ambient_used_C_ = ambient_C;

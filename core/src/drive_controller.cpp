@@ -158,6 +158,13 @@ void DriveController::handle_estimate(const EventEstimate& e) {
   out.vx_learning = e.vx_learning;
   out.joint_rs_ohm = e.joint_rs_ohm;
   out.joint_vx_V = e.joint_vx_V;
+  if (thermal_guess_pending_) {
+    // A measurement before the first thermal update: the filter starts from a guess here.
+    const double time_scale = observer_.time_scale();
+    observer_.restart_unknown(observer_.estimate().winding_C);
+    observer_.set_time_scale(time_scale);
+    thermal_guess_pending_ = false;
+  }
   out.fused = observer_.update_resistance(e.rs_ohm, e.rs_std_ohm);
   if (out.fused) {
     ++telemetry_.estimates_published;

@@ -78,12 +78,14 @@ void ThermalObserver::restore(const ThermalState& state, double downtime_thermal
   // The stored uncertainty, the model error of the cooling, and the process noise of the
   // downtime.
   const double drift = config_.model_error_fraction * cooled_by;
-  const double stored = std::isfinite(state.winding_std_C) ? state.winding_std_C : config_.unknown_initial_std_C;
+  const double stored = std::isfinite(state.winding_std_C) ? std::max(state.winding_std_C, config_.initial_std_C)
+                                                          : config_.unknown_initial_std_C;
   const double var = stored * stored + drift * drift +
                      config_.winding_process_std_C_per_sqrt_s * config_.winding_process_std_C_per_sqrt_s * t;
   p_.setZero();
   p_(0, 0) = var;
   p_(1, 1) = var;
+  p_(0, 1) = p_(1, 0) = 0.95 * var;  // the machine's error is shared (see the constructor)
   p_(2, 2) = config_.initial_loss_error_std_W * config_.initial_loss_error_std_W;
   drift_std_C_ = 0.0;
   since_measurement_s_ = 0.0;
@@ -143,17 +145,32 @@ bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm) {
       temperature_per_resistance_C_per_ohm(calibration_.rs0_ohm, calibration_.t0_C, config_.conductor_inferred_zero_C);
   const double r = std::pow(rs_std_ohm * dt_dr, 2) + std::pow(config_.measurement_floor_std_C, 2);
   const Eigen::RowVector3d h(1.0, 0.0, 0.0);
+  // A measurement without a finite value and error bar is no measurement (NaN compares false,
+  // so it would otherwise pass the gate and poison the state).
+  if (!std::isfinite(z) || !std::isfinite(r) || !(rs_std_ohm >= 0.0)) {
+    return false;
+  }
+  if (gated_in_row_ >= kReanchorAfterGated) {
+    // Several gated measurements in a row mean the state is wrong, not the measurements (e.g.
+    // an outlier took the first, ungated place): forget the temperatures' certainty, as at a
+    // start from a guess, and take this one ungated.
+    const double u = config_.unknown_initial_std_C * config_.unknown_initial_std_C;
+    p_(0, 0) = p_(1, 1) = u;
+    p_(0, 1) = p_(1, 0) = 0.95 * u;
+    p_(0, 2) = p_(2, 0) = p_(1, 2) = p_(2, 1) = 0.0;
+    anchored_ = false;
+  }
   // The model error accumulated since the last measurement belongs to the prediction's
   // variance (it is what the measurement corrects).
   const double drift_var = drift_std_C_ * drift_std_C_;
   const double s = (h * p_ * h.transpose())(0, 0) + drift_var + r;
-  // A measurement without a finite value and error bar is no measurement (NaN compares false,
-  // so it would otherwise pass the gate and poison the state). Before the first measurement
-  // of a start from a guess there is no prediction to gate against.
-  if (!std::isfinite(z) || !std::isfinite(r) || !(rs_std_ohm >= 0.0) ||
-      (anchored_ && !(std::abs(z - x_(0)) <= config_.gate_sigma * std::sqrt(s)))) {
+  // Before the first measurement of a start from a guess (or a restored prediction) there is
+  // no trustworthy prediction to gate against.
+  if (anchored_ && !(std::abs(z - x_(0)) <= config_.gate_sigma * std::sqrt(s))) {
+    ++gated_in_row_;
     return false;
   }
+  gated_in_row_ = 0;
   p_(0, 0) += drift_var;
   drift_std_C_ = 0.0;
   anchored_ = true;

@@ -299,6 +299,22 @@ TEST(ThermalObserver, AStartFromAGuessTakesItsFirstMeasurementUngated) {
   EXPECT_FALSE(known.update_resistance(known.resistance_at_C(90.0), 0.0002));
 }
 
+// An outlier that took the ungated first place does not hold the filter hostage: after a few
+// correct measurements in a row are gated, the next one re-anchors it.
+TEST(ThermalObserver, AWrongFirstMeasurementIsReplacedAfterRepeatedRejections) {
+  ThermalModelConfig c;
+  ThermalObserver obs(c, Calibration{}, 25.0, false);
+  ASSERT_TRUE(obs.update_resistance(obs.resistance_at_C(200.0), 0.0002));  // the outlier
+  const double rs_90 = obs.resistance_at_C(90.0);
+  int gated = 0;
+  while (!obs.update_resistance(rs_90, 0.0002) && gated < 20) {
+    ++gated;
+  }
+  EXPECT_GE(gated, 1) << "the gate applies after the first measurement";
+  EXPECT_LE(gated, 6) << "but not for ever";
+  EXPECT_NEAR(obs.estimate().winding_C, 90.0, 2.0);
+}
+
 // Between measurements the band widens by the model's relative error of the change it
 // predicts: a heat-up of 60 C without a measurement ends at least 0.25 x 60 C wide (1 sigma).
 TEST(ThermalObserver, TheBandGrowsWithThePredictedChangeBetweenMeasurements) {

@@ -134,8 +134,17 @@ class GpiodFaultInput final : public FaultInput {
 
   [[nodiscard]] std::optional<bool> fault_active() noexcept override {
     // Consume the pending edges (the level below is what counts, not their number).
+    // Bounded: a line chattering faster than this reads must not keep the level unread.
     const timespec none{0, 0};
-    while (event_fd_ >= 0 && gpiod_line_event_wait(line_.line, &none) == 1) {
+    for (int batch = 0; event_fd_ >= 0 && batch < 4; ++batch) {
+      const int pending = gpiod_line_event_wait(line_.line, &none);
+      if (pending < 0) {
+        last_errno_ = errno;
+        return std::nullopt;
+      }
+      if (pending == 0) {
+        break;
+      }
       std::array<gpiod_line_event, 16> events{};
       if (gpiod_line_event_read_multiple(line_.line, events.data(), static_cast<unsigned>(events.size())) < 0) {
         last_errno_ = errno;

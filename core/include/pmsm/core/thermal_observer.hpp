@@ -136,6 +136,8 @@ class ThermalObserver {
   double anchor_C_ = 0.0;     // the winding estimate the last measurement (or the start) left
   double drift_std_C_ = 0.0;  // the model's error since then: a fraction of |x - anchor|
   bool anchored_ = true;      // a measurement or a known temperature holds the state
+  int gated_in_row_ = 0;      // measurements gated out since the last fused one
+  static constexpr int kReanchorAfterGated = 5;
 };
 
 // The derated current limit and whether derating is active, from the estimate's upper bound.
