@@ -150,10 +150,11 @@ bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm) {
   if (!std::isfinite(z) || !std::isfinite(r) || !(rs_std_ohm >= 0.0)) {
     return false;
   }
-  if (gated_in_row_ >= kReanchorAfterGated) {
-    // Several gated measurements in a row mean the state is wrong, not the measurements (e.g.
-    // an outlier took the first, ungated place): forget the temperatures' certainty, as at a
-    // start from a guess, and take this one ungated.
+  if (gated_in_row_ >= kReanchorAfterGated && reanchor_consistent(z, r)) {
+    // Several gated measurements in a row that agree with each other (and with this one) mean
+    // the state is wrong, not the measurements (e.g. an outlier took the first, ungated
+    // place): forget the temperatures' certainty, as at a start from a guess, and take this
+    // one ungated. Gated measurements that scatter are wild ones: they stay gated.
     const double u = config_.unknown_initial_std_C * config_.unknown_initial_std_C;
     p_(0, 0) = p_(1, 1) = u;
     p_(0, 1) = p_(1, 0) = 0.95 * u;
@@ -167,10 +168,18 @@ bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm) {
   // Before the first measurement of a start from a guess (or a restored prediction) there is
   // no trustworthy prediction to gate against.
   if (anchored_ && !(std::abs(z - x_(0)) <= config_.gate_sigma * std::sqrt(s))) {
+    if (gated_in_row_ >= 2 * kReanchorAfterGated) {
+      gated_in_row_ = 0;  // a window of scattered ones: start the count again
+      gated_sum_C_ = gated_sq_sum_C2_ = gated_r_sum_C2_ = 0.0;
+    }
     ++gated_in_row_;
+    gated_sum_C_ += z;
+    gated_sq_sum_C2_ += z * z;
+    gated_r_sum_C2_ += r;
     return false;
   }
   gated_in_row_ = 0;
+  gated_sum_C_ = gated_sq_sum_C2_ = gated_r_sum_C2_ = 0.0;
   p_(0, 0) += drift_var;
   drift_std_C_ = 0.0;
   anchored_ = true;
@@ -182,6 +191,15 @@ bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm) {
   since_measurement_s_ = 0.0;
   anchor_C_ = x_(0);
   return true;
+}
+
+bool ThermalObserver::reanchor_consistent(double z, double r) const {
+  // The gated row and this measurement scatter no more than their own errors allow (3 sigma).
+  const double n = static_cast<double>(gated_in_row_);
+  const double mean = gated_sum_C_ / n;
+  const double var = std::max(gated_sq_sum_C2_ / n - mean * mean, 0.0);
+  const double own = gated_r_sum_C2_ / n;
+  return var <= 9.0 * own && std::abs(z - mean) <= 3.0 * std::sqrt(own + r);
 }
 
 ThermalEstimate ThermalObserver::estimate() const {

@@ -137,7 +137,9 @@ class ThermalObserver {
   double drift_std_C_ = 0.0;  // the model's error since then: a fraction of |x - anchor|
   bool anchored_ = true;      // a measurement or a known temperature holds the state
   int gated_in_row_ = 0;      // measurements gated out since the last fused one
+  double gated_sum_C_ = 0.0, gated_sq_sum_C2_ = 0.0, gated_r_sum_C2_ = 0.0;  // of those
   static constexpr int kReanchorAfterGated = 5;
+  [[nodiscard]] bool reanchor_consistent(double z, double r) const;
 };
 
 // The derated current limit and whether derating is active, from the estimate's upper bound.
