@@ -17,7 +17,9 @@
 #    new plant starts and the daemon must clear it and run again, without a restart;
 # 5. daemon killed: the plant's lockstep stalls (no command: nothing is applied); the daemon
 #    restarted locks on again;
-# 6. every captured frame is decoded with the DBC (pmsm-thermal decode --strict).
+# 6. every captured frame is decoded with the DBC (pmsm-thermal decode --strict);
+# 7. the interface goes down for 1 s and comes back during a lockstep run: daemon and plant
+#    reopen their sockets and go on (needs CAP_NET_ADMIN: root, or UML through vcan-env).
 # Everything started is stopped on exit, pass or fail.
 #
 # Environment: DAEMON_HIL_DURATION (simulated seconds of the heat-up, default 10),
@@ -139,5 +141,23 @@ kill -INT "$candump_pid" 2>/dev/null || true
 "$tool" decode --strict --dbc "$work/node$node.dbc" "$work/candump.log" > "$work/decoded.txt" ||
   die "pmsm-thermal decode --strict failed: $(grep -m3 -i 'unknown\|error' "$work/decoded.txt")"
 echo "$prog: $(wc -l < "$work/candump.log") captured frames, all decoded with the DBC"
+
+# The interface goes down and comes back while plant and daemon run in lockstep: both must
+# notice, reopen their sockets and go on (the plant finishes its run with the same daemon).
+"$plant" --config "$src/tests/hil/data/hil-plant.toml" --iface "$iface" --node $node --mode lockstep \
+  --duration-s 1.5 > "$work/plant-4.log" 2>&1 &
+plant4=$!
+pids+=("$plant4")
+sleep 3  # in lockstep with the daemon by now (1.5 s simulated takes far longer in UML)
+kill -0 "$plant4" 2>/dev/null || die "the fourth plant ended before the interface test: $(tail -3 "$work/plant-4.log")"
+ip link set dev "$iface" down 2>"$work/ip.err" ||
+  die "cannot take $iface down ($(cat "$work/ip.err")): this phase needs CAP_NET_ADMIN (root, or User-Mode Linux through scripts/vcan-env)"
+sleep 1
+ip link set dev "$iface" up 2>"$work/ip.err" || die "cannot bring $iface up again: $(cat "$work/ip.err")"
+wait "$plant4" || die "the plant did not finish after the interface came back: $(tail -3 "$work/plant-4.log")"
+grep -q "is down or gone" "$work/daemon-2.log" || die "the daemon did not notice $iface going down: $(tail -3 "$work/daemon-2.log")"
+grep -q "is back: socket reopened" "$work/daemon-2.log" || die "the daemon did not reopen its socket: $(tail -3 "$work/daemon-2.log")"
+grep -qi "down or gone" "$work/plant-4.log" || die "the plant did not notice $iface going down: $(tail -3 "$work/plant-4.log")"
+echo "$prog: $iface down for 1 s and up again: daemon and plant reopened their sockets and the plant finished its run"
 ok=1
 echo "$prog: PASS"
