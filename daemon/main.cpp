@@ -304,7 +304,7 @@ int run(const Options& o) {
   (void)gate->set_active(false);
   drain.stop();
   if (loop.node().controller().telemetry().thermal_valid) {
-    publisher.store_final_thermal_state(loop.node().controller().thermal_state(), loop.node().ambient_C());
+    publisher.store_thermal_state(loop.node().controller().thermal_state(), loop.node().ambient_C());
   }
   spdlog::info("stopped: {}", publisher.summary());
   return 0;

@@ -36,8 +36,9 @@ class Publisher {
   void after_batch();
 
   [[nodiscard]] const PublisherStats& stats() const noexcept { return stats_; }
-  // After the control thread has stopped: the final thermal state (drain thread stopped too).
-  void store_final_thermal_state(const core::ThermalState& state, double ambient_C) { store_thermal_state(state, ambient_C); }
+  // Writes the thermal state file (the drain thread; at stop, after the control thread and the
+  // drain thread have stopped: the final state).
+  void store_thermal_state(const core::ThermalState& state, double ambient_C);
   // The summary line for the log at stop.
   [[nodiscard]] std::string summary() const;
 
@@ -47,7 +48,6 @@ class Publisher {
   void log_fault(const hal::protocol::FaultReport& f);
   void report();
   void send_receive_status(const LoopStats& s);
-  void store_thermal_state(const core::ThermalState& state, double ambient_C);
 
   const DaemonConfig& config_;
   hal::CanBus& bus_;

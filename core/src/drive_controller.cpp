@@ -160,10 +160,7 @@ void DriveController::handle_estimate(const EventEstimate& e) {
   out.joint_vx_V = e.joint_vx_V;
   if (thermal_guess_pending_) {
     // A measurement before the first thermal update: the filter starts from a guess here.
-    const double time_scale = observer_.time_scale();
-    observer_.restart_unknown(observer_.estimate().winding_C);
-    observer_.set_time_scale(time_scale);
-    thermal_guess_pending_ = false;
+    start_thermal_from_guess(observer_.estimate().winding_C);
   }
   out.fused = observer_.update_resistance(e.rs_ohm, e.rs_std_ohm);
   if (out.fused) {
@@ -188,6 +185,11 @@ void DriveController::handle_estimate(const EventEstimate& e) {
   }
 }
 
+void DriveController::start_thermal_from_guess(double guess_C) {
+  observer_.restart_unknown(guess_C);  // keeps the observer's configuration, time scale included
+  thermal_guess_pending_ = false;
+}
+
 void DriveController::restore_thermal_state(const ThermalState& state, double downtime_s, double ambient_C) {
   observer_.restore(state, downtime_s * observer_.time_scale(), ambient_C);
   thermal_guess_pending_ = false;
@@ -197,10 +199,7 @@ void DriveController::update_thermal(double ambient_C) {
   if (thermal_guess_pending_) {
     // Nothing known about the winding yet: the ambient sensor is the best guess (a motor at
     // rest), with a wide uncertainty; the first measurement decides.
-    const double time_scale = observer_.time_scale();
-    observer_.restart_unknown(ambient_C);
-    observer_.set_time_scale(time_scale);
-    thermal_guess_pending_ = false;
+    start_thermal_from_guess(ambient_C);
   }
   const double dt = thermal_count_ * config_.period_s;
   const double i_sq = i_sq_sum_ / thermal_count_;

@@ -212,6 +212,7 @@ class DriveController {
   BaselineEstimator baseline_;
   ThermalObserver observer_;
   bool thermal_guess_pending_ = true;  // start from the ambient sensor at the first update
+  void start_thermal_from_guess(double guess_C);
 
   DriveOutput output_{};
   DriveTelemetry telemetry_{};
