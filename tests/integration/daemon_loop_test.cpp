@@ -42,8 +42,11 @@ const std::filesystem::path kData = std::filesystem::path(PMSM_SOURCE_DIR) / "te
 // One axis: a plant node and a daemon (loop + publisher) on a shared bus.
 class Axis {
  public:
+  // The command timeout is generous unless a test is about it: the test thread that sends
+  // the commands every 50 ms may be starved for longer than 0.5 s on a loaded machine, and a
+  // timeout then lets the scenario's active load spin the free shaft away.
   Axis(hal::SimBus& bus, protocol::NodeId node, double plant_duration_s, double ambient_C = 25.0,
-       double command_timeout_s = 0.5)
+       double command_timeout_s = 5.0)
       : node_(node) {
     const app::Scenario scenario = app::load_scenario(kData / "heatup-short.toml");
     plant_config_ = scenario.plant;
