@@ -28,4 +28,16 @@ drive=$(grep -m1 " 040#" "$log")
 grep -q "rejected frame 0x040: repeated_counter" "$work/out" || fail "a replayed command was not flagged"
 grep -q "rejected frame 0x040: bad_crc" "$work/out" || fail "a corrupt command was not flagged"
 grep -q "2 not decodable (bad_crc 1, repeated_counter 1)" "$work/out" || fail "the summary does not count both"
+# --node: another axis's frames (here node 0's, with node 3's HEARTBEAT beside them) stay out
+# of the summary, its checks included.
+heartbeat=$(grep -m1 " 140#" "$log")
+{
+  cat "$log"
+  echo "${heartbeat/ 140#/ 143#}"
+} > "$work/two.log"
+"$exe" monitor --log "$work/two.log" --node 3 --min-estimates 0 > "$work/out"
+grep -q "^node  3 " "$work/out" || fail "--node 3 does not show node 3"
+if grep -q "^node  0 " "$work/out"; then fail "--node 3 shows node 0"; fi
+"$exe" monitor --log "$work/two.log" > "$work/out"
+grep -q "^node  0 " "$work/out" && grep -q "^node  3 " "$work/out" || fail "without --node, not both axes are shown"
 echo "monitor_log: ok"

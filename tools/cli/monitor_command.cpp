@@ -100,6 +100,9 @@ class Monitor {
     ++frames_;
     protocol::AnyDecoded d;
     protocol::DecodeStatus status = protocol::decode_any(frame, d);
+    if (status == protocol::DecodeStatus::kOk && o_.node && d.node != *o_.node) {
+      return;  // another axis: not even its alive counters (the summary covers this node alone)
+    }
     if (status == protocol::DecodeStatus::kOk && protocol::message_def(d.type).e2e) {
       status = axes_[d.node].counters[static_cast<std::size_t>(d.type)].check(d.alive_counter);
     }
@@ -108,9 +111,6 @@ class Monitor {
       if (status != protocol::DecodeStatus::kUnknownId) {
         event(fmt::format("rejected frame 0x{:03X}: {} ({})", frame.id, protocol::to_string(status), protocol::describe(status)));
       }
-      return;
-    }
-    if (o_.node && d.node != *o_.node) {
       return;
     }
     Axis& a = axes_[d.node];

@@ -1,0 +1,282 @@
+#!/usr/bin/env bash
+# daemon_axes_hil.sh BUILD_DIR: several axes on one bus, under a flood of junk, judged from
+# the bus alone.
+#
+#   scripts/vcan-env -- tests/hil/daemon_axes_hil.sh build/dev
+#
+# AXES (default 4) plant/daemon pairs share one vcan, nodes 1..AXES, each with its own
+# supervisor (`pmsm-thermal command`). The plants differ on purpose, so that an estimate fed
+# by another axis's frames could not pass: ambient 20/40/30/50 C (each daemon calibrates at
+# its plant's ambient), load 60/30/45/15 Nm from 4 s, speed 94/70/110/80 rad/s.
+#
+# While they run in lockstep:
+#   - a flood on IDs no axis uses (cangen as fast as the bus takes it: 0x3A5 classic, 0x6C0
+#     CAN FD 64 bytes, 0x7FF empty), for FLOOD seconds;
+#   - malformed frames on node 1's own IDs: SENSOR_SAMPLE as a classic 8-byte frame, a
+#     DRIVE_COMMAND of 3 bytes, a DRIVE_COMMAND as CAN FD, a captured DRIVE_COMMAND with one
+#     bit flipped (bad CRC), the same captured frame replayed (alive counter), and a frame on
+#     0x071 (no message of the protocol: dropped by the daemon's kernel filter, never seen).
+# Then, from the capture and the processes' own summaries:
+#   - every axis's THERMAL_ESTIMATE frames track its own plant's TRUTH_THERMAL frames within
+#     the estimation tests' bounds (RMS 3.5 C, max 6 C; every calibrated estimate compared);
+#   - node 1's RECEIVE_STATUS counts the malformed frames by reason (format >= 3, CRC >= 1,
+#     alive counter >= 1); nodes 2..AXES count no rejection at all: no cross-talk, and the
+#     flood never reaches a daemon's socket;
+#   - no lockstep period lost: every plant applied a command in every period (commands
+#     applied = periods, no command timeout), no daemon raised a fault after its plant came
+#     (SENSOR_TIMEOUT occurred once, before the plant started), every drive still RUNNING;
+#   - every process is still alive when its plant finishes.
+# Everything started is stopped on exit, pass or fail.
+#
+# Natively (a host with vcan) it makes a scratch vcan of its own, or is skipped (exit 77)
+# without CAP_NET_ADMIN: it floods the bus.
+#
+# Environment: SAMPLE_TIMEOUT_MS (the daemons' can.sample_timeout_ms, default 500), AXES (1..4), DURATION (simulated seconds per plant, default 6), FLOOD
+# (wall seconds of flood, default 8), DAEMON_AXES_KEEP=1 keeps the work directory (kept
+# anyway on failure), PMSM_CAN_IFACE.
+set -euo pipefail
+
+prog=daemon_axes_hil
+die() {
+  echo "$prog: FAIL: $*" >&2
+  exit 1
+}
+[ $# -ge 1 ] || { echo "usage: $0 BUILD_DIR" >&2; exit 2; }
+build=$(cd "$1" && pwd) || die "no build directory '$1'"
+src=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
+axes=${AXES:-4}
+duration=${DURATION:-6}
+flood_s=${FLOOD:-8}
+iface=${PMSM_CAN_IFACE:-vcan0}
+[[ "$axes" =~ ^[1-4]$ ]] || die "AXES must be 1..4, not '$axes'"
+thermald=$build/daemon/pmsm-thermald
+plant=$build/plant-emulator/pmsm-plant
+tool=$build/tools/pmsm-thermal
+dbcgen=$build/tools/pmsm-dbc-gen
+for b in "$thermald" "$plant" "$tool" "$dbcgen"; do
+  [ -x "$b" ] || die "missing executable $b"
+done
+for c in candump cangen cansend; do
+  command -v "$c" >/dev/null || die "$c is missing (apt-get install can-utils)"
+done
+
+ambient=(0 20 40 30 50)
+# Four lockstep pairs, their supervisors, candump and the flood share User-Mode Linux's one
+# CPU: a sample may wait far longer than the daemon HIL's 50 ms. A later sample is a missing
+# period for the daemon (it aborts the injection under way, as it must in real time), so the
+# axes get 500 ms.
+sample_timeout_ms=${SAMPLE_TIMEOUT_MS:-500}
+load=(0 60 30 45 15)
+speed=(0 94 70 110 80)
+
+# The flood would disturb anything else on a shared bus: natively the test makes a scratch
+# vcan of its own (needs CAP_NET_ADMIN) or is skipped; under User-Mode Linux the guest's bus is
+# private anyway.
+scratch=
+if [ "${PMSM_VCAN_MODE:-}" = native ] || [ "${PMSM_VCAN_MODE:-}" = created ]; then
+  scratch=vcanax$((RANDOM % 10000))
+  if ip link add dev "$scratch" type vcan 2>/dev/null && ip link set dev "$scratch" mtu 72 &&
+    ip link set dev "$scratch" up; then
+    iface=$scratch
+  else
+    ip link delete "$scratch" 2>/dev/null || true
+    echo "$prog: SKIP: natively this test floods the bus, so it needs a vcan of its own (CAP_NET_ADMIN to create one)" >&2
+    exit 77
+  fi
+fi
+
+work=$(mktemp -d "${TMPDIR:-/tmp}/daemon-axes.XXXXXXXX")
+pids=()
+ok=0
+cleanup() {
+  [ -z "$scratch" ] || ip link delete "$scratch" 2>/dev/null || true
+  local pid
+  for pid in "${pids[@]}"; do
+    kill -TERM "$pid" 2>/dev/null || true
+  done
+  for pid in "${pids[@]}"; do
+    wait "$pid" 2>/dev/null || true
+  done
+  if [ "$ok" = 1 ] && [ "${DAEMON_AXES_KEEP:-0}" != 1 ]; then
+    rm -rf "$work"
+  else
+    echo "$prog: work directory kept: $work" >&2
+  fi
+}
+trap cleanup EXIT
+
+# The user-facing frames of every node (not the 10 kHz fast loop, not the flood).
+candump -L "$iface,010~7F0,020~7F0,300~700,600~600,j" >"$work/capture.log" &
+pids+=("$!")
+
+daemon_pid=()
+for n in $(seq "$axes"); do
+  d=$work/axis$n
+  mkdir -p "$d"
+  sed -e "s/^interface = .*/interface = \"$iface\"/" -e "s/^node = .*/node = $n/" \
+    -e "s/^sample_timeout_ms = .*/sample_timeout_ms = $sample_timeout_ms/" \
+    "$src/tests/hil/data/hil-daemon.toml" >"$d/daemon.toml"
+  grep -q "^node = $n\$" "$d/daemon.toml" || die "could not set the node of axis $n"
+  sed -e "s/^ambient_C = .*/ambient_C = ${ambient[n]}.0/" \
+    -e "s/^steps = .*/steps = [[0.0, 0.0], [4.0, ${load[n]}.0]]/" \
+    "$src/tests/hil/data/hil-plant.toml" >"$d/plant.toml"
+  grep -q "^ambient_C = ${ambient[n]}.0\$" "$d/plant.toml" && grep -q "\[4.0, ${load[n]}.0\]" "$d/plant.toml" ||
+    die "could not set the ambient and the load of axis $n's plant"
+  "$dbcgen" --node "$n" --dbc "$d/node.dbc" >/dev/null || die "pmsm-dbc-gen --node $n failed"
+  (cd "$d" && exec "$thermald" --config daemon.toml >daemon.log 2>&1) &
+  daemon_pid[n]=$!
+  pids+=("${daemon_pid[n]}")
+done
+for n in $(seq "$axes"); do
+  for i in $(seq 200); do
+    grep -q "ready: waiting" "$work/axis$n/daemon.log" && break
+    kill -0 "${daemon_pid[n]}" 2>/dev/null || die "pmsm-thermald of axis $n exited: $(tail -3 "$work/axis$n/daemon.log")"
+    sleep 0.1
+  done
+  grep -q "ready: waiting" "$work/axis$n/daemon.log" || die "pmsm-thermald of axis $n did not get ready"
+done
+plant_pid=()
+t0=$(date +%s)
+for n in $(seq "$axes"); do
+  "$plant" --config "$work/axis$n/plant.toml" --iface "$iface" --node "$n" --mode lockstep \
+    --duration-s "$duration" >"$work/axis$n/plant.log" 2>&1 &
+  plant_pid[n]=$!
+  pids+=("${plant_pid[n]}")
+done
+# The supervisors once each daemon has its samples (a calibration request meets a drive
+# that is not in its sensor-timeout fault).
+for n in $(seq "$axes"); do
+  for i in $(seq 600); do
+    grep -q "sensor samples arriving" "$work/axis$n/daemon.log" && break
+    kill -0 "${plant_pid[n]}" 2>/dev/null || die "the plant of axis $n exited: $(tail -3 "$work/axis$n/plant.log")"
+    sleep 0.2
+  done
+  grep -q "sensor samples arriving" "$work/axis$n/daemon.log" || die "axis $n: no samples reached the daemon in 120 s"
+  "$tool" command --iface "$iface" --node "$n" --mode speed --speed "${speed[n]}" --calibrate-at "${ambient[n]}" \
+    --period-ms 100 >"$work/axis$n/command.log" 2>&1 &
+  pids+=("$!")
+done
+echo "$prog: $axes axes on $iface: daemons ready, plants in lockstep ($duration s simulated each), supervisors sending"
+
+# Once every drive runs (DRIVE_STATUS RUNNING or CALIBRATING on the bus), the junk.
+for i in $(seq 600); do
+  running=0
+  for n in $(seq "$axes"); do
+    "$tool" monitor --log "$work/capture.log" --node "$n" --plain 2>/dev/null | grep -qE "RUNNING|CALIBRATING" && running=$((running + 1))
+  done
+  [ "$running" = "$axes" ] && break
+  sleep 1
+done
+[ "$running" = "$axes" ] || die "only $running of $axes drives running after 600 s"
+echo "$prog: all $axes drives running after $(($(date +%s) - t0)) s: the flood starts ($flood_s s)"
+
+tx0=$(cat "/sys/class/net/$iface/statistics/tx_packets")
+flood=()
+cangen "$iface" -g 0 -p 10 -I 3A5 -L 8 -D i >/dev/null 2>&1 &
+flood+=("$!")
+cangen "$iface" -g 0 -p 10 -f -I 6C0 -L 64 -D r >/dev/null 2>&1 &
+flood+=("$!")
+cangen "$iface" -g 0 -p 10 -I 7FF -L 0 >/dev/null 2>&1 &
+flood+=("$!")
+pids+=("${flood[@]}")
+sleep 1
+
+# Malformed frames on node 1's own IDs, between real commands.
+cmd_line=$(grep -E " 041#[0-9A-F]{16}\$" "$work/capture.log" | tail -1) || die "no DRIVE_COMMAND of node 1 captured"
+frame=${cmd_line##* }
+payload=${frame#041#}
+first=$((0x${payload:0:2} ^ 0x01))
+flipped=$(printf '041#%02X%s' "$first" "${payload:2}")
+cansend "$iface" 021#1122334455667788           # SENSOR_SAMPLE as a classic 8-byte frame
+cansend "$iface" 041#112233                     # DRIVE_COMMAND of 3 bytes
+cansend "$iface" "041##0$payload"               # DRIVE_COMMAND as CAN FD
+cansend "$iface" "$flipped"                     # one bit flipped: bad CRC
+cansend "$iface" "$frame"                       # replayed: alive counter
+cansend "$iface" 071#00                         # no message of the protocol
+echo "$prog: sent 6 malformed frames to node 1 (replayed and bit-flipped: $frame)"
+sleep $((flood_s - 1))
+for pid in "${flood[@]}"; do kill -INT "$pid" 2>/dev/null || true; done
+for pid in "${flood[@]}"; do wait "$pid" 2>/dev/null || true; done
+tx1=$(cat "/sys/class/net/$iface/statistics/tx_packets")
+echo "$prog: flood over: $((tx1 - tx0)) frames on $iface in $flood_s s ($(((tx1 - tx0) / flood_s)) frames/s, junk and the axes' own traffic)"
+
+for n in $(seq "$axes"); do
+  wait "${plant_pid[n]}" || die "the plant of axis $n failed: $(tail -3 "$work/axis$n/plant.log")"
+done
+t1=$(date +%s)
+echo "$prog: every plant finished its $duration s in $((t1 - t0)) s of wall time"
+sleep 1.5  # the daemons' last RECEIVE_STATUS (with the heartbeat, 1 s)
+for n in $(seq "$axes"); do
+  kill -0 "${daemon_pid[n]}" 2>/dev/null || die "pmsm-thermald of axis $n died: $(tail -3 "$work/axis$n/daemon.log")"
+done
+kill -INT "${pids[0]}" 2>/dev/null || true
+
+fails=0
+check() {  # AXIS MESSAGE...: a failed check, reported; the test fails at the end
+  echo "$prog: axis $1: CHECK FAILED: ${*:2}" >&2
+  fails=$((fails + 1))
+}
+signal() {  # LINE NAME: the value of signal NAME in a decoded line
+  grep -o "$2: [A-Z_0-9.-]*" <<<"$1" | head -1 | cut -d' ' -f2
+}
+for n in $(seq "$axes"); do
+  d=$work/axis$n
+  "$tool" decode --dbc "$d/node.dbc" "$work/capture.log" 2>/dev/null | grep -F ":: " >"$d/decoded.txt" || true
+
+  # Its estimates against its own plant's truth.
+  if "$tool" monitor --log "$work/capture.log" --node "$n" --plain --threshold -100 --check-rms 3.5 --check-max 6 \
+    --min-estimates 20 >"$d/monitor.txt" 2>&1; then
+    echo "$prog: axis $n (ambient ${ambient[n]} C, ${load[n]} Nm): $(grep -m1 'estimate vs truth' "$d/monitor.txt" | sed 's/^node  [0-9]  //')"
+  else
+    check "$n" "estimates vs its plant's truth: $(grep -E 'estimate vs truth|CHECK FAILED' "$d/monitor.txt" | tr '\n' ' ')"
+  fi
+
+  # Its receive statistics.
+  rs=$(grep 'RECEIVE_STATUS(' "$d/decoded.txt" | tail -1)
+  [ -n "$rs" ] || { check "$n" "no RECEIVE_STATUS on the bus"; continue; }
+  fmt=$(signal "$rs" RejectedFormat)
+  crc=$(signal "$rs" RejectedCrc)
+  ctr=$(signal "$rs" RejectedCounter)
+  rng=$(signal "$rs" RejectedRange)
+  oth=$(signal "$rs" RejectedOther)
+  acc=$(signal "$rs" CommandsAccepted)
+  echo "$prog: axis $n RECEIVE_STATUS: accepted $acc, rejected: format $fmt, CRC $crc, alive counter $ctr, range $rng, other $oth; last $(signal "$rs" LastRejection)"
+  if [ "$n" = 1 ]; then
+    [ "$fmt" -ge 3 ] && [ "$crc" -ge 1 ] && [ "$ctr" -ge 1 ] ||
+      check "$n" "the malformed frames are not all counted (format $fmt >= 3, CRC $crc >= 1, counter $ctr >= 1)"
+  else
+    [ "$fmt" = 0 ] && [ "$crc" = 0 ] && [ "$ctr" = 0 ] && [ "$rng" = 0 ] && [ "$oth" = 0 ] ||
+      check "$n" "rejections counted on an axis that was sent nothing bad (cross-talk or flood reached it)"
+  fi
+  [ "$acc" -gt 0 ] || check "$n" "no command accepted"
+
+  # Faults: between the end of the start-up SENSOR_TIMEOUT (the daemon waited for its plant)
+  # and the plant's last frame, none at all; the SENSOR_TIMEOUT after the plant's end is
+  # expected.
+  lost=$(awk '
+    /PLANT_STATUS\(/ { last = NR }
+    { line[NR] = $0 }
+    END {
+      cleared = 0
+      for (i = 1; i <= last; ++i) {
+        if (line[i] ~ /FAULT\(Code: SENSOR_TIMEOUT, Active: 0/) cleared = 1
+        else if (cleared && line[i] ~ /FAULT\(Code: [A-Z_]*, Active: 1/) { sub(/.*:: /, "", line[i]); print line[i] }
+      }
+    }' "$d/decoded.txt" | sort -u | tr '\n' ';')
+  [ -z "$lost" ] || check "$n" "faults while its plant ran: $lost"
+  others=$(grep -o 'FAULT(Code: [A-Z_]*, Active: 1' "$d/decoded.txt" | grep -v SENSOR_TIMEOUT | sort -u | tr '\n' ' ' || true)
+  [ -z "$others" ] || check "$n" "faults on the bus: $others"
+  grep -q 'DRIVE_STATUS(State: RUNNING' "$d/decoded.txt" || check "$n" "the drive never ran"
+
+  # The plant's own account: a command applied in every period, no timeout.
+  summary=$(grep -m1 "stopped (" "$d/plant.log") || { check "$n" "no summary from the plant"; continue; }
+  periods=$(grep -o 'periods [0-9]*' <<<"$summary" | head -1 | cut -d' ' -f2)
+  applied=$(grep -o 'commands applied [0-9]*' <<<"$summary" | cut -d' ' -f3)
+  timeouts=$(grep -o 'command timeouts [0-9]*' <<<"$summary" | cut -d' ' -f3)
+  resends=$(grep -o 'sample re-sends [0-9]*' <<<"$summary" | cut -d' ' -f3)
+  echo "$prog: axis $n plant: periods $periods, commands applied $applied, command timeouts $timeouts, sample re-sends $resends"
+  [ "$periods" = "$applied" ] && [ "$timeouts" = 0 ] || check "$n" "lockstep periods lost: $summary"
+done
+[ "$fails" = 0 ] || die "$fails check(s) failed (work directory kept)"
+ok=1
+echo "$prog: PASS"
