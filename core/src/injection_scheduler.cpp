@@ -388,6 +388,20 @@ void InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit)
   lq_var_ = (1.0 - k) * lq_var_ + drift * drift;
 }
 
+bool InjectionScheduler::event_joint_fit() const {
+  // Only bipolar pairs reverse the current vector; a unipolar pair's first recording sits at
+  // the motoring current, near zero at light load, where the bridge's error depends on the
+  // zero-current band that no sign model knows exactly.
+  const bool reverses = config_.separation == Separation::kBipolar &&
+                        event_max_iq_A_ <= config_.vx_learning_max_iq_fraction * event_min_f_A_ &&
+                        event_max_speed_ <= config_.vx_learning_max_speed_rad_s;
+  return config_.fit_dead_time && reverses && event_pairs_ >= 2;
+}
+
+bool InjectionScheduler::event_uses_means() const {
+  return event_joint_fit() || config_.method == InjectionMethod::kFixedMagnitude;
+}
+
 EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
   in_event_ = false;
   EventEstimate e;
@@ -406,16 +420,8 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
   double var_vx = config_.fit_dead_time ? vx_var_ : 0.0;
 
   // The event's own joint fit of Rs and Vx (several levels make it well conditioned) ...
-  // Only bipolar pairs reverse the current vector; a unipolar pair's first recording sits at
-  // the motoring current, near zero at light load, where the bridge's error depends on the
-  // zero-current band that no sign model knows exactly.
-  const bool reverses = config_.separation == Separation::kBipolar &&
-                        event_max_iq_A_ <= config_.vx_learning_max_iq_fraction * event_min_f_A_ &&
-                        event_max_speed_ <= config_.vx_learning_max_speed_rad_s;
-  const MeansFit joint = config_.fit_dead_time && reverses && event_pairs_ >= 2
-                             ? solve_means_fit(event_pair_sums_.data(), std::min(event_pairs_, InjectionConfig::kMaxLevels),
-                                               config_.fit_inductance)
-                             : MeansFit{};
+  const int means = std::min(event_means_done_, std::min(event_pairs_, InjectionConfig::kMaxLevels));
+  const MeansFit joint = event_joint_fit() ? solve_means_fit(event_means_.data(), means) : MeansFit{};
   e.joint_condition = joint.identifiability;
   e.vx_learning = joint.valid && joint.identifiability >= config_.vx_min_identifiability;
   e.joint_rs_ohm = joint.rs_ohm;
@@ -438,8 +444,7 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
     // sample (Eq. 22), which the means cannot do.
     MeansFit fixed;
     if (config_.method == InjectionMethod::kFixedMagnitude) {
-      fixed = solve_means_fit_fixed_vx(event_pair_sums_.data(), std::min(event_pairs_, InjectionConfig::kMaxLevels),
-                                       config_.fit_inductance, vx);
+      fixed = solve_means_fit_fixed_vx(event_means_.data(), means, vx);
     } else {
       const FitResult f = solve_fit(event_sums_, fit_options(false));
       fixed.valid = f.valid;
@@ -526,6 +531,7 @@ SchedulerOutput InjectionScheduler::step(const SchedulerInput& in, const PeriodS
         level_index_ = 0;
         event_sums_ = {};
         event_pairs_ = 0;
+        event_means_done_ = 0;
         event_min_f_A_ = 0.0;
         event_max_iq_A_ = 0.0;
         event_max_speed_ = 0.0;
@@ -533,6 +539,14 @@ SchedulerOutput InjectionScheduler::step(const SchedulerInput& in, const PeriodS
         next_event_s_ = in.time_s + config_.interval_s;
       }
       if (level_index_ >= std::clamp(config_.level_count, 1, InjectionConfig::kMaxLevels)) {
+        // The event's estimate needs each accepted pair's means, and each costs a regression
+        // as large as a pair's own fit: one per control period, then the estimate, so that no
+        // period carries more than one fit (the worst-case step, docs/performance.md).
+        if (event_uses_means() && event_means_done_ < std::min(event_pairs_, InjectionConfig::kMaxLevels)) {
+          const auto j = static_cast<std::size_t>(event_means_done_++);
+          event_means_[j] = pair_means(event_pair_sums_[j], config_.fit_inductance);
+          break;
+        }
         out.estimate = finish_event(in);
         break;
       }

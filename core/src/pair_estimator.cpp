@@ -245,88 +245,121 @@ FitResult solve_fit(const BlockedSums& sums, const FitOptions& options) {
   return out;
 }
 
-namespace {
-
-// One pair's whole-recording means, mean(y) = Rs mean(dId) + Vx mean(dGd), with the weight
-// of the noise of its mean(y): what the pair's own regression (Vx held, the inductive term
-// fitted) says about its Rs, times mean(dId). A jackknife of block means would not do: for a
-// fixed-angle pulse the blocks are different parts of the pulse.
-struct PairMeans {
-  Eigen::Vector2d x = Eigen::Vector2d::Zero();
-  double y = 0.0;
-  double w = 0.0;
-};
-
-std::optional<PairMeans> pair_means(const BlockedSums& p, bool fit_ld) {
-  const FitSums t = p.total();
+std::optional<PairMeans> pair_means(const BlockedSums& pair, bool fit_ld) {
+  // A jackknife of block means would not do for the weight: for a fixed-angle pulse the
+  // blocks are different parts of the pulse.
+  const FitSums t = pair.total();
   if (t.n < 8.0) {
     return std::nullopt;
   }
   FitOptions own;
   own.fit_vx = false;
   own.fit_ld = fit_ld;
-  const FitResult pair_fit = solve_fit(p, own);
+  const FitResult pair_fit = solve_fit(pair, own);
   if (!pair_fit.valid) {
     return std::nullopt;
   }
   PairMeans m;
   m.y = t.sum_y / t.n;
-  m.x = Eigen::Vector2d(t.sum_x[kRegRs] / t.n, t.sum_x[kRegVx] / t.n);
-  m.w = 1.0 / std::max(pair_fit.var_rs * m.x(0) * m.x(0), 1e-12);
+  m.x_rs = t.sum_x[kRegRs] / t.n;
+  m.x_vx = t.sum_x[kRegVx] / t.n;
+  m.w = 1.0 / std::max(pair_fit.var_rs * m.x_rs * m.x_rs, 1e-12);
   return m;
+}
+
+namespace {
+
+// The weighted normal equations of the means, for Rs and Vx together ...
+struct JointMeans {
+  Eigen::Matrix2d a = Eigen::Matrix2d::Zero();
+  Eigen::Vector2d b = Eigen::Vector2d::Zero();
+  void add(const PairMeans& m) {
+    const Eigen::Vector2d x(m.x_rs, m.x_vx);
+    a += m.w * x * x.transpose();
+    b += m.w * x * m.y;
+  }
+  [[nodiscard]] MeansFit solve() const {
+    MeansFit out;
+    if (!(a(0, 0) > 0.0) || !(a(1, 1) > 0.0)) {
+      return out;
+    }
+    out.identifiability = 1.0 - a(0, 1) * a(0, 1) / (a(0, 0) * a(1, 1));
+    if (!(out.identifiability > 1e-9)) {
+      return out;
+    }
+    const Eigen::Matrix2d cov = a.inverse();
+    const Eigen::Vector2d theta = cov * b;
+    out.rs_ohm = theta(0);
+    out.vx_V = theta(1);
+    out.var_rs = cov(0, 0);
+    out.var_vx = cov(1, 1);
+    out.cov_rs_vx = cov(0, 1);
+    out.valid = std::isfinite(out.rs_ohm) && std::isfinite(out.vx_V);
+    return out;
+  }
+};
+
+// ... and for Rs with Vx held.
+struct FixedVxMeans {
+  double vx_V = 0.0;
+  double sxx = 0.0;
+  double sxg = 0.0;
+  double sxy = 0.0;
+  void add(const PairMeans& m) {
+    sxx += m.w * m.x_rs * m.x_rs;
+    sxg += m.w * m.x_rs * m.x_vx;
+    sxy += m.w * m.x_rs * (m.y - vx_V * m.x_vx);
+  }
+  [[nodiscard]] MeansFit solve() const {
+    MeansFit out;
+    if (!(sxx > 0.0)) {
+      return out;
+    }
+    out.rs_ohm = sxy / sxx;
+    out.vx_V = vx_V;
+    out.var_rs = 1.0 / sxx;
+    out.drs_dvx = -sxg / sxx;
+    out.valid = std::isfinite(out.rs_ohm);
+    return out;
+  }
+};
+
+template <typename Normal>
+MeansFit means_fit(Normal normal, const BlockedSums* pairs, int count, bool fit_ld) {
+  for (int j = 0; j < count; ++j) {
+    if (const auto m = pair_means(pairs[j], fit_ld)) {
+      normal.add(*m);
+    }
+  }
+  return normal.solve();
+}
+
+template <typename Normal>
+MeansFit means_fit(Normal normal, const std::optional<PairMeans>* means, int count) {
+  for (int j = 0; j < count; ++j) {
+    if (means[j]) {
+      normal.add(*means[j]);
+    }
+  }
+  return normal.solve();
 }
 
 }  // namespace
 
 MeansFit solve_means_fit(const BlockedSums* pairs, int count, bool fit_ld) {
-  MeansFit out;
-  Eigen::Matrix2d a = Eigen::Matrix2d::Zero();
-  Eigen::Vector2d b = Eigen::Vector2d::Zero();
-  for (int j = 0; j < count; ++j) {
-    if (const auto m = pair_means(pairs[j], fit_ld)) {
-      a += m->w * m->x * m->x.transpose();
-      b += m->w * m->x * m->y;
-    }
-  }
-  if (!(a(0, 0) > 0.0) || !(a(1, 1) > 0.0)) {
-    return out;
-  }
-  out.identifiability = 1.0 - a(0, 1) * a(0, 1) / (a(0, 0) * a(1, 1));
-  if (!(out.identifiability > 1e-9)) {
-    return out;
-  }
-  const Eigen::Matrix2d cov = a.inverse();
-  const Eigen::Vector2d theta = cov * b;
-  out.rs_ohm = theta(0);
-  out.vx_V = theta(1);
-  out.var_rs = cov(0, 0);
-  out.var_vx = cov(1, 1);
-  out.cov_rs_vx = cov(0, 1);
-  out.valid = std::isfinite(out.rs_ohm) && std::isfinite(out.vx_V);
-  return out;
+  return means_fit(JointMeans{}, pairs, count, fit_ld);
+}
+
+MeansFit solve_means_fit(const std::optional<PairMeans>* means, int count) {
+  return means_fit(JointMeans{}, means, count);
 }
 
 MeansFit solve_means_fit_fixed_vx(const BlockedSums* pairs, int count, bool fit_ld, double vx_V) {
-  MeansFit out;
-  double sxx = 0.0;
-  double sxg = 0.0;
-  double sxy = 0.0;
-  for (int j = 0; j < count; ++j) {
-    if (const auto m = pair_means(pairs[j], fit_ld)) {
-      sxx += m->w * m->x(0) * m->x(0);
-      sxg += m->w * m->x(0) * m->x(1);
-      sxy += m->w * m->x(0) * (m->y - vx_V * m->x(1));
-    }
-  }
-  if (!(sxx > 0.0)) {
-    return out;
-  }
-  out.rs_ohm = sxy / sxx;
-  out.vx_V = vx_V;
-  out.var_rs = 1.0 / sxx;
-  out.drs_dvx = -sxg / sxx;
-  out.valid = std::isfinite(out.rs_ohm);
-  return out;
+  return means_fit(FixedVxMeans{vx_V}, pairs, count, fit_ld);
+}
+
+MeansFit solve_means_fit_fixed_vx(const std::optional<PairMeans>* means, int count, double vx_V) {
+  return means_fit(FixedVxMeans{vx_V}, means, count);
 }
 
 PairRecorder::PairRecorder(std::size_t capacity) : first_(capacity) {}

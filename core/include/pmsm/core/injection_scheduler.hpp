@@ -254,6 +254,10 @@ class InjectionScheduler {
   void abort(SchedulerOutput& out, const SchedulerInput& in);
   PairResult finish_pair(const SchedulerInput& in);
   EventEstimate finish_event(const SchedulerInput& in);
+  // Whether the event's estimate comes from the pairs' means (event_means_): the joint fit
+  // of Rs and Vx across levels, or the fixed-Vx means of flat pulses.
+  [[nodiscard]] bool event_joint_fit() const;
+  [[nodiscard]] bool event_uses_means() const;
   [[nodiscard]] FitOptions fit_options(bool fit_vx) const;
   [[nodiscard]] bool plausible(double rs_ohm, double margin_ohm) const;
   void learn_lq(const PairConditions& c, const FitResult& fit);
@@ -274,6 +278,9 @@ class InjectionScheduler {
   double f_event_A_ = 0.0;          // budgeted F of the event's first pair
   BlockedSums event_sums_{};        // accepted pairs of the event, summed
   std::array<BlockedSums, InjectionConfig::kMaxLevels> event_pair_sums_{};  // and one by one
+  // Their means, one computed per control period once the pairs are done (finish_event).
+  std::array<std::optional<PairMeans>, InjectionConfig::kMaxLevels> event_means_{};
+  int event_means_done_ = 0;
   int event_pairs_ = 0;
   double event_min_f_A_ = 0.0;      // smallest F among the event's accepted pairs
   double event_max_iq_A_ = 0.0;     // largest motoring |iq| among them

@@ -136,6 +136,20 @@ struct MeansFit {
 };
 [[nodiscard]] MeansFit solve_means_fit(const BlockedSums* pairs, int count, bool fit_ld);
 
+// One pair's whole-recording means, mean(y) = Rs mean(dId) + Vx mean(dGd), with the weight
+// of the noise of its mean(y): what the pair's own regression (Vx held, the inductive term
+// fitted) says about its Rs, times mean(dId). Empty when the pair's own fit fails. Each costs
+// one regression (as much as a pair's own fit), so a drive computes them one per control
+// period and passes them to the overloads below (the scheduler does).
+struct PairMeans {
+  double x_rs = 0.0;  // mean(dId)
+  double x_vx = 0.0;  // mean(dGd)
+  double y = 0.0;
+  double w = 0.0;
+};
+[[nodiscard]] std::optional<PairMeans> pair_means(const BlockedSums& pair, bool fit_ld);
+[[nodiscard]] MeansFit solve_means_fit(const std::optional<PairMeans>* means, int count);
+
 // The same means with Vx held at a known value (one level, or levels that do not reverse the
 // current): Rs alone. For flat (fixed-magnitude) pulses this, not the sample-by-sample fit,
 // gives the published Rs: the current loop answers the current sensor's noise with voltage
@@ -146,6 +160,7 @@ struct MeansFit {
 // reference profile at 94 rad/s and 60 Nm the sample fit read 0.8 % low relative to the
 // no-load calibration (0.4 % without sensor noise), the means 0.2 % high (docs/estimator.md).
 [[nodiscard]] MeansFit solve_means_fit_fixed_vx(const BlockedSums* pairs, int count, bool fit_ld, double vx_V);
+[[nodiscard]] MeansFit solve_means_fit_fixed_vx(const std::optional<PairMeans>* means, int count, double vx_V);
 
 struct PairFitConfig {
   double lq_H = 5.5e-3;         // the controller's Lq, for the Eq. 37 correction term
