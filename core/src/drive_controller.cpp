@@ -253,7 +253,10 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   const double theta = angle_.electrical_angle_rad();
   const double omega_e = angle_.electrical_speed_rad_s();
   const double theta_smooth = angle_.smooth_unwrapped_electrical_angle_rad();
-  const Dq i = park(clarke(in.i_A), theta);
+  // The rotor-frame rotation of this sample; those of later instants follow by composing it
+  // with the rotation of half a period (below): two sincos a period, not four.
+  const Rotation at_sample = rotation(theta);
+  const Dq i = park(clarke(in.i_A), at_sample.c, at_sample.s);
 
   // The period that just ended, [k-1, k]: its voltage was commanded two steps ago.
   std::optional<PeriodSample> sample;
@@ -320,12 +323,16 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     // The command is applied during the next period: rotate it to the angle at that period's
     // middle (1.5 periods of rotation ahead) and compensate the dead time for the currents
     // expected then.
-    const double theta_apply = theta + 1.5 * omega_e * config_.period_s;
-    const double c = std::cos(theta_apply);
-    const double sn = std::sin(theta_apply);
+    const Rotation half = rotation(0.5 * omega_e * config_.period_s);
+    const Rotation one = compose(half, half);
+    const Rotation at_start = compose(at_sample, one);       // theta + 1 period of rotation
+    const Rotation at_apply = compose(at_start, half);       // theta + 1.5 periods
+    const Rotation at_end = compose(at_start, one);          // theta + 2 periods
+    const double c = at_apply.c;
+    const double sn = at_apply.s;
     // The currents expected at the start and end of that period: the reference, turning.
-    const Abc i_start = inverse_clarke(inverse_park(i_ref, theta + omega_e * config_.period_s));
-    const Abc i_end = inverse_clarke(inverse_park(i_ref, theta + 2.0 * omega_e * config_.period_s));
+    const Abc i_start = inverse_clarke(inverse_park(i_ref, at_start.c, at_start.s));
+    const Abc i_end = inverse_clarke(inverse_park(i_ref, at_end.c, at_end.s));
     const Abc correction = dead_time_compensation_V(i_start, i_end, config_.dead_time, in.vdc_V, config_.period_s);
     const Duties d = svpwm_corrected(inverse_park(v, c, sn), in.vdc_V, correction);
     output_.duty = d.value;

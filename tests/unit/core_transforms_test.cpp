@@ -1,6 +1,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <limits>
 
 #include "pmsm/core/transforms.hpp"
 
@@ -67,6 +68,44 @@ TEST(Transforms, AngleWrapping) {
   EXPECT_NEAR(wrap_angle_pm_pi(-3.5), -3.5 + kTwoPi, 1e-12);
   EXPECT_GE(wrap_angle_0_2pi(-1e-18), 0.0);
   EXPECT_LT(wrap_angle_0_2pi(-1e-18), kTwoPi);
+}
+
+TEST(Transforms, AngleWrappingMatchesFmodWithinATurnAndStaysInRangeFarOut) {
+  // Within a turn of the range the fast path gives fmod's result bit for bit.
+  for (const double x : {0.0, 1.0, kTwoPi, kTwoPi + 1e-9, 7.0, 12.5, 2.0 * kTwoPi - 1e-12, -1e-9, -0.5, -3.0, -6.28}) {
+    double expected = std::fmod(x, kTwoPi);
+    if (expected < 0.0) {
+      expected += kTwoPi;
+    }
+    if (expected >= kTwoPi) {
+      expected = 0.0;
+    }
+    EXPECT_EQ(wrap_angle_0_2pi(x), expected) << x;
+  }
+  // Far out (unwrapped angles of a long run): in range, and as close to fmod as the input
+  // resolves.
+  for (const double x : {1.0e3, -1.0e3, 3.7e6, -3.7e6, 1.0e9, 123456.789}) {
+    const double w = wrap_angle_0_2pi(x);
+    EXPECT_GE(w, 0.0) << x;
+    EXPECT_LT(w, kTwoPi) << x;
+    double expected = std::fmod(x, kTwoPi);
+    if (expected < 0.0) {
+      expected += kTwoPi;
+    }
+    EXPECT_NEAR(w, expected, 8.0 * std::abs(x) * std::numeric_limits<double>::epsilon()) << x;
+  }
+  EXPECT_TRUE(std::isnan(wrap_angle_0_2pi(std::numeric_limits<double>::quiet_NaN())));
+  EXPECT_TRUE(std::isnan(wrap_angle_0_2pi(std::numeric_limits<double>::infinity())));
+}
+
+TEST(Transforms, ComposedRotationsEqualTheRotationOfTheSum) {
+  for (const double a : {0.0, 0.3, 2.0, -1.7, 5.9}) {
+    for (const double b : {0.0, 1e-4, 0.047, -0.094, 3.0}) {
+      const Rotation r = compose(rotation(a), rotation(b));
+      EXPECT_NEAR(r.c, std::cos(a + b), 4e-16) << a << " " << b;
+      EXPECT_NEAR(r.s, std::sin(a + b), 4e-16) << a << " " << b;
+    }
+  }
 }
 
 }  // namespace

@@ -73,6 +73,20 @@ inline constexpr double kSqrt3 = 1.73205080756887729353;
 // Wraps an angle into [0, 2*pi).
 [[nodiscard]] double wrap_angle_0_2pi(double angle_rad);
 
+// A rotation by an angle as its cosine and sine: one sincos, and rotations by sums of angles
+// by composition (exact up to rounding) instead of more sincos.
+struct Rotation {
+  double c = 1.0;
+  double s = 0.0;
+};
+[[nodiscard]] inline Rotation rotation(double angle_rad) {
+  return {std::cos(angle_rad), std::sin(angle_rad)};
+}
+// The rotation by the sum of the two angles.
+[[nodiscard]] constexpr Rotation compose(const Rotation& a, const Rotation& b) {
+  return {a.c * b.c - a.s * b.s, a.s * b.c + a.c * b.s};
+}
+
 // Wraps an angle into [-pi, pi).
 [[nodiscard]] double wrap_angle_pm_pi(double angle_rad);
 
