@@ -37,10 +37,8 @@
 set -euo pipefail
 
 prog=daemon_axes_hil
-die() {
-  echo "$prog: FAIL: $*" >&2
-  exit 1
-}
+# shellcheck source=tests/hil/lib.sh
+. "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
 [ $# -ge 1 ] || { echo "usage: $0 BUILD_DIR" >&2; exit 2; }
 build=$(cd "$1" && pwd) || die "no build directory '$1'"
 src=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
@@ -86,27 +84,11 @@ if [ "${PMSM_VCAN_MODE:-}" = native ] || [ "${PMSM_VCAN_MODE:-}" = created ]; th
 fi
 
 work=$(mktemp -d "${TMPDIR:-/tmp}/daemon-axes.XXXXXXXX")
-pids=()
-ok=0
-cleanup() {
-  [ -z "$scratch" ] || ip link delete "$scratch" 2>/dev/null || true
-  local pid
-  for pid in "${pids[@]}"; do
-    kill -TERM "$pid" 2>/dev/null || true
-  done
-  for pid in "${pids[@]}"; do
-    wait "$pid" 2>/dev/null || true
-  done
-  if [ "$ok" = 1 ] && [ "${DAEMON_AXES_KEEP:-0}" != 1 ]; then
-    rm -rf "$work"
-  else
-    echo "$prog: work directory kept: $work" >&2
-  fi
-}
-trap cleanup EXIT
+hil_cleanup_on_exit "$work" "${DAEMON_AXES_KEEP:-0}"
+trap 'hil_cleanup; [ -z "$scratch" ] || ip link delete "$scratch" 2>/dev/null || true' EXIT
 
 # The user-facing frames of every node (not the 10 kHz fast loop, not the flood).
-candump -L "$iface,010~7F0,020~7F0,300~700,600~600,j" >"$work/capture.log" &
+candump -L -r 16777216 "$iface,010~7F0,020~7F0,300~700,600~600,j" >"$work/capture.log" &
 pids+=("$!")
 
 daemon_pid=()
@@ -128,12 +110,7 @@ for n in $(seq "$axes"); do
   pids+=("${daemon_pid[n]}")
 done
 for n in $(seq "$axes"); do
-  for i in $(seq 200); do
-    grep -q "ready: waiting" "$work/axis$n/daemon.log" && break
-    kill -0 "${daemon_pid[n]}" 2>/dev/null || die "pmsm-thermald of axis $n exited: $(tail -3 "$work/axis$n/daemon.log")"
-    sleep 0.1
-  done
-  grep -q "ready: waiting" "$work/axis$n/daemon.log" || die "pmsm-thermald of axis $n did not get ready"
+  hil_wait_for "$work/axis$n/daemon.log" "ready: waiting" "${daemon_pid[n]}" 20 "pmsm-thermald of axis $n"
 done
 plant_pid=()
 t0=$(date +%s)
@@ -146,12 +123,8 @@ done
 # The supervisors once each daemon has its samples (a calibration request meets a drive
 # that is not in its sensor-timeout fault).
 for n in $(seq "$axes"); do
-  for i in $(seq 600); do
-    grep -q "sensor samples arriving" "$work/axis$n/daemon.log" && break
-    kill -0 "${plant_pid[n]}" 2>/dev/null || die "the plant of axis $n exited: $(tail -3 "$work/axis$n/plant.log")"
-    sleep 0.2
-  done
-  grep -q "sensor samples arriving" "$work/axis$n/daemon.log" || die "axis $n: no samples reached the daemon in 120 s"
+  hil_wait_for "$work/axis$n/daemon.log" "sensor samples arriving" "${daemon_pid[n]}" 120 "pmsm-thermald of axis $n"
+  kill -0 "${plant_pid[n]}" 2>/dev/null || die "the plant of axis $n exited: $(tail -3 "$work/axis$n/plant.log")"
   "$tool" command --iface "$iface" --node "$n" --mode speed --speed "${speed[n]}" --calibrate-at "${ambient[n]}" \
     --period-ms 100 >"$work/axis$n/command.log" 2>&1 &
   pids+=("$!")

@@ -27,10 +27,8 @@
 set -euo pipefail
 
 prog=daemon_hil
-die() {
-  echo "$prog: FAIL: $*" >&2
-  exit 1
-}
+# shellcheck source=tests/hil/lib.sh
+. "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
 [ $# -ge 1 ] || { echo "usage: $0 BUILD_DIR" >&2; exit 2; }
 build=$(cd "$1" && pwd) || die "no build directory '$1'"
 src=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
@@ -47,39 +45,17 @@ command -v candump >/dev/null || die "candump is missing (apt-get install can-ut
 
 work=$(mktemp -d "${TMPDIR:-/tmp}/daemon-hil.XXXXXXXX")
 sed -e "s/^interface = .*/interface = \"$iface\"/" "$src/tests/hil/data/hil-daemon.toml" > "$work/daemon.toml"
-pids=()
-ok=0
-cleanup() {
-  local pid
-  for pid in "${pids[@]}"; do
-    kill -TERM "$pid" 2>/dev/null || true
-  done
-  for pid in "${pids[@]}"; do
-    wait "$pid" 2>/dev/null || true
-  done
-  if [ "$ok" = 1 ] && [ "${DAEMON_HIL_KEEP:-0}" != 1 ]; then
-    rm -rf "$work"
-  else
-    echo "$prog: work directory kept: $work" >&2
-  fi
-}
-trap cleanup EXIT
+hil_cleanup_on_exit "$work" "${DAEMON_HIL_KEEP:-0}"
 
-candump -L "$iface" > "$work/candump.log" &
+# A large receive buffer: under User-Mode Linux on a loaded host candump can fall behind, and
+# a frame it drops would read as an alive-counter jump in the strict decode below.
+candump -L -r 16777216 "$iface" > "$work/candump.log" &
 candump_pid=$!
 pids+=("$candump_pid")
 "$thermald" --config "$work/daemon.toml" > "$work/daemon.log" 2>&1 &
 daemon_pid=$!
 pids+=("$daemon_pid")
-wait_for_ready() {  # FILE: the daemon says ready (READY=1 to systemd) within 10 s
-  local i
-  for i in $(seq 100); do
-    grep -q "ready: waiting" "$1" && return 0
-    sleep 0.1
-  done
-  die "pmsm-thermald did not get ready: $(tail -3 "$1")"
-}
-wait_for_ready "$work/daemon.log"
+hil_wait_for "$work/daemon.log" "ready: waiting" "$daemon_pid" 10 pmsm-thermald
 "$tool" command --iface "$iface" --node $node --mode speed --speed 94 --calibrate-at 25 --period-ms 100 \
   > "$work/command.log" 2>&1 &
 command_pid=$!

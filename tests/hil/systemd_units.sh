@@ -185,7 +185,7 @@ id pmsm-thermal >/dev/null 2>&1 || fail "systemd-sysusers did not create the pms
 log "user: $(id pmsm-thermal)"
 
 # The user-facing frames only (not the 10 kHz fast loop 0x010/0x020 + node): a small capture.
-candump -L vcan0,010~7F0,020~7F0,j >"$results/candump.log" 2>"$results/candump.err" &
+candump -L -r 16777216 vcan0,010~7F0,020~7F0,j >"$results/candump.log" 2>"$results/candump.err" &
 candump_pid=$!
 
 # 3. Type=notify: start returns once READY=1 arrived.

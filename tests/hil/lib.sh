@@ -1,0 +1,45 @@
+# Sourced by the HIL scripts that start processes (daemon_hil.sh, daemon_axes_hil.sh): how
+# they fail, stop what they started, keep or remove their work directory, and wait for a
+# process to say something. The script sets `prog` first.
+
+pids=()  # every process started, stopped on exit
+ok=0     # set to 1 just before PASS: the work directory is removed unless kept
+
+die() {
+  echo "$prog: FAIL: $*" >&2
+  exit 1
+}
+
+# hil_cleanup_on_exit WORK KEEP: on exit, pass or fail, TERM and reap every process in pids;
+# remove WORK after a pass unless KEEP is 1, otherwise keep it and say where it is.
+hil_cleanup_on_exit() {
+  hil_work=$1
+  hil_keep=$2
+  trap hil_cleanup EXIT
+}
+hil_cleanup() {
+  local pid
+  for pid in "${pids[@]}"; do
+    kill -TERM "$pid" 2>/dev/null || true
+  done
+  for pid in "${pids[@]}"; do
+    wait "$pid" 2>/dev/null || true
+  done
+  if [ "$ok" = 1 ] && [ "$hil_keep" != 1 ]; then
+    rm -rf "$hil_work"
+  else
+    echo "$prog: work directory kept: $hil_work" >&2
+  fi
+}
+
+# hil_wait_for FILE PATTERN PID SECONDS WHAT: until FILE (PID's log) has a line matching
+# PATTERN; fails at once if PID exits, and after SECONDS.
+hil_wait_for() {
+  local file=$1 pattern=$2 pid=$3 seconds=$4 what=$5 i
+  for i in $(seq $((seconds * 10))); do
+    grep -q -- "$pattern" "$file" 2>/dev/null && return 0
+    kill -0 "$pid" 2>/dev/null || die "$what exited: $(tail -3 "$file")"
+    sleep 0.1
+  done
+  die "$what did not say '$pattern' within $seconds s: $(tail -3 "$file")"
+}
