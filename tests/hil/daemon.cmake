@@ -11,7 +11,7 @@ if(PMSM_SANITIZE)
     ENVIRONMENT "VCAN_ENV_TIMEOUT=570;VCAN_ENV_MODE=native")
 endif()
 
-# Four plant/daemon pairs on one bus under a flood of junk and malformed frames
+# Two plant/daemon pairs (AXES=4 by hand: docs/hil.md) on one bus under a flood of junk and malformed frames
 # (tests/hil/daemon_axes_hil.sh): each estimate against its own plant, rejections counted by
 # reason on the axis they were sent to and nowhere else, no lockstep period lost.
 add_test(NAME daemon_axes_hil

@@ -4,7 +4,7 @@
 #
 #   scripts/vcan-env -- tests/hil/daemon_axes_hil.sh build/dev
 #
-# AXES (default 4) plant/daemon pairs share one vcan, nodes 1..AXES, each with its own
+# AXES (default 2, at most 4) plant/daemon pairs share one vcan, nodes 1..AXES, each with its own
 # supervisor (`pmsm-thermal command`). The plants differ on purpose, so that an estimate fed
 # by another axis's frames could not pass: ambient 20/40/30/50 C (each daemon calibrates at
 # its plant's ambient), load 60/30/45/15 Nm from 4 s, speed 94/70/110/80 rad/s.
@@ -31,7 +31,8 @@
 # Natively (a host with vcan) it makes a scratch vcan of its own, or is skipped (exit 77)
 # without CAP_NET_ADMIN: it floods the bus.
 #
-# Environment: SAMPLE_TIMEOUT_MS (the daemons' can.sample_timeout_ms, default 500), AXES (1..4), DURATION (simulated seconds per plant, default 6), FLOOD
+# Environment: SAMPLE_TIMEOUT_MS (the daemons' can.sample_timeout_ms, default 500), AXES (1..4, default 2; 4
+# takes about 4 times as long: docs/hil.md has its figures), DURATION (simulated seconds per plant, default 6), FLOOD
 # (wall seconds of flood, default 8), DAEMON_AXES_KEEP=1 keeps the work directory (kept
 # anyway on failure), PMSM_CAN_IFACE.
 set -euo pipefail
@@ -42,7 +43,7 @@ prog=daemon_axes_hil
 [ $# -ge 1 ] || { echo "usage: $0 BUILD_DIR" >&2; exit 2; }
 build=$(cd "$1" && pwd) || die "no build directory '$1'"
 src=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
-axes=${AXES:-4}
+axes=${AXES:-2}
 duration=${DURATION:-6}
 flood_s=${FLOOD:-8}
 iface=${PMSM_CAN_IFACE:-vcan0}
