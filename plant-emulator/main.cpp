@@ -24,6 +24,8 @@
 #include <vector>
 
 #include <CLI/CLI.hpp>
+
+#include "cli_validators.hpp"
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
@@ -302,15 +304,15 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"lockstep", "realtime"}))->capture_default_str();
   app.add_option("--truth-period-ms", o.truth_period_ms,
                  "simulated time between TRUTH_THERMAL/TRUTH_ELECTRICAL/PLANT_STATUS publications, ms")
-      ->check(CLI::Range(0.001, 3.6e6))->capture_default_str();
+      ->check(pmsm::cli::number_in_range(0.001, 3.6e6))->capture_default_str();
   app.add_option("--command-timeout-ms", o.command_timeout_ms,
                  "realtime: output off after this long without a valid command, ms")
-      ->check(CLI::Range(0.001, 3.6e6))->capture_default_str();
+      ->check(pmsm::cli::number_in_range(0.001, 3.6e6))->capture_default_str();
   app.add_option("--duration-s", o.duration_s, "stop after this much simulated time, s (default: run until a signal)")
-      ->check(CLI::Range(0.0, 1.0e9));
+      ->check(pmsm::cli::number_in_range(0.0, 1.0e9));
   app.add_option("--resend-interval-ms", o.resend_interval_ms,
                  "lockstep: re-send an unanswered sample after this long (wall clock), ms")
-      ->check(CLI::Range(0.1, 60000.0))->capture_default_str();
+      ->check(pmsm::cli::number_in_range(0.1, 60000.0))->capture_default_str();
   app.add_option("--rt-priority", o.rt_priority, "realtime: SCHED_FIFO priority 1..99 for the plant thread (0: leave)")
       ->check(CLI::Range(0, 99))->capture_default_str();
   app.add_option("--log-level", o.log_level, "trace, debug, info, warn, error")

@@ -21,7 +21,7 @@ const std::filesystem::path& kDir = test::kConfigDir;
 // node that came from the base file.
 TEST(RegressionScenario, BadPointsInTheBaseNameTheBaseFile) {
   const std::string e = error_of([] { (void)load_scenario(kDir / "scenario_child_of_bad_points.toml"); });
-  EXPECT_EQ(e.rfind(path_of("scenario_bad_points_base.toml") + ":5: operation.speed_rad_s: times must ascend", 0), 0U) << e;
+  EXPECT_EQ(e.rfind(path_of("scenario_bad_points_base.toml") + ":5: operation.speed_rad_s: point 2: times must ascend", 0), 0U) << e;
 }
 
 // ISSUE scenario-profile-csv-dir: a plant profile's relative load.csv_path is checked against

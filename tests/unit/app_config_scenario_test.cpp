@@ -73,7 +73,7 @@ TEST(Scenario, BaseCycleIsReported) {
 
 TEST(Scenario, MissingBaseIsReported) {
   const std::string e = inline_error("[scenario]\nbase = \"no_such_base.toml\"\n");
-  EXPECT_EQ(e, path_of("no_such_base.toml") + ": cannot read");
+  EXPECT_EQ(e, path_of("no_such_base.toml") + ": no such file");
 }
 
 TEST(Scenario, ErrorsInTheScenarioNameFileLineAndKey) {
@@ -85,9 +85,20 @@ TEST(Scenario, ErrorsInTheScenarioNameFileLineAndKey) {
             path_of("inline.toml") + ":2: operation.mode: expected one of \"speed\", \"torque\", got \"position\"");
   // Set-point profiles.
   EXPECT_EQ(inline_error("[operation]\n\nspeed_rad_s = [[0, 1], [0, 2]]\n"),
-            path_of("inline.toml") + ":3: operation.speed_rad_s: times must ascend (0.000000 after 0.000000)");
+            path_of("inline.toml") + ":3: operation.speed_rad_s: point 1: times must ascend (0 after 0)");
   EXPECT_EQ(inline_error("[operation]\nspeed_rad_s = [[0, 1, 2]]\n"),
-            path_of("inline.toml") + ":2: operation.speed_rad_s: every point must be [time_s, value]");
+            path_of("inline.toml") + ":2: operation.speed_rad_s: point 0: every point must be [time_s, value]");
+  // NaN, inf and values beyond what a supervisor may command are refused by name.
+  EXPECT_EQ(inline_error("[operation]\nspeed_rad_s = [[0, 0], [1, nan]]\n"),
+            path_of("inline.toml") + ":2: operation.speed_rad_s: point 1: value must be a number in [-2000, 2000] rad/s, got nan");
+  EXPECT_EQ(inline_error("[operation]\nspeed_rad_s = [[0, 0], [inf, 5]]\n"),
+            path_of("inline.toml") + ":2: operation.speed_rad_s: point 1: time must be a number in [0, 1e6] s, got inf");
+  EXPECT_EQ(inline_error("[operation]\nmode = \"torque\"\ntorque_Nm = [[0, 1e9]]\n"),
+            path_of("inline.toml") + ":3: operation.torque_Nm: point 0: value must be a number in [-1000, 1000] Nm, got 1e+09");
+  EXPECT_EQ(inline_error("[scenario]\nambient_profile = [0.0, 20.0, 10.0, nan]\n[operation]\nspeed_rad_s = [[0, 1]]\n"),
+            path_of("inline.toml") + ":2: scenario.ambient_profile: every value must be in [-1e+06, 1e+06], got nan");
+  EXPECT_EQ(inline_error("[scenario]\nambient_profile = [0.0, 20.0, 10.0, 500.0]\n[operation]\nspeed_rad_s = [[0, 1]]\n"),
+            path_of("inline.toml") + ":2: scenario.ambient_profile: every point needs time_s >= 0 and a temperature in [-40, 80] C, got 10, 500");
   EXPECT_EQ(inline_error("[operation]\nspeed_rad_s = []\n"),
             path_of("inline.toml") + ":2: operation.speed_rad_s: expected a non-empty array of [time_s, value] pairs");
   EXPECT_EQ(inline_error("[scenario]\nname = \"no profile\"\n"),
@@ -227,7 +238,12 @@ TEST(Scenario, CsvSetPoints) {
   EXPECT_EQ(s.scenario.speed_rad_s.points[1].value, 50.0);
   EXPECT_EQ(s.scenario.speed_rad_s.at(1.25), 100.0);
   EXPECT_EQ(inline_error("[operation]\nspeed_csv = \"speed_bad_times.csv\"\n"),
-            path_of("speed_bad_times.csv") + ":4: operation.speed_csv: times must ascend");
+            path_of("speed_bad_times.csv") + ":4: operation.speed_csv: times must ascend (1 after 2)");
+  // A row is two numbers and nothing else: an extra column is refused, not ignored.
+  EXPECT_EQ(inline_error("[operation]\nspeed_csv = \"speed_extra_column.csv\"\n"),
+            path_of("speed_extra_column.csv") + ":3: operation.speed_csv: expected 2 columns 'time_s,value', got 3: '1.0,50,7'");
+  EXPECT_EQ(inline_error("[operation]\nspeed_csv = \"speed_nan.csv\"\n"),
+            path_of("speed_nan.csv") + ":3: operation.speed_csv: value must be a number in [-2000, 2000] rad/s, got nan");
   const Scenario t = parse("[operation]\nmode = \"torque\"\ntorque_csv = \"speed_profile.csv\"\n");
   EXPECT_EQ(t.scenario.mode, core::DriveMode::kTorque);
   EXPECT_EQ(t.scenario.torque_Nm.at(2.0), 150.0);

@@ -88,7 +88,15 @@ INSTANTIATE_TEST_SUITE_P(
                       BadInput{"losses --F 25 --pulses 0", "--pulses"},
                       BadInput{"losses --F 25 --method fixed-angle", "--omega"},
                       BadInput{"losses --F 25 --method trapezoid", "--method"},
-                      BadInput{"", "subcommand"}));
+                      BadInput{"", "subcommand"},
+                      // Not a finite number, or beyond any machine: refused, never printed as nan or inf.
+                      BadInput{"budget --speed 100 --iq nan", "--iq: expected a number, got 'nan'"},
+                      BadInput{"budget --speed 1e308", "--speed: must be <= 10000"},
+                      BadInput{"budget --speed inf", "--speed: expected a number"},
+                      BadInput{"budget --voltage 1e400", "--voltage: expected a number"},
+                      BadInput{"losses --F nan", "--F: expected a number"},
+                      // 1000 pulses of 30 ms in 1 s: a duty above 100 %.
+                      BadInput{"losses --F 10 --pulses 1000 --elapsed 1 --Ti 0.01", "more than --elapsed 1 s"}));
 
 }  // namespace
 }  // namespace pmsm::test

@@ -76,6 +76,12 @@ TEST(plant_cli, BadOptionsNameTheFlag) {
   r = run_process(kPlant + " --config " + kProfiles + "reference.toml --truth-period-ms 0");
   EXPECT_NE(r.exit_code, 0);
   EXPECT_TRUE(contains(r.out + r.err, "--truth-period-ms")) << r.out << r.err;
+  // NaN passes CLI::Range (it compares false both ways); every interval flag refuses it.
+  for (const char* flag : {"--truth-period-ms", "--command-timeout-ms", "--duration-s", "--resend-interval-ms"}) {
+    r = run_process(kPlant + " --config " + kProfiles + "reference.toml " + flag + " nan");
+    EXPECT_NE(r.exit_code, 0) << flag;
+    EXPECT_TRUE(contains(r.out + r.err, std::string(flag) + ": expected a number, got 'nan'")) << r.out << r.err;
+  }
 }
 
 // Without CAN in the kernel (this build machine) the message says so; on a host with CAN it

@@ -13,6 +13,7 @@
 
 #include <fmt/format.h>
 
+#include "cli_validators.hpp"
 #include "commands.hpp"
 #include "pmsm/hal/codec.hpp"
 #include "pmsm/hal/rt.hpp"
@@ -105,15 +106,15 @@ void register_command_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--mode", options->mode, "speed, torque or disabled")
       ->check(CLI::IsMember({"speed", "torque", "disabled"}))
       ->capture_default_str();
-  cmd->add_option("--speed", options->speed_rad_s, "speed set-point, mechanical rad/s")->check(CLI::Range(-2000.0, 2000.0));
-  cmd->add_option("--torque", options->torque_Nm, "torque set-point, Nm")->check(CLI::Range(-1000.0, 1000.0));
+  cmd->add_option("--speed", options->speed_rad_s, "speed set-point, mechanical rad/s")->check(pmsm::cli::number_in_range(-2000.0, 2000.0));
+  cmd->add_option("--torque", options->torque_Nm, "torque set-point, Nm")->check(pmsm::cli::number_in_range(-1000.0, 1000.0));
   cmd->add_option("--period-ms", options->period_ms, "time between DRIVE_COMMAND frames (below the daemon's command timeout)")
-      ->check(CLI::Range(1.0, 10000.0))
+      ->check(pmsm::cli::number_in_range(1.0, 10000.0))
       ->capture_default_str();
   cmd->add_option("--duration", options->duration_s, "stop after this many seconds (default: until Ctrl-C)")
-      ->check(CLI::Range(0.0, 1e7));
+      ->check(pmsm::cli::number_in_range(0.0, 1e7));
   cmd->add_option("--calibrate-at", options->calibrate_at_C, "start an Rs0 calibration: the winding's temperature now, C")
-      ->check(CLI::Range(-40.0, 200.0));
+      ->check(pmsm::cli::number_in_range(-40.0, 200.0));
   cmd->add_flag("--inject-now", options->inject_now, "request one injection event (fixed-magnitude bipolar)");
   cmd->callback([options, &exit_code] { exit_code = run_command(*options); });
 }

@@ -24,6 +24,7 @@
 
 #include <fmt/format.h>
 
+#include "cli_validators.hpp"
 #include "commands.hpp"
 #include "pmsm/hal/codec.hpp"
 #include "pmsm/hal/rt.hpp"
@@ -401,7 +402,7 @@ void register_monitor_command(CLI::App& app, int& exit_code) {
   cmd->add_option("iface", o->iface, "CAN interface to open (e.g. vcan0)");
   cmd->add_option("--log", o->log, "read a candump log instead ('-': stdin)");
   cmd->add_option("--node", o->node, "only this node")->check(CLI::Range(0, 15));
-  cmd->add_option("--every", o->every_s, "seconds of drive time between lines per axis")->check(CLI::Range(0.0, 1e6))->capture_default_str();
+  cmd->add_option("--every", o->every_s, "seconds of drive time between lines per axis")->check(pmsm::cli::number_in_range(0.0, 1e6))->capture_default_str();
   cmd->add_option("--threshold", o->threshold_C, "compare with the truth above this winding temperature, C")->capture_default_str();
   cmd->add_option("--check-rms", o->check_rms_C, "exit 1 when an axis's error RMS is above this, C");
   cmd->add_option("--check-max", o->check_max_C, "exit 1 when an axis's largest error is above this, C");

@@ -9,13 +9,28 @@
 
 #include "json_writer.hpp"
 #include "commands.hpp"
-#include "validators.hpp"
+#include "cli_validators.hpp"
 #include "pmsm/core/injection.hpp"
 #include "pmsm/core/motor_params.hpp"
 #include "pmsm/core/window.hpp"
 
 namespace pmsm::app {
 namespace {
+
+using cli::non_negative;
+using cli::number_in_range;
+using cli::positive;
+
+// Upper bounds of the planning options: generous for any industrial PMSM, finite so that no
+// answer is printed as inf or nan.
+constexpr double kMaxInductance_H = 10.0;
+constexpr double kMaxResistance_ohm = 1000.0;
+constexpr double kMaxWindow_s = 10.0;
+constexpr double kMaxVoltage_V = 100e3;
+constexpr double kMaxCurrent_A = 100e3;
+constexpr double kMaxSpeed_rad_s = 10e3;  // mechanical, ~95,000 rpm
+constexpr double kMaxKe = 1000.0;
+constexpr double kMaxTime_s = 1e9;
 
 core::WindowKind window_from_name(const std::string& name) {
   return name == "modified" ? core::WindowKind::kModifiedBlackman : core::WindowKind::kBlackman;
@@ -138,6 +153,16 @@ int run_losses(const LossOptions& o) {
     return 2;
   }
   const core::InjectionSchedule& s = o.schedule;
+  // Ninj pulses of Ti + 2 Tw each (rising edge Tw, flat top Ti, falling edge Tw) must fit in Tel: beyond
+  // that Eqs. 31-32 average a loss over less time than the pulses take (a duty above 100 %).
+  const double pulse_s = core::PulseEnvelope{s.window, s.tw_s, s.ti_s}.duration_s();
+  if (s.pulses * pulse_s > s.elapsed_s) {
+    std::fprintf(stderr,
+                 "losses: --pulses %d of Ti + 2 Tw = %g s each take %g s, more than --elapsed %g s; "
+                 "give fewer or shorter pulses or a longer --elapsed\n",
+                 s.pulses, pulse_s, s.pulses * pulse_s, s.elapsed_s);
+    return 2;
+  }
   // Eq. 31 integrates cos over one arc centred on theta_F; beyond half a turn the integral of
   // cos (rather than cos^2) no longer measures dissipation, so say so rather than print it.
   const double arc_rad = o.omega_e_rad_s * s.ti_s;
@@ -188,22 +213,23 @@ void register_budget_command(CLI::App& app, int& exit_code) {
   auto options = std::make_shared<BudgetOptions>();
   CLI::App* cmd = app.add_subcommand(
       "budget", "Largest injection current for a voltage headroom, or voltage for a current (Eqs. 29-30)");
-  cmd->add_option("--Ld", options->ld_H, "d-axis inductance, H")->check(positive())->capture_default_str();
-  cmd->add_option("--Lq", options->lq_H, "q-axis inductance, H (default: equal to Ld; --speed only)")->check(positive());
-  cmd->add_option("--Rs", options->rs_ohm, "stator resistance, ohm (phase to neutral)")->check(positive())->capture_default_str();
-  cmd->add_option("--Tw", options->tw_s, "window period, s")->check(positive())->capture_default_str();
+  cmd->add_option("--Ld", options->ld_H, "d-axis inductance, H")->check(positive(kMaxInductance_H))->capture_default_str();
+  cmd->add_option("--Lq", options->lq_H, "q-axis inductance, H (default: equal to Ld; --speed only)")->check(positive(kMaxInductance_H));
+  cmd->add_option("--Rs", options->rs_ohm, "stator resistance, ohm (phase to neutral)")->check(positive(kMaxResistance_ohm))->capture_default_str();
+  cmd->add_option("--Tw", options->tw_s, "window period, s")->check(positive(kMaxWindow_s))->capture_default_str();
   add_window_option(cmd, options->window_name);
   auto* mode = cmd->add_option_group("mode", "what to compute (exactly one)");
-  mode->add_option("--voltage", options->voltage_V, "voltage available for injection, V")->check(positive());
-  mode->add_option("--current", options->current_A, "injection current F, A")->check(positive());
-  mode->add_option("--speed", options->speed_rad_s, "mechanical speed, rad/s: largest F at this operating point")->check(non_negative());
+  mode->add_option("--voltage", options->voltage_V, "voltage available for injection, V")->check(positive(kMaxVoltage_V));
+  mode->add_option("--current", options->current_A, "injection current F, A")->check(positive(kMaxCurrent_A));
+  mode->add_option("--speed", options->speed_rad_s, "mechanical speed, rad/s: largest F at this operating point")->check(non_negative(kMaxSpeed_rad_s));
   mode->require_option(1);
-  cmd->add_option("--iq", options->iq_A, "motoring q-axis current, A peak (--speed only)")->capture_default_str();
-  cmd->add_option("--vdc", options->vdc_V, "DC-bus voltage, V (--speed only)")->check(positive())->capture_default_str();
+  cmd->add_option("--iq", options->iq_A, "motoring q-axis current, A peak (--speed only)")
+      ->check(number_in_range(-kMaxCurrent_A, kMaxCurrent_A))->capture_default_str();
+  cmd->add_option("--vdc", options->vdc_V, "DC-bus voltage, V (--speed only)")->check(positive(kMaxVoltage_V))->capture_default_str();
   cmd->add_option("--voltage-fraction", options->voltage_fraction, "usable fraction of Vdc/sqrt(3) (--speed only)")
       ->check(number_in_range(0.1, 1.0))->capture_default_str();
   cmd->add_option("--Ke", options->ke_V_s_per_rad, "EMF constant, line-to-line RMS V per mechanical rad/s (--speed only)")
-      ->check(positive())->capture_default_str();
+      ->check(positive(kMaxKe))->capture_default_str();
   cmd->add_option("--pole-pairs", options->pole_pairs, "pole pairs (--speed only)")->check(number_in_range(1, 100))->capture_default_str();
   cmd->add_flag("--json", options->json, "print one JSON object");
   cmd->callback([options, cmd, &exit_code] {
@@ -218,14 +244,14 @@ void register_losses_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--method", options->method, "fixed-magnitude (Eq. 32) or fixed-angle (Eq. 31)")
       ->check(CLI::IsMember({"fixed-magnitude", "fixed-angle"}))->capture_default_str();
   core::InjectionSchedule& s = options->schedule;
-  cmd->add_option("--F", s.f_A, "injection current magnitude, A")->check(positive())->required();
-  cmd->add_option("--Rs", s.rs_ohm, "stator resistance, ohm")->check(positive())->capture_default_str();
+  cmd->add_option("--F", s.f_A, "injection current magnitude, A")->check(positive(kMaxCurrent_A))->required();
+  cmd->add_option("--Rs", s.rs_ohm, "stator resistance, ohm")->check(positive(kMaxResistance_ohm))->capture_default_str();
   cmd->add_option("--pulses", s.pulses, "injection pulses in the elapsed time (Ninj)")->check(number_in_range(1, 1000000))->capture_default_str();
-  cmd->add_option("--elapsed", s.elapsed_s, "elapsed time Tel, s")->check(positive())->capture_default_str();
-  cmd->add_option("--Ti", s.ti_s, "duration of the flat top of one pulse, s")->check(non_negative())->capture_default_str();
-  cmd->add_option("--Tw", s.tw_s, "window period, s")->check(positive())->capture_default_str();
+  cmd->add_option("--elapsed", s.elapsed_s, "elapsed time Tel, s")->check(positive(kMaxTime_s))->capture_default_str();
+  cmd->add_option("--Ti", s.ti_s, "duration of the flat top of one pulse, s")->check(non_negative(kMaxTime_s))->capture_default_str();
+  cmd->add_option("--Tw", s.tw_s, "window period, s")->check(positive(kMaxWindow_s))->capture_default_str();
   add_window_option(cmd, options->window_name);
-  cmd->add_option("--omega", options->omega_e_rad_s, "electrical speed, rad/s (fixed-angle)")->check(non_negative());
+  cmd->add_option("--omega", options->omega_e_rad_s, "electrical speed, rad/s (fixed-angle)")->check(non_negative(kMaxSpeed_rad_s * 100.0));
   cmd->add_flag("--json", options->json, "print one JSON object");
   cmd->callback([options, cmd, &exit_code] {
     options->omega_given = cmd->count("--omega") > 0;

@@ -1,6 +1,11 @@
 #include "scenario.hpp"
 
+#include <cerrno>
+#include <cmath>
+#include <cstdlib>
 #include <fstream>
+#include <optional>
+#include <string_view>
 #include <regex>
 #include <sstream>
 
@@ -30,7 +35,6 @@ std::vector<double> to_flat(const Profile& p) {
   return out;
 }
 
-// Reads a profile given as [[t, v], [t, v], ...]; times must ascend.
 // "file:line: key: " for a node, naming the file it came from (a scenario may inherit it).
 std::string where(const toml::node& node, std::string_view source, std::string_view key) {
   const auto& region = node.source();
@@ -39,43 +43,89 @@ std::string where(const toml::node& node, std::string_view source, std::string_v
   return file + line + ": " + std::string(key) + ": ";
 }
 
-Profile read_points(const toml::node& node, std::string_view source, std::string_view key) {
+// What a set-point profile's value may be: the same bounds as `pmsm-thermal command` puts on
+// a set-point, so that a scenario cannot ask the drive for what no supervisor could.
+struct ProfileLimits {
+  std::string_view unit;
+  double lo;
+  double hi;
+};
+constexpr ProfileLimits kSpeedLimits{"rad/s", -2000.0, 2000.0};
+constexpr ProfileLimits kTorqueLimits{"Nm", -1000.0, 1000.0};
+constexpr double kMaxProfileTime_s = 1e6;  // scenario.duration_s's own upper bound
+
+// Adds one point after checking it: finite, time in [0, 1e6] s and ascending, value within
+// the limits. `at` names the file, line and key.
+void add_point(Profile& p, double t, double v, const ProfileLimits& limits, const std::string& at) {
+  if (!std::isfinite(t) || t < 0.0 || t > kMaxProfileTime_s) {
+    throw ConfigError(at + "time must be a number in [0, 1e6] s, got " + common::format_number(t));
+  }
+  if (!p.points.empty() && t <= p.points.back().time_s) {
+    throw ConfigError(at + "times must ascend (" + common::format_number(t) + " after " + common::format_number(p.points.back().time_s) +
+                      ")");
+  }
+  if (!std::isfinite(v) || v < limits.lo || v > limits.hi) {
+    throw ConfigError(at + "value must be a number in [" + common::format_number(limits.lo) + ", " + common::format_number(limits.hi) +
+                      "] " + std::string(limits.unit) + ", got " + common::format_number(v));
+  }
+  p.points.push_back({t, v});
+}
+
+// Reads a profile given as [[t, v], [t, v], ...]; times must ascend.
+Profile read_points(const toml::node& node, std::string_view source, std::string_view key, const ProfileLimits& limits) {
   const std::string at = where(node, source, key);
   const auto* array = node.as_array();
   if (array == nullptr || array->empty()) {
     throw ConfigError(at + "expected a non-empty array of [time_s, value] pairs");
   }
   Profile p;
+  std::size_t index = 0;
   for (const toml::node& item : *array) {
+    const std::string element = where(item, source, key) + "point " + std::to_string(index++) + ": ";
     const auto* pair = item.as_array();
     if (pair == nullptr || pair->size() != 2) {
-      throw ConfigError(at + "every point must be [time_s, value]");
+      throw ConfigError(element + "every point must be [time_s, value]");
     }
     double v[2] = {0.0, 0.0};
     for (std::size_t k = 0; k < 2; ++k) {
       const toml::node* n = pair->get(k);
       if (n == nullptr) {
-        throw ConfigError(at + "every point must hold two numbers");
+        throw ConfigError(element + "every point must hold two numbers");
       }
       if (const auto* i = n->as_integer()) {
         v[k] = static_cast<double>(i->get());
       } else if (const auto* f = n->as_floating_point()) {
         v[k] = f->get();
       } else {
-        throw ConfigError(at + "every point must hold two numbers");
+        throw ConfigError(element + "every point must hold two numbers");
       }
     }
-    if (!p.points.empty() && v[0] <= p.points.back().time_s) {
-      throw ConfigError(at + "times must ascend (" + std::to_string(v[0]) + " after " +
-                        std::to_string(p.points.back().time_s) + ")");
-    }
-    p.points.push_back({v[0], v[1]});
+    add_point(p, v[0], v[1], limits, element);
   }
   return p;
 }
 
-// Reads a two-column CSV (time_s, value) with a header line; `at` names where it was asked for.
-Profile read_csv(const std::filesystem::path& path, std::string_view key, const std::string& at) {
+// One CSV cell as a number: the whole cell (spaces around it allowed), nothing after it.
+std::optional<double> parse_cell(std::string_view cell) {
+  while (!cell.empty() && (cell.front() == ' ' || cell.front() == '\t')) cell.remove_prefix(1);
+  while (!cell.empty() && (cell.back() == ' ' || cell.back() == '\t' || cell.back() == '\r')) cell.remove_suffix(1);
+  if (cell.empty()) {
+    return std::nullopt;
+  }
+  const std::string text(cell);
+  char* end = nullptr;
+  errno = 0;
+  const double v = std::strtod(text.c_str(), &end);
+  if (end != text.c_str() + text.size() || errno == ERANGE) {
+    return std::nullopt;
+  }
+  return v;  // NaN and inf pass here; add_point refuses them with the range
+}
+
+// Reads a two-column CSV (time_s, value) with an optional header line; `at` names where it
+// was asked for. A row with more or fewer than two cells is refused, not read in part.
+Profile read_csv(const std::filesystem::path& path, std::string_view key, const std::string& at,
+                 const ProfileLimits& limits) {
   std::ifstream in(path);
   if (!in) {
     throw ConfigError(at + "cannot open " + path.string());
@@ -85,21 +135,29 @@ Profile read_csv(const std::filesystem::path& path, std::string_view key, const 
   int number = 0;
   while (std::getline(in, line)) {
     ++number;
+    if (!line.empty() && line.back() == '\r') {
+      line.pop_back();
+    }
     if (line.empty() || line[0] == '#' || (number == 1 && line.find_first_of("0123456789") != 0 && line[0] != '-')) {
       continue;
     }
-    std::istringstream row(line);
-    double t = 0.0;
-    double v = 0.0;
-    char comma = 0;
-    if (!(row >> t >> comma >> v) || comma != ',') {
-      throw ConfigError(path.string() + ":" + std::to_string(number) + ": " + std::string(key) +
-                        ": expected 'time_s,value', got '" + line + "'");
+    const std::string row_at = path.string() + ":" + std::to_string(number) + ": " + std::string(key) + ": ";
+    std::vector<std::string_view> cells;
+    std::string_view rest(line);
+    for (std::size_t comma; (comma = rest.find(',')) != std::string_view::npos; rest.remove_prefix(comma + 1)) {
+      cells.push_back(rest.substr(0, comma));
     }
-    if (!p.points.empty() && t <= p.points.back().time_s) {
-      throw ConfigError(path.string() + ":" + std::to_string(number) + ": " + std::string(key) + ": times must ascend");
+    cells.push_back(rest);
+    if (cells.size() != 2) {
+      throw ConfigError(row_at + "expected 2 columns 'time_s,value', got " + std::to_string(cells.size()) + ": '" + line +
+                        "'");
     }
-    p.points.push_back({t, v});
+    const std::optional<double> t = parse_cell(cells[0]);
+    const std::optional<double> v = parse_cell(cells[1]);
+    if (!t || !v) {
+      throw ConfigError(row_at + "expected 'time_s,value' (two numbers), got '" + line + "'");
+    }
+    add_point(p, *t, *v, limits, row_at);
   }
   if (p.points.empty()) {
     throw ConfigError(at + "no data rows in " + path.string());
@@ -157,9 +215,16 @@ void merge(toml::table& base, toml::table&& overrides) {
 }
 
 std::string read_file(const std::filesystem::path& path) {
+  std::error_code ec;
+  if (!std::filesystem::exists(path, ec)) {
+    throw ConfigError(path.string() + ": no such file");
+  }
+  if (std::filesystem::is_directory(path, ec)) {
+    throw ConfigError(path.string() + ": is a directory, not a scenario file");
+  }
   std::ifstream in(path);
   if (!in) {
-    throw ConfigError(path.string() + ": cannot read");
+    throw ConfigError(path.string() + ": cannot read (permissions?)");
   }
   std::stringstream buffer;
   buffer << in.rdbuf();
@@ -283,9 +348,9 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
   // Set-point profiles, inline or from CSV.
   const std::filesystem::path dir = source.parent_path();
   if (const auto node = root.at_path("operation.speed_rad_s")) {
-    out.scenario.speed_rad_s = read_points(*node.node(), source.string(), "operation.speed_rad_s");
+    out.scenario.speed_rad_s = read_points(*node.node(), source.string(), "operation.speed_rad_s", kSpeedLimits);
   }
-  auto csv_profile = [&](const char* key, Profile& into) {
+  auto csv_profile = [&](const char* key, Profile& into, const ProfileLimits& limits) {
     const auto node = root.at_path(key);
     if (!node) {
       return;
@@ -295,13 +360,13 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
     if (text == nullptr) {
       throw ConfigError(at + "expected a path (string)");
     }
-    into = read_csv(dir / text->get(), key, at);
+    into = read_csv(dir / text->get(), key, at, limits);
   };
-  csv_profile("operation.speed_csv", out.scenario.speed_rad_s);
+  csv_profile("operation.speed_csv", out.scenario.speed_rad_s, kSpeedLimits);
   if (const auto node = root.at_path("operation.torque_Nm")) {
-    out.scenario.torque_Nm = read_points(*node.node(), source.string(), "operation.torque_Nm");
+    out.scenario.torque_Nm = read_points(*node.node(), source.string(), "operation.torque_Nm", kTorqueLimits);
   }
-  csv_profile("operation.torque_csv", out.scenario.torque_Nm);
+  csv_profile("operation.torque_csv", out.scenario.torque_Nm, kTorqueLimits);
   const bool speed_mode = out.scenario.mode == core::DriveMode::kSpeed;
   if (speed_mode && out.scenario.speed_rad_s.empty()) {
     throw ConfigError(source.string() + ": operation.speed_rad_s (or operation.speed_csv) is required in speed mode");
@@ -337,6 +402,12 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
     for (std::size_t k = 1; k < points.size(); ++k) {
       if (!(points[k].time_s > points[k - 1].time_s)) {
         throw ConfigError(at + "times must ascend");
+      }
+    }
+    for (const ProfilePoint& q : points) {  // the bounds of scenario.ambient_C
+      if (!(q.time_s >= 0.0) || !(q.value >= -40.0 && q.value <= 80.0)) {
+        throw ConfigError(at + "every point needs time_s >= 0 and a temperature in [-40, 80] C, got " +
+                          common::format_number(q.time_s) + ", " + common::format_number(q.value));
       }
     }
   }

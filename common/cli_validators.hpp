@@ -1,5 +1,8 @@
-// Command-line validators with messages that name the problem in plain words (CLI11 prefixes
-// them with the option's name: "--Ld: must be a number > 0, got -1").
+// Command-line validators of every executable (pmsm-thermal, pmsm-plant), with messages that
+// name the problem in plain words (CLI11 prefixes them with the option's name:
+// "--Ld: must be a number > 0, got -1"). NaN, inf and numbers beyond double are refused by
+// every one of them, which CLI::Range does not do (NaN compares false both ways).
+// Header only; the executable that includes it links CLI11.
 #pragma once
 
 #include <CLI/CLI.hpp>
@@ -9,7 +12,7 @@
 #include <cstdlib>
 #include <string>
 
-namespace pmsm::app {
+namespace pmsm::cli {
 
 // A number within [lo, hi]; `strict_lo` excludes lo itself.
 inline CLI::Validator number_in_range(double lo, double hi, bool strict_lo = false) {
@@ -36,7 +39,9 @@ inline CLI::Validator number_in_range(double lo, double hi, bool strict_lo = fal
       description, "NUMBER");
 }
 
-inline CLI::Validator positive() { return number_in_range(0.0, HUGE_VAL, true); }
-inline CLI::Validator non_negative() { return number_in_range(0.0, HUGE_VAL); }
+// Physical options take a finite upper bound too: a value far beyond any machine is a typo, and
+// printing inf or nan as a planning result would be worse than refusing it.
+inline CLI::Validator positive(double hi = HUGE_VAL) { return number_in_range(0.0, hi, true); }
+inline CLI::Validator non_negative(double hi = HUGE_VAL) { return number_in_range(0.0, hi); }
 
-}  // namespace pmsm::app
+}  // namespace pmsm::cli
