@@ -17,9 +17,11 @@
 #include <cstdint>
 #include <cstdio>
 #include <filesystem>
+#include <fstream>
 #include <functional>
 #include <limits>
 #include <optional>
+#include <sstream>
 #include <stdexcept>
 #include <string>
 #include <string_view>
@@ -66,6 +68,36 @@ struct ValueRange {
   char buffer[32];
   std::snprintf(buffer, sizeof buffer, "%g", v);
   return buffer;
+}
+
+// Every configuration file is read through this: a missing file, a directory, a device
+// (/dev/zero would be read forever) or a file beyond 16 MiB is a ConfigError naming the
+// path, never a hang or an exhausted memory. `what` names the file's role ("plant profile").
+inline std::string read_config_file(const std::filesystem::path& path, std::string_view what) {
+  constexpr std::uintmax_t kMaxBytes = 16U << 20U;
+  const std::string prefix = path.string() + ": " + std::string(what) + ": ";
+  std::error_code ec;
+  const std::filesystem::file_status status = std::filesystem::status(path, ec);
+  if (status.type() == std::filesystem::file_type::not_found) {
+    throw ConfigError(prefix + "no such file");
+  }
+  if (ec) {
+    throw ConfigError(prefix + "cannot read (" + ec.message() + ")");
+  }
+  if (status.type() != std::filesystem::file_type::regular) {
+    throw ConfigError(prefix + (status.type() == std::filesystem::file_type::directory ? "is a directory" : "is not a regular file"));
+  }
+  const std::uintmax_t bytes = std::filesystem::file_size(path, ec);
+  if (!ec && bytes > kMaxBytes) {
+    throw ConfigError(prefix + "is " + std::to_string(bytes) + " bytes, more than any configuration (16 MiB)");
+  }
+  std::ifstream in(path, std::ios::binary);
+  if (!in) {
+    throw ConfigError(prefix + "cannot read (permissions?)");
+  }
+  std::ostringstream text;
+  text << in.rdbuf();
+  return text.str();
 }
 
 // "file:line: " of a node: the file it came from (a scenario may inherit keys from a base

@@ -100,16 +100,6 @@ const ConfigSchema<D>& schema() {
   return s;
 }
 
-std::string read_file(const std::filesystem::path& path) {
-  std::ifstream in(path);
-  if (!in) {
-    throw ConfigError(path.string() + ": cannot read the configuration file");
-  }
-  std::stringstream buffer;
-  buffer << in.rdbuf();
-  return buffer.str();
-}
-
 // Bits on the wire of one standard-ID frame: classic CAN at the nominal rate, or CAN FD with
 // the data phase (from the BRS bit to the CRC delimiter) at the data rate. Worst-case bit
 // stuffing on the stuffed fields; CAN FD's fixed stuff bits in the CRC field.
@@ -223,7 +213,7 @@ DaemonConfig parse_daemon_config(const std::string& text, const std::filesystem:
 }
 
 DaemonConfig load_daemon_config(const std::filesystem::path& path) {
-  return parse_daemon_config(read_file(path), path);
+  return parse_daemon_config(common::read_config_file(path, "daemon configuration"), path);
 }
 
 bool is_virtual_interface(const std::string& interface) { return interface.rfind("vcan", 0) == 0; }

@@ -348,10 +348,13 @@ std::string_view to_string(LoadProfile profile) {
 
 void load_drive_cycle_csv(const std::filesystem::path& path, LoadConfig& load,
                           std::string_view key) {
-  std::ifstream in(path);
-  if (!in) {
-    throw ConfigError(fmt::format("{}: cannot open drive cycle \"{}\"", key, path.string()));
+  std::string text;
+  try {
+    text = common::read_config_file(path, "drive cycle");
+  } catch (const ConfigError& e) {
+    throw ConfigError(fmt::format("{}: {}", key, e.what()));
   }
+  std::istringstream in(text);
   const std::string where = fmt::format("{}: {}", key, path.string());
   std::string line;
   std::size_t line_no = 0;
@@ -545,13 +548,7 @@ PlantConfig parse_plant_config(std::string_view toml_text, std::string_view sour
 }
 
 PlantConfig load_plant_config(const std::filesystem::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) {
-    throw ConfigError(fmt::format("{}: cannot open file", path.string()));
-  }
-  std::ostringstream text;
-  text << in.rdbuf();
-  return parse_plant_config(text.str(), path.string(), path.parent_path());
+  return parse_plant_config(common::read_config_file(path, "plant configuration"), path.string(), path.parent_path());
 }
 
 std::vector<std::string> plant_config_keys() { return plant_schema().keys(); }

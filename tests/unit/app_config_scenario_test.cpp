@@ -66,6 +66,15 @@ TEST(Scenario, ErrorInTheBaseNamesTheBaseFile) {
             path_of("scenario_bad_base.toml") + ":4: scenario.duration_s: must be in (0, 1e+06], got -1");
 }
 
+// A device or a directory named as a file is refused by name, never read (/dev/zero would be
+// read forever).
+TEST(Scenario, DevicesAndDirectoriesAreNotConfigurationFiles) {
+  EXPECT_EQ(inline_error("[scenario]\nbase = \"/dev/zero\"\n"), "/dev/zero: scenario.base: is not a regular file");
+  EXPECT_EQ(inline_error("[scenario]\nbase = \"/\"\n"), "/: scenario.base: is a directory");
+  EXPECT_EQ(inline_error("[operation]\nspeed_csv = \"/dev/zero\"\n"),
+            path_of("inline.toml") + ":2: operation.speed_csv: /dev/zero: CSV: is not a regular file");
+}
+
 TEST(Scenario, BaseCycleIsReported) {
   const std::string e = error_of([] { (void)load_scenario(kDir / "cycle_a.toml"); });
   EXPECT_NE(e.find("scenario.base: bases nest too deep"), std::string::npos) << e;
@@ -73,7 +82,7 @@ TEST(Scenario, BaseCycleIsReported) {
 
 TEST(Scenario, MissingBaseIsReported) {
   const std::string e = inline_error("[scenario]\nbase = \"no_such_base.toml\"\n");
-  EXPECT_EQ(e, path_of("no_such_base.toml") + ": no such file");
+  EXPECT_EQ(e, path_of("no_such_base.toml") + ": scenario.base: no such file");
 }
 
 TEST(Scenario, ErrorsInTheScenarioNameFileLineAndKey) {

@@ -126,10 +126,13 @@ std::optional<double> parse_cell(std::string_view cell) {
 // was asked for. A row with more or fewer than two cells is refused, not read in part.
 Profile read_csv(const std::filesystem::path& path, std::string_view key, const std::string& at,
                  const ProfileLimits& limits) {
-  std::ifstream in(path);
-  if (!in) {
-    throw ConfigError(at + "cannot open " + path.string());
+  std::string text;
+  try {
+    text = common::read_config_file(path, "CSV");
+  } catch (const ConfigError& e) {
+    throw ConfigError(at + e.what());
   }
+  std::istringstream in(text);
   Profile p;
   std::string line;
   int number = 0;
@@ -214,22 +217,6 @@ void merge(toml::table& base, toml::table&& overrides) {
   }
 }
 
-std::string read_file(const std::filesystem::path& path) {
-  std::error_code ec;
-  if (!std::filesystem::exists(path, ec)) {
-    throw ConfigError(path.string() + ": no such file");
-  }
-  if (std::filesystem::is_directory(path, ec)) {
-    throw ConfigError(path.string() + ": is a directory, not a scenario file");
-  }
-  std::ifstream in(path);
-  if (!in) {
-    throw ConfigError(path.string() + ": cannot read (permissions?)");
-  }
-  std::stringstream buffer;
-  buffer << in.rdbuf();
-  return buffer.str();
-}
 
 plant::PlantConfig load_plant(const toml::table& root, const std::filesystem::path& source) {
   const std::filesystem::path dir = source.parent_path();
@@ -238,7 +225,7 @@ plant::PlantConfig load_plant(const toml::table& root, const std::filesystem::pa
   if (plant_table != nullptr) {
     if (const auto profile = (*plant_table)["profile"].value<std::string>()) {
       const std::filesystem::path profile_path = dir / *profile;
-      const std::string text = read_file(profile_path);
+      const std::string text = common::read_config_file(profile_path, "plant profile");
       // The profile on its own first, so its own mistakes are reported with its own lines.
       (void)plant::parse_plant_config(text, profile_path.string(), profile_path.parent_path());
       merged = toml::parse(text, profile_path.string());
@@ -322,7 +309,7 @@ toml::table resolve_base(toml::table root, const std::filesystem::path& source, 
     throw ConfigError(source.string() + ": scenario.base: bases nest too deep (a cycle?)");
   }
   const std::filesystem::path base_path = source.parent_path() / *base;
-  toml::table merged = resolve_base(parse_toml(read_file(base_path), base_path), base_path, depth + 1);
+  toml::table merged = resolve_base(parse_toml(common::read_config_file(base_path, "scenario.base"), base_path), base_path, depth + 1);
   // Paths in the base are relative to the base, not to the file that inherits it.
   for (const char* key : {"plant.profile", "plant.load.csv_path", "operation.speed_csv", "operation.torque_csv",
                           "controller.calibration.file"}) {
@@ -427,7 +414,7 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
 }
 
 Scenario load_scenario(const std::filesystem::path& path) {
-  return parse_scenario(read_file(path), path);
+  return parse_scenario(common::read_config_file(path, "scenario"), path);
 }
 
 std::string scenario_keys_markdown() { return schema().markdown(ScenarioConfig{}); }
