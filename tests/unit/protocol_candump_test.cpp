@@ -149,6 +149,12 @@ TEST(protocol_candump, MalformedLinesAreErrors) {
            "  vcan0  TX X -  123   [4]  DE AD BE EF",
            " (2026-13-21 08:04:49.854339)  vcan0  123   [4]  DE AD BE EF",
            " (2026-11-21 08:04:49.1234567890)  vcan0  123   [4]  DE AD BE EF",
+           // Beyond 64-bit nanoseconds since the epoch (found by tests/fuzz/fuzz_candump:
+           // the conversion overflowed, undefined behaviour), and before candump's epoch.
+           " (9999-12-31 23:59:59.000000)  vcan0  123   [4]  DE AD BE EF",
+           " (2263-01-01 00:00:00.000000)  vcan0  123   [4]  DE AD BE EF",
+           " (0001-01-01 00:00:00.000000)  vcan0  123   [4]  DE AD BE EF",
+           "  vcan0  1ABCDEF0  [00]  remote request",  // CAN FD has no remote frames (fuzz_candump)
        }) {
     const ParseResult r = parse_line(line);
     EXPECT_FALSE(r.ok()) << "accepted '" << line << "'";

@@ -123,6 +123,12 @@ std::optional<std::chrono::nanoseconds> parse_date_time(std::string_view s) {
       !parse_decimal(s.substr(11, 2), h) || !parse_decimal(s.substr(14, 2), mi) || h > 23 || mi > 59) {
     return std::nullopt;
   }
+  // The range parse_seconds() accepts (up to 9e9 s since the epoch): nanoseconds since the
+  // epoch in 64 bits end in 2262, and candump prints no date before 1970. Found by fuzzing
+  // (tests/fuzz/fuzz_candump): year 9999 overflowed the conversion (undefined behaviour).
+  if (y < 1970 || y > 2255) {
+    return std::nullopt;
+  }
   const std::chrono::year_month_day date{std::chrono::year{static_cast<int>(y)},
                                           std::chrono::month{static_cast<unsigned>(mo)},
                                           std::chrono::day{static_cast<unsigned>(d)}};
@@ -255,6 +261,9 @@ std::string parse_columns(const std::vector<std::string_view>& tokens, std::size
   }
   ++index;
   if (index + 1 < tokens.size() && tokens[index] == "remote" && tokens[index + 1] == "request") {
+    if (frame.fd) {  // found by tests/fuzz/fuzz_candump: CAN FD has no remote frames
+      return "remote request on a CAN FD frame (two-digit length " + std::string(len) + ")";
+    }
     record.remote_request = true;
     index += 2;
     if (index < tokens.size()) {
