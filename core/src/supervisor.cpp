@@ -45,7 +45,6 @@ const char* to_string(FaultCode code) noexcept {
 
 Supervisor::Supervisor(const SupervisorConfig& config, double period_s)
     : config_(config),
-      period_s_(period_s),
       // The most the shaft can turn in one period at the speed limit, with margin for the
       // encoder's quantisation and the speed limit itself being approximate.
       max_step_counts_(1.5 * config.max_speed_rad_s * period_s / (2.0 * std::numbers::pi) * config.encoder_counts + 2.0) {}

@@ -275,7 +275,6 @@ class InjectionScheduler {
   double retry_after_s_ = 0.0;      // a request waits until then after an event that yielded nothing
   int level_index_ = 0;             // next level of the event in progress
   bool in_event_ = false;
-  double f_event_A_ = 0.0;          // budgeted F of the event's first pair
   BlockedSums event_sums_{};        // accepted pairs of the event, summed
   std::array<BlockedSums, InjectionConfig::kMaxLevels> event_pair_sums_{};  // and one by one
   // Their means, one computed per control period once the pairs are done (finish_event).

@@ -153,7 +153,6 @@ class Supervisor {
   void check_sample(const SupervisedSample& s) noexcept;
 
   SupervisorConfig config_;
-  double period_s_;
   double max_step_counts_;
   SupervisorStatus status_{};
   std::array<std::uint32_t, kFaultCodeCount> counts_{};
