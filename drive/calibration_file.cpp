@@ -6,6 +6,8 @@
 
 #include <cerrno>
 #include <chrono>
+#include <csignal>
+#include <cstdlib>
 #include <cmath>
 #include <cstring>
 #include <ctime>
@@ -126,8 +128,33 @@ double number(const toml::table& t, const char* key, const std::string& file, do
 
 // Replaces `path` with `text`: temporary file in the same directory, fsync, rename, directory
 // fsync, so that a power cut leaves the old content or the new, never a torn file.
+// A writer killed between creating its temporary and the rename (SIGKILL, power loss) leaves
+// ".NAME.tmp.PID" behind; each restart has a new PID, so they would pile up. The next write
+// removes those whose process is gone (the drive is the file's only writer).
+void remove_stale_temporaries(const std::filesystem::path& dir, const std::string& name) {
+  const std::string prefix = "." + name + ".tmp.";
+  std::error_code ec;
+  for (const auto& entry : std::filesystem::directory_iterator(dir, ec)) {
+    const std::string file = entry.path().filename().string();
+    if (file.rfind(prefix, 0) != 0) {
+      continue;
+    }
+    long pid = 0;
+    const char* digits = file.c_str() + prefix.size();
+    char* end = nullptr;
+    pid = std::strtol(digits, &end, 10);
+    if (end == digits || *end != '\0' || pid <= 0) {
+      continue;
+    }
+    if (::kill(static_cast<pid_t>(pid), 0) != 0 && errno == ESRCH) {
+      std::filesystem::remove(entry.path(), ec);
+    }
+  }
+}
+
 void write_atomically(const std::filesystem::path& path, const std::string& text) {
   const std::filesystem::path dir = path.has_parent_path() ? path.parent_path() : std::filesystem::path(".");
+  remove_stale_temporaries(dir, path.filename().string());
   const std::filesystem::path tmp = dir / fmt::format(".{}.tmp.{}", path.filename().string(), ::getpid());
   TempFile file(tmp);
   file.open();

@@ -2,9 +2,13 @@
 // the controller configuration's calibration.file (read at start-up, relative paths).
 #include <gtest/gtest.h>
 #include <sys/stat.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
+#include <csignal>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -196,6 +200,70 @@ TEST_F(CalibrationFile, ThermalStateRoundTripAndBadFiles) {
   } catch (const CalibrationFileError& e) {
     EXPECT_NE(std::string(e.what()).find(":2: winding_C"), std::string::npos) << e.what();
   }
+}
+
+// Killed at any point of a write (SIGKILL: no destructor, no handler runs), the writer leaves
+// the old file or the new one, never a torn, empty or missing one; the next write removes the
+// temporary a killed writer left behind. 100 kills at random points of a child that writes
+// the calibration and the thermal state in a loop, each value one step past the last.
+TEST_F(CalibrationFile, SigkillDuringWritesLeavesTheOldOrTheNewFile) {
+  const fs::path calibration = dir_ / "calibration.toml";
+  const fs::path thermal = dir_ / "axis1.thermal";
+  constexpr double kStep = 1e-6;
+  auto calibration_of = [&](long k) {
+    core::Calibration c = sample();
+    c.rs0_ohm = 0.1 + kStep * static_cast<double>(k);
+    return c;
+  };
+  auto thermal_of = [](long k) {
+    StoredThermalState s;
+    s.state = {30.0 + 1e-4 * static_cast<double>(k), 30.0, 1.0};
+    s.ambient_C = 25.0;
+    s.saved_unix_s = 1795493852.0 + static_cast<double>(k);
+    return s;
+  };
+  long k = 0;       // the last value written to the calibration (it is written first)
+  long k_thermal = 0;
+  write_calibration_file(calibration, calibration_of(k), "kill test");
+  write_thermal_state_file(thermal, thermal_of(k));
+  std::srand(20261124U);
+  int killed_mid_loop = 0;
+  for (int round = 0; round < 100; ++round) {
+    const long start = k + 1;
+    const pid_t child = ::fork();
+    ASSERT_GE(child, 0);
+    if (child == 0) {
+      for (long j = start;; ++j) {
+        write_calibration_file(calibration, calibration_of(j), "kill test");
+        write_thermal_state_file(thermal, thermal_of(j));
+      }
+    }
+    ::usleep(static_cast<useconds_t>(std::rand() % 20000));  // 0-20 ms: some writes, then anywhere in one
+    ASSERT_EQ(::kill(child, SIGKILL), 0);
+    int status = 0;
+    ASSERT_EQ(::waitpid(child, &status, 0), child);
+    killed_mid_loop += WIFSIGNALED(status) && WTERMSIG(status) == SIGKILL ? 1 : 0;
+
+    // Both files parse, and each holds a value the writer wrote, no older than before.
+    const double rs0 = read_calibration_file(calibration).rs0_ohm;
+    const double steps = (rs0 - 0.1) / kStep;
+    const long kc = std::lround(steps);
+    ASSERT_NEAR(steps, static_cast<double>(kc), 1e-3) << "round " << round << ": rs0 " << rs0 << " was never written";
+    ASSERT_GE(kc, k) << "round " << round << ": the calibration went back";
+    const StoredThermalState t = read_thermal_state_file(thermal);
+    const long kt = std::lround(t.saved_unix_s - 1795493852.0);
+    ASSERT_NEAR(t.state.winding_C, 30.0 + 1e-4 * static_cast<double>(kt), 1e-9) << "round " << round;
+    ASSERT_GE(kt, k_thermal) << "round " << round << ": the thermal state went back";
+    ASSERT_LE(kt, kc) << "round " << round << ": the loop writes the calibration first";
+    k = kc;
+    k_thermal = kt;
+  }
+  EXPECT_EQ(killed_mid_loop, 100);
+  EXPECT_GT(k, 100) << "the writer hardly ran: the kills did not land inside writes";
+  // A killed writer's temporaries (".NAME.tmp.PID") are gone after the next write.
+  write_calibration_file(calibration, calibration_of(k + 1), "after the kills");
+  write_thermal_state_file(thermal, thermal_of(k + 1));
+  EXPECT_EQ(entries(), 2U);
 }
 
 }  // namespace
