@@ -295,6 +295,7 @@ int run(const Options& o) {
 int main(int argc, char** argv) {
   CLI::App app{"pmsm-plant: the PMSM, inverter, thermal network and sensors on a CAN bus (lockstep or real time)"};
   Options o;
+  app.set_version_flag("--version", std::string("pmsm-plant ") + PMSM_VERSION);
   app.add_option("--config", o.config_path, "plant configuration (TOML), e.g. plant-emulator/profiles/reference.toml")
       ->required();
   app.add_option("--iface", o.iface, "CAN interface (CAN FD, MTU 72)")->capture_default_str();

@@ -27,6 +27,7 @@ target_link_libraries(pmsm_plant_node
 add_executable(pmsm-plant ${CMAKE_CURRENT_LIST_DIR}/main.cpp)
 target_link_libraries(pmsm-plant PRIVATE pmsm_plant_node CLI11::CLI11 spdlog::spdlog fmt::fmt)
 pmsm_target_defaults(pmsm-plant)
+target_compile_definitions(pmsm-plant PRIVATE PMSM_VERSION="${PROJECT_VERSION}")
 # GCC 12 reports a false -Wnull-dereference inside libstdc++'s vector<string> relocation
 # as instantiated by CLI11's detail::split (inlined from CLI/StringTools.hpp); keep the
 # warning everywhere else.

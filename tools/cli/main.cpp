@@ -1,12 +1,14 @@
 // pmsm-thermal: the project's command-line tool (planning, simulation, bus decoding).
 #include <CLI/CLI.hpp>
 
+#include <string>
+
 #include "commands.hpp"
 
 int main(int argc, char** argv) {
   CLI::App app{"pmsm-thermal: planning and analysis tools for the pmsm-thermal drive"};
   app.require_subcommand(1);
-  app.set_version_flag("--version", "pmsm-thermal 0.1.0");
+  app.set_version_flag("--version", std::string("pmsm-thermal ") + PMSM_VERSION);
   int exit_code = 0;
   pmsm::app::register_budget_command(app, exit_code);
   pmsm::app::register_losses_command(app, exit_code);
