@@ -2,10 +2,11 @@
 # Reproduces the figures of docs/accuracy.md: every benchmark scenario side by side, the
 # reference heat-up's seed spread and the robustness suite, as Markdown tables on stdout and a
 # plot per scenario in docs/accuracy/.
-#   bench/accuracy.sh [BUILD_DIR]     (default build/release; built if missing)
+#   [JOBS=N] bench/accuracy.sh [BUILD_DIR]     (default build/release; built if missing)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 build=${1:-build/release}
+jobs=${JOBS:-$(nproc)}   # scenarios at a time (simulate -j); each runs its twin on a second thread
 if [ ! -x "$build/tools/pmsm-thermal" ]; then
   cmake --preset release >/dev/null
   cmake --build --preset release --target pmsm-thermal
@@ -24,14 +25,14 @@ scenarios=(
 )
 echo "## Benchmark scenarios"
 echo
-"$build/tools/pmsm-thermal" simulate "${scenarios[@]}" --markdown --plot-dir docs/accuracy --quiet
+"$build/tools/pmsm-thermal" simulate -j "$jobs" "${scenarios[@]}" --markdown --plot-dir docs/accuracy --quiet
 echo
 echo "## The reference heat-up, seeds 11-18"
 echo
-"$build/tools/pmsm-thermal" simulate bench/scenarios/seeds/reference-fm-bipolar-seed1[1-8].toml --markdown --quiet
+"$build/tools/pmsm-thermal" simulate -j "$jobs" bench/scenarios/seeds/reference-fm-bipolar-seed1[1-8].toml --markdown --quiet
 if compgen -G "bench/scenarios/robustness/*.toml" > /dev/null; then
   echo
   echo "## Robustness suite (other motors, ambients, restarts, duty cycles)"
   echo
-  "$build/tools/pmsm-thermal" simulate bench/scenarios/robustness/*.toml --markdown --plot-dir docs/accuracy/robustness --quiet
+  "$build/tools/pmsm-thermal" simulate -j "$jobs" bench/scenarios/robustness/*.toml --markdown --plot-dir docs/accuracy/robustness --quiet
 fi

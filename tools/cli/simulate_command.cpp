@@ -2,11 +2,16 @@
 // scheduler + estimator + plant library), lockstep and faster than real time, and reports
 // the figures. Several scenarios make a side-by-side table (--markdown), the accuracy
 // benchmark of docs/accuracy.md.
+#include <atomic>
 #include <cmath>
+#include <condition_variable>
 #include <cstdio>
 #include <filesystem>
 #include <memory>
+#include <mutex>
+#include <optional>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include <fmt/format.h>
@@ -28,6 +33,16 @@ struct SimulateOptions {
   std::string plot_dir;
   bool quiet = false;
   bool events = false;
+  int jobs = 1;
+};
+
+// What one scenario prints, kept until its turn: with -j, scenarios finish out of order but
+// are reported in the order given.
+struct Report {
+  std::string out;    // stdout
+  std::string err;    // stderr
+  std::string row;    // its Markdown row
+  int status = 0;
 };
 
 std::string cell(double value, bool valid, const char* format = "{:.2f}") {
@@ -55,28 +70,31 @@ std::string markdown_row(const SimulationResult& r, const std::string& file) {
                      cell(r.torque_disturbance_pct, r.disturbance_measured), r.injection_loss_W, r.sim_time_s, r.wall_time_s);
 }
 
-int run_one(const std::string& path, const SimulateOptions& o, std::string& table) {
+Report run_one(const std::string& path, const SimulateOptions& o) {
+  Report r;
   Scenario scenario;
   try {
     scenario = load_scenario(path);
   } catch (const ConfigError& e) {  // the plant's, the controller's and the scenario's alike
-    std::fprintf(stderr, "simulate: %s\n", e.what());
-    return 2;
+    r.err += fmt::format("simulate: {}\n", e.what());
+    r.status = 2;
+    return r;
   }
   RunOptions run;
-  run.progress = !o.quiet;
+  run.progress = !o.quiet && o.jobs == 1;
   run.log_events = o.events;
   SimulationResult result;
   try {
     result = run_scenario(scenario, run);
   } catch (const CalibrationFileError& e) {
-    std::fprintf(stderr, "simulate: the stored calibration cannot be used: %s\n", e.what());
-    return 2;
+    r.err += fmt::format("simulate: the stored calibration cannot be used: {}\n", e.what());
+    r.status = 2;
+    return r;
   }
-  int status = 0;
+  int& status = r.status;
   if (!result.calibration_file_error.empty()) {
     // The run is reported in full; only the file kept its previous content.
-    std::fprintf(stderr, "simulate: the calibration was not stored: %s\n", result.calibration_file_error.c_str());
+    r.err += fmt::format("simulate: the calibration was not stored: {}\n", result.calibration_file_error);
     status = 3;
   }
   const std::string stem = std::filesystem::path(path).stem().string();
@@ -92,22 +110,21 @@ int run_one(const std::string& path, const SimulateOptions& o, std::string& tabl
       write_plot(result, (std::filesystem::path(o.plot_dir) / (stem + ".png")).string());
     }
   } catch (const std::exception& e) {
-    std::fprintf(stderr, "simulate: %s\n", e.what());
+    r.err += fmt::format("simulate: {}\n", e.what());
     status = 3;
   }
   if (o.events) {
-    std::printf("%s\n", estimates_text(result).c_str());
+    r.out += estimates_text(result) + "\n";
     for (const std::string& line : result.event_log) {
-      std::printf("%s\n", line.c_str());
+      r.out += line + "\n";
     }
   }
   if (o.markdown) {
-    table += markdown_row(result, std::filesystem::path(path).filename().string());
+    r.row = markdown_row(result, std::filesystem::path(path).filename().string());
   } else {
-    std::printf("%s\n", o.json ? result_json(result).c_str() : result_text(result).c_str());
+    r.out += (o.json ? result_json(result) : result_text(result)) + "\n";
   }
-  std::fflush(stdout);
-  return status;
+  return r;
 }
 
 int run_simulate(const SimulateOptions& o) {
@@ -115,11 +132,48 @@ int run_simulate(const SimulateOptions& o) {
     std::fprintf(stderr, "simulate: --csv and --plot take one scenario; use --plot-dir for several\n");
     return 2;
   }
+  // -j N: N scenarios at a time, each (with its own twin thread) independent of the others;
+  // reports are printed in the order the scenarios were given, each as soon as it and those
+  // before it are done.
+  const std::size_t n = o.scenario_paths.size();
+  std::vector<std::optional<Report>> reports(n);
+  std::mutex mutex;
+  std::condition_variable done;
+  std::atomic<std::size_t> next{0};
+  auto worker = [&] {
+    for (std::size_t k = next++; k < n; k = next++) {
+      Report r;
+      try {
+        r = run_one(o.scenario_paths[k], o);
+      } catch (const std::exception& e) {  // not one of the documented failures: say so, go on
+        r.err = fmt::format("simulate: {}: {}\n", o.scenario_paths[k], e.what());
+        r.status = 1;
+      }
+      const std::lock_guard<std::mutex> lock(mutex);
+      reports[k] = std::move(r);
+      done.notify_one();
+    }
+  };
+  std::vector<std::thread> workers;
+  const auto jobs = static_cast<std::size_t>(std::max(1, o.jobs));
+  for (std::size_t w = 0; w < std::min(jobs, n); ++w) {
+    workers.emplace_back(worker);
+  }
   std::string table;
   int status = 0;
-  for (const std::string& path : o.scenario_paths) {
-    const int s = run_one(path, o, table);
-    status = std::max(status, s);
+  for (std::size_t k = 0; k < n; ++k) {
+    std::unique_lock<std::mutex> lock(mutex);
+    done.wait(lock, [&] { return reports[k].has_value(); });
+    const Report r = std::move(*reports[k]);
+    lock.unlock();
+    std::fputs(r.err.c_str(), stderr);
+    std::fputs(r.out.c_str(), stdout);
+    std::fflush(stdout);
+    table += r.row;
+    status = std::max(status, r.status);
+  }
+  for (std::thread& t : workers) {
+    t.join();
   }
   if (o.markdown) {
     std::printf("%s%s", markdown_header().c_str(), table.c_str());
@@ -141,6 +195,8 @@ void register_simulate_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--plot", options->plot_path, "draw true vs estimated temperatures as PNG (one scenario; needs gnuplot)");
   cmd->add_option("--plot-dir", options->plot_dir, "draw a PNG per scenario into this directory, named after the file");
   cmd->add_flag("--quiet", options->quiet, "no progress line on a terminal");
+  cmd->add_option("-j,--jobs", options->jobs, "run this many scenarios at a time (each also runs its twin on a thread of its own)")
+      ->check(CLI::Range(1, 256))->capture_default_str();
   cmd->add_flag("--events", options->events, "list every published estimate with the truth and diagnostics");
   cmd->callback([options, &exit_code] { exit_code = run_simulate(*options); });
 }

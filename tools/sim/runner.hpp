@@ -124,7 +124,10 @@ struct SimulationResult {
   double lq_std_H = 0.0;
   double max_winding_true_C = 0.0;
   double sim_time_s = 0.0;
+  // Wall time of everything the scenario cost: the run, the twin without injection (for the
+  // disturbance metric) and the metrics; sim_speed_ratio = sim_time_s / wall_time_s.
   double wall_time_s = 0.0;
+  double twin_wall_time_s = 0.0;  // the twin's own wall time, on a second thread beside the run (0 without a twin)
   std::vector<SeriesRow> series;
   std::vector<EstimateRow> estimates;
   std::vector<PairRow> pair_log;
