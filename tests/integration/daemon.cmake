@@ -4,10 +4,10 @@ pmsm_add_gtest(daemon_loop_test LABEL integration
   LIBS pmsm_daemon pmsm_plant_node pmsm_sim
   TIMEOUT 600)
 
-# Own binary: it replaces the global operator new to count allocations on the control thread.
+# Own binary: it replaces malloc and its family (tests/support/alloc_counter) to count allocations on the control thread.
 pmsm_add_gtest(daemon_alloc_test LABEL integration
   SOURCES ${CMAKE_CURRENT_LIST_DIR}/daemon_alloc_test.cpp
-  LIBS pmsm_daemon pmsm_plant_node pmsm_sim
+  LIBS pmsm_daemon pmsm_plant_node pmsm_sim pmsm_test_alloc_counter
   TIMEOUT 400)
 
 # The GPIO fault-input watcher (edge events, a failed read is a fault).

@@ -9,10 +9,10 @@ pmsm_add_gtest(app_config_test LABEL unit
     ${CMAKE_CURRENT_LIST_DIR}/app_calibration_file_test.cpp
   LIBS pmsm_drive pmsm_sim)
 
-# Own binary: it replaces the global operator new to count allocations in the hot path.
+# Own binary: it replaces malloc and its family (tests/support/alloc_counter) to count allocations in the hot path.
 pmsm_add_gtest(drive_alloc_test LABEL unit
   SOURCES ${CMAKE_CURRENT_LIST_DIR}/drive_alloc_test.cpp
-  LIBS pmsm_drive pmsm::plant)
+  LIBS pmsm_drive pmsm::plant pmsm_test_alloc_counter)
 
 # The drive node (the one per-sample path) against the plant library.
 pmsm_add_gtest(drive_node_test LABEL unit

@@ -9,7 +9,7 @@ pmsm_add_gtest(plant_unit_test LABEL unit
     ${CMAKE_CURRENT_LIST_DIR}/plant_sensors_test.cpp
   LIBS pmsm::plant Eigen3::Eigen)
 
-# Own binary: it replaces the global operator new to count allocations.
+# Own binary: it replaces malloc and its family (tests/support/alloc_counter) to count allocations.
 pmsm_add_gtest(plant_alloc_test LABEL unit
   SOURCES ${CMAKE_CURRENT_LIST_DIR}/plant_alloc_test.cpp
-  LIBS pmsm::plant)
+  LIBS pmsm::plant pmsm_test_alloc_counter)

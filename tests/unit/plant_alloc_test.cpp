@@ -1,32 +1,16 @@
 // Plant::step() must not allocate (the lockstep and real-time loops call it every period).
-// The global operator new is replaced for this test binary to count allocations.
+// Every allocator is counted (tests/support/alloc_counter.hpp: malloc and its family, so
+// every operator new too).
 #include <gtest/gtest.h>
 
-#include <atomic>
-#include <cstdlib>
-#include <new>
-
+#include "alloc_counter.hpp"
 #include "pmsm/plant/plant.hpp"
-
-namespace {
-std::atomic<long> g_allocations{0};
-}  // namespace
-
-void* operator new(std::size_t size) {
-  g_allocations.fetch_add(1, std::memory_order_relaxed);
-  if (void* p = std::malloc(size == 0 ? 1 : size)) {
-    return p;
-  }
-  throw std::bad_alloc();
-}
-void operator delete(void* p) noexcept { std::free(p); }
-void operator delete(void* p, std::size_t /*size*/) noexcept { std::free(p); }
 
 namespace pmsm::plant {
 namespace {
 
 long allocations_during(Plant& plant, int periods, bool enable) {
-  const long before = g_allocations.load();
+  const long before = test::total_allocations();
   for (int n = 0; n < periods; ++n) {
     hal::InverterCommand cmd;
     cmd.sequence = plant.period();
@@ -35,10 +19,13 @@ long allocations_during(Plant& plant, int periods, bool enable) {
     plant.step(cmd);
     plant.step_with_dq_voltage(1.0, 2.0);
   }
-  return g_allocations.load() - before;
+  return test::total_allocations() - before;
 }
 
 TEST(plant_alloc, StepDoesNotAllocate) {
+  if (!test::allocation_counter_active()) {
+    GTEST_SKIP() << "AddressSanitizer owns malloc: no allocation counter in this build";
+  }
   // Every feature that runs in the hot path: noise, voltage sensing, harmonics, saturation,
   // cogging, a torque table with ripple, the thermal network.
   PlantConfig c;
@@ -47,9 +34,9 @@ TEST(plant_alloc, StepDoesNotAllocate) {
   c.cogging.enabled = true;
   c.load.profile = LoadProfile::torque_cycle;
   c.load.points = {{0.0, 1.0}, {0.05, 3.0}, {0.1, -1.0}};
-  const long before_construction = g_allocations.load();
+  const long before_construction = test::total_allocations();
   Plant motoring(c);
-  ASSERT_GT(g_allocations.load(), before_construction);  // the counter works; construction may allocate
+  ASSERT_GT(test::total_allocations(), before_construction);  // the counter works; construction may allocate
   EXPECT_EQ(allocations_during(motoring, 500, true), 0);
 
   // Gates off with the diodes rectifying behind an ideal dynamometer.
@@ -59,11 +46,11 @@ TEST(plant_alloc, StepDoesNotAllocate) {
   EXPECT_EQ(allocations_during(rectifying, 500, false), 0);
 
   // Run-time setters keep their promise too.
-  const long before = g_allocations.load();
+  const long before = test::total_allocations();
   rectifying.set_load_torque_Nm(2.0);
   rectifying.set_imposed_speed_rad_s(100.0);
   rectifying.set_ambient_C(40.0);
-  EXPECT_EQ(g_allocations.load() - before, 0);
+  EXPECT_EQ(test::total_allocations() - before, 0);
 }
 
 }  // namespace
