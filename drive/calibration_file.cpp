@@ -4,6 +4,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <cerrno>
 #include <chrono>
 #include <csignal>
@@ -129,25 +130,27 @@ double number(const toml::table& t, const char* key, const std::string& file, do
 // Replaces `path` with `text`: temporary file in the same directory, fsync, rename, directory
 // fsync, so that a power cut leaves the old content or the new, never a torn file.
 // A writer killed between creating its temporary and the rename (SIGKILL, power loss) leaves
-// ".NAME.tmp.PID" behind; each restart has a new PID, so they would pile up. The next write
-// removes those whose process is gone (the drive is the file's only writer).
+// ".NAME.tmp.PID.N" behind; each restart has a new PID, so they would pile up. The next write
+// removes those whose process is gone (the drive is the file's only writer). Errors reading
+// the directory end the clean-up quietly: it is housekeeping, not the write.
 void remove_stale_temporaries(const std::filesystem::path& dir, const std::string& name) {
   const std::string prefix = "." + name + ".tmp.";
   std::error_code ec;
-  for (const auto& entry : std::filesystem::directory_iterator(dir, ec)) {
-    const std::string file = entry.path().filename().string();
+  std::filesystem::directory_iterator it(dir, ec);
+  for (; !ec && it != std::filesystem::directory_iterator(); it.increment(ec)) {
+    const std::string file = it->path().filename().string();
     if (file.rfind(prefix, 0) != 0) {
       continue;
     }
-    long pid = 0;
     const char* digits = file.c_str() + prefix.size();
     char* end = nullptr;
-    pid = std::strtol(digits, &end, 10);
-    if (end == digits || *end != '\0' || pid <= 0) {
+    const long pid = std::strtol(digits, &end, 10);
+    if (end == digits || (*end != '\0' && *end != '.') || pid <= 0) {
       continue;
     }
     if (::kill(static_cast<pid_t>(pid), 0) != 0 && errno == ESRCH) {
-      std::filesystem::remove(entry.path(), ec);
+      std::error_code ignored;
+      std::filesystem::remove(it->path(), ignored);
     }
   }
 }
@@ -155,7 +158,10 @@ void remove_stale_temporaries(const std::filesystem::path& dir, const std::strin
 void write_atomically(const std::filesystem::path& path, const std::string& text) {
   const std::filesystem::path dir = path.has_parent_path() ? path.parent_path() : std::filesystem::path(".");
   remove_stale_temporaries(dir, path.filename().string());
-  const std::filesystem::path tmp = dir / fmt::format(".{}.tmp.{}", path.filename().string(), ::getpid());
+  // Unique per process and per write: threads of one process (simulate -j) may write at once.
+  static std::atomic<unsigned> writes{0};
+  const std::filesystem::path tmp =
+      dir / fmt::format(".{}.tmp.{}.{}", path.filename().string(), ::getpid(), writes.fetch_add(1, std::memory_order_relaxed));
   TempFile file(tmp);
   file.open();
   write_all(file.fd(), text, tmp);

@@ -11,6 +11,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <sstream>
 #include <string>
 
@@ -205,10 +206,25 @@ TEST_F(CalibrationFile, ThermalStateRoundTripAndBadFiles) {
 // Killed at any point of a write (SIGKILL: no destructor, no handler runs), the writer leaves
 // the old file or the new one, never a torn, empty or missing one; the next write removes the
 // temporary a killed writer left behind. 100 kills at random points of a child that writes
-// the calibration and the thermal state in a loop, each value one step past the last.
+// the calibration and the thermal state in a loop, each value one step past the last. In
+// /dev/shm where there is one (fsync is free there, so the kills land anywhere in a write,
+// not mostly inside fsync).
 TEST_F(CalibrationFile, SigkillDuringWritesLeavesTheOldOrTheNewFile) {
-  const fs::path calibration = dir_ / "calibration.toml";
-  const fs::path thermal = dir_ / "axis1.thermal";
+  fs::path dir = dir_;
+  if (fs::is_directory("/dev/shm")) {
+    dir = fs::path("/dev/shm") / dir_.filename();
+    fs::remove_all(dir);
+    fs::create_directories(dir);
+  }
+  struct RemoveAtEnd {
+    fs::path path;
+    ~RemoveAtEnd() {
+      std::error_code ec;
+      fs::remove_all(path, ec);
+    }
+  } remove_at_end{dir};
+  const fs::path calibration = dir / "calibration.toml";
+  const fs::path thermal = dir / "axis1.thermal";
   constexpr double kStep = 1e-6;
   auto calibration_of = [&](long k) {
     core::Calibration c = sample();
@@ -233,12 +249,24 @@ TEST_F(CalibrationFile, SigkillDuringWritesLeavesTheOldOrTheNewFile) {
     const pid_t child = ::fork();
     ASSERT_GE(child, 0);
     if (child == 0) {
-      for (long j = start;; ++j) {
-        write_calibration_file(calibration, calibration_of(j), "kill test");
-        write_thermal_state_file(thermal, thermal_of(j));
+      try {
+        for (long j = start;; ++j) {
+          write_calibration_file(calibration, calibration_of(j), "kill test");
+          write_thermal_state_file(thermal, thermal_of(j));
+        }
+      } catch (...) {
+        ::_exit(3);  // never back into the test runner from the child
       }
     }
-    ::usleep(static_cast<useconds_t>(std::rand() % 20000));  // 0-20 ms: some writes, then anywhere in one
+    // Until the child has written once (the files are atomic: reading them meanwhile is
+    // safe), then 0-2 ms: anywhere in a later write.
+    for (int wait = 0; wait < 5000; ++wait) {
+      if (std::lround((read_calibration_file(calibration).rs0_ohm - 0.1) / kStep) >= start) {
+        break;
+      }
+      ::usleep(100);
+    }
+    ::usleep(static_cast<useconds_t>(std::rand() % 2000));
     ASSERT_EQ(::kill(child, SIGKILL), 0);
     int status = 0;
     ASSERT_EQ(::waitpid(child, &status, 0), child);
@@ -258,12 +286,12 @@ TEST_F(CalibrationFile, SigkillDuringWritesLeavesTheOldOrTheNewFile) {
     k = kc;
     k_thermal = kt;
   }
-  EXPECT_EQ(killed_mid_loop, 100);
-  EXPECT_GT(k, 100) << "the writer hardly ran: the kills did not land inside writes";
+  EXPECT_EQ(killed_mid_loop, 100) << "a child ended otherwise (exit 3: a write failed)";
+  EXPECT_GE(k, 100) << "every round waited for a write";
   // A killed writer's temporaries (".NAME.tmp.PID") are gone after the next write.
   write_calibration_file(calibration, calibration_of(k + 1), "after the kills");
   write_thermal_state_file(thermal, thermal_of(k + 1));
-  EXPECT_EQ(entries(), 2U);
+  EXPECT_EQ(std::distance(fs::directory_iterator(dir), fs::directory_iterator()), 2);
 }
 
 }  // namespace
