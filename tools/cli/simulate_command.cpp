@@ -7,6 +7,7 @@
 #include <condition_variable>
 #include <cstdio>
 #include <filesystem>
+#include <map>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -136,6 +137,34 @@ int run_simulate(const SimulateOptions& o) {
   // reports are printed in the order the scenarios were given, each as soon as it and those
   // before it are done.
   const std::size_t n = o.scenario_paths.size();
+  if (o.jobs > 1 && n > 1) {
+    // Scenarios that store and load the same calibration or thermal-state file depend on their order: with
+    // -j it would be a race. (A scenario that cannot be loaded is reported by its run.)
+    std::map<std::filesystem::path, std::string> owner;
+    for (const std::string& path : o.scenario_paths) {
+      std::vector<std::string> files;
+      try {
+        const ControllerConfig controller = load_scenario(path).controller;
+        files = {controller.calibration_file, controller.thermal_state_file};
+      } catch (const std::exception&) {
+        continue;
+      }
+      for (const std::string& file : files) {
+        if (file.empty()) {
+          continue;
+        }
+        const std::filesystem::path key = std::filesystem::weakly_canonical(file);
+        const auto [it, inserted] = owner.emplace(key, path);
+        if (!inserted && it->second != path) {
+          std::fprintf(stderr,
+                       "simulate: %s and %s both use the stored file %s: their order decides what each "
+                       "loads; run them with -j 1\n",
+                       it->second.c_str(), path.c_str(), key.c_str());
+          return 2;
+        }
+      }
+    }
+  }
   std::vector<std::optional<Report>> reports(n);
   std::mutex mutex;
   std::condition_variable done;
