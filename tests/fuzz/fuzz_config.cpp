@@ -35,12 +35,18 @@ namespace {
 // A scratch directory of this process: loaders resolve relative paths against the file's
 // own directory, and the stored-file readers take a path.
 const std::filesystem::path& scratch() {
-  static const std::filesystem::path dir = [] {
-    std::filesystem::path d = std::filesystem::temp_directory_path() / ("pmsm-fuzz-" + std::to_string(::getpid()));
-    std::filesystem::create_directories(d);
+  // On the heap and never freed: still there when the atexit handler runs.
+  static const std::filesystem::path* const dir = [] {
+    auto* d = new std::filesystem::path(std::filesystem::temp_directory_path() /
+                                        ("pmsm-fuzz-" + std::to_string(::getpid())));
+    std::filesystem::create_directories(*d);
+    std::atexit([] {  // libFuzzer ends with exit(): leave no directory behind
+      std::error_code ec;
+      std::filesystem::remove_all(scratch(), ec);
+    });
     return d;
   }();
-  return dir;
+  return *dir;
 }
 
 void expect_message(const std::exception& e) {
