@@ -1,4 +1,4 @@
-# The Debian package (`cpack -G DEB` in a build directory; tests/package/package_test.sh builds
+# The Debian package (`cpack -G DEB` in a build directory; tests/unit/package_deb.sh builds
 # and checks it): the three programs, the systemd units and networkd/modules-load/sysusers
 # files, the example configuration in /etc/pmsm-thermal as conffiles, the DBC and the plant
 # profiles in /usr/share/pmsm-thermal. docs/deploy.md says how to install it and lists what

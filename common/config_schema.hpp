@@ -71,10 +71,10 @@ struct ValueRange {
 }
 
 // Every configuration file is read through this: a missing file, a directory, a device
-// (/dev/zero would be read forever) or a file beyond 16 MiB is a ConfigError naming the
-// path, never a hang or an exhausted memory. `what` names the file's role ("plant profile").
+// (/dev/zero would be read forever) or a file beyond 256 MiB (hours of a 1 kHz drive cycle
+// fit) is a ConfigError naming the path, never a hang or an exhausted memory. `what` names the file's role ("plant profile").
 inline std::string read_config_file(const std::filesystem::path& path, std::string_view what) {
-  constexpr std::uintmax_t kMaxBytes = 16U << 20U;
+  constexpr std::uintmax_t kMaxBytes = 256U << 20U;
   const std::string prefix = path.string() + ": " + std::string(what) + ": ";
   std::error_code ec;
   const std::filesystem::file_status status = std::filesystem::status(path, ec);
@@ -89,7 +89,7 @@ inline std::string read_config_file(const std::filesystem::path& path, std::stri
   }
   const std::uintmax_t bytes = std::filesystem::file_size(path, ec);
   if (!ec && bytes > kMaxBytes) {
-    throw ConfigError(prefix + "is " + std::to_string(bytes) + " bytes, more than any configuration (16 MiB)");
+    throw ConfigError(prefix + "is " + std::to_string(bytes) + " bytes, more than any configuration (256 MiB)");
   }
   std::ifstream in(path, std::ios::binary);
   if (!in) {

@@ -15,7 +15,7 @@ trap 'rm -rf "$work"' EXIT
 fail() { echo "package: FAIL: $*" >&2; exit 1; }
 
 (cd "$build" && cpack -G DEB -B "$work/out" >"$work/cpack.log" 2>&1) || { cat "$work/cpack.log"; fail "cpack failed"; }
-deb="$work/out/pmsm-thermal_${version}_amd64.deb"
+deb="$work/out/pmsm-thermal_${version}_$(dpkg --print-architecture).deb"
 [ -f "$deb" ] || fail "no $deb (cpack wrote: $(ls "$work/out"))"
 echo "package: $(basename "$deb"), $(stat -c %s "$deb") bytes"
 

@@ -10,7 +10,7 @@ namespace pmsm::plant {
 namespace {
 
 long allocations_during(Plant& plant, int periods, bool enable) {
-  const long before = test::total_allocations();
+  const long before = test::thread_allocations();
   for (int n = 0; n < periods; ++n) {
     hal::InverterCommand cmd;
     cmd.sequence = plant.period();
@@ -19,7 +19,7 @@ long allocations_during(Plant& plant, int periods, bool enable) {
     plant.step(cmd);
     plant.step_with_dq_voltage(1.0, 2.0);
   }
-  return test::total_allocations() - before;
+  return test::thread_allocations() - before;
 }
 
 TEST(plant_alloc, StepDoesNotAllocate) {
@@ -34,9 +34,9 @@ TEST(plant_alloc, StepDoesNotAllocate) {
   c.cogging.enabled = true;
   c.load.profile = LoadProfile::torque_cycle;
   c.load.points = {{0.0, 1.0}, {0.05, 3.0}, {0.1, -1.0}};
-  const long before_construction = test::total_allocations();
+  const long before_construction = test::thread_allocations();
   Plant motoring(c);
-  ASSERT_GT(test::total_allocations(), before_construction);  // the counter works; construction may allocate
+  ASSERT_GT(test::thread_allocations(), before_construction);  // the counter works; construction may allocate
   EXPECT_EQ(allocations_during(motoring, 500, true), 0);
 
   // Gates off with the diodes rectifying behind an ideal dynamometer.
@@ -46,11 +46,11 @@ TEST(plant_alloc, StepDoesNotAllocate) {
   EXPECT_EQ(allocations_during(rectifying, 500, false), 0);
 
   // Run-time setters keep their promise too.
-  const long before = test::total_allocations();
+  const long before = test::thread_allocations();
   rectifying.set_load_torque_Nm(2.0);
   rectifying.set_imposed_speed_rad_s(100.0);
   rectifying.set_ambient_C(40.0);
-  EXPECT_EQ(test::total_allocations() - before, 0);
+  EXPECT_EQ(test::thread_allocations() - before, 0);
 }
 
 }  // namespace

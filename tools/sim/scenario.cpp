@@ -392,7 +392,7 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
       }
     }
     for (const ProfilePoint& q : points) {  // the bounds of scenario.ambient_C
-      if (!(q.time_s >= 0.0) || !(q.value >= -40.0 && q.value <= 80.0)) {
+      if (!(q.time_s >= 0.0 && q.time_s <= kMaxProfileTime_s) || !(q.value >= -40.0 && q.value <= 80.0)) {
         throw ConfigError(at + "every point needs time_s >= 0 and a temperature in [-40, 80] C, got " +
                           common::format_number(q.time_s) + ", " + common::format_number(q.value));
       }
