@@ -4,6 +4,7 @@
 add_executable(pmsm_step_cost ${CMAKE_CURRENT_LIST_DIR}/step_cost.cpp)
 pmsm_target_defaults(pmsm_step_cost)
 target_compile_definitions(pmsm_step_cost PRIVATE PMSM_SOURCE_DIR="${PROJECT_SOURCE_DIR}")
+target_include_directories(pmsm_step_cost PRIVATE ${CMAKE_CURRENT_LIST_DIR})
 target_link_libraries(pmsm_step_cost PRIVATE pmsm_sim pmsm_drive pmsm::plant pmsm::core)
 
 # The worst-case budget (issue: every step <= 20,000 instructions), on a short replay in which

@@ -11,11 +11,7 @@
 // DriveController::step for the controller alone); outside valgrind the client requests do
 // nothing and the program prints how many steps of each class it ran.
 //
-// CLASS says what the step did, judged from the controller's telemetry before and after it
-// (the most significant first): event (an injection event finished: fits, estimate, filter),
-// pair (a pair of recordings completed: its fit), transition (the scheduler changed phase:
-// a pair starts, a recording starts or ends), calibration (calibration started or ended),
-// injecting (inside an injection, no transition), idle.
+// CLASS says what the step did (bench/step_replay.hpp).
 #include <valgrind/callgrind.h>
 
 #include <array>
@@ -23,59 +19,9 @@
 #include <cstdlib>
 #include <exception>
 #include <filesystem>
-#include <numeric>
 #include <string>
 
-#include "drive_node.hpp"
-#include "pmsm/core/drive_controller.hpp"
-#include "pmsm/plant/plant.hpp"
-#include "scenario.hpp"
-
-namespace {
-
-enum class StepClass : std::uint8_t { kIdle, kInjecting, kTransition, kCalibration, kPair, kEvent, kCount };
-
-constexpr std::array<const char*, static_cast<std::size_t>(StepClass::kCount)> kClassNames{
-    "idle", "injecting", "transition", "calibration", "pair", "event"};
-
-struct Snapshot {
-  pmsm::core::SchedulerPhase phase = pmsm::core::SchedulerPhase::kIdle;
-  bool injecting = false;
-  bool calibrating = false;
-  std::uint64_t pairs = 0;
-  std::uint64_t events = 0;
-};
-
-Snapshot snapshot(const pmsm::core::DriveTelemetry& t) {
-  Snapshot s;
-  s.phase = t.injection_phase;
-  s.injecting = t.injection_active;
-  s.calibrating = t.calibrating;
-  s.pairs = std::accumulate(t.outcomes.begin(), t.outcomes.end(), std::uint64_t{0});
-  s.events = static_cast<std::uint64_t>(t.estimates_published) + t.events_without_estimate;
-  return s;
-}
-
-StepClass classify(const Snapshot& before, const Snapshot& after) {
-  if (after.events != before.events) {
-    return StepClass::kEvent;
-  }
-  if (after.pairs != before.pairs) {
-    return StepClass::kPair;
-  }
-  if (after.calibrating != before.calibrating) {
-    return StepClass::kCalibration;
-  }
-  if (after.phase != before.phase) {
-    return StepClass::kTransition;
-  }
-  if (before.injecting || after.injecting || after.phase != pmsm::core::SchedulerPhase::kIdle) {
-    return StepClass::kInjecting;
-  }
-  return StepClass::kIdle;
-}
-
-}  // namespace
+#include "step_replay.hpp"
 
 int main(int argc, char** argv) {
   using namespace pmsm;
@@ -88,49 +34,30 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "pmsm_step_cost: SIMULATED_SECONDS must be in (0, 3600], not '%s'\n", argv[2]);
       return 2;
     }
-    const app::Scenario scenario = app::load_scenario(path);
-    const app::ScenarioConfig& sc = scenario.scenario;
-    plant::Plant plant(scenario.plant);
-    app::DriveNode node(scenario.controller, app::default_supervisor_config(scenario.controller), app::PublishRates{});
-    const core::DriveController& drive = node.controller();
-    const auto periods = static_cast<std::uint64_t>(seconds / plant.period_s() + 0.5);
+    bench::StepReplay replay(path);
+    const auto periods = static_cast<std::uint64_t>(seconds / replay.period_s() + 0.5);
 
-    std::array<std::uint64_t, static_cast<std::size_t>(StepClass::kCount)> counts{};
-    bool calibration_started = false;
+    std::array<std::uint64_t, bench::kStepClassCount> counts{};
     char label[64];
     // PMSM_STEP_COST_PROFILE=1: no dumps, so that callgrind's one profile covers every step
     // (callgrind_annotate then shows where the nominal step's instructions go).
     const char* profile = std::getenv("PMSM_STEP_COST_PROFILE");
     const bool dump = profile == nullptr || std::string(profile) != "1";
     for (std::uint64_t k = 0; k < periods; ++k) {
-      const double t = plant.time_s();
-      app::NodeInputs in;
-      in.mode = sc.mode;
-      in.speed_ref_rad_s = sc.speed_rad_s.at(t);
-      in.torque_ref_Nm = sc.torque_Nm.at(t);
-      in.ambient_C = sc.ambient_profile.empty() ? sc.ambient_C : sc.ambient_profile.at(t);
-      if (sc.calibrate && !calibration_started && t >= sc.calibrate_at_s) {
-        in.start_calibration = true;
-        calibration_started = true;
-      }
-      const Snapshot before = snapshot(drive.telemetry());
-      const app::NodeStep& step = node.step(&plant.sample(), in);
-      const StepClass c = classify(before, snapshot(drive.telemetry()));
+      const bench::StepClass c = replay.step([](app::DriveNode& node, const hal::SensorSample& sample,
+                                                const app::NodeInputs& in) -> const app::NodeStep& {
+        return node.step(&sample, in);
+      });
       ++counts[static_cast<std::size_t>(c)];
       std::snprintf(label, sizeof label, "step %llu %s", static_cast<unsigned long long>(k),
-                    kClassNames[static_cast<std::size_t>(c)]);
+                    bench::kStepClassNames[static_cast<std::size_t>(c)]);
       if (dump) {
         CALLGRIND_DUMP_STATS_AT(label);
       }
-      if (!step.command) {
-        std::fprintf(stderr, "pmsm_step_cost: no command at step %llu\n", static_cast<unsigned long long>(k));
-        return 1;
-      }
-      plant.step(*step.command);
     }
     std::printf("pmsm_step_cost: %s, %llu steps:", path.filename().c_str(), static_cast<unsigned long long>(periods));
     for (std::size_t i = 0; i < counts.size(); ++i) {
-      std::printf(" %s %llu", kClassNames[i], static_cast<unsigned long long>(counts[i]));
+      std::printf(" %s %llu", bench::kStepClassNames[i], static_cast<unsigned long long>(counts[i]));
     }
     std::printf("\n");
     return 0;
