@@ -83,6 +83,19 @@ struct Axis {
   // Error statistics of calibrated estimates where the truth is above the threshold.
   std::size_t n = 0;
   double sq = 0.0, sum = 0.0, max = 0.0;
+  // Time alignment (when the log has the SENSOR_SAMPLEs): an estimate belongs to the last
+  // sample before it, a truth frame to the sample after which the plant sent it; an estimate
+  // is compared with the truth interpolated at its own sample, once the next truth frame is
+  // in. Without samples it is compared with the latest truth, up to one truth period stale.
+  std::optional<std::uint32_t> sample_seq;
+  std::optional<std::pair<std::uint32_t, double>> truth_at;  // (sample, truth) of the last truth frame
+  struct Pending {
+    std::uint32_t seq;
+    double time_s;
+    protocol::ThermalEstimate estimate;
+  };
+  std::vector<Pending> pending;
+  std::uint64_t not_compared = 0;  // estimates no truth frame followed (the end of the log, a plant gone)
 };
 
 class Monitor {
@@ -117,19 +130,20 @@ class Monitor {
     Axis& a = axes_[d.node];
     if (const auto* t = std::get_if<protocol::ThermalEstimate>(&d.message)) {
       a.thermal = *t;
-      if (csv_.is_open() && t->valid) {
-        csv_ << fmt::format("{:.3f},{},{:.2f},{:.2f},{},{}\n", a.time_s.value_or(0.0), d.node, t->winding_temp_C,
-                            t->winding_temp_sigma_C, a.truth_C ? fmt::format("{:.2f}", *a.truth_C) : std::string{},
-                            t->calibrated ? 1 : 0);
-      }
-      if (t->valid && t->calibrated && a.truth_C && *a.truth_C > o_.threshold_C) {
-        const double err = t->winding_temp_C - *a.truth_C;
-        a.sq += err * err;
-        a.sum += err;
-        a.max = std::max(a.max, std::abs(err));
-        ++a.n;
+      if (a.sample_seq && a.truth_at) {
+        if (!a.pending.empty() && a.pending.back().seq == *a.sample_seq) {
+          a.pending.back() = {*a.sample_seq, a.time_s.value_or(0.0), *t};  // no sample since: the newer one stands
+        } else if (a.pending.size() < 64) {
+          a.pending.push_back({*a.sample_seq, a.time_s.value_or(0.0), *t});  // judged at the next truth frame
+        } else {
+          ++a.not_compared;  // no truth frame for 64 samples that carried estimates: the plant is gone
+        }
+      } else {
+        judge(d.node, a, *t, a.time_s.value_or(0.0), a.truth_C);
       }
       maybe_print(d.node, a);
+    } else if (const auto* sample = std::get_if<hal::SensorSample>(&d.message)) {
+      a.sample_seq = sample->sequence;
     } else if (const auto* r = std::get_if<protocol::ResistanceEstimate>(&d.message)) {
       a.rs = *r;
     } else if (const auto* s = std::get_if<protocol::DriveStatus>(&d.message)) {
@@ -166,9 +180,41 @@ class Monitor {
       a.injections_accepted += i->result == protocol::InjectionResult::kAccepted ? 1U : 0U;
     } else if (const auto* tt = std::get_if<protocol::TruthThermal>(&d.message)) {
       a.truth_C = tt->winding_temp_C;
+      if (a.sample_seq) {
+        const std::pair<std::uint32_t, double> now{*a.sample_seq, tt->winding_temp_C};
+        for (const Axis::Pending& p : a.pending) {
+          std::optional<double> truth = now.second;
+          if (a.truth_at && now.first != a.truth_at->first) {
+            // Sequences are modulo 2^32: distances, not values, are compared.
+            const double span = static_cast<double>(now.first - a.truth_at->first);
+            const double into = static_cast<double>(p.seq - a.truth_at->first);
+            if (into >= 0.0 && into <= span) {
+              truth = a.truth_at->second + (now.second - a.truth_at->second) * into / span;
+            }
+          }
+          judge(d.node, a, p.estimate, p.time_s, truth);
+        }
+        a.pending.clear();
+        a.truth_at = now;
+      }
     } else if (const auto* ps = std::get_if<protocol::PlantStatus>(&d.message)) {
       a.plant_time = true;
       set_time(a, ps->simulated_time_s);
+    }
+  }
+
+  // One estimate against the truth at its time: the CSV row and the error statistics.
+  void judge(int node, Axis& a, const protocol::ThermalEstimate& t, double time_s, std::optional<double> truth) {
+    if (csv_.is_open() && t.valid) {
+      csv_ << fmt::format("{:.3f},{},{:.2f},{:.2f},{},{}\n", time_s, node, t.winding_temp_C, t.winding_temp_sigma_C,
+                          truth ? fmt::format("{:.2f}", *truth) : std::string{}, t.calibrated ? 1 : 0);
+    }
+    if (t.valid && t.calibrated && truth && *truth > o_.threshold_C) {
+      const double err = t.winding_temp_C - *truth;
+      a.sq += err * err;
+      a.sum += err;
+      a.max = std::max(a.max, std::abs(err));
+      ++a.n;
     }
   }
 
@@ -280,7 +326,9 @@ class Monitor {
       }
     }
     std::printf("%s)\n", first ? "none" : "");
-    for (const auto& [node, a] : axes_) {
+    for (auto& [node, a] : axes_) {
+      a.not_compared += a.pending.size();  // after the last truth frame: no truth to interpolate
+      a.pending.clear();
       std::printf("%s\n", line(node, a).c_str());
       std::printf("node %2d  injections %llu (%llu accepted), fault reports %llu\n", node,
                   static_cast<unsigned long long>(a.injections), static_cast<unsigned long long>(a.injections_accepted),
@@ -300,6 +348,10 @@ class Monitor {
         const double rms = std::sqrt(a.sq / static_cast<double>(a.n));
         std::printf("node %2d  estimate vs truth above %.0f C: %zu calibrated estimates, error RMS %.2f C, max %.2f C, mean %+.2f C\n",
                     node, o_.threshold_C, a.n, rms, a.max, a.sum / static_cast<double>(a.n));
+        if (a.not_compared > 0U) {
+          std::printf("node %2d  %llu estimate(s) after the last truth frame not compared\n", node,
+                      static_cast<unsigned long long>(a.not_compared));
+        }
         if (o_.check_rms_C && rms > *o_.check_rms_C) {
           std::printf("CHECK FAILED: node %d RMS %.2f C > %.2f C\n", node, rms, *o_.check_rms_C);
           ok = false;
