@@ -123,6 +123,7 @@ class DriveLoop {
   std::optional<std::int64_t> last_drive_command_ns_;
   std::optional<std::uint32_t> last_sequence_;
   hal::InverterCommand last_command_{};
+  std::int64_t after_ns_ = 0;  // the clock after the last command was sent (run() waits from it)
   hal::CanFrame frame_{};
   hal::ReceivedFrame received_{};
   // The timing window closed by each heartbeat (this thread only).

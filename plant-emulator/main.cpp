@@ -250,7 +250,6 @@ int run(const Options& o) {
   }
 
   // Lockstep waits on the socket itself (fewer system calls per period; see PlantNodeOptions).
-  node_options.wait_descriptor = [bus = bus.get()] { return bus->native_handle(); };
   std::optional<pmsm::plant::PlantNode> node;
   try {
     node.emplace(config, *bus, node_options);

@@ -52,8 +52,6 @@ PlantNode::PlantNode(const PlantConfig& config, hal::CanBus& bus, const PlantNod
       options.send_max_wait.count() < 0) {
     throw std::invalid_argument("truth period, command timeout, resend and reopen intervals must be > 0");
   }
-  have_wait_fd_ = static_cast<bool>(options.wait_descriptor);
-  bus_slot_ = wait_.add(have_wait_fd_ ? options.wait_descriptor() : -1);
   const double period_s = plant_.period_s();
   period_ = nanoseconds{std::llround(period_s * 1e9)};
   const double truth_periods = static_cast<double>(options.truth_period.count()) * 1e-9 / period_s;
@@ -140,28 +138,16 @@ void PlantNode::step(const hal::InverterCommand& command) noexcept {
 }
 
 PlantNode::Wake PlantNode::receive_command(nanoseconds timeout, hal::InverterCommand& out) noexcept {
-  const bool poll_first = timeout.count() > 0 && have_wait_fd_;
-  if (poll_first) {
-    const hal::WaitResult w = wait_.wait_for(timeout);
-    if (w.timed_out) {
-      return Wake::kTimeout;
-    }
-    if (w.interrupted) {
-      return Wake::kNothing;  // a signal: the caller looks at its stop flag
-    }
-    if (w.error != 0) {
-      counters_.rx_errors.bump();
-      return Wake::kError;
-    }
-    // Readable, or an error condition (interface down): the read below says which.
-    timeout = nanoseconds{0};
-  }
-  switch (bus_.receive(received_, timeout)) {
+  // The lockstep wait for a command is a backstop (the re-send of an unanswered sample after
+  // tens of milliseconds): one blocking read per period where the bus allows it (SocketCAN:
+  // SO_RCVTIMEO), and no clock reading unless a wake-up brings nothing usable.
+  const hal::ReceiveStatus status =
+      timeout.count() > 0 ? bus_.receive_backstop(received_, timeout) : bus_.receive(received_, timeout);
+  switch (status) {
     case hal::ReceiveStatus::kFrame:
       break;
     case hal::ReceiveStatus::kTimeout:
-      // After a poll that said "readable", an empty queue is a spurious wake-up.
-      return poll_first ? Wake::kNothing : Wake::kTimeout;
+      return Wake::kTimeout;
     case hal::ReceiveStatus::kInterfaceDown:
       counters_.interface_down_events.bump();
       return Wake::kInterfaceDown;
@@ -188,7 +174,6 @@ bool PlantNode::recover_interface(const std::atomic<bool>& stop) {
   if (!hal::wait_and_reopen(bus_, options_.reopen_interval, std::chrono::milliseconds{50}, stop, [] {})) {
     return false;
   }
-  wait_.set(bus_slot_, have_wait_fd_ ? options_.wait_descriptor() : -1);
   counters_.reopens.bump();
   counters_.interface_down.store(false, std::memory_order_relaxed);
   return true;

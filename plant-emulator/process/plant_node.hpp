@@ -27,13 +27,11 @@
 #include <atomic>
 #include <chrono>
 #include <cstdint>
-#include <functional>
 #include <optional>
 
 #include "pmsm/hal/can_bus.hpp"
 #include "pmsm/hal/codec.hpp"
 #include "pmsm/hal/counters.hpp"
-#include "pmsm/hal/wait.hpp"
 #include "pmsm/hal/protocol.hpp"
 #include "pmsm/plant/config.hpp"
 #include "pmsm/plant/plant.hpp"
@@ -59,13 +57,6 @@ struct PlantNodeOptions {
   std::chrono::nanoseconds send_max_wait{std::chrono::milliseconds{1}};
   // How often a lost interface is checked for and the socket reopened.
   std::chrono::nanoseconds reopen_interval{std::chrono::milliseconds{200}};
-  // Optional: the bus's file descriptor (SocketCanBus::native_handle()), asked once at the
-  // start and again after each reopen. With it, lockstep waits for a command with a single
-  // ppoll() and reads the clock only when a wake-up brings nothing usable: per period that
-  // is ppoll + recvmsg + send, against about twice as many system calls through
-  // CanBus::receive()'s timeout path. It matters under User-Mode Linux, where every system
-  // call (clock_gettime included) costs about 15 us. Empty: CanBus::receive() (SimBus).
-  std::function<int()> wait_descriptor;
 };
 
 // A consistent-enough copy of the counters (each field is read atomically; the set is not a
@@ -179,9 +170,6 @@ class PlantNode {
   std::chrono::nanoseconds period_;
   std::uint64_t truth_every_ = 1;
   std::optional<std::uint64_t> stop_period_;
-  hal::DescriptorWait wait_;       // the bus's descriptor, when the options give one
-  std::size_t bus_slot_ = 0;
-  bool have_wait_fd_ = false;
   hal::CanFrame frame_{};          // scratch, preallocated
   hal::ReceivedFrame received_{};  // scratch, preallocated
   // Lockstep: the last applied sequence, to tell duplicates from stale commands.

@@ -10,6 +10,7 @@
 #include <cstdint>
 #include <cstdlib>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "pmsm/hal/sim_bus.hpp"  // make_error_frame
@@ -116,6 +117,51 @@ TEST(SocketCanHil, ClassicFrameTravelsBetweenTwoSocketsWithTimestamp) {
   EXPECT_EQ(rc.bad_size_reads, 0U);
   EXPECT_EQ(rc.rx_errors, 0U);
   EXPECT_EQ(rc.rx_overflow, 0U);
+}
+
+// receive() reads first after a frame that was already queued and waits first after one it
+// waited for; receive_backstop() is one blocking read. Every order gives every frame, in order,
+// and a timeout that is not early.
+TEST(SocketCanHil, EveryWaitOrderAndTheBackstopReadDeliverEveryFrameInOrder) {
+  auto tx = open_bus(false, {tag_filter()});
+  auto rx = open_bus(false, {tag_filter()});
+  ReceivedFrame r;
+  std::uint32_t next = 0;
+  const auto expect_next = [&](ReceiveStatus status) {
+    ASSERT_EQ(status, ReceiveStatus::kFrame);
+    EXPECT_EQ(r.frame.data[0], static_cast<std::uint8_t>(next * 7U)) << "frame " << next;
+    ++next;
+  };
+  // A burst already queued, read with a timeout (read first) and with the backstop.
+  for (std::uint32_t k = 0; k < 4; ++k) {
+    ASSERT_EQ(tx->send(frame(k, 8)), SendResult::kOk);
+  }
+  expect_next(rx->receive(r, 1s));
+  expect_next(rx->receive(r, 1s));
+  expect_next(rx->receive_backstop(r, 1s));
+  expect_next(rx->receive(r, 1s));
+  // Empty: each form times out, and not before its timeout.
+  for (const bool backstop : {false, true}) {
+    const auto t0 = std::chrono::steady_clock::now();
+    EXPECT_EQ(backstop ? rx->receive_backstop(r, 30ms) : rx->receive(r, 30ms), ReceiveStatus::kTimeout);
+    EXPECT_GE(std::chrono::steady_clock::now() - t0, 30ms) << (backstop ? "backstop" : "receive");
+  }
+  // A frame that arrives during the wait (the lockstep case), for both forms.
+  for (const bool backstop : {false, true, false}) {
+    const std::uint32_t k = next;
+    std::thread sender([&tx, k] {
+      std::this_thread::sleep_for(20ms);
+      (void)tx->send(frame(k, 8));
+    });
+    expect_next(backstop ? rx->receive_backstop(r, 2s) : rx->receive(r, 2s));
+    sender.join();
+  }
+  // After a wait, a queued frame is still read at once.
+  ASSERT_EQ(tx->send(frame(next, 8)), SendResult::kOk);
+  expect_next(rx->receive(r, 1s));
+  EXPECT_EQ(rx->receive(r, 0ms), ReceiveStatus::kTimeout);
+  EXPECT_EQ(rx->counters().rx_frames, next);
+  EXPECT_EQ(rx->counters().rx_errors, 0U);
 }
 
 TEST(SocketCanHil, FdFramesReachFdSocketsOnlyAndReadsHaveExactSizes) {

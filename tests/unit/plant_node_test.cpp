@@ -2,7 +2,6 @@
 // re-sends and determinism, bench frames, rejected frames, interface loss, and the
 // real-time command timeout. The same code runs on vcan in tests/hil/plant_process_hil_test.
 #include <gtest/gtest.h>
-#include <sys/eventfd.h>
 #include <unistd.h>
 
 #include <atomic>
@@ -32,19 +31,9 @@ PlantConfig reference() {
 
 // A plant node running on its own thread over a SimBus, with a controller endpoint and a
 // monitor endpoint that sees everything.
-//
-// With `always_readable_descriptor`, the node also gets a wait descriptor (as pmsm-plant
-// gives it the socket) that is always readable: an eventfd holding 1. Every wait then
-// returns at once and goes through the "woke up, nothing there" path, which must behave.
 class Rig {
  public:
-  explicit Rig(PlantNodeOptions options, bool always_readable_descriptor = false,
-               const PlantConfig& config = reference()) {
-    if (always_readable_descriptor) {
-      event_fd_ = ::eventfd(1, 0);
-      const int fd = event_fd_;
-      options.wait_descriptor = [fd] { return fd; };
-    }
+  explicit Rig(PlantNodeOptions options, const PlantConfig& config = reference()) {
     plant_bus_ = bus_.connect({.fd = true, .queue_capacity = 1024});
     const protocol::FilterSet plant_filters = protocol::receive_filters(protocol::Role::kPlant, options.node);
     EXPECT_TRUE(plant_bus_->set_filters(plant_filters.view()).ok());
@@ -55,12 +44,7 @@ class Rig {
     node_.emplace(config, *plant_bus_, options);
     node_id_ = options.node;
   }
-  ~Rig() {
-    stop();
-    if (event_fd_ >= 0) {
-      ::close(event_fd_);
-    }
-  }
+  ~Rig() { stop(); }
   Rig(const Rig&) = delete;
   Rig& operator=(const Rig&) = delete;
 
@@ -123,7 +107,6 @@ class Rig {
   protocol::NodeId node_id_ = 0;
   std::atomic<bool> stop_{false};
   std::atomic<bool> finished_{false};
-  int event_fd_ = -1;
   StopReason reason_ = StopReason::kStopRequested;
   std::thread thread_;
 };
@@ -147,8 +130,8 @@ PlantNodeOptions lockstep_options() {
   return o;
 }
 
-void lockstep_steps_only_on_the_awaited_sequence(bool with_descriptor) {
-  Rig rig(lockstep_options(), with_descriptor);
+TEST(plant_node, LockstepStepsOnlyOnTheAwaitedSequence) {
+  Rig rig(lockstep_options());
   rig.start();
   std::optional<hal::SensorSample> s = rig.sample(2s);
   ASSERT_TRUE(s);
@@ -179,10 +162,6 @@ void lockstep_steps_only_on_the_awaited_sequence(bool with_descriptor) {
   EXPECT_EQ(st.rejected_total(), 0U);
 }
 
-TEST(plant_node, LockstepStepsOnlyOnTheAwaitedSequence) { lockstep_steps_only_on_the_awaited_sequence(false); }
-TEST(plant_node, LockstepStepsOnlyOnTheAwaitedSequenceWaitingOnADescriptor) {
-  lockstep_steps_only_on_the_awaited_sequence(true);
-}
 
 TEST(plant_node, LockstepResendsAnUnansweredSample) {
   PlantNodeOptions o = lockstep_options();
@@ -318,13 +297,13 @@ TEST(plant_node, InterfaceLossIsSurvivedAndTheSocketReopened) {
 }
 
 // Real time on the host's clock (no priority): only behaviour is asserted, not timing.
-void realtime_timeout_disables_the_output_and_commands_re_enable_it(bool with_descriptor) {
+TEST(plant_node, RealtimeTimeoutDisablesTheOutputAndCommandsReEnableIt) {
   PlantNodeOptions o;
   o.node = 5;
   o.mode = RunMode::kRealtime;
   o.command_timeout = 20ms;
   o.truth_period = 10ms;
-  Rig rig(o, with_descriptor);
+  Rig rig(o);
   rig.start();
 
   // No controller: the timeout trips once and the gates stay off.
@@ -361,12 +340,6 @@ void realtime_timeout_disables_the_output_and_commands_re_enable_it(bool with_de
   rig.stop();
 }
 
-TEST(plant_node, RealtimeTimeoutDisablesTheOutputAndCommandsReEnableIt) {
-  realtime_timeout_disables_the_output_and_commands_re_enable_it(false);
-}
-TEST(plant_node, RealtimeWithAWaitDescriptorBehavesTheSame) {
-  realtime_timeout_disables_the_output_and_commands_re_enable_it(true);
-}
 
 TEST(plant_node, RejectsAnInvalidNode) {
   hal::SimBus bus;

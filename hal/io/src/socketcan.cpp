@@ -144,6 +144,8 @@ Status SocketCanBus::open_socket() {
   fd_.reset();
   ifindex_ = 0;
   last_drop_count_ = 0;
+  last_receive_waited_ = false;
+  receive_timeout_ns_ = 0;
   state_.store(CanBusState::kErrorActive);
 
   UniqueFd fd{::socket(PF_CAN, SOCK_RAW | SOCK_CLOEXEC, CAN_RAW)};
@@ -352,7 +354,9 @@ SendResult SocketCanBus::do_send(const CanFrame& frame, std::chrono::nanoseconds
   }
   std::array<std::uint8_t, socketcan_detail::kFdMtu> bytes{};
   const std::size_t size = socketcan_detail::encode(frame, bytes);
-  const std::int64_t deadline_ns = max_wait.count() > 0 ? monotonic_ns() + max_wait.count() : 0;
+  // The clock is read only when the queue is full: a send that goes through costs one system
+  // call (clock_gettime is one too where there is no vDSO, e.g. under User-Mode Linux).
+  std::int64_t deadline_ns = 0;
 
   for (;;) {
     const ssize_t n = ::send(fd_.get(), bytes.data(), size, MSG_DONTWAIT);
@@ -365,8 +369,12 @@ SendResult SocketCanBus::do_send(const CanFrame& frame, std::chrono::nanoseconds
       continue;
     }
     last_errno_ = e;
-    if ((e == ENOBUFS || e == EAGAIN) && deadline_ns != 0) {
-      const std::int64_t left_ns = deadline_ns - monotonic_ns();
+    if ((e == ENOBUFS || e == EAGAIN) && max_wait.count() > 0) {
+      const std::int64_t now_ns = monotonic_ns();
+      if (deadline_ns == 0) {
+        deadline_ns = now_ns + max_wait.count();
+      }
+      const std::int64_t left_ns = deadline_ns - now_ns;
       if (left_ns > 0) {
         // As cangen does: wait for room, then retry. POLLOUT reflects the socket's send
         // buffer; for a full device queue (ENOBUFS) it may return at once, so the wait is
@@ -405,45 +413,76 @@ ReceiveStatus SocketCanBus::do_receive(ReceivedFrame& out, std::chrono::nanoseco
     bump(counters_.interface_down_events);
     return ReceiveStatus::kInterfaceDown;
   }
-  // Try first: a frame already queued costs one system call instead of two.
-  ReceiveStatus status = read_one(out);
-  if (status != ReceiveStatus::kTimeout || timeout.count() == 0) {
-    return status;
-  }
-  const bool forever = timeout.count() < 0;
-  const std::int64_t deadline_ns = forever ? 0 : monotonic_ns() + timeout.count();
-  for (;;) {
-    timespec ts{};
-    if (!forever) {
-      const std::int64_t left_ns = deadline_ns - monotonic_ns();
-      if (left_ns <= 0) {
-        return ReceiveStatus::kTimeout;
-      }
-      ts.tv_sec = left_ns / 1'000'000'000;
-      ts.tv_nsec = left_ns % 1'000'000'000;
+  // Read first when the previous call found its frame already queued (a burst: one system call
+  // per frame); wait first when the previous call had to wait (a lockstep peer: its answer is
+  // not there yet, and a read that fails costs a system call for nothing).
+  if (timeout.count() == 0 || !last_receive_waited_) {
+    const ReceiveStatus status = read_one(out);
+    if (status != ReceiveStatus::kTimeout || timeout.count() == 0) {
+      last_receive_waited_ = false;
+      return status;
     }
+  }
+  last_receive_waited_ = true;
+  // The first wait takes the timeout as given; the clock is read only if a wait ends without a
+  // frame before the timeout (a signal, or a frame another reader took), to wait the rest.
+  const bool forever = timeout.count() < 0;
+  std::int64_t deadline_ns = 0;
+  std::int64_t left_ns = timeout.count();
+  for (;;) {
+    const timespec ts{left_ns / 1'000'000'000, left_ns % 1'000'000'000};
     pollfd p{fd_.get(), POLLIN, 0};
     const int n = ::ppoll(&p, 1, forever ? nullptr : &ts, nullptr);
-    if (n < 0) {
-      const int e = errno;
-      if (e == EINTR) {
-        continue;
-      }
-      last_errno_ = e;
-      bump(counters_.rx_errors);
-      return ReceiveStatus::kError;
-    }
     if (n == 0) {
       return ReceiveStatus::kTimeout;
     }
-    status = read_one(out);
-    if (status != ReceiveStatus::kTimeout) {
-      return status;
+    if (n > 0) {
+      const ReceiveStatus status = read_one(out);
+      if (status != ReceiveStatus::kTimeout) {
+        return status;
+      }
+    } else if (errno != EINTR) {
+      last_errno_ = errno;
+      bump(counters_.rx_errors);
+      return ReceiveStatus::kError;
+    }
+    if (!forever) {
+      const std::int64_t now_ns = monotonic_ns();
+      if (deadline_ns == 0) {
+        deadline_ns = now_ns + left_ns;  // a little later than the call's: by one wait's return
+      }
+      left_ns = deadline_ns - now_ns;
+      if (left_ns <= 0) {
+        return ReceiveStatus::kTimeout;
+      }
     }
   }
 }
 
-ReceiveStatus SocketCanBus::read_one(ReceivedFrame& out) noexcept {
+ReceiveStatus SocketCanBus::do_receive_backstop(ReceivedFrame& out, std::chrono::nanoseconds timeout) noexcept {
+  if (!fd_.valid()) {
+    bump(counters_.interface_down_events);
+    return ReceiveStatus::kInterfaceDown;
+  }
+  if (timeout.count() <= 0) {
+    return do_receive(out, timeout);
+  }
+  if (timeout.count() != receive_timeout_ns_) {
+    // The kernel rounds the timeout up to its tick (jiffies). Set only when it changes: a
+    // caller that waits the same backstop every period pays one blocking read per frame.
+    const timeval tv{timeout.count() / 1'000'000'000, (timeout.count() % 1'000'000'000 + 999) / 1000};
+    if (::setsockopt(fd_.get(), SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof tv) != 0) {
+      last_errno_ = errno;
+      bump(counters_.rx_errors);
+      return ReceiveStatus::kError;
+    }
+    receive_timeout_ns_ = timeout.count();
+  }
+  last_receive_waited_ = true;
+  return read_one(out, true);  // EAGAIN (the timeout) and EINTR (a signal) both read as a timeout
+}
+
+ReceiveStatus SocketCanBus::read_one(ReceivedFrame& out, bool block) noexcept {
   std::array<std::uint8_t, CANFD_MTU> buffer{};
   iovec iov{buffer.data(), buffer.size()};
   // Room for SO_TIMESTAMPING (3 timespecs) and SO_RXQ_OVFL (a u32), as candump sizes it.
@@ -457,12 +496,12 @@ ReceiveStatus SocketCanBus::read_one(ReceivedFrame& out) noexcept {
 
   ssize_t n = -1;
   do {
-    n = ::recvmsg(fd_.get(), &msg, MSG_DONTWAIT);
-  } while (n < 0 && errno == EINTR);
+    n = ::recvmsg(fd_.get(), &msg, block ? 0 : MSG_DONTWAIT);
+  } while (n < 0 && errno == EINTR && !block);
   if (n < 0) {
     const int e = errno;
-    if (e == EAGAIN) {
-      return ReceiveStatus::kTimeout;  // nothing queued
+    if (e == EAGAIN || e == EINTR) {
+      return ReceiveStatus::kTimeout;  // nothing queued (or, blocking, the wait ended without a frame)
     }
     last_errno_ = e;
     if (is_interface_gone(e)) {

@@ -125,6 +125,14 @@ class CanBus {
     return do_receive(out, timeout);
   }
 
+  // As receive(), for a wait whose length is only a backstop (a lockstep re-send after tens of
+  // milliseconds, not a deadline): the backend may round `timeout` up to its clock tick, and a
+  // signal may end the wait early as a timeout, in exchange for a cheaper wait (SocketCanBus:
+  // one blocking read with SO_RCVTIMEO, where receive() polls and then reads). `timeout` > 0.
+  ReceiveStatus receive_backstop(ReceivedFrame& out, std::chrono::nanoseconds timeout) noexcept {
+    return do_receive_backstop(out, timeout);
+  }
+
   // Replaces the kernel receive filters (CAN_RAW_FILTER). Not for the hot path.
   virtual Status set_filters(std::span<const CanFilter> filters) = 0;
   // Selects which error-frame classes (CanErrorClass bits) reach receive() (CAN_RAW_ERR_FILTER).
@@ -144,6 +152,9 @@ class CanBus {
  protected:
   virtual SendResult do_send(const CanFrame& frame, std::chrono::nanoseconds max_wait) noexcept = 0;
   virtual ReceiveStatus do_receive(ReceivedFrame& out, std::chrono::nanoseconds timeout) noexcept = 0;
+  virtual ReceiveStatus do_receive_backstop(ReceivedFrame& out, std::chrono::nanoseconds timeout) noexcept {
+    return do_receive(out, timeout);
+  }
 };
 
 // Checks a frame against CAN / CAN FD limits (identifier range, length, FD lengths, no

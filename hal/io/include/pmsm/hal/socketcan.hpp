@@ -69,6 +69,7 @@ class SocketCanBus final : public CanBus {
  protected:
   SendResult do_send(const CanFrame& frame, std::chrono::nanoseconds max_wait) noexcept override;
   ReceiveStatus do_receive(ReceivedFrame& out, std::chrono::nanoseconds timeout) noexcept override;
+  ReceiveStatus do_receive_backstop(ReceivedFrame& out, std::chrono::nanoseconds timeout) noexcept override;
 
  private:
   struct AtomicCounters {
@@ -88,13 +89,15 @@ class SocketCanBus final : public CanBus {
   Status open_socket();
   Status apply_filters();
   Status apply_error_mask();
-  ReceiveStatus read_one(ReceivedFrame& out) noexcept;
+  ReceiveStatus read_one(ReceivedFrame& out, bool block = false) noexcept;
 
   SocketCanConfig config_;
   UniqueFd fd_;
   int ifindex_ = 0;
   int last_errno_ = 0;
   std::uint32_t last_drop_count_ = 0;  // SO_RXQ_OVFL's running count on this socket
+  bool last_receive_waited_ = false;   // the previous receive() found no frame queued
+  std::int64_t receive_timeout_ns_ = 0; // SO_RCVTIMEO as last set (0: none, reads block)
   std::atomic<CanBusState> state_{CanBusState::kErrorActive};
   AtomicCounters counters_;
 };
