@@ -8,6 +8,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <string>
 
 #include <unistd.h>
 
@@ -149,6 +150,69 @@ TEST(EstimatorClosedLoop, SameSeedSameResult) {
   EXPECT_EQ(a.calibration.rs0_ohm, b.calibration.rs0_ohm);
   ASSERT_FALSE(a.series.empty());
   EXPECT_EQ(a.series.back().winding_est_C, b.series.back().winding_est_C);
+}
+
+// Peak resident memory of this process (VmHWM), in kiB.
+long peak_rss_kib() {
+  std::ifstream status("/proc/self/status");
+  std::string line;
+  while (std::getline(status, line)) {
+    if (line.rfind("VmHWM:", 0) == 0) {
+      return std::stol(line.substr(6));
+    }
+  }
+  return -1;
+}
+
+// The figures are computed as the run goes: a run without a CSV, a plot or --events keeps
+// nothing per row, so its memory does not grow with the simulated time. (Before, every run kept
+// a 1 kHz record of itself and of its twin for the disturbance figures, and the series: about
+// 0.06 MiB per simulated second, 3 MiB for the longer run below.)
+TEST(SimulateMemory, PeakDoesNotGrowWithTheSimulatedTime) {
+#if defined(__SANITIZE_ADDRESS__)
+  GTEST_SKIP() << "AddressSanitizer's quarantine holds freed memory: resident size is not the program's";
+#endif
+  Scenario s = load_scenario(kData / "heatup-short.toml");
+  RunOptions o;
+  o.keep_series = false;
+  o.keep_estimates = false;
+  s.scenario.duration_s = 10.0;
+  const SimulationResult short_run = run_scenario(s, o);
+  const long after_short = peak_rss_kib();
+  s.scenario.duration_s = 60.0;
+  const SimulationResult long_run = run_scenario(s, o);
+  const long after_long = peak_rss_kib();
+  ASSERT_GT(after_short, 0) << "no VmHWM in /proc/self/status";
+  ASSERT_TRUE(long_run.disturbance_measured);
+  EXPECT_GT(long_run.speed_disturbance_pct, 0.0);
+  EXPECT_TRUE(long_run.series.empty());
+  EXPECT_TRUE(long_run.estimates.empty());
+  EXPECT_GT(long_run.estimates_published(), short_run.estimates_published());
+  EXPECT_LT(after_long - after_short, 1024) << "peak resident memory grew by " << (after_long - after_short)
+                                             << " kiB for 50 s more of simulated time";
+}
+
+// What is kept for the outputs does not change a figure.
+TEST(SimulateMemory, FiguresDoNotDependOnWhatIsKept) {
+  Scenario s = load_scenario(kData / "heatup-short.toml");
+  s.scenario.duration_s = 12.0;
+  RunOptions lean;
+  lean.keep_series = false;
+  lean.keep_estimates = false;
+  const SimulationResult a = run_scenario(s, RunOptions{});
+  const SimulationResult b = run_scenario(s, lean);
+  ASSERT_TRUE(a.disturbance_measured);
+  ASSERT_FALSE(a.series.empty());
+  ASSERT_EQ(a.estimates.size(), a.estimates_published());
+  EXPECT_EQ(a.winding_error_rms_C, b.winding_error_rms_C);
+  EXPECT_EQ(a.rs_error_rms_mohm, b.rs_error_rms_mohm);
+  EXPECT_EQ(a.estimates_published(), b.estimates_published());
+  EXPECT_EQ(a.speed_disturbance_pct, b.speed_disturbance_pct);
+  EXPECT_EQ(a.torque_disturbance_pct, b.torque_disturbance_pct);
+  EXPECT_EQ(a.speed_difference_outside_pct, b.speed_difference_outside_pct);
+  // The largest speed disturbance happens inside the run, after the calibration.
+  EXPECT_GT(a.speed_disturbance_at_s, a.calibration_time_s);
+  EXPECT_LT(a.speed_disturbance_at_s, s.scenario.duration_s);
 }
 
 TEST(SimulateCli, JsonFiguresCsvAndPlot) {

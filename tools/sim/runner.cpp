@@ -10,9 +10,13 @@
 #include <cstdio>
 #include <exception>
 #include <fstream>
-#include <thread>
+#include <condition_variable>
+#include <deque>
+#include <functional>
 #include <limits>
+#include <mutex>
 #include <stdexcept>
+#include <thread>
 
 #include <fmt/format.h>
 
@@ -54,78 +58,209 @@ struct Disturbance {
   std::size_t during_row = 0;   // where the largest difference during injection occurred
 };
 
-// Where the twin run (no injection) is in steady operation: its speed within
-// `tolerance` of its own centred moving average. The scenario's own load and speed steps
-// are transients in both runs, and a millisecond's shift of such a transient would pose as
-// a disturbance; they are left out.
-std::vector<bool> steady_rows(const std::vector<FastRow>& twin, std::size_t half_window, double tolerance,
-                              double speed_floor) {
-  std::vector<bool> steady(twin.size(), false);
-  if (twin.size() < 2 * half_window + 1) {
-    return steady;
-  }
-  double sum = 0.0;
-  for (std::size_t k = 0; k < 2 * half_window + 1; ++k) {
-    sum += twin[k].speed_rad_s;
-  }
-  const double n = static_cast<double>(2 * half_window + 1);
-  for (std::size_t k = half_window; k + half_window + 1 < twin.size(); ++k) {
-    const double mean = sum / n;
-    steady[k] = std::abs(twin[k].speed_rad_s - mean) <= tolerance * std::max(std::abs(mean), speed_floor);
-    sum += twin[k + half_window + 1].speed_rad_s - twin[k - half_window].speed_rad_s;
-  }
-  // A window is steady only if it is steady throughout.
-  std::vector<bool> out(steady.size(), false);
-  for (std::size_t k = 0; k < steady.size(); ++k) {
-    bool all = true;
-    for (std::size_t j = k >= half_window ? k - half_window : 0; j <= std::min(k + half_window, steady.size() - 1); ++j) {
-      all = all && steady[j];
+// Replaces each row's torque with its trailing moving average over the last `kWindow` rows.
+class TorqueSmoother {
+ public:
+  double next(double torque_Nm) noexcept {
+    const std::size_t slot = count_ % kWindow;
+    const double oldest = ring_[slot];
+    sum_ += torque_Nm;
+    if (count_ >= kWindow) {
+      sum_ -= oldest;
     }
-    out[k] = all;
+    ring_[slot] = torque_Nm;
+    ++count_;
+    return sum_ / static_cast<double>(std::min(count_, kWindow));
   }
-  return out;
-}
 
-// Largest difference between two runs of the same scenario, during injection (and `after`
-// rows past it) and outside, in steady operation.
-template <typename Value, typename Scale>
-Disturbance difference(const std::vector<FastRow>& run, const std::vector<FastRow>& twin, const std::vector<bool>& steady,
-                       std::size_t after, Value value, Scale scale) {
-  Disturbance d;
-  std::size_t since_injection = after + 1;
-  for (std::size_t k = 0; k < std::min(run.size(), twin.size()); ++k) {
-    since_injection = run[k].injection ? 0 : since_injection + 1;
-    if (!run[k].counted || !steady[k]) {
-      continue;
+ private:
+  static constexpr std::size_t kWindow = 10;  // 10 ms of 1 ms rows
+  std::array<double, kWindow> ring_{};
+  double sum_ = 0.0;
+  std::size_t count_ = 0;
+};
+
+// The disturbance figures, computed as the rows of the run and of its twin arrive, with
+// memory bounded by the windows (a few hundred rows), not by the run's length:
+// - torque is compared as a 10 ms trailing moving average: the EMF harmonics' torque ripple
+//   (hundreds of hertz) is in both runs, but at rotor angles that drift apart over a long run;
+// - a row counts only where the twin (no injection) runs steadily: every row within
+//   `half` rows of it has a speed within `tolerance` of its own centred moving average over
+//   2 half + 1 rows (the scenario's load and speed steps are transients in both runs, and a
+//   millisecond's shift of such a transient would pose as a disturbance); the first and the
+//   last rows, whose windows leave the run, are not steady;
+// - the largest difference during injection (and `after` rows past it) and outside.
+// Row k is judged once row k + 2 half + 1 has arrived.
+class DisturbanceMeter {
+ public:
+  DisturbanceMeter(std::size_t after, double rated_speed_rad_s, double rated_torque_Nm) noexcept
+      : half_(after / 2), after_(after), speed_floor_(0.1 * rated_speed_rad_s), rated_torque_Nm_(rated_torque_Nm) {}
+
+  void add(FastRow run, FastRow twin) {
+    run.torque_Nm = run_torque_.next(run.torque_Nm);
+    twin.torque_Nm = twin_torque_.next(twin.torque_Nm);
+    const std::size_t n = rows_seen_++;
+    rows_.push_back({run, twin});
+    const std::size_t width = 2 * half_ + 1;
+    if (n < width) {
+      speed_sum_ += twin.speed_rad_s;  // the first window: rows 0 .. 2 half
+      return;
     }
-    const double deviation = std::abs(value(run[k]) - value(twin[k])) / scale(value(twin[k]));
-    if (since_injection <= after) {
-      if (deviation > d.during) {
-        d.during = deviation;
-        d.during_row = k;
-      }
-    } else {
+    // Row j = n - half - 1 has its whole centred window (rows j - half .. j + half) summed.
+    const std::size_t j = n - half_ - 1;
+    const double mean = speed_sum_ / static_cast<double>(width);
+    const double speed_j = row(j).twin.speed_rad_s;
+    const bool steady_j = std::abs(speed_j - mean) <= kTolerance * std::max(std::abs(mean), speed_floor_);
+    speed_sum_ += twin.speed_rad_s - row(j - half_).twin.speed_rad_s;
+    steady_run_ = steady_j ? steady_run_ + 1 : 0;  // consecutive steady rows ending at j
+    // Row k = j - half: steady if rows max(0, k - half) .. k + half all are; rows before `half`
+    // never are (their window leaves the run).
+    const std::size_t k = j - half_;
+    const std::size_t first = k >= half_ ? k - half_ : 0;
+    judge(k, first >= half_ && steady_run_ >= j - first + 1);
+    while (rows_seen_ - rows_.size() < n - 2 * half_) {
+      rows_.pop_front();  // row n - 2 half is the oldest the next row needs
+    }
+  }
+
+  [[nodiscard]] const Disturbance& speed() const noexcept { return speed_; }
+  [[nodiscard]] const Disturbance& torque() const noexcept { return torque_; }
+
+ private:
+  static constexpr double kTolerance = 0.005;
+  struct Pair {
+    FastRow run;
+    FastRow twin;
+  };
+
+  [[nodiscard]] const Pair& row(std::size_t index) const { return rows_[index - (rows_seen_ - rows_.size())]; }
+
+  void judge(std::size_t k, bool steady) {
+    const Pair& p = row(k);
+    since_injection_ = p.run.injection ? 0 : since_injection_ + 1;
+    if (!p.run.counted || !steady) {
+      return;
+    }
+    const bool during = since_injection_ <= after_;
+    const double speed_scale = std::max(std::abs(p.twin.speed_rad_s), speed_floor_);
+    record(speed_, during, k, std::abs(p.run.speed_rad_s - p.twin.speed_rad_s) / speed_scale);
+    record(torque_, during, k, std::abs(p.run.torque_Nm - p.twin.torque_Nm) / rated_torque_Nm_);
+  }
+
+  static void record(Disturbance& d, bool during, std::size_t k, double deviation) noexcept {
+    if (!during) {
       d.outside = std::max(d.outside, deviation);
+    } else if (deviation > d.during) {
+      d.during = deviation;
+      d.during_row = k;
     }
   }
-  return d;
-}
 
-// Replaces each row's torque with its trailing moving average over `rows` rows.
-void smooth_torque(std::vector<FastRow>& rows, std::size_t window) {
-  double sum = 0.0;
-  std::vector<double> original(rows.size());
-  for (std::size_t k = 0; k < rows.size(); ++k) {
-    original[k] = rows[k].torque_Nm;
-    sum += original[k];
-    if (k >= window) {
-      sum -= original[k - window];
+  std::size_t half_;
+  std::size_t after_;
+  double speed_floor_;
+  double rated_torque_Nm_;
+  TorqueSmoother run_torque_;
+  TorqueSmoother twin_torque_;
+  std::deque<Pair> rows_;
+  std::size_t rows_seen_ = 0;
+  double speed_sum_ = 0.0;
+  std::size_t steady_run_ = 0;
+  std::size_t since_injection_ = 0;
+  Disturbance speed_;
+  Disturbance torque_;
+};
+
+// The twin's rows on their way to the run's thread, in chunks, with bounded memory: the
+// producer waits while the channel is full, the consumer while it is empty. abandon() lets a
+// producer finish without a consumer (the run failed).
+class FastRowChannel {
+ public:
+  static constexpr std::size_t kChunk = 1024;
+  static constexpr std::size_t kMaxChunks = 8;  // at most 8 s of the twin ahead: 200 kB
+
+  void push(const FastRow& row) {
+    chunk_.push_back(row);
+    if (chunk_.size() == kChunk) {
+      flush();
     }
-    rows[k].torque_Nm = sum / static_cast<double>(std::min(k + 1, window));
   }
-}
+  // The producer is done (also after an exception): flushes and wakes the consumer.
+  void close() {
+    flush();
+    const std::lock_guard lock(mutex_);
+    closed_ = true;
+    changed_.notify_all();
+  }
+  void abandon() {
+    const std::lock_guard lock(mutex_);
+    abandoned_ = true;
+    chunks_.clear();
+    changed_.notify_all();
+  }
+  // The next chunk, waiting for it; empty once the producer closed and everything was taken.
+  std::vector<FastRow> pop() {
+    std::unique_lock lock(mutex_);
+    changed_.wait(lock, [&] { return !chunks_.empty() || closed_; });
+    if (chunks_.empty()) {
+      return {};
+    }
+    std::vector<FastRow> chunk = std::move(chunks_.front());
+    chunks_.pop_front();
+    changed_.notify_all();
+    return chunk;
+  }
 
-SimulationResult run_once(const Scenario& scenario, const RunOptions& options, std::vector<FastRow>& fast,
+ private:
+  void flush() {
+    if (chunk_.empty()) {
+      return;
+    }
+    std::unique_lock lock(mutex_);
+    changed_.wait(lock, [&] { return chunks_.size() < kMaxChunks || abandoned_; });
+    if (!abandoned_) {
+      chunks_.push_back(std::move(chunk_));
+      changed_.notify_all();
+    }
+    chunk_ = {};
+    chunk_.reserve(kChunk);
+  }
+
+  std::vector<FastRow> chunk_;  // the producer's own
+  std::mutex mutex_;
+  std::condition_variable changed_;
+  std::deque<std::vector<FastRow>> chunks_;
+  bool closed_ = false;
+  bool abandoned_ = false;
+};
+
+// Pairs the run's rows (this thread) with the twin's (from the channel) and feeds the meter.
+class DisturbanceFeed {
+ public:
+  DisturbanceFeed(FastRowChannel& twin, DisturbanceMeter& meter) : twin_(twin), meter_(meter) {}
+  void operator()(const FastRow& run) {
+    if (next_ == twin_rows_.size()) {
+      twin_rows_ = twin_.pop();
+      next_ = 0;
+      if (twin_rows_.empty()) {
+        return;  // the twin ended early (its error is reported): nothing to compare
+      }
+    }
+    meter_.add(run, twin_rows_[next_++]);
+  }
+
+ private:
+  FastRowChannel& twin_;
+  DisturbanceMeter& meter_;
+  std::vector<FastRow> twin_rows_;
+  std::size_t next_ = 0;
+};
+
+using FastRowSink = std::function<void(const FastRow&)>;
+
+// One closed-loop run. `fast` (optional) receives a row every millisecond for the
+// disturbance figures.
+SimulationResult run_once(const Scenario& scenario, const RunOptions& options, const FastRowSink& fast,
                           bool store_calibration) {
   const ScenarioConfig& sc = scenario.scenario;
   SimulationResult result;
@@ -142,9 +277,9 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, s
   const auto periods = static_cast<std::uint64_t>(std::llround(sc.duration_s / ts));
   const auto log_every = std::max<std::uint64_t>(1, static_cast<std::uint64_t>(std::llround(sc.log_period_s / ts)));
 
-  fast.clear();
-  fast.reserve(periods / kFastEvery + 1);
-  result.series.reserve(periods / log_every + 1);
+  if (options.keep_series) {
+    result.series.reserve(periods / log_every + 1);
+  }
 
   bool calibration_started = false;
   bool real_time_calibration = false;
@@ -220,8 +355,6 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, s
     if (drive.last_pair()) {
       const core::PairResult& p = *drive.last_pair();
       ++result.pairs[static_cast<std::size_t>(p.outcome)];
-      result.pair_log.push_back({t, p.level_index, p.outcome, p.f_A, p.rs_ohm, p.residual_rms_V,
-                                 p.delta_omega_e_rad_s, p.delta_iq_A});
     }
     if (drive.last_event() && drive.last_event()->outcome != core::EventOutcome::kPublished) {
       ++result.events_without_estimate[static_cast<std::size_t>(drive.last_event()->outcome)];
@@ -249,7 +382,9 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, s
       row.speed_rad_s = truth.omega_m_rad_s;
       row.iq_A = tel.i_A.q;
       row.fused = e.fused;
-      result.estimates.push_back(row);
+      if (options.keep_estimates) {
+        result.estimates.push_back(row);
+      }
       (e.fused ? result.estimates_accepted : result.estimates_gated) += 1;
       sq_rs += std::pow(e.rs_ohm - truth.rs_ohm, 2);
     }
@@ -263,7 +398,9 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, s
     fast_torque_sum += truth.torque_em_Nm;
     if (fast_now) {
       const bool counted = metrics_from_s >= 0.0 && t >= metrics_from_s;
-      fast.push_back({fast_speed_sum / kFastEvery, fast_torque_sum / kFastEvery, fast_injection, counted});
+      if (fast) {
+        fast({fast_speed_sum / kFastEvery, fast_torque_sum / kFastEvery, fast_injection, counted});
+      }
       fast_injection = false;
       fast_speed_sum = 0.0;
       fast_torque_sum = 0.0;
@@ -314,7 +451,9 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, s
         }
       }
       result.max_winding_true_C = std::max(result.max_winding_true_C, truth.winding_temp_C);
-      result.series.push_back(row);
+      if (options.keep_series) {
+        result.series.push_back(row);
+      }
     }
 
     plant.step(*step.command);
@@ -344,8 +483,8 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, s
   if (result.magnet_error_samples > 0) {
     result.magnet_error_rms_C = std::sqrt(sq_magnet / static_cast<double>(result.magnet_error_samples));
   }
-  if (!result.estimates.empty()) {
-    result.rs_error_rms_mohm = 1e3 * std::sqrt(sq_rs / static_cast<double>(result.estimates.size()));
+  if (result.estimates_published() > 0) {
+    result.rs_error_rms_mohm = 1e3 * std::sqrt(sq_rs / static_cast<double>(result.estimates_published()));
   }
   result.injection_loss_W = result.sim_time_s > 0.0 ? injection_energy_J / result.sim_time_s : 0.0;
   result.injection_duty = periods > 0 ? static_cast<double>(injection_periods) / static_cast<double>(periods) : 0.0;
@@ -378,24 +517,32 @@ SimulationResult run_scenario(const Scenario& given, const RunOptions& options) 
   twin.controller.drive.derating.limit_C = 1e6 + 1.0;
   RunOptions twin_options = options;
   twin_options.progress = false;
-  std::vector<FastRow> twin_fast;
+  twin_options.keep_series = false;
+  twin_options.keep_estimates = false;
+  twin_options.log_events = false;
+  const ScenarioConfig& sc = scenario.scenario;
+  const auto after = static_cast<std::size_t>(std::llround(sc.disturbance_window_s / (d.period_s * kFastEvery)));
+  DisturbanceMeter meter(after, d.motor.rated_speed_rad_s, sc.rated_torque_Nm);
+  FastRowChannel twin_rows;
   double twin_wall_s = 0.0;
   std::exception_ptr twin_error;
   std::thread twin_thread;
   if (with_twin) {
     twin_thread = std::thread([&] {
       try {
-        twin_wall_s = run_once(twin, twin_options, twin_fast, false).wall_time_s;
+        twin_wall_s = run_once(twin, twin_options, [&](const FastRow& row) { twin_rows.push(row); }, false).wall_time_s;
       } catch (...) {
         twin_error = std::current_exception();
       }
+      twin_rows.close();
     });
   }
-  std::vector<FastRow> fast;
+  DisturbanceFeed feed(twin_rows, meter);
   SimulationResult result;
   try {
-    result = run_once(scenario, options, fast, true);
+    result = run_once(scenario, options, with_twin ? FastRowSink{std::ref(feed)} : FastRowSink{}, true);
   } catch (...) {
+    twin_rows.abandon();
     if (twin_thread.joinable()) twin_thread.join();
     throw;
   }
@@ -410,24 +557,12 @@ SimulationResult run_scenario(const Scenario& given, const RunOptions& options) 
     return result;
   }
   result.twin_wall_time_s = twin_wall_s;
-
-  const ScenarioConfig& sc = scenario.scenario;
-  const double rated_speed = d.motor.rated_speed_rad_s;
-  const auto after = static_cast<std::size_t>(std::llround(sc.disturbance_window_s / (scenario.controller.drive.period_s * kFastEvery)));
-  const std::vector<bool> steady = steady_rows(twin_fast, after / 2, 0.005, 0.1 * rated_speed);
-  // Torque is compared as a 10 ms moving average: the EMF harmonics' torque ripple (hundreds
-  // of hertz) is in both runs, but at rotor angles that drift apart over a long run.
-  smooth_torque(fast, 10);
-  smooth_torque(twin_fast, 10);
-  const Disturbance speed = difference(
-      fast, twin_fast, steady, after, [](const FastRow& r) { return r.speed_rad_s; },
-      [&](double reference) { return std::max(std::abs(reference), 0.1 * rated_speed); });
-  const Disturbance torque = difference(
-      fast, twin_fast, steady, after, [](const FastRow& r) { return r.torque_Nm; }, [&](double) { return sc.rated_torque_Nm; });
+  const Disturbance& speed = meter.speed();
+  const Disturbance& torque = meter.torque();
   result.disturbance_measured = true;
   result.speed_disturbance_pct = 100.0 * speed.during;
-  result.speed_disturbance_at_s = static_cast<double>(speed.during_row * kFastEvery) * scenario.controller.drive.period_s;
-  result.torque_disturbance_at_s = static_cast<double>(torque.during_row * kFastEvery) * scenario.controller.drive.period_s;
+  result.speed_disturbance_at_s = static_cast<double>(speed.during_row * kFastEvery) * d.period_s;
+  result.torque_disturbance_at_s = static_cast<double>(torque.during_row * kFastEvery) * d.period_s;
   result.speed_difference_outside_pct = 100.0 * speed.outside;
   result.torque_disturbance_pct = 100.0 * torque.during;
   result.torque_difference_outside_pct = 100.0 * torque.outside;
@@ -446,7 +581,7 @@ std::string result_json(const SimulationResult& r) {
       .field("winding_error_mean_C", r.winding_error_samples > 0 ? r.winding_error_mean_C : kNan)
       .field("winding_error_samples", static_cast<std::uint64_t>(r.winding_error_samples))
       .field("coverage_2sigma", r.winding_error_samples > 0 ? r.coverage_2sigma : kNan)
-      .field("rs_error_rms_mohm", r.estimates.empty() ? kNan : r.rs_error_rms_mohm)
+      .field("rs_error_rms_mohm", r.estimates_published() == 0 ? kNan : r.rs_error_rms_mohm)
       .field("magnet_error_rms_C", r.magnet_error_samples > 0 ? r.magnet_error_rms_C : kNan)
       .field("estimates_accepted", static_cast<std::uint64_t>(r.estimates_accepted))
       .field("estimates_gated", static_cast<std::uint64_t>(r.estimates_gated));
@@ -520,7 +655,7 @@ std::string result_text(const SimulationResult& r) {
     out += "  winding error                   no samples above the threshold after calibration\n";
   }
   out += fmt::format("  true winding reached            {:.1f} C\n", r.max_winding_true_C);
-  if (!r.estimates.empty()) {
+  if (r.estimates_published() > 0) {
     out += fmt::format("  Rs error (published estimates)  RMS {:.2f} mOhm\n", r.rs_error_rms_mohm);
   }
   if (r.magnet_error_samples > 0) {

@@ -18,6 +18,12 @@ struct RunOptions {
   // injection (same seed, same cycle): the difference is what the injection caused.
   bool twin_for_disturbance = true;
   bool log_events = false;          // keep a line per event that published nothing
+  // Keep the time series (SimulationResult::series, for a CSV or a plot) and the published
+  // estimates (estimates: --events, plots). The figures do not need them: they are computed as
+  // the run goes, so that a long run without these outputs takes memory bounded by the
+  // scenario, not by its duration.
+  bool keep_series = true;
+  bool keep_estimates = true;
 };
 
 // One row of the time series, every log_period_s.
@@ -64,17 +70,6 @@ struct EstimateRow {
   bool fused = false;
 };
 
-struct PairRow {
-  double time_s = 0.0;
-  int level = 0;
-  core::PairOutcome outcome = core::PairOutcome::kAborted;
-  double f_A = 0.0;
-  double rs_ohm = 0.0;
-  double residual_V = 0.0;
-  double delta_omega_e_rad_s = 0.0;
-  double delta_iq_A = 0.0;
-};
-
 struct SimulationResult {
   std::string scenario;
   std::string method;               // e.g. "fixed-magnitude bipolar", "no-injection", "none"
@@ -92,6 +87,7 @@ struct SimulationResult {
   std::size_t magnet_error_samples = 0;
   std::size_t estimates_accepted = 0;   // fused by the thermal filter
   std::size_t estimates_gated = 0;      // published but gated out as implausible
+  [[nodiscard]] std::size_t estimates_published() const noexcept { return estimates_accepted + estimates_gated; }
   core::OutcomeCounts pairs{};          // every pair's outcome
   // Disturbance: the largest difference from the twin run without injection, during an
   // injection event and the disturbance window after it (speed relative to the speed, at
@@ -130,7 +126,6 @@ struct SimulationResult {
   double twin_wall_time_s = 0.0;  // the twin's own wall time, on a second thread beside the run (0 without a twin)
   std::vector<SeriesRow> series;
   std::vector<EstimateRow> estimates;
-  std::vector<PairRow> pair_log;
   std::array<std::uint32_t, 5> events_without_estimate{};  // by EventOutcome
   std::vector<std::string> event_log;
 };
