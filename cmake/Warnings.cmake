@@ -5,21 +5,20 @@ set(PMSM_WARNINGS
   -Wdouble-promotion -Wformat=2 -Wimplicit-fallthrough -Wmisleading-indentation
   -Wduplicated-cond -Wduplicated-branches -Wlogical-op -Wuseless-cast)
 if(CMAKE_CXX_COMPILER_ID MATCHES "Clang")
-  # GCC's only; clang (the fuzz preset) has no such warnings.
+  # GCC's only; clang (the asan preset) has no such warnings.
   list(REMOVE_ITEM PMSM_WARNINGS -Wduplicated-cond -Wduplicated-branches -Wlogical-op -Wuseless-cast)
 endif()
 
 if(PMSM_FUZZ)
   if(NOT CMAKE_CXX_COMPILER_ID MATCHES "Clang")
-    message(FATAL_ERROR "PMSM_FUZZ needs clang (libFuzzer): use the fuzz preset (clang++-14, libclang-rt-14-dev)")
+    message(FATAL_ERROR "PMSM_FUZZ needs clang (libFuzzer): use the asan preset (clang++-14, libclang-rt-14-dev)")
   endif()
   # Every library the fuzzers link is instrumented for coverage and checked by ASan + UBSan;
-  # only the fuzz targets link libFuzzer's main (tests/fuzz/CMakeLists.txt).
+  # only the fuzz targets link libFuzzer's main (tests/fuzz/CMakeLists.txt). The tests of the
+  # same build carry the coverage hooks unused (the sanitizer runtime's defaults).
   add_compile_options(-fsanitize=fuzzer-no-link,address,undefined -fno-sanitize-recover=all -fno-omit-frame-pointer)
   add_link_options(-fsanitize=address,undefined)
-endif()
-
-if(PMSM_SANITIZE)
+elseif(PMSM_SANITIZE)
   add_compile_options(-fsanitize=address,undefined -fno-omit-frame-pointer -fno-sanitize-recover=all)
   add_link_options(-fsanitize=address,undefined)
 endif()

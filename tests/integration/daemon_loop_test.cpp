@@ -184,21 +184,35 @@ const T* as(const protocol::AnyDecoded& d) {
 }
 
 // Runs the bench until `done` or the wall-clock limit, sending a DRIVE_COMMAND to each node
-// every 50 ms; every decoded frame goes to `seen`.
+// every 50 ms; every decoded frame goes to `seen`. The commands go out from a thread of their
+// own: decoding and storing every frame of a lockstep run can stall this thread for seconds on
+// a loaded or sanitized build, and a drive that hears no command for its timeout goes to its
+// safe state.
 template <typename Done>
 void supervise(Bench& bench, const std::vector<protocol::NodeId>& nodes, double speed, std::chrono::seconds limit,
                std::vector<protocol::AnyDecoded>& seen, Done done, bool send_commands = true) {
   const auto until = std::chrono::steady_clock::now() + limit;
-  while (std::chrono::steady_clock::now() < until && !done()) {
-    if (send_commands) {
-      for (const protocol::NodeId n : nodes) {
-        bench.run_speed(n, speed);
+  std::atomic<bool> stop{false};
+  std::thread commands;
+  if (send_commands) {
+    commands = std::thread([&] {
+      while (!stop.load()) {
+        for (const protocol::NodeId n : nodes) {
+          bench.run_speed(n, speed);
+        }
+        std::this_thread::sleep_for(50ms);
       }
-    }
+    });
+  }
+  while (std::chrono::steady_clock::now() < until && !done()) {
     for (protocol::AnyDecoded& d : bench.drain()) {
       seen.push_back(std::move(d));
     }
     std::this_thread::sleep_for(50ms);
+  }
+  stop = true;
+  if (commands.joinable()) {
+    commands.join();
   }
   for (protocol::AnyDecoded& d : bench.drain()) {
     seen.push_back(std::move(d));

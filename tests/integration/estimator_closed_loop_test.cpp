@@ -171,6 +171,10 @@ long peak_rss_kib() {
 TEST(SimulateMemory, PeakDoesNotGrowWithTheSimulatedTime) {
 #if defined(__SANITIZE_ADDRESS__)
   GTEST_SKIP() << "AddressSanitizer's quarantine holds freed memory: resident size is not the program's";
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer)
+  GTEST_SKIP() << "AddressSanitizer's quarantine holds freed memory: resident size is not the program's";
+#endif
 #endif
   Scenario s = load_scenario(kData / "heatup-short.toml");
   RunOptions o;
