@@ -144,8 +144,9 @@ ConfigSchema<C> build() {
            at_least(0, 10000), "Nm", "Budget for the reluctance torque of an injection on a salient machine (0: none).");
   inj.real("injection.max_speed_change_fraction", [](C& c) -> double& { return c.drive.injection.max_speed_change_fraction; },
            between(0, 1), "", "Reject a pair whose recordings differ in speed by more than this fraction...");
-  inj.real("injection.max_speed_change_rad_s", [](C& c) -> double& { return c.drive.injection.max_speed_change_rad_s; },
-           at_least(0), "rad/s", "... or by more than this (electrical), whichever is larger.");
+  inj.optional_real("injection.max_speed_change_rad_s", [](C& c) -> std::optional<double>& { return c.relative.max_speed_change_rad_s; },
+                    at_least(0), "rad/s", "0.124 Rs/Lq",
+                    "... or by more than this (electrical), whichever is larger (Table I: 3 rad/s).");
   inj.optional_real("injection.max_load_change_A", [](C& c) -> std::optional<double>& { return c.relative.max_load_change_A; },
                     at_least(0), "A", "0.0332 I_rated",
                     "Reject a pair whose recordings differ in motoring iq by more than this (Table I: 1.5 A).");
@@ -277,6 +278,7 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
   d.injection.rs_min_ohm = c.relative.rs_min_ohm.value_or(relative.rs_min_ohm);
   d.injection.rs_max_ohm = c.relative.rs_max_ohm.value_or(relative.rs_max_ohm);
   d.injection.max_load_change_A = c.relative.max_load_change_A.value_or(relative.max_load_change_A);
+  d.injection.max_speed_change_rad_s = c.relative.max_speed_change_rad_s.value_or(relative.max_speed_change_rad_s);
   c.calibration_f_A = c.relative.calibration_f_A.value_or(relative.calibration_f_A);
   // Injection shares the drive's current budget with motoring (the derated limit at run time).
   d.injection.current_limit_A = d.derating.max_current_A;

@@ -43,6 +43,7 @@ struct MotorRelativeKeys {
   std::optional<double> rs_max_ohm;
   std::optional<double> max_load_change_A;
   std::optional<double> calibration_f_A;
+  std::optional<double> max_speed_change_rad_s;
 };
 
 struct ControllerConfig {

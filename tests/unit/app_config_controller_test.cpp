@@ -243,6 +243,7 @@ TEST(ControllerConfig, MotorRelativeDefaultsAreTableIAtTableI) {
   EXPECT_EQ(d.injection.rs_min_ohm, 0.09);
   EXPECT_EQ(d.injection.rs_max_ohm, 0.27);
   EXPECT_EQ(d.injection.max_load_change_A, 1.5);
+  EXPECT_EQ(d.injection.max_speed_change_rad_s, 3.0);
   EXPECT_EQ(d.injection.f_A, 35.0);
   EXPECT_EQ(d.injection.f_min_A, 5.0);
   EXPECT_EQ(c.calibration_f_A, 50.0);
@@ -282,6 +283,8 @@ min_current_A = 2.0
   EXPECT_NEAR(d.injection.f_min_A, rated_A * 5.0 / (31.9 * std::sqrt(2.0)), 1e-12);  // 0.63 A
   EXPECT_NEAR(d.injection.max_load_change_A, rated_A * 1.5 / (31.9 * std::sqrt(2.0)), 1e-12);  // 0.19 A
   EXPECT_NEAR(c.calibration_f_A, rated_A * 50.0 / (31.9 * std::sqrt(2.0)), 1e-12);  // 6.27 A
+  // The speed-change guard in proportion to Rs / Lq: 133 /s against Table I's 24.2 /s.
+  EXPECT_NEAR(d.injection.max_speed_change_rad_s, 3.0 * (1.6 / 12e-3) / (0.133 / 5.5e-3), 1e-12);  // 16.5 rad/s
   EXPECT_LT(d.injection.f_A, rated_A);
   EXPECT_LT(c.calibration_f_A, d.derating.max_current_A);
   // Every component's copy of the motor model is the servo's.

@@ -73,9 +73,18 @@ struct MotorRelativeDefaults {
   double injection_f_A;      // injection magnitude F: 35 A / 45.1 A = 0.776 I_rated
   double injection_f_min_A;  // smallest F worth a pair: 5 A / 45.1 A = 0.111 I_rated
   double calibration_f_A;    // calibration magnitude at no load: 50 A / 45.1 A = 1.11 I_rated
+  // Speed-change guard (electrical rad/s): 3 rad/s at Table I's Rs / Lq = 24.2 /s, in
+  // proportion to the motor's Rs / Lq. The d-axis fit carries the speed through Lq d(w iq)
+  // (Eq. 37); what a speed change can bias is an error of that Lq times iq times the change,
+  // against the pair's resistive signal Rs dId. With iq and F both in proportion to the rated
+  // current, the change a given relative error allows goes as Rs / Lq: a 1.6 ohm, 6.8 mH servo
+  // allows ten times Table I's (29 rad/s), where 3 rad/s rejected the pairs whose speed moved
+  // with the injection's own reluctance torque, a change the fit models.
+  double max_speed_change_rad_s;
 };
 
 inline constexpr double kTableIRs_ohm = 0.133;
+inline constexpr double kTableILq_H = 5.5e-3;
 inline constexpr double kTableIRatedCurrent_A = 31.9 * kSqrt2;  // Icont, peak
 
 [[nodiscard]] constexpr MotorRelativeDefaults motor_relative_defaults(const MotorParams& m) {
@@ -88,6 +97,8 @@ inline constexpr double kTableIRatedCurrent_A = 31.9 * kSqrt2;  // Icont, peak
       .injection_f_A = 35.0 / kTableIRatedCurrent_A * rated_A,
       .injection_f_min_A = 5.0 / kTableIRatedCurrent_A * rated_A,
       .calibration_f_A = 50.0 / kTableIRatedCurrent_A * rated_A,
+      // (x / x == 1 exactly: the Table I motor gets exactly 3.)
+      .max_speed_change_rad_s = 3.0 * ((rs / m.lq_H) / (kTableIRs_ohm / kTableILq_H)),
   };
 }
 
