@@ -249,7 +249,6 @@ int run(const Options& o) {
     return kExitBus;
   }
 
-  // Lockstep waits on the socket itself (fewer system calls per period; see PlantNodeOptions).
   std::optional<pmsm::plant::PlantNode> node;
   try {
     node.emplace(config, *bus, node_options);

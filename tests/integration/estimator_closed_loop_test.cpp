@@ -15,6 +15,7 @@
 #include "calibration_file.hpp"
 #include "run_process.hpp"
 #include "runner.hpp"
+#include "sanitizers.hpp"
 
 namespace pmsm::app {
 namespace {
@@ -169,13 +170,9 @@ long peak_rss_kib() {
 // a 1 kHz record of itself and of its twin for the disturbance figures, and the series: about
 // 0.06 MiB per simulated second, 3 MiB for the longer run below.)
 TEST(SimulateMemory, PeakDoesNotGrowWithTheSimulatedTime) {
-#if defined(__SANITIZE_ADDRESS__)
-  GTEST_SKIP() << "AddressSanitizer's quarantine holds freed memory: resident size is not the program's";
-#elif defined(__has_feature)
-#if __has_feature(address_sanitizer)
-  GTEST_SKIP() << "AddressSanitizer's quarantine holds freed memory: resident size is not the program's";
-#endif
-#endif
+  if (PMSM_TEST_ASAN) {
+    GTEST_SKIP() << "AddressSanitizer's quarantine holds freed memory: resident size is not the program's";
+  }
   Scenario s = load_scenario(kData / "heatup-short.toml");
   RunOptions o;
   o.keep_series = false;

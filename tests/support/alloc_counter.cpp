@@ -4,16 +4,9 @@
 #include <cerrno>
 #include <cstddef>
 
-#if defined(__SANITIZE_ADDRESS__)
-#define PMSM_ALLOC_COUNTER 0
-#elif defined(__has_feature)
-#if __has_feature(address_sanitizer)
-#define PMSM_ALLOC_COUNTER 0
-#endif
-#endif
-#ifndef PMSM_ALLOC_COUNTER
-#define PMSM_ALLOC_COUNTER 1
-#endif
+#include "sanitizers.hpp"
+
+#define PMSM_ALLOC_COUNTER (!PMSM_TEST_ASAN)
 
 namespace {
 thread_local long t_allocations = 0;  // trivial: no allocation to set it up

@@ -94,7 +94,11 @@ class TorqueSmoother {
 class DisturbanceMeter {
  public:
   DisturbanceMeter(std::size_t after, double rated_speed_rad_s, double rated_torque_Nm) noexcept
-      : half_(after / 2), after_(after), speed_floor_(0.1 * rated_speed_rad_s), rated_torque_Nm_(rated_torque_Nm) {}
+      : half_(after / 2),
+        after_(after),
+        speed_floor_(0.1 * rated_speed_rad_s),
+        rated_torque_Nm_(rated_torque_Nm),
+        since_injection_(after + 1) {}
 
   void add(FastRow run, FastRow twin) {
     run.torque_Nm = run_torque_.next(run.torque_Nm);
@@ -166,7 +170,7 @@ class DisturbanceMeter {
   std::size_t rows_seen_ = 0;
   double speed_sum_ = 0.0;
   std::size_t steady_run_ = 0;
-  std::size_t since_injection_ = 0;
+  std::size_t since_injection_;  // rows since the last injection row (none before the run)
   Disturbance speed_;
   Disturbance torque_;
 };
