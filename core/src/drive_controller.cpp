@@ -242,7 +242,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     have_previous_ = false;
     SchedulerInput s;
     s.time_s = now;
-    const SchedulerOutput so = scheduler_.step(s, nullptr);
+    const SchedulerOutput& so = scheduler_.step(s, nullptr);
     if (so.completed) {
       handle_pair(*so.completed);
     }
@@ -258,6 +258,12 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   const Rotation at_sample = rotation(theta);
   const Dq i = park(clarke(in.i_A), at_sample.c, at_sample.s);
 
+  // The smooth angle wrapped into a turn, carried along by its unwrapped advance: wrapping the
+  // unwrapped angle itself (it grows without bound) costs a division and a floor every period.
+  const double smooth_advance = have_previous_ ? theta_smooth - previous_theta_smooth_ : 0.0;
+  const double smooth_wrapped = have_previous_ ? wrap_angle_0_2pi(previous_smooth_wrapped_ + smooth_advance)
+                                               : wrap_angle_0_2pi(theta_smooth);
+
   // The period that just ended, [k-1, k]: its voltage was commanded two steps ago.
   std::optional<PeriodSample> sample;
   if (have_previous_) {
@@ -270,7 +276,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     s.di_dt_A_s = {(i.d - previous_i_A_.d) / config_.period_s, (i.q - previous_i_A_.q) / config_.period_s};
     s.v_V = v_applied_now_;
     s.dead_time_pattern = dead_time_pattern(previous_i_abc_A_, in.i_A, config_.dead_time.current_band_A,
-                                            wrap_angle_0_2pi(s.theta_e_rad));
+                                            wrap_angle_0_2pi(previous_smooth_wrapped_ + 0.5 * smooth_advance));
 
     s.voltage_limited = limited_now_;
     sample = s;
@@ -304,7 +310,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     scheduler_.set_config(config_.injection);
   }
   si.request_now = command.request_injection || (calibrating_ && enabled);
-  const SchedulerOutput so = scheduler_.step(si, sample ? &*sample : nullptr);
+  const SchedulerOutput& so = scheduler_.step(si, sample ? &*sample : nullptr);
   if (so.completed) {
     handle_pair(*so.completed);
   }
@@ -367,6 +373,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   previous_i_A_ = i;
   previous_i_abc_A_ = in.i_A;
   previous_theta_smooth_ = theta_smooth;
+  previous_smooth_wrapped_ = smooth_wrapped;
   have_previous_ = true;
 
   // Thermal model at its own rate.

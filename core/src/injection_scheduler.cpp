@@ -493,8 +493,14 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
   return e;
 }
 
-SchedulerOutput InjectionScheduler::step(const SchedulerInput& in, const PeriodSample* sample) {
-  SchedulerOutput out;
+const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const PeriodSample* sample) {
+  // The output lives in the scheduler and is cleared field by field: a fresh one each period
+  // zero-filled its 400 bytes (the two optionals' storage).
+  SchedulerOutput& out = out_;
+  out.injection_A = {};
+  out.active = false;
+  out.completed.reset();
+  out.estimate.reset();
   out.phase = phase_;
   if (config_.method == InjectionMethod::kNone) {
     phase_ = SchedulerPhase::kIdle;

@@ -6,7 +6,8 @@ namespace pmsm::core {
 namespace {
 
 Duties duties_from_phase_voltages(const std::array<double, 3>& v, double vdc_V) {
-  const auto [lo, hi] = std::minmax({v[0], v[1], v[2]});
+  const double lo = std::min(std::min(v[0], v[1]), v[2]);
+  const double hi = std::max(std::max(v[0], v[1]), v[2]);
   const double common_mode = -0.5 * (lo + hi);
   Duties out;
   for (std::size_t n = 0; n < 3; ++n) {
@@ -19,30 +20,9 @@ Duties duties_from_phase_voltages(const std::array<double, 3>& v, double vdc_V) 
 
 }  // namespace
 
-double soft_sign(double i_A, double current_band_A) {
-  if (current_band_A <= 0.0) {
-    return i_A > 0.0 ? 1.0 : (i_A < 0.0 ? -1.0 : 0.0);
-  }
-  return std::clamp(i_A / current_band_A, -1.0, 1.0);
-}
-
 Duties svpwm(const AlphaBeta& v_V, double vdc_V) {
   const Abc v = inverse_clarke(v_V);
   return duties_from_phase_voltages({v.a, v.b, v.c}, vdc_V);
-}
-
-double mean_soft_sign(double i0_A, double i1_A, double current_band_A) {
-  // Antiderivative of soft_sign: x^2 / 2b inside the band, |x| - b/2 outside (|x| for b = 0).
-  const double b = std::max(current_band_A, 0.0);
-  auto antiderivative = [b](double x) {
-    const double m = std::abs(x);
-    return m <= b && b > 0.0 ? x * x / (2.0 * b) : m - 0.5 * b;
-  };
-  const double span = i1_A - i0_A;
-  if (std::abs(span) < 1e-9) {
-    return soft_sign(0.5 * (i0_A + i1_A), b);
-  }
-  return (antiderivative(i1_A) - antiderivative(i0_A)) / span;
 }
 
 Abc dead_time_compensation_V(const Abc& i0_A, const Abc& i1_A, const DeadTimeCompensation& comp,

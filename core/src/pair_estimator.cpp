@@ -10,7 +10,7 @@ namespace {
 
 struct Interpolated {
   Dq i{};
-  Dq di_dt{};
+  double did_dt = 0.0;  // the fit needs only the d-axis rate
   Dq v{};
   Dq g{};
   double omega_e = 0.0;
@@ -28,16 +28,23 @@ struct Weights {
 };
 
 Weights lagrange_weights(const std::array<double, 4>& c, double x) {
+  // w_j = prod_{m != j} (x - c_m) / (c_j - c_m), written out: the six differences of the
+  // nodes once, four divisions (a loop with a skip test cost four times the instructions).
+  const double x0 = x - c[0];
+  const double x1 = x - c[1];
+  const double x2 = x - c[2];
+  const double x3 = x - c[3];
+  const double d01 = c[0] - c[1];
+  const double d02 = c[0] - c[2];
+  const double d03 = c[0] - c[3];
+  const double d12 = c[1] - c[2];
+  const double d13 = c[1] - c[3];
+  const double d23 = c[2] - c[3];
   Weights out;
-  for (std::size_t j = 0; j < 4; ++j) {
-    double w = 1.0;
-    for (std::size_t m = 0; m < 4; ++m) {
-      if (m != j) {
-        w *= (x - c[m]) / (c[j] - c[m]);
-      }
-    }
-    out.w[j] = w;
-  }
+  out.w[0] = (x1 * x2 * x3) / (d01 * d02 * d03);
+  out.w[1] = (x0 * x2 * x3) / (-d01 * d12 * d13);
+  out.w[2] = (x0 * x1 * x3) / (d02 * d12 * d23);
+  out.w[3] = (x0 * x1 * x2) / (-d03 * -d13 * -d23);
   return out;
 }
 
@@ -54,8 +61,7 @@ Interpolated interpolate(const std::array<const PeriodSample*, 4>& s, const Weig
   Interpolated r;
   r.i = {combine(s, w, [](const PeriodSample& p) { return p.i_A.d; }),
          combine(s, w, [](const PeriodSample& p) { return p.i_A.q; })};
-  r.di_dt = {combine(s, w, [](const PeriodSample& p) { return p.di_dt_A_s.d; }),
-             combine(s, w, [](const PeriodSample& p) { return p.di_dt_A_s.q; })};
+  r.did_dt = combine(s, w, [](const PeriodSample& p) { return p.di_dt_A_s.d; });
   r.v = {combine(s, w, [](const PeriodSample& p) { return p.v_V.d; }),
          combine(s, w, [](const PeriodSample& p) { return p.v_V.q; })};
   r.g = {combine(s, w, [](const PeriodSample& p) { return p.dead_time_pattern.d; }),
@@ -452,9 +458,9 @@ double PairRecorder::add_second(const PeriodSample& s) {
   // dVd + Lq d(w iq) = Rs dId + Vx dGd + Ld d(dId/dt).
   const double y = (r1.v.d - s.v_V.d) +
                    config_.lq_H * (r1.omega_e * r1.i.q - s.omega_e_rad_s * s.i_A.q) -
-                   config_.ld_H * (r1.di_dt.d - s.di_dt_A_s.d);
+                   config_.ld_H * (r1.did_dt - s.di_dt_A_s.d);
   const std::array<double, kRegressors + 1> raw{r1.i.d - s.i_A.d, r1.g.d - s.dead_time_pattern.d,
-                                                r1.di_dt.d - s.di_dt_A_s.d, y};
+                                                r1.did_dt - s.di_dt_A_s.d, y};
   // Moving average over the last filter_length matched samples (the same on every channel).
   const int length = std::clamp(config_.filter_length, 1, kMaxFilter);
   auto& slot = ring_[static_cast<std::size_t>(ring_next_)];
@@ -466,7 +472,7 @@ double PairRecorder::add_second(const PeriodSample& s) {
     ring_sum_[c] += raw[c];
   }
 
-  ring_next_ = (ring_next_ + 1) % length;
+  ring_next_ = ring_next_ + 1 >= length ? 0 : ring_next_ + 1;
   ring_count_ = std::min(ring_count_ + 1, length);
   ++matched_;
   if (ring_count_ == length) {
@@ -488,7 +494,7 @@ double PairRecorder::add_second(const PeriodSample& s) {
   sum_gq_ += 0.5 * (r1.g.q + s.dead_time_pattern.q);
   sum_vd_ += 0.5 * (r1.v.d + s.v_V.d);
   sum_id_ += 0.5 * (r1.i.d + s.i_A.d);
-  sum_didt_ += 0.5 * (r1.di_dt.d + s.di_dt_A_s.d);
+  sum_didt_ += 0.5 * (r1.did_dt + s.di_dt_A_s.d);
   sum_wiq_ += 0.5 * (r1.omega_e * r1.i.q + s.omega_e_rad_s * s.i_A.q);
   sum_gd_ += 0.5 * (r1.g.d + s.dead_time_pattern.d);
   return phi;

@@ -26,33 +26,20 @@ Abc dq0_to_abc(const Dq0& x, double theta_rad) {
   return {phase(0.0), phase(k120), phase(-k120)};
 }
 
-double wrap_angle_0_2pi(double angle_rad) {
+double wrap_angle_0_2pi_far(double angle_rad) {
   if (!std::isfinite(angle_rad)) {
     return std::numeric_limits<double>::quiet_NaN();
   }
-  // Within a turn of the range (nearly every call): one exact subtraction (Sterbenz: x - 2 pi
-  // is exact for x in [2 pi, 4 pi]) or the addition fmod's negative result would need.
-  double wrapped = angle_rad;
-  if (wrapped >= kTwoPi) {
-    wrapped -= kTwoPi;
-  } else if (wrapped < 0.0) {
+  // Further out (an unwrapped angle after a long run): a constant-cost reduction, not fmod,
+  // whose cost grows with the exponent difference. Its rounding, a few ulp of the input, is
+  // below what the input itself resolves.
+  double wrapped = angle_rad - kTwoPi * std::floor(angle_rad / kTwoPi);
+  if (wrapped < 0.0) {
     wrapped += kTwoPi;
-  }
-  if (!(wrapped >= 0.0 && wrapped < kTwoPi)) {
-    // Further out (an unwrapped angle after a long run): a constant-cost reduction, not
-    // fmod, whose cost grows with the exponent difference. Its rounding, a few ulp of the
-    // input, is below what the input itself resolves.
-    wrapped = angle_rad - kTwoPi * std::floor(angle_rad / kTwoPi);
-    if (wrapped < 0.0) {
-      wrapped += kTwoPi;
-    }
   }
   // A tiny negative number can round up to exactly 2*pi.
   return wrapped >= kTwoPi ? 0.0 : wrapped;
 }
 
-double wrap_angle_pm_pi(double angle_rad) {
-  return wrap_angle_0_2pi(angle_rad + kPi) - kPi;
-}
 
 }  // namespace pmsm::core

@@ -38,8 +38,9 @@ double window_value(WindowKind kind, double tn_s, double tw_s) {
     return 0.0;
   }
   const Coefficients c = coefficients(kind);
-  const double x = kPi * tn_s / tw_s;
-  return c.a0 + c.a1 * std::cos(x) + c.a2 * std::cos(2.0 * x);
+  // cos 2x from cos x: one fixed-cost rotation instead of two libm cosines per period.
+  const double cos_x = rotation(kPi * tn_s / tw_s).c;
+  return c.a0 + c.a1 * cos_x + c.a2 * (2.0 * cos_x * cos_x - 1.0);
 }
 
 double window_derivative_per_s(WindowKind kind, double tn_s, double tw_s) {
@@ -47,8 +48,8 @@ double window_derivative_per_s(WindowKind kind, double tn_s, double tw_s) {
     return 0.0;
   }
   const Coefficients c = coefficients(kind);
-  const double x = kPi * tn_s / tw_s;
-  return (-c.a1 * std::sin(x) - 2.0 * c.a2 * std::sin(2.0 * x)) * kPi / tw_s;
+  const Rotation r = rotation(kPi * tn_s / tw_s);
+  return (-c.a1 * r.s - 2.0 * c.a2 * (2.0 * r.s * r.c)) * kPi / tw_s;
 }
 
 WindowConstants compute_window_constants(WindowKind kind) {

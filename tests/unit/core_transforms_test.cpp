@@ -1,5 +1,6 @@
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 
@@ -96,6 +97,47 @@ TEST(Transforms, AngleWrappingMatchesFmodWithinATurnAndStaysInRangeFarOut) {
   }
   EXPECT_TRUE(std::isnan(wrap_angle_0_2pi(std::numeric_limits<double>::quiet_NaN())));
   EXPECT_TRUE(std::isnan(wrap_angle_0_2pi(std::numeric_limits<double>::infinity())));
+}
+
+// The fixed-cost sincos against libm: a dense sweep of a turn (where the control step calls
+// it), its quadrant boundaries, a sparse sweep out to its limit, the fallback beyond it.
+TEST(Transforms, RotationMatchesLibm) {
+  constexpr double kUlp = std::numeric_limits<double>::epsilon();  // of 1.0
+  double worst = 0.0;
+  auto check = [&](double x) {
+    const Rotation r = rotation(x);
+    const double ec = std::abs(r.c - std::cos(x));
+    const double es = std::abs(r.s - std::sin(x));
+    // Absolute error: the reduction's rounding is absolute, a few ulp of the argument's
+    // magnitude relative to 1 at the limit; within a turn below 2 ulp of 1.
+    const double bound = (std::abs(x) <= 8.0 ? 1.0 : 1.0 + 4.0 * std::abs(x)) * kUlp;
+    EXPECT_LE(ec, bound) << "cos " << x;
+    EXPECT_LE(es, bound) << "sin " << x;
+    if (std::abs(x) <= 8.0) {
+      worst = std::max({worst, ec, es});
+    }
+  };
+  for (int k = -200000; k <= 200000; ++k) {
+    check(static_cast<double>(k) * (kTwoPi / 100000.0));
+  }
+  for (int q = -8; q <= 8; ++q) {
+    for (const double d : {-1e-9, -1e-15, 0.0, 1e-15, 1e-9}) {
+      check(q * (0.25 * kPi) + d);
+    }
+  }
+  for (int k = -1000; k <= 1000; ++k) {
+    check(static_cast<double>(k) * 99.99991);
+  }
+  EXPECT_LT(worst, kUlp);
+  // Tiny angles keep their sine exactly (the small-angle rotations of the control step).
+  EXPECT_EQ(rotation(1e-300).s, 1e-300);
+  EXPECT_EQ(rotation(0.0).c, 1.0);
+  EXPECT_EQ(rotation(-0.0).s, 0.0);
+  // Beyond the limit and for non-finite angles: libm's answer.
+  EXPECT_EQ(rotation(1e6).c, std::cos(1e6));
+  EXPECT_EQ(rotation(-3e7).s, std::sin(-3e7));
+  EXPECT_TRUE(std::isnan(rotation(std::numeric_limits<double>::quiet_NaN()).c));
+  EXPECT_TRUE(std::isnan(rotation(std::numeric_limits<double>::infinity()).s));
 }
 
 TEST(Transforms, ComposedRotationsEqualTheRotationOfTheSum) {

@@ -230,6 +230,7 @@ class DriveController {
   Dq previous_i_A_{};
   Abc previous_i_abc_A_{};
   double previous_theta_smooth_ = 0.0;
+  double previous_smooth_wrapped_ = 0.0;  // the same angle wrapped into [0, 2 pi)
   Dq v_applied_next_{};             // command of step k-1 (applies during period k)
   Dq v_applied_now_{};              // command of step k-2 (applied during period k-1 -> k)
   bool limited_next_ = false;

@@ -226,8 +226,9 @@ class InjectionScheduler {
   // `capacity` is the largest recording, in periods (preallocated).
   InjectionScheduler(const InjectionConfig& config, double period_s, std::size_t capacity);
 
-  // One control period: `sample` is the period that just ended (nullptr when none).
-  SchedulerOutput step(const SchedulerInput& in, const PeriodSample* sample);
+  // One control period: `sample` is the period that just ended (nullptr when none). The
+  // output stays valid until the next call.
+  const SchedulerOutput& step(const SchedulerInput& in, const PeriodSample* sample);
 
   // Replaces the configuration (e.g. for a calibration run). An event in progress is
   // dropped; the inverter-voltage prior is kept, it belongs to the inverter.
@@ -271,6 +272,7 @@ class InjectionScheduler {
   PairRecorder recorder_;
 
   SchedulerPhase phase_ = SchedulerPhase::kIdle;
+  SchedulerOutput out_;  // what step() returns (see there)
   double next_event_s_ = 0.0;
   double retry_after_s_ = 0.0;      // a request waits until then after an event that yielded nothing
   int level_index_ = 0;             // next level of the event in progress
