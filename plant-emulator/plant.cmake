@@ -11,7 +11,7 @@ pmsm_target_defaults(pmsm_plant)
 target_include_directories(pmsm_plant PUBLIC ${CMAKE_CURRENT_LIST_DIR}/include)
 target_link_libraries(pmsm_plant
   PUBLIC pmsm_messages pmsm_common
-  PRIVATE Eigen3::Eigen tomlplusplus::tomlplusplus fmt::fmt)
+  PRIVATE pmsm_math Eigen3::Eigen tomlplusplus::tomlplusplus fmt::fmt)
 
 # pmsm-plant: the plant emulator as a process on a CAN bus (lockstep or real time). The bus
 # side (PlantNode) is a library of its own so that tests can run it on the in-process bus.

@@ -12,6 +12,7 @@
 #include <numbers>
 #include <optional>
 
+#include "pmsm/fixed_sincos.hpp"
 #include "pmsm/plant/emf.hpp"
 #include "pmsm/plant/rng.hpp"
 #include "pmsm/plant/thermal.hpp"
@@ -30,8 +31,9 @@ struct Trig3 {
 };
 
 Trig3 trig3(double theta_e_rad) {
-  const double c0 = std::cos(theta_e_rad);
-  const double s0 = std::sin(theta_e_rad);
+  const math::SinCos r = math::fixed_sincos(theta_e_rad);  // libm's within an ulp, at half the cost
+  const double c0 = r.c;
+  const double s0 = r.s;
   Trig3 t;
   t.c = {c0, -0.5 * c0 + kSqrt3Half * s0, -0.5 * c0 - kSqrt3Half * s0};
   t.s = {s0, -0.5 * s0 - kSqrt3Half * c0, -0.5 * s0 + kSqrt3Half * c0};
@@ -262,7 +264,7 @@ struct Plant::Impl {
     }
     return cfg.inverter.dc_bus_V *
            (1.0 + cfg.inverter.dc_ripple_fraction *
-                      std::sin(kTwoPi * cfg.inverter.dc_ripple_frequency_Hz * t));
+                      math::fixed_sincos(kTwoPi * cfg.inverter.dc_ripple_frequency_Hz * t).s);
   }
 
   // Piecewise-linear interpolation in the load table; ends held. Returns value and slope.
@@ -439,7 +441,7 @@ struct Plant::Impl {
     const double torque_cog =
         cfg.cogging.enabled
             ? cfg.cogging.amplitude_Nm *
-                  std::sin(cfg.cogging.order * s.theta_m_rad + cfg.cogging.phase_rad)
+                  math::fixed_sincos(cfg.cogging.order * s.theta_m_rad + cfg.cogging.phase_rad).s
             : 0.0;
 
     // Iron loss P = k_h·|ω_e| + k_e·ω_e², applied as a drag torque with a Coulomb part
@@ -450,8 +452,8 @@ struct Plant::Impl {
     const double viscous_Nm_s = cfg.mechanics.viscous_Nm_s_rad;
     const double ripple = (cfg.load.ripple_enabled && m.mech != Mech::ideal_dyno)
                               ? 1.0 + cfg.load.ripple_fraction *
-                                          std::sin(cfg.load.ripple_order * s.theta_m_rad +
-                                                   cfg.load.ripple_phase_rad)
+                                          math::fixed_sincos(cfg.load.ripple_order * s.theta_m_rad +
+                                                             cfg.load.ripple_phase_rad).s
                               : 1.0;
 
     double torque_load = 0.0;

@@ -9,6 +9,8 @@
 
 #include <cmath>
 
+#include "pmsm/fixed_sincos.hpp"
+
 namespace pmsm::core {
 
 struct Abc {
@@ -89,50 +91,11 @@ struct Rotation {
   double c = 1.0;
   double s = 0.0;
 };
-// Both at a fixed cost of about 40 instructions, a quarter of libm's sin and cos: a
-// Cody-Waite reduction by pi/2 (pi/2 in two parts, the first with 33 bits so that q * kHi is
-// exact) and the minimax polynomials of fdlibm's kernels on [-pi/4, pi/4]. Within 2 ulp of the
-// correctly rounded values (unit test TransformsTest.RotationMatchesLibm over [-1e5, 1e5]);
-// outside that range, or for NaN and inf, it falls back to libm. The control step calls it up
-// to three times a period (docs/performance.md).
+// Both at a fixed cost (common/math/pmsm/fixed_sincos.hpp): the control step calls it up to
+// three times a period (docs/performance.md).
 [[nodiscard]] inline Rotation rotation(double angle_rad) {
-  constexpr double kLimit = 1.0e5;                    // q * kHi stays exact far beyond this
-  constexpr double kTwoOverPi = 0x1.45f306dc9c883p-1;
-  constexpr double kHi = 0x1.921fb544p+0;             // pi/2, its first 33 bits
-  constexpr double kLo = 0x1.0b4611a626331p-34;       // pi/2 - kHi
-  if (!(std::abs(angle_rad) <= kLimit)) {
-    return {std::cos(angle_rad), std::sin(angle_rad)};
-  }
-  const double y = angle_rad * kTwoOverPi;
-  const int q = static_cast<int>(y >= 0.0 ? y + 0.5 : y - 0.5);  // nearest quadrant
-  const double fq = static_cast<double>(q);
-  const double r = (angle_rad - fq * kHi) - fq * kLo;  // in [-pi/4, pi/4] up to rounding
-  const double z = r * r;
-  const double sin_r =
-      r + r * z *
-              (-1.66666666666666324348e-01 +
-               z * (8.33333333332248946124e-03 +
-                    z * (-1.98412698298579493134e-04 +
-                         z * (2.75573137070700676789e-06 +
-                              z * (-2.50507602534068634195e-08 + z * 1.58969099521155010221e-10)))));
-  const double cos_r =
-      1.0 - 0.5 * z +
-      z * z *
-          (4.16666666666666019037e-02 +
-           z * (-1.38888888888741095749e-03 +
-                z * (2.48015872894767294178e-05 +
-                     z * (-2.75573143513906633035e-07 +
-                          z * (2.08757232129817482790e-09 + z * -1.13596475577881948265e-11)))));
-  switch (q & 3) {
-    case 0:
-      return {cos_r, sin_r};
-    case 1:
-      return {-sin_r, cos_r};
-    case 2:
-      return {-cos_r, -sin_r};
-    default:
-      return {sin_r, -cos_r};
-  }
+  const math::SinCos r = math::fixed_sincos(angle_rad);
+  return {r.c, r.s};
 }
 // The rotation by the sum of the two angles.
 [[nodiscard]] constexpr Rotation compose(const Rotation& a, const Rotation& b) {
