@@ -267,7 +267,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   // The period that just ended, [k-1, k]: its voltage was commanded two steps ago.
   std::optional<PeriodSample> sample;
   if (have_previous_) {
-    PeriodSample s;
+    PeriodSample& s = sample.emplace();  // filled in place, not built and copied
     s.time_s = now - 0.5 * config_.period_s;
     s.theta_e_rad = 0.5 * (previous_theta_smooth_ + theta_smooth);
     s.omega_e_rad_s = omega_e;
@@ -279,7 +279,6 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
                                             wrap_angle_0_2pi(previous_smooth_wrapped_ + 0.5 * smooth_advance));
 
     s.voltage_limited = limited_now_;
-    sample = s;
     if (config_.estimator == EstimatorKind::kNoInjection && enabled) {
       baseline_.add(s);
     }

@@ -157,9 +157,13 @@ bool solve_sums(const FitSums& s, const std::array<bool, kRegressors>& active,
 }  // namespace
 
 void FitSums::add(const std::array<double, kRegressors>& x, double y) {
+  // x[r] x[c] = x[c] x[r] exactly: each product once, added to both triangles.
   for (std::size_t r = 0; r < kRegressors; ++r) {
-    for (std::size_t c = 0; c < kRegressors; ++c) {
-      xtx[r][c] += x[r] * x[c];
+    xtx[r][r] += x[r] * x[r];
+    for (std::size_t c = r + 1; c < kRegressors; ++c) {
+      const double p = x[r] * x[c];
+      xtx[r][c] += p;
+      xtx[c][r] += p;
     }
     xty[r] += x[r] * y;
     sum_x[r] += x[r];
@@ -389,10 +393,6 @@ void PairRecorder::start(const PairFitConfig& config, MatchBy match_by, double d
   any_limited_ = false;
 }
 
-double PairRecorder::coordinate(const PeriodSample& s) const {
-  return match_by_ == MatchBy::kAngle ? direction_ * s.theta_e_rad : s.time_s;
-}
-
 bool PairRecorder::add_first(const PeriodSample& s) {
   if (size1_ >= first_.size()) {
     return false;
@@ -408,20 +408,12 @@ bool PairRecorder::add_first(const PeriodSample& s) {
   return true;
 }
 
-double PairRecorder::first_extent() const {
-  return size1_ == 0 ? 0.0 : coordinate(first_[size1_ - 1]) - origin1_;
-}
-
 void PairRecorder::begin_second(double origin) {
   origin2_ = origin;
   cursor_ = 0;
   ring_sum_ = {};
   ring_count_ = 0;
   ring_next_ = 0;
-}
-
-bool PairRecorder::second_complete(const PeriodSample& s) const {
-  return coordinate(s) - origin2_ >= first_extent();
 }
 
 double PairRecorder::add_second(const PeriodSample& s) {

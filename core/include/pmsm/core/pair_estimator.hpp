@@ -212,7 +212,9 @@ class PairRecorder {
   bool add_first(const PeriodSample& s);
   // The extent of recording 1, in the matching coordinate (angle from its first sample, or
   // time); recording 2 must cover the same.
-  [[nodiscard]] double first_extent() const;
+  [[nodiscard]] double first_extent() const {
+    return size1_ == 0 ? 0.0 : coordinate(first_[size1_ - 1]) - origin1_;
+  }
   [[nodiscard]] std::size_t first_size() const { return size1_; }
   // Start of recording 1 in the matching coordinate (absolute angle or time).
   [[nodiscard]] double first_origin() const { return origin1_; }
@@ -220,13 +222,18 @@ class PairRecorder {
   void begin_second(double origin);
   // Adds a sample of recording 2 (matched and accumulated); returns its relative coordinate.
   double add_second(const PeriodSample& s);
-  [[nodiscard]] bool second_complete(const PeriodSample& s) const;
+  [[nodiscard]] bool second_complete(const PeriodSample& s) const {
+    return coordinate(s) - origin2_ >= first_extent();
+  }
 
   [[nodiscard]] const BlockedSums& sums() const { return sums_; }
   [[nodiscard]] PairConditions conditions() const;
 
-  // Coordinate of a sample in the matching space (direction-signed angle, or time).
-  [[nodiscard]] double coordinate(const PeriodSample& s) const;
+  // Coordinate of a sample in the matching space (direction-signed angle, or time). Inline,
+  // with the two above: the scheduler asks every period of a pair.
+  [[nodiscard]] double coordinate(const PeriodSample& s) const {
+    return match_by_ == MatchBy::kAngle ? direction_ * s.theta_e_rad : s.time_s;
+  }
 
  private:
   std::vector<PeriodSample> first_;  // preallocated at construction; never grows
