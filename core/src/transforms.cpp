@@ -41,5 +41,4 @@ double wrap_angle_0_2pi_far(double angle_rad) {
   return wrapped >= kTwoPi ? 0.0 : wrapped;
 }
 
-
 }  // namespace pmsm::core

@@ -87,16 +87,11 @@ inline constexpr double kSqrt3 = 1.73205080756887729353;
 
 // A rotation by an angle as its cosine and sine: one sincos, and rotations by sums of angles
 // by composition (exact up to rounding) instead of more sincos.
-struct Rotation {
-  double c = 1.0;
-  double s = 0.0;
-};
+// The same pair as the shared sincos returns (cos c, sin s), so no copy between the two.
+using Rotation = math::SinCos;
 // Both at a fixed cost (common/math/pmsm/fixed_sincos.hpp): the control step calls it up to
 // three times a period (docs/performance.md).
-[[nodiscard]] inline Rotation rotation(double angle_rad) {
-  const math::SinCos r = math::fixed_sincos(angle_rad);
-  return {r.c, r.s};
-}
+[[nodiscard]] inline Rotation rotation(double angle_rad) { return math::fixed_sincos(angle_rad); }
 // The rotation by the sum of the two angles.
 [[nodiscard]] constexpr Rotation compose(const Rotation& a, const Rotation& b) {
   return {a.c * b.c - a.s * b.s, a.s * b.c + a.c * b.s};
