@@ -75,8 +75,8 @@ awk -v budget="$budget" '
   END {
     if (steps == 0) { print "step-cost: no step was measured"; exit 2 }
     printf "  %-12s %8s %8s %8s  %s\n", "class", "steps", "mean", "max", "at step"
-    split("idle injecting transition calibration pair event", order, " ")
-    for (i = 1; i <= 6; ++i) {
+    split("idle injecting transition sweep calibration pair event", order, " ")
+    for (i = 1; i <= 7; ++i) {
       c = order[i]
       if (n[c] > 0) printf "  %-12s %8d %8.0f %8d  %d\n", c, n[c], sum[c] / n[c], max[c], at[c]
     }

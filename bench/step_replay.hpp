@@ -7,7 +7,8 @@
 // significant first): event (an injection event finished: fits, estimate, filter), pair (a
 // pair of recordings completed: its fit), calibration (calibration started or ended),
 // transition (the scheduler changed phase: a pair starts, a recording starts or ends),
-// injecting (inside an injection, no transition), idle.
+// sweep (the calibration's bridge sweep: a level, or one of its fits), injecting (inside an
+// injection, no transition), idle.
 #pragma once
 
 #include <array>
@@ -24,10 +25,10 @@
 
 namespace pmsm::bench {
 
-enum class StepClass : std::uint8_t { kIdle, kInjecting, kTransition, kCalibration, kPair, kEvent, kCount };
+enum class StepClass : std::uint8_t { kIdle, kInjecting, kTransition, kCalibration, kPair, kEvent, kSweep, kCount };
 inline constexpr std::size_t kStepClassCount = static_cast<std::size_t>(StepClass::kCount);
 inline constexpr std::array<const char*, kStepClassCount> kStepClassNames{
-    "idle", "injecting", "transition", "calibration", "pair", "event"};
+    "idle", "injecting", "transition", "calibration", "pair", "event", "sweep"};
 
 class StepReplay {
  public:
@@ -69,6 +70,7 @@ class StepReplay {
     core::SchedulerPhase phase = core::SchedulerPhase::kIdle;
     bool injecting = false;
     bool calibrating = false;
+    bool sweeping = false;
     std::uint64_t pairs = 0;
     std::uint64_t events = 0;
   };
@@ -78,6 +80,7 @@ class StepReplay {
     s.phase = t.injection_phase;
     s.injecting = t.injection_active;
     s.calibrating = t.calibrating;
+    s.sweeping = t.inverter_sweep_active;
     s.pairs = std::accumulate(t.outcomes.begin(), t.outcomes.end(), std::uint64_t{0});
     s.events = static_cast<std::uint64_t>(t.estimates_published) + t.events_without_estimate;
     return s;
@@ -88,6 +91,7 @@ class StepReplay {
     if (after.pairs != before.pairs) return StepClass::kPair;
     if (after.calibrating != before.calibrating) return StepClass::kCalibration;
     if (after.phase != before.phase) return StepClass::kTransition;
+    if (before.sweeping || after.sweeping) return StepClass::kSweep;  // the calibration's bridge sweep
     if (before.injecting || after.injecting || after.phase != core::SchedulerPhase::kIdle) return StepClass::kInjecting;
     return StepClass::kIdle;
   }

@@ -223,8 +223,10 @@ ConfigSchema<C> build() {
   s.real("calibration.t0_C", [](C& c) -> double& { return c.drive.calibration.t0_C; }, between(-50, 200), "C", "T0 of that calibration.");
   s.real("calibration.ke0_V_s_per_rad", [](C& c) -> double& { return c.drive.calibration.ke0_V_s_per_rad; }, at_least(0, 100), "V s/rad",
          "Eq. 3's Ke at T0 (0: not calibrated; no magnet temperature).");
+  s.real("calibration.dead_time_band_A", [](C& c) -> double& { return c.drive.calibration.dead_time_band_A; }, at_least(0, 1000),
+         "A", "The bridge's zero-current band a calibration's sweep measured (0: not measured, control.dead_time_band_A holds).");
   s.string("calibration.file", [](C& c) -> std::string& { return c.calibration_file; },
-           "Where the calibration is kept: read at start-up in place of the three keys above, replaced atomically when a "
+           "Where the calibration is kept: read at start-up in place of the calibration keys above, replaced atomically when a "
            "calibration run completes (relative to this file; empty: none).");
   s.string("thermal.state_file", [](C& c) -> std::string& { return c.thermal_state_file; },
            "Where the daemon keeps the thermal filter's state across a restart (written every 10 s and at stop, restored "
@@ -234,6 +236,11 @@ ConfigSchema<C> build() {
   s.optional_real("calibration.F_A", [](C& c) -> std::optional<double>& { return c.relative.calibration_f_A; }, positive(1000), "A",
                   "1.11 I_rated",
                   "Injection magnitude of the calibration procedure (fixed-magnitude bipolar, levels 1 and 0.4), at no load (Table I: 50 A).");
+  s.boolean("calibration.inverter_sweep", [](C& c) -> bool& { return c.drive.inverter_sweep.enabled; },
+            "Measure the bridge's voltage error (Vx and its zero-current band) with a d-axis current sweep before the "
+            "calibration's events: 12 levels up to half calibration.F_A, about 0.6 s (docs/estimator.md section 4).");
+  s.real("calibration.inverter_sweep_level_s", [](C& c) -> double& { return c.drive.inverter_sweep.average_s; },
+         between(0.005, 1.0), "s", "Averaging time per sweep level (extended to whole electrical turns when turning).");
   s.real("calibration.magnet_temp_coefficient_per_C", [](C& c) -> double& { return c.drive.magnet_coefficient_per_C; }, between(-0.01, 0), "/C",
          "Relative change of the magnet flux per degree (NdFeB about -0.0012).");
   // [derating]
@@ -290,6 +297,8 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
   d.calibration_injection.levels = {1.0, 0.4, 0.0, 0.0};
   d.calibration_injection.level_count = 2;
   d.calibration_injection.f_A = c.calibration_f_A;
+  d.inverter_sweep.max_current_A = 0.5 * c.calibration_f_A;
+  d.inverter_sweep.max_speed_change_rad_s = d.injection.max_speed_change_rad_s;
   if (c.vx_initial_from_compensation) {
     d.injection.vx_initial_V = d.dead_time.dead_time_s / d.period_s * c.nominal_dc_bus_V + d.dead_time.device_drop_V;
   }

@@ -29,8 +29,17 @@ RunOptions quiet() {
 }
 
 TEST(EstimatorClosedLoop, ShortHeatUpIsTracked) {
-  const SimulationResult r = run_scenario(load_scenario(kData / "heatup-short.toml"), quiet());
+  const Scenario s = load_scenario(kData / "heatup-short.toml");
+  const SimulationResult r = run_scenario(s, quiet());
   ASSERT_TRUE(r.calibrated);
+  // The calibration's bridge sweep finds the plant's zero-current band (half the PWM ripple,
+  // 0.75 A; the controller's default key says 1 A) within 5 %, through 0.2 A of sensor noise,
+  // and the calibration carries it.
+  ASSERT_EQ(r.inverter_sweep.outcome, core::InverterSweepOutcome::kMeasured);
+  const double band = s.plant.inverter.zero_current_band_A;
+  EXPECT_NEAR(r.inverter_sweep.band_A / band, 1.0, 0.05);
+  EXPECT_EQ(r.calibration.dead_time_band_A, r.inverter_sweep.band_A);
+  EXPECT_NEAR(r.inverter_sweep.vx_V, 7.5, 0.1);
   // The calibration at 25 C finds the plant's Rs0 (0.133 ohm; the ADC gain errors scale
   // what the controller sees by less than 0.1 %) within 1.5 %.
   EXPECT_NEAR(r.calibration.rs0_ohm / 0.133, 1.0, 0.015);
@@ -104,6 +113,8 @@ TEST(EstimatorClosedLoop, StoredCalibrationIsWrittenAndUsedAtTheNextStart) {
   const core::Calibration stored = read_calibration_file(file);
   EXPECT_DOUBLE_EQ(stored.rs0_ohm, first.calibration.rs0_ohm);
   EXPECT_DOUBLE_EQ(stored.t0_C, first.calibration.t0_C);
+  EXPECT_GT(stored.dead_time_band_A, 0.0);
+  EXPECT_DOUBLE_EQ(stored.dead_time_band_A, first.calibration.dead_time_band_A);
 
   auto restart = [&](const std::string& path) {
     Scenario s = load_scenario(kData / "heatup-short.toml");

@@ -68,6 +68,7 @@ core::Calibration sample() {
   c.rs0_ohm = 0.1323127491;
   c.t0_C = 24.75;
   c.ke0_V_s_per_rad = 0.97105928;
+  c.dead_time_band_A = 0.6812;
   c.calibrated = true;
   return c;
 }
@@ -79,6 +80,7 @@ TEST_F(CalibrationFile, RoundTripKeepsTheValues) {
   EXPECT_NEAR(c.rs0_ohm, sample().rs0_ohm, 1e-12);
   EXPECT_DOUBLE_EQ(c.t0_C, 24.75);
   EXPECT_NEAR(c.ke0_V_s_per_rad, sample().ke0_V_s_per_rad, 1e-12);
+  EXPECT_DOUBLE_EQ(c.dead_time_band_A, sample().dead_time_band_A);
   EXPECT_TRUE(c.calibrated);
   // The file is TOML a person can read; the source survived its quotes and backslash.
   const toml::table t = toml::parse_file(p.string());
@@ -136,7 +138,11 @@ TEST_F(CalibrationFile, BadFilesAreRejectedWithFileLineAndKey) {
   EXPECT_NE(error_of("format = 2\nrs0_ohm = 0.13\nt0_C = 25.0\n").find("format: 2 is not supported"), std::string::npos);
   EXPECT_NE(error_of("format = 1\nrs0_ohm = 0.13\nt0_C = 25.0\nke0_V_s_per_rad = nan\n").find("ke0_V_s_per_rad"),
             std::string::npos);
-  // Ke0 may be absent (a calibration without EMF: standstill).
+  EXPECT_NE(error_of("format = 1\nrs0_ohm = 0.13\nt0_C = 25.0\ndead_time_band_A = -0.5\n")
+                .find("bad.toml:4: dead_time_band_A: -0.5 is out of range"),
+            std::string::npos);
+  // Ke0 may be absent (a calibration without EMF: standstill), and the band (a calibration
+  // without the bridge sweep, or written before it existed: the configured band holds).
   EXPECT_EQ(error_of("format = 1\nrs0_ohm = 0.13\nt0_C = 25.0\n"), "");
   try {
     (void)read_calibration_file(dir_ / "absent.toml");

@@ -9,4 +9,5 @@ pmsm_add_gtest(estimator_unit_test LABEL unit
     ${CMAKE_CURRENT_LIST_DIR}/estimator_angle_test.cpp
     ${CMAKE_CURRENT_LIST_DIR}/estimator_baseline_test.cpp
     ${CMAKE_CURRENT_LIST_DIR}/estimator_regression_test.cpp
+    ${CMAKE_CURRENT_LIST_DIR}/estimator_inverter_sweep_test.cpp
   LIBS pmsm::core)

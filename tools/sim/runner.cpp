@@ -337,6 +337,10 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
       drive.set_thermal_time_scale(scenario.controller.drive.thermal.time_scale);
       real_time_calibration = false;
     }
+    if (drive.inverter_sweep_completed()) {
+      result.inverter_sweep = *drive.inverter_sweep_completed();
+      result.inverter_sweep_time_s = t;
+    }
     if (step.calibration_to_store) {
       result.calibrated = true;
       result.calibration = *step.calibration_to_store;
@@ -615,6 +619,22 @@ std::string result_json(const SimulationResult& r) {
         .field("rs0_ohm", r.calibration.rs0_ohm)
         .field("t0_C", r.calibration.t0_C)
         .field("ke0_V_s_per_rad", r.calibration.ke0_V_s_per_rad)
+        .field("dead_time_band_A", r.calibration.dead_time_band_A > 0.0 ? r.calibration.dead_time_band_A : kNan)
+        .end_object();
+  }
+  if (r.inverter_sweep.outcome != core::InverterSweepOutcome::kNone) {
+    const core::InverterSweepResult& w = r.inverter_sweep;
+    const bool fitted = w.outcome != core::InverterSweepOutcome::kAborted;
+    j.key("inverter_sweep")
+        .begin_object()
+        .field("time_s", r.inverter_sweep_time_s)
+        .field("outcome", std::string(core::to_string(w.outcome)))
+        .field("vx_V", fitted ? w.vx_V : kNan)
+        .field("vx_std_V", fitted ? w.vx_std_V : kNan)
+        .field("band_A", fitted ? w.band_A : kNan)
+        .field("rs_ohm", fitted ? w.rs_ohm : kNan)
+        .field("offset_V", fitted ? w.offset_V : kNan)
+        .field("residual_rms_V", fitted ? w.residual_rms_V : kNan)
         .end_object();
   }
   if (!r.calibration_file.empty()) {
@@ -675,6 +695,12 @@ std::string result_text(const SimulationResult& r) {
   }
   out += fmt::format("  injection loss                  {:.2f} W average ({:.1f} % of the time injecting)\n", r.injection_loss_W,
                      100.0 * r.injection_duty);
+  if (r.inverter_sweep.outcome != core::InverterSweepOutcome::kNone) {
+    const core::InverterSweepResult& w = r.inverter_sweep;
+    out += fmt::format("  inverter sweep at {:.2f} s        {}: Vx {:.4f} +- {:.4f} V, band {:.3f} A, Rs {:.5f} ohm, residual {:.4f} V\n",
+                       r.inverter_sweep_time_s, core::to_string(w.outcome), w.vx_V, w.vx_std_V, w.band_A, w.rs_ohm,
+                       w.residual_rms_V);
+  }
   if (r.calibrated) {
     out += fmt::format("  calibration at {:.2f} s           Rs0 {:.5f} ohm at {:.1f} C, Ke0 {:.4f} V s/rad\n", r.calibration_time_s,
                        r.calibration.rs0_ohm, r.calibration.t0_C, r.calibration.ke0_V_s_per_rad);

@@ -108,6 +108,8 @@ struct SimulationResult {
   bool calibrated = false;
   double calibration_time_s = 0.0;
   core::Calibration calibration{};
+  core::InverterSweepResult inverter_sweep{};  // the calibration's bridge sweep (outcome kNone: not run)
+  double inverter_sweep_time_s = 0.0;
   // The stored calibration (controller calibration.file): what was found at the start, and
   // whether this run's calibration was written back.
   std::string calibration_file;

@@ -20,6 +20,7 @@
 #include "pmsm/core/baseline_estimator.hpp"
 #include "pmsm/core/current_controller.hpp"
 #include "pmsm/core/injection_scheduler.hpp"
+#include "pmsm/core/inverter_sweep.hpp"
 #include "pmsm/core/modulation.hpp"
 #include "pmsm/core/motor_params.hpp"
 #include "pmsm/core/speed_controller.hpp"
@@ -56,6 +57,9 @@ struct DriveConfig {
   double thermal_update_s = 0.01;    // thermal model / filter period
   double magnet_coefficient_per_C = -0.0012;  // NdFeB remanence (flux) temperature coefficient
   double magnet_min_speed_rad_s = 50.0;       // electrical; below it the EMF is too small
+  // The bridge's voltage error measured before the calibration's events (inverter_sweep.hpp):
+  // its zero-current band replaces dead_time.current_band_A.
+  InverterSweepConfig inverter_sweep{};
   int calibration_events = 6;        // events averaged into Rs0 / Ke0 (about 2.5 s at no load)
   double calibration_timeout_s = 20.0;  // give up (keep the stored calibration) after this
   std::size_t recording_capacity = 8192;      // periods per recording (preallocated)
@@ -134,6 +138,8 @@ struct DriveTelemetry {
   double lq_H = 0.0;                  // the q-axis inductance the estimator has learned
   double lq_std_H = 0.0;
   bool calibrating = false;
+  bool inverter_sweep_active = false;  // the calibration's bridge sweep is running
+  double dead_time_band_A = 0.0;       // the band the estimator's pattern uses
   bool calibrated = false;
   bool calibration_failed = false;  // the last calibration run timed out
 };
@@ -192,6 +198,10 @@ class DriveController {
   [[nodiscard]] const std::optional<EventEstimate>& last_event() const { return last_event_; }
   // Set for the one period in which a calibration completed.
   [[nodiscard]] const std::optional<Calibration>& calibration_completed() const { return calibration_done_; }
+  // Set for the one period in which the calibration's bridge sweep ended, whatever its outcome.
+  [[nodiscard]] const std::optional<InverterSweepResult>& inverter_sweep_completed() const { return sweep_done_; }
+  // The last sweep's result (outcome kNone before any).
+  [[nodiscard]] const InverterSweepResult& inverter_sweep() const { return sweep_.result(); }
   // True for the one period in which a calibration run timed out.
   [[nodiscard]] bool calibration_just_failed() const { return calibration_failed_now_; }
   [[nodiscard]] const Calibration& calibration() const { return observer_.calibration(); }
@@ -213,6 +223,7 @@ class DriveController {
   ThermalObserver observer_;
   bool thermal_guess_pending_ = true;  // start from the ambient sensor at the first update
   void start_thermal_from_guess(double guess_C);
+  void finish_inverter_sweep(double now_s);
 
   DriveOutput output_{};
   DriveTelemetry telemetry_{};
@@ -220,6 +231,8 @@ class DriveController {
   std::optional<ResistanceEstimate> last_estimate_;
   std::optional<EventEstimate> last_event_;
   std::optional<Calibration> calibration_done_;
+  std::optional<InverterSweepResult> sweep_done_;
+  InverterSweep sweep_;
 
   std::uint64_t period_ = 0;
   bool was_enabled_ = false;

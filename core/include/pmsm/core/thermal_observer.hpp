@@ -63,6 +63,9 @@ struct Calibration {
   double t0_C = 25.0;
   double ke0_V_s_per_rad = 0.0; // EMF constant (Eq. 3 form) at t0_C; 0 when not calibrated
   bool calibrated = false;      // from a calibration run rather than the nameplate
+  // The bridge's zero-current band from the calibration's sweep (inverter_sweep.hpp); 0 when
+  // the calibration did not measure it (control.dead_time_band_A then holds).
+  double dead_time_band_A = 0.0;
 };
 
 struct DeratingConfig {
