@@ -124,27 +124,22 @@ TEST(InverterSweep, TheCurrentSensorsNoiseDoesNotReadTheBandLow) {
 
 TEST(InverterSweep, ScalesWithTheMotor) {
   // A 1.6 ohm servo with a small bridge, and a 30 mohm machine with a wide ripple band.
-  Bridge servo;
-  servo.rs_ohm = 1.6;
-  servo.vx_V = 3.0;
-  servo.band_A = 0.4;
-  InverterSweepConfig servo_cfg;
-  servo_cfg.max_current_A = 6.0;
-  const SweepRun s = run_sweep(servo, servo_cfg);
-  ASSERT_EQ(s.result.outcome, InverterSweepOutcome::kMeasured);
-  EXPECT_NEAR(s.result.band_A, 0.4, 0.4 * 0.01);
-  EXPECT_NEAR(s.result.rs_ohm, 1.6, 1.6 * 0.005);
-
-  Bridge big;
-  big.rs_ohm = 0.03;
-  big.vx_V = 9.0;
-  big.band_A = 6.0;
-  InverterSweepConfig big_cfg;
-  big_cfg.max_current_A = 100.0;
-  const SweepRun g = run_sweep(big, big_cfg);
-  ASSERT_EQ(g.result.outcome, InverterSweepOutcome::kMeasured);
-  EXPECT_NEAR(g.result.band_A, 6.0, 6.0 * 0.01);
-  EXPECT_NEAR(g.result.vx_V, 9.0, 9.0 * 0.002);
+  struct Machine {
+    double rs_ohm, vx_V, band_A, max_current_A;
+  };
+  for (const Machine m : {Machine{1.6, 3.0, 0.4, 6.0}, Machine{0.03, 9.0, 6.0, 100.0}}) {
+    Bridge b;
+    b.rs_ohm = m.rs_ohm;
+    b.vx_V = m.vx_V;
+    b.band_A = m.band_A;
+    InverterSweepConfig cfg;
+    cfg.max_current_A = m.max_current_A;
+    const SweepRun run = run_sweep(b, cfg);
+    ASSERT_EQ(run.result.outcome, InverterSweepOutcome::kMeasured) << m.rs_ohm;
+    EXPECT_NEAR(run.result.band_A, m.band_A, m.band_A * 0.01) << m.rs_ohm;
+    EXPECT_NEAR(run.result.vx_V, m.vx_V, m.vx_V * 0.002) << m.rs_ohm;
+    EXPECT_NEAR(run.result.rs_ohm, m.rs_ohm, m.rs_ohm * 0.005) << m.rs_ohm;
+  }
 }
 
 TEST(InverterSweep, ABandBelowTheCandidatesIsReportedNotMeasured) {
