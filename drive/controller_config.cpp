@@ -238,7 +238,7 @@ ConfigSchema<C> build() {
                   "Injection magnitude of the calibration procedure (fixed-magnitude bipolar, levels 1 and 0.4), at no load (Table I: 50 A).");
   s.boolean("calibration.inverter_sweep", [](C& c) -> bool& { return c.drive.inverter_sweep.enabled; },
             "Measure the bridge's voltage error (Vx and its zero-current band) with a d-axis current sweep before the "
-            "calibration's events: 12 levels up to half calibration.F_A, about 0.6 s (docs/estimator.md section 4).");
+            "calibration's events: 12 levels up to half calibration.F_A, about 0.5 s (docs/estimator.md section 4.1).");
   s.real("calibration.inverter_sweep_level_s", [](C& c) -> double& { return c.drive.inverter_sweep.average_s; },
          between(0.005, 1.0), "s", "Averaging time per sweep level (extended to whole electrical turns when turning).");
   s.real("calibration.magnet_temp_coefficient_per_C", [](C& c) -> double& { return c.drive.magnet_coefficient_per_C; }, between(-0.01, 0), "/C",

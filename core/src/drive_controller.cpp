@@ -37,7 +37,15 @@ DriveController::DriveController(const DriveConfig& config)
   // A stored calibration that measured the bridge replaces the configured band.
   if (config_.calibration.dead_time_band_A > 0.0) {
     config_.dead_time.current_band_A = config_.calibration.dead_time_band_A;
+    band_measured_ = true;
   }
+}
+
+void DriveController::restore_band() {
+  // A calibration that does not complete keeps the calibration in use, and so the band its
+  // Rs0 was learned with.
+  config_.dead_time.current_band_A = band_before_calibration_A_;
+  band_measured_ = band_measured_before_;
 }
 
 void DriveController::finish_inverter_sweep(double now_s) {
@@ -50,6 +58,7 @@ void DriveController::finish_inverter_sweep(double now_s) {
     // and Rs0 moves about 0.3 % per 0.02 V of prior; measured, it made the seeds read low
     // (docs/estimator.md section 4). The calibration's joint fit learns Vx itself.
     config_.dead_time.current_band_A = r.band_A;
+    band_measured_ = true;
   }
   // The calibration's events (and its timeout) start now, whatever the sweep found: without a
   // measurement the configured band and Vx prior hold, as before the sweep existed.
@@ -74,6 +83,8 @@ void DriveController::start_calibration(double known_temp_C) {
   calibration_weight_sum_ = 0.0;
   calibration_ke_sum_ = 0.0;
   calibration_ke_count_ = 0;
+  band_before_calibration_A_ = config_.dead_time.current_band_A;
+  band_measured_before_ = band_measured_;
   if (config_.inverter_sweep.enabled) {
     sweep_.start(config_.inverter_sweep, config_.period_s);
   }
@@ -82,7 +93,11 @@ void DriveController::start_calibration(double known_temp_C) {
 void DriveController::abort_calibration() {
   if (calibrating_) {
     calibrating_ = false;
-    sweep_.abort();
+    if (sweep_.active()) {
+      sweep_.abort();
+      sweep_done_ = sweep_.result();
+    }
+    restore_band();
     scheduler_.set_config(config_.injection);
   }
 }
@@ -162,9 +177,9 @@ void DriveController::handle_estimate(const EventEstimate& e) {
       c.t0_C = calibration_temp_C_;
       c.ke0_V_s_per_rad = calibration_ke_count_ > 0 ? calibration_ke_sum_ / calibration_ke_count_ : 0.0;
       c.calibrated = true;
-      const InverterSweepResult& sweep = sweep_.result();
-      if (sweep.outcome == InverterSweepOutcome::kMeasured) {
-        // The bridge's band as this run's sweep measured it.
+      if (band_measured_) {
+        // The band Rs0 was learned with, when a sweep measured it (this run's, or the stored
+        // calibration's when this run's sweep was void).
         c.dead_time_band_A = config_.dead_time.current_band_A;
       }
       calibrating_ = false;
@@ -275,6 +290,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
       sweep_.abort();
       finish_inverter_sweep(now);
     }
+    telemetry_.inverter_sweep_active = false;
     SchedulerInput s;
     s.time_s = now;
     const SchedulerOutput& so = scheduler_.step(s, nullptr);
@@ -314,15 +330,15 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
                                             wrap_angle_0_2pi(previous_smooth_wrapped_ + 0.5 * smooth_advance));
 
     s.voltage_limited = limited_now_;
-    if (config_.estimator == EstimatorKind::kNoInjection && enabled) {
-      baseline_.add(s);
+    if (config_.estimator == EstimatorKind::kNoInjection && enabled && !sweep_.active()) {
+      baseline_.add(s);  // not on the sweep's d-axis levels: they are not motoring
     }
     // The bridge sweep sees the measured currents, as the estimator does: at speed they carry
     // the EMF harmonics' ripple, which moves the zero crossings (a pattern built from the
     // reference read Vx 6 % low there).
     if (sweep_.active() &&
         sweep_.step(enabled, in.i_A, rotation(wrap_angle_0_2pi(previous_smooth_wrapped_ + 0.5 * smooth_advance)),
-                    s.v_V.d, s.i_A.d, omega_e)) {
+                    s.v_V.d, s.i_A.d, omega_e, s.voltage_limited)) {
       finish_inverter_sweep(now);
     }
   }
@@ -337,7 +353,9 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   Dq motoring = enabled ? motoring_reference(command) : Dq{};
   const bool sweeping = sweep_.active();
   if (sweeping && enabled) {
-    motoring.d += sweep_.id_ref_A();  // the bridge sweep's level, on top of id = 0 control
+    // The bridge sweep's level, on top of id = 0 control, inside the drive's current limit.
+    const double limit = derating_.current_limit_A;
+    motoring.d += std::clamp(sweep_.id_ref_A(), -limit, limit);
   }
   SchedulerInput si;
   si.time_s = now;
@@ -353,6 +371,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     calibrating_ = false;
     calibration_failed_ = true;
     calibration_failed_now_ = true;
+    restore_band();
     scheduler_.set_config(config_.injection);
   }
   si.request_now = command.request_injection || (calibrating_ && enabled);
@@ -431,7 +450,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     thermal_elapsed_s_ = 0.0;
     update_thermal(command.ambient_C);
   }
-  if (config_.estimator == EstimatorKind::kNoInjection && baseline_.updates() > 0 &&
+  if (config_.estimator == EstimatorKind::kNoInjection && baseline_.updates() > 0 && !sweeping &&
       now - last_baseline_publish_s_ >= config_.baseline_publish_s) {
     last_baseline_publish_s_ = now;
     EventEstimate e;

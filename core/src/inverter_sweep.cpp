@@ -21,6 +21,7 @@ const char* to_string(InverterSweepOutcome outcome) {
     case InverterSweepOutcome::kMeasured: return "measured";
     case InverterSweepOutcome::kAborted: return "aborted";
     case InverterSweepOutcome::kSpeedChanged: return "speed_changed";
+    case InverterSweepOutcome::kVoltageLimited: return "voltage_limited";
     case InverterSweepOutcome::kBandAtLimit: return "band_at_limit";
     case InverterSweepOutcome::kImplausible: return "implausible";
   }
@@ -66,12 +67,20 @@ double InverterSweep::id_ref_A() const {
 }
 
 bool InverterSweep::step(bool enabled, const Abc& i_A, const Rotation& mid, double vd_V, double id_A,
-                         double omega_e_rad_s) {
+                         double omega_e_rad_s, bool voltage_limited) {
   if (stage_ == Stage::kIdle) {
     return false;
   }
-  if (!enabled || !std::isfinite(vd_V) || !std::isfinite(id_A)) {
+  if (!enabled || !std::isfinite(vd_V) || !std::isfinite(id_A) || !std::isfinite(omega_e_rad_s) ||
+      !std::isfinite(i_A.a) || !std::isfinite(i_A.b) || !std::isfinite(i_A.c)) {
     abort();
+    return true;
+  }
+  if (voltage_limited && stage_ == Stage::kAverage) {
+    // The command was not what the bridge applied: the level's mean would be wrong.
+    stage_ = Stage::kIdle;
+    result_ = {};
+    result_.outcome = InverterSweepOutcome::kVoltageLimited;
     return true;
   }
   ring_i_[static_cast<std::size_t>(ring_head_)] = i_A;
@@ -170,10 +179,10 @@ void InverterSweep::finish_level() {
   }
 }
 
-InverterSweep::LevelFit InverterSweep::fit_levels(double x) const {
-  // <Gd> at a continuous band index x: quadratic interpolation through the three nearest
-  // candidates (the pattern is smooth in log b), so that the band is not limited to the grid.
-  const int centre = std::clamp(static_cast<int>(std::lround(x)), 1, kBands - 2);
+InverterSweep::LevelFit InverterSweep::fit_levels(double x, int centre) const {
+  // <Gd> at a continuous band index x: quadratic interpolation through the candidates
+  // centre - 1, centre, centre + 1 (the pattern is smooth in log b), so that the band is not
+  // limited to the grid. One centre for a whole search keeps the residual continuous in x.
   const double u = x - centre;
   const double w_minus = 0.5 * u * (u - 1.0);
   const double w_zero = 1.0 - u * u;
@@ -224,44 +233,52 @@ InverterSweep::LevelFit InverterSweep::fit_levels(double x) const {
   f.rs_ohm = beta[0];
   f.vx_V = beta[1];
   f.offset_V = beta[2];
-  f.vx_var = f.sse / (kLevels - 3) * adj[1][1] / det;
+  f.vx_var = f.sse / (kLevels - 4) * adj[1][1] / det;  // Rs, Vx, c and the band fitted
   return f;
 }
 
 void InverterSweep::fit_step() {
   // One least-squares fit a period: first every grid band, then a golden-section search of the
-  // continuous band index around the best of them, then the two neighbours of the optimum that
-  // give the band's uncertainty.
+  // continuous band index between the best one's neighbours, then the optimum and its two
+  // sides, which give the band's uncertainty. A singular fit counts as an infinite residual.
   constexpr double kGolden = 0.6180339887498949;
+  const auto residual = [this](double x) {
+    const LevelFit f = fit_levels(x, centre_);
+    return f.valid ? f.sse : std::numeric_limits<double>::infinity();
+  };
   if (fit_index_ < kBands) {
-    const LevelFit f = fit_levels(static_cast<double>(fit_index_));
-    grid_sse_[static_cast<std::size_t>(fit_index_)] = f.valid ? f.sse : std::numeric_limits<double>::infinity();
+    const int k = fit_index_;
+    const LevelFit f = fit_levels(static_cast<double>(k), std::clamp(k, 1, kBands - 2));
+    grid_sse_[static_cast<std::size_t>(k)] = f.valid ? f.sse : std::numeric_limits<double>::infinity();
     if (++fit_index_ == kBands) {
       best_grid_ = static_cast<int>(std::min_element(grid_sse_.begin(), grid_sse_.end()) - grid_sse_.begin());
+      centre_ = std::clamp(best_grid_, 1, kBands - 2);
       lo_ = std::max(best_grid_ - 1, 0);
       hi_ = std::min(best_grid_ + 1, kBands - 1);
       x1_ = hi_ - kGolden * (hi_ - lo_);
       x2_ = lo_ + kGolden * (hi_ - lo_);
-      f1_ = fit_levels(x1_).sse;
-      f2_ = std::numeric_limits<double>::quiet_NaN();  // evaluated next period
+      f1_ = std::numeric_limits<double>::quiet_NaN();  // each evaluated in a period of its own
+      f2_ = std::numeric_limits<double>::quiet_NaN();
     }
     return;
   }
   if (fit_index_ < kBands + kGoldenSteps) {
-    if (std::isnan(f2_)) {
-      f2_ = fit_levels(x2_).sse;
+    if (std::isnan(f1_)) {
+      f1_ = residual(x1_);
+    } else if (std::isnan(f2_)) {
+      f2_ = residual(x2_);
     } else if (f1_ < f2_) {
       hi_ = x2_;
       x2_ = x1_;
       f2_ = f1_;
       x1_ = hi_ - kGolden * (hi_ - lo_);
-      f1_ = fit_levels(x1_).sse;
+      f1_ = residual(x1_);
     } else {
       lo_ = x1_;
       x1_ = x2_;
       f1_ = f2_;
       x2_ = lo_ + kGolden * (hi_ - lo_);
-      f2_ = fit_levels(x2_).sse;
+      f2_ = residual(x2_);
     }
     ++fit_index_;
     return;
@@ -269,7 +286,7 @@ void InverterSweep::fit_step() {
   const double x = 0.5 * (lo_ + hi_);
   const int k = fit_index_ - kBands - kGoldenSteps;
   constexpr double kH = 0.1;  // grid steps, for the finite differences
-  side_[static_cast<std::size_t>(k)] = fit_levels(k == 0 ? x - kH : (k == 1 ? x + kH : x));
+  side_[static_cast<std::size_t>(k)] = fit_levels(k == 0 ? x - kH : (k == 1 ? x + kH : x), centre_);
   ++fit_index_;
 }
 
@@ -293,7 +310,7 @@ void InverterSweep::conclude() {
   res.residual_rms_V = std::sqrt(best.sse / kLevels);
   // The band's own uncertainty from the residual's curvature in the band index
   // (var_x = 2 s^2 / SSE''), carried into Vx through dVx/dx, added to the fit's variance.
-  const double s2 = best.sse / (kLevels - 3);
+  const double s2 = best.sse / (kLevels - 4);
   const double curvature = (minus.sse - 2.0 * best.sse + plus.sse) / (kH * kH);
   const double dvx_dx = (plus.vx_V - minus.vx_V) / (2.0 * kH);
   const double var_x = curvature > 0.0 ? 2.0 * s2 / curvature : 1.0;

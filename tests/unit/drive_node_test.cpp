@@ -182,6 +182,63 @@ TEST(DriveNode, CalibrationUsesTheOperatorsTemperatureOrTheAmbientSensor) {
   EXPECT_NEAR(rig.node->controller().telemetry().thermal.winding_C, 18.5, 0.2) << "the operator's value";
 }
 
+// The calibration's bridge sweep (docs/estimator.md section 4.1) against the plant's bridge
+// (zero-current band 0.75 A; the controller's key says 1 A): its band is used at once, put back
+// if the calibration does not complete, and a stored band survives a sweep that was void.
+TEST(DriveNode, TheSweptBandIsKeptOnlyByACompletedCalibration) {
+  auto unloaded = [](Rig& r) {  // a calibration runs unloaded
+    r.plant_config.load.torque_Nm = 0.0;
+    r.plant = std::make_unique<plant::Plant>(r.plant_config);
+  };
+  Rig rig;
+  unloaded(rig);
+  rig.run(2000);
+  const double configured = rig.node->controller().telemetry().dead_time_band_A;
+  ASSERT_EQ(configured, rig.config.drive.dead_time.current_band_A);
+  rig.in.start_calibration = true;
+  rig.run(1);
+  rig.in.start_calibration = false;
+  ASSERT_TRUE(rig.node->controller().telemetry().inverter_sweep_active);
+  for (int k = 0; k < 20000 && rig.node->controller().telemetry().inverter_sweep_active; ++k) {
+    rig.run(1);
+  }
+  ASSERT_EQ(rig.node->controller().inverter_sweep().outcome, core::InverterSweepOutcome::kMeasured)
+      << core::to_string(rig.node->controller().inverter_sweep().outcome);
+  const double swept = rig.node->controller().telemetry().dead_time_band_A;
+  EXPECT_NEAR(swept, rig.plant_config.inverter.zero_current_band_A, 0.05 * rig.plant_config.inverter.zero_current_band_A);
+  rig.in.abort_calibration = true;
+  rig.run(1);
+  rig.in.abort_calibration = false;
+  EXPECT_EQ(rig.node->controller().telemetry().dead_time_band_A, configured) << "the old calibration's band";
+
+  // A drive whose stored calibration has a band: a sweep aborted by a stop leaves it in use,
+  // and the calibration that then completes stores it.
+  Rig stored;
+  unloaded(stored);
+  stored.config.drive.calibration.dead_time_band_A = 0.6;
+  stored.node = std::make_unique<DriveNode>(stored.config, stored.supervisor, PublishRates{});
+  stored.run(2000);
+  EXPECT_EQ(stored.node->controller().telemetry().dead_time_band_A, 0.6);
+  stored.in.start_calibration = true;
+  stored.run(1);
+  stored.in.start_calibration = false;
+  stored.run(100);
+  stored.in.mode = core::DriveMode::kDisabled;
+  stored.run(10);
+  EXPECT_EQ(stored.node->controller().inverter_sweep().outcome, core::InverterSweepOutcome::kAborted);
+  EXPECT_EQ(stored.node->controller().telemetry().dead_time_band_A, 0.6);
+  stored.in.mode = core::DriveMode::kSpeed;
+  std::optional<core::Calibration> done;
+  for (int k = 0; k < 300000 && !done; ++k) {
+    const NodeStep& step = stored.run(1);
+    if (step.calibration_to_store) {
+      done = *step.calibration_to_store;
+    }
+  }
+  ASSERT_TRUE(done.has_value()) << "the calibration did not complete";
+  EXPECT_EQ(done->dead_time_band_A, 0.6);
+}
+
 TEST(DriveNode, WithoutAnAmbientSensorTheConfiguredAmbientIsUsed) {
   Rig rig;
   auto no_sensor = [](hal::SensorSample& s) { s.flags = static_cast<std::uint8_t>(s.flags & ~hal::kSensorAmbientValid); };

@@ -224,6 +224,7 @@ class DriveController {
   bool thermal_guess_pending_ = true;  // start from the ambient sensor at the first update
   void start_thermal_from_guess(double guess_C);
   void finish_inverter_sweep(double now_s);
+  void restore_band();
 
   DriveOutput output_{};
   DriveTelemetry telemetry_{};
@@ -233,6 +234,11 @@ class DriveController {
   std::optional<Calibration> calibration_done_;
   std::optional<InverterSweepResult> sweep_done_;
   InverterSweep sweep_;
+  // The band in use came from a sweep (this run's or a stored calibration's), and what held
+  // before the calibration in progress, restored if it does not complete.
+  bool band_measured_ = false;
+  bool band_measured_before_ = false;
+  double band_before_calibration_A_ = 0.0;
 
   std::uint64_t period_ = 0;
   bool was_enabled_ = false;

@@ -16,8 +16,10 @@
 // where c collects what does not change sign with the level (-w Lq iq of the small no-load
 // iq, the mean of the EMF's d-axis harmonics over whole turns). <Gd(b)> is accumulated for a
 // fixed grid of candidate bands; the band whose linear fit leaves the least residual wins, and
-// a parabola through its neighbours refines it. Dead time is odd in the current and saturates,
-// the resistive drop is linear and c is even: the three are separable, Vx to a few mV.
+// a golden-section search between its neighbours (Gd interpolated in the band index) refines
+// it. Dead time is odd in the current and saturates, the resistive drop is linear and c is
+// even: the three separate. The band is what the estimator uses; the sweep's Vx is reported
+// (docs/estimator.md section 4.1 says why it is not the calibration's prior).
 //
 // Pure and allocation-free: fixed-size accumulators, one candidate-band fit per period after the
 // last level (a grid of candidate bands, then a golden-section search between them; no period
@@ -46,6 +48,7 @@ enum class InverterSweepOutcome : std::uint8_t {
   kMeasured,
   kAborted,           // the drive was disabled or lost its samples during the sweep
   kSpeedChanged,      // the operating point moved during the sweep
+  kVoltageLimited,    // a level's command was limited (not what the bridge applied)
   kBandAtLimit,       // the best band is at the end of the candidate range: not resolved
   kImplausible,       // Vx <= 0, Rs <= 0, or a singular fit
 };
@@ -80,9 +83,11 @@ class InverterSweep {
 
   // One period. `i_A`: the phase currents measured at its end; `mid`: the rotation at the
   // middle of the period that just ended; `vd_V`, `id_A`: the applied d-axis command and the
-  // mean current of that period; `omega_e_rad_s`: electrical speed. Returns true in the period
-  // the sweep finished.
-  bool step(bool enabled, const Abc& i_A, const Rotation& mid, double vd_V, double id_A, double omega_e_rad_s);
+  // mean current of that period; `omega_e_rad_s`: electrical speed; `voltage_limited`: that
+  // period's command had been limited. Returns true in the period the sweep finished (also
+  // when it was void: a disabled drive or a non-finite input aborts it).
+  bool step(bool enabled, const Abc& i_A, const Rotation& mid, double vd_V, double id_A, double omega_e_rad_s,
+            bool voltage_limited = false);
 
   [[nodiscard]] const InverterSweepResult& result() const { return result_; }
   [[nodiscard]] double band_candidate_A(int k) const;
@@ -99,8 +104,8 @@ class InverterSweep {
     double offset_V = 0.0;
     double vx_var = 0.0;
   };
-  static constexpr int kGoldenSteps = 24;
-  [[nodiscard]] LevelFit fit_levels(double band_index) const;
+  static constexpr int kGoldenSteps = 26;  // two periods evaluate the first pair of points
+  [[nodiscard]] LevelFit fit_levels(double band_index, int centre) const;
   void fit_step();
   void conclude();
 
@@ -141,6 +146,7 @@ class InverterSweep {
   int fit_index_ = 0;
   std::array<double, kBands> grid_sse_{};
   int best_grid_ = 0;
+  int centre_ = 1;                  // the interpolation's centre during the search
   double lo_ = 0.0;
   double hi_ = 0.0;
   double x1_ = 0.0;
