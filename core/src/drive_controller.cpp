@@ -53,7 +53,7 @@ void DriveController::finish_inverter_sweep(double now_s) {
   sweep_done_ = r;
   if (r.outcome == InverterSweepOutcome::kMeasured) {
     // The band replaces the configured one (compensation and the estimator's pattern alike).
-    // The sweep's Vx is reported, not used as the calibration's prior: it reads 0.01-0.035 V
+    // The sweep's Vx is reported, not used as the calibration's prior: it reads up to 0.04 V
     // below the bridge's (the level means keep a 50 mV residual the model does not explain),
     // and Rs0 moves about 0.3 % per 0.02 V of prior; measured, it made the seeds read low
     // (docs/estimator.md section 4). The calibration's joint fit learns Vx itself.
