@@ -34,7 +34,6 @@ void InverterSweep::start(const InverterSweepConfig& config, double period_s) {
   stage_ = Stage::kSettle;
   level_ = 0;
   elapsed_s_ = 0.0;
-  speed_seen_ = false;
   ring_count_ = 0;
   ring_head_ = 0;
   result_ = {};
@@ -166,9 +165,8 @@ void InverterSweep::finish_level() {
     mean_gd_[l][k] = sum_gd_[k] / n;
   }
   const double speed = std::abs(sum_omega_ / n);
-  speed_min_ = speed_seen_ ? std::min(speed_min_, speed) : speed;
-  speed_max_ = speed_seen_ ? std::max(speed_max_, speed) : speed;
-  speed_seen_ = true;
+  speed_min_ = level_ > 0 ? std::min(speed_min_, speed) : speed;
+  speed_max_ = level_ > 0 ? std::max(speed_max_, speed) : speed;
   ++level_;
   elapsed_s_ = 0.0;
   if (level_ >= kLevels) {
@@ -242,14 +240,14 @@ void InverterSweep::fit_step() {
   // continuous band index between the best one's neighbours, then the optimum and its two
   // sides, which give the band's uncertainty. A singular fit counts as an infinite residual.
   constexpr double kGolden = 0.6180339887498949;
-  const auto residual = [this](double x) {
-    const LevelFit f = fit_levels(x, centre_);
+  const auto residual_at = [this](double x, int centre) {
+    const LevelFit f = fit_levels(x, centre);
     return f.valid ? f.sse : std::numeric_limits<double>::infinity();
   };
+  const auto residual = [&](double x) { return residual_at(x, centre_); };
   if (fit_index_ < kBands) {
     const int k = fit_index_;
-    const LevelFit f = fit_levels(static_cast<double>(k), std::clamp(k, 1, kBands - 2));
-    grid_sse_[static_cast<std::size_t>(k)] = f.valid ? f.sse : std::numeric_limits<double>::infinity();
+    grid_sse_[static_cast<std::size_t>(k)] = residual_at(static_cast<double>(k), std::clamp(k, 1, kBands - 2));
     if (++fit_index_ == kBands) {
       best_grid_ = static_cast<int>(std::min_element(grid_sse_.begin(), grid_sse_.end()) - grid_sse_.begin());
       centre_ = std::clamp(best_grid_, 1, kBands - 2);
@@ -293,7 +291,6 @@ void InverterSweep::fit_step() {
 void InverterSweep::conclude() {
   constexpr double kH = 0.1;
   InverterSweepResult res;
-  res.levels = kLevels;
   const LevelFit& minus = side_[0];
   const LevelFit& plus = side_[1];
   const LevelFit& best = side_[2];

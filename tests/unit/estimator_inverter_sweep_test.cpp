@@ -33,7 +33,7 @@ struct SweepRun {
 };
 
 SweepRun run_sweep(const Bridge& b, const InverterSweepConfig& cfg, bool disable_midway = false,
-                   InverterSweep* reuse = nullptr) {
+                   InverterSweep* reuse = nullptr, int max_periods = 200000) {
   constexpr double kT = 1e-4;
   InverterSweep local;
   InverterSweep& sweep = reuse != nullptr ? *reuse : local;
@@ -42,7 +42,7 @@ SweepRun run_sweep(const Bridge& b, const InverterSweepConfig& cfg, bool disable
   std::normal_distribution<double> noise(0.0, 1.0);
   double theta = b.theta0_rad;
   SweepRun run;
-  for (int k = 0; k < 200000; ++k) {
+  for (int k = 0; k < max_periods; ++k) {
     const double id = sweep.id_ref_A();  // the current loop follows the level (steady state)
     double omega = b.omega_e_rad_s;
     if (b.speed_step_at_level >= 0 && std::abs(id) >= std::abs(sweep.level_A(static_cast<int>(b.speed_step_at_level)))) {
@@ -197,15 +197,9 @@ TEST(InverterSweep, ASecondStartBeginsAfresh) {
   other.vx_V = 3.0;
   other.band_A = 3.0;
   InverterSweep sweep;
-  sweep.start(table_one_sweep(), 1e-4);
-  double theta = 0.3;
-  for (int k = 0; k < 2000; ++k) {
-    const double id = sweep.id_ref_A();
-    const Abc i1 = inverse_clarke(inverse_park(Dq{id, 0.0}, theta));
-    const Rotation mid = rotation(theta);
-    const Abc sign{soft_sign(i1.a, other.band_A), soft_sign(i1.b, other.band_A), soft_sign(i1.c, other.band_A)};
-    ASSERT_FALSE(sweep.step(true, i1, mid, other.rs_ohm * id + other.vx_V * park(clarke(sign), mid.c, mid.s).d, id, 0.0));
-  }
+  const SweepRun half = run_sweep(other, table_one_sweep(), false, &sweep, 2000);
+  ASSERT_EQ(half.periods, 2000);
+  ASSERT_TRUE(sweep.active()) << "still sweeping";
   const SweepRun fresh = run_sweep(Bridge{}, table_one_sweep(), false, &sweep);
   ASSERT_EQ(fresh.result.outcome, InverterSweepOutcome::kMeasured);
   EXPECT_NEAR(fresh.result.band_A, 0.75, 0.75 * 0.01);

@@ -63,7 +63,6 @@ struct InverterSweepResult {
   double rs_ohm = 0.0;              // the fit's resistance (diagnostic; Rs0 is the calibration's)
   double offset_V = 0.0;            // c
   double residual_rms_V = 0.0;      // of the level means about the best fit
-  int levels = 0;
 };
 
 class InverterSweep {
@@ -90,7 +89,6 @@ class InverterSweep {
             bool voltage_limited = false);
 
   [[nodiscard]] const InverterSweepResult& result() const { return result_; }
-  [[nodiscard]] double band_candidate_A(int k) const;
   [[nodiscard]] double level_A(int level) const;
 
  private:
@@ -106,6 +104,7 @@ class InverterSweep {
   };
   static constexpr int kGoldenSteps = 26;  // two periods evaluate the first pair of points
   [[nodiscard]] LevelFit fit_levels(double band_index, int centre) const;
+  [[nodiscard]] double band_candidate_A(int k) const;
   void fit_step();
   void conclude();
 
@@ -118,7 +117,6 @@ class InverterSweep {
   double target_angle_rad_ = 0.0;   // whole turns to average over (0: by time)
   double speed_min_ = 0.0;
   double speed_max_ = 0.0;
-  bool speed_seen_ = false;
   std::array<double, kBands> bands_{};  // the candidate bands, A
   // The pattern is built from phase currents averaged over kSmooth samples centred on each
   // period end: the sensor's noise (0.2 A on the reference drive) rounds the soft-sign's corners
