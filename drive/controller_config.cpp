@@ -129,6 +129,14 @@ ConfigSchema<C> build() {
            at_least(0, 10000), "rad/s", "Electrical speed below which recordings are time-based.");
   inj.integer("injection.unipolar_polarity", [](C& c) -> int& { return c.drive.injection.unipolar_polarity; }, between(-1, 1),
               "Sign of F for unipolar separation (-1 lowers the voltage).");
+  inj.boolean("injection.field_weakening_pairs", [](C& c) -> bool& { return c.drive.injection.field_weakening_pairs; },
+              "At the voltage limit, record at two negative levels (-lo, -F) instead of skipping the pair.");
+  inj.real("injection.field_weakening_low_fraction",
+           [](C& c) -> double& { return c.drive.injection.field_weakening_low_fraction; }, between(0, 0.9), "",
+           "Field-weakening pairs: least lower level, as a fraction of the upper.");
+  inj.real("injection.field_weakening_pattern_error",
+           [](C& c) -> double& { return c.drive.injection.field_weakening_pattern_error; }, between(0, 1), "",
+           "Field-weakening pairs: the sign pattern's error as a fraction of Vx (a shared error in the band).");
   inj.real("injection.theta_f_rad", [](C& c) -> double& { return c.drive.injection.theta_f_rad; }, between(-7, 7), "rad",
            "Angle of the fixed-angle / DC injection vector (electrical).");
   inj.real("injection.beta", [](C& c) -> double& { return c.drive.injection.beta; }, between(0, 1), "", "Regulation factor (Eq. 12).");

@@ -207,7 +207,7 @@ void DriveController::handle_estimate(const EventEstimate& e) {
     // A measurement before the first thermal update: the filter starts from a guess here.
     start_thermal_from_guess(observer_.estimate().winding_C);
   }
-  out.fused = observer_.update_resistance(e.rs_ohm, e.rs_std_ohm);
+  out.fused = observer_.update_resistance(e.rs_ohm, e.rs_std_ohm, e.rs_systematic_std_ohm);
   if (out.fused) {
     ++telemetry_.estimates_published;
     // The published temperature follows the fused measurement at once, not at the next

@@ -1,5 +1,6 @@
 #include "pmsm/core/injection.hpp"
 
+#include <algorithm>
 #include <cmath>
 
 namespace pmsm::core {
@@ -116,6 +117,28 @@ double max_injection_current_at_operating_point_A(const InjectionHeadroomInput& 
   const double b = v0.d * ud + v0.q * uq;
   const double c = v0_sq - limit_sq;  // < 0, so the discriminant is positive
   return (-b + std::sqrt(b * b - a * c)) / a;
+}
+
+InjectionCurrentRange injection_current_range_at_operating_point_A(const InjectionHeadroomInput& in,
+                                                                   double polarity) {
+  const Dq v0 = motoring_voltage(in);
+  const double limit_sq = in.voltage_limit_V * in.voltage_limit_V;
+  const double ud = polarity * required_injection_voltage_V(1.0, in.ld_H, in.rs_ohm, in.tw_s, in.window);
+  const double uq = polarity * in.omega_e_rad_s * in.ld_H;
+  // |v0 + F u|^2 <= limit^2 between the roots of |u|^2 F^2 + 2 (v0.u) F + |v0|^2 - limit^2.
+  const double a = ud * ud + uq * uq;
+  const double b = v0.d * ud + v0.q * uq;
+  const double c = v0.d * v0.d + v0.q * v0.q - limit_sq;
+  const double disc = b * b - a * c;
+  InjectionCurrentRange r;
+  if (!(a > 0.0) || !(disc >= 0.0)) {
+    return r;
+  }
+  const double root = std::sqrt(disc);
+  r.hi_A = (-b + root) / a;
+  r.lo_A = std::max(0.0, (-b - root) / a);
+  r.valid = r.hi_A > r.lo_A;
+  return r;
 }
 
 double per_phase_injection_current_A(double f_A) { return 2.0 / 3.0 * f_A; }  // Eq. 30

@@ -93,10 +93,7 @@ double InjectionScheduler::edge_value(double elapsed_s) const {
 }
 
 double InjectionScheduler::level_for(int recording) const {
-  if (config_.separation == Separation::kBipolar) {
-    return recording == 1 ? 1.0 : -1.0;
-  }
-  return recording == 1 ? 0.0 : static_cast<double>(config_.unipolar_polarity >= 0 ? 1 : -1);
+  return recording == 1 ? level1_ : level2_;
 }
 
 double InjectionScheduler::delta_theta(double needed_rad) const {
@@ -162,6 +159,22 @@ InjectionScheduler::Budget InjectionScheduler::budget(const SchedulerInput& in, 
   }
 
   b.f_A = std::max(0.0, std::min({f_current, f_voltage, f_torque}));
+  if (b.f_A < config_.f_min_A && f_voltage < f_current && config_.field_weakening_pairs &&
+      config_.method == InjectionMethod::kFixedMagnitude &&
+      std::abs(in.omega_e_rad_s) >= config_.min_speed_for_angle_rad_s) {
+    // The voltage is what stops the configured pair: try two levels that both weaken the
+    // field. Upper level: inside the current limit, the voltage range and the torque budget;
+    // lower level: off the voltage limit and out of the zero-current band.
+    const InjectionCurrentRange range = injection_current_range_at_operating_point_A(h, -1.0);
+    const double high = std::min({wanted_A, current_room(-1.0), range.hi_A, f_torque});
+    const double low = std::max(range.lo_A, config_.field_weakening_low_fraction * high);
+    if (range.valid && high - low >= config_.f_min_A) {
+      b.f_A = high;
+      b.low_A = low;
+      b.field_weakening = true;
+      return b;
+    }
+  }
   if (b.f_A < config_.f_min_A) {
     // The tightest budget is the reason (the configuration guarantees wanted >= F_min).
     if (torque_budget && f_torque < std::min(f_current, f_voltage)) {
@@ -181,6 +194,16 @@ void InjectionScheduler::begin_pair(const SchedulerInput& in) {
   fit.lq_H = config_.learn_lq ? lq_H_ : config_.lq_H;
   fit.ld_H = config_.ld_H;
   recorder_.start(fit, time_based_ ? MatchBy::kTime : MatchBy::kAngle, direction_);
+  if (field_weakening_) {
+    level1_ = -fw_low_level_;
+    level2_ = -1.0;
+  } else if (config_.separation == Separation::kBipolar) {
+    level1_ = 1.0;
+    level2_ = -1.0;
+  } else {
+    level1_ = 0.0;
+    level2_ = config_.unipolar_polarity >= 0 ? 1.0 : -1.0;
+  }
   ramp_count_ = 0;
   recording_ = 0;
   level_from_ = 0.0;
@@ -309,6 +332,8 @@ PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
   r.separation = config_.separation;
   r.time_s = in.time_s;
   r.f_A = f_A_;
+  r.field_weakening = field_weakening_;
+  r.low_level = field_weakening_ ? fw_low_level_ : 0.0;
   r.level_index = level_index_;
   r.time_based = time_based_;
   const PairConditions c = recorder_.conditions();
@@ -350,7 +375,10 @@ PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
     event_min_f_A_ = event_pairs_ == 0 ? f_A_ : std::min(event_min_f_A_, f_A_);
     event_max_iq_A_ = std::max(event_max_iq_A_, 0.5 * std::abs(c.iq_mean_1_A + c.iq_mean_2_A));
     event_max_speed_ = std::max(event_max_speed_, 0.5 * std::abs(c.omega_e_mean_1_rad_s + c.omega_e_mean_2_rad_s));
-    if (event_q_pairs_ < InjectionConfig::kMaxLevels && !time_based_) {
+    event_field_weakening_ = event_field_weakening_ || field_weakening_;
+    // The magnet's q-axis means need Ld <w id>: a field-weakening pair's <id> is far from
+    // zero, so the commissioned Ld's error would go into Ke (docs/estimator.md §8).
+    if (event_q_pairs_ < InjectionConfig::kMaxLevels && !time_based_ && !field_weakening_) {
       event_q_[static_cast<std::size_t>(event_q_pairs_++)] = c;
     }
     ++event_pairs_;
@@ -392,7 +420,7 @@ bool InjectionScheduler::event_joint_fit() const {
   // Only bipolar pairs reverse the current vector; a unipolar pair's first recording sits at
   // the motoring current, near zero at light load, where the bridge's error depends on the
   // zero-current band that no sign model knows exactly.
-  const bool reverses = config_.separation == Separation::kBipolar &&
+  const bool reverses = config_.separation == Separation::kBipolar && !event_field_weakening_ &&
                         event_max_iq_A_ <= config_.vx_learning_max_iq_fraction * event_min_f_A_ &&
                         event_max_speed_ <= config_.vx_learning_max_speed_rad_s;
   return config_.fit_dead_time && reverses && event_pairs_ >= 2;
@@ -458,6 +486,14 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
     }
     rs = fixed.rs_ohm;
     var_rs = fixed.var_rs + fixed.drs_dvx * fixed.drs_dvx * var_vx;
+    if (event_field_weakening_) {
+      // At the voltage limit the bridge's term is most of the pair's signal (the current
+      // vector only turns) and the sign pattern is least exact (docs/estimator.md §2): its
+      // model error, a fraction of Vx, adds to the estimate's variance.
+      const double model = config_.field_weakening_pattern_error * vx * fixed.drs_dvx;
+      var_rs += model * model;
+      e.rs_systematic_std_ohm = std::abs(model);
+    }
   }
   if (!plausible(rs, 0.0) || !(var_rs >= 0.0)) {
     e.outcome = EventOutcome::kImplausible;
@@ -542,6 +578,7 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
         event_max_iq_A_ = 0.0;
         event_max_speed_ = 0.0;
         event_q_pairs_ = 0;
+        event_field_weakening_ = false;
         next_event_s_ = in.time_s + config_.interval_s;
       }
       if (level_index_ >= std::clamp(config_.level_count, 1, InjectionConfig::kMaxLevels)) {
@@ -581,6 +618,8 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
         break;
       }
       f_A_ = b.f_A;
+      field_weakening_ = b.field_weakening;
+      fw_low_level_ = b.field_weakening ? b.low_A / b.f_A : 0.0;
       begin_pair(in);
       phase_start_s_ = in.time_s;
       break;
@@ -598,7 +637,7 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
           // Between the recordings: down to zero, then up to the level of recording 2.
           ++ramp_count_;
           const double second = level_for(2);
-          if (reached != second && reached != 0.0) {
+          if (reached != second && reached * second < 0.0) {
             level_from_ = reached;
             level_to_ = 0.0;
             enter(SchedulerPhase::kRampDown);
@@ -638,7 +677,10 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
             recorder_.first_size() >= recorder_capacity_) {
           if (!time_based_) {
             // Room for the transition: its ramps and settling at the present speed.
-            const int ramps = (level_for(1) != 0.0 ? 1 : 0) + (level_for(2) != 0.0 ? 1 : 0);
+            // Levels of opposite sign pass through zero (two ramps), others take one.
+            const double l1 = level_for(1);
+            const double l2 = level_for(2);
+            const int ramps = l1 == l2 ? 0 : (l1 * l2 < 0.0 ? 2 : 1);
             const double transition_s = ramps * config_.tw_s + config_.settle_s + 4.0 * period_s_;
             const double needed = recorder_.first_extent() + std::abs(in.omega_e_rad_s) * transition_s;
             origin2_ = recorder_.first_origin() + delta_theta(needed);
@@ -648,8 +690,8 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
           const double second = level_for(2);
           if (first != second) {
             level_from_ = first;
-            level_to_ = first != 0.0 ? 0.0 : second;
-            enter(first != 0.0 ? SchedulerPhase::kRampDown : SchedulerPhase::kRampUp);
+            level_to_ = first * second < 0.0 ? 0.0 : second;
+            enter(std::abs(level_to_) < std::abs(first) ? SchedulerPhase::kRampDown : SchedulerPhase::kRampUp);
           } else {
             enter(SchedulerPhase::kSettle);
           }

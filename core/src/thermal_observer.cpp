@@ -88,6 +88,7 @@ void ThermalObserver::restore(const ThermalState& state, double downtime_thermal
   p_(0, 1) = p_(1, 0) = 0.95 * var;  // the machine's error is shared (see the constructor)
   p_(2, 2) = config_.initial_loss_error_std_W * config_.initial_loss_error_std_W;
   drift_std_C_ = 0.0;
+  shared_error_C_ = 0.0;  // part of the stored band now
   since_measurement_s_ = 0.0;
   anchored_ = false;
 }
@@ -138,7 +139,7 @@ void ThermalObserver::predict(double dt_s, double copper_current_sq_A2, double o
   since_measurement_s_ += dt_s;
 }
 
-bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm) {
+bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm, double systematic_std_ohm) {
   // Measurement of the winding temperature through Eq. 1; its variance from the resistance's.
   const double z = temperature_from_resistance_C(rs_ohm);
   const double dt_dr =
@@ -188,6 +189,12 @@ bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm) {
   // Joseph form keeps P symmetric and positive.
   const Eigen::Matrix3d i_kh = Eigen::Matrix3d::Identity() - k * h;
   p_ = i_kh * p_ * i_kh.transpose() + k * r * k.transpose();
+  // A model error shared by consecutive measurements is not averaged away: the state carries
+  // the share k of this measurement's and (1 - k) of what it carried before. It widens the
+  // reported band without changing the gain (which must not trust the next measurement with
+  // the same error more).
+  const double systematic_C = std::abs(systematic_std_ohm * dt_dr);
+  shared_error_C_ = k(0) * (std::isfinite(systematic_C) ? systematic_C : 0.0) + (1.0 - k(0)) * shared_error_C_;
   since_measurement_s_ = 0.0;
   anchor_C_ = x_(0);
   return true;
@@ -203,7 +210,9 @@ bool ThermalObserver::reanchor_consistent(double z, double r) const {
 }
 
 ThermalEstimate ThermalObserver::estimate() const {
-  return {x_(0), std::sqrt(std::max(p_(0, 0), 0.0) + drift_std_C_ * drift_std_C_), x_(1), x_(2), since_measurement_s_};
+  return {x_(0),
+          std::sqrt(std::max(p_(0, 0), 0.0) + drift_std_C_ * drift_std_C_ + shared_error_C_ * shared_error_C_),
+          x_(1), x_(2), since_measurement_s_};
 }
 
 bool ThermalObserver::time_to_limit_s(double limit_C, double copper_current_sq_A2,

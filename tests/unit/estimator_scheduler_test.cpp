@@ -16,6 +16,7 @@
 #include <string_view>
 #include <vector>
 
+#include "pmsm/core/injection.hpp"
 #include "pmsm/core/injection_scheduler.hpp"
 
 namespace pmsm::core {
@@ -651,6 +652,7 @@ TEST(InjectionBudget, ReluctanceTorqueBudgetOnASalientMachine) {
 
 TEST(InjectionBudget, VoltageHeadroomReducesFAtSpeed) {
   InjectionConfig c = test_config();
+  c.field_weakening_pairs = false;  // the configured pair's own budget
   InjectionScheduler s(c, kPeriod, 64);
   SchedulerInput in;
   in.voltage_limit_V = 356.0;
@@ -671,6 +673,99 @@ TEST(InjectionBudget, VoltageHeadroomReducesFAtSpeed) {
   // At 1000 rad/s the motoring voltage alone is close to the limit: F must be small.
   in.omega_e_rad_s = 1000.0;
   EXPECT_LT(s.budget(in, c.tw_s, 25.0).f_A, c.f_min_A);
+}
+
+// At the voltage limit (the motoring point alone needs more than limit - margin) no level of
+// the configured pair fits; two levels that weaken the field do, and each lies inside the
+// worst-case voltage of the Eq. 29 budget.
+TEST(InjectionBudget, FieldWeakeningPairAtTheVoltageLimit) {
+  InjectionConfig c = test_config();
+  InjectionScheduler s(c, kPeriod, 64);
+  SchedulerInput in;
+  in.voltage_limit_V = 356.0;
+  in.motoring_ref_A = {0.0, 20.0};
+  in.omega_e_rad_s = 1000.0;
+  const double limit = in.voltage_limit_V - c.headroom_margin_V;
+  const Dq im = in.motoring_ref_A;
+  const double rs = c.rs_nominal_ohm;
+  const Dq v0{rs * im.d - in.omega_e_rad_s * c.lq_H * im.q,
+              rs * im.q + in.omega_e_rad_s * (c.ld_H * im.d + c.flux_linkage_Wb)};
+  ASSERT_GT(std::hypot(v0.d, v0.q), limit) << "the operating point must sit at the limit";
+  // Worst case of a level -F (Eq. 29's steepest edge and the q-axis term together).
+  const InjectionCurrentRange range = injection_current_range_at_operating_point_A(
+      InjectionHeadroomInput{rs, c.ld_H, c.lq_H, c.flux_linkage_Wb, in.omega_e_rad_s, im.d, im.q, limit, c.tw_s, c.window},
+      -1.0);
+  ASSERT_TRUE(range.valid);
+  const double per_amp_d = required_injection_voltage_V(1.0, c.ld_H, rs, c.tw_s, c.window);
+  auto worst = [&](double f) { return std::hypot(v0.d - f * per_amp_d, v0.q - f * in.omega_e_rad_s * c.ld_H); };
+
+  const InjectionScheduler::Budget b = s.budget(in, c.tw_s, 25.0);
+  EXPECT_TRUE(b.field_weakening);
+  EXPECT_EQ(b.limiting, PairOutcome::kAccepted);
+  EXPECT_LE(worst(b.low_A), limit + 1e-6);
+  EXPECT_LE(worst(b.f_A), limit + 1e-6);
+  EXPECT_GT(worst(0.9 * range.lo_A), limit) << "the lower level is what comes off the limit";
+  EXPECT_GE(b.low_A, c.field_weakening_low_fraction * b.f_A - 1e-12);
+  EXPECT_GE(b.f_A - b.low_A, c.f_min_A);
+  EXPECT_LE(b.f_A, 25.0);
+
+  // Not for fixed-angle injection, not at time-based speeds, not when switched off.
+  InjectionConfig fa = c;
+  fa.method = InjectionMethod::kFixedAngle;
+  EXPECT_FALSE(InjectionScheduler(fa, kPeriod, 64).budget(in, c.tw_s, 25.0).field_weakening);
+  InjectionConfig off = c;
+  off.field_weakening_pairs = false;
+  const InjectionScheduler::Budget none = InjectionScheduler(off, kPeriod, 64).budget(in, c.tw_s, 25.0);
+  EXPECT_FALSE(none.field_weakening);
+  EXPECT_EQ(none.limiting, PairOutcome::kRejectedVoltageHeadroom);
+  // With the whole current limit taken by the motoring current nothing fits either way.
+  in.motoring_ref_A = {0.0, 79.0};
+  const InjectionScheduler::Budget full = s.budget(in, c.tw_s, 25.0);
+  EXPECT_LT(full.f_A, c.f_min_A);
+  EXPECT_FALSE(full.field_weakening);
+}
+
+// The pair itself: recording 1 at -low F, one ramp straight to -F (never through zero, which
+// would put the drive back on the voltage limit), recording 2 at -F, then back to zero. Its
+// estimate carries the sign pattern's shared error.
+TEST(InjectionScheduler, FieldWeakeningPairRecordsAtTwoNegativeLevels) {
+  InjectionConfig c = test_config();
+  c.vx_initial_V = 1.5;  // the harness plant's bridge, known
+  c.vx_initial_std_V = 0.01;
+  Harness h(c, 1000.0);
+  h.motoring_A = {0.0, 20.0};
+  h.run_until(0.2);
+  ASSERT_GE(h.pairs.size(), 1U);
+  const PairResult& p = h.pairs[0];
+  ASSERT_TRUE(p.field_weakening);
+  EXPECT_EQ(p.outcome, PairOutcome::kAccepted) << to_string(p.outcome);
+  EXPECT_GE(p.low_level, c.field_weakening_low_fraction - 1e-12);
+  EXPECT_LT(p.low_level, 1.0);
+  bool seen_record1 = false;
+  bool seen_record2 = false;
+  bool between = false;
+  for (const StepRecord& r : h.records) {
+    if (r.time_s > p.time_s) break;
+    EXPECT_LE(r.out.injection_A.d, 1e-12) << "t " << r.time_s;
+    if (r.out.phase == SchedulerPhase::kRecord1) {
+      seen_record1 = true;
+      EXPECT_NEAR(r.out.injection_A.d, -p.low_level * p.f_A, 1e-9);
+    }
+    if (seen_record1 && !seen_record2 && r.out.phase != SchedulerPhase::kRecord1) between = true;
+    if (between && r.out.phase != SchedulerPhase::kRecord2 && !seen_record2) {
+      EXPECT_LE(r.out.injection_A.d, -p.low_level * p.f_A + 1e-9) << "t " << r.time_s;
+    }
+    if (r.out.phase == SchedulerPhase::kRecord2) {
+      seen_record2 = true;
+      EXPECT_NEAR(r.out.injection_A.d, -p.f_A, 1e-9);
+    }
+  }
+  EXPECT_TRUE(seen_record1 && seen_record2);
+  EXPECT_NEAR(p.rs_ohm, h.plant.rs_ohm, 3.0 * p.rs_std_ohm + 1e-3);
+  ASSERT_GE(h.estimates.size(), 1U);
+  EXPECT_EQ(h.estimates[0].outcome, EventOutcome::kPublished);
+  EXPECT_GT(h.estimates[0].rs_systematic_std_ohm, 0.0);
+  EXPECT_LE(h.estimates[0].rs_systematic_std_ohm, h.estimates[0].rs_std_ohm);
 }
 
 TEST(InjectionScheduler, SkipsEveryLevelWhenTheBudgetIsTooSmallAndRetries) {

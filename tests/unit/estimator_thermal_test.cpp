@@ -134,6 +134,37 @@ TEST(ThermalObserver, ResistanceMeasurementUsesTheHandComputedKalmanGain) {
   EXPECT_EQ(e.time_since_measurement_s, 0.0);
 }
 
+// A model error shared by consecutive measurements widens the band by the share the state
+// carries, without changing the gain: the same measurements move the estimate alike.
+TEST(ThermalObserver, ASharedErrorWidensTheBandButNotTheGain) {
+  ThermalModelConfig c;
+  ThermalObserver plain(c, Calibration{}, 40.0);
+  ThermalObserver shared(c, Calibration{}, 40.0);
+  const double rs = plain.resistance_at_C(45.0);
+  const double systematic_ohm = 0.001;  // about 1.9 C on the Table I motor
+  const double systematic_C = systematic_ohm / (kAlpha * 0.133);
+  for (int k = 0; k < 200; ++k) {
+    ASSERT_TRUE(plain.update_resistance(rs, 0.002));
+    ASSERT_TRUE(shared.update_resistance(rs, 0.002, systematic_ohm));
+    EXPECT_NEAR(shared.estimate().winding_C, plain.estimate().winding_C, 1e-12);
+  }
+  // Averaging took the independent part down; the shared part stays.
+  EXPECT_LT(plain.estimate().winding_std_C, 0.5 * systematic_C);
+  EXPECT_GT(shared.estimate().winding_std_C, 0.95 * systematic_C);
+  // Independent measurements replace it by their share (each its gain).
+  auto excess = [&] {
+    const double a = shared.estimate().winding_std_C;
+    const double b = plain.estimate().winding_std_C;
+    return std::sqrt(std::max(a * a - b * b, 0.0));
+  };
+  const double before = excess();
+  for (int k = 0; k < 200; ++k) {
+    ASSERT_TRUE(plain.update_resistance(rs, 0.002));
+    ASSERT_TRUE(shared.update_resistance(rs, 0.002));
+  }
+  EXPECT_LT(excess(), 0.7 * before);
+}
+
 TEST(ThermalObserver, AfterPredictionAMeasurementAlsoMovesTheCorrelatedStates) {
   ThermalModelConfig c;
   ThermalObserver obs(c, Calibration{}, 40.0);

@@ -127,6 +127,19 @@ struct InjectionHeadroomInput {
 [[nodiscard]] double max_injection_current_at_operating_point_A(const InjectionHeadroomInput& in,
                                                                 double polarity);
 
+// The range of F >= 0 for one polarity inside which the same worst case stays within the
+// limit. At the voltage limit (|v0| at or beyond it) a polarity that weakens the field
+// (s = -1 at speed: w Ld F lowers vq) still has a range [lo, hi] with lo > 0: the level an
+// injection must reach to come off the limit, and the level at which it would hit it again.
+// Empty (valid = false) when no F fits.
+struct InjectionCurrentRange {
+  bool valid = false;
+  double lo_A = 0.0;
+  double hi_A = 0.0;
+};
+[[nodiscard]] InjectionCurrentRange injection_current_range_at_operating_point_A(
+    const InjectionHeadroomInput& in, double polarity);
+
 // Eq. 30: per-phase current requirement Iinj = 2/3 F.
 [[nodiscard]] double per_phase_injection_current_A(double f_A);
 

@@ -86,6 +86,20 @@ struct InjectionConfig {
   int pole_pairs = 3;
   double min_speed_for_angle_rad_s = 30.0;  // electrical; below: time-based recordings
   int unipolar_polarity = -1;     // unipolar injects -F by default (it lowers the voltage)
+  // At the voltage limit (rated speed) the configured pair has no room: the level +F (or the
+  // zero level of a unipolar pair) needs more voltage than there is. A field-weakening pair
+  // then records at two negative levels, -lo and -F: both lower the voltage (w Ld F comes off
+  // vq), the difference still carries the resistive signal Rs (F - lo), and the EMF and the
+  // motoring voltage cancel in it as in any pair (docs/estimator.md §2). Fixed-magnitude
+  // injection at angle-based speeds only.
+  bool field_weakening_pairs = true;
+  // The lower level is at least this fraction of the upper one (and at least what takes the
+  // operating point off the voltage limit), so that neither recording sits in the bridge's
+  // zero-current band at light load.
+  double field_weakening_low_fraction = 0.3;
+  // The sign pattern's error at those speeds, as a fraction of Vx: it enters the estimate's
+  // variance (measured: docs/estimator.md §2).
+  double field_weakening_pattern_error = 0.01;
   // Fixed-angle and DC injection.
   double theta_f_rad = 0.0;       // angle of the injection vector (electrical)
   double beta = 0.0;              // regulation factor (Eq. 12); 1 for DC injection
@@ -172,6 +186,8 @@ struct PairResult {
   double time_s = 0.0;
   int level_index = 0;
   double f_A = 0.0;                // magnitude actually used (after budget reduction)
+  bool field_weakening = false;    // recorded at -low_level F and -F (InjectionConfig)
+  double low_level = 0.0;          // that pair's lower level in units of F
   double rs_ohm = 0.0;             // only meaningful when accepted
   double rs_std_ohm = 0.0;
   double delta_omega_e_rad_s = 0.0;
@@ -200,6 +216,9 @@ struct EventEstimate {
   int pairs = 0;                   // accepted pairs that went into it
   double rs_ohm = 0.0;
   double rs_std_ohm = 0.0;
+  // The part of rs_std_ohm that more estimates do not average away: a model error common to
+  // consecutive estimates (field-weakening pairs' sign pattern), 0 when none is known.
+  double rs_systematic_std_ohm = 0.0;
   double vx_V = 0.0;               // the fused inverter voltage after this event
   double vx_std_V = 0.0;
   bool vx_from_event = false;      // the event's own levels determined Vx (joint fit)
@@ -241,6 +260,8 @@ class InjectionScheduler {
   struct Budget {
     double f_A = 0.0;
     PairOutcome limiting = PairOutcome::kAccepted;
+    bool field_weakening = false;  // a field-weakening pair fits where the configured one does not
+    double low_A = 0.0;            // its lower level
   };
   [[nodiscard]] Budget budget(const SchedulerInput& in, double tw_s, double wanted_A) const;
 
@@ -295,6 +316,11 @@ class InjectionScheduler {
   bool time_based_ = false;
   double direction_ = 1.0;
   double f_A_ = 0.0;                // magnitude for this pair
+  double level1_ = 1.0;             // levels of recordings 1 and 2 for this pair (units of F)
+  double level2_ = -1.0;
+  bool field_weakening_ = false;    // this pair is a field-weakening pair (budget())
+  double fw_low_level_ = 0.0;       // its lower level (units of F), from the budget
+  bool event_field_weakening_ = false;  // the event has an accepted field-weakening pair
   double phase_start_s_ = 0.0;
   double level_from_ = 0.0;         // ramp start level (units of F)
   double level_to_ = 0.0;           // ramp end level

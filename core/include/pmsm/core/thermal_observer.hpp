@@ -110,7 +110,10 @@ class ThermalObserver {
   // Fuses one resistance measurement (ohm, with its standard error). Returns false, leaving
   // the state alone, when the measurement is further from the prediction than gate_sigma
   // standard deviations of the innovation: one wild estimate must not swing the derating.
-  bool update_resistance(double rs_ohm, double rs_std_ohm);
+  // `systematic_std_ohm` is the part of the error bar shared by consecutive measurements: the
+  // winding's variance after the update does not fall below it (fusing more such
+  // measurements cannot average it away).
+  bool update_resistance(double rs_ohm, double rs_std_ohm, double systematic_std_ohm = 0.0);
 
   void set_calibration(const Calibration& c) { calibration_ = c; }
   void set_time_scale(double time_scale) { config_.time_scale = time_scale; }
@@ -137,6 +140,7 @@ class ThermalObserver {
   Eigen::Matrix3d p_;
   double since_measurement_s_ = 0.0;
   double anchor_C_ = 0.0;     // the winding estimate the last measurement (or the start) left
+  double shared_error_C_ = 0.0;  // the state's share of measurements' shared model error
   double drift_std_C_ = 0.0;  // the model's error since then: a fraction of |x - anchor|
   bool anchored_ = true;      // a measurement or a known temperature holds the state
   int gated_in_row_ = 0;      // measurements gated out since the last fused one
