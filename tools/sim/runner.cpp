@@ -363,6 +363,9 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
     if (drive.last_pair()) {
       const core::PairResult& p = *drive.last_pair();
       ++result.pairs[static_cast<std::size_t>(p.outcome)];
+      if (p.outcome == core::PairOutcome::kAccepted && p.field_weakening) {
+        ++result.field_weakening_pairs_accepted;
+      }
     }
     if (drive.last_event() && drive.last_event()->outcome != core::EventOutcome::kPublished) {
       ++result.events_without_estimate[static_cast<std::size_t>(drive.last_event()->outcome)];
@@ -603,6 +606,7 @@ std::string result_json(const SimulationResult& r) {
     j.field(core::to_string(static_cast<core::PairOutcome>(k)), static_cast<std::uint64_t>(r.pairs[k]));
   }
   j.end_object();
+  j.field("field_weakening_pairs", static_cast<std::uint64_t>(r.field_weakening_pairs_accepted));
   j.field("speed_disturbance_pct", r.disturbance_measured ? r.speed_disturbance_pct : kNan)
       .field("torque_disturbance_pct", r.disturbance_measured ? r.torque_disturbance_pct : kNan)
       .field("speed_disturbance_at_s", r.disturbance_measured ? r.speed_disturbance_at_s : kNan)
@@ -685,8 +689,11 @@ std::string result_text(const SimulationResult& r) {
   if (r.magnet_error_samples > 0) {
     out += fmt::format("  magnet error                    RMS {:.2f} C\n", r.magnet_error_rms_C);
   }
-  out += fmt::format("  estimates                       {} fused, {} gated; pairs {} accepted, {} rejected{}\n",
-                     r.estimates_accepted, r.estimates_gated, r.pairs[0], rejected, reasons);
+  const std::string fw = r.field_weakening_pairs_accepted > 0
+                             ? fmt::format(" ({} field-weakening)", r.field_weakening_pairs_accepted)
+                             : std::string{};
+  out += fmt::format("  estimates                       {} fused, {} gated; pairs {} accepted{}, {} rejected{}\n",
+                     r.estimates_accepted, r.estimates_gated, r.pairs[0], fw, rejected, reasons);
   if (r.disturbance_measured) {
     out += fmt::format("  disturbance by injection        speed {:.3f} % (at {:.2f} s), torque {:.2f} % of rated (at {:.2f} s), vs. the run without injection\n",
                        r.speed_disturbance_pct, r.speed_disturbance_at_s, r.torque_disturbance_pct, r.torque_disturbance_at_s);

@@ -89,6 +89,7 @@ struct SimulationResult {
   std::size_t estimates_gated = 0;      // published but gated out as implausible
   [[nodiscard]] std::size_t estimates_published() const noexcept { return estimates_accepted + estimates_gated; }
   core::OutcomeCounts pairs{};          // every pair's outcome
+  std::size_t field_weakening_pairs_accepted = 0;  // of the accepted: at the voltage limit (-lo, -F)
   // Disturbance: the largest difference from the twin run without injection, during an
   // injection event and the disturbance window after it (speed relative to the speed, at
   // least 10 % of rated; torque relative to rated torque), and the same difference outside
