@@ -132,11 +132,14 @@ ConfigSchema<C> build() {
   inj.boolean("injection.field_weakening_pairs", [](C& c) -> bool& { return c.drive.injection.field_weakening_pairs; },
               "At the voltage limit, record at two negative levels (-lo, -F) instead of skipping the pair.");
   inj.real("injection.field_weakening_low_fraction",
-           [](C& c) -> double& { return c.drive.injection.field_weakening_low_fraction; }, between(0, 0.9), "",
+           [](C& c) -> double& { return c.drive.injection.field_weakening_low_fraction; }, between(0.05, 0.9), "",
            "Field-weakening pairs: least lower level, as a fraction of the upper.");
   inj.real("injection.field_weakening_pattern_error",
            [](C& c) -> double& { return c.drive.injection.field_weakening_pattern_error; }, between(0, 1), "",
            "Field-weakening pairs: the sign pattern's error as a fraction of Vx (a shared error in the band).");
+  inj.real("injection.field_weakening_rs_error",
+           [](C& c) -> double& { return c.drive.injection.field_weakening_rs_error; }, between(0, 1), "",
+           "Field-weakening pairs: their error apart from the bridge, as a fraction of Rs (a shared error in the band).");
   inj.real("injection.theta_f_rad", [](C& c) -> double& { return c.drive.injection.theta_f_rad; }, between(-7, 7), "rad",
            "Angle of the fixed-angle / DC injection vector (electrical).");
   inj.real("injection.beta", [](C& c) -> double& { return c.drive.injection.beta; }, between(0, 1), "", "Regulation factor (Eq. 12).");
@@ -182,6 +185,9 @@ ConfigSchema<C> build() {
            positive(1), "", "Uncertainty of the commissioned motor.lq_H, as a fraction of it.");
   inj.real("injection.lq_drift_fraction", [](C& c) -> double& { return c.drive.injection.lq_drift_fraction; }, at_least(0, 1), "",
            "How far the learned Lq may wander between pairs, as a fraction of motor.lq_H.");
+  inj.real("injection.lq_saturation_std_fraction",
+           [](C& c) -> double& { return c.drive.injection.lq_saturation_std_fraction; }, between(0, 1), "",
+           "Prior of the learned Lq's saturation (secant lost at the current limit), as a fraction of Lq; 0: one Lq at every load.");
   inj.real("injection.lq_learning_min_voltage_V", [](C& c) -> double& { return c.drive.injection.lq_learning_min_voltage_V; },
            at_least(0, 1000), "V", "Learn Lq only from pairs whose Lq <w iq> is at least this.");
   // [estimator]
@@ -301,6 +307,9 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
   // (Its vx_initial_V is never used: set_config() keeps the scheduler's learned Vx.)
   d.calibration_injection = d.injection;
   d.calibration_injection.method = core::InjectionMethod::kFixedMagnitude;
+  // Rs0 must not carry the field-weakening pairs' bias (docs/estimator.md §2): a calibration
+  // at the voltage limit waits for headroom (and says so, by its timeout) instead.
+  d.calibration_injection.field_weakening_pairs = false;
   d.calibration_injection.separation = core::Separation::kBipolar;
   d.calibration_injection.levels = {1.0, 0.4, 0.0, 0.0};
   d.calibration_injection.level_count = 2;

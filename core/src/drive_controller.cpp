@@ -485,6 +485,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   telemetry_.vx_std_V = scheduler_.vx_std_V();
   telemetry_.lq_H = scheduler_.lq_H();
   telemetry_.lq_std_H = scheduler_.lq_std_H();
+  telemetry_.lq_saturation_H = scheduler_.lq_saturation_H();
   telemetry_.calibrated = observer_.calibration().calibrated;
   telemetry_.calibration_failed = calibration_failed_;
   return output_;

@@ -136,7 +136,8 @@ InjectionCurrentRange injection_current_range_at_operating_point_A(const Injecti
   }
   const double root = std::sqrt(disc);
   r.hi_A = (-b + root) / a;
-  r.lo_A = std::max(0.0, (-b - root) / a);
+  // The other root as c / (a hi): the difference -b - root loses its digits near the limit.
+  r.lo_A = c > 0.0 && r.hi_A > 0.0 ? c / (a * r.hi_A) : 0.0;
   r.valid = r.hi_A > r.lo_A;
   return r;
 }

@@ -61,6 +61,7 @@ InjectionScheduler::InjectionScheduler(const InjectionConfig& config, double per
       vx_var_(config.vx_initial_std_V * config.vx_initial_std_V),
       lq_H_(config.lq_H),
       lq_var_(config.lq_initial_std_fraction * config.lq_H * config.lq_initial_std_fraction * config.lq_H),
+      lq_b_var_(config.lq_saturation_std_fraction * config.lq_H * config.lq_saturation_std_fraction * config.lq_H),
       recorder_capacity_(capacity) {
   // The window constants the budget needs at every pair start are computed here, once, not
   // in the first control period that needs them.
@@ -132,7 +133,7 @@ InjectionScheduler::Budget InjectionScheduler::budget(const SchedulerInput& in, 
   h.rs_ohm = config_.rs_nominal_ohm;
   h.ld_H = config_.ld_H;
   // Lq as learned from the pairs (§5.1 of docs/estimator.md), not as commissioned.
-  const double lq_H = config_.learn_lq ? lq_H_ : config_.lq_H;
+  const double lq_H = lq_secant_H(im.q);
   h.lq_H = lq_H;
   h.flux_linkage_Wb = config_.flux_linkage_Wb;
   h.omega_e_rad_s = in.omega_e_rad_s;
@@ -191,7 +192,8 @@ void InjectionScheduler::begin_pair(const SchedulerInput& in) {
   time_based_ = std::abs(in.omega_e_rad_s) < config_.min_speed_for_angle_rad_s;
   direction_ = in.omega_e_rad_s >= 0.0 ? 1.0 : -1.0;
   PairFitConfig fit;
-  fit.lq_H = config_.learn_lq ? lq_H_ : config_.lq_H;
+  fit.lq_H = lq_secant_H(in.motoring_ref_A.q);
+  fit.lq_incremental_H = lq_incremental_H(in.motoring_ref_A.q);
   fit.ld_H = config_.ld_H;
   recorder_.start(fit, time_based_ ? MatchBy::kTime : MatchBy::kAngle, direction_);
   if (field_weakening_) {
@@ -307,6 +309,8 @@ void InjectionScheduler::abort(SchedulerOutput& out, const SchedulerInput& in) {
     r.separation = config_.separation;
     r.time_s = in.time_s;
     r.f_A = f_A_;
+    r.field_weakening = field_weakening_;
+    r.low_level = field_weakening_ ? fw_low_level_ : 0.0;
     r.level_index = level_index_;
     out.completed = r;
     next_event_s_ = std::max(next_event_s_, in.time_s + config_.retry_s);
@@ -386,12 +390,39 @@ PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
   return r;
 }
 
+namespace {
+// u = (iq / current limit)^2, the saturation model's variable.
+double saturation_variable(double iq_A, double limit_A) {
+  const double x = limit_A > 0.0 ? iq_A / limit_A : 0.0;
+  return std::min(x * x, 4.0);
+}
+}  // namespace
+
+double InjectionScheduler::lq_secant_H(double iq_A) const {
+  if (!config_.learn_lq) {
+    return config_.lq_H;
+  }
+  const double u = saturation_variable(iq_A, config_.current_limit_A);
+  return std::clamp(lq_H_ - lq_b_H_ * u, 0.5 * lq_H_, 1.5 * lq_H_);
+}
+
+double InjectionScheduler::lq_incremental_H(double iq_A) const {
+  if (!config_.learn_lq) {
+    return config_.lq_H;
+  }
+  // psi = (a - b u) iq with u = (iq / I)^2: d psi / d iq = a - 3 b u.
+  const double u = saturation_variable(iq_A, config_.current_limit_A);
+  const double secant = lq_secant_H(iq_A);
+  return std::clamp(lq_H_ - 3.0 * lq_b_H_ * u, 0.5 * secant, 1.5 * secant);
+}
+
 void InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit) {
   if (!config_.learn_lq || time_based_) {
     return;
   }
   const double w_iq = c.omega_e_iq_mean_A_rad_s;
-  if (!(std::abs(lq_H_ * w_iq) >= config_.lq_learning_min_voltage_V)) {
+  const double u = saturation_variable(c.iq_mean_A, config_.current_limit_A);
+  if (!(std::abs(lq_secant_H(c.iq_mean_A) * w_iq) >= config_.lq_learning_min_voltage_V)) {
     return;
   }
   // Over whole turns (Eq. 3, d-axis): Lq <w iq> = Rs <id> + Ld <dId/dt> + Vx <Gd> - <vd>.
@@ -406,14 +437,24 @@ void InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit)
                       fit.residual_rms_V * fit.residual_rms_V / independent) /
                      (w_iq * w_iq);
   // Gross outliers (a pair that passed its guards but whose means are off) are left out.
+  // The secant at this pair's load is a - b u: a Kalman update of (a, b) with h = (1, -u).
+  const double predicted = lq_H_ - lq_b_H_ * u;
+  const double ph0 = lq_var_ - lq_cov_ * u;      // (P h)_0
+  const double ph1 = lq_cov_ - lq_b_var_ * u;    // (P h)_1
+  const double s = ph0 - u * ph1 + var;          // h P h' + var
   if (!std::isfinite(lq) || !(var > 0.0) || lq < 0.5 * config_.lq_H || lq > 2.0 * config_.lq_H ||
-      std::abs(lq - lq_H_) > 4.0 * std::sqrt(var + lq_var_)) {
+      std::abs(lq - predicted) > 4.0 * std::sqrt(s)) {
     return;
   }
-  const double k = lq_var_ / (lq_var_ + var);
+  const double k0 = ph0 / s;
+  const double k1 = ph1 / s;
+  const double innovation = lq - predicted;
+  lq_H_ += k0 * innovation;
+  lq_b_H_ += k1 * innovation;
   const double drift = config_.lq_drift_fraction * config_.lq_H;
-  lq_H_ += k * (lq - lq_H_);
-  lq_var_ = (1.0 - k) * lq_var_ + drift * drift;
+  lq_var_ = lq_var_ - k0 * ph0 + drift * drift;
+  lq_cov_ = lq_cov_ - k0 * ph1;
+  lq_b_var_ = lq_b_var_ - k1 * ph1;
 }
 
 bool InjectionScheduler::event_joint_fit() const {
@@ -490,9 +531,11 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
       // At the voltage limit the bridge's term is most of the pair's signal (the current
       // vector only turns) and the sign pattern is least exact (docs/estimator.md §2): its
       // model error, a fraction of Vx, adds to the estimate's variance.
-      const double model = config_.field_weakening_pattern_error * vx * fixed.drs_dvx;
-      var_rs += model * model;
-      e.rs_systematic_std_ohm = std::abs(model);
+      const double bridge = config_.field_weakening_pattern_error * vx * fixed.drs_dvx;
+      const double rest = config_.field_weakening_rs_error * fixed.rs_ohm;
+      const double model_sq = bridge * bridge + rest * rest;
+      var_rs += model_sq;
+      e.rs_systematic_std_ohm = std::sqrt(model_sq);
     }
   }
   if (!plausible(rs, 0.0) || !(var_rs >= 0.0)) {
@@ -637,12 +680,9 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
           // Between the recordings: down to zero, then up to the level of recording 2.
           ++ramp_count_;
           const double second = level_for(2);
-          if (reached != second && reached * second < 0.0) {
+          // (kRecord1 ramped to zero already when the levels differ in sign.)
+          if (reached != second) {
             level_from_ = reached;
-            level_to_ = 0.0;
-            enter(SchedulerPhase::kRampDown);
-          } else if (reached != second) {
-            level_from_ = 0.0;
             level_to_ = second;
             enter(SchedulerPhase::kRampUp);
           } else {

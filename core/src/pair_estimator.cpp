@@ -447,9 +447,12 @@ double PairRecorder::add_second(const PeriodSample& s) {
   const Interpolated r1 = interpolate(s4, lagrange_weights(c4, phi));
 
   // Eqs. 37 / 43, recording 1 minus recording 2 at the same angle:
-  // dVd + Lq d(w iq) = Rs dId + Vx dGd + Ld d(dId/dt).
+  // dVd + d(w psi_q) = Rs dId + Vx dGd + Ld d(dId/dt), with d(w psi_q) = Lq iq dw +
+  // Lq_inc w diq (the secant and the incremental inductance; equal without saturation).
+  const double lq_inc = config_.lq_incremental_H > 0.0 ? config_.lq_incremental_H : config_.lq_H;
   const double y = (r1.v.d - s.v_V.d) +
-                   config_.lq_H * (r1.omega_e * r1.i.q - s.omega_e_rad_s * s.i_A.q) -
+                   config_.lq_H * 0.5 * (r1.i.q + s.i_A.q) * (r1.omega_e - s.omega_e_rad_s) +
+                   lq_inc * 0.5 * (r1.omega_e + s.omega_e_rad_s) * (r1.i.q - s.i_A.q) -
                    config_.ld_H * (r1.did_dt - s.di_dt_A_s.d);
   const std::array<double, kRegressors + 1> raw{r1.i.d - s.i_A.d, r1.g.d - s.dead_time_pattern.d,
                                                 r1.did_dt - s.di_dt_A_s.d, y};

@@ -160,6 +160,7 @@ bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm, double
     p_(0, 0) = p_(1, 1) = u;
     p_(0, 1) = p_(1, 0) = 0.95 * u;
     p_(0, 2) = p_(2, 0) = p_(1, 2) = p_(2, 1) = 0.0;
+    shared_error_C_ = 0.0;
     anchored_ = false;
   }
   // The model error accumulated since the last measurement belongs to the prediction's

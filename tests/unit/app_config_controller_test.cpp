@@ -97,6 +97,9 @@ TEST(ControllerConfig, FinalizeDerivesTheDependentFields) {
   EXPECT_EQ(d.calibration_injection.separation, core::Separation::kBipolar);
   EXPECT_EQ(d.calibration_injection.level_count, 2);
   EXPECT_EQ(d.calibration_injection.levels[1], 0.4);
+  // Rs0 never comes from field-weakening pairs (their bias would stay in every estimate).
+  EXPECT_TRUE(d.injection.field_weakening_pairs);
+  EXPECT_FALSE(d.calibration_injection.field_weakening_pairs);
 }
 
 TEST(ControllerConfig, AnEmptyFileGivesTheDefaults) {

@@ -29,6 +29,9 @@ struct PlantModel {
   double vx_V = 1.5;
   double ld_H = 5.5e-3;
   double lq_H = 5.5e-3;
+  // q-axis saturation: psi_q = (lq_H - lq_sat_H (iq / lq_sat_current_A)^2) iq.
+  double lq_sat_H = 0.0;
+  double lq_sat_current_A = 80.0;
   double ke_V_s_per_rad = 0.9716;  // phase peak per mechanical rad/s (Eq. 3)
   int pole_pairs = 3;
   double band_A = 1.0;             // soft-sign band of the bridge error
@@ -159,7 +162,9 @@ class Harness {
     const double w = s.omega_e_rad_s;
     const double wm = s.omega_m_rad_s;
     const double th = s.theta_e_rad;
-    s.v_V.d = plant.rs_ohm * s.i_A.d - w * plant.lq_H * s.i_A.q + plant.ld_H * s.di_dt_A_s.d +
+    const double uq = s.i_A.q / plant.lq_sat_current_A;
+    const double psi_q = (plant.lq_H - plant.lq_sat_H * uq * uq) * s.i_A.q;
+    s.v_V.d = plant.rs_ohm * s.i_A.d - w * psi_q + plant.ld_H * s.di_dt_A_s.d +
               plant.vx_V * s.dead_time_pattern.d + plant.kd6 * std::sin(6.0 * th + 0.3) * wm;
     s.v_V.q = plant.rs_ohm * s.i_A.q + w * plant.ld_H * s.i_A.d + plant.lq_H * s.di_dt_A_s.q +
               plant.ke_V_s_per_rad * wm + plant.vx_V * s.dead_time_pattern.q +
@@ -709,6 +714,16 @@ TEST(InjectionBudget, FieldWeakeningPairAtTheVoltageLimit) {
   EXPECT_GE(b.f_A - b.low_A, c.f_min_A);
   EXPECT_LE(b.f_A, 25.0);
 
+  // Turning the other way: -F still lowers the voltage (w Ld F and the EMF change sign
+  // together), and the pair is the same.
+  SchedulerInput reverse = in;
+  reverse.omega_e_rad_s = -in.omega_e_rad_s;
+  reverse.motoring_ref_A = {0.0, -20.0};
+  const InjectionScheduler::Budget rb = s.budget(reverse, c.tw_s, 25.0);
+  EXPECT_TRUE(rb.field_weakening);
+  EXPECT_NEAR(rb.f_A, b.f_A, 1e-9);
+  EXPECT_NEAR(rb.low_A, b.low_A, 1e-9);
+
   // Not for fixed-angle injection, not at time-based speeds, not when switched off.
   InjectionConfig fa = c;
   fa.method = InjectionMethod::kFixedAngle;
@@ -723,6 +738,38 @@ TEST(InjectionBudget, FieldWeakeningPairAtTheVoltageLimit) {
   const InjectionScheduler::Budget full = s.budget(in, c.tw_s, 25.0);
   EXPECT_LT(full.f_A, c.f_min_A);
   EXPECT_FALSE(full.field_weakening);
+}
+
+// The range of F inside the limit: from zero when the motoring point has room, from the level
+// that comes off the limit when it has none, empty when no F fits.
+TEST(InjectionBudget, CurrentRangeAtTheOperatingPoint) {
+  InjectionHeadroomInput h;
+  h.omega_e_rad_s = 300.0;
+  h.iq_A = 20.0;
+  h.voltage_limit_V = 341.0;
+  const InjectionCurrentRange inside = injection_current_range_at_operating_point_A(h, -1.0);
+  ASSERT_TRUE(inside.valid);
+  EXPECT_EQ(inside.lo_A, 0.0);
+  // The upper end is the largest F of one polarity.
+  EXPECT_NEAR(inside.hi_A, max_injection_current_at_operating_point_A(h, -1.0), 1e-9);
+
+  h.omega_e_rad_s = 1000.0;  // the motoring point alone beyond the limit
+  const Dq v0 = motoring_voltage(h);
+  ASSERT_GT(std::hypot(v0.d, v0.q), h.voltage_limit_V);
+  const InjectionCurrentRange limit = injection_current_range_at_operating_point_A(h, -1.0);
+  ASSERT_TRUE(limit.valid);
+  EXPECT_GT(limit.lo_A, 0.0);
+  const double per_amp_d = -required_injection_voltage_V(1.0, h.ld_H, h.rs_ohm, h.tw_s, h.window);
+  const double per_amp_q = -h.omega_e_rad_s * h.ld_H;
+  for (double f : {limit.lo_A, limit.hi_A}) {
+    EXPECT_NEAR(std::hypot(v0.d + f * per_amp_d, v0.q + f * per_amp_q), h.voltage_limit_V, 1e-6) << f;
+  }
+  // +F raises the voltage there: nothing fits. Nor at a limit far below the EMF.
+  EXPECT_FALSE(injection_current_range_at_operating_point_A(h, 1.0).valid);
+  h.voltage_limit_V = 10.0;
+  EXPECT_FALSE(injection_current_range_at_operating_point_A(h, -1.0).valid);
+  h.voltage_limit_V = std::nan("");
+  EXPECT_FALSE(injection_current_range_at_operating_point_A(h, -1.0).valid);
 }
 
 // The pair itself: recording 1 at -low F, one ramp straight to -F (never through zero, which
@@ -766,6 +813,57 @@ TEST(InjectionScheduler, FieldWeakeningPairRecordsAtTwoNegativeLevels) {
   EXPECT_EQ(h.estimates[0].outcome, EventOutcome::kPublished);
   EXPECT_GT(h.estimates[0].rs_systematic_std_ohm, 0.0);
   EXPECT_LE(h.estimates[0].rs_systematic_std_ohm, h.estimates[0].rs_std_ohm);
+}
+
+// A saturating q-axis: the speed loop answers each pulse's reluctance torque with iq moving in
+// proportion to the injection (diq = 0.15 dId, the 30 mohm machine's figure), so the fit's
+// Lq d(w iq) term needs the incremental Lq at the load, which is below the secant the pairs'
+// means measure. Pairs at a light and a heavy load learn the curve (a - b u); the loaded
+// pairs then read Rs right. With one Lq for every load (lq_saturation_std_fraction = 0) they
+// read it far off.
+double loaded_rs_error(double saturation_std_fraction, double* lq_a, double* lq_b) {
+  InjectionConfig c = test_config();
+  c.lq_saturation_std_fraction = saturation_std_fraction;
+  c.vx_initial_V = 1.5;
+  c.vx_initial_std_V = 0.01;
+  c.max_load_change_A = 20.0;  // the iq answer is what this test is about
+  c.rs_max_ohm = 0.5;
+  c.rs_min_ohm = 0.02;
+  Harness h(c);
+  h.plant.lq_sat_H = 0.55e-3;  // secant 10 % lower at the current limit
+  double iq0 = 5.0;
+  h.hook = [&iq0](Harness& x) {
+    const double inj = x.records.empty() ? 0.0 : x.records.back().out.injection_A.d;
+    x.motoring_A = {0.0, iq0 + 0.15 * inj};
+  };
+  h.run_until(3.0);   // light load: several events
+  iq0 = 60.0;
+  const std::size_t before = h.estimates.size();
+  h.run_until(8.0);   // heavy load
+  *lq_a = h.scheduler.lq_H();
+  *lq_b = h.scheduler.lq_saturation_H();
+  double sum = 0.0;
+  int n = 0;
+  for (std::size_t k = before + 2; k < h.estimates.size(); ++k) {
+    if (h.estimates[k].outcome == EventOutcome::kPublished) {
+      sum += h.estimates[k].rs_ohm;
+      ++n;
+    }
+  }
+  EXPECT_GE(n, 3);
+  return n > 0 ? sum / n / h.plant.rs_ohm - 1.0 : 1.0;
+}
+
+TEST(InjectionScheduler, ASaturatingQAxisIsLearnedAcrossLoads) {
+  double a = 0.0;
+  double b = 0.0;
+  const double learned = loaded_rs_error(0.2, &a, &b);
+  EXPECT_NEAR(a, 5.5e-3, 0.05e-3);
+  EXPECT_NEAR(b, 0.55e-3, 0.15e-3);
+  EXPECT_LT(std::abs(learned), 0.01) << "loaded Rs with the saturation learned";
+  const double single = loaded_rs_error(0.0, &a, &b);
+  EXPECT_EQ(b, 0.0);
+  EXPECT_GT(std::abs(single), 0.03) << "one Lq at every load: the loaded Rs is biased";
 }
 
 TEST(InjectionScheduler, SkipsEveryLevelWhenTheBudgetIsTooSmallAndRetries) {

@@ -121,6 +121,7 @@ struct SimulationResult {
   double vx_std_V = 0.0;
   double lq_H = 0.0;                    // learned q-axis inductance at the end
   double lq_std_H = 0.0;
+  double lq_saturation_H = 0.0;         // its saturation: secant lost at the current limit
   double max_winding_true_C = 0.0;
   double sim_time_s = 0.0;
   // Wall time of everything the scenario cost: the run, the twin without injection (for the

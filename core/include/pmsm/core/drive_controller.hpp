@@ -137,6 +137,7 @@ struct DriveTelemetry {
   double vx_std_V = 0.0;
   double lq_H = 0.0;                  // the q-axis inductance the estimator has learned
   double lq_std_H = 0.0;
+  double lq_saturation_H = 0.0;       // its saturation: secant Lq lost at the current limit
   bool calibrating = false;
   bool inverter_sweep_active = false;  // the calibration's bridge sweep is running
   double dead_time_band_A = 0.0;       // the band the estimator's pattern uses

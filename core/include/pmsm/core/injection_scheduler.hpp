@@ -8,7 +8,10 @@
 //   ramp down (Tw) -> ramp up to -F (Tw) -> settle -> wait until the rotor is dTheta past the
 //   start of recording 1 -> record 2 over the same arc -> ramp down (Tw) -> fit -> guards
 //
-// Unipolar records without injection first and with injection second. Fixed-angle injection
+// Unipolar records without injection first and with injection second. Where the voltage
+// leaves no room for the configured pair (at the voltage limit), a fixed-magnitude
+// field-weakening pair records at -lo F and then -F, one edge between them (InjectionConfig::
+// field_weakening_pairs). Fixed-angle injection
 // places a windowed arc centred on theta_F (Eqs. 11-12, Fig. 9) and records the whole pulse.
 // DC injection (the baseline, Eqs. 4-7) injects a stator-fixed vector over whole revolutions.
 // Below a minimum speed the recordings are taken over time instead of rotor angle (there is
@@ -100,6 +103,9 @@ struct InjectionConfig {
   // The sign pattern's error at those speeds, as a fraction of Vx: it enters the estimate's
   // variance (measured: docs/estimator.md §2).
   double field_weakening_pattern_error = 0.01;
+  // ... and their error apart from the bridge (commissioning errors, sensors), as a fraction
+  // of Rs (measured about 0.3 %, docs/accuracy.md).
+  double field_weakening_rs_error = 0.003;
   // Fixed-angle and DC injection.
   double theta_f_rad = 0.0;       // angle of the injection vector (electrical)
   double beta = 0.0;              // regulation factor (Eq. 12); 1 for DC injection
@@ -155,7 +161,12 @@ struct InjectionConfig {
   // <Gd> = 0 by symmetry). The learned value replaces lq_H in the fits that follow.
   bool learn_lq = true;
   double lq_initial_std_fraction = 0.1;   // prior: the commissioned lq_H, +-10 %
-  double lq_drift_fraction = 0.002;       // how far Lq may wander between pairs (saturation)
+  double lq_drift_fraction = 0.002;       // how far Lq may wander between pairs
+  // Saturation: the learned secant Lq is a - b u with u = (iq / current_limit_A)^2, the
+  // first terms of any symmetric saturation curve; pairs at different loads determine b, and
+  // the fits take the incremental Lq = a - 3 b u at their operating point (docs/estimator.md
+  // §5.1). The prior of b: 0 +- this fraction of lq_H (0: no saturation model, one Lq).
+  double lq_saturation_std_fraction = 0.2;
   double lq_learning_min_voltage_V = 2.0; // |Lq <w iq>| of a pair, to learn from it
   double ld_H = 5.5e-3;
   double rs_nominal_ohm = 0.133;  // for the headroom calculation
@@ -268,8 +279,14 @@ class InjectionScheduler {
   // The inverter voltage prior carried between events.
   [[nodiscard]] double vx_V() const { return vx_V_; }
   [[nodiscard]] double vx_std_V() const { return std::sqrt(vx_var_); }
-  [[nodiscard]] double lq_H() const { return lq_H_; }
+  [[nodiscard]] double lq_H() const { return lq_H_; }   // the secant Lq at zero current
   [[nodiscard]] double lq_std_H() const { return std::sqrt(lq_var_); }
+  // The secant Lq lost at the current limit (the saturation model's b, see InjectionConfig).
+  [[nodiscard]] double lq_saturation_H() const { return lq_b_H_; }
+  // The learned secant and incremental Lq at a q-axis current (the commissioned Lq when
+  // learning is off).
+  [[nodiscard]] double lq_secant_H(double iq_A) const;
+  [[nodiscard]] double lq_incremental_H(double iq_A) const;
 
  private:
   void begin_pair(const SchedulerInput& in);
@@ -313,6 +330,9 @@ class InjectionScheduler {
   double vx_var_ = 0.0;
   double lq_H_ = 0.0;               // learned q-axis inductance (see InjectionConfig::learn_lq)
   double lq_var_ = 0.0;
+  double lq_b_H_ = 0.0;             // its saturation: secant lost at the current limit
+  double lq_b_var_ = 0.0;
+  double lq_cov_ = 0.0;             // covariance of the two
   bool time_based_ = false;
   double direction_ = 1.0;
   double f_A_ = 0.0;                // magnitude for this pair

@@ -164,6 +164,10 @@ struct PairMeans {
 
 struct PairFitConfig {
   double lq_H = 5.5e-3;         // the controller's Lq, for the Eq. 37 correction term
+  // On a saturating machine the q-axis flux is psi_q(iq) = Lq iq with a secant Lq that falls
+  // with |iq|: d(w psi_q) = Lq iq dw + Lq_inc w diq, where the incremental Lq_inc =
+  // d psi_q / d iq is below the secant. 0: the same as lq_H (no saturation).
+  double lq_incremental_H = 0.0;
   // The controller's Ld: Eq. 3's Ld dId/dt is moved to the left with it, so that a current
   // still settling during a recording does not pose as resistance (the means fit has no
   // inductive term; the sample fit's Ld regressor then fits only the residue of Ld's error).

@@ -110,9 +110,10 @@ class ThermalObserver {
   // Fuses one resistance measurement (ohm, with its standard error). Returns false, leaving
   // the state alone, when the measurement is further from the prediction than gate_sigma
   // standard deviations of the innovation: one wild estimate must not swing the derating.
-  // `systematic_std_ohm` is the part of the error bar shared by consecutive measurements: the
-  // winding's variance after the update does not fall below it (fusing more such
-  // measurements cannot average it away).
+  // `systematic_std_ohm` is the part of the error bar shared by consecutive measurements
+  // (included in rs_std_ohm too): fusing more such measurements cannot average it away, so
+  // the state carries a share of it (k of this one's plus 1 - k of what it carried) that the
+  // reported band adds in quadrature; the gain is unchanged.
   bool update_resistance(double rs_ohm, double rs_std_ohm, double systematic_std_ohm = 0.0);
 
   void set_calibration(const Calibration& c) { calibration_ = c; }
