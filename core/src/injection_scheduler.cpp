@@ -166,8 +166,16 @@ InjectionScheduler::Budget InjectionScheduler::budget(const SchedulerInput& in, 
     // The voltage is what stops the configured pair: try two levels that both weaken the
     // field. Upper level: inside the current limit, the voltage range and the torque budget;
     // lower level: off the voltage limit and out of the zero-current band.
+    // An event of field-weakening pairs learns no Vx, so its levels have no purpose there:
+    // every pair takes the event's largest F (the resistive signal F - lo is all it has).
+    double largest = 0.0;
+    for (int k = 0; k < std::clamp(config_.level_count, 1, InjectionConfig::kMaxLevels); ++k) {
+      largest = std::max(largest, config_.levels[static_cast<std::size_t>(k)]);
+    }
+    const double fw_wanted = std::max(wanted_A, config_.f_A * largest);
     const InjectionCurrentRange range = injection_current_range_at_operating_point_A(h, -1.0);
-    const double high = std::min({wanted_A, current_room(-1.0), range.hi_A, f_torque});
+    const double fw_torque = torque_budget ? config_.max_torque_disturbance_Nm / saliency : fw_wanted;
+    const double high = std::min({fw_wanted, current_room(-1.0), range.hi_A, fw_torque});
     const double low = std::max(range.lo_A, config_.field_weakening_low_fraction * high);
     if (range.valid && high - low >= config_.f_min_A) {
       b.f_A = high;
