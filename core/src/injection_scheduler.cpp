@@ -402,7 +402,7 @@ namespace {
 // u = (iq / current limit)^2, the saturation model's variable.
 double saturation_variable(double iq_A, double limit_A) {
   const double x = limit_A > 0.0 ? iq_A / limit_A : 0.0;
-  return std::min(x * x, 4.0);
+  return std::min(x * x, 1.44);  // a quadratic curve says nothing far beyond 1.2 x the limit
 }
 }  // namespace
 
@@ -418,9 +418,16 @@ double InjectionScheduler::lq_incremental_H(double iq_A) const {
   if (!config_.learn_lq) {
     return config_.lq_H;
   }
-  // psi = (a - b u) iq with u = (iq / I)^2: d psi / d iq = a - 3 b u.
-  const double u = saturation_variable(iq_A, config_.current_limit_A);
+  // psi = (a - b u) iq with u = (iq / I)^2: d psi / d iq = a - 3 b u. Until pairs at two
+  // loads have resolved b (its variance below a quarter of its prior), a and b are known only
+  // in the combination a - b u of the loads seen, and 3 b u would triple whatever error b
+  // took from them: the secant stands for the incremental until then.
   const double secant = lq_secant_H(iq_A);
+  const double prior = config_.lq_saturation_std_fraction * config_.lq_H;
+  if (!(lq_b_var_ < 0.25 * prior * prior)) {
+    return secant;
+  }
+  const double u = saturation_variable(iq_A, config_.current_limit_A);
   return std::clamp(lq_H_ - 3.0 * lq_b_H_ * u, 0.5 * secant, 1.5 * secant);
 }
 
@@ -444,14 +451,24 @@ void InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit)
   const double var = (c.gd_mean * c.gd_mean * var_vx + c.id_mean_A * c.id_mean_A * fit.var_rs +
                       fit.residual_rms_V * fit.residual_rms_V / independent) /
                      (w_iq * w_iq);
+  if (!std::isfinite(lq) || !(var > 0.0)) {
+    return;
+  }
+  // The curve may have moved since the last pair (a prediction step before the gate, so that
+  // a state that has become confidently wrong widens until pairs pass again).
+  const double drift = config_.lq_drift_fraction * config_.lq_H;
+  lq_var_ += drift * drift;
+  if (config_.lq_saturation_std_fraction > 0.0) {
+    lq_b_var_ += drift * drift;  // (without the saturation model b stays at 0)
+  }
   // Gross outliers (a pair that passed its guards but whose means are off) are left out.
   // The secant at this pair's load is a - b u: a Kalman update of (a, b) with h = (1, -u).
   const double predicted = lq_H_ - lq_b_H_ * u;
   const double ph0 = lq_var_ - lq_cov_ * u;      // (P h)_0
   const double ph1 = lq_cov_ - lq_b_var_ * u;    // (P h)_1
   const double s = ph0 - u * ph1 + var;          // h P h' + var
-  if (!std::isfinite(lq) || !(var > 0.0) || lq < 0.5 * config_.lq_H || lq > 2.0 * config_.lq_H ||
-      std::abs(lq - predicted) > 4.0 * std::sqrt(s)) {
+  if (lq < 0.5 * config_.lq_H || lq > 2.0 * config_.lq_H || !(s > 0.0) ||
+      !(std::abs(lq - predicted) <= 4.0 * std::sqrt(s))) {
     return;
   }
   const double k0 = ph0 / s;
@@ -459,8 +476,7 @@ void InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit)
   const double innovation = lq - predicted;
   lq_H_ += k0 * innovation;
   lq_b_H_ += k1 * innovation;
-  const double drift = config_.lq_drift_fraction * config_.lq_H;
-  lq_var_ = lq_var_ - k0 * ph0 + drift * drift;
+  lq_var_ = lq_var_ - k0 * ph0;
   lq_cov_ = lq_cov_ - k0 * ph1;
   lq_b_var_ = lq_b_var_ - k1 * ph1;
 }

@@ -866,6 +866,36 @@ TEST(InjectionScheduler, ASaturatingQAxisIsLearnedAcrossLoads) {
   EXPECT_GT(std::abs(single), 0.03) << "one Lq at every load: the loaded Rs is biased";
 }
 
+// Pairs at one load only determine a - b u there, not b: with a commissioning error of
+// -10 % a first loaded pair would put a share of it into b, and 3 b u would triple it. The
+// secant stands for the incremental until pairs at a second load resolve b.
+TEST(InjectionScheduler, AnUnresolvedSaturationCurveUsesTheSecant) {
+  InjectionConfig c = test_config();
+  c.lq_H = 0.9 * 5.5e-3;  // commissioned 10 % low; the plant does not saturate
+  c.vx_initial_V = 1.5;
+  c.vx_initial_std_V = 0.01;
+  c.max_load_change_A = 20.0;
+  Harness h(c);
+  h.hook = [](Harness& x) {
+    const double inj = x.records.empty() ? 0.0 : x.records.back().out.injection_A.d;
+    x.motoring_A = {0.0, 60.0 + 0.15 * inj};
+  };
+  h.run_until(5.0);
+  EXPECT_NEAR(h.scheduler.lq_secant_H(60.0), 5.5e-3, 0.05e-3) << "the secant at the load seen is right";
+  EXPECT_NE(h.scheduler.lq_saturation_H(), 0.0) << "b took a share of the error";
+  EXPECT_EQ(h.scheduler.lq_incremental_H(60.0), h.scheduler.lq_secant_H(60.0));
+  double sum = 0.0;
+  int n = 0;
+  for (std::size_t k = 2; k < h.estimates.size(); ++k) {
+    if (h.estimates[k].outcome == EventOutcome::kPublished) {
+      sum += h.estimates[k].rs_ohm;
+      ++n;
+    }
+  }
+  ASSERT_GE(n, 3);
+  EXPECT_NEAR(sum / n / h.plant.rs_ohm, 1.0, 0.01);
+}
+
 TEST(InjectionScheduler, SkipsEveryLevelWhenTheBudgetIsTooSmallAndRetries) {
   InjectionConfig c = test_config();
   Harness h(c);
