@@ -278,6 +278,10 @@ mount -n -t tmpfs -o mode=0755 cow /mnt || fail "cannot mount a tmpfs on /mnt"
 mkdir -p /mnt/upper /mnt/work /mnt/root
 mount -n -t overlay overlay -o lowerdir=/,upperdir=/mnt/upper,workdir=/mnt/work /mnt/root ||
   fail "cannot mount the overlay"
+# A fresh machine's /tmp, not the host's: at boot systemd-tmpfiles empties /tmp, and through
+# the overlay every file of a busy host /tmp would cost the guest's tmpfs a whiteout (a host
+# /tmp of a few hundred thousand files filled it: "No space left on device" for the units).
+mount -n -t tmpfs -o mode=1777 tmp /mnt/root/tmp || fail "cannot mount a tmpfs on /tmp"
 mkdir -p "/mnt/root$work"
 mount -n -t hostfs -o "$work" hostfs "/mnt/root$work" || fail "cannot mount $work writable"
 # The host is a container: systemd would believe it runs in one and ignore systemd.unit=.
