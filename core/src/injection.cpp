@@ -101,34 +101,36 @@ Dq motoring_voltage(const InjectionHeadroomInput& in) {
           in.rs_ohm * in.iq_A + in.omega_e_rad_s * (in.ld_H * in.id_A + in.flux_linkage_Wb)};
 }
 
-double max_injection_current_at_operating_point_A(const InjectionHeadroomInput& in,
-                                                  double polarity) {
+namespace {
+// |v0 + F u|^2 = limit^2 with u the worst-case voltage per ampere of one polarity (Eq. 29 on
+// the d-axis, w Ld on the q-axis): |u|^2 F^2 + 2 (v0.u) F + |v0|^2 - limit^2 = 0.
+struct HeadroomQuadratic {
+  double a, b, c;
+};
+
+HeadroomQuadratic headroom_quadratic(const InjectionHeadroomInput& in, double polarity) {
   const Dq v0 = motoring_voltage(in);
-  const double limit_sq = in.voltage_limit_V * in.voltage_limit_V;
-  const double v0_sq = v0.d * v0.d + v0.q * v0.q;
-  if (v0_sq >= limit_sq) {
-    return 0.0;
-  }
-  // Direction of the added voltage per ampere of F.
   const double ud = polarity * required_injection_voltage_V(1.0, in.ld_H, in.rs_ohm, in.tw_s, in.window);
   const double uq = polarity * in.omega_e_rad_s * in.ld_H;
-  // |v0 + F u|^2 = limit^2  ->  |u|^2 F^2 + 2 (v0.u) F + |v0|^2 - limit^2 = 0, positive root.
-  const double a = ud * ud + uq * uq;
-  const double b = v0.d * ud + v0.q * uq;
-  const double c = v0_sq - limit_sq;  // < 0, so the discriminant is positive
-  return (-b + std::sqrt(b * b - a * c)) / a;
+  return {ud * ud + uq * uq, v0.d * ud + v0.q * uq,
+          v0.d * v0.d + v0.q * v0.q - in.voltage_limit_V * in.voltage_limit_V};
+}
+}  // namespace
+
+double max_injection_current_at_operating_point_A(const InjectionHeadroomInput& in,
+                                                  double polarity) {
+  const HeadroomQuadratic q = headroom_quadratic(in, polarity);
+  if (q.c >= 0.0) {
+    return 0.0;  // the motoring voltage alone is at or beyond the limit
+  }
+  // c < 0, so the discriminant is positive: the positive root.
+  return (-q.b + std::sqrt(q.b * q.b - q.a * q.c)) / q.a;
 }
 
 InjectionCurrentRange injection_current_range_at_operating_point_A(const InjectionHeadroomInput& in,
                                                                    double polarity) {
-  const Dq v0 = motoring_voltage(in);
-  const double limit_sq = in.voltage_limit_V * in.voltage_limit_V;
-  const double ud = polarity * required_injection_voltage_V(1.0, in.ld_H, in.rs_ohm, in.tw_s, in.window);
-  const double uq = polarity * in.omega_e_rad_s * in.ld_H;
-  // |v0 + F u|^2 <= limit^2 between the roots of |u|^2 F^2 + 2 (v0.u) F + |v0|^2 - limit^2.
-  const double a = ud * ud + uq * uq;
-  const double b = v0.d * ud + v0.q * uq;
-  const double c = v0.d * v0.d + v0.q * v0.q - limit_sq;
+  const auto [a, b, c] = headroom_quadratic(in, polarity);
+  // |v0 + F u|^2 <= limit^2 between the two roots.
   const double disc = b * b - a * c;
   InjectionCurrentRange r;
   if (!(a > 0.0) || !(disc >= 0.0)) {

@@ -172,7 +172,7 @@ InjectionScheduler::Budget InjectionScheduler::budget(const SchedulerInput& in, 
     for (int k = 0; k < std::clamp(config_.level_count, 1, InjectionConfig::kMaxLevels); ++k) {
       largest = std::max(largest, config_.levels[static_cast<std::size_t>(k)]);
     }
-    const double fw_wanted = std::max(wanted_A, config_.f_A * largest);
+    const double fw_wanted = config_.f_A * largest;
     const InjectionCurrentRange range = injection_current_range_at_operating_point_A(h, -1.0);
     const double fw_torque = torque_budget ? config_.max_torque_disturbance_Nm / saliency : fw_wanted;
     const double high = std::min({fw_wanted, current_room(-1.0), range.hi_A, fw_torque});

@@ -376,6 +376,9 @@ PairRecorder::PairRecorder(std::size_t capacity) : first_(capacity) {}
 
 void PairRecorder::start(const PairFitConfig& config, MatchBy match_by, double direction) {
   config_ = config;
+  if (!(config_.lq_incremental_H > 0.0)) {
+    config_.lq_incremental_H = config_.lq_H;  // no saturation: one Lq for both terms
+  }
   match_by_ = match_by;
   direction_ = direction >= 0.0 ? 1.0 : -1.0;
   size1_ = 0;
@@ -449,10 +452,9 @@ double PairRecorder::add_second(const PeriodSample& s) {
   // Eqs. 37 / 43, recording 1 minus recording 2 at the same angle:
   // dVd + d(w psi_q) = Rs dId + Vx dGd + Ld d(dId/dt), with d(w psi_q) = Lq iq dw +
   // Lq_inc w diq (the secant and the incremental inductance; equal without saturation).
-  const double lq_inc = config_.lq_incremental_H > 0.0 ? config_.lq_incremental_H : config_.lq_H;
   const double y = (r1.v.d - s.v_V.d) +
                    config_.lq_H * 0.5 * (r1.i.q + s.i_A.q) * (r1.omega_e - s.omega_e_rad_s) +
-                   lq_inc * 0.5 * (r1.omega_e + s.omega_e_rad_s) * (r1.i.q - s.i_A.q) -
+                   config_.lq_incremental_H * 0.5 * (r1.omega_e + s.omega_e_rad_s) * (r1.i.q - s.i_A.q) -
                    config_.ld_H * (r1.did_dt - s.di_dt_A_s.d);
   const std::array<double, kRegressors + 1> raw{r1.i.d - s.i_A.d, r1.g.d - s.dead_time_pattern.d,
                                                 r1.did_dt - s.di_dt_A_s.d, y};
