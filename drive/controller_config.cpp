@@ -47,6 +47,9 @@ ConfigSchema<C> build() {
   s.real("sensors.dc_bus_full_scale_V", [](C& c) -> double& { return c.sensors.dc_bus_full_scale_V; }, positive(10000), "V",
          "DC-bus ADC full scale.");
   s.integer("sensors.encoder_bits", [](C& c) -> int& { return c.drive.angle.encoder_bits; }, between(8, 24), "Absolute encoder resolution.");
+  s.real("sensors.encoder_count_centre", [](C& c) -> double& { return c.drive.angle.count_centre; }, between(0, 1), "counts",
+         "Where the rotor lies on average inside the angles that read one count, from the count's lower edge: 0.5 for an "
+         "encoder that truncates (reports the whole counts below the angle), 0 for one that rounds.");
   s.real("sensors.encoder_offset_rad", [](C& c) -> double& { return c.drive.angle.electrical_offset_rad; }, between(-7, 7), "rad",
          "Electrical angle at encoder count 0 (commissioned).");
   s.real("sensors.offset_calibration_s", [](C& c) -> double& { return c.sensors.offset_calibration_s; }, between(0, 10), "s",

@@ -22,7 +22,7 @@ void AngleTracker::update(std::uint32_t encoder_count) {
   // Counts beyond the encoder's range are wrapped into it (a corrupt reading must not put the
   // angle outside [0, 2 pi)).
   const std::uint64_t mask = (std::uint64_t{1} << config_.encoder_bits) - 1;  // a power of two
-  theta_m_rad_ = static_cast<double>(encoder_count & mask) * counts_to_rad_;
+  theta_m_rad_ = (static_cast<double>(encoder_count & mask) + config_.count_centre) * counts_to_rad_;
   theta_e_rad_ = wrap_angle_0_2pi(config_.pole_pairs * theta_m_rad_ + config_.electrical_offset_rad);
   if (!initialised_) {
     initialised_ = true;

@@ -32,9 +32,10 @@ AngleTrackerConfig config() {
 
 TEST(AngleTracker, AnglesFromCounts) {
   AngleTracker t(config());
-  t.update(4096);  // a quarter turn
-  EXPECT_NEAR(t.mechanical_angle_rad(), kPi / 2.0, 1e-12);
-  EXPECT_NEAR(t.electrical_angle_rad(), wrap_angle_0_2pi(3.0 * kPi / 2.0 + 0.4), 1e-12);
+  t.update(4096);  // a quarter turn, and the middle of that count's interval
+  const double half_count = 0.5 * kTwoPi / kCounts;
+  EXPECT_NEAR(t.mechanical_angle_rad(), kPi / 2.0 + half_count, 1e-12);
+  EXPECT_NEAR(t.electrical_angle_rad(), wrap_angle_0_2pi(3.0 * (kPi / 2.0 + half_count) + 0.4), 1e-12);
   EXPECT_TRUE(t.initialised());
   EXPECT_EQ(t.mechanical_speed_rad_s(), 0.0);
   t.update(16383);
@@ -113,12 +114,12 @@ TEST(AngleTracker, WrapsThroughCountZeroInBothDirections) {
   const double u0 = t.unwrapped_electrical_angle_rad();
   for (std::uint32_t c : {16382U, 0U, 2U, 4U}) t.update(c);
   EXPECT_NEAR(t.unwrapped_electrical_angle_rad() - u0, 3.0 * 8.0 * count, 1e-12);
-  EXPECT_NEAR(t.mechanical_angle_rad(), 4.0 * count, 1e-15);
+  EXPECT_NEAR(t.mechanical_angle_rad(), 4.5 * count, 1e-15);
   EXPECT_GT(t.mechanical_speed_rad_s(), 0.0);
   // And back again.
   for (std::uint32_t c : {2U, 0U, 16382U, 16380U, 16378U}) t.update(c);
   EXPECT_NEAR(t.unwrapped_electrical_angle_rad() - u0, -3.0 * 2.0 * count, 1e-12);
-  EXPECT_NEAR(t.mechanical_angle_rad(), 16378.0 * count, 1e-12);
+  EXPECT_NEAR(t.mechanical_angle_rad(), 16378.5 * count, 1e-12);
 }
 
 TEST(AngleTracker, UnwrappedAngleAccumulatesOverManyTurns) {
@@ -152,8 +153,33 @@ TEST(AngleTracker, ResetStartsAgainFromTheNextReading) {
   t.update(8192);  // half a turn
   EXPECT_TRUE(t.initialised());
   EXPECT_EQ(t.mechanical_speed_rad_s(), 0.0);
-  EXPECT_NEAR(t.unwrapped_electrical_angle_rad(), wrap_angle_0_2pi(3.0 * kPi + 0.4), 1e-12);
-  EXPECT_NEAR(t.smooth_unwrapped_electrical_angle_rad(), 3.0 * kPi + 0.4, 1e-12);
+  const double at = kPi + 0.5 * kTwoPi / kCounts;  // the middle of count 8192
+  EXPECT_NEAR(t.unwrapped_electrical_angle_rad(), wrap_angle_0_2pi(3.0 * at + 0.4), 1e-12);
+  EXPECT_NEAR(t.smooth_unwrapped_electrical_angle_rad(), 3.0 * at + 0.4, 1e-12);
+}
+
+// A truncating encoder (count = floor(angle / resolution), as count_of() above and the plant
+// emulator's encoder) reads half a count behind the rotor on average. Taken as the middle of its
+// count's interval the reading is unbiased; taken as the count's lower edge it lags by half a
+// count, which at speed rotates the voltage frame against the rotor's (docs/estimator.md, "The
+// encoder's half count").
+TEST(AngleTracker, ATruncatingEncoderIsReadWithoutBias) {
+  const double count = kTwoPi / kCounts;
+  for (const double centre : {0.5, 0.0}) {
+    AngleTrackerConfig c = config();
+    c.count_centre = centre;
+    double error_sum = 0.0;
+    const int n = 100000;
+    for (int k = 0; k < n; ++k) {
+      // Angles spread evenly over many counts (an irrational step), as a turning rotor gives.
+      const double theta = std::fmod(0.1 + k * 0.0123456789, kTwoPi);
+      AngleTracker t(c);
+      t.update(count_of(theta));
+      error_sum += t.mechanical_angle_rad() - theta;
+    }
+    const double mean_error_counts = error_sum / n / count;
+    EXPECT_NEAR(mean_error_counts, centre - 0.5, 0.01) << "count_centre " << centre;
+  }
 }
 
 }  // namespace

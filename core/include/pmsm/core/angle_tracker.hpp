@@ -16,6 +16,12 @@ struct AngleTrackerConfig {
   int encoder_bits = 14;
   int pole_pairs = 3;
   double electrical_offset_rad = 0.0;  // electrical angle at encoder count 0 (commissioned)
+  // Where the rotor lies, on average, inside the interval of angles that reads one count, in
+  // counts from the count's lower edge: 0.5 for an encoder that truncates (count = floor of
+  // angle / resolution: the angle is then anywhere in [n, n + 1) counts), 0 for one that
+  // rounds. Taking count n as angle n alone leaves the drive half a count behind the rotor on
+  // average: see docs/estimator.md, "The encoder's half count".
+  double count_centre = 0.5;
   double pll_bandwidth_rad_s = 300.0;
   double period_s = 1e-4;
 };
