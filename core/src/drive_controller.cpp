@@ -11,10 +11,19 @@ namespace {
 // The phase-current sign pattern in the rotor frame, averaged over a period in which the
 // currents moved from i0 to i1: the direction of the voltage the bridge loses to dead time
 // and device drop (per volt of per-phase error), see pair_estimator.hpp.
-Dq dead_time_pattern(const Abc& i0, const Abc& i1, double band_A, double theta_rad) {
+// With it, the first moment of the same signs over the period (soft_sign_moment), which the
+// period's mean current needs (period_mean_current).
+struct PeriodPattern {
+  Dq mean;
+  Dq moment;
+};
+PeriodPattern dead_time_pattern(const Abc& i0, const Abc& i1, double band_A, double theta_rad) {
   const Abc sign{mean_soft_sign(i0.a, i1.a, band_A), mean_soft_sign(i0.b, i1.b, band_A),
                  mean_soft_sign(i0.c, i1.c, band_A)};
-  return park(clarke(sign), theta_rad);
+  const Abc moment{soft_sign_moment(i0.a, i1.a, band_A), soft_sign_moment(i0.b, i1.b, band_A),
+                   soft_sign_moment(i0.c, i1.c, band_A)};
+  const Rotation r = rotation(theta_rad);
+  return {park(clarke(sign), r.c, r.s), park(clarke(moment), r.c, r.s)};
 }
 
 }  // namespace
@@ -323,11 +332,20 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     s.theta_e_rad = 0.5 * (previous_theta_smooth_ + theta_smooth);
     s.omega_e_rad_s = omega_e;
     s.omega_m_rad_s = angle_.mechanical_speed_rad_s();
-    s.i_A = {0.5 * (previous_i_A_.d + i.d), 0.5 * (previous_i_A_.q + i.q)};
     s.di_dt_A_s = {(i.d - previous_i_A_.d) / config_.period_s, (i.q - previous_i_A_.q) / config_.period_s};
-    s.v_V = v_applied_now_;
-    s.dead_time_pattern = dead_time_pattern(previous_i_abc_A_, in.i_A, config_.dead_time.current_band_A,
-                                            wrap_angle_0_2pi(previous_smooth_wrapped_ + 0.5 * smooth_advance));
+    const PeriodPattern pattern =
+        dead_time_pattern(previous_i_abc_A_, in.i_A, config_.dead_time.current_band_A,
+                          wrap_angle_0_2pi(previous_smooth_wrapped_ + 0.5 * smooth_advance));
+    // The period's means as the machine saw them: the stator-fixed command and bridge error,
+    // turned back across the period, shrink; the current bends (machine_equations.hpp).
+    const double shrink = period_voltage_shrink(smooth_advance);
+    s.v_V = {shrink * v_applied_now_.d, shrink * v_applied_now_.q};
+    s.dead_time_pattern = {shrink * pattern.mean.d, shrink * pattern.mean.q};
+    const double vx = scheduler_.vx_V();
+    s.i_A = period_mean_current({0.5 * (previous_i_A_.d + i.d), 0.5 * (previous_i_A_.q + i.q)},
+                                {s.v_V.d - vx * s.dead_time_pattern.d, s.v_V.q - vx * s.dead_time_pattern.q},
+                                pattern.moment, vx, smooth_advance, config_.period_s, config_.current.ld_H,
+                                config_.current.lq_H);
 
     s.voltage_limited = limited_now_;
     if (config_.estimator == EstimatorKind::kNoInjection && enabled && !sweep_.active()) {

@@ -80,5 +80,25 @@ TEST(DeadTimeCompensation, MeanSoftSignIsTheTimeAverageOverALinearCurrent) {
   EXPECT_NEAR(mean_soft_sign(-5.0, 5.0, 1.0), 0.0, 1e-12);
 }
 
+TEST(DeadTimeCompensation, SoftSignMomentIsTheFirstMomentOverALinearCurrent) {
+  // Against a brute-force integral of u soft_sign(i(u)), u in [-1/2, 1/2].
+  for (const auto& [i0, i1, band] :
+       {std::tuple{-3.0, 2.0, 1.0}, std::tuple{-0.4, 0.7, 1.0}, std::tuple{5.0, 9.0, 1.0}, std::tuple{2.0, -1.5, 0.75},
+        std::tuple{-1.0, 3.0, 0.0}, std::tuple{0.2, 0.2, 1.0}, std::tuple{0.2, 0.2000001, 1.0},
+        std::tuple{-0.9, -1.4, 1.0}, std::tuple{-6.0, -2.0, 0.75}}) {
+    double sum = 0.0;
+    const int n = 200000;
+    for (int k = 0; k < n; ++k) {
+      const double u = -0.5 + (k + 0.5) / n;
+      sum += u * soft_sign(0.5 * (i0 + i1) + (i1 - i0) * u, band);
+    }
+    EXPECT_NEAR(soft_sign_moment(i0, i1, band), sum / n, 1e-5) << i0 << " " << i1 << " " << band;
+  }
+  // A sharp sign that rises through zero in the middle of the period: -1 before, +1 after,
+  // the largest moment, 1/4; a constant sign has none.
+  EXPECT_NEAR(soft_sign_moment(-5.0, 5.0, 0.0), 0.25, 1e-12);
+  EXPECT_EQ(soft_sign_moment(3.0, 5.0, 1.0), 0.0);
+}
+
 }  // namespace
 }  // namespace pmsm::core

@@ -62,6 +62,37 @@ struct Duties {
   return (antiderivative(i1_A) - antiderivative(i0_A)) / span;
 }
 
+// The first moment of soft_sign over the same period, in units of the period: the integral
+// of u soft_sign(i(u)) du for u in [-1/2, 1/2] and i(u) = (i0 + i1) / 2 + (i1 - i0) u. Zero
+// while the current stays on one side outside the band (the sign is constant there). The
+// period's mean current needs it: a sign that flips inside the period bends the current
+// (DriveController::step, "the period's mean current").
+[[nodiscard]] inline double soft_sign_moment(double i0_A, double i1_A, double current_band_A) {
+  const double b = std::max(current_band_A, 0.0);
+  const double lo = std::min(i0_A, i1_A);
+  const double hi = std::max(i0_A, i1_A);
+  if (lo >= b || hi <= -b) {
+    return 0.0;  // outside the band throughout (b = 0: no crossing): the sign is constant
+  }
+  const double span = i1_A - i0_A;
+  if (std::abs(span) < 1e-6 * std::max(b, 1e-3)) {
+    return b > 0.0 ? span / (12.0 * b) : 0.0;  // inside the band, where soft_sign is linear
+  }
+  // (H(i1) - H(i0) - mid (F(i1) - F(i0))) / span^2, with F the antiderivative of soft_sign
+  // (as in mean_soft_sign) and H that of x soft_sign(x): x^3 / 3b inside the band,
+  // x |x| / 2 - sign(x) b^2 / 6 outside (continuous at +-b).
+  auto f = [b](double x) {
+    const double m = std::abs(x);
+    return m <= b && b > 0.0 ? x * x / (2.0 * b) : m - 0.5 * b;
+  };
+  auto h = [b](double x) {
+    const double m = std::abs(x);
+    return m <= b && b > 0.0 ? x * x * x / (3.0 * b) : 0.5 * x * m - std::copysign(b * b / 6.0, x);
+  };
+  const double mid = 0.5 * (i0_A + i1_A);
+  return (h(i1_A) - h(i0_A) - mid * (f(i1_A) - f(i0_A))) / (span * span);
+}
+
 // The voltage per phase that svpwm_compensated() adds, for currents moving from i0 to i1
 // over the period the command applies to.
 [[nodiscard]] Abc dead_time_compensation_V(const Abc& i0_A, const Abc& i1_A, const DeadTimeCompensation& comp,
