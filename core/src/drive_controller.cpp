@@ -20,10 +20,21 @@ struct PeriodPattern {
 PeriodPattern dead_time_pattern(const Abc& i0, const Abc& i1, double band_A, double theta_rad) {
   const Abc sign{mean_soft_sign(i0.a, i1.a, band_A), mean_soft_sign(i0.b, i1.b, band_A),
                  mean_soft_sign(i0.c, i1.c, band_A)};
-  const Abc moment{soft_sign_moment(i0.a, i1.a, band_A), soft_sign_moment(i0.b, i1.b, band_A),
-                   soft_sign_moment(i0.c, i1.c, band_A)};
   const Rotation r = rotation(theta_rad);
-  return {park(clarke(sign), r.c, r.s), park(clarke(moment), r.c, r.s)};
+  const Dq mean = park(clarke(sign), r.c, r.s);
+  // A phase whose current stays outside the band on one side has a constant sign and no
+  // moment: in most periods no phase is near zero, and the moment is not computed at all.
+  const double b = std::max(band_A, 0.0);
+  auto near_zero = [b](double x0, double x1) { return (x0 < b || x1 < b) && (x0 > -b || x1 > -b); };
+  const bool na = near_zero(i0.a, i1.a);
+  const bool nb = near_zero(i0.b, i1.b);
+  const bool nc = near_zero(i0.c, i1.c);
+  if (!(na || nb || nc)) {
+    return {mean, Dq{}};
+  }
+  const Abc moment{na ? soft_sign_moment(i0.a, i1.a, b) : 0.0, nb ? soft_sign_moment(i0.b, i1.b, b) : 0.0,
+                   nc ? soft_sign_moment(i0.c, i1.c, b) : 0.0};
+  return {mean, park(clarke(moment), r.c, r.s)};
 }
 
 }  // namespace
