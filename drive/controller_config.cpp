@@ -51,7 +51,7 @@ ConfigSchema<C> build() {
          "Where the rotor lies on average inside the angles that read one count, from the count's lower edge: 0.5 for an "
          "encoder that truncates (reports the whole counts below the angle), 0 for one that rounds.");
   s.real("sensors.encoder_offset_rad", [](C& c) -> double& { return c.drive.angle.electrical_offset_rad; }, between(-7, 7), "rad",
-         "Electrical angle at encoder count 0 (commissioned).");
+         "Electrical angle at the lower edge of encoder count 0 (commissioned).");
   s.real("sensors.offset_calibration_s", [](C& c) -> double& { return c.sensors.offset_calibration_s; }, between(0, 10), "s",
          "Time at start-up, gates off, over which the current-ADC offsets are averaged (0: none).");
   // [control]

@@ -59,7 +59,8 @@ TEST(RegressionAngleTracker, SmoothAngleIsTheAngleOfTheLatestSample) {
     t.update(count_of(theta));
     if (k >= 3000) offset += (t.smooth_unwrapped_electrical_angle_rad() - 3.0 * theta) / 1000.0;
   }
-  // Half a count of floor() quantisation is allowed.
+  // The count is read at its middle (count_centre 0.5), so floor() leaves no mean offset; a
+  // count (electrical: three) of room for the PLL's ripple.
   EXPECT_NEAR(offset, 0.0, 3.0 * kTwoPi / 16384.0) << "w T p = " << w * 1e-4 * 3.0;
 }
 

@@ -15,7 +15,7 @@ namespace pmsm::core {
 struct AngleTrackerConfig {
   int encoder_bits = 14;
   int pole_pairs = 3;
-  double electrical_offset_rad = 0.0;  // electrical angle at encoder count 0 (commissioned)
+  double electrical_offset_rad = 0.0;  // electrical angle at the lower edge of encoder count 0 (commissioned)
   // Where the rotor lies, on average, inside the interval of angles that reads one count, in
   // counts from the count's lower edge: 0.5 for an encoder that truncates (count = floor of
   // angle / resolution: the angle is then anywhere in [n, n + 1) counts), 0 for one that

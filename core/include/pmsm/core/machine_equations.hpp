@@ -20,34 +20,53 @@ struct DqMachine {
 
 // Eq. 10, Tem = Kt * iqr, extended with the reluctance torque of a salient machine:
 // Tem = 3/2 * p * (psi_m * iq + (Ld - Lq) * id * iq). With Ld = Lq it reduces to Eq. 10.
-// One PWM period as the estimator sees it (docs/estimator.md, "One period, averaged"). The
+// One PWM period as the estimator sees it (docs/estimator.md §1, "One period, averaged"). The
 // bridge holds its voltage vector fixed in the stator for the whole period, while the rotor
 // frame turns by a = w T. In the rotor frame the vector therefore turns back: with u in
-// [-1/2, 1/2] across the period, vd(u) = vd + a u vq and vq(u) = vq - a u vd (to first order),
-// on top of the bridge's own error, whose sign flips where a phase current crosses zero.
-// Two consequences for a period's averages, both of order (w T)^2 against the signal:
-//  - the mean rotor-frame voltage is the command shrunk by sin(a/2) / (a/2) = 1 - a^2 / 24;
-//  - the current, driven by a voltage that varies linearly (and steps at a sign flip) across
-//    the period, is not linear in time, so the mean of its two end samples is not its mean.
-//    For a voltage profile w(u) on an inductance L the mean lies (T / L) M1 below the ends'
-//    mean, M1 being w's first moment, the integral of u w(u) du: a vq / 12 for the turning
-//    command's d axis, -a vd / 12 for its q axis, and -Vx m1 for the bridge, m1 the first
-//    moment of the sign pattern (soft_sign_moment, projected like the pattern).
+// [-1/2, 1/2] across the period, vd(u) = vd + a u vq and vq(u) = vq - a u vd (to first order).
+// Two consequences for a period's averages:
+//  - the mean rotor-frame voltage is the command shrunk by sin(a/2) / (a/2) = 1 - a^2 / 24. The
+//    bridge's error is stator-fixed too, except that a phase's sign flips where its current
+//    crosses zero inside the period, so its mean is the mid-angle pattern shrunk the same way
+//    plus a (m_q, -m_d), m the pattern's first moment (soft_sign_moment, projected like the
+//    pattern): period_sign_pattern;
+//  - the current is not linear in time, so the mean of its two end samples is not its mean.
+//    For a driving voltage w(u) on an inductance L the mean lies (T / L) M1 below the ends'
+//    mean, M1 being w's first moment, the integral of u w(u) du: a vq / 12 on the d axis and
+//    -a vd / 12 on the q axis from the turning command, -Vx m from the bridge, and from the
+//    machine's own terms, which move with the current across the period (dI its change over
+//    the period), (w Lq dIq - Rs dId) / 12 on d and (-w Ld dId - Rs dIq) / 12 on q:
+//    period_mean_current.
 // In a pair the ends' mean differs between the levels by w Ld dId / 12 through vq, and the q
 // part is multiplied by w Lq in the d-axis fit: at the reference's rated speed a
 // field-weakening pair read 0.6 % low at 10 kHz and 1.75 % at 5 kHz (docs/accuracy.md).
 [[nodiscard]] constexpr double period_voltage_shrink(double rotation_rad) {
   return 1.0 - rotation_rad * rotation_rad / 24.0;
 }
-// ends_mean_A: the mean of the period's two current samples; v_machine_V: the mean voltage
-// that reached the machine (the command less the bridge's Vx G); sign_moment: the sign
-// pattern's first moment in the rotor frame (per volt of per-phase error).
-[[nodiscard]] constexpr Dq period_mean_current(const Dq& ends_mean_A, const Dq& v_machine_V, const Dq& sign_moment,
-                                               double vx_V, double rotation_rad, double period_s, double ld_H,
-                                               double lq_H) {
-  const double m1_d = rotation_rad * v_machine_V.q / 12.0 - vx_V * sign_moment.d;
-  const double m1_q = -rotation_rad * v_machine_V.d / 12.0 - vx_V * sign_moment.q;
-  return {ends_mean_A.d - period_s * m1_d / ld_H, ends_mean_A.q - period_s * m1_q / lq_H};
+// mean: the sign pattern at the period's middle angle (mean soft sign per phase, projected);
+// moment: the same projection of the signs' first moments.
+[[nodiscard]] constexpr Dq period_sign_pattern(const Dq& mean, const Dq& moment, double rotation_rad) {
+  const double shrink = period_voltage_shrink(rotation_rad);
+  return {shrink * mean.d + rotation_rad * moment.q, shrink * mean.q - rotation_rad * moment.d};
+}
+struct PeriodMachine {
+  double rs_ohm = 0.0;
+  double ld_H = 0.0;
+  double lq_H = 0.0;
+};
+// ends_mean_A: the mean of the period's two current samples; change_A: the second minus the
+// first; v_machine_V: the mean voltage that reached the machine (the command less the
+// bridge's Vx G); sign_moment: the sign pattern's first moment in the rotor frame (per volt of
+// per-phase error).
+[[nodiscard]] constexpr Dq period_mean_current(const Dq& ends_mean_A, const Dq& change_A, const Dq& v_machine_V,
+                                               const Dq& sign_moment, double vx_V, double rotation_rad,
+                                               double period_s, const PeriodMachine& m) {
+  const double w = rotation_rad / period_s;
+  const double m1_d = (rotation_rad * v_machine_V.q + w * m.lq_H * change_A.q - m.rs_ohm * change_A.d) / 12.0 -
+                      vx_V * sign_moment.d;
+  const double m1_q = (-rotation_rad * v_machine_V.d - w * m.ld_H * change_A.d - m.rs_ohm * change_A.q) / 12.0 -
+                      vx_V * sign_moment.q;
+  return {ends_mean_A.d - period_s * m1_d / m.ld_H, ends_mean_A.q - period_s * m1_q / m.lq_H};
 }
 
 [[nodiscard]] double electromagnetic_torque_Nm(double flux_linkage_Wb, double ld_H, double lq_H,
