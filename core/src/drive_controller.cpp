@@ -25,10 +25,9 @@ PeriodPattern dead_time_pattern(const Abc& i0, const Abc& i1, double band_A, dou
   // A phase whose current stays outside the band on one side has a constant sign and no
   // moment: in most periods no phase is near zero, and the moment is not computed at all.
   const double b = std::max(band_A, 0.0);
-  auto near_zero = [b](double x0, double x1) { return (x0 < b || x1 < b) && (x0 > -b || x1 > -b); };
-  const bool na = near_zero(i0.a, i1.a);
-  const bool nb = near_zero(i0.b, i1.b);
-  const bool nc = near_zero(i0.c, i1.c);
+  const bool na = soft_sign_varies(i0.a, i1.a, b);
+  const bool nb = soft_sign_varies(i0.b, i1.b, b);
+  const bool nc = soft_sign_varies(i0.c, i1.c, b);
   if (!(na || nb || nc)) {
     return {mean, Dq{}};
   }

@@ -18,8 +18,6 @@ struct DqMachine {
 [[nodiscard]] Dq rotor_frame_voltage(const DqMachine& m, const Dq& i_A, const Dq& di_dt_A_s,
                                      double omega_e_rad_s, double omega_m_rad_s);
 
-// Eq. 10, Tem = Kt * iqr, extended with the reluctance torque of a salient machine:
-// Tem = 3/2 * p * (psi_m * iq + (Ld - Lq) * id * iq). With Ld = Lq it reduces to Eq. 10.
 // One PWM period as the estimator sees it (docs/estimator.md §1, "One period, averaged"). The
 // bridge holds its voltage vector fixed in the stator for the whole period, while the rotor
 // frame turns by a = w T. In the rotor frame the vector therefore turns back: with u in
@@ -69,6 +67,8 @@ struct PeriodMachine {
   return {ends_mean_A.d - period_s * m1_d / m.ld_H, ends_mean_A.q - period_s * m1_q / m.lq_H};
 }
 
+// Eq. 10, Tem = Kt * iqr, extended with the reluctance torque of a salient machine:
+// Tem = 3/2 * p * (psi_m * iq + (Ld - Lq) * id * iq). With Ld = Lq it reduces to Eq. 10.
 [[nodiscard]] double electromagnetic_torque_Nm(double flux_linkage_Wb, double ld_H, double lq_H,
                                                int pole_pairs, const Dq& i_A);
 

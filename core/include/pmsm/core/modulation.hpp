@@ -48,18 +48,26 @@ struct Duties {
 // The mean of soft_sign over a period in which the current moves linearly from i0 to i1: a
 // zero crossing inside the period then counts for the fraction of the period spent on
 // each side, as it does in the bridge (at speed the current moves about an ampere per period).
+// Antiderivative of soft_sign for a band b >= 0: x^2 / 2b inside the band, |x| - b/2 outside
+// (|x| for b = 0).
+[[nodiscard]] inline double soft_sign_antiderivative(double x, double b) {
+  const double m = std::abs(x);
+  return m <= b && b > 0.0 ? x * x / (2.0 * b) : m - 0.5 * b;
+}
+
 [[nodiscard]] inline double mean_soft_sign(double i0_A, double i1_A, double current_band_A) {
-  // Antiderivative of soft_sign: x^2 / 2b inside the band, |x| - b/2 outside (|x| for b = 0).
   const double b = std::max(current_band_A, 0.0);
-  auto antiderivative = [b](double x) {
-    const double m = std::abs(x);
-    return m <= b && b > 0.0 ? x * x / (2.0 * b) : m - 0.5 * b;
-  };
   const double span = i1_A - i0_A;
   if (std::abs(span) < 1e-9) {
     return soft_sign(0.5 * (i0_A + i1_A), b);
   }
-  return (antiderivative(i1_A) - antiderivative(i0_A)) / span;
+  return (soft_sign_antiderivative(i1_A, b) - soft_sign_antiderivative(i0_A, b)) / span;
+}
+
+// Whether soft_sign can change over a period in which the current moves from i0 to i1, for a
+// band b >= 0: the current enters the band (b = 0: crosses zero). Otherwise its sign is constant.
+[[nodiscard]] inline bool soft_sign_varies(double i0_A, double i1_A, double b) {
+  return (i0_A < b || i1_A < b) && (i0_A > -b || i1_A > -b);
 }
 
 // The first moment of soft_sign over the same period, in units of the period: the integral
@@ -69,9 +77,7 @@ struct Duties {
 // (DriveController::step, "the period's mean current").
 [[nodiscard]] inline double soft_sign_moment(double i0_A, double i1_A, double current_band_A) {
   const double b = std::max(current_band_A, 0.0);
-  const double lo = std::min(i0_A, i1_A);
-  const double hi = std::max(i0_A, i1_A);
-  if (lo >= b || hi <= -b) {
+  if (!soft_sign_varies(i0_A, i1_A, b)) {
     return 0.0;  // outside the band throughout (b = 0: no crossing): the sign is constant
   }
   const double span = i1_A - i0_A;
@@ -79,18 +85,15 @@ struct Duties {
     return b > 0.0 ? span / (12.0 * b) : 0.0;  // inside the band, where soft_sign is linear
   }
   // (H(i1) - H(i0) - mid (F(i1) - F(i0))) / span^2, with F the antiderivative of soft_sign
-  // (as in mean_soft_sign) and H that of x soft_sign(x): x^3 / 3b inside the band,
-  // x |x| / 2 - sign(x) b^2 / 6 outside (continuous at +-b).
-  auto f = [b](double x) {
-    const double m = std::abs(x);
-    return m <= b && b > 0.0 ? x * x / (2.0 * b) : m - 0.5 * b;
-  };
+  // and H that of x soft_sign(x): x^3 / 3b inside the band, x |x| / 2 - sign(x) b^2 / 6
+  // outside (continuous at +-b).
   auto h = [b](double x) {
     const double m = std::abs(x);
     return m <= b && b > 0.0 ? x * x * x / (3.0 * b) : 0.5 * x * m - std::copysign(b * b / 6.0, x);
   };
   const double mid = 0.5 * (i0_A + i1_A);
-  return (h(i1_A) - h(i0_A) - mid * (f(i1_A) - f(i0_A))) / (span * span);
+  return (h(i1_A) - h(i0_A) - mid * (soft_sign_antiderivative(i1_A, b) - soft_sign_antiderivative(i0_A, b))) /
+         (span * span);
 }
 
 // The voltage per phase that svpwm_compensated() adds, for currents moving from i0 to i1
