@@ -20,6 +20,7 @@
 #include <exception>
 #include <filesystem>
 #include <string>
+#include <vector>
 
 #include "step_replay.hpp"
 
@@ -41,13 +42,46 @@ int main(int argc, char** argv) {
     char label[64];
     // PMSM_STEP_COST_PROFILE=1: no dumps, so that callgrind's one profile covers every step
     // (callgrind_annotate then shows where the nominal step's instructions go).
+    // PMSM_STEP_COST_PROFILE=CLASS (e.g. injecting): no dumps, and collection only in the steps
+    // of that class. The replay is deterministic, so a first pass outside collection learns
+    // each step's class and the second collects the chosen ones (run callgrind with
+    // --collect-atstart=no and no --toggle-collect).
     const char* profile = std::getenv("PMSM_STEP_COST_PROFILE");
-    const bool dump = profile == nullptr || std::string(profile) != "1";
+    const std::string profile_class = profile == nullptr ? std::string() : std::string(profile);
+    const bool dump = profile_class.empty();
+    std::vector<bench::StepClass> classes;
+    std::size_t chosen = bench::kStepClassCount;
+    for (std::size_t i = 0; i < bench::kStepClassCount; ++i) {
+      if (profile_class == bench::kStepClassNames[i]) chosen = i;
+    }
+    if (chosen < bench::kStepClassCount) {
+      bench::StepReplay first(path);
+      classes.reserve(periods);
+      for (std::uint64_t k = 0; k < periods; ++k) {
+        classes.push_back(first.step([](app::DriveNode& node, const hal::SensorSample& sample,
+                                        const app::NodeInputs& in) -> const app::NodeStep& {
+          return node.step(&sample, in);
+        }));
+      }
+    } else if (!dump && profile_class != "1") {
+      std::fprintf(stderr, "pmsm_step_cost: PMSM_STEP_COST_PROFILE must be 1 or a step class, not '%s'\n",
+                   profile_class.c_str());
+      return 2;
+    }
     for (std::uint64_t k = 0; k < periods; ++k) {
-      const bench::StepClass c = replay.step([](app::DriveNode& node, const hal::SensorSample& sample,
-                                                const app::NodeInputs& in) -> const app::NodeStep& {
-        return node.step(&sample, in);
+      const bool collect = !classes.empty() && static_cast<std::size_t>(classes[k]) == chosen;
+      const bench::StepClass c = replay.step([collect](app::DriveNode& node, const hal::SensorSample& sample,
+                                                       const app::NodeInputs& in) -> const app::NodeStep& {
+        if (collect) CALLGRIND_TOGGLE_COLLECT;
+        const app::NodeStep& out = node.step(&sample, in);
+        if (collect) CALLGRIND_TOGGLE_COLLECT;
+        return out;
       });
+      if (!classes.empty() && c != classes[k]) {
+        std::fprintf(stderr, "pmsm_step_cost: the replay is not deterministic (step %llu)\n",
+                     static_cast<unsigned long long>(k));
+        return 2;
+      }
       ++counts[static_cast<std::size_t>(c)];
       std::snprintf(label, sizeof label, "step %llu %s", static_cast<unsigned long long>(k),
                     bench::kStepClassNames[static_cast<std::size_t>(c)]);

@@ -17,10 +17,9 @@ struct PeriodPattern {
   Dq mean;
   Dq moment;
 };
-PeriodPattern dead_time_pattern(const Abc& i0, const Abc& i1, double band_A, double theta_rad) {
+PeriodPattern dead_time_pattern(const Abc& i0, const Abc& i1, double band_A, const Rotation& r) {
   const Abc sign{mean_soft_sign(i0.a, i1.a, band_A), mean_soft_sign(i0.b, i1.b, band_A),
                  mean_soft_sign(i0.c, i1.c, band_A)};
-  const Rotation r = rotation(theta_rad);
   const Dq mean = park(clarke(sign), r.c, r.s);
   // A phase whose current stays outside the band on one side has a constant sign and no
   // moment: in most periods no phase is near zero, and the moment is not computed at all.
@@ -345,9 +344,12 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     s.omega_e_rad_s = omega_e;
     s.omega_m_rad_s = angle_.mechanical_speed_rad_s();
     s.di_dt_A_s = {(i.d - previous_i_A_.d) / config_.period_s, (i.q - previous_i_A_.q) / config_.period_s};
+    // The rotation at the period's middle by the smooth angle, from the sample's by the small
+    // gap between the two (half a period's advance and the encoder's steps): no second sincos.
+    const double mid = wrap_angle_0_2pi(previous_smooth_wrapped_ + 0.5 * smooth_advance);
+    const Rotation at_mid = compose(at_sample, small_rotation(wrap_angle_pm_pi(mid - theta)));
     const PeriodPattern pattern =
-        dead_time_pattern(previous_i_abc_A_, in.i_A, config_.dead_time.current_band_A,
-                          wrap_angle_0_2pi(previous_smooth_wrapped_ + 0.5 * smooth_advance));
+        dead_time_pattern(previous_i_abc_A_, in.i_A, config_.dead_time.current_band_A, at_mid);
     // The period's means as the machine saw them: the stator-fixed command and bridge error,
     // turned back across the period, shrink; the current bends (machine_equations.hpp).
     const double shrink = period_voltage_shrink(smooth_advance);
@@ -371,7 +373,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     // it runs near standstill, where the period's rotation is negligible, and its fit stays
     // consistent in itself.
     if (sweep_.active() &&
-        sweep_.step(enabled, in.i_A, rotation(wrap_angle_0_2pi(previous_smooth_wrapped_ + 0.5 * smooth_advance)),
+        sweep_.step(enabled, in.i_A, at_mid,
                     v_applied_now_.d, ends_mean.d, omega_e, s.voltage_limited)) {
       finish_inverter_sweep(now);
     }
@@ -428,7 +430,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     // The command is applied during the next period: rotate it to the angle at that period's
     // middle (1.5 periods of rotation ahead) and compensate the dead time for the currents
     // expected then.
-    const Rotation half = rotation(0.5 * omega_e * config_.period_s);
+    const Rotation half = small_rotation(0.5 * omega_e * config_.period_s);
     const Rotation one = compose(half, half);
     const Rotation at_start = compose(at_sample, one);       // theta + 1 period of rotation
     const Rotation at_apply = compose(at_start, half);       // theta + 1.5 periods

@@ -74,13 +74,54 @@ Interpolated interpolate(const std::array<const PeriodSample*, 4>& s, const Weig
 
 struct Solution {
   Eigen::Vector3d theta = Eigen::Vector3d::Zero();
-  double rcond = 0.0;
+  double rcond = 0.0;  // only when asked for (the whole fit's condition guard)
   double rss = 0.0;
 };
 
+// The smallest pivot a unit-diagonal normal matrix may have before it counts as singular: its
+// pivots bound its smallest eigenvalue from above and its largest is at most 3 (the trace), so
+// below this the reciprocal condition is below 1e-12 too.
+constexpr double kMinPivot = 1e-12;
+
+// Solves a symmetric positive-definite 3x3 system a z = b by Cholesky, written out: a
+// quarter of the instructions of Eigen's pivoted LDLT on a matrix this small, and the
+// jackknife solves nine such systems in one control period (the worst-case step,
+// docs/performance.md). False if a pivot is not above kMinPivot.
+bool cholesky_solve3(const Eigen::Matrix3d& a, const Eigen::Vector3d& b, Eigen::Vector3d& z) {
+  const double d0 = a(0, 0);
+  if (!(d0 > kMinPivot)) {
+    return false;
+  }
+  const double l00 = std::sqrt(d0);
+  const double l10 = a(1, 0) / l00;
+  const double l20 = a(2, 0) / l00;
+  const double d1 = a(1, 1) - l10 * l10;
+  if (!(d1 > kMinPivot)) {
+    return false;
+  }
+  const double l11 = std::sqrt(d1);
+  const double l21 = (a(2, 1) - l20 * l10) / l11;
+  const double d2 = a(2, 2) - l20 * l20 - l21 * l21;
+  if (!(d2 > kMinPivot)) {
+    return false;
+  }
+  const double l22 = std::sqrt(d2);
+  // L y = b, then L' z = y.
+  const double y0 = b(0) / l00;
+  const double y1 = (b(1) - l10 * y0) / l11;
+  const double y2 = (b(2) - l20 * y0 - l21 * y1) / l22;
+  z(2) = y2 / l22;
+  z(1) = (y1 - l21 * z(2)) / l11;
+  z(0) = (y0 - l10 * z(1) - l20 * z(2)) / l00;
+  return true;
+}
+
 // Solves the normal equations for the active regressors with the others held at `fixed`.
+// With `condition`, also the reciprocal condition of the scaled normal matrix (its
+// eigenvalues in closed form), which the whole fit reports and guards on; the jackknife's
+// leave-one-block-out solves need only to know that the matrix is not singular.
 bool solve_sums(const FitSums& s, const std::array<bool, kRegressors>& active,
-                const Eigen::Vector3d& fixed, Solution& out) {
+                const Eigen::Vector3d& fixed, bool condition, Solution& out) {
   // Move the fixed regressors to the left side: y' = y - sum_j fixed_j x_j.
   Eigen::Matrix3d xtx;
   Eigen::Vector3d xty;
@@ -135,12 +176,18 @@ bool solve_sums(const FitSums& s, const std::array<bool, kRegressors>& active,
   // Scaled to unit diagonal: the condition says how collinear the regressors are, not how
   // different their units are. Inactive rows are identity.
   const Eigen::Matrix3d scaled = scale.asDiagonal() * a * scale.asDiagonal();
-  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(scaled, Eigen::EigenvaluesOnly);
-  out.rcond = eig.eigenvalues().minCoeff() / eig.eigenvalues().maxCoeff();
-  if (!(out.rcond > 1e-12)) {
+  if (condition) {
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig;
+    eig.computeDirect(scaled, Eigen::EigenvaluesOnly);
+    out.rcond = eig.eigenvalues().minCoeff() / eig.eigenvalues().maxCoeff();
+    if (!(out.rcond > 1e-12)) {
+      return false;
+    }
+  }
+  Eigen::Vector3d z;
+  if (!cholesky_solve3(scaled, scale.asDiagonal() * b, z)) {
     return false;
   }
-  const Eigen::Vector3d z = scaled.ldlt().solve(scale.asDiagonal() * b);
   Eigen::Vector3d theta = scale.asDiagonal() * z;
   for (int r = 0; r < kRegressors; ++r) {
     if (!use[static_cast<std::size_t>(r)]) {
@@ -218,7 +265,7 @@ FitResult solve_fit(const BlockedSums& sums, const FitOptions& options) {
     }
   }
   Solution full;
-  if (!solve_sums(total, active, fixed, full)) {
+  if (!solve_sums(total, active, fixed, true, full)) {
     return out;
   }
   out.rs_ohm = full.theta(kRegRs);
@@ -235,7 +282,7 @@ FitResult solve_fit(const BlockedSums& sums, const FitOptions& options) {
     FitSums s = total;
     s.add(sums.blocks[static_cast<std::size_t>(b)], -1.0);
     Solution partial;
-    if (!solve_sums(s, active, fixed, partial)) {
+    if (!solve_sums(s, active, fixed, false, partial)) {
       return out;  // removing a block made the system singular: no honest error bar
     }
     leave_out[static_cast<std::size_t>(b)] = {partial.theta(kRegRs), partial.theta(kRegVx)};

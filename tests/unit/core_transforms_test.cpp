@@ -151,5 +151,22 @@ TEST(Transforms, ComposedRotationsEqualTheRotationOfTheSum) {
   }
 }
 
+
+TEST(Transforms, SmallRotationIsTheRotationWithinAFewUlp) {
+  constexpr double kUlp = std::numeric_limits<double>::epsilon();
+  double worst = 0.0;
+  for (int k = -25000; k <= 25000; ++k) {
+    const double x = static_cast<double>(k) * (kSmallRotationRad / 25000.0);
+    const Rotation r = small_rotation(x);
+    worst = std::max({worst, std::abs(r.c - std::cos(x)), std::abs(r.s - std::sin(x))});
+  }
+  EXPECT_LE(worst, 4.0 * kUlp);
+  // Beyond the series' range, and for NaN, the sincos itself.
+  for (const double x : {0.2500001, -0.3, 2.0, 100.0}) {
+    EXPECT_EQ(small_rotation(x).c, rotation(x).c) << x;
+    EXPECT_EQ(small_rotation(x).s, rotation(x).s) << x;
+  }
+  EXPECT_TRUE(std::isnan(small_rotation(std::nan("")).c));
+}
 }  // namespace
 }  // namespace pmsm::core

@@ -10,6 +10,7 @@
 // Recording 2 is taken dTheta later at angles that fall between recording 1's samples, so the
 // recorder has to interpolate; the EMF harmonics kd, kq are evaluated at the true angle of
 // each sample, so they cancel only if the recorder matches by angle correctly.
+#include <Eigen/Dense>
 #include <gtest/gtest.h>
 
 #include <array>
@@ -644,6 +645,64 @@ TEST(MeansFit, FixedVxTakesTheGivenInverterVoltage) {
   EXPECT_LT(right.drs_dvx, 0.0);
   EXPECT_NEAR(wrong.rs_ohm - right.rs_ohm, 0.5 * right.drs_dvx, 1e-9);
   EXPECT_FALSE(solve_means_fit_fixed_vx(pairs.data(), 0, false, truth.vx_V).valid);
+}
+
+// solve_fit's own small solver (a written-out Cholesky, the condition from the eigenvalues in
+// closed form) against Eigen's general least squares on the same rows: the estimates, the
+// residual, the reciprocal condition, and the jackknife's leave-one-block-out solves, on a
+// well-conditioned design and on a nearly collinear one (rcond about 5e-5, below the
+// min_condition guard).
+TEST(PairFit, TheSmallSolverAgreesWithAGeneralLeastSquaresSolver) {
+  for (const double collinear : {0.0, 0.9999}) {
+    std::mt19937 rng(7);
+    std::normal_distribution<double> n01(0.0, 1.0);
+    const Eigen::Vector3d theta(0.15, 2.0, 6.0e-3);
+    const int rows = 400;
+    Eigen::MatrixXd x(rows, 3);
+    Eigen::VectorXd y(rows);
+    BlockedSums sums;
+    for (int k = 0; k < rows; ++k) {
+      const double a = n01(rng);
+      const double b = collinear * a + std::sqrt(1.0 - collinear * collinear) * n01(rng);
+      const std::array<double, kRegressors> row{5.0 * a, 0.3 * b, 40.0 * n01(rng)};
+      x.row(k) << row[0], row[1], row[2];
+      y(k) = x.row(k).dot(theta) + 0.01 * n01(rng);
+      sums.blocks[static_cast<std::size_t>(k % kFitBlocks)].add(row, y(k));
+    }
+    FitOptions o;
+    o.fit_vx = true;
+    o.fit_ld = true;
+    const FitResult fit = solve_fit(sums, o);
+    ASSERT_TRUE(fit.valid) << "collinear " << collinear;
+    const Eigen::Vector3d ls = x.colPivHouseholderQr().solve(y);
+    EXPECT_NEAR(fit.rs_ohm, ls(0), 1e-9 * (1.0 + std::abs(ls(0))) / (1.0 - collinear));
+    EXPECT_NEAR(fit.vx_V, ls(1), 1e-9 * (1.0 + std::abs(ls(1))) / (1.0 - collinear));
+    EXPECT_NEAR(fit.ld_H, ls(2), 1e-11 / (1.0 - collinear));
+    EXPECT_NEAR(fit.residual_rms_V, std::sqrt((x * ls - y).squaredNorm() / rows), 1e-6);
+    // The condition of the column-scaled normal matrix, from an independent eigen-solver.
+    Eigen::Matrix3d xtx = x.transpose() * x;
+    const Eigen::Vector3d scale = xtx.diagonal().cwiseSqrt().cwiseInverse();
+    xtx = scale.asDiagonal() * xtx * scale.asDiagonal();
+    const Eigen::Vector3d ev = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(xtx).eigenvalues();
+    EXPECT_NEAR(fit.condition, ev.minCoeff() / ev.maxCoeff(), 1e-9) << "collinear " << collinear;
+    // The jackknife from eight general solves.
+    Eigen::VectorXd rs(kFitBlocks);
+    for (int b = 0; b < kFitBlocks; ++b) {
+      std::vector<int> keep;
+      for (int k = 0; k < rows; ++k) {
+        if (k % kFitBlocks != b) keep.push_back(k);
+      }
+      Eigen::MatrixXd xb(static_cast<Eigen::Index>(keep.size()), 3);
+      Eigen::VectorXd yb(static_cast<Eigen::Index>(keep.size()));
+      for (std::size_t j = 0; j < keep.size(); ++j) {
+        xb.row(static_cast<Eigen::Index>(j)) = x.row(keep[j]);
+        yb(static_cast<Eigen::Index>(j)) = y(keep[j]);
+      }
+      rs(b) = xb.colPivHouseholderQr().solve(yb)(0);
+    }
+    const double var = (rs.array() - rs.mean()).square().sum() * (kFitBlocks - 1.0) / kFitBlocks;
+    EXPECT_NEAR(fit.var_rs, var, 1e-6 * var) << "collinear " << collinear;
+  }
 }
 
 TEST(BlockedSums, TotalIsTheSumOfTheBlocksAndAddIsBlockwise) {

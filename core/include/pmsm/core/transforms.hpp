@@ -89,9 +89,26 @@ inline constexpr double kSqrt3 = 1.73205080756887729353;
 // by composition (exact up to rounding) instead of more sincos.
 // The same pair as the shared sincos returns (cos c, sin s), so no copy between the two.
 using Rotation = math::SinCos;
-// Both at a fixed cost (common/math/pmsm/fixed_sincos.hpp): the control step calls it up to
-// three times a period (docs/performance.md).
+// At a fixed cost (common/math/pmsm/fixed_sincos.hpp): the control step calls it once a
+// period, and small_rotation for the rest (docs/performance.md).
 [[nodiscard]] inline Rotation rotation(double angle_rad) { return math::fixed_sincos(angle_rad); }
+// The rotation by an angle that is usually small (a fraction of a period's advance, the gap
+// between two estimates of one angle): the Taylor series to the eleventh power within
+// kSmallRotationRad (truncation below 1e-16), about a third of a sincos; beyond it, and for
+// NaN, the sincos.
+inline constexpr double kSmallRotationRad = 0.25;
+[[nodiscard]] inline Rotation small_rotation(double angle_rad) {
+  if (!(std::abs(angle_rad) <= kSmallRotationRad)) {
+    return rotation(angle_rad);
+  }
+  const double z = angle_rad * angle_rad;
+  const double s =
+      angle_rad *
+      (1.0 + z * (-1.0 / 6.0 + z * (1.0 / 120.0 + z * (-1.0 / 5040.0 + z * (1.0 / 362880.0 + z * (-1.0 / 39916800.0))))));
+  const double c =
+      1.0 + z * (-0.5 + z * (1.0 / 24.0 + z * (-1.0 / 720.0 + z * (1.0 / 40320.0 + z * (-1.0 / 3628800.0)))));
+  return {c, s};
+}
 // The rotation by the sum of the two angles.
 [[nodiscard]] constexpr Rotation compose(const Rotation& a, const Rotation& b) {
   return {a.c * b.c - a.s * b.s, a.s * b.c + a.c * b.s};
