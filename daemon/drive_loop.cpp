@@ -105,6 +105,12 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns) 
     r.publications = p;
     r.calibration_to_store = out.calibration_to_store;
     r.calibration_failed = out.calibration_failed;
+    if (out.calibration_failed) {
+      const core::DriveTelemetry& t = node_.controller().telemetry();
+      r.calibration_failure = t.calibration_failure;
+      r.calibration_rs0_ohm = t.calibration_rs0_ohm;
+      r.calibration_rs0_std_ohm = t.calibration_rs0_std_ohm;
+    }
     r.uptime_s = node_.uptime_s();
     if (p.heartbeat) {
       r.timing = close_timing_window();

@@ -40,6 +40,9 @@ struct PublicationRecord {
   std::optional<core::ThermalState> thermal_state;
   double ambient_C = 25.0;
   bool calibration_failed = false;
+  core::CalibrationFailure calibration_failure = core::CalibrationFailure::kNone;
+  double calibration_rs0_ohm = 0.0;      // a refused calibration's Rs0 and its standard error
+  double calibration_rs0_std_ohm = 0.0;
   double uptime_s = 0.0;
 };
 using PublicationRing = hal::SpscRing<PublicationRecord, 512>;

@@ -250,6 +250,11 @@ ConfigSchema<C> build() {
            "cooled through the downtime; relative to this file; empty: none, the filter starts from the ambient sensor).");
   s.integer("calibration.events", [](C& c) -> int& { return c.drive.calibration_events; }, between(1, 100),
             "Injection events averaged by a calibration run.");
+  s.real("calibration.max_rs0_std_fraction", [](C& c) -> double& { return c.drive.calibration_max_rs0_std_fraction; },
+         between(1e-4, 1.0), "",
+         "A calibration run whose Rs0 standard error exceeds this fraction of Rs0 is refused and the calibration in use "
+         "stays (2 % of Rs0 is about 5 C at 25 C); it happens where the events cannot learn the bridge's voltage, e.g. "
+         "turning faster than injection.vx_learning_max_speed_rad_s.");
   s.optional_real("calibration.F_A", [](C& c) -> std::optional<double>& { return c.relative.calibration_f_A; }, positive(1000), "A",
                   "1.11 I_rated",
                   "Injection magnitude of the calibration procedure (fixed-magnitude bipolar, levels 1 and 0.4), at no load (Table I: 50 A).");

@@ -77,7 +77,7 @@ struct NodeStep {
   std::optional<hal::InverterCommand> command;
   NodePublications publications;
   std::optional<core::Calibration> calibration_to_store;  // a calibration just completed
-  bool calibration_failed = false;                        // a calibration just timed out
+  bool calibration_failed = false;                        // a calibration just failed (timed out or refused)
 };
 
 // The protocol's method code for the controller's injection configuration.

@@ -61,6 +61,24 @@ DriveController::DriveController(const DriveConfig& config)
   }
 }
 
+void DriveController::fail_calibration(CalibrationFailure why) {
+  calibrating_ = false;
+  calibration_failed_ = true;
+  calibration_failed_now_ = true;
+  calibration_failure_ = why;
+  restore_band();
+  scheduler_.set_config(config_.injection);
+}
+
+const char* calibration_failure_name(CalibrationFailure f) {
+  switch (f) {
+    case CalibrationFailure::kNone: return "none";
+    case CalibrationFailure::kTimeout: return "timeout";
+    case CalibrationFailure::kUncertain: return "uncertain";
+  }
+  return "unknown";
+}
+
 void DriveController::restore_band() {
   // A calibration that does not complete keeps the calibration in use, and so the band its
   // Rs0 was learned with.
@@ -96,6 +114,7 @@ void DriveController::start_calibration(double known_temp_C) {
   thermal_guess_pending_ = false;
   calibrating_ = true;
   calibration_failed_ = false;
+  calibration_failure_ = CalibrationFailure::kNone;
   calibration_started_s_ = static_cast<double>(period_) * config_.period_s;
   calibration_temp_C_ = known_temp_C;
   calibration_count_ = 0;
@@ -192,8 +211,19 @@ void DriveController::handle_estimate(const EventEstimate& e) {
       ++calibration_ke_count_;
     }
     if (calibration_count_ >= config_.calibration_events) {
+      const double rs0 = calibration_rs_sum_ / calibration_weight_sum_;
+      // The events' inverse-variance standard error. They share the inverter-voltage prior,
+      // so this is a lower bound on Rs0's uncertainty: a calibration that fails it is
+      // uncertain at least this much.
+      const double rs0_std = std::sqrt(1.0 / calibration_weight_sum_);
+      telemetry_.calibration_rs0_ohm = rs0;
+      telemetry_.calibration_rs0_std_ohm = rs0_std;
+      if (!(rs0_std <= config_.calibration_max_rs0_std_fraction * std::abs(rs0))) {
+        fail_calibration(CalibrationFailure::kUncertain);
+        return;
+      }
       Calibration c;
-      c.rs0_ohm = calibration_rs_sum_ / calibration_weight_sum_;
+      c.rs0_ohm = rs0;
       c.t0_C = calibration_temp_C_;
       c.ke0_V_s_per_rad = calibration_ke_count_ > 0 ? calibration_ke_sum_ / calibration_ke_count_ : 0.0;
       c.calibrated = true;
@@ -404,11 +434,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   if (calibrating_ && !sweeping && now - calibration_started_s_ > config_.calibration_timeout_s) {
     // No usable events in time (the method cannot inject here, or every pair was
     // rejected): keep the stored calibration and say so.
-    calibrating_ = false;
-    calibration_failed_ = true;
-    calibration_failed_now_ = true;
-    restore_band();
-    scheduler_.set_config(config_.injection);
+    fail_calibration(CalibrationFailure::kTimeout);
   }
   si.request_now = command.request_injection || (calibrating_ && enabled);
   const SchedulerOutput& so = scheduler_.step(si, sample ? &*sample : nullptr);
@@ -524,6 +550,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   telemetry_.lq_saturation_H = scheduler_.lq_saturation_H();
   telemetry_.calibrated = observer_.calibration().calibrated;
   telemetry_.calibration_failed = calibration_failed_;
+  telemetry_.calibration_failure = calibration_failure_;
   return output_;
 }
 

@@ -66,6 +66,20 @@ TEST(EstimatorRobustness, AtTheVoltageLimitFieldWeakeningPairsMeasure) {
   EXPECT_GE(r.coverage_2sigma, 0.9) << "the band carries the pairs' shared error";
 }
 
+// A calibration that cannot learn the bridge's voltage is refused, not stored: its Rs0 would
+// have been 55 % high (every later reading about 100 C low), and its own standard error says
+// so (26 % of Rs0 against the 2 % allowed).
+TEST(EstimatorRobustness, ACalibrationThatCannotLearnTheBridgeIsRefused) {
+  RunOptions o;
+  o.twin_for_disturbance = false;
+  const SimulationResult r =
+      run_scenario(load_scenario(std::filesystem::path(PMSM_SOURCE_DIR) / "tests/integration/data/calibration-at-speed.toml"), o);
+  EXPECT_FALSE(r.calibrated);
+  ASSERT_EQ(r.calibration_failure, core::CalibrationFailure::kUncertain);
+  EXPECT_GT(r.calibration_failure_rs0_std_ohm, 0.02 * r.calibration_failure_rs0_ohm);
+  EXPECT_LT(r.calibration_failure_time_s, 5.0) << "refused when its events are in, not at the timeout";
+}
+
 TEST(EstimatorRobustness, AOnePointSixOhmServoCalibratesAndIsTracked) {
   const SimulationResult r = run("servo-1p6ohm.toml");
   ASSERT_TRUE(r.calibrated) << "the defaults are relative to the motor: the window fits 1.6 ohm";

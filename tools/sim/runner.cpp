@@ -341,9 +341,18 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
       result.inverter_sweep = *drive.inverter_sweep_completed();
       result.inverter_sweep_time_s = t;
     }
+    if (drive.calibration_just_failed()) {
+      result.calibration_failure = tel.calibration_failure;
+      result.calibration_failure_time_s = t;
+      result.calibration_failure_rs0_ohm =
+          tel.calibration_failure == core::CalibrationFailure::kUncertain ? tel.calibration_rs0_ohm : 0.0;
+      result.calibration_failure_rs0_std_ohm =
+          tel.calibration_failure == core::CalibrationFailure::kUncertain ? tel.calibration_rs0_std_ohm : 0.0;
+    }
     if (step.calibration_to_store) {
       result.calibrated = true;
       result.calibration = *step.calibration_to_store;
+      result.calibration_rs0_std_ohm = tel.calibration_rs0_std_ohm;
       result.calibration_time_s = t;
       metrics_from_s = t;
       if (store_calibration && !scenario.controller.calibration_file.empty()) {
@@ -622,9 +631,20 @@ std::string result_json(const SimulationResult& r) {
         .begin_object()
         .field("time_s", r.calibration_time_s)
         .field("rs0_ohm", r.calibration.rs0_ohm)
+        .field("rs0_std_ohm", r.calibration_rs0_std_ohm)
         .field("t0_C", r.calibration.t0_C)
         .field("ke0_V_s_per_rad", r.calibration.ke0_V_s_per_rad)
         .field("dead_time_band_A", r.calibration.dead_time_band_A > 0.0 ? r.calibration.dead_time_band_A : kNan)
+        .end_object();
+  }
+  if (r.calibration_failure != core::CalibrationFailure::kNone) {
+    j.key("calibration_failure")
+        .begin_object()
+        .field("time_s", r.calibration_failure_time_s)
+        .field("reason", core::calibration_failure_name(r.calibration_failure))
+        .field("rs0_ohm", r.calibration_failure == core::CalibrationFailure::kUncertain ? r.calibration_failure_rs0_ohm : kNan)
+        .field("rs0_std_ohm",
+               r.calibration_failure == core::CalibrationFailure::kUncertain ? r.calibration_failure_rs0_std_ohm : kNan)
         .end_object();
   }
   if (r.inverter_sweep.outcome != core::InverterSweepOutcome::kNone) {
@@ -711,8 +731,19 @@ std::string result_text(const SimulationResult& r) {
                        w.residual_rms_V);
   }
   if (r.calibrated) {
-    out += fmt::format("  calibration at {:.2f} s           Rs0 {:.5f} ohm at {:.1f} C, Ke0 {:.4f} V s/rad\n", r.calibration_time_s,
-                       r.calibration.rs0_ohm, r.calibration.t0_C, r.calibration.ke0_V_s_per_rad);
+    out += fmt::format("  calibration at {:.2f} s           Rs0 {:.5f} +- {:.5f} ohm at {:.1f} C, Ke0 {:.4f} V s/rad\n",
+                       r.calibration_time_s, r.calibration.rs0_ohm, r.calibration_rs0_std_ohm, r.calibration.t0_C,
+                       r.calibration.ke0_V_s_per_rad);
+  }
+  if (r.calibration_failure == core::CalibrationFailure::kTimeout) {
+    out += fmt::format("  calibration failed at {:.2f} s    timeout: not enough published events in calibration.timeout_s; the "
+                       "calibration in use stays\n",
+                       r.calibration_failure_time_s);
+  } else if (r.calibration_failure == core::CalibrationFailure::kUncertain) {
+    out += fmt::format("  calibration failed at {:.2f} s    uncertain: Rs0 {:.5f} +- {:.5f} ohm ({:.2f} %, above "
+                       "calibration.max_rs0_std_fraction); the calibration in use stays\n",
+                       r.calibration_failure_time_s, r.calibration_failure_rs0_ohm, r.calibration_failure_rs0_std_ohm,
+                       100.0 * r.calibration_failure_rs0_std_ohm / std::max(std::abs(r.calibration_failure_rs0_ohm), 1e-12));
   }
   if (!r.calibration_file.empty()) {
     out += fmt::format("  calibration file                {} ({} at start{})\n", r.calibration_file, to_string(r.calibration_at_start),

@@ -109,6 +109,13 @@ struct SimulationResult {
   bool calibrated = false;
   double calibration_time_s = 0.0;
   core::Calibration calibration{};
+  double calibration_rs0_std_ohm = 0.0;  // the calibration's Rs0 standard error
+  // A calibration run that failed (timed out, or refused an uncertain Rs0): why, when, and
+  // the Rs0 it had (0 when it timed out before enough events).
+  core::CalibrationFailure calibration_failure = core::CalibrationFailure::kNone;
+  double calibration_failure_time_s = 0.0;
+  double calibration_failure_rs0_ohm = 0.0;
+  double calibration_failure_rs0_std_ohm = 0.0;
   core::InverterSweepResult inverter_sweep{};  // the calibration's bridge sweep (outcome kNone: not run)
   double inverter_sweep_time_s = 0.0;
   // The stored calibration (controller calibration.file): what was found at the start, and

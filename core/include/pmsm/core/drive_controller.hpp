@@ -61,6 +61,13 @@ struct DriveConfig {
   // its zero-current band replaces dead_time.current_band_A.
   InverterSweepConfig inverter_sweep{};
   int calibration_events = 6;        // events averaged into Rs0 / Ke0 (about 2.5 s at no load)
+  // A calibration whose Rs0 is less certain than this (its standard error over Rs0) is
+  // refused and the calibration in use stays: every later temperature would carry the error
+  // (2 % of Rs0 is about 5 C at 25 C; calibrations that learn the bridge's voltage have
+  // 0.2-0.8 %, docs/estimator.md section 6). It happens where the events cannot learn it
+  // (turning faster than injection.vx_learning_max_speed_rad_s, or pairs that do not reverse
+  // the current), so Rs0 rests on the inverter-voltage prior.
+  double calibration_max_rs0_std_fraction = 0.02;
   double calibration_timeout_s = 20.0;  // give up (keep the stored calibration) after this
   std::size_t recording_capacity = 8192;      // periods per recording (preallocated)
 
@@ -108,6 +115,14 @@ struct DriveOutput {
 // Counters of pair outcomes, indexed by PairOutcome.
 using OutcomeCounts = std::array<std::uint32_t, static_cast<std::size_t>(PairOutcome::kCount)>;
 
+// Why the last calibration run failed.
+enum class CalibrationFailure : std::uint8_t {
+  kNone = 0,
+  kTimeout = 1,    // not enough published events within calibration_timeout_s
+  kUncertain = 2,  // Rs0's standard error above calibration_max_rs0_std_fraction
+};
+[[nodiscard]] const char* calibration_failure_name(CalibrationFailure f);
+
 struct DriveTelemetry {
   std::uint64_t period = 0;
   double time_s = 0.0;
@@ -142,7 +157,12 @@ struct DriveTelemetry {
   bool inverter_sweep_active = false;  // the calibration's bridge sweep is running
   double dead_time_band_A = 0.0;       // the band the estimator's pattern uses
   bool calibrated = false;
-  bool calibration_failed = false;  // the last calibration run timed out
+  bool calibration_failed = false;  // the last calibration run failed (calibration_failure says why)
+  CalibrationFailure calibration_failure = CalibrationFailure::kNone;
+  // The last completed or refused calibration's Rs0 and its standard error (the events'
+  // inverse-variance combination, referred to T0); 0 before any.
+  double calibration_rs0_ohm = 0.0;
+  double calibration_rs0_std_ohm = 0.0;
 };
 
 // One published resistance estimate, from an event's accepted pairs (rejected pairs are
@@ -203,7 +223,8 @@ class DriveController {
   [[nodiscard]] const std::optional<InverterSweepResult>& inverter_sweep_completed() const { return sweep_done_; }
   // The last sweep's result (outcome kNone before any).
   [[nodiscard]] const InverterSweepResult& inverter_sweep() const { return sweep_.result(); }
-  // True for the one period in which a calibration run timed out.
+  // True for the one period in which a calibration run failed (timed out, or refused its
+  // uncertain Rs0: telemetry().calibration_failure says which).
   [[nodiscard]] bool calibration_just_failed() const { return calibration_failed_now_; }
   [[nodiscard]] const Calibration& calibration() const { return observer_.calibration(); }
   [[nodiscard]] const DriveConfig& config() const { return config_; }
@@ -226,6 +247,7 @@ class DriveController {
   void start_thermal_from_guess(double guess_C);
   void finish_inverter_sweep(double now_s);
   void restore_band();
+  void fail_calibration(CalibrationFailure why);
 
   DriveOutput output_{};
   DriveTelemetry telemetry_{};
@@ -269,6 +291,7 @@ class DriveController {
   bool calibrating_ = false;
   bool calibration_failed_ = false;
   bool calibration_failed_now_ = false;
+  CalibrationFailure calibration_failure_ = CalibrationFailure::kNone;
   double calibration_started_s_ = 0.0;
   double calibration_temp_C_ = 25.0;
   int calibration_count_ = 0;
