@@ -227,9 +227,13 @@ ConfigSchema<C> build() {
   s.real("thermal.housing_process_std_C_per_sqrt_s", [](C& c) -> double& { return c.drive.thermal.housing_process_std_C_per_sqrt_s; },
          at_least(0), "C/sqrt(s)", "Process noise of the housing node.");
   s.real("thermal.loss_error_process_std_W_per_sqrt_s", [](C& c) -> double& { return c.drive.thermal.loss_error_process_std_W_per_sqrt_s; },
-         at_least(0), "W/sqrt(s)", "Random walk of the winding-loss model error.");
+         at_least(0), "W/sqrt(s)", "Random walk of the winding node's missing loss (per thermal second).");
   s.real("thermal.initial_loss_error_std_W", [](C& c) -> double& { return c.drive.thermal.initial_loss_error_std_W; }, at_least(0), "W",
-         "Initial uncertainty of the loss error.");
+         "Initial uncertainty of the winding node's missing loss.");
+  s.real("thermal.loss_scale_process_std_per_sqrt_s", [](C& c) -> double& { return c.drive.thermal.loss_scale_process_std_per_sqrt_s; },
+         at_least(0), "1/sqrt(s)", "Random walk of the copper-loss model's relative error (per thermal second).");
+  s.real("thermal.initial_loss_scale_std", [](C& c) -> double& { return c.drive.thermal.initial_loss_scale_std; }, at_least(0), "",
+         "Initial uncertainty of the copper-loss model's relative error (0.2: the model within about 20 %).");
   s.real("thermal.measurement_floor_std_C", [](C& c) -> double& { return c.drive.thermal.measurement_floor_std_C; }, at_least(0), "C",
          "Added in quadrature to every measurement's own error.");
   s.real("thermal.gate_sigma", [](C& c) -> double& { return c.drive.thermal.gate_sigma; }, positive(1000), "",

@@ -8,17 +8,21 @@
 namespace pmsm::core {
 namespace {
 
-// Continuous-time matrices of the two-node network with the loss-error state:
-// Cw dTw/dt = Pcu + dP - (Tw - Th)/Rwh
+// Continuous-time matrices of the two-node network with the two loss-error states: dP, a
+// loss the model lacks (watts), and k, the copper loss model's relative error:
+// Cw dTw/dt = (1 + k) Pcu + dP - (Tw - Th)/Rwh
 // Ch dTh/dt = Pfe + (Tw - Th)/Rwh - (Th - Ta)/Rha
-// d(dP)/dt  = 0 (random walk)
-Eigen::Matrix3d system_matrix(const ThermalModelConfig& c) {
+// d(dP)/dt  = 0, dk/dt = 0 (random walks)
+// The k column carries this period's copper loss: the system is linear in the state for a
+// known loss, time-varying with it.
+ThermalObserver::Matrix system_matrix(const ThermalModelConfig& c, double copper_loss_W) {
   const double gwh = 1.0 / c.winding_to_housing_K_W;
   const double gha = 1.0 / c.housing_to_ambient_K_W;
-  Eigen::Matrix3d a = Eigen::Matrix3d::Zero();
+  ThermalObserver::Matrix a = ThermalObserver::Matrix::Zero();
   a(0, 0) = -gwh / c.winding_capacity_J_K;
   a(0, 1) = gwh / c.winding_capacity_J_K;
   a(0, 2) = 1.0 / c.winding_capacity_J_K;
+  a(0, 3) = copper_loss_W / c.winding_capacity_J_K;
   a(1, 0) = gwh / c.housing_capacity_J_K;
   a(1, 1) = -(gwh + gha) / c.housing_capacity_J_K;
   return a;
@@ -30,7 +34,7 @@ ThermalObserver::ThermalObserver(const ThermalModelConfig& config, const Calibra
                                  double initial_temp_C, bool known)
     : config_(config), calibration_(calibration), anchor_C_(initial_temp_C), anchored_(known) {
   const double std_C = known ? config.initial_std_C : config.unknown_initial_std_C;
-  x_ << initial_temp_C, initial_temp_C, 0.0;
+  x_ << initial_temp_C, initial_temp_C, 0.0, 0.0;
   p_.setZero();
   p_(0, 0) = std_C * std_C;
   p_(1, 1) = std_C * std_C;
@@ -41,6 +45,7 @@ ThermalObserver::ThermalObserver(const ThermalModelConfig& config, const Calibra
     p_(0, 1) = p_(1, 0) = 0.95 * std_C * std_C;
   }
   p_(2, 2) = config.initial_loss_error_std_W * config.initial_loss_error_std_W;
+  p_(3, 3) = config.initial_loss_scale_std * config.initial_loss_scale_std;
 }
 
 void ThermalObserver::restart_unknown(double guess_C) {
@@ -73,7 +78,7 @@ void ThermalObserver::restore(const ThermalState& state, double downtime_thermal
   const Eigen::Vector2d x0(state.winding_C - ambient_C, state.housing_C - ambient_C);
   const Eigen::Vector2d x1 = e * x0;
   const double cooled_by = std::abs(x1(0) - x0(0));
-  x_ << ambient_C + x1(0), ambient_C + x1(1), 0.0;
+  x_ << ambient_C + x1(0), ambient_C + x1(1), 0.0, 0.0;
   anchor_C_ = x_(0);
   // The stored uncertainty, the model error of the cooling, and the process noise of the
   // downtime.
@@ -87,6 +92,7 @@ void ThermalObserver::restore(const ThermalState& state, double downtime_thermal
   p_(1, 1) = var;
   p_(0, 1) = p_(1, 0) = 0.95 * var;  // the machine's error is shared (see the constructor)
   p_(2, 2) = config_.initial_loss_error_std_W * config_.initial_loss_error_std_W;
+  p_(3, 3) = config_.initial_loss_scale_std * config_.initial_loss_scale_std;
   drift_std_C_ = 0.0;
   shared_error_C_ = 0.0;  // part of the stored band now
   since_measurement_s_ = 0.0;
@@ -116,25 +122,28 @@ double ThermalObserver::iron_loss_W(double omega_m_rad_s) const {
 void ThermalObserver::predict(double dt_s, double copper_current_sq_A2, double omega_m_rad_s,
                               double ambient_C) {
   const double dt = dt_s * config_.time_scale;  // thermal seconds
-  const Eigen::Matrix3d a = system_matrix(config_);
-  Eigen::Vector3d u;
-  u << copper_loss_W(copper_current_sq_A2) / config_.winding_capacity_J_K,
+  const double pcu = copper_loss_W(copper_current_sq_A2);
+  last_copper_loss_W_ = pcu;
+  const Matrix a = system_matrix(config_, pcu);
+  Vector u;
+  u << pcu / config_.winding_capacity_J_K,
       (iron_loss_W(omega_m_rad_s) + ambient_C / config_.housing_to_ambient_K_W) /
           config_.housing_capacity_J_K,
-      0.0;
+      0.0, 0.0;
   // Exact discretisation is not needed at the update rate used (dt far below the winding
   // time constant); a second-order Taylor step keeps it accurate and allocation-free.
-  const Eigen::Matrix3d ad = Eigen::Matrix3d::Identity() + a * dt + 0.5 * a * a * dt * dt;
-  const Eigen::Matrix3d bd = Eigen::Matrix3d::Identity() * dt + 0.5 * a * dt * dt;
+  const Matrix ad = Matrix::Identity() + a * dt + 0.5 * a * a * dt * dt;
+  const Matrix bd = Matrix::Identity() * dt + 0.5 * a * dt * dt;
   x_ = ad * x_ + bd * u;
   // The model's error grows with how far it has carried the estimate from where a
   // measurement (or the start) left it: a relative error of the cooling path or the losses
   // scales the temperature change, and shrinks again as the machine returns there.
   drift_std_C_ = config_.model_error_fraction * std::abs(x_(0) - anchor_C_);
-  Eigen::Matrix3d q = Eigen::Matrix3d::Zero();
+  Matrix q = Matrix::Zero();
   q(0, 0) = config_.winding_process_std_C_per_sqrt_s * config_.winding_process_std_C_per_sqrt_s * dt;
   q(1, 1) = config_.housing_process_std_C_per_sqrt_s * config_.housing_process_std_C_per_sqrt_s * dt;
   q(2, 2) = config_.loss_error_process_std_W_per_sqrt_s * config_.loss_error_process_std_W_per_sqrt_s * dt;
+  q(3, 3) = config_.loss_scale_process_std_per_sqrt_s * config_.loss_scale_process_std_per_sqrt_s * dt;
   p_ = ad * p_ * ad.transpose() + q;
   since_measurement_s_ += dt_s;
 }
@@ -145,7 +154,7 @@ bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm, double
   const double dt_dr =
       temperature_per_resistance_C_per_ohm(calibration_.rs0_ohm, calibration_.t0_C, config_.conductor_inferred_zero_C);
   const double r = std::pow(rs_std_ohm * dt_dr, 2) + std::pow(config_.measurement_floor_std_C, 2);
-  const Eigen::RowVector3d h(1.0, 0.0, 0.0);
+  const Eigen::RowVector4d h(1.0, 0.0, 0.0, 0.0);
   // A measurement without a finite value and error bar is no measurement (NaN compares false,
   // so it would otherwise pass the gate and poison the state).
   if (!std::isfinite(z) || !std::isfinite(r) || !(rs_std_ohm >= 0.0)) {
@@ -160,6 +169,7 @@ bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm, double
     p_(0, 0) = p_(1, 1) = u;
     p_(0, 1) = p_(1, 0) = 0.95 * u;
     p_(0, 2) = p_(2, 0) = p_(1, 2) = p_(2, 1) = 0.0;
+    p_(0, 3) = p_(3, 0) = p_(1, 3) = p_(3, 1) = 0.0;
     shared_error_C_ = 0.0;
     anchored_ = false;
   }
@@ -185,10 +195,10 @@ bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm, double
   p_(0, 0) += drift_var;
   drift_std_C_ = 0.0;
   anchored_ = true;
-  const Eigen::Vector3d k = p_ * h.transpose() / s;
+  const Vector k = p_ * h.transpose() / s;
   x_ += k * (z - x_(0));
   // Joseph form keeps P symmetric and positive.
-  const Eigen::Matrix3d i_kh = Eigen::Matrix3d::Identity() - k * h;
+  const Matrix i_kh = Matrix::Identity() - k * h;
   p_ = i_kh * p_ * i_kh.transpose() + k * r * k.transpose();
   // A model error shared by consecutive measurements is not averaged away: the state carries
   // the share k of this measurement's and (1 - k) of what it carried before. It widens the
@@ -213,7 +223,7 @@ bool ThermalObserver::reanchor_consistent(double z, double r) const {
 ThermalEstimate ThermalObserver::estimate() const {
   return {x_(0),
           std::sqrt(std::max(p_(0, 0), 0.0) + drift_std_C_ * drift_std_C_ + shared_error_C_ * shared_error_C_),
-          x_(1), x_(2), since_measurement_s_};
+          x_(1), x_(2) + x_(3) * last_copper_loss_W_, x_(3), since_measurement_s_};
 }
 
 bool ThermalObserver::time_to_limit_s(double limit_C, double copper_current_sq_A2,
@@ -224,7 +234,7 @@ bool ThermalObserver::time_to_limit_s(double limit_C, double copper_current_sq_A
   }
   // Losses held constant; copper loss taken at the limit temperature (resistance rises with
   // temperature, so this errs towards a shorter time).
-  const double pcu = 1.5 * resistance_at_C(limit_C) * copper_current_sq_A2 + x_(2);
+  const double pcu = 1.5 * resistance_at_C(limit_C) * copper_current_sq_A2 * (1.0 + x_(3)) + x_(2);
   const double pfe = iron_loss_W(omega_m_rad_s);
   const double gwh = 1.0 / config_.winding_to_housing_K_W;
   const double gha = 1.0 / config_.housing_to_ambient_K_W;

@@ -1,8 +1,9 @@
 // Continuous winding temperature between injections: a two-node thermal model (winding,
 // stator/housing, to ambient) driven by the losses the controller can compute, fused with the
-// resistance measurements by a Kalman filter. A third state, the error of the winding-loss
-// model, lets the filter learn a constant model mismatch from the measurements, which keeps
-// the prediction honest between measurements and the time-to-limit sensible.
+// resistance measurements by a Kalman filter. Two more states, the winding-loss model's
+// errors (a missing loss in watts and the copper loss's relative error), let the filter learn
+// a model mismatch from the measurements, which keeps the prediction honest between
+// measurements and the time-to-limit sensible.
 //
 // Also here: temperature from resistance (Eq. 1) through the calibration, time-to-limit at
 // the present load, and current-limit derating from the upper confidence bound.
@@ -35,8 +36,15 @@ struct ThermalModelConfig {
   double initial_std_C = 5.0;
   double winding_process_std_C_per_sqrt_s = 0.02;  // per sqrt(thermal second)
   double housing_process_std_C_per_sqrt_s = 0.01;
+  // The winding node's loss errors, random walks the measurements teach: dP, a loss the
+  // model lacks (watts: e.g. iron loss reaching the winding), and k, the copper loss model's
+  // relative error (the node gets (1 + k) times the computed loss). A commissioning's error
+  // in the winding's capacity or thermal resistance acts like k: it scales with the loss, so
+  // what one load spell teaches carries over to the next at another load.
   double loss_error_process_std_W_per_sqrt_s = 0.5;
   double initial_loss_error_std_W = 50.0;
+  double loss_scale_process_std_per_sqrt_s = 0.002;
+  double initial_loss_scale_std = 0.2;
   double measurement_floor_std_C = 0.3;  // added in quadrature to each measurement's own error
   double gate_sigma = 6.0;               // innovation gate (from the first fused measurement on)
   // A start without a known winding temperature (no calibration run, no stored state): the
@@ -80,12 +88,15 @@ struct ThermalEstimate {
   double winding_C = 0.0;
   double winding_std_C = 0.0;
   double housing_C = 0.0;
-  double loss_error_W = 0.0;
+  double loss_error_W = 0.0;      // dP plus k times the last period's copper loss
+  double loss_scale_error = 0.0;  // k
   double time_since_measurement_s = 0.0;
 };
 
 class ThermalObserver {
  public:
+  using Matrix = Eigen::Matrix4d;
+  using Vector = Eigen::Vector4d;
   // known: the winding is at initial_temp_C (a soaked motor at a calibration) with
   // config.initial_std_C; otherwise a guess with config.unknown_initial_std_C, and the first
   // measurement passes without the gate.
@@ -137,8 +148,9 @@ class ThermalObserver {
  private:
   ThermalModelConfig config_;
   Calibration calibration_;
-  Eigen::Vector3d x_;   // winding C, housing C, winding-loss error W
-  Eigen::Matrix3d p_;
+  Vector x_;   // winding C, housing C, the missing loss dP W, the copper loss's relative error k
+  double last_copper_loss_W_ = 0.0;
+  Matrix p_;
   double since_measurement_s_ = 0.0;
   double anchor_C_ = 0.0;     // the winding estimate the last measurement (or the start) left
   double shared_error_C_ = 0.0;  // the state's share of measurements' shared model error
