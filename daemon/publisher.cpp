@@ -135,12 +135,13 @@ void Publisher::handle(const PublicationRecord& r) {
   if (r.calibration_failed) {
     if (r.calibration_failure == core::CalibrationFailure::kUncertain) {
       spdlog::warn("calibration refused: Rs0 {:.5f} +- {:.5f} ohm is less certain than "
-                   "controller.calibration.max_rs0_std_fraction allows (the bridge's voltage was not learned: calibrate "
+                   "calibration.max_rs0_std_fraction allows (the bridge's voltage was not learned: calibrate "
                    "unloaded, below injection.vx_learning_max_speed_rad_s); the previous calibration stays in use",
                    r.calibration_rs0_ohm, r.calibration_rs0_std_ohm);
     } else {
-      spdlog::warn("calibration gave up (controller.calibration.timeout_s without enough accepted events); the previous "
-                   "calibration stays in use");
+      spdlog::warn("calibration gave up (calibration.timeout_s, {:.0f} s, without enough published events); the previous "
+                 "calibration stays in use",
+                 config_.controller.drive.calibration_timeout_s);
     }
   }
   if (r.calibration_to_store) {

@@ -182,6 +182,15 @@ ConfigSchema<C> build() {
            "Its uncertainty.");
   inj.real("injection.vx_drift_std_V", [](C& c) -> double& { return c.drive.injection.vx_drift_std_V; }, at_least(0, 100), "V",
            "How far it may wander between events.");
+  inj.real("injection.vx_learning_max_speed_rad_s", [](C& c) -> double& { return c.drive.injection.vx_learning_max_speed_rad_s; },
+           at_least(0, 1e5), "rad/s",
+           "Learn Vx only from events slower than this (electrical; docs/estimator.md section 4); a calibration faster "
+           "than this cannot learn it and is refused (calibration.max_rs0_std_fraction).");
+  inj.real("injection.vx_learning_max_iq_fraction", [](C& c) -> double& { return c.drive.injection.vx_learning_max_iq_fraction; },
+           at_least(0, 100), "",
+           "... and whose motoring |iq| stays below this fraction of the event's smallest F (its pairs reverse the current).");
+  inj.real("injection.vx_min_identifiability", [](C& c) -> double& { return c.drive.injection.vx_min_identifiability; },
+           between(0, 1), "", "... and whose levels separate Rs from Vx at least this well (1 - rho^2 of the means fit).");
   inj.boolean("injection.learn_lq", [](C& c) -> bool& { return c.drive.injection.learn_lq; },
               "Learn the q-axis inductance from the pairs' d-axis means (the Eq. 37 correction needs the true Lq).");
   inj.real("injection.lq_initial_std_fraction", [](C& c) -> double& { return c.drive.injection.lq_initial_std_fraction; },
@@ -254,11 +263,13 @@ ConfigSchema<C> build() {
            "cooled through the downtime; relative to this file; empty: none, the filter starts from the ambient sensor).");
   s.integer("calibration.events", [](C& c) -> int& { return c.drive.calibration_events; }, between(1, 100),
             "Injection events averaged by a calibration run.");
+  s.real("calibration.timeout_s", [](C& c) -> double& { return c.drive.calibration_timeout_s; }, between(1, 3600), "s",
+         "A calibration run without enough published events by then gives up; the calibration in use stays.");
   s.real("calibration.max_rs0_std_fraction", [](C& c) -> double& { return c.drive.calibration_max_rs0_std_fraction; },
          between(1e-4, 1.0), "",
          "A calibration run whose Rs0 standard error exceeds this fraction of Rs0 is refused and the calibration in use "
          "stays (2 % of Rs0 is about 5 C at 25 C); it happens where the events cannot learn the bridge's voltage, e.g. "
-         "turning faster than injection.vx_learning_max_speed_rad_s.");
+         "turning faster than injection.vx_learning_max_speed_rad_s or under load.");
   s.optional_real("calibration.F_A", [](C& c) -> std::optional<double>& { return c.relative.calibration_f_A; }, positive(1000), "A",
                   "1.11 I_rated",
                   "Injection magnitude of the calibration procedure (fixed-magnitude bipolar, levels 1 and 0.4), at no load (Table I: 50 A).");

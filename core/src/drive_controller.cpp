@@ -115,6 +115,8 @@ void DriveController::start_calibration(double known_temp_C) {
   calibrating_ = true;
   calibration_failed_ = false;
   calibration_failure_ = CalibrationFailure::kNone;
+  telemetry_.calibration_rs0_ohm = 0.0;
+  telemetry_.calibration_rs0_std_ohm = 0.0;
   calibration_started_s_ = static_cast<double>(period_) * config_.period_s;
   calibration_temp_C_ = known_temp_C;
   calibration_count_ = 0;

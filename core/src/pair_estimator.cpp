@@ -78,15 +78,21 @@ struct Solution {
   double rss = 0.0;
 };
 
-// The smallest pivot a unit-diagonal normal matrix may have before it counts as singular: its
-// pivots bound its smallest eigenvalue from above and its largest is at most 3 (the trace), so
-// below this the reciprocal condition is below 1e-12 too.
+// When a unit-diagonal normal matrix counts as singular: never when its reciprocal condition
+// is above 1e-12 by the old check's standard, but told without the eigenvalues. Its largest
+// eigenvalue is at least 1 (the diagonal), so a pivot at or below 1e-12 (each bounds the
+// smallest eigenvalue from above) means singular. Pivots above it are not enough the other way;
+// the determinant, the product of the pivots, is: the other two eigenvalues sum to at most 3
+// (the trace), so their product is at most 2.25, the smallest is at least det / 2.25, the
+// largest at most 3, and det > 6.75e-12 makes the reciprocal condition above 1e-12. (A few
+// matrices with a reciprocal condition just above 1e-12 are refused that the old check took.)
 constexpr double kMinPivot = 1e-12;
+constexpr double kMinDeterminant = 6.75e-12;
 
 // Solves a symmetric positive-definite 3x3 system a z = b by Cholesky, written out: a
 // quarter of the instructions of Eigen's pivoted LDLT on a matrix this small, and the
 // jackknife solves nine such systems in one control period (the worst-case step,
-// docs/performance.md). False if a pivot is not above kMinPivot.
+// docs/performance.md). False if the matrix is singular in the sense of kMinDeterminant.
 bool cholesky_solve3(const Eigen::Matrix3d& a, const Eigen::Vector3d& b, Eigen::Vector3d& z) {
   const double d0 = a(0, 0);
   if (!(d0 > kMinPivot)) {
@@ -102,7 +108,7 @@ bool cholesky_solve3(const Eigen::Matrix3d& a, const Eigen::Vector3d& b, Eigen::
   const double l11 = std::sqrt(d1);
   const double l21 = (a(2, 1) - l20 * l10) / l11;
   const double d2 = a(2, 2) - l20 * l20 - l21 * l21;
-  if (!(d2 > kMinPivot)) {
+  if (!(d2 > kMinPivot) || !(d0 * d1 * d2 > kMinDeterminant)) {
     return false;
   }
   const double l22 = std::sqrt(d2);

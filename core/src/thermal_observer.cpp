@@ -145,6 +145,10 @@ void ThermalObserver::predict(double dt_s, double copper_current_sq_A2, double o
   q(2, 2) = config_.loss_error_process_std_W_per_sqrt_s * config_.loss_error_process_std_W_per_sqrt_s * dt;
   q(3, 3) = config_.loss_scale_process_std_per_sqrt_s * config_.loss_scale_process_std_per_sqrt_s * dt;
   p_ = ad * p_ * ad.transpose() + q;
+  // A loss error unobserved for long (the motor idle: no copper loss to show k) must not
+  // become less certain than the commissioning made it: the random walks stop at their priors.
+  cap_variance(2, config_.initial_loss_error_std_W * config_.initial_loss_error_std_W);
+  cap_variance(3, config_.initial_loss_scale_std * config_.initial_loss_scale_std);
   since_measurement_s_ += dt_s;
 }
 
@@ -200,6 +204,9 @@ bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm, double
   // Joseph form keeps P symmetric and positive.
   const Matrix i_kh = Matrix::Identity() - k * h;
   p_ = i_kh * p_ * i_kh.transpose() + k * r * k.transpose();
+  // The copper loss's scale stays physical: the machine's loss between half and twice the
+  // model's (beyond that it is no commissioning, and below -1 the loss would be negative).
+  x_(3) = std::clamp(x_(3), kMinLossScale, kMaxLossScale);
   // A model error shared by consecutive measurements is not averaged away: the state carries
   // the share k of this measurement's and (1 - k) of what it carried before. It widens the
   // reported band without changing the gain (which must not trust the next measurement with
@@ -209,6 +216,16 @@ bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm, double
   since_measurement_s_ = 0.0;
   anchor_C_ = x_(0);
   return true;
+}
+
+void ThermalObserver::cap_variance(int i, double limit) {
+  // Scaling row and column i by the same factor keeps P symmetric and positive semi-definite
+  // (a congruence), and brings its diagonal element to the limit.
+  if (p_(i, i) > limit && limit > 0.0) {
+    const double s = std::sqrt(limit / p_(i, i));
+    p_.row(i) *= s;
+    p_.col(i) *= s;
+  }
 }
 
 bool ThermalObserver::reanchor_consistent(double z, double r) const {
@@ -223,7 +240,8 @@ bool ThermalObserver::reanchor_consistent(double z, double r) const {
 ThermalEstimate ThermalObserver::estimate() const {
   return {x_(0),
           std::sqrt(std::max(p_(0, 0), 0.0) + drift_std_C_ * drift_std_C_ + shared_error_C_ * shared_error_C_),
-          x_(1), x_(2) + x_(3) * last_copper_loss_W_, x_(3), since_measurement_s_};
+          x_(1), x_(2) + x_(3) * last_copper_loss_W_, x_(2), x_(3), std::sqrt(std::max(p_(3, 3), 0.0)),
+          since_measurement_s_};
 }
 
 bool ThermalObserver::time_to_limit_s(double limit_C, double copper_current_sq_A2,

@@ -235,6 +235,36 @@ TEST(ThermalObserver, ALossScaleLearnedAtOneLoadCarriesToAnother) {
   EXPECT_LT(with_scale, 0.5 * watts_only);
 }
 
+// k stays physical (the machine's copper loss between half and twice the model's) however far
+// the measurements pull, and an idle motor (no copper loss, so nothing shows k) does not make
+// k less certain than its prior.
+TEST(ThermalObserver, TheLossScaleStaysPhysicalAndWithinItsPrior) {
+  ThermalModelConfig c;
+  const Calibration cal;
+  ThermalObserver obs(c, cal, 25.0);
+  const Network n = network_of(c, cal);
+  double tw = 25.0, th = 25.0;
+  for (int k = 1; k <= 3000; ++k) {  // a winding with three times the model's copper loss
+    for (int j = 0; j < 10; ++j) {
+      const double pcu = 3.0 * 1.5 * 1500.0 * n.rs0 * (1.0 + kAlpha * (tw - n.t0));
+      const double q = (tw - th) / n.rwh;
+      tw += 0.1 * (pcu - q) / n.cw;
+      th += 0.1 * (q - (th - 25.0) / n.rha) / n.ch;
+    }
+    obs.predict(1.0, 1500.0, 0.0, 25.0);
+    if (k % 20 == 0) {
+      (void)obs.update_resistance(obs.resistance_at_C(tw), 0.0002);
+    }
+  }
+  EXPECT_LE(obs.estimate().loss_scale_error, 1.0);
+  EXPECT_GE(obs.estimate().loss_scale_error, 0.9) << "the scale should have been pulled to its bound";
+  for (int k = 0; k < 100000; ++k) {
+    obs.predict(10.0, 0.0, 0.0, 25.0);  // 1e6 thermal seconds idle
+  }
+  EXPECT_LE(obs.estimate().loss_scale_std, c.initial_loss_scale_std * (1.0 + 1e-12));
+  EXPECT_GT(obs.estimate().loss_scale_std, 0.5 * c.initial_loss_scale_std) << "nothing was observed: back near the prior";
+}
+
 TEST(ThermalObserver, OutlierBeyondTheGateIsRejectedAndLeavesTheState) {
   ThermalModelConfig c;
   Calibration cal;
@@ -299,12 +329,17 @@ TEST(ThermalObserver, TimeToLimitMatchesABruteForceSimulation) {
   Calibration cal;
   ThermalObserver obs(c, cal, 25.0);
   for (int k = 0; k < 600; ++k) obs.predict(0.5, 1500.0, 100.0, 25.0);  // warm up, housing lags
+  // A measurement 3 C hotter than predicted teaches both loss errors.
+  ASSERT_TRUE(obs.update_resistance(obs.resistance_at_C(obs.estimate().winding_C + 3.0), 0.0005));
   const ThermalEstimate e = obs.estimate();
+  ASSERT_GT(e.missing_loss_W, 1.0);
+  ASSERT_GT(e.loss_scale_error, 0.005);
   const double i2 = 3000.0, w = 100.0, ambient = 25.0, limit = 155.0;
   double t_out = -1.0;
   ASSERT_TRUE(obs.time_to_limit_s(limit, i2, w, ambient, &t_out));
-  // As documented: the copper loss at the limit temperature, plus the learned loss error.
-  const double p_cu = 1.5 * i2 * 0.133 * (1.0 + kAlpha * (limit - 25.0)) + e.loss_error_W;
+  // As documented: the copper loss at the limit temperature scaled by (1 + k), plus dP.
+  const double p_cu =
+      1.5 * i2 * 0.133 * (1.0 + kAlpha * (limit - 25.0)) * (1.0 + e.loss_scale_error) + e.missing_loss_W;
   const double p_fe = c.iron_loss_k1_W_s_rad * w + c.iron_loss_k2_W_s2_rad2 * w * w;
   const Network n = network_of(c, cal);
   const double expected = brute_force_time(n, e.winding_C, e.housing_C, p_cu, p_fe, ambient, limit, false, i2);

@@ -160,7 +160,8 @@ struct DriveTelemetry {
   bool calibration_failed = false;  // the last calibration run failed (calibration_failure says why)
   CalibrationFailure calibration_failure = CalibrationFailure::kNone;
   // The last completed or refused calibration's Rs0 and its standard error (the events'
-  // inverse-variance combination, referred to T0); 0 before any.
+  // inverse-variance combination, referred to T0); 0 before any, from the start of a
+  // calibration run, and after one that timed out.
   double calibration_rs0_ohm = 0.0;
   double calibration_rs0_std_ohm = 0.0;
 };

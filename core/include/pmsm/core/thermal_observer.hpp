@@ -89,7 +89,9 @@ struct ThermalEstimate {
   double winding_std_C = 0.0;
   double housing_C = 0.0;
   double loss_error_W = 0.0;      // dP plus k times the last period's copper loss
+  double missing_loss_W = 0.0;    // dP
   double loss_scale_error = 0.0;  // k
+  double loss_scale_std = 0.0;    // its standard deviation
   double time_since_measurement_s = 0.0;
 };
 
@@ -160,6 +162,9 @@ class ThermalObserver {
   double gated_sum_C_ = 0.0, gated_sq_sum_C2_ = 0.0, gated_r_sum_C2_ = 0.0;  // of those
   static constexpr int kReanchorAfterGated = 5;
   [[nodiscard]] bool reanchor_consistent(double z, double r) const;
+  void cap_variance(int i, double limit);
+  static constexpr double kMinLossScale = -0.5;
+  static constexpr double kMaxLossScale = 1.0;
 };
 
 // The derated current limit and whether derating is active, from the estimate's upper bound.

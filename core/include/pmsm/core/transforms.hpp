@@ -94,7 +94,7 @@ using Rotation = math::SinCos;
 [[nodiscard]] inline Rotation rotation(double angle_rad) { return math::fixed_sincos(angle_rad); }
 // The rotation by an angle that is usually small (a fraction of a period's advance, the gap
 // between two estimates of one angle): the Taylor series to the eleventh power within
-// kSmallRotationRad (truncation below 1e-16), about a third of a sincos; beyond it, and for
+// kSmallRotationRad (truncation about 1e-16), about a third of a sincos; beyond it, and for
 // NaN, the sincos.
 inline constexpr double kSmallRotationRad = 0.25;
 [[nodiscard]] inline Rotation small_rotation(double angle_rad) {
