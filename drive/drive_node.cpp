@@ -12,6 +12,17 @@ protocol::DriveState to_protocol(core::DriveState s) noexcept {
   return static_cast<protocol::DriveState>(static_cast<std::uint8_t>(s));
 }
 
+protocol::CalibrationResult to_protocol(core::CalibrationOutcome o) noexcept {
+  switch (o) {
+    case core::CalibrationOutcome::kNone: return protocol::CalibrationResult::kNone;
+    case core::CalibrationOutcome::kDone: return protocol::CalibrationResult::kDone;
+    case core::CalibrationOutcome::kAborted: return protocol::CalibrationResult::kAborted;
+    case core::CalibrationOutcome::kTimedOut: return protocol::CalibrationResult::kTimedOut;
+    case core::CalibrationOutcome::kRefused: return protocol::CalibrationResult::kRefused;
+  }
+  return protocol::CalibrationResult::kNone;
+}
+
 }  // namespace
 
 core::SupervisorConfig default_supervisor_config(const ControllerConfig& config) {
@@ -191,6 +202,7 @@ void DriveNode::publish(const NodeInputs& in) noexcept {
     t.calibrated = tel.calibrated;
     t.derating_active = tel.derating;
     t.stale = !last_estimate_s_ || now_s - *last_estimate_s_ > rates_.stale_after_s;
+    t.calibration_result = to_protocol(tel.calibration_outcome);
     p.thermal = t;
   }
   if (due(status_every_)) {

@@ -66,6 +66,7 @@ void DriveController::fail_calibration(CalibrationFailure why) {
   calibration_failed_ = true;
   calibration_failed_now_ = true;
   calibration_failure_ = why;
+  calibration_outcome_ = why == CalibrationFailure::kUncertain ? CalibrationOutcome::kRefused : CalibrationOutcome::kTimedOut;
   restore_band();
   scheduler_.set_config(config_.injection);
 }
@@ -115,6 +116,7 @@ void DriveController::start_calibration(double known_temp_C) {
   calibrating_ = true;
   calibration_failed_ = false;
   calibration_failure_ = CalibrationFailure::kNone;
+  calibration_outcome_ = CalibrationOutcome::kNone;
   telemetry_.calibration_rs0_ohm = 0.0;
   telemetry_.calibration_rs0_std_ohm = 0.0;
   calibration_started_s_ = static_cast<double>(period_) * config_.period_s;
@@ -134,6 +136,7 @@ void DriveController::start_calibration(double known_temp_C) {
 void DriveController::abort_calibration() {
   if (calibrating_) {
     calibrating_ = false;
+    calibration_outcome_ = CalibrationOutcome::kAborted;
     if (sweep_.active()) {
       sweep_.abort();
       sweep_done_ = sweep_.result();
@@ -240,6 +243,7 @@ void DriveController::handle_estimate(const EventEstimate& e) {
       // temperature scale changes.
       observer_.set_calibration(c);
       calibration_done_ = c;
+      calibration_outcome_ = CalibrationOutcome::kDone;
     }
     return;
   }
@@ -553,6 +557,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   telemetry_.calibrated = observer_.calibration().calibrated;
   telemetry_.calibration_failed = calibration_failed_;
   telemetry_.calibration_failure = calibration_failure_;
+  telemetry_.calibration_outcome = calibration_outcome_;
   return output_;
 }
 

@@ -50,6 +50,18 @@ struct Rig {
   }
 };
 
+// The next THERMAL_ESTIMATE the node publishes (every 100 ms by default).
+protocol::ThermalEstimate next_thermal(Rig& rig) {
+  for (int k = 0; k < 5000; ++k) {
+    const NodeStep& step = rig.run(1);
+    if (step.publications.thermal) {
+      return *step.publications.thermal;
+    }
+  }
+  ADD_FAILURE() << "no THERMAL_ESTIMATE within 0.5 s";
+  return {};
+}
+
 bool published(const NodeStep& step, protocol::FaultCode code, bool active) {
   for (std::size_t k = 0; k < step.publications.fault_count; ++k) {
     if (step.publications.faults[k].code == code && step.publications.faults[k].active == active) {
@@ -210,6 +222,7 @@ TEST(DriveNode, TheSweptBandIsKeptOnlyByACompletedCalibration) {
   rig.run(1);
   rig.in.abort_calibration = false;
   EXPECT_EQ(rig.node->controller().telemetry().dead_time_band_A, configured) << "the old calibration's band";
+  EXPECT_EQ(next_thermal(rig).calibration_result, protocol::CalibrationResult::kAborted);
 
   // A drive whose stored calibration has a band: a sweep aborted by a stop leaves it in use,
   // and the calibration that then completes stores it.
@@ -237,6 +250,51 @@ TEST(DriveNode, TheSweptBandIsKeptOnlyByACompletedCalibration) {
   }
   ASSERT_TRUE(done.has_value()) << "the calibration did not complete";
   EXPECT_EQ(done->dead_time_band_A, 0.6);
+  const protocol::ThermalEstimate t = next_thermal(stored);
+  EXPECT_EQ(t.calibration_result, protocol::CalibrationResult::kDone);
+  EXPECT_TRUE(t.calibrated);
+}
+
+// A calibration that gives up says so on the bus, and the one in use (here the configured
+// default) stays: a supervisor that asked for it sees TIMED_OUT with Calibrated 0.
+TEST(DriveNode, ACalibrationThatTimesOutIsPublishedAsSuch) {
+  Rig rig;
+  rig.config.drive.calibration_timeout_s = 0.05;  // far less than one event takes
+  rig.node = std::make_unique<DriveNode>(rig.config, rig.supervisor, PublishRates{});
+  rig.run(2000);
+  EXPECT_EQ(next_thermal(rig).calibration_result, protocol::CalibrationResult::kNone);
+  rig.in.start_calibration = true;
+  rig.run(1);
+  rig.in.start_calibration = false;
+  for (int k = 0; k < 50000 && rig.node->controller().telemetry().calibrating; ++k) {
+    rig.run(1);
+  }
+  ASSERT_FALSE(rig.node->controller().telemetry().calibrating);
+  EXPECT_EQ(rig.node->controller().telemetry().calibration_failure, core::CalibrationFailure::kTimeout);
+  const protocol::ThermalEstimate t = next_thermal(rig);
+  EXPECT_EQ(t.calibration_result, protocol::CalibrationResult::kTimedOut);
+  EXPECT_FALSE(t.calibrated);
+}
+
+// One started at 200 rad/s unloaded cannot learn the bridge's voltage (docs/estimator.md
+// section 6): refused, and REFUSED on the bus.
+TEST(DriveNode, ACalibrationRefusedAsUncertainIsPublishedAsSuch) {
+  Rig rig;
+  rig.plant_config.load.torque_Nm = 0.0;
+  rig.plant = std::make_unique<plant::Plant>(rig.plant_config);
+  rig.in.speed_ref_rad_s = 200.0;
+  rig.run(5000);
+  rig.in.start_calibration = true;
+  rig.run(1);
+  rig.in.start_calibration = false;
+  for (int k = 0; k < 200000 && rig.node->controller().telemetry().calibrating; ++k) {
+    rig.run(1);
+  }
+  ASSERT_FALSE(rig.node->controller().telemetry().calibrating);
+  ASSERT_EQ(rig.node->controller().telemetry().calibration_failure, core::CalibrationFailure::kUncertain);
+  const protocol::ThermalEstimate t = next_thermal(rig);
+  EXPECT_EQ(t.calibration_result, protocol::CalibrationResult::kRefused);
+  EXPECT_FALSE(t.calibrated);
 }
 
 TEST(DriveNode, WithoutAnAmbientSensorTheConfiguredAmbientIsUsed) {

@@ -405,6 +405,7 @@ TEST(protocol_agreement, ThermalEstimate) {
         m.calibrated = p.coin();
         m.derating_active = p.coin();
         m.stale = p.coin();
+        m.calibration_result = static_cast<CalibrationResult>(p.integer("CalibrationResult"));
         return m;
       },
       [](const ThermalEstimate& m) {
@@ -415,7 +416,8 @@ TEST(protocol_agreement, ThermalEstimate) {
                         {"Calibrated", b(m.calibrated)},
                         {"DeratingActive", b(m.derating_active)},
                         {"Stale", b(m.stale)},
-                        {"MagnetValid", b(m.magnet_valid)}};
+                        {"MagnetValid", b(m.magnet_valid)},
+                        {"CalibrationResult", e(m.calibration_result)}};
       }});
 }
 

@@ -285,6 +285,12 @@ class Monitor {
     } else {
       out += "winding: no estimate yet";
     }
+    if (a.thermal && a.thermal->calibration_result != protocol::CalibrationResult::kNone &&
+        a.thermal->calibration_result != protocol::CalibrationResult::kDone) {
+      // A calibration that did not complete keeps the one in use: say so where it is seen.
+      out += fmt::format("  calibration {}", label(protocol::kCalibrationResultLabels,
+                                                   static_cast<std::int64_t>(a.thermal->calibration_result)));
+    }
     out += a.rs && a.rs->valid ? fmt::format("  Rs {:.2f} mOhm", 1e3 * a.rs->rs_ohm) : "  Rs -";
     if (a.status) {
       out += fmt::format("  {}  limit {:.0f} A", label(protocol::kDriveStateLabels, static_cast<std::int64_t>(a.status->state)),

@@ -330,6 +330,7 @@ void write_body(Writer& w, const ThermalEstimate& m) noexcept {
   w.boolean(kDeratingActive, m.derating_active);
   w.boolean(kStale, m.stale);
   w.boolean(kMagnetValid, m.magnet_valid);
+  w.enumeration(kCalibrationResult, m.calibration_result);
 }
 void read_body(const Reader& r, ThermalEstimate& m) noexcept {
   using namespace thermal_estimate;
@@ -341,6 +342,7 @@ void read_body(const Reader& r, ThermalEstimate& m) noexcept {
   m.calibrated = r.boolean(kCalibrated);
   m.derating_active = r.boolean(kDeratingActive);
   m.stale = r.boolean(kStale);
+  m.calibration_result = r.enumeration<CalibrationResult>(kCalibrationResult);
 }
 
 void write_body(Writer& w, const ResistanceEstimate& m) noexcept {

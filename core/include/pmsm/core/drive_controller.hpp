@@ -123,6 +123,15 @@ enum class CalibrationFailure : std::uint8_t {
 };
 [[nodiscard]] const char* calibration_failure_name(CalibrationFailure f);
 
+// How the last calibration run ended (published on the bus: THERMAL_ESTIMATE.CalibrationResult).
+enum class CalibrationOutcome : std::uint8_t {
+  kNone = 0,       // none has ended since start, or one is running
+  kDone = 1,       // completed: its Rs0 is in use (and stored)
+  kAborted = 2,    // stopped by a command or the drive leaving its mode
+  kTimedOut = 3,   // CalibrationFailure::kTimeout
+  kRefused = 4,    // CalibrationFailure::kUncertain
+};
+
 struct DriveTelemetry {
   std::uint64_t period = 0;
   double time_s = 0.0;
@@ -159,6 +168,7 @@ struct DriveTelemetry {
   bool calibrated = false;
   bool calibration_failed = false;  // the last calibration run failed (calibration_failure says why)
   CalibrationFailure calibration_failure = CalibrationFailure::kNone;
+  CalibrationOutcome calibration_outcome = CalibrationOutcome::kNone;
   // The last completed or refused calibration's Rs0 and its standard error (the events'
   // inverse-variance combination, referred to T0); 0 before any, from the start of a
   // calibration run, and after one that timed out.
@@ -293,6 +303,7 @@ class DriveController {
   bool calibration_failed_ = false;
   bool calibration_failed_now_ = false;
   CalibrationFailure calibration_failure_ = CalibrationFailure::kNone;
+  CalibrationOutcome calibration_outcome_ = CalibrationOutcome::kNone;
   double calibration_started_s_ = 0.0;
   double calibration_temp_C_ = 25.0;
   int calibration_count_ = 0;

@@ -186,6 +186,17 @@ enum class CalibrationAction : std::uint8_t { kNone = 0, kStart = 1, kAbort = 2 
 inline constexpr std::array<ValueLabel, 3> kCalibrationActionLabels{{
     {0, "NONE"}, {1, "START"}, {2, "ABORT"}}};
 
+// How the last Rs0 calibration run ended, since the daemon started.
+enum class CalibrationResult : std::uint8_t {
+  kNone = 0,      // none has ended since start, or one is running (DRIVE_STATUS says CALIBRATING)
+  kDone = 1,      // completed: its Rs0 is in use and stored
+  kAborted = 2,   // stopped by an ABORT command or by the drive leaving its mode
+  kTimedOut = 3,  // too few accepted measurements within calibration.timeout_s
+  kRefused = 4,   // Rs0 less certain than calibration.max_rs0_std_fraction (the bridge's voltage not learned)
+};
+inline constexpr std::array<ValueLabel, 5> kCalibrationResultLabels{{
+    {0, "NONE"}, {1, "DONE"}, {2, "ABORTED"}, {3, "TIMED_OUT"}, {4, "REFUSED"}}};
+
 enum class DriveState : std::uint8_t {
   kInit = 0,         // starting up, checks not yet passed; gates off
   kStandby = 1,      // ready, gates off (not enabled, or mode DISABLED)
@@ -333,6 +344,9 @@ struct ThermalEstimate {
   bool calibrated = false;             // Rs0 comes from a calibration, not the default
   bool derating_active = false;
   bool stale = false;                  // no accepted resistance measurement recently
+  // The last calibration run's outcome: a refused or timed-out one leaves the calibration in
+  // use (Calibrated says whether that is a calibration or the configured default).
+  CalibrationResult calibration_result = CalibrationResult::kNone;
 };
 
 struct ResistanceEstimate {
@@ -565,8 +579,11 @@ inline constexpr SignalDef kStale{"Stale", 51, 1, false, 1, 0, 0, 1, "", detail:
     "1: no resistance measurement accepted recently; the estimate runs on the thermal model alone."};
 inline constexpr SignalDef kMagnetValid{"MagnetValid", 52, 1, false, 1, 0, 0, 1, "", detail::kNoValues,
     "1: MagnetTemp holds an estimate."};
-inline constexpr std::array<SignalDef, 8> kSignals{
-    kWindingTemp, kWindingTempSigma, kMagnetTemp, kValid, kCalibrated, kDeratingActive, kStale, kMagnetValid};
+inline constexpr SignalDef kCalibrationResult{"CalibrationResult", 53, 3, false, 1, 0, 0, 4, "", kCalibrationResultLabels,
+    "How the last calibration since start ended; TIMED_OUT and REFUSED keep the calibration in use."};
+inline constexpr std::array<SignalDef, 9> kSignals{
+    kWindingTemp, kWindingTempSigma, kMagnetTemp, kValid, kCalibrated, kDeratingActive, kStale, kMagnetValid,
+    kCalibrationResult};
 }  // namespace thermal_estimate
 
 namespace resistance_estimate {
