@@ -115,6 +115,11 @@ void restore_thermal_state(const DaemonConfig& config, pmsm::daemon::DriveLoop& 
     spdlog::info("thermal state restored from {}: winding {:.1f} +- {:.1f} C {:.0f} s ago, cooled to {:.1f} +- {:.1f} C",
                  path, s.state.winding_C, s.state.winding_std_C, downtime_s,
                  loop.node().controller().thermal_state().winding_C, loop.node().controller().thermal_state().winding_std_C);
+    if (s.state.has_loss_errors) {
+      spdlog::info("thermal state: the loss model's learned errors kept: missing loss {:.1f} +- {:.1f} W, copper loss scale "
+                   "{:+.3f} +- {:.3f}",
+                   s.state.missing_loss_W, s.state.missing_loss_std_W, s.state.loss_scale_error, s.state.loss_scale_std);
+    }
   } catch (const std::exception& e) {
     spdlog::warn("thermal state not used: {}; the filter starts from the ambient sensor", e.what());
   }

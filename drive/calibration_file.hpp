@@ -50,6 +50,10 @@ void write_calibration_file(const std::filesystem::path& path, const core::Calib
 //   winding_std_C = 1.3
 //   ambient_C = 25.0
 //   saved_unix_s = 1795493852.25
+//   missing_loss_W = 4.2         # the loss model's errors the filter learned (dP, k and their
+//   missing_loss_std_W = 21.0    # standard deviations): all four or none; a file without
+//   loss_scale_error = 0.11      # them restarts the filter from the priors
+//   loss_scale_std = 0.05
 // The drive cools it through the downtime with its model (ThermalObserver::restore).
 struct StoredThermalState {
   core::ThermalState state;

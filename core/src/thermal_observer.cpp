@@ -53,7 +53,16 @@ void ThermalObserver::restart_unknown(double guess_C) {
 }
 
 ThermalState ThermalObserver::state() const {
-  return {x_(0), x_(1), estimate().winding_std_C};
+  ThermalState s;
+  s.winding_C = x_(0);
+  s.housing_C = x_(1);
+  s.winding_std_C = estimate().winding_std_C;
+  s.has_loss_errors = true;
+  s.missing_loss_W = x_(2);
+  s.missing_loss_std_W = std::sqrt(std::max(p_(2, 2), 0.0));
+  s.loss_scale_error = x_(3);
+  s.loss_scale_std = std::sqrt(std::max(p_(3, 3), 0.0));
+  return s;
 }
 
 void ThermalObserver::restore(const ThermalState& state, double downtime_thermal_s, double ambient_C) {
@@ -91,8 +100,25 @@ void ThermalObserver::restore(const ThermalState& state, double downtime_thermal
   p_(0, 0) = var;
   p_(1, 1) = var;
   p_(0, 1) = p_(1, 0) = 0.95 * var;  // the machine's error is shared (see the constructor)
-  p_(2, 2) = config_.initial_loss_error_std_W * config_.initial_loss_error_std_W;
-  p_(3, 3) = config_.initial_loss_scale_std * config_.initial_loss_scale_std;
+  // The loss model's errors are the machine's, not the moment's: what the last run learned
+  // holds, less certain by the random walks over the downtime and never beyond the priors.
+  // (Their covariance with each other is not stored: each keeps its own variance.)
+  const double p2 = config_.initial_loss_error_std_W * config_.initial_loss_error_std_W;
+  const double p3 = config_.initial_loss_scale_std * config_.initial_loss_scale_std;
+  const bool learned = state.has_loss_errors && std::isfinite(state.missing_loss_W) &&
+                       std::isfinite(state.missing_loss_std_W) && std::isfinite(state.loss_scale_error) &&
+                       std::isfinite(state.loss_scale_std);
+  if (learned) {
+    x_(2) = state.missing_loss_W;
+    x_(3) = std::clamp(state.loss_scale_error, kMinLossScale, kMaxLossScale);
+    const double q2 = config_.loss_error_process_std_W_per_sqrt_s * config_.loss_error_process_std_W_per_sqrt_s * t;
+    const double q3 = config_.loss_scale_process_std_per_sqrt_s * config_.loss_scale_process_std_per_sqrt_s * t;
+    p_(2, 2) = std::min(state.missing_loss_std_W * state.missing_loss_std_W + q2, p2);
+    p_(3, 3) = std::min(state.loss_scale_std * state.loss_scale_std + q3, p3);
+  } else {
+    p_(2, 2) = p2;
+    p_(3, 3) = p3;
+  }
   drift_std_C_ = 0.0;
   shared_error_C_ = 0.0;  // part of the stored band now
   since_measurement_s_ = 0.0;

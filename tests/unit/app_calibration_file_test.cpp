@@ -192,6 +192,7 @@ TEST_F(CalibrationFile, ThermalStateRoundTripAndBadFiles) {
   EXPECT_DOUBLE_EQ(back.state.winding_std_C, 1.3);
   EXPECT_DOUBLE_EQ(back.ambient_C, 31.5);
   EXPECT_DOUBLE_EQ(back.saved_unix_s, 1795493852.25);
+  EXPECT_FALSE(back.state.has_loss_errors) << "none given, none stored";
   for (const fs::directory_entry& e : fs::directory_iterator(dir_)) {
     EXPECT_EQ(e.path().filename(), "axis1.thermal") << "a temporary was left";
   }
@@ -206,6 +207,38 @@ TEST_F(CalibrationFile, ThermalStateRoundTripAndBadFiles) {
     FAIL() << "950 C was accepted";
   } catch (const CalibrationFileError& e) {
     EXPECT_NE(std::string(e.what()).find(":2: winding_C"), std::string::npos) << e.what();
+  }
+}
+
+// The loss model's learned errors go with the thermal state: all four keys or none.
+TEST_F(CalibrationFile, ThermalStateKeepsTheLossModelsErrors) {
+  const fs::path path = dir_ / "axis1.thermal";
+  StoredThermalState s;
+  s.state = {92.4, 71.25, 1.3, true, 4.25, 21.5, 0.125, 0.0625};
+  s.saved_unix_s = 1795493852.25;
+  write_thermal_state_file(path, s);
+  const StoredThermalState back = read_thermal_state_file(path);
+  ASSERT_TRUE(back.state.has_loss_errors);
+  EXPECT_DOUBLE_EQ(back.state.missing_loss_W, 4.25);
+  EXPECT_DOUBLE_EQ(back.state.missing_loss_std_W, 21.5);
+  EXPECT_DOUBLE_EQ(back.state.loss_scale_error, 0.125);
+  EXPECT_DOUBLE_EQ(back.state.loss_scale_std, 0.0625);
+  write_text(path, "format = 1\nwinding_C = 90.0\nhousing_C = 70.0\nwinding_std_C = 1.0\nambient_C = 25.0\n"
+                   "saved_unix_s = 1.0\nmissing_loss_W = 3.0\nloss_scale_error = 0.1\nloss_scale_std = 0.05\n");
+  try {
+    (void)read_thermal_state_file(path);
+    FAIL() << "three of the four loss keys were accepted";
+  } catch (const CalibrationFileError& e) {
+    EXPECT_NE(std::string(e.what()).find("missing_loss_std_W is missing"), std::string::npos) << e.what();
+  }
+  write_text(path, "format = 1\nwinding_C = 90.0\nhousing_C = 70.0\nwinding_std_C = 1.0\nambient_C = 25.0\n"
+                   "saved_unix_s = 1.0\nmissing_loss_W = 3.0\nmissing_loss_std_W = 2.0\nloss_scale_error = 7.5\n"
+                   "loss_scale_std = 0.05\n");
+  try {
+    (void)read_thermal_state_file(path);
+    FAIL() << "a copper loss 8.5 times the model's was accepted";
+  } catch (const CalibrationFileError& e) {
+    EXPECT_NE(std::string(e.what()).find("loss_scale_error"), std::string::npos) << e.what();
   }
 }
 

@@ -191,6 +191,40 @@ TEST(ThermalObserver, AfterPredictionAMeasurementAlsoMovesTheCorrelatedStates) {
 // measurement drifts far less than a filter that can learn only a missing loss in watts (the
 // previous three-state filter: k's prior set to zero), whose watts learned at the first load are
 // half of what the second needs.
+// The machine of the loss-scale tests: the model's network with 25 % more copper loss than the
+// model computes, in 25 C ambient.
+struct HotterMachine {
+  Network n;
+  double tw = 25.0, th = 25.0;
+  void step(double i2, double dt_s) {
+    // Euler in 0.1 s steps: far below the network's time constants.
+    for (int j = 0; j < static_cast<int>(std::lround(dt_s / 0.1)); ++j) {
+      const double pcu = 1.25 * 1.5 * i2 * n.rs0 * (1.0 + kAlpha * (tw - n.t0));
+      const double q = (tw - th) / n.rwh;
+      tw += 0.1 * (pcu - q) / n.cw;
+      th += 0.1 * (q - (th - 25.0) / n.rha) / n.ch;
+    }
+  }
+  // 3000 s at 1500 A^2, a measurement every 20 s.
+  void learn(ThermalObserver& obs) {
+    for (int k = 1; k <= 3000; ++k) {
+      step(1500.0, 1.0);
+      obs.predict(1.0, 1500.0, 0.0, 25.0);
+      if (k % 20 == 0) {
+        EXPECT_TRUE(obs.update_resistance(obs.resistance_at_C(tw), 0.0002));
+      }
+    }
+  }
+  // Then 1500 s at 3000 A^2 with no measurement: the estimate's error at the end.
+  double unmeasured_error_C(ThermalObserver& obs) {
+    for (int k = 0; k < 1500; ++k) {
+      step(3000.0, 1.0);
+      obs.predict(1.0, 3000.0, 0.0, 25.0);
+    }
+    return std::abs(obs.estimate().winding_C - tw);
+  }
+};
+
 TEST(ThermalObserver, ALossScaleLearnedAtOneLoadCarriesToAnother) {
   const Calibration cal;
   auto run = [&](bool learn_scale) {
@@ -200,30 +234,9 @@ TEST(ThermalObserver, ALossScaleLearnedAtOneLoadCarriesToAnother) {
       c.loss_scale_process_std_per_sqrt_s = 0.0;
     }
     ThermalObserver obs(c, cal, 25.0);
-    const Network n = network_of(c, cal);
-    double tw = 25.0, th = 25.0;
-    const double dt = 1.0;
-    auto step_truth = [&](double i2) {
-      // Euler in 0.1 s steps: far below the network's time constants.
-      for (int j = 0; j < 10; ++j) {
-        const double pcu = 1.25 * 1.5 * i2 * n.rs0 * (1.0 + kAlpha * (tw - n.t0));
-        const double q = (tw - th) / n.rwh;
-        tw += 0.1 * (pcu - q) / n.cw;
-        th += 0.1 * (q - (th - 25.0) / n.rha) / n.ch;
-      }
-    };
-    for (int k = 1; k <= 3000; ++k) {  // 3000 s at 1500 A^2, a measurement every 20 s
-      step_truth(1500.0);
-      obs.predict(dt, 1500.0, 0.0, 25.0);
-      if (k % 20 == 0) {
-        EXPECT_TRUE(obs.update_resistance(obs.resistance_at_C(tw), 0.0002));
-      }
-    }
-    for (int k = 0; k < 1500; ++k) {  // then 1500 s at 3000 A^2 with no measurement
-      step_truth(3000.0);
-      obs.predict(dt, 3000.0, 0.0, 25.0);
-    }
-    return std::abs(obs.estimate().winding_C - tw);
+    HotterMachine m{network_of(c, cal)};
+    m.learn(obs);
+    return m.unmeasured_error_C(obs);
   };
   const double watts_only = run(false);
   const double with_scale = run(true);
@@ -233,6 +246,49 @@ TEST(ThermalObserver, ALossScaleLearnedAtOneLoadCarriesToAnother) {
   // double with the load.
   EXPECT_GT(watts_only, 10.0) << "the scenario no longer needs the loss's scale";
   EXPECT_LT(with_scale, 0.5 * watts_only);
+}
+
+// What the filter learned of the loss model is the machine's: a restart from the stored state
+// (a power cycle without downtime) keeps it, and the same unmeasured spell as above ends as
+// close as without the restart; a state without it (an older file) restarts from the priors.
+TEST(ThermalObserver, TheLearnedLossModelSurvivesARestart) {
+  const ThermalModelConfig c;
+  const Calibration cal;
+  ThermalObserver before(c, cal, 25.0);
+  HotterMachine m{network_of(c, cal)};
+  m.learn(before);
+  const ThermalState stored = before.state();
+  ASSERT_TRUE(stored.has_loss_errors);
+  EXPECT_GT(stored.loss_scale_error, 0.1) << "the scenario teaches k";
+  EXPECT_LT(stored.loss_scale_std, c.initial_loss_scale_std);
+
+  ThermalObserver kept(c, cal, 25.0);
+  kept.restore(stored, 0.0, 25.0);
+  EXPECT_DOUBLE_EQ(kept.estimate().loss_scale_error, stored.loss_scale_error);
+  EXPECT_DOUBLE_EQ(kept.estimate().missing_loss_W, stored.missing_loss_W);
+  EXPECT_NEAR(kept.estimate().loss_scale_std, stored.loss_scale_std, 1e-12);
+  ThermalState old_file = stored;
+  old_file.has_loss_errors = false;
+  ThermalObserver forgot(c, cal, 25.0);
+  forgot.restore(old_file, 0.0, 25.0);
+  EXPECT_EQ(forgot.estimate().loss_scale_error, 0.0);
+  EXPECT_DOUBLE_EQ(forgot.estimate().loss_scale_std, c.initial_loss_scale_std);
+
+  HotterMachine m_kept = m;
+  HotterMachine m_forgot = m;
+  const double error_kept = m_kept.unmeasured_error_C(kept);
+  const double error_forgot = m_forgot.unmeasured_error_C(forgot);
+  const double error_no_restart = m.unmeasured_error_C(before);
+  // Measured: 5.26 C kept (the same as without the restart), 26.8 C from the priors (dP and k
+  // both forgotten).
+  EXPECT_NEAR(error_kept, error_no_restart, 0.2);
+  EXPECT_LT(error_kept, 0.5 * error_forgot);
+
+  // Over a downtime the loss errors grow by their random walks, never beyond the priors.
+  ThermalObserver later(c, cal, 25.0);
+  later.restore(stored, 1e7, 25.0);
+  EXPECT_GT(later.estimate().loss_scale_std, stored.loss_scale_std);
+  EXPECT_LE(later.estimate().loss_scale_std, c.initial_loss_scale_std);
 }
 
 // k stays physical (the machine's copper loss between half and twice the model's) however far

@@ -59,11 +59,17 @@ struct ThermalModelConfig {
 };
 
 // What the drive keeps across a restart (a warm motor): the filter's temperatures and their
-// uncertainty, and when they held.
+// uncertainty, and what it has learned of the winding's loss model (dP and k with their
+// standard deviations), which a power cycle does not change.
 struct ThermalState {
   double winding_C = 0.0;
   double housing_C = 0.0;
   double winding_std_C = 0.0;
+  bool has_loss_errors = false;   // false: a state without them (an older file): the priors
+  double missing_loss_W = 0.0;    // dP
+  double missing_loss_std_W = 0.0;
+  double loss_scale_error = 0.0;  // k
+  double loss_scale_std = 0.0;
 };
 
 struct Calibration {
