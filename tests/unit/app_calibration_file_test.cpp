@@ -223,22 +223,20 @@ TEST_F(CalibrationFile, ThermalStateKeepsTheLossModelsErrors) {
   EXPECT_DOUBLE_EQ(back.state.missing_loss_std_W, 21.5);
   EXPECT_DOUBLE_EQ(back.state.loss_scale_error, 0.125);
   EXPECT_DOUBLE_EQ(back.state.loss_scale_std, 0.0625);
-  write_text(path, "format = 1\nwinding_C = 90.0\nhousing_C = 70.0\nwinding_std_C = 1.0\nambient_C = 25.0\n"
-                   "saved_unix_s = 1.0\nmissing_loss_W = 3.0\nloss_scale_error = 0.1\nloss_scale_std = 0.05\n");
-  try {
-    (void)read_thermal_state_file(path);
-    FAIL() << "three of the four loss keys were accepted";
-  } catch (const CalibrationFileError& e) {
-    EXPECT_NE(std::string(e.what()).find("missing_loss_std_W is missing"), std::string::npos) << e.what();
-  }
-  write_text(path, "format = 1\nwinding_C = 90.0\nhousing_C = 70.0\nwinding_std_C = 1.0\nambient_C = 25.0\n"
-                   "saved_unix_s = 1.0\nmissing_loss_W = 3.0\nmissing_loss_std_W = 2.0\nloss_scale_error = 7.5\n"
-                   "loss_scale_std = 0.05\n");
-  try {
-    (void)read_thermal_state_file(path);
-    FAIL() << "a copper loss 8.5 times the model's was accepted";
-  } catch (const CalibrationFileError& e) {
-    EXPECT_NE(std::string(e.what()).find("loss_scale_error"), std::string::npos) << e.what();
+  const std::string head = "format = 1\nwinding_C = 90.0\nhousing_C = 70.0\nwinding_std_C = 1.0\nambient_C = 25.0\n"
+                           "saved_unix_s = 1.0\n";
+  const std::pair<std::string, std::string> refused[] = {
+      {"missing_loss_W = 3.0\nloss_scale_error = 0.1\nloss_scale_std = 0.05\n", "missing_loss_std_W is missing"},
+      {"missing_loss_W = 3.0\nmissing_loss_std_W = 2.0\nloss_scale_error = 7.5\nloss_scale_std = 0.05\n",
+       ":9: loss_scale_error"}};  // a copper loss 8.5 times the model's
+  for (const auto& [tail, named] : refused) {
+    write_text(path, head + tail);
+    try {
+      (void)read_thermal_state_file(path);
+      ADD_FAILURE() << "accepted: " << tail;
+    } catch (const CalibrationFileError& e) {
+      EXPECT_NE(std::string(e.what()).find(named), std::string::npos) << e.what();
+    }
   }
 }
 

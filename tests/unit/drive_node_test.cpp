@@ -255,6 +255,22 @@ TEST(DriveNode, TheSweptBandIsKeptOnlyByACompletedCalibration) {
   EXPECT_TRUE(t.calibrated);
 }
 
+// Starts a calibration, runs it to its end (at most 20 s) and expects it to have failed for
+// `why`, published as `result` with the calibration in use (the configured default) kept.
+void expect_failed_calibration(Rig& rig, core::CalibrationFailure why, protocol::CalibrationResult result) {
+  rig.in.start_calibration = true;
+  rig.run(1);
+  rig.in.start_calibration = false;
+  for (int k = 0; k < 200000 && rig.node->controller().telemetry().calibrating; ++k) {
+    rig.run(1);
+  }
+  ASSERT_FALSE(rig.node->controller().telemetry().calibrating);
+  ASSERT_EQ(rig.node->controller().telemetry().calibration_failure, why);
+  const protocol::ThermalEstimate t = next_thermal(rig);
+  EXPECT_EQ(t.calibration_result, result);
+  EXPECT_FALSE(t.calibrated);
+}
+
 // A calibration that gives up says so on the bus, and the one in use (here the configured
 // default) stays: a supervisor that asked for it sees TIMED_OUT with Calibrated 0.
 TEST(DriveNode, ACalibrationThatTimesOutIsPublishedAsSuch) {
@@ -263,17 +279,7 @@ TEST(DriveNode, ACalibrationThatTimesOutIsPublishedAsSuch) {
   rig.node = std::make_unique<DriveNode>(rig.config, rig.supervisor, PublishRates{});
   rig.run(2000);
   EXPECT_EQ(next_thermal(rig).calibration_result, protocol::CalibrationResult::kNone);
-  rig.in.start_calibration = true;
-  rig.run(1);
-  rig.in.start_calibration = false;
-  for (int k = 0; k < 50000 && rig.node->controller().telemetry().calibrating; ++k) {
-    rig.run(1);
-  }
-  ASSERT_FALSE(rig.node->controller().telemetry().calibrating);
-  EXPECT_EQ(rig.node->controller().telemetry().calibration_failure, core::CalibrationFailure::kTimeout);
-  const protocol::ThermalEstimate t = next_thermal(rig);
-  EXPECT_EQ(t.calibration_result, protocol::CalibrationResult::kTimedOut);
-  EXPECT_FALSE(t.calibrated);
+  expect_failed_calibration(rig, core::CalibrationFailure::kTimeout, protocol::CalibrationResult::kTimedOut);
 }
 
 // One started at 200 rad/s unloaded cannot learn the bridge's voltage (docs/estimator.md
@@ -284,17 +290,7 @@ TEST(DriveNode, ACalibrationRefusedAsUncertainIsPublishedAsSuch) {
   rig.plant = std::make_unique<plant::Plant>(rig.plant_config);
   rig.in.speed_ref_rad_s = 200.0;
   rig.run(5000);
-  rig.in.start_calibration = true;
-  rig.run(1);
-  rig.in.start_calibration = false;
-  for (int k = 0; k < 200000 && rig.node->controller().telemetry().calibrating; ++k) {
-    rig.run(1);
-  }
-  ASSERT_FALSE(rig.node->controller().telemetry().calibrating);
-  ASSERT_EQ(rig.node->controller().telemetry().calibration_failure, core::CalibrationFailure::kUncertain);
-  const protocol::ThermalEstimate t = next_thermal(rig);
-  EXPECT_EQ(t.calibration_result, protocol::CalibrationResult::kRefused);
-  EXPECT_FALSE(t.calibrated);
+  expect_failed_calibration(rig, core::CalibrationFailure::kUncertain, protocol::CalibrationResult::kRefused);
 }
 
 TEST(DriveNode, WithoutAnAmbientSensorTheConfiguredAmbientIsUsed) {
