@@ -22,6 +22,7 @@ scenarios=(
   bench/scenarios/salient-fm-bipolar.toml
   bench/scenarios/standstill-fm-bipolar.toml
   bench/scenarios/load-steps-fm-bipolar.toml
+  bench/scenarios/rated-speed-fm-bipolar.toml
 )
 echo "## Benchmark scenarios"
 echo

@@ -124,6 +124,10 @@ ConfigSchema<C> build() {
            "Shortest angle-based recording (electrical; rounded up to whole turns).");
   inj.real("injection.record_min_time_s", [](C& c) -> double& { return c.drive.injection.record_min_time_s; }, at_least(0, 10), "s",
            "Shortest angle-based recording in time (whole turns).");
+  inj.real("injection.field_weakening_record_min_time_s",
+           [](C& c) -> double& { return c.drive.injection.field_weakening_record_min_time_s; }, at_least(0, 10), "s",
+           "Field-weakening pairs: shortest recording in time (whole turns; never below record_min_time_s). Their "
+           "cross-coupling term turns current-sensor noise into d-axis voltage at w Lq: longer recordings average it.");
   inj.real("injection.record_time_s", [](C& c) -> double& { return c.drive.injection.record_time_s; }, positive(10), "s",
            "Time-based recording length (standstill, low speed).");
   inj.boolean("injection.mechanical_harmonics", [](C& c) -> bool& { return c.drive.injection.mechanical_harmonics; },

@@ -249,7 +249,9 @@ void InjectionScheduler::begin_pair(const SchedulerInput& in) {
   // record_min_time_s at the present speed.
   const double base_arc = config_.method == InjectionMethod::kDc ? config_.dc_revolutions * kTwoPi
                                                                  : config_.record_arc_rad;
-  const double arc = std::max(base_arc, std::abs(in.omega_e_rad_s) * config_.record_min_time_s);
+  const double min_time_s = field_weakening_ ? std::max(config_.record_min_time_s, config_.field_weakening_record_min_time_s)
+                                            : config_.record_min_time_s;
+  const double arc = std::max(base_arc, std::abs(in.omega_e_rad_s) * min_time_s);
   record_arc_rad_ = kTwoPi * std::ceil(arc / kTwoPi - 1e-9);
   const double first = level_for(1);
   if (first != 0.0) {

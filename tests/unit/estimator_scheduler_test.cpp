@@ -781,10 +781,11 @@ TEST(InjectionScheduler, FieldWeakeningPairRecordsAtTwoNegativeLevels) {
   c.vx_initial_std_V = 0.01;
   Harness h(c, 1000.0);
   h.motoring_A = {0.0, 20.0};
-  h.run_until(0.2);
+  h.run_until(1.0);  // its recordings last field_weakening_record_min_time_s each
   ASSERT_GE(h.pairs.size(), 1U);
   const PairResult& p = h.pairs[0];
   ASSERT_TRUE(p.field_weakening);
+  EXPECT_GE(static_cast<double>(p.samples) * kPeriod, c.field_weakening_record_min_time_s - 1e-9);
   EXPECT_EQ(p.outcome, PairOutcome::kAccepted) << to_string(p.outcome);
   EXPECT_GE(p.low_level, c.field_weakening_low_fraction - 1e-12);
   EXPECT_LT(p.low_level, 1.0);

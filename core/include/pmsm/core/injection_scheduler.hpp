@@ -100,6 +100,12 @@ struct InjectionConfig {
   // operating point off the voltage limit), so that neither recording sits in the bridge's
   // zero-current band at light load.
   double field_weakening_low_fraction = 0.3;
+  // Their recordings last at least this (whole turns). At the voltage limit the fit's
+  // cross-coupling term w Lq iq turns the current sensors' noise, which the current loop
+  // makes real current, into d-axis voltage at w Lq (5.2 ohm, 40 times Rs, on the reference
+  // motor at rated speed), against a resistive signal Rs (F - lo) that is a third of a
+  // bipolar pair's 2 Rs F: the mean of that noise over a recording falls only as 1/sqrt(T).
+  double field_weakening_record_min_time_s = 0.12;
   // The sign pattern's error at those speeds, as a fraction of Vx: it enters the estimate's
   // variance (measured: docs/estimator.md §2).
   double field_weakening_pattern_error = 0.01;
