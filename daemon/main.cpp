@@ -116,9 +116,13 @@ void restore_thermal_state(const DaemonConfig& config, pmsm::daemon::DriveLoop& 
                  path, s.state.winding_C, s.state.winding_std_C, downtime_s,
                  loop.node().controller().thermal_state().winding_C, loop.node().controller().thermal_state().winding_std_C);
     if (s.state.has_loss_errors) {
+      const pmsm::core::ThermalState kept = loop.node().controller().thermal_state();
       spdlog::info("thermal state: the loss model's learned errors kept: missing loss {:.1f} +- {:.1f} W, copper loss scale "
-                   "{:+.3f} +- {:.3f}",
-                   s.state.missing_loss_W, s.state.missing_loss_std_W, s.state.loss_scale_error, s.state.loss_scale_std);
+                   "{:+.3f} +- {:.3f} (after the downtime)",
+                   kept.missing_loss_W, kept.missing_loss_std_W, kept.loss_scale_error, kept.loss_scale_std);
+    } else if (!s.loss_errors_ignored.empty()) {
+      spdlog::warn("thermal state: the loss model's errors not used ({}); they restart from the priors, the "
+                   "temperatures are kept", s.loss_errors_ignored);
     }
   } catch (const std::exception& e) {
     spdlog::warn("thermal state not used: {}; the filter starts from the ambient sensor", e.what());

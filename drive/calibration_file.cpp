@@ -13,6 +13,7 @@
 #include <cstring>
 #include <ctime>
 #include <fstream>
+#include <iterator>
 #include <set>
 #include <sstream>
 
@@ -255,6 +256,35 @@ core::Calibration read_calibration_file(const std::filesystem::path& path) {
   return c;
 }
 
+namespace {
+
+// The loss model's errors in a thermal state file, with the ranges the reader accepts (and the
+// writer keeps to, so that it never writes what it would refuse). k within the filter's
+// [-0.5, 1]; the standard deviations and dP within what any configured prior allows.
+struct LossKey {
+  const char* name;
+  double lo;
+  double hi;
+};
+constexpr LossKey kLossKeys[] = {{"missing_loss_W", -1e6, 1e6},
+                                 {"missing_loss_std_W", 0.0, 1e6},
+                                 {"loss_scale_error", -0.5, 1.0},
+                                 {"loss_scale_std", 0.0, 10.0},
+                                 {"loss_correlation", -1.0, 1.0}};
+
+bool loss_errors_storable(const core::ThermalState& s) {
+  const double values[] = {s.missing_loss_W, s.missing_loss_std_W, s.loss_scale_error, s.loss_scale_std,
+                           s.loss_correlation};
+  for (std::size_t k = 0; k < std::size(kLossKeys); ++k) {
+    if (!(values[k] >= kLossKeys[k].lo && values[k] <= kLossKeys[k].hi)) {
+      return false;
+    }
+  }
+  return true;
+}
+
+}  // namespace
+
 void write_thermal_state_file(const std::filesystem::path& path, const StoredThermalState& stored) {
   if (path.empty()) {
     throw CalibrationFileError("thermal state file: no path given");
@@ -273,14 +303,13 @@ void write_thermal_state_file(const std::filesystem::path& path, const StoredThe
        << "winding_std_C = " << toml_float(s.winding_std_C) << "\n"
        << "ambient_C = " << toml_float(stored.ambient_C) << "\n"
        << "saved_unix_s = " << toml_float(stored.saved_unix_s) << "\n";
-  if (s.has_loss_errors && std::isfinite(s.missing_loss_W) && std::isfinite(s.loss_scale_error) &&
-      s.missing_loss_std_W >= 0.0 && std::isfinite(s.missing_loss_std_W) && s.loss_scale_std >= 0.0 &&
-      std::isfinite(s.loss_scale_std)) {
+  if (s.has_loss_errors && loss_errors_storable(s)) {
     // What the filter learned of the winding's loss model (absent: the priors at the restart).
     text << "missing_loss_W = " << toml_float(s.missing_loss_W) << "\n"
          << "missing_loss_std_W = " << toml_float(s.missing_loss_std_W) << "\n"
          << "loss_scale_error = " << toml_float(s.loss_scale_error) << "\n"
-         << "loss_scale_std = " << toml_float(s.loss_scale_std) << "\n";
+         << "loss_scale_std = " << toml_float(s.loss_scale_std) << "\n"
+         << "loss_correlation = " << toml_float(s.loss_correlation) << "\n";
   }
   write_atomically(path, text.str());
 }
@@ -289,33 +318,42 @@ StoredThermalState read_thermal_state_file(const std::filesystem::path& path) {
   const std::string file = path.string();
   const toml::table t =
       read_stored(path, {"format", "winding_C", "housing_C", "winding_std_C", "ambient_C", "saved_unix_s",
-                         "missing_loss_W", "missing_loss_std_W", "loss_scale_error", "loss_scale_std"});
+                         "missing_loss_W", "missing_loss_std_W", "loss_scale_error", "loss_scale_std",
+                         "loss_correlation"});
   StoredThermalState s;
   s.state.winding_C = number(t, "winding_C", file, -60.0, 400.0, false);
   s.state.housing_C = number(t, "housing_C", file, -60.0, 400.0, false);
   s.state.winding_std_C = number(t, "winding_std_C", file, 0.0, 1000.0, false);
   s.ambient_C = number(t, "ambient_C", file, -60.0, 200.0, false);
   s.saved_unix_s = number(t, "saved_unix_s", file, 0.0, 1e11, false);
-  // The loss model's errors: all four or none (a file from before they were kept).
-  const char* const loss_keys[] = {"missing_loss_W", "missing_loss_std_W", "loss_scale_error", "loss_scale_std"};
+  // The loss model's errors: all five or none (a file from before they were kept). A bad
+  // block costs only itself: the temperatures hold, the loss errors restart from the priors.
   int present = 0;
-  for (const char* key : loss_keys) {
-    present += t.get(key) != nullptr ? 1 : 0;
+  for (const LossKey& key : kLossKeys) {
+    present += t.get(key.name) != nullptr ? 1 : 0;
   }
   if (present != 0) {
-    for (const char* key : loss_keys) {
-      if (t.get(key) == nullptr) {
-        throw CalibrationFileError(fmt::format("{}: {} is missing (the loss model's errors come as missing_loss_W, "
-                                               "missing_loss_std_W, loss_scale_error and loss_scale_std, or not at all)",
-                                               file, key));
+    try {
+      double values[std::size(kLossKeys)] = {};
+      for (std::size_t k = 0; k < std::size(kLossKeys); ++k) {
+        if (t.get(kLossKeys[k].name) == nullptr) {
+          throw CalibrationFileError(fmt::format("{}: {} is missing (the loss model's errors come as missing_loss_W, "
+                                                 "missing_loss_std_W, loss_scale_error, loss_scale_std and "
+                                                 "loss_correlation, or not at all)",
+                                                 file, kLossKeys[k].name));
+        }
+        values[k] = number(t, kLossKeys[k].name, file, kLossKeys[k].lo, kLossKeys[k].hi, false);
       }
+      s.state.has_loss_errors = true;
+      s.state.missing_loss_W = values[0];
+      s.state.missing_loss_std_W = values[1];
+      s.state.loss_scale_error = values[2];
+      s.state.loss_scale_std = values[3];
+      s.state.loss_correlation = values[4];
+    } catch (const CalibrationFileError& e) {
+      s.state.has_loss_errors = false;
+      s.loss_errors_ignored = e.what();
     }
-    s.state.has_loss_errors = true;
-    s.state.missing_loss_W = number(t, "missing_loss_W", file, -1e6, 1e6, false);
-    s.state.missing_loss_std_W = number(t, "missing_loss_std_W", file, 0.0, 1e6, false);
-    // The filter holds k within [-0.5, 1] (ThermalObserver): beyond, no drive wrote it.
-    s.state.loss_scale_error = number(t, "loss_scale_error", file, -0.5, 1.0, false);
-    s.state.loss_scale_std = number(t, "loss_scale_std", file, 0.0, 10.0, false);
   }
   return s;
 }

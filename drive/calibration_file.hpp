@@ -50,15 +50,17 @@ void write_calibration_file(const std::filesystem::path& path, const core::Calib
 //   winding_std_C = 1.3
 //   ambient_C = 25.0
 //   saved_unix_s = 1795493852.25
-//   missing_loss_W = 4.2         # the loss model's errors the filter learned (dP, k and their
-//   missing_loss_std_W = 21.0    # standard deviations): all four or none; a file without
-//   loss_scale_error = 0.11      # them restarts the filter from the priors
-//   loss_scale_std = 0.05
+//   missing_loss_W = 4.2         # the loss model's errors the filter learned (dP, k, their
+//   missing_loss_std_W = 21.0    # standard deviations and correlation): all five or none; a
+//   loss_scale_error = 0.11      # file without them, or with a bad block of them, restarts
+//   loss_scale_std = 0.05        # them from the priors (loss_errors_ignored says why) and
+//   loss_correlation = -0.8      # keeps the temperatures
 // The drive cools it through the downtime with its model (ThermalObserver::restore).
 struct StoredThermalState {
   core::ThermalState state;
   double ambient_C = 25.0;
   double saved_unix_s = 0.0;  // CLOCK_REALTIME when it held
+  std::string loss_errors_ignored;  // why a loss-error block was not used (empty: used or absent)
 };
 void write_thermal_state_file(const std::filesystem::path& path, const StoredThermalState& stored);
 [[nodiscard]] StoredThermalState read_thermal_state_file(const std::filesystem::path& path);

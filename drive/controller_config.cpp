@@ -5,6 +5,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <numbers>
+
+#include <fmt/format.h>
 
 namespace pmsm::app {
 namespace {
@@ -436,6 +439,21 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
   }
   if (d.injection.settle_s + 2.0 * d.period_s > d.injection.record_time_s) {
     rule("injection.record_time_s", "injection.settle_s", "injection.record_time_s must be longer than injection.settle_s");
+  }
+  {
+    // A recording must fit the recorder (preallocated): the longest asked for, in whole turns
+    // at the slowest angle-based speed (one more turn at most).
+    const double longest_s = std::max({d.injection.record_time_s, d.injection.record_min_time_s,
+                                       d.injection.field_weakening_record_min_time_s}) +
+                             2.0 * std::numbers::pi / d.injection.min_speed_for_angle_rad_s;
+    const double holds_s = static_cast<double>(d.recording_capacity) * d.period_s;
+    if (longest_s > holds_s) {
+      rule("injection.field_weakening_record_min_time_s", "injection.record_min_time_s",
+           fmt::format("recordings of up to {:.3f} s (the longest of injection.record_time_s, record_min_time_s and "
+                       "field_weakening_record_min_time_s, plus one turn at injection.min_speed_for_angle_rad_s) do not "
+                       "fit the {:.3f} s a recording holds at this control period",
+                       longest_s, holds_s));
+    }
   }
   if (!errors.empty()) {
     throw ConfigError(errors);

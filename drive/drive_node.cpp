@@ -119,7 +119,9 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
   const double ambient_C = sensed_ambient_C_.value_or(in.ambient_C);
   ambient_used_C_ = ambient_C;
 
-  if (in.abort_calibration) {
+  // A fault ends a calibration: the drive's safe state is no calibration condition, and the
+  // bus must not go on saying CALIBRATING-to-be while DRIVE_STATUS says FAULT.
+  if (in.abort_calibration || (status.state == core::DriveState::kFault && controller_.calibrating())) {
     controller_.abort_calibration();
   }
   if (in.start_calibration) {

@@ -66,7 +66,12 @@ void DriveController::fail_calibration(CalibrationFailure why) {
   calibration_failed_ = true;
   calibration_failed_now_ = true;
   calibration_failure_ = why;
-  calibration_outcome_ = why == CalibrationFailure::kUncertain ? CalibrationOutcome::kRefused : CalibrationOutcome::kTimedOut;
+  switch (why) {
+    case CalibrationFailure::kUncertain: calibration_outcome_ = CalibrationOutcome::kRefused; break;
+    case CalibrationFailure::kTimeout: calibration_outcome_ = CalibrationOutcome::kTimedOut; break;
+    case CalibrationFailure::kNone: calibration_outcome_ = CalibrationOutcome::kNone; break;
+  }
+  publish_calibration_state();
   restore_band();
   scheduler_.set_config(config_.injection);
 }
@@ -110,7 +115,11 @@ void DriveController::start_calibration(double known_temp_C) {
   // calibration, whose own injections warm the winding a little.
   // The time scale set by set_thermal_time_scale() holds whatever the order of the calls.
   const double time_scale = observer_.time_scale();
+  // What the filter has learned of the loss model is the machine's, not the moment's: it
+  // survives the restart of the temperatures (and a calibration that then fails).
+  const ThermalObserver before = observer_;
   observer_ = ThermalObserver(config_.thermal, observer_.calibration(), known_temp_C);
+  observer_.keep_loss_errors(before);
   observer_.set_time_scale(time_scale);
   thermal_guess_pending_ = false;
   calibrating_ = true;
@@ -131,12 +140,23 @@ void DriveController::start_calibration(double known_temp_C) {
   if (config_.inverter_sweep.enabled) {
     sweep_.start(config_.inverter_sweep, config_.period_s);
   }
+  publish_calibration_state();
+}
+
+void DriveController::publish_calibration_state() {
+  // At once, not at the next usable period: a calibration may end (abort) while the drive is
+  // in its safe state, where step() returns early.
+  telemetry_.calibrating = calibrating_;
+  telemetry_.calibration_failed = calibration_failed_;
+  telemetry_.calibration_failure = calibration_failure_;
+  telemetry_.calibration_outcome = calibration_outcome_;
 }
 
 void DriveController::abort_calibration() {
   if (calibrating_) {
     calibrating_ = false;
     calibration_outcome_ = CalibrationOutcome::kAborted;
+    publish_calibration_state();
     if (sweep_.active()) {
       sweep_.abort();
       sweep_done_ = sweep_.result();
@@ -244,6 +264,7 @@ void DriveController::handle_estimate(const EventEstimate& e) {
       observer_.set_calibration(c);
       calibration_done_ = c;
       calibration_outcome_ = CalibrationOutcome::kDone;
+      publish_calibration_state();
     }
     return;
   }

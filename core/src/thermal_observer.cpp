@@ -62,6 +62,8 @@ ThermalState ThermalObserver::state() const {
   s.missing_loss_std_W = std::sqrt(std::max(p_(2, 2), 0.0));
   s.loss_scale_error = x_(3);
   s.loss_scale_std = std::sqrt(std::max(p_(3, 3), 0.0));
+  const double den = s.missing_loss_std_W * s.loss_scale_std;
+  s.loss_correlation = den > 0.0 ? std::clamp(p_(2, 3) / den, -1.0, 1.0) : 0.0;
   return s;
 }
 
@@ -101,28 +103,51 @@ void ThermalObserver::restore(const ThermalState& state, double downtime_thermal
   p_(1, 1) = var;
   p_(0, 1) = p_(1, 0) = 0.95 * var;  // the machine's error is shared (see the constructor)
   // The loss model's errors are the machine's, not the moment's: what the last run learned
-  // holds, less certain by the random walks over the downtime and never beyond the priors.
-  // (Their covariance with each other is not stored: each keeps its own variance.)
-  const double p2 = config_.initial_loss_error_std_W * config_.initial_loss_error_std_W;
-  const double p3 = config_.initial_loss_scale_std * config_.initial_loss_scale_std;
+  // holds, less certain by the random walks over the downtime (set_loss_errors).
   const bool learned = state.has_loss_errors && std::isfinite(state.missing_loss_W) &&
                        std::isfinite(state.missing_loss_std_W) && std::isfinite(state.loss_scale_error) &&
-                       std::isfinite(state.loss_scale_std);
+                       std::isfinite(state.loss_scale_std) && std::isfinite(state.loss_correlation);
   if (learned) {
-    x_(2) = state.missing_loss_W;
-    x_(3) = std::clamp(state.loss_scale_error, kMinLossScale, kMaxLossScale);
-    const double q2 = config_.loss_error_process_std_W_per_sqrt_s * config_.loss_error_process_std_W_per_sqrt_s * t;
-    const double q3 = config_.loss_scale_process_std_per_sqrt_s * config_.loss_scale_process_std_per_sqrt_s * t;
-    p_(2, 2) = std::min(state.missing_loss_std_W * state.missing_loss_std_W + q2, p2);
-    p_(3, 3) = std::min(state.loss_scale_std * state.loss_scale_std + q3, p3);
+    set_loss_errors(state.missing_loss_W, state.missing_loss_std_W, state.loss_scale_error, state.loss_scale_std,
+                    state.loss_correlation, t);
   } else {
-    p_(2, 2) = p2;
-    p_(3, 3) = p3;
+    set_loss_errors(0.0, config_.initial_loss_error_std_W, 0.0, config_.initial_loss_scale_std, 0.0, 0.0);
   }
   drift_std_C_ = 0.0;
   shared_error_C_ = 0.0;  // part of the stored band now
   since_measurement_s_ = 0.0;
   anchored_ = false;
+}
+
+void ThermalObserver::set_loss_errors(double dp_W, double dp_std_W, double k, double k_std, double correlation,
+                                      double elapsed_thermal_s) {
+  const double p2 = config_.initial_loss_error_std_W * config_.initial_loss_error_std_W;
+  const double p3 = config_.initial_loss_scale_std * config_.initial_loss_scale_std;
+  // Bounded as in the filter: k within [-0.5, 1], and a missing loss no further than five of
+  // its prior's standard deviations (beyond, it is no error of this model: a file from
+  // another machine or model). A state without a prior (learning switched off) stays at 0.
+  const double dp_bound = 5.0 * config_.initial_loss_error_std_W;
+  x_(2) = std::clamp(dp_W, -dp_bound, dp_bound);
+  x_(3) = p3 > 0.0 ? std::clamp(k, kMinLossScale, kMaxLossScale) : 0.0;
+  // The random walks over the time since, capped at the priors (as predict() does).
+  const double q2 = config_.loss_error_process_std_W_per_sqrt_s * config_.loss_error_process_std_W_per_sqrt_s *
+                    elapsed_thermal_s;
+  const double q3 = config_.loss_scale_process_std_per_sqrt_s * config_.loss_scale_process_std_per_sqrt_s *
+                    elapsed_thermal_s;
+  const double s2 = std::sqrt(std::min(dp_std_W * dp_std_W + q2, p2));
+  const double s3 = std::sqrt(std::min(k_std * k_std + q3, p3));
+  p_.block<2, 2>(0, 2).setZero();
+  p_.block<2, 2>(2, 0).setZero();
+  p_(2, 2) = s2 * s2;
+  p_(3, 3) = s3 * s3;
+  // At one load the filter learns dP + k Pcu better than either: their correlation is kept
+  // (bounded by 1, so P stays positive semi-definite).
+  p_(2, 3) = p_(3, 2) = std::clamp(correlation, -1.0, 1.0) * s2 * s3;
+}
+
+void ThermalObserver::keep_loss_errors(const ThermalObserver& other) {
+  const ThermalState s = other.state();
+  set_loss_errors(s.missing_loss_W, s.missing_loss_std_W, s.loss_scale_error, s.loss_scale_std, s.loss_correlation, 0.0);
 }
 
 double ThermalObserver::resistance_at_C(double temp_C) const {

@@ -195,6 +195,10 @@ TEST(ControllerConfig, CrossKeyRulesNameBothKeys) {
             "drive.toml:2: injection.F_min_A must not exceed injection.F_A times the smallest of injection.levels");
   EXPECT_EQ(error_of("[injection]\nsettle_s = 0.05\n"),
             "drive.toml:2: injection.record_time_s must be longer than injection.settle_s");
+  EXPECT_EQ(error_of("[injection]\nfield_weakening_record_min_time_s = 0.7\n"),
+            "drive.toml:2: recordings of up to 0.909 s (the longest of injection.record_time_s, record_min_time_s and "
+            "field_weakening_record_min_time_s, plus one turn at injection.min_speed_for_angle_rad_s) do not fit the "
+            "0.819 s a recording holds at this control period");
   // Equal ends are rejected too (the derating would divide by zero).
   EXPECT_NE(error_of("[derating]\nstart_C = 155\nlimit_C = 155\n"), "");
 }

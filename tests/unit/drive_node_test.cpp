@@ -282,6 +282,35 @@ TEST(DriveNode, ACalibrationThatTimesOutIsPublishedAsSuch) {
   expect_failed_calibration(rig, core::CalibrationFailure::kTimeout, protocol::CalibrationResult::kTimedOut);
 }
 
+// A fault ends a calibration (ABORTED on the bus at once, though the drive sits in its safe
+// state), the configured calibration stays; a new START clears the result to NONE while it runs.
+TEST(DriveNode, AFaultAbortsACalibrationAndANewStartClearsTheResult) {
+  Rig rig;
+  rig.run(2000);
+  rig.in.start_calibration = true;
+  rig.run(1);
+  rig.in.start_calibration = false;
+  rig.run(100);
+  ASSERT_TRUE(rig.node->controller().telemetry().calibrating);
+  rig.run(1, [](hal::SensorSample& s) { s.dc_bus_adc = 0; });  // a dead bus: undervoltage
+  ASSERT_EQ(rig.node->supervisor().status().state, core::DriveState::kFault);
+  EXPECT_FALSE(rig.node->controller().telemetry().calibrating);
+  const protocol::ThermalEstimate t = next_thermal(rig);
+  EXPECT_EQ(t.calibration_result, protocol::CalibrationResult::kAborted);
+  EXPECT_FALSE(t.calibrated);
+
+  rig.in.clear_faults = true;
+  rig.run(1);
+  rig.in.clear_faults = false;
+  rig.run(100);
+  ASSERT_EQ(rig.node->supervisor().status().state, core::DriveState::kRunning);
+  rig.in.start_calibration = true;
+  rig.run(1);
+  rig.in.start_calibration = false;
+  EXPECT_TRUE(rig.node->controller().telemetry().calibrating);
+  EXPECT_EQ(next_thermal(rig).calibration_result, protocol::CalibrationResult::kNone);
+}
+
 // One started at 200 rad/s unloaded cannot learn the bridge's voltage (docs/estimator.md
 // section 6): refused, and REFUSED on the bus.
 TEST(DriveNode, ACalibrationRefusedAsUncertainIsPublishedAsSuch) {

@@ -786,6 +786,9 @@ TEST(InjectionScheduler, FieldWeakeningPairRecordsAtTwoNegativeLevels) {
   const PairResult& p = h.pairs[0];
   ASSERT_TRUE(p.field_weakening);
   EXPECT_GE(static_cast<double>(p.samples) * kPeriod, c.field_weakening_record_min_time_s - 1e-9);
+  for (const PairResult& q : h.pairs) {
+    EXPECT_TRUE(q.field_weakening) << "every pair at this point weakens the field";
+  }
   EXPECT_EQ(p.outcome, PairOutcome::kAccepted) << to_string(p.outcome);
   EXPECT_GE(p.low_level, c.field_weakening_low_fraction - 1e-12);
   EXPECT_LT(p.low_level, 1.0);

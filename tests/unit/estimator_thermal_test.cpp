@@ -185,12 +185,6 @@ TEST(ThermalObserver, AfterPredictionAMeasurementAlsoMovesTheCorrelatedStates) {
   EXPECT_LT(after.winding_std_C, before.winding_std_C);
 }
 
-// A winding whose copper loss is 25 % above the model's (its capacity, thermal resistance or
-// AC resistance as commissioned): measured during a spell at one load, the filter learns the
-// loss's relative error k, and a following spell at twice the current's square without any
-// measurement drifts far less than a filter that can learn only a missing loss in watts (the
-// previous three-state filter: k's prior set to zero), whose watts learned at the first load are
-// half of what the second needs.
 // The machine of the loss-scale tests: the model's network with 25 % more copper loss than the
 // model computes, in 25 C ambient.
 struct HotterMachine {
@@ -225,6 +219,12 @@ struct HotterMachine {
   }
 };
 
+// A winding whose copper loss is 25 % above the model's (its capacity, thermal resistance or
+// AC resistance as commissioned): measured during a spell at one load, the filter learns the
+// loss's relative error k, and a following spell at twice the current's square without any
+// measurement drifts far less than a filter that can learn only a missing loss in watts (the
+// previous three-state filter: k's prior set to zero), whose watts learned at the first load are
+// half of what the second needs.
 TEST(ThermalObserver, ALossScaleLearnedAtOneLoadCarriesToAnother) {
   const Calibration cal;
   auto run = [&](bool learn_scale) {
@@ -267,6 +267,8 @@ TEST(ThermalObserver, TheLearnedLossModelSurvivesARestart) {
   EXPECT_DOUBLE_EQ(kept.estimate().loss_scale_error, stored.loss_scale_error);
   EXPECT_DOUBLE_EQ(kept.estimate().missing_loss_W, stored.missing_loss_W);
   EXPECT_NEAR(kept.estimate().loss_scale_std, stored.loss_scale_std, 1e-12);
+  EXPECT_NEAR(kept.state().loss_correlation, stored.loss_correlation, 1e-9) << "dP and k learned together";
+  EXPECT_LT(stored.loss_correlation, -0.5) << "at one load dP + k Pcu is what is learned";
   ThermalState old_file = stored;
   old_file.has_loss_errors = false;
   ThermalObserver forgot(c, cal, 25.0);
@@ -284,11 +286,38 @@ TEST(ThermalObserver, TheLearnedLossModelSurvivesARestart) {
   EXPECT_NEAR(error_kept, error_no_restart, 0.2);
   EXPECT_LT(error_kept, 0.5 * error_forgot);
 
+
   // Over a downtime the loss errors grow by their random walks, never beyond the priors.
+  ThermalObserver shortly(c, cal, 25.0);
+  shortly.restore(stored, 100.0, 25.0);
+  EXPECT_NEAR(shortly.estimate().loss_scale_std,
+              std::sqrt(stored.loss_scale_std * stored.loss_scale_std +
+                        c.loss_scale_process_std_per_sqrt_s * c.loss_scale_process_std_per_sqrt_s * 100.0),
+              1e-12);
   ThermalObserver later(c, cal, 25.0);
   later.restore(stored, 1e7, 25.0);
-  EXPECT_GT(later.estimate().loss_scale_std, stored.loss_scale_std);
-  EXPECT_LE(later.estimate().loss_scale_std, c.initial_loss_scale_std);
+  EXPECT_DOUBLE_EQ(later.estimate().loss_scale_std, c.initial_loss_scale_std);
+
+  // A stored dP beyond five prior standard deviations is no error of this model (a file from
+  // another machine): held at that bound. With k's learning switched off, k stays 0.
+  ThermalState wild = stored;
+  wild.missing_loss_W = 5e4;
+  ThermalObserver bounded(c, cal, 25.0);
+  bounded.restore(wild, 0.0, 25.0);
+  EXPECT_DOUBLE_EQ(bounded.estimate().missing_loss_W, 5.0 * c.initial_loss_error_std_W);
+  ThermalModelConfig no_k = c;
+  no_k.initial_loss_scale_std = 0.0;
+  no_k.loss_scale_process_std_per_sqrt_s = 0.0;
+  ThermalObserver off(no_k, cal, 25.0);
+  off.restore(stored, 0.0, 25.0);
+  EXPECT_EQ(off.estimate().loss_scale_error, 0.0);
+  EXPECT_EQ(off.estimate().loss_scale_std, 0.0);
+
+  // A restart of the temperatures alone (a calibration) keeps what was learned.
+  ThermalObserver recalibrated(c, cal, 25.0);
+  recalibrated.keep_loss_errors(before);
+  EXPECT_DOUBLE_EQ(recalibrated.estimate().loss_scale_error, before.estimate().loss_scale_error);
+  EXPECT_DOUBLE_EQ(recalibrated.estimate().missing_loss_W, before.estimate().missing_loss_W);
 }
 
 // k stays physical (the machine's copper loss between half and twice the model's) however far

@@ -142,6 +142,8 @@ TEST(protocol_table, ValueTablesMatchEnums) {
   check(kInjectionResultLabels, static_cast<std::size_t>(InjectionResult::kSkippedTorqueDisturbance) + 1);
   check(kFaultCodeLabels, static_cast<std::size_t>(FaultCode::kAmbientImplausible) + 1);
   check(kPlantModeLabels, 2);
+  check(kCalibrationResultLabels, static_cast<std::size_t>(CalibrationResult::kRefused) + 1);
+  EXPECT_EQ(thermal_estimate::kCalibrationResult.raw_max(), static_cast<std::int64_t>(CalibrationResult::kRefused));
   EXPECT_EQ(drive_command::kMode.raw_max(), 2);
   EXPECT_EQ(fault::kCode.raw_max(), static_cast<std::int64_t>(FaultCode::kAmbientImplausible));
   EXPECT_EQ(injection_report::kResult.raw_max(), static_cast<std::int64_t>(InjectionResult::kSkippedTorqueDisturbance));
@@ -328,6 +330,19 @@ TEST(protocol_codec, TelemetryRoundTrip) {
   EXPECT_NEAR(tr.winding_temp_sigma_C, 2.5, 0.005);
   EXPECT_NEAR(tr.magnet_temp_C, -50.0, 0.005);
   EXPECT_TRUE(tr.valid && tr.magnet_valid && tr.calibrated && tr.derating_active && tr.stale);
+  for (const CalibrationResult result : {CalibrationResult::kNone, CalibrationResult::kDone, CalibrationResult::kAborted,
+                                         CalibrationResult::kTimedOut, CalibrationResult::kRefused}) {
+    thermal.calibration_result = result;
+    EXPECT_EQ(round_trip(thermal).calibration_result, result);
+  }
+  {
+    // Raw 5-7 in its three bits (53-55) is no result this protocol knows: the frame is refused.
+    CanFrame f;
+    ASSERT_EQ(encode(thermal, 5, f), EncodeStatus::kOk);
+    f.data[6] = static_cast<std::uint8_t>((f.data[6] & ~0xE0U) | (5U << 5));
+    ThermalEstimate out{};
+    EXPECT_EQ(decode(f, 5, out), DecodeStatus::kOutOfRange);
+  }
 
   ResistanceEstimate rs;
   rs.valid = true;

@@ -126,8 +126,8 @@ enum class CalibrationFailure : std::uint8_t {
 // How the last calibration run ended (published on the bus: THERMAL_ESTIMATE.CalibrationResult).
 enum class CalibrationOutcome : std::uint8_t {
   kNone = 0,       // none has ended since start, or one is running
-  kDone = 1,       // completed: its Rs0 is in use (and stored)
-  kAborted = 2,    // stopped by a command or the drive leaving its mode
+  kDone = 1,       // completed: its Rs0 is in use (the daemon stores it when it has a file)
+  kAborted = 2,    // stopped by a command or a fault (disabling the drive only pauses it)
   kTimedOut = 3,   // CalibrationFailure::kTimeout
   kRefused = 4,    // CalibrationFailure::kUncertain
 };
@@ -237,6 +237,7 @@ class DriveController {
   // True for the one period in which a calibration run failed (timed out, or refused its
   // uncertain Rs0: telemetry().calibration_failure says which).
   [[nodiscard]] bool calibration_just_failed() const { return calibration_failed_now_; }
+  [[nodiscard]] bool calibrating() const { return calibrating_; }
   [[nodiscard]] const Calibration& calibration() const { return observer_.calibration(); }
   [[nodiscard]] const DriveConfig& config() const { return config_; }
 
@@ -259,6 +260,7 @@ class DriveController {
   void finish_inverter_sweep(double now_s);
   void restore_band();
   void fail_calibration(CalibrationFailure why);
+  void publish_calibration_state();
 
   DriveOutput output_{};
   DriveTelemetry telemetry_{};

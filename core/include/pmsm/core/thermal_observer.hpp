@@ -70,6 +70,7 @@ struct ThermalState {
   double missing_loss_std_W = 0.0;
   double loss_scale_error = 0.0;  // k
   double loss_scale_std = 0.0;
+  double loss_correlation = 0.0;  // of dP and k (at one load the filter learns dP + k Pcu)
 };
 
 struct Calibration {
@@ -118,6 +119,9 @@ class ThermalObserver {
   void restore(const ThermalState& state, double downtime_thermal_s, double ambient_C);
   // Restarts from a guess (see the constructor), e.g. the ambient sensor's temperature.
   void restart_unknown(double guess_C);
+  // Takes over what `other` has learned of the loss model (dP, k and their covariance), as
+  // when the temperatures restart (a calibration) but the machine is the same.
+  void keep_loss_errors(const ThermalObserver& other);
   [[nodiscard]] bool anchored() const { return anchored_; }
   [[nodiscard]] ThermalState state() const;
 
@@ -169,6 +173,8 @@ class ThermalObserver {
   static constexpr int kReanchorAfterGated = 5;
   [[nodiscard]] bool reanchor_consistent(double z, double r) const;
   void cap_variance(int i, double limit);
+  void set_loss_errors(double dp_W, double dp_std_W, double k, double k_std, double correlation,
+                       double elapsed_thermal_s);
   static constexpr double kMinLossScale = -0.5;
   static constexpr double kMaxLossScale = 1.0;
 };

@@ -189,8 +189,8 @@ inline constexpr std::array<ValueLabel, 3> kCalibrationActionLabels{{
 // How the last Rs0 calibration run ended, since the daemon started.
 enum class CalibrationResult : std::uint8_t {
   kNone = 0,      // none has ended since start, or one is running (DRIVE_STATUS says CALIBRATING)
-  kDone = 1,      // completed: its Rs0 is in use and stored
-  kAborted = 2,   // stopped by an ABORT command or by the drive leaving its mode
+  kDone = 1,      // completed: its Rs0 is in use (and stored, where the daemon has a file)
+  kAborted = 2,   // stopped by an ABORT command or by a fault (disabling the drive only pauses it)
   kTimedOut = 3,  // too few accepted measurements within calibration.timeout_s
   kRefused = 4,   // Rs0 less certain than calibration.max_rs0_std_fraction (the bridge's voltage not learned)
 };
@@ -580,7 +580,7 @@ inline constexpr SignalDef kStale{"Stale", 51, 1, false, 1, 0, 0, 1, "", detail:
 inline constexpr SignalDef kMagnetValid{"MagnetValid", 52, 1, false, 1, 0, 0, 1, "", detail::kNoValues,
     "1: MagnetTemp holds an estimate."};
 inline constexpr SignalDef kCalibrationResult{"CalibrationResult", 53, 3, false, 1, 0, 0, 4, "", kCalibrationResultLabels,
-    "How the last calibration since start ended; TIMED_OUT and REFUSED keep the calibration in use."};
+    "How the last calibration since start ended; ABORTED, TIMED_OUT and REFUSED keep the calibration in use."};
 inline constexpr std::array<SignalDef, 9> kSignals{
     kWindingTemp, kWindingTempSigma, kMagnetTemp, kValid, kCalibrated, kDeratingActive, kStale, kMagnetValid,
     kCalibrationResult};
