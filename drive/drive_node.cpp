@@ -119,9 +119,9 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
   const double ambient_C = sensed_ambient_C_.value_or(in.ambient_C);
   ambient_used_C_ = ambient_C;
 
-  // A fault ends a calibration: the drive's safe state is no calibration condition, and the
-  // bus must not go on saying CALIBRATING-to-be while DRIVE_STATUS says FAULT.
-  if (in.abort_calibration || (status.state == core::DriveState::kFault && controller_.calibrating())) {
+  // A fault suspends a calibration (no pair runs in the safe state); it resumes once the fault
+  // is cleared, within its timeout: a passing sensor timeout must not cost the commissioning.
+  if (in.abort_calibration) {
     controller_.abort_calibration();
   }
   if (in.start_calibration) {

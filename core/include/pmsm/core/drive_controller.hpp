@@ -125,9 +125,9 @@ enum class CalibrationFailure : std::uint8_t {
 
 // How the last calibration run ended (published on the bus: THERMAL_ESTIMATE.CalibrationResult).
 enum class CalibrationOutcome : std::uint8_t {
-  kNone = 0,       // none has ended since start, or one is running
+  kNone = 0,       // none has ended since start, or one is running (or suspended by a fault)
   kDone = 1,       // completed: its Rs0 is in use (the daemon stores it when it has a file)
-  kAborted = 2,    // stopped by a command or a fault (disabling the drive only pauses it)
+  kAborted = 2,    // stopped by a command (a fault or disabling the drive only suspends it)
   kTimedOut = 3,   // CalibrationFailure::kTimeout
   kRefused = 4,    // CalibrationFailure::kUncertain
 };

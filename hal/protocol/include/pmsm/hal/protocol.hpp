@@ -188,9 +188,9 @@ inline constexpr std::array<ValueLabel, 3> kCalibrationActionLabels{{
 
 // How the last Rs0 calibration run ended, since the daemon started.
 enum class CalibrationResult : std::uint8_t {
-  kNone = 0,      // none has ended since start, or one is running (DRIVE_STATUS says CALIBRATING)
+  kNone = 0,      // none has ended since start, or one is running (or suspended by a fault)
   kDone = 1,      // completed: its Rs0 is in use (and stored, where the daemon has a file)
-  kAborted = 2,   // stopped by an ABORT command or by a fault (disabling the drive only pauses it)
+  kAborted = 2,   // stopped by an ABORT command (a fault or disabling the drive only suspends it)
   kTimedOut = 3,  // too few accepted measurements within calibration.timeout_s
   kRefused = 4,   // Rs0 less certain than calibration.max_rs0_std_fraction (the bridge's voltage not learned)
 };
