@@ -144,8 +144,9 @@ void DriveController::start_calibration(double known_temp_C) {
 }
 
 void DriveController::publish_calibration_state() {
-  // At once, not at the next usable period: a calibration may end (abort) while the drive is
-  // in its safe state, where step() returns early.
+  // Called wherever the calibration's state changes (not every period), and at once: a
+  // calibration may end (abort) while the drive is in its safe state, where step() returns
+  // early.
   telemetry_.calibrating = calibrating_;
   telemetry_.calibration_failed = calibration_failed_;
   telemetry_.calibration_failure = calibration_failure_;
@@ -567,7 +568,6 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   telemetry_.magnet_C = magnet_filtered_C_;
   telemetry_.torque_estimate_Nm = electromagnetic_torque_Nm(
       config_.current.flux_linkage_Wb, config_.current.ld_H, config_.current.lq_H, config_.motor.pole_pairs, i);
-  telemetry_.calibrating = calibrating_;
   telemetry_.inverter_sweep_active = sweep_.active();
   telemetry_.dead_time_band_A = config_.dead_time.current_band_A;
   telemetry_.vx_V = scheduler_.vx_V();
@@ -576,9 +576,6 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   telemetry_.lq_std_H = scheduler_.lq_std_H();
   telemetry_.lq_saturation_H = scheduler_.lq_saturation_H();
   telemetry_.calibrated = observer_.calibration().calibrated;
-  telemetry_.calibration_failed = calibration_failed_;
-  telemetry_.calibration_failure = calibration_failure_;
-  telemetry_.calibration_outcome = calibration_outcome_;
   return output_;
 }
 

@@ -146,8 +146,12 @@ void ThermalObserver::set_loss_errors(double dp_W, double dp_std_W, double k, do
 }
 
 void ThermalObserver::keep_loss_errors(const ThermalObserver& other) {
-  const ThermalState s = other.state();
-  set_loss_errors(s.missing_loss_W, s.missing_loss_std_W, s.loss_scale_error, s.loss_scale_std, s.loss_correlation, 0.0);
+  // The same model's states: taken over as they are (their covariance with the temperatures,
+  // which restart, is dropped).
+  x_.tail<2>() = other.x_.tail<2>();
+  p_.block<2, 2>(0, 2).setZero();
+  p_.block<2, 2>(2, 0).setZero();
+  p_.block<2, 2>(2, 2) = other.p_.block<2, 2>(2, 2);
 }
 
 double ThermalObserver::resistance_at_C(double temp_C) const {

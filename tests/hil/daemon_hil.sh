@@ -91,6 +91,9 @@ tail -n +"$mark" "$work/candump.log" | "$tool" monitor --log - --node $node > "$
 tail -n +"$mark" "$work/candump.log" | "$tool" decode --dbc "$work/node$node.dbc" - > "$work/recovery-decoded.txt" 2>/dev/null || true
 grep -q "fault SENSOR_TIMEOUT cleared" "$work/recovery.txt" || die "SENSOR_TIMEOUT did not clear when a plant came back"
 grep -q "DRIVE_STATUS(State: RUNNING" "$work/recovery-decoded.txt" || die "the drive did not run again with the new plant"
+# The calibration the heat-up asked for, as the bus tells it (THERMAL_ESTIMATE.CalibrationResult).
+grep "THERMAL_ESTIMATE(" "$work/recovery-decoded.txt" | tail -1 | grep -q "CalibrationResult: DONE" ||
+  die "THERMAL_ESTIMATE does not say the calibration was DONE: $(grep "THERMAL_ESTIMATE(" "$work/recovery-decoded.txt" | tail -1)"
 echo "$prog: plant back: the fault cleared and the drive runs again, same daemon process"
 
 # Daemon killed and restarted: a new daemon locks on to a running plant.
@@ -109,6 +112,8 @@ grep -q "controller locked on" "$work/plant-3.log" || die "the restarted daemon 
 grep -q "calibration stored in" "$work/daemon.log" || die "the first daemon did not store its calibration"
 grep -q "calibration: loaded" "$work/daemon-2.log" || die "the restarted daemon did not load the stored calibration"
 grep -q "thermal state restored from" "$work/daemon-2.log" || die "the restarted daemon did not restore the stored thermal state: $(grep -m2 'thermal state' "$work/daemon-2.log")"
+grep -q "the loss model's learned errors kept" "$work/daemon-2.log" ||
+  die "the restarted daemon did not keep the loss model's learned errors: $(grep -m3 'thermal state' "$work/daemon-2.log")"
 echo "$prog: daemon killed: the plant waited; the restarted daemon loaded the stored calibration and thermal state ($(grep -o 'winding [0-9.]* +- [0-9.]* C [0-9]* s ago, cooled to [0-9.]* +- [0-9.]* C' "$work/daemon-2.log")), locked on, and the plant finished"
 
 # Every frame decodes with the DBC (can/pmsm-thermal.dbc describes node 0; the DBC of node
