@@ -206,9 +206,11 @@ TEST(DriveNode, CalibrationUsesTheOperatorsTemperatureOrTheAmbientSensor) {
 }
 
 // The calibration's bridge sweep (docs/estimator.md section 4.1) against the plant's bridge
-// (zero-current band 0.75 A; the controller's key says 1 A): its band is used at once, put back
-// if the calibration does not complete, and a stored band survives a sweep that was void.
-TEST(DriveNode, TheSweptBandIsKeptOnlyByACompletedCalibration) {
+// (zero-current band 0.75 A; the controller's key says 1 A): its band is used at once; if the
+// calibration does not complete, it stays in place of the configured guess but a stored
+// calibration's band (the one its Rs0 was learned with) is put back; and a stored band
+// survives a sweep that was void.
+TEST(DriveNode, TheSweptBandReplacesTheConfiguredGuessButNotAStoredBand) {
   auto unloaded = [](Rig& r) {  // a calibration runs unloaded
     r.plant_config.load.torque_Nm = 0.0;
     r.plant = std::make_unique<plant::Plant>(r.plant_config);
@@ -232,8 +234,27 @@ TEST(DriveNode, TheSweptBandIsKeptOnlyByACompletedCalibration) {
   rig.in.abort_calibration = true;
   rig.run(1);
   rig.in.abort_calibration = false;
-  EXPECT_EQ(rig.node->controller().telemetry().dead_time_band_A, configured) << "the old calibration's band";
+  EXPECT_EQ(rig.node->controller().telemetry().dead_time_band_A, swept) << "the measurement, not the guess";
   EXPECT_EQ(next_thermal(rig).calibration_result, protocol::CalibrationResult::kAborted);
+
+  // A stored calibration's band comes back when a calibration whose sweep measured is aborted.
+  Rig kept;
+  unloaded(kept);
+  kept.config.drive.calibration.dead_time_band_A = 0.6;
+  kept.node = std::make_unique<DriveNode>(kept.config, kept.supervisor, PublishRates{});
+  kept.run(2000);
+  kept.in.start_calibration = true;
+  kept.run(1);
+  kept.in.start_calibration = false;
+  for (int k = 0; k < 20000 && kept.node->controller().telemetry().inverter_sweep_active; ++k) {
+    kept.run(1);
+  }
+  ASSERT_EQ(kept.node->controller().inverter_sweep().outcome, core::InverterSweepOutcome::kMeasured);
+  EXPECT_NEAR(kept.node->controller().telemetry().dead_time_band_A, swept, 1e-9 + 0.05 * swept);
+  kept.in.abort_calibration = true;
+  kept.run(1);
+  kept.in.abort_calibration = false;
+  EXPECT_EQ(kept.node->controller().telemetry().dead_time_band_A, 0.6) << "the band the stored Rs0 was learned with";
 
   // A drive whose stored calibration has a band: a sweep aborted by a stop leaves it in use,
   // and the calibration that then completes stores it.
@@ -285,6 +306,13 @@ TEST(DriveNode, ACalibrationThatTimesOutIsPublishedAsSuch) {
   rig.run(2000);
   EXPECT_EQ(next_thermal(rig).calibration_result, protocol::CalibrationResult::kNone);
   expect_failed_calibration(rig, core::CalibrationFailure::kTimeout, protocol::CalibrationResult::kTimedOut);
+  // Its sweep measured the bridge before the events timed out; the calibration in use (the
+  // configured default) was learned with no measured band, so the measured one replaces the
+  // configured guess.
+  const core::InverterSweepResult& sweep = rig.node->controller().inverter_sweep();
+  ASSERT_EQ(sweep.outcome, core::InverterSweepOutcome::kMeasured);
+  EXPECT_NE(rig.config.drive.dead_time.current_band_A, sweep.band_A);
+  EXPECT_EQ(rig.node->controller().telemetry().dead_time_band_A, sweep.band_A);
 }
 
 // A fault suspends a calibration (the result stays NONE, the calibration's state reaches the

@@ -63,8 +63,13 @@ std::string markdown_row(const SimulationResult& r, const std::string& file) {
     rejected += r.pairs[k];
   }
   const bool w = r.winding_error_samples > 0;
-  return fmt::format("| {} (`{}`) | {} | {} | {} | {} | {} | {} | {} | {} | {} / {} | {} | {} | {:.1f} | {:.0f} / {:.1f} |\n",
-                     r.scenario, file, r.method, cell(r.winding_error_rms_C, w), cell(r.winding_error_max_C, w),
+  // A calibration that failed makes the row the figures of the calibration in use before it
+  // (the configured keys): said in the row, not left to be found.
+  const std::string failed = r.calibration_failure == core::CalibrationFailure::kNone
+                                 ? std::string()
+                                 : fmt::format(" — calibration failed: {}", core::calibration_failure_name(r.calibration_failure));
+  return fmt::format("| {} (`{}`){} | {} | {} | {} | {} | {} | {} | {} | {} | {} / {} | {} | {} | {:.1f} | {:.0f} / {:.1f} |\n",
+                     r.scenario, file, failed, r.method, cell(r.winding_error_rms_C, w), cell(r.winding_error_max_C, w),
                      cell(r.winding_error_mean_C, w, "{:+.2f}"), cell(100.0 * r.coverage_2sigma, w, "{:.0f}"),
                      cell(r.rs_error_rms_mohm, r.estimates_published() > 0), cell(r.magnet_error_rms_C, r.magnet_error_samples > 0),
                      r.estimates_accepted, r.pairs[0], rejected, cell(r.speed_disturbance_pct, r.disturbance_measured, "{:.3f}"),
@@ -98,6 +103,11 @@ Report run_one(const std::string& path, const SimulateOptions& o) {
     return r;
   }
   int& status = r.status;
+  if (result.calibration_failure != core::CalibrationFailure::kNone) {
+    r.err += fmt::format("simulate: {}: the calibration failed ({} at {:.2f} s); the figures are those of the "
+                         "calibration in use before it\n",
+                         path, core::calibration_failure_name(result.calibration_failure), result.calibration_failure_time_s);
+  }
   if (!result.calibration_file_error.empty()) {
     // The run is reported in full; only the file kept its previous content.
     r.err += fmt::format("simulate: the calibration was not stored: {}\n", result.calibration_file_error);
