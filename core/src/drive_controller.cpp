@@ -311,6 +311,7 @@ void DriveController::handle_estimate(const EventEstimate& e) {
         cal.t0_C + (e.ke_V_s_per_rad / cal.ke0_V_s_per_rad - 1.0) / config_.magnet_coefficient_per_C;
     magnet_filtered_C_ = magnet_valid_ ? 0.7 * magnet_filtered_C_ + 0.3 * magnet_C : magnet_C;
     magnet_valid_ = true;
+    magnet_age_s_ = 0.0;
   }
 }
 
@@ -570,6 +571,12 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   telemetry_.voltage_limited = limited;
   telemetry_.injection_phase = so.phase;
   telemetry_.injection_active = so.active;
+  // A magnet estimate ages in thermal time; past its limit it is no estimate (and the next
+  // measurement starts the smoothing afresh instead of blending with the stale value).
+  magnet_age_s_ += config_.period_s * observer_.time_scale();
+  if (magnet_valid_ && magnet_age_s_ > config_.magnet_max_age_s) {
+    magnet_valid_ = false;
+  }
   telemetry_.magnet_valid = magnet_valid_;
   telemetry_.magnet_C = magnet_filtered_C_;
   telemetry_.torque_estimate_Nm = electromagnetic_torque_Nm(

@@ -315,6 +315,45 @@ TEST(DriveNode, ACalibrationThatTimesOutIsPublishedAsSuch) {
   EXPECT_EQ(rig.node->controller().telemetry().dead_time_band_A, sweep.band_A);
 }
 
+// The magnet estimate ages in thermal time: a drive that stops measuring it (at the voltage
+// limit only field-weakening pairs run, and they do not estimate the magnet) publishes
+// MagnetValid 0 once its last measurement is older than calibration.magnet_max_age_s, not the
+// old value; the next measurement makes it valid again.
+TEST(DriveNode, AMagnetEstimateNobodyRenewsStopsBeingValid) {
+  Rig rig;
+  rig.plant_config.load.torque_Nm = 0.0;  // a calibration runs unloaded
+  rig.plant = std::make_unique<plant::Plant>(rig.plant_config);
+  rig.config.drive.injection.interval_s = 2.0;
+  rig.config.drive.calibration_injection.interval_s = 2.0;  // the first event after it follows its last
+  rig.config.drive.magnet_max_age_s = 0.5;
+  rig.node = std::make_unique<DriveNode>(rig.config, rig.supervisor, PublishRates{});
+  rig.run(2000);
+  rig.in.start_calibration = true;
+  rig.run(1);
+  rig.in.start_calibration = false;
+  const std::optional<core::Calibration> done = run_until_stored(rig);
+  ASSERT_TRUE(done.has_value()) << "the calibration did not complete";
+  ASSERT_GT(done->ke0_V_s_per_rad, 0.0);
+  const auto& tel = rig.node->controller().telemetry();
+  auto run_until = [&](bool valid, int max_periods) {
+    int k = 0;
+    while (k < max_periods && tel.magnet_valid != valid) {
+      rig.run(1);
+      ++k;
+    }
+    return k;
+  };
+  ASSERT_LT(run_until(true, 50000), 50000) << "no magnet estimate from the events after the calibration";
+  const double measured_at = tel.time_s;
+  ASSERT_LT(run_until(false, 50000), 50000) << "the magnet estimate stayed valid";
+  // Events come every 2 s and the estimate lasts 0.5 s (thermal time runs at 1 here).
+  EXPECT_NEAR(tel.time_s - measured_at, 0.5, 2.0 * rig.config.drive.period_s);
+  const protocol::ThermalEstimate t = next_thermal(rig);
+  EXPECT_FALSE(t.magnet_valid);
+  EXPECT_EQ(t.magnet_temp_C, 0.0);
+  ASSERT_LT(run_until(true, 30000), 30000) << "the next event's measurement makes it valid again";
+}
+
 // A fault suspends a calibration (the result stays NONE, the calibration's state reaches the
 // telemetry in the safe state too) and it completes after the fault is cleared: a passing
 // sensor timeout must not cost the commissioning. An ABORT shows at once, even in a fault; a

@@ -578,7 +578,7 @@ inline constexpr SignalDef kDeratingActive{"DeratingActive", 50, 1, false, 1, 0,
 inline constexpr SignalDef kStale{"Stale", 51, 1, false, 1, 0, 0, 1, "", detail::kNoValues,
     "1: no resistance measurement accepted recently; the estimate runs on the thermal model alone."};
 inline constexpr SignalDef kMagnetValid{"MagnetValid", 52, 1, false, 1, 0, 0, 1, "", detail::kNoValues,
-    "1: MagnetTemp holds an estimate."};
+    "1: MagnetTemp holds an estimate measured within calibration.magnet_max_age_s of thermal time."};
 inline constexpr SignalDef kCalibrationResult{"CalibrationResult", 53, 3, false, 1, 0, 0, 4, "", kCalibrationResultLabels,
     "How the last calibration since start ended; ABORTED, TIMED_OUT and REFUSED keep the calibration in use."};
 inline constexpr std::array<SignalDef, 9> kSignals{
