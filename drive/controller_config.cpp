@@ -57,6 +57,11 @@ ConfigSchema<C> build() {
          "Electrical angle at the lower edge of encoder count 0 (commissioned).");
   s.real("sensors.offset_calibration_s", [](C& c) -> double& { return c.sensors.offset_calibration_s; }, between(0, 10), "s",
          "Time at start-up, gates off, over which the current-ADC offsets are averaged (0: none).");
+  s.optional_real("sensors.current_noise_A", [](C& c) -> std::optional<double>& { return c.sensors.current_noise_A; },
+                  at_least(0, 100), "A", "measured",
+                  "Standard deviation of one current sample's noise; the estimator corrects its sign pattern for it "
+                  "(docs/estimator.md section 4). Absent: measured with the offsets at start-up (0 without them). 0: "
+                  "no correction.");
   // [control]
   s.real("control.period_s", [](C& c) -> double& { return c.drive.period_s; }, between(2e-5, 1e-3), "s", "Current-loop period (the PWM period).");
   s.real("control.current_bandwidth_rad_s", [](C& c) -> double& { return c.drive.current.bandwidth_rad_s; }, positive(20000), "rad/s",

@@ -32,6 +32,7 @@ struct SensorScaling {
   int dc_bus_adc_bits = 12;
   double dc_bus_full_scale_V = 1000.0;
   double offset_calibration_s = 0.05;  // current-ADC offsets averaged with the gates off at start
+  std::optional<double> current_noise_A;  // a sample's noise (std); absent: measured with the offsets
 };
 
 // Keys whose default follows the configured motor: absent, finalize() takes the rule of

@@ -100,6 +100,11 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
     }
   }
   si.frontend_ready = frontend_.ready();
+  if (si.frontend_ready && !noise_known_) {
+    // Once, when the offsets (and with them the sensors' noise) are known.
+    controller_.set_current_noise_A(frontend_.current_noise_A());
+    noise_known_ = true;
+  }
   si.enable_requested = in.mode != core::DriveMode::kDisabled;
   si.calibrating = controller_.telemetry().calibrating;
   si.command_age_s = in.command_age_s;

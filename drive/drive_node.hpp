@@ -121,6 +121,7 @@ class DriveNode {
   core::DriveController controller_;
   core::Supervisor supervisor_;
   SensorFrontend frontend_;
+  bool noise_known_ = false;  // the sensors' noise handed to the controller
   double period_s_;
   PublishRates rates_;
   hal::protocol::InjectionMethod method_;

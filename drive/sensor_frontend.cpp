@@ -9,7 +9,12 @@ SensorFrontend::SensorFrontend(const SensorScaling& scaling, double period_s)
     : current_lsb_A_(scaling.current_range_A / std::ldexp(1.0, scaling.current_adc_bits - 1)),
       dc_lsb_V_(scaling.dc_bus_full_scale_V / std::ldexp(1.0, scaling.dc_bus_adc_bits)),
       calibration_samples_(static_cast<int>(std::lround(scaling.offset_calibration_s / period_s))),
-      calibrated_(calibration_samples_ <= 0) {}
+      calibrated_(calibration_samples_ <= 0) {
+  if (scaling.current_noise_A) {
+    noise_A_ = *scaling.current_noise_A;
+    noise_configured_ = true;
+  }
+}
 
 core::DriveInput SensorFrontend::convert(const hal::SensorSample& sample) {
   core::DriveInput in;
@@ -22,12 +27,18 @@ core::DriveInput SensorFrontend::convert(const hal::SensorSample& sample) {
     if ((sample.flags & hal::kSensorOutputEnabled) == 0U) {
       for (std::size_t n = 0; n < 3; ++n) {
         sums_[n] += i[n];
+        squares_[n] += i[n] * i[n];
       }
       ++collected_;
     }
     if (collected_ >= calibration_samples_) {
+      double variance = 0.0;
       for (std::size_t n = 0; n < 3; ++n) {
         offsets_A_[n] = sums_[n] / collected_;
+        variance += std::max(squares_[n] / collected_ - offsets_A_[n] * offsets_A_[n], 0.0) / 3.0;
+      }
+      if (!noise_configured_ && collected_ >= 2) {
+        noise_A_ = std::sqrt(variance * collected_ / (collected_ - 1.0));
       }
       calibrated_ = true;
     }

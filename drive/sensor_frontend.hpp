@@ -25,6 +25,10 @@ class SensorFrontend {
 
   [[nodiscard]] bool ready() const { return calibrated_; }
   [[nodiscard]] const std::array<double, 3>& offsets_A() const { return offsets_A_; }
+  // The current samples' noise (standard deviation, A, the three phases' variances averaged):
+  // sensors.current_noise_A when configured, else measured with the offsets (gates off, no
+  // current flows: what varies is the sensor); 0 before that or without an offset calibration.
+  [[nodiscard]] double current_noise_A() const { return noise_A_; }
 
  private:
   double current_lsb_A_;
@@ -33,6 +37,9 @@ class SensorFrontend {
   int collected_ = 0;
   bool calibrated_ = false;
   std::array<double, 3> sums_{};
+  std::array<double, 3> squares_{};
+  double noise_A_ = 0.0;
+  bool noise_configured_ = false;
   std::array<double, 3> offsets_A_{};
 };
 

@@ -17,9 +17,10 @@ struct PeriodPattern {
   Dq mean;
   Dq moment;
 };
-PeriodPattern dead_time_pattern(const Abc& i0, const Abc& i1, double band_A, const Rotation& r) {
-  const Abc sign{mean_soft_sign(i0.a, i1.a, band_A), mean_soft_sign(i0.b, i1.b, band_A),
-                 mean_soft_sign(i0.c, i1.c, band_A)};
+PeriodPattern dead_time_pattern(const Abc& i0, const Abc& i1, double band_A, double noise_eff_A, const Rotation& r) {
+  const Abc sign{mean_soft_sign_of_measured(i0.a, i1.a, band_A, noise_eff_A),
+                 mean_soft_sign_of_measured(i0.b, i1.b, band_A, noise_eff_A),
+                 mean_soft_sign_of_measured(i0.c, i1.c, band_A, noise_eff_A)};
   const Dq mean = park(clarke(sign), r.c, r.s);
   // A phase whose current stays outside the band on one side has a constant sign and no
   // moment: in most periods no phase is near zero, and the moment is not computed at all.
@@ -83,6 +84,11 @@ const char* calibration_failure_name(CalibrationFailure f) {
     case CalibrationFailure::kUncertain: return "uncertain";
   }
   return "unknown";
+}
+
+void DriveController::set_current_noise_A(double sigma_A) {
+  // The sampled line's effective noise (mean_soft_sign_of_measured): 2/3 of a sample's variance.
+  pattern_noise_A_ = std::isfinite(sigma_A) && sigma_A > 0.0 ? std::sqrt(2.0 / 3.0) * sigma_A : 0.0;
 }
 
 void DriveController::restore_band() {
@@ -414,7 +420,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     const double mid = wrap_angle_0_2pi(previous_smooth_wrapped_ + 0.5 * smooth_advance);
     const Rotation at_mid = compose(at_sample, small_rotation(wrap_angle_pm_pi(mid - theta)));
     const PeriodPattern pattern =
-        dead_time_pattern(previous_i_abc_A_, in.i_A, config_.dead_time.current_band_A, at_mid);
+        dead_time_pattern(previous_i_abc_A_, in.i_A, config_.dead_time.current_band_A, pattern_noise_A_, at_mid);
     // The period's means as the machine saw them: the stator-fixed command and bridge error,
     // turned back across the period, shrink; the current bends (machine_equations.hpp).
     const double shrink = period_voltage_shrink(smooth_advance);

@@ -1,6 +1,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <random>
 #include <tuple>
 
 #include "pmsm/core/modulation.hpp"
@@ -78,6 +79,45 @@ TEST(DeadTimeCompensation, MeanSoftSignIsTheTimeAverageOverALinearCurrent) {
   }
   // A crossing in the middle of the period: half the time on each side.
   EXPECT_NEAR(mean_soft_sign(-5.0, 5.0, 1.0), 0.0, 1e-12);
+}
+
+// The sign pattern of noisy samples: over lines that pass the knees at every position (each
+// phase passes both knees twice a turn), the plain mean of the measured currents reads the
+// pattern's magnitude low; the corrected one has a few per cent of that bias left. Periods
+// move 0.3, 1.1 and 3.3 A (the reference motor at the calibration's speed, at rated speed
+// with 12 A, with 35 A); noise 0.2 A against the reference bridge's 0.75 A band.
+TEST(DeadTimeCompensation, TheMeasuredSignPatternIsCorrectedForTheSamplesNoise) {
+  const double band = 0.75;
+  const double sigma = 0.2;
+  std::mt19937_64 rng(7);
+  std::normal_distribution<double> noise(0.0, sigma);
+  for (const double span : {0.3, 1.1, 3.3}) {
+    std::uniform_real_distribution<double> start(-band - span - 1.0, band + 1.0);
+    double plain_bias = 0.0;
+    double corrected_bias = 0.0;
+    const int n = 200000;
+    for (int k = 0; k < n; ++k) {
+      const double i0 = start(rng);
+      const double i1 = i0 + span;
+      const double truth = mean_soft_sign(i0, i1, band);
+      const double m0 = i0 + noise(rng);
+      const double m1 = i1 + noise(rng);
+      const double toward = i0 + i1 > 0.0 ? 1.0 : -1.0;  // the magnitude's direction
+      plain_bias += toward * (mean_soft_sign(m0, m1, band) - truth);
+      corrected_bias += toward * (mean_soft_sign_of_measured(m0, m1, band, std::sqrt(2.0 / 3.0) * sigma) - truth);
+    }
+    plain_bias /= n;
+    corrected_bias /= n;
+    EXPECT_LT(plain_bias, -1e-3) << "span " << span << ": the noise smooths the knees";
+    EXPECT_LT(std::abs(corrected_bias), 0.25 * std::abs(plain_bias)) << "span " << span;
+  }
+  // No noise, or far from both knees: the plain mean exactly.
+  EXPECT_EQ(mean_soft_sign_of_measured(-0.3, 0.9, band, 0.0), mean_soft_sign(-0.3, 0.9, band));
+  EXPECT_EQ(mean_soft_sign_of_measured(4.0, 5.0, band, 0.16), 1.0);
+  EXPECT_EQ(mean_soft_sign_of_measured(-0.1, 0.1, band, 0.05), mean_soft_sign(-0.1, 0.1, band));
+  // A period that stays on a knee (no span) takes the density there, not a division by zero.
+  EXPECT_TRUE(std::isfinite(mean_soft_sign_of_measured(band, band, band, 0.16)));
+  EXPECT_GT(mean_soft_sign_of_measured(band, band, band, 0.16), 1.0 - 1e-12);
 }
 
 TEST(DeadTimeCompensation, SoftSignMomentIsTheFirstMomentOverALinearCurrent) {

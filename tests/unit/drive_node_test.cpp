@@ -315,6 +315,30 @@ TEST(DriveNode, ACalibrationThatTimesOutIsPublishedAsSuch) {
   EXPECT_EQ(rig.node->controller().telemetry().dead_time_band_A, sweep.band_A);
 }
 
+// The current sensors' noise, measured with the offsets at power-up (gates off), reaches the
+// estimator's sign pattern (as 2/3 of its variance, the sampled line's); a configured value
+// replaces the measurement.
+TEST(DriveNode, TheSensorsNoiseIsMeasuredWithTheOffsetsAndReachesThePattern) {
+  Rig rig;  // the plant's current ADCs: 0.2 A noise, 200 A / 2^11 steps (0.028 A rms)
+  rig.run(1000);
+  const double lsb = rig.plant_config.current_adc.range_A / 2048.0;
+  const double expected = std::sqrt(rig.plant_config.current_adc.noise_A * rig.plant_config.current_adc.noise_A + lsb * lsb / 12.0);
+  // 500 samples a phase, three phases: the standard deviation within a few per cent.
+  EXPECT_NEAR(rig.node->controller().pattern_noise_A() / (std::sqrt(2.0 / 3.0) * expected), 1.0, 0.06);
+
+  Rig quiet;
+  quiet.plant_config.current_adc.noise_enabled = false;
+  quiet.plant = std::make_unique<plant::Plant>(quiet.plant_config);
+  quiet.run(1000);
+  EXPECT_LT(quiet.node->controller().pattern_noise_A(), 0.05) << "rounding to the ADC's steps only";
+
+  Rig configured;
+  configured.config.sensors.current_noise_A = 0.5;
+  configured.node = std::make_unique<DriveNode>(configured.config, configured.supervisor, PublishRates{});
+  configured.run(1000);
+  EXPECT_DOUBLE_EQ(configured.node->controller().pattern_noise_A(), std::sqrt(2.0 / 3.0) * 0.5);
+}
+
 // The magnet estimate ages in thermal time: a drive that stops measuring it (at the voltage
 // limit only field-weakening pairs run, and they do not estimate the magnet) publishes
 // MagnetValid 0 once its last measurement is older than calibration.magnet_max_age_s, not the

@@ -218,6 +218,11 @@ class DriveController {
 
   // Thermal time scale of the controller's model (the test acceleration; 1 on a machine).
   void set_thermal_time_scale(double time_scale) { observer_.set_time_scale(time_scale); }
+  // The standard deviation of one current sample's noise (A; the drive measures it with the
+  // ADC offsets at power-up): the sign pattern built from measured currents is corrected for
+  // it (mean_soft_sign_of_measured). 0, not finite or negative: no correction.
+  void set_current_noise_A(double sigma_A);
+  [[nodiscard]] double pattern_noise_A() const { return pattern_noise_A_; }
   // The thermal filter's state kept from before a restart, `downtime_s` (controller seconds)
   // old: cooled through the downtime by the model. Without it (or a calibration run) the
   // filter starts from the ambient sensor with a wide uncertainty and takes its first
@@ -288,6 +293,7 @@ class DriveController {
   bool have_previous_ = false;
   Dq previous_i_A_{};
   Abc previous_i_abc_A_{};
+  double pattern_noise_A_ = 0.0;  // effective noise of the sampled line (set_current_noise_A)
   double previous_theta_smooth_ = 0.0;
   double previous_smooth_wrapped_ = 0.0;  // the same angle wrapped into [0, 2 pi)
   Dq v_applied_next_{};             // command of step k-1 (applies during period k)

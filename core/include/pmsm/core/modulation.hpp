@@ -64,6 +64,64 @@ struct Duties {
   return (soft_sign_antiderivative(i1_A, b) - soft_sign_antiderivative(i0_A, b)) / span;
 }
 
+// mean_soft_sign of two *measured* currents, corrected for their noise. The bridge's error
+// follows the true current; a sample's noise (standard deviation sigma) smooths the knees of
+// the ramp at +-b, so the plain mean reads the sign pattern's magnitude low wherever a phase
+// passes a knee (Gaussian smoothing: E[f(x + n)] = f(x) + sigma^2/2 f''(x) to first order, and
+// f'' = (delta(x + b) - delta(x - b)) / b). The correction adds back sigma_eff^2 / (2 b) times the
+// period's mean normal density at the two knees along the sampled line, with sigma_eff^2 =
+// 2/3 sigma^2: the noise of a point on the line between two samples is their noises' blend,
+// whose variance averages 2/3 of one sample's over the period. Checked by Monte Carlo
+// (core_modulation_test): the pattern's bias near the knees falls to a few per cent of the
+// uncorrected one. Measured in closed loop: field-weakening pairs at 314 rad/s and 5 Nm read
+// -1.96 % uncorrected, -1.23 % corrected, -1.11 % with noiseless current sensors
+// (docs/estimator.md section 4). Costs nothing unless the line passes within 4.5 sigma_eff
+// of a knee, and an erfc only for a sample that close to it.
+[[nodiscard]] inline double normal_cdf_clamped(double z) {
+  // The standard normal CDF; beyond 4.5 standard deviations 0 or 1 (off by 3.4e-6 at most),
+  // so that only samples near a knee cost an erfc.
+  constexpr double kInvSqrt2 = 0.70710678118654752440;
+  if (z < -4.5) {
+    return 0.0;
+  }
+  if (z > 4.5) {
+    return 1.0;
+  }
+  return 0.5 * std::erfc(-z * kInvSqrt2);
+}
+
+[[nodiscard]] inline double normal_mean_along(double i0_A, double i1_A, double x_A, double sigma_A) {
+  // The mean over u in [0, 1] of the normal density (sigma) at i0 + (i1 - i0) u - x.
+  constexpr double kInvSqrt2Pi = 0.39894228040143267794;
+  const double span = i1_A - i0_A;
+  const double z0 = (i0_A - x_A) / sigma_A;
+  if (std::abs(span) < 1e-3 * sigma_A) {
+    return kInvSqrt2Pi / sigma_A * std::exp(-0.5 * z0 * z0);
+  }
+  const double z1 = (i1_A - x_A) / sigma_A;
+  return (normal_cdf_clamped(z1) - normal_cdf_clamped(z0)) / span;
+}
+
+[[nodiscard]] inline double mean_soft_sign_of_measured(double i0_A, double i1_A, double current_band_A,
+                                                       double sigma_eff_A) {
+  const double plain = mean_soft_sign(i0_A, i1_A, current_band_A);
+  const double b = current_band_A;
+  if (!(sigma_eff_A > 0.0) || !(b > 0.0)) {
+    return plain;
+  }
+  const double lo = std::min(i0_A, i1_A);
+  const double hi = std::max(i0_A, i1_A);
+  const double reach = 4.5 * sigma_eff_A;
+  const bool near_upper = lo < b + reach && hi > b - reach;
+  const bool near_lower = lo < -b + reach && hi > -b - reach;
+  if (!(near_upper || near_lower)) {
+    return plain;
+  }
+  const double upper = near_upper ? normal_mean_along(i0_A, i1_A, b, sigma_eff_A) : 0.0;
+  const double lower = near_lower ? normal_mean_along(i0_A, i1_A, -b, sigma_eff_A) : 0.0;
+  return plain + sigma_eff_A * sigma_eff_A / (2.0 * b) * (upper - lower);
+}
+
 // Whether soft_sign can change over a period in which the current moves from i0 to i1, for a
 // band b >= 0: the current enters the band (b = 0: crosses zero). Otherwise its sign is constant.
 [[nodiscard]] inline bool soft_sign_varies(double i0_A, double i1_A, double b) {
