@@ -27,18 +27,25 @@ core::DriveInput SensorFrontend::convert(const hal::SensorSample& sample) {
     if ((sample.flags & hal::kSensorOutputEnabled) == 0U) {
       for (std::size_t n = 0; n < 3; ++n) {
         sums_[n] += i[n];
-        squares_[n] += i[n] * i[n];
+        const double d = i[n] - previous_A_[n];
+        if (have_previous_ && std::abs(d) <= 32.0 * current_lsb_A_) {
+          difference_squares_ += d * d;
+          ++differences_;
+        }
+        previous_A_[n] = i[n];
       }
+      have_previous_ = true;
       ++collected_;
+    } else {
+      have_previous_ = false;  // differences only between consecutive gates-off samples
     }
     if (collected_ >= calibration_samples_) {
-      double variance = 0.0;
       for (std::size_t n = 0; n < 3; ++n) {
         offsets_A_[n] = sums_[n] / collected_;
-        variance += std::max(squares_[n] / collected_ - offsets_A_[n] * offsets_A_[n], 0.0) / 3.0;
       }
-      if (!noise_configured_ && collected_ >= 2) {
-        noise_A_ = std::sqrt(variance * collected_ / (collected_ - 1.0));
+      if (!noise_configured_ && differences_ >= 100) {
+        // Var(x_k - x_k-1) = 2 sigma^2 for white noise.
+        noise_A_ = std::sqrt(0.5 * difference_squares_ / differences_);
       }
       calibrated_ = true;
     }

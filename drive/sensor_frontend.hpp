@@ -25,9 +25,13 @@ class SensorFrontend {
 
   [[nodiscard]] bool ready() const { return calibrated_; }
   [[nodiscard]] const std::array<double, 3>& offsets_A() const { return offsets_A_; }
-  // The current samples' noise (standard deviation, A, the three phases' variances averaged):
-  // sensors.current_noise_A when configured, else measured with the offsets (gates off, no
-  // current flows: what varies is the sensor); 0 before that or without an offset calibration.
+  // The current samples' noise (standard deviation, A): sensors.current_noise_A when
+  // configured, else measured with the offsets (gates off: what varies is the sensor) from the
+  // differences of consecutive samples of each phase (half their mean square, the three
+  // phases averaged), so that a current still decaying through the diodes when the gates went
+  // off does not count as noise: a difference above 32 ADC steps is not noise and is left
+  // out. 0 before the offsets are known, without an offset calibration, or from fewer than
+  // 100 differences.
   [[nodiscard]] double current_noise_A() const { return noise_A_; }
 
  private:
@@ -37,7 +41,10 @@ class SensorFrontend {
   int collected_ = 0;
   bool calibrated_ = false;
   std::array<double, 3> sums_{};
-  std::array<double, 3> squares_{};
+  std::array<double, 3> previous_A_{};
+  bool have_previous_ = false;
+  double difference_squares_ = 0.0;
+  int differences_ = 0;
   double noise_A_ = 0.0;
   bool noise_configured_ = false;
   std::array<double, 3> offsets_A_{};

@@ -86,6 +86,17 @@ const char* calibration_failure_name(CalibrationFailure f) {
   return "unknown";
 }
 
+void DriveController::age_magnet() {
+  // A magnet estimate ages in thermal time; past its limit it is no estimate (and the next
+  // measurement starts the smoothing afresh instead of blending with the stale value).
+  magnet_age_s_ += config_.period_s * observer_.time_scale();
+  if (magnet_valid_ && magnet_age_s_ > config_.magnet_max_age_s) {
+    magnet_valid_ = false;
+  }
+  telemetry_.magnet_valid = magnet_valid_;
+  telemetry_.magnet_C = magnet_filtered_C_;
+}
+
 void DriveController::set_current_noise_A(double sigma_A) {
   // The sampled line's effective noise (mean_soft_sign_of_measured): 2/3 of a sample's variance.
   pattern_noise_A_ = std::isfinite(sigma_A) && sigma_A > 0.0 ? std::sqrt(2.0 / 3.0) * sigma_A : 0.0;
@@ -93,12 +104,13 @@ void DriveController::set_current_noise_A(double sigma_A) {
 
 void DriveController::restore_band() {
   // A calibration that does not complete keeps the calibration in use, and so the band its
-  // Rs0 was learned with. A calibration in use that no sweep measured (the configured default)
-  // was learned with no measured band at all: then a band this calibration's sweep measured
-  // stays, a measurement of the bridge in place of the configured guess. Measured at the
-  // voltage limit, field-weakening pairs read 6 % low with the default 1 A against the
-  // bridge's 0.74 A, and 2 % low with the measured band (docs/accuracy.md).
-  if (band_measured_before_ || !band_measured_) {
+  // Rs0 was learned with (a stored calibration's, measured or configured). Only the nameplate
+  // default, which no calibration run learned, takes a band this calibration's sweep measured:
+  // a measurement of the bridge in place of the configured guess. Measured at the voltage
+  // limit, field-weakening pairs read 6 % low with the default 1 A against the bridge's
+  // 0.74 A, and 2 % low with the measured band (docs/accuracy.md).
+  const bool nameplate = !observer_.calibration().calibrated;
+  if (!(nameplate && band_measured_ && !band_measured_before_)) {
     config_.dead_time.current_band_A = band_before_calibration_A_;
     band_measured_ = band_measured_before_;
   }
@@ -276,6 +288,7 @@ void DriveController::handle_estimate(const EventEstimate& e) {
       // temperature scale changes.
       observer_.set_calibration(c);
       calibration_done_ = c;
+      magnet_valid_ = false;  // the next estimate is against the new Ke0, not blended with the old
       calibration_outcome_ = CalibrationOutcome::kDone;
       publish_calibration_state();
     }
@@ -382,6 +395,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
       finish_inverter_sweep(now);
     }
     telemetry_.inverter_sweep_active = false;
+    age_magnet();  // a fault or a lost sample does not stop the clock of the magnet's estimate
     SchedulerInput s;
     s.time_s = now;
     const SchedulerOutput& so = scheduler_.step(s, nullptr);
@@ -420,7 +434,9 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     const double mid = wrap_angle_0_2pi(previous_smooth_wrapped_ + 0.5 * smooth_advance);
     const Rotation at_mid = compose(at_sample, small_rotation(wrap_angle_pm_pi(mid - theta)));
     const PeriodPattern pattern =
-        dead_time_pattern(previous_i_abc_A_, in.i_A, config_.dead_time.current_band_A, pattern_noise_A_, at_mid);
+        dead_time_pattern(previous_i_abc_A_, in.i_A, config_.dead_time.current_band_A,
+                          // the correction is first order in noise / band: never more than a quarter
+                          std::min(pattern_noise_A_, 0.25 * config_.dead_time.current_band_A), at_mid);
     // The period's means as the machine saw them: the stator-fixed command and bridge error,
     // turned back across the period, shrink; the current bends (machine_equations.hpp).
     const double shrink = period_voltage_shrink(smooth_advance);
@@ -577,14 +593,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   telemetry_.voltage_limited = limited;
   telemetry_.injection_phase = so.phase;
   telemetry_.injection_active = so.active;
-  // A magnet estimate ages in thermal time; past its limit it is no estimate (and the next
-  // measurement starts the smoothing afresh instead of blending with the stale value).
-  magnet_age_s_ += config_.period_s * observer_.time_scale();
-  if (magnet_valid_ && magnet_age_s_ > config_.magnet_max_age_s) {
-    magnet_valid_ = false;
-  }
-  telemetry_.magnet_valid = magnet_valid_;
-  telemetry_.magnet_C = magnet_filtered_C_;
+  age_magnet();
   telemetry_.torque_estimate_Nm = electromagnetic_torque_Nm(
       config_.current.flux_linkage_Wb, config_.current.ld_H, config_.current.lq_H, config_.motor.pole_pairs, i);
   telemetry_.inverter_sweep_active = sweep_.active();

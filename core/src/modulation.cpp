@@ -1,6 +1,7 @@
 #include "pmsm/core/modulation.hpp"
 
 #include <algorithm>
+#include <cmath>
 
 namespace pmsm::core {
 namespace {
@@ -19,6 +20,42 @@ Duties duties_from_phase_voltages(const std::array<double, 3>& v, double vdc_V) 
 }
 
 }  // namespace
+
+namespace {
+
+// The standard normal CDF; beyond 4.5 standard deviations 0 or 1 (off by 3.4e-6 at most), so
+// that only samples near a knee cost an erfc.
+double normal_cdf_clamped(double z) {
+  constexpr double kInvSqrt2 = 0.70710678118654752440;
+  if (z < -4.5) {
+    return 0.0;
+  }
+  if (z > 4.5) {
+    return 1.0;
+  }
+  return 0.5 * std::erfc(-z * kInvSqrt2);
+}
+
+// The mean over u in [0, 1] of the normal density (sigma) at i0 + (i1 - i0) u - x.
+double normal_mean_along(double i0_A, double i1_A, double x_A, double sigma_A) {
+  constexpr double kInvSqrt2Pi = 0.39894228040143267794;
+  const double span = i1_A - i0_A;
+  const double z0 = (i0_A - x_A) / sigma_A;
+  if (std::abs(span) < 1e-3 * sigma_A) {
+    return std::abs(z0) > 9.0 ? 0.0 : kInvSqrt2Pi / sigma_A * std::exp(-0.5 * z0 * z0);
+  }
+  const double z1 = (i1_A - x_A) / sigma_A;
+  return (normal_cdf_clamped(z1) - normal_cdf_clamped(z0)) / span;
+}
+
+}  // namespace
+
+double soft_sign_noise_correction(double i0_A, double i1_A, double current_band_A, double sigma_eff_A) {
+  const double b = current_band_A;
+  const double upper = normal_mean_along(i0_A, i1_A, b, sigma_eff_A);
+  const double lower = normal_mean_along(i0_A, i1_A, -b, sigma_eff_A);
+  return sigma_eff_A * sigma_eff_A / (2.0 * b) * (upper - lower);
+}
 
 Duties svpwm(const AlphaBeta& v_V, double vdc_V) {
   const Abc v = inverse_clarke(v_V);

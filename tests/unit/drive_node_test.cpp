@@ -5,10 +5,13 @@
 // temperature knowledge.
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <functional>
+#include <random>
 
 #include "controller_config.hpp"
 #include "drive_node.hpp"
+#include "sensor_frontend.hpp"
 #include "pmsm/plant/plant.hpp"
 
 namespace pmsm::app {
@@ -256,6 +259,25 @@ TEST(DriveNode, TheSweptBandReplacesTheConfiguredGuessButNotAStoredBand) {
   kept.in.abort_calibration = false;
   EXPECT_EQ(kept.node->controller().telemetry().dead_time_band_A, 0.6) << "the band the stored Rs0 was learned with";
 
+  // A stored calibration that no sweep measured (its file has no band) was learned with the
+  // configured band: that one comes back too, not the swept one.
+  Rig unswept;
+  unloaded(unswept);
+  unswept.config.drive.calibration.calibrated = true;
+  unswept.node = std::make_unique<DriveNode>(unswept.config, unswept.supervisor, PublishRates{});
+  unswept.run(2000);
+  unswept.in.start_calibration = true;
+  unswept.run(1);
+  unswept.in.start_calibration = false;
+  for (int k = 0; k < 20000 && unswept.node->controller().telemetry().inverter_sweep_active; ++k) {
+    unswept.run(1);
+  }
+  ASSERT_EQ(unswept.node->controller().inverter_sweep().outcome, core::InverterSweepOutcome::kMeasured);
+  unswept.in.abort_calibration = true;
+  unswept.run(1);
+  unswept.in.abort_calibration = false;
+  EXPECT_EQ(unswept.node->controller().telemetry().dead_time_band_A, configured) << "the band its Rs0 was learned with";
+
   // A drive whose stored calibration has a band: a sweep aborted by a stop leaves it in use,
   // and the calibration that then completes stores it.
   Rig stored;
@@ -315,10 +337,10 @@ TEST(DriveNode, ACalibrationThatTimesOutIsPublishedAsSuch) {
   EXPECT_EQ(rig.node->controller().telemetry().dead_time_band_A, sweep.band_A);
 }
 
-// The current sensors' noise, measured with the offsets at power-up (gates off), reaches the
-// estimator's sign pattern (as 2/3 of its variance, the sampled line's); a configured value
-// replaces the measurement.
-TEST(DriveNode, TheSensorsNoiseIsMeasuredWithTheOffsetsAndReachesThePattern) {
+// The current sensors' noise, measured with the offsets at power-up (gates off), is handed to
+// the controller for its sign pattern (as 2/3 of its variance, the sampled line's); a
+// configured value replaces the measurement.
+TEST(DriveNode, TheSensorsNoiseIsMeasuredWithTheOffsetsAndHandedToTheController) {
   Rig rig;  // the plant's current ADCs: 0.2 A noise, 200 A / 2^11 steps (0.028 A rms)
   rig.run(1000);
   const double lsb = rig.plant_config.current_adc.range_A / 2048.0;
@@ -330,13 +352,61 @@ TEST(DriveNode, TheSensorsNoiseIsMeasuredWithTheOffsetsAndReachesThePattern) {
   quiet.plant_config.current_adc.noise_enabled = false;
   quiet.plant = std::make_unique<plant::Plant>(quiet.plant_config);
   quiet.run(1000);
-  EXPECT_LT(quiet.node->controller().pattern_noise_A(), 0.05) << "rounding to the ADC's steps only";
+  EXPECT_EQ(quiet.node->controller().pattern_noise_A(), 0.0) << "without noise every sample reads the same code";
 
   Rig configured;
   configured.config.sensors.current_noise_A = 0.5;
   configured.node = std::make_unique<DriveNode>(configured.config, configured.supervisor, PublishRates{});
   configured.run(1000);
   EXPECT_DOUBLE_EQ(configured.node->controller().pattern_noise_A(), std::sqrt(2.0 / 3.0) * 0.5);
+}
+
+// The front end's noise measurement against what gates-off samples can hold besides noise: a
+// current still decaying through the diodes when the gates went off (30 A, a few samples) and
+// a glitch code are not noise; samples with the gates on are not counted; fewer than 100
+// differences give no measurement.
+TEST(SensorFrontend, MeasuresTheNoiseFromConsecutiveGatesOffSamplesOnly) {
+  SensorScaling scaling;  // 200 A over 12 bits, 0.05 s of offsets
+  const double period_s = 1e-4;
+  const double lsb = scaling.current_range_A / 2048.0;
+  std::mt19937_64 rng(3);
+  std::normal_distribution<double> noise(0.0, 0.3);
+  auto feed = [&](SensorFrontend& f, int samples, bool decay_and_glitch) {
+    for (int k = 0; k < samples && !f.ready(); ++k) {
+      hal::SensorSample s;
+      for (std::size_t n = 0; n < 3; ++n) {
+        double i = 0.1 * static_cast<double>(n) + noise(rng);
+        if (decay_and_glitch && n == 0 && k < 8) {
+          i += 30.0 * std::exp(-0.7 * k);
+        }
+        s.phase_current_adc[n] = static_cast<std::int16_t>(std::lround(i / lsb));
+      }
+      if (decay_and_glitch && k == 200) {
+        s.phase_current_adc[1] = 2047;
+      }
+      if (decay_and_glitch && k % 50 == 7) {
+        s.flags |= hal::kSensorOutputEnabled;  // gates on: not an offset sample
+        s.phase_current_adc[2] = 1500;
+      }
+      (void)f.convert(s);
+    }
+  };
+  SensorFrontend clean(scaling, period_s);
+  feed(clean, 1000, false);
+  ASSERT_TRUE(clean.ready());
+  const double expected = std::sqrt(0.09 + lsb * lsb / 12.0);
+  EXPECT_NEAR(clean.current_noise_A() / expected, 1.0, 0.06);
+  SensorFrontend disturbed(scaling, period_s);
+  feed(disturbed, 1000, true);
+  ASSERT_TRUE(disturbed.ready());
+  EXPECT_NEAR(disturbed.current_noise_A() / expected, 1.0, 0.08) << "the decay, the glitch and gates-on samples left out";
+
+  SensorScaling brief = scaling;
+  brief.offset_calibration_s = 3e-4;  // 3 samples: 6 differences
+  SensorFrontend few(brief, period_s);
+  feed(few, 10, false);
+  ASSERT_TRUE(few.ready());
+  EXPECT_EQ(few.current_noise_A(), 0.0);
 }
 
 // The magnet estimate ages in thermal time: a drive that stops measuring it (at the voltage
@@ -376,6 +446,13 @@ TEST(DriveNode, AMagnetEstimateNobodyRenewsStopsBeingValid) {
   EXPECT_FALSE(t.magnet_valid);
   EXPECT_EQ(t.magnet_temp_C, 0.0);
   ASSERT_LT(run_until(true, 30000), 30000) << "the next event's measurement makes it valid again";
+  // A latched fault (no usable sample, the controller in its safe state) does not stop the
+  // estimate's clock.
+  rig.run(1, [](hal::SensorSample& x) { x.flags |= hal::kSensorHardwareOvercurrent; });
+  ASSERT_EQ(rig.node->supervisor().status().state, core::DriveState::kFault);
+  ASSERT_TRUE(tel.magnet_valid);
+  rig.run(6000);  // 0.6 s
+  EXPECT_FALSE(tel.magnet_valid) << "a fault does not keep an old magnet estimate valid";
 }
 
 // A fault suspends a calibration (the result stays NONE, the calibration's state reaches the

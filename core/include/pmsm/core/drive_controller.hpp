@@ -268,6 +268,7 @@ class DriveController {
   void start_thermal_from_guess(double guess_C);
   void finish_inverter_sweep(double now_s);
   void restore_band();
+  void age_magnet();
   void fail_calibration(CalibrationFailure why);
   void publish_calibration_state();
 
