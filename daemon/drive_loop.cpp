@@ -114,6 +114,7 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns) 
       }
     }
     r.uptime_s = node_.uptime_s();
+    r.current_noise_A = node_.frontend().current_noise_A();
     if (p.heartbeat) {
       r.timing = close_timing_window();
     }

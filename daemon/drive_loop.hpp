@@ -44,6 +44,7 @@ struct PublicationRecord {
   double calibration_rs0_ohm = 0.0;      // a refused calibration's Rs0 and its standard error
   double calibration_rs0_std_ohm = 0.0;
   double uptime_s = 0.0;
+  double current_noise_A = 0.0;  // the current sensors' noise the front end measured (or was given)
 };
 using PublicationRing = hal::SpscRing<PublicationRecord, 512>;
 

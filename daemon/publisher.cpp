@@ -112,8 +112,10 @@ void Publisher::handle(const PublicationRecord& r) {
     send(*p.thermal);
     if (!first_thermal_logged_ && p.thermal->valid) {
       first_thermal_logged_ = true;
-      spdlog::info("first THERMAL_ESTIMATE: winding {:.1f} +- {:.1f} C ({})", p.thermal->winding_temp_C,
-                   p.thermal->winding_temp_sigma_C, p.thermal->calibrated ? "calibrated" : "nameplate Rs0");
+      spdlog::info("first THERMAL_ESTIMATE: winding {:.1f} +- {:.1f} C ({}); current sensors' noise {:.3f} A{}",
+                   p.thermal->winding_temp_C, p.thermal->winding_temp_sigma_C,
+                   p.thermal->calibrated ? "calibrated" : "nameplate Rs0", r.current_noise_A,
+                   config_.controller.sensors.current_noise_A ? " (configured)" : " (measured with the offsets)");
     }
   }
   if (p.resistance) {
