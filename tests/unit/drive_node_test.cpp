@@ -218,26 +218,33 @@ TEST(DriveNode, TheSweptBandReplacesTheConfiguredGuessButNotAStoredBand) {
     r.plant_config.load.torque_Nm = 0.0;
     r.plant = std::make_unique<plant::Plant>(r.plant_config);
   };
+  // Starts a calibration and runs its sweep to the end; then aborts the calibration.
+  auto sweep = [](Rig& r) {
+    r.in.start_calibration = true;
+    r.run(1);
+    r.in.start_calibration = false;
+    EXPECT_TRUE(r.node->controller().telemetry().inverter_sweep_active);
+    for (int k = 0; k < 20000 && r.node->controller().telemetry().inverter_sweep_active; ++k) {
+      r.run(1);
+    }
+    return r.node->controller().inverter_sweep().outcome;
+  };
+  auto abort = [](Rig& r) {
+    r.in.abort_calibration = true;
+    r.run(1);
+    r.in.abort_calibration = false;
+    return r.node->controller().telemetry().dead_time_band_A;
+  };
   Rig rig;
   unloaded(rig);
   rig.run(2000);
   const double configured = rig.node->controller().telemetry().dead_time_band_A;
   ASSERT_EQ(configured, rig.config.drive.dead_time.current_band_A);
-  rig.in.start_calibration = true;
-  rig.run(1);
-  rig.in.start_calibration = false;
-  ASSERT_TRUE(rig.node->controller().telemetry().inverter_sweep_active);
-  for (int k = 0; k < 20000 && rig.node->controller().telemetry().inverter_sweep_active; ++k) {
-    rig.run(1);
-  }
-  ASSERT_EQ(rig.node->controller().inverter_sweep().outcome, core::InverterSweepOutcome::kMeasured)
-      << core::to_string(rig.node->controller().inverter_sweep().outcome);
+  const core::InverterSweepOutcome outcome = sweep(rig);
+  ASSERT_EQ(outcome, core::InverterSweepOutcome::kMeasured) << core::to_string(outcome);
   const double swept = rig.node->controller().telemetry().dead_time_band_A;
   EXPECT_NEAR(swept, rig.plant_config.inverter.zero_current_band_A, 0.05 * rig.plant_config.inverter.zero_current_band_A);
-  rig.in.abort_calibration = true;
-  rig.run(1);
-  rig.in.abort_calibration = false;
-  EXPECT_EQ(rig.node->controller().telemetry().dead_time_band_A, swept) << "the measurement, not the guess";
+  EXPECT_EQ(abort(rig), swept) << "the measurement, not the guess";
   EXPECT_EQ(next_thermal(rig).calibration_result, protocol::CalibrationResult::kAborted);
 
   // A stored calibration's band comes back when a calibration whose sweep measured is aborted.
@@ -246,18 +253,9 @@ TEST(DriveNode, TheSweptBandReplacesTheConfiguredGuessButNotAStoredBand) {
   kept.config.drive.calibration.dead_time_band_A = 0.6;
   kept.node = std::make_unique<DriveNode>(kept.config, kept.supervisor, PublishRates{});
   kept.run(2000);
-  kept.in.start_calibration = true;
-  kept.run(1);
-  kept.in.start_calibration = false;
-  for (int k = 0; k < 20000 && kept.node->controller().telemetry().inverter_sweep_active; ++k) {
-    kept.run(1);
-  }
-  ASSERT_EQ(kept.node->controller().inverter_sweep().outcome, core::InverterSweepOutcome::kMeasured);
+  ASSERT_EQ(sweep(kept), core::InverterSweepOutcome::kMeasured);
   EXPECT_NEAR(kept.node->controller().telemetry().dead_time_band_A, swept, 1e-9 + 0.05 * swept);
-  kept.in.abort_calibration = true;
-  kept.run(1);
-  kept.in.abort_calibration = false;
-  EXPECT_EQ(kept.node->controller().telemetry().dead_time_band_A, 0.6) << "the band the stored Rs0 was learned with";
+  EXPECT_EQ(abort(kept), 0.6) << "the band the stored Rs0 was learned with";
 
   // A stored calibration that no sweep measured (its file has no band) was learned with the
   // configured band: that one comes back too, not the swept one.
@@ -266,17 +264,8 @@ TEST(DriveNode, TheSweptBandReplacesTheConfiguredGuessButNotAStoredBand) {
   unswept.config.drive.calibration.calibrated = true;
   unswept.node = std::make_unique<DriveNode>(unswept.config, unswept.supervisor, PublishRates{});
   unswept.run(2000);
-  unswept.in.start_calibration = true;
-  unswept.run(1);
-  unswept.in.start_calibration = false;
-  for (int k = 0; k < 20000 && unswept.node->controller().telemetry().inverter_sweep_active; ++k) {
-    unswept.run(1);
-  }
-  ASSERT_EQ(unswept.node->controller().inverter_sweep().outcome, core::InverterSweepOutcome::kMeasured);
-  unswept.in.abort_calibration = true;
-  unswept.run(1);
-  unswept.in.abort_calibration = false;
-  EXPECT_EQ(unswept.node->controller().telemetry().dead_time_band_A, configured) << "the band its Rs0 was learned with";
+  ASSERT_EQ(sweep(unswept), core::InverterSweepOutcome::kMeasured);
+  EXPECT_EQ(abort(unswept), configured) << "the band its Rs0 was learned with";
 
   // A drive whose stored calibration has a band: a sweep aborted by a stop leaves it in use,
   // and the calibration that then completes stores it.
