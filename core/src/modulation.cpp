@@ -19,10 +19,6 @@ Duties duties_from_phase_voltages(const std::array<double, 3>& v, double vdc_V) 
   return out;
 }
 
-}  // namespace
-
-namespace {
-
 // The standard normal CDF; beyond 4.5 standard deviations 0 or 1 (off by 3.4e-6 at most), so
 // that only samples near a knee cost an erfc.
 double normal_cdf_clamped(double z) {

@@ -246,7 +246,6 @@ class DriveController {
   // True for the one period in which a calibration run failed (timed out, or refused its
   // uncertain Rs0: telemetry().calibration_failure says which).
   [[nodiscard]] bool calibration_just_failed() const { return calibration_failed_now_; }
-  [[nodiscard]] bool calibrating() const { return calibrating_; }
   [[nodiscard]] const Calibration& calibration() const { return observer_.calibration(); }
   [[nodiscard]] const DriveConfig& config() const { return config_; }
 

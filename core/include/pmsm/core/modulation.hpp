@@ -76,10 +76,9 @@ struct Duties {
 // uncorrected one. Measured in closed loop: field-weakening pairs at 314 rad/s and 5 Nm read
 // -1.96 % uncorrected, -1.29 % corrected, -1.11 % with noiseless current sensors
 // (docs/estimator.md section 4). Costs nothing unless the line passes within 4.5 sigma_eff
-// of a knee, and an erfc only for a sample that close to it.
-// The correction itself (modulation.cpp; out of line, so that the common case below stays a
-// few compares inline): sigma_eff^2 / (2 b) times the difference of the mean normal densities
-// at +b and -b along the line, each 0 beyond 4.5 sigma_eff (off by 3.4e-6 at most).
+// of a knee, and an erfc only for a sample that close to it (each density is 0 beyond, off by
+// 3.4e-6 at most). The correction itself is out of line (modulation.cpp), so that the common
+// case below stays a few compares inline.
 [[nodiscard]] double soft_sign_noise_correction(double i0_A, double i1_A, double current_band_A, double sigma_eff_A);
 
 [[nodiscard]] inline double mean_soft_sign_of_measured(double i0_A, double i1_A, double current_band_A,
