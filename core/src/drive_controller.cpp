@@ -310,7 +310,11 @@ void DriveController::handle_estimate(const EventEstimate& e) {
     // A measurement before the first thermal update: the filter starts from a guess here.
     start_thermal_from_guess(observer_.estimate().winding_C);
   }
-  out.fused = observer_.update_resistance(e.rs_ohm, e.rs_std_ohm, e.rs_systematic_std_ohm);
+  // The event's pairs span up to seconds: the filter takes the estimate at its own time, on
+  // the filter's clock (its last update was thermal_elapsed_s_ ago).
+  const double age_s =
+      e.measured_at_s > 0.0 ? std::max(e.time_s - e.measured_at_s - thermal_elapsed_s_, 0.0) : 0.0;
+  out.fused = observer_.update_resistance(e.rs_ohm, e.rs_std_ohm, e.rs_systematic_std_ohm, age_s);
   if (out.fused) {
     ++telemetry_.estimates_published;
     // The published temperature follows the fused measurement at once, not at the next
@@ -359,6 +363,9 @@ void DriveController::update_thermal(double ambient_C) {
   thermal_count_ = 0;
 
   const ThermalEstimate e = observer_.estimate();
+  // dRs/dt for the scheduler: the model's warming through Eq. 1's slope at the estimate.
+  rs_rate_ohm_per_s_ = observer_.winding_rate_C_per_s() *
+                       (observer_.resistance_at_C(e.winding_C + 0.5) - observer_.resistance_at_C(e.winding_C - 0.5));
   derating_ = derate(config_.derating, e);
   telemetry_.thermal = e;
   telemetry_.thermal_valid = true;
@@ -487,6 +494,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   si.motoring_ref_A = motoring;
   si.voltage_limit_V = current_.voltage_limit_V(in.vdc_V);
   si.current_limit_A = derating_.current_limit_A;
+  si.rs_rate_ohm_per_s = std::isfinite(rs_rate_ohm_per_s_) ? rs_rate_ohm_per_s_ : 0.0;
   si.enabled = enabled && config_.estimator == EstimatorKind::kInjection && !sweeping;
   if (calibrating_ && !sweeping && now - calibration_started_s_ > config_.calibration_timeout_s) {
     // No usable events in time (the method cannot inject here, or every pair was

@@ -444,6 +444,7 @@ void PairRecorder::start(const PairFitConfig& config, MatchBy match_by, double d
   ring_count_ = 0;
   ring_next_ = 0;
   sum_omega1_ = sum_omega2_ = sum_iq1_ = sum_iq2_ = sum_id1_ = sum_id2_ = 0.0;
+  sum_time1_ = sum_time2_ = 0.0;
   sum_vq_ = sum_iq_ = sum_wid_ = sum_wm_ = sum_gq_ = 0.0;
   sum_vd_ = sum_id_ = sum_didt_ = sum_wiq_ = sum_gd_ = 0.0;
   any_limited_ = false;
@@ -457,6 +458,7 @@ bool PairRecorder::add_first(const PeriodSample& s) {
     origin1_ = coordinate(s);
   }
   first_[size1_++] = s;
+  sum_time1_ += s.time_s;
   sum_omega1_ += s.omega_e_rad_s;
   sum_iq1_ += s.i_A.q;
   sum_id1_ += s.i_A.d;
@@ -533,6 +535,7 @@ double PairRecorder::add_second(const PeriodSample& s) {
     sums_.blocks[static_cast<std::size_t>(block)].add(x, ring_sum_[kRegressors] * inv);
   }
 
+  sum_time2_ += s.time_s;
   sum_omega2_ += s.omega_e_rad_s;
   sum_iq2_ += s.i_A.q;
   sum_id2_ += s.i_A.d;
@@ -563,6 +566,7 @@ PairConditions PairRecorder::conditions() const {
   if (matched_ > 0) {
     const auto m = static_cast<double>(matched_);
     c.omega_e_mean_2_rad_s = sum_omega2_ / m;
+    c.mid_time_s = 0.5 * (sum_time1_ / static_cast<double>(std::max<std::size_t>(size1_, 1)) + sum_time2_ / m);
     c.iq_mean_2_A = sum_iq2_ / m;
     c.id_mean_2_A = sum_id2_ / m;
     c.vq_mean_V = sum_vq_ / m;

@@ -116,6 +116,7 @@ void ThermalObserver::restore(const ThermalState& state, double downtime_thermal
   drift_std_C_ = 0.0;
   shared_error_C_ = 0.0;  // part of the stored band now
   since_measurement_s_ = 0.0;
+  history_size_ = 0;  // a state from before the restart: nothing of this run to look back on
   anchored_ = false;
 }
 
@@ -189,7 +190,9 @@ void ThermalObserver::predict(double dt_s, double copper_current_sq_A2, double o
   // time constant); a second-order Taylor step keeps it accurate and allocation-free.
   const Matrix ad = Matrix::Identity() + a * dt + 0.5 * a * a * dt * dt;
   const Matrix bd = Matrix::Identity() * dt + 0.5 * a * dt * dt;
+  const double before_C = x_(0);
   x_ = ad * x_ + bd * u;
+  winding_rate_C_per_s_ = dt_s > 0.0 ? (x_(0) - before_C) / dt_s : 0.0;
   // The model's error grows with how far it has carried the estimate from where a
   // measurement (or the start) left it: a relative error of the cooling path or the losses
   // scales the temperature change, and shrinks again as the machine returns there.
@@ -205,11 +208,43 @@ void ThermalObserver::predict(double dt_s, double copper_current_sq_A2, double o
   cap_variance(2, config_.initial_loss_error_std_W * config_.initial_loss_error_std_W);
   cap_variance(3, config_.initial_loss_scale_std * config_.initial_loss_scale_std);
   since_measurement_s_ += dt_s;
+  clock_s_ += dt_s;
+  history_C_[history_next_] = x_(0);
+  history_s_[history_next_] = clock_s_;
+  history_next_ = (history_next_ + 1) % kHistory;
+  history_size_ = std::min(history_size_ + 1, kHistory);
 }
 
-bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm, double systematic_std_ohm) {
+double ThermalObserver::winding_at_age_C(double age_s) const {
+  // Linear between the two updates around the wanted time; the oldest kept value beyond
+  // them (the measurement's time precedes the history: a long event, or one right after a
+  // jump of the state), the present state when there is none.
+  if (!(age_s > 0.0) || history_size_ == 0) {
+    return x_(0);
+  }
+  const double wanted = clock_s_ - age_s;
+  double newer_s = clock_s_;
+  double newer_C = x_(0);
+  for (std::size_t n = 0; n < history_size_; ++n) {
+    const std::size_t k = (history_next_ + kHistory - 1 - n) % kHistory;
+    if (history_s_[k] <= wanted) {
+      const double span = newer_s - history_s_[k];
+      const double f = span > 0.0 ? (wanted - history_s_[k]) / span : 0.0;
+      return history_C_[k] + f * (newer_C - history_C_[k]);
+    }
+    newer_s = history_s_[k];
+    newer_C = history_C_[k];
+  }
+  return newer_C;
+}
+
+bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm, double systematic_std_ohm,
+                                        double age_s) {
   // Measurement of the winding temperature through Eq. 1; its variance from the resistance's.
-  const double z = temperature_from_resistance_C(rs_ohm);
+  // It belongs to a moment age_s ago: carried to now by the change the filter predicted since
+  // then (the measurement's innovation is against the estimate of its own time). Under a
+  // heavy load the winding warms by a noticeable fraction of a degree over an event.
+  const double z = temperature_from_resistance_C(rs_ohm) + (x_(0) - winding_at_age_C(age_s));
   const double dt_dr =
       temperature_per_resistance_C_per_ohm(calibration_.rs0_ohm, calibration_.t0_C, config_.conductor_inferred_zero_C);
   const double r = std::pow(rs_std_ohm * dt_dr, 2) + std::pow(config_.measurement_floor_std_C, 2);
@@ -270,6 +305,7 @@ bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm, double
   shared_error_C_ = k(0) * (std::isfinite(systematic_C) ? systematic_C : 0.0) + (1.0 - k(0)) * shared_error_C_;
   since_measurement_s_ = 0.0;
   anchor_C_ = x_(0);
+  history_size_ = 0;  // the state jumped: the kept estimates belong to the old trajectory
   return true;
 }
 

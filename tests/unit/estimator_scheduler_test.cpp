@@ -25,7 +25,8 @@ namespace {
 constexpr double kPeriod = 1e-4;
 
 struct PlantModel {
-  double rs_ohm = 0.16;
+  double rs_ohm = 0.16;             // at t = 0 ...
+  double rs_rate_ohm_per_s = 0.0;  // ... and warming at this rate
   double vx_V = 1.5;
   double ld_H = 5.5e-3;
   double lq_H = 5.5e-3;
@@ -137,6 +138,7 @@ class Harness {
     in.current_limit_A = current_limit_A;
     in.enabled = enabled;
     in.request_now = request_now;
+    in.rs_rate_ohm_per_s = tell_rs_rate ? plant.rs_rate_ohm_per_s : 0.0;
     const SchedulerOutput out = scheduler.step(in, previous ? &*previous : nullptr);
     records.push_back({time_s, theta_e_rad, out});
     if (out.completed) pairs.push_back(*out.completed);
@@ -164,9 +166,10 @@ class Harness {
     const double th = s.theta_e_rad;
     const double uq = s.i_A.q / plant.lq_sat_current_A;
     const double psi_q = (plant.lq_H - plant.lq_sat_H * uq * uq) * s.i_A.q;
-    s.v_V.d = plant.rs_ohm * s.i_A.d - w * psi_q + plant.ld_H * s.di_dt_A_s.d +
+    const double rs = plant.rs_ohm + plant.rs_rate_ohm_per_s * s.time_s;
+    s.v_V.d = rs * s.i_A.d - w * psi_q + plant.ld_H * s.di_dt_A_s.d +
               plant.vx_V * s.dead_time_pattern.d + plant.kd6 * std::sin(6.0 * th + 0.3) * wm;
-    s.v_V.q = plant.rs_ohm * s.i_A.q + w * plant.ld_H * s.i_A.d + plant.lq_H * s.di_dt_A_s.q +
+    s.v_V.q = rs * s.i_A.q + w * plant.ld_H * s.i_A.d + plant.lq_H * s.di_dt_A_s.q +
               plant.ke_V_s_per_rad * wm + plant.vx_V * s.dead_time_pattern.q +
               plant.kq6 * std::cos(6.0 * th + 1.1) * wm;
     s.voltage_limited = flag_voltage_limited;
@@ -198,6 +201,7 @@ class Harness {
   bool enabled = true;
   bool request_now = false;
   bool flag_voltage_limited = false;
+  bool tell_rs_rate = true;  // pass the plant's dRs/dt as the thermal model's prediction
   std::function<void(Harness&)> hook;
   std::optional<PeriodSample> previous;
   std::vector<StepRecord> records;
@@ -429,6 +433,36 @@ TEST(InjectionScheduler, PublishesOneEstimatePerEventNearTheTruth) {
   EXPECT_NEAR(starts[1] - starts[0], 0.5, 1.5 * kPeriod);
   // The prior carried to the next event is the fused value.
   EXPECT_NEAR(h.scheduler.vx_V(), h.plant.vx_V, 0.01);
+}
+
+// A winding warming during an event: its pairs saw different resistances. Referred to the
+// event's time by the predicted rate, the joint fit keeps Vx and gives Rs at that time;
+// without the rate the warming between the levels reads as inverter voltage.
+TEST(InjectionScheduler, AWarmingWindingIsReferredToTheEventsTime) {
+  PlantModel warming;
+  warming.rs_rate_ohm_per_s = 0.02;  // 12.5 % of Rs a second, a fast heat-up
+  auto run = [&](bool tell) {
+    Harness h(test_config());
+    h.plant = warming;
+    h.tell_rs_rate = tell;
+    h.run_until(0.3);
+    return h.estimates;
+  };
+  const std::vector<EventEstimate> told = run(true);
+  const std::vector<EventEstimate> blind = run(false);
+  ASSERT_EQ(told.size(), 1U);
+  ASSERT_EQ(blind.size(), 1U);
+  ASSERT_EQ(told[0].outcome, EventOutcome::kPublished);
+  const EventEstimate& e = told[0];
+  // The time it belongs to lies inside the event, before its end.
+  EXPECT_GT(e.measured_at_s, 0.01);
+  EXPECT_LT(e.measured_at_s, e.time_s);
+  const double rs_then = warming.rs_ohm + warming.rs_rate_ohm_per_s * e.measured_at_s;
+  EXPECT_NEAR(e.joint_vx_V, warming.vx_V, 0.01);
+  EXPECT_NEAR(e.joint_rs_ohm, rs_then, 2e-4);
+  // Blind to the warming, the event's own fit moves Vx by twice that and more.
+  EXPECT_GT(std::abs(blind[0].joint_vx_V - warming.vx_V), 0.02);
+  EXPECT_LT(std::abs(e.joint_vx_V - warming.vx_V), 0.5 * std::abs(blind[0].joint_vx_V - warming.vx_V));
 }
 
 TEST(InjectionScheduler, EventRsIsConditionedOnTheFusedVx) {

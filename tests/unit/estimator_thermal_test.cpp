@@ -350,6 +350,50 @@ TEST(ThermalObserver, TheLossScaleStaysPhysicalAndWithinItsPrior) {
   EXPECT_GT(obs.estimate().loss_scale_std, 0.5 * c.initial_loss_scale_std) << "nothing was observed: back near the prior";
 }
 
+// A measurement that belongs to a moment past (an event's pairs span a fraction of a second
+// while the winding warms) is compared with the filter's estimate of that moment: a
+// measurement that equals it exactly moves the state by nothing, where taken as of now it
+// would pull the estimate back towards the past temperature by the gain times the warming.
+TEST(ThermalObserver, AMeasurementIsComparedWithTheEstimateOfItsOwnTime) {
+  ThermalModelConfig c;
+  c.time_scale = 60.0;  // warming fast enough to matter over 0.3 s, as in the benchmarks
+  Calibration cal;
+  const double rs_std = 0.0002;
+  auto warmed = [&]() {
+    ThermalObserver obs(c, cal, 60.0);
+    for (int k = 0; k < 100; ++k) {
+      obs.predict(0.01, 60.0 * 60.0, 30.0, 25.0);  // 60 A: about 12 C per controller second
+    }
+    return obs;
+  };
+  ThermalObserver reference = warmed();
+  const double now_C = reference.estimate().winding_C;
+  // The rate the model predicts, and the estimate 0.3 s ago (30 updates of 10 ms).
+  const double rate = reference.winding_rate_C_per_s();
+  ASSERT_GT(rate, 5.0);
+  ThermalObserver short_run(c, cal, 60.0);
+  for (int k = 0; k < 70; ++k) {
+    short_run.predict(0.01, 60.0 * 60.0, 30.0, 25.0);
+  }
+  const double past_C = short_run.estimate().winding_C;
+  ASSERT_NEAR(now_C - past_C, 0.3 * rate, 0.1 * 0.3 * rate);  // the model's own warming
+
+  ThermalObserver aged = warmed();
+  ASSERT_TRUE(aged.update_resistance(aged.resistance_at_C(past_C), rs_std, 0.0, 0.3));
+  EXPECT_NEAR(aged.estimate().winding_C, now_C, 1e-6);
+
+  ThermalObserver as_of_now = warmed();
+  ASSERT_TRUE(as_of_now.update_resistance(as_of_now.resistance_at_C(past_C), rs_std));
+  EXPECT_LT(as_of_now.estimate().winding_C, now_C - 0.5 * (now_C - past_C));
+
+  // Older than the history kept (2.56 s): the oldest kept estimate stands in for it.
+  ThermalObserver old = warmed();
+  ThermalObserver first(c, cal, 60.0);
+  first.predict(0.01, 60.0 * 60.0, 30.0, 25.0);
+  ASSERT_TRUE(old.update_resistance(old.resistance_at_C(first.estimate().winding_C), rs_std, 0.0, 30.0));
+  EXPECT_NEAR(old.estimate().winding_C, now_C, 1e-6);
+}
+
 TEST(ThermalObserver, OutlierBeyondTheGateIsRejectedAndLeavesTheState) {
   ThermalModelConfig c;
   Calibration cal;

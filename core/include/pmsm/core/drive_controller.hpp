@@ -307,6 +307,7 @@ class DriveController {
   double thermal_elapsed_s_ = 0.0;
   double last_baseline_publish_s_ = 0.0;
   int thermal_updates_ = 0;
+  double rs_rate_ohm_per_s_ = 0.0;  // the winding resistance's predicted rate of change
   // Magnet.
   double magnet_filtered_C_ = 0.0;
   bool magnet_valid_ = false;

@@ -188,6 +188,10 @@ struct SchedulerInput {
   double current_limit_A = 80.0;  // |i| limit now (may be derated)
   bool enabled = false;           // the drive is running and healthy
   bool request_now = false;       // start an event at the next opportunity
+  // How fast the winding's resistance changes now, as the thermal model predicts it (ohm per
+  // controller second): an event's pairs lie at different times, and their joint fit refers
+  // each to the event's time (finish_event).
+  double rs_rate_ohm_per_s = 0.0;
 };
 
 enum class SchedulerPhase : std::uint8_t {
@@ -231,6 +235,10 @@ struct EventEstimate {
   EventOutcome outcome = EventOutcome::kPublished;
   double time_s = 0.0;
   int pairs = 0;                   // accepted pairs that went into it
+  // The time the estimate belongs to: its pairs' mid times weighted by their information.
+  // It lies before time_s (an event lasts up to seconds while the winding warms or cools),
+  // and the thermal filter fuses it there (ThermalObserver::update_resistance).
+  double measured_at_s = 0.0;
   double rs_ohm = 0.0;
   double rs_std_ohm = 0.0;
   // The part of rs_std_ohm that more estimates do not average away: a model error common to
@@ -330,6 +338,10 @@ class InjectionScheduler {
   double event_min_f_A_ = 0.0;      // smallest F among the event's accepted pairs
   double event_max_iq_A_ = 0.0;     // largest motoring |iq| among them
   double event_max_speed_ = 0.0;    // largest electrical speed among them
+  double event_time_weight_ = 0.0;  // sum of their weights (1 / var Rs)
+  double event_time_sum_s_ = 0.0;   // sum of weight * (pair's mid time - event_start_s_)
+  double event_start_s_ = 0.0;
+  std::array<double, InjectionConfig::kMaxLevels> event_pair_time_s_{};  // each pair's mid time
   std::array<PairConditions, InjectionConfig::kMaxLevels> event_q_{};
   int event_q_pairs_ = 0;
   double vx_V_ = 0.0;               // inverter voltage prior

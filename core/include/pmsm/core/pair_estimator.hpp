@@ -189,6 +189,9 @@ struct PairConditions {
   double iq_mean_2_A = 0.0;
   double id_mean_1_A = 0.0;
   double id_mean_2_A = 0.0;
+  // Midway between the two recordings' mean sample times: the time the pair's Rs belongs to
+  // (the winding warms during a pair; recording 1 and 2 weigh equally in the difference).
+  double mid_time_s = 0.0;
   bool any_voltage_limited = false;
   // q-axis means over both recordings at the same angles.
   double vq_mean_V = 0.0;
@@ -258,6 +261,7 @@ class PairRecorder {
   int ring_next_ = 0;
   double sum_omega1_ = 0.0, sum_omega2_ = 0.0, sum_iq1_ = 0.0, sum_iq2_ = 0.0;
   double sum_id1_ = 0.0, sum_id2_ = 0.0;
+  double sum_time1_ = 0.0, sum_time2_ = 0.0;
   double sum_vq_ = 0.0, sum_iq_ = 0.0, sum_wid_ = 0.0, sum_wm_ = 0.0, sum_gq_ = 0.0;
   double sum_vd_ = 0.0, sum_id_ = 0.0, sum_didt_ = 0.0, sum_wiq_ = 0.0, sum_gd_ = 0.0;
   bool any_limited_ = false;

@@ -9,6 +9,8 @@
 // the present load, and current-limit derating from the upper confidence bound.
 #pragma once
 
+#include <array>
+
 #include <Eigen/Dense>
 
 namespace pmsm::core {
@@ -137,7 +139,11 @@ class ThermalObserver {
   // (included in rs_std_ohm too): fusing more such measurements cannot average it away, so
   // the state carries a share of it (k of this one's plus 1 - k of what it carried) that the
   // reported band adds in quadrature; the gain is unchanged.
-  bool update_resistance(double rs_ohm, double rs_std_ohm, double systematic_std_ohm = 0.0);
+  // `age_s` (controller seconds) is how long ago the measurement's time lies (an event's
+  // pairs take up to seconds while the winding warms or cools): the innovation is taken
+  // against the filter's winding estimate of that time, from the last kHistory updates.
+  bool update_resistance(double rs_ohm, double rs_std_ohm, double systematic_std_ohm = 0.0,
+                         double age_s = 0.0);
 
   void set_calibration(const Calibration& c) { calibration_ = c; }
   void set_time_scale(double time_scale) { config_.time_scale = time_scale; }
@@ -145,6 +151,8 @@ class ThermalObserver {
   [[nodiscard]] const Calibration& calibration() const { return calibration_; }
 
   [[nodiscard]] ThermalEstimate estimate() const;
+  // The winding's rate of change over the last predict() (C per controller second).
+  [[nodiscard]] double winding_rate_C_per_s() const { return winding_rate_C_per_s_; }
   [[nodiscard]] double temperature_from_resistance_C(double rs_ohm) const;
   [[nodiscard]] double resistance_at_C(double temp_C) const;
 
@@ -162,6 +170,7 @@ class ThermalObserver {
   Calibration calibration_;
   Vector x_;   // winding C, housing C, the missing loss dP W, the copper loss's relative error k
   double last_copper_loss_W_ = 0.0;
+  double winding_rate_C_per_s_ = 0.0;
   Matrix p_;
   double since_measurement_s_ = 0.0;
   double anchor_C_ = 0.0;     // the winding estimate the last measurement (or the start) left
@@ -171,6 +180,17 @@ class ThermalObserver {
   int gated_in_row_ = 0;      // measurements gated out since the last fused one
   double gated_sum_C_ = 0.0, gated_sq_sum_C2_ = 0.0, gated_r_sum_C2_ = 0.0;  // of those
   static constexpr int kReanchorAfterGated = 5;
+  // The winding estimate after each of the last predict() calls (controller seconds on a
+  // clock of the observer's own), for measurements that belong to a moment past. The state
+  // jumps at a fusion and a restart, which empty it: a later measurement's time lies after
+  // those (an event starts after the previous one's fusion).
+  static constexpr std::size_t kHistory = 256;  // 2.56 s at the 10 ms thermal update
+  std::array<double, kHistory> history_C_{};
+  std::array<double, kHistory> history_s_{};
+  std::size_t history_size_ = 0;
+  std::size_t history_next_ = 0;
+  double clock_s_ = 0.0;
+  [[nodiscard]] double winding_at_age_C(double age_s) const;
   [[nodiscard]] bool reanchor_consistent(double z, double r) const;
   void cap_variance(int i, double limit);
   void set_loss_errors(double dp_W, double dp_std_W, double k, double k_std, double correlation,
