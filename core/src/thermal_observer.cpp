@@ -218,24 +218,34 @@ void ThermalObserver::predict(double dt_s, double copper_current_sq_A2, double o
 double ThermalObserver::winding_at_age_C(double age_s) const {
   // Linear between the two updates around the wanted time; the oldest kept value beyond
   // them (the measurement's time precedes the history: a long event, or one right after a
-  // jump of the state), the present state when there is none.
+  // jump of the state), the present state when there is none. The kept times increase from
+  // the oldest (n = 0) to the newest: a binary search bounds the work at log2(kHistory) steps.
   if (!(age_s > 0.0) || history_size_ == 0) {
     return x_(0);
   }
   const double wanted = clock_s_ - age_s;
-  double newer_s = clock_s_;
-  double newer_C = x_(0);
-  for (std::size_t n = 0; n < history_size_; ++n) {
-    const std::size_t k = (history_next_ + kHistory - 1 - n) % kHistory;
-    if (history_s_[k] <= wanted) {
-      const double span = newer_s - history_s_[k];
-      const double f = span > 0.0 ? (wanted - history_s_[k]) / span : 0.0;
-      return history_C_[k] + f * (newer_C - history_C_[k]);
-    }
-    newer_s = history_s_[k];
-    newer_C = history_C_[k];
+  const std::size_t oldest = (history_next_ + kHistory - history_size_) % kHistory;
+  auto at = [&](std::size_t n) { return (oldest + n) % kHistory; };
+  if (wanted <= history_s_[at(0)]) {
+    return history_C_[at(0)];
   }
-  return newer_C;
+  if (wanted >= history_s_[at(history_size_ - 1)]) {
+    return x_(0);  // after the last update (the state has not moved since)
+  }
+  std::size_t lo = 0;                  // history_s_[at(lo)] < wanted
+  std::size_t hi = history_size_ - 1;  // history_s_[at(hi)] >= wanted
+  while (hi - lo > 1) {
+    const std::size_t mid = lo + (hi - lo) / 2;
+    if (history_s_[at(mid)] < wanted) {
+      lo = mid;
+    } else {
+      hi = mid;
+    }
+  }
+  const double t0 = history_s_[at(lo)];
+  const double t1 = history_s_[at(hi)];
+  const double f = t1 > t0 ? (wanted - t0) / (t1 - t0) : 1.0;
+  return history_C_[at(lo)] + f * (history_C_[at(hi)] - history_C_[at(lo)]);
 }
 
 bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm, double systematic_std_ohm,

@@ -386,6 +386,16 @@ TEST(ThermalObserver, AMeasurementIsComparedWithTheEstimateOfItsOwnTime) {
   ASSERT_TRUE(as_of_now.update_resistance(as_of_now.resistance_at_C(past_C), rs_std));
   EXPECT_LT(as_of_now.estimate().winding_C, now_C - 0.5 * (now_C - past_C));
 
+  // Between two updates: the line between them (0.305 s: half-way from 70 to 69 updates back).
+  ThermalObserver earlier(c, cal, 60.0);
+  for (int k = 0; k < 69; ++k) {
+    earlier.predict(0.01, 60.0 * 60.0, 30.0, 25.0);
+  }
+  const double between_C = 0.5 * (earlier.estimate().winding_C + short_run.estimate().winding_C);
+  ThermalObserver halfway = warmed();
+  ASSERT_TRUE(halfway.update_resistance(halfway.resistance_at_C(between_C), rs_std, 0.0, 0.305));
+  EXPECT_NEAR(halfway.estimate().winding_C, now_C, 1e-6);
+
   // Older than the history kept (2.56 s): the oldest kept estimate stands in for it.
   ThermalObserver old = warmed();
   ThermalObserver first(c, cal, 60.0);
