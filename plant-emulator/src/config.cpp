@@ -46,7 +46,8 @@ common::ConfigSchema<PlantConfig> build_schema() {
            "Seed of the sensor-noise generator (std::mt19937_64). The same seed gives a "
            "bit-identical sample stream.");
     integer("simulation.substeps", PMSM_MEMBER(simulation.substeps), closed(1, 64),
-                        "RK4 integration steps per PWM period.");
+                        "RK4 integration steps per PWM period; each is also split where a phase current crosses a "
+                        "kink of the bridge's voltage (docs/plant.md, Numerics).");
     // [motor]
     integer("motor.pole_pairs", PMSM_MEMBER(motor.pole_pairs), closed(1, 64),
                         "Pole pairs p (Table I: 3).");

@@ -80,6 +80,15 @@ class Axis {
         ring_, [this](const PublicationRecord& r) { publisher_->handle(r); }, 2ms);
     daemon_thread_ = std::thread([this] { loop_->run(daemon_stop_); });
   }
+  // A passive load (a fan, 10 Nm at 60 rad/s) in place of the scenario's active one: with the
+  // gates off it brakes the shaft instead of spinning it backwards, so that what a test sees
+  // while the drive sits in its safe state does not depend on how fast the plant simulates.
+  void use_passive_load() {
+    plant_config_.load.profile = plant::LoadProfile::fan;
+    plant_config_.load.torque_Nm = 0.0;
+    plant_config_.load.fan_k_Nm_s2 = 10.0 / (60.0 * 60.0);
+    plant_config_.load.points.clear();
+  }
   void start_plant() {
     stop_plant();
     plant_stop_ = false;
@@ -312,6 +321,7 @@ TEST(DaemonLoop, PlantOutageSafeStateThenRecovery) {
 TEST(DaemonLoop, CommandTimeoutSafeStateAndAStopCommandClearsIt) {
   Bench bench;
   Axis axis(bench.bus, 3, 1e6, 25.0, 0.3);
+  axis.use_passive_load();  // 200 ms and more in the safe state, the shaft free
   axis.start_daemon();
   axis.start_plant();
   std::vector<protocol::AnyDecoded> seen;
@@ -344,6 +354,7 @@ TEST(DaemonLoop, CommandTimeoutSafeStateAndAStopCommandClearsIt) {
 TEST(DaemonLoop, GpioFaultInputTripsTheDriveAndClearsWhenQuiet) {
   Bench bench;
   Axis axis(bench.bus, 6, 1e6);
+  axis.use_passive_load();
   axis.start_daemon();
   axis.start_plant();
   hal::SimFaultInput line;
@@ -362,9 +373,10 @@ TEST(DaemonLoop, GpioFaultInputTripsTheDriveAndClearsWhenQuiet) {
   EXPECT_TRUE(has_fault(seen, 6, protocol::FaultCode::kGpioFault, true, tripped));
   EXPECT_TRUE(has_state(seen, 6, protocol::DriveState::kFault, tripped));
   EXPECT_FALSE(axis.loop().gates_enabled());
-  // Still asserted: a stop command does not clear it. (Kept short: the scenario's load is
-  // an active 60 Nm that spins the free shaft backwards once the gates are off, and beyond
-  // the encoder's plausible speed the supervisor latches ENCODER_JUMP, as it should.)
+  // Still asserted: a stop command does not clear it. (The load is passive here: the
+  // scenario's active 60 Nm spins the free shaft backwards once the gates are off, and beyond
+  // the encoder's plausible speed the supervisor latches ENCODER_JUMP, as it should; how far
+  // it got in the wall time of this test depended on the plant's speed.)
   bench.stop_drive(6);
   std::this_thread::sleep_for(50ms);
   const std::vector<protocol::AnyDecoded> held = bench.drain();

@@ -30,7 +30,7 @@ using TimePoint = common::TimePoint;
 
 struct SimulationConfig {
   std::uint64_t seed = 1;  // seeds the sensor noise (std::mt19937_64)
-  int substeps = 4;        // RK4 steps per PWM period
+  int substeps = 1;        // RK4 steps per PWM period (each split at the bridge's kinks)
 };
 
 // Table I motor in the amplitude-invariant dq model (Eq. 2, Eq. 3). See docs/plant.md for
