@@ -173,6 +173,9 @@ struct Plant::Impl {
   double kp_dyno = 0.0;
   double ki_dyno = 0.0;
   double current_lsb_A = 0.0;
+  double current_full_codes = 0.0;  // 2^(bits - 1): the signed ADC's positive full scale
+  double voltage_full_codes = 0.0;
+  double dc_max_code = 0.0;
   double voltage_lsb_V = 0.0;
   double dc_lsb_V = 0.0;
   double encoder_counts = 0.0;
@@ -229,7 +232,10 @@ struct Plant::Impl {
     drop_V = cfg.inverter.device_drop_enabled ? cfg.inverter.device_drop_V : 0.0;
     band_A = cfg.inverter.zero_current_band_A;
     configure_dyno();
-    current_lsb_A = cfg.current_adc.range_A / std::ldexp(1.0, cfg.current_adc.bits - 1);
+    current_full_codes = std::ldexp(1.0, cfg.current_adc.bits - 1);
+    current_lsb_A = cfg.current_adc.range_A / current_full_codes;
+    voltage_full_codes = std::ldexp(1.0, cfg.phase_voltage_sensing.bits - 1);
+    dc_max_code = std::ldexp(1.0, cfg.dc_bus_adc.bits) - 1.0;
     voltage_lsb_V =
         cfg.phase_voltage_sensing.range_V / std::ldexp(1.0, cfg.phase_voltage_sensing.bits - 1);
     dc_lsb_V = cfg.dc_bus_adc.full_scale_V / std::ldexp(1.0, cfg.dc_bus_adc.bits);
@@ -910,7 +916,7 @@ struct Plant::Impl {
     hal::SensorSample out{};
     out.sequence = static_cast<std::uint32_t>(k);
     const auto& adc = cfg.current_adc;
-    const double full = std::ldexp(1.0, adc.bits - 1);
+    const double full = current_full_codes;
     for (std::size_t ph = 0; ph < 3; ++ph) {
       const double gain = 1.0 + (adc.gain_error_enabled ? adc.gain_error[ph] : 0.0);
       const double offset = adc.offset_enabled ? adc.offset_A[ph] : 0.0;
@@ -928,10 +934,10 @@ struct Plant::Impl {
     out.encoder_count = static_cast<std::uint16_t>(count);
     const double vdc = aux.dc_bus_V + noise(cfg.dc_bus_adc.noise_enabled, cfg.dc_bus_adc.noise_V);
     out.dc_bus_adc = clamp_code<std::uint16_t>(vdc / dc_lsb_V, 0.0,
-                                               std::ldexp(1.0, cfg.dc_bus_adc.bits) - 1.0);
+                                               dc_max_code);
     const auto& pvs = cfg.phase_voltage_sensing;
     if (pvs.enabled && voltage_valid) {
-      const double vfull = std::ldexp(1.0, pvs.bits - 1);
+      const double vfull = voltage_full_codes;
       for (std::size_t ph = 0; ph < 3; ++ph) {
         const double v = v_avg_V[ph] + noise(pvs.noise_enabled, pvs.noise_V);
         out.phase_voltage_adc[ph] = clamp_code<std::int16_t>(v / voltage_lsb_V, -vfull, vfull - 1.0);
