@@ -60,6 +60,21 @@ void eq3_steady_state(double R, double Ld, double Lq, double psi, double we, dou
   iq = (a * r2 - c * r1) / det;
 }
 
+// The command for sample k that puts the rotor-frame voltage (vd, vq) at the electrical angle
+// theta (the middle of the period it acts in) through the average model of a bus at vdc.
+hal::InverterCommand dq_command(std::uint32_t k, double theta, double vd, double vq, double vdc) {
+  hal::InverterCommand cmd;
+  cmd.sequence = k;
+  cmd.enable = true;
+  for (std::size_t ph = 0; ph < 3; ++ph) {
+    const double ang = theta - 2.0 * kPi / 3.0 * static_cast<double>(ph);
+    const double v = vd * std::cos(ang) - vq * std::sin(ang);
+    const double duty = std::clamp(0.5 + v / vdc, 0.0, 1.0);
+    cmd.duty[ph] = static_cast<std::uint16_t>(std::lround(duty * 65535.0));
+  }
+  return cmd;
+}
+
 TEST(plant_physics, SteadyStateMatchesEq3WithSaliency) {
   PlantConfig c = quiet_config();
   c.motor.ld_H = 5.5e-3;
@@ -93,16 +108,7 @@ TEST(plant_physics, SteadyStateThroughIdealInverter) {
   const double we = 3.0 * speed;
   const double Ts = 1.0 / c.inverter.pwm_frequency_Hz;
   for (std::uint32_t k = 0; k < 8000; ++k) {
-    const double theta = we * (static_cast<double>(k) + 1.5) * Ts;
-    hal::InverterCommand cmd;
-    cmd.sequence = k;
-    cmd.enable = true;
-    for (std::size_t ph = 0; ph < 3; ++ph) {
-      const double ang = theta - 2.0 * kPi / 3.0 * static_cast<double>(ph);
-      const double v = vd * std::cos(ang) - vq * std::sin(ang);
-      cmd.duty[ph] = static_cast<std::uint16_t>(std::lround((0.5 + v / 650.0) * 65535.0));
-    }
-    plant.step(cmd);
+    plant.step(dq_command(k, we * (static_cast<double>(k) + 1.5) * Ts, vd, vq, 650.0));
   }
   double id = 0.0;
   double iq = 0.0;
@@ -272,17 +278,7 @@ TEST(plant_physics, EnergyBalanceWithVaryingLoad) {
     int_q += eq * Ts;
     const double vd = 20.0 * ed + 500.0 * int_d;
     const double vq = 20.0 * eq + 500.0 * int_q + 3.0 * s.omega_m_rad_s * 0.324;
-    const double theta = s.theta_e_rad + 1.5 * s.omega_e_rad_s * Ts;
-    hal::InverterCommand cmd;
-    cmd.sequence = k;
-    cmd.enable = true;
-    for (std::size_t ph = 0; ph < 3; ++ph) {
-      const double ang = theta - 2.0 * kPi / 3.0 * static_cast<double>(ph);
-      const double v = vd * std::cos(ang) - vq * std::sin(ang);
-      const double duty = std::clamp(0.5 + v / 650.0, 0.0, 1.0);
-      cmd.duty[ph] = static_cast<std::uint16_t>(std::lround(duty * 65535.0));
-    }
-    plant.step(cmd);
+    plant.step(dq_command(k, s.theta_e_rad + 1.5 * s.omega_e_rad_s * Ts, vd, vq, 650.0));
   }
   const PlantState last = plant.state();
   ASSERT_GT(last.omega_m_rad_s, 20.0);  // it ran through a real operating range
@@ -394,16 +390,7 @@ StepError integration_error(PlantConfig c, int substeps, double speed_rad_s, dou
     const double we = s.omega_e_rad_s;
     const double vd = kp_ohm * ed + 20.0 * kp_ohm * int_d - we * c.motor.lq_H * s.iq_A;
     const double vq = kp_ohm * eq + 20.0 * kp_ohm * int_q + we * (c.motor.ld_H * s.id_A + psi);
-    const double theta = s.theta_e_rad + 1.5 * we * Ts;
-    hal::InverterCommand cmd;
-    cmd.sequence = k;
-    cmd.enable = true;
-    for (std::size_t ph = 0; ph < 3; ++ph) {
-      const double ang = theta - 2.0 * kPi / 3.0 * static_cast<double>(ph);
-      const double v = vd * std::cos(ang) - vq * std::sin(ang);
-      const double duty = std::clamp(0.5 + v / c.inverter.dc_bus_V, 0.0, 1.0);
-      cmd.duty[ph] = static_cast<std::uint16_t>(std::lround(duty * 65535.0));
-    }
+    const hal::InverterCommand cmd = dq_command(k, s.theta_e_rad + 1.5 * we * Ts, vd, vq, c.inverter.dc_bus_V);
     fine.step(cmd);
     coarse.step(cmd);
   }
