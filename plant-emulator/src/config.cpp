@@ -46,8 +46,11 @@ common::ConfigSchema<PlantConfig> build_schema() {
            "Seed of the sensor-noise generator (std::mt19937_64). The same seed gives a "
            "bit-identical sample stream.");
     integer("simulation.substeps", PMSM_MEMBER(simulation.substeps), closed(1, 64),
-                        "RK4 integration steps per PWM period; each is also split where a phase current crosses a "
-                        "kink of the bridge's voltage (docs/plant.md, Numerics).");
+                        "RK4 integration steps per PWM period at least; each is also split where a phase current "
+                        "crosses a kink of the bridge's voltage (docs/plant.md, Numerics).");
+    real("simulation.max_step_angle_rad", PMSM_MEMBER(simulation.max_step_angle_rad), closed(0.001, 1.0),
+         "Largest electrical angle the rotor turns in one RK4 step: a period takes more steps than "
+         "simulation.substeps where the speed asks for it (0.05: two at the reference's rated speed).");
     // [motor]
     integer("motor.pole_pairs", PMSM_MEMBER(motor.pole_pairs), closed(1, 64),
                         "Pole pairs p (Table I: 3).");

@@ -125,11 +125,19 @@ echo "$prog: $(wc -l < "$work/candump.log") captured frames, all decoded with th
 
 # The interface goes down and comes back while plant and daemon run in lockstep: both must
 # notice, reopen their sockets and go on (the plant finishes its run with the same daemon).
+# The interface goes down as soon as the plant runs, and its run is long enough in simulated
+# time to outlast that at any speed: a fixed three-second wait raced the plant's speed (1.5 s
+# simulated came to an end in 1.1 s of wall time in User-Mode Linux once the plant integrated a
+# period in one step).
 "$plant" --config "$src/tests/hil/data/hil-plant.toml" --iface "$iface" --node $node --mode lockstep \
-  --duration-s 1.5 > "$work/plant-4.log" 2>&1 &
+  --duration-s 5 > "$work/plant-4.log" 2>&1 &
 plant4=$!
 pids+=("$plant4")
-sleep 3  # in lockstep with the daemon by now (1.5 s simulated takes far longer in UML)
+for _ in $(seq 100); do
+  grep -q "lockstep mode on" "$work/plant-4.log" && break
+  sleep 0.1
+done
+sleep 0.3  # in lockstep with the daemon by now
 kill -0 "$plant4" 2>/dev/null || die "the fourth plant ended before the interface test: $(tail -3 "$work/plant-4.log")"
 ip link set dev "$iface" down 2>"$work/ip.err" ||
   die "cannot take $iface down ($(cat "$work/ip.err")): this phase needs CAP_NET_ADMIN (root, or User-Mode Linux through scripts/vcan-env)"

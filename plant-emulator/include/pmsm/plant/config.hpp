@@ -30,7 +30,9 @@ using TimePoint = common::TimePoint;
 
 struct SimulationConfig {
   std::uint64_t seed = 1;  // seeds the sensor noise (std::mt19937_64)
-  int substeps = 1;        // RK4 steps per PWM period (each split at the bridge's kinks)
+  int substeps = 1;        // RK4 steps per PWM period at least (each split at the bridge's kinks)
+  // More steps where the rotor frame turns further than this (electrical rad) in one step.
+  double max_step_angle_rad = 0.05;
 };
 
 // Table I motor in the amplitude-invariant dq model (Eq. 2, Eq. 3). See docs/plant.md for

@@ -61,6 +61,9 @@ struct PlantState {
   EnergyMeters energy;
 };
 
+// One thread at a time: the const accessors (state(), truth()) may fill caches of the model's
+// evaluation, so even they must not run concurrently with each other or with step(). Every user
+// owns its Plant on one thread (PlantNode's run thread; a simulation and its twin each their own).
 class Plant {
  public:
   explicit Plant(const PlantConfig& config);
