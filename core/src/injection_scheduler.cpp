@@ -386,15 +386,18 @@ PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
     learn_lq(c, fit);
     event_sums_.add(recorder_.sums());
     event_pair_sums_[static_cast<std::size_t>(std::min(event_pairs_, InjectionConfig::kMaxLevels - 1))] = recorder_.sums();
-    event_pair_time_s_[static_cast<std::size_t>(std::min(event_pairs_, InjectionConfig::kMaxLevels - 1))] = c.mid_time_s;
+    event_pair_time_s_[static_cast<std::size_t>(std::min(event_pairs_, InjectionConfig::kMaxLevels - 1))] = c.rs_time_s;
     event_min_f_A_ = event_pairs_ == 0 ? f_A_ : std::min(event_min_f_A_, f_A_);
     event_max_iq_A_ = std::max(event_max_iq_A_, 0.5 * std::abs(c.iq_mean_1_A + c.iq_mean_2_A));
     event_max_speed_ = std::max(event_max_speed_, 0.5 * std::abs(c.omega_e_mean_1_rad_s + c.omega_e_mean_2_rad_s));
     // The event's Rs is a fit over its pairs, each weighing by its information (about the
     // reciprocal of its own variance): the time it belongs to is their weighted mean time.
-    const double w = fit.var_rs > 0.0 && std::isfinite(fit.var_rs) ? 1.0 / fit.var_rs : 1.0;
+    // A variance floor of (1 nOhm)^2 keeps a subnormal variance from an infinite weight; a pair
+    // without one (not finite, or none) does not place the event in time.
+    const double w = fit.var_rs > 0.0 && std::isfinite(fit.var_rs) ? 1.0 / std::max(fit.var_rs, 1e-18) : 0.0;
     event_time_weight_ += w;
-    event_time_sum_s_ += w * (c.mid_time_s - event_start_s_);
+    event_time_sum_s_ += w * (c.rs_time_s - event_start_s_);
+    event_time_plain_sum_s_ += c.rs_time_s - event_start_s_;
     event_field_weakening_ = event_field_weakening_ || field_weakening_;
     // The magnet's q-axis means need Ld <w id>: a field-weakening pair's <id> is far from
     // zero, so the commissioned Ld's error would go into Ke (docs/estimator.md §8).
@@ -499,6 +502,13 @@ bool InjectionScheduler::event_joint_fit() const {
   return config_.fit_dead_time && reverses && event_pairs_ >= 2;
 }
 
+double InjectionScheduler::event_time_s() const {
+  if (event_time_weight_ > 0.0) {
+    return event_start_s_ + event_time_sum_s_ / event_time_weight_;
+  }
+  return event_start_s_ + event_time_plain_sum_s_ / std::max(event_pairs_, 1);
+}
+
 bool InjectionScheduler::event_uses_means() const {
   return event_joint_fit() || config_.method == InjectionMethod::kFixedMagnitude;
 }
@@ -515,7 +525,7 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
     return e;
   }
   e.pairs = event_pairs_;
-  e.measured_at_s = event_time_weight_ > 0.0 ? event_start_s_ + event_time_sum_s_ / event_time_weight_ : in.time_s;
+  e.measured_at_s = event_time_s();
   double rs = 0.0;
   double var_rs = 0.0;
   double vx = config_.fit_dead_time ? vx_V_ : 0.0;
@@ -655,6 +665,7 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
         event_max_speed_ = 0.0;
         event_time_weight_ = 0.0;
         event_time_sum_s_ = 0.0;
+        event_time_plain_sum_s_ = 0.0;
         event_start_s_ = in.time_s;
         event_q_pairs_ = 0;
         event_field_weakening_ = false;
@@ -674,8 +685,7 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
             // joint fit reads a winding warming (or cooling) between its levels as inverter
             // voltage: under load the reference machine warms 0.4 % of Rs a second at 60 times
             // thermal speed, and the levels lie 0.1-0.3 s apart.
-            const double t_event = event_start_s_ + event_time_sum_s_ / std::max(event_time_weight_, 1e-300);
-            event_means_[j]->y -= in.rs_rate_ohm_per_s * (event_pair_time_s_[j] - t_event) * event_means_[j]->x_rs;
+            event_means_[j]->y -= in.rs_rate_ohm_per_s * (event_pair_time_s_[j] - event_time_s()) * event_means_[j]->x_rs;
           }
           break;
         }

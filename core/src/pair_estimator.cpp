@@ -566,9 +566,16 @@ PairConditions PairRecorder::conditions() const {
   if (matched_ > 0) {
     const auto m = static_cast<double>(matched_);
     c.omega_e_mean_2_rad_s = sum_omega2_ / m;
-    c.mid_time_s = 0.5 * (sum_time1_ / static_cast<double>(std::max<std::size_t>(size1_, 1)) + sum_time2_ / m);
     c.iq_mean_2_A = sum_iq2_ / m;
     c.id_mean_2_A = sum_id2_ / m;
+    const double t1 = sum_time1_ / static_cast<double>(std::max<std::size_t>(size1_, 1));
+    const double t2 = sum_time2_ / m;
+    const double di = c.id_mean_1_A - c.id_mean_2_A;
+    // Midway where the levels' difference is too small to weigh the times (no pair is accepted
+    // with so little signal; the guard keeps the division finite).
+    c.rs_time_s = std::abs(di) > 1e-3 * std::max({std::abs(c.id_mean_1_A), std::abs(c.id_mean_2_A), 1.0})
+                      ? (t1 * c.id_mean_1_A - t2 * c.id_mean_2_A) / di
+                      : 0.5 * (t1 + t2);
     c.vq_mean_V = sum_vq_ / m;
     c.iq_mean_A = sum_iq_ / m;
     c.omega_e_id_mean_A_rad_s = sum_wid_ / m;

@@ -465,6 +465,30 @@ TEST(InjectionScheduler, AWarmingWindingIsReferredToTheEventsTime) {
   EXPECT_LT(std::abs(e.joint_vx_V - warming.vx_V), 0.5 * std::abs(blind[0].joint_vx_V - warming.vx_V));
 }
 
+// A unipolar pair (0, then -F) measures Rs(t1) 0 - Rs(t2) (-F): the resistance of recording
+// 2's time, not of the pair's middle. On a warming winding the event's estimate must say so.
+TEST(InjectionScheduler, AUnipolarPairsRsBelongsToItsSecondRecording) {
+  InjectionConfig c = test_config();
+  c.separation = Separation::kUnipolar;
+  c.vx_initial_V = 1.5;  // the plant's true value, held (unipolar pairs do not learn it)
+  c.vx_initial_std_V = 0.001;
+  PlantModel warming;
+  warming.rs_rate_ohm_per_s = 0.02;
+  Harness h(c);
+  h.plant = warming;
+  h.tell_rs_rate = true;
+  h.motoring_A = {0.0, 5.0};
+  h.run_until(0.45);
+  ASSERT_EQ(h.estimates.size(), 1U);
+  const EventEstimate& e = h.estimates[0];
+  ASSERT_EQ(e.outcome, EventOutcome::kPublished);
+  // The pair's middle lies 31 ms before recording 2's mean time here: placed there, the
+  // estimate would be 6.3e-4 ohm off its time's resistance (measured with the middle).
+  const double rs_then = warming.rs_ohm + warming.rs_rate_ohm_per_s * e.measured_at_s;
+  EXPECT_NEAR(e.rs_ohm, rs_then, 1e-4);
+  EXPECT_LT(e.measured_at_s, e.time_s);
+}
+
 TEST(InjectionScheduler, EventRsIsConditionedOnTheFusedVx) {
   // A confident but wrong prior (1.0 V +- 1 mV; the plant has 1.5 V): the fused Vx stays at
   // the prior and Rs is the one that fits with Vx = 1.0 V. Each pair's mean satisfies

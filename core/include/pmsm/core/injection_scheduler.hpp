@@ -311,6 +311,9 @@ class InjectionScheduler {
   // of Rs and Vx across levels, or the fixed-Vx means of flat pulses.
   [[nodiscard]] bool event_joint_fit() const;
   [[nodiscard]] bool event_uses_means() const;
+  // The time the event's estimate belongs to: its pairs' Rs times weighted by their information
+  // (their plain mean where no pair has a variance; EventEstimate::measured_at_s).
+  [[nodiscard]] double event_time_s() const;
   [[nodiscard]] FitOptions fit_options(bool fit_vx) const;
   [[nodiscard]] bool plausible(double rs_ohm, double margin_ohm) const;
   void learn_lq(const PairConditions& c, const FitResult& fit);
@@ -339,9 +342,10 @@ class InjectionScheduler {
   double event_max_iq_A_ = 0.0;     // largest motoring |iq| among them
   double event_max_speed_ = 0.0;    // largest electrical speed among them
   double event_time_weight_ = 0.0;  // sum of their weights (1 / var Rs)
-  double event_time_sum_s_ = 0.0;   // sum of weight * (pair's mid time - event_start_s_)
+  double event_time_sum_s_ = 0.0;   // sum of weight * (pair's Rs time - event_start_s_)
+  double event_time_plain_sum_s_ = 0.0;  // sum of (pair's Rs time - event_start_s_), unweighted
   double event_start_s_ = 0.0;
-  std::array<double, InjectionConfig::kMaxLevels> event_pair_time_s_{};  // each pair's mid time
+  std::array<double, InjectionConfig::kMaxLevels> event_pair_time_s_{};  // each pair's Rs time (PairConditions::rs_time_s)
   std::array<PairConditions, InjectionConfig::kMaxLevels> event_q_{};
   int event_q_pairs_ = 0;
   double vx_V_ = 0.0;               // inverter voltage prior

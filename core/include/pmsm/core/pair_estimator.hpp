@@ -189,9 +189,13 @@ struct PairConditions {
   double iq_mean_2_A = 0.0;
   double id_mean_1_A = 0.0;
   double id_mean_2_A = 0.0;
-  // Midway between the two recordings' mean sample times: the time the pair's Rs belongs to
-  // (the winding warms during a pair; recording 1 and 2 weigh equally in the difference).
-  double mid_time_s = 0.0;
+  // The time the pair's Rs belongs to on a winding that warms during the pair. The pair
+  // measures Rs(t1) id1 - Rs(t2) id2 (recordings' mean times and d-axis currents); with Rs
+  // linear in time that is Rs(t) (id1 - id2) at t = (t1 id1 - t2 id2) / (id1 - id2): midway for
+  // a bipolar pair (id2 = -id1), recording 2's time for a unipolar one (id1 = 0), beyond
+  // recording 2 for a field-weakening one (both levels negative; with levels -0.3 F and -F,
+  // 0.43 of the recordings' spacing after recording 2).
+  double rs_time_s = 0.0;
   bool any_voltage_limited = false;
   // q-axis means over both recordings at the same angles.
   double vq_mean_V = 0.0;
