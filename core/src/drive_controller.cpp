@@ -235,6 +235,13 @@ void DriveController::handle_pair(const PairResult& r) {
   last_pair_ = r;
 }
 
+// The event's pairs span up to seconds: the filter takes its estimate at the event's own time,
+// on the filter's clock (its last update was thermal_elapsed_s_ ago). A time after the last
+// update (a field-weakening pair's may lie beyond publication) takes the present estimate.
+double DriveController::measurement_age_s(const EventEstimate& e) const {
+  return e.measured_at_s > 0.0 ? std::max(e.time_s - e.measured_at_s - thermal_elapsed_s_, 0.0) : 0.0;
+}
+
 void DriveController::handle_estimate(const EventEstimate& e) {
   last_event_ = e;
   if (e.outcome != EventOutcome::kPublished) {
@@ -249,8 +256,10 @@ void DriveController::handle_estimate(const EventEstimate& e) {
     // Each event's Rs is referred back to the known temperature through Eq. 1, at the winding
     // temperature the thermal model predicts for the event (the calibration's own injection
     // losses warm it).
+    // The temperature of the event's own time (its pairs' time, before publication).
     const double rs_at_known =
-        e.rs_ohm * resistance_at_temperature_ohm(1.0, observer_.estimate().winding_C, calibration_temp_C_,
+        e.rs_ohm * resistance_at_temperature_ohm(1.0, observer_.winding_at_age_C(measurement_age_s(e)),
+                                                 calibration_temp_C_,
                                                  config_.thermal.conductor_inferred_zero_C);  // Eq. 1
     const double w = 1.0 / std::max(e.rs_std_ohm * e.rs_std_ohm, 1e-12);
     calibration_rs_sum_ += w * rs_at_known;
@@ -310,11 +319,7 @@ void DriveController::handle_estimate(const EventEstimate& e) {
     // A measurement before the first thermal update: the filter starts from a guess here.
     start_thermal_from_guess(observer_.estimate().winding_C);
   }
-  // The event's pairs span up to seconds: the filter takes the estimate at its own time, on
-  // the filter's clock (its last update was thermal_elapsed_s_ ago).
-  const double age_s =
-      e.measured_at_s > 0.0 ? std::max(e.time_s - e.measured_at_s - thermal_elapsed_s_, 0.0) : 0.0;
-  out.fused = observer_.update_resistance(e.rs_ohm, e.rs_std_ohm, e.rs_systematic_std_ohm, age_s);
+  out.fused = observer_.update_resistance(e.rs_ohm, e.rs_std_ohm, e.rs_systematic_std_ohm, measurement_age_s(e));
   if (out.fused) {
     ++telemetry_.estimates_published;
     // The published temperature follows the fused measurement at once, not at the next

@@ -116,7 +116,7 @@ void ThermalObserver::restore(const ThermalState& state, double downtime_thermal
   drift_std_C_ = 0.0;
   shared_error_C_ = 0.0;  // part of the stored band now
   since_measurement_s_ = 0.0;
-  history_size_ = 0;  // a state from before the restart: nothing of this run to look back on
+  restart_history();  // a state from before the restart: nothing of this run to look back on
   anchored_ = false;
 }
 
@@ -213,6 +213,13 @@ void ThermalObserver::predict(double dt_s, double copper_current_sq_A2, double o
   history_s_[history_next_] = clock_s_;
   history_next_ = (history_next_ + 1) % kHistory;
   history_size_ = std::min(history_size_ + 1, kHistory);
+}
+
+void ThermalObserver::restart_history() {
+  history_C_[0] = x_(0);
+  history_s_[0] = clock_s_;
+  history_next_ = 1;
+  history_size_ = 1;
 }
 
 double ThermalObserver::winding_at_age_C(double age_s) const {
@@ -315,7 +322,9 @@ bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm, double
   shared_error_C_ = k(0) * (std::isfinite(systematic_C) ? systematic_C : 0.0) + (1.0 - k(0)) * shared_error_C_;
   since_measurement_s_ = 0.0;
   anchor_C_ = x_(0);
-  history_size_ = 0;  // the state jumped: the kept estimates belong to the old trajectory
+  // The state jumped: the kept estimates belong to the old trajectory. The new one starts here,
+  // so that a later measurement whose time lies before the next update is compared with it.
+  restart_history();
   return true;
 }
 

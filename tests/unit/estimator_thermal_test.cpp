@@ -3,6 +3,8 @@
 // brute-force simulation.
 #include <gtest/gtest.h>
 
+#include <vector>
+
 #include <Eigen/Dense>
 #include <cmath>
 
@@ -402,6 +404,40 @@ TEST(ThermalObserver, AMeasurementIsComparedWithTheEstimateOfItsOwnTime) {
   first.predict(0.01, 60.0 * 60.0, 30.0, 25.0);
   ASSERT_TRUE(old.update_resistance(old.resistance_at_C(first.estimate().winding_C), rs_std, 0.0, 30.0));
   EXPECT_NEAR(old.estimate().winding_C, now_C, 1e-6);
+}
+
+// The look-back over a history that has wrapped (more updates than it keeps) and after a
+// fusion, which restarts it from the fused state.
+TEST(ThermalObserver, TheLookBackWrapsAndRestartsAtAFusion) {
+  ThermalModelConfig c;
+  c.time_scale = 60.0;
+  Calibration cal;
+  ThermalObserver obs(c, cal, 60.0);
+  std::vector<double> after;  // the estimate after each update
+  for (int k = 0; k < 300; ++k) {  // 3 s: the history (256 updates) has wrapped
+    obs.predict(0.01, 60.0 * 60.0, 30.0, 25.0);
+    after.push_back(obs.estimate().winding_C);
+  }
+  const double now_C = after.back();
+  EXPECT_EQ(obs.winding_at_age_C(0.0), now_C);
+  EXPECT_NEAR(obs.winding_at_age_C(0.10), after[299 - 10], 1e-9);
+  EXPECT_NEAR(obs.winding_at_age_C(2.50), after[299 - 250], 1e-9);
+  EXPECT_NEAR(obs.winding_at_age_C(1.005), 0.5 * (after[299 - 100] + after[299 - 101]), 1e-9);
+  // Beyond the 256 kept: the oldest of them (255 updates back), not a stale slot.
+  EXPECT_NEAR(obs.winding_at_age_C(2.60), after[299 - 255], 1e-9);
+  EXPECT_NEAR(obs.winding_at_age_C(100.0), after[299 - 255], 1e-9);
+  EXPECT_LT(after[299 - 255], now_C - 5.0);  // a warming run: the ages are told apart
+
+  // A fusion moves the state; the history restarts from it, so a time after the fusion and
+  // before the next update is compared with the fused state, not with the old trajectory.
+  ASSERT_TRUE(obs.update_resistance(obs.resistance_at_C(now_C + 2.0), 0.0002));
+  const double fused_C = obs.estimate().winding_C;
+  ASSERT_GT(fused_C, now_C + 0.5);
+  EXPECT_EQ(obs.winding_at_age_C(0.5), fused_C);
+  obs.predict(0.01, 60.0 * 60.0, 30.0, 25.0);
+  const double next_C = obs.estimate().winding_C;
+  EXPECT_NEAR(obs.winding_at_age_C(0.005), 0.5 * (fused_C + next_C), 1e-9);
+  EXPECT_NEAR(obs.winding_at_age_C(0.5), fused_C, 1e-9);
 }
 
 TEST(ThermalObserver, OutlierBeyondTheGateIsRejectedAndLeavesTheState) {

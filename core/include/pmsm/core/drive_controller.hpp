@@ -251,6 +251,7 @@ class DriveController {
 
  private:
   void handle_pair(const PairResult& r);
+  [[nodiscard]] double measurement_age_s(const EventEstimate& e) const;
   void handle_estimate(const EventEstimate& e);
   void update_thermal(double ambient_C);
   [[nodiscard]] Dq motoring_reference(const DriveCommand& command);

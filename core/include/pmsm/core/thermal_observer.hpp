@@ -145,6 +145,11 @@ class ThermalObserver {
   bool update_resistance(double rs_ohm, double rs_std_ohm, double systematic_std_ohm = 0.0,
                          double age_s = 0.0);
 
+  // The filter's winding estimate `age_s` controller seconds before its last update, from the
+  // history above (linear between updates; before the oldest kept, the oldest; after a jump
+  // emptied it, the present estimate).
+  [[nodiscard]] double winding_at_age_C(double age_s) const;
+
   void set_calibration(const Calibration& c) { calibration_ = c; }
   void set_time_scale(double time_scale) { config_.time_scale = time_scale; }
   [[nodiscard]] double time_scale() const { return config_.time_scale; }
@@ -182,15 +187,15 @@ class ThermalObserver {
   static constexpr int kReanchorAfterGated = 5;
   // The winding estimate after each of the last predict() calls (controller seconds on a
   // clock of the observer's own), for measurements that belong to a moment past. The state
-  // jumps at a fusion and a restart, which empty it: a later measurement's time lies after
-  // those (an event starts after the previous one's fusion).
+  // jumps at a fusion and a restart, which restart it from the new state: a later measurement's
+  // time lies after those (an event starts after the previous one's fusion).
   static constexpr std::size_t kHistory = 256;  // 2.56 s at the 10 ms thermal update
   std::array<double, kHistory> history_C_{};
   std::array<double, kHistory> history_s_{};
   std::size_t history_size_ = 0;
   std::size_t history_next_ = 0;
   double clock_s_ = 0.0;
-  [[nodiscard]] double winding_at_age_C(double age_s) const;
+  void restart_history();  // only the present state: after a jump of the state
   [[nodiscard]] bool reanchor_consistent(double z, double r) const;
   void cap_variance(int i, double limit);
   void set_loss_errors(double dp_W, double dp_std_W, double k, double k_std, double correlation,
