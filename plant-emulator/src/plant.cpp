@@ -727,9 +727,9 @@ struct Plant::Impl {
     return kinks;
   }
 
-  // Earliest fraction of the step (phase currents i0 -> state s1) at which a phase current crosses a kink, beyond
-  // the first thousandth of the step (a step that starts on a kink, as the one after a split
-  // does, is not split again at its start), or 2 for none.
+  // Earliest fraction of the step (phase currents i0 -> state s1) at which a phase current
+  // crosses a kink, beyond the first thousandth of the step (a step that starts on a kink, as
+  // the one after a split does, is not split again at its start), or 2 for none.
   [[nodiscard]] double find_kink(const Kinks& kinks, const std::array<double, 3>& i0,
                                 const State& s1) const {
     double first = 2.0;
