@@ -163,8 +163,9 @@ const SupervisorStatus& Supervisor::step(const SupervisorInput& in) noexcept {
     cause_mask_ |= bit(FaultCode::kOvertemperature);
   }
 
-  // Every cause present latches its fault (counted once per latching).
-  for (std::size_t k = 1; k < kFaultCodeCount; ++k) {
+  // Every cause present latches its fault (counted once per latching). The common period has
+  // none: no scan of every code then.
+  for (std::size_t k = 1; cause_mask_ != 0U && k < kFaultCodeCount; ++k) {
     const auto code = static_cast<FaultCode>(k);
     if ((cause_mask_ & bit(code)) != 0U) {
       latch(code);
