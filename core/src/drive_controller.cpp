@@ -254,9 +254,8 @@ void DriveController::handle_estimate(const EventEstimate& e) {
     // Inverse-variance weights: an event whose inverter voltage was still unknown carries
     // a large error bar and must not pull Rs0.
     // Each event's Rs is referred back to the known temperature through Eq. 1, at the winding
-    // temperature the thermal model predicts for the event (the calibration's own injection
-    // losses warm it).
-    // The temperature of the event's own time (its pairs' time, before publication).
+    // temperature the thermal model predicts for the event's own time (its pairs' time, before
+    // publication; the calibration's own injection losses warm it).
     const double rs_at_known =
         e.rs_ohm * resistance_at_temperature_ohm(1.0, observer_.winding_at_age_C(measurement_age_s(e)),
                                                  calibration_temp_C_,

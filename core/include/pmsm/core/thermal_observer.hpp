@@ -146,8 +146,8 @@ class ThermalObserver {
                          double age_s = 0.0);
 
   // The filter's winding estimate `age_s` controller seconds before its last update, from the
-  // history above (linear between updates; before the oldest kept, the oldest; after a jump
-  // emptied it, the present estimate).
+  // history below (linear between updates; before the oldest kept, the oldest; after a jump
+  // of the state, which restarts the history, the state since the jump).
   [[nodiscard]] double winding_at_age_C(double age_s) const;
 
   void set_calibration(const Calibration& c) { calibration_ = c; }
