@@ -120,6 +120,39 @@ TEST(DeadTimeCompensation, TheMeasuredSignPatternIsCorrectedForTheSamplesNoise) 
   EXPECT_GT(mean_soft_sign_of_measured(band, band, band, 0.16), 1.0 - 1e-12);
 }
 
+// The correction's normal CDF is interpolated from a table (modulation.cpp): against the same
+// formula with libm's erfc, over lines of every span through and around both knees, including
+// spans short enough that the difference quotient amplifies the table's error.
+TEST(DeadTimeCompensation, TheNoiseCorrectionAgreesWithTheExactNormalCdf) {
+  auto cdf = [](double z) { return z < -4.5 ? 0.0 : (z > 4.5 ? 1.0 : 0.5 * std::erfc(-z / std::sqrt(2.0))); };
+  auto exact = [&](double i0, double i1, double b, double sigma) {
+    auto along = [&](double x) {
+      const double span = i1 - i0;
+      const double z0 = (i0 - x) / sigma;
+      if (std::abs(span) < 1e-3 * sigma) {
+        return std::abs(z0) > 9.0 ? 0.0 : std::exp(-0.5 * z0 * z0) / (sigma * std::sqrt(2.0 * M_PI));
+      }
+      return (cdf((i1 - x) / sigma) - cdf(z0)) / span;
+    };
+    return sigma * sigma / (2.0 * b) * (along(b) - along(-b));
+  };
+  const double band = 0.75;
+  double worst = 0.0;
+  double largest = 0.0;
+  for (const double sigma : {0.05, 0.16, 0.4}) {
+    for (const double span : {-3.3, -0.4, -0.01, 2e-3, 0.05, 1.1}) {
+      for (double i0 = -band - 3.0; i0 <= band + 3.0; i0 += 0.0137) {
+        const double want = exact(i0, i0 + span, band, sigma);
+        worst = std::max(worst, std::abs(soft_sign_noise_correction(i0, i0 + span, band, sigma) - want));
+        largest = std::max(largest, std::abs(want));
+      }
+    }
+  }
+  EXPECT_GT(largest, 0.05);      // the lines do pass the knees
+  EXPECT_LT(worst, 1e-5 * largest) << "largest correction " << largest;
+  EXPECT_TRUE(std::isnan(soft_sign_noise_correction(std::nan(""), 0.5, band, 0.16)));
+}
+
 TEST(DeadTimeCompensation, SoftSignMomentIsTheFirstMomentOverALinearCurrent) {
   // Against a brute-force integral of u soft_sign(i(u)), u in [-1/2, 1/2].
   for (const auto& [i0, i1, band] :
