@@ -68,7 +68,14 @@ hal::InverterCommand SensorFrontend::command(const core::DriveOutput& out, std::
     return c;
   }
   for (std::size_t n = 0; n < 3; ++n) {
-    c.duty[n] = static_cast<std::uint16_t>(std::lround(std::clamp(out.duty[n], 0.0, 1.0) * hal::kDutyFullScale));
+    // Rounded half away from zero as std::lround does, without its libm call (about 27
+    // instructions, three a period): the scaled duty is in [0, 65535], its fraction exact.
+    const double scaled = std::clamp(out.duty[n], 0.0, 1.0) * hal::kDutyFullScale;
+    auto counts = static_cast<std::uint16_t>(scaled);
+    if (scaled - static_cast<double>(counts) >= 0.5) {
+      ++counts;
+    }
+    c.duty[n] = counts;
   }
   return c;
 }

@@ -5,6 +5,7 @@
 // temperature knowledge.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <functional>
 #include <random>
@@ -396,6 +397,42 @@ TEST(SensorFrontend, MeasuresTheNoiseFromConsecutiveGatesOffSamplesOnly) {
   feed(few, 10, false);
   ASSERT_TRUE(few.ready());
   EXPECT_EQ(few.current_noise_A(), 0.0);
+}
+
+// The duties go out in counts of 1/65535, rounded as std::lround rounds (half away from zero),
+// clamped to [0, 1], and a non-finite duty turns the gates off with zero duties.
+TEST(SensorFrontend, DutiesAreRoundedToCountsAsLroundRoundsThem) {
+  SensorFrontend f(SensorScaling{}, 1e-4);
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<double> duty(-0.1, 1.1);
+  auto check = [&](double d) {
+    core::DriveOutput out;
+    out.enable = true;
+    out.duty = {d, 1.0 - d, 0.5};
+    const hal::InverterCommand c = f.command(out, 1);
+    for (std::size_t n = 0; n < 3; ++n) {
+      const long want = std::lround(std::clamp(out.duty[n], 0.0, 1.0) * hal::kDutyFullScale);
+      ASSERT_EQ(static_cast<long>(c.duty[n]), want) << "duty " << out.duty[n];
+    }
+    EXPECT_TRUE(c.enable);
+  };
+  for (int k = 0; k < 100000; ++k) {
+    check(duty(rng));
+  }
+  for (int counts = 0; counts <= 65535; counts += 97) {  // exact ties and their neighbours
+    const double tie = (static_cast<double>(counts) + 0.5) / hal::kDutyFullScale;
+    check(tie);
+    check(std::nextafter(tie, 0.0));
+    check(std::nextafter(tie, 1.0));
+  }
+  check(0.0);
+  check(1.0);
+  core::DriveOutput bad;
+  bad.enable = true;
+  bad.duty = {0.5, std::nan(""), 0.5};
+  const hal::InverterCommand off = f.command(bad, 2);
+  EXPECT_FALSE(off.enable);
+  EXPECT_EQ(off.duty[0], 0);
 }
 
 // The magnet estimate ages in thermal time: a drive that stops measuring it (at the voltage
