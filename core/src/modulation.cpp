@@ -23,10 +23,12 @@ Duties duties_from_phase_voltages(const std::array<double, 3>& v, double vdc_V) 
 
 // The standard normal CDF on [-4.5, 4.5] by cubic Hermite interpolation between nodes 1/16
 // apart, from the CDF and its derivative (the density) at each node: within 2.2e-8 of erfc
-// (|Phi| / 384 h^4, |Phi| <= 0.55), its first derivative within 2e-6 of the density,
+// (max |Phi''''| h^4 / 384, max |Phi''''| = 0.55), its first derivative within 1.1e-6 of the density,
 // for the price of a few multiplications where erfc costs about a hundred instructions and a
 // loaded phase passes the band's knees in many periods (docs/performance.md). Beyond 4.5
-// standard deviations 0 or 1 (off by 3.4e-6 at most). Built once, at static initialisation.
+// standard deviations 0 or 1 (off by 3.4e-6 at most; at +-4.5 exactly the node's value, as
+// erfc's was). Built once, at static initialisation: nothing may call it from another static
+// object's constructor (none does; the controllers are built in main).
 class NormalCdfTable {
  public:
   NormalCdfTable() {
@@ -40,10 +42,10 @@ class NormalCdfTable {
   }
 
   [[nodiscard]] double operator()(double z) const {
-    if (!(z > -kRange)) {
-      return z <= -kRange ? 0.0 : z;  // NaN stays NaN
+    if (!(z >= -kRange)) {
+      return z < -kRange ? 0.0 : z;  // NaN stays NaN
     }
-    if (z >= kRange) {
+    if (z > kRange) {
       return 1.0;
     }
     const double t = (z + kRange) * kPerUnit;

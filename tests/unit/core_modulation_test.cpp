@@ -1,6 +1,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <numbers>
 #include <random>
 #include <tuple>
 
@@ -130,7 +131,7 @@ TEST(DeadTimeCompensation, TheNoiseCorrectionAgreesWithTheExactNormalCdf) {
       const double span = i1 - i0;
       const double z0 = (i0 - x) / sigma;
       if (std::abs(span) < 1e-3 * sigma) {
-        return std::abs(z0) > 9.0 ? 0.0 : std::exp(-0.5 * z0 * z0) / (sigma * std::sqrt(2.0 * M_PI));
+        return std::abs(z0) > 9.0 ? 0.0 : std::exp(-0.5 * z0 * z0) / (sigma * std::sqrt(2.0 * std::numbers::pi));
       }
       return (cdf((i1 - x) / sigma) - cdf(z0)) / span;
     };
@@ -146,6 +147,15 @@ TEST(DeadTimeCompensation, TheNoiseCorrectionAgreesWithTheExactNormalCdf) {
         worst = std::max(worst, std::abs(soft_sign_noise_correction(i0, i0 + span, band, sigma) - want));
         largest = std::max(largest, std::abs(want));
       }
+    }
+  }
+  // Lines that end exactly on the table's ends and its last node (z = +-4.5, just below 4.5).
+  for (const double z : {-4.5, 4.5, std::nextafter(4.5, 0.0)}) {
+    const double sigma = 1.0;
+    const double i0 = band + z * sigma;
+    for (const double span : {0.3, -0.3, 2e-3}) {
+      const double want = exact(i0, i0 + span, band, sigma);
+      worst = std::max(worst, std::abs(soft_sign_noise_correction(i0, i0 + span, band, sigma) - want));
     }
   }
   EXPECT_GT(largest, 0.05);      // the lines do pass the knees

@@ -58,7 +58,9 @@ struct Duties {
 [[nodiscard]] inline double mean_soft_sign(double i0_A, double i1_A, double current_band_A) {
   const double b = std::max(current_band_A, 0.0);
   // Outside the band on one side throughout, as most phases are in most periods: the sign is
-  // constant, exactly (the quotient below would give it to an ulp, at the cost of a division).
+  // constant, exactly (the quotient below loses about ulp(i) / span to cancellation, at the
+  // cost of a division). Infinite currents on one side give the sign too; the drive's
+  // measured currents are finite (DriveController::controllable).
   if (i0_A > b && i1_A > b) {
     return 1.0;
   }
@@ -84,8 +86,8 @@ struct Duties {
 // uncorrected one. Measured in closed loop: field-weakening pairs at 314 rad/s and 5 Nm read
 // -1.96 % uncorrected, -1.29 % corrected, -1.11 % with noiseless current sensors
 // (docs/estimator.md section 4). Costs nothing unless the line passes within 4.5 sigma_eff
-// of a knee, and an erfc only for a sample that close to it (each density is 0 beyond, off by
-// 3.4e-6 at most). The correction itself is out of line (modulation.cpp), so that the common
+// of a knee, and a normal CDF from a table only for a sample that close to it (each density is 0
+// beyond, off by 3.4e-6 at most). The correction itself is out of line (modulation.cpp), so that the common
 // case below stays a few compares inline.
 [[nodiscard]] double soft_sign_noise_correction(double i0_A, double i1_A, double current_band_A, double sigma_eff_A);
 
