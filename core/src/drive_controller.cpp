@@ -254,10 +254,13 @@ void DriveController::handle_estimate(const EventEstimate& e) {
     // Inverse-variance weights: an event whose inverter voltage was still unknown carries
     // a large error bar and must not pull Rs0.
     // Each event's Rs is referred back to the known temperature through Eq. 1, at the winding
-    // temperature the thermal model predicts for the event's own time (its pairs' time, before
-    // publication; the calibration's own injection losses warm it).
+    // temperature the thermal model predicts now (the calibration's own injection losses warm
+    // it). The model's temperature at the event's own time (ThermalObserver::winding_at_age_C)
+    // was tried: no better in the simulator over 20 seeds, and 1.3-1.8 C higher in the
+    // two-process HIL at 400x thermal acceleration, for a reason not yet found
+    // (docs/estimator.md section 7, "An estimate's own time").
     const double rs_at_known =
-        e.rs_ohm * resistance_at_temperature_ohm(1.0, observer_.winding_at_age_C(measurement_age_s(e)),
+        e.rs_ohm * resistance_at_temperature_ohm(1.0, observer_.estimate().winding_C,
                                                  calibration_temp_C_,
                                                  config_.thermal.conductor_inferred_zero_C);  // Eq. 1
     const double w = 1.0 / std::max(e.rs_std_ohm * e.rs_std_ohm, 1e-12);
