@@ -434,38 +434,45 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   const double smooth_wrapped = have_previous_ ? wrap_angle_0_2pi(previous_smooth_wrapped_ + smooth_advance)
                                                : wrap_angle_0_2pi(theta_smooth);
 
-  // The period that just ended, [k-1, k]: its voltage was commanded two steps ago.
+  // The period that just ended, [k-1, k]: its voltage was commanded two steps ago. Built only
+  // for a reader: the scheduler's recording phases (InjectionScheduler::records) or the
+  // no-injection baseline; the rest of a pair and the time between events need none (about a
+  // sixth of a step's instructions, docs/performance.md). The bridge sweep needs only the
+  // period's middle angle and ends' mean current.
+  const bool baseline_reads = config_.estimator == EstimatorKind::kNoInjection && enabled && !sweep_.active();
+  const bool scheduler_reads = config_.estimator == EstimatorKind::kInjection && scheduler_.records();
   std::optional<PeriodSample> sample;
-  if (have_previous_) {
-    PeriodSample& s = sample.emplace();  // filled in place, not built and copied
-    s.time_s = now - 0.5 * config_.period_s;
-    s.theta_e_rad = 0.5 * (previous_theta_smooth_ + theta_smooth);
-    s.omega_e_rad_s = omega_e;
-    s.omega_m_rad_s = angle_.mechanical_speed_rad_s();
-    s.di_dt_A_s = {(i.d - previous_i_A_.d) / config_.period_s, (i.q - previous_i_A_.q) / config_.period_s};
+  if (have_previous_ && (baseline_reads || scheduler_reads || sweep_.active())) {
     // The rotation at the period's middle by the smooth angle, from the sample's by the small
     // gap between the two (half a period's advance and the encoder's steps): no second sincos.
     const double mid = wrap_angle_0_2pi(previous_smooth_wrapped_ + 0.5 * smooth_advance);
     const Rotation at_mid = compose(at_sample, small_rotation(wrap_angle_pm_pi(mid - theta)));
-    const PeriodPattern pattern =
-        dead_time_pattern(previous_i_abc_A_, in.i_A, config_.dead_time.current_band_A,
-                          // the correction is first order in noise / band: never more than a quarter
-                          std::min(pattern_noise_A_, 0.25 * config_.dead_time.current_band_A), at_mid);
-    // The period's means as the machine saw them: the stator-fixed command and bridge error,
-    // turned back across the period, shrink; the current bends (machine_equations.hpp).
-    const double shrink = period_voltage_shrink(smooth_advance);
-    s.v_V = {shrink * v_applied_now_.d, shrink * v_applied_now_.q};
-    s.dead_time_pattern = period_sign_pattern(pattern.mean, pattern.moment, smooth_advance);
-    const double vx = scheduler_.vx_V();
     const Dq ends_mean{0.5 * (previous_i_A_.d + i.d), 0.5 * (previous_i_A_.q + i.q)};
-    s.i_A = period_mean_current(ends_mean, {i.d - previous_i_A_.d, i.q - previous_i_A_.q},
-                                {s.v_V.d - vx * s.dead_time_pattern.d, s.v_V.q - vx * s.dead_time_pattern.q},
-                                pattern.moment, vx, smooth_advance, config_.period_s,
-                                {config_.current.rs_ohm, config_.current.ld_H, config_.current.lq_H});
-
-    s.voltage_limited = limited_now_;
-    if (config_.estimator == EstimatorKind::kNoInjection && enabled && !sweep_.active()) {
-      baseline_.add(s);  // not on the sweep's d-axis levels: they are not motoring
+    if (baseline_reads || scheduler_reads) {
+      PeriodSample& s = sample.emplace();  // filled in place, not built and copied
+      s.time_s = now - 0.5 * config_.period_s;
+      s.theta_e_rad = 0.5 * (previous_theta_smooth_ + theta_smooth);
+      s.omega_e_rad_s = omega_e;
+      s.omega_m_rad_s = angle_.mechanical_speed_rad_s();
+      s.di_dt_A_s = {(i.d - previous_i_A_.d) / config_.period_s, (i.q - previous_i_A_.q) / config_.period_s};
+      const PeriodPattern pattern =
+          dead_time_pattern(previous_i_abc_A_, in.i_A, config_.dead_time.current_band_A,
+                            // the correction is first order in noise / band: never more than a quarter
+                            std::min(pattern_noise_A_, 0.25 * config_.dead_time.current_band_A), at_mid);
+      // The period's means as the machine saw them: the stator-fixed command and bridge error,
+      // turned back across the period, shrink; the current bends (machine_equations.hpp).
+      const double shrink = period_voltage_shrink(smooth_advance);
+      s.v_V = {shrink * v_applied_now_.d, shrink * v_applied_now_.q};
+      s.dead_time_pattern = period_sign_pattern(pattern.mean, pattern.moment, smooth_advance);
+      const double vx = scheduler_.vx_V();
+      s.i_A = period_mean_current(ends_mean, {i.d - previous_i_A_.d, i.q - previous_i_A_.q},
+                                  {s.v_V.d - vx * s.dead_time_pattern.d, s.v_V.q - vx * s.dead_time_pattern.q},
+                                  pattern.moment, vx, smooth_advance, config_.period_s,
+                                  {config_.current.rs_ohm, config_.current.ld_H, config_.current.lq_H});
+      s.voltage_limited = limited_now_;
+      if (baseline_reads) {
+        baseline_.add(s);  // not on the sweep's d-axis levels: they are not motoring
+      }
     }
     // The bridge sweep sees the measured currents, as the estimator does: at speed they carry
     // the EMF harmonics' ripple, which moves the zero crossings (a pattern built from the
@@ -474,8 +481,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     // it runs near standstill, where the period's rotation is negligible, and its fit stays
     // consistent in itself.
     if (sweep_.active() &&
-        sweep_.step(enabled, in.i_A, at_mid,
-                    v_applied_now_.d, ends_mean.d, omega_e, s.voltage_limited)) {
+        sweep_.step(enabled, in.i_A, at_mid, v_applied_now_.d, ends_mean.d, omega_e, limited_now_)) {
       finish_inverter_sweep(now);
     }
   }

@@ -139,7 +139,9 @@ class Harness {
     in.enabled = enabled;
     in.request_now = request_now;
     in.rs_rate_ohm_per_s = tell_rs_rate ? plant.rs_rate_ohm_per_s : 0.0;
-    const SchedulerOutput out = scheduler.step(in, previous ? &*previous : nullptr);
+    // The controller builds a period's sample only when the scheduler says it reads one.
+    const bool give = previous && (!sample_only_when_recording || scheduler.records());
+    const SchedulerOutput out = scheduler.step(in, give ? &*previous : nullptr);
     records.push_back({time_s, theta_e_rad, out});
     if (out.completed) pairs.push_back(*out.completed);
     if (out.estimate) estimates.push_back(*out.estimate);
@@ -202,6 +204,7 @@ class Harness {
   bool request_now = false;
   bool flag_voltage_limited = false;
   bool tell_rs_rate = true;  // pass the plant's dRs/dt as the thermal model's prediction
+  bool sample_only_when_recording = false;  // as DriveController::step: InjectionScheduler::records
   std::function<void(Harness&)> hook;
   std::optional<PeriodSample> previous;
   std::vector<StepRecord> records;
@@ -605,6 +608,59 @@ TEST(InjectionScheduler, StandstillRecordsOverTime) {
   EXPECT_EQ(h.estimates[0].outcome, EventOutcome::kPublished);
   EXPECT_NEAR(h.estimates[0].rs_ohm, h.plant.rs_ohm, 2e-4);
   EXPECT_FALSE(h.estimates[0].has_emf);
+}
+
+// The controller leaves a period's sample unbuilt when records() is false: the scheduler must
+// then behave exactly as if it had been given, for every method, separation and phase.
+TEST(InjectionScheduler, ReadsASampleOnlyWhenItSaysItRecords) {
+  struct Case {
+    const char* name;
+    InjectionMethod method;
+    Separation separation;
+    double omega_e;
+    Dq motoring;
+  };
+  const Case cases[] = {
+      {"fixed-magnitude bipolar", InjectionMethod::kFixedMagnitude, Separation::kBipolar, 300.0, {0.0, 10.0}},
+      {"fixed-magnitude unipolar", InjectionMethod::kFixedMagnitude, Separation::kUnipolar, 300.0, {0.0, 10.0}},
+      {"fixed-angle bipolar", InjectionMethod::kFixedAngle, Separation::kBipolar, 300.0, {0.0, 10.0}},
+      {"DC at standstill", InjectionMethod::kDc, Separation::kBipolar, 0.0, {}},
+      {"field weakening", InjectionMethod::kFixedMagnitude, Separation::kBipolar, 1000.0, {0.0, 20.0}},
+  };
+  for (const Case& k : cases) {
+    InjectionConfig c = test_config();
+    c.method = k.method;
+    c.separation = k.separation;
+    Harness always(c, k.omega_e);
+    Harness lazy(c, k.omega_e);
+    lazy.sample_only_when_recording = true;
+    for (Harness* h : {&always, &lazy}) {
+      h->motoring_A = k.motoring;
+      h->run_until(1.0);
+    }
+    ASSERT_EQ(always.records.size(), lazy.records.size()) << k.name;
+    std::size_t recording_steps = 0;
+    for (std::size_t n = 0; n < always.records.size(); ++n) {
+      const SchedulerOutput& a = always.records[n].out;
+      const SchedulerOutput& b = lazy.records[n].out;
+      ASSERT_EQ(a.phase, b.phase) << k.name << " step " << n;
+      ASSERT_EQ(a.injection_A.d, b.injection_A.d) << k.name << " step " << n;
+      ASSERT_EQ(a.injection_A.q, b.injection_A.q) << k.name << " step " << n;
+      recording_steps += a.phase == P::kRecord1 || a.phase == P::kRecord2 || a.phase == P::kPulseWait ? 1U : 0U;
+    }
+    EXPECT_GT(recording_steps, 100U) << k.name << ": the case must record";
+    ASSERT_EQ(always.pairs.size(), lazy.pairs.size()) << k.name;
+    ASSERT_GE(always.pairs.size(), 2U) << k.name;
+    for (std::size_t n = 0; n < always.pairs.size(); ++n) {
+      EXPECT_EQ(always.pairs[n].outcome, lazy.pairs[n].outcome) << k.name << " pair " << n;
+      EXPECT_EQ(always.pairs[n].rs_ohm, lazy.pairs[n].rs_ohm) << k.name << " pair " << n;
+      EXPECT_EQ(always.pairs[n].samples, lazy.pairs[n].samples) << k.name << " pair " << n;
+    }
+    ASSERT_EQ(always.estimates.size(), lazy.estimates.size()) << k.name;
+    for (std::size_t n = 0; n < always.estimates.size(); ++n) {
+      EXPECT_EQ(always.estimates[n].rs_ohm, lazy.estimates[n].rs_ohm) << k.name << " estimate " << n;
+    }
+  }
 }
 
 // ---- budget ----

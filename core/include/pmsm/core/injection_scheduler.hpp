@@ -280,6 +280,14 @@ class InjectionScheduler {
   [[nodiscard]] const InjectionConfig& config() const { return config_; }
   [[nodiscard]] SchedulerPhase phase() const { return phase_; }
   [[nodiscard]] double next_event_s() const { return next_event_s_; }
+  // Whether the next step() reads its sample: only a recording phase does (a pair's ramps and
+  // settling, and the time between events, need none), so the caller may leave the period's
+  // sample unbuilt otherwise.
+  [[nodiscard]] bool records() const {
+    return config_.method != InjectionMethod::kNone &&
+           (phase_ == SchedulerPhase::kRecord1 || phase_ == SchedulerPhase::kWaitArc ||
+            phase_ == SchedulerPhase::kRecord2 || phase_ == SchedulerPhase::kPulseWait);
+  }
 
   // The largest F the budget allows now, and the reason when it is below f_min.
   struct Budget {
