@@ -8,16 +8,6 @@
 namespace pmsm::core {
 namespace {
 
-struct Interpolated {
-  Dq i{};
-  double did_dt = 0.0;  // the fit needs only the d-axis rate
-  Dq v{};
-  Dq g{};
-  double omega_e = 0.0;
-  double omega_m = 0.0;
-  bool limited = false;
-};
-
 // Four-point Lagrange interpolation at x, for samples at coordinates c[0..3] (the bracket is
 // c[1]..c[2]). The recorded signals carry EMF harmonics with only a handful of samples per
 // cycle at speed; linear interpolation attenuates them by several per cent, always in the
@@ -46,30 +36,6 @@ Weights lagrange_weights(const std::array<double, 4>& c, double x) {
   out.w[2] = (x0 * x1 * x3) / (d02 * d12 * d23);
   out.w[3] = (x0 * x1 * x2) / (-d03 * -d13 * -d23);
   return out;
-}
-
-template <typename Get>
-double combine(const std::array<const PeriodSample*, 4>& s, const Weights& w, Get get) {
-  double v = 0.0;
-  for (std::size_t j = 0; j < 4; ++j) {
-    v += w.w[j] * get(*s[j]);
-  }
-  return v;
-}
-
-Interpolated interpolate(const std::array<const PeriodSample*, 4>& s, const Weights& w) {
-  Interpolated r;
-  r.i = {combine(s, w, [](const PeriodSample& p) { return p.i_A.d; }),
-         combine(s, w, [](const PeriodSample& p) { return p.i_A.q; })};
-  r.did_dt = combine(s, w, [](const PeriodSample& p) { return p.di_dt_A_s.d; });
-  r.v = {combine(s, w, [](const PeriodSample& p) { return p.v_V.d; }),
-         combine(s, w, [](const PeriodSample& p) { return p.v_V.q; })};
-  r.g = {combine(s, w, [](const PeriodSample& p) { return p.dead_time_pattern.d; }),
-         combine(s, w, [](const PeriodSample& p) { return p.dead_time_pattern.q; })};
-  r.omega_e = combine(s, w, [](const PeriodSample& p) { return p.omega_e_rad_s; });
-  r.omega_m = combine(s, w, [](const PeriodSample& p) { return p.omega_m_rad_s; });
-  r.limited = s[1]->voltage_limited || s[2]->voltage_limited;
-  return r;
 }
 
 struct Solution {
@@ -425,7 +391,7 @@ MeansFit solve_means_fit_fixed_vx(const std::optional<PairMeans>* means, int cou
   return means_fit(FixedVxMeans{vx_V}, means, count);
 }
 
-PairRecorder::PairRecorder(std::size_t capacity) : first_(capacity) {}
+PairRecorder::PairRecorder(std::size_t capacity) : coord1_(capacity), row1_(capacity), limited1_(capacity) {}
 
 void PairRecorder::start(const PairFitConfig& config, MatchBy match_by, double direction) {
   config_ = config;
@@ -451,13 +417,17 @@ void PairRecorder::start(const PairFitConfig& config, MatchBy match_by, double d
 }
 
 bool PairRecorder::add_first(const PeriodSample& s) {
-  if (size1_ >= first_.size()) {
+  if (size1_ >= row1_.size()) {
     return false;
   }
   if (size1_ == 0) {
     origin1_ = coordinate(s);
   }
-  first_[size1_++] = s;
+  coord1_[size1_] = coordinate(s) - origin1_;
+  row1_[size1_] = {s.i_A.d, s.i_A.q, s.di_dt_A_s.d, s.v_V.d, s.v_V.q, s.dead_time_pattern.d,
+                   s.dead_time_pattern.q, s.omega_e_rad_s, s.omega_m_rad_s, 0.0};
+  limited1_[size1_] = s.voltage_limited ? 1U : 0U;
+  ++size1_;
   sum_time1_ += s.time_s;
   sum_omega1_ += s.omega_e_rad_s;
   sum_iq1_ += s.i_A.q;
@@ -482,8 +452,7 @@ double PairRecorder::add_second(const PeriodSample& s) {
   }
   // Recording 1's samples are in increasing coordinate; advance the cursor to the pair that
   // brackets phi.
-  auto c1 = [&](std::size_t k) { return coordinate(first_[k]) - origin1_; };
-  while (cursor_ + 2 < size1_ && c1(cursor_ + 1) < phi) {
+  while (cursor_ + 2 < size1_ && coord1_[cursor_ + 1] < phi) {
     ++cursor_;
   }
   // Four samples around the bracket [cursor, cursor + 1], shifted inwards at the ends.
@@ -491,28 +460,33 @@ double PairRecorder::add_second(const PeriodSample& s) {
   if (size1_ < 4) {
     return phi;
   }
-  std::array<const PeriodSample*, 4> s4{};
-  std::array<double, 4> c4{};
-  for (std::size_t j = 0; j < 4; ++j) {
-    s4[j] = &first_[first + j];
-    c4[j] = c1(first + j);
-  }
+  const std::array<double, 4> c4{coord1_[first], coord1_[first + 1], coord1_[first + 2], coord1_[first + 3]};
   for (std::size_t j = 1; j < 4; ++j) {
     if (!(c4[j] - c4[j - 1] > 1e-12)) {
       return phi;  // repeated coordinates (a stalled rotor): no sensible interpolation here
     }
   }
-  const Interpolated r1 = interpolate(s4, lagrange_weights(c4, phi));
+  // Recording 1 at phi: every channel the same weighted sum of the four rows.
+  const Weights w = lagrange_weights(c4, phi);
+  const Row& r0 = row1_[first];
+  const Row& r1 = row1_[first + 1];
+  const Row& r2 = row1_[first + 2];
+  const Row& r3 = row1_[first + 3];
+  Row r;
+  for (std::size_t k = 0; k < kChannels; ++k) {
+    r[k] = 0.0 + w.w[0] * r0[k] + w.w[1] * r1[k] + w.w[2] * r2[k] + w.w[3] * r3[k];
+  }
+  const bool r1_limited = limited1_[first + 1] != 0U || limited1_[first + 2] != 0U;
 
   // Eqs. 37 / 43, recording 1 minus recording 2 at the same angle:
   // dVd + d(w psi_q) = Rs dId + Vx dGd + Ld d(dId/dt), with d(w psi_q) = Lq iq dw +
   // Lq_inc w diq (the secant and the incremental inductance; equal without saturation).
-  const double y = (r1.v.d - s.v_V.d) +
-                   config_.lq_H * 0.5 * (r1.i.q + s.i_A.q) * (r1.omega_e - s.omega_e_rad_s) +
-                   config_.lq_incremental_H * 0.5 * (r1.omega_e + s.omega_e_rad_s) * (r1.i.q - s.i_A.q) -
-                   config_.ld_H * (r1.did_dt - s.di_dt_A_s.d);
-  const std::array<double, kRegressors + 1> raw{r1.i.d - s.i_A.d, r1.g.d - s.dead_time_pattern.d,
-                                                r1.did_dt - s.di_dt_A_s.d, y};
+  const double y = (r[kVd] - s.v_V.d) +
+                   config_.lq_H * 0.5 * (r[kIq] + s.i_A.q) * (r[kOmegaE] - s.omega_e_rad_s) +
+                   config_.lq_incremental_H * 0.5 * (r[kOmegaE] + s.omega_e_rad_s) * (r[kIq] - s.i_A.q) -
+                   config_.ld_H * (r[kDidDt] - s.di_dt_A_s.d);
+  const std::array<double, kRegressors + 1> raw{r[kId] - s.i_A.d, r[kGd] - s.dead_time_pattern.d,
+                                                r[kDidDt] - s.di_dt_A_s.d, y};
   // Moving average over the last filter_length matched samples (the same on every channel).
   const int length = std::clamp(config_.filter_length, 1, kMaxFilter);
   auto& slot = ring_[static_cast<std::size_t>(ring_next_)];
@@ -539,17 +513,17 @@ double PairRecorder::add_second(const PeriodSample& s) {
   sum_omega2_ += s.omega_e_rad_s;
   sum_iq2_ += s.i_A.q;
   sum_id2_ += s.i_A.d;
-  any_limited_ = any_limited_ || s.voltage_limited || r1.limited;
-  sum_vq_ += 0.5 * (r1.v.q + s.v_V.q);
-  sum_iq_ += 0.5 * (r1.i.q + s.i_A.q);
-  sum_wid_ += 0.5 * (r1.omega_e * r1.i.d + s.omega_e_rad_s * s.i_A.d);
-  sum_wm_ += 0.5 * (r1.omega_m + s.omega_m_rad_s);
-  sum_gq_ += 0.5 * (r1.g.q + s.dead_time_pattern.q);
-  sum_vd_ += 0.5 * (r1.v.d + s.v_V.d);
-  sum_id_ += 0.5 * (r1.i.d + s.i_A.d);
-  sum_didt_ += 0.5 * (r1.did_dt + s.di_dt_A_s.d);
-  sum_wiq_ += 0.5 * (r1.omega_e * r1.i.q + s.omega_e_rad_s * s.i_A.q);
-  sum_gd_ += 0.5 * (r1.g.d + s.dead_time_pattern.d);
+  any_limited_ = any_limited_ || s.voltage_limited || r1_limited;
+  sum_vq_ += 0.5 * (r[kVq] + s.v_V.q);
+  sum_iq_ += 0.5 * (r[kIq] + s.i_A.q);
+  sum_wid_ += 0.5 * (r[kOmegaE] * r[kId] + s.omega_e_rad_s * s.i_A.d);
+  sum_wm_ += 0.5 * (r[kOmegaM] + s.omega_m_rad_s);
+  sum_gq_ += 0.5 * (r[kGq] + s.dead_time_pattern.q);
+  sum_vd_ += 0.5 * (r[kVd] + s.v_V.d);
+  sum_id_ += 0.5 * (r[kId] + s.i_A.d);
+  sum_didt_ += 0.5 * (r[kDidDt] + s.di_dt_A_s.d);
+  sum_wiq_ += 0.5 * (r[kOmegaE] * r[kIq] + s.omega_e_rad_s * s.i_A.q);
+  sum_gd_ += 0.5 * (r[kGd] + s.dead_time_pattern.d);
   return phi;
 }
 

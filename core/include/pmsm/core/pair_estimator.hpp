@@ -223,9 +223,7 @@ class PairRecorder {
   bool add_first(const PeriodSample& s);
   // The extent of recording 1, in the matching coordinate (angle from its first sample, or
   // time); recording 2 must cover the same.
-  [[nodiscard]] double first_extent() const {
-    return size1_ == 0 ? 0.0 : coordinate(first_[size1_ - 1]) - origin1_;
-  }
+  [[nodiscard]] double first_extent() const { return size1_ == 0 ? 0.0 : coord1_[size1_ - 1]; }
   [[nodiscard]] std::size_t first_size() const { return size1_; }
   // Start of recording 1 in the matching coordinate (absolute angle or time).
   [[nodiscard]] double first_origin() const { return origin1_; }
@@ -247,7 +245,16 @@ class PairRecorder {
   }
 
  private:
-  std::vector<PeriodSample> first_;  // preallocated at construction; never grows
+  // Recording 1 as the matching reads it, preallocated at construction (never grows): each
+  // sample's coordinate from recording 1's origin, the channels the match needs in one
+  // contiguous row (the four-point interpolation combines whole rows, which the compiler
+  // vectorises; the last channel is padding so that a row splits into pairs of doubles), and
+  // whether its command was limited.
+  enum Channel : std::size_t { kId, kIq, kDidDt, kVd, kVq, kGd, kGq, kOmegaE, kOmegaM, kPad, kChannels };
+  using Row = std::array<double, kChannels>;
+  std::vector<double> coord1_;
+  std::vector<Row> row1_;
+  std::vector<std::uint8_t> limited1_;
   std::size_t size1_ = 0;
   std::size_t cursor_ = 0;
   PairFitConfig config_{};
