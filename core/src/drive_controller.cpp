@@ -441,7 +441,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   // period's middle angle and ends' mean current.
   const bool baseline_reads = config_.estimator == EstimatorKind::kNoInjection && enabled && !sweep_.active();
   const bool scheduler_reads = config_.estimator == EstimatorKind::kInjection && scheduler_.records();
-  std::optional<PeriodSample> sample;
+  const PeriodSample* sample = nullptr;  // period_sample_ once built
   if (have_previous_ && (baseline_reads || scheduler_reads || sweep_.active())) {
     // The rotation at the period's middle by the smooth angle, from the sample's by the small
     // gap between the two (half a period's advance and the encoder's steps): no second sincos.
@@ -449,7 +449,9 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     const Rotation at_mid = compose(at_sample, small_rotation(wrap_angle_pm_pi(mid - theta)));
     const Dq ends_mean{0.5 * (previous_i_A_.d + i.d), 0.5 * (previous_i_A_.q + i.q)};
     if (baseline_reads || scheduler_reads) {
-      PeriodSample& s = sample.emplace();  // filled in place, not built and copied
+      // Filled in place, every field (the member is reused: neither zero-filled nor copied).
+      PeriodSample& s = period_sample_;
+      sample = &period_sample_;
       s.time_s = now - 0.5 * config_.period_s;
       s.theta_e_rad = 0.5 * (previous_theta_smooth_ + theta_smooth);
       s.omega_e_rad_s = omega_e;
@@ -515,7 +517,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     fail_calibration(CalibrationFailure::kTimeout);
   }
   si.request_now = command.request_injection || (calibrating_ && enabled);
-  const SchedulerOutput& so = scheduler_.step(si, sample ? &*sample : nullptr);
+  const SchedulerOutput& so = scheduler_.step(si, sample);
   if (so.completed) {
     handle_pair(*so.completed);
   }
@@ -547,7 +549,9 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     const Abc correction = dead_time_compensation_V(i_start, i_end, config_.dead_time, in.vdc_V, config_.period_s);
     const Duties d = svpwm_corrected(inverse_park(v, c, sn), in.vdc_V, correction);
     output_.duty = d.value;
-    if (!std::isfinite(d.value[0]) || !std::isfinite(d.value[1]) || !std::isfinite(d.value[2])) {
+    // The duties are clamped to [0, 1] or NaN (a NaN passes the clamp): their sum is finite
+    // exactly when each one is.
+    if (!std::isfinite(d.value[0] + d.value[1] + d.value[2])) {
       // Never a plausible-looking command from an implausible computation: gates off, and
       // the caller latches the fault.
       output_ = {};

@@ -176,17 +176,27 @@ bool solve_sums(const FitSums& s, const std::array<bool, kRegressors>& active,
 }  // namespace
 
 void FitSums::add(const std::array<double, kRegressors>& x, double y) {
-  // x[r] x[c] = x[c] x[r] exactly: each product once, added to both triangles.
-  for (std::size_t r = 0; r < kRegressors; ++r) {
-    xtx[r][r] += x[r] * x[r];
-    for (std::size_t c = r + 1; c < kRegressors; ++c) {
-      const double p = x[r] * x[c];
-      xtx[r][c] += p;
-      xtx[c][r] += p;
-    }
-    xty[r] += x[r] * y;
-    sum_x[r] += x[r];
-  }
+  // Written out for the three regressors (the loops cost as much again as the arithmetic);
+  // x[r] x[c] = x[c] x[r] exactly: each cross product once, added to both triangles.
+  static_assert(kRegressors == 3, "FitSums::add is written out for three regressors");
+  const double p01 = x[0] * x[1];
+  const double p02 = x[0] * x[2];
+  const double p12 = x[1] * x[2];
+  xtx[0][0] += x[0] * x[0];
+  xtx[0][1] += p01;
+  xtx[0][2] += p02;
+  xtx[1][0] += p01;
+  xtx[1][1] += x[1] * x[1];
+  xtx[1][2] += p12;
+  xtx[2][0] += p02;
+  xtx[2][1] += p12;
+  xtx[2][2] += x[2] * x[2];
+  xty[0] += x[0] * y;
+  xty[1] += x[1] * y;
+  xty[2] += x[2] * y;
+  sum_x[0] += x[0];
+  sum_x[1] += x[1];
+  sum_x[2] += x[2];
   yty += y * y;
   sum_y += y;
   n += 1.0;
@@ -490,10 +500,12 @@ double PairRecorder::add_second(const PeriodSample& s) {
   // Moving average over the last filter_length matched samples (the same on every channel).
   const int length = std::clamp(config_.filter_length, 1, kMaxFilter);
   auto& slot = ring_[static_cast<std::size_t>(ring_next_)];
-  for (std::size_t c = 0; c <= kRegressors; ++c) {
-    if (ring_count_ >= length) {
+  if (ring_count_ >= length) {
+    for (std::size_t c = 0; c <= kRegressors; ++c) {
       ring_sum_[c] -= slot[c];
     }
+  }
+  for (std::size_t c = 0; c <= kRegressors; ++c) {
     slot[c] = raw[c];
     ring_sum_[c] += raw[c];
   }

@@ -295,6 +295,7 @@ class DriveController {
   Dq previous_i_A_{};
   Abc previous_i_abc_A_{};
   double pattern_noise_A_ = 0.0;  // effective noise of the sampled line (set_current_noise_A)
+  PeriodSample period_sample_{};  // the period that just ended, when step() builds it
   double previous_theta_smooth_ = 0.0;
   double previous_smooth_wrapped_ = 0.0;  // the same angle wrapped into [0, 2 pi)
   Dq v_applied_next_{};             // command of step k-1 (applies during period k)
