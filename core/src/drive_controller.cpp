@@ -17,22 +17,38 @@ struct PeriodPattern {
   Dq mean;
   Dq moment;
 };
+// One phase's mean sign over the period and whether it varies in it. A phase whose line stays
+// beyond the band and the noise correction's reach (kNoiseCorrectionReachSigma) on one side, as most phases
+// do in most periods, is told by two compares: the same values mean_soft_sign_of_measured and
+// soft_sign_varies give there, without their repeated tests.
+struct PhaseSign {
+  double mean = 0.0;
+  bool varies = false;
+};
+PhaseSign phase_sign(double i0, double i1, double band_A, double b, double reach, double noise_eff_A) {
+  if (i0 > b + reach && i1 > b + reach) {
+    return {1.0, false};
+  }
+  if (i0 < -b - reach && i1 < -b - reach) {
+    return {-1.0, false};
+  }
+  return {mean_soft_sign_of_measured(i0, i1, band_A, noise_eff_A), soft_sign_varies(i0, i1, b)};
+}
+
 PeriodPattern dead_time_pattern(const Abc& i0, const Abc& i1, double band_A, double noise_eff_A, const Rotation& r) {
-  const Abc sign{mean_soft_sign_of_measured(i0.a, i1.a, band_A, noise_eff_A),
-                 mean_soft_sign_of_measured(i0.b, i1.b, band_A, noise_eff_A),
-                 mean_soft_sign_of_measured(i0.c, i1.c, band_A, noise_eff_A)};
-  const Dq mean = park(clarke(sign), r.c, r.s);
+  const double b = std::max(band_A, 0.0);
+  const double reach = noise_eff_A > 0.0 && band_A > 0.0 ? kNoiseCorrectionReachSigma * noise_eff_A : 0.0;
+  const PhaseSign pa = phase_sign(i0.a, i1.a, band_A, b, reach, noise_eff_A);
+  const PhaseSign pb = phase_sign(i0.b, i1.b, band_A, b, reach, noise_eff_A);
+  const PhaseSign pc = phase_sign(i0.c, i1.c, band_A, b, reach, noise_eff_A);
+  const Dq mean = park(clarke(Abc{pa.mean, pb.mean, pc.mean}), r.c, r.s);
   // A phase whose current stays outside the band on one side has a constant sign and no
   // moment: in most periods no phase is near zero, and the moment is not computed at all.
-  const double b = std::max(band_A, 0.0);
-  const bool na = soft_sign_varies(i0.a, i1.a, b);
-  const bool nb = soft_sign_varies(i0.b, i1.b, b);
-  const bool nc = soft_sign_varies(i0.c, i1.c, b);
-  if (!(na || nb || nc)) {
+  if (!(pa.varies || pb.varies || pc.varies)) {
     return {mean, Dq{}};
   }
-  const Abc moment{na ? soft_sign_moment(i0.a, i1.a, b) : 0.0, nb ? soft_sign_moment(i0.b, i1.b, b) : 0.0,
-                   nc ? soft_sign_moment(i0.c, i1.c, b) : 0.0};
+  const Abc moment{pa.varies ? soft_sign_moment(i0.a, i1.a, b) : 0.0, pb.varies ? soft_sign_moment(i0.b, i1.b, b) : 0.0,
+                   pc.varies ? soft_sign_moment(i0.c, i1.c, b) : 0.0};
   return {mean, park(clarke(moment), r.c, r.s)};
 }
 

@@ -90,6 +90,8 @@ struct Duties {
 // beyond, off by 3.4e-6 at most). The correction itself is out of line (modulation.cpp), so that the common
 // case below stays a few compares inline.
 [[nodiscard]] double soft_sign_noise_correction(double i0_A, double i1_A, double current_band_A, double sigma_eff_A);
+// How far from a knee, in sigma_eff, the correction reaches (each density is 0 beyond).
+inline constexpr double kNoiseCorrectionReachSigma = 4.5;
 
 [[nodiscard]] inline double mean_soft_sign_of_measured(double i0_A, double i1_A, double current_band_A,
                                                        double sigma_eff_A) {
@@ -98,7 +100,7 @@ struct Duties {
     // [-b - r, b + r] and does not stay inside (-b + r, b - r).
     const double lo = std::min(i0_A, i1_A);
     const double hi = std::max(i0_A, i1_A);
-    const double r = 4.5 * sigma_eff_A;
+    const double r = kNoiseCorrectionReachSigma * sigma_eff_A;
     const double b = current_band_A;
     if (lo < b + r && hi > -b - r && !(lo > r - b && hi < b - r)) {
       return mean_soft_sign(i0_A, i1_A, b) + soft_sign_noise_correction(i0_A, i1_A, b, sigma_eff_A);
