@@ -21,10 +21,6 @@ void CurrentController::reset() {
   status_ = {};
 }
 
-double CurrentController::voltage_limit_V(double vdc_V) const {
-  return config_.voltage_limit_fraction * vdc_V / kSqrt3;
-}
-
 const CurrentControllerStatus& CurrentController::step(const Dq& i_ref_A, const Dq& i_meas_A,
                                                        double omega_e_rad_s, double vdc_V) {
   const double dt = config_.period_s;

@@ -11,9 +11,4 @@ Dq rotor_frame_voltage(const DqMachine& m, const Dq& i_A, const Dq& di_dt_A_s,
               m.ke_V_s_per_rad * omega_m_rad_s};
 }
 
-double electromagnetic_torque_Nm(double flux_linkage_Wb, double ld_H, double lq_H, int pole_pairs,
-                                 const Dq& i_A) {
-  return 1.5 * pole_pairs * (flux_linkage_Wb * i_A.q + (ld_H - lq_H) * i_A.d * i_A.q);
-}
-
 }  // namespace pmsm::core

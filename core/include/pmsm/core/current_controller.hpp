@@ -50,8 +50,11 @@ class CurrentController {
   [[nodiscard]] const CurrentControllerConfig& config() const { return config_; }
   [[nodiscard]] const CurrentControllerStatus& status() const { return status_; }
 
-  // Voltage limit for a DC-bus voltage (radius of the usable circle).
-  [[nodiscard]] double voltage_limit_V(double vdc_V) const;
+  // Voltage limit for a DC-bus voltage (radius of the usable circle). Inline: asked twice a
+  // period.
+  [[nodiscard]] double voltage_limit_V(double vdc_V) const {
+    return config_.voltage_limit_fraction * vdc_V / kSqrt3;
+  }
 
  private:
   CurrentControllerConfig config_;

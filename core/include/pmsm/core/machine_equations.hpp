@@ -69,8 +69,11 @@ struct PeriodMachine {
 
 // Eq. 10, Tem = Kt * iqr, extended with the reluctance torque of a salient machine:
 // Tem = 3/2 * p * (psi_m * iq + (Ld - Lq) * id * iq). With Ld = Lq it reduces to Eq. 10.
-[[nodiscard]] double electromagnetic_torque_Nm(double flux_linkage_Wb, double ld_H, double lq_H,
-                                               int pole_pairs, const Dq& i_A);
+// Inline: the control step reports it every period.
+[[nodiscard]] inline double electromagnetic_torque_Nm(double flux_linkage_Wb, double ld_H, double lq_H,
+                                                      int pole_pairs, const Dq& i_A) {
+  return 1.5 * pole_pairs * (flux_linkage_Wb * i_A.q + (ld_H - lq_H) * i_A.d * i_A.q);
+}
 
 // Eq. 1, Rs = Rs0 + alpha Rs0 (Ts - T0), with alpha referred to T0. A conductor's resistance
 // is proportional to (K + T), K its inferred zero-resistance temperature, so
