@@ -15,9 +15,12 @@
 //
 // Per period it records the wake-up lateness (wake-up minus deadline), the node step's time
 // and the plant's, and reports their min / median / p99 / p99.9 / max, with
-//   deadline misses   periods whose node step finished after the period's end (deadline +
-//                     period): the command would have been late for the next PWM period;
-//   missed periods    deadlines the timer skipped because a period overran (PeriodicTimer).
+//   deadline misses   deadlines whose command (the end of the node step) came after the
+//                     period's end (deadline + period), late for the next PWM period, plus
+//                     the deadlines the timer skipped after an overrun (no command at all);
+//                     the floor's are counted alike, from its wake-ups.
+// The node step's time is DriveNode::step alone; "deadline to command" also holds the
+// replay's own work before it (the scenario's set-points), as a daemon's frame handling.
 // A step's time on a shared, non-real-time host includes the host's preemptions; the
 // deterministic cost of a step is bench/step-cost.sh's instruction count.
 //
@@ -77,6 +80,9 @@ Options parse(int argc, char** argv) {
   }
   for (int k = 3; k < argc; k += 2) {
     const std::string flag = argv[k];
+    if (flag.rfind("--", 0) != 0) {
+      usage(("unexpected argument " + flag).c_str());
+    }
     if (k + 1 >= argc) {
       usage(("missing value after " + flag).c_str());
     }
@@ -95,17 +101,22 @@ Options parse(int argc, char** argv) {
   return o;
 }
 
-// Percentile by rank over a sorted copy (nearest rank).
+// Percentile of a sorted series by nearest rank: the smallest value with at least p n values
+// at or below it (p = 0: the minimum).
 double percentile(const std::vector<std::int64_t>& sorted, double p) {
   if (sorted.empty()) {
     return 0.0;
   }
-  const auto n = sorted.size();
-  const auto rank = static_cast<std::size_t>(std::min<double>(static_cast<double>(n) - 1.0, p * static_cast<double>(n)));
-  return static_cast<double>(sorted[rank]);
+  const double n = static_cast<double>(sorted.size());
+  const double rank = std::clamp(std::ceil(p * n), 1.0, n);
+  return static_cast<double>(sorted[static_cast<std::size_t>(rank) - 1]);
 }
 
 void report(const char* name, std::vector<std::int64_t> v) {
+  if (v.empty()) {
+    std::printf("  %-22s (none)\n", name);
+    return;
+  }
   std::sort(v.begin(), v.end());
   std::printf("  %-22s %8.1f %8.1f %8.1f %8.1f %9.1f\n", name, percentile(v, 0.0) * 1e-3, percentile(v, 0.5) * 1e-3,
               percentile(v, 0.99) * 1e-3, percentile(v, 0.999) * 1e-3, static_cast<double>(v.back()) * 1e-3);
@@ -118,7 +129,7 @@ int main(int argc, char** argv) {
   try {
     pmsm::bench::StepReplay replay(o.scenario);
     const auto period = std::chrono::nanoseconds(std::llround(replay.period_s() * 1e9));
-    const auto periods = std::max<std::size_t>(1, static_cast<std::size_t>(o.seconds / replay.period_s()));
+    const auto periods = static_cast<std::size_t>(std::max<long long>(1, std::llround(o.seconds / replay.period_s())));
     std::vector<std::int64_t> lateness;
     std::vector<std::int64_t> node_ns;
     std::vector<std::int64_t> plant_ns;
@@ -153,36 +164,48 @@ int main(int argc, char** argv) {
     }
     pmsm::hal::prefault_stack();
 
-    // Alternating one-second blocks: even ones only wake up (the floor), odd ones step.
+    // Alternating one-second blocks: even ones only wake up (the floor), odd ones step, until
+    // each kind has its count of wake-ups. A deadline the timer skipped after an overrun is a
+    // miss of the kind whose block it fell in: no command went out for it.
     const auto block = std::clamp<std::size_t>(static_cast<std::size_t>(std::round(1.0 / replay.period_s())), 1, periods);
     std::vector<std::int64_t> floor_lateness;
+    std::vector<std::int64_t> to_command;
     floor_lateness.reserve(periods);
-    std::uint64_t misses = 0;
-    std::uint64_t floor_misses = 0;
+    to_command.reserve(periods);
+    std::uint64_t late = 0;
+    std::uint64_t skipped = 0;
+    std::uint64_t floor_late = 0;
+    std::uint64_t floor_skipped = 0;
     pmsm::hal::PeriodicTimer timer(period);
     timer.start();
-    for (std::size_t k = 0; k < 2 * periods; ++k) {
+    for (std::size_t k = 0; lateness.size() < periods || floor_lateness.size() < periods; ++k) {
       const pmsm::hal::PeriodicTimer::Tick tick = timer.wait_next();
       const std::int64_t woke = pmsm::hal::monotonic_ns();
-      if ((k / block) % 2 == 0) {
+      const bool floor_turn =
+          lateness.size() >= periods || (floor_lateness.size() < periods && (k / block) % 2 == 0);
+      if (floor_turn) {
         floor_lateness.push_back(woke - tick.deadline_ns);
-        floor_misses += woke - tick.deadline_ns > period.count() ? 1U : 0U;
+        floor_late += woke - tick.deadline_ns > period.count() ? 1U : 0U;
+        floor_skipped += tick.missed_periods;
         continue;
       }
+      std::int64_t entered = woke;
       std::int64_t stepped = woke;
       replay.step([&](pmsm::app::DriveNode& node, const pmsm::hal::SensorSample& sample,
                       const pmsm::app::NodeInputs& in) -> const pmsm::app::NodeStep& {
+        entered = pmsm::hal::monotonic_ns();
         const pmsm::app::NodeStep& out = node.step(&sample, in);
         stepped = pmsm::hal::monotonic_ns();
         return out;
       });
       const std::int64_t done = pmsm::hal::monotonic_ns();
       lateness.push_back(woke - tick.deadline_ns);
-      node_ns.push_back(stepped - woke);
+      node_ns.push_back(stepped - entered);
       plant_ns.push_back(done - stepped);
-      misses += stepped - tick.deadline_ns > period.count() ? 1U : 0U;
+      to_command.push_back(stepped - tick.deadline_ns);
+      late += stepped - tick.deadline_ns > period.count() ? 1U : 0U;
+      skipped += tick.missed_periods;
     }
-    const pmsm::hal::PeriodicTimer::Stats st = timer.stats();
     std::printf("pmsm_rt_cycle: %s, %zu stepped periods of %.1f us beside as many of the floor, in blocks of %zu; %s\n",
                 o.scenario.c_str(), lateness.size(), static_cast<double>(period.count()) * 1e-3, block, setup.c_str());
     std::printf("  %-22s %8s %8s %8s %8s %9s   (us)\n", "", "min", "median", "p99", "p99.9", "max");
@@ -190,19 +213,20 @@ int main(int argc, char** argv) {
     report("wake-up lateness", lateness);
     report("DriveNode::step", node_ns);
     report("plant step (no bus)", plant_ns);
-    std::vector<std::int64_t> total(lateness.size());
-    for (std::size_t k = 0; k < total.size(); ++k) {
-      total[k] = lateness[k] + node_ns[k];
-    }
-    report("deadline to command", total);
-    const auto pct = [](std::uint64_t n, std::size_t of) {
-      return 100.0 * static_cast<double>(n) / static_cast<double>(std::max<std::size_t>(of, 1));
+    report("deadline to command", to_command);
+    const auto pct = [](std::uint64_t n, std::uint64_t of) {
+      return 100.0 * static_cast<double>(n) / static_cast<double>(std::max<std::uint64_t>(of, 1));
     };
-    std::printf("  deadline misses (command after the period's end): %llu of %zu (%.3f %%); floor (wake-up after it): %llu of %zu (%.3f %%)\n",
-                static_cast<unsigned long long>(misses), lateness.size(), pct(misses, lateness.size()),
-                static_cast<unsigned long long>(floor_misses), floor_lateness.size(), pct(floor_misses, floor_lateness.size()));
-    std::printf("  timer, both kinds of block: %llu wake-ups after an overrun, %llu periods skipped\n",
-                static_cast<unsigned long long>(st.deadline_misses), static_cast<unsigned long long>(st.missed_periods));
+    const std::uint64_t deadlines = lateness.size() + skipped;
+    const std::uint64_t floor_deadlines = floor_lateness.size() + floor_skipped;
+    std::printf("  deadline misses: %llu of %llu deadlines (%.3f %%): %llu commands after the period's end, %llu periods skipped\n",
+                static_cast<unsigned long long>(late + skipped), static_cast<unsigned long long>(deadlines),
+                pct(late + skipped, deadlines), static_cast<unsigned long long>(late),
+                static_cast<unsigned long long>(skipped));
+    std::printf("  floor: %llu of %llu deadlines (%.3f %%): %llu wake-ups after the period's end, %llu periods skipped\n",
+                static_cast<unsigned long long>(floor_late + floor_skipped), static_cast<unsigned long long>(floor_deadlines),
+                pct(floor_late + floor_skipped, floor_deadlines), static_cast<unsigned long long>(floor_late),
+                static_cast<unsigned long long>(floor_skipped));
     return 0;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "pmsm_rt_cycle: %s\n", e.what());

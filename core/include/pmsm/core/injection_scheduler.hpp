@@ -280,9 +280,9 @@ class InjectionScheduler {
   [[nodiscard]] const InjectionConfig& config() const { return config_; }
   [[nodiscard]] SchedulerPhase phase() const { return phase_; }
   [[nodiscard]] double next_event_s() const { return next_event_s_; }
-  // Whether the next step() reads its sample: only a recording phase does (a pair's ramps and
+  // Whether the next step() may read its sample: only in a recording phase (a pair's ramps and
   // settling, and the time between events, need none), so the caller may leave the period's
-  // sample unbuilt otherwise.
+  // sample unbuilt otherwise. (True also when that step will abort the pair instead.)
   [[nodiscard]] bool records() const {
     return config_.method != InjectionMethod::kNone &&
            (phase_ == SchedulerPhase::kRecord1 || phase_ == SchedulerPhase::kWaitArc ||
