@@ -624,6 +624,7 @@ TEST(InjectionScheduler, ReadsASampleOnlyWhenItSaysItRecords) {
       {"fixed-magnitude bipolar", InjectionMethod::kFixedMagnitude, Separation::kBipolar, 300.0, {0.0, 10.0}},
       {"fixed-magnitude unipolar", InjectionMethod::kFixedMagnitude, Separation::kUnipolar, 300.0, {0.0, 10.0}},
       {"fixed-angle bipolar", InjectionMethod::kFixedAngle, Separation::kBipolar, 300.0, {0.0, 10.0}},
+      {"fixed-angle unipolar", InjectionMethod::kFixedAngle, Separation::kUnipolar, 300.0, {0.0, 10.0}},
       {"DC at standstill", InjectionMethod::kDc, Separation::kBipolar, 0.0, {}},
       {"field weakening", InjectionMethod::kFixedMagnitude, Separation::kBipolar, 1000.0, {0.0, 20.0}},
   };
@@ -636,7 +637,9 @@ TEST(InjectionScheduler, ReadsASampleOnlyWhenItSaysItRecords) {
     lazy.sample_only_when_recording = true;
     for (Harness* h : {&always, &lazy}) {
       h->motoring_A = k.motoring;
-      h->run_until(1.0);
+      // The drive disabled for 5 ms inside the first event: its pair in progress aborts.
+      h->hook = [](Harness& x) { x.enabled = !(x.time_s >= 0.03 && x.time_s < 0.035); };
+      h->run_until(1.6);
     }
     ASSERT_EQ(always.records.size(), lazy.records.size()) << k.name;
     std::size_t recording_steps = 0;
@@ -651,6 +654,14 @@ TEST(InjectionScheduler, ReadsASampleOnlyWhenItSaysItRecords) {
     EXPECT_GT(recording_steps, 100U) << k.name << ": the case must record";
     ASSERT_EQ(always.pairs.size(), lazy.pairs.size()) << k.name;
     ASSERT_GE(always.pairs.size(), 2U) << k.name;
+    // A pair was in progress when the drive was disabled, and the disabled drive dropped it.
+    bool busy_before = false;
+    bool idle_during = true;
+    for (const StepRecord& r : always.records) {
+      if (r.time_s < 0.03 && r.time_s >= 0.0299) busy_before = r.out.phase != P::kIdle;
+      if (r.time_s >= 0.0301 && r.time_s < 0.035) idle_during = idle_during && r.out.phase == P::kIdle;
+    }
+    EXPECT_TRUE(busy_before && idle_during) << k.name << ": the disabled drive must abort a pair";
     for (std::size_t n = 0; n < always.pairs.size(); ++n) {
       EXPECT_EQ(always.pairs[n].outcome, lazy.pairs[n].outcome) << k.name << " pair " << n;
       EXPECT_EQ(always.pairs[n].rs_ohm, lazy.pairs[n].rs_ohm) << k.name << " pair " << n;
