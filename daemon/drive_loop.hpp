@@ -22,6 +22,7 @@
 
 #include "daemon_config.hpp"
 #include "drive_node.hpp"
+#include "pmsm/core/inverter_sweep.hpp"
 #include "pmsm/hal/can_bus.hpp"
 #include "pmsm/hal/codec.hpp"
 #include "pmsm/hal/counters.hpp"
@@ -33,6 +34,8 @@ namespace pmsm::daemon {
 struct PublicationRecord {
   app::NodePublications publications;
   std::optional<core::Calibration> calibration_to_store;
+  // The calibration's bridge sweep, in the period it ended (whatever its outcome), for the log.
+  std::optional<core::InverterSweepResult> inverter_sweep;
   // With each heartbeat: the loop's timing since the previous one (LOOP_TIMING).
   std::optional<hal::protocol::LoopTiming> timing;
   // Every kThermalStateEvery_s of drive time, once the filter has an output: its state, for

@@ -134,6 +134,23 @@ void Publisher::handle(const PublicationRecord& r) {
   if (r.thermal_state) {
     store_thermal_state(*r.thermal_state, r.ambient_C);
   }
+  if (r.inverter_sweep) {
+    // The calibration's bridge sweep ended: what it measured, or why not (a calibration without
+    // it keeps the configured band and the Vx prior, and its Rs0 depends on them).
+    const core::InverterSweepResult& w = *r.inverter_sweep;
+    if (w.outcome == core::InverterSweepOutcome::kMeasured) {
+      spdlog::info("calibration: bridge sweep measured Vx {:.3f} +- {:.3f} V, band {:.3f} A", w.vx_V, w.vx_std_V,
+                   w.band_A);
+    } else {
+      const bool again = w.outcome == core::InverterSweepOutcome::kAborted ||
+                         w.outcome == core::InverterSweepOutcome::kSpeedChanged;
+      spdlog::warn("calibration: bridge sweep {}: {}", core::to_string(w.outcome),
+                   again ? "it starts again once the drive has run 0.25 s without a stop (a few attempts; then the "
+                           "configured band and the Vx prior hold)"
+                         : "the bridge's band is not measured, the configured band (control.dead_time_band_A) and "
+                           "the Vx prior hold for this calibration");
+    }
+  }
   if (r.calibration_failed) {
     if (r.calibration_failure == core::CalibrationFailure::kUncertain) {
       spdlog::warn("calibration refused: Rs0 {:.5f} +- {:.5f} ohm is less certain than "

@@ -135,6 +135,11 @@ void DriveController::restore_band() {
 void DriveController::finish_inverter_sweep(double now_s) {
   const InverterSweepResult& r = sweep_.result();
   sweep_done_ = r;
+  // Aborted by a stop or a lost sample, or by a speed still settling, during a calibration:
+  // started again once the drive has run a while (kSweepHoldoff_s).
+  sweep_pending_ = (r.outcome == InverterSweepOutcome::kAborted || r.outcome == InverterSweepOutcome::kSpeedChanged) &&
+                   calibrating_ && sweep_attempts_ < kSweepAttempts;
+  sweep_running_s_ = 0.0;
   if (r.outcome == InverterSweepOutcome::kMeasured) {
     // The band replaces the configured one (compensation and the estimator's pattern alike).
     // The sweep's Vx is reported, not used as the calibration's prior: it reads up to 0.04 V
@@ -177,8 +182,11 @@ void DriveController::start_calibration(double known_temp_C) {
   calibration_ke_count_ = 0;
   band_before_calibration_A_ = config_.dead_time.current_band_A;
   band_measured_before_ = band_measured_;
+  sweep_pending_ = false;
+  sweep_attempts_ = 0;
   if (config_.inverter_sweep.enabled) {
     sweep_.start(config_.inverter_sweep, config_.period_s);
+    sweep_attempts_ = 1;
   }
   publish_calibration_state();
 }
@@ -202,6 +210,7 @@ void DriveController::abort_calibration() {
       sweep_.abort();
       sweep_done_ = sweep_.result();
     }
+    sweep_pending_ = false;
     restore_band();
     scheduler_.set_config(config_.injection);
   }
@@ -455,6 +464,15 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   // no-injection baseline; the rest of a pair and the time between events need none (about a
   // sixth of a step's instructions, docs/performance.md). The bridge sweep needs only the
   // period's middle angle and ends' mean current.
+  sweep_pending_ = sweep_pending_ && calibrating_;  // a calibration that ended wants no sweep
+  sweep_running_s_ = enabled ? sweep_running_s_ + config_.period_s : 0.0;
+  if (sweep_pending_ && sweep_running_s_ >= kSweepHoldoff_s) {
+    // The calibration's sweep, aborted by a stop, a lost sample or a settling speed, starts
+    // again (kSweepAttempts); the calibration's events wait for it as before.
+    sweep_pending_ = false;
+    ++sweep_attempts_;
+    sweep_.start(config_.inverter_sweep, config_.period_s);
+  }
   const bool baseline_reads = config_.estimator == EstimatorKind::kNoInjection && enabled && !sweep_.active();
   const bool scheduler_reads = config_.estimator == EstimatorKind::kInjection && scheduler_.records();
   const PeriodSample* sample = nullptr;  // period_sample_ once built
@@ -512,8 +530,9 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   was_enabled_ = enabled;
 
   Dq motoring = enabled ? motoring_reference(command) : Dq{};
-  const bool sweeping = sweep_.active();
-  if (sweeping && enabled) {
+  // A sweep waiting to start again holds the calibration's events back as a running one does.
+  const bool sweeping = sweep_.active() || sweep_pending_;
+  if (sweep_.active() && enabled) {
     // The bridge sweep's level, on top of id = 0 control, inside the drive's current limit.
     const double limit = derating_.current_limit_A;
     motoring.d += std::clamp(sweep_.id_ref_A(), -limit, limit);

@@ -268,8 +268,9 @@ TEST(DriveNode, TheSweptBandReplacesTheConfiguredGuessButNotAStoredBand) {
   ASSERT_EQ(sweep(unswept), core::InverterSweepOutcome::kMeasured);
   EXPECT_EQ(abort(unswept), configured) << "the band its Rs0 was learned with";
 
-  // A drive whose stored calibration has a band: a sweep aborted by a stop leaves it in use,
-  // and the calibration that then completes stores it.
+  // A drive whose stored calibration has a band: a sweep aborted by a stop leaves it in use
+  // while the drive is stopped; when it runs again the sweep starts again (as the calibration
+  // resumes), and the calibration that then completes stores the band it measured.
   Rig stored;
   unloaded(stored);
   stored.config.drive.calibration.dead_time_band_A = 0.6;
@@ -287,10 +288,43 @@ TEST(DriveNode, TheSweptBandReplacesTheConfiguredGuessButNotAStoredBand) {
   stored.in.mode = core::DriveMode::kSpeed;
   const std::optional<core::Calibration> done = run_until_stored(stored);
   ASSERT_TRUE(done.has_value()) << "the calibration did not complete";
-  EXPECT_EQ(done->dead_time_band_A, 0.6);
+  EXPECT_EQ(stored.node->controller().inverter_sweep().outcome, core::InverterSweepOutcome::kMeasured);
+  EXPECT_NEAR(done->dead_time_band_A, rig.plant_config.inverter.zero_current_band_A,
+              0.1 * rig.plant_config.inverter.zero_current_band_A);
   const protocol::ThermalEstimate t = next_thermal(stored);
   EXPECT_EQ(t.calibration_result, protocol::CalibrationResult::kDone);
   EXPECT_TRUE(t.calibrated);
+}
+
+// A calibration asked for before the drive is enabled (a supervisor that sends both at once,
+// as the HIL test's does): its sweep, aborted by the stopped drive, starts again when the drive
+// runs and measures the bridge; before, the calibration went on with the configured band.
+TEST(DriveNode, ACalibrationAskedForBeforeTheDriveRunsStillSweepsTheBridge) {
+  Rig rig;
+  rig.plant_config.load.torque_Nm = 0.0;
+  rig.plant = std::make_unique<plant::Plant>(rig.plant_config);
+  rig.in.mode = core::DriveMode::kDisabled;
+  rig.run(100);
+  rig.in.start_calibration = true;
+  rig.run(1);
+  rig.in.start_calibration = false;
+  rig.run(100);
+  EXPECT_TRUE(rig.node->controller().telemetry().calibrating) << "suspended, not ended";
+  EXPECT_EQ(rig.node->controller().inverter_sweep().outcome, core::InverterSweepOutcome::kAborted);
+  rig.in.mode = core::DriveMode::kSpeed;
+  // The sweep starts again once the drive has run a while (and again if the speed was still
+  // settling), then runs to its end.
+  int started = 0;
+  for (int k = 0; k < 50000 && !(started > 0 && !rig.node->controller().telemetry().inverter_sweep_active); ++k) {
+    rig.run(1);
+    if (rig.node->controller().telemetry().inverter_sweep_active && started == 0) started = k;
+  }
+  EXPECT_GT(started, 0) << "the sweep did not start again";
+  const core::InverterSweepResult& sweep = rig.node->controller().inverter_sweep();
+  ASSERT_EQ(sweep.outcome, core::InverterSweepOutcome::kMeasured) << core::to_string(sweep.outcome);
+  EXPECT_NEAR(sweep.band_A, rig.plant_config.inverter.zero_current_band_A,
+              0.1 * rig.plant_config.inverter.zero_current_band_A);
+  EXPECT_EQ(rig.node->controller().telemetry().dead_time_band_A, sweep.band_A);
 }
 
 // Starts a calibration, runs it to its end (at most 20 s) and expects it to have failed for
