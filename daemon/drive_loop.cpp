@@ -105,6 +105,7 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns) 
     r.publications = p;
     r.calibration_to_store = out.calibration_to_store;
     r.inverter_sweep = node_.controller().inverter_sweep_completed();
+    r.inverter_sweep_pending = node_.controller().inverter_sweep_pending();
     r.calibration_failed = out.calibration_failed;
     if (out.calibration_failed) {
       const core::DriveTelemetry& t = node_.controller().telemetry();

@@ -36,6 +36,7 @@ struct PublicationRecord {
   std::optional<core::Calibration> calibration_to_store;
   // The calibration's bridge sweep, in the period it ended (whatever its outcome), for the log.
   std::optional<core::InverterSweepResult> inverter_sweep;
+  bool inverter_sweep_pending = false;  // ... and the controller will start it again
   // With each heartbeat: the loop's timing since the previous one (LOOP_TIMING).
   std::optional<hal::protocol::LoopTiming> timing;
   // Every kThermalStateEvery_s of drive time, once the filter has an output: its state, for

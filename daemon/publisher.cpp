@@ -142,13 +142,14 @@ void Publisher::handle(const PublicationRecord& r) {
       spdlog::info("calibration: bridge sweep measured Vx {:.3f} +- {:.3f} V, band {:.3f} A", w.vx_V, w.vx_std_V,
                    w.band_A);
     } else {
-      const bool again = w.outcome == core::InverterSweepOutcome::kAborted ||
-                         w.outcome == core::InverterSweepOutcome::kSpeedChanged;
-      spdlog::warn("calibration: bridge sweep {}: {}", core::to_string(w.outcome),
-                   again ? "it starts again once the drive has run 0.25 s without a stop (a few attempts; then the "
-                           "configured band and the Vx prior hold)"
-                         : "the bridge's band is not measured, the configured band (control.dead_time_band_A) and "
-                           "the Vx prior hold for this calibration");
+      if (r.inverter_sweep_pending) {
+        spdlog::warn("calibration: bridge sweep {}: it starts again once the drive has run {:.2f} s without a stop",
+                     core::to_string(w.outcome), core::DriveController::kSweepHoldoff_s);
+      } else {
+        spdlog::warn("calibration: bridge sweep {}: the bridge's band is not measured, the configured band "
+                     "(control.dead_time_band_A) and the Vx prior hold for this calibration",
+                     core::to_string(w.outcome));
+      }
     }
   }
   if (r.calibration_failed) {

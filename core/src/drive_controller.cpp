@@ -459,20 +459,25 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   const double smooth_wrapped = have_previous_ ? wrap_angle_0_2pi(previous_smooth_wrapped_ + smooth_advance)
                                                : wrap_angle_0_2pi(theta_smooth);
 
+  if (sweep_pending_) {
+    // The calibration's sweep, aborted by a stop, a lost sample or a settling speed, starts
+    // again once the drive has run kSweepHoldoff_s (kSweepAttempts); the calibration's events
+    // wait for it as before. A calibration that ended wants no sweep.
+    sweep_running_s_ = enabled ? sweep_running_s_ + config_.period_s : 0.0;
+    if (!calibrating_) {
+      sweep_pending_ = false;
+    } else if (sweep_running_s_ >= kSweepHoldoff_s) {
+      sweep_pending_ = false;
+      ++sweep_attempts_;
+      sweep_.start(config_.inverter_sweep, config_.period_s);
+    }
+  }
+
   // The period that just ended, [k-1, k]: its voltage was commanded two steps ago. Built only
   // for a reader: the scheduler's recording phases (InjectionScheduler::records) or the
   // no-injection baseline; the rest of a pair and the time between events need none (about a
   // sixth of a step's instructions, docs/performance.md). The bridge sweep needs only the
   // period's middle angle and ends' mean current.
-  sweep_pending_ = sweep_pending_ && calibrating_;  // a calibration that ended wants no sweep
-  sweep_running_s_ = enabled ? sweep_running_s_ + config_.period_s : 0.0;
-  if (sweep_pending_ && sweep_running_s_ >= kSweepHoldoff_s) {
-    // The calibration's sweep, aborted by a stop, a lost sample or a settling speed, starts
-    // again (kSweepAttempts); the calibration's events wait for it as before.
-    sweep_pending_ = false;
-    ++sweep_attempts_;
-    sweep_.start(config_.inverter_sweep, config_.period_s);
-  }
   const bool baseline_reads = config_.estimator == EstimatorKind::kNoInjection && enabled && !sweep_.active();
   const bool scheduler_reads = config_.estimator == EstimatorKind::kInjection && scheduler_.records();
   const PeriodSample* sample = nullptr;  // period_sample_ once built

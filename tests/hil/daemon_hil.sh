@@ -8,7 +8,9 @@
 # 2. pmsm-thermald (tests/hil/data/hil-daemon.toml, node NODE) and pmsm-plant (lockstep,
 #    tests/hil/data/hil-plant.toml: thermal time 400x, a load step at 4 s) start;
 #    `pmsm-thermal command` enables the drive in speed mode and asks for a calibration at
-#    the ambient temperature (25 C), as a supervisor would (E2E-protected frames);
+#    the ambient temperature (25 C), as a supervisor would (E2E-protected frames); the
+#    calibration's bridge sweep, cut short by the drive not yet running, must start again
+#    and measure (the daemon's log);
 # 3. heat-up: the plant runs DURATION s of simulated time; then the THERMAL_ESTIMATE frames
 #    of the capture, decoded with the project's codec, are compared with the plant's
 #    TRUTH_THERMAL frames (pmsm-thermal monitor --check-*: the estimation tests' bounds,
@@ -110,6 +112,12 @@ pids+=("$!")
 wait "$plant3" || die "the plant did not finish with the restarted daemon: $(tail -3 "$work/plant-3.log")"
 grep -q "controller locked on" "$work/plant-3.log" || die "the restarted daemon did not lock on"
 grep -q "calibration stored in" "$work/daemon.log" || die "the first daemon did not store its calibration"
+# The calibration was asked for with the command that enables the drive: its bridge sweep,
+# cut short by the stopped drive, must start again and measure (docs/estimator.md section 4.1).
+grep -q "calibration: bridge sweep measured" "$work/daemon.log" ||
+  die "the calibration's bridge sweep did not measure: $(grep -m3 'bridge sweep\|calibration done' "$work/daemon.log")"
+grep -q "calibration done: .*bridge band .* A (swept)" "$work/daemon.log" ||
+  die "the calibration did not use the swept band: $(grep -m1 'calibration done' "$work/daemon.log")"
 grep -q "calibration: loaded" "$work/daemon-2.log" || die "the restarted daemon did not load the stored calibration"
 grep -q "thermal state restored from" "$work/daemon-2.log" || die "the restarted daemon did not restore the stored thermal state: $(grep -m2 'thermal state' "$work/daemon-2.log")"
 grep -q "the loss model's learned errors kept" "$work/daemon-2.log" ||

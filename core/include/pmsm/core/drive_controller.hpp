@@ -241,6 +241,15 @@ class DriveController {
   [[nodiscard]] const std::optional<Calibration>& calibration_completed() const { return calibration_done_; }
   // Set for the one period in which the calibration's bridge sweep ended, whatever its outcome.
   [[nodiscard]] const std::optional<InverterSweepResult>& inverter_sweep_completed() const { return sweep_done_; }
+  // A sweep the drive's stop, a lost sample or a speed still settling aborted is started
+  // again once the drive has run kSweepHoldoff_s without a stop, as the calibration itself
+  // resumes: a calibration asked for before the drive was enabled (and so before it reached
+  // its speed), or a passing sensor timeout, must not cost it the bridge's measurement. At
+  // most kSweepAttempts starts per calibration (a drive that keeps stopping or changing speed
+  // goes on without it, as before). True while such a start is due.
+  static constexpr int kSweepAttempts = 5;
+  static constexpr double kSweepHoldoff_s = 0.25;
+  [[nodiscard]] bool inverter_sweep_pending() const { return sweep_pending_; }
   // The last sweep's result (outcome kNone before any).
   [[nodiscard]] const InverterSweepResult& inverter_sweep() const { return sweep_.result(); }
   // True for the one period in which a calibration run failed (timed out, or refused its
@@ -284,15 +293,7 @@ class DriveController {
   // before the calibration in progress, restored if it does not complete.
   bool band_measured_ = false;
   bool band_measured_before_ = false;
-  // A sweep the drive's stop, a lost sample or a speed still settling aborted is started
-  // again once the drive has run kSweepHoldoff_s without a stop, as the calibration itself
-  // resumes: a calibration asked for before the drive was enabled (and so before it reached
-  // its speed), or a passing sensor timeout, must not cost it the bridge's measurement. At
-  // most kSweepAttempts starts per calibration (a drive that keeps stopping or changing speed
-  // goes on without it, as before).
-  static constexpr int kSweepAttempts = 5;
-  static constexpr double kSweepHoldoff_s = 0.25;
-  bool sweep_pending_ = false;
+  bool sweep_pending_ = false;  // a sweep to start again (kSweepHoldoff_s, kSweepAttempts)
   int sweep_attempts_ = 0;
   double sweep_running_s_ = 0.0;  // the drive's run time since the sweep became pending
   double band_before_calibration_A_ = 0.0;
