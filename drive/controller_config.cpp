@@ -241,6 +241,8 @@ ConfigSchema<C> build() {
          "Iron loss per (mechanical rad/s)^2.");
   s.real("thermal.acceleration", [](C& c) -> double& { return c.drive.thermal.time_scale; }, positive(1e6), "",
          "Thermal time runs this many times faster than controller time (1 on a real machine; the plant's acceleration in tests).");
+  s.boolean("thermal.calibration_real_time", [](C& c) -> bool& { return c.calibration_real_time; },
+            "With an acceleration other than 1 (a test), run a calibration at real thermal time, as on a machine (pmsm-plant follows THERMAL_ESTIMATE.Calibrating).");
   s.real("thermal.update_s", [](C& c) -> double& { return c.drive.thermal_update_s; }, positive(10), "s", "Thermal filter period.");
   s.real("thermal.initial_std_C", [](C& c) -> double& { return c.drive.thermal.initial_std_C; }, positive(1000), "C", "Initial uncertainty.");
   s.real("thermal.winding_process_std_C_per_sqrt_s", [](C& c) -> double& { return c.drive.thermal.winding_process_std_C_per_sqrt_s; },

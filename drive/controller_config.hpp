@@ -67,6 +67,9 @@ struct ControllerConfig {
   // daemon writes it while it runs and when it stops, and restores it, cooled through the
   // downtime, when it starts. Empty: none (the filter starts from the ambient sensor).
   std::string thermal_state_file;
+  // With thermal.acceleration other than 1 (a test), a calibration runs the thermal model at
+  // real time, as on a machine; the plant emulator follows (THERMAL_ESTIMATE.Calibrating).
+  bool calibration_real_time = true;
 };
 
 // What became of the stored calibration at start-up.

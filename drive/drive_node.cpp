@@ -71,7 +71,9 @@ DriveNode::DriveNode(const ControllerConfig& config, const core::SupervisorConfi
       resistance_every_(every(rates.resistance_estimate_s)),
       status_every_(every(rates.drive_status_s)),
       heartbeat_every_(every(rates.heartbeat_s)),
-      fault_every_(every(rates.fault_repeat_s)) {}
+      fault_every_(every(rates.fault_repeat_s)),
+      thermal_time_scale_(config.drive.thermal.time_scale),
+      calibration_real_time_(config.calibration_real_time) {}
 
 std::uint64_t DriveNode::every(double seconds) const noexcept {
   if (!(seconds > 0.0)) {
@@ -133,6 +135,13 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
     // The drive's own knowledge of the winding's temperature: the operator's value, or the
     // ambient / coolant sensor of a motor at rest (soaked).
     controller_.start_calibration(in.calibration_known_C.value_or(ambient_C));
+    // In an accelerated test the calibration runs at real thermal time, as on a machine: at
+    // 400x the winding's own time constant shrinks to tens of milliseconds and its temperature
+    // swings within an event (docs/hil.md).
+    if (calibration_real_time_ && thermal_time_scale_ != 1.0 && controller_.telemetry().calibrating) {
+      controller_.set_thermal_time_scale(1.0);
+      real_time_calibration_ = true;
+    }
   }
 
   // The controller sees a sample only when the supervisor found it plausible, and runs the
@@ -157,6 +166,11 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
     out_.calibration_to_store = *controller_.calibration_completed();
   }
   out_.calibration_failed = controller_.calibration_just_failed();
+  if (real_time_calibration_ && !controller_.telemetry().calibrating) {
+    // Done, failed or aborted: the test's thermal time again.
+    controller_.set_thermal_time_scale(thermal_time_scale_);
+    real_time_calibration_ = false;
+  }
 
   publish(in);
   period_ += advance_;
@@ -210,6 +224,7 @@ void DriveNode::publish(const NodeInputs& in) noexcept {
     t.derating_active = tel.derating;
     t.stale = !last_estimate_s_ || now_s - *last_estimate_s_ > rates_.stale_after_s;
     t.calibration_result = to_protocol(tel.calibration_outcome);
+    t.calibrating = tel.calibrating;
     p.thermal = t;
   }
   if (due(status_every_)) {

@@ -135,6 +135,11 @@ class DriveNode {
   NodeStep out_{};
   std::uint32_t published_latched_ = 0;   // the latched mask as last published
   std::array<double, core::kFaultCodeCount> fault_changed_s_{};
+  // A calibration at real thermal time (ControllerConfig::calibration_real_time): the
+  // thermal time scale to return to, and whether a calibration runs at 1 now.
+  double thermal_time_scale_;
+  bool calibration_real_time_;
+  bool real_time_calibration_ = false;
   std::optional<double> sensed_ambient_C_;  // the sample's ambient sensor, last plausible reading
   double ambient_used_C_ = 25.0;
   std::uint8_t heartbeat_counter_ = 0;

@@ -4,6 +4,7 @@
 //
 //   pmsm-plant --config FILE.toml [--iface vcan0] [--node 0] [--mode lockstep|realtime]
 //              [--truth-period-ms 100] [--command-timeout-ms 5] [--duration-s S] [--check]
+//              [--accelerated-calibration]
 //
 // Exit status: 0 after a clean stop (duration reached, SIGINT or SIGTERM) or a passing
 // --check; 1 when the bus cannot be opened (no CAN in the kernel, no such interface, no CAN
@@ -58,6 +59,7 @@ struct Options {
   int rt_priority = 0;
   std::string log_level = "info";
   bool check = false;
+  bool accelerated_calibration = false;
 };
 
 std::string rejected_breakdown(const PlantNodeStats& now, const PlantNodeStats* before) {
@@ -154,6 +156,15 @@ class Monitor {
     } else if (!s.command_timeout_tripped && p.command_timeout_tripped) {
       spdlog::info("inverter commands are arriving again: the output follows them");
     }
+    if (s.calibrations_followed != p.calibrations_followed || s.calibration_real_time != p.calibration_real_time) {
+      if (s.calibration_real_time) {
+        spdlog::info("the controller calibrates: thermal time at real time until it is done (calibration {})",
+                     s.calibrations_followed);
+      } else {
+        spdlog::info("the controller's calibration is over: thermal time accelerated again ({} calibration(s) "
+                     "followed)", s.calibrations_followed);
+      }
+    }
     if (s.tx_dropped != p.tx_dropped) {
       spdlog::warn("dropped {} frame(s) since the last report: the device queue stayed full (ENOBUFS)",
                    s.tx_dropped - p.tx_dropped);
@@ -230,18 +241,19 @@ int run(const Options& o) {
   node_options.command_timeout = std::chrono::nanoseconds{static_cast<std::int64_t>(o.command_timeout_ms * 1e6)};
   node_options.resend_interval = std::chrono::nanoseconds{static_cast<std::int64_t>(o.resend_interval_ms * 1e6)};
   node_options.duration_s = o.duration_s;
+  node_options.follow_calibration = config.thermal.acceleration != 1.0 && !o.accelerated_calibration;
   if (o.check) {
     std::printf("%s: OK (PWM %.0f Hz, %s mode, node %d, truth every %g ms)\n", o.config_path.c_str(),
                 config.inverter.pwm_frequency_Hz, o.mode.c_str(), o.node, o.truth_period_ms);
     return 0;
   }
 
-  // Kernel filters: only this node's INVERTER_COMMAND frames wake the plant.
-  const protocol::FilterSet filters = protocol::receive_filters(protocol::Role::kPlant, node_options.node);
+  // Kernel filters: only this node's INVERTER_COMMAND frames wake the plant (and, to follow
+  // its calibrations, its THERMAL_ESTIMATE).
   pmsm::hal::SocketCanConfig bus_config;
   bus_config.interface = o.iface;
   bus_config.fd = true;  // SENSOR_SAMPLE and INVERTER_COMMAND are CAN FD frames
-  bus_config.filters = std::vector<pmsm::hal::CanFilter>(filters.view().begin(), filters.view().end());
+  bus_config.filters = pmsm::plant::plant_receive_filters(node_options);
   pmsm::hal::Status open_error;
   std::unique_ptr<pmsm::hal::SocketCanBus> bus = pmsm::hal::SocketCanBus::open(bus_config, open_error);
   if (!bus) {
@@ -317,6 +329,9 @@ int main(int argc, char** argv) {
   app.add_option("--log-level", o.log_level, "trace, debug, info, warn, error")
       ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error"}))->capture_default_str();
   app.add_flag("--check", o.check, "validate the configuration and exit (0: valid)");
+  app.add_flag("--accelerated-calibration", o.accelerated_calibration,
+               "with thermal.acceleration other than 1, keep it while the node calibrates (default: real thermal "
+               "time while THERMAL_ESTIMATE says Calibrating, as pmsm-thermald's model runs)");
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

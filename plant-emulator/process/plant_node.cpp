@@ -11,6 +11,7 @@
 #include <string>
 #include <variant>
 
+#include "pmsm/hal/protocol_filters.hpp"
 #include "pmsm/hal/rt.hpp"
 
 namespace pmsm::plant {
@@ -41,8 +42,23 @@ const char* to_string(RunMode mode) noexcept {
   return mode == RunMode::kLockstep ? "lockstep" : "realtime";
 }
 
+std::vector<hal::CanFilter> plant_receive_filters(const PlantNodeOptions& options) {
+  const protocol::FilterSet filters = protocol::receive_filters(protocol::Role::kPlant, options.node);
+  std::vector<hal::CanFilter> out(filters.view().begin(), filters.view().end());
+  if (options.follow_calibration && options.node <= protocol::kMaxNodeId) {
+    out.push_back(hal::CanFilter::exact(protocol::can_id(protocol::MessageType::kThermalEstimate, options.node), false));
+  }
+  return out;
+}
+
 PlantNode::PlantNode(const PlantConfig& config, hal::CanBus& bus, const PlantNodeOptions& options)
-    : plant_(config), bus_(bus), options_(options), receiver_(options.node), period_(0) {
+    : plant_(config),
+      bus_(bus),
+      options_(options),
+      receiver_(options.node),
+      period_(0),
+      thermal_acceleration_(config.thermal.acceleration),
+      thermal_estimate_id_(protocol::can_id(protocol::MessageType::kThermalEstimate, options.node)) {
   if (options.node > protocol::kMaxNodeId) {
     throw std::invalid_argument("node id must be 0.." + std::to_string(protocol::kMaxNodeId) + ", got " +
                                 std::to_string(options.node));
@@ -158,6 +174,10 @@ PlantNode::Wake PlantNode::receive_command(nanoseconds timeout, hal::InverterCom
   if (received_.frame.error) {
     return Wake::kNothing;  // no error classes are selected; ignore any that arrive anyway
   }
+  if (options_.follow_calibration && received_.frame.id == thermal_estimate_id_ && !received_.frame.extended) {
+    follow_calibration(received_.frame);
+    return Wake::kNothing;
+  }
   const protocol::PlantInput input = receiver_.receive(received_.frame);
   if (const auto* command = std::get_if<hal::InverterCommand>(&input)) {
     out = *command;
@@ -167,6 +187,24 @@ PlantNode::Wake PlantNode::receive_command(nanoseconds timeout, hal::InverterCom
     counters_.rejected[static_cast<std::size_t>(rejected->reason)].bump();
   }
   return Wake::kNothing;
+}
+
+void PlantNode::follow_calibration(const hal::CanFrame& frame) noexcept {
+  protocol::ThermalEstimate estimate{};
+  const protocol::DecodeStatus status = protocol::decode(frame, options_.node, estimate);
+  if (status != protocol::DecodeStatus::kOk) {
+    counters_.rejected[static_cast<std::size_t>(status)].bump();
+    return;
+  }
+  if (estimate.calibrating == counters_.calibration_real_time.load(std::memory_order_relaxed)) {
+    return;
+  }
+  // The temperatures carry on; only the time scale of the network changes (no allocation).
+  plant_.set_thermal_acceleration(estimate.calibrating ? 1.0 : thermal_acceleration_);
+  counters_.calibration_real_time.store(estimate.calibrating, std::memory_order_relaxed);
+  if (estimate.calibrating) {
+    counters_.calibrations_followed.bump();
+  }
 }
 
 bool PlantNode::recover_interface(const std::atomic<bool>& stop) {
@@ -391,6 +429,8 @@ PlantNodeStats PlantNode::stats() const noexcept {
   s.output_enabled = c.output_enabled.load(std::memory_order_relaxed);
   s.waiting_for_controller = c.waiting_for_controller.load(std::memory_order_relaxed);
   s.interface_down = c.interface_down.load(std::memory_order_relaxed);
+  s.calibration_real_time = c.calibration_real_time.load(std::memory_order_relaxed);
+  s.calibrations_followed = c.calibrations_followed.get();
   for (std::size_t i = 0; i < s.rejected.size(); ++i) {
     s.rejected[i] = c.rejected[i].get();
   }

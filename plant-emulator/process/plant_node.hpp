@@ -28,6 +28,7 @@
 #include <chrono>
 #include <cstdint>
 #include <optional>
+#include <vector>
 
 #include "pmsm/hal/can_bus.hpp"
 #include "pmsm/hal/codec.hpp"
@@ -57,7 +58,16 @@ struct PlantNodeOptions {
   std::chrono::nanoseconds send_max_wait{std::chrono::milliseconds{1}};
   // How often a lost interface is checked for and the socket reopened.
   std::chrono::nanoseconds reopen_interval{std::chrono::milliseconds{200}};
+  // With a thermal acceleration other than 1: run the thermal network at real time while the
+  // node's THERMAL_ESTIMATE says Calibrating, as pmsm-thermald runs its model
+  // (controller.thermal.calibration_real_time) and as `pmsm-thermal simulate` runs both. The
+  // frame must pass the bus's filters (main.cpp adds it).
+  bool follow_calibration = false;
 };
+
+// The kernel filters pmsm-plant installs: its node's INVERTER_COMMAND and, when it follows the
+// node's calibrations, its THERMAL_ESTIMATE.
+[[nodiscard]] std::vector<hal::CanFilter> plant_receive_filters(const PlantNodeOptions& options);
 
 // A consistent-enough copy of the counters (each field is read atomically; the set is not a
 // single snapshot, which is fine for logs and summaries).
@@ -78,6 +88,8 @@ struct PlantNodeStats {
   bool output_enabled = false;           // the emulated gates switch in the current period
   bool waiting_for_controller = false;   // lockstep: the current sample had to be re-sent
   bool interface_down = false;           // the bus is gone; reopening
+  bool calibration_real_time = false;    // following a calibration: thermal network at 1x now
+  std::uint64_t calibrations_followed = 0;  // calibrations the thermal time followed
   // Frames the receiver rejected, by protocol::DecodeStatus (index kOk is unused).
   std::array<std::uint64_t, hal::protocol::kDecodeStatusCount> rejected{};
   std::uint64_t rx_errors = 0;           // failed reads
@@ -132,6 +144,8 @@ class PlantNode {
     std::array<Counter, hal::protocol::kDecodeStatusCount> rejected;
     Counter rx_errors, tx_dropped, tx_failures, interface_down_events, reopens;
     Counter deadline_misses, missed_periods, max_lateness_ns;
+    Counter calibrations_followed;
+    std::atomic<bool> calibration_real_time{false};
     std::atomic<bool> command_timeout_tripped{false};
     std::atomic<bool> output_enabled{false};
     std::atomic<bool> waiting_for_controller{false};
@@ -155,6 +169,9 @@ class PlantNode {
   Wake receive_command(std::chrono::nanoseconds timeout, hal::InverterCommand& out) noexcept;
   // Sends the current sample (and the bench frames when they are due); false if the
   // interface is gone.
+  // A THERMAL_ESTIMATE of this node (options_.follow_calibration): the thermal time follows
+  // its Calibrating bit; a frame that does not decode is counted as rejected.
+  void follow_calibration(const hal::CanFrame& frame) noexcept;
   bool send_sample() noexcept;
   bool publish_bench_frames_if_due() noexcept;
   bool send(const hal::CanFrame& frame) noexcept;
@@ -174,6 +191,8 @@ class PlantNode {
   hal::ReceivedFrame received_{};  // scratch, preallocated
   // Lockstep: the last applied sequence, to tell duplicates from stale commands.
   std::optional<std::uint32_t> last_applied_sequence_;
+  double thermal_acceleration_;    // the configuration's, restored after a calibration
+  std::uint32_t thermal_estimate_id_;
   Counters counters_;
 };
 

@@ -10,7 +10,8 @@
 #    `pmsm-thermal command` enables the drive in speed mode and asks for a calibration at
 #    the ambient temperature (25 C), as a supervisor would (E2E-protected frames); the
 #    calibration's bridge sweep, cut short by the drive not yet running, must start again
-#    and measure (the daemon's log);
+#    and measure (the daemon's log); the calibration runs at real thermal time in daemon and
+#    plant alike (the plant's log);
 # 3. heat-up: the plant runs DURATION s of simulated time; then the THERMAL_ESTIMATE frames
 #    of the capture, decoded with the project's codec, are compared with the plant's
 #    TRUTH_THERMAL frames (pmsm-thermal monitor --check-*: the estimation tests' bounds,
@@ -118,6 +119,11 @@ grep -q "calibration: bridge sweep measured" "$work/daemon.log" ||
   die "the calibration's bridge sweep did not measure: $(grep -m3 'bridge sweep\|calibration done' "$work/daemon.log")"
 grep -q "calibration done: .*bridge band .* A (swept)" "$work/daemon.log" ||
   die "the calibration did not use the swept band: $(grep -m1 'calibration done' "$work/daemon.log")"
+# At 400x thermal time the calibration runs at real thermal time on both sides, as on a machine
+# and as in `pmsm-thermal simulate` (docs/hil.md): the plant follows THERMAL_ESTIMATE.Calibrating.
+grep -q "the controller calibrates: thermal time at real time" "$work/plant-1.log" &&
+  grep -q "the controller's calibration is over: thermal time accelerated again" "$work/plant-1.log" ||
+  die "the plant did not follow the calibration at real thermal time: $(grep -m2 'calibrat' "$work/plant-1.log")"
 grep -q "calibration: loaded" "$work/daemon-2.log" || die "the restarted daemon did not load the stored calibration"
 grep -q "thermal state restored from" "$work/daemon-2.log" || die "the restarted daemon did not restore the stored thermal state: $(grep -m2 'thermal state' "$work/daemon-2.log")"
 grep -q "the loss model's learned errors kept" "$work/daemon-2.log" ||

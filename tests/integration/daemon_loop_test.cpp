@@ -61,10 +61,11 @@ class Axis {
     plant_options_.mode = plant::RunMode::kLockstep;
     plant_options_.duration_s = plant_duration_s;
     plant_options_.resend_interval = 20ms;
+    // As pmsm-plant: an accelerated plant follows the node's calibrations at real time.
+    plant_options_.follow_calibration = plant_config_.thermal.acceleration != 1.0;
 
     plant_bus_ = bus.connect({.fd = true, .queue_capacity = 1024});
-    const protocol::FilterSet plant_filters = protocol::receive_filters(protocol::Role::kPlant, node);
-    EXPECT_TRUE(plant_bus_->set_filters(plant_filters.view()).ok());
+    EXPECT_TRUE(plant_bus_->set_filters(plant::plant_receive_filters(plant_options_)).ok());
     rt_bus_ = bus.connect({.fd = true, .queue_capacity = 1024});
     const protocol::FilterSet daemon_filters = protocol::receive_filters(protocol::Role::kDaemon, node);
     EXPECT_TRUE(rt_bus_->set_filters(daemon_filters.view()).ok());

@@ -555,6 +555,56 @@ TEST(DriveNode, AFaultSuspendsACalibrationAndAnAbortShowsAtOnce) {
   EXPECT_EQ(next_thermal(rig).calibration_result, protocol::CalibrationResult::kAborted);
 }
 
+// A drive whose thermal model runs accelerated (a test, thermal.acceleration 400) calibrates
+// at real thermal time, as on a machine, and says on the bus that it calibrates (the plant
+// emulator follows that bit); completed, aborted or not, the acceleration comes back. With
+// thermal.calibration_real_time off, the calibration keeps the acceleration.
+TEST(DriveNode, AnAcceleratedDriveCalibratesAtRealThermalTimeAndSaysSo) {
+  Rig rig;
+  rig.plant_config.load.torque_Nm = 0.0;  // a calibration runs unloaded
+  rig.plant = std::make_unique<plant::Plant>(rig.plant_config);
+  rig.config.drive.thermal.time_scale = 400.0;
+  rig.node = std::make_unique<DriveNode>(rig.config, rig.supervisor, PublishRates{});
+  const auto scale = [&] { return rig.node->controller().thermal_time_scale(); };
+  auto start = [&] {
+    rig.in.start_calibration = true;
+    rig.run(1);
+    rig.in.start_calibration = false;
+  };
+  rig.run(2000);
+  EXPECT_FALSE(next_thermal(rig).calibrating);
+  EXPECT_EQ(scale(), 400.0);
+  start();
+  EXPECT_EQ(scale(), 1.0);
+  EXPECT_TRUE(next_thermal(rig).calibrating);
+  ASSERT_TRUE(run_until_stored(rig).has_value()) << "the calibration did not complete";
+  EXPECT_EQ(scale(), 400.0);
+  const protocol::ThermalEstimate done = next_thermal(rig);
+  EXPECT_FALSE(done.calibrating);
+  EXPECT_EQ(done.calibration_result, protocol::CalibrationResult::kDone);
+
+  start();
+  EXPECT_EQ(scale(), 1.0);
+  rig.in.abort_calibration = true;
+  rig.run(1);
+  rig.in.abort_calibration = false;
+  EXPECT_EQ(scale(), 400.0) << "an aborted calibration gives the acceleration back";
+  EXPECT_FALSE(next_thermal(rig).calibrating);
+
+  Rig kept;
+  kept.plant_config.load.torque_Nm = 0.0;
+  kept.plant = std::make_unique<plant::Plant>(kept.plant_config);
+  kept.config.drive.thermal.time_scale = 400.0;
+  kept.config.calibration_real_time = false;
+  kept.node = std::make_unique<DriveNode>(kept.config, kept.supervisor, PublishRates{});
+  kept.run(2000);
+  kept.in.start_calibration = true;
+  kept.run(1);
+  kept.in.start_calibration = false;
+  EXPECT_EQ(kept.node->controller().thermal_time_scale(), 400.0);
+  EXPECT_TRUE(next_thermal(kept).calibrating);
+}
+
 // One started at 200 rad/s unloaded cannot learn the bridge's voltage (docs/estimator.md
 // section 6): refused, and REFUSED on the bus.
 TEST(DriveNode, ACalibrationRefusedAsUncertainIsPublishedAsSuch) {

@@ -35,8 +35,7 @@ class Rig {
  public:
   explicit Rig(PlantNodeOptions options, const PlantConfig& config = reference()) {
     plant_bus_ = bus_.connect({.fd = true, .queue_capacity = 1024});
-    const protocol::FilterSet plant_filters = protocol::receive_filters(protocol::Role::kPlant, options.node);
-    EXPECT_TRUE(plant_bus_->set_filters(plant_filters.view()).ok());
+    EXPECT_TRUE(plant_bus_->set_filters(plant_receive_filters(options)).ok());
     controller_ = bus_.connect({.fd = true, .queue_capacity = 4096});
     const protocol::FilterSet daemon_filters = protocol::receive_filters(protocol::Role::kDaemon, options.node);
     EXPECT_TRUE(controller_->set_filters(daemon_filters.view()).ok());
@@ -214,6 +213,62 @@ TEST(plant_node, LockstepMatchesTheInProcessPlant) {
   ASSERT_TRUE(eventually([&] { return rig.finished(); }));
   EXPECT_EQ(rig.stop(), StopReason::kDuration);
   EXPECT_EQ(rig.node().plant().period(), 500U);
+}
+
+// With a thermal acceleration, the plant runs its thermal network at real time while the
+// node's THERMAL_ESTIMATE says Calibrating, from the period after the frame arrived, exactly as
+// an in-process plant switched at the same period; a malformed THERMAL_ESTIMATE is counted and
+// changes nothing.
+TEST(plant_node, ThermalTimeFollowsTheControllersCalibration) {
+  PlantConfig config = reference();
+  config.thermal.acceleration = 400.0;
+  PlantNodeOptions o = lockstep_options();
+  o.follow_calibration = true;
+  o.duration_s = 0.1;  // 1,000 periods
+  Rig rig(o, config);
+  Plant switched(config);  // switched to real time for periods [300, 700)
+  Plant accelerated(config);
+  const auto thermal_estimate = [&](bool calibrating) {
+    protocol::ThermalEstimate t;
+    t.calibrating = calibrating;
+    hal::CanFrame f;
+    EXPECT_EQ(protocol::encode(t, 3, f), protocol::EncodeStatus::kOk);
+    return f;
+  };
+  rig.start();
+  for (std::uint32_t k = 0; k < 1000; ++k) {
+    const auto s = rig.sample(2s);
+    ASSERT_TRUE(s) << "period " << k;
+    ASSERT_EQ(s->sequence, k);
+    if (k == 300 || k == 700) {
+      rig.send_raw(thermal_estimate(k == 300));
+      switched.set_thermal_acceleration(k == 300 ? 1.0 : 400.0);
+    }
+    if (k == 500) {
+      hal::CanFrame bad = thermal_estimate(false);
+      bad.length = 4;  // THERMAL_ESTIMATE is 8 bytes: rejected, the calibration goes on
+      rig.send_raw(bad);
+    }
+    if (k == 600) {
+      ASSERT_TRUE(rig.node().stats().calibration_real_time);
+    }
+    // About 10 A of direct current in phase a: the winding warms.
+    rig.command(k, true, 0.502);
+    hal::InverterCommand c;
+    c.sequence = k;
+    c.enable = true;
+    c.duty = {static_cast<std::uint16_t>(std::lround(0.502 * hal::kDutyFullScale)), 32768, 32768};
+    switched.step(c);
+    accelerated.step(c);
+  }
+  ASSERT_TRUE(eventually([&] { return rig.finished(); }));
+  rig.stop();
+  const PlantNodeStats st = rig.node().stats();
+  EXPECT_EQ(st.calibrations_followed, 1U);
+  EXPECT_FALSE(st.calibration_real_time);
+  EXPECT_EQ(st.rejected[static_cast<std::size_t>(protocol::DecodeStatus::kWrongLength)], 1U);
+  EXPECT_EQ(rig.node().plant().state().winding_temp_C, switched.state().winding_temp_C);
+  EXPECT_GT(accelerated.state().winding_temp_C - 25.0, 1.5 * (switched.state().winding_temp_C - 25.0));
 }
 
 TEST(plant_node, BenchFramesEveryTruthPeriodOfSimulatedTime) {

@@ -325,11 +325,14 @@ TEST(protocol_codec, TelemetryRoundTrip) {
   thermal.calibrated = true;
   thermal.derating_active = true;
   thermal.stale = true;
+  thermal.calibrating = true;
   const ThermalEstimate tr = round_trip(thermal);
   EXPECT_NEAR(tr.winding_temp_C, 120.37, 0.005);
   EXPECT_NEAR(tr.winding_temp_sigma_C, 2.5, 0.005);
   EXPECT_NEAR(tr.magnet_temp_C, -50.0, 0.005);
-  EXPECT_TRUE(tr.valid && tr.magnet_valid && tr.calibrated && tr.derating_active && tr.stale);
+  EXPECT_TRUE(tr.valid && tr.magnet_valid && tr.calibrated && tr.derating_active && tr.stale && tr.calibrating);
+  thermal.calibrating = false;
+  EXPECT_FALSE(round_trip(thermal).calibrating);
   for (const CalibrationResult result : {CalibrationResult::kNone, CalibrationResult::kDone, CalibrationResult::kAborted,
                                          CalibrationResult::kTimedOut, CalibrationResult::kRefused}) {
     thermal.calibration_result = result;

@@ -406,6 +406,7 @@ TEST(protocol_agreement, ThermalEstimate) {
         m.derating_active = p.coin();
         m.stale = p.coin();
         m.calibration_result = static_cast<CalibrationResult>(p.integer("CalibrationResult"));
+        m.calibrating = p.coin();
         return m;
       },
       [](const ThermalEstimate& m) {
@@ -417,7 +418,8 @@ TEST(protocol_agreement, ThermalEstimate) {
                         {"DeratingActive", b(m.derating_active)},
                         {"Stale", b(m.stale)},
                         {"MagnetValid", b(m.magnet_valid)},
-                        {"CalibrationResult", e(m.calibration_result)}};
+                        {"CalibrationResult", e(m.calibration_result)},
+                        {"Calibrating", b(m.calibrating)}};
       }});
 }
 

@@ -274,7 +274,10 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
   plant::Plant plant(scenario.plant);
   // The drive's whole per-sample path, as pmsm-thermald runs it; the runner only feeds it
   // the plant's samples and the scenario's set-points, and measures.
-  DriveNode node(scenario.controller, default_supervisor_config(scenario.controller), PublishRates{});
+  // In a scenario operation.calibration_real_time decides for the drive and the plant alike.
+  ControllerConfig controller_config = scenario.controller;
+  controller_config.calibration_real_time = sc.calibration_real_time;
+  DriveNode node(controller_config, default_supervisor_config(scenario.controller), PublishRates{});
   core::DriveController& drive = node.controller();
 
   const double ts = plant.period_s();
@@ -320,8 +323,7 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
       cmd.start_calibration = true;
       calibration_started = true;
       if (sc.calibration_real_time) {
-        plant.set_thermal_acceleration(1.0);
-        drive.set_thermal_time_scale(1.0);
+        plant.set_thermal_acceleration(1.0);  // the drive's model: DriveNode, at the same step
         real_time_calibration = true;
       }
     }
@@ -332,9 +334,8 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
     const bool fast_now = k % kFastEvery == kFastEvery - 1;
     truth = plant.state();
 
-    if (real_time_calibration && (drive.calibration_completed() || tel.calibration_failed)) {
+    if (real_time_calibration && !tel.calibrating) {
       plant.set_thermal_acceleration(scenario.plant.thermal.acceleration);
-      drive.set_thermal_time_scale(scenario.controller.drive.thermal.time_scale);
       real_time_calibration = false;
     }
     if (drive.inverter_sweep_completed()) {

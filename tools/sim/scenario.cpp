@@ -187,7 +187,8 @@ ConfigSchema<S> build_schema() {
             "Calibrate Rs0 (and Ke0) at the start, when the winding is known to be at ambient.");
   s.real("operation.calibrate_at_s", [](S& c) -> double& { return c.calibrate_at_s; }, at_least(0), "s", "When to start the calibration.");
   s.boolean("operation.calibration_real_time", [](S& c) -> bool& { return c.calibration_real_time; },
-            "Run the calibration at real thermal time (no test acceleration), as on a machine.");
+            "Run the calibration at real thermal time (no test acceleration), as on a machine; for the plant and the "
+            "drive alike (it replaces the drive's controller.thermal.calibration_real_time).");
   s.real("metrics.log_period_s", [](S& c) -> double& { return c.log_period_s; }, positive(100), "s", "Time series and error sampling period.");
   s.real("metrics.error_threshold_C", [](S& c) -> double& { return c.error_threshold_C; }, between(-50, 300), "C",
          "Winding errors count where the true winding temperature is above this.");

@@ -331,6 +331,7 @@ void write_body(Writer& w, const ThermalEstimate& m) noexcept {
   w.boolean(kStale, m.stale);
   w.boolean(kMagnetValid, m.magnet_valid);
   w.enumeration(kCalibrationResult, m.calibration_result);
+  w.boolean(kCalibrating, m.calibrating);
 }
 void read_body(const Reader& r, ThermalEstimate& m) noexcept {
   using namespace thermal_estimate;
@@ -343,6 +344,7 @@ void read_body(const Reader& r, ThermalEstimate& m) noexcept {
   m.derating_active = r.boolean(kDeratingActive);
   m.stale = r.boolean(kStale);
   m.calibration_result = r.enumeration<CalibrationResult>(kCalibrationResult);
+  m.calibrating = r.boolean(kCalibrating);
 }
 
 void write_body(Writer& w, const ResistanceEstimate& m) noexcept {

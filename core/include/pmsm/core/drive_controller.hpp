@@ -218,6 +218,7 @@ class DriveController {
 
   // Thermal time scale of the controller's model (the test acceleration; 1 on a machine).
   void set_thermal_time_scale(double time_scale) { observer_.set_time_scale(time_scale); }
+  [[nodiscard]] double thermal_time_scale() const { return observer_.time_scale(); }
   // The standard deviation of one current sample's noise (A; the drive measures it with the
   // ADC offsets at power-up): the sign pattern built from measured currents is corrected for
   // it (mean_soft_sign_of_measured). 0, not finite or negative: no correction.

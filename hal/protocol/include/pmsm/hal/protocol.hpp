@@ -347,6 +347,7 @@ struct ThermalEstimate {
   // The last calibration run's outcome: a refused or timed-out one leaves the calibration in
   // use (Calibrated says whether that is a calibration or the configured default).
   CalibrationResult calibration_result = CalibrationResult::kNone;
+  bool calibrating = false;            // a calibration run is in progress
 };
 
 struct ResistanceEstimate {
@@ -581,9 +582,11 @@ inline constexpr SignalDef kMagnetValid{"MagnetValid", 52, 1, false, 1, 0, 0, 1,
     "1: MagnetTemp holds an estimate measured within calibration.magnet_max_age_s of thermal time."};
 inline constexpr SignalDef kCalibrationResult{"CalibrationResult", 53, 3, false, 1, 0, 0, 4, "", kCalibrationResultLabels,
     "How the last calibration since start ended; ABORTED, TIMED_OUT and REFUSED keep the calibration in use."};
-inline constexpr std::array<SignalDef, 9> kSignals{
+inline constexpr SignalDef kCalibrating{"Calibrating", 56, 1, false, 1, 0, 0, 1, "", detail::kNoValues,
+    "1: a calibration run is in progress (its result follows in CalibrationResult)."};
+inline constexpr std::array<SignalDef, 10> kSignals{
     kWindingTemp, kWindingTempSigma, kMagnetTemp, kValid, kCalibrated, kDeratingActive, kStale, kMagnetValid,
-    kCalibrationResult};
+    kCalibrationResult, kCalibrating};
 }  // namespace thermal_estimate
 
 namespace resistance_estimate {
