@@ -282,8 +282,8 @@ void DriveController::handle_estimate(const EventEstimate& e) {
     // temperature the thermal model predicts now (the calibration's own injection losses warm
     // it). The model's temperature at the event's own time (ThermalObserver::winding_at_age_C)
     // was tried: no better in the simulator over 20 seeds, and 1.3-1.8 C higher in the
-    // two-process HIL at 400x thermal acceleration, for a reason not yet found
-    // (docs/estimator.md section 7, "An estimate's own time").
+    // two-process HIL while that calibrated at 400x thermal time, where the winding cools
+    // between an event's pairs and its publication (docs/estimator.md section 7, docs/hil.md).
     const double rs_at_known =
         e.rs_ohm * resistance_at_temperature_ohm(1.0, observer_.estimate().winding_C,
                                                  calibration_temp_C_,
