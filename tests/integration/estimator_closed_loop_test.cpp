@@ -8,7 +8,9 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <sstream>
 #include <string>
+#include <vector>
 
 #include <unistd.h>
 
@@ -247,6 +249,30 @@ TEST(SimulateCli, JsonFiguresCsvAndPlot) {
   std::string header;
   std::getline(csv, header);
   EXPECT_EQ(header.rfind("time_s,winding_true_C,winding_est_C", 0), 0U) << header;
+  // The filter's learned model, last: empty (not 0) while there is no estimate, numbers after.
+  const std::string learned = ",housing_est_C,missing_loss_W,loss_scale_error";
+  ASSERT_EQ(header.size() - header.rfind(learned), learned.size()) << header;
+  std::string line;
+  std::size_t empty_rows = 0;
+  std::size_t filled_rows = 0;
+  while (std::getline(csv, line)) {
+    std::vector<std::string> fields;
+    std::stringstream row(line);
+    for (std::string f; std::getline(row, f, ',');) {
+      fields.push_back(f);
+    }
+    if (!line.empty() && line.back() == ',') {
+      fields.emplace_back();  // getline drops an empty last field
+    }
+    ASSERT_GE(fields.size(), 4U) << line;
+    const bool has_estimate = !fields[2].empty();  // winding_est_C
+    for (std::size_t k = fields.size() - 3; k < fields.size(); ++k) {
+      EXPECT_EQ(fields[k].empty(), !has_estimate) << line;
+    }
+    ++(has_estimate ? filled_rows : empty_rows);
+  }
+  EXPECT_GT(empty_rows, 0U) << "the first row has no estimate yet";
+  EXPECT_GT(filled_rows, 100U);
   std::filesystem::remove_all(dir);
 }
 

@@ -50,6 +50,11 @@ struct SeriesRow {
   double time_to_limit_s = 0.0;
   bool injection_active = false;
   bool counted = false;             // inside the error-metric window
+  // What the thermal filter has learned of its model (empty in the CSV before an estimate):
+  // its housing node, the missing loss dP and the copper loss's relative error k.
+  double housing_est_C = 0.0;
+  double missing_loss_W = 0.0;
+  double loss_scale_error = 0.0;
 };
 
 struct EstimateRow {
