@@ -196,12 +196,24 @@ InjectionScheduler::Budget InjectionScheduler::budget(const SchedulerInput& in, 
   return b;
 }
 
+namespace {
+// u = (iq / current limit)^2, the saturation model's variable.
+double saturation_variable(double iq_A, double limit_A) {
+  const double x = limit_A > 0.0 ? iq_A / limit_A : 0.0;
+  return std::min(x * x, 1.44);  // a quadratic curve says nothing far beyond 1.2 x the limit
+}
+}  // namespace
+
 void InjectionScheduler::begin_pair(const SchedulerInput& in) {
   time_based_ = std::abs(in.omega_e_rad_s) < config_.min_speed_for_angle_rad_s;
   direction_ = in.omega_e_rad_s >= 0.0 ? 1.0 : -1.0;
   PairFitConfig fit;
   fit.lq_H = lq_secant_H(in.motoring_ref_A.q);
   fit.lq_incremental_H = lq_incremental_H(in.motoring_ref_A.q);
+  pair_lq_ = {};
+  pair_lq_.u = saturation_variable(in.motoring_ref_A.q, config_.current_limit_A);
+  pair_lq_.secant_H = fit.lq_H;
+  pair_lq_.incremental_H = fit.lq_incremental_H;
   fit.ld_H = config_.ld_H;
   recorder_.start(fit, time_based_ ? MatchBy::kTime : MatchBy::kAngle, direction_);
   if (field_weakening_) {
@@ -355,8 +367,13 @@ PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
   r.samples = c.samples;
   // The pair on its own, with Vx held at the prior: its guards and its report.
   const FitResult fit = solve_fit(recorder_.sums(), fit_options(false));
+  // What the uncertain Lq the pair was fitted with can move its Rs (lq_term).
+  const LqTerm lq = lq_term(c);
+  const double one = 1.0;
+  const double lq_var_rs = std::abs(lq.x_A) > 0.0 ? lq_variance_V2(&lq, &one, 1) / (lq.x_A * lq.x_A) : 0.0;
+  const double vx_var_rs = fit.drs_dvx * fit.drs_dvx * (config_.fit_dead_time ? vx_var_ : 0.0);
   r.rs_ohm = fit.rs_ohm;
-  r.rs_std_ohm = std::sqrt(fit.var_rs + fit.drs_dvx * fit.drs_dvx * (config_.fit_dead_time ? vx_var_ : 0.0));
+  r.rs_std_ohm = std::sqrt(fit.var_rs + vx_var_rs + lq_var_rs);
   r.residual_rms_V = fit.residual_rms_V;
   r.condition = fit.condition;
   r.delta_omega_e_rad_s = c.omega_e_mean_1_rad_s - c.omega_e_mean_2_rad_s;
@@ -378,8 +395,8 @@ PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
     r.outcome = PairOutcome::kRejectedLoadChange;
   } else if (fit.residual_rms_V > config_.max_residual_V) {
     r.outcome = PairOutcome::kRejectedResidual;
-  } else if (!plausible(fit.rs_ohm, 3.0 * std::abs(fit.drs_dvx) * (config_.fit_dead_time ? std::sqrt(vx_var_) : 0.0))) {
-    // The window widens by what the uncertain inverter voltage can move this pair's Rs.
+  } else if (!plausible(fit.rs_ohm, 3.0 * std::sqrt(vx_var_rs + lq_var_rs))) {
+    // The window widens by what the uncertain inverter voltage and Lq can move this pair's Rs.
     r.outcome = PairOutcome::kRejectedImplausible;
   } else {
     r.outcome = PairOutcome::kAccepted;
@@ -387,6 +404,7 @@ PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
     event_sums_.add(recorder_.sums());
     event_pair_sums_[static_cast<std::size_t>(std::min(event_pairs_, InjectionConfig::kMaxLevels - 1))] = recorder_.sums();
     event_pair_time_s_[static_cast<std::size_t>(std::min(event_pairs_, InjectionConfig::kMaxLevels - 1))] = c.rs_time_s;
+    event_pair_lq_[static_cast<std::size_t>(std::min(event_pairs_, InjectionConfig::kMaxLevels - 1))] = lq;
     event_min_f_A_ = event_pairs_ == 0 ? f_A_ : std::min(event_min_f_A_, f_A_);
     event_max_iq_A_ = std::max(event_max_iq_A_, 0.5 * std::abs(c.iq_mean_1_A + c.iq_mean_2_A));
     event_max_speed_ = std::max(event_max_speed_, 0.5 * std::abs(c.omega_e_mean_1_rad_s + c.omega_e_mean_2_rad_s));
@@ -409,37 +427,68 @@ PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
   return r;
 }
 
-namespace {
-// u = (iq / current limit)^2, the saturation model's variable.
-double saturation_variable(double iq_A, double limit_A) {
-  const double x = limit_A > 0.0 ? iq_A / limit_A : 0.0;
-  return std::min(x * x, 1.44);  // a quadratic curve says nothing far beyond 1.2 x the limit
-}
-}  // namespace
-
 double InjectionScheduler::lq_secant_H(double iq_A) const {
-  if (!config_.learn_lq) {
-    return config_.lq_H;
-  }
-  const double u = saturation_variable(iq_A, config_.current_limit_A);
-  return std::clamp(lq_H_ - lq_b_H_ * u, 0.5 * lq_H_, 1.5 * lq_H_);
+  return config_.learn_lq ? lq_secant_at(saturation_variable(iq_A, config_.current_limit_A)) : config_.lq_H;
 }
 
 double InjectionScheduler::lq_incremental_H(double iq_A) const {
-  if (!config_.learn_lq) {
-    return config_.lq_H;
-  }
+  return config_.learn_lq ? lq_incremental_at(saturation_variable(iq_A, config_.current_limit_A)) : config_.lq_H;
+}
+
+double InjectionScheduler::lq_secant_at(double u) const {
+  return std::clamp(lq_H_ - lq_b_H_ * u, 0.5 * lq_H_, 1.5 * lq_H_);
+}
+
+double InjectionScheduler::lq_incremental_at(double u) const {
   // psi = (a - b u) iq with u = (iq / I)^2: d psi / d iq = a - 3 b u. Until pairs at two
   // loads have resolved b (its variance below a quarter of its prior), a and b are known only
   // in the combination a - b u of the loads seen, and 3 b u would triple whatever error b
   // took from them: the secant stands for the incremental until then.
-  const double secant = lq_secant_H(iq_A);
+  const double secant = lq_secant_at(u);
   const double prior = config_.lq_saturation_std_fraction * config_.lq_H;
   if (!(lq_b_var_ < 0.25 * prior * prior)) {
     return secant;
   }
-  const double u = saturation_variable(iq_A, config_.current_limit_A);
   return std::clamp(lq_H_ - 3.0 * lq_b_H_ * u, 0.5 * secant, 1.5 * secant);
+}
+
+InjectionScheduler::LqTerm InjectionScheduler::lq_term(const PairConditions& c) const {
+  // y = dVd + Lq_sec mean(iq) dw + Lq_inc mean(w) diq - ... (Eq. 37 as pair_estimator.hpp
+  // writes it), to first order in the recordings' means (their ripples' correlation is second
+  // order). A salient machine's speed loop answers the injection's reluctance torque with a
+  // diq proportional to F, and a speed ramp puts dw into a pair: on the 30 mOhm IPM at speed
+  // the incremental term alone is as large as the resistive signal 2 Rs F, and on the salient
+  // benchmark a pair fitted with the commissioned Lq (10 % low) read Rs 8 % low
+  // (docs/estimator.md section 5.1).
+  LqTerm t = pair_lq_;
+  t.x_A = c.id_mean_1_A - c.id_mean_2_A;
+  t.samples = static_cast<double>(c.samples);
+  t.dy_dsecant = c.iq_mean_A * (c.omega_e_mean_1_rad_s - c.omega_e_mean_2_rad_s);
+  t.dy_dincremental = 0.5 * (c.omega_e_mean_1_rad_s + c.omega_e_mean_2_rad_s) * (c.iq_mean_1_A - c.iq_mean_2_A);
+  return t;
+}
+
+double InjectionScheduler::lq_correction_V(const LqTerm& t) const {
+  if (!config_.learn_lq) {
+    return 0.0;  // the commissioned Lq throughout: nothing newer to refit with
+  }
+  return t.dy_dsecant * (lq_secant_at(t.u) - t.secant_H) +
+         t.dy_dincremental * (lq_incremental_at(t.u) - t.incremental_H);
+}
+
+double InjectionScheduler::lq_variance_V2(const LqTerm* terms, const double* weights, int count) const {
+  // The curve's state (a, b): the secant is a - b u and the incremental a - 3 b u (an
+  // incremental not yet resolved is the secant, off from the true incremental by about 2 b u:
+  // the same form with b's uncertainty). Learning off, (a, b) keep their priors.
+  double ga = 0.0;
+  double gb = 0.0;
+  for (int j = 0; j < count; ++j) {
+    const LqTerm& t = terms[j];
+    ga += weights[j] * (t.dy_dsecant + t.dy_dincremental);
+    gb -= weights[j] * t.u * (t.dy_dsecant + 3.0 * t.dy_dincremental);
+  }
+  const double var = ga * ga * lq_var_ + 2.0 * ga * gb * lq_cov_ + gb * gb * lq_b_var_;
+  return std::isfinite(var) ? std::max(var, 0.0) : 0.0;
 }
 
 void InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit) {
@@ -581,6 +630,32 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
       e.rs_systematic_std_ohm = std::sqrt(model_sq);
     }
   }
+  {
+    // The learned Lq's uncertainty, shared by the event's pairs and by the estimates that
+    // follow until pairs teach it better: it adds to the variance and to the shared part.
+    // The weights are those of the fixed-Vx means (Rs = sum w x y / sum w x^2); the joint fit
+    // runs only at light load and low speed, where the term is small, and the sample fit of
+    // fixed-angle and DC events weighs its pairs by their samples.
+    const int n = std::min(event_pairs_, InjectionConfig::kMaxLevels);
+    std::array<double, InjectionConfig::kMaxLevels> weight{};
+    double norm = 0.0;
+    for (int j = 0; j < n; ++j) {
+      const auto k = static_cast<std::size_t>(j);
+      const bool has_means = event_uses_means() && j < means && event_means_[k].has_value();
+      const double x = has_means ? event_means_[k]->x_rs : event_pair_lq_[k].x_A;
+      const double w = has_means ? event_means_[k]->w : event_pair_lq_[k].samples;
+      weight[k] = w * x;
+      norm += w * x * x;
+    }
+    if (norm > 0.0) {
+      for (double& w : weight) {
+        w /= norm;
+      }
+      const double lq_var = lq_variance_V2(event_pair_lq_.data(), weight.data(), n);
+      var_rs += lq_var;
+      e.rs_systematic_std_ohm = std::sqrt(e.rs_systematic_std_ohm * e.rs_systematic_std_ohm + lq_var);
+    }
+  }
   if (!plausible(rs, 0.0) || !(var_rs >= 0.0)) {
     e.outcome = EventOutcome::kImplausible;
     e.rs_ohm = rs;
@@ -686,6 +761,11 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
             // voltage: under load the reference machine warms 0.4 % of Rs a second at 60 times
             // thermal speed, and the levels lie 0.1-0.3 s apart.
             event_means_[j]->y -= in.rs_rate_ohm_per_s * (event_pair_time_s_[j] - event_time_s()) * event_means_[j]->x_rs;
+            // And its Lq term refitted with the curve learned since, the event's own pairs
+            // included (a pair fitted with the commissioned Lq before any pair had taught the
+            // curve would keep that error otherwise). The sample fit of fixed-angle and DC
+            // events has no such refit: their variance carries the term (finish_event).
+            event_means_[j]->y += lq_correction_V(event_pair_lq_[j]);
           }
           break;
         }

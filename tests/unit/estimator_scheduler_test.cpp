@@ -570,18 +570,26 @@ TEST(InjectionScheduler, LearnsLqOnASalientMachineAndRemovesItsBias) {
   const SalientRun learned = run_salient(true);
   ASSERT_GE(fixed.estimates.size(), 5U);
   ASSERT_EQ(learned.estimates.size(), fixed.estimates.size());
-  // Without learning every event is off by the same few per cent.
+  // Without learning every event is off by the same few per cent, and says so: its standard
+  // deviation carries the commissioned Lq's prior (10 %) through the pairs' Lq term, as a
+  // part shared by the estimates that follow.
   for (const EventEstimate& e : fixed.estimates) {
     ASSERT_EQ(e.outcome, EventOutcome::kPublished);
     EXPECT_GT(std::abs(e.rs_ohm - rs), 0.02 * rs) << e.rs_ohm;
     EXPECT_DOUBLE_EQ(e.lq_H, 7.425e-3);
+    EXPECT_LT(std::abs(e.rs_ohm - rs), 2.0 * e.rs_std_ohm) << "the band holds the Lq error";
+    EXPECT_GT(e.rs_systematic_std_ohm, 0.5 * std::abs(e.rs_ohm - rs));
   }
-  // Learning: Lq converges to the plant's, and the events after the first are right.
+  // Learning: Lq converges to the plant's, and every event is right, the first included: its
+  // pairs were fitted with the commissioned Lq, and their Lq term is refitted with the curve
+  // the same pairs taught before the event's estimate is formed.
   EXPECT_NEAR(learned.lq_H, 8.25e-3, 0.01 * 8.25e-3);
-  for (std::size_t k = 1; k < learned.estimates.size(); ++k) {
+  for (std::size_t k = 0; k < learned.estimates.size(); ++k) {
     const EventEstimate& e = learned.estimates[k];
     ASSERT_EQ(e.outcome, EventOutcome::kPublished);
     EXPECT_NEAR(e.rs_ohm, rs, 0.003 * rs) << "event " << k;
+    EXPECT_LT(e.rs_std_ohm, 0.5 * std::abs(fixed.estimates[k].rs_ohm - rs))
+        << "a learned Lq is certain: event " << k;
   }
 }
 
