@@ -367,10 +367,14 @@ PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
   r.samples = c.samples;
   // The pair on its own, with Vx held at the prior: its guards and its report.
   const FitResult fit = solve_fit(recorder_.sums(), fit_options(false));
-  // What the uncertain Lq the pair was fitted with can move its Rs (lq_term).
+  // What the uncertain Lq the pair was fitted with can move its Rs (lq_term): the sample fit's
+  // Rs = sum(dId y) / sum(dId^2) to first order.
   const LqTerm lq = lq_term(c);
-  const double one = 1.0;
-  const double lq_var_rs = std::abs(lq.x_A) > 0.0 ? lq_variance_V2(&lq, &one, 1) / (lq.x_A * lq.x_A) : 0.0;
+  LqGradient own;
+  if (lq.x_sq_sum_A2 > 0.0) {
+    own.add(lq.secant_x_sum_A_V_H / lq.x_sq_sum_A2, lq.incremental_x_sum_A_V_H / lq.x_sq_sum_A2, lq.u);
+  }
+  const double lq_var_rs = lq_variance(own);
   const double vx_var_rs = fit.drs_dvx * fit.drs_dvx * (config_.fit_dead_time ? vx_var_ : 0.0);
   r.rs_ohm = fit.rs_ohm;
   r.rs_std_ohm = std::sqrt(fit.var_rs + vx_var_rs + lq_var_rs);
@@ -395,8 +399,9 @@ PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
     r.outcome = PairOutcome::kRejectedLoadChange;
   } else if (fit.residual_rms_V > config_.max_residual_V) {
     r.outcome = PairOutcome::kRejectedResidual;
-  } else if (!plausible(fit.rs_ohm, 3.0 * std::sqrt(vx_var_rs + lq_var_rs))) {
-    // The window widens by what the uncertain inverter voltage and Lq can move this pair's Rs.
+  } else if (!plausible(fit.rs_ohm, 3.0 * std::sqrt(vx_var_rs))) {
+    // The window widens by what the uncertain inverter voltage can move this pair's Rs (not by
+    // the Lq term's: on a DC pulse at speed it is large, and the window would pass anything).
     r.outcome = PairOutcome::kRejectedImplausible;
   } else {
     r.outcome = PairOutcome::kAccepted;
@@ -453,41 +458,38 @@ double InjectionScheduler::lq_incremental_at(double u) const {
 }
 
 InjectionScheduler::LqTerm InjectionScheduler::lq_term(const PairConditions& c) const {
-  // y = dVd + Lq_sec mean(iq) dw + Lq_inc mean(w) diq - ... (Eq. 37 as pair_estimator.hpp
-  // writes it), to first order in the recordings' means (their ripples' correlation is second
-  // order). A salient machine's speed loop answers the injection's reluctance torque with a
-  // diq proportional to F, and a speed ramp puts dw into a pair: on the 30 mOhm IPM at speed
-  // the incremental term alone is as large as the resistive signal 2 Rs F, and on the salient
+  // A salient machine's speed loop answers the injection's reluctance torque with a diq
+  // proportional to F, and a speed ramp puts dw into a pair: on the 30 mOhm IPM at speed the
+  // incremental term alone is as large as the resistive signal 2 Rs F, and on the salient
   // benchmark a pair fitted with the commissioned Lq (10 % low) read Rs 8 % low
   // (docs/estimator.md section 5.1).
   LqTerm t = pair_lq_;
-  t.x_A = c.id_mean_1_A - c.id_mean_2_A;
-  t.samples = static_cast<double>(c.samples);
-  t.dy_dsecant = c.iq_mean_A * (c.omega_e_mean_1_rad_s - c.omega_e_mean_2_rad_s);
-  t.dy_dincremental = 0.5 * (c.omega_e_mean_1_rad_s + c.omega_e_mean_2_rad_s) * (c.iq_mean_1_A - c.iq_mean_2_A);
+  t.secant_mean_V_H = c.lq_secant_mean_V_H;
+  t.incremental_mean_V_H = c.lq_incremental_mean_V_H;
+  t.secant_x_sum_A_V_H = c.lq_secant_x_sum_A_V_H;
+  t.incremental_x_sum_A_V_H = c.lq_incremental_x_sum_A_V_H;
+  t.x_sq_sum_A2 = c.x_sq_sum_A2;
   return t;
 }
 
-double InjectionScheduler::lq_correction_V(const LqTerm& t) const {
+std::array<double, 2> InjectionScheduler::lq_change_H(const LqTerm& t) const {
   if (!config_.learn_lq) {
-    return 0.0;  // the commissioned Lq throughout: nothing newer to refit with
+    return {0.0, 0.0};  // the commissioned Lq throughout: nothing newer to refit with
   }
-  return t.dy_dsecant * (lq_secant_at(t.u) - t.secant_H) +
-         t.dy_dincremental * (lq_incremental_at(t.u) - t.incremental_H);
+  return {lq_secant_at(t.u) - t.secant_H, lq_incremental_at(t.u) - t.incremental_H};
 }
 
-double InjectionScheduler::lq_variance_V2(const LqTerm* terms, const double* weights, int count) const {
+void InjectionScheduler::LqGradient::add(double d_secant, double d_incremental, double u) {
   // The curve's state (a, b): the secant is a - b u and the incremental a - 3 b u (an
-  // incremental not yet resolved is the secant, off from the true incremental by about 2 b u:
-  // the same form with b's uncertainty). Learning off, (a, b) keep their priors.
-  double ga = 0.0;
-  double gb = 0.0;
-  for (int j = 0; j < count; ++j) {
-    const LqTerm& t = terms[j];
-    ga += weights[j] * (t.dy_dsecant + t.dy_dincremental);
-    gb -= weights[j] * t.u * (t.dy_dsecant + 3.0 * t.dy_dincremental);
-  }
-  const double var = ga * ga * lq_var_ + 2.0 * ga * gb * lq_cov_ + gb * gb * lq_b_var_;
+  // incremental not yet resolved is the secant, about 2 b u off the true incremental: the same
+  // form with b's uncertainty).
+  a += d_secant + d_incremental;
+  b -= u * (d_secant + 3.0 * d_incremental);
+}
+
+double InjectionScheduler::lq_variance(const LqGradient& g) const {
+  // Learning off, (a, b) keep their priors.
+  const double var = g.a * g.a * lq_var_ + 2.0 * g.a * g.b * lq_cov_ + g.b * g.b * lq_b_var_;
   return std::isfinite(var) ? std::max(var, 0.0) : 0.0;
 }
 
@@ -579,6 +581,7 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
   double var_rs = 0.0;
   double vx = config_.fit_dead_time ? vx_V_ : 0.0;
   double var_vx = config_.fit_dead_time ? vx_var_ : 0.0;
+  bool rs_from_means = true;  // the pairs' means (their Lq terms refitted in step()), or the sample fit
 
   // The event's own joint fit of Rs and Vx (several levels make it well conditioned) ...
   const int means = std::min(event_means_done_, std::min(event_pairs_, InjectionConfig::kMaxLevels));
@@ -612,6 +615,20 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
       fixed.rs_ohm = f.rs_ohm;
       fixed.var_rs = f.var_rs;
       fixed.drs_dvx = f.drs_dvx;
+      // Its pairs' Lq terms refitted with the curve learned by now, to first order in the
+      // sample fit Rs = sum(dId y) / sum(dId^2) (the means' are refitted in step()).
+      rs_from_means = false;
+      double shift = 0.0;
+      double sample_x_sq = 0.0;
+      for (int j = 0; j < std::min(event_pairs_, InjectionConfig::kMaxLevels); ++j) {
+        const LqTerm& t = event_pair_lq_[static_cast<std::size_t>(j)];
+        const std::array<double, 2> change = lq_change_H(t);
+        shift += t.secant_x_sum_A_V_H * change[0] + t.incremental_x_sum_A_V_H * change[1];
+        sample_x_sq += t.x_sq_sum_A2;
+      }
+      if (sample_x_sq > 0.0) {
+        fixed.rs_ohm += shift / sample_x_sq;
+      }
     }
     if (!fixed.valid) {
       e.outcome = EventOutcome::kNoFit;
@@ -630,31 +647,33 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
       e.rs_systematic_std_ohm = std::sqrt(model_sq);
     }
   }
-  {
+  if (rs_from_means) {
     // The learned Lq's uncertainty, shared by the event's pairs and by the estimates that
-    // follow until pairs teach it better: it adds to the variance and to the shared part.
-    // The weights are those of the fixed-Vx means (Rs = sum w x y / sum w x^2); the joint fit
-    // runs only at light load and low speed, where the term is small, and the sample fit of
-    // fixed-angle and DC events weighs its pairs by their samples.
-    const int n = std::min(event_pairs_, InjectionConfig::kMaxLevels);
-    std::array<double, InjectionConfig::kMaxLevels> weight{};
+    // follow until pairs teach it better: it adds to the variance and to the shared part. The
+    // pairs weigh as in the means fit (Rs = sum w x y / sum w x^2 with Vx held; the joint fit
+    // runs at light load and low speed, where the term is small, and takes the same weights).
+    // Not for the sample fit of fixed-angle and DC events: their vector turns through the
+    // rotor frame, the term's first-order sensitivity is large and mixes with the fitted
+    // inductive regressor, and on the DC baseline at speed (whose estimates are tens of per
+    // cent off for other reasons) the wider error bar let more of them through the filter's
+    // gate: its ±2σ coverage fell from 61 % to 16 %. Their Lq terms are refitted all the same.
+    const int n = std::min(std::min(event_pairs_, InjectionConfig::kMaxLevels), means);
     double norm = 0.0;
     for (int j = 0; j < n; ++j) {
+      const std::optional<PairMeans>& m = event_means_[static_cast<std::size_t>(j)];
+      norm += m ? m->w * m->x_rs * m->x_rs : 0.0;
+    }
+    LqGradient g;
+    for (int j = 0; norm > 0.0 && j < n; ++j) {
       const auto k = static_cast<std::size_t>(j);
-      const bool has_means = event_uses_means() && j < means && event_means_[k].has_value();
-      const double x = has_means ? event_means_[k]->x_rs : event_pair_lq_[k].x_A;
-      const double w = has_means ? event_means_[k]->w : event_pair_lq_[k].samples;
-      weight[k] = w * x;
-      norm += w * x * x;
-    }
-    if (norm > 0.0) {
-      for (double& w : weight) {
-        w /= norm;
+      if (event_means_[k]) {  // a pair without means is not in the fit (FixedVxMeans skips it)
+        const double c = event_means_[k]->w * event_means_[k]->x_rs / norm;
+        g.add(c * event_pair_lq_[k].secant_mean_V_H, c * event_pair_lq_[k].incremental_mean_V_H, event_pair_lq_[k].u);
       }
-      const double lq_var = lq_variance_V2(event_pair_lq_.data(), weight.data(), n);
-      var_rs += lq_var;
-      e.rs_systematic_std_ohm = std::sqrt(e.rs_systematic_std_ohm * e.rs_systematic_std_ohm + lq_var);
     }
+    const double lq_var = lq_variance(g);
+    var_rs += lq_var;
+    e.rs_systematic_std_ohm = std::sqrt(e.rs_systematic_std_ohm * e.rs_systematic_std_ohm + lq_var);
   }
   if (!plausible(rs, 0.0) || !(var_rs >= 0.0)) {
     e.outcome = EventOutcome::kImplausible;
@@ -764,8 +783,10 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
             // And its Lq term refitted with the curve learned since, the event's own pairs
             // included (a pair fitted with the commissioned Lq before any pair had taught the
             // curve would keep that error otherwise). The sample fit of fixed-angle and DC
-            // events has no such refit: their variance carries the term (finish_event).
-            event_means_[j]->y += lq_correction_V(event_pair_lq_[j]);
+            // events is refitted alike in finish_event.
+            const std::array<double, 2> change = lq_change_H(event_pair_lq_[j]);
+            event_means_[j]->y += event_pair_lq_[j].secant_mean_V_H * change[0] +
+                                  event_pair_lq_[j].incremental_mean_V_H * change[1];
           }
           break;
         }

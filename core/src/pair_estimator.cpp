@@ -423,6 +423,7 @@ void PairRecorder::start(const PairFitConfig& config, MatchBy match_by, double d
   sum_time1_ = sum_time2_ = 0.0;
   sum_vq_ = sum_iq_ = sum_wid_ = sum_wm_ = sum_gq_ = 0.0;
   sum_vd_ = sum_id_ = sum_didt_ = sum_wiq_ = sum_gd_ = 0.0;
+  sum_lq_sec_ = sum_lq_inc_ = sum_x_lq_sec_ = sum_x_lq_inc_ = sum_xx_ = 0.0;
   any_limited_ = false;
 }
 
@@ -536,6 +537,14 @@ double PairRecorder::add_second(const PeriodSample& s) {
   sum_didt_ += 0.5 * (r[kDidDt] + s.di_dt_A_s.d);
   sum_wiq_ += 0.5 * (r[kOmegaE] * r[kIq] + s.omega_e_rad_s * s.i_A.q);
   sum_gd_ += 0.5 * (r[kGd] + s.dead_time_pattern.d);
+  // y's Lq terms per henry (PairConditions::lq_secant_mean_V_H), and weighted by dId.
+  const double lq_sec = 0.5 * (r[kIq] + s.i_A.q) * (r[kOmegaE] - s.omega_e_rad_s);
+  const double lq_inc = 0.5 * (r[kOmegaE] + s.omega_e_rad_s) * (r[kIq] - s.i_A.q);
+  sum_lq_sec_ += lq_sec;
+  sum_lq_inc_ += lq_inc;
+  sum_x_lq_sec_ += raw[kRegRs] * lq_sec;
+  sum_x_lq_inc_ += raw[kRegRs] * lq_inc;
+  sum_xx_ += raw[kRegRs] * raw[kRegRs];
   return phi;
 }
 
@@ -572,6 +581,11 @@ PairConditions PairRecorder::conditions() const {
     c.did_dt_mean_A_s = sum_didt_ / m;
     c.omega_e_iq_mean_A_rad_s = sum_wiq_ / m;
     c.gd_mean = sum_gd_ / m;
+    c.lq_secant_mean_V_H = sum_lq_sec_ / m;
+    c.lq_incremental_mean_V_H = sum_lq_inc_ / m;
+    c.lq_secant_x_sum_A_V_H = sum_x_lq_sec_;
+    c.lq_incremental_x_sum_A_V_H = sum_x_lq_inc_;
+    c.x_sq_sum_A2 = sum_xx_;
   }
   return c;
 }

@@ -325,26 +325,32 @@ class InjectionScheduler {
   [[nodiscard]] FitOptions fit_options(bool fit_vx) const;
   [[nodiscard]] bool plausible(double rs_ohm, double margin_ohm) const;
   void learn_lq(const PairConditions& c, const FitResult& fit);
-  // How a pair's d-axis means depend on the q-axis inductance it was fitted with (Eq. 37's
-  // correction term, d(w psi_q) = Lq_sec iq dw + Lq_inc w diq), and the Lq it used.
+  // A pair's Lq term (Eq. 37: y moves by S_sec dLq_sec + S_inc dLq_inc, PairConditions) and
+  // the Lq it was fitted with.
   struct LqTerm {
     double u = 0.0;                // the saturation variable at the pair's load
-    double x_A = 0.0;              // the pair's mean dId (recording 1 minus 2)
-    double samples = 0.0;
-    double dy_dsecant = 0.0;       // mean(iq) (w1 - w2): volts per henry of the secant
-    double dy_dincremental = 0.0;  // mean(w) (iq1 - iq2): volts per henry of the incremental
     double secant_H = 0.0;         // the Lq the pair's fit used
     double incremental_H = 0.0;
+    double secant_mean_V_H = 0.0;  // S_sec and S_inc over the matched samples
+    double incremental_mean_V_H = 0.0;
+    double secant_x_sum_A_V_H = 0.0;  // weighted by dId, with dId's sum of squares
+    double incremental_x_sum_A_V_H = 0.0;
+    double x_sq_sum_A2 = 0.0;
   };
   [[nodiscard]] LqTerm lq_term(const PairConditions& c) const;
   [[nodiscard]] double lq_secant_at(double u) const;       // the learned curve at u = (iq / I)^2
   [[nodiscard]] double lq_incremental_at(double u) const;
-  // What the present Lq knowledge changes in a pair's mean y (volts): its Lq term with the
-  // learned curve now in place of the one the pair used.
-  [[nodiscard]] double lq_correction_V(const LqTerm& t) const;
-  // The variance of sum_j weight_j y_j (volts^2) that the learned curve's uncertainty leaves
-  // (the pairs share the curve: their errors add linearly before squaring).
-  [[nodiscard]] double lq_variance_V2(const LqTerm* terms, const double* weights, int count) const;
+  // The learned curve now less the one a pair used: (secant, incremental), 0 with learning off.
+  [[nodiscard]] std::array<double, 2> lq_change_H(const LqTerm& t) const;
+  // How an estimate moves with the curve's state (a, b), summed over the pairs it is made of:
+  // add(dR/dLq_sec, dR/dLq_inc, u) for each.
+  struct LqGradient {
+    double a = 0.0;
+    double b = 0.0;
+    void add(double d_secant, double d_incremental, double u);
+  };
+  // The variance the learned curve's uncertainty leaves in such an estimate.
+  [[nodiscard]] double lq_variance(const LqGradient& g) const;
   double level_for(int recording) const;       // injection level of recording 1 or 2 (in units of F)
   Dq injection_current(const SchedulerInput& in) const;
   double edge_value(double elapsed_s) const;   // 0..1 along a rising window edge
@@ -375,7 +381,7 @@ class InjectionScheduler {
   double event_start_s_ = 0.0;
   std::array<double, InjectionConfig::kMaxLevels> event_pair_time_s_{};  // each pair's Rs time (PairConditions::rs_time_s)
   std::array<LqTerm, InjectionConfig::kMaxLevels> event_pair_lq_{};  // each pair's Lq term (lq_term)
-  LqTerm pair_lq_{};                // the Lq the pair in progress is fitted with (its u and values)
+  LqTerm pair_lq_{};                // the Lq the pair in progress is fitted with (u, secant, incremental)
   std::array<PairConditions, InjectionConfig::kMaxLevels> event_q_{};
   int event_q_pairs_ = 0;
   double vx_V_ = 0.0;               // inverter voltage prior

@@ -210,6 +210,17 @@ struct PairConditions {
   double did_dt_mean_A_s = 0.0;
   double omega_e_iq_mean_A_rad_s = 0.0;  // mean of w * iq
   double gd_mean = 0.0;
+  // How y depends on the Lq the pair was fitted with (Eq. 37's term, recording 1 minus 2 at
+  // the same angle): y moves by S_sec dLq_sec + S_inc dLq_inc per sample, with S_sec =
+  // mean(iq) dw and S_inc = mean(w) diq. Their means over the matched samples (volts per
+  // henry), for the means of fixed-magnitude pairs, and their sums weighted by the resistive
+  // regressor dId with that regressor's sum of squares, for the sample fit (a turning vector,
+  // fixed-angle or DC, has a mean dId near zero).
+  double lq_secant_mean_V_H = 0.0;
+  double lq_incremental_mean_V_H = 0.0;
+  double lq_secant_x_sum_A_V_H = 0.0;
+  double lq_incremental_x_sum_A_V_H = 0.0;
+  double x_sq_sum_A2 = 0.0;
 };
 
 // Recording of one pair: add samples to recording 1, close it, then add samples of recording
@@ -275,6 +286,7 @@ class PairRecorder {
   double sum_time1_ = 0.0, sum_time2_ = 0.0;
   double sum_vq_ = 0.0, sum_iq_ = 0.0, sum_wid_ = 0.0, sum_wm_ = 0.0, sum_gq_ = 0.0;
   double sum_vd_ = 0.0, sum_id_ = 0.0, sum_didt_ = 0.0, sum_wiq_ = 0.0, sum_gd_ = 0.0;
+  double sum_lq_sec_ = 0.0, sum_lq_inc_ = 0.0, sum_x_lq_sec_ = 0.0, sum_x_lq_inc_ = 0.0, sum_xx_ = 0.0;
   bool any_limited_ = false;
 };
 
