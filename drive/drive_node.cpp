@@ -213,7 +213,11 @@ void DriveNode::publish(const NodeInputs& in) noexcept {
     r.estimate_count = estimate_count_;
     p.resistance = r;
   }
-  if (due(thermal_every_)) {
+  // A calibration's start and end go out at once, not at the next 100 ms: a plant that follows
+  // the Calibrating bit with an accelerated thermal time (pmsm-plant) would otherwise run up to
+  // a publication interval times its acceleration out of step at each edge.
+  if (due(thermal_every_) || tel.calibrating != calibrating_published_) {
+    calibrating_published_ = tel.calibrating;
     protocol::ThermalEstimate t;
     t.valid = tel.thermal_valid && std::isfinite(tel.thermal.winding_C) && std::isfinite(tel.thermal.winding_std_C);
     t.winding_temp_C = t.valid ? tel.thermal.winding_C : 0.0;

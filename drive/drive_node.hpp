@@ -140,6 +140,7 @@ class DriveNode {
   double thermal_time_scale_;
   bool calibration_real_time_;
   bool real_time_calibration_ = false;
+  bool calibrating_published_ = false;  // THERMAL_ESTIMATE's Calibrating bit as last published
   std::optional<double> sensed_ambient_C_;  // the sample's ambient sensor, last plausible reading
   double ambient_used_C_ = 25.0;
   std::uint8_t heartbeat_counter_ = 0;

@@ -156,14 +156,14 @@ class Monitor {
     } else if (!s.command_timeout_tripped && p.command_timeout_tripped) {
       spdlog::info("inverter commands are arriving again: the output follows them");
     }
-    if (s.calibrations_followed != p.calibrations_followed || s.calibration_real_time != p.calibration_real_time) {
-      if (s.calibration_real_time) {
-        spdlog::info("the controller calibrates: thermal time at real time until it is done (calibration {})",
-                     s.calibrations_followed);
-      } else {
-        spdlog::info("the controller's calibration is over: thermal time accelerated again ({} calibration(s) "
-                     "followed)", s.calibrations_followed);
-      }
+    // A start is counted; an end is the flag going down. Both may fall inside one report.
+    if (s.calibrations_followed != p.calibrations_followed) {
+      spdlog::info("the controller calibrates: thermal time at real time until it is done (calibration {})",
+                   s.calibrations_followed);
+    }
+    if (!s.calibration_real_time && (p.calibration_real_time || s.calibrations_followed != p.calibrations_followed)) {
+      spdlog::info("the controller's calibration is over: thermal time accelerated again ({} calibration(s) "
+                   "followed)", s.calibrations_followed);
     }
     if (s.tx_dropped != p.tx_dropped) {
       spdlog::warn("dropped {} frame(s) since the last report: the device queue stayed full (ENOBUFS)",

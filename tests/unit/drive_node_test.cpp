@@ -566,13 +566,17 @@ TEST(DriveNode, AnAcceleratedDriveCalibratesAtRealThermalTimeAndSaysSo) {
   rig.config.drive.thermal.time_scale = 400.0;
   rig.node = std::make_unique<DriveNode>(rig.config, rig.supervisor, PublishRates{});
   const auto scale = [&] { return rig.node->controller().thermal_time_scale(); };
+  // The Calibrating bit goes out in the very period it changes, not at the next 100 ms: a
+  // plant following it at 400x would otherwise run up to 40 s of thermal time out of step.
   auto start = [&] {
     rig.in.start_calibration = true;
-    rig.run(1);
+    const NodeStep& step = rig.run(1);
     rig.in.start_calibration = false;
+    EXPECT_TRUE(step.publications.thermal.has_value() && step.publications.thermal->calibrating);
   };
-  rig.run(2000);
+  rig.run(2500);  // half-way between two THERMAL_ESTIMATEs
   EXPECT_FALSE(next_thermal(rig).calibrating);
+  rig.run(500);
   EXPECT_EQ(scale(), 400.0);
   start();
   EXPECT_EQ(scale(), 1.0);
@@ -585,8 +589,11 @@ TEST(DriveNode, AnAcceleratedDriveCalibratesAtRealThermalTimeAndSaysSo) {
 
   start();
   EXPECT_EQ(scale(), 1.0);
+  rig.run(300);
   rig.in.abort_calibration = true;
-  rig.run(1);
+  const NodeStep& aborted = rig.run(1);
+  EXPECT_TRUE(aborted.publications.thermal.has_value() && !aborted.publications.thermal->calibrating)
+      << "the end goes out at once too";
   rig.in.abort_calibration = false;
   EXPECT_EQ(scale(), 400.0) << "an aborted calibration gives the acceleration back";
   EXPECT_FALSE(next_thermal(rig).calibrating);

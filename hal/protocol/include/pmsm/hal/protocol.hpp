@@ -38,7 +38,7 @@ inline constexpr std::uint32_t kNodeIdMask = 0x00F;  // the node-id bits of a CA
 inline constexpr std::uint32_t kIdBaseMask = 0x7F0;  // the message bits of a CAN ID
 
 // Protocol version, written into the DBC's VERSION line. Bump it on any layout change.
-inline constexpr std::string_view kProtocolVersion = "pmsm-thermal-can 1.0";
+inline constexpr std::string_view kProtocolVersion = "pmsm-thermal-can 1.1";
 
 // The parties on the bus (DBC "BU_" nodes). A receive-filter role is one of these.
 enum class Role : std::uint8_t {
@@ -747,8 +747,9 @@ inline constexpr std::array<MessageDef, kMessageCount> kMessages{{
      false, 100, "every 100 ms", drive_status::kSignals,
      "Drive state, limiting reasons, derated current limit, time to limit, speed and torque."},
     {MessageType::kThermalEstimate, "THERMAL_ESTIMATE", 0x110, 8, false, Role::kDaemon, detail::kToWatchers,
-     false, 100, "every 100 ms", thermal_estimate::kSignals,
-     "Winding temperature estimate with its uncertainty, magnet temperature and status."},
+     false, 100, "every 100 ms, and at once when Calibrating changes", thermal_estimate::kSignals,
+     "Winding temperature estimate with its uncertainty, magnet temperature and status. A pmsm-plant with an "
+     "accelerated thermal time also reads its node's Calibrating bit (real thermal time while it is set)."},
     {MessageType::kResistanceEstimate, "RESISTANCE_ESTIMATE", 0x120, 8, false, Role::kDaemon, detail::kToWatchers,
      false, 1000, "every 1 s and after each accepted estimate", resistance_estimate::kSignals,
      "Stator resistance estimate, its uncertainty and Rs0."},
