@@ -479,7 +479,8 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   // sixth of a step's instructions, docs/performance.md). The bridge sweep needs only the
   // period's middle angle and ends' mean current.
   const bool baseline_reads = config_.estimator == EstimatorKind::kNoInjection && enabled && !sweep_.active();
-  const bool scheduler_reads = config_.estimator == EstimatorKind::kInjection && scheduler_.records();
+  const double sample_theta = 0.5 * (previous_theta_smooth_ + theta_smooth);  // the period's middle
+  const bool scheduler_reads = config_.estimator == EstimatorKind::kInjection && scheduler_.records(sample_theta);
   const PeriodSample* sample = nullptr;  // period_sample_ once built
   if (have_previous_ && (baseline_reads || scheduler_reads || sweep_.active())) {
     // The rotation at the period's middle by the smooth angle, from the sample's by the small
@@ -492,7 +493,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
       PeriodSample& s = period_sample_;
       sample = &period_sample_;
       s.time_s = now - 0.5 * config_.period_s;
-      s.theta_e_rad = 0.5 * (previous_theta_smooth_ + theta_smooth);
+      s.theta_e_rad = sample_theta;
       s.omega_e_rad_s = omega_e;
       s.omega_m_rad_s = angle_.mechanical_speed_rad_s();
       s.di_dt_A_s = {(i.d - previous_i_A_.d) / config_.period_s, (i.q - previous_i_A_.q) / config_.period_s};

@@ -140,7 +140,7 @@ class Harness {
     in.request_now = request_now;
     in.rs_rate_ohm_per_s = tell_rs_rate ? plant.rs_rate_ohm_per_s : 0.0;
     // The controller builds a period's sample only when the scheduler says it reads one.
-    const bool give = previous && (!sample_only_when_recording || scheduler.records());
+    const bool give = previous && (!sample_only_when_recording || scheduler.records(previous->theta_e_rad));
     const SchedulerOutput out = scheduler.step(in, give ? &*previous : nullptr);
     records.push_back({time_s, theta_e_rad, out});
     if (out.completed) pairs.push_back(*out.completed);

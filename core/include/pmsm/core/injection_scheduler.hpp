@@ -280,13 +280,27 @@ class InjectionScheduler {
   [[nodiscard]] const InjectionConfig& config() const { return config_; }
   [[nodiscard]] SchedulerPhase phase() const { return phase_; }
   [[nodiscard]] double next_event_s() const { return next_event_s_; }
-  // Whether the next step() may read its sample: only in a recording phase (a pair's ramps and
-  // settling, and the time between events, need none), so the caller may leave the period's
-  // sample unbuilt otherwise. (True also when that step will abort the pair instead.)
-  [[nodiscard]] bool records() const {
-    return config_.method != InjectionMethod::kNone &&
-           (phase_ == SchedulerPhase::kRecord1 || phase_ == SchedulerPhase::kWaitArc ||
-            phase_ == SchedulerPhase::kRecord2 || phase_ == SchedulerPhase::kPulseWait);
+  // Whether the next step() may read its sample, whose angle (PeriodSample::theta_e_rad) is
+  // sample_theta_e_rad: in a recording, and in the waits before one only once the sample's angle
+  // has reached it (recording 2's start, a fixed-angle pulse's arc); a pair's ramps and
+  // settling and the time between events need none. The caller may leave the period's sample
+  // unbuilt otherwise: the wait for recording 2's angle alone was about a fifth of a loaded
+  // heat-up's injecting periods. (True also when that step will abort the pair instead.)
+  [[nodiscard]] bool records(double sample_theta_e_rad) const {
+    if (config_.method == InjectionMethod::kNone) {
+      return false;
+    }
+    switch (phase_) {
+      case SchedulerPhase::kRecord1:
+      case SchedulerPhase::kRecord2:
+        return true;
+      case SchedulerPhase::kWaitArc:  // angle-based only (PairRecorder::coordinate)
+        return direction_ * sample_theta_e_rad >= origin2_;
+      case SchedulerPhase::kPulseWait:
+        return direction_ * (sample_theta_e_rad - pulse_start_theta_) >= 0.0;
+      default:
+        return false;
+    }
   }
 
   // The largest F the budget allows now, and the reason when it is below f_min.
