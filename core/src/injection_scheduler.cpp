@@ -407,9 +407,10 @@ PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
     r.outcome = PairOutcome::kAccepted;
     learn_lq(c, fit);
     event_sums_.add(recorder_.sums());
-    event_pair_sums_[static_cast<std::size_t>(std::min(event_pairs_, InjectionConfig::kMaxLevels - 1))] = recorder_.sums();
-    event_pair_time_s_[static_cast<std::size_t>(std::min(event_pairs_, InjectionConfig::kMaxLevels - 1))] = c.rs_time_s;
-    event_pair_lq_[static_cast<std::size_t>(std::min(event_pairs_, InjectionConfig::kMaxLevels - 1))] = lq;
+    const auto slot = static_cast<std::size_t>(std::min(event_pairs_, InjectionConfig::kMaxLevels - 1));
+    event_pair_sums_[slot] = recorder_.sums();
+    event_pair_time_s_[slot] = c.rs_time_s;
+    event_pair_lq_[slot] = lq;
     event_min_f_A_ = event_pairs_ == 0 ? f_A_ : std::min(event_min_f_A_, f_A_);
     event_max_iq_A_ = std::max(event_max_iq_A_, 0.5 * std::abs(c.iq_mean_1_A + c.iq_mean_2_A));
     event_max_speed_ = std::max(event_max_speed_, 0.5 * std::abs(c.omega_e_mean_1_rad_s + c.omega_e_mean_2_rad_s));

@@ -284,8 +284,8 @@ class InjectionScheduler {
   // sample_theta_e_rad: in a recording, and in the waits before one only once the sample's angle
   // has reached it (recording 2's start, a fixed-angle pulse's arc); a pair's ramps and
   // settling and the time between events need none. The caller may leave the period's sample
-  // unbuilt otherwise: the wait for recording 2's angle alone was about a fifth of a loaded
-  // heat-up's injecting periods. (True also when that step will abort the pair instead.)
+  // unbuilt otherwise (on the step-cost replay the waits had 13 % of the injecting periods'
+  // samples, docs/performance.md). (True also when that step will abort the pair instead.)
   [[nodiscard]] bool records(double sample_theta_e_rad) const {
     if (config_.method == InjectionMethod::kNone) {
       return false;
