@@ -7,9 +7,13 @@
 //   "drive.toml:12: injection.F_A: must be in [0, 200], got 350"
 //
 // Header only; depends on toml++ and the standard library (common/ may use nothing else).
+// The types a configuration struct or a header needs (ConfigError, TimePoint, ranges) are in
+// config_types.hpp, without toml++.
 #pragma once
 
 #include <toml++/toml.h>
+
+#include "config_types.hpp"
 
 #include <algorithm>
 #include <array>
@@ -29,46 +33,6 @@
 #include <vector>
 
 namespace pmsm::common {
-
-// The one error type of every configuration file (drive, plant, scenario).
-class ConfigError : public std::runtime_error {
- public:
-  using std::runtime_error::runtime_error;
-};
-
-// One point of a time table: load steps, drive cycles, speed and set-point profiles.
-struct TimePoint {
-  double time_s = 0.0;
-  double value = 0.0;
-};
-
-// A closed or lower-open numeric interval; infinite ends mean "no bound".
-struct ValueRange {
-  double lo = -std::numeric_limits<double>::infinity();
-  double hi = std::numeric_limits<double>::infinity();
-  bool lo_open = false;
-
-  [[nodiscard]] bool contains(double v) const {
-    return (lo_open ? v > lo : v >= lo) && v <= hi;
-  }
-  [[nodiscard]] std::string describe() const;
-};
-
-[[nodiscard]] inline ValueRange any_number() { return {}; }
-[[nodiscard]] inline ValueRange positive(double hi = std::numeric_limits<double>::infinity()) {
-  return {0.0, hi, true};
-}
-[[nodiscard]] inline ValueRange at_least(double lo, double hi = std::numeric_limits<double>::infinity()) {
-  return {lo, hi, false};
-}
-[[nodiscard]] inline ValueRange between(double lo, double hi) { return {lo, hi, false}; }
-
-// "%g" of a number, as every message and table prints it.
-[[nodiscard]] inline std::string format_number(double v) {
-  char buffer[32];
-  std::snprintf(buffer, sizeof buffer, "%g", v);
-  return buffer;
-}
 
 // Every configuration file is read through this: a missing file, a directory, a device
 // (/dev/zero would be read forever) or a file beyond 256 MiB (hours of a 1 kHz drive cycle
@@ -613,22 +577,6 @@ class ConfigSchema {
 
   std::vector<Entry> entries_;
 };
-
-inline std::string ValueRange::describe() const {
-  const bool has_lo = std::isfinite(lo);
-  const bool has_hi = std::isfinite(hi);
-  char buffer[96];
-  if (has_lo && has_hi) {
-    std::snprintf(buffer, sizeof buffer, "in %s%g, %g]", lo_open ? "(" : "[", lo, hi);
-  } else if (has_lo) {
-    std::snprintf(buffer, sizeof buffer, "%s %g", lo_open ? ">" : ">=", lo);
-  } else if (has_hi) {
-    std::snprintf(buffer, sizeof buffer, "<= %g", hi);
-  } else {
-    return "any number";
-  }
-  return buffer;
-}
 
 template <typename Config>
 std::string ConfigSchema<Config>::markdown(const Config& defaults) const {

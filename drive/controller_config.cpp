@@ -1,6 +1,7 @@
 #include "controller_config.hpp"
 
 #include "calibration_file.hpp"
+#include "config_schema.hpp"
 #include "pmsm/core/machine_equations.hpp"
 
 #include <algorithm>

@@ -10,14 +10,14 @@
 #include <string_view>
 #include <vector>
 
-#include <toml++/toml.h>
+#include <toml++/impl/forward_declarations.h>
 
-#include "config_schema.hpp"
+#include "config_types.hpp"
 #include "pmsm/core/drive_controller.hpp"
 
 namespace pmsm::app {
 
-// The one schema engine and its one error type (common/config_schema.hpp).
+// The one schema engine and its one error type (common/config_schema.hpp, config_types.hpp).
 using common::at_least;
 using common::between;
 using common::ConfigError;

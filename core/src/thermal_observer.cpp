@@ -373,18 +373,29 @@ bool ThermalObserver::time_to_limit_s(double limit_C, double copper_current_sq_A
     return false;
   }
   // x(t) = x_ss + V exp(L t) V^-1 (x0 - x_ss) on the 2x2 network; bisection on t.
-  Eigen::Matrix2d a;
-  a << -gwh / config_.winding_capacity_J_K, gwh / config_.winding_capacity_J_K,
-      gwh / config_.housing_capacity_J_K, -(gwh + gha) / config_.housing_capacity_J_K;
-  const Eigen::EigenSolver<Eigen::Matrix2d> eig(a);
-  const Eigen::Matrix2d v = eig.eigenvectors().real();
-  const Eigen::Vector2d lambda = eig.eigenvalues().real();
-  const Eigen::Vector2d c = v.inverse() * Eigen::Vector2d(x_(0) - tw_ss, x_(1) - th_ss);
+  // A = [-p p; q -(q + r)] (p = gwh/Cw, q = gwh/Ch, r = gha/Ch, all > 0): its eigenvalues are
+  // real, negative and distinct (the discriminant (a00 - a11)^2 + 4 p q > 0), in closed form;
+  // the larger in magnitude from the sum (no cancellation), the other from the determinant.
+  const double p = gwh / config_.winding_capacity_J_K;
+  const double q = gwh / config_.housing_capacity_J_K;
+  const double r = gha / config_.housing_capacity_J_K;
+  const double a00 = -p;
+  const double a11 = -(q + r);
+  const double trace = a00 + a11;
+  const double root = std::sqrt((a00 - a11) * (a00 - a11) + 4.0 * p * q);
+  const std::array<double, 2> lambda{0.5 * (trace - root), p * r / (0.5 * (trace - root))};
+  // Eigenvectors (p, lambda - a00); the winding's row of V is (p, p).
+  const std::array<double, 2> v1{lambda[0] - a00, lambda[1] - a00};
+  const double dw = x_(0) - tw_ss;
+  const double dh = x_(1) - th_ss;
+  const double det_v = p * (v1[1] - v1[0]);
+  // c = V^-1 (dw, dh); the winding's temperature is p c0 e^(l0 t) + p c1 e^(l1 t).
+  const std::array<double, 2> pc{p * (v1[1] * dw - p * dh) / det_v, p * (p * dh - v1[0] * dw) / det_v};
   auto winding_at = [&](double t) {
-    return tw_ss + v(0, 0) * c(0) * std::exp(lambda(0) * t) + v(0, 1) * c(1) * std::exp(lambda(1) * t);
+    return tw_ss + pc[0] * std::exp(lambda[0] * t) + pc[1] * std::exp(lambda[1] * t);
   };
   double lo = 0.0;
-  double hi = 10.0 / std::min(std::abs(lambda(0)), std::abs(lambda(1)));
+  double hi = 10.0 / std::min(std::abs(lambda[0]), std::abs(lambda[1]));
   if (winding_at(hi) < limit_C) {
     return false;
   }

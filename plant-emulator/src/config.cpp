@@ -4,6 +4,8 @@
 // unknown-key check and the Markdown reference in docs/plant.md are all driven by it.
 #include "pmsm/plant/config.hpp"
 
+#include "config_schema.hpp"
+
 #include <charconv>
 #include <cmath>
 #include <fstream>

@@ -7,6 +7,7 @@
 
 #include <toml++/toml.h>
 
+#include "config_schema.hpp"
 #include "controller_config.hpp"
 
 namespace pmsm::app {

@@ -5,6 +5,7 @@
 #include <filesystem>
 #include <string>
 
+#include "config_schema.hpp"
 #include "controller_config.hpp"
 #include "app_config_test_support.hpp"
 #include "scenario.hpp"

@@ -5,6 +5,7 @@
 #include <memory>
 #include <string>
 
+#include "config_schema.hpp"
 #include "controller_config.hpp"
 #include "pmsm/plant/config.hpp"
 #include "scenario.hpp"

@@ -9,7 +9,7 @@
 // against, with the same dead-time term the injection methods get.
 #pragma once
 
-#include <Eigen/Dense>
+#include <Eigen/Core>
 
 #include "pmsm/core/pair_estimator.hpp"
 

@@ -11,7 +11,7 @@
 
 #include <array>
 
-#include <Eigen/Dense>
+#include <Eigen/Core>
 
 namespace pmsm::core {
 

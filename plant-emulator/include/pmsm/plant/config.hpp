@@ -16,7 +16,7 @@
 #include <string_view>
 #include <vector>
 
-#include "config_schema.hpp"
+#include "config_types.hpp"
 
 namespace pmsm::plant {
 

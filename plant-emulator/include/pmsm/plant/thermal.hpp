@@ -40,7 +40,7 @@ class ThermalNetwork {
  private:
   Matrix a_d_{};                      // exp(A·h)
   std::array<std::array<double, kNodes + 1>, kNodes> b_d_{};  // ∫exp(A·s)ds·B, inputs P and T_amb
-  Matrix c_inv_g_{};                  // C^-1·G, for the time constant
+  Matrix c_g_c_{};                    // C^-1/2·G·C^-1/2 (similar to C^-1·G, symmetric), for the time constant
   Vector temps_C_{};
   double step_s_ = 0.0;
 };

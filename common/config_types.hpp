@@ -1,0 +1,75 @@
+// What a configuration struct or a header needs of the configuration schema engine
+// (config_schema.hpp) without toml++, whose header costs every translation unit that parses
+// it seconds of compile time: the one error type, time tables, value ranges and a declaration
+// of ConfigSchema. A header that names toml's types includes <toml++/impl/forward_declarations.h>.
+#pragma once
+
+#include <cmath>
+#include <cstdio>
+#include <limits>
+#include <stdexcept>
+#include <string>
+
+namespace pmsm::common {
+
+// The one error type of every configuration file (drive, plant, scenario).
+class ConfigError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+// One point of a time table: load steps, drive cycles, speed and set-point profiles.
+struct TimePoint {
+  double time_s = 0.0;
+  double value = 0.0;
+};
+
+// A closed or lower-open numeric interval; infinite ends mean "no bound".
+struct ValueRange {
+  double lo = -std::numeric_limits<double>::infinity();
+  double hi = std::numeric_limits<double>::infinity();
+  bool lo_open = false;
+
+  [[nodiscard]] bool contains(double v) const {
+    return (lo_open ? v > lo : v >= lo) && v <= hi;
+  }
+  [[nodiscard]] std::string describe() const;
+};
+
+[[nodiscard]] inline ValueRange any_number() { return {}; }
+[[nodiscard]] inline ValueRange positive(double hi = std::numeric_limits<double>::infinity()) {
+  return {0.0, hi, true};
+}
+[[nodiscard]] inline ValueRange at_least(double lo, double hi = std::numeric_limits<double>::infinity()) {
+  return {lo, hi, false};
+}
+[[nodiscard]] inline ValueRange between(double lo, double hi) { return {lo, hi, false}; }
+
+// "%g" of a number, as every message and table prints it.
+[[nodiscard]] inline std::string format_number(double v) {
+  char buffer[32];
+  std::snprintf(buffer, sizeof buffer, "%g", v);
+  return buffer;
+}
+
+inline std::string ValueRange::describe() const {
+  const bool has_lo = std::isfinite(lo);
+  const bool has_hi = std::isfinite(hi);
+  char buffer[96];
+  if (has_lo && has_hi) {
+    std::snprintf(buffer, sizeof buffer, "in %s%g, %g]", lo_open ? "(" : "[", lo, hi);
+  } else if (has_lo) {
+    std::snprintf(buffer, sizeof buffer, "%s %g", lo_open ? ">" : ">=", lo);
+  } else if (has_hi) {
+    std::snprintf(buffer, sizeof buffer, "<= %g", hi);
+  } else {
+    return "any number";
+  }
+  return buffer;
+}
+
+// The schema of one configuration struct (config_schema.hpp).
+template <typename Config>
+class ConfigSchema;
+
+}  // namespace pmsm::common
