@@ -25,22 +25,30 @@ struct PhaseSign {
   double mean = 0.0;
   bool varies = false;
 };
-PhaseSign phase_sign(double i0, double i1, double band_A, double b, double reach, double noise_eff_A) {
-  if (i0 > b + reach && i1 > b + reach) {
+// A phase whose current crosses or nears zero within the period (the rare case: out of line).
+[[gnu::noinline]] PhaseSign phase_sign_near_zero(double i0, double i1, double band_A, double b, double noise_eff_A) {
+  return {mean_soft_sign_of_measured(i0, i1, band_A, noise_eff_A), soft_sign_varies(i0, i1, b)};
+}
+
+// Beyond +-edge (the band and the noise's reach) at both ends the sign is constant; tested
+// inline, since in most periods every phase is there.
+inline PhaseSign phase_sign(double i0, double i1, double edge, double band_A, double b, double noise_eff_A) {
+  if (i0 > edge && i1 > edge) {
     return {1.0, false};
   }
-  if (i0 < -b - reach && i1 < -b - reach) {
+  if (i0 < -edge && i1 < -edge) {
     return {-1.0, false};
   }
-  return {mean_soft_sign_of_measured(i0, i1, band_A, noise_eff_A), soft_sign_varies(i0, i1, b)};
+  return phase_sign_near_zero(i0, i1, band_A, b, noise_eff_A);
 }
 
 PeriodPattern dead_time_pattern(const Abc& i0, const Abc& i1, double band_A, double noise_eff_A, const Rotation& r) {
   const double b = std::max(band_A, 0.0);
   const double reach = noise_eff_A > 0.0 && band_A > 0.0 ? kNoiseCorrectionReachSigma * noise_eff_A : 0.0;
-  const PhaseSign pa = phase_sign(i0.a, i1.a, band_A, b, reach, noise_eff_A);
-  const PhaseSign pb = phase_sign(i0.b, i1.b, band_A, b, reach, noise_eff_A);
-  const PhaseSign pc = phase_sign(i0.c, i1.c, band_A, b, reach, noise_eff_A);
+  const double edge = b + reach;  // -edge is -b - reach exactly (rounding is symmetric)
+  const PhaseSign pa = phase_sign(i0.a, i1.a, edge, band_A, b, noise_eff_A);
+  const PhaseSign pb = phase_sign(i0.b, i1.b, edge, band_A, b, noise_eff_A);
+  const PhaseSign pc = phase_sign(i0.c, i1.c, edge, band_A, b, noise_eff_A);
   const Dq mean = park(clarke(Abc{pa.mean, pb.mean, pc.mean}), r.c, r.s);
   // A phase whose current stays outside the band on one side has a constant sign and no
   // moment: in most periods no phase is near zero, and the moment is not computed at all.
