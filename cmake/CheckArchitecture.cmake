@@ -37,7 +37,7 @@ string(REPLACE "." "\\." protocol_alt "${protocol_alt}")
 
 # core/: the paper and the control laws; Eigen and the standard library only.
 check(core "core/ includes only core/, Eigen and the standard library"
-      "^pmsm/(hal|plant|tools|drive|common)/|^(toml|spdlog|fmt|CLI|gpiod|systemd|linux|sys|unistd|poll|fcntl)|config_schema|controller_config")
+      "^pmsm/(hal|plant|tools|drive|common)/|^(toml|spdlog|fmt|CLI|gpiod|systemd|linux|sys|unistd|poll|fcntl)|config_schema|config_types|toml_fwd|controller_config")
 # hal/protocol: pure; nothing of the OS side, core, drive or the tools.
 check(hal/protocol "hal/protocol is pure: no OS, core, drive or tool headers"
       "^pmsm/(core|plant|tools)/|^pmsm/hal/(${io_alt})$|^(linux|sys|unistd|poll|fcntl|spdlog|toml)")

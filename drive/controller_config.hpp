@@ -10,7 +10,7 @@
 #include <string_view>
 #include <vector>
 
-#include <toml++/impl/forward_declarations.h>
+#include "toml_fwd.hpp"
 
 #include "config_types.hpp"
 #include "pmsm/core/drive_controller.hpp"

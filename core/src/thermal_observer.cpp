@@ -388,7 +388,7 @@ bool ThermalObserver::time_to_limit_s(double limit_C, double copper_current_sq_A
   const std::array<double, 2> v1{lambda[0] - a00, lambda[1] - a00};
   const double dw = x_(0) - tw_ss;
   const double dh = x_(1) - th_ss;
-  const double det_v = p * (v1[1] - v1[0]);
+  const double det_v = p * root;  // p (lambda1 - lambda0), without the difference's cancellation
   // c = V^-1 (dw, dh); the winding's temperature is p c0 e^(l0 t) + p c1 e^(l1 t).
   const std::array<double, 2> pc{p * (v1[1] * dw - p * dh) / det_v, p * (p * dh - v1[0] * dw) / det_v};
   auto winding_at = [&](double t) {
