@@ -293,7 +293,7 @@ Dq InjectionScheduler::injection_current(const SchedulerInput& in) const {
       break;
     case SchedulerPhase::kPulseWait: {
       // Fixed-angle pulse: the envelope follows the rotor angle across the arc.
-      const double phi = direction_ * (in.theta_e_rad - pulse_start_theta_);
+      const double phi = pulse_phase(in.theta_e_rad);
       const PulseEnvelope env{config_.window, window_arc_rad_, config_.injection_arc_rad};
       envelope = env.value(phi);
       level = level_for(recording_);
@@ -898,7 +898,7 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
       break;
 
     case SchedulerPhase::kWaitArc:
-      if (sample != nullptr && recorder_.coordinate(*sample) >= origin2_) {
+      if (sample != nullptr && recorder_.coordinate(*sample) >= origin2_) {  // records() asks the same
         recording_ = 2;
         enter(SchedulerPhase::kRecord2);
         recorder_.add_second(*sample);
@@ -926,7 +926,7 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
       // the current to follow the envelope back to zero.
       const double tail = config_.settle_s * std::abs(in.omega_e_rad_s);
       if (sample != nullptr) {
-        const double phi_sample = direction_ * (sample->theta_e_rad - pulse_start_theta_);
+        const double phi_sample = pulse_phase(sample->theta_e_rad);
         if (recording_ == 1) {
           if (phi_sample >= 0.0) {
             recorder_.add_first(*sample);

@@ -294,10 +294,10 @@ class InjectionScheduler {
       case SchedulerPhase::kRecord1:
       case SchedulerPhase::kRecord2:
         return true;
-      case SchedulerPhase::kWaitArc:  // angle-based only (PairRecorder::coordinate)
-        return direction_ * sample_theta_e_rad >= origin2_;
+      case SchedulerPhase::kWaitArc:  // matching by angle only (time matching records at once)
+        return recorder_.angle_coordinate(sample_theta_e_rad) >= origin2_;
       case SchedulerPhase::kPulseWait:
-        return direction_ * (sample_theta_e_rad - pulse_start_theta_) >= 0.0;
+        return pulse_phase(sample_theta_e_rad) >= 0.0;
       default:
         return false;
     }
@@ -325,6 +325,8 @@ class InjectionScheduler {
   [[nodiscard]] double lq_incremental_H(double iq_A) const;
 
  private:
+  // Fixed-angle: how far past the pulse's start an angle is, in the direction of rotation.
+  [[nodiscard]] double pulse_phase(double theta_e_rad) const { return direction_ * (theta_e_rad - pulse_start_theta_); }
   void begin_pair(const SchedulerInput& in);
   void abort(SchedulerOutput& out, const SchedulerInput& in);
   PairResult finish_pair(const SchedulerInput& in);

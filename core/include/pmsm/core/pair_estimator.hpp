@@ -252,8 +252,10 @@ class PairRecorder {
   // Coordinate of a sample in the matching space (direction-signed angle, or time). Inline,
   // with the two above: the scheduler asks every period of a pair.
   [[nodiscard]] double coordinate(const PeriodSample& s) const {
-    return match_by_ == MatchBy::kAngle ? direction_ * s.theta_e_rad : s.time_s;
+    return match_by_ == MatchBy::kAngle ? angle_coordinate(s.theta_e_rad) : s.time_s;
   }
+  // The coordinate of an angle when matching by angle (before a sample is built for it).
+  [[nodiscard]] double angle_coordinate(double theta_e_rad) const { return direction_ * theta_e_rad; }
 
  private:
   // Recording 1 as the matching reads it, preallocated at construction (never grows): each
