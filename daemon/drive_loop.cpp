@@ -100,12 +100,16 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns) 
 
   const app::NodePublications& p = out.publications;
   if (p.thermal || p.resistance || p.injection || p.status || p.heartbeat || p.fault_count > 0 ||
-      out.calibration_to_store || out.calibration_failed || node_.controller().inverter_sweep_completed()) {
+      out.calibration_to_store || out.calibration_failed || node_.controller().inverter_sweep_completed() ||
+      node_.controller().angle_check_completed()) {
     PublicationRecord r;
     r.publications = p;
     r.calibration_to_store = out.calibration_to_store;
     r.inverter_sweep = node_.controller().inverter_sweep_completed();
     r.inverter_sweep_pending = node_.controller().inverter_sweep_pending();
+    r.angle_check = node_.controller().angle_check_completed();
+    r.angle_check_pending = node_.controller().angle_check_pending();
+    r.angle_correction_rad = node_.controller().angle_correction_rad();
     r.calibration_failed = out.calibration_failed;
     if (out.calibration_failed) {
       const core::DriveTelemetry& t = node_.controller().telemetry();

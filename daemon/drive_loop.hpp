@@ -37,6 +37,10 @@ struct PublicationRecord {
   // The calibration's bridge sweep, in the period it ended (whatever its outcome), for the log.
   std::optional<core::InverterSweepResult> inverter_sweep;
   bool inverter_sweep_pending = false;  // ... and the controller will start it again
+  // The calibration's rotor-angle check, in the period it ended, and the correction in use then.
+  std::optional<core::AngleCheckResult> angle_check;
+  bool angle_check_pending = false;
+  double angle_correction_rad = 0.0;
   // With each heartbeat: the loop's timing since the previous one (LOOP_TIMING).
   std::optional<hal::protocol::LoopTiming> timing;
   // Every kThermalStateEvery_s of drive time, once the filter has an output: its state, for

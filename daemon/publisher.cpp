@@ -1,6 +1,7 @@
 #include "publisher.hpp"
 
 #include <fmt/format.h>
+#include <numbers>
 #include <spdlog/spdlog.h>
 
 #include "calibration_file.hpp"
@@ -134,6 +135,27 @@ void Publisher::handle(const PublicationRecord& r) {
   if (r.thermal_state) {
     store_thermal_state(*r.thermal_state, r.ambient_C);
   }
+  if (r.angle_check) {
+    // The calibration's rotor-angle check ended: the offset it found and whether it corrected it.
+    const core::AngleCheckResult& a = *r.angle_check;
+    constexpr double kDeg = 180.0 / std::numbers::pi;
+    if (a.outcome == core::AngleCheckOutcome::kMeasured) {
+      spdlog::info("calibration: rotor-angle check found {:+.3f} deg electrical (+- {:.3f} levels, +- {:.3f} saliency "
+                   "model); correction of sensors.encoder_offset_rad in use {:+.3f} deg",
+                   a.offset_rad * kDeg, a.offset_std_rad * kDeg, a.model_std_rad * kDeg, r.angle_correction_rad * kDeg);
+    } else if (a.outcome == core::AngleCheckOutcome::kOutOfRange) {
+      spdlog::error("calibration: rotor-angle check found the angle {:+.1f} deg electrical off, more than "
+                    "calibration.angle_check_max_offset_rad corrects: commission sensors.encoder_offset_rad (or check the "
+                    "phase order and motor.pole_pairs); the calibration is refused",
+                    a.offset_rad * kDeg);
+    } else if (r.angle_check_pending) {
+      spdlog::warn("calibration: rotor-angle check {}: it starts again once the drive has run {:.2f} s without a stop",
+                   core::to_string(a.outcome), core::DriveController::kSweepHoldoff_s);
+    } else {
+      spdlog::warn("calibration: rotor-angle check {}: the angle in use (correction {:+.3f} deg) holds for this calibration",
+                   core::to_string(a.outcome), r.angle_correction_rad * kDeg);
+    }
+  }
   if (r.inverter_sweep) {
     // The calibration's bridge sweep ended: what it measured, or why not (a calibration without
     // it keeps the configured band and the Vx prior, and its Rs0 depends on them).
@@ -153,7 +175,10 @@ void Publisher::handle(const PublicationRecord& r) {
     }
   }
   if (r.calibration_failed) {
-    if (r.calibration_failure == core::CalibrationFailure::kUncertain) {
+    if (r.calibration_failure == core::CalibrationFailure::kAngleOffset) {
+      spdlog::warn("calibration refused: the rotor angle is off by more than the check corrects (above); the previous "
+                   "calibration stays in use");
+    } else if (r.calibration_failure == core::CalibrationFailure::kUncertain) {
       spdlog::warn("calibration refused: Rs0 {:.5f} +- {:.5f} ohm is less certain than "
                    "calibration.max_rs0_std_fraction allows (the bridge's voltage was not learned: calibrate "
                    "unloaded, below injection.vx_learning_max_speed_rad_s); the previous calibration stays in use",

@@ -190,7 +190,8 @@ void write_calibration_file(const std::filesystem::path& path, const core::Calib
     throw CalibrationFileError("calibration file: no path given");
   }
   if (!(c.rs0_ohm > 0.0) || !std::isfinite(c.rs0_ohm) || !std::isfinite(c.t0_C) || !std::isfinite(c.ke0_V_s_per_rad) ||
-      !(c.dead_time_band_A >= 0.0 && c.dead_time_band_A <= 1000.0)) {
+      !(c.dead_time_band_A >= 0.0 && c.dead_time_band_A <= 1000.0) ||
+      (c.angle_correction_measured && !(std::abs(c.angle_correction_rad) <= 1.0))) {
     throw CalibrationFileError(fmt::format("{}: refusing to store an invalid calibration (Rs0 {}, T0 {}, Ke0 {})", path.string(),
                                            c.rs0_ohm, c.t0_C, c.ke0_V_s_per_rad));
   }
@@ -203,6 +204,10 @@ void write_calibration_file(const std::filesystem::path& path, const core::Calib
   if (c.dead_time_band_A > 0.0) {
     // The bridge's zero-current band from the calibration's sweep (absent: not measured).
     text << "dead_time_band_A = " << toml_float(c.dead_time_band_A) << "\n";
+  }
+  if (c.angle_correction_measured) {
+    // The rotor-angle check's correction of sensors.encoder_offset_rad (absent: not measured).
+    text << "angle_correction_rad = " << toml_float(c.angle_correction_rad) << "\n";
   }
   text << "written_utc = " << quoted(utc_now()) << "\n"
        << "source = " << quoted(source) << "\n";
@@ -245,13 +250,16 @@ toml::table read_stored(const std::filesystem::path& path, const std::set<std::s
 core::Calibration read_calibration_file(const std::filesystem::path& path) {
   const std::string file = path.string();
   const toml::table t =
-      read_stored(path, {"format", "rs0_ohm", "t0_C", "ke0_V_s_per_rad", "dead_time_band_A", "written_utc", "source"});
+      read_stored(path, {"format", "rs0_ohm", "t0_C", "ke0_V_s_per_rad", "dead_time_band_A", "angle_correction_rad",
+                         "written_utc", "source"});
   core::Calibration c;
   c.rs0_ohm = number(t, "rs0_ohm", file, 0.0, 10.0, true);
   c.t0_C = number(t, "t0_C", file, -50.0, 200.0, false);
   c.ke0_V_s_per_rad = t.get("ke0_V_s_per_rad") != nullptr ? number(t, "ke0_V_s_per_rad", file, 0.0, 100.0, false) : 0.0;
   c.dead_time_band_A =
       t.get("dead_time_band_A") != nullptr ? number(t, "dead_time_band_A", file, 0.0, 1000.0, true) : 0.0;
+  c.angle_correction_measured = t.get("angle_correction_rad") != nullptr;
+  c.angle_correction_rad = c.angle_correction_measured ? number(t, "angle_correction_rad", file, -1.0, 1.0, false) : 0.0;
   c.calibrated = true;
   return c;
 }

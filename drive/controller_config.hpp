@@ -70,6 +70,9 @@ struct ControllerConfig {
   // With thermal.acceleration other than 1 (a test), a calibration runs the thermal model at
   // real time, as on a machine; the plant emulator follows (THERMAL_ESTIMATE.Calibrating).
   bool calibration_real_time = true;
+  // calibration.angle_correction_rad: the rotor-angle correction a calibration's angle check
+  // measured (absent: none measured, sensors.encoder_offset_rad holds as configured).
+  std::optional<double> angle_correction_rad;
 };
 
 // What became of the stored calibration at start-up.

@@ -6,6 +6,7 @@ namespace pmsm::core {
 
 AngleTracker::AngleTracker(const AngleTrackerConfig& config)
     : config_(config),
+      offset_rad_(config.electrical_offset_rad),
       counts_to_rad_(kTwoPi / static_cast<double>(std::uint64_t{1} << config.encoder_bits)),
       // Critically damped type-2 loop: kp = 2 wn, ki = wn^2.
       kp_(2.0 * config.pll_bandwidth_rad_s),
@@ -23,7 +24,7 @@ void AngleTracker::update(std::uint32_t encoder_count) {
   // angle outside [0, 2 pi)).
   const std::uint64_t mask = (std::uint64_t{1} << config_.encoder_bits) - 1;  // a power of two
   theta_m_rad_ = (static_cast<double>(encoder_count & mask) + config_.count_centre) * counts_to_rad_;
-  theta_e_rad_ = wrap_angle_0_2pi(config_.pole_pairs * theta_m_rad_ + config_.electrical_offset_rad);
+  theta_e_rad_ = wrap_angle_0_2pi(config_.pole_pairs * theta_m_rad_ + offset_rad_);
   if (!initialised_) {
     initialised_ = true;
     previous_theta_m_rad_ = theta_m_rad_;

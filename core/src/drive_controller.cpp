@@ -84,6 +84,11 @@ DriveController::DriveController(const DriveConfig& config)
     config_.dead_time.current_band_A = config_.calibration.dead_time_band_A;
     band_measured_ = true;
   }
+  // ... and one that checked the rotor angle corrects the commissioned offset.
+  if (config_.calibration.angle_correction_measured) {
+    angle_.set_offset_correction_rad(config_.calibration.angle_correction_rad);
+    angle_measured_ = true;
+  }
 }
 
 void DriveController::fail_calibration(CalibrationFailure why) {
@@ -92,12 +97,14 @@ void DriveController::fail_calibration(CalibrationFailure why) {
   calibration_failed_now_ = true;
   calibration_failure_ = why;
   switch (why) {
-    case CalibrationFailure::kUncertain: calibration_outcome_ = CalibrationOutcome::kRefused; break;
+    case CalibrationFailure::kUncertain:
+    case CalibrationFailure::kAngleOffset: calibration_outcome_ = CalibrationOutcome::kRefused; break;
     case CalibrationFailure::kTimeout: calibration_outcome_ = CalibrationOutcome::kTimedOut; break;
     case CalibrationFailure::kNone: calibration_outcome_ = CalibrationOutcome::kNone; break;
   }
   publish_calibration_state();
   restore_band();
+  restore_angle();
   scheduler_.set_config(config_.injection);
 }
 
@@ -106,6 +113,7 @@ const char* calibration_failure_name(CalibrationFailure f) {
     case CalibrationFailure::kNone: return "none";
     case CalibrationFailure::kTimeout: return "timeout";
     case CalibrationFailure::kUncertain: return "uncertain";
+    case CalibrationFailure::kAngleOffset: return "angle_offset";
   }
   return "unknown";
 }
@@ -137,6 +145,85 @@ void DriveController::restore_band() {
   if (!(nameplate && band_measured_ && !band_measured_before_)) {
     config_.dead_time.current_band_A = band_before_calibration_A_;
     band_measured_ = band_measured_before_;
+  }
+}
+
+AngleCheckMotor DriveController::angle_check_motor() const {
+  AngleCheckMotor m;
+  m.flux_linkage_Wb = config_.current.flux_linkage_Wb;
+  // The reluctance term only for a machine configured as salient (a torque budget, the
+  // project's declaration of an interior-magnet machine: docs/configuration.md). On a
+  // surface-magnet machine the commissioned Ld and Lq differ only by their errors, and that
+  // difference times the no-load current would read as an offset: 0.17 degree on the
+  // reference (Ld +10 %, Lq -10 %, 0.6 A against the friction).
+  m.ld_minus_lq_H = config_.injection.max_torque_disturbance_Nm > 0.0 ? config_.current.ld_H - config_.current.lq_H : 0.0;
+  m.pole_pairs = config_.motor.pole_pairs;
+  m.inertia_kg_m2 = config_.speed.inertia_kg_m2;
+  // Ld and Lq each known to the fraction the Lq learning starts from (their difference's error
+  // is the same whether or not the reluctance term is used).
+  m.saliency_std_H = config_.injection.lq_initial_std_fraction * std::hypot(config_.current.ld_H, config_.current.lq_H);
+  return m;
+}
+
+void DriveController::set_angle_correction(double correction_rad) {
+  // The angles jump by the change; the period history moves with them, so that the next
+  // period's advance is the rotor's, not the correction's.
+  const double change = correction_rad - angle_.offset_correction_rad();
+  angle_.set_offset_correction_rad(correction_rad);
+  previous_theta_smooth_ += change;
+  previous_smooth_wrapped_ = wrap_angle_0_2pi(previous_smooth_wrapped_ + change);
+}
+
+void DriveController::restore_angle() {
+  // As restore_band(): a calibration that does not complete keeps the calibration in use and
+  // its angle; only the nameplate, which no check corrected, keeps this run's measurement.
+  const bool nameplate = !observer_.calibration().calibrated;
+  if (!(nameplate && angle_measured_ && !angle_measured_before_)) {
+    set_angle_correction(angle_before_calibration_rad_);
+    angle_measured_ = angle_measured_before_;
+  }
+}
+
+void DriveController::start_calibration_sweep(double now_s) {
+  sweep_pending_ = false;
+  sweep_attempts_ = 0;
+  if (config_.inverter_sweep.enabled) {
+    sweep_.start(config_.inverter_sweep, config_.period_s);
+    sweep_attempts_ = 1;
+  }
+  // The calibration's events (and its timeout) start when the sweep has ended, or now.
+  calibration_started_s_ = now_s;
+}
+
+void DriveController::finish_angle_check(double now_s) {
+  const AngleCheckResult& r = check_.result();
+  check_done_ = r;
+  // Aborted by a stop or a lost sample, or voided by an operating point that moved: started
+  // again once the drive has run a while, as the sweep is. Not turning is not retried: a drive
+  // calibrating at standstill stays there (the configured offset holds).
+  const bool retry = r.outcome == AngleCheckOutcome::kAborted || r.outcome == AngleCheckOutcome::kSpeedChanged ||
+                     r.outcome == AngleCheckOutcome::kUnsteady || r.outcome == AngleCheckOutcome::kVoltageLimited;
+  check_pending_ = retry && calibrating_ && check_attempts_ < kSweepAttempts;
+  check_running_s_ = 0.0;
+  if (!calibrating_) {
+    return;
+  }
+  if (r.outcome == AngleCheckOutcome::kMeasured) {
+    // The residual the check saw, on top of the correction it ran with; below the check's own
+    // error the angle in use stands (and counts as checked).
+    const double error_bar = std::hypot(r.offset_std_rad, r.model_std_rad);
+    if (std::abs(r.offset_rad) >= std::max(config_.angle_check.min_correction_rad, 3.0 * error_bar)) {
+      set_angle_correction(angle_.offset_correction_rad() + r.offset_rad);
+    }
+    angle_measured_ = true;
+  } else if (r.outcome == AngleCheckOutcome::kOutOfRange) {
+    // Tens of degrees are a commissioning error (an offset not set, a phase order or a pole
+    // count wrong), not a trim: the drive says so rather than run on a guess.
+    fail_calibration(CalibrationFailure::kAngleOffset);
+    return;
+  }
+  if (!check_pending_) {
+    start_calibration_sweep(now_s);
   }
 }
 
@@ -190,11 +277,19 @@ void DriveController::start_calibration(double known_temp_C) {
   calibration_ke_count_ = 0;
   band_before_calibration_A_ = config_.dead_time.current_band_A;
   band_measured_before_ = band_measured_;
-  sweep_pending_ = false;
-  sweep_attempts_ = 0;
-  if (config_.inverter_sweep.enabled) {
-    sweep_.start(config_.inverter_sweep, config_.period_s);
-    sweep_attempts_ = 1;
+  angle_before_calibration_rad_ = angle_.offset_correction_rad();
+  angle_measured_before_ = angle_measured_;
+  // First the rotor angle (the sweep and the events inject d current, which an angle off the
+  // rotor's turns into torque), then the bridge, then the events.
+  check_pending_ = false;
+  check_attempts_ = 0;
+  if (config_.angle_check.enabled) {
+    check_.start(config_.angle_check, angle_check_motor(), config_.period_s);
+    check_attempts_ = 1;
+    sweep_pending_ = false;
+    sweep_attempts_ = 0;
+  } else {
+    start_calibration_sweep(calibration_started_s_);
   }
   publish_calibration_state();
 }
@@ -218,8 +313,14 @@ void DriveController::abort_calibration() {
       sweep_.abort();
       sweep_done_ = sweep_.result();
     }
+    if (check_.active()) {
+      check_.abort();
+      check_done_ = check_.result();
+    }
     sweep_pending_ = false;
+    check_pending_ = false;
     restore_band();
+    restore_angle();
     scheduler_.set_config(config_.injection);
   }
 }
@@ -326,6 +427,9 @@ void DriveController::handle_estimate(const EventEstimate& e) {
         // calibration's when this run's sweep was void).
         c.dead_time_band_A = config_.dead_time.current_band_A;
       }
+      // Likewise the angle correction, when a check measured it.
+      c.angle_correction_measured = angle_measured_;
+      c.angle_correction_rad = angle_measured_ ? angle_.offset_correction_rad() : 0.0;
       calibrating_ = false;
       scheduler_.set_config(config_.injection);
       // The filter keeps its state (the winding has warmed during the calibration); only the
@@ -426,6 +530,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   last_event_.reset();
   calibration_done_.reset();
   sweep_done_.reset();
+  check_done_.reset();
   calibration_failed_now_ = false;
   const double now = static_cast<double>(period_) * config_.period_s;
   ++period_;
@@ -441,7 +546,12 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
       sweep_.abort();
       finish_inverter_sweep(now);
     }
+    if (check_.active()) {
+      check_.abort();
+      finish_angle_check(now);
+    }
     telemetry_.inverter_sweep_active = false;
+    telemetry_.angle_check_active = false;
     age_magnet();  // a fault or a lost sample does not stop the clock of the magnet's estimate
     SchedulerInput s;
     s.time_s = now;
@@ -466,6 +576,23 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   const double smooth_advance = have_previous_ ? theta_smooth - previous_theta_smooth_ : 0.0;
   const double smooth_wrapped = have_previous_ ? wrap_angle_0_2pi(previous_smooth_wrapped_ + smooth_advance)
                                                : wrap_angle_0_2pi(theta_smooth);
+
+  if (check_pending_) {
+    // The calibration's angle check, aborted or voided, starts again as the sweep does (below).
+    check_running_s_ = enabled ? check_running_s_ + config_.period_s : 0.0;
+    if (!calibrating_) {
+      check_pending_ = false;
+    } else if (check_running_s_ >= kSweepHoldoff_s) {
+      check_pending_ = false;
+      ++check_attempts_;
+      check_.start(config_.angle_check, angle_check_motor(), config_.period_s);
+    }
+  }
+  if (check_.active() &&
+      check_.step(enabled, command.mode == DriveMode::kSpeed, i.d, i.q, angle_.mechanical_speed_rad_s(), omega_e,
+                  limited_now_)) {
+    finish_angle_check(now);
+  }
 
   if (sweep_pending_) {
     // The calibration's sweep, aborted by a stop, a lost sample or a settling speed, starts
@@ -545,11 +672,12 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
 
   Dq motoring = enabled ? motoring_reference(command) : Dq{};
   // A sweep waiting to start again holds the calibration's events back as a running one does.
-  const bool sweeping = sweep_.active() || sweep_pending_;
-  if (sweep_.active() && enabled) {
-    // The bridge sweep's level, on top of id = 0 control, inside the drive's current limit.
+  const bool sweeping = sweep_.active() || sweep_pending_ || check_.active() || check_pending_;
+  if ((sweep_.active() || check_.active()) && enabled) {
+    // The bridge sweep's or the angle check's level, on top of id = 0 control, inside the
+    // drive's current limit.
     const double limit = derating_.current_limit_A;
-    motoring.d += std::clamp(sweep_.id_ref_A(), -limit, limit);
+    motoring.d += std::clamp(sweep_.id_ref_A() + check_.id_ref_A(), -limit, limit);
   }
   SchedulerInput si;
   si.time_s = now;
@@ -630,8 +758,10 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   limited_next_ = limited;
   previous_i_A_ = i;
   previous_i_abc_A_ = in.i_A;
-  previous_theta_smooth_ = theta_smooth;
-  previous_smooth_wrapped_ = smooth_wrapped;
+  // An angle correction applied in this step (the angle check's) moves the history with it.
+  const double angle_jump = angle_.smooth_unwrapped_electrical_angle_rad() - theta_smooth;
+  previous_theta_smooth_ = theta_smooth + angle_jump;
+  previous_smooth_wrapped_ = angle_jump == 0.0 ? smooth_wrapped : wrap_angle_0_2pi(smooth_wrapped + angle_jump);
   have_previous_ = true;
 
   // Thermal model at its own rate.
@@ -671,6 +801,8 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   telemetry_.torque_estimate_Nm = electromagnetic_torque_Nm(
       config_.current.flux_linkage_Wb, config_.current.ld_H, config_.current.lq_H, config_.motor.pole_pairs, i);
   telemetry_.inverter_sweep_active = sweep_.active();
+  telemetry_.angle_check_active = check_.active();
+  telemetry_.angle_correction_rad = angle_.offset_correction_rad();
   telemetry_.dead_time_band_A = config_.dead_time.current_band_A;
   telemetry_.vx_V = scheduler_.vx_V();
   telemetry_.vx_std_V = scheduler_.vx_std_V();

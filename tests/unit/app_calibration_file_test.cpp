@@ -89,6 +89,30 @@ TEST_F(CalibrationFile, RoundTripKeepsTheValues) {
   EXPECT_TRUE(t["written_utc"].is_string());
 }
 
+TEST_F(CalibrationFile, TheRotorAngleCorrectionIsKeptWhenMeasured) {
+  const fs::path p = dir_ / "calibration.toml";
+  core::Calibration measured = sample();
+  measured.angle_correction_measured = true;
+  measured.angle_correction_rad = -0.0349;
+  write_calibration_file(p, measured, "test");
+  const core::Calibration c = read_calibration_file(p);
+  EXPECT_TRUE(c.angle_correction_measured);
+  EXPECT_DOUBLE_EQ(c.angle_correction_rad, -0.0349);
+  // A correction of exactly zero is a measurement too (the check found nothing to correct).
+  measured.angle_correction_rad = 0.0;
+  write_calibration_file(p, measured, "test");
+  EXPECT_TRUE(read_calibration_file(p).angle_correction_measured);
+  // Not measured: no key, and the configured offset holds.
+  write_calibration_file(p, sample(), "test");
+  EXPECT_FALSE(read_calibration_file(p).angle_correction_measured);
+  EXPECT_EQ(toml::parse_file(p.string()).get("angle_correction_rad"), nullptr);
+  EXPECT_NE(error_of("format = 1\nrs0_ohm = 0.13\nt0_C = 25.0\nangle_correction_rad = 2.0\n")
+                .find("bad.toml:4: angle_correction_rad: 2 is out of range"),
+            std::string::npos);
+  measured.angle_correction_rad = std::nan("");
+  EXPECT_THROW(write_calibration_file(dir_ / "c.toml", measured, "test"), CalibrationFileError);
+}
+
 TEST_F(CalibrationFile, ReplacesTheOldFileAndLeavesNoTemporary) {
   const fs::path p = dir_ / "calibration.toml";
   write_text(p, "old content that is not TOML [");

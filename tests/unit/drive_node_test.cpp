@@ -219,11 +219,16 @@ TEST(DriveNode, TheSweptBandReplacesTheConfiguredGuessButNotAStoredBand) {
     r.plant_config.load.torque_Nm = 0.0;
     r.plant = std::make_unique<plant::Plant>(r.plant_config);
   };
-  // Starts a calibration and runs its sweep to the end; then aborts the calibration.
+  // Starts a calibration and runs its sweep to the end (after the rotor-angle check that comes
+  // first); then aborts the calibration.
   auto sweep = [](Rig& r) {
     r.in.start_calibration = true;
     r.run(1);
     r.in.start_calibration = false;
+    EXPECT_TRUE(r.node->controller().telemetry().angle_check_active);
+    for (int k = 0; k < 20000 && !r.node->controller().telemetry().inverter_sweep_active; ++k) {
+      r.run(1);
+    }
     EXPECT_TRUE(r.node->controller().telemetry().inverter_sweep_active);
     for (int k = 0; k < 20000 && r.node->controller().telemetry().inverter_sweep_active; ++k) {
       r.run(1);
@@ -280,6 +285,9 @@ TEST(DriveNode, TheSweptBandReplacesTheConfiguredGuessButNotAStoredBand) {
   stored.in.start_calibration = true;
   stored.run(1);
   stored.in.start_calibration = false;
+  for (int k = 0; k < 20000 && !stored.node->controller().telemetry().inverter_sweep_active; ++k) {
+    stored.run(1);  // the rotor-angle check first
+  }
   stored.run(100);
   stored.in.mode = core::DriveMode::kDisabled;
   stored.run(10);
@@ -297,8 +305,9 @@ TEST(DriveNode, TheSweptBandReplacesTheConfiguredGuessButNotAStoredBand) {
 }
 
 // A calibration asked for before the drive is enabled (a supervisor that sends both at once,
-// as the HIL test's does): its sweep, aborted by the stopped drive, starts again when the drive
-// runs and measures the bridge; before, the calibration went on with the configured band.
+// as the HIL test's does): its rotor-angle check, aborted by the stopped drive, starts again when
+// the drive runs, and then the sweep measures the bridge; before the restarts, the calibration
+// went on with the configured band.
 TEST(DriveNode, ACalibrationAskedForBeforeTheDriveRunsStillSweepsTheBridge) {
   Rig rig;
   rig.plant_config.load.torque_Nm = 0.0;
@@ -310,16 +319,21 @@ TEST(DriveNode, ACalibrationAskedForBeforeTheDriveRunsStillSweepsTheBridge) {
   rig.in.start_calibration = false;
   rig.run(100);
   EXPECT_TRUE(rig.node->controller().telemetry().calibrating) << "suspended, not ended";
-  EXPECT_EQ(rig.node->controller().inverter_sweep().outcome, core::InverterSweepOutcome::kAborted);
+  // The rotor-angle check comes first: the stopped drive aborted it, and the sweep waits.
+  EXPECT_EQ(rig.node->controller().angle_check().outcome, core::AngleCheckOutcome::kAborted);
+  EXPECT_TRUE(rig.node->controller().angle_check_pending());
+  EXPECT_EQ(rig.node->controller().inverter_sweep().outcome, core::InverterSweepOutcome::kNone);
   rig.in.mode = core::DriveMode::kSpeed;
-  // The sweep starts again once the drive has run a while (and again if the speed was still
-  // settling), then runs to its end.
+  // The check starts again once the drive has run a while (and again if the speed was still
+  // settling); the sweep follows it and runs to its end.
   int started = 0;
   for (int k = 0; k < 50000 && !(started > 0 && !rig.node->controller().telemetry().inverter_sweep_active); ++k) {
     rig.run(1);
     if (rig.node->controller().telemetry().inverter_sweep_active && started == 0) started = k;
   }
-  EXPECT_GT(started, 0) << "the sweep did not start again";
+  EXPECT_GT(started, 0) << "the sweep did not start";
+  EXPECT_EQ(rig.node->controller().angle_check().outcome, core::AngleCheckOutcome::kMeasured)
+      << "the check started again when the drive ran, and ended before the sweep";
   const core::InverterSweepResult& sweep = rig.node->controller().inverter_sweep();
   ASSERT_EQ(sweep.outcome, core::InverterSweepOutcome::kMeasured) << core::to_string(sweep.outcome);
   EXPECT_NEAR(sweep.band_A, rig.plant_config.inverter.zero_current_band_A,

@@ -10,4 +10,5 @@ pmsm_add_gtest(estimator_unit_test LABEL unit
     ${CMAKE_CURRENT_LIST_DIR}/estimator_baseline_test.cpp
     ${CMAKE_CURRENT_LIST_DIR}/estimator_regression_test.cpp
     ${CMAKE_CURRENT_LIST_DIR}/estimator_inverter_sweep_test.cpp
+    ${CMAKE_CURRENT_LIST_DIR}/estimator_angle_check_test.cpp
   LIBS pmsm::core)

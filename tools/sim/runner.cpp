@@ -15,6 +15,7 @@
 #include <functional>
 #include <limits>
 #include <mutex>
+#include <numbers>
 #include <stdexcept>
 #include <thread>
 
@@ -342,6 +343,10 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
       result.inverter_sweep = *drive.inverter_sweep_completed();
       result.inverter_sweep_time_s = t;
     }
+    if (drive.angle_check_completed()) {
+      result.angle_check = *drive.angle_check_completed();
+      result.angle_check_time_s = t;
+    }
     if (drive.calibration_just_failed()) {
       result.calibration_failure = tel.calibration_failure;
       result.calibration_failure_time_s = t;
@@ -512,6 +517,7 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
   }
   result.injection_loss_W = result.sim_time_s > 0.0 ? injection_energy_J / result.sim_time_s : 0.0;
   result.injection_duty = periods > 0 ? static_cast<double>(injection_periods) / static_cast<double>(periods) : 0.0;
+  result.angle_correction_rad = drive.angle_correction_rad();
   result.vx_V = drive.telemetry().vx_V;
   result.vx_std_V = drive.telemetry().vx_std_V;
   result.lq_H = drive.telemetry().lq_H;
@@ -639,6 +645,7 @@ std::string result_json(const SimulationResult& r) {
         .field("t0_C", r.calibration.t0_C)
         .field("ke0_V_s_per_rad", r.calibration.ke0_V_s_per_rad)
         .field("dead_time_band_A", r.calibration.dead_time_band_A > 0.0 ? r.calibration.dead_time_band_A : kNan)
+        .field("angle_correction_rad", r.calibration.angle_correction_measured ? r.calibration.angle_correction_rad : kNan)
         .end_object();
   }
   if (r.calibration_failure != core::CalibrationFailure::kNone) {
@@ -666,6 +673,22 @@ std::string result_json(const SimulationResult& r) {
         .field("residual_rms_V", fitted ? w.residual_rms_V : kNan)
         .end_object();
   }
+  if (r.angle_check.outcome != core::AngleCheckOutcome::kNone) {
+    const core::AngleCheckResult& a = r.angle_check;
+    const bool solved = a.outcome == core::AngleCheckOutcome::kMeasured || a.outcome == core::AngleCheckOutcome::kOutOfRange ||
+                        a.outcome == core::AngleCheckOutcome::kUnsteady;
+    j.key("angle_check")
+        .begin_object()
+        .field("time_s", r.angle_check_time_s)
+        .field("outcome", std::string(core::to_string(a.outcome)))
+        .field("offset_rad", solved ? a.offset_rad : kNan)
+        .field("offset_std_rad", solved ? a.offset_std_rad : kNan)
+        .field("model_std_rad", solved ? a.model_std_rad : kNan)
+        .field("d_id_A", solved ? a.d_id_A : kNan)
+        .field("d_iq_A", solved ? a.d_iq_A : kNan)
+        .end_object();
+  }
+  j.field("angle_correction_rad", r.angle_correction_rad);
   if (!r.calibration_file.empty()) {
     j.key("calibration_file")
         .begin_object()
@@ -728,6 +751,12 @@ std::string result_text(const SimulationResult& r) {
   }
   out += fmt::format("  injection loss                  {:.2f} W average ({:.1f} % of the time injecting)\n", r.injection_loss_W,
                      100.0 * r.injection_duty);
+  if (r.angle_check.outcome != core::AngleCheckOutcome::kNone) {
+    const core::AngleCheckResult& a = r.angle_check;
+    out += fmt::format("  rotor-angle check at {:.2f} s     {}: offset {:+.3f} +- {:.3f} deg electrical (correction in use {:+.3f} deg)\n",
+                       r.angle_check_time_s, core::to_string(a.outcome), a.offset_rad * 180.0 / std::numbers::pi,
+                       a.offset_std_rad * 180.0 / std::numbers::pi, r.angle_correction_rad * 180.0 / std::numbers::pi);
+  }
   if (r.inverter_sweep.outcome != core::InverterSweepOutcome::kNone) {
     const core::InverterSweepResult& w = r.inverter_sweep;
     out += fmt::format("  inverter sweep at {:.2f} s        {}: Vx {:.4f} +- {:.4f} V, band {:.3f} A, Rs {:.5f} ohm, residual {:.4f} V\n",

@@ -123,6 +123,9 @@ struct SimulationResult {
   double calibration_failure_rs0_std_ohm = 0.0;
   core::InverterSweepResult inverter_sweep{};  // the calibration's bridge sweep (outcome kNone: not run)
   double inverter_sweep_time_s = 0.0;
+  core::AngleCheckResult angle_check{};  // the calibration's last rotor-angle check (outcome kNone: not run)
+  double angle_check_time_s = 0.0;
+  double angle_correction_rad = 0.0;     // the drive's rotor-angle correction at the end
   // The stored calibration (controller calibration.file): what was found at the start, and
   // whether this run's calibration was written back.
   std::string calibration_file;

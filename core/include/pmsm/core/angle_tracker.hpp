@@ -40,8 +40,16 @@ class AngleTracker {
   // The PLL's electrical angle, unwrapped: smooth and monotonic at speed, which is what
   // matching recordings by angle needs (the raw encoder angle steps in counts).
   [[nodiscard]] double smooth_unwrapped_electrical_angle_rad() const {
-    return config_.pole_pairs * smooth_m_rad_ + config_.electrical_offset_rad;
+    return config_.pole_pairs * smooth_m_rad_ + offset_rad_;
   }
+  // A correction of the commissioned offset measured since (the calibration's angle check,
+  // angle_check.hpp, or a stored calibration's): added to electrical_offset_rad from the next
+  // sample on. The angles jump by the change of it.
+  void set_offset_correction_rad(double correction_rad) {
+    correction_rad_ = correction_rad;
+    offset_rad_ = config_.electrical_offset_rad + correction_rad;
+  }
+  [[nodiscard]] double offset_correction_rad() const { return correction_rad_; }
   [[nodiscard]] double mechanical_speed_rad_s() const { return speed_m_rad_s_; }
   [[nodiscard]] double electrical_speed_rad_s() const { return speed_m_rad_s_ * config_.pole_pairs; }
   [[nodiscard]] bool initialised() const { return initialised_; }
@@ -50,6 +58,8 @@ class AngleTracker {
 
  private:
   AngleTrackerConfig config_;
+  double correction_rad_ = 0.0;
+  double offset_rad_;              // the commissioned offset plus the correction
   double counts_to_rad_;
   double kp_;
   double ki_;

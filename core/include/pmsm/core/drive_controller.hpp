@@ -16,6 +16,7 @@
 #include <cstdint>
 #include <optional>
 
+#include "pmsm/core/angle_check.hpp"
 #include "pmsm/core/angle_tracker.hpp"
 #include "pmsm/core/baseline_estimator.hpp"
 #include "pmsm/core/current_controller.hpp"
@@ -64,6 +65,9 @@ struct DriveConfig {
   // The bridge's voltage error measured before the calibration's events (inverter_sweep.hpp):
   // its zero-current band replaces dead_time.current_band_A.
   InverterSweepConfig inverter_sweep{};
+  // The rotor angle's offset checked before the sweep (angle_check.hpp): its correction is
+  // applied to the controller's angle and kept with the calibration.
+  AngleCheckConfig angle_check{};
   int calibration_events = 6;        // events averaged into Rs0 / Ke0 (about 2.5 s at no load)
   // A calibration whose Rs0 is less certain than this (its standard error over Rs0) is
   // refused and the calibration in use stays: every later temperature would carry the error
@@ -124,6 +128,7 @@ enum class CalibrationFailure : std::uint8_t {
   kNone = 0,
   kTimeout = 1,    // not enough published events within calibration_timeout_s
   kUncertain = 2,  // Rs0's standard error above calibration_max_rs0_std_fraction
+  kAngleOffset = 3,  // the angle check found the rotor angle further off than it corrects
 };
 [[nodiscard]] const char* calibration_failure_name(CalibrationFailure f);
 
@@ -133,7 +138,7 @@ enum class CalibrationOutcome : std::uint8_t {
   kDone = 1,       // completed: its Rs0 is in use (the daemon stores it when it has a file)
   kAborted = 2,    // stopped by a command (a fault or disabling the drive only suspends it)
   kTimedOut = 3,   // CalibrationFailure::kTimeout
-  kRefused = 4,    // CalibrationFailure::kUncertain
+  kRefused = 4,    // CalibrationFailure::kUncertain or kAngleOffset
 };
 
 struct DriveTelemetry {
@@ -168,6 +173,8 @@ struct DriveTelemetry {
   double lq_saturation_H = 0.0;       // its saturation: secant Lq lost at the current limit
   bool calibrating = false;
   bool inverter_sweep_active = false;  // the calibration's bridge sweep is running
+  bool angle_check_active = false;     // the calibration's rotor-angle check is running
+  double angle_correction_rad = 0.0;   // added to the commissioned rotor-angle offset
   double dead_time_band_A = 0.0;       // the band the estimator's pattern uses
   bool calibrated = false;
   bool calibration_failed = false;  // the last calibration run failed (calibration_failure says why)
@@ -240,6 +247,16 @@ class DriveController {
   [[nodiscard]] const std::optional<EventEstimate>& last_event() const { return last_event_; }
   // Set for the one period in which a calibration completed.
   [[nodiscard]] const std::optional<Calibration>& calibration_completed() const { return calibration_done_; }
+  // Set for the one period in which the calibration's rotor-angle check ended, whatever its
+  // outcome. A check aborted by a stop or a lost sample, or voided by a moving operating point,
+  // starts again as the sweep does (kSweepHoldoff_s, kSweepAttempts); angle_check_pending() is
+  // true while that start is due.
+  [[nodiscard]] const std::optional<AngleCheckResult>& angle_check_completed() const { return check_done_; }
+  [[nodiscard]] bool angle_check_pending() const { return check_pending_; }
+  // The last check's result (outcome kNone before any).
+  [[nodiscard]] const AngleCheckResult& angle_check() const { return check_.result(); }
+  // The correction in use of the commissioned rotor-angle offset (0 before any was measured).
+  [[nodiscard]] double angle_correction_rad() const { return angle_.offset_correction_rad(); }
   // Set for the one period in which the calibration's bridge sweep ended, whatever its outcome.
   [[nodiscard]] const std::optional<InverterSweepResult>& inverter_sweep_completed() const { return sweep_done_; }
   // A sweep the drive's stop, a lost sample or a speed still settling aborted is started
@@ -277,7 +294,12 @@ class DriveController {
   bool thermal_guess_pending_ = true;  // start from the ambient sensor at the first update
   void start_thermal_from_guess(double guess_C);
   void finish_inverter_sweep(double now_s);
+  void finish_angle_check(double now_s);
+  void start_calibration_sweep(double now_s);
+  void set_angle_correction(double correction_rad);
+  [[nodiscard]] AngleCheckMotor angle_check_motor() const;
   void restore_band();
+  void restore_angle();
   void age_magnet();
   void fail_calibration(CalibrationFailure why);
   void publish_calibration_state();
@@ -290,6 +312,16 @@ class DriveController {
   std::optional<Calibration> calibration_done_;
   std::optional<InverterSweepResult> sweep_done_;
   InverterSweep sweep_;
+  AngleCheck check_;
+  std::optional<AngleCheckResult> check_done_;
+  bool check_pending_ = false;  // a check to start again (kSweepHoldoff_s, kSweepAttempts)
+  int check_attempts_ = 0;
+  double check_running_s_ = 0.0;
+  // The angle correction in use came from a check (this run's or a stored calibration's), and
+  // what held before the calibration in progress, restored if it does not complete.
+  bool angle_measured_ = false;
+  bool angle_measured_before_ = false;
+  double angle_before_calibration_rad_ = 0.0;
   // The band in use came from a sweep (this run's or a stored calibration's), and what held
   // before the calibration in progress, restored if it does not complete.
   bool band_measured_ = false;

@@ -83,6 +83,11 @@ struct Calibration {
   // The bridge's zero-current band from the calibration's sweep (inverter_sweep.hpp); 0 when
   // the calibration did not measure it (control.dead_time_band_A then holds).
   double dead_time_band_A = 0.0;
+  // The correction of the commissioned rotor-angle offset (sensors.encoder_offset_rad) the
+  // calibration's angle check measured (angle_check.hpp), electrical radians added to the
+  // controller's angle; not measured: the configured offset holds.
+  bool angle_correction_measured = false;
+  double angle_correction_rad = 0.0;
 };
 
 struct DeratingConfig {
