@@ -57,8 +57,18 @@ bool AngleCheck::step(bool enabled, bool speed_controlled, double id_A, double i
     return false;
   }
   if (stage_ == Stage::kSolve) {
-    // The levels are over (id_ref_A is 0 again); only the arithmetic is left.
-    solve_step();
+    // The levels are over (id_ref_A is 0 again): the arithmetic, one solve a period, while the
+    // drive settles at zero d current for settle_s, so that what follows the check (the bridge
+    // sweep) starts where it would have without it. Without the wait the sweep's band read
+    // 2 % low (0.718 A against 0.735 A over 20 seeds of the reference), and Rs0 0.07 % low.
+    elapsed_s_ += period_s_;
+    if (solve_index_ < 3) {
+      solve_step();
+    }
+    if (solve_index_ >= 3 && elapsed_s_ >= config_.settle_s) {
+      finish(pending_outcome_);
+      return true;
+    }
     return stage_ == Stage::kIdle;
   }
   if (!enabled || !std::isfinite(id_A) || !std::isfinite(iq_A) || !std::isfinite(omega_m_rad_s) ||
@@ -194,13 +204,15 @@ void AngleCheck::conclude() {
   // that is not linear in time, or the noise, leaves.
   stage_ = Stage::kSolve;
   solve_index_ = 0;
+  elapsed_s_ = 0.0;
 }
 
 void AngleCheck::solve_step() {
   constexpr std::array<double, 3> kWeightFirst{0.5, 1.0, 0.0};
   double delta = 0.0;
   if (!solve(kWeightFirst[static_cast<std::size_t>(solve_index_)], &delta)) {
-    finish(AngleCheckOutcome::kImplausible);
+    pending_outcome_ = AngleCheckOutcome::kImplausible;
+    solve_index_ = 3;
     return;
   }
   solved_[static_cast<std::size_t>(solve_index_)] = delta;
@@ -217,13 +229,13 @@ void AngleCheck::solve_step() {
   // still holds (J dw/dt) and the two +L levels still agree: refused as what it is.
   const bool consistent = result_.offset_std_rad <= config_.max_std_rad;
   if (std::abs(result_.offset_rad) > config_.max_offset_rad && consistent) {
-    finish(AngleCheckOutcome::kOutOfRange);
+    pending_outcome_ = AngleCheckOutcome::kOutOfRange;
   } else if (!speed_steady_) {
-    finish(AngleCheckOutcome::kSpeedChanged);
+    pending_outcome_ = AngleCheckOutcome::kSpeedChanged;
   } else if (!consistent) {
-    finish(AngleCheckOutcome::kUnsteady);
+    pending_outcome_ = AngleCheckOutcome::kUnsteady;
   } else {
-    finish(AngleCheckOutcome::kMeasured);
+    pending_outcome_ = AngleCheckOutcome::kMeasured;
   }
 }
 

@@ -27,7 +27,8 @@
 //
 // The result is the correction to add to the controller's electrical angle. Pure and
 // allocation-free; the torque balance is solved in the three periods after the last level
-// (one Newton solve each), so that no step does more.
+// (one Newton solve each), so that no step does more, while the drive settles at zero d current
+// for settle_s before the check reports its end.
 #pragma once
 
 #include <array>
@@ -143,6 +144,7 @@ class AngleCheck {
   std::array<double, kLevels> speed_e_{};    // electrical rad/s
   int solve_index_ = 0;
   bool speed_steady_ = true;   // the levels' mean speeds within the limit
+  AngleCheckOutcome pending_outcome_ = AngleCheckOutcome::kNone;  // reported when the drive has settled
   std::array<double, 3> solved_{};
   AngleCheckResult result_{};
 };
