@@ -185,11 +185,10 @@ void DriveController::restore_angle() {
 }
 
 void DriveController::start_calibration_sweep(double now_s) {
-  sweep_pending_ = false;
-  sweep_attempts_ = 0;
+  sweep_restart_.reset();
   if (config_.inverter_sweep.enabled) {
     sweep_.start(config_.inverter_sweep, config_.period_s);
-    sweep_attempts_ = 1;
+    sweep_restart_.attempts = 1;
   }
   // The calibration's events (and its timeout) start when the sweep has ended, or now.
   calibration_started_s_ = now_s;
@@ -203,8 +202,7 @@ void DriveController::finish_angle_check(double now_s) {
   // calibrating at standstill stays there (the configured offset holds).
   const bool retry = r.outcome == AngleCheckOutcome::kAborted || r.outcome == AngleCheckOutcome::kSpeedChanged ||
                      r.outcome == AngleCheckOutcome::kUnsteady || r.outcome == AngleCheckOutcome::kVoltageLimited;
-  check_pending_ = retry && calibrating_ && check_attempts_ < kSweepAttempts;
-  check_running_s_ = 0.0;
+  check_restart_.ended(retry && calibrating_, kSweepAttempts);
   if (!calibrating_) {
     return;
   }
@@ -222,7 +220,7 @@ void DriveController::finish_angle_check(double now_s) {
     fail_calibration(CalibrationFailure::kAngleOffset);
     return;
   }
-  if (!check_pending_) {
+  if (!check_restart_.pending) {
     start_calibration_sweep(now_s);
   }
 }
@@ -232,9 +230,9 @@ void DriveController::finish_inverter_sweep(double now_s) {
   sweep_done_ = r;
   // Aborted by a stop or a lost sample, or by a speed still settling, during a calibration:
   // started again once the drive has run a while (kSweepHoldoff_s).
-  sweep_pending_ = (r.outcome == InverterSweepOutcome::kAborted || r.outcome == InverterSweepOutcome::kSpeedChanged) &&
-                   calibrating_ && sweep_attempts_ < kSweepAttempts;
-  sweep_running_s_ = 0.0;
+  sweep_restart_.ended(
+      (r.outcome == InverterSweepOutcome::kAborted || r.outcome == InverterSweepOutcome::kSpeedChanged) && calibrating_,
+      kSweepAttempts);
   if (r.outcome == InverterSweepOutcome::kMeasured) {
     // The band replaces the configured one (compensation and the estimator's pattern alike).
     // The sweep's Vx is reported, not used as the calibration's prior: it reads up to 0.04 V
@@ -281,13 +279,11 @@ void DriveController::start_calibration(double known_temp_C) {
   angle_measured_before_ = angle_measured_;
   // First the rotor angle (the sweep and the events inject d current, which an angle off the
   // rotor's turns into torque), then the bridge, then the events.
-  check_pending_ = false;
-  check_attempts_ = 0;
+  check_restart_.reset();
   if (config_.angle_check.enabled) {
     check_.start(config_.angle_check, angle_check_motor(), config_.period_s);
-    check_attempts_ = 1;
-    sweep_pending_ = false;
-    sweep_attempts_ = 0;
+    check_restart_.attempts = 1;
+    sweep_restart_.reset();
   } else {
     start_calibration_sweep(calibration_started_s_);
   }
@@ -317,8 +313,8 @@ void DriveController::abort_calibration() {
       check_.abort();
       check_done_ = check_.result();
     }
-    sweep_pending_ = false;
-    check_pending_ = false;
+    sweep_restart_.reset();
+    check_restart_.reset();
     restore_band();
     restore_angle();
     scheduler_.set_config(config_.injection);
@@ -577,14 +573,11 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   const double smooth_wrapped = have_previous_ ? wrap_angle_0_2pi(previous_smooth_wrapped_ + smooth_advance)
                                                : wrap_angle_0_2pi(theta_smooth);
 
-  if (check_pending_) {
+  if (check_restart_.pending) {
     // The calibration's angle check, aborted or voided, starts again as the sweep does (below).
-    check_running_s_ = enabled ? check_running_s_ + config_.period_s : 0.0;
     if (!calibrating_) {
-      check_pending_ = false;
-    } else if (check_running_s_ >= kSweepHoldoff_s) {
-      check_pending_ = false;
-      ++check_attempts_;
+      check_restart_.pending = false;
+    } else if (check_restart_.due(enabled, config_.period_s, kSweepHoldoff_s)) {
       check_.start(config_.angle_check, angle_check_motor(), config_.period_s);
     }
   }
@@ -594,16 +587,13 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     finish_angle_check(now);
   }
 
-  if (sweep_pending_) {
+  if (sweep_restart_.pending) {
     // The calibration's sweep, aborted by a stop, a lost sample or a settling speed, starts
     // again once the drive has run kSweepHoldoff_s (kSweepAttempts); the calibration's events
     // wait for it as before. A calibration that ended wants no sweep.
-    sweep_running_s_ = enabled ? sweep_running_s_ + config_.period_s : 0.0;
     if (!calibrating_) {
-      sweep_pending_ = false;
-    } else if (sweep_running_s_ >= kSweepHoldoff_s) {
-      sweep_pending_ = false;
-      ++sweep_attempts_;
+      sweep_restart_.pending = false;
+    } else if (sweep_restart_.due(enabled, config_.period_s, kSweepHoldoff_s)) {
       sweep_.start(config_.inverter_sweep, config_.period_s);
     }
   }
@@ -672,7 +662,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
 
   Dq motoring = enabled ? motoring_reference(command) : Dq{};
   // A sweep waiting to start again holds the calibration's events back as a running one does.
-  const bool sweeping = sweep_.active() || sweep_pending_ || check_.active() || check_pending_;
+  const bool sweeping = sweep_.active() || sweep_restart_.pending || check_.active() || check_restart_.pending;
   if ((sweep_.active() || check_.active()) && enabled) {
     // The bridge sweep's or the angle check's level, on top of id = 0 control, inside the
     // drive's current limit.

@@ -223,10 +223,32 @@ TEST(SimulateMemory, FiguresDoNotDependOnWhatIsKept) {
   EXPECT_EQ(a.estimates_published(), b.estimates_published());
   EXPECT_EQ(a.speed_disturbance_pct, b.speed_disturbance_pct);
   EXPECT_EQ(a.torque_disturbance_pct, b.torque_disturbance_pct);
+  ASSERT_TRUE(std::isfinite(a.speed_difference_outside_pct)) << "the run pauses its injection: there are rows away from it";
   EXPECT_EQ(a.speed_difference_outside_pct, b.speed_difference_outside_pct);
   // The largest speed disturbance happens inside the run, after the calibration.
   EXPECT_GT(a.speed_disturbance_at_s, a.calibration_time_s);
   EXPECT_LT(a.speed_disturbance_at_s, s.scenario.duration_s);
+}
+
+// A figure with no row to judge is none (NaN, null in the JSON, a dash in the tables), not a
+// difference of zero: a drive whose events follow each other (the 14-pole-pair direct drive of
+// the robustness suite) has no row away from injection and reported 0 % there. Here a window
+// of 5 s leaves no row steady enough to judge at all.
+TEST(SimulateMemory, ADifferenceWithoutRowsIsNoneNotZero) {
+  Scenario s = load_scenario(kData / "heatup-short.toml");
+  s.scenario.duration_s = 8.0;
+  s.scenario.disturbance_window_s = 5.0;
+  const SimulationResult r = run_scenario(s, RunOptions{});
+  ASSERT_TRUE(r.disturbance_measured);
+  EXPECT_TRUE(std::isnan(r.speed_difference_outside_pct)) << r.speed_difference_outside_pct;
+  EXPECT_TRUE(std::isnan(r.torque_difference_outside_pct));
+  EXPECT_TRUE(std::isnan(r.speed_disturbance_pct)) << r.speed_disturbance_pct;
+  EXPECT_TRUE(std::isnan(r.torque_disturbance_pct));
+  // ... and with the default window both are figures.
+  s.scenario.disturbance_window_s = 0.05;
+  const SimulationResult d = run_scenario(s, RunOptions{});
+  EXPECT_TRUE(std::isfinite(d.speed_disturbance_pct));
+  EXPECT_TRUE(std::isfinite(d.speed_difference_outside_pct));
 }
 
 TEST(SimulateCli, JsonFiguresCsvAndPlot) {

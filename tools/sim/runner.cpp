@@ -57,6 +57,8 @@ struct Disturbance {
   double during = 0.0;
   double outside = 0.0;
   std::size_t during_row = 0;   // where the largest difference during injection occurred
+  std::size_t during_rows = 0;  // rows judged during injection and away from it: a figure of
+  std::size_t outside_rows = 0; // no row is no figure (null), not a difference of zero
 };
 
 // Replaces each row's torque with its trailing moving average over the last `kWindow` rows.
@@ -154,8 +156,12 @@ class DisturbanceMeter {
 
   static void record(Disturbance& d, bool during, std::size_t k, double deviation) noexcept {
     if (!during) {
+      ++d.outside_rows;
       d.outside = std::max(d.outside, deviation);
-    } else if (deviation > d.during) {
+      return;
+    }
+    ++d.during_rows;
+    if (deviation > d.during) {
       d.during = deviation;
       d.during_row = k;
     }
@@ -591,12 +597,17 @@ SimulationResult run_scenario(const Scenario& given, const RunOptions& options) 
   const Disturbance& speed = meter.speed();
   const Disturbance& torque = meter.torque();
   result.disturbance_measured = true;
-  result.speed_disturbance_pct = 100.0 * speed.during;
-  result.speed_disturbance_at_s = static_cast<double>(speed.during_row * kFastEvery) * d.period_s;
-  result.torque_disturbance_at_s = static_cast<double>(torque.during_row * kFastEvery) * d.period_s;
-  result.speed_difference_outside_pct = 100.0 * speed.outside;
-  result.torque_disturbance_pct = 100.0 * torque.during;
-  result.torque_difference_outside_pct = 100.0 * torque.outside;
+  // A figure without a row to judge (an injection that never pauses leaves no row away from it)
+  // is none: NaN here, null in the JSON, a dash in the tables.
+  constexpr double kNone = std::numeric_limits<double>::quiet_NaN();
+  const bool during = speed.during_rows > 0;
+  const bool outside = speed.outside_rows > 0;
+  result.speed_disturbance_pct = during ? 100.0 * speed.during : kNone;
+  result.speed_disturbance_at_s = during ? static_cast<double>(speed.during_row * kFastEvery) * d.period_s : kNone;
+  result.torque_disturbance_at_s = during ? static_cast<double>(torque.during_row * kFastEvery) * d.period_s : kNone;
+  result.speed_difference_outside_pct = outside ? 100.0 * speed.outside : kNone;
+  result.torque_disturbance_pct = during ? 100.0 * torque.during : kNone;
+  result.torque_difference_outside_pct = outside ? 100.0 * torque.outside : kNone;
   // Everything the scenario cost: the run, its twin and the metrics.
   result.wall_time_s = wall_s();
   return result;
@@ -744,10 +755,18 @@ std::string result_text(const SimulationResult& r) {
   out += fmt::format("  estimates                       {} fused, {} gated; pairs {} accepted{}, {} rejected{}\n",
                      r.estimates_accepted, r.estimates_gated, r.pairs[0], fw, rejected, reasons);
   if (r.disturbance_measured) {
-    out += fmt::format("  disturbance by injection        speed {:.3f} % (at {:.2f} s), torque {:.2f} % of rated (at {:.2f} s), vs. the run without injection\n",
-                       r.speed_disturbance_pct, r.speed_disturbance_at_s, r.torque_disturbance_pct, r.torque_disturbance_at_s);
-    out += fmt::format("  same difference outside         speed {:.3f} %, torque {:.2f} % of rated\n",
-                       r.speed_difference_outside_pct, r.torque_difference_outside_pct);
+    if (std::isfinite(r.speed_disturbance_pct)) {
+      out += fmt::format("  disturbance by injection        speed {:.3f} % (at {:.2f} s), torque {:.2f} % of rated (at {:.2f} s), vs. the run without injection\n",
+                         r.speed_disturbance_pct, r.speed_disturbance_at_s, r.torque_disturbance_pct, r.torque_disturbance_at_s);
+    } else {
+      out += "  disturbance by injection        none measured (no steady row within an injection's window)\n";
+    }
+    if (std::isfinite(r.speed_difference_outside_pct)) {
+      out += fmt::format("  same difference outside         speed {:.3f} %, torque {:.2f} % of rated\n",
+                         r.speed_difference_outside_pct, r.torque_difference_outside_pct);
+    } else {
+      out += "  same difference outside         none measured (the injection never paused long enough)\n";
+    }
   }
   out += fmt::format("  injection loss                  {:.2f} W average ({:.1f} % of the time injecting)\n", r.injection_loss_W,
                      100.0 * r.injection_duty);

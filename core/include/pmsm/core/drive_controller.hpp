@@ -204,6 +204,32 @@ struct ResistanceEstimate {
   double joint_vx_V = 0.0;
 };
 
+// A commissioning step of the calibration (the rotor-angle check, the bridge sweep) that a stop,
+// a lost sample or a moving operating point cut short starts again once the drive has run
+// `holdoff_s` without a stop, at most `max_attempts` starts per calibration.
+struct CalibrationStepRestart {
+  bool pending = false;
+  int attempts = 0;
+  double running_s = 0.0;  // the drive's run time since the step became pending
+
+  void reset() { *this = {}; }
+  // The step ended: pending again when `retry` and attempts remain.
+  void ended(bool retry, int max_attempts) {
+    pending = retry && attempts < max_attempts;
+    running_s = 0.0;
+  }
+  // One period while pending: true when the step is to start now (counted as an attempt).
+  bool due(bool enabled, double period_s, double holdoff_s) {
+    running_s = enabled ? running_s + period_s : 0.0;
+    if (running_s < holdoff_s) {
+      return false;
+    }
+    pending = false;
+    ++attempts;
+    return true;
+  }
+};
+
 class DriveController {
  public:
   explicit DriveController(const DriveConfig& config);
@@ -252,7 +278,7 @@ class DriveController {
   // starts again as the sweep does (kSweepHoldoff_s, kSweepAttempts); angle_check_pending() is
   // true while that start is due.
   [[nodiscard]] const std::optional<AngleCheckResult>& angle_check_completed() const { return check_done_; }
-  [[nodiscard]] bool angle_check_pending() const { return check_pending_; }
+  [[nodiscard]] bool angle_check_pending() const { return check_restart_.pending; }
   // The last check's result (outcome kNone before any).
   [[nodiscard]] const AngleCheckResult& angle_check() const { return check_.result(); }
   // The correction in use of the commissioned rotor-angle offset (0 before any was measured).
@@ -267,7 +293,7 @@ class DriveController {
   // goes on without it, as before). True while such a start is due.
   static constexpr int kSweepAttempts = 5;
   static constexpr double kSweepHoldoff_s = 0.25;
-  [[nodiscard]] bool inverter_sweep_pending() const { return sweep_pending_; }
+  [[nodiscard]] bool inverter_sweep_pending() const { return sweep_restart_.pending; }
   // The last sweep's result (outcome kNone before any).
   [[nodiscard]] const InverterSweepResult& inverter_sweep() const { return sweep_.result(); }
   // True for the one period in which a calibration run failed (timed out, or refused its
@@ -314,9 +340,7 @@ class DriveController {
   InverterSweep sweep_;
   AngleCheck check_;
   std::optional<AngleCheckResult> check_done_;
-  bool check_pending_ = false;  // a check to start again (kSweepHoldoff_s, kSweepAttempts)
-  int check_attempts_ = 0;
-  double check_running_s_ = 0.0;
+  CalibrationStepRestart check_restart_;
   // The angle correction in use came from a check (this run's or a stored calibration's), and
   // what held before the calibration in progress, restored if it does not complete.
   bool angle_measured_ = false;
@@ -326,9 +350,7 @@ class DriveController {
   // before the calibration in progress, restored if it does not complete.
   bool band_measured_ = false;
   bool band_measured_before_ = false;
-  bool sweep_pending_ = false;  // a sweep to start again (kSweepHoldoff_s, kSweepAttempts)
-  int sweep_attempts_ = 0;
-  double sweep_running_s_ = 0.0;  // the drive's run time since the sweep became pending
+  CalibrationStepRestart sweep_restart_;
   double band_before_calibration_A_ = 0.0;
 
   std::uint64_t period_ = 0;
