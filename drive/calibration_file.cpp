@@ -192,8 +192,10 @@ void write_calibration_file(const std::filesystem::path& path, const core::Calib
   if (!(c.rs0_ohm > 0.0) || !std::isfinite(c.rs0_ohm) || !std::isfinite(c.t0_C) || !std::isfinite(c.ke0_V_s_per_rad) ||
       !(c.dead_time_band_A >= 0.0 && c.dead_time_band_A <= 1000.0) ||
       (c.angle_correction_measured && !(std::abs(c.angle_correction_rad) <= 1.0))) {
-    throw CalibrationFileError(fmt::format("{}: refusing to store an invalid calibration (Rs0 {}, T0 {}, Ke0 {})", path.string(),
-                                           c.rs0_ohm, c.t0_C, c.ke0_V_s_per_rad));
+    throw CalibrationFileError(fmt::format("{}: refusing to store an invalid calibration (Rs0 {}, T0 {}, Ke0 {}, band {} A, "
+                                           "angle correction {} rad)",
+                                           path.string(), c.rs0_ohm, c.t0_C, c.ke0_V_s_per_rad, c.dead_time_band_A,
+                                           c.angle_correction_measured ? c.angle_correction_rad : 0.0));
   }
   std::ostringstream text;
   text << "# pmsm-thermal calibration (Eq. 1: Rs = Rs0 (1 + alpha (T - T0))); replaced atomically by the drive\n"

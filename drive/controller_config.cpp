@@ -300,9 +300,9 @@ ConfigSchema<C> build() {
             "calibration's steady speed, the q current the speed loop needs at each; corrects sensors.encoder_offset_rad "
             "by up to calibration.angle_check_max_offset_rad (docs/estimator.md section 6.1).");
   s.real("calibration.angle_check_max_offset_rad", [](C& c) -> double& { return c.drive.angle_check.max_offset_rad; },
-         between(0, 1.0), "rad",
-         "A rotor angle found further off than this (electrical) is a commissioning error to fix, not to correct: the "
-         "calibration is refused (reason angle_offset).");
+         positive(1.0), "rad",
+         "A rotor angle found further off than this (electrical; the measured offset, or the correction it would make "
+         "in all) is a commissioning error to fix, not to correct: the calibration is refused (reason angle_offset).");
   s.real("calibration.angle_check_min_correction_rad", [](C& c) -> double& { return c.drive.angle_check.min_correction_rad; },
          between(0, 1.0), "rad",
          "A rotor-angle offset the check finds below this, or inside three times its error bar, is not corrected (electrical): the check's own error (the speed "
@@ -379,7 +379,8 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
   // J dw/dt (the commissioned inertia, the PLL's slope) is a small part of the balance. With
   // two (0.033 s at 60 rad/s) the reference read +0.6 mrad and a salient machine +1.7 mrad of
   // offset it did not have; with six, -0.1 mrad on the reference (docs/estimator.md 6.1).
-  d.angle_check.settle_s = std::max(0.05, 6.0 / d.speed.bandwidth_rad_s);
+  // At most 0.5 s: the calibration's timeout waits while the check runs.
+  d.angle_check.settle_s = std::clamp(6.0 / d.speed.bandwidth_rad_s, 0.05, 0.5);
   d.angle_check.min_speed_rad_s = d.injection.min_speed_for_angle_rad_s;
   if (c.angle_correction_rad) {
     d.calibration.angle_correction_measured = true;

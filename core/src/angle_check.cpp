@@ -34,7 +34,9 @@ void AngleCheck::start(const AngleCheckConfig& config, const AngleCheckMotor& mo
 }
 
 void AngleCheck::abort() {
-  if (active()) {
+  if (stage_ == Stage::kSettleOut) {
+    stage_ = Stage::kIdle;  // the outcome stands: only the wait after it is cut short
+  } else if (active()) {
     finish(AngleCheckOutcome::kAborted);
   }
 }
@@ -45,7 +47,7 @@ void AngleCheck::finish(AngleCheckOutcome outcome) {
 }
 
 double AngleCheck::id_ref_A() const {
-  if (stage_ == Stage::kIdle || stage_ == Stage::kSolve) {
+  if (stage_ == Stage::kIdle || stage_ == Stage::kSolve || stage_ == Stage::kSettleOut) {
     return 0.0;
   }
   return (level_ % 2 == 0 ? 1.0 : -1.0) * config_.level_A;
@@ -57,19 +59,27 @@ bool AngleCheck::step(bool enabled, bool speed_controlled, double id_A, double i
     return false;
   }
   if (stage_ == Stage::kSolve) {
-    // The levels are over (id_ref_A is 0 again): the arithmetic, one solve a period, while the
-    // drive settles at zero d current for settle_s, so that what follows the check (the bridge
-    // sweep) starts where it would have without it. Without the wait the sweep's band read
-    // 2 % low (0.718 A against 0.735 A over 20 seeds of the reference), and Rs0 0.07 % low.
-    elapsed_s_ += period_s_;
+    // The levels are over (id_ref_A is 0 again): the arithmetic, one solve a period. The outcome
+    // is decided with the third.
+    solve_step();
     if (solve_index_ < 3) {
-      solve_step();
+      return false;
     }
-    if (solve_index_ >= 3 && elapsed_s_ >= config_.settle_s) {
-      finish(pending_outcome_);
-      return true;
+    result_.outcome = pending_outcome_;
+    stage_ = Stage::kSettleOut;
+    elapsed_s_ = 0.0;
+    return true;
+  }
+  if (stage_ == Stage::kSettleOut) {
+    // Then the drive settles at zero d current for settle_s, in the frame a correction put it
+    // in, so that what follows the check (the bridge sweep) starts where it would have without
+    // it: without the wait the sweep's band read 2 % low (0.718 A against 0.735 A over 20 seeds
+    // of the reference). A stop only ends the wait.
+    elapsed_s_ += period_s_;
+    if (!enabled || elapsed_s_ >= config_.settle_s) {
+      stage_ = Stage::kIdle;
     }
-    return stage_ == Stage::kIdle;
+    return false;
   }
   if (!enabled || !std::isfinite(id_A) || !std::isfinite(iq_A) || !std::isfinite(omega_m_rad_s) ||
       !std::isfinite(omega_e_rad_s)) {
@@ -220,7 +230,10 @@ void AngleCheck::solve_step() {
     return;
   }
   result_.offset_rad = solved_[0];
-  result_.offset_std_rad = 0.5 * std::abs(solved_[1] - solved_[2]);
+  // The two one-sided answers differ by the two +L levels' disagreement, a0 - a2 (variance 2 s^2
+  // for a level's noise s^2), while the answer is (a0 + a2) / 2 - a1 (variance 1.5 s^2): its
+  // standard deviation is sqrt(3) / 2 of their difference. One degree of freedom: a rough figure.
+  result_.offset_std_rad = 0.5 * std::sqrt(3.0) * std::abs(solved_[1] - solved_[2]);
   // The reluctance term moves the balance by (Ld - Lq) id iq against psi id delta: an error of
   // the commissioned saliency reads as an offset of that error times the mean q current over psi.
   const double iq_mean = (mean_iq_[0] + mean_iq_[1] + mean_iq_[2]) / 3.0;

@@ -85,7 +85,9 @@ DriveController::DriveController(const DriveConfig& config)
     band_measured_ = true;
   }
   // ... and one that checked the rotor angle corrects the commissioned offset.
-  if (config_.calibration.angle_correction_measured) {
+  // (A non-finite one is no correction: the loaders refuse it, a configuration built in code
+  // must not put NaN into every angle.)
+  if (config_.calibration.angle_correction_measured && std::isfinite(config_.calibration.angle_correction_rad)) {
     angle_.set_offset_correction_rad(config_.calibration.angle_correction_rad);
     angle_measured_ = true;
   }
@@ -166,12 +168,13 @@ AngleCheckMotor DriveController::angle_check_motor() const {
 }
 
 void DriveController::set_angle_correction(double correction_rad) {
-  // The angles jump by the change; the period history moves with them, so that the next
-  // period's advance is the rotor's, not the correction's.
+  // The angles jump by the change from the next sample on. The period history moves with them
+  // at the start of the next step (so that its advance is the rotor's, not the correction's),
+  // not now: inside a step the history is still this period's (its sample and its mid angle),
+  // and the end of the step takes the corrected angle anyway.
   const double change = correction_rad - angle_.offset_correction_rad();
   angle_.set_offset_correction_rad(correction_rad);
-  previous_theta_smooth_ += change;
-  previous_smooth_wrapped_ = wrap_angle_0_2pi(previous_smooth_wrapped_ + change);
+  pending_angle_jump_rad_ += change;
 }
 
 void DriveController::restore_angle() {
@@ -194,35 +197,40 @@ void DriveController::start_calibration_sweep(double now_s) {
   calibration_started_s_ = now_s;
 }
 
-void DriveController::finish_angle_check(double now_s) {
+void DriveController::finish_angle_check() {
   const AngleCheckResult& r = check_.result();
   check_done_ = r;
   // Aborted by a stop or a lost sample, or voided by an operating point that moved: started
-  // again once the drive has run a while, as the sweep is. Not turning is not retried: a drive
-  // calibrating at standstill stays there (the configured offset holds).
+  // again once the drive has run a while, as the sweep is. Not turning at the first start is
+  // not retried: a drive calibrating at standstill stays there (the configured offset holds).
+  // A limited command at an unchanged operating point would be limited again (as for the sweep).
+  // Not turning at a restart (after a stop) may be a drive still starting: it is tried again.
   const bool retry = r.outcome == AngleCheckOutcome::kAborted || r.outcome == AngleCheckOutcome::kSpeedChanged ||
-                     r.outcome == AngleCheckOutcome::kUnsteady || r.outcome == AngleCheckOutcome::kVoltageLimited;
+                     r.outcome == AngleCheckOutcome::kUnsteady ||
+                     (r.outcome == AngleCheckOutcome::kNotTurning && check_restart_.attempts > 1);
   check_restart_.ended(retry && calibrating_, kSweepAttempts);
   if (!calibrating_) {
     return;
   }
-  if (r.outcome == AngleCheckOutcome::kMeasured) {
-    // The residual the check saw, on top of the correction it ran with; below the check's own
-    // error the angle in use stands (and counts as checked).
-    const double error_bar = std::hypot(r.offset_std_rad, r.model_std_rad);
-    if (std::abs(r.offset_rad) >= std::max(config_.angle_check.min_correction_rad, 3.0 * error_bar)) {
-      set_angle_correction(angle_.offset_correction_rad() + r.offset_rad);
-    }
-    angle_measured_ = true;
-  } else if (r.outcome == AngleCheckOutcome::kOutOfRange) {
-    // Tens of degrees are a commissioning error (an offset not set, a phase order or a pole
-    // count wrong), not a trim: the drive says so rather than run on a guess.
+  // The residual the check saw, on top of the correction it ran with. Tens of degrees in all
+  // are a commissioning error (an offset not set, a phase order or a pole count wrong), not a
+  // trim: the drive says so rather than run on a guess.
+  const double total = angle_.offset_correction_rad() + r.offset_rad;
+  if (r.outcome == AngleCheckOutcome::kOutOfRange ||
+      (r.outcome == AngleCheckOutcome::kMeasured && !(std::abs(total) <= config_.angle_check.max_offset_rad))) {
     fail_calibration(CalibrationFailure::kAngleOffset);
     return;
   }
-  if (!check_restart_.pending) {
-    start_calibration_sweep(now_s);
+  if (r.outcome == AngleCheckOutcome::kMeasured) {
+    // Below the check's own error the angle in use stands (and counts as checked).
+    const double error_bar = std::hypot(r.offset_std_rad, r.model_std_rad);
+    if (std::abs(r.offset_rad) >= std::max(config_.angle_check.min_correction_rad, 3.0 * error_bar)) {
+      set_angle_correction(total);
+    }
+    angle_measured_ = true;
   }
+  // The sweep follows once the check has ended its wait at zero d current (step()).
+  sweep_after_check_ = !check_restart_.pending;
 }
 
 void DriveController::finish_inverter_sweep(double now_s) {
@@ -248,6 +256,7 @@ void DriveController::finish_inverter_sweep(double now_s) {
 }
 
 void DriveController::start_calibration(double known_temp_C) {
+  const bool was_calibrating = calibrating_;
   scheduler_.set_config(config_.calibration_injection);
   // The winding is at the known temperature now; the thermal model carries it through the
   // calibration, whose own injections warm the winding a little.
@@ -273,10 +282,21 @@ void DriveController::start_calibration(double known_temp_C) {
   calibration_weight_sum_ = 0.0;
   calibration_ke_sum_ = 0.0;
   calibration_ke_count_ = 0;
-  band_before_calibration_A_ = config_.dead_time.current_band_A;
-  band_measured_before_ = band_measured_;
-  angle_before_calibration_rad_ = angle_.offset_correction_rad();
-  angle_measured_before_ = angle_measured_;
+  // A calibration asked for while one runs starts afresh, but what held before the first one is
+  // what a failure puts back (not what the one in progress measured); its steps end here.
+  if (sweep_.active()) {
+    sweep_.abort();
+  }
+  if (check_.active()) {
+    check_.abort();
+  }
+  sweep_after_check_ = false;
+  if (!was_calibrating) {
+    band_before_calibration_A_ = config_.dead_time.current_band_A;
+    band_measured_before_ = band_measured_;
+    angle_before_calibration_rad_ = angle_.offset_correction_rad();
+    angle_measured_before_ = angle_measured_;
+  }
   // First the rotor angle (the sweep and the events inject d current, which an angle off the
   // rotor's turns into torque), then the bridge, then the events.
   check_restart_.reset();
@@ -310,9 +330,13 @@ void DriveController::abort_calibration() {
       sweep_done_ = sweep_.result();
     }
     if (check_.active()) {
+      const bool measuring = !check_.decided();
       check_.abort();
-      check_done_ = check_.result();
+      if (measuring) {
+        check_done_ = check_.result();
+      }
     }
+    sweep_after_check_ = false;
     sweep_restart_.reset();
     check_restart_.reset();
     restore_band();
@@ -543,9 +567,13 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
       finish_inverter_sweep(now);
     }
     if (check_.active()) {
+      const bool measuring = !check_.decided();
       check_.abort();
-      finish_angle_check(now);
+      if (measuring) {
+        finish_angle_check();
+      }
     }
+    pending_angle_jump_rad_ = 0.0;  // the history starts afresh (have_previous_)
     telemetry_.inverter_sweep_active = false;
     telemetry_.angle_check_active = false;
     age_magnet();  // a fault or a lost sample does not stop the clock of the magnet's estimate
@@ -567,6 +595,13 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   const Rotation at_sample = rotation(theta);
   const Dq i = park(clarke(in.i_A), at_sample.c, at_sample.s);
 
+  if (pending_angle_jump_rad_ != 0.0) {
+    // An angle correction made between steps (restore_angle from abort_calibration): the
+    // history moves with it.
+    previous_theta_smooth_ += pending_angle_jump_rad_;
+    previous_smooth_wrapped_ = wrap_angle_0_2pi(previous_smooth_wrapped_ + pending_angle_jump_rad_);
+    pending_angle_jump_rad_ = 0.0;
+  }
   // The smooth angle wrapped into a turn, carried along by its unwrapped advance: wrapping the
   // unwrapped angle itself (it grows without bound) costs a division and a floor every period.
   const double smooth_advance = have_previous_ ? theta_smooth - previous_theta_smooth_ : 0.0;
@@ -584,7 +619,13 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   if (check_.active() &&
       check_.step(enabled, command.mode == DriveMode::kSpeed, i.d, i.q, angle_.mechanical_speed_rad_s(), omega_e,
                   limited_now_)) {
-    finish_angle_check(now);
+    finish_angle_check();
+  }
+  if (sweep_after_check_ && !check_.active()) {
+    sweep_after_check_ = false;
+    if (calibrating_) {
+      start_calibration_sweep(now);
+    }
   }
 
   if (sweep_restart_.pending) {
@@ -603,7 +644,8 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   // no-injection baseline; the rest of a pair and the time between events need none (about a
   // sixth of a step's instructions, docs/performance.md). The bridge sweep needs only the
   // period's middle angle and ends' mean current.
-  const bool baseline_reads = config_.estimator == EstimatorKind::kNoInjection && enabled && !sweep_.active();
+  const bool baseline_reads =
+      config_.estimator == EstimatorKind::kNoInjection && enabled && !sweep_.active() && !check_.active();
   const double sample_theta = 0.5 * (previous_theta_smooth_ + theta_smooth);  // the period's middle
   const bool scheduler_reads = config_.estimator == EstimatorKind::kInjection && scheduler_.records(sample_theta);
   const PeriodSample* sample = nullptr;  // period_sample_ once built
@@ -752,6 +794,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   const double angle_jump = angle_.smooth_unwrapped_electrical_angle_rad() - theta_smooth;
   previous_theta_smooth_ = theta_smooth + angle_jump;
   previous_smooth_wrapped_ = angle_jump == 0.0 ? smooth_wrapped : wrap_angle_0_2pi(smooth_wrapped + angle_jump);
+  pending_angle_jump_rad_ = 0.0;  // taken just above
   have_previous_ = true;
 
   // Thermal model at its own rate.

@@ -117,6 +117,11 @@ grep -q "calibration stored in" "$work/daemon.log" || die "the first daemon did 
 # cut short by the stopped drive, must start again and measure (docs/estimator.md section 4.1).
 grep -q "calibration: bridge sweep measured" "$work/daemon.log" ||
   die "the calibration's bridge sweep did not measure: $(grep -m3 'bridge sweep\|calibration done' "$work/daemon.log")"
+# Before the sweep the calibration checks the rotor angle (docs/estimator.md section 6.1): on the
+# bus, as in-process, it measures and logs what it found (this plant's encoder is where the
+# configuration says: nothing to correct).
+grep -q "calibration: rotor-angle check found .* correction of sensors.encoder_offset_rad in use +0.000 deg" "$work/daemon.log" ||
+  die "the calibration's rotor-angle check did not measure: $(grep -m3 'rotor-angle' "$work/daemon.log")"
 grep -q "calibration done: .*bridge band .* A (swept)" "$work/daemon.log" ||
   die "the calibration did not use the swept band: $(grep -m1 'calibration done' "$work/daemon.log")"
 # At 400x thermal time the calibration runs at real thermal time on both sides, as on a machine

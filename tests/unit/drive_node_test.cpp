@@ -357,6 +357,73 @@ void expect_failed_calibration(Rig& rig, core::CalibrationFailure why, protocol:
   EXPECT_FALSE(t.calibrated);
 }
 
+// The calibration's rotor-angle check through the drive (docs/estimator.md section 6.1), against
+// the plant with its encoder mounted off the commissioned offset: the drive measures and corrects
+// it before the sweep and stores the correction with the calibration; a stored correction is in
+// use from the start; an aborted calibration puts back the angle of the calibration in use; tens
+// of degrees are refused, not corrected.
+TEST(DriveNode, TheRotorAngleCheckCorrectsAnEncoderOffsetAndRefusesAGrossOne) {
+  constexpr double kDeg = std::numbers::pi / 180.0;
+  auto rig_with_offset = [](Rig& r, double electrical_rad) {
+    r.plant_config.load.torque_Nm = 0.0;  // a calibration runs unloaded
+    r.plant_config.encoder.offset_rad = electrical_rad / r.config.drive.motor.pole_pairs;  // the plant's is mechanical
+    r.plant = std::make_unique<plant::Plant>(r.plant_config);
+  };
+  auto until_sweep = [](Rig& r) {
+    for (int k = 0; k < 30000 && !r.node->controller().telemetry().inverter_sweep_active; ++k) {
+      r.run(1);
+    }
+  };
+  // The plant's encoder reads the rotor 2 degrees electrical late: the controller's angle must be
+  // advanced by 2 degrees (the plant reads theta_m - offset).
+  Rig rig;
+  rig_with_offset(rig, 2.0 * kDeg);
+  rig.run(3000);
+  EXPECT_EQ(rig.node->controller().angle_correction_rad(), 0.0);
+  rig.in.start_calibration = true;
+  rig.run(1);
+  rig.in.start_calibration = false;
+  until_sweep(rig);
+  ASSERT_EQ(rig.node->controller().angle_check().outcome, core::AngleCheckOutcome::kMeasured)
+      << core::to_string(rig.node->controller().angle_check().outcome);
+  EXPECT_NEAR(rig.node->controller().angle_correction_rad(), 2.0 * kDeg, 0.1 * kDeg);
+  const std::optional<core::Calibration> done = run_until_stored(rig);
+  ASSERT_TRUE(done.has_value()) << "the calibration did not complete";
+  EXPECT_TRUE(done->angle_correction_measured);
+  EXPECT_EQ(done->angle_correction_rad, rig.node->controller().angle_correction_rad());
+
+  // The stored correction is in use from the start. On an encoder since remounted 4 degrees off,
+  // the next check measures the 2 degrees left and corrects them on top; a calibration then
+  // aborted puts the stored angle back.
+  Rig stored;
+  rig_with_offset(stored, 4.0 * kDeg);
+  stored.config.drive.calibration = *done;
+  stored.node = std::make_unique<DriveNode>(stored.config, stored.supervisor, PublishRates{});
+  stored.run(1);
+  EXPECT_EQ(stored.node->controller().angle_correction_rad(), done->angle_correction_rad);
+  stored.run(3000);
+  stored.in.start_calibration = true;
+  stored.run(1);
+  stored.in.start_calibration = false;
+  until_sweep(stored);
+  EXPECT_NEAR(stored.node->controller().angle_correction_rad(), 4.0 * kDeg, 0.15 * kDeg) << "the residual added";
+  stored.in.abort_calibration = true;
+  stored.run(1);
+  stored.in.abort_calibration = false;
+  EXPECT_EQ(stored.node->controller().angle_correction_rad(), done->angle_correction_rad) << "the calibration in use's";
+  stored.run(500);  // and the drive runs on with it
+
+  // 30 degrees: refused, the angle in use kept.
+  Rig gross;
+  rig_with_offset(gross, 30.0 * kDeg);
+  gross.run(3000);
+  expect_failed_calibration(gross, core::CalibrationFailure::kAngleOffset, protocol::CalibrationResult::kRefused);
+  EXPECT_EQ(gross.node->controller().angle_check().outcome, core::AngleCheckOutcome::kOutOfRange);
+  EXPECT_NEAR(gross.node->controller().angle_check().offset_rad, 30.0 * kDeg, 1.0 * kDeg);
+  EXPECT_EQ(gross.node->controller().angle_correction_rad(), 0.0);
+}
+
+
 // A calibration that gives up says so on the bus, and the one in use (here the configured
 // default) stays: a supervisor that asked for it sees TIMED_OUT with Calibrated 0.
 TEST(DriveNode, ACalibrationThatTimesOutIsPublishedAsSuch) {

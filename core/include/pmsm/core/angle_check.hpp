@@ -27,8 +27,8 @@
 //
 // The result is the correction to add to the controller's electrical angle. Pure and
 // allocation-free; the torque balance is solved in the three periods after the last level
-// (one Newton solve each), so that no step does more, while the drive settles at zero d current
-// for settle_s before the check reports its end.
+// (one Newton solve each), so that no step does more; the outcome is then decided, and the check
+// waits settle_s at zero d current (in the corrected frame) before it ends.
 #pragma once
 
 #include <array>
@@ -80,7 +80,7 @@ enum class AngleCheckOutcome : std::uint8_t {
 struct AngleCheckResult {
   AngleCheckOutcome outcome = AngleCheckOutcome::kNone;
   double offset_rad = 0.0;      // add to the controller's electrical angle (kMeasured, kOutOfRange)
-  double offset_std_rad = 0.0;  // from the two +L levels' disagreement (the noise, a drift)
+  double offset_std_rad = 0.0;  // from the two +L levels' disagreement (the noise, a drift; one degree of freedom)
   double model_std_rad = 0.0;   // what the commissioned saliency's uncertainty can move it by
   double d_iq_A = 0.0;          // the q current the levels moved (+L minus -L), diagnostics
   double d_id_A = 0.0;          // the d current they moved
@@ -94,14 +94,20 @@ class AngleCheck {
   AngleCheck() = default;
 
   void start(const AngleCheckConfig& config, const AngleCheckMotor& motor, double period_s);
+  // Ends a check in progress as kAborted; once its outcome is decided, only the wait after it.
   void abort();
+  // Running: its levels, its solves, or the wait at zero d current after its outcome.
   [[nodiscard]] bool active() const { return stage_ != Stage::kIdle; }
+  // Its outcome is decided (result() holds it) and it only waits for the drive to settle.
+  [[nodiscard]] bool decided() const { return stage_ == Stage::kSettleOut; }
   // The d-axis current to add to the motoring reference this period (0 when not active).
   [[nodiscard]] double id_ref_A() const;
 
   // One period: the measured current in the controller's frame, the mechanical and
   // electrical speeds, and whether the command was limited. Returns true in the period the
-  // check finished, whatever its outcome (a disabled drive or a non-finite input aborts it).
+  // check's outcome is decided, whatever it is (a disabled drive or a non-finite input aborts
+  // it while it measures); after a solved outcome it stays active for settle_s at zero d
+  // current (decided()), and a stop then only ends that wait.
   // `speed_controlled`: the speed loop sets the torque (a drive in torque control lets the
   // levels' torque run the speed away: the check ends, kNoSpeedLoop, and is not started again).
   bool step(bool enabled, bool speed_controlled, double id_A, double iq_A, double omega_m_rad_s, double omega_e_rad_s,
@@ -110,7 +116,7 @@ class AngleCheck {
   [[nodiscard]] const AngleCheckResult& result() const { return result_; }
 
  private:
-  enum class Stage : std::uint8_t { kIdle, kSettle, kAverage, kSolve };
+  enum class Stage : std::uint8_t { kIdle, kSettle, kAverage, kSolve, kSettleOut };
   void finish(AngleCheckOutcome outcome);
   void finish_level();
   void conclude();

@@ -320,7 +320,7 @@ class DriveController {
   bool thermal_guess_pending_ = true;  // start from the ambient sensor at the first update
   void start_thermal_from_guess(double guess_C);
   void finish_inverter_sweep(double now_s);
-  void finish_angle_check(double now_s);
+  void finish_angle_check();
   void start_calibration_sweep(double now_s);
   void set_angle_correction(double correction_rad);
   [[nodiscard]] AngleCheckMotor angle_check_motor() const;
@@ -341,6 +341,8 @@ class DriveController {
   AngleCheck check_;
   std::optional<AngleCheckResult> check_done_;
   CalibrationStepRestart check_restart_;
+  bool sweep_after_check_ = false;      // the sweep starts when the check's wait has ended
+  double pending_angle_jump_rad_ = 0.0; // a correction's change, for the next step's history
   // The angle correction in use came from a check (this run's or a stored calibration's), and
   // what held before the calibration in progress, restored if it does not complete.
   bool angle_measured_ = false;
