@@ -156,8 +156,8 @@ AngleCheckMotor DriveController::angle_check_motor() const {
   // The reluctance term only for a machine configured as salient (a torque budget, the
   // project's declaration of an interior-magnet machine: docs/configuration.md). On a
   // surface-magnet machine the commissioned Ld and Lq differ only by their errors, and that
-  // difference times the no-load current would read as an offset: 0.17 degree on the
-  // reference (Ld +10 %, Lq -10 %, 0.6 A against the friction).
+  // difference times the no-load current would read as an offset: 0.12 degree to first order on
+  // the reference (Ld +10 %, Lq -10 %: 1.1 mH times 0.6 A against the friction, over psi).
   m.ld_minus_lq_H = config_.injection.max_torque_disturbance_Nm > 0.0 ? config_.current.ld_H - config_.current.lq_H : 0.0;
   m.pole_pairs = config_.motor.pole_pairs;
   m.inertia_kg_m2 = config_.speed.inertia_kg_m2;

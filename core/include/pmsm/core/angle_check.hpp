@@ -23,7 +23,7 @@
 // to hold the speed against the level's torque; J dw/dt (the speed's slope over each average,
 // the commissioned inertia) covers a loop still settling, the reluctance term a salient motor.
 // The two +L levels either side of -L cancel a load or speed drift linear in time; their
-// disagreement is the check's error bar, and a check whose error bar is too wide is void.
+// disagreement is the check's (noise) error bar, and a check whose error bar is too wide is void.
 //
 // The result is the correction to add to the controller's electrical angle. Pure and
 // allocation-free; the torque balance is solved in the three periods after the last level
