@@ -165,8 +165,9 @@ ConfigSchema<C> build() {
            "Fixed-angle: each window edge (theta_w), widened to Tw_s at speed.");
   inj.real("injection.dc_revolutions", [](C& c) -> double& { return c.drive.injection.dc_revolutions; }, positive(100), "",
            "DC injection: recording length in electrical turns.");
-  inj.real("injection.headroom_margin_V", [](C& c) -> double& { return c.drive.injection.headroom_margin_V; }, at_least(0, 1000), "V",
-           "Voltage kept free of the limit when budgeting F (compensation, transients).");
+  inj.optional_real("injection.headroom_margin_V", [](C& c) -> std::optional<double>& { return c.relative.headroom_margin_V; },
+                    at_least(0, 1000), "V", "0.0231 control.nominal_dc_bus_V",
+                    "Voltage kept free of the limit when budgeting F: the dead-time compensation, the bus's ripple and sag, the current loop's transients, all of which scale with the bus (Table I: 15 V at 650 V).");
   inj.real("injection.max_torque_disturbance_Nm", [](C& c) -> double& { return c.drive.injection.max_torque_disturbance_Nm; },
            at_least(0, 10000), "Nm", "Budget for the reluctance torque of an injection on a salient machine (0: none).");
   inj.real("injection.max_speed_change_fraction", [](C& c) -> double& { return c.drive.injection.max_speed_change_fraction; },
@@ -358,6 +359,12 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
   d.injection.max_load_change_A = c.relative.max_load_change_A.value_or(relative.max_load_change_A);
   d.injection.max_speed_change_rad_s = c.relative.max_speed_change_rad_s.value_or(relative.max_speed_change_rad_s);
   c.calibration_f_A = c.relative.calibration_f_A.value_or(relative.calibration_f_A);
+  // What the margin keeps free (the dead-time compensation's dead_time f_pwm Vdc, the bus's
+  // ripple and sag, the modulator's and the current loop's reserve) scales with the bus: the
+  // Table I drive's 15 V at 650 V, as a share. An absolute 15 V was 58 % of a 48 V drive's
+  // 26 V limit, where every pair from 200 rad/s on was a field-weakening pair
+  // (docs/accuracy.md, "Two motors a new user would bring").
+  d.injection.headroom_margin_V = c.relative.headroom_margin_V.value_or(15.0 * (c.nominal_dc_bus_V / 650.0));
   // Injection shares the drive's current budget with motoring (the derated limit at run time).
   d.injection.current_limit_A = d.derating.max_current_A;
   // The calibration procedure: the run-time settings, as fixed-magnitude bipolar at two levels.
@@ -458,6 +465,15 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
              " lets the speed loop move iq by up to " + common::format_number(budget_iq_A) + " A, more than " +
              ref("injection.max_load_change_A", d.injection.max_load_change_A, "A", l) +
              ": the load-change guard would reject every pair the torque budget lets through");
+  }
+  // The linear modulation limit at the nominal bus (space vector: Vdc / sqrt(3) per phase):
+  // a margin that takes all of it leaves no voltage to inject with at any speed.
+  if (const double linear_V = c.nominal_dc_bus_V / std::sqrt(3.0); d.injection.headroom_margin_V >= linear_V) {
+    const std::string_view l = lead("injection.headroom_margin_V", "control.nominal_dc_bus_V");
+    rule("injection.headroom_margin_V", "control.nominal_dc_bus_V",
+         ref("injection.headroom_margin_V", d.injection.headroom_margin_V, "V", l) + " must be below the phase voltage the bus " +
+             ref("control.nominal_dc_bus_V", c.nominal_dc_bus_V, "V", l) + " can give, " + common::format_number(linear_V) +
+             " V: no injection could ever be budgeted");
   }
   if (d.derating.derate_start_C >= d.derating.limit_C) {
     rule("derating.start_C", "derating.limit_C", "derating.start_C must be below derating.limit_C");

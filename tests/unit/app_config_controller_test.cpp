@@ -256,6 +256,7 @@ TEST(ControllerConfig, MotorRelativeDefaultsAreTableIAtTableI) {
   EXPECT_EQ(d.injection.f_min_A, 5.0);
   EXPECT_EQ(c.calibration_f_A, 50.0);
   EXPECT_EQ(d.calibration_injection.f_A, 50.0);
+  EXPECT_EQ(d.injection.headroom_margin_V, 15.0);  // at the Table I drive's 650 V bus
   // Given keys win over the rule.
   const ControllerConfig g = parse("[injection]\nF_A = 20\nrs_max_ohm = 0.3\n[calibration]\nF_A = 30\n");
   EXPECT_EQ(g.drive.injection.f_A, 20.0);
@@ -302,6 +303,21 @@ min_current_A = 2.0
   EXPECT_EQ(d.baseline.initial_rs_ohm, 1.6);
   EXPECT_EQ(d.speed.inertia_kg_m2, 2e-4);
   EXPECT_EQ(d.calibration.rs0_ohm, 1.6);
+}
+
+// The voltage margin follows the bus: a 48 V drive keeps 1.1 V free of its 26 V limit, not
+// the Table I drive's 15 V (58 % of it: every pair at speed would be a field-weakening pair).
+TEST(ControllerConfig, HeadroomMarginFollowsTheBus) {
+  const ControllerConfig low = parse("[control]\nnominal_dc_bus_V = 48\n");
+  EXPECT_NEAR(low.drive.injection.headroom_margin_V, 15.0 * 48.0 / 650.0, 1e-12);
+  EXPECT_EQ(low.drive.calibration_injection.headroom_margin_V, low.drive.injection.headroom_margin_V);
+  EXPECT_EQ(parse("[control]\nnominal_dc_bus_V = 48\n[injection]\nheadroom_margin_V = 3\n").drive.injection.headroom_margin_V,
+            3.0);
+  // A margin that takes the whole phase voltage the bus can give (48 / sqrt(3) = 27.7 V).
+  const std::string e = error_of("[control]\nnominal_dc_bus_V = 48\n[injection]\nheadroom_margin_V = 30\n");
+  EXPECT_EQ(e.rfind("drive.toml:4: injection.headroom_margin_V (30 V) must be below the phase voltage the bus "
+                    "control.nominal_dc_bus_V (48 V, drive.toml:2) can give, 27.7128 V", 0), 0U) << e;
+  EXPECT_EQ(error_of("[control]\nnominal_dc_bus_V = 48\n[injection]\nheadroom_margin_V = 27\n"), "");
 }
 
 // The controller's components take the motor model from DriveConfig::motor whatever the
