@@ -17,6 +17,7 @@ void AngleTracker::reset() {
   speed_m_rad_s_ = 0.0;
   integrator_m_rad_s_ = 0.0;
   unwrapped_e_rad_ = 0.0;
+  last_step_e_rad_ = 0.0;
 }
 
 void AngleTracker::update(std::uint32_t encoder_count) {
@@ -32,6 +33,7 @@ void AngleTracker::update(std::uint32_t encoder_count) {
     pll_theta_rad_ = theta_m_rad_;
     smooth_m_rad_ = theta_m_rad_;
     unwrapped_e_rad_ = theta_e_rad_;
+    last_step_e_rad_ = 0.0;
     return;
   }
   // Accumulate the measured angle: a step larger than half a turn between samples would need
@@ -39,7 +41,8 @@ void AngleTracker::update(std::uint32_t encoder_count) {
   const double step_m = wrap_angle_pm_pi(theta_m_rad_ - previous_theta_m_rad_);
   previous_theta_m_rad_ = theta_m_rad_;
   pll_measured_unwrapped_rad_ += step_m;
-  unwrapped_e_rad_ += config_.pole_pairs * step_m;
+  last_step_e_rad_ = config_.pole_pairs * step_m;
+  unwrapped_e_rad_ += last_step_e_rad_;
 
   // pll_theta_rad_ is the loop's prediction for this sample: that is the smooth angle now.
   // The loop's velocity is its integrator plus the proportional path; the integrator alone

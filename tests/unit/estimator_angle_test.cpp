@@ -2,6 +2,7 @@
 // constant acceleration, wrapping through count 0 in both directions.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 
@@ -156,6 +157,41 @@ TEST(AngleTracker, ResetStartsAgainFromTheNextReading) {
   const double at = kPi + 0.5 * kTwoPi / kCounts;  // the middle of count 8192
   EXPECT_NEAR(t.unwrapped_electrical_angle_rad(), wrap_angle_0_2pi(3.0 * at + 0.4), 1e-12);
   EXPECT_NEAR(t.smooth_unwrapped_electrical_angle_rad(), 3.0 * at + 0.4, 1e-12);
+}
+
+// The encoder's advance over a period is that period's mean speed: it follows a speed
+// transient the PLL lags (a pulse's own torque on a light rotor, docs/estimator.md 5.4), its
+// quantization telescopes (the sum over any run of periods is the accumulated angle), and it is
+// 0 at the first reading after a reset (no period before it).
+TEST(AngleTracker, ThePeriodsStepIsItsMeanSpeedWithoutTheLoopsLag) {
+  AngleTracker t(config());
+  const double dt = 1e-4;
+  auto theta_of = [](double time_s) {  // 100 rad/s, then +40 rad/s over 5 ms (8000 rad/s^2)
+    const double ramp = std::clamp(time_s - 0.2, 0.0, 0.005);
+    return 100.0 * time_s + 0.5 * 8000.0 * ramp * ramp + 40.0 * std::max(time_s - 0.205, 0.0);
+  };
+  t.update(count_of(theta_of(0.0)));
+  EXPECT_EQ(t.last_step_electrical_rad(), 0.0);
+  double sum = 0.0;
+  const double u0 = t.unwrapped_electrical_angle_rad();
+  double step_speed_error = 0.0;
+  double pll_speed_error = 0.0;
+  for (int k = 1; k <= 2060; ++k) {  // to 1 ms after the ramp's end
+    t.update(count_of(theta_of(k * dt)));
+    sum += t.last_step_electrical_rad();
+    if (k >= 2000) {  // averaged over the last 6 ms, which hold the ramp: the period means
+      step_speed_error += t.last_step_electrical_rad() / dt / 3.0 - (theta_of(k * dt) - theta_of((k - 1) * dt)) / dt;
+      pll_speed_error += t.mechanical_speed_rad_s() - (theta_of(k * dt) - theta_of((k - 1) * dt)) / dt;
+    }
+  }
+  EXPECT_DOUBLE_EQ(sum, t.unwrapped_electrical_angle_rad() - u0);
+  // At most a count over the 61 periods (0.063 rad/s); the PLL lags the 40 rad/s step by more
+  // than 5 rad/s on average over them.
+  EXPECT_LT(std::abs(step_speed_error / 61.0), kTwoPi / kCounts / (61.0 * dt));
+  EXPECT_GT(std::abs(pll_speed_error / 61.0), 5.0);
+  t.reset();
+  t.update(count_of(1.0));
+  EXPECT_EQ(t.last_step_electrical_rad(), 0.0);
 }
 
 // A truncating encoder (count = floor(angle / resolution), as count_of() above and the plant

@@ -50,6 +50,11 @@ class AngleTracker {
     offset_rad_ = config_.electrical_offset_rad + correction_rad;
   }
   [[nodiscard]] double offset_correction_rad() const { return correction_rad_; }
+  // The electrical angle the encoder turned through since the previous sample (0 at the first
+  // sample after a reset): divided by the period, the period's mean speed. Unlike the PLL's
+  // speed it does not lag a speed transient inside a pair's recording (the injection's own
+  // torque makes one on a light rotor); its quantization telescopes over a recording.
+  [[nodiscard]] double last_step_electrical_rad() const { return last_step_e_rad_; }
   [[nodiscard]] double mechanical_speed_rad_s() const { return speed_m_rad_s_; }
   [[nodiscard]] double electrical_speed_rad_s() const { return speed_m_rad_s_ * config_.pole_pairs; }
   [[nodiscard]] bool initialised() const { return initialised_; }
@@ -68,6 +73,7 @@ class AngleTracker {
   double theta_e_rad_ = 0.0;
   double previous_theta_m_rad_ = 0.0;
   double unwrapped_e_rad_ = 0.0;
+  double last_step_e_rad_ = 0.0;
   double pll_theta_rad_ = 0.0;   // the PLL's prediction for the next sample (unwrapped, mechanical)
   double smooth_m_rad_ = 0.0;    // its estimate for the present sample
   double integrator_m_rad_s_ = 0.0;

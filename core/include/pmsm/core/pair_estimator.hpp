@@ -51,8 +51,8 @@ namespace pmsm::core {
 struct PeriodSample {
   double time_s = 0.0;
   double theta_e_rad = 0.0;     // unwrapped electrical angle at the middle of the period
-  double omega_e_rad_s = 0.0;
-  double omega_m_rad_s = 0.0;
+  double omega_e_rad_s = 0.0;   // the period's mean: the encoder's advance over it / period
+  double omega_m_rad_s = 0.0;   // the speed observer's (mechanical)
   Dq i_A{};                     // measured current, average over the period
   Dq di_dt_A_s{};               // its rate of change over the period
   Dq v_V{};                     // voltage command applied during the period
