@@ -81,6 +81,9 @@ const ConfigSchema<D>& schema() {
            "The ambient / coolant sensor reading above this is implausible: AMBIENT_IMPLAUSIBLE fault.");
     c.real("supervisor.max_speed_rad_s", [](D& d) -> double& { return d.supervisor.max_speed_rad_s; }, app::positive(100000), "rad/s",
            "Mechanical speed the encoder may show; a larger step between samples is an encoder-jump fault (default: 3 x rated).");
+    c.real("supervisor.overspeed_rad_s", [](D& d) -> double& { return d.supervisor.overspeed_rad_s; }, app::between(0, 100000), "rad/s",
+           "Mechanical speed over about 1 ms of encoder counts above which the drive trips: OVERSPEED fault, gates off (an "
+           "overhauling load, a runaway in torque control; default: 1.5 x rated; 0: off).");
     c.integer("supervisor.sensor_timeout_periods", [](D& d) -> int& { return d.supervisor.sensor_timeout_periods; }, app::between(1, 100000),
               "Missing samples in a row before the sensor-timeout fault (gates off).");
     c.integer("supervisor.sensor_recovery_periods", [](D& d) -> int& { return d.supervisor.sensor_recovery_periods; },
@@ -144,6 +147,11 @@ void check_cross_keys(const DaemonConfig& c, const std::string& source) {
     rule(fmt::format("supervisor.overcurrent_A ({} A) must be below controller.sensors.current_range_A ({} A): "
                      "a saturated ADC reading is never a valid current",
                      s.overcurrent_A, c.controller.sensors.current_range_A));
+  }
+  if (s.overspeed_rad_s >= s.max_speed_rad_s) {
+    rule(fmt::format("supervisor.overspeed_rad_s ({} rad/s) must be below supervisor.max_speed_rad_s ({} rad/s): "
+                     "beyond that a step of the encoder is an encoder jump, not a speed",
+                     s.overspeed_rad_s, s.max_speed_rad_s));
   }
   if (s.trip_temp_C <= c.controller.drive.derating.limit_C) {
     rule(fmt::format("supervisor.trip_temp_C ({} C) must be above controller.derating.limit_C ({} C): the "

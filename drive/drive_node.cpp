@@ -37,6 +37,8 @@ core::SupervisorConfig default_supervisor_config(const ControllerConfig& config)
   // Three healthy sensors sum to noise and gain error; 10 % of full scale is a broken one.
   s.current_sum_max_A = 0.1 * config.sensors.current_range_A;
   s.max_speed_rad_s = 3.0 * d.motor.rated_speed_rad_s;
+  // Field weakening takes a drive above its rated speed; half as much again is a runaway.
+  s.overspeed_rad_s = 1.5 * d.motor.rated_speed_rad_s;
   s.encoder_counts = 1 << d.angle.encoder_bits;
   s.trip_temp_C = d.derating.limit_C + 25.0;
   return s;

@@ -1,5 +1,6 @@
 #include "pmsm/core/supervisor.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <numbers>
 
@@ -38,6 +39,7 @@ const char* to_string(FaultCode code) noexcept {
     case FaultCode::kEncoderJump: return "encoder-jump";
     case FaultCode::kCurrentSum: return "current-sum";
     case FaultCode::kAmbientImplausible: return "ambient-implausible";
+    case FaultCode::kOverspeed: return "overspeed";
     case FaultCode::kCount: break;
   }
   return "?";
@@ -45,9 +47,13 @@ const char* to_string(FaultCode code) noexcept {
 
 Supervisor::Supervisor(const SupervisorConfig& config, double period_s)
     : config_(config),
+      period_s_(period_s),
       // The most the shaft can turn in one period at the speed limit, with margin for the
       // encoder's quantisation and the speed limit itself being approximate.
-      max_step_counts_(1.5 * config.max_speed_rad_s * period_s / (2.0 * std::numbers::pi) * config.encoder_counts + 2.0) {}
+      max_step_counts_(1.5 * config.max_speed_rad_s * period_s / (2.0 * std::numbers::pi) * config.encoder_counts + 2.0),
+      // About 1 ms: a count of a 14-bit encoder is then 0.38 rad/s, and a runaway is caught
+      // within a few milliseconds of crossing the limit.
+      overspeed_window_periods_(std::max(1, static_cast<int>(std::lround(1e-3 / period_s)))) {}
 
 void Supervisor::latch(FaultCode code) noexcept {
   const std::uint32_t b = bit(code);
@@ -116,7 +122,22 @@ void Supervisor::check_sample(const SupervisedSample& s) noexcept {
     const double allowed = max_step_counts_ * static_cast<double>(status_.missing_samples + 1U);
     if (std::fabs(static_cast<double>(delta)) > allowed) {
       cause_mask_ |= bit(FaultCode::kEncoderJump);
+    } else if (config_.overspeed_rad_s > 0.0) {
+      // The shaft's speed over the window, from the counts it moved: judged once per window,
+      // the cause held until the next window's answer.
+      window_counts_ += delta;
+      window_periods_ += status_.missing_samples + 1U;
+      if (window_periods_ >= static_cast<std::uint32_t>(overspeed_window_periods_)) {
+        const double speed_rad_s = std::fabs(static_cast<double>(window_counts_)) * (2.0 * std::numbers::pi) /
+                                   (static_cast<double>(counts) * static_cast<double>(window_periods_) * period_s_);
+        overspeed_cause_ = speed_rad_s > config_.overspeed_rad_s;
+        window_counts_ = 0;
+        window_periods_ = 0;
+      }
     }
+  } else {
+    window_counts_ = 0;  // a new angle: the window starts again
+    window_periods_ = 0;
   }
   have_encoder_ = true;
   last_encoder_ = s.encoder_count;
@@ -161,6 +182,9 @@ const SupervisorStatus& Supervisor::step(const SupervisorInput& in) noexcept {
   }
   if (overtemp_cause_) {
     cause_mask_ |= bit(FaultCode::kOvertemperature);
+  }
+  if (overspeed_cause_) {
+    cause_mask_ |= bit(FaultCode::kOverspeed);
   }
 
   // Every cause present latches its fault (counted once per latching). The common period has

@@ -22,6 +22,7 @@ SupervisorConfig config() {
   c.overcurrent_A = 180.0;
   c.current_sum_max_A = 20.0;
   c.max_speed_rad_s = 1000.0;  // 0.1 rad per period: about 260 counts of 16384, x1.5 + 2
+  c.overspeed_rad_s = 0.0;     // off, but in its own test: the encoder's tests turn near 1000
   c.encoder_counts = 16384;
   c.sensor_timeout_periods = 5;
   c.sensor_recovery_periods = 3;
@@ -231,6 +232,50 @@ TEST(Supervisor, TheAngleIsTakenAfreshAfterASensorLoss) {
   EXPECT_FALSE(sup.latched(FaultCode::kEncoderJump));
   sup.step(running(with_encoder(9000 + 5000)));  // but the next step is judged again
   EXPECT_TRUE(sup.latched(FaultCode::kEncoderJump));
+}
+
+// A shaft turned faster than overspeed_rad_s (an overhauling load, a runaway in torque control)
+// trips the drive; the speed is the encoder's counts over a window of about 1 ms (10 periods
+// here), so a count's quantization is 0.38 rad/s. The fault stays while the shaft is fast and
+// clears on request once a window finds it below the limit.
+TEST(Supervisor, OverspeedTripsWithinAFewWindowsAndClearsWhenSlower) {
+  SupervisorConfig c = config();
+  c.overspeed_rad_s = 500.0;
+  Supervisor sup(c, kPeriod);
+  double angle_counts = 1000.0;
+  auto turn = [&](double speed_rad_s, int periods) {
+    for (int k = 0; k < periods; ++k) {
+      angle_counts += speed_rad_s * kPeriod / (2.0 * std::acos(-1.0)) * 16384.0;
+      const double wrapped = std::fmod(angle_counts, 16384.0);
+      sup.step(running(with_encoder(static_cast<std::uint32_t>(std::floor(wrapped < 0.0 ? wrapped + 16384.0 : wrapped)))));
+    }
+  };
+  turn(495.0, 200);  // 1 % below: never
+  EXPECT_FALSE(sup.latched(FaultCode::kOverspeed));
+  EXPECT_EQ(sup.status().state, DriveState::kRunning);
+  turn(-495.0, 200);  // either way round
+  EXPECT_FALSE(sup.latched(FaultCode::kOverspeed));
+  turn(-505.0, 20);  // 1 % above: within two windows
+  EXPECT_TRUE(sup.latched(FaultCode::kOverspeed));
+  EXPECT_EQ(sup.status().state, DriveState::kFault);
+  EXPECT_FALSE(sup.status().power_stage_enabled);
+  EXPECT_FALSE(sup.latched(FaultCode::kEncoderJump)) << "a speed, not a jump";
+  sup.request_clear();
+  turn(-505.0, 10);
+  EXPECT_TRUE(sup.latched(FaultCode::kOverspeed)) << "still too fast: the request does not clear it";
+  turn(-100.0, 20);
+  sup.request_clear();
+  turn(-100.0, 1);
+  EXPECT_FALSE(sup.latched(FaultCode::kOverspeed));
+  EXPECT_EQ(count(sup, FaultCode::kOverspeed), 1U);
+  // Off: a runaway is not judged.
+  c.overspeed_rad_s = 0.0;
+  Supervisor off(c, kPeriod);
+  for (int k = 0; k < 50; ++k) {
+    off.step(running(with_encoder(static_cast<std::uint32_t>(1000 + 200 * k) % 16384U)));  // 767 rad/s
+  }
+  EXPECT_FALSE(off.latched(FaultCode::kOverspeed));
+  EXPECT_FALSE(off.latched(FaultCode::kEncoderJump));
 }
 
 TEST(Supervisor, CommandTimeoutOnlyWhileEnabledAndClearedByAFreshCommandAndARequest) {

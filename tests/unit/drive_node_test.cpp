@@ -159,6 +159,36 @@ TEST(DriveNode, MissingSamplesNoCommandThenSensorTimeoutThenRecovery) {
   EXPECT_FALSE(rig.node->supervisor().latched(core::FaultCode::kSensorTimeout));
 }
 
+// A load that overhauls the drive (300 Nm driving the shaft forward, beyond the drive's torque
+// limit) runs it away: the supervisor trips OVERSPEED once the encoder shows more than 1.5 x the
+// rated speed over its 1 ms window, the gates go off in that period and the fault is published.
+TEST(DriveNode, AnOverhaulingLoadTripsOverspeed) {
+  Rig rig;
+  rig.run(3000);
+  ASSERT_FALSE(rig.node->supervisor().latched(core::FaultCode::kOverspeed));
+  const double limit = rig.supervisor.overspeed_rad_s;
+  ASSERT_NEAR(limit, 1.5 * rig.config.drive.motor.rated_speed_rad_s, 1e-9);
+  rig.plant->set_load_torque_Nm(-300.0);
+  bool tripped = false;
+  bool was_published = false;
+  for (int k = 0; k < 20000 && !tripped; ++k) {
+    const NodeStep& s = rig.run(1);
+    tripped = rig.node->supervisor().latched(core::FaultCode::kOverspeed);
+    if (tripped) {
+      EXPECT_FALSE(s.command->enable) << "gates off in the period the fault latched";
+      was_published = published(s, protocol::FaultCode::kOverspeed, true);
+    }
+  }
+  ASSERT_TRUE(tripped) << "the shaft reached " << rig.plant->truth().speed_rad_s << " rad/s";
+  EXPECT_TRUE(was_published);
+  // Caught within about two windows of crossing the limit: the rotor gains about 30 rad/s a
+  // millisecond here.
+  EXPECT_GT(rig.plant->truth().speed_rad_s, limit);
+  EXPECT_LT(rig.plant->truth().speed_rad_s, limit + 80.0);
+  EXPECT_FALSE(rig.node->supervisor().latched(core::FaultCode::kEncoderJump));
+  EXPECT_EQ(rig.node->supervisor().status().first_fault, core::FaultCode::kOverspeed);
+}
+
 TEST(DriveNode, PublicationsComeAtTheirRates) {
   Rig rig;
   int thermal = 0, status = 0, heartbeat = 0;

@@ -61,7 +61,8 @@ enum class FaultCode : std::uint8_t {
   kEncoderJump = 17,         // the angle moved more in one period than the speed allows
   kCurrentSum = 18,          // |ia + ib + ic| too large: a broken phase-current sensor
   kAmbientImplausible = 19,  // the ambient / coolant sensor reads outside its plausible window
-  kCount = 20,
+  kOverspeed = 20,           // the shaft turns faster than overspeed_rad_s (over a 1 ms window)
+  kCount = 21,
 };
 
 [[nodiscard]] const char* to_string(DriveState state) noexcept;
@@ -75,6 +76,9 @@ struct SupervisorConfig {
   double overcurrent_A = 180.0;          // any phase current above: trip (below the ADC range)
   double current_sum_max_A = 20.0;       // |ia + ib + ic| above: a phase sensor is broken
   double max_speed_rad_s = 1000.0;       // mechanical; the encoder may not move faster
+  // Mechanical; the encoder's speed over a window of about 1 ms above this trips the drive
+  // (an overhauling load, a runaway in torque control). 0: off. Below max_speed_rad_s.
+  double overspeed_rad_s = 500.0;
   int encoder_counts = 16384;            // counts per mechanical revolution
   int sensor_timeout_periods = 10;       // periods without a sample before the fault
   int sensor_recovery_periods = 10;      // periods with samples before it clears itself
@@ -153,6 +157,7 @@ class Supervisor {
   void check_sample(const SupervisedSample& s) noexcept;
 
   SupervisorConfig config_;
+  double period_s_;
   double max_step_counts_;
   SupervisorStatus status_{};
   std::array<std::uint32_t, kFaultCodeCount> counts_{};
@@ -163,6 +168,11 @@ class Supervisor {
   std::uint32_t last_encoder_ = 0;
   std::uint32_t present_samples_ = 0;
   bool overtemp_cause_ = false;
+  // The overspeed check: encoder counts moved and periods elapsed in the current window.
+  int overspeed_window_periods_ = 10;
+  std::int64_t window_counts_ = 0;
+  std::uint32_t window_periods_ = 0;
+  bool overspeed_cause_ = false;
 };
 
 }  // namespace pmsm::core

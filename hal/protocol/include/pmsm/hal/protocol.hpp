@@ -265,8 +265,9 @@ enum class FaultCode : std::uint8_t {
   kEncoderJump = 17,         // the angle moved more in one period than the speed limit allows
   kCurrentSum = 18,          // |ia + ib + ic| too large: a phase-current sensor is broken
   kAmbientImplausible = 19,  // the ambient / coolant sensor reads outside its window
+  kOverspeed = 20,           // the shaft turned faster than the overspeed limit
 };
-inline constexpr std::size_t kFaultCodeCount = 20;
+inline constexpr std::size_t kFaultCodeCount = 21;
 inline constexpr std::array<ValueLabel, kFaultCodeCount> kFaultCodeLabels{{
     {0, "NONE"},
     {1, "SENSOR_TIMEOUT"},
@@ -287,7 +288,8 @@ inline constexpr std::array<ValueLabel, kFaultCodeCount> kFaultCodeLabels{{
     {16, "INPUT_NOT_FINITE"},
     {17, "ENCODER_JUMP"},
     {18, "CURRENT_SUM"},
-    {19, "AMBIENT_IMPLAUSIBLE"}}};
+    {19, "AMBIENT_IMPLAUSIBLE"},
+    {20, "OVERSPEED"}}};
 
 enum class PlantMode : std::uint8_t { kRealtime = 0, kLockstep = 1 };
 inline constexpr std::array<ValueLabel, 2> kPlantModeLabels{{{0, "REALTIME"}, {1, "LOCKSTEP"}}};
@@ -526,7 +528,7 @@ inline constexpr std::array<SignalDef, 4> kSignals{e2e::kCrc, e2e::kAliveCounter
 }  // namespace calibration_command
 
 namespace fault {
-inline constexpr SignalDef kCode{"Code", 0, 8, false, 1, 0, 0, 19, "", kFaultCodeLabels, "Fault code."};
+inline constexpr SignalDef kCode{"Code", 0, 8, false, 1, 0, 0, 20, "", kFaultCodeLabels, "Fault code."};
 inline constexpr SignalDef kActive{"Active", 8, 1, false, 1, 0, 0, 1, "", detail::kNoValues,
     "1: the fault is active; 0: it has cleared."};
 inline constexpr SignalDef kOccurrenceCount{"OccurrenceCount", 16, 16, false, 1, 0, 0, 65535, "", detail::kNoValues,
