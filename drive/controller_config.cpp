@@ -466,14 +466,16 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
              ref("injection.max_load_change_A", d.injection.max_load_change_A, "A", l) +
              ": the load-change guard would reject every pair the torque budget lets through");
   }
-  // The linear modulation limit at the nominal bus (space vector: Vdc / sqrt(3) per phase):
-  // a margin that takes all of it leaves no voltage to inject with at any speed.
-  if (const double linear_V = c.nominal_dc_bus_V / std::sqrt(3.0); d.injection.headroom_margin_V >= linear_V) {
+  // The current loop's voltage limit at the nominal bus (a share of the space vector's
+  // Vdc / sqrt(3) per phase): a margin that takes all of it leaves no voltage to inject with
+  // at any speed.
+  if (const double limit_V = d.current.voltage_limit_fraction * c.nominal_dc_bus_V / std::sqrt(3.0);
+      d.injection.headroom_margin_V >= limit_V) {
     const std::string_view l = lead("injection.headroom_margin_V", "control.nominal_dc_bus_V");
     rule("injection.headroom_margin_V", "control.nominal_dc_bus_V",
-         ref("injection.headroom_margin_V", d.injection.headroom_margin_V, "V", l) + " must be below the phase voltage the bus " +
-             ref("control.nominal_dc_bus_V", c.nominal_dc_bus_V, "V", l) + " can give, " + common::format_number(linear_V) +
-             " V: no injection could ever be budgeted");
+         ref("injection.headroom_margin_V", d.injection.headroom_margin_V, "V", l) + " must be below the voltage limit at the bus " +
+             ref("control.nominal_dc_bus_V", c.nominal_dc_bus_V, "V", l) + ", " + common::format_number(limit_V) +
+             " V (control.voltage_limit_fraction x bus / sqrt(3)): no injection could ever be budgeted");
   }
   if (d.derating.derate_start_C >= d.derating.limit_C) {
     rule("derating.start_C", "derating.limit_C", "derating.start_C must be below derating.limit_C");

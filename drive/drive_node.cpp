@@ -103,6 +103,7 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
       si.sample->ambient_C = 0.01 * static_cast<double>(sample->ambient_centi_C);
     }
   }
+  si.periods = static_cast<std::uint32_t>(std::min<std::uint64_t>(advance_, 1000000U));
   si.frontend_ready = frontend_.ready();
   if (si.frontend_ready && !noise_known_) {
     // Once, when the offsets (and with them the sensors' noise) are known.

@@ -17,7 +17,10 @@ BaselineEstimator::BaselineEstimator(const BaselineConfig& config)
 double BaselineEstimator::rs_std_ohm() const { return std::sqrt(std::max(p_(0, 0) * residual_var_, 0.0)); }
 
 void BaselineEstimator::add(const PeriodSample& s) {
-  if (std::abs(s.omega_e_rad_s) < config_.min_speed_rad_s || s.voltage_limited) {
+  // The gate on the speed observer's speed: the period's own (s.omega_e_rad_s, from the
+  // encoder's advance) steps by a count per period, 11.5 rad/s on the reference, and near the
+  // threshold would open and close it sample by sample.
+  if (std::abs(s.omega_m_rad_s) * config_.pole_pairs < config_.min_speed_rad_s || s.voltage_limited) {
     count_ = 0;
     y_ = 0.0;
     phi_.setZero();

@@ -24,6 +24,7 @@ void DriveConfig::derive_from_motor() {
   }
   baseline.period_s = period_s;
   baseline.ld_H = motor.ld_H;
+  baseline.pole_pairs = motor.pole_pairs;
   baseline.initial_rs_ohm = motor.rs_ohm;
   baseline.initial_ke_V_s_per_rad = emf_constant_dq_V_s_per_rad(motor);
 }

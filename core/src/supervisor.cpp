@@ -84,6 +84,7 @@ void Supervisor::check_sample(const SupervisedSample& s) noexcept {
   const Abc& i = s.i_A;
   if (!std::isfinite(i.a) || !std::isfinite(i.b) || !std::isfinite(i.c) || !std::isfinite(s.vdc_V)) {
     cause_mask_ |= bit(FaultCode::kInputNotFinite);
+    have_encoder_ = false;  // the encoder is judged afresh from the next sample on
     return;  // nothing else can be judged from NaN
   }
   if (s.vdc_V < config_.dc_bus_min_V) {
@@ -108,6 +109,7 @@ void Supervisor::check_sample(const SupervisedSample& s) noexcept {
   const auto counts = static_cast<std::uint32_t>(config_.encoder_counts);
   if (s.encoder_count >= counts) {
     cause_mask_ |= bit(FaultCode::kEncoderJump);  // not an angle this encoder can report
+    have_encoder_ = false;
     return;
   }
   if (have_encoder_) {
@@ -119,14 +121,15 @@ void Supervisor::check_sample(const SupervisedSample& s) noexcept {
     } else if (delta < -half) {
       delta += counts;
     }
-    const double allowed = max_step_counts_ * static_cast<double>(status_.missing_samples + 1U);
+    const std::uint32_t elapsed = periods_without_sample_ + 1U;  // the periods the step spans
+    const double allowed = max_step_counts_ * static_cast<double>(elapsed);
     if (std::fabs(static_cast<double>(delta)) > allowed) {
       cause_mask_ |= bit(FaultCode::kEncoderJump);
     } else if (config_.overspeed_rad_s > 0.0) {
       // The shaft's speed over the window, from the counts it moved: judged once per window,
       // the cause held until the next window's answer.
       window_counts_ += delta;
-      window_periods_ += status_.missing_samples + 1U;
+      window_periods_ += elapsed;
       if (window_periods_ >= static_cast<std::uint32_t>(overspeed_window_periods_)) {
         const double speed_rad_s = std::fabs(static_cast<double>(window_counts_)) * (2.0 * std::numbers::pi) /
                                    (static_cast<double>(counts) * static_cast<double>(window_periods_) * period_s_);
@@ -153,6 +156,7 @@ const SupervisorStatus& Supervisor::step(const SupervisorInput& in) noexcept {
       have_encoder_ = false;
     }
     check_sample(*in.sample);
+    periods_without_sample_ = 0;
     ++present_samples_;
     if (present_samples_ >= static_cast<std::uint32_t>(config_.sensor_recovery_periods)) {
       // Losing the power stage's samples clears itself once they are back: the sensor
@@ -166,6 +170,7 @@ const SupervisorStatus& Supervisor::step(const SupervisorInput& in) noexcept {
   } else {
     present_samples_ = 0;
     ++status_.missing_samples;
+    periods_without_sample_ += std::max<std::uint32_t>(in.periods, 1U);
     if (status_.missing_samples >= static_cast<std::uint32_t>(config_.sensor_timeout_periods)) {
       cause_mask_ |= bit(FaultCode::kSensorTimeout);
     }

@@ -376,8 +376,9 @@ TEST(DaemonLoop, GpioFaultInputTripsTheDriveAndClearsWhenQuiet) {
   EXPECT_FALSE(axis.loop().gates_enabled());
   // Still asserted: a stop command does not clear it. (The load is passive here: the
   // scenario's active 60 Nm spins the free shaft backwards once the gates are off, and beyond
-  // the encoder's plausible speed the supervisor latches ENCODER_JUMP, as it should; how far
-  // it got in the wall time of this test depended on the plant's speed.)
+  // supervisor.overspeed_rad_s the supervisor latches OVERSPEED, as it should (beyond the
+  // encoder's plausible speed ENCODER_JUMP); how far it got in the wall time of this test
+  // depended on the plant's speed.)
   bench.stop_drive(6);
   std::this_thread::sleep_for(50ms);
   const std::vector<protocol::AnyDecoded> held = bench.drain();

@@ -313,11 +313,11 @@ TEST(ControllerConfig, HeadroomMarginFollowsTheBus) {
   EXPECT_EQ(low.drive.calibration_injection.headroom_margin_V, low.drive.injection.headroom_margin_V);
   EXPECT_EQ(parse("[control]\nnominal_dc_bus_V = 48\n[injection]\nheadroom_margin_V = 3\n").drive.injection.headroom_margin_V,
             3.0);
-  // A margin that takes the whole phase voltage the bus can give (48 / sqrt(3) = 27.7 V).
-  const std::string e = error_of("[control]\nnominal_dc_bus_V = 48\n[injection]\nheadroom_margin_V = 30\n");
-  EXPECT_EQ(e.rfind("drive.toml:4: injection.headroom_margin_V (30 V) must be below the phase voltage the bus "
-                    "control.nominal_dc_bus_V (48 V, drive.toml:2) can give, 27.7128 V", 0), 0U) << e;
-  EXPECT_EQ(error_of("[control]\nnominal_dc_bus_V = 48\n[injection]\nheadroom_margin_V = 27\n"), "");
+  // A margin that takes the whole voltage limit (0.95 x 48 / sqrt(3) = 26.3 V).
+  const std::string e = error_of("[control]\nnominal_dc_bus_V = 48\n[injection]\nheadroom_margin_V = 27\n");
+  EXPECT_EQ(e.rfind("drive.toml:4: injection.headroom_margin_V (27 V) must be below the voltage limit at the bus "
+                    "control.nominal_dc_bus_V (48 V, drive.toml:2), 26.3272 V", 0), 0U) << e;
+  EXPECT_EQ(error_of("[control]\nnominal_dc_bus_V = 48\n[injection]\nheadroom_margin_V = 26\n"), "");
 }
 
 // The controller's components take the motor model from DriveConfig::motor whatever the

@@ -278,6 +278,42 @@ TEST(Supervisor, OverspeedTripsWithinAFewWindowsAndClearsWhenSlower) {
   EXPECT_FALSE(off.latched(FaultCode::kEncoderJump));
 }
 
+// A step without a sample may stand for several periods (the daemon's sample timeout is 20 of
+// them): the encoder's step after it is judged over the periods that passed, so a shaft turning
+// at 90 % of the overspeed limit is neither an overspeed nor an encoder jump.
+TEST(Supervisor, TheEncodersChecksCountThePeriodsAStepWithoutASampleStoodFor) {
+  SupervisorConfig c = config();
+  c.overspeed_rad_s = 500.0;
+  Supervisor sup(c, kPeriod);
+  const double counts_per_period = 450.0 * kPeriod / (2.0 * std::acos(-1.0)) * 16384.0;  // 117.4
+  double angle_counts = 1000.0;
+  auto sample_after = [&](int periods) {
+    angle_counts += periods * counts_per_period;
+    return running(with_encoder(static_cast<std::uint32_t>(std::floor(std::fmod(angle_counts, 16384.0)))));
+  };
+  for (int k = 0; k < 30; ++k) {
+    sup.step(sample_after(1));
+  }
+  for (int gap = 0; gap < 3; ++gap) {
+    SupervisorInput none = running();
+    none.sample.reset();
+    none.periods = 20;
+    sup.step(none);
+    sup.step(sample_after(21));
+    for (int k = 0; k < 30; ++k) {
+      sup.step(sample_after(1));
+    }
+  }
+  EXPECT_FALSE(sup.latched(FaultCode::kEncoderJump));
+  EXPECT_FALSE(sup.latched(FaultCode::kOverspeed));
+  // The same step counted as two periods would be a jump: the check is not blind.
+  SupervisorInput none = running();
+  none.sample.reset();
+  sup.step(none);
+  sup.step(sample_after(21));
+  EXPECT_TRUE(sup.latched(FaultCode::kEncoderJump));
+}
+
 TEST(Supervisor, CommandTimeoutOnlyWhileEnabledAndClearedByAFreshCommandAndARequest) {
   Supervisor sup(config(), kPeriod);
   SupervisorInput in = running();

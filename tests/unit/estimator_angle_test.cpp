@@ -184,7 +184,7 @@ TEST(AngleTracker, ThePeriodsStepIsItsMeanSpeedWithoutTheLoopsLag) {
       pll_speed_error += t.mechanical_speed_rad_s() - (theta_of(k * dt) - theta_of((k - 1) * dt)) / dt;
     }
   }
-  EXPECT_DOUBLE_EQ(sum, t.unwrapped_electrical_angle_rad() - u0);
+  EXPECT_NEAR(sum, t.unwrapped_electrical_angle_rad() - u0, 1e-9);
   // At most a count over the 61 periods (0.063 rad/s); the PLL lags the 40 rad/s step by more
   // than 5 rad/s on average over them.
   EXPECT_LT(std::abs(step_speed_error / 61.0), kTwoPi / kCounts / (61.0 * dt));

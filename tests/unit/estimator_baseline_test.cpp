@@ -97,6 +97,7 @@ TEST(BaselineEstimator, IgnoresLowSpeedAndVoltageLimitedPeriods) {
   BaselineEstimator est(baseline_config());
   PeriodSample s = operating_point(m, 0.0, 0.0, nullptr, 0.0);
   s.omega_e_rad_s = 20.0;  // below min_speed_rad_s = 30
+  s.omega_m_rad_s = 20.0 / 3.0;  // the gate reads the speed observer's (3 pole pairs)
   for (int k = 0; k < 100; ++k) est.add(s);
   EXPECT_EQ(est.updates(), 0U);
   s = operating_point(m, 0.0, 0.0, nullptr, 0.0);

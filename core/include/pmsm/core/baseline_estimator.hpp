@@ -22,6 +22,7 @@ struct BaselineConfig {
   double ld_H = 5.5e-3;
   bool fit_dead_time = true;
   double min_speed_rad_s = 30.0;  // electrical
+  int pole_pairs = 3;             // the speed gate reads the speed observer's mechanical speed
   double initial_rs_ohm = 0.133;
   double initial_ke_V_s_per_rad = 0.9716;
 };

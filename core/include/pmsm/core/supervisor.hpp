@@ -100,6 +100,10 @@ struct SupervisedSample {
 
 struct SupervisorInput {
   std::optional<SupervisedSample> sample;  // empty: no sample this period
+  // Control periods this step stands for: 1 with a sample; a step without one may stand for
+  // several (the daemon's sample timeout). The encoder's checks judge the angle's step over the
+  // periods that really passed.
+  std::uint32_t periods = 1;
   bool frontend_ready = false;             // the ADC offset calibration is done
   bool enable_requested = false;           // the operator's command asks for torque
   bool calibrating = false;                // the controller runs an Rs0 calibration
@@ -172,6 +176,7 @@ class Supervisor {
   int overspeed_window_periods_ = 10;
   std::int64_t window_counts_ = 0;
   std::uint32_t window_periods_ = 0;
+  std::uint32_t periods_without_sample_ = 0;  // since the last sample, as the steps said
   bool overspeed_cause_ = false;
 };
 
