@@ -170,8 +170,7 @@ AngleCheckMotor DriveController::angle_check_motor() const {
 void DriveController::set_angle_correction(double correction_rad) {
   // The angles jump by the change from the next sample on. The period history moves with them
   // at the start of the next step (so that its advance is the rotor's, not the correction's),
-  // not now: inside a step the history is still this period's (its sample and its mid angle),
-  // and the end of the step takes the corrected angle anyway.
+  // not now: inside a step the history is still this period's (its sample and its mid angle).
   const double change = correction_rad - angle_.offset_correction_rad();
   angle_.set_offset_correction_rad(correction_rad);
   pending_angle_jump_rad_ += change;
@@ -596,8 +595,8 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   const Dq i = park(clarke(in.i_A), at_sample.c, at_sample.s);
 
   if (pending_angle_jump_rad_ != 0.0) {
-    // An angle correction made between steps (restore_angle from abort_calibration): the
-    // history moves with it.
+    // An angle correction made since the history was taken (the check's, inside the last step;
+    // restore_angle's, between steps): the history moves with it.
     previous_theta_smooth_ += pending_angle_jump_rad_;
     previous_smooth_wrapped_ = wrap_angle_0_2pi(previous_smooth_wrapped_ + pending_angle_jump_rad_);
     pending_angle_jump_rad_ = 0.0;
@@ -795,11 +794,9 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   limited_next_ = limited;
   previous_i_A_ = i;
   previous_i_abc_A_ = in.i_A;
-  // An angle correction applied in this step (the angle check's) moves the history with it.
-  const double angle_jump = angle_.smooth_unwrapped_electrical_angle_rad() - theta_smooth;
-  previous_theta_smooth_ = theta_smooth + angle_jump;
-  previous_smooth_wrapped_ = angle_jump == 0.0 ? smooth_wrapped : wrap_angle_0_2pi(smooth_wrapped + angle_jump);
-  pending_angle_jump_rad_ = 0.0;  // taken just above
+  // (An angle correction made in this step moves this history at the next step's start.)
+  previous_theta_smooth_ = theta_smooth;
+  previous_smooth_wrapped_ = smooth_wrapped;
   have_previous_ = true;
 
   // Thermal model at its own rate.
