@@ -10,7 +10,12 @@ AngleTracker::AngleTracker(const AngleTrackerConfig& config)
       counts_to_rad_(kTwoPi / static_cast<double>(std::uint64_t{1} << config.encoder_bits)),
       // Critically damped type-2 loop: kp = 2 wn, ki = wn^2.
       kp_(2.0 * config.pll_bandwidth_rad_s),
-      ki_(config.pll_bandwidth_rad_s * config.pll_bandwidth_rad_s) {}
+      ki_(config.pll_bandwidth_rad_s * config.pll_bandwidth_rad_s),
+      electrical_base_rad_(electrical_base_rad()) {}
+
+double AngleTracker::electrical_base_rad() const {
+  return wrap_angle_0_2pi(config_.pole_pairs * config_.count_centre * counts_to_rad_ + offset_rad_);
+}
 
 void AngleTracker::reset() {
   initialised_ = false;
@@ -25,7 +30,16 @@ void AngleTracker::update(std::uint32_t encoder_count) {
   // angle outside [0, 2 pi)).
   const std::uint64_t mask = (std::uint64_t{1} << config_.encoder_bits) - 1;  // a power of two
   theta_m_rad_ = (static_cast<double>(encoder_count & mask) + config_.count_centre) * counts_to_rad_;
-  theta_e_rad_ = wrap_angle_0_2pi(config_.pole_pairs * theta_m_rad_ + offset_rad_);
+  // The electrical angle within a turn from the count itself: (count x pole pairs) modulo the
+  // encoder's resolution is the electrical turn's fraction exactly, in integers (the motor
+  // keys hold 1..64 pole pairs), and the centre and offset's constant part is already wrapped,
+  // so one comparison wraps the sum. Wrapping pole_pairs x theta_m in floating point cost a
+  // division and a floor on most periods (up to 64 turns; docs/performance.md).
+  const double within_turn_rad =
+      static_cast<double>((std::uint64_t{encoder_count & mask} * static_cast<std::uint64_t>(config_.pole_pairs)) & mask) *
+          counts_to_rad_ +
+      electrical_base_rad_;
+  theta_e_rad_ = within_turn_rad >= kTwoPi ? within_turn_rad - kTwoPi : within_turn_rad;
   if (!initialised_) {
     initialised_ = true;
     previous_theta_m_rad_ = theta_m_rad_;

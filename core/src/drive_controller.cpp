@@ -651,8 +651,9 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   if (have_previous_ && (baseline_reads || scheduler_reads || sweep_.active())) {
     // The rotation at the period's middle by the smooth angle, from the sample's by the small
     // gap between the two (half a period's advance and the encoder's steps): no second sincos.
-    const double mid = wrap_angle_0_2pi(previous_smooth_wrapped_ + 0.5 * smooth_advance);
-    const Rotation at_mid = compose(at_sample, small_rotation(wrap_angle_pm_pi(mid - theta)));
+    // (Both angles lie in a turn and half a period's advance is small: one wrap of the gap.)
+    const double mid_gap = wrap_angle_pm_pi(previous_smooth_wrapped_ + 0.5 * smooth_advance - theta);
+    const Rotation at_mid = compose(at_sample, small_rotation(mid_gap));
     const Dq ends_mean{0.5 * (previous_i_A_.d + i.d), 0.5 * (previous_i_A_.q + i.q)};
     if (baseline_reads || scheduler_reads) {
       // Filled in place, every field (the member is reused: neither zero-filled nor copied).

@@ -45,6 +45,45 @@ TEST(AngleTracker, AnglesFromCounts) {
   EXPECT_LT(t.electrical_angle_rad(), kTwoPi);
 }
 
+TEST(AngleTracker, TheElectricalAngleFromIntegerCountsIsTheWrappedProduct) {
+  // The electrical angle is taken as (count x pole pairs) modulo the resolution, plus the
+  // wrapped constant of the count's centre and the offset: the same angle as wrapping
+  // pole_pairs x theta_m + offset, in [0, 2 pi), for any pole-pair count the keys admit, any
+  // resolution, and offsets and corrections of either sign and beyond a turn.
+  std::uint32_t seed = 12345U;
+  const auto next = [&seed]() {
+    seed = seed * 1664525U + 1013904223U;
+    return seed;
+  };
+  for (const int bits : {10, 14, 20, 24}) {
+    for (const int pp : {1, 3, 4, 7, 14, 64}) {
+      for (const double offset : {0.0, 0.4, -2.9, 9.7}) {
+        for (const double centre : {0.5, 0.0}) {
+          AngleTrackerConfig c = config();
+          c.encoder_bits = bits;
+          c.pole_pairs = pp;
+          c.electrical_offset_rad = offset;
+          c.count_centre = centre;
+          AngleTracker t(c);
+          t.set_offset_correction_rad(offset < 0.0 ? -0.03 : 0.0);
+          const double resolution = std::ldexp(1.0, bits);
+          for (int k = 0; k < 200; ++k) {
+            const std::uint32_t count = k < 2 ? (k == 0 ? 0U : static_cast<std::uint32_t>(resolution) - 1U)
+                                              : next() % static_cast<std::uint32_t>(resolution);
+            t.update(count);
+            const double theta_m = (static_cast<double>(count) + centre) * kTwoPi / resolution;
+            const double expected = wrap_angle_0_2pi(pp * theta_m + offset + t.offset_correction_rad());
+            const double gap = std::abs(wrap_angle_pm_pi(t.electrical_angle_rad() - expected));
+            ASSERT_LT(gap, 1e-12) << bits << " bits, " << pp << " pole pairs, offset " << offset << ", count " << count;
+            ASSERT_GE(t.electrical_angle_rad(), 0.0);
+            ASSERT_LT(t.electrical_angle_rad(), kTwoPi);
+          }
+        }
+      }
+    }
+  }
+}
+
 TEST(AngleTracker, ConstantSpeedWithoutSteadyStateError) {
   for (double w : {100.0, -37.0}) {
     AngleTracker t(config());

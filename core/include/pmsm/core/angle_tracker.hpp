@@ -48,6 +48,7 @@ class AngleTracker {
   void set_offset_correction_rad(double correction_rad) {
     correction_rad_ = correction_rad;
     offset_rad_ = config_.electrical_offset_rad + correction_rad;
+    electrical_base_rad_ = electrical_base_rad();
   }
   [[nodiscard]] double offset_correction_rad() const { return correction_rad_; }
   // The electrical angle the encoder turned through since the previous sample (0 at the first
@@ -64,10 +65,16 @@ class AngleTracker {
  private:
   AngleTrackerConfig config_;
   double correction_rad_ = 0.0;
+  // The electrical angle of a count's centre less that of its lower edge, plus the offset,
+  // wrapped into a turn: the electrical angle is then (count x pole pairs mod a turn) counts
+  // plus this, less a turn when it passes one (update).
+  [[nodiscard]] double electrical_base_rad() const;
+
   double offset_rad_;              // the commissioned offset plus the correction
   double counts_to_rad_;
   double kp_;
   double ki_;
+  double electrical_base_rad_;
   bool initialised_ = false;
   double theta_m_rad_ = 0.0;
   double theta_e_rad_ = 0.0;
