@@ -435,12 +435,22 @@ TEST(DaemonLoop, BadCommandsAreRejectedByReasonAndValidOnesActedOn) {
   hal::CanFrame replay = last;
   replay.data = last.data;
   ASSERT_EQ(bench.supervisor->send(replay, 10ms), hal::SendResult::kOk);
-  std::this_thread::sleep_for(300ms);
-  const LoopStats s = axis.loop().stats();
+  // Wait for the loop to have read all four (on a loaded machine that can take a while; a
+  // fixed sleep flaked once), then check that each was counted exactly once.
+  LoopStats s = axis.loop().stats();
   auto rejected = [&](protocol::DecodeStatus why) {
     const auto k = static_cast<std::size_t>(why);
     return s.rejected[k] - before.rejected[k];
   };
+  const auto deadline = std::chrono::steady_clock::now() + 10s;
+  while ((rejected(protocol::DecodeStatus::kBadCrc) == 0U || rejected(protocol::DecodeStatus::kWrongLength) == 0U ||
+          rejected(protocol::DecodeStatus::kRepeatedCounter) == 0U) &&
+         std::chrono::steady_clock::now() < deadline) {
+    std::this_thread::sleep_for(20ms);
+    s = axis.loop().stats();
+  }
+  std::this_thread::sleep_for(100ms);  // anything counted twice would show by now
+  s = axis.loop().stats();
   EXPECT_EQ(rejected(protocol::DecodeStatus::kBadCrc), 1U);
   EXPECT_EQ(rejected(protocol::DecodeStatus::kWrongLength), 1U);
   EXPECT_EQ(rejected(protocol::DecodeStatus::kRepeatedCounter), 1U);
