@@ -153,6 +153,11 @@ void check_cross_keys(const DaemonConfig& c, const std::string& source) {
                      "beyond that a step of the encoder is an encoder jump, not a speed",
                      s.overspeed_rad_s, s.max_speed_rad_s));
   }
+  if (const double limit = c.controller.drive.speed_limit_rad_s; s.overspeed_rad_s > 0.0 && limit >= s.overspeed_rad_s) {
+    rule(fmt::format("controller.control.speed_limit_rad_s ({} rad/s) must be below supervisor.overspeed_rad_s ({} rad/s): "
+                     "the shaft would trip OVERSPEED before the drive limits its speed",
+                     limit, s.overspeed_rad_s));
+  }
   if (s.trip_temp_C <= c.controller.drive.derating.limit_C) {
     rule(fmt::format("supervisor.trip_temp_C ({} C) must be above controller.derating.limit_C ({} C): the "
                      "drive derates before it trips",

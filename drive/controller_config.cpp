@@ -72,6 +72,12 @@ ConfigSchema<C> build() {
   s.real("control.speed_bandwidth_rad_s", [](C& c) -> double& { return c.drive.speed.bandwidth_rad_s; }, positive(2000), "rad/s", "Speed-loop bandwidth.");
   s.integer("control.speed_decimation", [](C& c) -> int& { return c.drive.speed_decimation; }, between(1, 1000),
             "Speed loop every N current-loop periods.");
+  s.optional_real("control.speed_limit_rad_s", [](C& c) -> std::optional<double>& { return c.relative.speed_limit_rad_s; },
+                  at_least(0, 100000), "rad/s", "1.2 motor.rated_speed_rad_s",
+                  "Shaft speed limit, either direction (0: none): speed mode clamps its set-point to it, torque mode folds the "
+                  "torque back near it (at most Kp (limit - speed), Kp = J x control.speed_bandwidth_rad_s), so that an "
+                  "unloaded shaft settles there; DRIVE_STATUS.LimitSpeed says when it acts. Below "
+                  "supervisor.overspeed_rad_s.");
   s.real("control.max_torque_Nm", [](C& c) -> double& { return c.drive.speed.max_torque_Nm; }, positive(10000), "Nm", "Torque demand limit.");
   s.real("control.pll_bandwidth_rad_s", [](C& c) -> double& { return c.drive.angle.pll_bandwidth_rad_s; }, positive(10000), "rad/s",
          "Speed observer (PLL) bandwidth.");
@@ -358,6 +364,9 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
   d.injection.rs_max_ohm = c.relative.rs_max_ohm.value_or(relative.rs_max_ohm);
   d.injection.max_load_change_A = c.relative.max_load_change_A.value_or(relative.max_load_change_A);
   d.injection.max_speed_change_rad_s = c.relative.max_speed_change_rad_s.value_or(relative.max_speed_change_rad_s);
+  // A fifth above rated: the reference's duty cycles run up to rated speed, and the supervisor's
+  // OVERSPEED (1.5 x rated by default) stays well above what the limit lets the shaft reach.
+  d.speed_limit_rad_s = c.relative.speed_limit_rad_s.value_or(1.2 * m.rated_speed_rad_s);
   c.calibration_f_A = c.relative.calibration_f_A.value_or(relative.calibration_f_A);
   // What the margin keeps free (the dead-time compensation's dead_time f_pwm Vdc, the bus's
   // ripple and sag, the modulator's and the current loop's reserve) scales with the bus: the

@@ -240,6 +240,8 @@ void DriveNode::publish(const NodeInputs& in) noexcept {
     unsigned reasons = 0U;
     reasons |= tel.derating ? unsigned{protocol::kLimitReasonWindingTemp} : 0U;
     reasons |= tel.voltage_limited ? unsigned{protocol::kLimitReasonVoltage} : 0U;
+    reasons |= tel.current_limited() ? unsigned{protocol::kLimitReasonCurrent} : 0U;
+    reasons |= tel.speed_limited ? unsigned{protocol::kLimitReasonSpeed} : 0U;
     s.limiting_reasons = static_cast<std::uint8_t>(reasons);
     s.current_limit_A = tel.current_limit_A;
     s.time_to_limit_valid = tel.time_to_limit_valid;

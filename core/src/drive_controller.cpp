@@ -72,6 +72,8 @@ bool controllable(const DriveInput& in) noexcept {
 DriveController::DriveController(const DriveConfig& config)
     : config_(with_motor_derived(config)),
       kt_dq_Nm_per_A_(1.5 * config_.motor.pole_pairs * config_.current.flux_linkage_Wb),
+      speed_limit_rad_s_(config_.speed_limit_rad_s > 0.0 ? config_.speed_limit_rad_s
+                                                         : std::numeric_limits<double>::infinity()),
       angle_(config_.angle),
       current_(config_.current),
       speed_(config_.speed),
@@ -367,20 +369,43 @@ bool DriveController::configure_injection(InjectionMethod method, Separation sep
 
 Dq DriveController::motoring_reference(const DriveCommand& command) {
   const double limit = derating_.current_limit_A;
+  bool speed_limited = false;
   double torque = 0.0;
   if (command.mode == DriveMode::kSpeed) {
+    double reference = command.speed_ref_rad_s;
+    if (std::abs(reference) > speed_limit_rad_s_) {  // (infinite without a limit)
+      reference = std::copysign(speed_limit_rad_s_, reference);
+      speed_limited = true;
+    }
     if (++speed_divider_ >= config_.speed_decimation) {
       speed_divider_ = 0;
-      torque_demand_Nm_ = speed_.step(command.speed_ref_rad_s, angle_.mechanical_speed_rad_s(),
-                                      limit * kt_dq_Nm_per_A_);
+      torque_demand_Nm_ = speed_.step(reference, angle_.mechanical_speed_rad_s(), limit * kt_dq_Nm_per_A_);
     }
     torque = torque_demand_Nm_;
   } else if (command.mode == DriveMode::kTorque) {
     torque = command.torque_ref_Nm;
+    if (config_.speed_limit_rad_s > 0.0) {
+      // Near the limit the torque folds back as a proportional speed loop would hold the shaft
+      // there: at most Kp (limit - speed) forwards, Kp (-limit - speed) backwards. Far below
+      // it the bounds are far above any torque the current limit allows.
+      const double speed = angle_.mechanical_speed_rad_s();
+      const double kp = speed_.proportional_gain();
+      const double upper = kp * (speed_limit_rad_s_ - speed);
+      const double lower = kp * (-speed_limit_rad_s_ - speed);
+      if (torque > upper) {
+        torque = upper;
+        speed_limited = true;
+      } else if (torque < lower) {
+        torque = lower;
+        speed_limited = true;
+      }
+    }
   }
   // id = 0 control: Eq. 10, Tem = Kt iqr.
-  const double iq = std::clamp(torque / kt_dq_Nm_per_A_, -limit, limit);
-  return {0.0, iq};
+  const double wanted = torque / kt_dq_Nm_per_A_;
+  telemetry_.motoring_iq_wanted_A = wanted;  // DriveTelemetry::current_limited() compares
+  telemetry_.speed_limited = speed_limited;
+  return {0.0, std::clamp(wanted, -limit, limit)};
 }
 
 void DriveController::handle_pair(const PairResult& r) {
@@ -575,6 +600,8 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     pending_angle_jump_rad_ = 0.0;  // the history starts afresh (have_previous_)
     telemetry_.inverter_sweep_active = false;
     telemetry_.angle_check_active = false;
+    telemetry_.motoring_iq_wanted_A = 0.0;
+    telemetry_.speed_limited = false;
     age_magnet();  // a fault or a lost sample does not stop the clock of the magnet's estimate
     SchedulerInput s;
     s.time_s = now;
@@ -707,7 +734,13 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   }
   was_enabled_ = enabled;
 
-  Dq motoring = enabled ? motoring_reference(command) : Dq{};
+  Dq motoring{};
+  if (enabled) {
+    motoring = motoring_reference(command);
+  } else {
+    telemetry_.motoring_iq_wanted_A = 0.0;
+    telemetry_.speed_limited = false;
+  }
   // A sweep waiting to start again holds the calibration's events back as a running one does.
   const bool sweeping = sweep_.active() || sweep_restart_.pending || check_.active() || check_restart_.pending;
   if ((sweep_.active() || check_.active()) && enabled) {

@@ -189,6 +189,81 @@ TEST(DriveNode, AnOverhaulingLoadTripsOverspeed) {
   EXPECT_EQ(rig.node->supervisor().status().first_fault, core::FaultCode::kOverspeed);
 }
 
+// Runs `periods` and returns the OR of the limiting reasons of the DRIVE_STATUS frames published
+// in them, and whether the controller's own flag (speed or current) was set in the last period.
+unsigned status_reasons(Rig& rig, int periods) {
+  unsigned reasons = 0U;
+  for (int k = 0; k < periods; ++k) {
+    const NodeStep& s = rig.run(1);
+    if (s.publications.status) {
+      reasons |= s.publications.status->limiting_reasons;
+    }
+  }
+  return reasons;
+}
+
+// control.speed_limit_rad_s: torque mode folds the torque back near the limit, so an unloaded
+// shaft under a torque command settles at the limit (in either direction) instead of running
+// on; speed mode clamps a set-point beyond it. DRIVE_STATUS says so (LimitSpeed), and nothing
+// trips. Without the limit the same torque runs the shaft well past it.
+TEST(DriveNode, TheSpeedLimitHoldsAnUnloadedShaftAndClampsASetPoint) {
+  for (const double limit : {150.0, 0.0}) {
+    Rig rig;
+    rig.config.drive.speed_limit_rad_s = limit;
+    rig.node = std::make_unique<DriveNode>(rig.config, rig.supervisor, PublishRates{});
+    rig.plant->set_load_torque_Nm(0.0);
+    rig.run(1000);  // the ADC offsets, then 50 rad/s
+    rig.in.mode = core::DriveMode::kTorque;
+    rig.in.torque_ref_Nm = 20.0;
+    const unsigned forwards = status_reasons(rig, 10000);
+    const double forwards_speed = rig.plant->truth().speed_rad_s;
+    if (limit == 0.0) {
+      EXPECT_GT(forwards_speed, 200.0) << "without a limit 20 Nm runs the unloaded shaft far beyond 150 rad/s";
+      EXPECT_EQ(forwards & protocol::kLimitReasonSpeed, 0U);
+      continue;
+    }
+    EXPECT_GT(forwards_speed, 0.95 * limit);
+    EXPECT_LT(forwards_speed, 1.01 * limit);
+    EXPECT_NE(forwards & protocol::kLimitReasonSpeed, 0U);
+    EXPECT_TRUE(rig.node->controller().telemetry().speed_limited);
+    rig.in.torque_ref_Nm = -20.0;
+    const unsigned backwards = status_reasons(rig, 20000);
+    EXPECT_LT(rig.plant->truth().speed_rad_s, -0.95 * limit);
+    EXPECT_GT(rig.plant->truth().speed_rad_s, -1.01 * limit);
+    EXPECT_NE(backwards & protocol::kLimitReasonSpeed, 0U);
+    // Speed mode: a set-point beyond the limit is clamped to it.
+    rig.in.mode = core::DriveMode::kSpeed;
+    rig.in.speed_ref_rad_s = 250.0;
+    const unsigned clamped = status_reasons(rig, 20000);
+    EXPECT_NEAR(rig.plant->truth().speed_rad_s, limit, 0.02 * limit);
+    EXPECT_NE(clamped & protocol::kLimitReasonSpeed, 0U);
+    // Below the limit nothing is limited.
+    rig.in.speed_ref_rad_s = 100.0;
+    rig.run(10000);
+    EXPECT_EQ(status_reasons(rig, 3000) & (protocol::kLimitReasonSpeed | protocol::kLimitReasonCurrent), 0U);
+    EXPECT_EQ(rig.node->supervisor().status().state, core::DriveState::kRunning);
+  }
+}
+
+// A torque command beyond what the (derated) current limit allows is cut to the limit, and
+// DRIVE_STATUS says so (LimitCurrent); within it, not.
+TEST(DriveNode, ATorqueBeyondTheCurrentLimitIsReportedAsLimited) {
+  Rig rig;
+  // A heavy shaft: the limited torque accelerates it by only a few rad/s over the test.
+  rig.plant_config.mechanics.inertia_kg_m2 = 2.0;
+  rig.plant = std::make_unique<plant::Plant>(rig.plant_config);
+  rig.run(1000);
+  rig.in.mode = core::DriveMode::kTorque;
+  rig.in.torque_ref_Nm = 5.0;
+  EXPECT_EQ(status_reasons(rig, 2000) & protocol::kLimitReasonCurrent, 0U);
+  rig.in.torque_ref_Nm = 400.0;  // beyond max_current_A x kt
+  rig.run(1);
+  const core::DriveTelemetry& t = rig.node->controller().telemetry();
+  EXPECT_TRUE(t.current_limited());
+  EXPECT_NEAR(std::hypot(t.i_ref_A.d, t.i_ref_A.q), t.current_limit_A, 1e-6 * t.current_limit_A);
+  EXPECT_NE(status_reasons(rig, 1500) & protocol::kLimitReasonCurrent, 0U);
+}
+
 TEST(DriveNode, PublicationsComeAtTheirRates) {
   Rig rig;
   int thermal = 0, status = 0, heartbeat = 0;

@@ -13,7 +13,9 @@
 #pragma once
 
 #include <array>
+#include <cmath>
 #include <cstdint>
+#include <limits>
 #include <optional>
 
 #include "pmsm/core/angle_check.hpp"
@@ -42,6 +44,11 @@ struct DriveConfig {
   CurrentControllerConfig current{};
   SpeedControllerConfig speed{};
   int speed_decimation = 10;         // speed loop every N current-loop periods
+  // The shaft's speed limit (mechanical, either direction; 0: none). Speed mode clamps its
+  // set-point to it; torque mode folds the torque back near it, by the speed loop's Kp times
+  // the speed left below the limit (ODrive's torque-mode velocity limit), so that an unloaded
+  // shaft settles at the limit instead of running on to the supervisor's OVERSPEED.
+  double speed_limit_rad_s = 0.0;
   DeadTimeCompensation dead_time{0.9e-6, 0.0, 1.0};
   InjectionConfig injection{};
   // The calibration procedure, whatever the run-time method: fixed-magnitude bipolar at two
@@ -151,6 +158,16 @@ struct DriveTelemetry {
   Dq injection_A{};                 // the injection's part of i_ref
   Dq v_V{};
   bool voltage_limited = false;
+  // The q-axis current the speed loop or the torque command asked for this period, before the
+  // (derated) current limit cut it (0 while disabled), and whether the speed limit acted
+  // (speed mode: the set-point clamped; torque mode: the torque folded back).
+  double motoring_iq_wanted_A = 0.0;
+  bool speed_limited = false;
+  // The current limit cut the motoring reference (the speed loop's own clamp at the limit
+  // gives the limit back within rounding).
+  [[nodiscard]] bool current_limited() const {
+    return motoring_iq_wanted_A != 0.0 && std::abs(motoring_iq_wanted_A) >= current_limit_A * (1.0 - 1e-9);
+  }
   SchedulerPhase injection_phase = SchedulerPhase::kIdle;
   bool injection_active = false;
   ThermalEstimate thermal{};
@@ -311,6 +328,7 @@ class DriveController {
 
   DriveConfig config_;
   double kt_dq_Nm_per_A_;
+  double speed_limit_rad_s_;  // config_.speed_limit_rad_s, or infinity without a limit
   AngleTracker angle_;
   CurrentController current_;
   SpeedController speed_;
