@@ -154,9 +154,10 @@ void check_cross_keys(const DaemonConfig& c, const std::string& source) {
                      s.overspeed_rad_s, s.max_speed_rad_s));
   }
   if (const double limit = c.controller.drive.speed_limit_rad_s; s.overspeed_rad_s > 0.0 && limit >= s.overspeed_rad_s) {
-    rule(fmt::format("controller.control.speed_limit_rad_s ({} rad/s) must be below supervisor.overspeed_rad_s ({} rad/s): "
-                     "the shaft would trip OVERSPEED before the drive limits its speed",
-                     limit, s.overspeed_rad_s));
+    rule(fmt::format("controller.control.speed_limit_rad_s ({} rad/s{}) must be below supervisor.overspeed_rad_s ({} "
+                     "rad/s): the shaft would trip OVERSPEED before the drive limits its speed",
+                     limit, c.controller.relative.speed_limit_rad_s ? "" : ", its default 1.2 x motor.rated_speed_rad_s",
+                     s.overspeed_rad_s));
   }
   if (s.trip_temp_C <= c.controller.drive.derating.limit_C) {
     rule(fmt::format("supervisor.trip_temp_C ({} C) must be above controller.derating.limit_C ({} C): the "

@@ -41,6 +41,9 @@ ConfigSchema<C> build() {
   s.real("motor.continuous_current_A_rms", [](C& c) -> double& { return c.drive.motor.continuous_current_A_rms; }, positive(10000), "A",
          "Rated (continuous) phase current, RMS (Table I Icont: 31.9 A). The injection, calibration and load-change defaults scale with "
          "its peak, the rated current I_rated = sqrt(2) times this.");
+  s.real("motor.rated_speed_rad_s", [](C& c) -> double& { return c.drive.motor.rated_speed_rad_s; }, positive(100000), "rad/s",
+         "Rated mechanical speed (Table I: 314 rad/s). control.speed_limit_rad_s, supervisor.overspeed_rad_s and "
+         "supervisor.max_speed_rad_s default to 1.2, 1.5 and 3 times it.");
   s.real("motor.inertia_kg_m2", [](C& c) -> double& { return c.drive.motor.inertia_kg_m2; }, positive(100.0), "kg m^2",
          "Total inertia the speed loop is designed for.");
   // [sensors]
@@ -74,10 +77,10 @@ ConfigSchema<C> build() {
             "Speed loop every N current-loop periods.");
   s.optional_real("control.speed_limit_rad_s", [](C& c) -> std::optional<double>& { return c.relative.speed_limit_rad_s; },
                   at_least(0, 100000), "rad/s", "1.2 motor.rated_speed_rad_s",
-                  "Shaft speed limit, either direction (0: none): speed mode clamps its set-point to it, torque mode folds the "
-                  "torque back near it (at most Kp (limit - speed), Kp = J x control.speed_bandwidth_rad_s), so that an "
-                  "unloaded shaft settles there; DRIVE_STATUS.LimitSpeed says when it acts. Below "
-                  "supervisor.overspeed_rad_s.");
+                  "Shaft speed limit, either direction (0: none): speed mode clamps its set-point to it, torque mode bounds the "
+                  "torque by G (limit - speed), G = motor.inertia_kg_m2 x min(5 control.speed_bandwidth_rad_s, "
+                  "control.pll_bandwidth_rad_s / 2), so that an unloaded shaft settles there and one under a load T at "
+                  "limit - T / G; DRIVE_STATUS.LimitSpeed says when it binds. Below supervisor.overspeed_rad_s.");
   s.real("control.max_torque_Nm", [](C& c) -> double& { return c.drive.speed.max_torque_Nm; }, positive(10000), "Nm", "Torque demand limit.");
   s.real("control.pll_bandwidth_rad_s", [](C& c) -> double& { return c.drive.angle.pll_bandwidth_rad_s; }, positive(10000), "rad/s",
          "Speed observer (PLL) bandwidth.");

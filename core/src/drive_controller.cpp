@@ -74,6 +74,8 @@ DriveController::DriveController(const DriveConfig& config)
       kt_dq_Nm_per_A_(1.5 * config_.motor.pole_pairs * config_.current.flux_linkage_Wb),
       speed_limit_rad_s_(config_.speed_limit_rad_s > 0.0 ? config_.speed_limit_rad_s
                                                          : std::numeric_limits<double>::infinity()),
+      speed_limit_gain_Nm_s_(config_.speed.inertia_kg_m2 *
+                             std::min(5.0 * config_.speed.bandwidth_rad_s, 0.5 * config_.angle.pll_bandwidth_rad_s)),
       angle_(config_.angle),
       current_(config_.current),
       speed_(config_.speed),
@@ -81,6 +83,8 @@ DriveController::DriveController(const DriveConfig& config)
       baseline_(config_.baseline),
       observer_(config_.thermal, config_.calibration, config_.calibration.t0_C, false),
       derating_{config_.derating.max_current_A, false} {
+  // DRIVE_STATUS reads the limit before the first thermal update sets it.
+  telemetry_.current_limit_A = derating_.current_limit_A;
   // A stored calibration that measured the bridge replaces the configured band.
   if (config_.calibration.dead_time_band_A > 0.0) {
     config_.dead_time.current_band_A = config_.calibration.dead_time_band_A;
@@ -200,7 +204,7 @@ void DriveController::start_calibration_sweep(double now_s) {
 
 void DriveController::finish_angle_check() {
   const AngleCheckResult& r = check_.result();
-  check_done_ = r;
+  report(check_done_, r);
   // Aborted by a stop or a lost sample, or voided by an operating point that moved: started
   // again once the drive has run a while, as the sweep is. Not turning at the first start is
   // not retried: a drive calibrating at standstill stays there (the configured offset holds).
@@ -236,7 +240,7 @@ void DriveController::finish_angle_check() {
 
 void DriveController::finish_inverter_sweep(double now_s) {
   const InverterSweepResult& r = sweep_.result();
-  sweep_done_ = r;
+  report(sweep_done_, r);
   // Aborted by a stop or a lost sample, or by a speed still settling, during a calibration:
   // started again once the drive has run a while (kSweepHoldoff_s).
   sweep_restart_.ended(
@@ -328,13 +332,13 @@ void DriveController::abort_calibration() {
     publish_calibration_state();
     if (sweep_.active()) {
       sweep_.abort();
-      sweep_done_ = sweep_.result();
+      report(sweep_done_, sweep_.result());
     }
     if (check_.active()) {
       const bool measuring = !check_.decided();
       check_.abort();
       if (measuring) {
-        check_done_ = check_.result();
+        report(check_done_, check_.result());
       }
     }
     sweep_after_check_ = false;
@@ -386,31 +390,32 @@ Dq DriveController::motoring_reference(const DriveCommand& command) {
     torque = command.torque_ref_Nm;
     if (config_.speed_limit_rad_s > 0.0) {
       // Near the limit the torque folds back as a proportional speed loop would hold the shaft
-      // there: at most Kp (limit - speed) forwards, Kp (-limit - speed) backwards. Far below
-      // it the bounds are far above any torque the current limit allows.
+      // there: at most G (limit - speed) forwards, G (-limit - speed) backwards. Beyond the
+      // limit the bound changes sign: the drive brakes (regenerates) the shaft back. Said to
+      // limit only where it binds tighter than the current limit does.
       const double speed = angle_.mechanical_speed_rad_s();
-      const double kp = speed_.proportional_gain();
-      const double upper = kp * (speed_limit_rad_s_ - speed);
-      const double lower = kp * (-speed_limit_rad_s_ - speed);
+      const double upper = speed_limit_gain_Nm_s_ * (speed_limit_rad_s_ - speed);
+      const double lower = speed_limit_gain_Nm_s_ * (-speed_limit_rad_s_ - speed);
       if (torque > upper) {
         torque = upper;
-        speed_limited = true;
+        speed_limited = upper < limit * kt_dq_Nm_per_A_;
       } else if (torque < lower) {
         torque = lower;
-        speed_limited = true;
+        speed_limited = lower > -limit * kt_dq_Nm_per_A_;
       }
     }
   }
   // id = 0 control: Eq. 10, Tem = Kt iqr.
   const double wanted = torque / kt_dq_Nm_per_A_;
   telemetry_.motoring_iq_wanted_A = wanted;  // DriveTelemetry::current_limited() compares
+  telemetry_.motoring_iq_limit_A = limit;
   telemetry_.speed_limited = speed_limited;
   return {0.0, std::clamp(wanted, -limit, limit)};
 }
 
 void DriveController::handle_pair(const PairResult& r) {
   ++telemetry_.outcomes[static_cast<std::size_t>(r.outcome)];
-  last_pair_ = r;
+  report(last_pair_, r);
 }
 
 // The event's pairs span up to seconds: the filter takes its estimate at the event's own time,
@@ -421,7 +426,7 @@ double DriveController::measurement_age_s(const EventEstimate& e) const {
 }
 
 void DriveController::handle_estimate(const EventEstimate& e) {
-  last_event_ = e;
+  report(last_event_, e);
   if (e.outcome != EventOutcome::kPublished) {
     ++telemetry_.events_without_estimate;
     return;
@@ -479,7 +484,7 @@ void DriveController::handle_estimate(const EventEstimate& e) {
       // The filter keeps its state (the winding has warmed during the calibration); only the
       // temperature scale changes.
       observer_.set_calibration(c);
-      calibration_done_ = c;
+      report(calibration_done_, c);
       magnet_valid_ = false;  // the next estimate is against the new Ke0, not blended with the old
       calibration_outcome_ = CalibrationOutcome::kDone;
       publish_calibration_state();
@@ -513,7 +518,7 @@ void DriveController::handle_estimate(const EventEstimate& e) {
   } else {
     ++telemetry_.estimates_gated;
   }
-  last_estimate_ = out;
+  report(last_estimate_, out);
 
   // Magnet temperature from the EMF constant relative to its calibrated value.
   const Calibration& cal = observer_.calibration();
@@ -569,12 +574,15 @@ void DriveController::update_thermal(double ambient_C) {
 }
 
 const DriveOutput& DriveController::step(const DriveInput& in, const DriveCommand& command) {
-  last_pair_.reset();
-  last_estimate_.reset();
-  last_event_.reset();
-  calibration_done_.reset();
-  sweep_done_.reset();
-  check_done_.reset();
+  if (reported_) {  // (six optionals asked one by one cost a dozen instructions a step)
+    last_pair_.reset();
+    last_estimate_.reset();
+    last_event_.reset();
+    calibration_done_.reset();
+    sweep_done_.reset();
+    check_done_.reset();
+    reported_ = false;
+  }
   calibration_failed_now_ = false;
   const double now = static_cast<double>(period_) * config_.period_s;
   ++period_;
@@ -601,6 +609,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     telemetry_.inverter_sweep_active = false;
     telemetry_.angle_check_active = false;
     telemetry_.motoring_iq_wanted_A = 0.0;
+    telemetry_.motoring_iq_limit_A = std::numeric_limits<double>::infinity();
     telemetry_.speed_limited = false;
     age_magnet();  // a fault or a lost sample does not stop the clock of the magnet's estimate
     SchedulerInput s;
@@ -739,6 +748,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     motoring = motoring_reference(command);
   } else {
     telemetry_.motoring_iq_wanted_A = 0.0;
+    telemetry_.motoring_iq_limit_A = std::numeric_limits<double>::infinity();
     telemetry_.speed_limited = false;
   }
   // A sweep waiting to start again holds the calibration's events back as a running one does.

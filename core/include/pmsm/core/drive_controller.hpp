@@ -17,6 +17,7 @@
 #include <cstdint>
 #include <limits>
 #include <optional>
+#include <utility>
 
 #include "pmsm/core/angle_check.hpp"
 #include "pmsm/core/angle_tracker.hpp"
@@ -45,9 +46,13 @@ struct DriveConfig {
   SpeedControllerConfig speed{};
   int speed_decimation = 10;         // speed loop every N current-loop periods
   // The shaft's speed limit (mechanical, either direction; 0: none). Speed mode clamps its
-  // set-point to it; torque mode folds the torque back near it, by the speed loop's Kp times
-  // the speed left below the limit (ODrive's torque-mode velocity limit), so that an unloaded
-  // shaft settles at the limit instead of running on to the supervisor's OVERSPEED.
+  // set-point to it; torque mode bounds the torque by a proportional speed loop around it,
+  // G (limit - speed) forwards and G (-limit - speed) backwards (ODrive's torque-mode velocity
+  // limit), so that an unloaded shaft settles at the limit instead of running on to the
+  // supervisor's OVERSPEED; under a load T it settles at limit - T / G. G = J wfb with
+  // wfb = min(5 x the speed loop's bandwidth, half the PLL's): the speed loop's own Kp (J x
+  // 60 rad/s) left the Table I motor 31.7 Nm at its rated speed, below its rated torque, and
+  // wfb stays where the PLL's speed lags little (docs/daemon.md, "Faults and limits").
   double speed_limit_rad_s = 0.0;
   DeadTimeCompensation dead_time{0.9e-6, 0.0, 1.0};
   InjectionConfig injection{};
@@ -158,15 +163,18 @@ struct DriveTelemetry {
   Dq injection_A{};                 // the injection's part of i_ref
   Dq v_V{};
   bool voltage_limited = false;
-  // The q-axis current the speed loop or the torque command asked for this period, before the
-  // (derated) current limit cut it (0 while disabled), and whether the speed limit acted
-  // (speed mode: the set-point clamped; torque mode: the torque folded back).
+  // The q-axis current the speed loop or the torque command asked for this period and the
+  // (derated) limit it was clamped to (0 and infinity while disabled), and whether the speed
+  // limit bound tighter than the current limit (speed mode: the set-point clamped; torque
+  // mode: the torque folded back below what the current limit allows).
   double motoring_iq_wanted_A = 0.0;
+  double motoring_iq_limit_A = std::numeric_limits<double>::infinity();
   bool speed_limited = false;
-  // The current limit cut the motoring reference (the speed loop's own clamp at the limit
-  // gives the limit back within rounding).
+  // The current limit cut the motoring reference, or is zero (fully derated) while enabled.
+  // (The speed loop's own clamp at the limit gives the limit back within rounding.)
   [[nodiscard]] bool current_limited() const {
-    return motoring_iq_wanted_A != 0.0 && std::abs(motoring_iq_wanted_A) >= current_limit_A * (1.0 - 1e-9);
+    return motoring_iq_limit_A <= 0.0 ||
+           (motoring_iq_wanted_A != 0.0 && std::abs(motoring_iq_wanted_A) >= motoring_iq_limit_A * (1.0 - 1e-9));
   }
   SchedulerPhase injection_phase = SchedulerPhase::kIdle;
   bool injection_active = false;
@@ -329,6 +337,7 @@ class DriveController {
   DriveConfig config_;
   double kt_dq_Nm_per_A_;
   double speed_limit_rad_s_;  // config_.speed_limit_rad_s, or infinity without a limit
+  double speed_limit_gain_Nm_s_;  // G of the torque-mode fold-back (DriveConfig::speed_limit_rad_s)
   AngleTracker angle_;
   CurrentController current_;
   SpeedController speed_;
@@ -348,8 +357,17 @@ class DriveController {
   void fail_calibration(CalibrationFailure why);
   void publish_calibration_state();
 
+  // The period's reports (last_pair() ... inverter_sweep_completed()): set only through
+  // report(), which notes that the next step must clear them.
+  template <typename T, typename V>
+  void report(std::optional<T>& slot, V&& value) {
+    slot = std::forward<V>(value);
+    reported_ = true;
+  }
+
   DriveOutput output_{};
   DriveTelemetry telemetry_{};
+  bool reported_ = false;  // some report below is set
   std::optional<PairResult> last_pair_;
   std::optional<ResistanceEstimate> last_estimate_;
   std::optional<EventEstimate> last_event_;

@@ -24,8 +24,6 @@ class SpeedController {
   double step(double speed_ref_rad_s, double speed_meas_rad_s, double torque_limit_Nm);
 
   void reset(double torque_Nm = 0.0) { pi_.reset(torque_Nm); }
-  // Kp, torque per speed error (Nm per rad/s): J times the bandwidth.
-  [[nodiscard]] double proportional_gain() const { return config_.inertia_kg_m2 * config_.bandwidth_rad_s; }
   [[nodiscard]] const SpeedControllerConfig& config() const { return config_; }
 
  private:
