@@ -216,7 +216,7 @@ TEST(DriveNode, TheSpeedLimitHoldsAnUnloadedShaftAndClampsASetPoint) {
     rig.in.mode = core::DriveMode::kTorque;
     rig.in.torque_ref_Nm = 20.0;
     const unsigned forwards = status_reasons(rig, 10000);
-    const double forwards_speed = rig.plant->truth().speed_rad_s;
+    const double forwards_speed = static_cast<double>(rig.plant->truth().speed_rad_s);
     if (limit == 0.0) {
       EXPECT_GT(forwards_speed, 200.0) << "without a limit 20 Nm runs the unloaded shaft far beyond 150 rad/s";
       EXPECT_EQ(forwards & protocol::kLimitReasonSpeed, 0U);
