@@ -388,21 +388,19 @@ Dq DriveController::motoring_reference(const DriveCommand& command) {
     torque = torque_demand_Nm_;
   } else if (command.mode == DriveMode::kTorque) {
     torque = command.torque_ref_Nm;
-    if (config_.speed_limit_rad_s > 0.0) {
-      // Near the limit the torque folds back as a proportional speed loop would hold the shaft
-      // there: at most G (limit - speed) forwards, G (-limit - speed) backwards. Beyond the
-      // limit the bound changes sign: the drive brakes (regenerates) the shaft back. Said to
-      // limit only where it binds tighter than the current limit does.
-      const double speed = angle_.mechanical_speed_rad_s();
-      const double upper = speed_limit_gain_Nm_s_ * (speed_limit_rad_s_ - speed);
-      const double lower = speed_limit_gain_Nm_s_ * (-speed_limit_rad_s_ - speed);
-      if (torque > upper) {
-        torque = upper;
-        speed_limited = upper < limit * kt_dq_Nm_per_A_;
-      } else if (torque < lower) {
-        torque = lower;
-        speed_limited = lower > -limit * kt_dq_Nm_per_A_;
-      }
+    // Near the limit the torque folds back as a proportional speed loop would hold the shaft
+    // there: at most G (limit - speed) forwards, G (-limit - speed) backwards (infinite bounds
+    // without a limit). Beyond the limit the bound changes sign: the drive brakes (regenerates)
+    // the shaft back. Said to limit only where it binds tighter than the current limit does.
+    const double speed = angle_.mechanical_speed_rad_s();
+    const double upper = speed_limit_gain_Nm_s_ * (speed_limit_rad_s_ - speed);
+    const double lower = speed_limit_gain_Nm_s_ * (-speed_limit_rad_s_ - speed);
+    if (torque > upper) {
+      torque = upper;
+      speed_limited = upper < limit * kt_dq_Nm_per_A_;
+    } else if (torque < lower) {
+      torque = lower;
+      speed_limited = lower > -limit * kt_dq_Nm_per_A_;
     }
   }
   // id = 0 control: Eq. 10, Tem = Kt iqr.
@@ -411,6 +409,12 @@ Dq DriveController::motoring_reference(const DriveCommand& command) {
   telemetry_.motoring_iq_limit_A = limit;
   telemetry_.speed_limited = speed_limited;
   return {0.0, std::clamp(wanted, -limit, limit)};
+}
+
+void DriveController::clear_motoring_telemetry() {
+  telemetry_.motoring_iq_wanted_A = 0.0;
+  telemetry_.motoring_iq_limit_A = std::numeric_limits<double>::infinity();
+  telemetry_.speed_limited = false;
 }
 
 void DriveController::handle_pair(const PairResult& r) {
@@ -608,9 +612,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     pending_angle_jump_rad_ = 0.0;  // the history starts afresh (have_previous_)
     telemetry_.inverter_sweep_active = false;
     telemetry_.angle_check_active = false;
-    telemetry_.motoring_iq_wanted_A = 0.0;
-    telemetry_.motoring_iq_limit_A = std::numeric_limits<double>::infinity();
-    telemetry_.speed_limited = false;
+    clear_motoring_telemetry();
     age_magnet();  // a fault or a lost sample does not stop the clock of the magnet's estimate
     SchedulerInput s;
     s.time_s = now;
@@ -747,9 +749,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   if (enabled) {
     motoring = motoring_reference(command);
   } else {
-    telemetry_.motoring_iq_wanted_A = 0.0;
-    telemetry_.motoring_iq_limit_A = std::numeric_limits<double>::infinity();
-    telemetry_.speed_limited = false;
+    clear_motoring_telemetry();
   }
   // A sweep waiting to start again holds the calibration's events back as a running one does.
   const bool sweeping = sweep_.active() || sweep_restart_.pending || check_.active() || check_restart_.pending;

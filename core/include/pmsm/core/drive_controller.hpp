@@ -356,6 +356,7 @@ class DriveController {
   void age_magnet();
   void fail_calibration(CalibrationFailure why);
   void publish_calibration_state();
+  void clear_motoring_telemetry();  // nothing asked of the motor this period (disabled, no sample)
 
   // The period's reports (last_pair() ... inverter_sweep_completed()): set only through
   // report(), which notes that the next step must clear them.
