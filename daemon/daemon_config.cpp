@@ -176,6 +176,15 @@ void check_cross_keys(const DaemonConfig& c, const std::string& source) {
   }
 }
 
+// The supervisor's defaults for a drive: relative to its motor, ADCs and bus
+// (app::default_supervisor_config), and a command timeout: a daemon that is enabled expects a
+// supervisor that keeps talking.
+core::SupervisorConfig daemon_supervisor_defaults(const app::ControllerConfig& controller) {
+  core::SupervisorConfig s = app::default_supervisor_config(controller);
+  s.command_timeout_s = 0.5;
+  return s;
+}
+
 }  // namespace
 
 DaemonConfig parse_daemon_config(const std::string& text, const std::filesystem::path& source) {
@@ -198,9 +207,7 @@ DaemonConfig parse_daemon_config(const std::string& text, const std::filesystem:
   } catch (const ConfigError& e) {
     errors = e.what();
   }
-  c.supervisor = app::default_supervisor_config(c.controller);
-  // A daemon that is enabled expects a supervisor that keeps talking.
-  c.supervisor.command_timeout_s = 0.5;
+  c.supervisor = daemon_supervisor_defaults(c.controller);
   std::vector<std::string> foreign{"controller"};
   try {
     schema().apply(root, c, source.string(), foreign);
@@ -232,7 +239,13 @@ DaemonConfig load_daemon_config(const std::filesystem::path& path) {
 
 bool is_virtual_interface(const std::string& interface) { return interface.rfind("vcan", 0) == 0; }
 
-std::string daemon_keys_markdown() { return schema().markdown(DaemonConfig{}); }
+// The key table shows what a file without the key gets: the supervisor's defaults follow the
+// default drive (Table I), as they follow the configured one in parse_daemon_config().
+std::string daemon_keys_markdown() {
+  DaemonConfig c;
+  c.supervisor = daemon_supervisor_defaults(c.controller);
+  return schema().markdown(c);
+}
 
 BusLoad bus_load(const DaemonConfig& c) {
   namespace protocol = hal::protocol;
