@@ -54,6 +54,37 @@ TEST(EstimatorClosedLoop, ShortHeatUpIsTracked) {
   // The inverter's voltage error (plant: 1 us dead time at 650 V plus 1 V drop = 7.5 V per
   // phase) is learned to within 2 %.
   EXPECT_NEAR(r.vx_V, 7.5, 0.15);
+  // Nothing tripped: the figures are those of a running drive.
+  EXPECT_EQ(r.first_fault(), nullptr) << core::to_string(r.fault_code(*r.first_fault()));
+}
+
+// An overhauling load the drive cannot hold trips it, and the result says so: which faults,
+// and when. Table I's 80 A current limit gives about 123 N m (Kt = 1.5 x 4 x psi_m); a 150 N m
+// active load drives the shaft backwards, past the overspeed trip (1.5 x 314 rad/s) within a
+// tenth of a second of the step. (Through the reversal the current loop runs into the voltage
+// limit and may trip OVERCURRENT first: any trip after the step will do, overspeed among them.)
+TEST(EstimatorClosedLoop, ATripIsReportedWithItsCodeAndTime) {
+  Scenario s = load_scenario(kData / "heatup-short.toml");
+  s.scenario.duration_s = 2.5;
+  s.plant.load.profile = plant::LoadProfile::torque_steps;
+  s.plant.load.points = {{0.0, 0.0}, {2.0, 150.0}};
+  const SimulationResult r = run_scenario(s, quiet());
+  const SimulationResult::FaultSeen* first = r.first_fault();
+  ASSERT_NE(first, nullptr) << "an overhauling load no drive could hold did not trip it";
+  EXPECT_GT(first->first_s, 2.0) << core::to_string(r.fault_code(*first));
+  EXPECT_LT(first->first_s, 2.2);
+  const SimulationResult::FaultSeen& overspeed = r.faults[static_cast<std::size_t>(core::FaultCode::kOverspeed)];
+  EXPECT_EQ(overspeed.count, 1U) << "latched once: a scenario never clears faults";
+  EXPECT_GE(overspeed.first_s, first->first_s);
+  EXPECT_LT(overspeed.first_s, 2.2);
+  const std::string json = result_json(r);
+  EXPECT_NE(json.find("\"overspeed\": {\"count\": 1, \"first_s\": 2."), std::string::npos) << json;
+  EXPECT_NE(result_text(r).find("fault overspeed"), std::string::npos);
+  // Without the load step nothing trips, and the JSON says so with an empty object.
+  s.plant.load.points = {{0.0, 0.0}};
+  const SimulationResult calm = run_scenario(s, quiet());
+  EXPECT_EQ(calm.first_fault(), nullptr);
+  EXPECT_NE(result_json(calm).find("\"faults\": {}"), std::string::npos);
 }
 
 TEST(EstimatorClosedLoop, EveryPublishedEstimateIsCloseToTheTruth) {

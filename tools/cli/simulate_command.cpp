@@ -68,8 +68,12 @@ std::string markdown_row(const SimulationResult& r, const std::string& file) {
   const std::string failed = r.calibration_failure == core::CalibrationFailure::kNone
                                  ? std::string()
                                  : fmt::format(" — calibration failed: {}", core::calibration_failure_name(r.calibration_failure));
-  return fmt::format("| {} (`{}`){} | {} | {} | {} | {} | {} | {} | {} | {} | {} / {} | {} | {} | {:.1f} | {:.0f} / {:.1f} |\n",
-                     r.scenario, file, failed, r.method, cell(r.winding_error_rms_C, w), cell(r.winding_error_max_C, w),
+  // A trip likewise: the figures after it are those of a drive that is off.
+  const SimulationResult::FaultSeen* trip = r.first_fault();
+  const std::string tripped =
+      trip == nullptr ? std::string() : fmt::format(" — tripped: {} at {:.1f} s", core::to_string(r.fault_code(*trip)), trip->first_s);
+  return fmt::format("| {} (`{}`){}{} | {} | {} | {} | {} | {} | {} | {} | {} | {} / {} | {} | {} | {:.1f} | {:.0f} / {:.1f} |\n",
+                     r.scenario, file, failed, tripped, r.method, cell(r.winding_error_rms_C, w), cell(r.winding_error_max_C, w),
                      cell(r.winding_error_mean_C, w, "{:+.2f}"), cell(100.0 * r.coverage_2sigma, w, "{:.0f}"),
                      cell(r.rs_error_rms_mohm, r.estimates_published() > 0), cell(r.magnet_error_rms_C, r.magnet_error_samples > 0),
                      r.estimates_accepted, r.pairs[0], rejected, cell(r.speed_disturbance_pct, r.disturbance_measured, "{:.3f}"),
@@ -107,6 +111,10 @@ Report run_one(const std::string& path, const SimulateOptions& o) {
     r.err += fmt::format("simulate: {}: the calibration failed ({} at {:.2f} s); the figures are those of the "
                          "calibration in use before it\n",
                          path, core::calibration_failure_name(result.calibration_failure), result.calibration_failure_time_s);
+  }
+  if (const SimulationResult::FaultSeen* trip = result.first_fault(); trip != nullptr) {
+    r.err += fmt::format("simulate: {}: the drive tripped ({} at {:.3f} s) and stayed off; the figures include the run after it\n",
+                         path, core::to_string(result.fault_code(*trip)), trip->first_s);
   }
   if (!result.calibration_file_error.empty()) {
     // The run is reported in full; only the file kept its previous content.

@@ -297,6 +297,7 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
 
   bool calibration_started = false;
   bool real_time_calibration = false;
+  std::uint32_t latched_before = 0;  // the supervisor's latched faults after the previous period
   double metrics_from_s = -1.0;  // -1: not yet (calibration, or the first estimate, pending)
   std::size_t covered = 0;        // counted samples with the truth inside +-2 sigma
   double injection_energy_J = 0.0;
@@ -337,6 +338,18 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
 
     const NodeStep& step = node.step(&sample, cmd);
     const core::DriveTelemetry& tel = drive.telemetry();
+    if (const std::uint32_t latched = node.supervisor().status().latched_mask; latched != latched_before) {
+      // Newly latched codes: counted and timed (a code latched again after it cleared counts again).
+      for (std::size_t c = 1; c < core::kFaultCodeCount; ++c) {
+        const std::uint32_t bit = core::Supervisor::bit(static_cast<core::FaultCode>(c));
+        if ((latched & bit) != 0U && (latched_before & bit) == 0U) {
+          SimulationResult::FaultSeen& f = result.faults[c];
+          f.first_s = f.count == 0 ? t : f.first_s;
+          ++f.count;
+        }
+      }
+      latched_before = latched;
+    }
     const bool log_now = k % log_every == 0;
     const bool fast_now = k % kFastEvery == kFastEvery - 1;
     truth = plant.state();
@@ -669,6 +682,18 @@ std::string result_json(const SimulationResult& r) {
                r.calibration_failure == core::CalibrationFailure::kUncertain ? r.calibration_failure_rs0_std_ohm : kNan)
         .end_object();
   }
+  // Every fault the drive latched, by name (an empty object: none).
+  j.key("faults").begin_object();
+  for (const SimulationResult::FaultSeen& f : r.faults) {
+    if (f.count > 0) {
+      j.key(core::to_string(r.fault_code(f)))
+          .begin_object()
+          .field("count", static_cast<std::uint64_t>(f.count))
+          .field("first_s", f.first_s)
+          .end_object();
+    }
+  }
+  j.end_object();
   if (r.inverter_sweep.outcome != core::InverterSweepOutcome::kNone) {
     const core::InverterSweepResult& w = r.inverter_sweep;
     const bool fitted = w.outcome != core::InverterSweepOutcome::kAborted;
@@ -796,6 +821,12 @@ std::string result_text(const SimulationResult& r) {
                        "calibration.max_rs0_std_fraction); the calibration in use stays\n",
                        r.calibration_failure_time_s, r.calibration_failure_rs0_ohm, r.calibration_failure_rs0_std_ohm,
                        100.0 * r.calibration_failure_rs0_std_ohm / std::max(std::abs(r.calibration_failure_rs0_ohm), 1e-12));
+  }
+  for (const SimulationResult::FaultSeen& f : r.faults) {
+    if (f.count > 0) {
+      out += fmt::format("  fault {:<25} latched {} time(s), first at {:.3f} s (never cleared: the drive stays off)\n",
+                         core::to_string(r.fault_code(f)), f.count, f.first_s);
+    }
   }
   if (!r.calibration_file.empty()) {
     out += fmt::format("  calibration file                {} ({} at start{})\n", r.calibration_file, to_string(r.calibration_at_start),

@@ -8,6 +8,7 @@
 #include <string>
 #include <vector>
 
+#include "pmsm/core/supervisor.hpp"
 #include "scenario.hpp"
 
 namespace pmsm::app {
@@ -137,6 +138,24 @@ struct SimulationResult {
   double lq_H = 0.0;                    // learned q-axis inductance at the end
   double lq_std_H = 0.0;
   double lq_saturation_H = 0.0;         // its saturation: secant lost at the current limit
+  // The faults the drive's supervisor latched (as its FAULT frames would show them on a bus):
+  // how often each code was latched, and when first. A scenario never clears faults: after a
+  // trip the drive stays off, and the figures that follow are those of a drive that is off.
+  struct FaultSeen {
+    std::uint32_t count = 0;
+    double first_s = 0.0;
+  };
+  std::array<FaultSeen, core::kFaultCodeCount> faults{};
+  [[nodiscard]] const FaultSeen* first_fault() const noexcept {
+    const FaultSeen* first = nullptr;
+    for (const FaultSeen& f : faults) {
+      if (f.count > 0 && (first == nullptr || f.first_s < first->first_s)) first = &f;
+    }
+    return first;
+  }
+  [[nodiscard]] core::FaultCode fault_code(const FaultSeen& f) const noexcept {
+    return static_cast<core::FaultCode>(&f - faults.data());
+  }
   double max_winding_true_C = 0.0;
   double sim_time_s = 0.0;
   // Wall time of everything the scenario cost: the run, the twin without injection (for the
