@@ -338,6 +338,11 @@ void InjectionScheduler::abort(SchedulerOutput& out, const SchedulerInput& in) {
     next_event_s_ = std::max(next_event_s_, in.time_s + config_.retry_s);
   }
   if (in_event_) {
+    // An aborted event yields nothing: a request (a calibration's, an operator's) waits the
+    // retry delay too, or it would start the next event in the same transient (the shaft
+    // reversing under an overhauling load), whose current then eats the voltage and current
+    // the drive needs to hold it.
+    retry_after_s_ = std::max(retry_after_s_, in.time_s + config_.retry_s);
     // The event is incomplete: its accepted pairs (if any) are dropped with it, and it says so.
     EventEstimate e;
     e.outcome = EventOutcome::kAborted;

@@ -1222,6 +1222,31 @@ TEST(InjectionScheduler, RequestNowStartsAnEventBeforeItsTime) {
   EXPECT_TRUE(h.records.back().out.active);
 }
 
+// A standing request (a calibration's) does not restart an aborted event before the retry
+// delay: the shaft that reversed under it (an overhauling load) is still in that transient, and
+// a new event's current would eat the voltage and current the drive needs to hold it.
+TEST(InjectionScheduler, AStandingRequestWaitsTheRetryDelayAfterAnAbort) {
+  InjectionConfig c = test_config();
+  c.first_event_s = 100.0;
+  c.retry_s = 0.5;
+  Harness h(c);
+  h.request_now = true;
+  h.run_until(0.02);
+  ASSERT_TRUE(h.records.back().out.active) << "the request did not start an event";
+  h.omega_e_rad_s = -300.0;  // the shaft reverses: the angle-based pair cannot survive it
+  h.step();
+  ASSERT_FALSE(h.estimates.empty());
+  EXPECT_EQ(h.estimates.back().outcome, EventOutcome::kAborted);
+  const double aborted_at = h.records.back().time_s;
+  const std::size_t after = h.records.size();
+  h.run_until(aborted_at + 0.49);
+  for (std::size_t k = after; k < h.records.size(); ++k) {
+    ASSERT_FALSE(h.records[k].out.active) << "an event started " << h.records[k].time_s - aborted_at << " s after the abort";
+  }
+  h.run_until(aborted_at + 0.52);
+  EXPECT_TRUE(h.records.back().out.active) << "the request is served again after the retry delay";
+}
+
 TEST(InjectionScheduler, SetConfigDropsTheEventAndKeepsTheVxPrior) {
   Harness h(test_config());
   h.run_until(0.3);
