@@ -322,8 +322,8 @@ ConfigSchema<C> build() {
   s.real("calibration.magnet_temp_coefficient_per_C", [](C& c) -> double& { return c.drive.magnet_coefficient_per_C; }, between(-0.01, 0), "/C",
          "Relative change of the magnet flux per degree (NdFeB about -0.0012).");
   s.real("calibration.magnet_max_age_s", [](C& c) -> double& { return c.drive.magnet_max_age_s; }, positive(1e6), "s",
-         "The magnet estimate is published as valid this long (thermal time) after its last EMF measurement; at the "
-         "voltage limit (field-weakening pairs only) or at standstill nothing measures it.");
+         "The magnet estimate is published as valid this long (thermal time) after its last EMF measurement; at "
+         "standstill (time-based recordings) nothing measures it.");
   // [derating]
   s.real("derating.max_current_A", [](C& c) -> double& { return c.drive.derating.max_current_A; }, positive(10000), "A",
          "|i| limit when cold (phase peak).");

@@ -428,9 +428,9 @@ PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
     event_time_sum_s_ += w * (c.rs_time_s - event_start_s_);
     event_time_plain_sum_s_ += c.rs_time_s - event_start_s_;
     event_field_weakening_ = event_field_weakening_ || field_weakening_;
-    // The magnet's q-axis means need Ld <w id>: a field-weakening pair's <id> is far from
-    // zero, so the commissioned Ld's error would go into Ke (docs/estimator.md §8).
-    if (event_q_pairs_ < InjectionConfig::kMaxLevels && !time_based_ && !field_weakening_) {
+    // The magnet's EMF constant from the q axis, field-weakening pairs included: each pair
+    // measures the Ld its <w id> needs (finish_event; docs/estimator.md §8).
+    if (event_q_pairs_ < InjectionConfig::kMaxLevels && !time_based_) {
       event_q_[static_cast<std::size_t>(event_q_pairs_++)] = c;
     }
     ++event_pairs_;
@@ -695,8 +695,13 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
   e.vx_V = vx;
   e.vx_std_V = std::sqrt(var_vx);
 
-  // The EMF constant from the q-axis means of the angle-based pairs (Eqs. 34 / 40 averaged
-  // over both recordings): Ke wm = <vq> - Rs <iq> - Ld <w id> - Vx <Gq>.
+  // The EMF constant from the q axis of the angle-based pairs (Eqs. 34 / 40): averaged over
+  // both recordings, <vq> - Rs <iq> - Vx <Gq> = Ld <w id> + Ke <wm>; differenced between them,
+  // dvq - Rs diq - Vx dGq = Ld d(w id) + Ke dwm. The two solved together give Ke with the Ld
+  // this pair measured, not the commissioned one: where <id> is far from zero (a unipolar pair,
+  // <id> = -F/2; a field-weakening pair at the voltage limit, both levels negative) the
+  // commissioned Ld's error would go into Ke (10 % of Ld is 14 C of magnet at rated speed). A
+  // pair whose levels barely differ in w id (no Ld to measure) takes the commissioned Ld.
   double ke_sum = 0.0;
   int ke_count = 0;
   for (int k = 0; k < event_q_pairs_; ++k) {
@@ -704,8 +709,15 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
     if (std::abs(c.omega_m_mean_rad_s) * config_.pole_pairs < config_.min_speed_for_angle_rad_s) {
       continue;
     }
-    ke_sum += (c.vq_mean_V - rs * c.iq_mean_A - config_.ld_H * c.omega_e_id_mean_A_rad_s - vx * c.gq_mean) /
-              c.omega_m_mean_rad_s;
+    const double y = c.vq_mean_V - rs * c.iq_mean_A - vx * c.gq_mean;
+    const double dy = c.dvq_V - rs * c.diq_A - vx * c.dgq;
+    const double det = c.omega_e_id_mean_A_rad_s * c.domega_m_rad_s - c.omega_m_mean_rad_s * c.domega_e_id_A_rad_s;
+    // Solvable where the recordings' d currents differ by 1 A or more (every injecting pair:
+    // 2F bipolar, F unipolar, 0.7F field weakening); det is then about -<wm> d(w id).
+    const bool ld_measured =
+        std::abs(c.domega_e_id_A_rad_s) >= 1.0 * std::abs(c.omega_m_mean_rad_s) * config_.pole_pairs && det != 0.0;
+    ke_sum += ld_measured ? (c.omega_e_id_mean_A_rad_s * dy - c.domega_e_id_A_rad_s * y) / det
+                          : (y - config_.ld_H * c.omega_e_id_mean_A_rad_s) / c.omega_m_mean_rad_s;
     ++ke_count;
   }
   if (ke_count > 0) {

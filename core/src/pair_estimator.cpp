@@ -422,6 +422,7 @@ void PairRecorder::start(const PairFitConfig& config, MatchBy match_by, double d
   sum_omega1_ = sum_omega2_ = sum_iq1_ = sum_iq2_ = sum_id1_ = sum_id2_ = 0.0;
   sum_time1_ = sum_time2_ = 0.0;
   sum_vq_ = sum_iq_ = sum_wid_ = sum_wm_ = sum_gq_ = 0.0;
+  sum_vq2_ = sum_wid2_ = sum_wm2_ = sum_gq2_ = 0.0;
   sum_vd_ = sum_id_ = sum_didt_ = sum_wiq_ = sum_gd_ = 0.0;
   sum_lq_sec_ = sum_lq_inc_ = sum_x_lq_sec_ = sum_x_lq_inc_ = sum_xx_ = 0.0;
   any_limited_ = false;
@@ -527,11 +528,17 @@ double PairRecorder::add_second(const PeriodSample& s) {
   sum_iq2_ += s.i_A.q;
   sum_id2_ += s.i_A.d;
   any_limited_ = any_limited_ || s.voltage_limited || r1_limited;
+  const double wid2 = s.omega_e_rad_s * s.i_A.d;
   sum_vq_ += 0.5 * (r[kVq] + s.v_V.q);
   sum_iq_ += 0.5 * (r[kIq] + s.i_A.q);
-  sum_wid_ += 0.5 * (r[kOmegaE] * r[kId] + s.omega_e_rad_s * s.i_A.d);
+  sum_wid_ += 0.5 * (r[kOmegaE] * r[kId] + wid2);
   sum_wm_ += 0.5 * (r[kOmegaM] + s.omega_m_rad_s);
   sum_gq_ += 0.5 * (r[kGq] + s.dead_time_pattern.q);
+  // Recording 2's own q-axis sums: with the means above they give the recordings' difference.
+  sum_vq2_ += s.v_V.q;
+  sum_wid2_ += wid2;
+  sum_wm2_ += s.omega_m_rad_s;
+  sum_gq2_ += s.dead_time_pattern.q;
   sum_vd_ += 0.5 * (r[kVd] + s.v_V.d);
   sum_id_ += 0.5 * (r[kId] + s.i_A.d);
   sum_didt_ += 0.5 * (r[kDidDt] + s.di_dt_A_s.d);
@@ -576,6 +583,12 @@ PairConditions PairRecorder::conditions() const {
     c.omega_e_id_mean_A_rad_s = sum_wid_ / m;
     c.omega_m_mean_rad_s = sum_wm_ / m;
     c.gq_mean = sum_gq_ / m;
+    // Recording 1 minus recording 2 at the same angles: 2 (mean - recording 2).
+    c.dvq_V = 2.0 * (sum_vq_ - sum_vq2_) / m;
+    c.diq_A = 2.0 * (sum_iq_ - sum_iq2_) / m;
+    c.domega_e_id_A_rad_s = 2.0 * (sum_wid_ - sum_wid2_) / m;
+    c.domega_m_rad_s = 2.0 * (sum_wm_ - sum_wm2_) / m;
+    c.dgq = 2.0 * (sum_gq_ - sum_gq2_) / m;
     c.vd_mean_V = sum_vd_ / m;
     c.id_mean_A = sum_id_ / m;
     c.did_dt_mean_A_s = sum_didt_ / m;

@@ -534,6 +534,26 @@ TEST(InjectionScheduler, UnipolarEventUsesTheVxPrior) {
   EXPECT_NEAR(e.ke_V_s_per_rad, h.plant.ke_V_s_per_rad, 5e-4);
 }
 
+// The same with the machine's Ld 10 % above the commissioned one: the pair measures Ld from
+// its recordings' q-axis difference (d(w id) = w F), so Ke does not take the commissioned
+// Ld's error. With the commissioned Ld it would read Ke 2 % low (0.1 Ld w <id> / wm: 0.55 mH x
+// 300 rad/s x 12.5 A / 100 rad/s), 17 C of magnet.
+TEST(InjectionScheduler, UnipolarKeDoesNotTakeTheCommissionedLdError) {
+  InjectionConfig c = test_config();
+  c.separation = Separation::kUnipolar;
+  c.vx_initial_V = 1.5;
+  c.vx_initial_std_V = 0.01;
+  Harness h(c);
+  h.plant.ld_H = 1.1 * c.ld_H;
+  h.motoring_A = {0.0, 5.0};
+  h.run_until(0.45);
+  ASSERT_EQ(h.estimates.size(), 1U);
+  const EventEstimate& e = h.estimates[0];
+  ASSERT_EQ(e.outcome, EventOutcome::kPublished);
+  ASSERT_TRUE(e.has_emf);
+  EXPECT_NEAR(e.ke_V_s_per_rad, h.plant.ke_V_s_per_rad, 5e-4);
+}
+
 // A salient machine under load, the speed loop holding the torque: it answers the
 // injection's reluctance torque with iq = iq0 psi / (psi + (Ld - Lq) id), so iq moves with
 // the injection and the Lq d(w iq) term of Eq. 37 carries the commissioning error of Lq into

@@ -71,8 +71,8 @@ struct DriveConfig {
   double magnet_coefficient_per_C = -0.0012;  // NdFeB remanence (flux) temperature coefficient
   double magnet_min_speed_rad_s = 50.0;       // electrical; below it the EMF is too small
   // The magnet estimate is valid this long (thermal time) after its last EMF measurement: at
-  // the voltage limit (field-weakening pairs only) or at standstill nothing measures it, and
-  // a value kept from an hour ago must not read as today's.
+  // standstill (time-based recordings) nothing measures it, and a value kept from an hour ago
+  // must not read as today's.
   double magnet_max_age_s = 300.0;
   // The bridge's voltage error measured before the calibration's events (inverter_sweep.hpp):
   // its zero-current band replaces dead_time.current_band_A.

@@ -203,6 +203,14 @@ struct PairConditions {
   double omega_e_id_mean_A_rad_s = 0.0;  // mean of w * id
   double omega_m_mean_rad_s = 0.0;
   double gq_mean = 0.0;
+  // The same q-axis quantities, recording 1 minus recording 2 at the same angles: Eq. 3's
+  // q axis differenced, dvq = Rs diq + Ld d(w id) + Ke dwm + Vx dGq, where d(w id) is the
+  // levels' difference times the speed, so the pair measures Ld too (magnet temperature).
+  double dvq_V = 0.0;
+  double diq_A = 0.0;
+  double domega_e_id_A_rad_s = 0.0;
+  double domega_m_rad_s = 0.0;
+  double dgq = 0.0;
   // d-axis means over both recordings at the same angles, for the q-axis inductance: over
   // whole turns Eq. 3 leaves <vd> = Rs <id> + Ld <dId/dt> - Lq <w iq> + Vx <Gd>.
   double vd_mean_V = 0.0;
@@ -287,6 +295,7 @@ class PairRecorder {
   double sum_id1_ = 0.0, sum_id2_ = 0.0;
   double sum_time1_ = 0.0, sum_time2_ = 0.0;
   double sum_vq_ = 0.0, sum_iq_ = 0.0, sum_wid_ = 0.0, sum_wm_ = 0.0, sum_gq_ = 0.0;
+  double sum_vq2_ = 0.0, sum_wid2_ = 0.0, sum_wm2_ = 0.0, sum_gq2_ = 0.0;
   double sum_vd_ = 0.0, sum_id_ = 0.0, sum_didt_ = 0.0, sum_wiq_ = 0.0, sum_gd_ = 0.0;
   double sum_lq_sec_ = 0.0, sum_lq_inc_ = 0.0, sum_x_lq_sec_ = 0.0, sum_x_lq_inc_ = 0.0, sum_xx_ = 0.0;
   bool any_limited_ = false;
