@@ -332,6 +332,12 @@ ConfigSchema<C> build() {
   s.real("derating.start_C", [](C& c) -> double& { return c.drive.derating.derate_start_C; }, between(-50, 300), "C",
          "Derating begins where the upper bound of the estimate crosses this.");
   s.real("derating.limit_C", [](C& c) -> double& { return c.drive.derating.limit_C; }, between(-50, 300), "C", "Winding temperature limit.");
+  s.real("derating.magnet_start_C", [](C& c) -> double& { return c.drive.derating.magnet_start_C; }, between(-50, 300), "C",
+         "Magnet derating begins where the magnet estimate (from the EMF constant, docs/estimator.md section 8) crosses "
+         "this; DRIVE_STATUS.LimitMagnetTemp says when it binds. Without a valid magnet estimate nothing derates on it.");
+  s.real("derating.magnet_limit_C", [](C& c) -> double& { return c.drive.derating.magnet_limit_C; }, between(-50, 300), "C",
+         "Magnet temperature at which the current limit reaches derating.min_current_A (default: an SH-grade NdFeB's "
+         "150 C; N, M, H, UH, EH grades: 80, 100, 120, 180, 200 C).");
   s.real("derating.confidence_sigma", [](C& c) -> double& { return c.drive.derating.confidence_sigma; }, at_least(0, 10), "",
          "Derate on estimate + k sigma.");
   return s;
@@ -491,6 +497,9 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
   }
   if (d.derating.derate_start_C >= d.derating.limit_C) {
     rule("derating.start_C", "derating.limit_C", "derating.start_C must be below derating.limit_C");
+  }
+  if (d.derating.magnet_start_C >= d.derating.magnet_limit_C) {
+    rule("derating.magnet_start_C", "derating.magnet_limit_C", "derating.magnet_start_C must be below derating.magnet_limit_C");
   }
   if (d.derating.min_current_A > d.derating.max_current_A) {
     rule("derating.min_current_A", "derating.max_current_A", "derating.min_current_A must not exceed derating.max_current_A");

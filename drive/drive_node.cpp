@@ -239,6 +239,7 @@ void DriveNode::publish(const NodeInputs& in) noexcept {
     s.state = to_protocol(st.state);
     unsigned reasons = 0U;
     reasons |= tel.derating ? unsigned{protocol::kLimitReasonWindingTemp} : 0U;
+    reasons |= tel.magnet_derating ? unsigned{protocol::kLimitReasonMagnetTemp} : 0U;
     reasons |= tel.voltage_limited ? unsigned{protocol::kLimitReasonVoltage} : 0U;
     reasons |= tel.current_limited() ? unsigned{protocol::kLimitReasonCurrent} : 0U;
     reasons |= tel.speed_limited ? unsigned{protocol::kLimitReasonSpeed} : 0U;

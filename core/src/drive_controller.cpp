@@ -564,10 +564,16 @@ void DriveController::update_thermal(double ambient_C) {
   rs_rate_ohm_per_s_ = observer_.winding_rate_C_per_s() *
                        (observer_.resistance_at_C(e.winding_C + 0.5) - observer_.resistance_at_C(e.winding_C - 0.5));
   derating_ = derate(config_.derating, e);
+  telemetry_.derating = derating_.derating;
+  // The magnets' limit, on a valid estimate only (without one there is nothing to derate on,
+  // and the winding's limit holds alone); the tighter of the two is the drive's.
+  const DeratingResult magnet = magnet_valid_ ? derate_magnet(config_.derating, magnet_filtered_C_)
+                                              : DeratingResult{config_.derating.max_current_A, false};
+  telemetry_.magnet_derating = magnet.derating;
+  derating_.current_limit_A = std::min(derating_.current_limit_A, magnet.current_limit_A);
   telemetry_.thermal = e;
   telemetry_.thermal_valid = true;
   telemetry_.current_limit_A = derating_.current_limit_A;
-  telemetry_.derating = derating_.derating;
   // Time-to-limit is slower to compute; every tenth update is plenty.
   if (++thermal_updates_ % 10 == 0) {
     double t = 0.0;

@@ -407,14 +407,27 @@ bool ThermalObserver::time_to_limit_s(double limit_C, double copper_current_sq_A
   return true;
 }
 
-DeratingResult derate(const DeratingConfig& config, const ThermalEstimate& e) {
-  const double upper = e.winding_C + config.confidence_sigma * e.winding_std_C;
-  if (upper <= config.derate_start_C) {
+namespace {
+// Linear from max_current_A at start_C to min_current_A at limit_C and beyond.
+DeratingResult derate_linear(const DeratingConfig& config, double temp_C, double start_C, double limit_C) {
+  if (!std::isfinite(temp_C)) {
+    return {config.min_current_A, true};  // no number to trust: the floor, never a NaN limit
+  }
+  if (temp_C <= start_C) {
     return {config.max_current_A, false};
   }
-  const double fraction =
-      std::clamp((config.limit_C - upper) / (config.limit_C - config.derate_start_C), 0.0, 1.0);
+  const double fraction = std::clamp((limit_C - temp_C) / (limit_C - start_C), 0.0, 1.0);
   return {config.min_current_A + fraction * (config.max_current_A - config.min_current_A), true};
+}
+}  // namespace
+
+DeratingResult derate(const DeratingConfig& config, const ThermalEstimate& e) {
+  const double upper = e.winding_C + config.confidence_sigma * e.winding_std_C;
+  return derate_linear(config, upper, config.derate_start_C, config.limit_C);
+}
+
+DeratingResult derate_magnet(const DeratingConfig& config, double magnet_C) {
+  return derate_linear(config, magnet_C, config.magnet_start_C, config.magnet_limit_C);
 }
 
 }  // namespace pmsm::core

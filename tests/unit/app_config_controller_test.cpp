@@ -202,6 +202,9 @@ TEST(ControllerConfig, CrossKeyRulesNameBothKeys) {
             "0.819 s a recording holds at this control period");
   // Equal ends are rejected too (the derating would divide by zero).
   EXPECT_NE(error_of("[derating]\nstart_C = 155\nlimit_C = 155\n"), "");
+  EXPECT_EQ(error_of("[derating]\nmagnet_start_C = 150\n"),
+            "drive.toml:2: derating.magnet_start_C must be below derating.magnet_limit_C");
+  EXPECT_NE(error_of("[derating]\nmagnet_start_C = 90\nmagnet_limit_C = 90\n"), "");
 }
 
 // motor.rs_ohm outside the resistance plausibility window: no estimate near the reference

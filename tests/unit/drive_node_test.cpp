@@ -722,6 +722,58 @@ TEST(DriveNode, AMagnetEstimateNobodyRenewsStopsBeingValid) {
   EXPECT_FALSE(tel.magnet_valid) << "a fault does not keep an old magnet estimate valid";
 }
 
+// The magnets derate the current limit on their estimate (derating.magnet_*), and DRIVE_STATUS
+// says so with LimitMagnetTemp (not LimitWindingTemp); an estimate that aged out derates no
+// more. Ends of 10 and 40 C put the soaked motor's magnets (about 25 C) half way.
+TEST(DriveNode, TheMagnetEstimateDeratesTheCurrentLimitAndSaysSo) {
+  Rig rig;
+  rig.plant_config.load.torque_Nm = 0.0;  // a calibration runs unloaded
+  rig.plant = std::make_unique<plant::Plant>(rig.plant_config);
+  rig.config.drive.injection.interval_s = 2.0;
+  rig.config.drive.calibration_injection.interval_s = 2.0;
+  rig.config.drive.magnet_max_age_s = 0.5;
+  core::DeratingConfig& d = rig.config.drive.derating;
+  d.magnet_start_C = 10.0;
+  d.magnet_limit_C = 40.0;
+  rig.node = std::make_unique<DriveNode>(rig.config, rig.supervisor, PublishRates{});
+  rig.run(2000);
+  rig.in.start_calibration = true;
+  rig.run(1);
+  rig.in.start_calibration = false;
+  ASSERT_TRUE(run_until_stored(rig).has_value()) << "the calibration did not complete";
+  const auto& tel = rig.node->controller().telemetry();
+  EXPECT_EQ(tel.current_limit_A, d.max_current_A) << "no magnet estimate yet: nothing to derate on";
+  int k = 0;
+  while (k < 50000 && !tel.magnet_valid) {
+    rig.run(1);
+    ++k;
+  }
+  ASSERT_TRUE(tel.magnet_valid) << "no magnet estimate from the events after the calibration";
+  rig.run(static_cast<int>(std::lround(rig.config.drive.thermal_update_s / rig.config.drive.period_s)) + 1);
+  ASSERT_TRUE(tel.magnet_valid);
+  ASSERT_GT(tel.magnet_C, 15.0);
+  ASSERT_LT(tel.magnet_C, 35.0);
+  const double expected =
+      d.min_current_A + (d.magnet_limit_C - tel.magnet_C) / (d.magnet_limit_C - d.magnet_start_C) * (d.max_current_A - d.min_current_A);
+  EXPECT_NEAR(tel.current_limit_A, expected, 1e-9);
+  EXPECT_TRUE(tel.magnet_derating);
+  EXPECT_FALSE(tel.derating);
+  const unsigned reasons = status_reasons(rig, 1000);  // 0.1 s: one DRIVE_STATUS at least
+  EXPECT_NE(reasons & protocol::kLimitReasonMagnetTemp, 0U);
+  EXPECT_EQ(reasons & protocol::kLimitReasonWindingTemp, 0U);
+  // Aged out (0.5 s after its measurement, the next event 2 s on): the limit is the winding's.
+  k = 0;
+  while (k < 10000 && tel.magnet_valid) {
+    rig.run(1);
+    ++k;
+  }
+  ASSERT_FALSE(tel.magnet_valid);
+  rig.run(static_cast<int>(std::lround(rig.config.drive.thermal_update_s / rig.config.drive.period_s)) + 1);
+  EXPECT_EQ(tel.current_limit_A, d.max_current_A);
+  EXPECT_FALSE(tel.magnet_derating);
+  EXPECT_EQ(status_reasons(rig, 1000) & protocol::kLimitReasonMagnetTemp, 0U);
+}
+
 // A fault suspends a calibration (the result stays NONE, the calibration's state reaches the
 // telemetry in the safe state too) and it completes after the fault is cleared: a passing
 // sensor timeout must not cost the commissioning. An ABORT shows at once, even in a fault; a

@@ -7,6 +7,7 @@
 
 #include <Eigen/Dense>
 #include <cmath>
+#include <limits>
 
 #include "pmsm/core/machine_equations.hpp"
 #include "pmsm/core/thermal_observer.hpp"
@@ -570,6 +571,25 @@ TEST(Derate, MonotoneBetweenTheConfiguredEnds) {
   EXPECT_NEAR(derate(d, e).current_limit_A, 45.0, 1e-12);
   e.winding_C = 190.0;
   EXPECT_NEAR(derate(d, e).current_limit_A, 10.0, 1e-12);
+  // A temperature that is no number derates to the floor: never a NaN limit.
+  e.winding_C = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_EQ(derate(d, e).current_limit_A, 10.0);
+  EXPECT_TRUE(derate(d, e).derating);
+}
+
+TEST(Derate, TheMagnetsOnTheirOwnEnds) {
+  DeratingConfig d;  // 80 A, 10 A at the magnets' 150 C, from 130 C, on the estimate itself
+  EXPECT_EQ(derate_magnet(d, 130.0).current_limit_A, 80.0);
+  EXPECT_FALSE(derate_magnet(d, 130.0).derating);
+  EXPECT_NEAR(derate_magnet(d, 140.0).current_limit_A, 45.0, 1e-12);
+  EXPECT_TRUE(derate_magnet(d, 140.0).derating);
+  EXPECT_NEAR(derate_magnet(d, 150.0).current_limit_A, 10.0, 1e-12);
+  EXPECT_NEAR(derate_magnet(d, 400.0).current_limit_A, 10.0, 1e-12);
+  EXPECT_EQ(derate_magnet(d, std::numeric_limits<double>::infinity()).current_limit_A, 10.0);
+  EXPECT_EQ(derate_magnet(d, std::numeric_limits<double>::quiet_NaN()).current_limit_A, 10.0);
+  d.magnet_start_C = 60.0;  // an N grade's 80 C
+  d.magnet_limit_C = 80.0;
+  EXPECT_NEAR(derate_magnet(d, 75.0).current_limit_A, 27.5, 1e-12);
 }
 
 

@@ -180,8 +180,9 @@ struct DriveTelemetry {
   bool injection_active = false;
   ThermalEstimate thermal{};
   bool thermal_valid = false;       // thermal holds a model/filter output (not before the first update)
-  double current_limit_A = 0.0;
-  bool derating = false;
+  double current_limit_A = 0.0;    // the tighter of the winding's and the magnets' derating
+  bool derating = false;           // the winding's estimate derates the current limit
+  bool magnet_derating = false;    // the magnets' estimate derates it (DeratingConfig::magnet_*)
   bool time_to_limit_valid = false;
   double time_to_limit_s = 0.0;
   bool magnet_valid = false;

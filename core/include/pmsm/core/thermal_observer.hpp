@@ -96,6 +96,12 @@ struct DeratingConfig {
   double derate_start_C = 130.0;    // derating begins here (upper bound of the estimate)
   double limit_C = 155.0;           // winding temperature limit (insulation class F)
   double confidence_sigma = 2.0;    // derate on T + k sigma
+  // The magnets: NdFeB loses flux irreversibly above its grade's working temperature, the more
+  // so under the demagnetising field of negative d current (field weakening). The current
+  // limit falls linearly on the magnet estimate from magnet_start_C to magnet_limit_C, down to
+  // min_current_A (defaults: an SH grade, 150 C).
+  double magnet_start_C = 130.0;
+  double magnet_limit_C = 150.0;
 };
 
 struct ThermalEstimate {
@@ -215,5 +221,7 @@ struct DeratingResult {
   bool derating = false;
 };
 [[nodiscard]] DeratingResult derate(const DeratingConfig& config, const ThermalEstimate& e);
+// The current limit for a magnet estimate (an estimate without an error bar: on its value).
+[[nodiscard]] DeratingResult derate_magnet(const DeratingConfig& config, double magnet_C);
 
 }  // namespace pmsm::core
