@@ -334,7 +334,9 @@ int main(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    // --help and --version exit 0; a bad command line is a configuration error like a bad
+    // file (exit 2, which the unit does not restart on), not one of CLI11's own codes.
+    return app.exit(e) == 0 ? 0 : kExitConfig;
   }
   if (o.keys) {
     std::fputs(pmsm::daemon::daemon_keys_markdown().c_str(), stdout);

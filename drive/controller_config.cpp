@@ -334,7 +334,8 @@ ConfigSchema<C> build() {
   s.real("derating.limit_C", [](C& c) -> double& { return c.drive.derating.limit_C; }, between(-50, 300), "C", "Winding temperature limit.");
   s.real("derating.magnet_start_C", [](C& c) -> double& { return c.drive.derating.magnet_start_C; }, between(-50, 300), "C",
          "Magnet derating begins where the magnet estimate (from the EMF constant, docs/estimator.md section 8) crosses "
-         "this; DRIVE_STATUS.LimitMagnetTemp says when it binds. Without a valid magnet estimate nothing derates on it.");
+         "this; DRIVE_STATUS.LimitMagnetTemp says when it derates. An estimate that aged out keeps derating until a new "
+         "one; before the first, nothing derates on the magnets.");
   s.real("derating.magnet_limit_C", [](C& c) -> double& { return c.drive.derating.magnet_limit_C; }, between(-50, 300), "C",
          "Magnet temperature at which the current limit reaches derating.min_current_A (default: an SH-grade NdFeB's "
          "150 C; N, M, H, UH, EH grades: 80, 100, 120, 180, 200 C).");

@@ -531,6 +531,7 @@ void DriveController::handle_estimate(const EventEstimate& e) {
         cal.t0_C + (e.ke_V_s_per_rad / cal.ke0_V_s_per_rad - 1.0) / config_.magnet_coefficient_per_C;
     magnet_filtered_C_ = magnet_valid_ ? 0.7 * magnet_filtered_C_ + 0.3 * magnet_C : magnet_C;
     magnet_valid_ = true;
+    magnet_measured_ = true;
     magnet_age_s_ = 0.0;
   }
 }
@@ -565,10 +566,13 @@ void DriveController::update_thermal(double ambient_C) {
                        (observer_.resistance_at_C(e.winding_C + 0.5) - observer_.resistance_at_C(e.winding_C - 0.5));
   derating_ = derate(config_.derating, e);
   telemetry_.derating = derating_.derating;
-  // The magnets' limit, on a valid estimate only (without one there is nothing to derate on,
-  // and the winding's limit holds alone); the tighter of the two is the drive's.
-  const DeratingResult magnet = magnet_valid_ ? derate_magnet(config_.derating, magnet_filtered_C_)
-                                              : DeratingResult{config_.derating.max_current_A, false};
+  // The magnets' limit, on the last magnet estimate even after it aged out (no longer
+  // published as valid): a derated drive may inject too little to measure again (the current
+  // limit leaves no room, or it turns too slowly for the EMF), and nothing models the magnets'
+  // cooling, so the limit holds until a new measurement says otherwise. Before the first
+  // estimate there is nothing to derate on. The tighter of the two limits is the drive's.
+  const DeratingResult magnet = magnet_measured_ ? derate_magnet(config_.derating, magnet_filtered_C_)
+                                                 : DeratingResult{config_.derating.max_current_A, false};
   telemetry_.magnet_derating = magnet.derating;
   derating_.current_limit_A = std::min(derating_.current_limit_A, magnet.current_limit_A);
   telemetry_.thermal = e;

@@ -63,4 +63,21 @@ fi
 if "$exe" --config "$dir/missing.toml" --check >/dev/null 2>&1; then
   echo "FAIL: a missing file passed"; fail=1
 fi
+check_bad '[controller.derating]\nmagnet_start_C = 160\n' 1 'derating.magnet_start_C must be below derating.magnet_limit_C'
+# A bad command line is a configuration error (exit 2, which the unit does not restart on) and
+# names the option; --help and --version exit 0.
+for args in "--bogus" "--log-level loud --config $dir/bad.toml"; do
+  # shellcheck disable=SC2086
+  out=$("$exe" $args 2>&1)
+  rc=$?
+  want=${args%% *}
+  if [ "$rc" -ne 2 ] || [[ "$out" != *"$want"* ]]; then
+    echo "FAIL: '$args' should exit 2 naming $want, got exit $rc: $out"; fail=1
+  else
+    echo "ok (rejected): $args: $out"
+  fi
+done
+for args in --help --version; do
+  "$exe" "$args" >/dev/null 2>&1 || { echo "FAIL: $args did not exit 0"; fail=1; }
+done
 exit $fail

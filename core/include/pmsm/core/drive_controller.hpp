@@ -420,6 +420,7 @@ class DriveController {
   // Magnet.
   double magnet_filtered_C_ = 0.0;
   bool magnet_valid_ = false;
+  bool magnet_measured_ = false;  // an estimate exists (valid or aged out): the magnets derate on it
   double magnet_age_s_ = 0.0;  // thermal time since the last EMF measurement
   // Calibration.
   bool calibrating_ = false;
