@@ -335,7 +335,9 @@ int main(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    // --help and --version exit 0; a bad command line is a configuration error (2), not one
+    // of CLI11's own codes.
+    return app.exit(e) == 0 ? 0 : kExitConfig;
   }
   try {
     return run(o);

@@ -53,6 +53,13 @@ TEST(plant_cli, CheckRejectsABadValueNamingFileLineAndKey) {
   EXPECT_TRUE(contains(r.err, bad.path() + ":2: motor.ld_H")) << r.err;
 }
 
+TEST(plant_cli, ABadOptionExitsTwoNamingIt) {
+  const ProcessResult r = run_process(kPlant + " --node 16 --check --config x.toml");
+  EXPECT_EQ(r.exit_code, 2);  // as a bad configuration (not CLI11's own codes)
+  EXPECT_TRUE(contains(r.err, "--node")) << r.err;
+  EXPECT_EQ(run_process(kPlant + " --version").exit_code, 0);
+}
+
 TEST(plant_cli, CheckRejectsAnUnknownKey) {
   const TempToml bad("[inverter]\npwm_frequncy_Hz = 10000.0\n");
   const ProcessResult r = run_process(kPlant + " --check --config " + bad.path());

@@ -20,7 +20,9 @@ int main(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    // --help and --version exit 0; a bad command line is unusable input (2), as a bad file is,
+    // not one of CLI11's own codes.
+    return app.exit(e) == 0 ? 0 : 2;
   }
   return exit_code;
 }
