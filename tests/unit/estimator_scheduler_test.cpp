@@ -997,6 +997,26 @@ TEST(InjectionScheduler, FieldWeakeningPairRecordsAtTwoNegativeLevels) {
   EXPECT_LE(h.estimates[0].rs_systematic_std_ohm, h.estimates[0].rs_std_ohm);
 }
 
+// At the voltage limit the field-weakening pair measures the magnet too: both its levels are
+// negative (<id> about -0.65 F), so with the commissioned Ld 10 % below the machine's its Ke
+// would read 2.7 % low (0.55 mH x 1000 rad/s x 16 A / 333 rad/s); it solves Ld from its two
+// levels instead.
+TEST(InjectionScheduler, FieldWeakeningPairMeasuresKeWithItsOwnLd) {
+  InjectionConfig c = test_config();
+  c.vx_initial_V = 1.5;
+  c.vx_initial_std_V = 0.01;
+  Harness h(c, 1000.0);
+  h.plant.ld_H = 1.1 * c.ld_H;
+  h.motoring_A = {0.0, 20.0};
+  h.run_until(1.0);
+  ASSERT_GE(h.pairs.size(), 1U);
+  ASSERT_TRUE(h.pairs[0].field_weakening);
+  ASSERT_GE(h.estimates.size(), 1U);
+  ASSERT_EQ(h.estimates[0].outcome, EventOutcome::kPublished);
+  ASSERT_TRUE(h.estimates[0].has_emf);
+  EXPECT_NEAR(h.estimates[0].ke_V_s_per_rad, h.plant.ke_V_s_per_rad, 5e-4);
+}
+
 // A saturating q-axis: the speed loop answers each pulse's reluctance torque with iq moving in
 // proportion to the injection (diq = 0.15 dId, the 30 mohm machine's figure), so the fit's
 // Lq d(w iq) term needs the incremental Lq at the load, which is below the secant the pairs'
