@@ -714,8 +714,10 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
     const double det = c.omega_e_id_mean_A_rad_s * c.domega_m_rad_s - c.omega_m_mean_rad_s * c.domega_e_id_A_rad_s;
     // Solvable where the recordings' d currents differ by 1 A or more (every injecting pair:
     // 2F bipolar, F unipolar, 0.7F field weakening); det is then about -<wm> d(w id).
+    constexpr double kMinLevelDifference_A = 1.0;
     const bool ld_measured =
-        std::abs(c.domega_e_id_A_rad_s) >= 1.0 * std::abs(c.omega_m_mean_rad_s) * config_.pole_pairs && det != 0.0;
+        std::abs(c.domega_e_id_A_rad_s) >= kMinLevelDifference_A * std::abs(c.omega_m_mean_rad_s) * config_.pole_pairs &&
+        det != 0.0;
     ke_sum += ld_measured ? (c.omega_e_id_mean_A_rad_s * dy - c.domega_e_id_A_rad_s * y) / det
                           : (y - config_.ld_H * c.omega_e_id_mean_A_rad_s) / c.omega_m_mean_rad_s;
     ++ke_count;

@@ -77,6 +77,21 @@ std::optional<core::Calibration> run_until_stored(Rig& rig) {
   return std::nullopt;
 }
 
+// Runs until the magnet estimate's validity is `valid` (at most max_periods); the periods run.
+int run_until_magnet(Rig& rig, bool valid, int max_periods) {
+  int k = 0;
+  while (k < max_periods && rig.node->controller().telemetry().magnet_valid != valid) {
+    rig.run(1);
+    ++k;
+  }
+  return k;
+}
+
+// Runs one thermal update's periods and one more: what an estimate changed reaches the limit.
+void run_thermal_update(Rig& rig) {
+  rig.run(static_cast<int>(std::lround(rig.config.drive.thermal_update_s / rig.config.drive.period_s)) + 1);
+}
+
 bool published(const NodeStep& step, protocol::FaultCode code, bool active) {
   for (std::size_t k = 0; k < step.publications.fault_count; ++k) {
     if (step.publications.faults[k].code == code && step.publications.faults[k].active == active) {
@@ -696,23 +711,15 @@ TEST(DriveNode, AMagnetEstimateNobodyRenewsStopsBeingValid) {
   ASSERT_TRUE(done.has_value()) << "the calibration did not complete";
   ASSERT_GT(done->ke0_V_s_per_rad, 0.0);
   const auto& tel = rig.node->controller().telemetry();
-  auto run_until = [&](bool valid, int max_periods) {
-    int k = 0;
-    while (k < max_periods && tel.magnet_valid != valid) {
-      rig.run(1);
-      ++k;
-    }
-    return k;
-  };
-  ASSERT_LT(run_until(true, 50000), 50000) << "no magnet estimate from the events after the calibration";
+  ASSERT_LT(run_until_magnet(rig, true, 50000), 50000) << "no magnet estimate from the events after the calibration";
   const double measured_at = tel.time_s;
-  ASSERT_LT(run_until(false, 50000), 50000) << "the magnet estimate stayed valid";
+  ASSERT_LT(run_until_magnet(rig, false, 50000), 50000) << "the magnet estimate stayed valid";
   // Events come every 2 s and the estimate lasts 0.5 s (thermal time runs at 1 here).
   EXPECT_NEAR(tel.time_s - measured_at, 0.5, 2.0 * rig.config.drive.period_s);
   const protocol::ThermalEstimate t = next_thermal(rig);
   EXPECT_FALSE(t.magnet_valid);
   EXPECT_EQ(t.magnet_temp_C, 0.0);
-  ASSERT_LT(run_until(true, 30000), 30000) << "the next event's measurement makes it valid again";
+  ASSERT_LT(run_until_magnet(rig, true, 30000), 30000) << "the next event's measurement makes it valid again";
   // A latched fault (no usable sample, the controller in its safe state) does not stop the
   // estimate's clock.
   rig.run(1, [](hal::SensorSample& x) { x.flags |= hal::kSensorHardwareOvercurrent; });
@@ -745,13 +752,9 @@ TEST(DriveNode, TheMagnetEstimateDeratesTheCurrentLimitAndSaysSo) {
   ASSERT_TRUE(run_until_stored(rig).has_value()) << "the calibration did not complete";
   const auto& tel = rig.node->controller().telemetry();
   EXPECT_EQ(tel.current_limit_A, d.max_current_A) << "no magnet estimate yet: nothing to derate on";
-  int k = 0;
-  while (k < 50000 && !tel.magnet_valid) {
-    rig.run(1);
-    ++k;
-  }
+  run_until_magnet(rig, true, 50000);
   ASSERT_TRUE(tel.magnet_valid) << "no magnet estimate from the events after the calibration";
-  rig.run(static_cast<int>(std::lround(rig.config.drive.thermal_update_s / rig.config.drive.period_s)) + 1);
+  run_thermal_update(rig);
   ASSERT_TRUE(tel.magnet_valid);
   ASSERT_GT(tel.magnet_C, 15.0);
   ASSERT_LT(tel.magnet_C, 35.0);
@@ -765,24 +768,16 @@ TEST(DriveNode, TheMagnetEstimateDeratesTheCurrentLimitAndSaysSo) {
   EXPECT_EQ(reasons & protocol::kLimitReasonWindingTemp, 0U);
   // Aged out (0.5 s after its measurement, the next event 2 s on): still derated on it.
   const double held_A = tel.current_limit_A;
-  k = 0;
-  while (k < 10000 && tel.magnet_valid) {
-    rig.run(1);
-    ++k;
-  }
+  run_until_magnet(rig, false, 10000);
   ASSERT_FALSE(tel.magnet_valid);
-  rig.run(static_cast<int>(std::lround(rig.config.drive.thermal_update_s / rig.config.drive.period_s)) + 1);
+  run_thermal_update(rig);
   EXPECT_EQ(tel.current_limit_A, held_A);
   EXPECT_TRUE(tel.magnet_derating);
   EXPECT_NE(status_reasons(rig, 1000) & protocol::kLimitReasonMagnetTemp, 0U);
   // The next event's measurement takes over (a new smoothing, its own value).
-  k = 0;
-  while (k < 30000 && !tel.magnet_valid) {
-    rig.run(1);
-    ++k;
-  }
+  run_until_magnet(rig, true, 30000);
   ASSERT_TRUE(tel.magnet_valid) << "no magnet estimate from the next event";
-  rig.run(static_cast<int>(std::lround(rig.config.drive.thermal_update_s / rig.config.drive.period_s)) + 1);
+  run_thermal_update(rig);
   EXPECT_NEAR(tel.current_limit_A,
               d.min_current_A + (d.magnet_limit_C - tel.magnet_C) / (d.magnet_limit_C - d.magnet_start_C) *
                                     (d.max_current_A - d.min_current_A),

@@ -339,13 +339,11 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
     const NodeStep& step = node.step(&sample, cmd);
     const core::DriveTelemetry& tel = drive.telemetry();
     if (const std::uint32_t latched = node.supervisor().status().latched_mask; latched != latched_before) {
-      // Newly latched codes: counted and timed (a code latched again after it cleared counts again).
+      // A code latched for the first time: when (the supervisor counts the latches).
       for (std::size_t c = 1; c < core::kFaultCodeCount; ++c) {
         const std::uint32_t bit = core::Supervisor::bit(static_cast<core::FaultCode>(c));
-        if ((latched & bit) != 0U && (latched_before & bit) == 0U) {
-          SimulationResult::FaultSeen& f = result.faults[c];
-          f.first_s = f.count == 0 ? t : f.first_s;
-          ++f.count;
+        if ((latched & bit) != 0U && (latched_before & bit) == 0U && node.supervisor().counts()[c] == 1U) {
+          result.faults[c].first_s = t;
         }
       }
       latched_before = latched;
@@ -521,6 +519,9 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
   }
 
   result.sim_time_s = plant.time_s();
+  for (std::size_t c = 0; c < core::kFaultCodeCount; ++c) {
+    result.faults[c].count = node.supervisor().counts()[c];
+  }
   result.wall_time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
   if (result.winding_error_samples > 0) {
     const auto n = static_cast<double>(result.winding_error_samples);
