@@ -9,6 +9,11 @@ add_library(pmsm_plant STATIC
 add_library(pmsm::plant ALIAS pmsm_plant)
 pmsm_target_defaults(pmsm_plant)
 target_include_directories(pmsm_plant PUBLIC ${CMAKE_CURRENT_LIST_DIR}/include)
+# The dev and asan presets build unity batches (CMAKE_UNITY_BUILD); Plant::Impl holds types of
+# plant.cpp's anonymous namespace, which GCC's -Wsubobject-linkage rejects once the file is
+# included into a batch.
+set_source_files_properties(${CMAKE_CURRENT_LIST_DIR}/src/plant.cpp
+  PROPERTIES SKIP_UNITY_BUILD_INCLUSION ON)
 target_link_libraries(pmsm_plant
   PUBLIC pmsm_messages pmsm_common
   PRIVATE pmsm_math Eigen3::Eigen tomlplusplus::tomlplusplus fmt::fmt)
