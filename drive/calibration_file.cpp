@@ -190,7 +190,7 @@ void write_calibration_file(const std::filesystem::path& path, const core::Calib
     throw CalibrationFileError("calibration file: no path given");
   }
   if (!(c.rs0_ohm > 0.0) || !std::isfinite(c.rs0_ohm) || !std::isfinite(c.t0_C) || !std::isfinite(c.ke0_V_s_per_rad) ||
-      !(c.dead_time_band_A >= 0.0 && c.dead_time_band_A <= 1000.0) ||
+      !(c.ke0_std_V_s_per_rad >= 0.0 && c.ke0_std_V_s_per_rad <= 100.0) || !(c.dead_time_band_A >= 0.0 && c.dead_time_band_A <= 1000.0) ||
       (c.angle_correction_measured && !(std::abs(c.angle_correction_rad) <= 1.0))) {
     throw CalibrationFileError(fmt::format("{}: refusing to store an invalid calibration (Rs0 {}, T0 {}, Ke0 {}, band {} A, "
                                            "angle correction {} rad)",
@@ -203,6 +203,10 @@ void write_calibration_file(const std::filesystem::path& path, const core::Calib
        << "rs0_ohm = " << toml_float(c.rs0_ohm) << "\n"
        << "t0_C = " << toml_float(c.t0_C) << "\n"
        << "ke0_V_s_per_rad = " << toml_float(c.ke0_V_s_per_rad) << "\n";
+  if (c.ke0_std_V_s_per_rad > 0.0) {
+    // Ke0's standard error (absent: unknown; the magnet estimate's error bar then assumes one).
+    text << "ke0_std_V_s_per_rad = " << toml_float(c.ke0_std_V_s_per_rad) << "\n";
+  }
   if (c.dead_time_band_A > 0.0) {
     // The bridge's zero-current band from the calibration's sweep (absent: not measured).
     text << "dead_time_band_A = " << toml_float(c.dead_time_band_A) << "\n";
@@ -252,12 +256,14 @@ toml::table read_stored(const std::filesystem::path& path, const std::set<std::s
 core::Calibration read_calibration_file(const std::filesystem::path& path) {
   const std::string file = path.string();
   const toml::table t =
-      read_stored(path, {"format", "rs0_ohm", "t0_C", "ke0_V_s_per_rad", "dead_time_band_A", "angle_correction_rad",
+      read_stored(path, {"format", "rs0_ohm", "t0_C", "ke0_V_s_per_rad", "ke0_std_V_s_per_rad", "dead_time_band_A", "angle_correction_rad",
                          "written_utc", "source"});
   core::Calibration c;
   c.rs0_ohm = number(t, "rs0_ohm", file, 0.0, 10.0, true);
   c.t0_C = number(t, "t0_C", file, -50.0, 200.0, false);
   c.ke0_V_s_per_rad = t.get("ke0_V_s_per_rad") != nullptr ? number(t, "ke0_V_s_per_rad", file, 0.0, 100.0, false) : 0.0;
+  c.ke0_std_V_s_per_rad =
+      t.get("ke0_std_V_s_per_rad") != nullptr ? number(t, "ke0_std_V_s_per_rad", file, 0.0, 100.0, true) : 0.0;
   c.dead_time_band_A =
       t.get("dead_time_band_A") != nullptr ? number(t, "dead_time_band_A", file, 0.0, 1000.0, true) : 0.0;
   c.angle_correction_measured = t.get("angle_correction_rad") != nullptr;

@@ -7,6 +7,7 @@
 //   rs0_ohm = 0.13231
 //   t0_C = 25.0
 //   ke0_V_s_per_rad = 0.9711
+//   ke0_std_V_s_per_rad = 0.00021  (optional: Ke0's standard error)
 //   written_utc = "2026-11-21T10:00:00Z"
 //   source = "reference-fm-bipolar.toml"
 //

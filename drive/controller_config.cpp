@@ -321,6 +321,11 @@ ConfigSchema<C> build() {
          between(0.005, 1.0), "s", "Averaging time per sweep level (extended to whole electrical turns when turning).");
   s.real("calibration.magnet_temp_coefficient_per_C", [](C& c) -> double& { return c.drive.magnet_coefficient_per_C; }, between(-0.01, 0), "/C",
          "Relative change of the magnet flux per degree (NdFeB about -0.0012).");
+  s.real("calibration.magnet_drift_C_per_sqrt_s", [](C& c) -> double& { return c.drive.magnet_drift_C_per_sqrt_s; },
+         between(0.0, 100.0), "C/sqrt(s)",
+         "How far the magnets may warm or cool between EMF measurements, as a random walk in thermal time: the "
+         "magnet estimate's variance grows by its square per second. It sets how much a new measurement weighs "
+         "against the last estimate (docs/estimator.md, the magnet temperature).");
   s.real("calibration.magnet_max_age_s", [](C& c) -> double& { return c.drive.magnet_max_age_s; }, positive(1e6), "s",
          "The magnet estimate is published as valid this long (thermal time) after its last EMF measurement; at "
          "standstill (time-based recordings) nothing measures it.");

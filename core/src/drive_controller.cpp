@@ -137,6 +137,46 @@ void DriveController::age_magnet() {
   telemetry_.magnet_C = magnet_filtered_C_;
 }
 
+double DriveController::magnet_var_now_C2() const {
+  // Between measurements the magnets may warm or cool: the variance grows as a random walk's,
+  // from what the last measurement left, with the thermal time since (no work per period).
+  return magnet_var_C2_ + config_.magnet_drift_C_per_sqrt_s * config_.magnet_drift_C_per_sqrt_s * magnet_age_s_;
+}
+
+void DriveController::publish_magnet_std() {
+  telemetry_.magnet_std_C = std::sqrt(magnet_var_now_C2() + magnet_sys_var_C2_ + magnet_ke0_var_C2());
+}
+
+double DriveController::magnet_ke0_var_C2() const {
+  // Ke0's error is a bias every magnet estimate shares (Eq. 3 referred to T0): it adds to the
+  // published error bar but is not averaged away by more measurements.
+  const Calibration& cal = observer_.calibration();
+  if (!(cal.ke0_V_s_per_rad > 0.0)) {
+    return 0.0;
+  }
+  const double ke0_std =
+      cal.ke0_std_V_s_per_rad > 0.0 ? cal.ke0_std_V_s_per_rad : kUnknownKe0StdFraction * cal.ke0_V_s_per_rad;
+  const double c = ke0_std / (cal.ke0_V_s_per_rad * config_.magnet_coefficient_per_C);
+  return c * c;
+}
+
+void DriveController::pool_ke_scatter(const EventEstimate& e) {
+  if (e.ke_pairs > 1 && e.ke_V_s_per_rad != 0.0) {
+    const double dof = e.ke_pairs - 1;
+    ke_pooled_rel_var_sum_ += dof * e.ke_pair_variance / (e.ke_V_s_per_rad * e.ke_V_s_per_rad);
+    ke_pooled_dof_ += dof;
+  }
+}
+
+double DriveController::ke_pair_rel_var() const {
+  // One pair's relative Ke variance, pooled over every event so far that had two pairs or more
+  // (an event of two or three pairs says little about its own scatter); before any, a prior.
+  if (ke_pooled_dof_ > 0.0) {
+    return ke_pooled_rel_var_sum_ / ke_pooled_dof_;
+  }
+  return kUnknownKePairStdFraction * kUnknownKePairStdFraction;
+}
+
 void DriveController::set_current_noise_A(double sigma_A) {
   // The sampled line's effective noise (mean_soft_sign_of_measured): 2/3 of a sample's variance.
   pattern_noise_A_ = std::isfinite(sigma_A) && sigma_A > 0.0 ? std::sqrt(2.0 / 3.0) * sigma_A : 0.0;
@@ -286,7 +326,9 @@ void DriveController::start_calibration(double known_temp_C) {
   calibration_rs_sum_ = 0.0;
   calibration_weight_sum_ = 0.0;
   calibration_ke_sum_ = 0.0;
+  calibration_ke_sq_sum_ = 0.0;
   calibration_ke_count_ = 0;
+  calibration_ke_pairs_ = 0;
   // A calibration asked for while one runs starts afresh, but what held before the first one is
   // what a failure puts back (not what the one in progress measured); its steps end here.
   if (sweep_.active()) {
@@ -456,7 +498,10 @@ void DriveController::handle_estimate(const EventEstimate& e) {
     ++calibration_count_;
     if (e.has_emf) {
       calibration_ke_sum_ += e.ke_V_s_per_rad;
+      calibration_ke_sq_sum_ += e.ke_V_s_per_rad * e.ke_V_s_per_rad;
       ++calibration_ke_count_;
+      calibration_ke_pairs_ += e.ke_pairs;
+      pool_ke_scatter(e);
     }
     if (calibration_count_ >= config_.calibration_events) {
       const double rs0 = calibration_rs_sum_ / calibration_weight_sum_;
@@ -474,6 +519,7 @@ void DriveController::handle_estimate(const EventEstimate& e) {
       c.rs0_ohm = rs0;
       c.t0_C = calibration_temp_C_;
       c.ke0_V_s_per_rad = calibration_ke_count_ > 0 ? calibration_ke_sum_ / calibration_ke_count_ : 0.0;
+      c.ke0_std_V_s_per_rad = calibration_ke0_std(c.ke0_V_s_per_rad);
       c.calibrated = true;
       if (band_measured_) {
         // The band Rs0 was learned with, when a sweep measured it (this run's, or the stored
@@ -526,14 +572,69 @@ void DriveController::handle_estimate(const EventEstimate& e) {
 
   // Magnet temperature from the EMF constant relative to its calibrated value.
   const Calibration& cal = observer_.calibration();
-  if (e.has_emf && cal.ke0_V_s_per_rad > 0.0) {
-    const double magnet_C =
-        cal.t0_C + (e.ke_V_s_per_rad / cal.ke0_V_s_per_rad - 1.0) / config_.magnet_coefficient_per_C;
-    magnet_filtered_C_ = magnet_valid_ ? 0.7 * magnet_filtered_C_ + 0.3 * magnet_C : magnet_C;
-    magnet_valid_ = true;
-    magnet_measured_ = true;
-    magnet_age_s_ = 0.0;
+  if (e.has_emf) {
+    pool_ke_scatter(e);
   }
+  if (e.has_emf && cal.ke0_V_s_per_rad > 0.0) {
+    update_magnet(e, cal);
+  }
+}
+
+void DriveController::update_magnet(const EventEstimate& e, const Calibration& cal) {
+  // Eq. 3's Ke referred to its calibrated value: the flux falls by |alpha_m| per degree.
+  const double magnet_C =
+      cal.t0_C + (e.ke_V_s_per_rad / cal.ke0_V_s_per_rad - 1.0) / config_.magnet_coefficient_per_C;
+  // The measurement's variance: the pairs' scatter averaged over the event's pairs, and the
+  // part they share (the event's Rs and Vx errors through <iq> and <Gq>), in degrees.
+  const double shared_rel = e.ke_shared_std_V_s_per_rad / cal.ke0_V_s_per_rad;
+  const double rel_var = ke_pair_rel_var() / std::max(e.ke_pairs, 1) + shared_rel * shared_rel;
+  const double alpha = config_.magnet_coefficient_per_C;
+  const double r = rel_var / (alpha * alpha);
+  const double sys_rel = e.ke_systematic_std_V_s_per_rad / cal.ke0_V_s_per_rad;
+  const double sys = sys_rel * sys_rel / (alpha * alpha);
+  // A measurement no magnet can give (not a number, outside what any NdFeB grade survives or
+  // any ambient reaches), or one far outside the filter's band (the band and the
+  // measurement's own error bar, 6 sigma together), is counted and refused, never averaged in.
+  const bool physical = std::isfinite(magnet_C) && std::isfinite(r) && magnet_C >= kMagnetPlausibleMin_C &&
+                        magnet_C <= kMagnetPlausibleMax_C;
+  const double prior_var = magnet_var_now_C2();
+  const bool consistent = !magnet_valid_ || std::abs(magnet_C - magnet_filtered_C_) <=
+                                                kMagnetGateSigma * std::sqrt(prior_var + r + sys);
+  if (!physical || !consistent) {
+    ++telemetry_.magnet_rejected;
+    return;
+  }
+  if (magnet_valid_) {
+    // A scalar Kalman filter (random walk between measurements: age_magnet).
+    const double k = prior_var / (prior_var + r);
+    magnet_filtered_C_ += k * (magnet_C - magnet_filtered_C_);
+    magnet_var_C2_ = (1.0 - k) * prior_var;
+  } else {
+    magnet_filtered_C_ = magnet_C;  // the first measurement, or the first after aging out
+    magnet_var_C2_ = r;
+  }
+  magnet_sys_var_C2_ = sys;  // the bridge model's error at this operating point, not averaged
+  magnet_upper_C_ = magnet_filtered_C_ + config_.derating.confidence_sigma *
+                                             std::sqrt(magnet_var_C2_ + magnet_sys_var_C2_ + magnet_ke0_var_C2());
+  telemetry_.magnet_upper_C = magnet_upper_C_;
+  magnet_valid_ = true;
+  magnet_measured_ = true;
+  magnet_age_s_ = 0.0;
+  publish_magnet_std();
+}
+
+double DriveController::calibration_ke0_std(double ke0) const {
+  // Ke0's standard error: the calibration events' own scatter (each event the mean of its
+  // pairs), or with fewer than three events the pooled pair scatter over all their pairs.
+  const double n = calibration_ke_count_;
+  if (n >= 3.0) {
+    const double var = std::max(0.0, (calibration_ke_sq_sum_ - n * ke0 * ke0) / (n - 1.0));
+    return std::sqrt(var / n);
+  }
+  if (calibration_ke_pairs_ > 0 && ke_pooled_dof_ > 0.0) {
+    return std::abs(ke0) * std::sqrt(ke_pooled_rel_var_sum_ / ke_pooled_dof_ / calibration_ke_pairs_);
+  }
+  return 0.0;  // unknown: magnet_ke0_var_C2() assumes kUnknownKe0StdFraction
 }
 
 void DriveController::start_thermal_from_guess(double guess_C) {
@@ -569,11 +670,15 @@ void DriveController::update_thermal(double ambient_C) {
   // The magnets' limit, on the last magnet estimate even after it aged out (no longer
   // published as valid): a derated drive may inject too little to measure again (the current
   // limit leaves no room, or it turns too slowly for the EMF), and nothing models the magnets'
-  // cooling, so the limit holds until a new measurement says otherwise. Before the first
-  // estimate there is nothing to derate on. The tighter of the two limits is the drive's.
-  const DeratingResult magnet = magnet_measured_ ? derate_magnet(config_.derating, magnet_filtered_C_)
+  // cooling, so the limit holds until a new measurement says otherwise. Like the winding's, it
+  // derates on the estimate's upper bound (derating.confidence_sigma), the error bar as the
+  // last measurement left it: a bar that kept growing while nothing can measure (standstill)
+  // would take a drive to its floor for want of a speed. Before the first estimate there is
+  // nothing to derate on. The tighter of the two limits is the drive's.
+  const DeratingResult magnet = magnet_measured_ ? derate_magnet(config_.derating, magnet_upper_C_)
                                                  : DeratingResult{config_.derating.max_current_A, false};
   telemetry_.magnet_derating = magnet.derating;
+  publish_magnet_std();
   derating_.current_limit_A = std::min(derating_.current_limit_A, magnet.current_limit_A);
   telemetry_.thermal = e;
   telemetry_.thermal_valid = true;

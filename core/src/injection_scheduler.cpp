@@ -587,6 +587,7 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
   double var_rs = 0.0;
   double vx = config_.fit_dead_time ? vx_V_ : 0.0;
   double var_vx = config_.fit_dead_time ? vx_var_ : 0.0;
+  double cov_rs_vx = 0.0;     // Rs and Vx come out correlated (the magnet's error bar below)
   bool rs_from_means = true;  // the pairs' means (their Lq terms refitted in step()), or the sample fit
 
   // The event's own joint fit of Rs and Vx (several levels make it well conditioned) ...
@@ -605,6 +606,7 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
     var_rs = joint.var_rs - gain * joint.cov_rs_vx + gain * gain * var_post;
     vx = vx_post;
     var_vx = var_post;
+    cov_rs_vx = gain * var_post;
     e.vx_from_event = true;
   } else {
     // One level, or a collinear event: Rs with Vx held at the prior, whose uncertainty adds.
@@ -642,6 +644,7 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
     }
     rs = fixed.rs_ohm;
     var_rs = fixed.var_rs + fixed.drs_dvx * fixed.drs_dvx * var_vx;
+    cov_rs_vx = fixed.drs_dvx * var_vx;
     if (event_field_weakening_) {
       // At the voltage limit the bridge's term is most of the pair's signal (the current
       // vector only turns) and the sign pattern is least exact (docs/estimator.md §2): its
@@ -703,6 +706,9 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
   // commissioned Ld's error would go into Ke (10 % of Ld is 14 C of magnet at rated speed). A
   // pair whose levels barely differ in w id (no Ld to measure) takes the commissioned Ld.
   double ke_sum = 0.0;
+  double ke_sq_sum = 0.0;
+  double dke_drs_sum = 0.0;  // the pairs' sensitivities to the event's Rs and Vx
+  double dke_dvx_sum = 0.0;
   int ke_count = 0;
   for (int k = 0; k < event_q_pairs_; ++k) {
     const PairConditions& c = event_q_[static_cast<std::size_t>(k)];
@@ -718,13 +724,33 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
     const bool ld_measured =
         std::abs(c.domega_e_id_A_rad_s) >= kMinLevelDifference_A * std::abs(c.omega_m_mean_rad_s) * config_.pole_pairs &&
         det != 0.0;
-    ke_sum += ld_measured ? (c.omega_e_id_mean_A_rad_s * dy - c.domega_e_id_A_rad_s * y) / det
-                          : (y - config_.ld_H * c.omega_e_id_mean_A_rad_s) / c.omega_m_mean_rad_s;
+    const double ke = ld_measured ? (c.omega_e_id_mean_A_rad_s * dy - c.domega_e_id_A_rad_s * y) / det
+                                  : (y - config_.ld_H * c.omega_e_id_mean_A_rad_s) / c.omega_m_mean_rad_s;
+    ke_sum += ke;
+    ke_sq_sum += ke * ke;
+    // dKe/dRs and dKe/dVx of the expression above (y and dy are linear in both).
+    dke_drs_sum += ld_measured ? (c.domega_e_id_A_rad_s * c.iq_mean_A - c.omega_e_id_mean_A_rad_s * c.diq_A) / det
+                               : -c.iq_mean_A / c.omega_m_mean_rad_s;
+    dke_dvx_sum += ld_measured ? (c.domega_e_id_A_rad_s * c.gq_mean - c.omega_e_id_mean_A_rad_s * c.dgq) / det
+                               : -c.gq_mean / c.omega_m_mean_rad_s;
     ++ke_count;
   }
   if (ke_count > 0) {
     e.has_emf = true;
-    e.ke_V_s_per_rad = ke_sum / ke_count;
+    const double n = ke_count;
+    e.ke_V_s_per_rad = ke_sum / n;
+    e.ke_pairs = ke_count;
+    e.ke_pair_variance = ke_count > 1 ? std::max(0.0, (ke_sq_sum - n * e.ke_V_s_per_rad * e.ke_V_s_per_rad) / (n - 1.0)) : 0.0;
+    // Rs and Vx with their covariance: a Vx error moves the fitted Rs with it, and in Ke the
+    // two largely cancel (the bridge's q-axis term against the resistive one).
+    const double a = dke_drs_sum / n;
+    const double b = dke_dvx_sum / n;
+    const double shared = a * a * var_rs + 2.0 * a * b * cov_rs_vx + b * b * var_vx;
+    e.ke_shared_std_V_s_per_rad = std::sqrt(std::max(shared, 0.0));
+    // The bridge's sign pattern is a model (docs/estimator.md §2): its error, the fraction
+    // field_weakening_pattern_error of the bridge's term, is common to consecutive events at the
+    // same operating point. At low speed under load the term is tens of degrees of magnet.
+    e.ke_systematic_std_V_s_per_rad = config_.field_weakening_pattern_error * std::abs(b * vx);
   }
   return e;
 }

@@ -12,6 +12,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <limits>
 #include <sstream>
 #include <string>
 
@@ -89,6 +90,21 @@ TEST_F(CalibrationFile, RoundTripKeepsTheValues) {
   EXPECT_TRUE(t["written_utc"].is_string());
 }
 
+// Ke0's standard error travels with it (the magnet estimate's error bar carries it); a file
+// without it (written before, or by hand) reads as unknown, 0.
+TEST_F(CalibrationFile, KeZeroKeepsItsErrorBarWhenKnown) {
+  const fs::path p = dir_ / "calibration.toml";
+  core::Calibration c = sample();
+  c.ke0_std_V_s_per_rad = 6.9e-5;
+  write_calibration_file(p, c, "test");
+  EXPECT_DOUBLE_EQ(read_calibration_file(p).ke0_std_V_s_per_rad, 6.9e-5);
+  write_calibration_file(p, sample(), "test");
+  EXPECT_EQ(toml::parse_file(p.string()).get("ke0_std_V_s_per_rad"), nullptr) << "unknown is left out, not written as 0";
+  EXPECT_EQ(read_calibration_file(p).ke0_std_V_s_per_rad, 0.0);
+  c.ke0_std_V_s_per_rad = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_THROW(write_calibration_file(p, c, "test"), CalibrationFileError);
+}
+
 TEST_F(CalibrationFile, TheRotorAngleCorrectionIsKeptWhenMeasured) {
   const fs::path p = dir_ / "calibration.toml";
   core::Calibration measured = sample();
@@ -161,6 +177,9 @@ TEST_F(CalibrationFile, BadFilesAreRejectedWithFileLineAndKey) {
   EXPECT_NE(error_of("format = 1\nt0_C = 25.0\n").find("rs0_ohm: missing"), std::string::npos);
   EXPECT_NE(error_of("format = 2\nrs0_ohm = 0.13\nt0_C = 25.0\n").find("format: 2 is not supported"), std::string::npos);
   EXPECT_NE(error_of("format = 1\nrs0_ohm = 0.13\nt0_C = 25.0\nke0_V_s_per_rad = nan\n").find("ke0_V_s_per_rad"),
+            std::string::npos);
+  EXPECT_NE(error_of("format = 1\nrs0_ohm = 0.13\nt0_C = 25.0\nke0_std_V_s_per_rad = -1e-4\n")
+                .find("bad.toml:4: ke0_std_V_s_per_rad: -0.0001 is out of range"),
             std::string::npos);
   EXPECT_NE(error_of("format = 1\nrs0_ohm = 0.13\nt0_C = 25.0\ndead_time_band_A = -0.5\n")
                 .find("bad.toml:4: dead_time_band_A: -0.5 is out of range"),

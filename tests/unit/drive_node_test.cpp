@@ -758,8 +758,13 @@ TEST(DriveNode, TheMagnetEstimateDeratesTheCurrentLimitAndSaysSo) {
   ASSERT_TRUE(tel.magnet_valid);
   ASSERT_GT(tel.magnet_C, 15.0);
   ASSERT_LT(tel.magnet_C, 35.0);
-  const double expected =
-      d.min_current_A + (d.magnet_limit_C - tel.magnet_C) / (d.magnet_limit_C - d.magnet_start_C) * (d.max_current_A - d.min_current_A);
+  // On the upper bound, estimate + 2 sigma as the measurement left it (sigma grows after it).
+  ASSERT_GT(tel.magnet_std_C, 0.0);
+  EXPECT_LE(tel.magnet_upper_C, tel.magnet_C + d.confidence_sigma * tel.magnet_std_C);
+  EXPECT_NEAR(tel.magnet_upper_C, tel.magnet_C + d.confidence_sigma * tel.magnet_std_C, 0.05);
+  ASSERT_LT(tel.magnet_upper_C, d.magnet_limit_C);
+  const double expected = d.min_current_A + (d.magnet_limit_C - tel.magnet_upper_C) /
+                                                (d.magnet_limit_C - d.magnet_start_C) * (d.max_current_A - d.min_current_A);
   EXPECT_NEAR(tel.current_limit_A, expected, 1e-9);
   EXPECT_TRUE(tel.magnet_derating);
   EXPECT_FALSE(tel.derating);
@@ -779,7 +784,7 @@ TEST(DriveNode, TheMagnetEstimateDeratesTheCurrentLimitAndSaysSo) {
   ASSERT_TRUE(tel.magnet_valid) << "no magnet estimate from the next event";
   run_thermal_update(rig);
   EXPECT_NEAR(tel.current_limit_A,
-              d.min_current_A + (d.magnet_limit_C - tel.magnet_C) / (d.magnet_limit_C - d.magnet_start_C) *
+              d.min_current_A + (d.magnet_limit_C - tel.magnet_upper_C) / (d.magnet_limit_C - d.magnet_start_C) *
                                     (d.max_current_A - d.min_current_A),
               1e-9);
 }

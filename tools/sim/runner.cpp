@@ -307,6 +307,7 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
   double fast_torque_sum = 0.0;
   plant::PlantState truth = plant.state();
   double sq_err = 0.0, sum_err = 0.0, sq_rs = 0.0, sq_magnet = 0.0;
+  std::size_t magnet_covered = 0;
 
   const auto wall_start = std::chrono::steady_clock::now();
   auto last_progress = wall_start;
@@ -458,6 +459,7 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
       row.winding_std_C = tel.thermal.winding_std_C;
       row.magnet_true_C = truth.magnet_temp_C;
       row.magnet_est_C = tel.magnet_C;
+      row.magnet_std_C = tel.magnet_std_C;
       row.magnet_valid = tel.magnet_valid;
       row.housing_true_C = truth.housing_temp_C;
       row.housing_est_C = tel.thermal.housing_C;
@@ -492,7 +494,10 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
         result.winding_error_max_C = std::max(result.winding_error_max_C, std::abs(err));
         ++result.winding_error_samples;
         if (row.magnet_valid) {
-          sq_magnet += std::pow(row.magnet_est_C - row.magnet_true_C, 2);
+          const double magnet_err = row.magnet_est_C - row.magnet_true_C;
+          sq_magnet += magnet_err * magnet_err;
+          result.magnet_error_max_C = std::max(result.magnet_error_max_C, std::abs(magnet_err));
+          magnet_covered += std::abs(magnet_err) <= 2.0 * row.magnet_std_C ? 1U : 0U;
           ++result.magnet_error_samples;
         }
       }
@@ -523,6 +528,7 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
     result.faults[c].count = node.supervisor().counts()[c];
   }
   result.wall_time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
+  result.magnet_rejected = drive.telemetry().magnet_rejected;
   if (result.winding_error_samples > 0) {
     const auto n = static_cast<double>(result.winding_error_samples);
     result.winding_error_rms_C = std::sqrt(sq_err / n);
@@ -531,6 +537,8 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
   }
   if (result.magnet_error_samples > 0) {
     result.magnet_error_rms_C = std::sqrt(sq_magnet / static_cast<double>(result.magnet_error_samples));
+    result.magnet_coverage_2sigma =
+        static_cast<double>(magnet_covered) / static_cast<double>(result.magnet_error_samples);
   }
   if (result.estimates_published() > 0) {
     result.rs_error_rms_mohm = 1e3 * std::sqrt(sq_rs / static_cast<double>(result.estimates_published()));
@@ -639,6 +647,9 @@ std::string result_json(const SimulationResult& r) {
       .field("coverage_2sigma", r.winding_error_samples > 0 ? r.coverage_2sigma : kNan)
       .field("rs_error_rms_mohm", r.estimates_published() == 0 ? kNan : r.rs_error_rms_mohm)
       .field("magnet_error_rms_C", r.magnet_error_samples > 0 ? r.magnet_error_rms_C : kNan)
+      .field("magnet_error_max_C", r.magnet_error_samples > 0 ? r.magnet_error_max_C : kNan)
+      .field("magnet_coverage_2sigma", r.magnet_error_samples > 0 ? r.magnet_coverage_2sigma : kNan)
+      .field("magnet_rejected", static_cast<std::uint64_t>(r.magnet_rejected))
       .field("estimates_accepted", static_cast<std::uint64_t>(r.estimates_accepted))
       .field("estimates_gated", static_cast<std::uint64_t>(r.estimates_gated));
   std::uint64_t rejected = 0;
@@ -669,6 +680,7 @@ std::string result_json(const SimulationResult& r) {
         .field("rs0_std_ohm", r.calibration_rs0_std_ohm)
         .field("t0_C", r.calibration.t0_C)
         .field("ke0_V_s_per_rad", r.calibration.ke0_V_s_per_rad)
+        .field("ke0_std_V_s_per_rad", r.calibration.ke0_std_V_s_per_rad > 0.0 ? r.calibration.ke0_std_V_s_per_rad : kNan)
         .field("dead_time_band_A", r.calibration.dead_time_band_A > 0.0 ? r.calibration.dead_time_band_A : kNan)
         .field("angle_correction_rad", r.calibration.angle_correction_measured ? r.calibration.angle_correction_rad : kNan)
         .end_object();
@@ -773,7 +785,11 @@ std::string result_text(const SimulationResult& r) {
     out += fmt::format("  Rs error (published estimates)  RMS {:.2f} mOhm\n", r.rs_error_rms_mohm);
   }
   if (r.magnet_error_samples > 0) {
-    out += fmt::format("  magnet error                    RMS {:.2f} C\n", r.magnet_error_rms_C);
+    out += fmt::format("  magnet error                    RMS {:.2f} C, max {:.2f} C, inside +-2 sigma {:.1f} %\n",
+                       r.magnet_error_rms_C, r.magnet_error_max_C, 100.0 * r.magnet_coverage_2sigma);
+  }
+  if (r.magnet_rejected > 0) {
+    out += fmt::format("  magnet measurements refused     {} (implausible)\n", r.magnet_rejected);
   }
   const std::string fw = r.field_weakening_pairs_accepted > 0
                              ? fmt::format(" ({} field-weakening)", r.field_weakening_pairs_accepted)
@@ -863,9 +879,9 @@ void write_series_csv(const SimulationResult& r, const std::string& path) {
   }
   out << "time_s,winding_true_C,winding_est_C,winding_std_C,magnet_true_C,magnet_est_C,magnet_valid,housing_true_C,"
          "rs_true_ohm,speed_ref_rad_s,speed_rad_s,torque_Nm,load_torque_Nm,id_A,iq_A,current_limit_A,derating,"
-         "time_to_limit_s,injection_active,housing_est_C,missing_loss_W,loss_scale_error\n";
+         "time_to_limit_s,injection_active,housing_est_C,missing_loss_W,loss_scale_error,magnet_std_C\n";
   for (const SeriesRow& s : r.series) {
-    out << fmt::format("{:.4f},{:.3f},{},{},{:.3f},{},{},{:.3f},{:.6f},{:.3f},{:.3f},{:.3f},{:.3f},{:.3f},{:.3f},{:.2f},{},{},{},{},{},{}\n",
+    out << fmt::format("{:.4f},{:.3f},{},{},{:.3f},{},{},{:.3f},{:.6f},{:.3f},{:.3f},{:.3f},{:.3f},{:.3f},{:.3f},{:.2f},{},{},{},{},{},{},{}\n",
                        s.time_s, s.winding_true_C, s.winding_est_valid ? fmt::format("{:.3f}", s.winding_est_C) : "",
                        s.winding_est_valid ? fmt::format("{:.3f}", s.winding_std_C) : "", s.magnet_true_C,
                        s.magnet_valid ? fmt::format("{:.3f}", s.magnet_est_C) : "", s.magnet_valid ? 1 : 0,
@@ -874,7 +890,8 @@ void write_series_csv(const SimulationResult& r, const std::string& path) {
                        s.time_to_limit_valid ? fmt::format("{:.1f}", s.time_to_limit_s) : "", s.injection_active ? 1 : 0,
                        s.winding_est_valid ? fmt::format("{:.3f}", s.housing_est_C) : "",
                        s.winding_est_valid ? fmt::format("{:.2f}", s.missing_loss_W) : "",
-                       s.winding_est_valid ? fmt::format("{:.4f}", s.loss_scale_error) : "");
+                       s.winding_est_valid ? fmt::format("{:.4f}", s.loss_scale_error) : "",
+                       s.magnet_valid ? fmt::format("{:.3f}", s.magnet_std_C) : "");
   }
 }
 

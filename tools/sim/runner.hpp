@@ -36,6 +36,7 @@ struct SeriesRow {
   double winding_std_C = 0.0;
   double magnet_true_C = 0.0;
   double magnet_est_C = 0.0;
+  double magnet_std_C = 0.0;
   bool magnet_valid = false;
   double housing_true_C = 0.0;
   double rs_true_ohm = 0.0;
@@ -90,7 +91,10 @@ struct SimulationResult {
   double coverage_2sigma = 0.0;
   double rs_error_rms_mohm = 0.0;   // published estimates against the true Rs at that time
   double magnet_error_rms_C = 0.0;
+  double magnet_error_max_C = 0.0;
   std::size_t magnet_error_samples = 0;
+  double magnet_coverage_2sigma = 0.0;  // of those samples, the truth inside the magnet's +-2 sigma
+  std::size_t magnet_rejected = 0;      // EMF measurements the drive refused as implausible
   std::size_t estimates_accepted = 0;   // fused by the thermal filter
   std::size_t estimates_gated = 0;      // published but gated out as implausible
   [[nodiscard]] std::size_t estimates_published() const noexcept { return estimates_accepted + estimates_gated; }

@@ -74,6 +74,11 @@ struct DriveConfig {
   // standstill (time-based recordings) nothing measures it, and a value kept from an hour ago
   // must not read as today's.
   double magnet_max_age_s = 300.0;
+  // The magnet estimate is a scalar Kalman filter on the events' EMF measurements: between
+  // them its variance grows by this squared per second of thermal time (a random walk). The
+  // reference heat-up warms its magnets by up to 0.5 C/s of thermal time; a drive a second
+  // between events then trusts a new measurement about as much as the last estimate.
+  double magnet_drift_C_per_sqrt_s = 0.5;
   // The bridge's voltage error measured before the calibration's events (inverter_sweep.hpp):
   // its zero-current band replaces dead_time.current_band_A.
   InverterSweepConfig inverter_sweep{};
@@ -187,6 +192,9 @@ struct DriveTelemetry {
   double time_to_limit_s = 0.0;
   bool magnet_valid = false;
   double magnet_C = 0.0;
+  double magnet_std_C = 0.0;         // its standard error, Ke0's included (at each thermal update)
+  double magnet_upper_C = 0.0;       // what the magnets derate on (DriveController::update_magnet)
+  std::uint32_t magnet_rejected = 0;  // EMF measurements refused as implausible
   double torque_estimate_Nm = 0.0;  // from the measured currents (with reluctance torque)
   OutcomeCounts outcomes{};
   std::uint32_t estimates_published = 0;
@@ -355,6 +363,21 @@ class DriveController {
   void restore_band();
   void restore_angle();
   void age_magnet();
+  void update_magnet(const EventEstimate& e, const Calibration& cal);
+  [[nodiscard]] double magnet_var_now_C2() const;
+  void publish_magnet_std();
+  void pool_ke_scatter(const EventEstimate& e);
+  [[nodiscard]] double ke_pair_rel_var() const;
+  [[nodiscard]] double magnet_ke0_var_C2() const;
+  [[nodiscard]] double calibration_ke0_std(double ke0) const;
+  // A Ke0 entered by hand or stored without its error: 0.2 % (1.7 C of magnet at -0.0012/C),
+  // about what a back-EMF test of a few points gives.
+  static constexpr double kUnknownKe0StdFraction = 0.002;
+  // One pair's Ke scatter before any event has shown it (the first events of one pair each).
+  static constexpr double kUnknownKePairStdFraction = 0.005;
+  static constexpr double kMagnetPlausibleMin_C = -60.0;
+  static constexpr double kMagnetPlausibleMax_C = 300.0;
+  static constexpr double kMagnetGateSigma = 6.0;
   void fail_calibration(CalibrationFailure why);
   void publish_calibration_state();
   void clear_motoring_telemetry();  // nothing asked of the motor this period (disabled, no sample)
@@ -419,6 +442,12 @@ class DriveController {
   double rs_rate_ohm_per_s_ = 0.0;  // the winding resistance's predicted rate of change
   // Magnet.
   double magnet_filtered_C_ = 0.0;
+  double magnet_var_C2_ = 0.0;          // the filter's variance at its last measurement (Ke0's apart)
+  double magnet_sys_var_C2_ = 0.0;      // the last measurement's bridge-model error (not averaged)
+  double magnet_upper_C_ = 0.0;         // estimate + confidence_sigma sigma at the last measurement
+  double ke_pooled_rel_var_sum_ = 0.0;  // the events' pair scatter, pooled (relative to Ke^2)
+  double ke_pooled_dof_ = 0.0;
+  double calibration_ke_sq_sum_ = 0.0;
   bool magnet_valid_ = false;
   bool magnet_measured_ = false;  // an estimate exists (valid or aged out): the magnets derate on it
   double magnet_age_s_ = 0.0;  // thermal time since the last EMF measurement
@@ -435,6 +464,7 @@ class DriveController {
   double calibration_weight_sum_ = 0.0;
   double calibration_ke_sum_ = 0.0;
   int calibration_ke_count_ = 0;
+  int calibration_ke_pairs_ = 0;
   DeratingResult derating_{};
 };
 

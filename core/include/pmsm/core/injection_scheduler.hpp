@@ -253,6 +253,14 @@ struct EventEstimate {
   double joint_vx_V = 0.0;
   bool has_emf = false;            // angle-based pairs: the EMF constant below is meaningful
   double ke_V_s_per_rad = 0.0;     // Eq. 3's Ke from the q-axis means (see drive_controller)
+  // Its error bars: the pairs' scatter (sample variance of one pair's Ke, 0 with fewer than
+  // two pairs) and the part every pair shares, the fitted Rs's and Vx's errors carried through
+  // the q-axis equations (<iq>/<wm> times the Rs error: large under load).
+  int ke_pairs = 0;
+  double ke_pair_variance = 0.0;
+  double ke_shared_std_V_s_per_rad = 0.0;
+  // The part more events do not average away: the bridge model's error in <Gq>'s term.
+  double ke_systematic_std_V_s_per_rad = 0.0;
   double lq_H = 0.0;               // the q-axis inductance the fits use after this event
   double lq_std_H = 0.0;
 };

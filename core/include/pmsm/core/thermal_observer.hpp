@@ -79,6 +79,10 @@ struct Calibration {
   double rs0_ohm = 0.133;       // winding resistance at t0_C
   double t0_C = 25.0;
   double ke0_V_s_per_rad = 0.0; // EMF constant (Eq. 3 form) at t0_C; 0 when not calibrated
+  // Its standard error from the calibration's events; 0 when unknown (entered by hand, or
+  // stored by a version that did not keep it): DriveController then assumes
+  // kUnknownKe0StdFraction of Ke0.
+  double ke0_std_V_s_per_rad = 0.0;
   bool calibrated = false;      // from a calibration run rather than the nameplate
   // The bridge's zero-current band from the calibration's sweep (inverter_sweep.hpp); 0 when
   // the calibration did not measure it (control.dead_time_band_A then holds).
@@ -221,7 +225,7 @@ struct DeratingResult {
   bool derating = false;
 };
 [[nodiscard]] DeratingResult derate(const DeratingConfig& config, const ThermalEstimate& e);
-// The current limit for a magnet estimate (an estimate without an error bar: on its value).
+// The current limit for a magnet temperature (the caller passes its estimate's upper bound).
 [[nodiscard]] DeratingResult derate_magnet(const DeratingConfig& config, double magnet_C);
 
 }  // namespace pmsm::core
