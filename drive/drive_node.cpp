@@ -225,8 +225,9 @@ void DriveNode::publish(const NodeInputs& in) noexcept {
     t.valid = tel.thermal_valid && std::isfinite(tel.thermal.winding_C) && std::isfinite(tel.thermal.winding_std_C);
     t.winding_temp_C = t.valid ? tel.thermal.winding_C : 0.0;
     t.winding_temp_sigma_C = t.valid ? tel.thermal.winding_std_C : 0.0;
-    t.magnet_valid = tel.magnet_valid && std::isfinite(tel.magnet_C);
+    t.magnet_valid = tel.magnet_valid && std::isfinite(tel.magnet_C) && std::isfinite(tel.magnet_std_C);
     t.magnet_temp_C = t.magnet_valid ? tel.magnet_C : 0.0;
+    t.magnet_temp_sigma_C = t.magnet_valid ? tel.magnet_std_C : 0.0;
     t.calibrated = tel.calibrated;
     t.derating_active = tel.derating;
     t.stale = !last_estimate_s_ || now_s - *last_estimate_s_ > rates_.stale_after_s;

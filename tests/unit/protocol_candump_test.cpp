@@ -238,7 +238,7 @@ TEST(protocol_candump, DecodeLineLikeCantools) {
   EXPECT_TRUE(d.known);
   EXPECT_EQ(d.text,
             "(1.000000) vcan0 110#1522960000000300 :: THERMAL_ESTIMATE(WindingTemp: 87.25 degC, WindingTempSigma: "
-            "1.50 degC, MagnetTemp: 0.00 degC, Valid: 1, Calibrated: 1, DeratingActive: 0, Stale: 0, MagnetValid: 0, CalibrationResult: NONE, Calibrating: 0)");
+            "1.50 degC, MagnetTemp: 0.00 degC, Valid: 1, Calibrated: 1, DeratingActive: 0, Stale: 0, MagnetValid: 0, CalibrationResult: NONE, Calibrating: 0, MagnetTempSigma: 0.00 degC)");
 
   protocol::DriveCommand c;
   c.enable = true;
@@ -291,7 +291,7 @@ TEST(protocol_candump, RealCaptureOfProtocolFramesDecodes) {
   const std::string thermal = decode_line(db, log[7]).text;
   EXPECT_EQ(thermal.substr(thermal.find(" :: ")),
             " :: THERMAL_ESTIMATE(WindingTemp: 87.25 degC, WindingTempSigma: 1.50 degC, MagnetTemp: 61.20 degC, "
-            "Valid: 1, Calibrated: 1, DeratingActive: 1, Stale: 0, MagnetValid: 1, CalibrationResult: NONE, Calibrating: 0)");
+            "Valid: 1, Calibrated: 1, DeratingActive: 1, Stale: 0, MagnetValid: 1, CalibrationResult: NONE, Calibrating: 0, MagnetTempSigma: 0.00 degC)");
   const std::string drive = decode_line(db, log[2]).text;
   EXPECT_NE(drive.find("Mode: SPEED, SpeedSetpoint: 157.080 rad/s"), std::string::npos) << drive;
   const std::string sample = decode_line(db, plain[1]).text;

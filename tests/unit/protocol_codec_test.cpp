@@ -322,6 +322,7 @@ TEST(protocol_codec, TelemetryRoundTrip) {
   thermal.winding_temp_sigma_C = 2.5;
   thermal.magnet_valid = true;
   thermal.magnet_temp_C = -50.0;
+  thermal.magnet_temp_sigma_C = 3.3;
   thermal.calibrated = true;
   thermal.derating_active = true;
   thermal.stale = true;
@@ -330,6 +331,14 @@ TEST(protocol_codec, TelemetryRoundTrip) {
   EXPECT_NEAR(tr.winding_temp_C, 120.37, 0.005);
   EXPECT_NEAR(tr.winding_temp_sigma_C, 2.5, 0.005);
   EXPECT_NEAR(tr.magnet_temp_C, -50.0, 0.005);
+  EXPECT_NEAR(tr.magnet_temp_sigma_C, 3.25, 1e-12) << "the 0.25 C grid";
+  thermal.magnet_temp_sigma_C = 80.0;
+  CanFrame saturated;
+  EXPECT_EQ(encode(thermal, 0, saturated), EncodeStatus::kSaturated);
+  ThermalEstimate wide;
+  ASSERT_EQ(decode(saturated, 0, wide), DecodeStatus::kOk);
+  EXPECT_EQ(wide.magnet_temp_sigma_C, 31.75) << "a wider bar reads as the largest, never as a narrow one";
+  thermal.magnet_temp_sigma_C = 3.3;
   EXPECT_TRUE(tr.valid && tr.magnet_valid && tr.calibrated && tr.derating_active && tr.stale && tr.calibrating);
   thermal.calibrating = false;
   EXPECT_FALSE(round_trip(thermal).calibrating);
@@ -481,6 +490,7 @@ TEST(protocol_codec, ClearedValidityBitMeansZeroOnTheWireAndNaNDecoded) {
   t.winding_temp_sigma_C = std::numeric_limits<double>::infinity();
   t.magnet_valid = false;
   t.magnet_temp_C = 999.0;
+  t.magnet_temp_sigma_C = 5.0;
   CanFrame f;
   ASSERT_EQ(encode(t, 0, f), EncodeStatus::kOk);
   for (std::size_t i = 0; i < 6; ++i) {
@@ -491,6 +501,8 @@ TEST(protocol_codec, ClearedValidityBitMeansZeroOnTheWireAndNaNDecoded) {
   EXPECT_TRUE(std::isnan(r.winding_temp_C));
   EXPECT_TRUE(std::isnan(r.winding_temp_sigma_C));
   EXPECT_TRUE(std::isnan(r.magnet_temp_C));
+  EXPECT_TRUE(std::isnan(r.magnet_temp_sigma_C));
+  EXPECT_EQ(f.data[7] >> 1, 0) << "MagnetTempSigma is 0 on the wire without MagnetValid";
 
   DriveStatus s;
   s.time_to_limit_valid = false;

@@ -402,6 +402,7 @@ TEST(protocol_agreement, ThermalEstimate) {
         m.winding_temp_sigma_C = p.value("WindingTempSigma");
         m.magnet_valid = p.coin();
         m.magnet_temp_C = p.value("MagnetTemp");
+        m.magnet_temp_sigma_C = p.value("MagnetTempSigma");
         m.calibrated = p.coin();
         m.derating_active = p.coin();
         m.stale = p.coin();
@@ -413,6 +414,7 @@ TEST(protocol_agreement, ThermalEstimate) {
         return Expected{{"WindingTemp", m.valid ? m.winding_temp_C : 0.0},
                         {"WindingTempSigma", m.valid ? m.winding_temp_sigma_C : 0.0},
                         {"MagnetTemp", m.magnet_valid ? m.magnet_temp_C : 0.0},
+                        {"MagnetTempSigma", m.magnet_valid ? m.magnet_temp_sigma_C : 0.0},
                         {"Valid", b(m.valid)},
                         {"Calibrated", b(m.calibrated)},
                         {"DeratingActive", b(m.derating_active)},

@@ -281,7 +281,9 @@ class Monitor {
       }
       out += a.thermal->calibrated ? "" : " uncalibrated";
       out += a.thermal->stale ? " STALE" : "";
-      out += a.thermal->magnet_valid ? fmt::format("  magnet {:5.1f} C", a.thermal->magnet_temp_C) : "  magnet -";
+      out += a.thermal->magnet_valid ? fmt::format("  magnet {:5.1f} +- {:4.1f} C", a.thermal->magnet_temp_C,
+                                                   a.thermal->magnet_temp_sigma_C)
+                                     : "  magnet -";
     } else {
       out += "winding: no estimate yet";
     }

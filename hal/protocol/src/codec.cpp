@@ -332,6 +332,7 @@ void write_body(Writer& w, const ThermalEstimate& m) noexcept {
   w.boolean(kMagnetValid, m.magnet_valid);
   w.enumeration(kCalibrationResult, m.calibration_result);
   w.boolean(kCalibrating, m.calibrating);
+  w.guarded(kMagnetTempSigma, m.magnet_valid, m.magnet_temp_sigma_C);
 }
 void read_body(const Reader& r, ThermalEstimate& m) noexcept {
   using namespace thermal_estimate;
@@ -340,6 +341,7 @@ void read_body(const Reader& r, ThermalEstimate& m) noexcept {
   m.winding_temp_C = r.guarded(kWindingTemp, m.valid);
   m.winding_temp_sigma_C = r.guarded(kWindingTempSigma, m.valid);
   m.magnet_temp_C = r.guarded(kMagnetTemp, m.magnet_valid);
+  m.magnet_temp_sigma_C = r.guarded(kMagnetTempSigma, m.magnet_valid);
   m.calibrated = r.boolean(kCalibrated);
   m.derating_active = r.boolean(kDeratingActive);
   m.stale = r.boolean(kStale);

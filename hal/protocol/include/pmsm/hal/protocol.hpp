@@ -341,8 +341,9 @@ struct ThermalEstimate {
   bool valid = false;                  // guards winding_temp_C and winding_temp_sigma_C
   double winding_temp_C = 0.0;
   double winding_temp_sigma_C = 0.0;   // 1-sigma uncertainty
-  bool magnet_valid = false;           // guards magnet_temp_C
+  bool magnet_valid = false;           // guards magnet_temp_C and magnet_temp_sigma_C
   double magnet_temp_C = 0.0;
+  double magnet_temp_sigma_C = 0.0;    // 1-sigma uncertainty (saturates at 31.75 on the wire)
   bool calibrated = false;             // Rs0 comes from a calibration, not the default
   bool derating_active = false;
   bool stale = false;                  // no accepted resistance measurement recently
@@ -586,9 +587,11 @@ inline constexpr SignalDef kCalibrationResult{"CalibrationResult", 53, 3, false,
     "How the last calibration since start ended; ABORTED, TIMED_OUT and REFUSED keep the calibration in use."};
 inline constexpr SignalDef kCalibrating{"Calibrating", 56, 1, false, 1, 0, 0, 1, "", detail::kNoValues,
     "1: a calibration run is in progress (its result follows in CalibrationResult)."};
-inline constexpr std::array<SignalDef, 10> kSignals{
+inline constexpr SignalDef kMagnetTempSigma{"MagnetTempSigma", 57, 7, false, 0.25, 0, 0, 31.75, "degC", detail::kNoValues,
+    "1-sigma uncertainty of MagnetTemp, Ke0's included (saturates; 0 when MagnetValid is 0)."};
+inline constexpr std::array<SignalDef, 11> kSignals{
     kWindingTemp, kWindingTempSigma, kMagnetTemp, kValid, kCalibrated, kDeratingActive, kStale, kMagnetValid,
-    kCalibrationResult, kCalibrating};
+    kCalibrationResult, kCalibrating, kMagnetTempSigma};
 }  // namespace thermal_estimate
 
 namespace resistance_estimate {
