@@ -192,9 +192,10 @@ void write_calibration_file(const std::filesystem::path& path, const core::Calib
   if (!(c.rs0_ohm > 0.0) || !std::isfinite(c.rs0_ohm) || !std::isfinite(c.t0_C) || !std::isfinite(c.ke0_V_s_per_rad) ||
       !(c.ke0_std_V_s_per_rad >= 0.0 && c.ke0_std_V_s_per_rad <= 100.0) || !(c.dead_time_band_A >= 0.0 && c.dead_time_band_A <= 1000.0) ||
       (c.angle_correction_measured && !(std::abs(c.angle_correction_rad) <= 1.0))) {
-    throw CalibrationFileError(fmt::format("{}: refusing to store an invalid calibration (Rs0 {}, T0 {}, Ke0 {}, band {} A, "
-                                           "angle correction {} rad)",
-                                           path.string(), c.rs0_ohm, c.t0_C, c.ke0_V_s_per_rad, c.dead_time_band_A,
+    throw CalibrationFileError(fmt::format("{}: refusing to store an invalid calibration (Rs0 {}, T0 {}, Ke0 {} +- {}, "
+                                           "band {} A, angle correction {} rad)",
+                                           path.string(), c.rs0_ohm, c.t0_C, c.ke0_V_s_per_rad, c.ke0_std_V_s_per_rad,
+                                           c.dead_time_band_A,
                                            c.angle_correction_measured ? c.angle_correction_rad : 0.0));
   }
   std::ostringstream text;
@@ -263,7 +264,7 @@ core::Calibration read_calibration_file(const std::filesystem::path& path) {
   c.t0_C = number(t, "t0_C", file, -50.0, 200.0, false);
   c.ke0_V_s_per_rad = t.get("ke0_V_s_per_rad") != nullptr ? number(t, "ke0_V_s_per_rad", file, 0.0, 100.0, false) : 0.0;
   c.ke0_std_V_s_per_rad =
-      t.get("ke0_std_V_s_per_rad") != nullptr ? number(t, "ke0_std_V_s_per_rad", file, 0.0, 100.0, true) : 0.0;
+      t.get("ke0_std_V_s_per_rad") != nullptr ? number(t, "ke0_std_V_s_per_rad", file, 0.0, 100.0, false) : 0.0;
   c.dead_time_band_A =
       t.get("dead_time_band_A") != nullptr ? number(t, "dead_time_band_A", file, 0.0, 1000.0, true) : 0.0;
   c.angle_correction_measured = t.get("angle_correction_rad") != nullptr;

@@ -161,7 +161,8 @@ ConfigSchema<C> build() {
            "Field-weakening pairs: least lower level, as a fraction of the upper.");
   inj.real("injection.field_weakening_pattern_error",
            [](C& c) -> double& { return c.drive.injection.field_weakening_pattern_error; }, between(0, 1), "",
-           "Field-weakening pairs: the sign pattern's error as a fraction of Vx (a shared error in the band).");
+           "The bridge's sign pattern's error as a fraction of its term: in field-weakening pairs' Rs, and in every "
+           "event's magnet reading (a shared error in the band).");
   inj.real("injection.field_weakening_rs_error",
            [](C& c) -> double& { return c.drive.injection.field_weakening_rs_error; }, between(0, 1), "",
            "Field-weakening pairs: their error apart from the bridge, as a fraction of Rs (a shared error in the band).");
@@ -322,7 +323,7 @@ ConfigSchema<C> build() {
   s.real("calibration.magnet_temp_coefficient_per_C", [](C& c) -> double& { return c.drive.magnet_coefficient_per_C; }, between(-0.01, 0), "/C",
          "Relative change of the magnet flux per degree (NdFeB about -0.0012).");
   s.real("calibration.magnet_drift_C_per_sqrt_s", [](C& c) -> double& { return c.drive.magnet_drift_C_per_sqrt_s; },
-         between(0.0, 100.0), "C/sqrt(s)",
+         positive(100.0), "C/sqrt(s)",
          "How far the magnets may warm or cool between EMF measurements, as a random walk in thermal time: the "
          "magnet estimate's variance grows by its square per second. It sets how much a new measurement weighs "
          "against the last estimate (docs/estimator.md, the magnet temperature).");

@@ -144,7 +144,8 @@ double DriveController::magnet_var_now_C2() const {
 }
 
 void DriveController::publish_magnet_std() {
-  telemetry_.magnet_std_C = std::sqrt(magnet_var_now_C2() + magnet_sys_var_C2_ + magnet_ke0_var_C2());
+  telemetry_.magnet_std_C =
+      std::sqrt(magnet_var_now_C2() + magnet_sys_std_C_ * magnet_sys_std_C_ + magnet_ke0_var_C2());
 }
 
 double DriveController::magnet_ke0_var_C2() const {
@@ -160,10 +161,13 @@ double DriveController::magnet_ke0_var_C2() const {
   return c * c;
 }
 
-void DriveController::pool_ke_scatter(const EventEstimate& e) {
-  if (e.ke_pairs > 1 && e.ke_V_s_per_rad != 0.0) {
+void DriveController::pool_ke_scatter(const EventEstimate& e, double ke_ref) {
+  // Relative to the calibrated Ke0 (during the calibration, to the event's own Ke), and only
+  // a reading that is a plausible number: one wild event must not widen every later bar.
+  const double rel = e.ke_pair_variance / (ke_ref * ke_ref);
+  if (e.ke_pairs > 1 && ke_ref > 0.0 && std::isfinite(rel)) {
     const double dof = e.ke_pairs - 1;
-    ke_pooled_rel_var_sum_ += dof * e.ke_pair_variance / (e.ke_V_s_per_rad * e.ke_V_s_per_rad);
+    ke_pooled_rel_var_sum_ += dof * rel;
     ke_pooled_dof_ += dof;
   }
 }
@@ -329,6 +333,7 @@ void DriveController::start_calibration(double known_temp_C) {
   calibration_ke_sq_sum_ = 0.0;
   calibration_ke_count_ = 0;
   calibration_ke_pairs_ = 0;
+  calibration_ke_model_var_sum_ = 0.0;
   // A calibration asked for while one runs starts afresh, but what held before the first one is
   // what a failure puts back (not what the one in progress measured); its steps end here.
   if (sweep_.active()) {
@@ -501,7 +506,11 @@ void DriveController::handle_estimate(const EventEstimate& e) {
       calibration_ke_sq_sum_ += e.ke_V_s_per_rad * e.ke_V_s_per_rad;
       ++calibration_ke_count_;
       calibration_ke_pairs_ += e.ke_pairs;
-      pool_ke_scatter(e);
+      calibration_ke_model_var_sum_ += e.ke_shared_std_V_s_per_rad * e.ke_shared_std_V_s_per_rad +
+                                       e.ke_systematic_std_V_s_per_rad * e.ke_systematic_std_V_s_per_rad;
+      if (std::abs(e.ke_V_s_per_rad) > 0.0) {
+        pool_ke_scatter(e, std::abs(e.ke_V_s_per_rad));
+      }
     }
     if (calibration_count_ >= config_.calibration_events) {
       const double rs0 = calibration_rs_sum_ / calibration_weight_sum_;
@@ -536,6 +545,7 @@ void DriveController::handle_estimate(const EventEstimate& e) {
       observer_.set_calibration(c);
       report(calibration_done_, c);
       magnet_valid_ = false;  // the next estimate is against the new Ke0, not blended with the old
+      magnet_reset_ = true;
       calibration_outcome_ = CalibrationOutcome::kDone;
       publish_calibration_state();
     }
@@ -572,9 +582,6 @@ void DriveController::handle_estimate(const EventEstimate& e) {
 
   // Magnet temperature from the EMF constant relative to its calibrated value.
   const Calibration& cal = observer_.calibration();
-  if (e.has_emf) {
-    pool_ke_scatter(e);
-  }
   if (e.has_emf && cal.ke0_V_s_per_rad > 0.0) {
     update_magnet(e, cal);
   }
@@ -586,36 +593,47 @@ void DriveController::update_magnet(const EventEstimate& e, const Calibration& c
       cal.t0_C + (e.ke_V_s_per_rad / cal.ke0_V_s_per_rad - 1.0) / config_.magnet_coefficient_per_C;
   // The measurement's variance: the pairs' scatter averaged over the event's pairs, and the
   // part they share (the event's Rs and Vx errors through <iq> and <Gq>), in degrees.
+  // (The pooled scatter is relative to Ke0; a hot magnet's Ke is smaller by (Ke/Ke0).)
+  const double ke_ratio = e.ke_V_s_per_rad / cal.ke0_V_s_per_rad;
   const double shared_rel = e.ke_shared_std_V_s_per_rad / cal.ke0_V_s_per_rad;
-  const double rel_var = ke_pair_rel_var() / std::max(e.ke_pairs, 1) + shared_rel * shared_rel;
+  const double rel_var = ke_pair_rel_var() * ke_ratio * ke_ratio / std::max(e.ke_pairs, 1) + shared_rel * shared_rel;
   const double alpha = config_.magnet_coefficient_per_C;
   const double r = rel_var / (alpha * alpha);
-  const double sys_rel = e.ke_systematic_std_V_s_per_rad / cal.ke0_V_s_per_rad;
-  const double sys = sys_rel * sys_rel / (alpha * alpha);
+  const double sys = std::abs(e.ke_systematic_std_V_s_per_rad / (cal.ke0_V_s_per_rad * alpha));  // a std, C
   // A measurement no magnet can give (not a number, outside what any NdFeB grade survives or
-  // any ambient reaches), or one far outside the filter's band (the band and the
-  // measurement's own error bar, 6 sigma together), is counted and refused, never averaged in.
-  const bool physical = std::isfinite(magnet_C) && std::isfinite(r) && magnet_C >= kMagnetPlausibleMin_C &&
-                        magnet_C <= kMagnetPlausibleMax_C;
+  // any ambient reaches), or one far outside the filter's band (the band, the measurement's
+  // own error bar and both systematic parts, 6 sigma together), is counted and refused, never
+  // averaged in. An estimate that aged out is still the prior (its variance grown with its
+  // age); only a new Ke0 (or none yet) starts afresh.
+  const bool physical = std::isfinite(magnet_C) && std::isfinite(r) && std::isfinite(sys) &&
+                        magnet_C >= kMagnetPlausibleMin_C && magnet_C <= kMagnetPlausibleMax_C;
   const double prior_var = magnet_var_now_C2();
-  const bool consistent = !magnet_valid_ || std::abs(magnet_C - magnet_filtered_C_) <=
-                                                kMagnetGateSigma * std::sqrt(prior_var + r + sys);
+  const bool has_prior = magnet_measured_ && !magnet_reset_;
+  const bool consistent =
+      !has_prior || std::abs(magnet_C - magnet_filtered_C_) <=
+                        kMagnetGateSigma * std::sqrt(prior_var + magnet_sys_std_C_ * magnet_sys_std_C_ + r + sys * sys);
   if (!physical || !consistent) {
     ++telemetry_.magnet_rejected;
     return;
   }
-  if (magnet_valid_) {
-    // A scalar Kalman filter (random walk between measurements: age_magnet).
+  pool_ke_scatter(e, cal.ke0_V_s_per_rad);
+  if (has_prior) {
+    // A scalar Kalman filter (random walk between measurements: magnet_var_now_C2). The
+    // systematic part follows the estimate with the same gain (the readings' systematic
+    // errors taken as correlated): a reading the filter weighs little changes it little.
     const double k = prior_var / (prior_var + r);
     magnet_filtered_C_ += k * (magnet_C - magnet_filtered_C_);
     magnet_var_C2_ = (1.0 - k) * prior_var;
+    magnet_sys_std_C_ = (1.0 - k) * magnet_sys_std_C_ + k * sys;
   } else {
-    magnet_filtered_C_ = magnet_C;  // the first measurement, or the first after aging out
+    magnet_filtered_C_ = magnet_C;  // the first measurement against this Ke0
     magnet_var_C2_ = r;
+    magnet_sys_std_C_ = sys;
+    magnet_reset_ = false;
   }
-  magnet_sys_var_C2_ = sys;  // the bridge model's error at this operating point, not averaged
   magnet_upper_C_ = magnet_filtered_C_ + config_.derating.confidence_sigma *
-                                             std::sqrt(magnet_var_C2_ + magnet_sys_var_C2_ + magnet_ke0_var_C2());
+                                             std::sqrt(magnet_var_C2_ + magnet_sys_std_C_ * magnet_sys_std_C_ +
+                                                       magnet_ke0_var_C2());
   telemetry_.magnet_upper_C = magnet_upper_C_;
   magnet_valid_ = true;
   magnet_measured_ = true;
@@ -624,17 +642,24 @@ void DriveController::update_magnet(const EventEstimate& e, const Calibration& c
 }
 
 double DriveController::calibration_ke0_std(double ke0) const {
-  // Ke0's standard error: the calibration events' own scatter (each event the mean of its
-  // pairs), or with fewer than three events the pooled pair scatter over all their pairs.
+  // Ke0's standard error: the larger of the calibration events' own scatter (each event the
+  // mean of its pairs; three events or more) and the pooled pair scatter over all their pairs,
+  // plus what the events share and their scatter cannot show (one operating point, one Vx
+  // prior: the mean of their Rs/Vx and bridge-model variances, not divided by N).
   const double n = calibration_ke_count_;
+  if (n < 1.0) {
+    return 0.0;  // unknown: magnet_ke0_var_C2() assumes kUnknownKe0StdFraction
+  }
+  double var = 0.0;
   if (n >= 3.0) {
-    const double var = std::max(0.0, (calibration_ke_sq_sum_ - n * ke0 * ke0) / (n - 1.0));
-    return std::sqrt(var / n);
+    var = std::max(0.0, (calibration_ke_sq_sum_ - n * ke0 * ke0) / (n - 1.0)) / n;
   }
   if (calibration_ke_pairs_ > 0 && ke_pooled_dof_ > 0.0) {
-    return std::abs(ke0) * std::sqrt(ke_pooled_rel_var_sum_ / ke_pooled_dof_ / calibration_ke_pairs_);
+    var = std::max(var, ke0 * ke0 * ke_pooled_rel_var_sum_ / ke_pooled_dof_ / calibration_ke_pairs_);
   }
-  return 0.0;  // unknown: magnet_ke0_var_C2() assumes kUnknownKe0StdFraction
+  var += calibration_ke_model_var_sum_ / n;
+  const double std = std::sqrt(var);
+  return std::isfinite(std) ? std : 0.0;
 }
 
 void DriveController::start_thermal_from_guess(double guess_C) {

@@ -588,6 +588,9 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
   double vx = config_.fit_dead_time ? vx_V_ : 0.0;
   double var_vx = config_.fit_dead_time ? vx_var_ : 0.0;
   double cov_rs_vx = 0.0;     // Rs and Vx come out correlated (the magnet's error bar below)
+  double drs_dvx_held = 0.0;  // Rs's dependence on a Vx held at the prior (shared by events)
+  bool vx_held = false;
+  double fw_bridge_ohm = 0.0; // the field-weakening bridge-pattern part of rs_systematic_std_ohm
   bool rs_from_means = true;  // the pairs' means (their Lq terms refitted in step()), or the sample fit
 
   // The event's own joint fit of Rs and Vx (several levels make it well conditioned) ...
@@ -645,6 +648,8 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
     rs = fixed.rs_ohm;
     var_rs = fixed.var_rs + fixed.drs_dvx * fixed.drs_dvx * var_vx;
     cov_rs_vx = fixed.drs_dvx * var_vx;
+    vx_held = true;
+    drs_dvx_held = fixed.drs_dvx;
     if (event_field_weakening_) {
       // At the voltage limit the bridge's term is most of the pair's signal (the current
       // vector only turns) and the sign pattern is least exact (docs/estimator.md §2): its
@@ -654,6 +659,7 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
       const double model_sq = bridge * bridge + rest * rest;
       var_rs += model_sq;
       e.rs_systematic_std_ohm = std::sqrt(model_sq);
+      fw_bridge_ohm = bridge;
     }
   }
   if (rs_from_means) {
@@ -741,16 +747,27 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
     e.ke_V_s_per_rad = ke_sum / n;
     e.ke_pairs = ke_count;
     e.ke_pair_variance = ke_count > 1 ? std::max(0.0, (ke_sq_sum - n * e.ke_V_s_per_rad * e.ke_V_s_per_rad) / (n - 1.0)) : 0.0;
-    // Rs and Vx with their covariance: a Vx error moves the fitted Rs with it, and in Ke the
-    // two largely cancel (the bridge's q-axis term against the resistive one).
+    // Ke's errors through the event's Rs and Vx (docs/estimator.md §8, the magnets' error
+    // bar). A Vx error moves the fitted Rs with it (dRs/dVx = d), and in Ke the two largely
+    // cancel: the bridge's q-axis term against the resistive one, (a d + b) together.
     const double a = dke_drs_sum / n;
     const double b = dke_dvx_sum / n;
-    const double shared = a * a * var_rs + 2.0 * a * b * cov_rs_vx + b * b * var_vx;
-    e.ke_shared_std_V_s_per_rad = std::sqrt(std::max(shared, 0.0));
-    // The bridge's sign pattern is a model (docs/estimator.md §2): its error, the fraction
-    // field_weakening_pattern_error of the bridge's term, is common to consecutive events at the
-    // same operating point. At low speed under load the term is tens of degrees of magnet.
-    e.ke_systematic_std_V_s_per_rad = config_.field_weakening_pattern_error * std::abs(b * vx);
+    const double d = vx_held ? drs_dvx_held : (var_vx > 0.0 ? cov_rs_vx / var_vx : 0.0);
+    const double rs_sys_sq = e.rs_systematic_std_ohm * e.rs_systematic_std_ohm;
+    // What consecutive events share is not averaged by the magnet filter: a Vx held at the
+    // prior (every event until the next one that learns it), the Rs model's errors (the learned
+    // Lq, the field-weakening rest), and the bridge's sign pattern, the fraction
+    // field_weakening_pattern_error of the bridge's whole term (at low speed under load tens of
+    // degrees of magnet; for field-weakening events it replaces the Rs part of the same error).
+    const double held_sq = vx_held ? (a * d + b) * (a * d + b) * var_vx : 0.0;
+    const double pattern = config_.field_weakening_pattern_error * vx * (a * d + b);
+    const double systematic = held_sq + pattern * pattern + a * a * std::max(0.0, rs_sys_sq - fw_bridge_ohm * fw_bridge_ohm);
+    // The rest is the event's own: Rs's noise, and with a Vx the event fitted, the joint fit's
+    // (Rs, Vx) with their covariance.
+    const double own = vx_held ? a * a * std::max(0.0, var_rs - d * d * var_vx - rs_sys_sq)
+                               : a * a * std::max(0.0, var_rs - rs_sys_sq) + 2.0 * a * b * cov_rs_vx + b * b * var_vx;
+    e.ke_shared_std_V_s_per_rad = std::sqrt(std::max(own, 0.0));
+    e.ke_systematic_std_V_s_per_rad = std::sqrt(systematic);
   }
   return e;
 }

@@ -74,11 +74,12 @@ struct DriveConfig {
   // standstill (time-based recordings) nothing measures it, and a value kept from an hour ago
   // must not read as today's.
   double magnet_max_age_s = 300.0;
-  // The magnet estimate is a scalar Kalman filter on the events' EMF measurements: between
-  // them its variance grows by this squared per second of thermal time (a random walk). The
-  // reference heat-up warms its magnets by up to 0.5 C/s of thermal time; a drive a second
-  // between events then trusts a new measurement about as much as the last estimate.
-  double magnet_drift_C_per_sqrt_s = 0.5;
+  // The magnet estimate is a scalar Kalman filter on the events' EMF readings: between them
+  // its variance grows by this squared per second of thermal time (a random walk). A walk
+  // covers a steady warming of rate r over a gap dt when q >= r sqrt(dt): the reference's
+  // magnets warm by up to 0.5 C/s of thermal time, and events at low speed come every 2-4 s,
+  // so 1 C/sqrt(s). (0.5 left the 48 V servo's band holding the truth 84 % of the time; docs/estimator.md.)
+  double magnet_drift_C_per_sqrt_s = 1.0;
   // The bridge's voltage error measured before the calibration's events (inverter_sweep.hpp):
   // its zero-current band replaces dead_time.current_band_A.
   InverterSweepConfig inverter_sweep{};
@@ -366,7 +367,7 @@ class DriveController {
   void update_magnet(const EventEstimate& e, const Calibration& cal);
   [[nodiscard]] double magnet_var_now_C2() const;
   void publish_magnet_std();
-  void pool_ke_scatter(const EventEstimate& e);
+  void pool_ke_scatter(const EventEstimate& e, double ke_ref);
   [[nodiscard]] double ke_pair_rel_var() const;
   [[nodiscard]] double magnet_ke0_var_C2() const;
   [[nodiscard]] double calibration_ke0_std(double ke0) const;
@@ -443,7 +444,8 @@ class DriveController {
   // Magnet.
   double magnet_filtered_C_ = 0.0;
   double magnet_var_C2_ = 0.0;          // the filter's variance at its last measurement (Ke0's apart)
-  double magnet_sys_var_C2_ = 0.0;      // the last measurement's bridge-model error (not averaged)
+  double magnet_sys_std_C_ = 0.0;       // the readings' systematic error, followed with the filter's gain
+  bool magnet_reset_ = true;            // no estimate against the present Ke0 yet
   double magnet_upper_C_ = 0.0;         // estimate + confidence_sigma sigma at the last measurement
   double ke_pooled_rel_var_sum_ = 0.0;  // the events' pair scatter, pooled (relative to Ke^2)
   double ke_pooled_dof_ = 0.0;
@@ -465,6 +467,7 @@ class DriveController {
   double calibration_ke_sum_ = 0.0;
   int calibration_ke_count_ = 0;
   int calibration_ke_pairs_ = 0;
+  double calibration_ke_model_var_sum_ = 0.0;
   DeratingResult derating_{};
 };
 
