@@ -373,7 +373,12 @@ TEST(DaemonLoop, GpioFaultInputTripsTheDriveAndClearsWhenQuiet) {
   ASSERT_TRUE(has_state(seen, 6, protocol::DriveState::kRunning));
   const std::size_t tripped = seen.size();
   line.set_fault(true);
-  supervise(bench, {6}, 50.0, 10s, seen, [&] { return has_fault(seen, 6, protocol::FaultCode::kGpioFault, true, tripped); });
+  // The FAULT_REPORT goes out at once, the FAULT state with the next DRIVE_STATUS: wait for both
+  // (waiting for the report alone raced the status under ASan's slower loop).
+  supervise(bench, {6}, 50.0, 10s, seen, [&] {
+    return has_fault(seen, 6, protocol::FaultCode::kGpioFault, true, tripped) &&
+           has_state(seen, 6, protocol::DriveState::kFault, tripped);
+  });
   EXPECT_TRUE(has_fault(seen, 6, protocol::FaultCode::kGpioFault, true, tripped));
   EXPECT_TRUE(has_state(seen, 6, protocol::DriveState::kFault, tripped));
   EXPECT_FALSE(axis.loop().gates_enabled());
