@@ -508,9 +508,7 @@ void DriveController::handle_estimate(const EventEstimate& e) {
       calibration_ke_pairs_ += e.ke_pairs;
       calibration_ke_model_var_sum_ += e.ke_shared_std_V_s_per_rad * e.ke_shared_std_V_s_per_rad +
                                        e.ke_systematic_std_V_s_per_rad * e.ke_systematic_std_V_s_per_rad;
-      if (std::abs(e.ke_V_s_per_rad) > 0.0) {
-        pool_ke_scatter(e, std::abs(e.ke_V_s_per_rad));
-      }
+      pool_ke_scatter(e, std::abs(e.ke_V_s_per_rad));
     }
     if (calibration_count_ >= config_.calibration_events) {
       const double rs0 = calibration_rs_sum_ / calibration_weight_sum_;
@@ -631,14 +629,12 @@ void DriveController::update_magnet(const EventEstimate& e, const Calibration& c
     magnet_sys_std_C_ = sys;
     magnet_reset_ = false;
   }
-  magnet_upper_C_ = magnet_filtered_C_ + config_.derating.confidence_sigma *
-                                             std::sqrt(magnet_var_C2_ + magnet_sys_std_C_ * magnet_sys_std_C_ +
-                                                       magnet_ke0_var_C2());
-  telemetry_.magnet_upper_C = magnet_upper_C_;
   magnet_valid_ = true;
   magnet_measured_ = true;
   magnet_age_s_ = 0.0;
-  publish_magnet_std();
+  publish_magnet_std();  // at age 0: the bar as this measurement leaves it
+  magnet_upper_C_ = magnet_filtered_C_ + config_.derating.confidence_sigma * telemetry_.magnet_std_C;
+  telemetry_.magnet_upper_C = magnet_upper_C_;
 }
 
 double DriveController::calibration_ke0_std(double ke0) const {
