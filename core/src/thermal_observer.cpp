@@ -93,7 +93,7 @@ void ThermalObserver::restore(const ThermalState& state, double downtime_thermal
   anchor_C_ = x_(0);
   // The stored uncertainty, the model error of the cooling, and the process noise of the
   // downtime.
-  const double drift = config_.model_error_fraction * cooled_by;
+  const double drift = config_.downtime_error_fraction * cooled_by;
   const double stored = std::isfinite(state.winding_std_C) ? std::max(state.winding_std_C, config_.initial_std_C)
                                                           : config_.unknown_initial_std_C;
   const double var = stored * stored + drift * drift +

@@ -626,10 +626,33 @@ TEST(ThermalObserver, AWrongFirstMeasurementIsReplacedAfterRepeatedRejections) {
   EXPECT_NEAR(obs.estimate().winding_C, 90.0, 2.0);
 }
 
-// Between measurements the band widens by the model's relative error of the change it
-// predicts: a heat-up of 60 C without a measurement ends at least 0.25 x 60 C wide (1 sigma).
+// Between measurements the band widens with the change the model predicts, through the copper
+// loss's relative error k (prior 0.2): a heat-up of 60 C without a measurement, most of it from
+// the copper loss, ends at least 0.15 x 60 C wide (1 sigma).
 TEST(ThermalObserver, TheBandGrowsWithThePredictedChangeBetweenMeasurements) {
   ThermalModelConfig c;
+  ThermalObserver obs(c, Calibration{}, 25.0);
+  ASSERT_TRUE(obs.update_resistance(obs.resistance_at_C(25.0), 0.0001));
+  const double start_std = obs.estimate().winding_std_C;
+  const double start_C = obs.estimate().winding_C;
+  for (int k = 0; k < 4000; ++k) {
+    obs.predict(1.0, 3000.0, 100.0, 25.0);
+  }
+  const double rise = obs.estimate().winding_C - start_C;
+  ASSERT_GT(rise, 40.0);
+  const double copper_share = obs.copper_loss_W(3000.0) / (obs.copper_loss_W(3000.0) + obs.iron_loss_W(100.0));
+  ASSERT_GT(copper_share, 0.8);
+  EXPECT_GE(obs.estimate().winding_std_C, 0.75 * c.initial_loss_scale_std * copper_share * rise);
+  EXPECT_GT(obs.estimate().winding_std_C, start_std);
+  ASSERT_TRUE(obs.update_resistance(obs.resistance_at_C(obs.estimate().winding_C + 5.0), 0.0001));
+  EXPECT_LT(obs.estimate().winding_std_C, 1.0);
+}
+
+// The optional unlearned share (thermal.model_error_fraction): a heat-up of 60 C without a
+// measurement ends at least fraction x 60 C wide, and a measurement resets it.
+TEST(ThermalObserver, TheModelErrorFractionWidensTheBandByThePredictedChange) {
+  ThermalModelConfig c;
+  c.model_error_fraction = 0.25;
   ThermalObserver obs(c, Calibration{}, 25.0);
   ASSERT_TRUE(obs.update_resistance(obs.resistance_at_C(25.0), 0.0001));
   const double start_std = obs.estimate().winding_std_C;
@@ -662,6 +685,8 @@ TEST(ThermalObserver, AStoredStateIsCooledThroughTheDowntime) {
     EXPECT_NEAR(obs.estimate().housing_C, x(1), 0.05) << downtime;
     EXPECT_FALSE(obs.anchored());
     EXPECT_GE(obs.estimate().winding_std_C, 1.0);
+    // The cooling path's error over the downtime widens the band (no loss runs to teach it).
+    EXPECT_GE(obs.estimate().winding_std_C, c.downtime_error_fraction * (120.0 - x(0))) << downtime;
   }
   EXPECT_NEAR(obs.estimate().winding_C, 20.0, 1.0) << "long enough: at the ambient";
 }

@@ -53,11 +53,17 @@ struct ThermalModelConfig {
   // filter starts at the ambient sensor with this uncertainty and takes its first
   // measurement without the gate (a warm motor must not be rejected as implausible).
   double unknown_initial_std_C = 30.0;
-  // The model's relative error in the temperature change it predicts (cooling path, losses):
-  // between measurements the winding's uncertainty grows by this fraction of how far the
-  // model has carried the estimate since the last one, so that a long spell without
-  // measurements widens the band as it should.
-  double model_error_fraction = 0.25;
+  // An extra, unlearned share of the model's error: between measurements the winding's
+  // uncertainty grows by this fraction of how far the model has carried the estimate since the
+  // last one. Off by default: the loss-error states' priors already widen the band with the
+  // predicted heating (k's prior is 20 % of the copper loss), and an error held apart from them
+  // takes every innovation after a spell without measurements into the winding alone, so the
+  // spell teaches the loss model nothing (docs/estimator.md §7, "An honest band").
+  double model_error_fraction = 0.0;
+  // A stored state cooled through a downtime (restore()): no loss runs, so the loss states
+  // cannot carry the cooling's error; the band grows by this fraction of the cooling the model
+  // predicts (the cooling path's relative error).
+  double downtime_error_fraction = 0.25;
 };
 
 // What the drive keeps across a restart (a warm motor): the filter's temperatures and their
