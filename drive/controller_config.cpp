@@ -271,11 +271,12 @@ ConfigSchema<C> build() {
          "Initial uncertainty of the copper-loss model's relative error (0.2: the model within about 20 %).");
   s.real("thermal.model_error_fraction", [](C& c) -> double& { return c.drive.thermal.model_error_fraction; }, between(0, 1), "",
          "An extra, unlearned share of the winding's uncertainty between measurements: this fraction of the temperature change "
-         "the model predicted since the last one (0: the band comes from the loss-error states' priors alone, which the "
-         "measurements teach; docs/estimator.md section 7).");
+         "the model predicted since the last fused measurement (0, the default since 2026-11-28, 0.25 before: the band grows "
+         "through the loss-error states' priors, which the measurements teach, and the process noise; docs/estimator.md section 7).");
   s.real("thermal.downtime_error_fraction", [](C& c) -> double& { return c.drive.thermal.downtime_error_fraction; }, between(0, 1), "",
-         "A stored thermal state cooled through the downtime: its uncertainty grows by this fraction of the cooling the model "
-         "predicts (the cooling path's relative error; no loss runs to teach it).");
+         "A motor at rest (the drive disabled) or a stored thermal state cooled through the downtime: the winding's uncertainty "
+         "grows by this fraction of the change the model predicts meanwhile (the cooling path's relative error; no loss runs to "
+         "teach it).");
   s.real("thermal.measurement_floor_std_C", [](C& c) -> double& { return c.drive.thermal.measurement_floor_std_C; }, at_least(0), "C",
          "Added in quadrature to every measurement's own error.");
   s.real("thermal.gate_sigma", [](C& c) -> double& { return c.drive.thermal.gate_sigma; }, positive(1000), "",

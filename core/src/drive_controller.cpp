@@ -677,10 +677,11 @@ void DriveController::update_thermal(double ambient_C) {
   const double dt = thermal_count_ * config_.period_s;
   const double i_sq = i_sq_sum_ / thermal_count_;
   const double speed = speed_sum_ / thermal_count_;
-  observer_.predict(dt, i_sq, speed, ambient_C);
+  observer_.predict(dt, i_sq, speed, ambient_C, thermal_enabled_count_ == 0);
   i_sq_sum_ = 0.0;
   speed_sum_ = 0.0;
   thermal_count_ = 0;
+  thermal_enabled_count_ = 0;
 
   const ThermalEstimate e = observer_.estimate();
   // dRs/dt for the scheduler: the model's warming through Eq. 1's slope at the estimate.
@@ -983,6 +984,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   i_sq_sum_ += i.d * i.d + i.q * i.q;
   speed_sum_ += angle_.mechanical_speed_rad_s();
   ++thermal_count_;
+  thermal_enabled_count_ += enabled ? 1 : 0;
   thermal_elapsed_s_ += config_.period_s;
   if (thermal_elapsed_s_ >= config_.thermal_update_s) {
     thermal_elapsed_s_ = 0.0;

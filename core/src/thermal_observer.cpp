@@ -114,6 +114,7 @@ void ThermalObserver::restore(const ThermalState& state, double downtime_thermal
     set_loss_errors(0.0, config_.initial_loss_error_std_W, 0.0, config_.initial_loss_scale_std, 0.0, 0.0);
   }
   drift_std_C_ = 0.0;
+  rest_drift_C_ = 0.0;
   shared_error_C_ = 0.0;  // part of the stored band now
   since_measurement_s_ = 0.0;
   restart_history();  // a state from before the restart: nothing of this run to look back on
@@ -176,7 +177,7 @@ double ThermalObserver::iron_loss_W(double omega_m_rad_s) const {
 }
 
 void ThermalObserver::predict(double dt_s, double copper_current_sq_A2, double omega_m_rad_s,
-                              double ambient_C) {
+                              double ambient_C, bool at_rest) {
   const double dt = dt_s * config_.time_scale;  // thermal seconds
   const double pcu = copper_loss_W(copper_current_sq_A2);
   last_copper_loss_W_ = pcu;
@@ -193,10 +194,14 @@ void ThermalObserver::predict(double dt_s, double copper_current_sq_A2, double o
   const double before_C = x_(0);
   x_ = ad * x_ + bd * u;
   winding_rate_C_per_s_ = dt_s > 0.0 ? (x_(0) - before_C) / dt_s : 0.0;
-  // The model's error grows with how far it has carried the estimate from where a
-  // measurement (or the start) left it: a relative error of the cooling path or the losses
-  // scales the temperature change, and shrinks again as the machine returns there.
-  drift_std_C_ = config_.model_error_fraction * std::abs(x_(0) - anchor_C_);
+  // An error the loss states do not carry: at rest no loss runs to teach them, so the cooling
+  // path's relative error of the change predicted meanwhile adds up (summed: it is systematic);
+  // and the optional unlearned share of how far the model has carried the estimate from where
+  // a measurement (or the start) left it.
+  if (at_rest) {
+    rest_drift_C_ += config_.downtime_error_fraction * std::abs(x_(0) - before_C);
+  }
+  drift_std_C_ = config_.model_error_fraction * std::abs(x_(0) - anchor_C_) + rest_drift_C_;
   Matrix q = Matrix::Zero();
   q(0, 0) = config_.winding_process_std_C_per_sqrt_s * config_.winding_process_std_C_per_sqrt_s * dt;
   q(1, 1) = config_.housing_process_std_C_per_sqrt_s * config_.housing_process_std_C_per_sqrt_s * dt;
@@ -305,6 +310,7 @@ bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm, double
   gated_sum_C_ = gated_sq_sum_C2_ = gated_r_sum_C2_ = 0.0;
   p_(0, 0) += drift_var;
   drift_std_C_ = 0.0;
+  rest_drift_C_ = 0.0;
   anchored_ = true;
   const Vector k = p_ * h.transpose() / s;
   x_ += k * (z - x_(0));

@@ -437,6 +437,7 @@ class DriveController {
   double i_sq_sum_ = 0.0;
   double speed_sum_ = 0.0;
   int thermal_count_ = 0;
+  int thermal_enabled_count_ = 0;  // of those periods, the ones the drive was enabled in
   double thermal_elapsed_s_ = 0.0;
   double last_baseline_publish_s_ = 0.0;
   int thermal_updates_ = 0;

@@ -60,9 +60,10 @@ struct ThermalModelConfig {
   // takes every innovation after a spell without measurements into the winding alone, so the
   // spell teaches the loss model nothing (docs/estimator.md §7, "An honest band").
   double model_error_fraction = 0.0;
-  // A stored state cooled through a downtime (restore()): no loss runs, so the loss states
-  // cannot carry the cooling's error; the band grows by this fraction of the cooling the model
-  // predicts (the cooling path's relative error).
+  // A motor at rest (the drive disabled: predict() told that no losses run) or a stored state
+  // cooled through a downtime (restore()): the loss states cannot carry the cooling's error, so
+  // the band grows by this fraction of the change the model predicts meanwhile (the cooling
+  // path's relative error).
   double downtime_error_fraction = 0.25;
 };
 
@@ -151,7 +152,10 @@ class ThermalObserver {
   // Advances the model by dt (controller seconds) with the losses of that interval.
   // copper_current_sq_A2 is the mean of id^2 + iq^2; the copper loss is computed with Rs at the
   // estimated winding temperature (Eq. 1).
-  void predict(double dt_s, double copper_current_sq_A2, double omega_m_rad_s, double ambient_C);
+  // at_rest: the drive drove no current over the interval (disabled): the change the model
+  // predicts meanwhile widens the band by downtime_error_fraction.
+  void predict(double dt_s, double copper_current_sq_A2, double omega_m_rad_s, double ambient_C,
+               bool at_rest = false);
 
   // Fuses one resistance measurement (ohm, with its standard error). Returns false, leaving
   // the state alone, when the measurement is further from the prediction than gate_sigma
@@ -201,7 +205,8 @@ class ThermalObserver {
   double since_measurement_s_ = 0.0;
   double anchor_C_ = 0.0;     // the winding estimate the last measurement (or the start) left
   double shared_error_C_ = 0.0;  // the state's share of measurements' shared model error
-  double drift_std_C_ = 0.0;  // the model's error since then: a fraction of |x - anchor|
+  double drift_std_C_ = 0.0;  // the model's error since then (model_error_fraction, at rest)
+  double rest_drift_C_ = 0.0; // its part from the spells at rest (downtime_error_fraction)
   bool anchored_ = true;      // a measurement or a known temperature holds the state
   int gated_in_row_ = 0;      // measurements gated out since the last fused one
   double gated_sum_C_ = 0.0, gated_sq_sum_C2_ = 0.0, gated_r_sum_C2_ = 0.0;  // of those
