@@ -53,6 +53,14 @@ struct PublicationRecord {
   double calibration_rs0_std_ohm = 0.0;
   double uptime_s = 0.0;
   double current_noise_A = 0.0;  // the current sensors' noise the front end measured (or was given)
+  // The estimator's refusals so far (the publisher logs them when they grow): winding estimates
+  // the thermal filter gated out, and EMF (magnet) readings refused, with the last one's reason.
+  std::uint32_t estimates_gated = 0;
+  std::uint32_t magnet_rejected = 0;
+  core::MagnetRefusal magnet_refusal = core::MagnetRefusal::kNone;
+  double magnet_refused_C = 0.0;
+  double magnet_refused_against_C = 0.0;
+  double magnet_refused_against_std_C = 0.0;
 };
 using PublicationRing = hal::SpscRing<PublicationRecord, 512>;
 

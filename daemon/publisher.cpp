@@ -100,7 +100,39 @@ void Publisher::log_fault(const protocol::FaultReport& f) {
   }
 }
 
+void Publisher::log_refusals(const PublicationRecord& r) {
+  if (r.estimates_gated != estimates_gated_logged_) {
+    spdlog::warn("{} winding estimate(s) not fused: further than thermal.gate_sigma ({:g}) from the thermal filter's "
+                 "prediction ({} in all; several in a row that agree restart the filter from them)",
+                 r.estimates_gated - estimates_gated_logged_, config_.controller.drive.thermal.gate_sigma, r.estimates_gated);
+    estimates_gated_logged_ = r.estimates_gated;
+  }
+  if (r.magnet_rejected != magnet_rejected_logged_) {
+    const std::uint32_t n = r.magnet_rejected - magnet_rejected_logged_;
+    magnet_rejected_logged_ = r.magnet_rejected;
+    switch (r.magnet_refusal) {
+      case core::MagnetRefusal::kImplausible:
+        spdlog::warn("{} magnet (EMF) reading(s) refused, {} in all: the last read {:.1f} C, outside {:.0f}...{:.0f} C where no "
+                     "magnet is; is Ke0 (calibration.ke0_V_s_per_rad, Eq. 3 form: phase peak V per mechanical rad/s) this "
+                     "motor's?",
+                     n, r.magnet_rejected, r.magnet_refused_C, core::kMagnetPlausibleMin_C, core::kMagnetPlausibleMax_C);
+        break;
+      case core::MagnetRefusal::kInconsistent:
+        spdlog::warn("{} magnet (EMF) reading(s) refused, {} in all: the last read {:.1f} C, more than {:g} sigma from the "
+                     "estimate {:.1f} C (sigma {:.1f} C, the reading's included)",
+                     n, r.magnet_rejected, r.magnet_refused_C, core::kMagnetGateSigma, r.magnet_refused_against_C,
+                     r.magnet_refused_against_std_C);
+        break;
+      default:
+        spdlog::warn("{} magnet (EMF) reading(s) refused, {} in all: the last {}", n, r.magnet_rejected,
+                     core::magnet_refusal_text(r.magnet_refusal));
+        break;
+    }
+  }
+}
+
 void Publisher::handle(const PublicationRecord& r) {
+  log_refusals(r);
   const app::NodePublications& p = r.publications;
   for (std::size_t k = 0; k < p.fault_count; ++k) {
     send(p.faults[k]);

@@ -46,6 +46,7 @@ class Publisher {
   template <typename Message>
   void send(const Message& m);
   void log_fault(const hal::protocol::FaultReport& f);
+  void log_refusals(const PublicationRecord& r);
   void report();
   void send_receive_status(const LoopStats& s);
 
@@ -58,6 +59,8 @@ class Publisher {
   LoopStats last_{};
   std::chrono::steady_clock::time_point last_report_{};
   bool first_thermal_logged_ = false;
+  std::uint32_t estimates_gated_logged_ = 0;  // the estimator's refusals as last logged
+  std::uint32_t magnet_rejected_logged_ = 0;
   std::uint64_t rejected_sent_ = 0;  // total rejections in the last RECEIVE_STATUS
   std::chrono::steady_clock::time_point receive_status_sent_{};
 };

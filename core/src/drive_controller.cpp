@@ -126,6 +126,16 @@ const char* calibration_failure_name(CalibrationFailure f) {
   return "unknown";
 }
 
+const char* magnet_refusal_text(MagnetRefusal r) {
+  switch (r) {
+    case MagnetRefusal::kNone: return "none";
+    case MagnetRefusal::kNotANumber: return "not a number";
+    case MagnetRefusal::kImplausible: return "outside what a magnet can be";
+    case MagnetRefusal::kInconsistent: return "too far from the estimate";
+  }
+  return "unknown";
+}
+
 void DriveController::age_magnet() {
   // A magnet estimate ages in thermal time; past its limit it is no estimate (and the next
   // measurement starts the smoothing afresh instead of blending with the stale value).
@@ -612,6 +622,14 @@ void DriveController::update_magnet(const EventEstimate& e, const Calibration& c
                         kMagnetGateSigma * std::sqrt(prior_var + magnet_sys_std_C_ * magnet_sys_std_C_ + r + sys * sys);
   if (!physical || !consistent) {
     ++telemetry_.magnet_rejected;
+    const bool finite = std::isfinite(magnet_C) && std::isfinite(r) && std::isfinite(sys);
+    telemetry_.magnet_last_refusal = !finite   ? MagnetRefusal::kNotANumber
+                                     : !physical ? MagnetRefusal::kImplausible
+                                                 : MagnetRefusal::kInconsistent;
+    telemetry_.magnet_last_refused_C = magnet_C;
+    telemetry_.magnet_refused_against_C = magnet_filtered_C_;
+    telemetry_.magnet_refused_against_std_C =
+        std::sqrt(prior_var + magnet_sys_std_C_ * magnet_sys_std_C_ + r + sys * sys);
     return;
   }
   pool_ke_scatter(e, cal.ke0_V_s_per_rad);

@@ -67,6 +67,24 @@ TEST(EstimatorRobustness, AtTheVoltageLimitFieldWeakeningPairsMeasure) {
   EXPECT_GE(r.coverage_2sigma, 0.9) << "the band carries the pairs' shared error";
 }
 
+// A Ke0 in the wrong units (per electrical rad/s): every EMF reading lies far outside what a
+// magnet can be. Each is refused and counted with its reason, no magnet estimate is ever
+// published (so none derates the drive), and the winding's estimate, which does not use Ke0,
+// is unaffected.
+TEST(EstimatorRobustness, EmfReadingsAgainstAWrongKe0AreRefused) {
+  RunOptions o;
+  o.twin_for_disturbance = false;
+  const SimulationResult r = run_scenario(
+      load_scenario(std::filesystem::path(PMSM_SOURCE_DIR) / "tests/integration/data/ke0-per-electrical-rad.toml"), o);
+  ASSERT_GT(r.estimates_accepted, 10U) << "the events measure";
+  EXPECT_GE(r.magnet_rejected, r.estimates_accepted) << "every event's EMF reading is refused";
+  EXPECT_EQ(r.magnet_last_refusal, core::MagnetRefusal::kImplausible);
+  // Eq. 3: Ke / Ke0 = 3, so 25 C + (3 - 1) / -0.0012 per C.
+  EXPECT_LT(r.magnet_last_refused_C, -1000.0);
+  EXPECT_EQ(r.magnet_error_samples, 0U) << "no magnet estimate was ever valid";
+  EXPECT_LT(r.winding_error_rms_C, 2.5);
+}
+
 // A calibration that cannot learn the bridge's voltage is refused, not stored: its Rs0 would
 // have been 55 % high (every later reading about 100 C low), and its own standard error says
 // so (26 % of Rs0 against the 2 % allowed).

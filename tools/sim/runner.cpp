@@ -529,6 +529,8 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
   }
   result.wall_time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
   result.magnet_rejected = drive.telemetry().magnet_rejected;
+  result.magnet_last_refusal = drive.telemetry().magnet_last_refusal;
+  result.magnet_last_refused_C = drive.telemetry().magnet_last_refused_C;
   if (result.winding_error_samples > 0) {
     const auto n = static_cast<double>(result.winding_error_samples);
     result.winding_error_rms_C = std::sqrt(sq_err / n);
@@ -789,7 +791,8 @@ std::string result_text(const SimulationResult& r) {
                        r.magnet_error_rms_C, r.magnet_error_max_C, 100.0 * r.magnet_coverage_2sigma);
   }
   if (r.magnet_rejected > 0) {
-    out += fmt::format("  magnet measurements refused     {} (implausible)\n", r.magnet_rejected);
+    out += fmt::format("  magnet measurements refused     {} (the last: {:.1f} C, {})\n", r.magnet_rejected,
+                       r.magnet_last_refused_C, core::magnet_refusal_text(r.magnet_last_refusal));
   }
   const std::string fw = r.field_weakening_pairs_accepted > 0
                              ? fmt::format(" ({} field-weakening)", r.field_weakening_pairs_accepted)

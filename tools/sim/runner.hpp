@@ -95,6 +95,8 @@ struct SimulationResult {
   std::size_t magnet_error_samples = 0;
   double magnet_coverage_2sigma = 0.0;  // of those samples, the truth inside the magnet's +-2 sigma
   std::size_t magnet_rejected = 0;      // EMF measurements the drive refused as implausible
+  core::MagnetRefusal magnet_last_refusal = core::MagnetRefusal::kNone;  // why the last one was
+  double magnet_last_refused_C = 0.0;   // and what it read
   std::size_t estimates_accepted = 0;   // fused by the thermal filter
   std::size_t estimates_gated = 0;      // published but gated out as implausible
   [[nodiscard]] std::size_t estimates_published() const noexcept { return estimates_accepted + estimates_gated; }

@@ -159,6 +159,23 @@ enum class CalibrationOutcome : std::uint8_t {
   kRefused = 4,    // CalibrationFailure::kUncertain or kAngleOffset
 };
 
+// An EMF (magnet) reading is refused outside kMagnetPlausibleMin_C..kMagnetPlausibleMax_C
+// (what any NdFeB grade survives, any ambient reaches) or further than kMagnetGateSigma from
+// the estimate (its band, the reading's error bar and both systematic parts together).
+inline constexpr double kMagnetPlausibleMin_C = -60.0;
+inline constexpr double kMagnetPlausibleMax_C = 300.0;
+inline constexpr double kMagnetGateSigma = 6.0;
+
+// Why the last EMF (magnet) reading was refused (DriveController::update_magnet).
+enum class MagnetRefusal : std::uint8_t {
+  kNone = 0,
+  kNotANumber = 1,     // the reading or its error bar is not finite
+  kImplausible = 2,    // outside what any NdFeB grade survives or any ambient reaches
+  kInconsistent = 3,   // further than kMagnetGateSigma from the estimate's band
+};
+// What the reason means, for a log line.
+[[nodiscard]] const char* magnet_refusal_text(MagnetRefusal r);
+
 struct DriveTelemetry {
   std::uint64_t period = 0;
   double time_s = 0.0;
@@ -196,6 +213,12 @@ struct DriveTelemetry {
   double magnet_std_C = 0.0;         // its standard error, Ke0's included (at each thermal update)
   double magnet_upper_C = 0.0;       // what the magnets derate on (DriveController::update_magnet)
   std::uint32_t magnet_rejected = 0;  // EMF measurements refused as implausible
+  // The last refused one: why, the temperature it read (NaN when none) and the estimate it
+  // was refused against (valid only for kInconsistent).
+  MagnetRefusal magnet_last_refusal = MagnetRefusal::kNone;
+  double magnet_last_refused_C = 0.0;
+  double magnet_refused_against_C = 0.0;
+  double magnet_refused_against_std_C = 0.0;
   double torque_estimate_Nm = 0.0;  // from the measured currents (with reluctance torque)
   OutcomeCounts outcomes{};
   std::uint32_t estimates_published = 0;
@@ -376,9 +399,6 @@ class DriveController {
   static constexpr double kUnknownKe0StdFraction = 0.002;
   // One pair's Ke scatter before any event has shown it (the first events of one pair each).
   static constexpr double kUnknownKePairStdFraction = 0.005;
-  static constexpr double kMagnetPlausibleMin_C = -60.0;
-  static constexpr double kMagnetPlausibleMax_C = 300.0;
-  static constexpr double kMagnetGateSigma = 6.0;
   void fail_calibration(CalibrationFailure why);
   void publish_calibration_state();
   void clear_motoring_telemetry();  // nothing asked of the motor this period (disabled, no sample)
