@@ -1,7 +1,7 @@
 # pmsm-thermald's loop and publisher against the plant node on the in-process bus.
 pmsm_add_gtest(daemon_loop_test LABEL integration
   SOURCES ${CMAKE_CURRENT_LIST_DIR}/daemon_loop_test.cpp
-  LIBS pmsm_daemon pmsm_plant_node pmsm_sim
+  LIBS pmsm_daemon pmsm_plant_node pmsm_sim spdlog::spdlog
   TIMEOUT 600)
 
 # Own binary: it replaces malloc and its family (tests/support/alloc_counter) to count allocations on the control thread.

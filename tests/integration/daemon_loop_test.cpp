@@ -15,10 +15,15 @@
 #include <chrono>
 #include <cmath>
 #include <filesystem>
+#include <functional>
 #include <memory>
 #include <optional>
+#include <string>
 #include <thread>
 #include <vector>
+
+#include <spdlog/sinks/ringbuffer_sink.h>
+#include <spdlog/spdlog.h>
 
 #include "daemon_config.hpp"
 #include "drive_loop.hpp"
@@ -45,13 +50,17 @@ class Axis {
   // The command timeout is generous unless a test is about it: the test thread that sends
   // the commands every 50 ms may be starved for longer than 0.5 s on a loaded machine, and a
   // timeout then lets the scenario's active load spin the free shaft away.
+  // adjust: changes to the daemon's controller configuration (e.g. a stored calibration).
   Axis(hal::SimBus& bus, protocol::NodeId node, double plant_duration_s, double ambient_C = 25.0,
-       double command_timeout_s = 5.0)
+       double command_timeout_s = 5.0, const std::function<void(app::ControllerConfig&)>& adjust = {})
       : node_(node) {
     const app::Scenario scenario = app::load_scenario(kData / "heatup-short.toml");
     plant_config_ = scenario.plant;
     plant_config_.thermal.ambient_C = ambient_C;
     config_.controller = scenario.controller;
+    if (adjust) {
+      adjust(config_.controller);
+    }
     config_.supervisor = app::default_supervisor_config(config_.controller);
     config_.supervisor.command_timeout_s = command_timeout_s;
     config_.supervisor.sensor_timeout_periods = 5;
@@ -292,6 +301,64 @@ TEST(DaemonLoop, HeatUpOverTheBusTracksThePlantsTruth) {
   EXPECT_GT(s.commands_accepted[0], 10U);
   EXPECT_EQ(s.commands_accepted[2], 1U) << "the calibration command";
   EXPECT_EQ(s.publications_dropped, 0U);
+}
+
+// The daemon's log, as an operator reads it (journal): the default logger replaced by a ring
+// buffer for the test's lifetime.
+class LogCapture {
+ public:
+  LogCapture() : previous_(spdlog::default_logger()), sink_(std::make_shared<spdlog::sinks::ringbuffer_sink_mt>(4096)) {
+    spdlog::set_default_logger(std::make_shared<spdlog::logger>("capture", sink_));
+  }
+  ~LogCapture() { spdlog::set_default_logger(previous_); }
+  LogCapture(const LogCapture&) = delete;
+  LogCapture& operator=(const LogCapture&) = delete;
+  [[nodiscard]] std::vector<std::string> lines_with(const std::string& text) const {
+    std::vector<std::string> out;
+    for (const std::string& l : sink_->last_formatted()) {
+      if (l.find(text) != std::string::npos) {
+        out.push_back(l);
+      }
+    }
+    return out;
+  }
+
+ private:
+  std::shared_ptr<spdlog::logger> previous_;
+  std::shared_ptr<spdlog::sinks::ringbuffer_sink_mt> sink_;
+};
+
+// A stored calibration whose Ke0 was entered per electrical rad/s (a third of this 3-pole-pair
+// motor's): every EMF reading then says the magnets are near -1,600 C. The daemon refuses each
+// (no THERMAL_ESTIMATE ever says MagnetValid), and its log names what was refused and why.
+TEST(DaemonLoop, ImplausibleMagnetReadingsAreRefusedAndLoggedWithTheirReason) {
+  LogCapture log;
+  Bench bench;
+  Axis axis(bench.bus, 1, 8.0, 25.0, 5.0, [](app::ControllerConfig& c) {
+    c.drive.calibration.rs0_ohm = 0.13259;
+    c.drive.calibration.t0_C = 25.0;
+    c.drive.calibration.ke0_V_s_per_rad = 0.97114 / 3.0;
+    c.drive.calibration.calibrated = true;
+  });
+  axis.start_daemon();
+  std::this_thread::sleep_for(50ms);
+  bench.run_speed(1, 94.0);
+  axis.start_plant();
+  std::vector<protocol::AnyDecoded> seen;
+  supervise(bench, {1}, 94.0, 600s, seen, [&] { return axis.plant_done(); });
+  ASSERT_TRUE(axis.plant_done()) << "the plant did not finish its 8 s in time";
+  std::size_t estimates = 0;
+  for (const protocol::AnyDecoded& d : seen) {
+    if (const auto* e = as<protocol::ThermalEstimate>(d); e != nullptr && e->valid) {
+      ++estimates;
+      EXPECT_FALSE(e->magnet_valid) << "a magnet estimate from a refused reading";
+    }
+  }
+  ASSERT_GT(estimates, 20U);
+  const std::vector<std::string> refused = log.lines_with("magnet (EMF) reading(s) refused");
+  ASSERT_FALSE(refused.empty()) << "no refusal in the daemon's log";
+  EXPECT_NE(refused.front().find("outside -60...300 C"), std::string::npos) << refused.front();
+  EXPECT_NE(refused.front().find("calibration.ke0_V_s_per_rad"), std::string::npos) << refused.front();
 }
 
 TEST(DaemonLoop, PlantOutageSafeStateThenRecovery) {
