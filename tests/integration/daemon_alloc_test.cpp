@@ -66,11 +66,11 @@ TEST(DaemonAlloc, TheControlThreadAllocatesNothing) {
     loop.run(stop);
     loop_allocations = test::thread_allocations() - before;
   });
-  std::thread plant_thread([&] {
-    plant.run(stop);
-    plant_done = true;
-  });
-  // The supervisor: enable, calibrate at 25 C, keep the commands fresh; drain the ring.
+  // The supervisor: enable, calibrate at 25 C, keep the commands fresh; drain the ring. The
+  // first commands go out before the plant runs: the wall-clock pace of this thread must not
+  // decide when, in the plant's simulated time, the drive starts (on a loaded machine the
+  // lockstep plant can run seconds ahead of a late first command, and the run then ends with
+  // fewer estimates).
   protocol::CommandSender sender(1);
   hal::CanFrame frame{};
   protocol::DriveCommand run;
@@ -80,19 +80,29 @@ TEST(DaemonAlloc, TheControlThreadAllocatesNothing) {
   protocol::CalibrationCommand calibrate;
   calibrate.action = protocol::CalibrationAction::kStart;
   calibrate.known_temp_C = 25.0;
+  ASSERT_EQ(sender.encode(run, frame), protocol::EncodeStatus::kOk);
+  ASSERT_EQ(supervisor->send(frame, 10ms), hal::SendResult::kOk);
   ASSERT_EQ(sender.encode(calibrate, frame), protocol::EncodeStatus::kOk);
   ASSERT_EQ(supervisor->send(frame, 10ms), hal::SendResult::kOk);
+  std::this_thread::sleep_for(50ms);
+  std::thread plant_thread([&] {
+    plant.run(stop);
+    plant_done = true;
+  });
   std::size_t thermal = 0, estimates = 0, injections = 0;
   PublicationRecord record;
+  auto count = [&](const PublicationRecord& r) {
+    thermal += r.publications.thermal ? 1U : 0U;
+    estimates += r.publications.resistance ? 1U : 0U;
+    injections += r.publications.injection ? 1U : 0U;
+  };
   const auto until = std::chrono::steady_clock::now() + 300s;
   while (!plant_done && std::chrono::steady_clock::now() < until) {
     ASSERT_EQ(sender.encode(run, frame), protocol::EncodeStatus::kOk);
     ASSERT_EQ(supervisor->send(frame, 10ms), hal::SendResult::kOk);
     for (int k = 0; k < 10; ++k) {
       while (ring.try_pop(record)) {
-        thermal += record.publications.thermal ? 1U : 0U;
-        estimates += record.publications.resistance ? 1U : 0U;
-        injections += record.publications.injection ? 1U : 0U;
+        count(record);
       }
       std::this_thread::sleep_for(5ms);
     }
@@ -101,6 +111,7 @@ TEST(DaemonAlloc, TheControlThreadAllocatesNothing) {
   daemon_thread.join();
   plant_thread.join();
   while (ring.try_pop(record)) {
+    count(record);  // the run's last publications count too
   }
   // The run exercised what it claims to.
   const LoopStats s = loop.stats();
