@@ -126,9 +126,6 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns) 
       r.estimates_gated = t.estimates_gated;
       r.magnet_rejected = t.magnet_rejected;
       r.magnet_refusal = t.magnet_last_refusal;
-      r.magnet_refused_C = t.magnet_last_refused_C;
-      r.magnet_refused_against_C = t.magnet_refused_against_C;
-      r.magnet_refused_against_std_C = t.magnet_refused_against_std_C;
     }
     if (p.heartbeat) {
       r.timing = close_timing_window();

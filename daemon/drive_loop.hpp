@@ -57,10 +57,7 @@ struct PublicationRecord {
   // the thermal filter gated out, and EMF (magnet) readings refused, with the last one's reason.
   std::uint32_t estimates_gated = 0;
   std::uint32_t magnet_rejected = 0;
-  core::MagnetRefusal magnet_refusal = core::MagnetRefusal::kNone;
-  double magnet_refused_C = 0.0;
-  double magnet_refused_against_C = 0.0;
-  double magnet_refused_against_std_C = 0.0;
+  core::MagnetRefusalReport magnet_refusal{};
 };
 using PublicationRing = hal::SpscRing<PublicationRecord, 512>;
 

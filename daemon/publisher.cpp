@@ -110,22 +110,22 @@ void Publisher::log_refusals(const PublicationRecord& r) {
   if (r.magnet_rejected != magnet_rejected_logged_) {
     const std::uint32_t n = r.magnet_rejected - magnet_rejected_logged_;
     magnet_rejected_logged_ = r.magnet_rejected;
-    switch (r.magnet_refusal) {
+    switch (r.magnet_refusal.reason) {
       case core::MagnetRefusal::kImplausible:
         spdlog::warn("{} magnet (EMF) reading(s) refused, {} in all: the last read {:.1f} C, outside {:.0f}...{:.0f} C where no "
                      "magnet is; is Ke0 (calibration.ke0_V_s_per_rad, Eq. 3 form: phase peak V per mechanical rad/s) this "
                      "motor's?",
-                     n, r.magnet_rejected, r.magnet_refused_C, core::kMagnetPlausibleMin_C, core::kMagnetPlausibleMax_C);
+                     n, r.magnet_rejected, r.magnet_refusal.reading_C, core::kMagnetPlausibleMin_C, core::kMagnetPlausibleMax_C);
         break;
       case core::MagnetRefusal::kInconsistent:
         spdlog::warn("{} magnet (EMF) reading(s) refused, {} in all: the last read {:.1f} C, more than {:g} sigma from the "
                      "estimate {:.1f} C (sigma {:.1f} C, the reading's included)",
-                     n, r.magnet_rejected, r.magnet_refused_C, core::kMagnetGateSigma, r.magnet_refused_against_C,
-                     r.magnet_refused_against_std_C);
+                     n, r.magnet_rejected, r.magnet_refusal.reading_C, core::kMagnetGateSigma, r.magnet_refusal.against_C,
+                     r.magnet_refusal.against_std_C);
         break;
       default:
         spdlog::warn("{} magnet (EMF) reading(s) refused, {} in all: the last {}", n, r.magnet_rejected,
-                     core::magnet_refusal_text(r.magnet_refusal));
+                     core::magnet_refusal_text(r.magnet_refusal.reason));
         break;
     }
   }

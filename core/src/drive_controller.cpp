@@ -623,13 +623,9 @@ void DriveController::update_magnet(const EventEstimate& e, const Calibration& c
   if (!physical || !consistent) {
     ++telemetry_.magnet_rejected;
     const bool finite = std::isfinite(magnet_C) && std::isfinite(r) && std::isfinite(sys);
-    telemetry_.magnet_last_refusal = !finite   ? MagnetRefusal::kNotANumber
-                                     : !physical ? MagnetRefusal::kImplausible
-                                                 : MagnetRefusal::kInconsistent;
-    telemetry_.magnet_last_refused_C = magnet_C;
-    telemetry_.magnet_refused_against_C = magnet_filtered_C_;
-    telemetry_.magnet_refused_against_std_C =
-        std::sqrt(prior_var + magnet_sys_std_C_ * magnet_sys_std_C_ + r + sys * sys);
+    telemetry_.magnet_last_refusal = {
+        !finite ? MagnetRefusal::kNotANumber : !physical ? MagnetRefusal::kImplausible : MagnetRefusal::kInconsistent,
+        magnet_C, magnet_filtered_C_, std::sqrt(prior_var + magnet_sys_std_C_ * magnet_sys_std_C_ + r + sys * sys)};
     return;
   }
   pool_ke_scatter(e, cal.ke0_V_s_per_rad);

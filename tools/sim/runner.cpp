@@ -529,8 +529,8 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
   }
   result.wall_time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
   result.magnet_rejected = drive.telemetry().magnet_rejected;
-  result.magnet_last_refusal = drive.telemetry().magnet_last_refusal;
-  result.magnet_last_refused_C = drive.telemetry().magnet_last_refused_C;
+  result.magnet_last_refusal = drive.telemetry().magnet_last_refusal.reason;
+  result.magnet_last_refused_C = drive.telemetry().magnet_last_refusal.reading_C;
   if (result.winding_error_samples > 0) {
     const auto n = static_cast<double>(result.winding_error_samples);
     result.winding_error_rms_C = std::sqrt(sq_err / n);

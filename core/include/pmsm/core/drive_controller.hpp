@@ -176,6 +176,15 @@ enum class MagnetRefusal : std::uint8_t {
 // What the reason means, for a log line.
 [[nodiscard]] const char* magnet_refusal_text(MagnetRefusal r);
 
+// The last refused EMF reading: why, the temperature it read (NaN when none) and the estimate
+// (and sigma, the reading's included) it was refused against (valid only for kInconsistent).
+struct MagnetRefusalReport {
+  MagnetRefusal reason = MagnetRefusal::kNone;
+  double reading_C = 0.0;
+  double against_C = 0.0;
+  double against_std_C = 0.0;
+};
+
 struct DriveTelemetry {
   std::uint64_t period = 0;
   double time_s = 0.0;
@@ -213,12 +222,7 @@ struct DriveTelemetry {
   double magnet_std_C = 0.0;         // its standard error, Ke0's included (at each thermal update)
   double magnet_upper_C = 0.0;       // what the magnets derate on (DriveController::update_magnet)
   std::uint32_t magnet_rejected = 0;  // EMF measurements refused as implausible
-  // The last refused one: why, the temperature it read (NaN when none) and the estimate it
-  // was refused against (valid only for kInconsistent).
-  MagnetRefusal magnet_last_refusal = MagnetRefusal::kNone;
-  double magnet_last_refused_C = 0.0;
-  double magnet_refused_against_C = 0.0;
-  double magnet_refused_against_std_C = 0.0;
+  MagnetRefusalReport magnet_last_refusal{};  // the last refused one
   double torque_estimate_Nm = 0.0;  // from the measured currents (with reluctance torque)
   OutcomeCounts outcomes{};
   std::uint32_t estimates_published = 0;
