@@ -35,6 +35,10 @@ ConfigSchema<C> build() {
            "3.93e-3 /C at 20 C, 3.85e-3 at 25 C) or 225 C (aluminium).");
   s.real("motor.ld_H", [](C& c) -> double& { return c.drive.motor.ld_H; }, positive(1.0), "H", "d-axis inductance as commissioned.");
   s.real("motor.lq_H", [](C& c) -> double& { return c.drive.motor.lq_H; }, positive(1.0), "H", "q-axis inductance as commissioned.");
+  s.real("motor.lq_rated_H", [](C& c) -> double& { return c.drive.motor.lq_rated_H; }, at_least(0, 1.0), "H",
+         "Secant q-axis inductance (psi_q / iq) at the rated current, from the motor's flux map or datasheet; 0: not known. "
+         "On a saturating machine it gives the estimator the gap between the secant Lq that pairs at one load measure "
+         "and the incremental Lq their fit needs (docs/estimator.md section 5.1).");
   s.real("motor.ke_V_s_per_rad", [](C& c) -> double& { return c.drive.motor.ke_V_s_per_rad; }, positive(100.0), "V s/rad",
          "EMF constant, line-to-line RMS volts per mechanical rad/s (Table I: 1.19).");
   s.integer("motor.pole_pairs", [](C& c) -> int& { return c.drive.motor.pole_pairs; }, between(1, 64), "Pole pairs.");
@@ -509,6 +513,14 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
          ref("injection.headroom_margin_V", d.injection.headroom_margin_V, "V", l) + " must be below the voltage limit at the bus " +
              ref("control.nominal_dc_bus_V", c.nominal_dc_bus_V, "V", l) + ", " + common::format_number(limit_V) +
              " V (control.voltage_limit_fraction x bus / sqrt(3)): no injection could ever be budgeted");
+  }
+  // Saturation only lowers the secant inductance; the estimator's curve is a first-order model,
+  // kept within half of Lq.
+  if (m.lq_rated_H > 0.0 && (m.lq_rated_H > m.lq_H || m.lq_rated_H < 0.5 * m.lq_H)) {
+    const std::string_view l = lead("motor.lq_rated_H", "motor.lq_H");
+    rule("motor.lq_rated_H", "motor.lq_H",
+         ref("motor.lq_rated_H", m.lq_rated_H, "H", l) + " must lie between half of " + ref("motor.lq_H", m.lq_H, "H", l) +
+             " and it: saturation lowers the secant inductance with load");
   }
   if (d.derating.derate_start_C >= d.derating.limit_C) {
     rule("derating.start_C", "derating.limit_C", "derating.start_C must be below derating.limit_C");

@@ -17,6 +17,8 @@ void DriveConfig::derive_from_motor() {
   angle.pole_pairs = motor.pole_pairs;
   for (InjectionConfig* injection_config : {&injection, &calibration_injection}) {
     injection_config->lq_H = motor.lq_H;
+    injection_config->lq_rated_H = motor.lq_rated_H;
+    injection_config->rated_current_A = continuous_current_peak_A(motor);
     injection_config->ld_H = motor.ld_H;
     injection_config->rs_nominal_ohm = motor.rs_ohm;
     injection_config->flux_linkage_Wb = psi_Wb;

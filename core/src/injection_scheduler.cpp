@@ -51,6 +51,22 @@ std::string_view to_string(PairOutcome o) {
   return "?";
 }
 
+namespace {
+// u = (iq / current limit)^2, the saturation model's variable.
+double saturation_variable(double iq_A, double limit_A) {
+  const double x = limit_A > 0.0 ? iq_A / limit_A : 0.0;
+  return std::min(x * x, 1.44);  // a quadratic curve says nothing far beyond 1.2 x the limit
+}
+
+// The commissioned saturation: the secant lost at the current limit, b0, from the secant at
+// the rated current (0 where it is not known). The secant a - b u falls from lq_H at no load to
+// lq_rated_H at u(rated), so b0 = (lq_H - lq_rated_H) / u(rated).
+double commissioned_saturation_H(const InjectionConfig& c) {
+  const double u = saturation_variable(c.rated_current_A, c.current_limit_A);
+  return c.lq_rated_H > 0.0 && u > 0.0 ? (c.lq_H - c.lq_rated_H) / u : 0.0;
+}
+}  // namespace
+
 InjectionScheduler::InjectionScheduler(const InjectionConfig& config, double period_s,
                                        std::size_t capacity)
     : config_(config),
@@ -61,6 +77,8 @@ InjectionScheduler::InjectionScheduler(const InjectionConfig& config, double per
       vx_var_(config.vx_initial_std_V * config.vx_initial_std_V),
       lq_H_(config.lq_H),
       lq_var_(config.lq_initial_std_fraction * config.lq_H * config.lq_initial_std_fraction * config.lq_H),
+      lq_b0_H_(commissioned_saturation_H(config)),
+      lq_b_H_(lq_b0_H_),
       lq_b_var_(config.lq_saturation_std_fraction * config.lq_H * config.lq_saturation_std_fraction * config.lq_H),
       recorder_capacity_(capacity) {
   // The window constants the budget needs at every pair start are computed here, once, not
@@ -195,14 +213,6 @@ InjectionScheduler::Budget InjectionScheduler::budget(const SchedulerInput& in, 
   }
   return b;
 }
-
-namespace {
-// u = (iq / current limit)^2, the saturation model's variable.
-double saturation_variable(double iq_A, double limit_A) {
-  const double x = limit_A > 0.0 ? iq_A / limit_A : 0.0;
-  return std::min(x * x, 1.44);  // a quadratic curve says nothing far beyond 1.2 x the limit
-}
-}  // namespace
 
 void InjectionScheduler::begin_pair(const SchedulerInput& in) {
   time_based_ = std::abs(in.omega_e_rad_s) < config_.min_speed_for_angle_rad_s;
@@ -438,12 +448,13 @@ PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
   return r;
 }
 
+// (Learning off, the curve keeps its priors: the commissioned lq_H and saturation.)
 double InjectionScheduler::lq_secant_H(double iq_A) const {
-  return config_.learn_lq ? lq_secant_at(saturation_variable(iq_A, config_.current_limit_A)) : config_.lq_H;
+  return lq_secant_at(saturation_variable(iq_A, config_.current_limit_A));
 }
 
 double InjectionScheduler::lq_incremental_H(double iq_A) const {
-  return config_.learn_lq ? lq_incremental_at(saturation_variable(iq_A, config_.current_limit_A)) : config_.lq_H;
+  return lq_incremental_at(saturation_variable(iq_A, config_.current_limit_A));
 }
 
 double InjectionScheduler::lq_secant_at(double u) const {
@@ -454,11 +465,13 @@ double InjectionScheduler::lq_incremental_at(double u) const {
   // psi = (a - b u) iq with u = (iq / I)^2: d psi / d iq = a - 3 b u. Until pairs at two
   // loads have resolved b (its variance below a quarter of its prior), a and b are known only
   // in the combination a - b u of the loads seen, and 3 b u would triple whatever error b
-  // took from them: the secant stands for the incremental until then.
+  // took from them: until then the incremental is the secant (which pairs at this load
+  // measure) less the commissioned gap 2 b0 u (which they cannot; 0 where no saturation was
+  // commissioned).
   const double secant = lq_secant_at(u);
   const double prior = config_.lq_saturation_std_fraction * config_.lq_H;
   if (!(lq_b_var_ < 0.25 * prior * prior)) {
-    return secant;
+    return std::clamp(secant - 2.0 * lq_b0_H_ * u, 0.5 * secant, secant);
   }
   return std::clamp(lq_H_ - 3.0 * lq_b_H_ * u, 0.5 * secant, 1.5 * secant);
 }

@@ -323,6 +323,21 @@ TEST(ControllerConfig, HeadroomMarginFollowsTheBus) {
   EXPECT_EQ(error_of("[control]\nnominal_dc_bus_V = 48\n[injection]\nheadroom_margin_V = 26\n"), "");
 }
 
+// A flux map's secant Lq at the rated current: saturation lowers it, so it lies between half
+// of the commissioned Lq and Lq itself; it reaches the scheduler with the rated current.
+TEST(ControllerConfig, RatedCurrentLqIsCheckedAgainstLq) {
+  const ControllerConfig c = parse("[motor]\nlq_rated_H = 5.0e-3\n");
+  EXPECT_EQ(c.drive.injection.lq_rated_H, 5.0e-3);
+  EXPECT_EQ(c.drive.calibration_injection.lq_rated_H, 5.0e-3);
+  EXPECT_NEAR(c.drive.injection.rated_current_A, 31.9 * std::sqrt(2.0), 1e-9);
+  EXPECT_EQ(parse("").drive.injection.lq_rated_H, 0.0);
+  const std::string high = error_of("[motor]\nlq_H = 5.5e-3\nlq_rated_H = 6e-3\n");
+  EXPECT_EQ(high.rfind("drive.toml:3: motor.lq_rated_H (0.006 H) must lie between half of motor.lq_H (0.0055 H, drive.toml:2) "
+                       "and it", 0), 0U) << high;
+  EXPECT_NE(error_of("[motor]\nlq_rated_H = 2e-3\n"), "");
+  EXPECT_EQ(error_of("[motor]\nlq_rated_H = -1e-3\n").rfind("drive.toml:2: motor.lq_rated_H: must be", 0), 0U);
+}
+
 // The controller's components take the motor model from DriveConfig::motor whatever the
 // sub-configurations say: the copies cannot disagree.
 TEST(ControllerConfig, DriveControllerDerivesFromTheMotor) {

@@ -1023,30 +1023,30 @@ TEST(InjectionScheduler, FieldWeakeningPairMeasuresKeWithItsOwnLd) {
 // means measure. Pairs at a light and a heavy load learn the curve (a - b u); the loaded
 // pairs then read Rs right. With one Lq for every load (lq_saturation_std_fraction = 0) they
 // read it far off.
-double loaded_rs_error(double saturation_std_fraction, double* lq_a, double* lq_b) {
+InjectionConfig saturation_test_config() {
   InjectionConfig c = test_config();
-  c.lq_saturation_std_fraction = saturation_std_fraction;
   c.vx_initial_V = 1.5;
   c.vx_initial_std_V = 0.01;
-  c.max_load_change_A = 20.0;  // the iq answer is what this test is about
+  c.max_load_change_A = 20.0;  // the iq answer is what these tests are about
   c.rs_max_ohm = 0.5;
   c.rs_min_ohm = 0.02;
-  Harness h(c);
-  h.plant.lq_sat_H = 0.55e-3;  // secant 10 % lower at the current limit
-  double iq0 = 5.0;
-  h.hook = [&iq0](Harness& x) {
+  return c;
+}
+
+// The speed loop's answer to the pulses' reluctance torque: iq moves by 0.15 A per ampere of
+// injection on top of the load's iq0.
+void answer_the_reluctance_torque(Harness& h, const double* iq0) {
+  h.hook = [iq0](Harness& x) {
     const double inj = x.records.empty() ? 0.0 : x.records.back().out.injection_A.d;
-    x.motoring_A = {0.0, iq0 + 0.15 * inj};
+    x.motoring_A = {0.0, *iq0 + 0.15 * inj};
   };
-  h.run_until(3.0);   // light load: several events
-  iq0 = 60.0;
-  const std::size_t before = h.estimates.size();
-  h.run_until(8.0);   // heavy load
-  *lq_a = h.scheduler.lq_H();
-  *lq_b = h.scheduler.lq_saturation_H();
+}
+
+// The published estimates' mean relative error, from estimate `first` on (at least three).
+double mean_published_rs_error(const Harness& h, std::size_t first) {
   double sum = 0.0;
   int n = 0;
-  for (std::size_t k = before + 2; k < h.estimates.size(); ++k) {
+  for (std::size_t k = first; k < h.estimates.size(); ++k) {
     if (h.estimates[k].outcome == EventOutcome::kPublished) {
       sum += h.estimates[k].rs_ohm;
       ++n;
@@ -1054,6 +1054,22 @@ double loaded_rs_error(double saturation_std_fraction, double* lq_a, double* lq_
   }
   EXPECT_GE(n, 3);
   return n > 0 ? sum / n / h.plant.rs_ohm - 1.0 : 1.0;
+}
+
+double loaded_rs_error(double saturation_std_fraction, double* lq_a, double* lq_b) {
+  InjectionConfig c = saturation_test_config();
+  c.lq_saturation_std_fraction = saturation_std_fraction;
+  Harness h(c);
+  h.plant.lq_sat_H = 0.55e-3;  // secant 10 % lower at the current limit
+  double iq0 = 5.0;
+  answer_the_reluctance_torque(h, &iq0);
+  h.run_until(3.0);   // light load: several events
+  iq0 = 60.0;
+  const std::size_t before = h.estimates.size();
+  h.run_until(8.0);   // heavy load
+  *lq_a = h.scheduler.lq_H();
+  *lq_b = h.scheduler.lq_saturation_H();
+  return mean_published_rs_error(h, before + 2);
 }
 
 TEST(InjectionScheduler, ASaturatingQAxisIsLearnedAcrossLoads) {
@@ -1078,24 +1094,47 @@ TEST(InjectionScheduler, AnUnresolvedSaturationCurveUsesTheSecant) {
   c.vx_initial_std_V = 0.01;
   c.max_load_change_A = 20.0;
   Harness h(c);
-  h.hook = [](Harness& x) {
-    const double inj = x.records.empty() ? 0.0 : x.records.back().out.injection_A.d;
-    x.motoring_A = {0.0, 60.0 + 0.15 * inj};
-  };
+  const double iq0 = 60.0;
+  answer_the_reluctance_torque(h, &iq0);
   h.run_until(5.0);
   EXPECT_NEAR(h.scheduler.lq_secant_H(60.0), 5.5e-3, 0.05e-3) << "the secant at the load seen is right";
   EXPECT_NE(h.scheduler.lq_saturation_H(), 0.0) << "b took a share of the error";
   EXPECT_EQ(h.scheduler.lq_incremental_H(60.0), h.scheduler.lq_secant_H(60.0));
-  double sum = 0.0;
-  int n = 0;
-  for (std::size_t k = 2; k < h.estimates.size(); ++k) {
-    if (h.estimates[k].outcome == EventOutcome::kPublished) {
-      sum += h.estimates[k].rs_ohm;
-      ++n;
-    }
+  EXPECT_NEAR(mean_published_rs_error(h, 2), 0.0, 0.01);
+}
+
+// A drive that cruises at one load never resolves b: its pairs measure the secant there and
+// nothing of the gap 2 b u to the incremental, which the speed loop's answer to the reluctance
+// torque needs (diq = 0.15 dId). The commissioned secant at the rated current (a flux map's
+// figure, lq_rated_H) gives that gap; without it the loaded estimates read high by about
+// w diq 2 b u / (Rs dId).
+double one_load_rs_error(double lq_rated_H) {
+  InjectionConfig c = saturation_test_config();
+  c.rated_current_A = 45.1;
+  c.lq_rated_H = lq_rated_H;
+  Harness h(c);
+  h.plant.lq_sat_H = 0.55e-3;  // secant 10 % lower at the current limit (80 A)
+  const double iq0 = 60.0;
+  answer_the_reluctance_torque(h, &iq0);
+  h.run_until(5.0);
+  const double gap = h.scheduler.lq_secant_H(60.0) - h.scheduler.lq_incremental_H(60.0);
+  // The plant's gap at 60 A: 2 b u = 2 x 0.55 mH x (60 / 80)^2.
+  const double plant_gap = 2.0 * h.plant.lq_sat_H * (60.0 / 80.0) * (60.0 / 80.0);
+  if (lq_rated_H > 0.0) {
+    EXPECT_NEAR(gap, plant_gap, 0.02 * plant_gap) << "the commissioned gap";
+  } else {
+    EXPECT_EQ(gap, 0.0) << "unresolved and not commissioned: the secant";
   }
-  ASSERT_GE(n, 3);
-  EXPECT_NEAR(sum / n / h.plant.rs_ohm, 1.0, 0.01);
+  return mean_published_rs_error(h, 2);
+}
+
+TEST(InjectionScheduler, ACommissionedSaturationGivesTheIncrementalAtOneLoad) {
+  // The plant's secant at the rated 45.1 A: 5.5 mH - 0.55 mH x (45.1 / 80)^2.
+  const double rated_secant_H = 5.5e-3 - 0.55e-3 * (45.1 / 80.0) * (45.1 / 80.0);
+  const double commissioned = one_load_rs_error(rated_secant_H);
+  EXPECT_LT(std::abs(commissioned), 0.01) << "one load, saturation commissioned";
+  const double unknown = one_load_rs_error(0.0);
+  EXPECT_GT(unknown, 0.03) << "one load, saturation unknown: the loaded Rs reads high";
 }
 
 TEST(InjectionScheduler, SkipsEveryLevelWhenTheBudgetIsTooSmallAndRetries) {

@@ -173,6 +173,13 @@ struct InjectionConfig {
   // the fits take the incremental Lq = a - 3 b u at their operating point (docs/estimator.md
   // §5.1). The prior of b: 0 +- this fraction of lq_H (0: no saturation model, one Lq).
   double lq_saturation_std_fraction = 0.2;
+  // b's prior mean, from the commissioned secant at the rated current (MotorParams::lq_rated_H,
+  // 0: not known, b starts at 0): b0 = (lq_H - lq_rated_H) / u(rated_current_A). Until pairs
+  // at two loads resolve b, the fits take the incremental Lq as the learned secant less
+  // 2 b0 u: the secant is what pairs at one load measure, the gap to the incremental is what
+  // they cannot (docs/estimator.md §5.1).
+  double lq_rated_H = 0.0;
+  double rated_current_A = 45.1;  // peak
   double lq_learning_min_voltage_V = 2.0; // |Lq <w iq>| of a pair, to learn from it
   double ld_H = 5.5e-3;
   double rs_nominal_ohm = 0.133;  // for the headroom calculation
@@ -412,6 +419,7 @@ class InjectionScheduler {
   double vx_var_ = 0.0;
   double lq_H_ = 0.0;               // learned q-axis inductance (see InjectionConfig::learn_lq)
   double lq_var_ = 0.0;
+  double lq_b0_H_ = 0.0;            // the commissioned saturation (InjectionConfig::lq_rated_H)
   double lq_b_H_ = 0.0;             // its saturation: secant lost at the current limit
   double lq_b_var_ = 0.0;
   double lq_cov_ = 0.0;             // covariance of the two

@@ -24,6 +24,9 @@ struct MotorParams {
   double inductance_line_to_line_H = 11e-3;
   double ld_H = 5.5e-3;                   // d-axis synchronous inductance (L_ll / 2 for a round rotor)
   double lq_H = 5.5e-3;                   // q-axis synchronous inductance
+  // The secant q-axis inductance psi_q / iq at the rated current (continuous, peak), from the
+  // motor's flux map or datasheet; 0: not known. A saturating machine's Lq falls with load.
+  double lq_rated_H = 0.0;
   double inertia_kg_m2 = 0.00841;
   int pole_pairs = 3;
   double thermal_time_constant_s = 2880.0;
