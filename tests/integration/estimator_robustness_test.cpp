@@ -67,6 +67,28 @@ TEST(EstimatorRobustness, AtTheVoltageLimitFieldWeakeningPairsMeasure) {
   EXPECT_GE(r.coverage_2sigma, 0.9) << "the band carries the pairs' shared error";
 }
 
+// A salient machine that stays at one load never resolves its Lq curve's slope: its pairs
+// measure the secant there, and the fit needs the incremental for the speed loop's answer to
+// the reluctance torque (docs/estimator.md section 5.1). On the 30 mohm IPM at 314 rad/s and
+// 75 A the gap is 3.4 % of Lq, and w diq 2 b u / (Rs dId) reads Rs about 5 % high: some 15 C
+// at 70 C (Eq. 1: 5 % of K + T). The flux map's secant at the rated current closes the gap to
+// its own error (-5 % on both Lq figures: about 0.4 %, 1 C).
+TEST(EstimatorRobustness, ACruisingIpmTakesItsSaturationFromTheFluxMap) {
+  const std::filesystem::path data = std::filesystem::path(PMSM_SOURCE_DIR) / "tests/integration/data";
+  RunOptions o;
+  o.twin_for_disturbance = false;
+  const SimulationResult map = run_scenario(load_scenario(data / "ipm-cruise-short.toml"), o);
+  ASSERT_TRUE(map.calibrated);
+  ASSERT_GT(map.max_winding_true_C, 60.0) << "the scenario no longer heats the winding";
+  ASSERT_GT(map.estimates_accepted, 30U) << "pairs measure at 314 rad/s";
+  EXPECT_LT(std::abs(map.winding_error_mean_C), 3.0);
+  EXPECT_LT(map.winding_error_rms_C, 2.5);
+  EXPECT_GE(map.coverage_2sigma, 0.9);
+  const SimulationResult none = run_scenario(load_scenario(data / "ipm-cruise-short-no-map.toml"), o);
+  ASSERT_GT(none.estimates_accepted, 30U);
+  EXPECT_GT(none.winding_error_mean_C, 7.5) << "without the map the secant stands for the incremental";
+}
+
 // A Ke0 in the wrong units (per electrical rad/s): every EMF reading lies far outside what a
 // magnet can be. Each is refused and counted with its reason, no magnet estimate is ever
 // published (so none derates the drive), and the winding's estimate, which does not use Ke0,
