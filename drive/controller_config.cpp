@@ -523,6 +523,19 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
     rule("motor.lq_rated_H", "motor.lq_H",
          ref("motor.lq_rated_H", m.lq_rated_H, "H", l) + " must lie between half of " + ref("motor.lq_H", m.lq_H, "H", l) +
              " and it: saturation lowers the secant inductance with load");
+  } else if (m.lq_rated_H > 0.0) {
+    // The estimator's curve is linear in (iq / limit)^2: from the map's point it extrapolates to
+    // the current limit, and the secant there must stay above half of Lq too.
+    const double x = core::continuous_current_peak_A(m) / d.derating.max_current_A;
+    const double at_limit_H = m.lq_H - (m.lq_H - m.lq_rated_H) / (x * x);
+    if (at_limit_H < 0.5 * m.lq_H) {
+      const std::string_view l = lead("motor.lq_rated_H", "derating.max_current_A");
+      rule("motor.lq_rated_H", "derating.max_current_A",
+           ref("motor.lq_rated_H", m.lq_rated_H, "H", l) + " at the rated current (" +
+               common::format_number(core::continuous_current_peak_A(m)) + " A peak) implies a secant Lq of " +
+               common::format_number(at_limit_H) + " H at " + ref("derating.max_current_A", d.derating.max_current_A, "A", l) +
+               ", below half of motor.lq_H: more saturation than the estimator's curve, a - b (iq / limit)^2, can follow");
+    }
   }
   if (d.derating.derate_start_C >= d.derating.limit_C) {
     rule("derating.start_C", "derating.limit_C", "derating.start_C must be below derating.limit_C");

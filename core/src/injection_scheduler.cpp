@@ -60,10 +60,13 @@ double saturation_variable(double iq_A, double limit_A) {
 
 // The commissioned saturation: the secant lost at the current limit, b0, from the secant at
 // the rated current (0 where it is not known). The secant a - b u falls from lq_H at no load to
-// lq_rated_H at u(rated), so b0 = (lq_H - lq_rated_H) / u(rated).
+// lq_rated_H at u(rated), so b0 = (lq_H - lq_rated_H) / u(rated), u uncapped here (the cap
+// bounds how far the curve is extrapolated, not where the map's point lies). Saturation only
+// lowers the secant: b0 >= 0 (the loader refuses a rated secant above lq_H).
 double commissioned_saturation_H(const InjectionConfig& c) {
-  const double u = saturation_variable(c.rated_current_A, c.current_limit_A);
-  return c.lq_rated_H > 0.0 && u > 0.0 ? (c.lq_H - c.lq_rated_H) / u : 0.0;
+  const double x = c.current_limit_A > 0.0 ? c.rated_current_A / c.current_limit_A : 0.0;
+  const double u = x * x;
+  return c.lq_rated_H > 0.0 && u > 0.0 ? std::max(0.0, (c.lq_H - c.lq_rated_H) / u) : 0.0;
 }
 }  // namespace
 
@@ -500,8 +503,8 @@ std::array<double, 2> InjectionScheduler::lq_change_H(const LqTerm& t) const {
 
 void InjectionScheduler::LqGradient::add(double d_secant, double d_incremental, double u) {
   // The curve's state (a, b): the secant is a - b u and the incremental a - 3 b u (an
-  // incremental not yet resolved is the secant, about 2 b u off the true incremental: the same
-  // form with b's uncertainty).
+  // incremental not yet resolved is the secant less the commissioned 2 b0 u, about 2 (b - b0) u
+  // off the true incremental: the same form with b's uncertainty).
   a += d_secant + d_incremental;
   b -= u * (d_secant + 3.0 * d_incremental);
 }

@@ -334,8 +334,20 @@ TEST(ControllerConfig, RatedCurrentLqIsCheckedAgainstLq) {
   const std::string high = error_of("[motor]\nlq_H = 5.5e-3\nlq_rated_H = 6e-3\n");
   EXPECT_EQ(high.rfind("drive.toml:3: motor.lq_rated_H (0.006 H) must lie between half of motor.lq_H (0.0055 H, drive.toml:2) "
                        "and it", 0), 0U) << high;
-  EXPECT_NE(error_of("[motor]\nlq_rated_H = 2e-3\n"), "");
+  EXPECT_EQ(error_of("[motor]\nlq_rated_H = 2e-3\n").rfind("drive.toml:2: motor.lq_rated_H (0.002 H) must lie between half of motor.lq_H", 0),
+            0U);
   EXPECT_EQ(error_of("[motor]\nlq_rated_H = -1e-3\n").rfind("drive.toml:2: motor.lq_rated_H: must be", 0), 0U);
+  // The bounds themselves are accepted (no saturation; half of Lq at the rated current when the
+  // rated current is the limit).
+  EXPECT_EQ(error_of("[motor]\nlq_H = 5.5e-3\nlq_rated_H = 5.5e-3\n"), "");
+  EXPECT_EQ(error_of("[motor]\nlq_H = 5.5e-3\nlq_rated_H = 2.75e-3\n[derating]\nmax_current_A = 45.1134\n"), "");
+  // Half of Lq at the rated current with the limit at twice it: the curve would reach
+  // 5.5 - 2.75 x 4 mH at the limit.
+  const std::string far = error_of("[motor]\nlq_H = 5.5e-3\nlq_rated_H = 3e-3\n[derating]\nmax_current_A = 90.2\n");
+  EXPECT_EQ(far.rfind("drive.toml:3: motor.lq_rated_H (0.003 H) at the rated current (45.1134 A peak) implies a secant Lq of ", 0), 0U)
+      << far;
+  EXPECT_NE(far.find("derating.max_current_A (90.2 A, drive.toml:5)"), std::string::npos) << far;
+  EXPECT_EQ(c.drive.calibration_injection.rated_current_A, c.drive.injection.rated_current_A);
 }
 
 // The controller's components take the motor model from DriveConfig::motor whatever the

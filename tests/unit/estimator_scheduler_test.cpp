@@ -1086,7 +1086,8 @@ TEST(InjectionScheduler, ASaturatingQAxisIsLearnedAcrossLoads) {
 
 // Pairs at one load only determine a - b u there, not b: with a commissioning error of
 // -10 % a first loaded pair would put a share of it into b, and 3 b u would triple it. The
-// secant stands for the incremental until pairs at a second load resolve b.
+// secant stands for the incremental until pairs at a second load resolve b (less the
+// commissioned gap 2 b0 u, none here: no motor.lq_rated_H).
 TEST(InjectionScheduler, AnUnresolvedSaturationCurveUsesTheSecant) {
   InjectionConfig c = test_config();
   c.lq_H = 0.9 * 5.5e-3;  // commissioned 10 % low; the plant does not saturate
@@ -1126,6 +1127,28 @@ double one_load_rs_error(double lq_rated_H) {
     EXPECT_EQ(gap, 0.0) << "unresolved and not commissioned: the secant";
   }
   return mean_published_rs_error(h, 2);
+}
+
+// The commissioned curve itself: b0 = (lq_H - lq_rated_H) / (rated / limit)^2 is b's starting
+// value; with learning off the curve keeps it, so the secant is lq_H - b0 u and the incremental
+// lq_H - 3 b0 u at every load.
+TEST(InjectionScheduler, TheCommissionedCurveIsTheRatedSecantsExtrapolation) {
+  InjectionConfig c = test_config();  // current limit 80 A
+  c.lq_H = 5.5e-3;
+  c.rated_current_A = 40.0;
+  c.lq_rated_H = 5.4e-3;
+  c.learn_lq = false;
+  const InjectionScheduler s(c, kPeriod, 64);
+  const double b0 = 0.1e-3 / (0.5 * 0.5);
+  EXPECT_NEAR(s.lq_saturation_H(), b0, 1e-12);
+  EXPECT_NEAR(s.lq_secant_H(40.0), 5.4e-3, 1e-12) << "the map's point";
+  const double u = (60.0 / 80.0) * (60.0 / 80.0);
+  EXPECT_NEAR(s.lq_secant_H(60.0), 5.5e-3 - b0 * u, 1e-12);
+  EXPECT_NEAR(s.lq_incremental_H(60.0), 5.5e-3 - 3.0 * b0 * u, 1e-12);
+  c.lq_rated_H = 0.0;
+  const InjectionScheduler none(c, kPeriod, 64);
+  EXPECT_EQ(none.lq_saturation_H(), 0.0);
+  EXPECT_EQ(none.lq_incremental_H(60.0), 5.5e-3);
 }
 
 TEST(InjectionScheduler, ACommissionedSaturationGivesTheIncrementalAtOneLoad) {
