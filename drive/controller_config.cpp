@@ -227,9 +227,8 @@ ConfigSchema<C> build() {
            "How far the learned Lq may wander between pairs, as a fraction of motor.lq_H.");
   inj.real("injection.lq_saturation_std_fraction",
            [](C& c) -> double& { return c.drive.injection.lq_saturation_std_fraction; }, between(0, 1), "",
-           "Prior of the learned Lq's saturation b (secant lost at the current limit): its standard deviation as a fraction of Lq, "
-           "around 0, or around what motor.lq_rated_H implies (a measured flux map supports less than the default); 0: b is "
-           "not learned (one Lq at every load, or the commissioned curve).");
+           "Prior of the learned Lq's saturation (secant lost at the current limit), as a fraction of Lq, around 0; also the "
+           "uncertainty of motor.lq_rated_H's gap until pairs at two loads resolve the curve. 0: one Lq at every load.");
   inj.real("injection.lq_learning_min_voltage_V", [](C& c) -> double& { return c.drive.injection.lq_learning_min_voltage_V; },
            at_least(0, 1000), "V", "Learn Lq only from pairs whose Lq <w iq> is at least this.");
   // [estimator]

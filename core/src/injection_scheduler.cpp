@@ -81,7 +81,7 @@ InjectionScheduler::InjectionScheduler(const InjectionConfig& config, double per
       lq_H_(config.lq_H),
       lq_var_(config.lq_initial_std_fraction * config.lq_H * config.lq_initial_std_fraction * config.lq_H),
       lq_b0_H_(commissioned_saturation_H(config)),
-      lq_b_H_(lq_b0_H_),
+      lq_b_H_(config.learn_lq ? 0.0 : lq_b0_H_),  // (see InjectionConfig::lq_rated_H)
       lq_b_var_(config.lq_saturation_std_fraction * config.lq_H * config.lq_saturation_std_fraction * config.lq_H),
       recorder_capacity_(capacity) {
   // The window constants the budget needs at every pair start are computed here, once, not

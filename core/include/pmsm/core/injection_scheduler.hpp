@@ -173,11 +173,14 @@ struct InjectionConfig {
   // the fits take the incremental Lq = a - 3 b u at their operating point (docs/estimator.md
   // §5.1). The prior of b: 0 +- this fraction of lq_H (0: no saturation model, one Lq).
   double lq_saturation_std_fraction = 0.2;
-  // b's prior mean, from the commissioned secant at the rated current (MotorParams::lq_rated_H,
-  // 0: not known, b starts at 0): b0 = (lq_H - lq_rated_H) / u(rated_current_A). Until pairs
-  // at two loads resolve b, the fits take the incremental Lq as the learned secant less
-  // 2 b0 u: the secant is what pairs at one load measure, the gap to the incremental is what
-  // they cannot (docs/estimator.md §5.1).
+  // The commissioned saturation, from a flux map's secant at the rated current
+  // (MotorParams::lq_rated_H; 0: not known): b0 = (lq_H - lq_rated_H) / u(rated_current_A).
+  // Until pairs at two loads resolve b, the fits take the incremental Lq as the learned secant
+  // less 2 b0 u: the secant is what pairs at one load measure, the gap to the incremental is
+  // what they cannot. b's prior stays 0 +- lq_saturation_std_fraction: once pairs resolve the
+  // curve, the machine's own measurements decide it (a prior at b0, a point of the map at the
+  // rated current, pulled the learned slope: docs/estimator.md §5.1). Learning off, the curve
+  // is the commissioned one, b = b0.
   double lq_rated_H = 0.0;
   double rated_current_A = 45.1;  // peak
   double lq_learning_min_voltage_V = 2.0; // |Lq <w iq>| of a pair, to learn from it
