@@ -85,6 +85,7 @@ DriveController::DriveController(const DriveConfig& config)
       derating_{config_.derating.max_current_A, false} {
   // DRIVE_STATUS reads the limit before the first thermal update sets it.
   telemetry_.current_limit_A = derating_.current_limit_A;
+  telemetry_.lq_commissioned_saturation_H = scheduler_.lq_commissioned_saturation_H();  // fixed from here on
   // A stored calibration that measured the bridge replaces the configured band.
   if (config_.calibration.dead_time_band_A > 0.0) {
     config_.dead_time.current_band_A = config_.calibration.dead_time_band_A;
@@ -1040,6 +1041,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   telemetry_.lq_H = scheduler_.lq_H();
   telemetry_.lq_std_H = scheduler_.lq_std_H();
   telemetry_.lq_saturation_H = scheduler_.lq_saturation_H();
+  telemetry_.lq_saturation_resolved = scheduler_.lq_saturation_resolved();
   telemetry_.calibrated = observer_.calibration().calibrated;
   return output_;
 }

@@ -464,6 +464,11 @@ double InjectionScheduler::lq_secant_at(double u) const {
   return std::clamp(lq_H_ - lq_b_H_ * u, 0.5 * lq_H_, 1.5 * lq_H_);
 }
 
+bool InjectionScheduler::saturation_variance_resolved() const {
+  const double prior = config_.lq_saturation_std_fraction * config_.lq_H;
+  return lq_b_var_ < 0.25 * prior * prior;
+}
+
 double InjectionScheduler::lq_incremental_at(double u) const {
   // psi = (a - b u) iq with u = (iq / I)^2: d psi / d iq = a - 3 b u. Until pairs at two
   // loads have resolved b (its variance below a quarter of its prior), a and b are known only
@@ -472,8 +477,7 @@ double InjectionScheduler::lq_incremental_at(double u) const {
   // measure) less the commissioned gap 2 b0 u (which they cannot; 0 where no saturation was
   // commissioned).
   const double secant = lq_secant_at(u);
-  const double prior = config_.lq_saturation_std_fraction * config_.lq_H;
-  if (!(lq_b_var_ < 0.25 * prior * prior)) {
+  if (!lq_resolved_) {
     return std::clamp(secant - 2.0 * lq_b0_H_ * u, 0.5 * secant, secant);
   }
   return std::clamp(lq_H_ - 3.0 * lq_b_H_ * u, 0.5 * secant, 1.5 * secant);
@@ -545,6 +549,7 @@ void InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit)
   if (config_.lq_saturation_std_fraction > 0.0) {
     lq_b_var_ += drift * drift;  // (without the saturation model b stays at 0)
   }
+  lq_resolved_ = saturation_variance_resolved();
   // Gross outliers (a pair that passed its guards but whose means are off) are left out.
   // The secant at this pair's load is a - b u: a Kalman update of (a, b) with h = (1, -u).
   const double predicted = lq_H_ - lq_b_H_ * u;
@@ -563,6 +568,7 @@ void InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit)
   lq_var_ = lq_var_ - k0 * ph0;
   lq_cov_ = lq_cov_ - k0 * ph1;
   lq_b_var_ = lq_b_var_ - k1 * ph1;
+  lq_resolved_ = saturation_variance_resolved();
 }
 
 bool InjectionScheduler::event_joint_fit() const {

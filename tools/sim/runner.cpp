@@ -553,6 +553,8 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
   result.lq_H = drive.telemetry().lq_H;
   result.lq_std_H = drive.telemetry().lq_std_H;
   result.lq_saturation_H = drive.telemetry().lq_saturation_H;
+  result.lq_saturation_resolved = drive.telemetry().lq_saturation_resolved;
+  result.lq_commissioned_saturation_H = drive.telemetry().lq_commissioned_saturation_H;
 
   return result;
 }
@@ -756,6 +758,8 @@ std::string result_json(const SimulationResult& r) {
       .field("lq_H", r.lq_H)
       .field("lq_std_H", r.lq_std_H)
       .field("lq_saturation_H", r.lq_saturation_H)
+      .field("lq_saturation_resolved", r.lq_saturation_resolved)
+      .field("lq_commissioned_saturation_H", r.lq_commissioned_saturation_H)
       .field("max_winding_true_C", r.max_winding_true_C)
       .field("sim_time_s", r.sim_time_s)
       .field("wall_time_s", r.wall_time_s)
@@ -853,8 +857,13 @@ std::string result_text(const SimulationResult& r) {
                        r.calibration_stored ? ", replaced by this run's calibration" : "");
   }
   out += fmt::format("  inverter voltage error Vx       {:.3f} +- {:.3f} V\n", r.vx_V, r.vx_std_V);
-  out += fmt::format("  learned Lq                      {:.3f} +- {:.3f} mH at zero current, {:.3f} mH less at the current limit\n",
-                     1e3 * r.lq_H, 1e3 * r.lq_std_H, 1e3 * r.lq_saturation_H);
+  out += fmt::format("  learned Lq                      {:.3f} +- {:.3f} mH at zero current, {:.3f} mH less at the current limit{}\n",
+                     1e3 * r.lq_H, 1e3 * r.lq_std_H, 1e3 * r.lq_saturation_H,
+                     r.lq_saturation_resolved ? std::string()
+                     : r.lq_commissioned_saturation_H > 0.0
+                         ? fmt::format(" (not resolved: incremental = secant less the commissioned gap, b0 {:.3f} mH)",
+                                       1e3 * r.lq_commissioned_saturation_H)
+                         : std::string(" (not resolved: incremental = secant)"));
   out += fmt::format("  simulated {:.1f} s in {:.1f} s ({:.1f}x real time{})\n", r.sim_time_s, r.wall_time_s,
                      r.wall_time_s > 0 ? r.sim_time_s / r.wall_time_s : 0.0,
                      r.twin_wall_time_s > 0 ? fmt::format("; the twin without injection took {:.1f} s on a second thread", r.twin_wall_time_s)

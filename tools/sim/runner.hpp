@@ -144,6 +144,8 @@ struct SimulationResult {
   double lq_H = 0.0;                    // learned q-axis inductance at the end
   double lq_std_H = 0.0;
   double lq_saturation_H = 0.0;         // its saturation: secant lost at the current limit
+  bool lq_saturation_resolved = false;  // by pairs at two loads
+  double lq_commissioned_saturation_H = 0.0;  // b0 from motor.lq_rated_H (0: none)
   // The faults the drive's supervisor latched (as its FAULT frames would show them on a bus):
   // how often each code was latched, and when first. A scenario never clears faults: after a
   // trip the drive stays off, and the figures that follow are those of a drive that is off.

@@ -337,12 +337,17 @@ class InjectionScheduler {
   [[nodiscard]] double lq_std_H() const { return std::sqrt(lq_var_); }
   // The secant Lq lost at the current limit (the saturation model's b, see InjectionConfig).
   [[nodiscard]] double lq_saturation_H() const { return lq_b_H_; }
-  // The learned secant and incremental Lq at a q-axis current (the commissioned Lq when
+  // Whether pairs at two loads have resolved it (its variance below a quarter of its prior);
+  // until then the incremental Lq is the secant less the commissioned gap 2 b0 u.
+  [[nodiscard]] bool lq_saturation_resolved() const { return lq_resolved_; }
+  [[nodiscard]] double lq_commissioned_saturation_H() const { return lq_b0_H_; }  // b0
+  // The learned secant and incremental Lq at a q-axis current (the commissioned curve when
   // learning is off).
   [[nodiscard]] double lq_secant_H(double iq_A) const;
   [[nodiscard]] double lq_incremental_H(double iq_A) const;
 
  private:
+  [[nodiscard]] bool saturation_variance_resolved() const;
   // Fixed-angle: how far past the pulse's start an angle is, in the direction of rotation.
   [[nodiscard]] double pulse_phase(double theta_e_rad) const { return direction_ * (theta_e_rad - pulse_start_theta_); }
   void begin_pair(const SchedulerInput& in);
@@ -423,6 +428,7 @@ class InjectionScheduler {
   double lq_H_ = 0.0;               // learned q-axis inductance (see InjectionConfig::learn_lq)
   double lq_var_ = 0.0;
   double lq_b0_H_ = 0.0;            // the commissioned saturation (InjectionConfig::lq_rated_H)
+  bool lq_resolved_ = false;        // saturation_variance_resolved(), kept as b's variance changes
   double lq_b_H_ = 0.0;             // its saturation: secant lost at the current limit
   double lq_b_var_ = 0.0;
   double lq_cov_ = 0.0;             // covariance of the two
