@@ -477,6 +477,7 @@ void DriveController::clear_motoring_telemetry() {
 
 void DriveController::handle_pair(const PairResult& r) {
   ++telemetry_.outcomes[static_cast<std::size_t>(r.outcome)];
+  telemetry_.lq_saturation_resolved = scheduler_.lq_saturation_resolved();  // a pair may have resolved it
   report(last_pair_, r);
 }
 
@@ -1041,7 +1042,6 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   telemetry_.lq_H = scheduler_.lq_H();
   telemetry_.lq_std_H = scheduler_.lq_std_H();
   telemetry_.lq_saturation_H = scheduler_.lq_saturation_H();
-  telemetry_.lq_saturation_resolved = scheduler_.lq_saturation_resolved();
   telemetry_.calibrated = observer_.calibration().calibrated;
   return output_;
 }
