@@ -524,9 +524,8 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
              " and it: saturation lowers the secant inductance with load");
   } else if (m.lq_rated_H > 0.0) {
     // The estimator's curve is linear in (iq / limit)^2: from the map's point it extrapolates to
-    // the current limit, and the secant there must stay above half of Lq too.
-    const double x = core::continuous_current_peak_A(m) / d.derating.max_current_A;
-    const double at_limit_H = m.lq_H - (m.lq_H - m.lq_rated_H) / (x * x);
+    // the current limit (u = 1), and the secant there must stay above half of Lq too.
+    const double at_limit_H = m.lq_H - core::commissioned_lq_saturation_H(d.injection);
     if (at_limit_H < 0.5 * m.lq_H) {
       const std::string_view l = lead("motor.lq_rated_H", "derating.max_current_A");
       rule("motor.lq_rated_H", "derating.max_current_A",

@@ -85,7 +85,6 @@ DriveController::DriveController(const DriveConfig& config)
       derating_{config_.derating.max_current_A, false} {
   // DRIVE_STATUS reads the limit before the first thermal update sets it.
   telemetry_.current_limit_A = derating_.current_limit_A;
-  telemetry_.lq_commissioned_saturation_H = scheduler_.lq_commissioned_saturation_H();  // fixed from here on
   // A stored calibration that measured the bridge replaces the configured band.
   if (config_.calibration.dead_time_band_A > 0.0) {
     config_.dead_time.current_band_A = config_.calibration.dead_time_band_A;

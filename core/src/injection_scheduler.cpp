@@ -57,18 +57,17 @@ double saturation_variable(double iq_A, double limit_A) {
   const double x = limit_A > 0.0 ? iq_A / limit_A : 0.0;
   return std::min(x * x, 1.44);  // a quadratic curve says nothing far beyond 1.2 x the limit
 }
+}  // namespace
 
-// The commissioned saturation: the secant lost at the current limit, b0, from the secant at
-// the rated current (0 where it is not known). The secant a - b u falls from lq_H at no load to
-// lq_rated_H at u(rated), so b0 = (lq_H - lq_rated_H) / u(rated), u uncapped here (the cap
-// bounds how far the curve is extrapolated, not where the map's point lies). Saturation only
-// lowers the secant: b0 >= 0 (the loader refuses a rated secant above lq_H).
-double commissioned_saturation_H(const InjectionConfig& c) {
+double commissioned_lq_saturation_H(const InjectionConfig& c) {
+  // The secant a - b u falls from lq_H at no load to lq_rated_H at u(rated), so
+  // b0 = (lq_H - lq_rated_H) / u(rated), u uncapped here (the cap bounds how far the curve is
+  // extrapolated, not where the map's point lies). Saturation only lowers the secant: b0 >= 0
+  // (the loader refuses a rated secant above lq_H).
   const double x = c.current_limit_A > 0.0 ? c.rated_current_A / c.current_limit_A : 0.0;
   const double u = x * x;
   return c.lq_rated_H > 0.0 && u > 0.0 ? std::max(0.0, (c.lq_H - c.lq_rated_H) / u) : 0.0;
 }
-}  // namespace
 
 InjectionScheduler::InjectionScheduler(const InjectionConfig& config, double period_s,
                                        std::size_t capacity)
@@ -80,7 +79,7 @@ InjectionScheduler::InjectionScheduler(const InjectionConfig& config, double per
       vx_var_(config.vx_initial_std_V * config.vx_initial_std_V),
       lq_H_(config.lq_H),
       lq_var_(config.lq_initial_std_fraction * config.lq_H * config.lq_initial_std_fraction * config.lq_H),
-      lq_b0_H_(commissioned_saturation_H(config)),
+      lq_b0_H_(commissioned_lq_saturation_H(config)),
       lq_b_H_(config.learn_lq ? 0.0 : lq_b0_H_),  // (see InjectionConfig::lq_rated_H)
       lq_b_var_(config.lq_saturation_std_fraction * config.lq_H * config.lq_saturation_std_fraction * config.lq_H),
       recorder_capacity_(capacity) {

@@ -554,7 +554,7 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
   result.lq_std_H = drive.telemetry().lq_std_H;
   result.lq_saturation_H = drive.telemetry().lq_saturation_H;
   result.lq_saturation_resolved = drive.telemetry().lq_saturation_resolved;
-  result.lq_commissioned_saturation_H = drive.telemetry().lq_commissioned_saturation_H;
+  result.lq_commissioned_saturation_H = core::commissioned_lq_saturation_H(scenario.controller.drive.injection);
 
   return result;
 }

@@ -234,7 +234,6 @@ struct DriveTelemetry {
   double lq_std_H = 0.0;
   double lq_saturation_H = 0.0;       // its saturation: secant Lq lost at the current limit
   bool lq_saturation_resolved = false;       // by pairs at two loads (else the commissioned gap holds)
-  double lq_commissioned_saturation_H = 0.0;  // b0, from motor.lq_rated_H (0: none)
   bool calibrating = false;
   bool inverter_sweep_active = false;  // the calibration's bridge sweep is running
   bool angle_check_active = false;     // the calibration's rotor-angle check is running

@@ -283,6 +283,10 @@ struct SchedulerOutput {
   std::optional<EventEstimate> estimate;  // set in the period an event finished (see its outcome)
 };
 
+// The commissioned saturation b0: the secant Lq lost at the current limit, from the flux map's
+// secant at the rated current (InjectionConfig::lq_rated_H; 0 where it is not known).
+[[nodiscard]] double commissioned_lq_saturation_H(const InjectionConfig& c);
+
 class InjectionScheduler {
  public:
   // `capacity` is the largest recording, in periods (preallocated).
@@ -340,7 +344,6 @@ class InjectionScheduler {
   // Whether pairs at two loads have resolved it (its variance below a quarter of its prior);
   // until then the incremental Lq is the secant less the commissioned gap 2 b0 u.
   [[nodiscard]] bool lq_saturation_resolved() const { return lq_resolved_; }
-  [[nodiscard]] double lq_commissioned_saturation_H() const { return lq_b0_H_; }  // b0
   // The learned secant and incremental Lq at a q-axis current (the commissioned curve when
   // learning is off).
   [[nodiscard]] double lq_secant_H(double iq_A) const;
