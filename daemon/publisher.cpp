@@ -223,9 +223,12 @@ void Publisher::handle(const PublicationRecord& r) {
   }
   if (r.calibration_to_store) {
     const core::Calibration& c = *r.calibration_to_store;
-    spdlog::info("calibration done: Rs0 {:.5f} ohm at {:.1f} C, Ke0 {:.4f} V s/rad, {}", c.rs0_ohm, c.t0_C, c.ke0_V_s_per_rad,
+    spdlog::info("calibration done: Rs0 {:.5f} ohm at {:.1f} C, Ke0 {:.4f} V s/rad, {}, {}", c.rs0_ohm, c.t0_C,
+                 c.ke0_V_s_per_rad,
                  c.dead_time_band_A > 0.0 ? fmt::format("bridge band {:.3f} A (swept)", c.dead_time_band_A)
-                                          : std::string("bridge band not measured (the configured one holds)"));
+                                          : std::string("bridge band not measured (the configured one holds)"),
+                 c.vx_std_V > 0.0 ? fmt::format("bridge voltage Vx {:.3f} +- {:.3f} V", c.vx_V, c.vx_std_V)
+                                  : std::string("bridge voltage not learned (the configured prior holds)"));
     if (!config_.controller.calibration_file.empty()) {
       try {
         app::write_calibration_file(config_.controller.calibration_file, c, config_.source.filename().string());

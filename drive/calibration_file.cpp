@@ -191,12 +191,13 @@ void write_calibration_file(const std::filesystem::path& path, const core::Calib
   }
   if (!(c.rs0_ohm > 0.0) || !std::isfinite(c.rs0_ohm) || !std::isfinite(c.t0_C) || !std::isfinite(c.ke0_V_s_per_rad) ||
       !(c.ke0_std_V_s_per_rad >= 0.0 && c.ke0_std_V_s_per_rad <= 100.0) || !(c.dead_time_band_A >= 0.0 && c.dead_time_band_A <= 1000.0) ||
-      (c.angle_correction_measured && !(std::abs(c.angle_correction_rad) <= 1.0))) {
+      (c.angle_correction_measured && !(std::abs(c.angle_correction_rad) <= 1.0)) ||
+      !(c.vx_std_V >= 0.0 && c.vx_std_V <= 100.0) || (c.vx_std_V > 0.0 && !(std::abs(c.vx_V) <= 50.0))) {
     throw CalibrationFileError(fmt::format("{}: refusing to store an invalid calibration (Rs0 {}, T0 {}, Ke0 {} +- {}, "
-                                           "band {} A, angle correction {} rad)",
+                                           "band {} A, angle correction {} rad, Vx {} +- {} V)",
                                            path.string(), c.rs0_ohm, c.t0_C, c.ke0_V_s_per_rad, c.ke0_std_V_s_per_rad,
                                            c.dead_time_band_A,
-                                           c.angle_correction_measured ? c.angle_correction_rad : 0.0));
+                                           c.angle_correction_measured ? c.angle_correction_rad : 0.0, c.vx_V, c.vx_std_V));
   }
   std::ostringstream text;
   text << "# pmsm-thermal calibration (Eq. 1: Rs = Rs0 (1 + alpha (T - T0))); replaced atomically by the drive\n"
@@ -215,6 +216,12 @@ void write_calibration_file(const std::filesystem::path& path, const core::Calib
   if (c.angle_correction_measured) {
     // The rotor-angle check's correction of sensors.encoder_offset_rad (absent: not measured).
     text << "angle_correction_rad = " << toml_float(c.angle_correction_rad) << "\n";
+  }
+  if (c.vx_std_V > 0.0) {
+    // The bridge's voltage error Rs0 was learned with, and its standard error (absent: not
+    // learned; the configured prior then holds).
+    text << "vx_V = " << toml_float(c.vx_V) << "\n"
+         << "vx_std_V = " << toml_float(c.vx_std_V) << "\n";
   }
   text << "written_utc = " << quoted(utc_now()) << "\n"
        << "source = " << quoted(source) << "\n";
@@ -258,7 +265,7 @@ core::Calibration read_calibration_file(const std::filesystem::path& path) {
   const std::string file = path.string();
   const toml::table t =
       read_stored(path, {"format", "rs0_ohm", "t0_C", "ke0_V_s_per_rad", "ke0_std_V_s_per_rad", "dead_time_band_A", "angle_correction_rad",
-                         "written_utc", "source"});
+                         "vx_V", "vx_std_V", "written_utc", "source"});
   core::Calibration c;
   c.rs0_ohm = number(t, "rs0_ohm", file, 0.0, 10.0, true);
   c.t0_C = number(t, "t0_C", file, -50.0, 200.0, false);
@@ -269,6 +276,16 @@ core::Calibration read_calibration_file(const std::filesystem::path& path) {
       t.get("dead_time_band_A") != nullptr ? number(t, "dead_time_band_A", file, 0.0, 1000.0, true) : 0.0;
   c.angle_correction_measured = t.get("angle_correction_rad") != nullptr;
   c.angle_correction_rad = c.angle_correction_measured ? number(t, "angle_correction_rad", file, -1.0, 1.0, false) : 0.0;
+  // Vx and its error bar come together: one without the other is a hand edit gone wrong.
+  if ((t.get("vx_V") != nullptr) != (t.get("vx_std_V") != nullptr)) {
+    throw CalibrationFileError(fmt::format("{}: vx_V and vx_std_V go together (the bridge's voltage and its standard error); "
+                                           "the file has only {}",
+                                           file, t.get("vx_V") != nullptr ? "vx_V" : "vx_std_V"));
+  }
+  if (t.get("vx_V") != nullptr) {
+    c.vx_V = number(t, "vx_V", file, -50.0, 50.0, false);
+    c.vx_std_V = number(t, "vx_std_V", file, 0.0, 100.0, true);
+  }
   c.calibrated = true;
   return c;
 }

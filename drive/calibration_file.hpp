@@ -8,6 +8,8 @@
 //   t0_C = 25.0
 //   ke0_V_s_per_rad = 0.9711
 //   ke0_std_V_s_per_rad = 0.00021  (optional: Ke0's standard error)
+//   vx_V = 7.49                     (optional, with vx_std_V: the bridge's voltage error
+//   vx_std_V = 0.05                  Rs0 was learned with, and its standard error)
 //   written_utc = "2026-11-21T10:00:00Z"
 //   source = "reference-fm-bipolar.toml"
 //

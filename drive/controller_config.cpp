@@ -294,6 +294,11 @@ ConfigSchema<C> build() {
          "Eq. 3's Ke at T0 (0: not calibrated; no magnet temperature).");
   s.real("calibration.dead_time_band_A", [](C& c) -> double& { return c.drive.calibration.dead_time_band_A; }, at_least(0, 1000),
          "A", "The bridge's zero-current band a calibration's sweep measured (0: not measured, control.dead_time_band_A holds).");
+  s.real("calibration.vx_V", [](C& c) -> double& { return c.drive.calibration.vx_V; }, between(-50, 50), "V",
+         "The bridge's voltage error (dead time and drop per phase) the calibration's events learned with Rs0; with "
+         "calibration.vx_std_V it replaces injection.vx_initial_V as the estimator's prior (docs/estimator.md section 4).");
+  s.real("calibration.vx_std_V", [](C& c) -> double& { return c.drive.calibration.vx_std_V; }, at_least(0, 100), "V",
+         "Its standard error (0: not learned; injection.vx_initial_V and vx_initial_std_V hold).");
   s.optional_real("calibration.angle_correction_rad", [](C& c) -> std::optional<double>& { return c.angle_correction_rad; },
                   between(-1, 1), "rad", "none measured",
                   "The correction of sensors.encoder_offset_rad a calibration's rotor-angle check measured (electrical, "
@@ -491,6 +496,15 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
   }
   if (!window_reported && d.injection.rs_min_ohm >= d.injection.rs_max_ohm) {  // equal ends around the nameplate
     rule("injection.rs_min_ohm", "injection.rs_max_ohm", "injection.rs_min_ohm must be below injection.rs_max_ohm");
+  }
+  // A stored Vx without its error bar would be silently ignored (its standard error 0 means
+  // "not learned").
+  if (given("calibration.vx_V") && !(d.calibration.vx_std_V > 0.0)) {
+    const std::string_view l = lead("calibration.vx_V", "calibration.vx_std_V");
+    rule("calibration.vx_V", "calibration.vx_std_V",
+         ref("calibration.vx_V", d.calibration.vx_V, "V", l) + " needs its standard error " +
+             ref("calibration.vx_std_V", d.calibration.vx_std_V, "V", l) +
+             " above 0: without it the stored bridge voltage is not used");
   }
   // A reluctance-torque budget the load-change guard always rejects: the speed loop answers a
   // torque disturbance dT with dT / kt of iq, and a pair whose recordings differ in iq by more

@@ -344,6 +344,7 @@ void DriveController::start_calibration(double known_temp_C) {
   calibration_ke_count_ = 0;
   calibration_ke_pairs_ = 0;
   calibration_ke_model_var_sum_ = 0.0;
+  calibration_vx_learned_ = false;
   // A calibration asked for while one runs starts afresh, but what held before the first one is
   // what a failure puts back (not what the one in progress measured); its steps end here.
   if (sweep_.active()) {
@@ -512,6 +513,7 @@ void DriveController::handle_estimate(const EventEstimate& e) {
     calibration_rs_sum_ += w * rs_at_known;
     calibration_weight_sum_ += w;
     ++calibration_count_;
+    calibration_vx_learned_ = calibration_vx_learned_ || e.vx_from_event;
     if (e.has_emf) {
       calibration_ke_sum_ += e.ke_V_s_per_rad;
       calibration_ke_sq_sum_ += e.ke_V_s_per_rad * e.ke_V_s_per_rad;
@@ -547,6 +549,13 @@ void DriveController::handle_estimate(const EventEstimate& e) {
       // Likewise the angle correction, when a check measured it.
       c.angle_correction_measured = angle_measured_;
       c.angle_correction_rad = angle_measured_ ? angle_.offset_correction_rad() : 0.0;
+      // And the bridge's voltage Rs0 was learned with: this run's events learned it, or it is
+      // the stored calibration's (the prior they were conditioned on). Neither: the configured
+      // guess, which is not kept.
+      if (config_.injection.fit_dead_time && (calibration_vx_learned_ || observer_.calibration().vx_std_V > 0.0)) {
+        c.vx_V = scheduler_.vx_V();
+        c.vx_std_V = scheduler_.vx_std_V();
+      }
       calibrating_ = false;
       scheduler_.set_config(config_.injection);
       // The filter keeps its state (the winding has warmed during the calibration); only the

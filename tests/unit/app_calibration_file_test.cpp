@@ -129,6 +129,37 @@ TEST_F(CalibrationFile, TheRotorAngleCorrectionIsKeptWhenMeasured) {
   EXPECT_THROW(write_calibration_file(dir_ / "c.toml", measured, "test"), CalibrationFileError);
 }
 
+// The bridge's voltage Rs0 was learned with travels with it, with its error bar: a restarted
+// drive whose pairs cannot learn Vx (unipolar, fixed-angle under load) starts from it. Absent
+// (not learned, or a file written before): the configured prior holds.
+TEST_F(CalibrationFile, TheBridgeVoltageIsKeptWithItsErrorBarWhenLearned) {
+  const fs::path p = dir_ / "calibration.toml";
+  core::Calibration learned = sample();
+  learned.vx_V = 7.508249925;
+  learned.vx_std_V = 0.0242;
+  write_calibration_file(p, learned, "test");
+  const core::Calibration c = read_calibration_file(p);
+  EXPECT_DOUBLE_EQ(c.vx_V, 7.508249925);
+  EXPECT_DOUBLE_EQ(c.vx_std_V, 0.0242);
+  write_calibration_file(p, sample(), "test");
+  EXPECT_EQ(toml::parse_file(p.string()).get("vx_V"), nullptr) << "not learned is left out, not written as 0";
+  EXPECT_EQ(read_calibration_file(p).vx_std_V, 0.0);
+  // One without the other is a hand edit gone wrong: both named.
+  const std::string one = error_of("format = 1\nrs0_ohm = 0.13\nt0_C = 25.0\nvx_V = 7.5\n");
+  EXPECT_NE(one.find("vx_V and vx_std_V go together"), std::string::npos) << one;
+  EXPECT_NE(one.find("only vx_V"), std::string::npos) << one;
+  EXPECT_NE(error_of("format = 1\nrs0_ohm = 0.13\nt0_C = 25.0\nvx_V = 7.5\nvx_std_V = 0.0\n")
+                .find("bad.toml:5: vx_std_V: 0 is out of range"),
+            std::string::npos);
+  EXPECT_NE(error_of("format = 1\nrs0_ohm = 0.13\nt0_C = 25.0\nvx_V = nan\nvx_std_V = 0.02\n").find("bad.toml:4: vx_V"),
+            std::string::npos);
+  learned.vx_V = std::nan("");
+  EXPECT_THROW(write_calibration_file(dir_ / "c.toml", learned, "test"), CalibrationFileError);
+  learned.vx_V = 7.5;
+  learned.vx_std_V = -1.0;
+  EXPECT_THROW(write_calibration_file(dir_ / "c.toml", learned, "test"), CalibrationFileError);
+}
+
 TEST_F(CalibrationFile, ReplacesTheOldFileAndLeavesNoTemporary) {
   const fs::path p = dir_ / "calibration.toml";
   write_text(p, "old content that is not TOML [");

@@ -367,6 +367,25 @@ TEST(ControllerConfig, DriveControllerDerivesFromTheMotor) {
   EXPECT_EQ(controller.config().current.rs_ohm, 0.2);
 }
 
+// A stored calibration's bridge voltage is the estimator's Vx prior (both injections'); without
+// one the configured prior holds. Given without its error bar it would be ignored: refused.
+TEST(ControllerConfig, AStoredBridgeVoltageIsTheVxPrior) {
+  const ControllerConfig c = parse("[calibration]\nvx_V = 7.508\nvx_std_V = 0.024\n");
+  const core::DriveController stored(c.drive);
+  EXPECT_EQ(stored.config().injection.vx_initial_V, 7.508);
+  EXPECT_EQ(stored.config().injection.vx_initial_std_V, 0.024);
+  EXPECT_EQ(stored.config().calibration_injection.vx_initial_V, 7.508);
+  const ControllerConfig none = parse("");
+  const core::DriveController guess(none.drive);
+  EXPECT_EQ(guess.config().injection.vx_initial_V, none.drive.injection.vx_initial_V);
+  EXPECT_EQ(guess.config().injection.vx_initial_std_V, 3.0);
+  const std::string alone = error_of("[calibration]\nvx_V = 7.5\n");
+  EXPECT_EQ(alone.rfind("drive.toml:2: calibration.vx_V (7.5 V) needs its standard error calibration.vx_std_V (0 V, its default)", 0),
+            0U)
+      << alone;
+  EXPECT_EQ(error_of("[calibration]\nvx_std_V = -0.1\n").rfind("drive.toml:2: calibration.vx_std_V: must be", 0), 0U);
+}
+
 TEST(ControllerConfig, PrefixedForScenarios) {
   try {
     (void)parse_controller_config(toml::parse(std::string_view{"[injection]\nF_A = -1\n"}, std::string_view{"scen.toml"}), "scen.toml", {}, "controller.");

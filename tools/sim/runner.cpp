@@ -686,6 +686,8 @@ std::string result_json(const SimulationResult& r) {
         .field("ke0_V_s_per_rad", r.calibration.ke0_V_s_per_rad)
         .field("ke0_std_V_s_per_rad", r.calibration.ke0_std_V_s_per_rad > 0.0 ? r.calibration.ke0_std_V_s_per_rad : kNan)
         .field("dead_time_band_A", r.calibration.dead_time_band_A > 0.0 ? r.calibration.dead_time_band_A : kNan)
+        .field("vx_V", r.calibration.vx_std_V > 0.0 ? r.calibration.vx_V : kNan)
+        .field("vx_std_V", r.calibration.vx_std_V > 0.0 ? r.calibration.vx_std_V : kNan)
         .field("angle_correction_rad", r.calibration.angle_correction_measured ? r.calibration.angle_correction_rad : kNan)
         .end_object();
   }

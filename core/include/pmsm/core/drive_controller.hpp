@@ -100,8 +100,9 @@ struct DriveConfig {
   // Fills every sub-configuration's copy of the motor model and of the period from `motor`
   // and `period_s`: the current controller's Rs, Ld, Lq and flux linkage, the speed loop's
   // inertia and period, the angle tracker's pole pairs, the injection's and the calibration
-  // injection's motor model, the baseline's. DriveController applies it to its own copy, so
-  // no sub-configuration can disagree with `motor`. Allocation-free.
+  // injection's motor model, the baseline's; and a stored calibration's bridge voltage
+  // (calibration.vx_V, when learned) as both injections' Vx prior. DriveController applies it
+  // to its own copy, so no sub-configuration can disagree with `motor`. Allocation-free.
   void derive_from_motor();
 };
 
@@ -494,6 +495,7 @@ class DriveController {
   int calibration_ke_count_ = 0;
   int calibration_ke_pairs_ = 0;
   double calibration_ke_model_var_sum_ = 0.0;
+  bool calibration_vx_learned_ = false;  // an event of this calibration run learned Vx
   DeratingResult derating_{};
 };
 

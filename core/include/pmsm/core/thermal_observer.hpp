@@ -99,6 +99,14 @@ struct Calibration {
   // controller's angle; not measured: the configured offset holds.
   bool angle_correction_measured = false;
   double angle_correction_rad = 0.0;
+  // The bridge's voltage error Vx (docs/estimator.md section 4) the calibration's events
+  // learned together with Rs0, and its standard error; vx_std_V 0 when not learned (entered by
+  // hand without it, or stored by a version that did not keep it): the configured prior
+  // (injection.vx_initial_V) then holds. A stored one is the estimator's prior at start-up, so
+  // that a restarted drive whose events cannot learn Vx (unipolar or fixed-angle pairs, or
+  // under load) does not fall back to a guess several volts wide.
+  double vx_V = 0.0;
+  double vx_std_V = 0.0;
 };
 
 struct DeratingConfig {
