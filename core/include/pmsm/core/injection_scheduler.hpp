@@ -252,7 +252,8 @@ struct EventEstimate {
   double rs_ohm = 0.0;
   double rs_std_ohm = 0.0;
   // The part of rs_std_ohm that more estimates do not average away: a model error common to
-  // consecutive estimates (field-weakening pairs' sign pattern), 0 when none is known.
+  // consecutive estimates (field-weakening pairs' sign pattern, the learned Lq's uncertainty,
+  // a Vx held at its prior), 0 when none is known.
   double rs_systematic_std_ohm = 0.0;
   double vx_V = 0.0;               // the fused inverter voltage after this event
   double vx_std_V = 0.0;
@@ -360,6 +361,8 @@ class InjectionScheduler {
   // Whether the event's estimate comes from the pairs' means (event_means_): the joint fit
   // of Rs and Vx across levels, or the fixed-Vx means of flat pulses.
   [[nodiscard]] bool event_joint_fit() const;
+  // The event's sample fit with Vx held at vx_V, its Lq terms refitted (fixed-angle and DC).
+  [[nodiscard]] MeansFit sample_fit_fixed_vx(double vx_V) const;
   [[nodiscard]] bool event_uses_means() const;
   // The time the event's estimate belongs to: its pairs' Rs times weighted by their information
   // (their plain mean where no pair has a variance; EventEstimate::measured_at_s).
