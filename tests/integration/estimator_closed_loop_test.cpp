@@ -159,6 +159,11 @@ TEST(EstimatorClosedLoop, StoredCalibrationIsWrittenAndUsedAtTheNextStart) {
   EXPECT_DOUBLE_EQ(stored.t0_C, first.calibration.t0_C);
   EXPECT_GT(stored.dead_time_band_A, 0.0);
   EXPECT_DOUBLE_EQ(stored.dead_time_band_A, first.calibration.dead_time_band_A);
+  // ... and the bridge's voltage the calibration's events learned with Rs0 (the plant's 7.5 V).
+  EXPECT_DOUBLE_EQ(stored.vx_V, first.calibration.vx_V);
+  EXPECT_DOUBLE_EQ(stored.vx_std_V, first.calibration.vx_std_V);
+  EXPECT_NEAR(stored.vx_V, 7.5, 0.1);
+  EXPECT_GT(stored.vx_std_V, 0.0);
 
   auto restart = [&](const std::string& path) {
     Scenario s = load_scenario(kData / "heatup-short.toml");
@@ -177,6 +182,10 @@ TEST(EstimatorClosedLoop, StoredCalibrationIsWrittenAndUsedAtTheNextStart) {
   EXPECT_FALSE(right.calibrated);
   ASSERT_GT(right.estimates.size(), 10U);
   EXPECT_LT(std::abs(mean_error(right)), 3.0);
+  // The restart's Vx prior is the stored one: its first estimate's Vx is within a few of its
+  // standard errors of it, not at the configured 5.85 +- 3 V.
+  EXPECT_NEAR(right.estimates.front().vx_V, stored.vx_V, 0.1);
+  EXPECT_LT(right.estimates.front().vx_std_V, 0.1);
 
   core::Calibration off = stored;
   off.rs0_ohm *= 1.05;
