@@ -153,6 +153,22 @@ int run(const Options& o) {
     spdlog::error("unreadable calibration file: {}", e.what());
     return o.check ? 1 : kExitConfig;
   }
+  {
+    // Pairs that never reverse the current vector (unipolar), or reverse it only at light load
+    // (fixed-angle, DC), rest on the stored bridge voltage; without one, on the configured guess,
+    // whose error every estimate shares and the band carries (docs/estimator.md section 4).
+    const pmsm::core::DriveConfig& d = config.controller.drive;
+    const bool learns_vx_anywhere =
+        d.injection.method == pmsm::core::InjectionMethod::kFixedMagnitude && d.injection.separation == pmsm::core::Separation::kBipolar;
+    if (stored == pmsm::app::StoredCalibration::kLoaded && d.injection.fit_dead_time && !(d.calibration.vx_std_V > 0.0) &&
+        !learns_vx_anywhere) {
+      spdlog::warn("calibration: the stored calibration has no bridge voltage (vx_V: stored by an older version or by hand); "
+                   "{} {} pairs learn it only at light load or never, so the estimates rest on the configured guess "
+                   "injection.vx_initial_V {:.2f} +- {:.2f} V and their band is wide: run a calibration",
+                   pmsm::core::to_string(d.injection.method), pmsm::core::to_string(d.injection.separation),
+                   d.injection.vx_initial_V, d.injection.vx_initial_std_V);
+    }
+  }
   if (o.check) {
     std::printf("%s: OK (node %d on %s, %s; calibration %s)\n", o.config_path.c_str(), config.can.node,
                 config.can.interface.c_str(), budget.c_str(), std::string(pmsm::app::to_string(stored)).c_str());

@@ -497,14 +497,18 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
   if (!window_reported && d.injection.rs_min_ohm >= d.injection.rs_max_ohm) {  // equal ends around the nameplate
     rule("injection.rs_min_ohm", "injection.rs_max_ohm", "injection.rs_min_ohm must be below injection.rs_max_ohm");
   }
-  // A stored Vx without its error bar would be silently ignored (its standard error 0 means
-  // "not learned").
+  // A stored Vx and its error bar go together: without the error bar (0 means "not learned")
+  // the Vx would be silently ignored, and an error bar alone would make 0 V a certain prior.
   if (given("calibration.vx_V") && !(d.calibration.vx_std_V > 0.0)) {
     const std::string_view l = lead("calibration.vx_V", "calibration.vx_std_V");
     rule("calibration.vx_V", "calibration.vx_std_V",
          ref("calibration.vx_V", d.calibration.vx_V, "V", l) + " needs its standard error " +
              ref("calibration.vx_std_V", d.calibration.vx_std_V, "V", l) +
              " above 0: without it the stored bridge voltage is not used");
+  } else if (d.calibration.vx_std_V > 0.0 && !given("calibration.vx_V")) {
+    rule("calibration.vx_std_V", "calibration.vx_V",
+         ref("calibration.vx_std_V", d.calibration.vx_std_V, "V", "calibration.vx_std_V") +
+             " is the standard error of a stored calibration.vx_V, which is not given");
   }
   // A reluctance-torque budget the load-change guard always rejects: the speed loop answers a
   // torque disturbance dT with dT / kt of iq, and a pair whose recordings differ in iq by more

@@ -1,9 +1,6 @@
 // DriveConfig::derive_from_motor(): the one place where the sub-configurations take their
-// copies of the motor model (and of the period, and of a stored calibration's bridge voltage),
-// so that they cannot disagree with it.
+// copies of the motor model (and of the period), so that they cannot disagree with it.
 #include "pmsm/core/drive_controller.hpp"
-
-#include <cmath>
 
 namespace pmsm::core {
 
@@ -26,14 +23,6 @@ void DriveConfig::derive_from_motor() {
     injection_config->rs_nominal_ohm = motor.rs_ohm;
     injection_config->flux_linkage_Wb = psi_Wb;
     injection_config->pole_pairs = motor.pole_pairs;
-  }
-  // A stored calibration that learned the bridge's voltage is the injections' prior for it
-  // (Rs0 was learned with that Vx: the two belong together).
-  if (calibration.vx_std_V > 0.0 && std::isfinite(calibration.vx_std_V) && std::isfinite(calibration.vx_V)) {
-    for (InjectionConfig* injection_config : {&injection, &calibration_injection}) {
-      injection_config->vx_initial_V = calibration.vx_V;
-      injection_config->vx_initial_std_V = calibration.vx_std_V;
-    }
   }
   baseline.period_s = period_s;
   baseline.ld_H = motor.ld_H;

@@ -97,6 +97,12 @@ DriveController::DriveController(const DriveConfig& config)
     angle_.set_offset_correction_rad(config_.calibration.angle_correction_rad);
     angle_measured_ = true;
   }
+  // ... and one that learned the bridge's voltage gives the estimator's Vx prior (Rs0 was
+  // learned with it: the two belong together), in place of the configured guess.
+  if (config_.injection.fit_dead_time && config_.calibration.vx_std_V > 0.0 && std::isfinite(config_.calibration.vx_std_V) &&
+      std::isfinite(config_.calibration.vx_V)) {
+    scheduler_.set_vx_prior(config_.calibration.vx_V, config_.calibration.vx_std_V);
+  }
 }
 
 void DriveController::fail_calibration(CalibrationFailure why) {
@@ -113,6 +119,7 @@ void DriveController::fail_calibration(CalibrationFailure why) {
   publish_calibration_state();
   restore_band();
   restore_angle();
+  restore_vx();
   scheduler_.set_config(config_.injection);
 }
 
@@ -359,7 +366,14 @@ void DriveController::start_calibration(double known_temp_C) {
     band_measured_before_ = band_measured_;
     angle_before_calibration_rad_ = angle_.offset_correction_rad();
     angle_measured_before_ = angle_measured_;
+    vx_before_calibration_V_ = scheduler_.vx_V();
+    vx_std_before_calibration_V_ = scheduler_.vx_std_V();
   }
+  // The calibration learns the bridge's voltage afresh, from the configured guess: conditioned
+  // on a stored or learned Vx it could not see a changed bridge (another inverter, PWM
+  // frequency or dead time), and one that cannot learn Vx (at speed, under load) would pass
+  // its Rs0 uncertainty check on the old Vx's error bar.
+  scheduler_.set_vx_prior(config_.injection.vx_initial_V, config_.injection.vx_initial_std_V);
   // First the rotor angle (the sweep and the events inject d current, which an angle off the
   // rotor's turns into torque), then the bridge, then the events.
   check_restart_.reset();
@@ -404,8 +418,15 @@ void DriveController::abort_calibration() {
     check_restart_.reset();
     restore_band();
     restore_angle();
+    restore_vx();
     scheduler_.set_config(config_.injection);
   }
+}
+
+void DriveController::restore_vx() {
+  // A calibration that does not complete keeps the calibration in use, and the Vx its Rs0 was
+  // learned with (or the one learned since).
+  scheduler_.set_vx_prior(vx_before_calibration_V_, vx_std_before_calibration_V_);
 }
 
 bool DriveController::configure_injection(InjectionMethod method, Separation separation, double f_A, double interval_s) {
@@ -549,10 +570,9 @@ void DriveController::handle_estimate(const EventEstimate& e) {
       // Likewise the angle correction, when a check measured it.
       c.angle_correction_measured = angle_measured_;
       c.angle_correction_rad = angle_measured_ ? angle_.offset_correction_rad() : 0.0;
-      // And the bridge's voltage Rs0 was learned with: this run's events learned it, or it is
-      // the stored calibration's (the prior they were conditioned on). Neither: the configured
-      // guess, which is not kept.
-      if (config_.injection.fit_dead_time && (calibration_vx_learned_ || observer_.calibration().vx_std_V > 0.0)) {
+      // And the bridge's voltage Rs0 was learned with, when this run's events learned it (not
+      // the configured guess they started from).
+      if (config_.injection.fit_dead_time && calibration_vx_learned_) {
         c.vx_V = scheduler_.vx_V();
         c.vx_std_V = scheduler_.vx_std_V();
       }

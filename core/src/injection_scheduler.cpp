@@ -666,9 +666,12 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
       // fit's with Vx at the fused value. Conditioned on the means fit instead, a warm
       // restart's events at 60 rad/s read Rs to 2 mOhm with an error bar of 40 mOhm, and the
       // filter, starting from its guess, ignored them for seconds; at standstill the sample fit
-      // read 1.4 % low where the means read right (docs/estimator.md section 4).
+      // read 1.4 % low where the means read right (docs/estimator.md section 5.2).
       const MeansFit f = sample_fit_fixed_vx(vx_post);
       if (!f.valid) {
+        // The means learned Vx all the same: kept.
+        vx_V_ = vx_post;
+        vx_var_ = var_post + config_.vx_drift_std_V * config_.vx_drift_std_V;
         e.outcome = EventOutcome::kNoFit;
         return e;
       }

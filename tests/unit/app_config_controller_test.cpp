@@ -371,19 +371,31 @@ TEST(ControllerConfig, DriveControllerDerivesFromTheMotor) {
 // one the configured prior holds. Given without its error bar it would be ignored: refused.
 TEST(ControllerConfig, AStoredBridgeVoltageIsTheVxPrior) {
   const ControllerConfig c = parse("[calibration]\nvx_V = 7.508\nvx_std_V = 0.024\n");
-  const core::DriveController stored(c.drive);
-  EXPECT_EQ(stored.config().injection.vx_initial_V, 7.508);
-  EXPECT_EQ(stored.config().injection.vx_initial_std_V, 0.024);
-  EXPECT_EQ(stored.config().calibration_injection.vx_initial_V, 7.508);
+  core::DriveController stored(c.drive);
+  EXPECT_EQ(stored.vx_V(), 7.508);
+  EXPECT_DOUBLE_EQ(stored.vx_std_V(), 0.024);
+  // The configured guess stays the configuration's: a calibration run starts from it (it
+  // learns Vx afresh), and one that does not complete puts the stored Vx back.
+  EXPECT_EQ(stored.config().injection.vx_initial_std_V, 3.0);
+  stored.start_calibration(25.0);
+  EXPECT_EQ(stored.vx_V(), c.drive.injection.vx_initial_V);
+  EXPECT_DOUBLE_EQ(stored.vx_std_V(), 3.0);
+  stored.abort_calibration();
+  EXPECT_EQ(stored.vx_V(), 7.508);
+  EXPECT_DOUBLE_EQ(stored.vx_std_V(), 0.024);
   const ControllerConfig none = parse("");
   const core::DriveController guess(none.drive);
-  EXPECT_EQ(guess.config().injection.vx_initial_V, none.drive.injection.vx_initial_V);
-  EXPECT_EQ(guess.config().injection.vx_initial_std_V, 3.0);
+  EXPECT_EQ(guess.vx_V(), none.drive.injection.vx_initial_V);
+  EXPECT_DOUBLE_EQ(guess.vx_std_V(), 3.0);
   const std::string alone = error_of("[calibration]\nvx_V = 7.5\n");
   EXPECT_EQ(alone.rfind("drive.toml:2: calibration.vx_V (7.5 V) needs its standard error calibration.vx_std_V (0 V, its default)", 0),
             0U)
       << alone;
   EXPECT_EQ(error_of("[calibration]\nvx_std_V = -0.1\n").rfind("drive.toml:2: calibration.vx_std_V: must be", 0), 0U);
+  const std::string bar = error_of("[calibration]\nvx_std_V = 0.05\n");
+  EXPECT_EQ(bar.rfind("drive.toml:2: calibration.vx_std_V (0.05 V) is the standard error of a stored calibration.vx_V, which is not given", 0),
+            0U)
+      << bar;
 }
 
 TEST(ControllerConfig, PrefixedForScenarios) {

@@ -100,9 +100,8 @@ struct DriveConfig {
   // Fills every sub-configuration's copy of the motor model and of the period from `motor`
   // and `period_s`: the current controller's Rs, Ld, Lq and flux linkage, the speed loop's
   // inertia and period, the angle tracker's pole pairs, the injection's and the calibration
-  // injection's motor model, the baseline's; and a stored calibration's bridge voltage
-  // (calibration.vx_V, when learned) as both injections' Vx prior. DriveController applies it
-  // to its own copy, so no sub-configuration can disagree with `motor`. Allocation-free.
+  // injection's motor model, the baseline's. DriveController applies it to its own copy, so
+  // no sub-configuration can disagree with `motor`. Allocation-free.
   void derive_from_motor();
 };
 
@@ -364,6 +363,9 @@ class DriveController {
   // uncertain Rs0: telemetry().calibration_failure says which).
   [[nodiscard]] bool calibration_just_failed() const { return calibration_failed_now_; }
   [[nodiscard]] const Calibration& calibration() const { return observer_.calibration(); }
+  // The estimator's inverter-voltage prior now (docs/estimator.md section 4).
+  [[nodiscard]] double vx_V() const { return scheduler_.vx_V(); }
+  [[nodiscard]] double vx_std_V() const { return scheduler_.vx_std_V(); }
   [[nodiscard]] const DriveConfig& config() const { return config_; }
 
  private:
@@ -394,6 +396,7 @@ class DriveController {
   void restore_angle();
   void age_magnet();
   void update_magnet(const EventEstimate& e, const Calibration& cal);
+  void restore_vx();
   [[nodiscard]] double magnet_var_now_C2() const;
   void publish_magnet_std();
   void pool_ke_scatter(const EventEstimate& e, double ke_ref);
@@ -496,6 +499,8 @@ class DriveController {
   int calibration_ke_pairs_ = 0;
   double calibration_ke_model_var_sum_ = 0.0;
   bool calibration_vx_learned_ = false;  // an event of this calibration run learned Vx
+  double vx_before_calibration_V_ = 0.0;  // the scheduler's Vx prior when the run started
+  double vx_std_before_calibration_V_ = 0.0;
   DeratingResult derating_{};
 };
 

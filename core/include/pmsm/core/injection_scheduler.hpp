@@ -338,6 +338,12 @@ class InjectionScheduler {
   // The inverter voltage prior carried between events.
   [[nodiscard]] double vx_V() const { return vx_V_; }
   [[nodiscard]] double vx_std_V() const { return std::sqrt(vx_var_); }
+  // Replaces the inverter-voltage prior (a stored calibration's Vx at start-up; the configured
+  // guess when a calibration run starts, so that it learns Vx afresh).
+  void set_vx_prior(double vx_V, double std_V) {
+    vx_V_ = vx_V;
+    vx_var_ = std_V * std_V;
+  }
   [[nodiscard]] double lq_H() const { return lq_H_; }   // the secant Lq at zero current
   [[nodiscard]] double lq_std_H() const { return std::sqrt(lq_var_); }
   // The secant Lq lost at the current limit (the saturation model's b, see InjectionConfig).
