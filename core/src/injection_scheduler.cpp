@@ -639,6 +639,13 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
   bool vx_held = false;
   double fw_bridge_ohm = 0.0; // the field-weakening bridge-pattern part of rs_systematic_std_ohm
   bool rs_from_means = true;  // the pairs' means (their Lq terms refitted in step()), or the sample fit
+  // Rs from a fit with Vx held at a value whose variance is var: that variance adds through
+  // drs/dVx, and Rs and Vx come out correlated by it.
+  auto take_fixed_vx_fit = [&](const MeansFit& f, double var) {
+    rs = f.rs_ohm;
+    var_rs = f.var_rs + f.drs_dvx * f.drs_dvx * var;
+    cov_rs_vx = f.drs_dvx * var;
+  };
 
   // The event's own joint fit of Rs and Vx (several levels make it well conditioned) ...
   const int means = std::min(event_means_done_, std::min(event_pairs_, InjectionConfig::kMaxLevels));
@@ -675,9 +682,7 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
         e.outcome = EventOutcome::kNoFit;
         return e;
       }
-      rs = f.rs_ohm;
-      var_rs = f.var_rs + f.drs_dvx * f.drs_dvx * var_post;
-      cov_rs_vx = f.drs_dvx * var_post;
+      take_fixed_vx_fit(f, var_post);
       rs_from_means = false;
     }
     vx = vx_post;
@@ -700,9 +705,7 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
       e.outcome = EventOutcome::kNoFit;
       return e;
     }
-    rs = fixed.rs_ohm;
-    var_rs = fixed.var_rs + fixed.drs_dvx * fixed.drs_dvx * var_vx;
-    cov_rs_vx = fixed.drs_dvx * var_vx;
+    take_fixed_vx_fit(fixed, var_vx);
     vx_held = true;
     drs_dvx_held = fixed.drs_dvx;
     if (event_field_weakening_) {

@@ -25,10 +25,15 @@ namespace {
 
 const std::filesystem::path kSuite = std::filesystem::path(PMSM_SOURCE_DIR) / "bench/scenarios/robustness";
 
-SimulationResult run(const char* file) {
+SimulationResult run(const std::filesystem::path& file) {
   RunOptions o;
   o.twin_for_disturbance = false;
-  return run_scenario(load_scenario(kSuite / file), o);
+  return run_scenario(load_scenario(file.is_absolute() ? file : kSuite / file), o);
+}
+
+// A scenario of tests/integration/data.
+SimulationResult run_data(const char* file) {
+  return run(std::filesystem::path(PMSM_SOURCE_DIR) / "tests/integration/data" / file);
 }
 
 TEST(EstimatorRobustness, CalibrationAtMinus20CReadsTheRiseRight) {
@@ -63,10 +68,7 @@ TEST(EstimatorRobustness, AWarmRestartIsReadWarmFromTheFirstMeasurement) {
 // back to the configured prior (5.85 +- 3 V against the bridge's 7.5 V): these 40 s read
 // 25.1 / 61.3 C RMS / max, and the full run 36 C high on average.
 TEST(EstimatorRobustness, AUnipolarWarmRestartTakesTheBridgeVoltageFromItsCalibration) {
-  const std::filesystem::path data = std::filesystem::path(PMSM_SOURCE_DIR) / "tests/integration/data";
-  RunOptions o;
-  o.twin_for_disturbance = false;
-  const SimulationResult r = run_scenario(load_scenario(data / "warm-restart-unipolar.toml"), o);
+  const SimulationResult r = run_data("warm-restart-unipolar.toml");
   EXPECT_FALSE(r.calibrated);
   ASSERT_GT(r.winding_error_samples, 500U);
   ASSERT_GT(r.estimates_accepted, 20U);
@@ -80,10 +82,7 @@ TEST(EstimatorRobustness, AUnipolarWarmRestartTakesTheBridgeVoltageFromItsCalibr
 // estimate 21 C high on average; the estimate is as far off now, and says so). The band is wide
 // (its sigma grows to about 90 C here): honest, and what the daemon's start-up warning is for.
 TEST(EstimatorRobustness, AHeldBridgeVoltageIsASharedErrorInTheBand) {
-  const std::filesystem::path data = std::filesystem::path(PMSM_SOURCE_DIR) / "tests/integration/data";
-  RunOptions o;
-  o.twin_for_disturbance = false;
-  const SimulationResult r = run_scenario(load_scenario(data / "warm-restart-unipolar-no-vx.toml"), o);
+  const SimulationResult r = run_data("warm-restart-unipolar-no-vx.toml");
   ASSERT_GT(r.winding_error_samples, 500U);
   ASSERT_GT(r.winding_error_mean_C, 10.0) << "the prior 1.65 V below the bridge's Vx no longer reads high";
   EXPECT_GE(r.coverage_2sigma, 0.9);
@@ -95,10 +94,7 @@ TEST(EstimatorRobustness, AHeldBridgeVoltageIsASharedErrorInTheBand) {
 // restart's filter, starting from the ambient sensor, ignored them: these 40 s read 19.9 /
 // 61.2 C RMS / max before the calibration kept Vx, and the whole run a max of 56 C with it.
 TEST(EstimatorRobustness, AFixedAngleWarmRestartTakesItsLightLoadEvents) {
-  const std::filesystem::path data = std::filesystem::path(PMSM_SOURCE_DIR) / "tests/integration/data";
-  RunOptions o;
-  o.twin_for_disturbance = false;
-  const SimulationResult r = run_scenario(load_scenario(data / "warm-restart-fixed-angle.toml"), o);
+  const SimulationResult r = run_data("warm-restart-fixed-angle.toml");
   ASSERT_GT(r.winding_error_samples, 500U);
   EXPECT_LT(r.winding_error_max_C, 10.0);
   EXPECT_LT(r.winding_error_rms_C, 4.0);
