@@ -570,6 +570,12 @@ void InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit)
   lq_resolved_ = saturation_variance_resolved();
 }
 
+void InjectionScheduler::carry_vx(double vx_V, double var_V2) {
+  // The event's Vx becomes the next one's prior, which may drift meanwhile.
+  vx_V_ = vx_V;
+  vx_var_ = var_V2 + config_.vx_drift_std_V * config_.vx_drift_std_V;
+}
+
 MeansFit InjectionScheduler::sample_fit_fixed_vx(double vx_V) const {
   // The event's sample fit (Eq. 22 for turning pulses) with Vx held at vx_V, its pairs' Lq
   // terms refitted with the curve learned by now, to first order in the sample fit
@@ -676,9 +682,7 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
       // read 1.4 % low where the means read right (docs/estimator.md section 5.2).
       const MeansFit f = sample_fit_fixed_vx(vx_post);
       if (!f.valid) {
-        // The means learned Vx all the same: kept.
-        vx_V_ = vx_post;
-        vx_var_ = var_post + config_.vx_drift_std_V * config_.vx_drift_std_V;
+        carry_vx(vx_post, var_post);  // the means learned Vx all the same
         e.outcome = EventOutcome::kNoFit;
         return e;
       }
@@ -756,8 +760,7 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
   e.rs_ohm = rs;
   e.rs_std_ohm = std::sqrt(var_rs);
   if (config_.fit_dead_time) {
-    vx_V_ = vx;
-    vx_var_ = var_vx + config_.vx_drift_std_V * config_.vx_drift_std_V;
+    carry_vx(vx, var_vx);
   }
   e.vx_V = vx;
   e.vx_std_V = std::sqrt(var_vx);

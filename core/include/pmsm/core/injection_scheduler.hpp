@@ -369,6 +369,8 @@ class InjectionScheduler {
   [[nodiscard]] bool event_joint_fit() const;
   // The event's sample fit with Vx held at vx_V, its Lq terms refitted (fixed-angle and DC).
   [[nodiscard]] MeansFit sample_fit_fixed_vx(double vx_V) const;
+  // An event's fused Vx as the prior of the next (with the drift between events).
+  void carry_vx(double vx_V, double var_V2);
   [[nodiscard]] bool event_uses_means() const;
   // The time the event's estimate belongs to: its pairs' Rs times weighted by their information
   // (their plain mean where no pair has a variance; EventEstimate::measured_at_s).
