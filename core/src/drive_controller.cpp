@@ -591,6 +591,7 @@ void DriveController::handle_estimate(const EventEstimate& e) {
   }
   ResistanceEstimate out;
   out.time_s = e.time_s;
+  out.measured_at_s = e.measured_at_s > 0.0 ? std::min(e.measured_at_s, e.time_s) : e.time_s;
   out.rs_ohm = e.rs_ohm;
   out.rs_std_ohm = e.rs_std_ohm;
   out.winding_C = observer_.temperature_from_resistance_C(e.rs_ohm);

@@ -75,7 +75,7 @@ std::string markdown_row(const SimulationResult& r, const std::string& file) {
   return fmt::format("| {} (`{}`){}{} | {} | {} | {} | {} | {} | {} | {} | {} | {} / {} | {} | {} | {:.1f} | {:.0f} / {:.1f} |\n",
                      r.scenario, file, failed, tripped, r.method, cell(r.winding_error_rms_C, w), cell(r.winding_error_max_C, w),
                      cell(r.winding_error_mean_C, w, "{:+.2f}"), cell(100.0 * r.coverage_2sigma, w, "{:.0f}"),
-                     cell(r.rs_error_rms_mohm, r.estimates_published() > 0), cell(r.magnet_error_rms_C, r.magnet_error_samples > 0),
+                     cell(r.rs_error_rms_mohm, r.estimates_published() > 0 && std::isfinite(r.rs_error_rms_mohm)), cell(r.magnet_error_rms_C, r.magnet_error_samples > 0),
                      r.estimates_accepted, r.pairs[0], rejected, cell(r.speed_disturbance_pct, r.disturbance_measured, "{:.3f}"),
                      cell(r.torque_disturbance_pct, r.disturbance_measured), r.injection_loss_W, r.sim_time_s, r.wall_time_s);
 }

@@ -23,6 +23,7 @@
 
 #include "json_writer.hpp"
 #include "drive_node.hpp"
+#include "truth_history.hpp"
 #include "pmsm/plant/plant.hpp"
 
 namespace pmsm::app {
@@ -306,7 +307,10 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
   double fast_speed_sum = 0.0;
   double fast_torque_sum = 0.0;
   plant::PlantState truth = plant.state();
+  TruthHistory history;
+  history.record(plant.time_s(), truth.rs_ohm, truth.winding_temp_C);
   double sq_err = 0.0, sum_err = 0.0, sq_rs = 0.0, sq_magnet = 0.0;
+  std::size_t rs_compared = 0;
   std::size_t magnet_covered = 0;
 
   const auto wall_start = std::chrono::steady_clock::now();
@@ -352,6 +356,9 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
     const bool log_now = k % log_every == 0;
     const bool fast_now = k % kFastEvery == kFastEvery - 1;
     truth = plant.state();
+    if (fast_now) {
+      history.record(plant.time_s(), truth.rs_ohm, truth.winding_temp_C);
+    }
 
     if (real_time_calibration && !tel.calibrating) {
       plant.set_thermal_acceleration(scenario.plant.thermal.acceleration);
@@ -412,11 +419,17 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
       const core::ResistanceEstimate& e = *drive.last_estimate();
       EstimateRow row;
       row.time_s = t;
+      // The drive's clock and the plant's may differ by an offset, not in rate: the age is
+      // taken on the drive's, the truth looked up on the plant's. The truth after this step's
+      // plant update is the publication's (the ring's last record may be up to 1 ms older).
+      row.age_s = std::max(0.0, e.time_s - e.measured_at_s);
+      const TruthHistory::Point then = row.age_s > 0.0 ? history.at(plant.time_s() - row.age_s)
+                                                       : TruthHistory::Point{truth.rs_ohm, truth.winding_temp_C};
       row.rs_est_ohm = e.rs_ohm;
       row.rs_std_ohm = e.rs_std_ohm;
-      row.rs_true_ohm = truth.rs_ohm;
+      row.rs_true_ohm = then.rs_ohm;
       row.winding_est_C = e.winding_C;
-      row.winding_true_C = truth.winding_temp_C;
+      row.winding_true_C = then.winding_C;
       row.vx_V = e.vx_V;
       row.vx_std_V = e.vx_std_V;
       row.lq_H = e.lq_H;
@@ -430,7 +443,10 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
         result.estimates.push_back(row);
       }
       (e.fused ? result.estimates_accepted : result.estimates_gated) += 1;
-      sq_rs += std::pow(e.rs_ohm - truth.rs_ohm, 2);
+      if (std::isfinite(then.rs_ohm)) {
+        sq_rs += std::pow(e.rs_ohm - then.rs_ohm, 2);
+        ++rs_compared;
+      }
     }
 
     // The injection's own copper loss: 3/2 Rs |i_injection|^2.
@@ -542,8 +558,10 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
     result.magnet_coverage_2sigma =
         static_cast<double>(magnet_covered) / static_cast<double>(result.magnet_error_samples);
   }
-  if (result.estimates_published() > 0) {
-    result.rs_error_rms_mohm = 1e3 * std::sqrt(sq_rs / static_cast<double>(result.estimates_published()));
+  if (rs_compared > 0) {
+    result.rs_error_rms_mohm = 1e3 * std::sqrt(sq_rs / static_cast<double>(rs_compared));
+  } else if (result.estimates_published() > 0) {
+    result.rs_error_rms_mohm = kNan;  // published, but none within the truth's history
   }
   result.injection_loss_W = result.sim_time_s > 0.0 ? injection_energy_J / result.sim_time_s : 0.0;
   result.injection_duty = periods > 0 ? static_cast<double>(injection_periods) / static_cast<double>(periods) : 0.0;
@@ -790,7 +808,7 @@ std::string result_text(const SimulationResult& r) {
   }
   out += fmt::format("  true winding reached            {:.1f} C\n", r.max_winding_true_C);
   if (r.estimates_published() > 0) {
-    out += fmt::format("  Rs error (published estimates)  RMS {:.2f} mOhm\n", r.rs_error_rms_mohm);
+    out += fmt::format("  Rs error (at their own time)    RMS {:.2f} mOhm\n", r.rs_error_rms_mohm);
   }
   if (r.magnet_error_samples > 0) {
     out += fmt::format("  magnet error                    RMS {:.2f} C, max {:.2f} C, inside +-2 sigma {:.1f} %\n",
@@ -874,12 +892,14 @@ std::string result_text(const SimulationResult& r) {
 }
 
 std::string estimates_text(const SimulationResult& r) {
+  // time_s is the publication; the truth (rs_true, winding_true, err) is the plant's at the
+  // time the estimate belongs to, age_s before it.
   std::string out =
-      "    time_s  speed_rad_s   iq_A   rs_est_mohm  std_mohm  rs_true_mohm  err_mohm  winding_est_C  winding_true_C  "
+      "    time_s  age_s  speed_rad_s   iq_A   rs_est_mohm  std_mohm  rs_true_mohm  err_mohm  winding_est_C  winding_true_C  "
       "vx_V   vx_std_V  learn  joint_rs_mohm  joint_vx_V  lq_mH  fused\n";
   for (const EstimateRow& e : r.estimates) {
-    out += fmt::format("{:10.3f} {:12.1f} {:6.1f} {:13.2f} {:9.2f} {:13.2f} {:9.2f} {:14.1f} {:15.1f} {:6.3f} {:10.3f} {:6} {:14.2f} {:11.3f} {:6.3f}  {}\n",
-                       e.time_s, e.speed_rad_s, e.iq_A, 1e3 * e.rs_est_ohm, 1e3 * e.rs_std_ohm, 1e3 * e.rs_true_ohm,
+    out += fmt::format("{:10.3f} {:6.3f} {:12.1f} {:6.1f} {:13.2f} {:9.2f} {:13.2f} {:9.2f} {:14.1f} {:15.1f} {:6.3f} {:10.3f} {:6} {:14.2f} {:11.3f} {:6.3f}  {}\n",
+                       e.time_s, e.age_s, e.speed_rad_s, e.iq_A, 1e3 * e.rs_est_ohm, 1e3 * e.rs_std_ohm, 1e3 * e.rs_true_ohm,
                        1e3 * (e.rs_est_ohm - e.rs_true_ohm), e.winding_est_C, e.winding_true_C, e.vx_V, e.vx_std_V,
                        e.vx_learning ? "yes" : "no", 1e3 * e.joint_rs_ohm, e.joint_vx_V, 1e3 * e.lq_H, e.fused ? "yes" : "gated");
   }

@@ -60,7 +60,11 @@ struct SeriesRow {
 };
 
 struct EstimateRow {
-  double time_s = 0.0;
+  double time_s = 0.0;              // published
+  // How long before its publication the estimate was measured (its pairs' weighted mean time,
+  // EventEstimate::measured_at_s): the truth below is the plant's at that time, interpolated,
+  // as the thermal filter fuses it there. NaN truth when that is older than TruthHistory keeps.
+  double age_s = 0.0;
   double rs_est_ohm = 0.0;
   double rs_std_ohm = 0.0;
   double rs_true_ohm = 0.0;

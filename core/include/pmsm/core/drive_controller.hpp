@@ -253,7 +253,8 @@ struct DriveTelemetry {
 // One published resistance estimate, from an event's accepted pairs (rejected pairs are
 // reported, never published as estimates).
 struct ResistanceEstimate {
-  double time_s = 0.0;
+  double time_s = 0.0;              // published
+  double measured_at_s = 0.0;       // the time it belongs to (EventEstimate::measured_at_s)
   double rs_ohm = 0.0;
   double rs_std_ohm = 0.0;
   double winding_C = 0.0;           // Eq. 1 through the calibration
