@@ -92,4 +92,10 @@ awk '
     for (k = 1; k <= n; ++k) if (t[k] > from) { e = (est[k] / tru[k] - 1) * 100; s += e; s2 += e * e; ++m }
     if (m > 1) { mu = s / m; sd = sqrt((s2 - m * mu * mu) / (m - 1)); printf "%-18s %3d estimates  Rs error %+.3f %% +- %.3f\n", name, m, mu, sd / sqrt(m) }
     n = 0
-  }' "$work/events.txt"
+  }' "$work/events.txt" >"$work/figures.txt"
+# A layout change of --events must not pass as "no figures": every scenario reports a row.
+if [ "$(wc -l <"$work/figures.txt")" -ne "${#names[@]}" ]; then
+  echo "no-load-bias: expected ${#names[@]} figures, parsed $(wc -l <"$work/figures.txt") from simulate --events" >&2
+  exit 1
+fi
+cat "$work/figures.txt"
