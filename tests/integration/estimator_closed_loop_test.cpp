@@ -5,6 +5,7 @@
 // figures) so that they catch a broken estimator, not the noise of one seed.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -106,6 +107,50 @@ TEST(EstimatorClosedLoop, EveryPublishedEstimateIsCloseToTheTruth) {
   for (const EstimateRow& e : r.estimates) {
     EXPECT_LT(std::abs(e.rs_est_ohm - e.rs_true_ohm), 0.006) << "estimate at " << e.time_s << " s";
   }
+}
+
+// An estimate belongs to its pairs' weighted mean time, before its publication; the listing and
+// rs_error_rms_mohm judge it against the plant at that time, interpolated from the runner's
+// record, which must agree with the logged series at the same instant (the drive's and the
+// plant's clocks matched).
+TEST(EstimatorClosedLoop, EstimatesAreJudgedAtTheirOwnTime) {
+  Scenario s = load_scenario(kData / "heatup-short.toml");
+  s.scenario.log_period_s = 1e-3;  // the series as fine as the runner's record
+  const SimulationResult r = run_scenario(s, RunOptions{});
+  ASSERT_FALSE(r.estimates.empty());
+  ASSERT_GT(r.series.size(), 10000U);
+  // The logged series' true Rs, linearly interpolated.
+  auto series_rs_at = [&](double t) {
+    const auto later = std::lower_bound(r.series.begin(), r.series.end(), t,
+                                        [](const SeriesRow& row, double v) { return row.time_s < v; });
+    if (later == r.series.begin() || later == r.series.end()) {
+      return std::nan("");
+    }
+    const SeriesRow& b = *later;
+    const SeriesRow& a = *(later - 1);
+    return a.rs_true_ohm + (t - a.time_s) / (b.time_s - a.time_s) * (b.rs_true_ohm - a.rs_true_ohm);
+  };
+  int aged = 0;
+  double own_sum = 0.0;
+  double published_sum = 0.0;
+  for (const EstimateRow& e : r.estimates) {
+    ASSERT_GE(e.age_s, 0.0);
+    ASSERT_LT(e.age_s, 5.0) << "estimate at " << e.time_s << " s";
+    const double then = series_rs_at(e.time_s - e.age_s);
+    const double at_publication = series_rs_at(e.time_s);
+    if (!std::isfinite(then) || !std::isfinite(at_publication)) {
+      continue;
+    }
+    // Both sampled every millisecond (at different periods of it), both linear in between.
+    EXPECT_NEAR(e.rs_true_ohm, then, 2e-6 * then) << "estimate at " << e.time_s << " s, age " << e.age_s;
+    aged += e.age_s > 0.05 ? 1 : 0;
+    own_sum += e.rs_est_ohm - e.rs_true_ohm;
+    published_sum += e.rs_est_ohm - at_publication;
+  }
+  EXPECT_GT(aged, static_cast<int>(r.estimates.size()) / 2) << "events last tenths of a second";
+  // The winding heats through the run (120x thermal time): against the truth at publication the
+  // estimates read lower on average than against the truth at their own time.
+  EXPECT_LT(published_sum, own_sum);
 }
 
 TEST(EstimatorClosedLoop, RejectedPairsAreNeverPublished) {
