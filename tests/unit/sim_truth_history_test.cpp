@@ -25,6 +25,18 @@ TEST(TruthHistory, InterpolatesBetweenRecordsAndReturnsThemExactly) {
   EXPECT_NEAR(h.at(101.0).winding_C, 116.0, 1e-9);
 }
 
+TEST(TruthHistory, TakesAnExtraRecordBetweenTheRegularOnes) {
+  // The runner adds the publication's period when it falls between two millisecond records.
+  TruthHistory h;
+  h.record(0.000, 1.0, 10.0);
+  h.record(0.001, 2.0, 20.0);
+  h.record(0.0014, 6.0, 60.0);  // the extra one
+  h.record(0.002, 3.0, 30.0);
+  EXPECT_NEAR(h.at(0.0012).rs_ohm, 4.0, 1e-9);
+  EXPECT_NEAR(h.at(0.0017).winding_C, 45.0, 1e-9);
+  EXPECT_DOUBLE_EQ(h.at(0.0014).rs_ohm, 6.0);
+}
+
 TEST(TruthHistory, SaysNoValueOutsideWhatItHolds) {
   TruthHistory h;
   EXPECT_TRUE(std::isnan(h.at(0.0).rs_ohm));  // nothing recorded yet

@@ -423,8 +423,12 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
       // taken on the drive's, the truth looked up on the plant's. The truth after this step's
       // plant update is the publication's (the ring's last record may be up to 1 ms older).
       row.age_s = std::max(0.0, e.time_s - e.measured_at_s);
-      const TruthHistory::Point then = row.age_s > 0.0 ? history.at(plant.time_s() - row.age_s)
-                                                       : TruthHistory::Point{truth.rs_ohm, truth.winding_temp_C};
+      if (!fast_now) {
+        // The ring's last record may be up to a millisecond old: this period closes the gap
+        // (an extra record in time order), so an age shorter than that is covered too.
+        history.record(plant.time_s(), truth.rs_ohm, truth.winding_temp_C);
+      }
+      const TruthHistory::Point then = history.at(plant.time_s() - row.age_s);
       row.rs_est_ohm = e.rs_ohm;
       row.rs_std_ohm = e.rs_std_ohm;
       row.rs_true_ohm = then.rs_ohm;

@@ -21,6 +21,7 @@ class TruthHistory {
 
   TruthHistory() : time_s_(kSize), rs_ohm_(kSize), winding_C_(kSize) {}
 
+  // Records must come in time order (an extra one between the regular ones is fine).
   void record(double time_s, double rs_ohm, double winding_C) {
     const std::size_t i = count_ % kSize;
     time_s_[i] = time_s;
