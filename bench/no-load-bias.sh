@@ -84,9 +84,10 @@ for n in "${names[@]}"; do files+=("$work/$n.toml"); done
 "$tool" simulate --quiet -j 2 --events "${files[@]}" >"$work/events.txt"
 
 # The events of each scenario precede its name line ("NAME — method"); rows have 17 fields
-# (time_s, age_s, speed, iq, rs_est, std, rs_true at the estimate's own time, ...).
+# (time_s, age_s, speed, iq, rs_est, std, rs_true at the estimate's own time, ..., fused);
+# the fused ones count (the last column is "yes", or "gated").
 awk '
-  NF == 17 && ($17 == "yes" || $17 == "no") { t[++n] = $1; est[n] = $5; tru[n] = $7; next }
+  NF == 17 && $17 == "yes" { t[++n] = $1; est[n] = $5; tru[n] = $7; next }
   / — / {
     name = $1; from = (name ~ /loaded/) ? 22 : 3; m = 0; s = 0; s2 = 0; tt = 0
     for (k = 1; k <= n; ++k) if (t[k] > from) { e = (est[k] / tru[k] - 1) * 100; s += e; s2 += e * e; ++m }

@@ -44,6 +44,23 @@ TEST(Scenario, MinimalScenarioTakesTheDefaults) {
   EXPECT_EQ(s.source, kDir / "inline.toml");
 }
 
+// The drive steps once per plant sample: its period is the plant's PWM period.
+TEST(Scenario, ControlPeriodMustBeThePlantsPwmPeriod) {
+  EXPECT_EQ(inline_error("[operation]\nspeed_rad_s = [[0, 1]]\n[controller.control]\nperiod_s = 5.0e-5\n"),
+            path_of("inline.toml") +
+                ":4: controller.control.period_s: must be the plant's PWM period, 1 / plant.inverter.pwm_frequency_Hz "
+                "= 0.0001 s (the drive steps once per plant sample), got 5e-05 s");
+  // Said by the plant's side alone, the controller's default is the one named.
+  EXPECT_EQ(inline_error("[operation]\nspeed_rad_s = [[0, 1]]\n[plant.inverter]\npwm_frequency_Hz = 20000.0\n"),
+            path_of("inline.toml") +
+                ": controller.control.period_s: must be the plant's PWM period, 1 / plant.inverter.pwm_frequency_Hz "
+                "= 5e-05 s (the drive steps once per plant sample), got 0.0001 s");
+  // Both together: accepted.
+  const Scenario s = parse("[operation]\nspeed_rad_s = [[0, 1]]\n[plant.inverter]\npwm_frequency_Hz = 20000.0\n"
+                           "[controller.control]\nperiod_s = 5.0e-5\n");
+  EXPECT_EQ(s.controller.drive.period_s, 5.0e-5);
+}
+
 TEST(Scenario, BaseInheritanceOverrideWinsAndBaseKeysStay) {
   const Scenario s = load_scenario(kDir / "scenario_child.toml");
   EXPECT_EQ(s.scenario.name, "child");                // overridden

@@ -35,6 +35,11 @@ TEST(TruthHistory, TakesAnExtraRecordBetweenTheRegularOnes) {
   EXPECT_NEAR(h.at(0.0012).rs_ohm, 4.0, 1e-9);
   EXPECT_NEAR(h.at(0.0017).winding_C, 45.0, 1e-9);
   EXPECT_DOUBLE_EQ(h.at(0.0014).rs_ohm, 6.0);
+  // A record that would go back in time (or is no time) is dropped: the order holds.
+  h.record(0.0015, 99.0, 99.0);
+  h.record(std::nan(""), 99.0, 99.0);
+  EXPECT_NEAR(h.at(0.0017).winding_C, 45.0, 1e-9);
+  EXPECT_DOUBLE_EQ(h.at(0.002).rs_ohm, 3.0);
 }
 
 TEST(TruthHistory, SaysNoValueOutsideWhatItHolds) {

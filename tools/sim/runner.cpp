@@ -419,9 +419,10 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
       const core::ResistanceEstimate& e = *drive.last_estimate();
       EstimateRow row;
       row.time_s = t;
-      // The drive's clock and the plant's may differ by an offset, not in rate: the age is
-      // taken on the drive's, the truth looked up on the plant's. The truth after this step's
-      // plant update is the publication's (the ring's last record may be up to 1 ms older).
+      // The age is taken on the drive's clock, the truth looked up on the plant's: the two run
+      // at one rate (parse_scenario requires the drive's period to be the plant's PWM period)
+      // and may differ by an offset. `truth` is the plant's state at the sample this step
+      // consumed (the plant steps after the drive, below), at plant.time_s().
       row.age_s = std::max(0.0, e.time_s - e.measured_at_s);
       if (!fast_now) {
         // The ring's last record may be up to a millisecond old: this period closes the gap
@@ -812,7 +813,9 @@ std::string result_text(const SimulationResult& r) {
   }
   out += fmt::format("  true winding reached            {:.1f} C\n", r.max_winding_true_C);
   if (r.estimates_published() > 0) {
-    out += fmt::format("  Rs error (at their own time)    RMS {:.2f} mOhm\n", r.rs_error_rms_mohm);
+    out += std::isfinite(r.rs_error_rms_mohm)
+               ? fmt::format("  Rs error (at their own time)    RMS {:.2f} mOhm\n", r.rs_error_rms_mohm)
+               : std::string("  Rs error (at their own time)    none within the truth's record\n");
   }
   if (r.magnet_error_samples > 0) {
     out += fmt::format("  magnet error                    RMS {:.2f} C, max {:.2f} C, inside +-2 sigma {:.1f} %\n",
@@ -958,7 +961,8 @@ void write_plot(const SimulationResult& r, const std::string& path) {
     }
     std::ofstream points(points_path);
     for (const EstimateRow& e : r.estimates) {
-      points << fmt::format("{:.4f} {:.3f} {}\n", e.time_s, e.winding_est_C, e.fused ? 1 : 0);
+      // At the time the estimate belongs to, against the truth's curve there.
+      points << fmt::format("{:.4f} {:.3f} {}\n", e.time_s - e.age_s, e.winding_est_C, e.fused ? 1 : 0);
     }
   }
   const std::string title = r.scenario + " — " + r.method;

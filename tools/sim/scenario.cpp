@@ -411,6 +411,19 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
   if (root.at_path("scenario.thermal_acceleration") && !root.at_path("controller.thermal.acceleration")) {
     out.controller.drive.thermal.time_scale = out.scenario.thermal_acceleration;
   }
+  // The drive steps once per plant sample, so its period is the plant's PWM period: a
+  // mismatch would run every clock of the drive (its timers, the speed from the angle's
+  // advance, the thermal model, an estimate's age) at the wrong rate without a word.
+  const double plant_period_s = 1.0 / out.plant.inverter.pwm_frequency_Hz;
+  const double period_s = out.controller.drive.period_s;
+  if (!(std::abs(period_s - plant_period_s) <= 1e-9 * plant_period_s)) {
+    const auto given = root.at_path("controller.control.period_s");
+    const std::string at = given ? where(*given.node(), source.string(), "controller.control.period_s")
+                                 : source.string() + ": controller.control.period_s: ";
+    throw ConfigError(at + "must be the plant's PWM period, 1 / plant.inverter.pwm_frequency_Hz = " +
+                      common::format_number(plant_period_s) + " s (the drive steps once per plant sample), got " +
+                      common::format_number(period_s) + " s");
+  }
   return out;
 }
 
