@@ -152,6 +152,25 @@ TEST(EstimatorClosedLoop, EstimatesAreJudgedAtTheirOwnTime) {
     published_sum += e.rs_est_ohm - at_publication;
   }
   EXPECT_GT(aged, static_cast<int>(r.estimates.size()) / 2) << "events last tenths of a second";
+  // The running estimates' bias and the calibration's, as the JSON reports them.
+  double rel_sum = 0.0;
+  int fused = 0;
+  for (const EstimateRow& e : r.estimates) {
+    if (e.fused && std::isfinite(e.rs_true_ohm)) {
+      rel_sum += e.rs_est_ohm / e.rs_true_ohm - 1.0;
+      ++fused;
+    }
+  }
+  ASSERT_GT(fused, 0);
+  EXPECT_NEAR(r.rs_error_mean_pct, 100.0 * rel_sum / fused, 1e-9);
+  ASSERT_TRUE(r.calibrated);
+  const plant::MotorConfig& m = s.plant.motor;
+  const double truth_rs0 = m.rs_ohm * (1.0 + m.alpha_at_reference() * (r.calibration.t0_C - m.rs_reference_temp_C));
+  EXPECT_NEAR(r.calibration_rs0_error_pct, 100.0 * (r.calibration.rs0_ohm / truth_rs0 - 1.0), 1e-9);
+  EXPECT_LT(std::abs(r.calibration_rs0_error_pct), 2.0) << "a calibration on a soaked motor";
+  const std::string json = result_json(r);
+  EXPECT_NE(json.find("\"rs_error_mean_pct\": "), std::string::npos);
+  EXPECT_NE(json.find("\"rs0_error_pct\": "), std::string::npos);
   // The winding heats through the run (120x thermal time): against the truth at publication the
   // estimates read lower on average than against the truth at their own time.
   EXPECT_LT(published_sum, own_sum);

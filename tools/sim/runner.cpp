@@ -311,6 +311,8 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
   history.record(plant.time_s(), truth.rs_ohm, truth.winding_temp_C);
   double sq_err = 0.0, sum_err = 0.0, sq_rs = 0.0, sq_magnet = 0.0;
   std::size_t rs_compared = 0;
+  double rel_rs_sum = 0.0;  // fused estimates' relative error at their own time
+  std::size_t rel_rs_count = 0;
   std::size_t magnet_covered = 0;
 
   const auto wall_start = std::chrono::steady_clock::now();
@@ -451,6 +453,10 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
       if (std::isfinite(then.rs_ohm)) {
         sq_rs += std::pow(e.rs_ohm - then.rs_ohm, 2);
         ++rs_compared;
+        if (e.fused && then.rs_ohm > 0.0) {
+          rel_rs_sum += e.rs_ohm / then.rs_ohm - 1.0;
+          ++rel_rs_count;
+        }
       }
     }
 
@@ -568,6 +574,17 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
   } else if (result.estimates_published() > 0) {
     result.rs_error_rms_mohm = kNan;  // published, but none within the truth's history
   }
+  if (rel_rs_count > 0) {
+    result.rs_error_mean_pct = 100.0 * rel_rs_sum / static_cast<double>(rel_rs_count);
+  }
+  if (result.calibrated) {
+    // The plant's law (Eq. 1 at its reference, plant.cpp) at the calibration's temperature.
+    const plant::MotorConfig& m = scenario.plant.motor;
+    const double truth_rs0 = m.rs_ohm * (1.0 + m.alpha_at_reference() * (result.calibration.t0_C - m.rs_reference_temp_C));
+    if (truth_rs0 > 0.0) {
+      result.calibration_rs0_error_pct = 100.0 * (result.calibration.rs0_ohm / truth_rs0 - 1.0);
+    }
+  }
   result.injection_loss_W = result.sim_time_s > 0.0 ? injection_energy_J / result.sim_time_s : 0.0;
   result.injection_duty = periods > 0 ? static_cast<double>(injection_periods) / static_cast<double>(periods) : 0.0;
   result.angle_correction_rad = drive.angle_correction_rad();
@@ -673,6 +690,7 @@ std::string result_json(const SimulationResult& r) {
       .field("winding_error_samples", static_cast<std::uint64_t>(r.winding_error_samples))
       .field("coverage_2sigma", r.winding_error_samples > 0 ? r.coverage_2sigma : kNan)
       .field("rs_error_rms_mohm", r.estimates_published() == 0 ? kNan : r.rs_error_rms_mohm)
+      .field("rs_error_mean_pct", r.rs_error_mean_pct)
       .field("magnet_error_rms_C", r.magnet_error_samples > 0 ? r.magnet_error_rms_C : kNan)
       .field("magnet_error_max_C", r.magnet_error_samples > 0 ? r.magnet_error_max_C : kNan)
       .field("magnet_coverage_2sigma", r.magnet_error_samples > 0 ? r.magnet_coverage_2sigma : kNan)
@@ -705,6 +723,7 @@ std::string result_json(const SimulationResult& r) {
         .field("time_s", r.calibration_time_s)
         .field("rs0_ohm", r.calibration.rs0_ohm)
         .field("rs0_std_ohm", r.calibration_rs0_std_ohm)
+        .field("rs0_error_pct", r.calibration_rs0_error_pct)
         .field("t0_C", r.calibration.t0_C)
         .field("ke0_V_s_per_rad", r.calibration.ke0_V_s_per_rad)
         .field("ke0_std_V_s_per_rad", r.calibration.ke0_std_V_s_per_rad > 0.0 ? r.calibration.ke0_std_V_s_per_rad : kNan)

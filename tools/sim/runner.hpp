@@ -5,6 +5,7 @@
 #include <array>
 #include <cstdint>
 #include <functional>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -94,6 +95,11 @@ struct SimulationResult {
   // honest band holds about 95 %).
   double coverage_2sigma = 0.0;
   double rs_error_rms_mohm = 0.0;   // published estimates against the true Rs at that time
+  // Their mean relative error (%), fused ones only: the running estimates' bias (NaN: none).
+  double rs_error_mean_pct = std::numeric_limits<double>::quiet_NaN();
+  // The calibration's Rs0 against the plant's resistance at the calibration's t0_C (%), by the
+  // plant's own law: the calibration's bias, which Eq. 1's ratio cancels against the above.
+  double calibration_rs0_error_pct = std::numeric_limits<double>::quiet_NaN();
   double magnet_error_rms_C = 0.0;
   double magnet_error_max_C = 0.0;
   std::size_t magnet_error_samples = 0;
