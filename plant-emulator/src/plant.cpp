@@ -263,8 +263,7 @@ struct Plant::Impl {
 
   void update_temperature_parameters() {
     const auto& t = thermal.temperatures_C();
-    rs_ohm = cfg.motor.rs_ohm *
-             (1.0 + cfg.motor.alpha_at_reference() * (t[ThermalNetwork::kWinding] - cfg.motor.rs_reference_temp_C));  // Eq. 1
+    rs_ohm = cfg.motor.rs_at_C(t[ThermalNetwork::kWinding]);  // Eq. 1
     psi_m_Wb = psi_m0_Wb * (1.0 + cfg.motor.magnet_temp_coefficient_per_C *
                                       (t[ThermalNetwork::kRotor] - cfg.motor.magnet_ref_temp_C));
     const double ratio = psi_m_Wb / psi_m0_Wb;

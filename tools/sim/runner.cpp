@@ -358,7 +358,9 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
     const bool log_now = k % log_every == 0;
     const bool fast_now = k % kFastEvery == kFastEvery - 1;
     truth = plant.state();
-    if (fast_now) {
+    // Every 10 periods, and at a publication between them, so that an age under a millisecond
+    // finds its truth too (records stay in time order).
+    if (fast_now || drive.last_estimate()) {
       history.record(plant.time_s(), truth.rs_ohm, truth.winding_temp_C);
     }
 
@@ -426,11 +428,6 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
       // and may differ by an offset. `truth` is the plant's state at the sample this step
       // consumed (the plant steps after the drive, below), at plant.time_s().
       row.age_s = std::max(0.0, e.time_s - e.measured_at_s);
-      if (!fast_now) {
-        // The ring's last record may be up to a millisecond old: this period closes the gap
-        // (an extra record in time order), so an age shorter than that is covered too.
-        history.record(plant.time_s(), truth.rs_ohm, truth.winding_temp_C);
-      }
       const TruthHistory::Point then = history.at(plant.time_s() - row.age_s);
       row.rs_est_ohm = e.rs_ohm;
       row.rs_std_ohm = e.rs_std_ohm;
@@ -578,9 +575,8 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
     result.rs_error_mean_pct = 100.0 * rel_rs_sum / static_cast<double>(rel_rs_count);
   }
   if (result.calibrated) {
-    // The plant's law (Eq. 1 at its reference, plant.cpp) at the calibration's temperature.
-    const plant::MotorConfig& m = scenario.plant.motor;
-    const double truth_rs0 = m.rs_ohm * (1.0 + m.alpha_at_reference() * (result.calibration.t0_C - m.rs_reference_temp_C));
+    // The plant's law at the calibration's temperature.
+    const double truth_rs0 = scenario.plant.motor.rs_at_C(result.calibration.t0_C);
     if (truth_rs0 > 0.0) {
       result.calibration_rs0_error_pct = 100.0 * (result.calibration.rs0_ohm / truth_rs0 - 1.0);
     }

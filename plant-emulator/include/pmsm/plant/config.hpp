@@ -50,6 +50,10 @@ struct MotorConfig {
   [[nodiscard]] double alpha_at_reference() const {
     return alpha_per_C.value_or(1.0 / (conductor_inferred_zero_C + rs_reference_temp_C));
   }
+  // The winding's resistance at temp_C (Eq. 1, linear from the reference): the plant's law.
+  [[nodiscard]] double rs_at_C(double temp_C) const {
+    return rs_ohm * (1.0 + alpha_at_reference() * (temp_C - rs_reference_temp_C));
+  }
   double ke_V_s_per_rad = 1.19;       // line-to-line RMS volts per mechanical rad/s (Table I)
   double ld_H = 5.5e-3;           // half the line-to-line inductance of Table I
   double lq_H = 5.5e-3;
