@@ -121,6 +121,7 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns) 
     }
     r.uptime_s = node_.uptime_s();
     r.current_noise_A = node_.frontend().current_noise_A();
+    r.reported_period_s = node_.supervisor().status().reported_period_s;
     {
       const core::DriveTelemetry& t = node_.controller().telemetry();
       r.estimates_gated = t.estimates_gated;

@@ -87,12 +87,19 @@ void Publisher::send(const Message& m) {
   }
 }
 
-void Publisher::log_fault(const protocol::FaultReport& f) {
+void Publisher::log_fault(const protocol::FaultReport& f, const PublicationRecord& r) {
   const std::uint32_t bit = 1U << static_cast<unsigned>(f.code);
   const bool was = (active_faults_ & bit) != 0U;
   if (f.active && !was) {
     spdlog::error("fault {}: the drive is in its safe state (gates off); {} time(s) since start", fault_name(f.code),
                   f.occurrence_count);
+    if (f.code == protocol::FaultCode::kPeriodMismatch) {
+      spdlog::error("fault PERIOD_MISMATCH: the power stage samples every {:.1f} us (SENSOR_SAMPLE PwmPeriod), this "
+                    "drive steps every {:.1f} us (control.period_s = {:g} s): every clock of the drive would run at "
+                    "the wrong rate; make the two configurations agree (for pmsm-plant, 1 / "
+                    "inverter.pwm_frequency_Hz) and clear the fault",
+                    r.reported_period_s * 1e6, config_.controller.drive.period_s * 1e6, config_.controller.drive.period_s);
+    }
     active_faults_ |= bit;
   } else if (!f.active && was) {
     spdlog::info("fault {} cleared", fault_name(f.code));
@@ -136,7 +143,7 @@ void Publisher::handle(const PublicationRecord& r) {
   const app::NodePublications& p = r.publications;
   for (std::size_t k = 0; k < p.fault_count; ++k) {
     send(p.faults[k]);
-    log_fault(p.faults[k]);
+    log_fault(p.faults[k], r);
   }
   if (p.status) {
     send(*p.status);

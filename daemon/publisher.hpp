@@ -45,7 +45,7 @@ class Publisher {
  private:
   template <typename Message>
   void send(const Message& m);
-  void log_fault(const hal::protocol::FaultReport& f);
+  void log_fault(const hal::protocol::FaultReport& f, const PublicationRecord& r);
   void log_refusals(const PublicationRecord& r);
   void report();
   void send_receive_status(const LoopStats& s);

@@ -40,6 +40,7 @@ const char* to_string(FaultCode code) noexcept {
     case FaultCode::kCurrentSum: return "current-sum";
     case FaultCode::kAmbientImplausible: return "ambient-implausible";
     case FaultCode::kOverspeed: return "overspeed";
+    case FaultCode::kPeriodMismatch: return "period-mismatch";
     case FaultCode::kCount: break;
   }
   return "?";
@@ -72,6 +73,18 @@ void Supervisor::report(FaultCode code, bool present) noexcept {
   } else {
     external_mask_ &= ~bit(code);
   }
+}
+
+void Supervisor::set_reported_period(double period_s) noexcept {
+  if (!(std::isfinite(period_s) && period_s > 0.0)) {
+    status_.reported_period_s = 0.0;
+    report(FaultCode::kPeriodMismatch, false);
+    return;
+  }
+  status_.reported_period_s = period_s;
+  // The bus carries it in 0.1 us steps: a match is within one step (or 0.1 %).
+  const double tolerance_s = std::max(0.1e-6, 1e-3 * period_s_);
+  report(FaultCode::kPeriodMismatch, !(std::fabs(period_s - period_s_) <= tolerance_s));
 }
 
 void Supervisor::trip(FaultCode code) noexcept {

@@ -177,7 +177,7 @@ common::ConfigSchema<PlantConfig> build_schema() {
                      "Ripple phase.");
     // [inverter]
     real("inverter.pwm_frequency_Hz", PMSM_MEMBER(inverter.pwm_frequency_Hz),
-                     closed(1000, 100000), "PWM, sampling and control frequency fs.");
+                     closed(1000, 100000), "PWM, sampling and control frequency fs (every SENSOR_SAMPLE reports its period, PwmPeriod).");
     real("inverter.dc_bus_V", PMSM_MEMBER(inverter.dc_bus_V), positive(2000.0),
                      "Nominal DC-bus voltage.");
     boolean("inverter.dc_ripple_enabled", PMSM_MEMBER(inverter.dc_ripple_enabled),

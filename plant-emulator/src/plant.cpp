@@ -162,6 +162,7 @@ struct Plant::Impl {
 
   // Constants derived from the configuration.
   double Ts_s = 0.0;
+  std::uint16_t period_code = 0;  // SensorSample::pwm_period_100ns
   double h_nominal_s = 0.0;
   double p = 3.0;
   double psi_m0_Wb = 0.0;
@@ -219,6 +220,7 @@ struct Plant::Impl {
                 config.thermal.acceleration / config.inverter.pwm_frequency_Hz),
         rng(config.simulation.seed) {
     Ts_s = 1.0 / cfg.inverter.pwm_frequency_Hz;
+    period_code = hal::pwm_period_code(cfg.inverter.pwm_frequency_Hz);
     h_nominal_s = Ts_s / static_cast<double>(cfg.simulation.substeps);
     p = static_cast<double>(cfg.motor.pole_pairs);
     psi_m0_Wb = psi_m_from_Ke(cfg.motor.ke_V_s_per_rad, cfg.motor.pole_pairs);
@@ -927,6 +929,7 @@ struct Plant::Impl {
   void take_sample(const Aux& aux, bool voltage_valid) {
     hal::SensorSample out{};
     out.sequence = static_cast<std::uint32_t>(k);
+    out.pwm_period_100ns = period_code;
     const auto& adc = cfg.current_adc;
     const double full = current_full_codes;
     for (std::size_t ph = 0; ph < 3; ++ph) {

@@ -20,8 +20,10 @@
 #    new plant starts and the daemon must clear it and run again, without a restart;
 # 5. daemon killed: the plant's lockstep stalls (no command: nothing is applied); the daemon
 #    restarted locks on again;
-# 6. every captured frame is decoded with the DBC (pmsm-thermal decode --strict);
-# 7. the interface goes down for 1 s and comes back during a lockstep run: daemon and plant
+# 6. a plant at 20 kHz against the daemon's 100 us: PERIOD_MISMATCH on the bus, both periods
+#    named in the daemon's log;
+# 7. every captured frame is decoded with the DBC (pmsm-thermal decode --strict);
+# 8. the interface goes down for 1 s and comes back during a lockstep run: daemon and plant
 #    reopen their sockets and go on (needs CAP_NET_ADMIN: root, or UML through vcan-env).
 # Everything started is stopped on exit, pass or fail.
 #
@@ -134,6 +136,21 @@ grep -q "thermal state restored from" "$work/daemon-2.log" || die "the restarted
 grep -q "the loss model's learned errors kept" "$work/daemon-2.log" ||
   die "the restarted daemon did not keep the loss model's learned errors: $(grep -m3 'thermal state' "$work/daemon-2.log")"
 echo "$prog: daemon killed: the plant waited; the restarted daemon loaded the stored calibration and thermal state ($(grep -o 'winding [0-9.]* +- [0-9.]* C [0-9]* s ago, cooled to [0-9.]* +- [0-9.]* C' "$work/daemon-2.log")), locked on, and the plant finished"
+
+# A plant whose PWM runs at 20 kHz against the daemon's 100 us period: every clock of the drive
+# would run at half its rate. Its samples say so (SENSOR_SAMPLE PwmPeriod): the daemon must
+# publish PERIOD_MISMATCH and name both periods in its log.
+sed -e 's/^pwm_frequency_Hz = 10000.0 /pwm_frequency_Hz = 20000.0 /' "$src/tests/hil/data/hil-plant.toml" > "$work/plant-20k.toml"
+grep -q "^pwm_frequency_Hz = 20000.0 " "$work/plant-20k.toml" || die "could not write a 20 kHz copy of hil-plant.toml"
+mark=$(wc -l < "$work/candump.log")
+"$plant" --config "$work/plant-20k.toml" --iface "$iface" --node $node --mode lockstep \
+  --duration-s 0.2 > "$work/plant-5.log" 2>&1 || die "the 20 kHz pmsm-plant failed: $(tail -3 "$work/plant-5.log")"
+sleep 0.3
+tail -n +"$mark" "$work/candump.log" | "$tool" monitor --log - --node $node > "$work/mismatch.txt" || true
+grep -q "PERIOD_MISMATCH" "$work/mismatch.txt" || die "no PERIOD_MISMATCH fault on the bus from a 20 kHz plant"
+grep -q "the power stage samples every 50.0 us .*steps every 100.0 us" "$work/daemon-2.log" ||
+  die "the daemon's log does not name both periods: $(grep -m2 PERIOD_MISMATCH "$work/daemon-2.log")"
+echo "$prog: a 20 kHz plant: the daemon published PERIOD_MISMATCH and named both periods"
 
 # Every frame decodes with the DBC (can/pmsm-thermal.dbc describes node 0; the DBC of node
 # NODE comes from the same generator: pmsm-dbc-gen --node NODE).

@@ -386,6 +386,34 @@ TEST(Supervisor, AnInterfaceLossClearsItselfWhenTheInterfaceAndTheSamplesAreBack
   EXPECT_EQ(sup.status().state, DriveState::kRunning);
 }
 
+TEST(Supervisor, APowerStageSamplingAtAnotherPeriodIsAFaultThatHoldsWhileItLasts) {
+  Supervisor sup(config(), kPeriod);  // 100 us
+  sup.set_reported_period(100.04e-6);  // within one of the bus's 0.1 us steps: a match
+  EXPECT_EQ(sup.step(running()).state, DriveState::kRunning);
+  EXPECT_FALSE(sup.latched(FaultCode::kPeriodMismatch));
+
+  sup.set_reported_period(50e-6);  // a 20 kHz stage against a 10 kHz drive
+  EXPECT_EQ(sup.step(running()).state, DriveState::kFault);
+  EXPECT_FALSE(sup.status().power_stage_enabled);
+  EXPECT_TRUE(sup.latched(FaultCode::kPeriodMismatch));
+  EXPECT_DOUBLE_EQ(sup.status().reported_period_s, 50e-6) << "what the daemon's log names";
+  sup.request_clear();
+  EXPECT_EQ(sup.step(running()).state, DriveState::kFault) << "not cleared while it lasts";
+  sup.set_reported_period(100.0e-6);
+  EXPECT_EQ(sup.step(running()).state, DriveState::kFault) << "latched until a clear request";
+  sup.request_clear();
+  EXPECT_EQ(sup.step(running()).state, DriveState::kRunning) << "cleared once the periods agree";
+  EXPECT_EQ(count(sup, FaultCode::kPeriodMismatch), 1U);
+
+  // A stage that reports none (0), or a NaN: nothing is judged.
+  for (const double none : {0.0, std::numeric_limits<double>::quiet_NaN(), -1e-4}) {
+    sup.set_reported_period(50e-6);
+    sup.set_reported_period(none);
+    EXPECT_EQ(sup.step(running()).state, DriveState::kRunning) << none;
+    EXPECT_EQ(sup.status().reported_period_s, 0.0);
+  }
+}
+
 TEST(Supervisor, TripIsImmediateAndLatched) {
   Supervisor sup(config(), kPeriod);
   sup.step(running());

@@ -174,6 +174,30 @@ TEST(DriveNode, MissingSamplesNoCommandThenSensorTimeoutThenRecovery) {
   EXPECT_FALSE(rig.node->supervisor().latched(core::FaultCode::kSensorTimeout));
 }
 
+// A plant whose PWM runs at 20 kHz against a drive configured for 10 kHz: every clock of the
+// drive would run at half its rate. Its samples say so (SENSOR_SAMPLE PwmPeriod), and the
+// drive refuses them: PERIOD_MISMATCH latched, gates off, the fault published; the plant at
+// the drive's own period (every other test here) reports its period and runs.
+TEST(DriveNode, APowerStageAtAnotherPwmPeriodIsRefused) {
+  Rig rig;
+  ASSERT_EQ(rig.plant->sample().pwm_period_100ns, 1000U) << "the 10 kHz plant reports 100.0 us";
+  rig.run(200);
+  ASSERT_FALSE(rig.node->supervisor().latched(core::FaultCode::kPeriodMismatch));
+
+  Rig fast;
+  fast.plant_config.inverter.pwm_frequency_Hz = 20000.0;
+  fast.plant = std::make_unique<plant::Plant>(fast.plant_config);
+  ASSERT_EQ(fast.plant->sample().pwm_period_100ns, 500U);
+  const NodeStep& first = fast.run(1);
+  EXPECT_TRUE(fast.node->supervisor().latched(core::FaultCode::kPeriodMismatch));
+  EXPECT_FALSE(first.command->enable) << "gates off from the first sample";
+  EXPECT_TRUE(published(first, protocol::FaultCode::kPeriodMismatch, true));
+  EXPECT_DOUBLE_EQ(fast.node->supervisor().status().reported_period_s, 50e-6);
+  fast.in.clear_faults = true;
+  EXPECT_FALSE(fast.run(100).command->enable) << "a clear request does not clear it while it lasts";
+  EXPECT_TRUE(fast.node->supervisor().latched(core::FaultCode::kPeriodMismatch));
+}
+
 // A load that overhauls the drive (300 Nm driving the shaft forward, beyond the drive's torque
 // limit) runs it away: the supervisor trips OVERSPEED once the encoder shows more than 1.5 x the
 // rated speed over its 1 ms window, the gates go off in that period and the fault is published.

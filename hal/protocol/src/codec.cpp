@@ -193,6 +193,8 @@ void write_body(Writer& w, const SensorSample& m) noexcept {
   w.boolean(kHardwareOvercurrent, (m.flags & kSensorHardwareOvercurrent) != 0U);
   const bool ambient = (m.flags & kSensorAmbientValid) != 0U;
   w.boolean(kAmbientValid, ambient);
+  // A period the field cannot hold goes out as "not reported" rather than wrapped.
+  w.raw(kPwmPeriod, m.pwm_period_100ns <= kPwmPeriod.raw_max() ? m.pwm_period_100ns : 0);
   w.raw(kAmbientTemp, ambient ? m.ambient_centi_C : 0);
 }
 void read_body(const Reader& r, SensorSample& m) noexcept {
@@ -221,6 +223,7 @@ void read_body(const Reader& r, SensorSample& m) noexcept {
     m.ambient_centi_C = r.integer<std::int16_t>(kAmbientTemp);
   }
   m.flags = flags;
+  m.pwm_period_100ns = r.integer<std::uint16_t>(kPwmPeriod);
 }
 
 void write_body(Writer& w, const DriveCommand& m) noexcept {

@@ -62,7 +62,8 @@ enum class FaultCode : std::uint8_t {
   kCurrentSum = 18,          // |ia + ib + ic| too large: a broken phase-current sensor
   kAmbientImplausible = 19,  // the ambient / coolant sensor reads outside its plausible window
   kOverspeed = 20,           // the shaft turns faster than overspeed_rad_s (over a 1 ms window)
-  kCount = 21,
+  kPeriodMismatch = 21,      // the power stage reports another sampling period than the drive's
+  kCount = 22,
 };
 
 [[nodiscard]] const char* to_string(DriveState state) noexcept;
@@ -118,6 +119,7 @@ struct SupervisorStatus {
   std::uint32_t latched_mask = 0;          // bit per FaultCode: latched now
   FaultCode first_fault = FaultCode::kNone; // the fault that led into kFault
   std::uint32_t missing_samples = 0;       // consecutive periods without a sample
+  double reported_period_s = 0.0;          // the last period the power stage reported (0: none)
 };
 
 class Supervisor {
@@ -131,6 +133,13 @@ class Supervisor {
   // overruns): while present it is a cause; it latches the fault at the next step() and
   // keeps a clear request from clearing it.
   void report(FaultCode code, bool present) noexcept;
+
+  // The power stage's PWM (sampling) period, as its samples report it, whenever that changes
+  // (not per period: it is the same in every sample of one power stage). Every clock of the
+  // drive (the current loop's gains, the PLL, the thermal model's time, the injection's timing)
+  // assumes its own period, so another one is a cause of PERIOD_MISMATCH until a matching one
+  // is reported. Not finite or not positive: the stage reports none, and nothing is judged.
+  void set_reported_period(double period_s) noexcept;
 
   // A one-off fault the caller detected (a non-finite controller output, ...): latched at
   // once, gates off from now on; its cause is gone as soon as it is reported.

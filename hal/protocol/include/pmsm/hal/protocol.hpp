@@ -266,8 +266,9 @@ enum class FaultCode : std::uint8_t {
   kCurrentSum = 18,          // |ia + ib + ic| too large: a phase-current sensor is broken
   kAmbientImplausible = 19,  // the ambient / coolant sensor reads outside its window
   kOverspeed = 20,           // the shaft turned faster than the overspeed limit
+  kPeriodMismatch = 21,      // the power stage samples at another period than the drive's
 };
-inline constexpr std::size_t kFaultCodeCount = 21;
+inline constexpr std::size_t kFaultCodeCount = 22;
 inline constexpr std::array<ValueLabel, kFaultCodeCount> kFaultCodeLabels{{
     {0, "NONE"},
     {1, "SENSOR_TIMEOUT"},
@@ -289,7 +290,8 @@ inline constexpr std::array<ValueLabel, kFaultCodeCount> kFaultCodeLabels{{
     {17, "ENCODER_JUMP"},
     {18, "CURRENT_SUM"},
     {19, "AMBIENT_IMPLAUSIBLE"},
-    {20, "OVERSPEED"}}};
+    {20, "OVERSPEED"},
+    {21, "PERIOD_MISMATCH"}}};
 
 enum class PlantMode : std::uint8_t { kRealtime = 0, kLockstep = 1 };
 inline constexpr std::array<ValueLabel, 2> kPlantModeLabels{{{0, "REALTIME"}, {1, "LOCKSTEP"}}};
@@ -486,12 +488,15 @@ inline constexpr SignalDef kHardwareOvercurrent{"HardwareOvercurrent", 162, 1, f
     "The power stage's own over-current comparator tripped."};
 inline constexpr SignalDef kAmbientValid{"AmbientValid", 163, 1, false, 1, 0, 0, 1, "", detail::kNoValues,
     "AmbientTemp holds a reading of the drive's ambient / coolant sensor."};
+inline constexpr SignalDef kPwmPeriod{"PwmPeriod", 164, 12, false, 0.1, 0, 0, 409.5, "us", detail::kNoValues,
+    "The power stage's PWM period, at which it samples (0: not reported); the drive faults (PERIOD_MISMATCH) "
+    "when it is not its control.period_s."};
 inline constexpr SignalDef kAmbientTemp{"AmbientTemp", 176, 16, true, 0.01, 0, -327.68, 327.67, "degC", detail::kNoValues,
     "The drive's ambient / coolant temperature sensor (valid if AmbientValid): the thermal model's boundary."};
-inline constexpr std::array<SignalDef, 14> kSignals{
+inline constexpr std::array<SignalDef, 15> kSignals{
     kSequence, kPhaseCurrentAdcA, kPhaseCurrentAdcB, kPhaseCurrentAdcC, kEncoderCount, kDcBusAdc,
     kPhaseVoltageAdcA, kPhaseVoltageAdcB, kPhaseVoltageAdcC, kOutputEnabled, kPhaseVoltageValid,
-    kHardwareOvercurrent, kAmbientValid, kAmbientTemp};
+    kHardwareOvercurrent, kAmbientValid, kPwmPeriod, kAmbientTemp};
 }  // namespace sensor_sample
 
 namespace drive_command {
@@ -529,7 +534,7 @@ inline constexpr std::array<SignalDef, 4> kSignals{e2e::kCrc, e2e::kAliveCounter
 }  // namespace calibration_command
 
 namespace fault {
-inline constexpr SignalDef kCode{"Code", 0, 8, false, 1, 0, 0, 20, "", kFaultCodeLabels, "Fault code."};
+inline constexpr SignalDef kCode{"Code", 0, 8, false, 1, 0, 0, 21, "", kFaultCodeLabels, "Fault code."};
 inline constexpr SignalDef kActive{"Active", 8, 1, false, 1, 0, 0, 1, "", detail::kNoValues,
     "1: the fault is active; 0: it has cleared."};
 inline constexpr SignalDef kOccurrenceCount{"OccurrenceCount", 16, 16, false, 1, 0, 0, 65535, "", detail::kNoValues,
