@@ -154,19 +154,36 @@ int run(const Options& o) {
     return o.check ? 1 : kExitConfig;
   }
   {
-    // Pairs that never reverse the current vector (unipolar), or reverse it only at light load
-    // (fixed-angle, DC), rest on the stored bridge voltage; without one, on the configured guess,
-    // whose error every estimate shares and the band carries (docs/estimator.md section 4).
+    // A stored calibration without the bridge's voltage: the estimates rest on the configured
+    // guess, whose error every estimate shares and the band carries (docs/estimator.md section
+    // 4), until an event learns it. Which configurations' events can at all is the scheduler's
+    // own rule (InjectionConfig::can_learn_vx), and they do only at light load; fixed-angle and
+    // DC pulses turn through the rotor frame and their events seldom qualify (a warm restart
+    // without a stored Vx read up to 61 C off, docs/estimator.md section 4).
     const pmsm::core::DriveConfig& d = config.controller.drive;
-    const bool learns_vx_anywhere =
-        d.injection.method == pmsm::core::InjectionMethod::kFixedMagnitude && d.injection.separation == pmsm::core::Separation::kBipolar;
-    if (stored == pmsm::app::StoredCalibration::kLoaded && d.injection.fit_dead_time && !(d.calibration.vx_std_V > 0.0) &&
-        !learns_vx_anywhere) {
-      spdlog::warn("calibration: the stored calibration has no bridge voltage (vx_V: stored by an older version or by hand); "
-                   "{} {} pairs learn it only at light load or never, so the estimates rest on the configured guess "
-                   "injection.vx_initial_V {:.2f} +- {:.2f} V and their band is wide: run a calibration",
-                   pmsm::core::to_string(d.injection.method), pmsm::core::to_string(d.injection.separation),
-                   d.injection.vx_initial_V, d.injection.vx_initial_std_V);
+    const pmsm::core::InjectionConfig& inj = d.injection;
+    if (stored == pmsm::app::StoredCalibration::kLoaded && inj.fit_dead_time && !(d.calibration.vx_std_V > 0.0)) {
+      const std::string_view method = pmsm::core::to_string(inj.method);
+      const std::string_view separation = pmsm::core::to_string(inj.separation);
+      if (!inj.can_learn_vx()) {
+        spdlog::warn("calibration: the stored calibration has no bridge voltage (vx_V: stored by an older version or by "
+                     "hand), and {} {} pairs at {} level(s) never learn it (that takes bipolar pairs at two levels or "
+                     "more), so every estimate rests on the configured guess injection.vx_initial_V {:.2f} +- {:.2f} V and "
+                     "its band is wide: run a calibration",
+                     method, separation, inj.level_count, inj.vx_initial_V, inj.vx_initial_std_V);
+      } else if (inj.method != pmsm::core::InjectionMethod::kFixedMagnitude) {
+        spdlog::warn("calibration: the stored calibration has no bridge voltage (vx_V: stored by an older version or by "
+                     "hand); {} {} events learn it only at light load and seldom, so the estimates rest on the configured "
+                     "guess injection.vx_initial_V {:.2f} +- {:.2f} V and their band is wide: run a calibration",
+                     method, separation, inj.vx_initial_V, inj.vx_initial_std_V);
+      } else {
+        spdlog::info("calibration: the stored calibration has no bridge voltage (vx_V: stored by an older version or by "
+                     "hand); the estimates rest on the configured guess injection.vx_initial_V {:.2f} +- {:.2f} V until an "
+                     "event at light load (|iq| below injection.vx_learning_max_iq_fraction {:g} of F, electrical speed "
+                     "below injection.vx_learning_max_speed_rad_s {:g} rad/s) learns it; a calibration stores one",
+                     inj.vx_initial_V, inj.vx_initial_std_V, inj.vx_learning_max_iq_fraction,
+                     inj.vx_learning_max_speed_rad_s);
+      }
     }
   }
   if (o.check) {

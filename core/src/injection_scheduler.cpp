@@ -603,13 +603,11 @@ MeansFit InjectionScheduler::sample_fit_fixed_vx(double vx_V) const {
 }
 
 bool InjectionScheduler::event_joint_fit() const {
-  // Only bipolar pairs reverse the current vector; a unipolar pair's first recording sits at
-  // the motoring current, near zero at light load, where the bridge's error depends on the
-  // zero-current band that no sign model knows exactly.
-  const bool reverses = config_.separation == Separation::kBipolar && !event_field_weakening_ &&
-                        event_max_iq_A_ <= config_.vx_learning_max_iq_fraction * event_min_f_A_ &&
+  // A configuration that can learn Vx (InjectionConfig::can_learn_vx), in an event whose pairs
+  // did reverse the current vector: light load, off the voltage limit, not too fast.
+  const bool reversed = !event_field_weakening_ && event_max_iq_A_ <= config_.vx_learning_max_iq_fraction * event_min_f_A_ &&
                         event_max_speed_ <= config_.vx_learning_max_speed_rad_s;
-  return config_.fit_dead_time && reverses && event_pairs_ >= 2;
+  return config_.can_learn_vx() && reversed && event_pairs_ >= 2;
 }
 
 double InjectionScheduler::event_time_s() const {

@@ -514,6 +514,33 @@ TEST(InjectionScheduler, EventRsIsConditionedOnTheFusedVx) {
   EXPECT_LT(e.rs_ohm, 0.230);
 }
 
+// InjectionConfig::can_learn_vx (which the daemon's start-up check asks) says what the events
+// do: at light load and low speed, an event learns Vx exactly when its configuration can.
+TEST(InjectionScheduler, TheConfigurationsThatCanLearnVxAreThoseWhoseEventsDo) {
+  struct Case {
+    const char* name;
+    std::function<void(InjectionConfig&)> set;
+    bool learns;
+  };
+  const std::vector<Case> cases{
+      {"bipolar, two levels", [](InjectionConfig&) {}, true},
+      {"unipolar", [](InjectionConfig& c) { c.separation = Separation::kUnipolar; }, false},
+      {"bipolar, one level", [](InjectionConfig& c) { c.level_count = 1; }, false},
+      {"bridge term not fitted", [](InjectionConfig& c) { c.fit_dead_time = false; }, false},
+  };
+  for (const Case& k : cases) {
+    InjectionConfig c = test_config();
+    k.set(c);
+    EXPECT_EQ(c.can_learn_vx(), k.learns) << k.name;
+    Harness h(c);
+    h.run_until(0.45);
+    ASSERT_FALSE(h.estimates.empty()) << k.name;
+    const EventEstimate& e = h.estimates[0];
+    EXPECT_EQ(e.outcome, EventOutcome::kPublished) << k.name;
+    EXPECT_EQ(e.vx_from_event, c.can_learn_vx()) << k.name;
+  }
+}
+
 TEST(InjectionScheduler, UnipolarEventUsesTheVxPrior) {
   InjectionConfig c = test_config();
   c.separation = Separation::kUnipolar;

@@ -187,6 +187,17 @@ struct InjectionConfig {
   double ld_H = 5.5e-3;
   double rs_nominal_ohm = 0.133;  // for the headroom calculation
   double flux_linkage_Wb = 0.3239;
+
+  // Whether this configuration's events can learn the bridge's voltage Vx at all: the bridge's
+  // term fitted, bipolar pairs (only they reverse the current vector: a unipolar pair's first
+  // recording sits at the motoring current, where the bridge's error hangs on the zero-current
+  // band), and two levels or more (one level cannot tell Rs from Vx). Such an event learns it
+  // when it also runs at light load (vx_learning_max_iq_fraction) and below
+  // vx_learning_max_speed_rad_s, off the voltage limit (InjectionScheduler::event_joint_fit);
+  // the others rest on the prior. The scheduler and the daemon's start-up check ask the same.
+  [[nodiscard]] bool can_learn_vx() const noexcept {
+    return fit_dead_time && separation == Separation::kBipolar && level_count >= 2;
+  }
 };
 
 struct SchedulerInput {
