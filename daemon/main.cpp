@@ -162,7 +162,8 @@ int run(const Options& o) {
     // without a stored Vx read up to 61 C off, docs/estimator.md section 4).
     const pmsm::core::DriveConfig& d = config.controller.drive;
     const pmsm::core::InjectionConfig& inj = d.injection;
-    if (stored == pmsm::app::StoredCalibration::kLoaded && inj.fit_dead_time && !(d.calibration.vx_std_V > 0.0)) {
+    const bool injects = d.estimator == pmsm::core::EstimatorKind::kInjection && inj.method != pmsm::core::InjectionMethod::kNone;
+    if (injects && stored == pmsm::app::StoredCalibration::kLoaded && inj.fit_dead_time && !(d.calibration.vx_std_V > 0.0)) {
       const std::string_view method = pmsm::core::to_string(inj.method);
       const std::string_view separation = pmsm::core::to_string(inj.separation);
       if (!inj.can_learn_vx()) {

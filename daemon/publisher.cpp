@@ -94,8 +94,8 @@ void Publisher::log_fault(const protocol::FaultReport& f, const PublicationRecor
     spdlog::error("fault {}: the drive is in its safe state (gates off); {} time(s) since start", fault_name(f.code),
                   f.occurrence_count);
     if (f.code == protocol::FaultCode::kPeriodMismatch) {
-      spdlog::error("fault PERIOD_MISMATCH: the power stage samples every {:.1f} us (SENSOR_SAMPLE PwmPeriod), this "
-                    "drive steps every {:.1f} us (control.period_s = {:g} s): every clock of the drive would run at "
+      spdlog::error("fault PERIOD_MISMATCH: the power stage samples every {:.2f} us (SENSOR_SAMPLE PwmPeriod), this "
+                    "drive steps every {:.2f} us (controller.control.period_s = {:g} s): every clock of the drive would run at "
                     "the wrong rate; make the two configurations agree (for pmsm-plant, 1 / "
                     "inverter.pwm_frequency_Hz) and clear the fault",
                     r.reported_period_s * 1e6, config_.controller.drive.period_s * 1e6, config_.controller.drive.period_s);

@@ -102,10 +102,11 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
     if ((sample->flags & hal::kSensorAmbientValid) != 0U) {
       si.sample->ambient_C = 0.01 * static_cast<double>(sample->ambient_centi_C);
     }
-    if (sample->pwm_period_100ns != reported_period_code_) {
+    if (sample->pwm_period_code != reported_period_code_) {
       // Judged when it changes (a new power stage), not every period.
-      reported_period_code_ = sample->pwm_period_100ns;
-      supervisor_.set_reported_period(1e-7 * static_cast<double>(reported_period_code_));
+      reported_period_code_ = sample->pwm_period_code;
+      supervisor_.set_reported_period(hal::kPwmPeriodStep_s * static_cast<double>(reported_period_code_),
+                                      hal::kPwmPeriodStep_s);
     }
   }
   si.periods = static_cast<std::uint32_t>(std::min<std::uint64_t>(advance_, 1000000U));

@@ -122,7 +122,7 @@ class DriveNode {
   core::Supervisor supervisor_;
   SensorFrontend frontend_;
   bool noise_known_ = false;  // the sensors' noise handed to the controller
-  std::uint16_t reported_period_code_ = 0;  // the power stage's last reported PWM period (0.1 us)
+  std::uint16_t reported_period_code_ = 0;  // the power stage's last reported PWM period (its code)
   double period_s_;
   PublishRates rates_;
   hal::protocol::InjectionMethod method_;

@@ -75,15 +75,16 @@ void Supervisor::report(FaultCode code, bool present) noexcept {
   }
 }
 
-void Supervisor::set_reported_period(double period_s) noexcept {
+void Supervisor::set_reported_period(double period_s, double step_s) noexcept {
   if (!(std::isfinite(period_s) && period_s > 0.0)) {
     status_.reported_period_s = 0.0;
     report(FaultCode::kPeriodMismatch, false);
     return;
   }
   status_.reported_period_s = period_s;
-  // The bus carries it in 0.1 us steps: a match is within one step (or 0.1 %).
-  const double tolerance_s = std::max(0.1e-6, 1e-3 * period_s_);
+  // Within one step either way: the margin of 1e-6 of it keeps the rounding of code x step
+  // from accepting one side and refusing the other.
+  const double tolerance_s = std::max(std::isfinite(step_s) ? step_s : 0.0, 1e-3 * period_s_) * (1.0 + 1e-6);
   report(FaultCode::kPeriodMismatch, !(std::fabs(period_s - period_s_) <= tolerance_s));
 }
 

@@ -162,7 +162,7 @@ struct Plant::Impl {
 
   // Constants derived from the configuration.
   double Ts_s = 0.0;
-  std::uint16_t period_code = 0;  // SensorSample::pwm_period_100ns
+  std::uint16_t period_code = 0;  // SensorSample::pwm_period_code
   double h_nominal_s = 0.0;
   double p = 3.0;
   double psi_m0_Wb = 0.0;
@@ -929,7 +929,7 @@ struct Plant::Impl {
   void take_sample(const Aux& aux, bool voltage_valid) {
     hal::SensorSample out{};
     out.sequence = static_cast<std::uint32_t>(k);
-    out.pwm_period_100ns = period_code;
+    out.pwm_period_code = period_code;
     const auto& adc = cfg.current_adc;
     const double full = current_full_codes;
     for (std::size_t ph = 0; ph < 3; ++ph) {

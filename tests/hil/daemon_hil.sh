@@ -20,11 +20,11 @@
 #    new plant starts and the daemon must clear it and run again, without a restart;
 # 5. daemon killed: the plant's lockstep stalls (no command: nothing is applied); the daemon
 #    restarted locks on again;
-# 6. a plant at 20 kHz against the daemon's 100 us: PERIOD_MISMATCH on the bus, both periods
-#    named in the daemon's log;
-# 7. every captured frame is decoded with the DBC (pmsm-thermal decode --strict);
-# 8. the interface goes down for 1 s and comes back during a lockstep run: daemon and plant
-#    reopen their sockets and go on (needs CAP_NET_ADMIN: root, or UML through vcan-env).
+# 6. every captured frame is decoded with the DBC (pmsm-thermal decode --strict);
+# 7. the interface goes down for 1 s and comes back during a lockstep run: daemon and plant
+#    reopen their sockets and go on (needs CAP_NET_ADMIN: root, or UML through vcan-env);
+# 8. a plant at 20 kHz against the daemon's 100 us: PERIOD_MISMATCH on the bus, the gates off,
+#    both periods named in the daemon's log; a 10 kHz plant and a stop command clear it.
 # Everything started is stopped on exit, pass or fail.
 #
 # Environment: DAEMON_HIL_DURATION (simulated seconds of the heat-up, default 10),
@@ -137,21 +137,6 @@ grep -q "the loss model's learned errors kept" "$work/daemon-2.log" ||
   die "the restarted daemon did not keep the loss model's learned errors: $(grep -m3 'thermal state' "$work/daemon-2.log")"
 echo "$prog: daemon killed: the plant waited; the restarted daemon loaded the stored calibration and thermal state ($(grep -o 'winding [0-9.]* +- [0-9.]* C [0-9]* s ago, cooled to [0-9.]* +- [0-9.]* C' "$work/daemon-2.log")), locked on, and the plant finished"
 
-# A plant whose PWM runs at 20 kHz against the daemon's 100 us period: every clock of the drive
-# would run at half its rate. Its samples say so (SENSOR_SAMPLE PwmPeriod): the daemon must
-# publish PERIOD_MISMATCH and name both periods in its log.
-sed -e 's/^pwm_frequency_Hz = 10000.0 /pwm_frequency_Hz = 20000.0 /' "$src/tests/hil/data/hil-plant.toml" > "$work/plant-20k.toml"
-grep -q "^pwm_frequency_Hz = 20000.0 " "$work/plant-20k.toml" || die "could not write a 20 kHz copy of hil-plant.toml"
-mark=$(wc -l < "$work/candump.log")
-"$plant" --config "$work/plant-20k.toml" --iface "$iface" --node $node --mode lockstep \
-  --duration-s 0.2 > "$work/plant-5.log" 2>&1 || die "the 20 kHz pmsm-plant failed: $(tail -3 "$work/plant-5.log")"
-sleep 0.3
-tail -n +"$mark" "$work/candump.log" | "$tool" monitor --log - --node $node > "$work/mismatch.txt" || true
-grep -q "PERIOD_MISMATCH" "$work/mismatch.txt" || die "no PERIOD_MISMATCH fault on the bus from a 20 kHz plant"
-grep -q "the power stage samples every 50.0 us .*steps every 100.0 us" "$work/daemon-2.log" ||
-  die "the daemon's log does not name both periods: $(grep -m2 PERIOD_MISMATCH "$work/daemon-2.log")"
-echo "$prog: a 20 kHz plant: the daemon published PERIOD_MISMATCH and named both periods"
-
 # Every frame decodes with the DBC (can/pmsm-thermal.dbc describes node 0; the DBC of node
 # NODE comes from the same generator: pmsm-dbc-gen --node NODE).
 kill -INT "$candump_pid" 2>/dev/null || true
@@ -184,5 +169,42 @@ grep -q "is down or gone" "$work/daemon-2.log" || die "the daemon did not notice
 grep -q "is back: socket reopened" "$work/daemon-2.log" || die "the daemon did not reopen its socket: $(tail -3 "$work/daemon-2.log")"
 grep -qi "down or gone" "$work/plant-4.log" || die "the plant did not notice $iface going down: $(tail -3 "$work/plant-4.log")"
 echo "$prog: $iface down for 1 s and up again: daemon and plant reopened their sockets and the plant finished its run"
+
+# A plant whose PWM runs at 20 kHz against the daemon's 100 us period: every clock of the drive
+# would run at half its rate. Its samples say so (SENSOR_SAMPLE PwmPeriod): the daemon must
+# publish PERIOD_MISMATCH, keep the gates off and name both periods in its log; with a 10 kHz
+# plant again and a stop command (the supervisor's clear) the fault must clear. Last, because
+# it stops the supervisor's command stream.
+sed -e 's/^pwm_frequency_Hz = 10000.0 /pwm_frequency_Hz = 20000.0 /' "$src/tests/hil/data/hil-plant.toml" > "$work/plant-20k.toml"
+grep -q "^pwm_frequency_Hz = 20000.0 " "$work/plant-20k.toml" || die "could not write a 20 kHz copy of hil-plant.toml"
+candump -L -r 16777216 "$iface" > "$work/mismatch.log" &
+pids+=("$!")
+sleep 0.2
+"$plant" --config "$work/plant-20k.toml" --iface "$iface" --node $node --mode lockstep \
+  --duration-s 0.2 > "$work/plant-5.log" 2>&1 || die "the 20 kHz pmsm-plant failed: $(tail -3 "$work/plant-5.log")"
+sleep 0.3
+"$tool" monitor --log "$work/mismatch.log" --node $node > "$work/mismatch.txt" || true
+grep -q "fault PERIOD_MISMATCH ACTIVE" "$work/mismatch.txt" || die "no PERIOD_MISMATCH fault on the bus from a 20 kHz plant"
+"$tool" decode --dbc "$work/node$node.dbc" "$work/mismatch.log" > "$work/mismatch-decoded.txt" 2>/dev/null || true
+grep -q "SENSOR_SAMPLE(" "$work/mismatch-decoded.txt" || die "the 20 kHz plant's samples are not in the capture"
+! grep "INVERTER_COMMAND(" "$work/mismatch-decoded.txt" | grep -q "Enable: 1" ||
+  die "the daemon switched the gates on for a 20 kHz plant"
+grep -q "the power stage samples every 50.00 us .*steps every 100.00 us" "$work/daemon-2.log" ||
+  die "the daemon's log does not name both periods: $(grep -m2 PERIOD_MISMATCH "$work/daemon-2.log")"
+echo "$prog: a 20 kHz plant: PERIOD_MISMATCH on the bus, gates off, both periods named in the log"
+kill "$command_pid" 2>/dev/null || true
+wait "$command_pid" 2>/dev/null || true
+"$plant" --config "$src/tests/hil/data/hil-plant.toml" --iface "$iface" --node $node --mode lockstep \
+  --duration-s 2 > "$work/plant-6.log" 2>&1 &
+plant6=$!
+pids+=("$plant6")
+sleep 0.5
+"$tool" command --iface "$iface" --node $node --mode disabled --period-ms 50 --duration 0.5 > "$work/command-stop.log" 2>&1 ||
+  die "the stop command failed: $(tail -3 "$work/command-stop.log")"
+wait "$plant6" || die "the 10 kHz plant did not finish: $(tail -3 "$work/plant-6.log")"
+"$tool" monitor --log "$work/mismatch.log" --node $node > "$work/mismatch.txt" || true
+grep -q "fault PERIOD_MISMATCH cleared" "$work/mismatch.txt" ||
+  die "PERIOD_MISMATCH did not clear with a 10 kHz plant and a stop command"
+echo "$prog: a 10 kHz plant again and a stop command: PERIOD_MISMATCH cleared"
 ok=1
 echo "$prog: PASS"

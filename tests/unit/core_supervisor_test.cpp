@@ -387,30 +387,48 @@ TEST(Supervisor, AnInterfaceLossClearsItselfWhenTheInterfaceAndTheSamplesAreBack
 }
 
 TEST(Supervisor, APowerStageSamplingAtAnotherPeriodIsAFaultThatHoldsWhileItLasts) {
-  Supervisor sup(config(), kPeriod);  // 100 us
-  sup.set_reported_period(100.04e-6);  // within one of the bus's 0.1 us steps: a match
-  EXPECT_EQ(sup.step(running()).state, DriveState::kRunning);
+  constexpr double kStep = 0.25e-6;  // the bus's resolution (SENSOR_SAMPLE PwmPeriod)
+  Supervisor sup(config(), kPeriod);  // 100 us: code 400
+  // One step either way is a match, two are not, on both sides alike.
+  for (const int code : {399, 400, 401}) {
+    sup.set_reported_period(code * kStep, kStep);
+    EXPECT_EQ(sup.step(running()).state, DriveState::kRunning) << code;
+  }
+  for (const int code : {398, 402}) {
+    Supervisor other(config(), kPeriod);
+    other.set_reported_period(code * kStep, kStep);
+    EXPECT_EQ(other.step(running()).state, DriveState::kFault) << code;
+  }
   EXPECT_FALSE(sup.latched(FaultCode::kPeriodMismatch));
 
-  sup.set_reported_period(50e-6);  // a 20 kHz stage against a 10 kHz drive
+  sup.set_reported_period(50e-6, kStep);  // a 20 kHz stage against a 10 kHz drive
   EXPECT_EQ(sup.step(running()).state, DriveState::kFault);
   EXPECT_FALSE(sup.status().power_stage_enabled);
   EXPECT_TRUE(sup.latched(FaultCode::kPeriodMismatch));
   EXPECT_DOUBLE_EQ(sup.status().reported_period_s, 50e-6) << "what the daemon's log names";
   sup.request_clear();
   EXPECT_EQ(sup.step(running()).state, DriveState::kFault) << "not cleared while it lasts";
-  sup.set_reported_period(100.0e-6);
+  sup.set_reported_period(100.0e-6, kStep);
   EXPECT_EQ(sup.step(running()).state, DriveState::kFault) << "latched until a clear request";
   sup.request_clear();
   EXPECT_EQ(sup.step(running()).state, DriveState::kRunning) << "cleared once the periods agree";
   EXPECT_EQ(count(sup, FaultCode::kPeriodMismatch), 1U);
 
+  // A drive period off the bus's grid (15 kHz: 66.67 us, between codes 266 and 267).
+  Supervisor khz15(config(), 1.0 / 15000.0);
+  for (const int code : {266, 267}) {
+    khz15.set_reported_period(code * kStep, kStep);
+    EXPECT_EQ(khz15.step(running()).state, DriveState::kRunning) << code;
+  }
+  khz15.set_reported_period(265 * kStep, kStep);
+  EXPECT_EQ(khz15.step(running()).state, DriveState::kFault);
+
   // A stage that reports none (0), or a NaN: nothing is judged.
   for (const double none : {0.0, std::numeric_limits<double>::quiet_NaN(), -1e-4}) {
-    sup.set_reported_period(50e-6);
-    sup.set_reported_period(none);
-    EXPECT_EQ(sup.step(running()).state, DriveState::kRunning) << none;
-    EXPECT_EQ(sup.status().reported_period_s, 0.0);
+    Supervisor fresh(config(), kPeriod);
+    fresh.set_reported_period(none, kStep);
+    EXPECT_EQ(fresh.step(running()).state, DriveState::kRunning) << none;
+    EXPECT_EQ(fresh.status().reported_period_s, 0.0);
   }
 }
 

@@ -180,22 +180,39 @@ TEST(DriveNode, MissingSamplesNoCommandThenSensorTimeoutThenRecovery) {
 // the drive's own period (every other test here) reports its period and runs.
 TEST(DriveNode, APowerStageAtAnotherPwmPeriodIsRefused) {
   Rig rig;
-  ASSERT_EQ(rig.plant->sample().pwm_period_100ns, 1000U) << "the 10 kHz plant reports 100.0 us";
-  rig.run(200);
+  ASSERT_EQ(rig.plant->sample().pwm_period_code, 400U) << "the 10 kHz plant reports 100 us";
+  rig.run(3000);
+  ASSERT_TRUE(rig.run(1).command->enable);
   ASSERT_FALSE(rig.node->supervisor().latched(core::FaultCode::kPeriodMismatch));
 
+  // Mid-run, another stage's period (as after a power stage was swapped): gates off in that
+  // very period, the fault published.
+  const auto at_20kHz = [](hal::SensorSample& s) { s.pwm_period_code = 200; };
+  const NodeStep& swapped = rig.run(1, at_20kHz);
+  EXPECT_FALSE(swapped.command->enable) << "gates off in the period the fault latched";
+  EXPECT_TRUE(published(swapped, protocol::FaultCode::kPeriodMismatch, true));
+  EXPECT_DOUBLE_EQ(rig.node->supervisor().status().reported_period_s, 50e-6);
+  rig.in.clear_faults = true;
+  EXPECT_FALSE(rig.run(100, at_20kHz).command->enable) << "a clear request does not clear it while it lasts";
+  rig.in.clear_faults = false;
+  EXPECT_FALSE(rig.run(20).command->enable) << "the periods agree again: latched until a clear request";
+  rig.in.clear_faults = true;
+  rig.run(1);
+  rig.in.clear_faults = false;
+  EXPECT_TRUE(rig.run(20).command->enable) << "cleared and running";
+  EXPECT_FALSE(rig.node->supervisor().latched(core::FaultCode::kPeriodMismatch));
+  // A stage that stops reporting it (0) is not judged.
+  EXPECT_TRUE(rig.run(20, [](hal::SensorSample& s) { s.pwm_period_code = 0; }).command->enable);
+
+  // A whole plant at 20 kHz from its first sample.
   Rig fast;
   fast.plant_config.inverter.pwm_frequency_Hz = 20000.0;
   fast.plant = std::make_unique<plant::Plant>(fast.plant_config);
-  ASSERT_EQ(fast.plant->sample().pwm_period_100ns, 500U);
+  ASSERT_EQ(fast.plant->sample().pwm_period_code, 200U);
   const NodeStep& first = fast.run(1);
   EXPECT_TRUE(fast.node->supervisor().latched(core::FaultCode::kPeriodMismatch));
-  EXPECT_FALSE(first.command->enable) << "gates off from the first sample";
   EXPECT_TRUE(published(first, protocol::FaultCode::kPeriodMismatch, true));
-  EXPECT_DOUBLE_EQ(fast.node->supervisor().status().reported_period_s, 50e-6);
-  fast.in.clear_faults = true;
-  EXPECT_FALSE(fast.run(100).command->enable) << "a clear request does not clear it while it lasts";
-  EXPECT_TRUE(fast.node->supervisor().latched(core::FaultCode::kPeriodMismatch));
+  EXPECT_FALSE(fast.run(3000).command->enable) << "never runs";
 }
 
 // A load that overhauls the drive (300 Nm driving the shaft forward, beyond the drive's torque

@@ -221,10 +221,38 @@ TEST(protocol_codec, SensorSampleFrameShape) {
   EXPECT_EQ(f.data[5], 0xFF);
   EXPECT_EQ(f.data[6], 0x02);
   EXPECT_EQ(f.data[7], 0x01);
-  EXPECT_EQ(f.data[20], 0x02);  // flags byte
+  EXPECT_EQ(f.data[20], 0x02);  // flags (bits 160-163), PwmPeriod's low nibble 0
   for (std::size_t i = 21; i < 24; ++i) {
-    EXPECT_EQ(f.data[i], 0) << "reserved byte " << i;
+    EXPECT_EQ(f.data[i], 0) << "byte " << i << ": PwmPeriod not reported, no ambient";
   }
+  // PwmPeriod: 12 bits from bit 164, little-endian; the frame has no reserved bits left.
+  s.pwm_period_code = 0xABC;
+  ASSERT_EQ(encode(s, 2, f), EncodeStatus::kOk);
+  EXPECT_EQ(f.data[20], 0xC2);
+  EXPECT_EQ(f.data[21], 0xAB);
+}
+
+// The power stage's period: every code the field holds comes back; one it cannot hold goes out
+// as 0 ("not reported", not wrapped into another period) and the encoder says so.
+TEST(protocol_codec, SensorSamplePwmPeriod) {
+  for (const std::uint16_t code : {std::uint16_t{0}, std::uint16_t{1}, std::uint16_t{400}, kPwmPeriodMaxCode}) {
+    SensorSample s;
+    s.pwm_period_code = code;
+    EXPECT_EQ(round_trip(s).pwm_period_code, code);
+  }
+  SensorSample s;
+  s.pwm_period_code = kPwmPeriodMaxCode + 1;
+  CanFrame f;
+  EXPECT_EQ(encode(s, 0, f), EncodeStatus::kInvalidValue);
+  SensorSample back;
+  back.pwm_period_code = 1;
+  ASSERT_EQ(decode(f, 0, back), DecodeStatus::kOk);
+  EXPECT_EQ(back.pwm_period_code, 0U);
+  EXPECT_EQ(pwm_period_code(10000.0), 400U);   // 100 us
+  EXPECT_EQ(pwm_period_code(15000.0), 267U);   // 66.67 us -> 66.75
+  EXPECT_EQ(pwm_period_code(1000.0), 4000U);   // 1 ms: the slowest control period fits
+  EXPECT_EQ(pwm_period_code(900.0), 0U);       // beyond the field: not reported
+  EXPECT_EQ(pwm_period_code(std::numeric_limits<double>::quiet_NaN()), 0U);
 }
 
 TEST(protocol_codec, InverterCommandRoundTripExtremes) {

@@ -284,7 +284,7 @@ TEST(protocol_agreement, SensorSample) {
         if ((m.flags & kSensorAmbientValid) != 0U) {
           m.ambient_centi_C = static_cast<std::int16_t>(std::lround(100.0 * p.value("AmbientTemp")));
         }
-        m.pwm_period_100ns = static_cast<std::uint16_t>(std::lround(10.0 * p.value("PwmPeriod")));
+        m.pwm_period_code = static_cast<std::uint16_t>(std::lround(4.0 * p.value("PwmPeriod")));
         return m;
       },
       [](const SensorSample& m) {
@@ -301,7 +301,7 @@ TEST(protocol_agreement, SensorSample) {
                         {"PhaseVoltageValid", b((m.flags & kSensorPhaseVoltageValid) != 0)},
                         {"HardwareOvercurrent", b((m.flags & kSensorHardwareOvercurrent) != 0)},
                         {"AmbientValid", b((m.flags & kSensorAmbientValid) != 0)},
-                        {"PwmPeriod", 0.1 * m.pwm_period_100ns},
+                        {"PwmPeriod", 0.25 * m.pwm_period_code},
                         {"AmbientTemp", 0.01 * m.ambient_centi_C}};
       }});
 }

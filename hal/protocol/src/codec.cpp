@@ -86,6 +86,17 @@ class Writer {
     }
   }
 
+  // A code whose 0 means "not reported": one the signal cannot hold goes out as 0 (not wrapped)
+  // and is an invalid value.
+  void code_or_none(const SignalDef& s, std::uint64_t value) noexcept {
+    if (value > static_cast<std::uint64_t>(s.raw_max())) {
+      raw(s, 0);
+      worsen(EncodeStatus::kInvalidValue);
+    } else {
+      raw(s, static_cast<std::int64_t>(value));
+    }
+  }
+
   // A counter that wraps modulo 2^length.
   void wrapping(const SignalDef& s, std::uint64_t value) noexcept {
     put_bits_le(frame_.data.data(), s.start_bit, s.length, value);
@@ -193,8 +204,7 @@ void write_body(Writer& w, const SensorSample& m) noexcept {
   w.boolean(kHardwareOvercurrent, (m.flags & kSensorHardwareOvercurrent) != 0U);
   const bool ambient = (m.flags & kSensorAmbientValid) != 0U;
   w.boolean(kAmbientValid, ambient);
-  // A period the field cannot hold goes out as "not reported" rather than wrapped.
-  w.raw(kPwmPeriod, m.pwm_period_100ns <= kPwmPeriod.raw_max() ? m.pwm_period_100ns : 0);
+  w.code_or_none(kPwmPeriod, m.pwm_period_code);
   w.raw(kAmbientTemp, ambient ? m.ambient_centi_C : 0);
 }
 void read_body(const Reader& r, SensorSample& m) noexcept {
@@ -223,7 +233,7 @@ void read_body(const Reader& r, SensorSample& m) noexcept {
     m.ambient_centi_C = r.integer<std::int16_t>(kAmbientTemp);
   }
   m.flags = flags;
-  m.pwm_period_100ns = r.integer<std::uint16_t>(kPwmPeriod);
+  m.pwm_period_code = r.integer<std::uint16_t>(kPwmPeriod);
 }
 
 void write_body(Writer& w, const DriveCommand& m) noexcept {

@@ -138,8 +138,10 @@ class Supervisor {
   // (not per period: it is the same in every sample of one power stage). Every clock of the
   // drive (the current loop's gains, the PLL, the thermal model's time, the injection's timing)
   // assumes its own period, so another one is a cause of PERIOD_MISMATCH until a matching one
-  // is reported. Not finite or not positive: the stage reports none, and nothing is judged.
-  void set_reported_period(double period_s) noexcept;
+  // is reported; a match is within one step of the report's resolution (`step_s`, which the
+  // drive's own period need not lie on) or 0.1 %. Not finite or not positive: the stage
+  // reports none, nothing is judged, and a mismatch reported before stops being a cause.
+  void set_reported_period(double period_s, double step_s) noexcept;
 
   // A one-off fault the caller detected (a non-finite controller output, ...): latched at
   // once, gates off from now on; its cause is gone as soon as it is reported.

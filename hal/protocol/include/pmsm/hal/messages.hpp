@@ -30,17 +30,20 @@ struct SensorSample {
   std::array<std::int16_t, 3> phase_voltage_adc{}; // phase-to-neutral voltages, if sensed
   std::uint8_t flags = 0;                          // SensorFlag bits
   std::int16_t ambient_centi_C = 0;                // ambient / coolant sensor, 0.01 C (if valid)
-  // The power stage's PWM period, at which it samples, in 0.1 us (12 bits on the bus: up to
-  // 409.5 us, 2.44 kHz); 0: not reported. The drive checks it against its own period.
-  std::uint16_t pwm_period_100ns = 0;
+  // The power stage's PWM period, at which it samples, in steps of kPwmPeriodStep_s (12 bits on
+  // the bus: up to 1023.75 us, below 1 kHz); 0: not reported. The drive checks it against its
+  // own period.
+  std::uint16_t pwm_period_code = 0;
 };
 
-// SensorSample::pwm_period_100ns for a PWM frequency: the nearest code, or 0 (not reported)
+inline constexpr double kPwmPeriodStep_s = 0.25e-6;  // SensorSample::pwm_period_code's step
+inline constexpr std::uint16_t kPwmPeriodMaxCode = 4095;  // 12 bits
+
+// SensorSample::pwm_period_code for a PWM frequency: the nearest code, or 0 (not reported)
 // when the period does not fit the field.
 [[nodiscard]] inline std::uint16_t pwm_period_code(double pwm_frequency_Hz) noexcept {
-  constexpr double kMaxCode = 4095.0;
-  const double code = 1e7 / pwm_frequency_Hz;  // 0.1 us steps
-  return code >= 0.5 && code <= kMaxCode ? static_cast<std::uint16_t>(code + 0.5) : std::uint16_t{0};
+  const double code = 1.0 / (pwm_frequency_Hz * kPwmPeriodStep_s);
+  return code >= 0.5 && code <= kPwmPeriodMaxCode ? static_cast<std::uint16_t>(code + 0.5) : std::uint16_t{0};
 }
 
 // The controller's command for one period, controller -> plant. The command computed from

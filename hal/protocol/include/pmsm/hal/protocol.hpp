@@ -38,7 +38,7 @@ inline constexpr std::uint32_t kNodeIdMask = 0x00F;  // the node-id bits of a CA
 inline constexpr std::uint32_t kIdBaseMask = 0x7F0;  // the message bits of a CAN ID
 
 // Protocol version, written into the DBC's VERSION line. Bump it on any layout change.
-inline constexpr std::string_view kProtocolVersion = "pmsm-thermal-can 1.1";
+inline constexpr std::string_view kProtocolVersion = "pmsm-thermal-can 1.2";
 
 // The parties on the bus (DBC "BU_" nodes). A receive-filter role is one of these.
 enum class Role : std::uint8_t {
@@ -488,9 +488,9 @@ inline constexpr SignalDef kHardwareOvercurrent{"HardwareOvercurrent", 162, 1, f
     "The power stage's own over-current comparator tripped."};
 inline constexpr SignalDef kAmbientValid{"AmbientValid", 163, 1, false, 1, 0, 0, 1, "", detail::kNoValues,
     "AmbientTemp holds a reading of the drive's ambient / coolant sensor."};
-inline constexpr SignalDef kPwmPeriod{"PwmPeriod", 164, 12, false, 0.1, 0, 0, 409.5, "us", detail::kNoValues,
+inline constexpr SignalDef kPwmPeriod{"PwmPeriod", 164, 12, false, 0.25, 0, 0, 1023.75, "us", detail::kNoValues,
     "The power stage's PWM period, at which it samples (0: not reported); the drive faults (PERIOD_MISMATCH) "
-    "when it is not its control.period_s."};
+    "when it is not its controller.control.period_s."};
 inline constexpr SignalDef kAmbientTemp{"AmbientTemp", 176, 16, true, 0.01, 0, -327.68, 327.67, "degC", detail::kNoValues,
     "The drive's ambient / coolant temperature sensor (valid if AmbientValid): the thermal model's boundary."};
 inline constexpr std::array<SignalDef, 15> kSignals{
