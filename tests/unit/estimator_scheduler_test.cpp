@@ -526,6 +526,7 @@ TEST(InjectionScheduler, TheConfigurationsThatCanLearnVxAreThoseWhoseEventsDo) {
       {"bipolar, two levels", [](InjectionConfig&) {}, true},
       {"unipolar", [](InjectionConfig& c) { c.separation = Separation::kUnipolar; }, false},
       {"bipolar, one level", [](InjectionConfig& c) { c.level_count = 1; }, false},
+      {"bipolar, two equal levels", [](InjectionConfig& c) { c.levels = {0.7, 0.7, 0.0, 0.0}; }, false},
       {"bridge term not fitted", [](InjectionConfig& c) { c.fit_dead_time = false; }, false},
   };
   for (const Case& k : cases) {

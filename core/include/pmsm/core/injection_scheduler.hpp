@@ -191,12 +191,22 @@ struct InjectionConfig {
   // Whether this configuration's events can learn the bridge's voltage Vx at all: the bridge's
   // term fitted, bipolar pairs (only they reverse the current vector: a unipolar pair's first
   // recording sits at the motoring current, where the bridge's error hangs on the zero-current
-  // band), and two levels or more (one level cannot tell Rs from Vx). Such an event learns it
-  // when it also runs at light load (vx_learning_max_iq_fraction) and below
-  // vx_learning_max_speed_rad_s, off the voltage limit (InjectionScheduler::event_joint_fit);
-  // the others rest on the prior. The scheduler and the daemon's start-up check ask the same.
+  // band), and two different levels or more (one level cannot tell Rs from Vx). Such an event
+  // learns it when it also runs at light load (vx_learning_max_iq_fraction) and below
+  // vx_learning_max_speed_rad_s, off the voltage limit, and its levels are far enough apart
+  // (vx_min_identifiability) (InjectionScheduler::event_joint_fit); the others rest on the
+  // prior. The scheduler and the daemon's start-up check ask the same.
   [[nodiscard]] bool can_learn_vx() const noexcept {
-    return fit_dead_time && separation == Separation::kBipolar && level_count >= 2;
+    if (!fit_dead_time || separation != Separation::kBipolar) {
+      return false;
+    }
+    const int n = level_count < kMaxLevels ? level_count : kMaxLevels;
+    for (int k = 1; k < n; ++k) {
+      if (levels[static_cast<std::size_t>(k)] != levels[0]) {
+        return true;
+      }
+    }
+    return false;
   }
 };
 
