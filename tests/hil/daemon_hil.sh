@@ -52,6 +52,19 @@ work=$(mktemp -d "${TMPDIR:-/tmp}/daemon-hil.XXXXXXXX")
 sed -e "s/^interface = .*/interface = \"$iface\"/" "$src/tests/hil/data/hil-daemon.toml" > "$work/daemon.toml"
 hil_cleanup_on_exit "$work" "${DAEMON_HIL_KEEP:-0}"
 
+# A lockstep pmsm-plant in the foreground: plant_run CONFIG SECONDS LOG; or in the background
+# with plant_start (its pid in $plant_pid, stopped on exit).
+plant_run() {
+  "$plant" --config "$1" --iface "$iface" --node $node --mode lockstep --duration-s "$2" > "$work/$3" 2>&1
+}
+plant_start() {
+  # Not through plant_run: $! must be the plant itself, which the cleanup's TERM reaches.
+  "$plant" --config "$1" --iface "$iface" --node $node --mode lockstep --duration-s "$2" > "$work/$3" 2>&1 &
+  plant_pid=$!
+  pids+=("$plant_pid")
+}
+hil_plant=$src/tests/hil/data/hil-plant.toml
+
 # A large receive buffer: under User-Mode Linux on a loaded host candump can fall behind, and
 # a frame it drops would read as an alive-counter jump in the strict decode below.
 candump -L -r 16777216 "$iface" > "$work/candump.log" &
@@ -67,8 +80,7 @@ command_pid=$!
 pids+=("$command_pid")
 sleep 0.3
 t0=$(date +%s)
-"$plant" --config "$src/tests/hil/data/hil-plant.toml" --iface "$iface" --node $node --mode lockstep \
-  --duration-s "$duration" > "$work/plant-1.log" 2>&1 || die "pmsm-plant failed: $(tail -3 "$work/plant-1.log")"
+plant_run "$hil_plant" "$duration" plant-1.log || die "pmsm-plant failed: $(tail -3 "$work/plant-1.log")"
 t1=$(date +%s)
 echo "$prog: heat-up of $duration s simulated took $((t1 - t0)) s of wall time"
 cp "$work/candump.log" "$work/heatup.log"
@@ -89,8 +101,7 @@ grep -q "SENSOR_TIMEOUT" "$work/outage.txt" ||
   die "no SENSOR_TIMEOUT fault on the bus 1 s after the plant stopped"
 echo "$prog: plant gone: the daemon published SENSOR_TIMEOUT"
 mark=$(wc -l < "$work/candump.log")
-"$plant" --config "$src/tests/hil/data/hil-plant.toml" --iface "$iface" --node $node --mode lockstep \
-  --duration-s 1 > "$work/plant-2.log" 2>&1 || die "the second pmsm-plant failed: $(tail -3 "$work/plant-2.log")"
+plant_run "$hil_plant" 1 plant-2.log || die "the second pmsm-plant failed: $(tail -3 "$work/plant-2.log")"
 "$build/tools/pmsm-dbc-gen" --node $node --dbc "$work/node$node.dbc" > /dev/null || die "pmsm-dbc-gen failed"
 tail -n +"$mark" "$work/candump.log" | "$tool" monitor --log - --node $node > "$work/recovery.txt" || true
 tail -n +"$mark" "$work/candump.log" | "$tool" decode --dbc "$work/node$node.dbc" - > "$work/recovery-decoded.txt" 2>/dev/null || true
@@ -104,10 +115,8 @@ echo "$prog: plant back: the fault cleared and the drive runs again, same daemon
 # Daemon killed and restarted: a new daemon locks on to a running plant.
 kill -KILL "$daemon_pid"
 wait "$daemon_pid" 2>/dev/null || true
-"$plant" --config "$src/tests/hil/data/hil-plant.toml" --iface "$iface" --node $node --mode lockstep \
-  --duration-s 0.5 > "$work/plant-3.log" 2>&1 &
-plant3=$!
-pids+=("$plant3")
+plant_start "$hil_plant" 0.5 plant-3.log
+plant3=$plant_pid
 sleep 1.5
 grep -q "waiting for a controller" "$work/plant-3.log" || die "the plant did not notice the missing controller"
 "$thermald" --config "$work/daemon.toml" > "$work/daemon-2.log" 2>&1 &
@@ -150,10 +159,8 @@ echo "$prog: $(wc -l < "$work/candump.log") captured frames, all decoded with th
 # time to outlast that at any speed: a fixed three-second wait raced the plant's speed (1.5 s
 # simulated came to an end in 1.1 s of wall time in User-Mode Linux once the plant integrated a
 # period in one step).
-"$plant" --config "$src/tests/hil/data/hil-plant.toml" --iface "$iface" --node $node --mode lockstep \
-  --duration-s 5 > "$work/plant-4.log" 2>&1 &
-plant4=$!
-pids+=("$plant4")
+plant_start "$hil_plant" 5 plant-4.log
+plant4=$plant_pid
 for _ in $(seq 100); do
   grep -q "lockstep mode on" "$work/plant-4.log" && break
   sleep 0.1
@@ -175,13 +182,12 @@ echo "$prog: $iface down for 1 s and up again: daemon and plant reopened their s
 # publish PERIOD_MISMATCH, keep the gates off and name both periods in its log; with a 10 kHz
 # plant again and a stop command (the supervisor's clear) the fault must clear. Last, because
 # it stops the supervisor's command stream.
-sed -e 's/^pwm_frequency_Hz = 10000.0 /pwm_frequency_Hz = 20000.0 /' "$src/tests/hil/data/hil-plant.toml" > "$work/plant-20k.toml"
+sed -e 's/^pwm_frequency_Hz = 10000.0 /pwm_frequency_Hz = 20000.0 /' "$hil_plant" > "$work/plant-20k.toml"
 grep -q "^pwm_frequency_Hz = 20000.0 " "$work/plant-20k.toml" || die "could not write a 20 kHz copy of hil-plant.toml"
 candump -L -r 16777216 "$iface" > "$work/mismatch.log" &
 pids+=("$!")
 sleep 0.2
-"$plant" --config "$work/plant-20k.toml" --iface "$iface" --node $node --mode lockstep \
-  --duration-s 0.2 > "$work/plant-5.log" 2>&1 || die "the 20 kHz pmsm-plant failed: $(tail -3 "$work/plant-5.log")"
+plant_run "$work/plant-20k.toml" 0.2 plant-5.log || die "the 20 kHz pmsm-plant failed: $(tail -3 "$work/plant-5.log")"
 sleep 0.3
 "$tool" monitor --log "$work/mismatch.log" --node $node > "$work/mismatch.txt" || true
 grep -q "fault PERIOD_MISMATCH ACTIVE" "$work/mismatch.txt" || die "no PERIOD_MISMATCH fault on the bus from a 20 kHz plant"
@@ -194,10 +200,8 @@ grep -q "the power stage samples every 50.00 us .*steps every 100.00 us" "$work/
 echo "$prog: a 20 kHz plant: PERIOD_MISMATCH on the bus, gates off, both periods named in the log"
 kill "$command_pid" 2>/dev/null || true
 wait "$command_pid" 2>/dev/null || true
-"$plant" --config "$src/tests/hil/data/hil-plant.toml" --iface "$iface" --node $node --mode lockstep \
-  --duration-s 2 > "$work/plant-6.log" 2>&1 &
-plant6=$!
-pids+=("$plant6")
+plant_start "$hil_plant" 2 plant-6.log
+plant6=$plant_pid
 sleep 0.5
 "$tool" command --iface "$iface" --node $node --mode disabled --period-ms 50 --duration 0.5 > "$work/command-stop.log" 2>&1 ||
   die "the stop command failed: $(tail -3 "$work/command-stop.log")"
