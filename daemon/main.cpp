@@ -166,23 +166,22 @@ int run(const Options& o) {
     if (injects && stored == pmsm::app::StoredCalibration::kLoaded && inj.fit_dead_time && !(d.calibration.vx_std_V > 0.0)) {
       const std::string_view method = pmsm::core::to_string(inj.method);
       const std::string_view separation = pmsm::core::to_string(inj.separation);
+      constexpr std::string_view kNoVx =
+          "calibration: the stored calibration has no bridge voltage (vx_V: stored by an older version or by hand)";
       if (!inj.can_learn_vx()) {
-        spdlog::warn("calibration: the stored calibration has no bridge voltage (vx_V: stored by an older version or by "
-                     "hand), and {} {} pairs at {} level(s) never learn it (that takes bipolar pairs at two levels or "
-                     "more), so every estimate rests on the configured guess injection.vx_initial_V {:.2f} +- {:.2f} V and "
-                     "its band is wide: run a calibration",
-                     method, separation, inj.level_count, inj.vx_initial_V, inj.vx_initial_std_V);
+        spdlog::warn("{}, and {} {} pairs at {} level(s) never learn it (that takes bipolar pairs at two different "
+                     "levels or more), so every estimate rests on the configured guess injection.vx_initial_V {:.2f} +- "
+                     "{:.2f} V and its band is wide: run a calibration",
+                     kNoVx, method, separation, inj.level_count, inj.vx_initial_V, inj.vx_initial_std_V);
       } else if (inj.method != pmsm::core::InjectionMethod::kFixedMagnitude) {
-        spdlog::warn("calibration: the stored calibration has no bridge voltage (vx_V: stored by an older version or by "
-                     "hand); {} {} events learn it only at light load and seldom, so the estimates rest on the configured "
+        spdlog::warn("{}; {} {} events learn it only at light load and seldom, so the estimates rest on the configured "
                      "guess injection.vx_initial_V {:.2f} +- {:.2f} V and their band is wide: run a calibration",
-                     method, separation, inj.vx_initial_V, inj.vx_initial_std_V);
+                     kNoVx, method, separation, inj.vx_initial_V, inj.vx_initial_std_V);
       } else {
-        spdlog::info("calibration: the stored calibration has no bridge voltage (vx_V: stored by an older version or by "
-                     "hand); the estimates rest on the configured guess injection.vx_initial_V {:.2f} +- {:.2f} V until an "
+        spdlog::info("{}; the estimates rest on the configured guess injection.vx_initial_V {:.2f} +- {:.2f} V until an "
                      "event at light load (|iq| below injection.vx_learning_max_iq_fraction {:g} of F, electrical speed "
                      "below injection.vx_learning_max_speed_rad_s {:g} rad/s) learns it; a calibration stores one",
-                     inj.vx_initial_V, inj.vx_initial_std_V, inj.vx_learning_max_iq_fraction,
+                     kNoVx, inj.vx_initial_V, inj.vx_initial_std_V, inj.vx_learning_max_iq_fraction,
                      inj.vx_learning_max_speed_rad_s);
       }
     }

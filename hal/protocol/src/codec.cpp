@@ -188,6 +188,10 @@ void read_body(const Reader& r, InverterCommand& m) noexcept {
   m.enable = r.boolean(kEnable);
 }
 
+static_assert(sensor_sample::kPwmPeriod.factor == kPwmPeriodStep_us &&
+                  sensor_sample::kPwmPeriod.raw_max() == kPwmPeriodMaxCode,
+              "SENSOR_SAMPLE PwmPeriod and SensorSample::pwm_period_code must agree (messages.hpp)");
+
 void write_body(Writer& w, const SensorSample& m) noexcept {
   using namespace sensor_sample;
   w.raw(kSequence, m.sequence);

@@ -36,7 +36,10 @@ struct SensorSample {
   std::uint16_t pwm_period_code = 0;
 };
 
-inline constexpr double kPwmPeriodStep_s = 0.25e-6;  // SensorSample::pwm_period_code's step
+// SensorSample::pwm_period_code's step and largest code (SENSOR_SAMPLE PwmPeriod: the codec
+// checks that the signal says the same at compile time).
+inline constexpr double kPwmPeriodStep_us = 0.25;
+inline constexpr double kPwmPeriodStep_s = kPwmPeriodStep_us * 1e-6;
 inline constexpr std::uint16_t kPwmPeriodMaxCode = 4095;  // 12 bits
 
 // SensorSample::pwm_period_code for a PWM frequency: the nearest code, or 0 (not reported)
