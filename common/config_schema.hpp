@@ -79,6 +79,36 @@ inline std::string read_config_file(const std::filesystem::path& path, std::stri
   return node ? node_location(*node.node(), source) : std::string(source) + ": ";
 }
 
+// "a string", "an array", ...: what a node is, for "expected X, got Y".
+[[nodiscard]] inline std::string node_type_name(const toml::node& node) {
+  switch (node.type()) {
+    case toml::node_type::string: return "a string";
+    case toml::node_type::integer: return "an integer";
+    case toml::node_type::floating_point: return "a number";
+    case toml::node_type::boolean: return "a boolean";
+    case toml::node_type::array: return "an array";
+    case toml::node_type::table: return "a table";
+    default: return "a date or time";
+  }
+}
+
+// A section another parser reads (a schema's foreign table, e.g. [controller] in the
+// daemon's file): null when the file does not give it, an error naming file, line and key when
+// the key is there but is not a table (`controller = "x"`, `[[controller]]`), which would
+// otherwise be skipped with every key it was meant to hold.
+[[nodiscard]] inline const toml::table* optional_section(const toml::table& root, std::string_view key,
+                                                         std::string_view source) {
+  const toml::node* node = root.get(key);
+  if (node == nullptr) {
+    return nullptr;
+  }
+  if (const toml::table* t = node->as_table()) {
+    return t;
+  }
+  throw ConfigError(node_location(*node, source) + std::string(key) + ": expected a table (section [" + std::string(key) +
+                    "]), got " + node_type_name(*node));
+}
+
 template <typename Config>
 class ConfigSchema {
  public:
@@ -336,17 +366,7 @@ class ConfigSchema {
     throw ConfigError(at + "expected an integer, got " + type_name(node));
   }
 
-  static std::string type_name(const toml::node& node) {
-    switch (node.type()) {
-      case toml::node_type::string: return "a string";
-      case toml::node_type::integer: return "an integer";
-      case toml::node_type::floating_point: return "a number";
-      case toml::node_type::boolean: return "a boolean";
-      case toml::node_type::array: return "an array";
-      case toml::node_type::table: return "a table";
-      default: return "a date or time";
-    }
-  }
+  static std::string type_name(const toml::node& node) { return node_type_name(node); }
 
   static void check_range(const Entry& e, double v, const std::string& at, std::string_view what = "") {
     if (!std::isfinite(v) || !e.range.contains(v)) {

@@ -10,6 +10,7 @@
 
 #include "config_schema.hpp"
 #include "pmsm/hal/protocol.hpp"
+#include "pmsm/hal/socketcan.hpp"
 
 namespace pmsm::daemon {
 namespace {
@@ -125,28 +126,69 @@ double frame_time_s(std::size_t bytes, bool fd, double nominal, double data) {
   return arbitration / nominal + data_bits / data;
 }
 
-void check_cross_keys(const DaemonConfig& c, const std::string& source) {
-  // Every broken rule, one line each.
+// Every broken rule between keys, one line each ("" when none). The rules that involve the
+// drive's keys, or the supervisor's defaults derived from them, run only when the drive's
+// sections parsed (`controller_valid`): against a default drive they would report
+// contradictions the file does not have. `root` tells a given key from a default.
+std::string check_cross_keys(const DaemonConfig& c, const toml::table& root, const std::string& source,
+                             bool controller_valid) {
   std::string errors;
   auto rule = [&](const std::string& text) { errors += (errors.empty() ? "" : "\n") + source + ": " + text; };
+  // "supervisor.x (v unit)", or "supervisor.x (v unit, its default: how)" for a key the file
+  // does not give: a rule broken by a default names what the default follows.
+  auto value = [&](std::string_view key, double v, std::string_view unit, std::string_view default_from) {
+    const bool given = static_cast<bool>(root.at_path(key));
+    return fmt::format("{} ({} {}{}{})", key, common::format_number(v), unit, given ? "" : ", its default: ",
+                       given ? "" : default_from);
+  };
   const core::SupervisorConfig& s = c.supervisor;
-  if (!(s.dc_bus_min_V < s.dc_bus_max_V)) {
-    rule(fmt::format("supervisor.dc_bus_min_V ({} V) must be below supervisor.dc_bus_max_V ({} V)", s.dc_bus_min_V,
-                     s.dc_bus_max_V));
-  } else if (c.controller.nominal_dc_bus_V < s.dc_bus_min_V || c.controller.nominal_dc_bus_V > s.dc_bus_max_V) {
-    rule(fmt::format("controller.control.nominal_dc_bus_V ({} V) lies outside supervisor.dc_bus_min_V .. "
-                     "supervisor.dc_bus_max_V ({} .. {} V): the drive would trip at once",
-                     c.controller.nominal_dc_bus_V, s.dc_bus_min_V, s.dc_bus_max_V));
+  if (const std::string problem = hal::can_interface_name_problem(c.can.interface); !problem.empty()) {
+    rule("can.interface: " + problem);
   }
   if (!(s.ambient_min_C < s.ambient_max_C)) {
     rule(fmt::format("supervisor.ambient_min_C ({} C) must be below supervisor.ambient_max_C ({} C): every ambient reading "
                      "would be implausible",
                      s.ambient_min_C, s.ambient_max_C));
   }
+  if (c.gpio.chip.empty() != (c.gpio.enable_line < 0)) {
+    rule(fmt::format("gpio.chip and gpio.enable_line go together (chip '{}', enable_line {})", c.gpio.chip,
+                     c.gpio.enable_line));
+  }
+  if (c.gpio.fault_line >= 0 && c.gpio.chip.empty()) {
+    rule("gpio.fault_line needs gpio.chip");
+  }
+  if (c.gpio.fault_line >= 0 && c.gpio.fault_line == c.gpio.enable_line) {
+    rule(fmt::format("gpio.fault_line and gpio.enable_line are both line {}: one line cannot be the gate enable output "
+                     "and the fault input",
+                     c.gpio.fault_line));
+  }
+  if (!controller_valid) {
+    return errors;
+  }
+  constexpr std::string_view kMinFrom = "0.6 x controller.control.nominal_dc_bus_V";
+  constexpr std::string_view kMaxFrom =
+      "the lower of 1.25 x controller.control.nominal_dc_bus_V and 0.98 x controller.sensors.dc_bus_full_scale_V";
+  if (!(s.dc_bus_min_V < s.dc_bus_max_V)) {
+    rule(value("supervisor.dc_bus_min_V", s.dc_bus_min_V, "V", kMinFrom) + " must be below " +
+         value("supervisor.dc_bus_max_V", s.dc_bus_max_V, "V", kMaxFrom));
+  } else if (c.controller.nominal_dc_bus_V < s.dc_bus_min_V || c.controller.nominal_dc_bus_V > s.dc_bus_max_V) {
+    rule(fmt::format("controller.control.nominal_dc_bus_V ({} V) lies outside supervisor.dc_bus_min_V .. "
+                     "supervisor.dc_bus_max_V ({} .. {} V): the drive would trip at once",
+                     c.controller.nominal_dc_bus_V, s.dc_bus_min_V, s.dc_bus_max_V));
+  }
+  if (s.dc_bus_max_V >= c.controller.sensors.dc_bus_full_scale_V) {
+    rule(fmt::format("supervisor.dc_bus_max_V ({} V) must be below controller.sensors.dc_bus_full_scale_V ({} V): a "
+                     "saturated ADC reading never shows an over-voltage",
+                     s.dc_bus_max_V, c.controller.sensors.dc_bus_full_scale_V));
+  }
   if (s.overcurrent_A >= c.controller.sensors.current_range_A) {
     rule(fmt::format("supervisor.overcurrent_A ({} A) must be below controller.sensors.current_range_A ({} A): "
                      "a saturated ADC reading is never a valid current",
                      s.overcurrent_A, c.controller.sensors.current_range_A));
+  } else if (const double limit_A = c.controller.drive.derating.max_current_A; s.overcurrent_A <= limit_A) {
+    rule(fmt::format("supervisor.overcurrent_A ({} A) must be above controller.derating.max_current_A ({} A): the drive "
+                     "would trip below its own current limit",
+                     s.overcurrent_A, limit_A));
   }
   if (s.overspeed_rad_s >= s.max_speed_rad_s) {
     rule(fmt::format("supervisor.overspeed_rad_s ({} rad/s) must be below supervisor.max_speed_rad_s ({} rad/s): "
@@ -164,16 +206,12 @@ void check_cross_keys(const DaemonConfig& c, const std::string& source) {
                      "drive derates before it trips",
                      s.trip_temp_C, c.controller.drive.derating.limit_C));
   }
-  if (c.gpio.chip.empty() != (c.gpio.enable_line < 0)) {
-    rule(fmt::format("gpio.chip and gpio.enable_line go together (chip '{}', enable_line {})", c.gpio.chip,
-                     c.gpio.enable_line));
+  if (const double period_ms = 1e3 * c.controller.drive.period_s; !(c.can.sample_timeout_ms > period_ms)) {
+    rule(fmt::format("can.sample_timeout_ms ({} ms) must be above the control period controller.control.period_s ({} ms): "
+                     "every period would count as missing",
+                     common::format_number(c.can.sample_timeout_ms), common::format_number(period_ms)));
   }
-  if (c.gpio.fault_line >= 0 && c.gpio.chip.empty()) {
-    rule("gpio.fault_line needs gpio.chip");
-  }
-  if (!errors.empty()) {
-    throw ConfigError(errors);
-  }
+  return errors;
 }
 
 // The supervisor's defaults for a drive: relative to its motor, ADCs and bus
@@ -198,26 +236,33 @@ DaemonConfig parse_daemon_config(const std::string& text, const std::filesystem:
   c.source = source;
   // The drive first: the supervisor's defaults are relative to it.
   static const toml::table kEmpty;
-  const toml::table* controller_table = root.get_as<toml::table>("controller");
   // Every bad key of the file at once: the drive's sections' errors, then the daemon's.
   std::string errors;
   try {
+    const toml::table* controller_table = common::optional_section(root, "controller", source.string());
     c.controller = app::parse_controller_config(controller_table != nullptr ? *controller_table : kEmpty, source.string(),
                                                 {}, "controller.");
   } catch (const ConfigError& e) {
     errors = e.what();
   }
+  const bool controller_valid = errors.empty();
   c.supervisor = daemon_supervisor_defaults(c.controller);
   std::vector<std::string> foreign{"controller"};
+  bool daemon_valid = true;
   try {
     schema().apply(root, c, source.string(), foreign);
   } catch (const ConfigError& e) {
     errors += (errors.empty() ? "" : "\n") + std::string(e.what());
+    daemon_valid = false;
+  }
+  // Every broken rule too, as far as the keys they relate parsed.
+  if (daemon_valid) {
+    const std::string broken = check_cross_keys(c, root, source.string(), controller_valid);
+    errors += (errors.empty() || broken.empty() ? "" : "\n") + broken;
   }
   if (!errors.empty()) {
     throw ConfigError(errors);
   }
-  check_cross_keys(c, source.string());
   const BusLoad load = bus_load(c);
   // A vcan interface has no bit timing: the budget is logged at start-up, not enforced.
   if (!is_virtual_interface(c.can.interface) && load.total_fraction > c.can.max_bus_load) {

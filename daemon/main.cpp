@@ -150,7 +150,7 @@ int run(const Options& o) {
   try {
     stored = pmsm::app::load_stored_calibration(config.controller);
   } catch (const std::exception& e) {
-    spdlog::error("unreadable calibration file: {}", e.what());
+    spdlog::error("calibration file refused: {}", e.what());
     return o.check ? 1 : kExitConfig;
   }
   {

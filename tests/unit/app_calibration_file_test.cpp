@@ -11,6 +11,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <utility>
 #include <iterator>
 #include <limits>
 #include <sstream>
@@ -246,6 +247,27 @@ TEST_F(CalibrationFile, ControllerConfigLoadsTheFileRelativeToItself) {
   // Damaged: an error, not the nameplate.
   write_text(c.calibration_file, "format = 1\nrs0_ohm = 0\nt0_C = 25\n");
   EXPECT_THROW(load_stored_calibration(c), CalibrationFileError);
+  // Valid as a file, but not this motor's: held to the plausibility window a configured
+  // calibration.rs0_ohm is held to (Table I's 0.09-0.27 ohm here), on either side, and the
+  // drive keeps what it had.
+  const double rs_before = c.drive.calibration.rs0_ohm;
+  for (const auto& [rs0, words] : {std::pair{"5.0", "rs0_ohm 5 ohm lies above the drive's plausibility window "
+                                                    "(controller.injection.rs_max_ohm = 0.27 ohm)"},
+                                   std::pair{"0.05", "rs0_ohm 0.05 ohm lies below the drive's plausibility window "
+                                                     "(controller.injection.rs_min_ohm = 0.09 ohm)"}}) {
+    write_text(c.calibration_file, std::string("format = 1\nrs0_ohm = ") + rs0 + "\nt0_C = 25\n");
+    try {
+      (void)load_stored_calibration(c);
+      ADD_FAILURE() << "rs0_ohm = " << rs0 << " loaded";
+    } catch (const CalibrationFileError& e) {
+      EXPECT_NE(std::string(e.what()).find(words), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find(c.calibration_file), std::string::npos) << e.what();
+    }
+    EXPECT_EQ(c.drive.calibration.rs0_ohm, rs_before);
+  }
+  // The window's own ends are inside it.
+  write_text(c.calibration_file, "format = 1\nrs0_ohm = 0.27\nt0_C = 25\n");
+  EXPECT_EQ(load_stored_calibration(c), StoredCalibration::kLoaded);
   // Not configured.
   ControllerConfig none = default_controller_config();
   EXPECT_EQ(load_stored_calibration(none), StoredCalibration::kNotConfigured);

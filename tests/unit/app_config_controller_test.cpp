@@ -189,9 +189,9 @@ TEST(ControllerConfig, ErrorsNameFileLineAndKey) {
 TEST(ControllerConfig, CrossKeyRulesNameBothKeys) {
   EXPECT_EQ(error_of("[injection]\nrs_min_ohm = 0.3\nrs_max_ohm = 0.2\n"),
             "drive.toml:2: injection.rs_min_ohm (0.3 ohm) must be below injection.rs_max_ohm (0.2 ohm, drive.toml:3)");
-  EXPECT_EQ(error_of("[derating]\nstart_C = 160\nlimit_C = 155\n"), "drive.toml:2: derating.start_C must be below derating.limit_C");
+  EXPECT_EQ(error_of("[derating]\nstart_C = 160\nlimit_C = 155\n"), "drive.toml:2: derating.start_C (160 C) must be below derating.limit_C (155 C, drive.toml:3)");
   EXPECT_EQ(error_of("[derating]\nmin_current_A = 90\n"),
-            "drive.toml:2: derating.min_current_A must not exceed derating.max_current_A");
+            "drive.toml:2: derating.min_current_A (90 A) must not exceed derating.max_current_A (80 A, its default)");
   EXPECT_EQ(error_of("[injection]\nF_A = 4\n"),
             "drive.toml:2: injection.F_min_A must not exceed injection.F_A times the smallest of injection.levels");
   EXPECT_EQ(error_of("[injection]\nsettle_s = 0.05\n"),
@@ -203,7 +203,7 @@ TEST(ControllerConfig, CrossKeyRulesNameBothKeys) {
   // Equal ends are rejected too (the derating would divide by zero).
   EXPECT_NE(error_of("[derating]\nstart_C = 155\nlimit_C = 155\n"), "");
   EXPECT_EQ(error_of("[derating]\nmagnet_start_C = 150\n"),
-            "drive.toml:2: derating.magnet_start_C must be below derating.magnet_limit_C");
+            "drive.toml:2: derating.magnet_start_C (150 C) must be below derating.magnet_limit_C (150 C, its default)");
   EXPECT_NE(error_of("[derating]\nmagnet_start_C = 90\nmagnet_limit_C = 90\n"), "");
 }
 

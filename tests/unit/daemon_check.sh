@@ -55,7 +55,7 @@ out=$("$exe" --config "$dir/bad.toml" --check 2>&1)
 for want in 'supervisor.overcurrent_A (5000 A) must be below' 'gpio.fault_line needs gpio.chip'; do
   if [[ "$out" != *"$want"* ]]; then echo "FAIL: '$want' missing from the broken rules: $out"; fail=1; fi
 done
-check_bad '[controller.derating]\nstart_C = 200\nlimit_C = 150\n[controller.injection]\nrecord_time_s = 0.01\nsettle_s = 0.5\n' 1 'derating.start_C must be below'
+check_bad '[controller.derating]\nstart_C = 200\nlimit_C = 150\n[controller.injection]\nrecord_time_s = 0.01\nsettle_s = 0.5\n' 1 'controller.derating.start_C (200 C) must be below controller.derating.limit_C (150 C, '
 out=$("$exe" --config "$dir/bad.toml" --check 2>&1)
 if [[ "$out" != *'injection.record_time_s must be longer'* ]]; then
   echo "FAIL: the second broken drive rule is missing: $out"; fail=1
@@ -63,7 +63,33 @@ fi
 if "$exe" --config "$dir/missing.toml" --check >/dev/null 2>&1; then
   echo "FAIL: a missing file passed"; fail=1
 fi
-check_bad '[controller.derating]\nmagnet_start_C = 160\n' 1 'derating.magnet_start_C must be below derating.magnet_limit_C'
+check_bad '[controller.derating]\nmagnet_start_C = 160\n' 1 'derating.magnet_start_C (160 C) must be below controller.derating.magnet_limit_C (150 C, its default)'
+# The daemon's own rules are reported alongside a broken drive rule (its values parsed).
+check_bad '[supervisor]\nambient_min_C = 100.0\nambient_max_C = 0.0\n[controller.derating]\nstart_C = 160.0\nlimit_C = 150.0\n' 1 'derating.start_C (160 C) must be below'
+out=$("$exe" --config "$dir/bad.toml" --check 2>&1)
+if [[ "$out" != *'supervisor.ambient_min_C (100 C) must be below supervisor.ambient_max_C (0 C)'* ]]; then
+  echo "FAIL: the daemon's rule is missing beside the drive's: $out"; fail=1
+fi
+# A section another parser reads, given as something else, is an error (not skipped with its keys).
+check_bad 'controller = "x"\n' 1 'bad.toml:1: controller: expected a table (section [controller]), got a string'
+check_bad '[[controller]]\nmotor = 1\n' 1 'controller: expected a table (section [controller]), got an array'
+# Rules between the daemon's keys and the drive's.
+check_bad '[can]\ninterface = ""\n' 1 'can.interface: an interface name is 1 to 15 characters, got an empty one'
+check_bad '[can]\ninterface = "vcan0123456789abcdef"\n' 1 'can.interface: an interface name is 1 to 15 characters, got 20'
+check_bad '[can]\ninterface = "can/0"\n' 1 "can.interface: an interface name has no '/', ':' or white space"
+check_bad '[can]\nsample_timeout_ms = 0.05\n' 1 'can.sample_timeout_ms (0.05 ms) must be above the control period controller.control.period_s (0.1 ms)'
+check_bad '[supervisor]\novercurrent_A = 50\n' 1 'supervisor.overcurrent_A (50 A) must be above controller.derating.max_current_A (80 A)'
+check_bad '[supervisor]\ndc_bus_max_V = 5000\n' 1 'supervisor.dc_bus_max_V (5000 V) must be below controller.sensors.dc_bus_full_scale_V (1000 V)'
+check_bad '[controller.sensors]\ndc_bus_full_scale_V = 10\n' 1 'supervisor.dc_bus_min_V (390 V, its default: 0.6 x controller.control.nominal_dc_bus_V) must be below supervisor.dc_bus_max_V (9.8 V, its default: the lower of'
+check_bad '[gpio]\nchip = "gpiochip0"\nenable_line = 17\nfault_line = 17\n' 1 'gpio.fault_line and gpio.enable_line are both line 17'
+# Rules between the drive's own keys (the loops and the bridge).
+check_bad '[controller.control]\nperiod_s = 1e-3\n' 1 'controller.control.current_bandwidth_rad_s (2000 rad/s, its default) times controller.control.period_s (0.001 s) is 2, above 0.5'
+check_bad '[controller.control]\nspeed_bandwidth_rad_s = 1000\n' 1 'controller.control.speed_bandwidth_rad_s (1000 rad/s) must be at most a fifth of controller.control.current_bandwidth_rad_s (2000 rad/s, its default)'
+check_bad '[controller.control]\ndead_time_s = 1e-5\n' 1 'gives the bridge a voltage error of 65 V, beyond the +-50 V controller.injection.vx_initial_V allows'
+check_bad '[controller.control]\nperiod_s = 2e-5\ndead_time_s = 5e-6\ncurrent_bandwidth_rad_s = 2000\n' 1 'controller.control.dead_time_s (5e-06 s) must be below a quarter of controller.control.period_s (2e-05 s'
+# A stored calibration of another motor: valid as a file, outside this drive's window.
+printf 'format = 1\nrs0_ohm = 5.0\nt0_C = 25.0\n' > "$dir/other-motor.toml"
+check_bad "[controller.calibration]\nfile = \"$dir/other-motor.toml\"\n" 1 'calibration file refused: '"$dir"'/other-motor.toml: rs0_ohm 5 ohm lies above the drive'"'"'s plausibility window (controller.injection.rs_max_ohm = 0.27 ohm)'
 # A bad command line is a configuration error (exit 2, which the unit does not restart on) and
 # names the option; --help and --version exit 0.
 for args in "--bogus" "--log-level loud --config $dir/bad.toml"; do

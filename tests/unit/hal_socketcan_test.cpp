@@ -17,10 +17,25 @@ void expect_clear_open_error(const std::string& message, int error_number, const
     // A kernel without CAN: say so and point at the way out.
     EXPECT_TRUE(contains(message, "no CAN support")) << message;
     EXPECT_TRUE(contains(message, "scripts/vcan-env")) << message;
+    EXPECT_TRUE(contains(message, "cannot open CAN interface '" + interface + "'")) << message;
   } else {
     // A kernel with CAN: the interface does not exist.
     EXPECT_EQ(error_number, ENODEV) << message;
     EXPECT_TRUE(contains(message, "no such CAN interface '" + interface + "'")) << message;
+  }
+}
+
+// The kernel's rule for interface names, told before any socket is opened (the daemon's and
+// the plant's configuration checks use it).
+TEST(SocketCan, InterfaceNamesFollowTheKernelsRule) {
+  for (const char* good : {"vcan0", "can0", "c", "can-axis_1.2", "abcdefghijklmno"}) {
+    EXPECT_EQ(can_interface_name_problem(good), "") << good;
+  }
+  EXPECT_TRUE(contains(can_interface_name_problem(""), "got an empty one"));
+  EXPECT_TRUE(contains(can_interface_name_problem("abcdefghijklmnop"), "got 16 in 'abcdefghijklmnop'"));
+  EXPECT_TRUE(contains(can_interface_name_problem(".."), "is not an interface name"));
+  for (const char* bad : {"can/0", "can:0", "can 0", "can\t0"}) {
+    EXPECT_TRUE(contains(can_interface_name_problem(bad), "no '/', ':' or white space")) << bad;
   }
 }
 

@@ -13,6 +13,7 @@
 
 #include <algorithm>
 #include <cerrno>
+#include <cctype>
 #include <cstring>
 #include <utility>
 
@@ -33,6 +34,7 @@ bool is_interface_gone(int error_number) {
 
 // Copies the interface name into an ifreq; false if it does not fit.
 bool fill_ifreq(ifreq& ifr, const std::string& name) {
+  static_assert(IFNAMSIZ == 16, "can_interface_name_problem assumes Linux's 15-character names");
   std::memset(&ifr, 0, sizeof ifr);
   if (name.empty() || name.size() >= sizeof ifr.ifr_name) {
     return false;
@@ -139,6 +141,24 @@ std::unique_ptr<SocketCanBus> SocketCanBus::open(SocketCanConfig config, Status&
   }
 }
 
+std::string can_interface_name_problem(std::string_view name) {
+  if (name.empty()) {
+    return "an interface name is 1 to 15 characters, got an empty one";
+  }
+  if (name.size() > 15) {
+    return "an interface name is 1 to 15 characters, got " + std::to_string(name.size()) + " in '" + std::string(name) + "'";
+  }
+  if (name == "." || name == "..") {
+    return "'" + std::string(name) + "' is not an interface name";
+  }
+  for (const char ch : name) {
+    if (ch == '/' || ch == ':' || std::isspace(static_cast<unsigned char>(ch)) != 0) {
+      return "an interface name has no '/', ':' or white space, got '" + std::string(name) + "'";
+    }
+  }
+  return {};
+}
+
 Status SocketCanBus::open_socket() {
   const std::string& name = config_.interface;
   fd_.reset();
@@ -152,7 +172,8 @@ Status SocketCanBus::open_socket() {
   if (!fd.valid()) {
     const int e = errno;
     if (e == EAFNOSUPPORT || e == EPROTONOSUPPORT) {
-      return Status::error(e, "this kernel has no CAN support (socket(PF_CAN, SOCK_RAW, CAN_RAW) failed: " +
+      return Status::error(e, "cannot open CAN interface " + quoted(name) +
+                                  ": this kernel has no CAN support (socket(PF_CAN, SOCK_RAW, CAN_RAW) failed: " +
                                   errno_text(e) +
                                   "); run under scripts/vcan-env, or load the can and can-raw modules");
     }
@@ -161,9 +182,8 @@ Status SocketCanBus::open_socket() {
   }
 
   ifreq ifr{};
-  if (!fill_ifreq(ifr, name)) {
-    return Status::error(EINVAL, "invalid CAN interface name " + quoted(name) + " (1 to " +
-                                     std::to_string(IFNAMSIZ - 1) + " characters)");
+  if (const std::string problem = can_interface_name_problem(name); !problem.empty() || !fill_ifreq(ifr, name)) {
+    return Status::error(EINVAL, "invalid CAN interface name " + quoted(name) + ": " + problem);
   }
   if (::ioctl(fd.get(), SIOCGIFINDEX, &ifr) != 0) {
     const int e = errno;

@@ -14,6 +14,7 @@
 #include <optional>
 #include <span>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "pmsm/hal/can_bus.hpp"
@@ -101,6 +102,12 @@ class SocketCanBus final : public CanBus {
   std::atomic<CanBusState> state_{CanBusState::kErrorActive};
   AtomicCounters counters_;
 };
+
+// Why `name` cannot name a network interface, or "" when it can: the kernel's rule
+// (dev_valid_name: 1 to 15 characters, not "." or "..", no '/', ':' or white space). For
+// configuration checks, so that a bad name is refused with the key that gave it before any
+// socket is opened.
+[[nodiscard]] std::string can_interface_name_problem(std::string_view name);
 
 // Converts between CanFrame and the kernel's frame layout; exposed for unit tests.
 namespace socketcan_detail {
