@@ -8,7 +8,8 @@
 //
 // Exit status: 0 after a clean stop (duration reached, SIGINT or SIGTERM) or a passing
 // --check; 1 when the bus cannot be opened (no CAN in the kernel, no such interface, no CAN
-// FD); 2 for a bad configuration; CLI11's codes for a bad command line.
+// FD); 2 for a bad configuration (also a model that diverged while running: its state stopped
+// being a number); CLI11's codes for a bad command line.
 #include <signal.h>
 
 #include <algorithm>
@@ -294,10 +295,17 @@ int run(const Options& o) {
     monitor.stop();
   }
   const double wall_s = static_cast<double>(pmsm::hal::monotonic_ns() - t0_ns) * 1e-9;
+  if (reason == pmsm::plant::StopReason::kDiverged) {
+    spdlog::error("the model diverged at {:.6g} s of simulated time (its currents or speed are no longer numbers): a "
+                  "machine its integration cannot follow; check [motor] and simulation.substeps. Stopped",
+                  node->plant().diverged_at_s());
+  }
   spdlog::info("{}", summary_line(node->stats(), wall_s,
-                                  reason == pmsm::plant::StopReason::kDuration ? "duration reached" : "signal"));
+                                  reason == pmsm::plant::StopReason::kDuration   ? "duration reached"
+                                  : reason == pmsm::plant::StopReason::kDiverged ? "model diverged"
+                                                                                 : "signal"));
   logger->flush();
-  return 0;
+  return reason == pmsm::plant::StopReason::kDiverged ? kExitConfig : 0;
 }
 
 }  // namespace
@@ -308,7 +316,9 @@ int main(int argc, char** argv) {
   app.set_version_flag("--version", std::string("pmsm-plant ") + PMSM_VERSION);
   app.add_option("--config", o.config_path, "plant configuration (TOML), e.g. plant-emulator/profiles/reference.toml")
       ->required();
-  app.add_option("--iface", o.iface, "CAN interface (CAN FD, MTU 72)")->capture_default_str();
+  app.add_option("--iface", o.iface, "CAN interface (CAN FD, MTU 72)")
+      ->capture_default_str()
+      ->check(CLI::Validator([](std::string& name) { return pmsm::hal::can_interface_name_problem(name); }, "NAME"));
   app.add_option("--node", o.node, "node id 0..15 (added to every CAN ID)")->check(CLI::Range(0, 15))
       ->capture_default_str();
   app.add_option("--mode", o.mode, "lockstep: one period per command (deterministic); realtime: own clock")

@@ -240,6 +240,9 @@ StopReason PlantNode::run_lockstep(const std::atomic<bool>& stop) {
     if (duration_reached()) {
       return StopReason::kDuration;
     }
+    if (plant_.diverged()) {
+      return StopReason::kDiverged;
+    }
     if (!up) {
       if (!recover_interface(stop)) {
         return StopReason::kStopRequested;
@@ -324,6 +327,9 @@ StopReason PlantNode::run_realtime(const std::atomic<bool>& stop) {
     }
     if (duration_reached()) {
       return StopReason::kDuration;
+    }
+    if (plant_.diverged()) {
+      return StopReason::kDiverged;
     }
     if (!up) {
       if (!recover_interface(stop)) {

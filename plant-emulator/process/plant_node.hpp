@@ -110,7 +110,9 @@ struct PlantNodeStats {
   }
 };
 
-enum class StopReason : std::uint8_t { kDuration, kStopRequested };
+// kDiverged: the model's state stopped being a number (Plant::diverged), a machine its
+// integration cannot follow; nothing it would send after that means anything.
+enum class StopReason : std::uint8_t { kDuration, kStopRequested, kDiverged };
 
 class PlantNode {
  public:

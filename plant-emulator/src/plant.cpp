@@ -147,8 +147,13 @@ const PlantConfig& validated(const PlantConfig& config) {
   return config;
 }
 
+// An ADC's code for v; a reading that is no number (a model that diverged: Plant::diverged)
+// reads as code 0, never through a float-to-integer cast of NaN, which is undefined.
 template <typename T>
 T clamp_code(double v, double lo, double hi) {
+  if (std::isnan(v)) {
+    return T{0};
+  }
   return static_cast<T>(std::clamp(std::nearbyint(v), lo, hi));
 }
 
@@ -206,6 +211,16 @@ struct Plant::Impl {
   std::uint64_t trip_sample = 0;  // sample at which the over-current trip latched
   bool gates_now = false;  // gates switch in the period that starts at the current sample
   std::uint64_t sequence_errors = 0;
+  // The time of the first period whose state came out no number (NaN or infinite), -1 while
+  // finite: a model the integration could not follow (Plant::diverged).
+  double diverged_at_s = -1.0;
+
+  void check_finite() {
+    if (diverged_at_s < 0.0 &&
+        !std::isfinite(x.id_A + x.iq_A + x.theta_m_rad + x.omega_m_rad_s + x.dyno_int_rad)) {
+      diverged_at_s = static_cast<double>(k - 1) * Ts_s;  // called after the period, k advanced
+    }
+  }
   hal::SensorSample sample{};
   std::array<double, 3> v_avg_V{};
   double copper_loss_W = 0.0;
@@ -943,8 +958,8 @@ struct Plant::Impl {
       angle += kTwoPi;
     }
     double count = std::floor(angle / kTwoPi * encoder_counts);
-    if (count >= encoder_counts) {
-      count = 0.0;
+    if (!(count >= 0.0 && count < encoder_counts)) {
+      count = 0.0;  // also a diverged model's NaN: never cast to an integer
     }
     out.encoder_count = static_cast<std::uint16_t>(count);
     const double vdc = aux.dc_bus_V + noise(cfg.dc_bus_adc.noise_enabled, cfg.dc_bus_adc.noise_V);
@@ -1007,6 +1022,7 @@ struct Plant::Impl {
     const bool delayed = cfg.inverter.computation_delay_periods == 1;
     const PeriodInput in = input_for(delayed ? latched : cmd);
     simulate_period(in);
+    check_finite();
     // A disabling command computed after the trip was reported acknowledges it and clears
     // the latch for the following periods.
     if (tripped && !cmd.enable && cmd.sequence >= trip_sample) {
@@ -1032,6 +1048,7 @@ struct Plant::Impl {
     in.vd_V = vd_V;
     in.vq_V = vq_V;
     simulate_period(in);
+    check_finite();
     finish_sample(true);
     set_flags();
     return sample;
@@ -1117,6 +1134,10 @@ std::uint32_t Plant::period() const { return static_cast<std::uint32_t>(impl_->k
 double Plant::period_s() const { return impl_->Ts_s; }
 const PlantConfig& Plant::config() const { return impl_->cfg; }
 std::uint64_t Plant::command_sequence_errors() const { return impl_->sequence_errors; }
+
+bool Plant::diverged() const { return impl_->diverged_at_s >= 0.0; }
+
+double Plant::diverged_at_s() const { return impl_->diverged_at_s; }
 
 void Plant::set_ambient_C(double ambient_C) { impl_->ambient_C = ambient_C; }
 

@@ -26,6 +26,28 @@ std::string error_of(const std::string& text,
   return "";
 }
 
+// The winding's electrical time constant against the integration's step: RK4 on a period
+// (or a substep) must follow it, or the model runs away (a 400 ohm winding on the reference's
+// inductances reached 78 million C; 0.1 nH gave NaN currents).
+TEST(plant_config, TheWindingsTimeConstantMustSpanTwoIntegrationSteps) {
+  const std::string runaway = error_of("[motor]\nrs_ohm = 400.0\n");
+  EXPECT_NE(runaway.find("motor.rs_ohm: the winding's electrical time constant"), std::string::npos) << runaway;
+  EXPECT_NE(runaway.find("6.87e-06 s, is shorter than two integration steps"), std::string::npos) << runaway;
+  EXPECT_NE(runaway.find("raise simulation.substeps to 30"), std::string::npos) << runaway;
+  const std::string tiny = error_of("[motor]\nld_H = 1e-10\n[saturation]\nenabled = false\n");
+  EXPECT_NE(tiny.find("raise simulation.substeps to its 64 and lower the PWM period"), std::string::npos) << tiny;
+  // 0.3 mH over twice 1 ohm is 0.15 ms: not two 100 us steps, but two 50 us substeps.
+  const std::string fast = "[motor]\nrs_ohm = 1.0\nld_H = 0.3e-3\nlq_H = 0.3e-3\n[saturation]\nenabled = false\n";
+  const std::string one_step = error_of(fast);
+  EXPECT_NE(one_step.find("0.00015 s, is shorter than two integration steps"), std::string::npos) << one_step;
+  EXPECT_NE(one_step.find("raise simulation.substeps to 2"), std::string::npos) << one_step;
+  EXPECT_EQ(error_of(fast + "[simulation]\nsubsteps = 2\n"), "");
+  // The saturated inductances count where saturation is on.
+  const std::string saturated =
+      error_of("[motor]\nrs_ohm = 1.0\n[saturation]\nenabled = true\nld_sat_H = 0.3e-3\nlq_sat_H = 0.3e-3\n");
+  EXPECT_NE(saturated.find("is shorter than two integration steps"), std::string::npos) << saturated;
+}
+
 TEST(plant_config, ShippedProfilesParse) {
   for (const char* name : {"reference.toml", "voltage-sensed.toml", "ideal.toml"}) {
     SCOPED_TRACE(name);

@@ -68,6 +68,27 @@ TEST(plant_sensors, CurrentAdcOffsetAndNoiseAtZeroCurrent) {
   }
 }
 
+// A state that came out no number (here a NaN voltage through the test hook; a configuration
+// the integration cannot follow is refused by the config's time-constant rule) is told by
+// diverged(), and the sample's codes stay defined: no float-to-integer cast of NaN.
+TEST(plant_sensors, ADivergedModelIsToldAndItsCodesStayDefined) {
+  PlantConfig c;
+  Plant plant(c);
+  (void)plant.step_with_dq_voltage(10.0, 10.0);
+  EXPECT_FALSE(plant.diverged());
+  EXPECT_EQ(plant.diverged_at_s(), -1.0);
+  const double at_s = plant.time_s();
+  const hal::SensorSample& s = plant.step_with_dq_voltage(std::nan(""), 0.0);
+  EXPECT_TRUE(plant.diverged());
+  EXPECT_DOUBLE_EQ(plant.diverged_at_s(), at_s);
+  for (const std::int16_t code : s.phase_current_adc) {
+    EXPECT_EQ(code, 0);
+  }
+  EXPECT_EQ(s.encoder_count, 0U);
+  (void)plant.step_with_dq_voltage(10.0, 10.0);
+  EXPECT_DOUBLE_EQ(plant.diverged_at_s(), at_s) << "the first period stays the one reported";
+}
+
 TEST(plant_sensors, CurrentAdcGainErrorPerPhase) {
   PlantConfig c;
   hold_shaft(c);

@@ -97,6 +97,14 @@ class Plant {
   // Commands whose sequence did not match the sample they should have been computed from.
   [[nodiscard]] std::uint64_t command_sequence_errors() const;
 
+  // The model's state came out no number (NaN or infinite) at some period: a machine its
+  // integration cannot follow, which validate_plant_config's time-constant rule keeps out, or
+  // a non-finite input through step_with_dq_voltage. The samples after it are meaningless
+  // (their codes are defined: 0); a caller stops and says so. diverged_at_s() is the start of
+  // the first such period (-1 while finite).
+  [[nodiscard]] bool diverged() const;
+  [[nodiscard]] double diverged_at_s() const;
+
   // Run-time changes for scenarios (no allocation).
   void set_ambient_C(double ambient_C);
   void set_temperatures_C(double winding_C, double housing_C, double rotor_C);
