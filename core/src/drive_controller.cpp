@@ -750,11 +750,16 @@ void DriveController::update_thermal(double ambient_C) {
   telemetry_.thermal = e;
   telemetry_.thermal_valid = true;
   telemetry_.current_limit_A = derating_.current_limit_A;
-  // Time-to-limit is slower to compute; every tenth update is plenty.
+  // Time-to-limit is slower to compute; every tenth update is plenty. Its limit is the derating
+  // threshold (DRIVE_STATUS TimeToLimit): the time until the drive starts to take current away,
+  // i.e. until the upper bound it derates on, T + k sigma, reaches derating.start_C (with the
+  // present sigma), 0 once it derates. (Until 2026-11-29 it was derating.limit_C, the floor's
+  // temperature, which a derating drive seldom reaches: the prediction said "never" under a load
+  // that derated 10 s later.)
   if (++thermal_updates_ % 10 == 0) {
     double t = 0.0;
-    telemetry_.time_to_limit_valid =
-        observer_.time_to_limit_s(config_.derating.limit_C, i_sq, speed, ambient_C, &t);
+    const double threshold_C = config_.derating.derate_start_C - config_.derating.confidence_sigma * e.winding_std_C;
+    telemetry_.time_to_limit_valid = observer_.time_to_limit_s(threshold_C, i_sq, speed, ambient_C, &t);
     telemetry_.time_to_limit_s = telemetry_.time_to_limit_valid ? t : 0.0;
   }
 }

@@ -81,7 +81,7 @@ TEST(Scenario, BaseInheritanceOverrideWinsAndBaseKeysStay) {
 
 TEST(Scenario, ErrorInTheBaseNamesTheBaseFile) {
   EXPECT_EQ(error_of([] { (void)load_scenario(kDir / "scenario_child_of_bad.toml"); }),
-            path_of("scenario_bad_base.toml") + ":4: scenario.duration_s: must be in (0, 1e+06], got -1");
+            path_of("scenario_bad_base.toml") + ":4: scenario.duration_s: must be in [0.1, 1e+06], got -1");
 }
 
 // A device or a directory named as a file is refused by name, never read (/dev/zero would be
@@ -105,7 +105,7 @@ TEST(Scenario, MissingBaseIsReported) {
 
 TEST(Scenario, ErrorsInTheScenarioNameFileLineAndKey) {
   EXPECT_EQ(inline_error("[scenario]\nname = \"x\"\nduration_s = -1\n[operation]\nspeed_rad_s = [[0, 1]]\n"),
-            path_of("inline.toml") + ":3: scenario.duration_s: must be in (0, 1e+06], got -1");
+            path_of("inline.toml") + ":3: scenario.duration_s: must be in [0.1, 1e+06], got -1");
   EXPECT_EQ(inline_error("[scenario]\ndurations = 3\n"),
             path_of("inline.toml") + ":2: scenario.durations: unknown key (did you mean scenario.duration_s?)");
   EXPECT_EQ(inline_error("[operation]\nmode = \"position\"\n"),
@@ -140,6 +140,26 @@ TEST(Scenario, ErrorsInTheScenarioNameFileLineAndKey) {
 }
 
 // The [controller] table keeps its lines (it is not copied).
+// [plant] and [controller] are read by their own parsers; given as anything but a section they
+// are an error, not skipped with every key they were meant to hold.
+TEST(Scenario, APlantOrControllerThatIsNoSectionIsAnError) {
+  EXPECT_EQ(inline_error("plant = \"x\"\n[operation]\nspeed_rad_s = [[0, 1]]\n"),
+            path_of("inline.toml") + ":1: plant: expected a table (section [plant]), got a string");
+  EXPECT_EQ(inline_error("controller = 5\n[operation]\nspeed_rad_s = [[0, 1]]\n"),
+            path_of("inline.toml") + ":1: controller: expected a table (section [controller]), got an integer");
+}
+
+// A profile is inline or from a CSV: both in one file is a mistake, named with both lines.
+TEST(Scenario, AProfileBothInlineAndFromCsvIsAnError) {
+  EXPECT_EQ(inline_error("[operation]\nspeed_rad_s = [[0, 1]]\nspeed_csv = \"speed.csv\"\n"),
+            path_of("inline.toml") +
+                ":3: operation.speed_csv: given together with operation.speed_rad_s (line 2): a profile is either inline "
+                "or from a CSV file; remove one");
+  // Too short to see a thermal update.
+  EXPECT_EQ(inline_error("[scenario]\nduration_s = 1e-5\n[operation]\nspeed_rad_s = [[0, 1]]\n"),
+            path_of("inline.toml") + ":2: scenario.duration_s: must be in [0.1, 1e+06], got 1e-05");
+}
+
 TEST(Scenario, ControllerErrorNamesTheLine) {
   EXPECT_EQ(inline_error("[operation]\nspeed_rad_s = [[0, 1]]\n[controller.injection]\nF_A = 2000\n"),
             path_of("inline.toml") + ":4: controller.injection.F_A: must be in (0, 1000], got 2000");
@@ -148,7 +168,7 @@ TEST(Scenario, ControllerErrorNamesTheLine) {
 // Keys that override a base keep their lines.
 TEST(Scenario, ErrorInAnOverrideOfABaseNamesTheLine) {
   EXPECT_EQ(inline_error("[scenario]\nbase = \"scenario_base.toml\"\nduration_s = -1\n"),
-            path_of("inline.toml") + ":3: scenario.duration_s: must be in (0, 1e+06], got -1");
+            path_of("inline.toml") + ":3: scenario.duration_s: must be in [0.1, 1e+06], got -1");
 }
 
 // So do plant overrides in a scenario that has a base.

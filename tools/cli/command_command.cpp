@@ -35,7 +35,25 @@ struct CommandOptions {
   std::optional<double> duration_s;
   std::optional<double> calibrate_at_C;
   bool inject_now = false;
+  std::string injection_method = "fixed-magnitude-bipolar";
+  double injection_interval_s = 0.0;
 };
+
+// INJECTION_COMMAND's methods by the names the command line takes (the DBC's labels in lower
+// case with dashes).
+protocol::InjectionMethod injection_method(const std::string& name) {
+  if (name == "fixed-magnitude-unipolar") return protocol::InjectionMethod::kFixedMagnitudeUnipolar;
+  if (name == "fixed-angle-bipolar") return protocol::InjectionMethod::kFixedAngleBipolar;
+  if (name == "fixed-angle-unipolar") return protocol::InjectionMethod::kFixedAngleUnipolar;
+  if (name == "dc") return protocol::InjectionMethod::kDc;
+  return protocol::InjectionMethod::kFixedMagnitudeBipolar;
+}
+
+// A command line option's range is its signal's: a value the frame cannot carry is refused
+// here, never sent saturated (docs/protocol.md: a saturated command must not be sent).
+CLI::Validator signal_range(const protocol::SignalDef& signal) {
+  return pmsm::cli::number_in_range(signal.minimum, signal.maximum);
+}
 
 int run_command(const CommandOptions& o) {
   hal::SocketCanConfig config;
@@ -53,8 +71,10 @@ int run_command(const CommandOptions& o) {
   hal::CanFrame frame{};
   auto send = [&](const auto& message) {
     const protocol::EncodeStatus e = sender.encode(message, frame);
-    if (e != protocol::EncodeStatus::kOk && e != protocol::EncodeStatus::kSaturated) {
-      std::fprintf(stderr, "pmsm-thermal command: a value is out of the protocol's range\n");
+    if (e != protocol::EncodeStatus::kOk) {
+      // The options' ranges are the signals' (above), so this is a defect, not a user's value.
+      std::fprintf(stderr, "pmsm-thermal command: frame 0x%03X not sent: a value is out of its signal's range\n",
+                   frame.id);
       return false;
     }
     return bus->send(frame, std::chrono::milliseconds{10}) == hal::SendResult::kOk;
@@ -74,7 +94,9 @@ int run_command(const CommandOptions& o) {
   }
   if (o.inject_now) {
     protocol::InjectionCommand i;
-    i.method = protocol::InjectionMethod::kFixedMagnitudeBipolar;
+    // The frame sets the method and the interval too (amplitude 0: the drive keeps its own).
+    i.method = injection_method(o.injection_method);
+    i.interval_s = o.injection_interval_s;
     i.request_now = true;
     (void)send(i);
   }
@@ -101,21 +123,36 @@ int run_command(const CommandOptions& o) {
 void register_command_command(CLI::App& app, int& exit_code) {
   auto options = std::make_shared<CommandOptions>();
   CLI::App* cmd = app.add_subcommand("command", "Send E2E-protected drive commands to pmsm-thermald (the supervisor's role)");
-  cmd->add_option("--iface", options->iface, "CAN interface")->capture_default_str();
+  cmd->add_option("--iface", options->iface, "CAN interface")
+      ->capture_default_str()
+      ->check(CLI::Validator([](std::string& name) { return hal::can_interface_name_problem(name); }, "NAME"));
   cmd->add_option("--node", options->node, "node id of the axis, 0..15")->check(CLI::Range(0, 15))->capture_default_str();
   cmd->add_option("--mode", options->mode, "speed, torque or disabled")
       ->check(CLI::IsMember({"speed", "torque", "disabled"}))
       ->capture_default_str();
-  cmd->add_option("--speed", options->speed_rad_s, "speed set-point, mechanical rad/s")->check(pmsm::cli::number_in_range(-2000.0, 2000.0));
-  cmd->add_option("--torque", options->torque_Nm, "torque set-point, Nm")->check(pmsm::cli::number_in_range(-1000.0, 1000.0));
+  cmd->add_option("--speed", options->speed_rad_s, "speed set-point, mechanical rad/s")
+      ->check(signal_range(protocol::drive_command::kSpeedSetpoint));
+  cmd->add_option("--torque", options->torque_Nm, "torque set-point, Nm")->check(signal_range(protocol::drive_command::kTorqueSetpoint));
   cmd->add_option("--period-ms", options->period_ms, "time between DRIVE_COMMAND frames (below the daemon's command timeout)")
       ->check(pmsm::cli::number_in_range(1.0, 10000.0))
       ->capture_default_str();
   cmd->add_option("--duration", options->duration_s, "stop after this many seconds (default: until Ctrl-C)")
       ->check(pmsm::cli::number_in_range(0.0, 1e7));
   cmd->add_option("--calibrate-at", options->calibrate_at_C, "start an Rs0 calibration: the winding's temperature now, C")
-      ->check(pmsm::cli::number_in_range(-40.0, 200.0));
-  cmd->add_flag("--inject-now", options->inject_now, "request one injection event (fixed-magnitude bipolar)");
+      ->check(signal_range(protocol::calibration_command::kKnownTemp));
+  CLI::Option* interval =
+      cmd->add_option("--injection-interval", options->injection_interval_s,
+                      "with --inject-now: the time between the drive's periodic injections from then on, s (0: only on "
+                      "request); INJECTION_COMMAND sets it with every request")
+          ->check(signal_range(protocol::injection_command::kInterval));
+  cmd->add_option("--injection-method", options->injection_method, "with --inject-now: the method from then on")
+      ->check(CLI::IsMember({"fixed-magnitude-bipolar", "fixed-magnitude-unipolar", "fixed-angle-bipolar",
+                             "fixed-angle-unipolar", "dc"}))
+      ->capture_default_str();
+  cmd->add_flag("--inject-now", options->inject_now,
+                "request one injection event now (INJECTION_COMMAND; it also sets --injection-method and "
+                "--injection-interval, which must be given)")
+      ->needs(interval);
   cmd->callback([options, &exit_code] { exit_code = run_command(*options); });
 }
 

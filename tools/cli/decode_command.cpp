@@ -387,6 +387,12 @@ int run_decode(const DecodeOptions& o) {
     std::fprintf(stderr, "decode: cannot read the DBC: %s\n", e.what());
     return kExitInput;
   }
+  if (db.messages.empty()) {
+    // An empty file, or one that is no DBC: every frame would be "unknown", exit 0.
+    std::fprintf(stderr, "decode: the DBC %s defines no messages (no BO_ line): nothing could be decoded\n",
+                 dbc_path.c_str());
+    return kExitInput;
+  }
 
   const bool from_stdin = o.input.empty() || o.input == "-";
   std::ifstream file;

@@ -78,6 +78,9 @@ struct Axis {
   std::optional<protocol::LoopTiming> timing;
   double worst_latency_us = 0.0;
   std::uint64_t timing_windows = 0, deadline_misses = 0;
+  // Windows whose LatencyMax or DeadlineMisses stood at the signal's top: the figures are then
+  // lower bounds, and the summary says "at least".
+  bool latency_saturated = false, misses_saturated = false;
   // The commands this monitor has seen, per stream: alive counter checked as the daemon does.
   std::array<protocol::AliveCounterCheck, protocol::kMessageCount> counters;
   // Error statistics of calibrated estimates where the truth is above the threshold.
@@ -160,6 +163,8 @@ class Monitor {
       a.worst_latency_us = std::max(a.worst_latency_us, lt->latency_max_us);
       ++a.timing_windows;
       a.deadline_misses += lt->deadline_misses;
+      a.latency_saturated = a.latency_saturated || lt->latency_max_us >= protocol::loop_timing::kLatencyMax.maximum;
+      a.misses_saturated = a.misses_saturated || lt->deadline_misses >= protocol::loop_timing::kDeadlineMisses.maximum;
     } else if (const auto* h = std::get_if<protocol::Heartbeat>(&d.message)) {
       if (!a.plant_time) {
         set_time(a, h->uptime_s);
@@ -297,7 +302,10 @@ class Monitor {
     if (a.status) {
       out += fmt::format("  {}  limit {:.0f} A", label(protocol::kDriveStateLabels, static_cast<std::int64_t>(a.status->state)),
                          a.status->current_limit_A);
-      out += a.status->time_to_limit_valid ? fmt::format("  to limit {:.0f} s", a.status->time_to_limit_s) : "";
+      // TimeToLimit: until the drive starts to derate (0: it derates now, which the limit shows).
+      out += a.status->time_to_limit_valid && a.status->time_to_limit_s > 0.0
+                 ? fmt::format("  derates in {:.0f} s", a.status->time_to_limit_s)
+                 : "";
     }
     if (a.receive && rejections(*a.receive) != 0U) {
       out += fmt::format("  daemon rejected {} (crc {}, counter {}, range {}, format {}, other {})", rejections(*a.receive),
@@ -347,10 +355,15 @@ class Monitor {
                     static_cast<unsigned long long>(rejections(*a.receive)));
       }
       if (a.timing) {
-        std::printf("node %2d  control loop (last window): sample->command median < %.0f us, p99 < %.0f us; worst %.1f us "
-                    "over %llu window(s), %llu deadline miss(es)\n",
-                    node, a.timing->latency_p50_us, a.timing->latency_p99_us, a.worst_latency_us,
-                    static_cast<unsigned long long>(a.timing_windows), static_cast<unsigned long long>(a.deadline_misses));
+        // A window's LatencyMax and DeadlineMisses saturate (6553.5 us, 255): then the worst and
+        // the sum are at least what they say (the daemon's log has the exact figures).
+        std::printf("node %2d  control loop (last window): sample->command median < %.0f us, p99 < %.0f us; worst %s%.1f us "
+                    "over %llu window(s), %s%llu deadline miss(es)%s\n",
+                    node, a.timing->latency_p50_us, a.timing->latency_p99_us, a.latency_saturated ? "at least " : "",
+                    a.worst_latency_us, static_cast<unsigned long long>(a.timing_windows),
+                    a.misses_saturated ? "at least " : "", static_cast<unsigned long long>(a.deadline_misses),
+                    a.latency_saturated || a.misses_saturated ? " (LOOP_TIMING saturated; the daemon's log has the exact figures)"
+                                                              : "");
       }
       if (a.n > 0U) {
         const double rms = std::sqrt(a.sq / static_cast<double>(a.n));
@@ -459,7 +472,8 @@ int run_monitor(MonitorOptions o) {
 void register_monitor_command(CLI::App& app, int& exit_code) {
   auto o = std::make_shared<MonitorOptions>();
   CLI::App* cmd = app.add_subcommand("monitor", "Watch the axes on a bus (or in a candump log): temperatures, state, faults");
-  cmd->add_option("iface", o->iface, "CAN interface to open (e.g. vcan0)");
+  cmd->add_option("iface", o->iface, "CAN interface to open (e.g. vcan0)")
+      ->check(CLI::Validator([](std::string& name) { return hal::can_interface_name_problem(name); }, "NAME"));
   cmd->add_option("--log", o->log, "read a candump log instead ('-': stdin)");
   cmd->add_option("--node", o->node, "only this node")->check(CLI::Range(0, 15));
   cmd->add_option("--every", o->every_s, "seconds of drive time between lines per axis")->check(pmsm::cli::number_in_range(0.0, 1e6))->capture_default_str();

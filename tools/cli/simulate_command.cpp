@@ -105,6 +105,10 @@ Report run_one(const std::string& path, const SimulateOptions& o) {
     r.err += fmt::format("simulate: the stored calibration cannot be used: {}\n", e.what());
     r.status = 2;
     return r;
+  } catch (const PlantDivergedError& e) {
+    r.err += fmt::format("simulate: {}: {}; no figures\n", path, e.what());
+    r.status = 2;
+    return r;
   }
   int& status = r.status;
   if (result.calibration_failure != core::CalibrationFailure::kNone) {
@@ -155,6 +159,20 @@ int run_simulate(const SimulateOptions& o) {
   if (o.scenario_paths.size() > 1 && (!o.csv_path.empty() || !o.plot_path.empty())) {
     std::fprintf(stderr, "simulate: --csv and --plot take one scenario; use --plot-dir for several\n");
     return 2;
+  }
+  // An output written over an input: the scenario would be replaced by its own CSV or plot.
+  for (const std::string& output : {o.csv_path, o.plot_path}) {
+    if (output.empty()) {
+      continue;
+    }
+    std::error_code ec;
+    for (const std::string& path : o.scenario_paths) {
+      if (std::filesystem::equivalent(output, path, ec)) {
+        std::fprintf(stderr, "simulate: %s is the scenario %s itself: refusing to write the output over it\n",
+                     output.c_str(), path.c_str());
+        return 2;
+      }
+    }
   }
   // -j N: N scenarios at a time, each (with its own twin thread) independent of the others;
   // reports are printed in the order the scenarios were given, each as soon as it and those

@@ -532,6 +532,12 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
     }
 
     plant.step(*step.command);
+    if (plant.diverged()) {
+      throw PlantDivergedError(fmt::format(
+          "the plant's model diverged at {:.6g} s (its currents or speed are no longer numbers): a machine its "
+          "integration cannot follow; check [plant.motor] and plant.simulation.substeps",
+          plant.diverged_at_s()));
+    }
 
     if (tty && (k & 0x3FFF) == 0) {
       const auto now = std::chrono::steady_clock::now();

@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <functional>
 #include <limits>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -13,6 +14,13 @@
 #include "scenario.hpp"
 
 namespace pmsm::app {
+
+// The plant's model stopped being a number (Plant::diverged): a machine its integration cannot
+// follow that the plant's configuration rules did not catch. The run stops there; what it
+// computed after that would be meaningless.
+struct PlantDivergedError : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
 
 struct RunOptions {
   bool progress = false;            // a progress line on stderr (for terminals)

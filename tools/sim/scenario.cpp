@@ -6,6 +6,7 @@
 #include <fstream>
 #include <optional>
 #include <string_view>
+#include <utility>
 #include <regex>
 #include <sstream>
 
@@ -172,7 +173,9 @@ ConfigSchema<S> build_schema() {
   ConfigSchema<S> s;
   s.string("scenario.name", [](S& c) -> std::string& { return c.name; }, "Name used in reports.");
   s.string("scenario.description", [](S& c) -> std::string& { return c.description; }, "One line for the reader.");
-  s.real("scenario.duration_s", [](S& c) -> double& { return c.duration_s; }, positive(1e6), "s", "Simulated time.");
+  s.real("scenario.duration_s", [](S& c) -> double& { return c.duration_s; }, between(0.1, 1e6), "s",
+         "Simulated time (at least 0.1 s: the drive's thermal filter, which every estimate and figure goes through, "
+         "updates every 10 ms).");
   s.real("scenario.thermal_acceleration", [](S& c) -> double& { return c.thermal_acceleration; }, positive(1e5), "",
          "Thermal time runs this many times faster, in the plant and in the controller's thermal model alike.");
   s.real("scenario.ambient_C", [](S& c) -> double& { return c.ambient_C; }, between(-40, 80), "C",
@@ -221,7 +224,7 @@ void merge(toml::table& base, toml::table&& overrides) {
 
 plant::PlantConfig load_plant(const toml::table& root, const std::filesystem::path& source) {
   const std::filesystem::path dir = source.parent_path();
-  const toml::table* plant_table = root.get_as<toml::table>("plant");
+  const toml::table* plant_table = common::optional_section(root, "plant", source.string());
   toml::table merged;
   if (plant_table != nullptr) {
     if (const auto profile = (*plant_table)["profile"].value<std::string>()) {
@@ -327,13 +330,36 @@ toml::table resolve_base(toml::table root, const std::filesystem::path& source, 
 }  // namespace
 
 Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path& source) {
-  const toml::table root = resolve_base(parse_toml(toml_text, source), source, 0);
+  toml::table root = resolve_base(parse_toml(toml_text, source), source, 0);
   Scenario out;
   out.source = source;
   schema().apply(root, out.scenario, source.string(),
                  {"plant", "controller", "scenario.seed", "operation.speed_rad_s", "operation.torque_Nm", "operation.speed_csv",
                   "operation.torque_csv"});
-  // Set-point profiles, inline or from CSV.
+  // Set-point profiles, inline or from CSV: one of the two. Given in the same file, both is a
+  // mistake (one would be ignored); a scenario may replace its base's profile with the other
+  // form, and then its own wins.
+  for (const auto& [inline_key, csv_key] : {std::pair{"operation.speed_rad_s", "operation.speed_csv"},
+                                            std::pair{"operation.torque_Nm", "operation.torque_csv"}}) {
+    const auto points = root.at_path(inline_key);
+    const auto csv = root.at_path(csv_key);
+    if (!points || !csv) {
+      continue;
+    }
+    const auto file_of = [&](const toml::node& n) {
+      return n.source().path && !n.source().path->empty() ? *n.source().path : source.string();
+    };
+    const std::string points_file = file_of(*points.node());
+    const std::string csv_file = file_of(*csv.node());
+    if (points_file == csv_file) {
+      throw ConfigError(where(*csv.node(), source.string(), csv_key) + "given together with " + std::string(inline_key) +
+                        " (line " + std::to_string(points.node()->source().begin.line) +
+                        "): a profile is either inline or from a CSV file; remove one");
+    }
+    // The scenario's own (or the nearer base's: the one that is `source`) replaces the other.
+    const std::string_view dropped = points_file == source.string() ? std::string_view(csv_key) : std::string_view(inline_key);
+    root["operation"].as_table()->erase(dropped.substr(dropped.find('.') + 1));
+  }
   const std::filesystem::path dir = source.parent_path();
   if (const auto node = root.at_path("operation.speed_rad_s")) {
     out.scenario.speed_rad_s = read_points(*node.node(), source.string(), "operation.speed_rad_s", kSpeedLimits);
@@ -403,7 +429,7 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
   // The controller: the same sections as pmsm-thermald's configuration, under [controller]
   // (parsed in place, so that messages keep the file's line numbers).
   static const toml::table kEmpty;
-  const toml::table* controller_table = root.get_as<toml::table>("controller");
+  const toml::table* controller_table = common::optional_section(root, "controller", source.string());
   out.controller = parse_controller_config(controller_table != nullptr ? *controller_table : kEmpty, source.string(), {},
                                            "controller.");
   // The scenario's acceleration applies to the controller's thermal model too, unless the

@@ -791,6 +791,10 @@ int decimals_for(double step) {
 Database parse(std::string_view text) { return Parser(text).run(); }
 
 Database load(const std::filesystem::path& path) {
+  std::error_code ec;
+  if (std::filesystem::is_directory(path, ec)) {
+    throw ParseError(0, "is a directory, not a DBC file", path.string());  // an ifstream opens one
+  }
   std::ifstream in(path, std::ios::binary);
   if (!in) {
     throw ParseError(0, "cannot read the DBC file", path.string());
