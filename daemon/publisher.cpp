@@ -1,7 +1,9 @@
 #include "publisher.hpp"
 
-#include <fmt/format.h>
+#include <cmath>
 #include <numbers>
+
+#include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
 #include "calibration_file.hpp"
@@ -230,8 +232,11 @@ void Publisher::handle(const PublicationRecord& r) {
   }
   if (r.calibration_to_store) {
     const core::Calibration& c = *r.calibration_to_store;
-    spdlog::info("calibration done: Rs0 {:.5f} ohm at {:.1f} C, Ke0 {:.4f} V s/rad, {}, {}", c.rs0_ohm, c.t0_C,
-                 c.ke0_V_s_per_rad,
+    // Ke0 in Eq. 3's form (phase peak volts per mechanical rad/s), and in motor.ke_V_s_per_rad's
+    // (line-to-line RMS: x sqrt(3/2)), so that it compares with the nameplate.
+    spdlog::info("calibration done: Rs0 {:.5f} ohm at {:.1f} C, Ke0 {:.4f} V s/rad phase peak ({:.4f} line-to-line RMS, "
+                 "the form of motor.ke_V_s_per_rad), {}, {}",
+                 c.rs0_ohm, c.t0_C, c.ke0_V_s_per_rad, c.ke0_V_s_per_rad * std::sqrt(1.5),
                  c.dead_time_band_A > 0.0 ? fmt::format("bridge band {:.3f} A (swept)", c.dead_time_band_A)
                                           : std::string("bridge band not measured (the configured one holds)"),
                  c.vx_std_V > 0.0 ? fmt::format("bridge voltage Vx {:.3f} +- {:.3f} V", c.vx_V, c.vx_std_V)

@@ -321,7 +321,7 @@ int main(int argc, char** argv) {
       ->check(CLI::Validator([](std::string& name) { return pmsm::hal::can_interface_name_problem(name); }, "NAME"));
   app.add_option("--node", o.node, "node id 0..15 (added to every CAN ID)")->check(CLI::Range(0, 15))
       ->capture_default_str();
-  app.add_option("--mode", o.mode, "lockstep: one period per command (deterministic); realtime: own clock")
+  app.add_option("--mode", o.mode, "lockstep: one period per command (the plant is deterministic; the daemon's wall-clock timeouts need not be); realtime: own clock")
       ->check(CLI::IsMember({"lockstep", "realtime"}))->capture_default_str();
   app.add_option("--truth-period-ms", o.truth_period_ms,
                  "simulated time between TRUTH_THERMAL/TRUTH_ELECTRICAL/PLANT_STATUS publications, ms")

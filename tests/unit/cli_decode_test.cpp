@@ -224,6 +224,18 @@ TEST(cli_decode, AnUnreadableDbcIsNamedWithItsLine) {
   EXPECT_TRUE(contains(r.err, "decode: the DBC " + empty.path() + " defines no messages (no BO_ line)")) << r.err;
 }
 
+// Another axis's frames with the node-0 DBC: unknown, and the summary says whose they are.
+TEST(cli_decode, AnotherNodesFramesAreNamedInTheSummary) {
+  const TempFile log("(1.000000) vcan0 141#0000000000000000\n(1.100000) vcan0 111#0000000000000000\n"
+                     "(1.200000) vcan0 140#0000000000000000\n(1.300000) vcan0 7F3#00\n");
+  const ProcessResult r = run_process(kDecode + log.path());
+  EXPECT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_TRUE(contains(r.err, "1 decoded, 3 unknown")) << r.err;
+  EXPECT_TRUE(contains(r.err, "2 unknown frame(s) are this DBC's messages for node 1")) << r.err;
+  EXPECT_TRUE(contains(r.err, "pmsm-dbc-gen --node 1 --dbc node1.dbc")) << r.err;
+  EXPECT_FALSE(contains(r.err, "for node 3")) << "0x7F3 is no message's base: " << r.err;
+}
+
 TEST(cli_decode, AMissingInputFileIsNamed) {
   const ProcessResult r = run_process(kDecode + "/nonexistent/capture.log");
   EXPECT_EQ(r.exit_code, 2);

@@ -17,6 +17,15 @@ grep -q "0 not decodable (none)" "$work/out" || fail "a clean capture has undeco
 grep -q "node  0  daemon: 12 command(s) accepted, 7 frame(s) rejected" "$work/out" || fail "RECEIVE_STATUS not summarised"
 grep -q "sample->command median < 16 us, p99 < 64 us; worst 87.3 us" "$work/out" || fail "LOOP_TIMING not summarised"
 
+# RECEIVE_STATUS counts modulo 256: a second one a second later whose CommandsAccepted went
+# 12 -> 5 (249 more: it wrapped) and RejectedCrc 3 -> 4 is summed, not read as it stands.
+{
+  cat "$log"
+  echo "(1795493853.618043) vcan0 150#0504050402010100"
+} > "$work/wrap.log"
+"$exe" monitor --log "$work/wrap.log" > "$work/out"
+grep -q "node  0  daemon: 261 command(s) accepted, 8 frame(s) rejected" "$work/out" || fail "RECEIVE_STATUS's counts not unwrapped"
+
 # A replayed DRIVE_COMMAND (same alive counter) and one with a corrupted CRC.
 drive=$(grep -m1 " 040#" "$log")
 {
@@ -25,8 +34,8 @@ drive=$(grep -m1 " 040#" "$log")
   echo "${drive/040#7B/040#7C}"
 } > "$work/bad.log"
 "$exe" monitor --log "$work/bad.log" > "$work/out"
-grep -q "rejected frame 0x040: repeated_counter" "$work/out" || fail "a replayed command was not flagged"
-grep -q "rejected frame 0x040: bad_crc" "$work/out" || fail "a corrupt command was not flagged"
+grep -q "monitor: frame 0x040 fails this monitor's check: repeated_counter" "$work/out" || fail "a replayed command was not flagged"
+grep -q "monitor: frame 0x040 fails this monitor's check: bad_crc" "$work/out" || fail "a corrupt command was not flagged"
 grep -q "2 not decodable (bad_crc 1, repeated_counter 1)" "$work/out" || fail "the summary does not count both"
 # --node: another axis's frames (here node 0's, with node 3's HEARTBEAT beside them) stay out
 # of the summary, its checks included.

@@ -18,6 +18,7 @@
 // cantools: a bus usually carries traffic that one DBC does not describe.
 #include <unistd.h>
 
+#include <array>
 #include <cerrno>
 #include <cmath>
 #include <cstdint>
@@ -171,6 +172,7 @@ class Decoder {
     const std::optional<dbc::DecodedFrame> decoded = dbc::decode(db_, record.frame);
     if (!decoded) {
       ++counts_.unknown;
+      count_other_node(record.frame);
       emit(raw_line, LineKind::kUnknown, &record, nullptr, {}, {});
       return;
     }
@@ -259,6 +261,14 @@ class Decoder {
     for (std::size_t i = 0; i < db_.messages.size(); ++i) {
       if (c.per_message[i] != 0U) {
         text += fmt::format("  {:<22} {}\n", db_.messages[i].name, c.per_message[i]);
+      }
+    }
+    for (std::size_t node = 0; node < other_node_frames_.size(); ++node) {
+      if (other_node_frames_[node] != 0U) {
+        text += fmt::format(
+            "  {} unknown frame(s) are this DBC's messages for node {} (CAN ID = base + node): decode them with that "
+            "node's DBC, `pmsm-dbc-gen --node {} --dbc node{}.dbc`\n",
+            other_node_frames_[node], node, node, node);
       }
     }
     std::fputs(text.c_str(), stderr);
@@ -361,7 +371,24 @@ class Decoder {
     std::fwrite(text.data(), 1, text.size(), stdout);
   }
 
+  // The protocol's IDs are a base (a multiple of 0x10) plus the node id: an unknown 11-bit frame
+  // whose base is one of this DBC's messages belongs to another axis, which the summary says
+  // (a node-0 DBC on node 1's traffic decoded nothing and said only "unknown").
+  void count_other_node(const hal::CanFrame& frame) {
+    if (frame.extended || frame.id > 0x7FFU) {
+      return;
+    }
+    const std::uint32_t base = frame.id & ~std::uint32_t{0xF};
+    for (const dbc::Message& m : db_.messages) {
+      if (!m.extended && (m.id & ~std::uint32_t{0xF}) == base && m.id != frame.id) {
+        ++other_node_frames_[frame.id & 0xFU];
+        return;
+      }
+    }
+  }
+
   const dbc::Database& db_;
+  std::array<std::uint64_t, 16> other_node_frames_{};
   const DecodeOptions& options_;
   std::map<std::uint32_t, hal::protocol::AliveCounterCheck> counters_;  // per command CAN ID
   Counts counts_;

@@ -6,7 +6,7 @@
 #include "commands.hpp"
 
 int main(int argc, char** argv) {
-  CLI::App app{"pmsm-thermal: planning and analysis tools for the pmsm-thermal drive"};
+  CLI::App app{"pmsm-thermal: planning, simulation, bus and analysis tools for the pmsm-thermal drive"};
   app.require_subcommand(1);
   app.set_version_flag("--version", std::string("pmsm-thermal ") + PMSM_VERSION);
   int exit_code = 0;

@@ -75,6 +75,10 @@ struct Axis {
   std::uint64_t fault_reports = 0;
   std::uint64_t injections = 0, injections_accepted = 0;
   std::optional<protocol::ReceiveStatus> receive;  // the daemon's own rejections
+  // RECEIVE_STATUS's counts since the daemon started, modulo 256, unwrapped from one frame to
+  // the next (it comes every second, commands at most a few hundred a second): exact when this
+  // monitor listened from the daemon's start, short by multiples of 256 otherwise.
+  std::uint64_t accepted_seen = 0, rejected_seen = 0;
   std::optional<protocol::LoopTiming> timing;
   double worst_latency_us = 0.0;
   std::uint64_t timing_windows = 0, deadline_misses = 0;
@@ -126,7 +130,10 @@ class Monitor {
     if (status != protocol::DecodeStatus::kOk) {
       ++rejected_[static_cast<std::size_t>(status)];
       if (status != protocol::DecodeStatus::kUnknownId) {
-        event(fmt::format("rejected frame 0x{:03X}: {} ({})", frame.id, protocol::to_string(status), protocol::describe(status)));
+        // This monitor's own check of what it received (it may miss frames the daemon gets):
+        // the daemon's rejections are RECEIVE_STATUS's, reported as "the daemon rejected".
+        event(fmt::format("monitor: frame 0x{:03X} fails this monitor's check: {} ({})", frame.id, protocol::to_string(status),
+                          protocol::describe(status)));
       }
       return;
     }
@@ -156,6 +163,17 @@ class Monitor {
         event(fmt::format("node {}: the daemon rejected {} more frame(s); last 0x{:03X}: {}", d.node,
                           (rejections(*rs) - rejections(*a.receive)) & 0xFFU, rs->last_rejected_id,
                           label(protocol::kDecodeStatusLabels, rs->last_rejection)));
+      }
+      if (!a.receive) {
+        a.accepted_seen = rs->commands_accepted;  // since the daemon started, modulo 256
+        a.rejected_seen = rejections(*rs);
+      } else {
+        const auto delta = [](std::uint64_t now, std::uint64_t before) { return (now - before) & 0xFFU; };
+        a.accepted_seen += delta(rs->commands_accepted, a.receive->commands_accepted);
+        a.rejected_seen += delta(rs->rejected_crc, a.receive->rejected_crc) + delta(rs->rejected_counter, a.receive->rejected_counter) +
+                           delta(rs->rejected_range, a.receive->rejected_range) +
+                           delta(rs->rejected_format, a.receive->rejected_format) +
+                           delta(rs->rejected_other, a.receive->rejected_other);
       }
       a.receive = *rs;
     } else if (const auto* lt = std::get_if<protocol::LoopTiming>(&d.message)) {
@@ -350,9 +368,8 @@ class Monitor {
                   static_cast<unsigned long long>(a.injections), static_cast<unsigned long long>(a.injections_accepted),
                   static_cast<unsigned long long>(a.fault_reports));
       if (a.receive) {
-        std::printf("node %2d  daemon: %llu command(s) accepted, %llu frame(s) rejected (modulo 256)\n", node,
-                    static_cast<unsigned long long>(a.receive->commands_accepted),
-                    static_cast<unsigned long long>(rejections(*a.receive)));
+        std::printf("node %2d  daemon: %llu command(s) accepted, %llu frame(s) rejected (RECEIVE_STATUS, unwrapped past 256)\n", node,
+                    static_cast<unsigned long long>(a.accepted_seen), static_cast<unsigned long long>(a.rejected_seen));
       }
       if (a.timing) {
         // A window's LatencyMax and DeadlineMisses saturate (6553.5 us, 255): then the worst and
