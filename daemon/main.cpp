@@ -18,14 +18,18 @@
 #include <atomic>
 #include <chrono>
 #include <cstdio>
+#include <cerrno>
 #include <cstdlib>
+#include <cstring>
 #include <exception>
 #include <filesystem>
 #include <future>
 #include <memory>
 #include <optional>
 #include <string>
+#include <string_view>
 #include <thread>
+#include <utility>
 
 #include <CLI/CLI.hpp>
 #include <fmt/format.h>
@@ -129,6 +133,26 @@ void restore_thermal_state(const DaemonConfig& config, pmsm::daemon::DriveLoop& 
   }
 }
 
+// Why the daemon could not write `path` (the calibration, the thermal state) when the time
+// comes, or "": its directory must exist and be writable (systemd's StateDirectory= makes
+// /var/lib/pmsm-thermal), and the path must not be a directory. Found at start-up, not when a
+// calibration completes and is lost.
+std::string unwritable_reason(const std::string& path) {
+  std::error_code ec;
+  const std::filesystem::path file(path);
+  const std::filesystem::path dir = file.has_parent_path() ? file.parent_path() : std::filesystem::path(".");
+  if (std::filesystem::is_directory(file, ec)) {
+    return "it is a directory";
+  }
+  if (!std::filesystem::is_directory(dir, ec)) {
+    return fmt::format("its directory {} does not exist", dir.string());
+  }
+  if (::access(dir.c_str(), W_OK) != 0) {
+    return fmt::format("its directory {} is not writable ({})", dir.string(), std::strerror(errno));
+  }
+  return {};
+}
+
 int run(const Options& o) {
   setup_logging(o.log_level);
   DaemonConfig config;
@@ -152,6 +176,26 @@ int run(const Options& o) {
   } catch (const std::exception& e) {
     spdlog::error("calibration file refused: {}", e.what());
     return o.check ? 1 : kExitConfig;
+  }
+  // The files the daemon writes. At start an error (a calibration that cannot be stored is
+  // lost, the thermal state with it); under --check, possibly on another machine than the
+  // controller, a warning.
+  for (const auto& [key, path] : {std::pair<std::string_view, const std::string&>{"controller.calibration.file",
+                                                                                   config.controller.calibration_file},
+                                  std::pair<std::string_view, const std::string&>{"controller.thermal.state_file",
+                                                                                   config.controller.thermal_state_file}}) {
+    if (path.empty()) {
+      continue;
+    }
+    if (const std::string why = unwritable_reason(path); !why.empty()) {
+      if (o.check) {
+        spdlog::warn("{} = {}: {}: the daemon would refuse to start here", key, path, why);
+      } else {
+        spdlog::error("{} = {}: {}: nothing could be stored there (create the directory, or StateDirectory= in the unit)",
+                      key, path, why);
+        return kExitConfig;
+      }
+    }
   }
   {
     // A stored calibration without the bridge's voltage: the estimates rest on the configured
