@@ -383,9 +383,14 @@ void load_drive_cycle_csv(const std::filesystem::path& path, LoadConfig& load,
       std::optional<std::size_t> sc;
       std::optional<std::size_t> qc;
       for (std::size_t i = 0; i < cells.size(); ++i) {
-        if (cells[i] == "time_s") tc = i;
-        if (cells[i] == "speed_rad_s") sc = i;
-        if (cells[i] == "torque_Nm") qc = i;
+        for (auto& [name, column] : {std::pair<const char*, std::optional<std::size_t>&>{"time_s", tc},
+                                     std::pair<const char*, std::optional<std::size_t>&>{"speed_rad_s", sc},
+                                     std::pair<const char*, std::optional<std::size_t>&>{"torque_Nm", qc}}) {
+          if (cells[i] == name && column.has_value()) {
+            throw ConfigError(fmt::format("{}:{}: column {} appears twice in the header", where, line_no, name));
+          }
+          if (cells[i] == name) column = i;
+        }
       }
       if (!tc || (sc.has_value() == qc.has_value())) {
         throw ConfigError(fmt::format(
@@ -414,6 +419,16 @@ void load_drive_cycle_csv(const std::filesystem::path& path, LoadConfig& load,
       return v;
     };
     const TimePoint p{number(time_col), number(value_col)};
+    // The ranges of load.speed_points and load.steps (the tables the CSV stands for), told with
+    // the file and line rather than later against the table's key.
+    const double limit = is_speed ? 2000.0 : 1e4;
+    if (p.time_s < 0.0) {
+      throw ConfigError(fmt::format("{}:{}: time_s must be >= 0, got {}", where, line_no, p.time_s));
+    }
+    if (std::abs(p.value) > limit) {
+      throw ConfigError(fmt::format("{}:{}: {} must be in [{}, {}], got {}", where, line_no,
+                                    is_speed ? "speed_rad_s" : "torque_Nm", -limit, limit, p.value));
+    }
     if (!points.empty() && p.time_s < points.back().time_s) {
       throw ConfigError(fmt::format("{}:{}: time_s must be ascending, got {} after {}", where,
                                     line_no, p.time_s, points.back().time_s));

@@ -220,7 +220,7 @@ speed_rad_s = [[0, 100]]
 [plant.motor]
 rs_ohmm = 0.2
 )");
-  EXPECT_EQ(unknown, path_of("inline.toml") + ":4: plant.motor.rs_ohmm: unknown key (did you mean motor.rs_ohm?)");
+  EXPECT_EQ(unknown, path_of("inline.toml") + ":4: plant.motor.rs_ohmm: unknown key (did you mean plant.motor.rs_ohm?)");
 }
 
 TEST(Scenario, ErrorInTheProfileNamesTheProfile) {
@@ -291,6 +291,9 @@ TEST(Scenario, CsvSetPoints) {
             path_of("speed_extra_column.csv") + ":3: operation.speed_csv: expected 2 columns 'time_s,value', got 3: '1.0,50,7'");
   EXPECT_EQ(inline_error("[operation]\nspeed_csv = \"speed_nan.csv\"\n"),
             path_of("speed_nan.csv") + ":3: operation.speed_csv: value must be a number in [-2000, 2000] rad/s, got nan");
+  // Decimal numbers only: strtod read 0x10 as 16.
+  EXPECT_EQ(inline_error("[operation]\nspeed_csv = \"speed_hex.csv\"\n"),
+            path_of("speed_hex.csv") + ":3: operation.speed_csv: expected 'time_s,value' (two numbers), got '1.0,0x10'");
   const Scenario t = parse("[operation]\nmode = \"torque\"\ntorque_csv = \"speed_profile.csv\"\n");
   EXPECT_EQ(t.scenario.mode, core::DriveMode::kTorque);
   EXPECT_EQ(t.scenario.torque_Nm.at(2.0), 150.0);

@@ -10,6 +10,13 @@ namespace {
 
 const std::string kExe = PMSM_THERMAL_EXE;
 
+TEST(PlanCli, AFirstWordThatIsNoCommandIsNamedWithTheCommands) {
+  const ProcessResult r = run_process(kExe + " bogus");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("pmsm-thermal: 'bogus' is not a command; the commands are budget, losses, simulate"), std::string::npos)
+      << r.err;
+}
+
 TEST(PlanCli, BudgetGivenVoltageMatchesEq29) {
   const ProcessResult r =
       run_process(kExe + " budget --Ld 0.009 --Rs 0.133 --Tw 0.01 --window blackman --voltage 40 --json");

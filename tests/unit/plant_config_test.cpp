@@ -287,6 +287,21 @@ TEST_F(plant_config_csv, BadCsvNamesKeyAndLine) {
   const std::string missing =
       error_of("[load]\nprofile = \"csv\"\ncsv_path = \"nope.csv\"\n", dir_);
   EXPECT_NE(missing.find("load.csv_path"), std::string::npos) << missing;
+
+  // A value beyond the table's range, a negative time and a column named twice: each with the
+  // file and line (a value out of range was reported against load.steps, which the file lacks).
+  write("big.csv", "time_s,torque_Nm\n0,1\n1,20000\n");
+  const std::string big = error_of("[load]\nprofile = \"csv\"\ncsv_path = \"big.csv\"\n", dir_);
+  EXPECT_NE(big.find("big.csv:3: torque_Nm must be in [-10000, 10000], got 20000"), std::string::npos) << big;
+  write("fast.csv", "time_s,speed_rad_s\n0,1\n1,1e9\n");
+  const std::string fast = error_of("[load]\nprofile = \"csv\"\ncsv_path = \"fast.csv\"\n", dir_);
+  EXPECT_NE(fast.find("fast.csv:3: speed_rad_s must be in [-2000, 2000], got 1000000000"), std::string::npos) << fast;
+  write("before.csv", "time_s,torque_Nm\n-1,1\n1,2\n");
+  const std::string before = error_of("[load]\nprofile = \"csv\"\ncsv_path = \"before.csv\"\n", dir_);
+  EXPECT_NE(before.find("before.csv:2: time_s must be >= 0, got -1"), std::string::npos) << before;
+  write("twice.csv", "time_s,torque_Nm,time_s\n0,1,0\n");
+  const std::string twice = error_of("[load]\nprofile = \"csv\"\ncsv_path = \"twice.csv\"\n", dir_);
+  EXPECT_NE(twice.find("twice.csv:1: column time_s appears twice in the header"), std::string::npos) << twice;
 }
 
 TEST(plant_config, DocsListEveryKey) {

@@ -1,6 +1,7 @@
 // pmsm-thermal: the project's command-line tool (planning, simulation, bus decoding).
 #include <CLI/CLI.hpp>
 
+#include <cstdio>
 #include <string>
 
 #include "commands.hpp"
@@ -17,6 +18,21 @@ int main(int argc, char** argv) {
   pmsm::app::register_decode_command(app, exit_code);
   pmsm::app::register_command_command(app, exit_code);
   pmsm::app::register_monitor_command(app, exit_code);
+  // A first word that is no command: say so and list them (CLI11 says only "A subcommand is
+  // required").
+  if (argc > 1 && argv[1][0] != '-') {
+    std::string names;
+    bool known = false;
+    for (const CLI::App* sub : app.get_subcommands({})) {
+      names += (names.empty() ? "" : ", ") + sub->get_name();
+      known = known || sub->get_name() == argv[1];
+    }
+    if (!known) {
+      std::fprintf(stderr, "pmsm-thermal: '%s' is not a command; the commands are %s (--help for more)\n", argv[1],
+                   names.c_str());
+      return 2;
+    }
+  }
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

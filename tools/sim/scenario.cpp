@@ -1,6 +1,7 @@
 #include "scenario.hpp"
 
 #include <cerrno>
+#include <charconv>
 #include <cmath>
 #include <cstdlib>
 #include <fstream>
@@ -113,11 +114,14 @@ std::optional<double> parse_cell(std::string_view cell) {
   if (cell.empty()) {
     return std::nullopt;
   }
-  const std::string text(cell);
-  char* end = nullptr;
-  errno = 0;
-  const double v = std::strtod(text.c_str(), &end);
-  if (end != text.c_str() + text.size() || errno == ERANGE) {
+  // Decimal only, as the plant's CSV reader takes it (strtod also took 0x10 as 16); a leading
+  // '+' is allowed, from_chars alone does not.
+  if (cell.front() == '+') {
+    cell.remove_prefix(1);
+  }
+  double v = 0.0;
+  const auto [ptr, ec] = std::from_chars(cell.data(), cell.data() + cell.size(), v);
+  if (ec != std::errc{} || ptr != cell.data() + cell.size()) {
     return std::nullopt;
   }
   return v;  // NaN and inf pass here; add_point refuses them with the range
@@ -260,7 +264,10 @@ plant::PlantConfig load_plant(const toml::table& root, const std::filesystem::pa
         const auto& where = node.node()->source();
         const std::string file = where.path && !where.path->empty() ? *where.path : source.string();
         const std::string line = where.begin.line > 0 ? ":" + std::to_string(where.begin.line) : "";
-        throw ConfigError(file + line + ": plant." + m[1].str() + ": " + m[2].str());
+        // A suggested key is the plant file's; in a scenario it lives under [plant] too.
+        static const std::regex suggestion(R"(\(did you mean ([A-Za-z0-9_.]+)\?\))");
+        const std::string detail = std::regex_replace(m[2].str(), suggestion, "(did you mean plant.$1?)");
+        throw ConfigError(file + line + ": plant." + m[1].str() + ": " + detail);
       }
     }
     throw ConfigError(message);
