@@ -135,8 +135,7 @@ void restore_thermal_state(const DaemonConfig& config, pmsm::daemon::DriveLoop& 
 
 // Why the daemon could not write `path` (the calibration, the thermal state) when the time
 // comes, or "": its directory must exist and be writable (systemd's StateDirectory= makes
-// /var/lib/pmsm-thermal), and the path must not be a directory. Found at start-up, not when a
-// calibration completes and is lost.
+// /var/lib/pmsm-thermal), and the path must not be a directory.
 std::string unwritable_reason(const std::string& path) {
   std::error_code ec;
   const std::filesystem::path file(path);
@@ -177,9 +176,9 @@ int run(const Options& o) {
     spdlog::error("calibration file refused: {}", e.what());
     return o.check ? 1 : kExitConfig;
   }
-  // The files the daemon writes. At start an error (a calibration that cannot be stored is
-  // lost, the thermal state with it); under --check, possibly on another machine than the
-  // controller, a warning.
+  // The files the daemon writes, told at start (and under --check) rather than when a
+  // calibration completes: a warning, since a drive may run on a read-only calibration it never
+  // renews, but what it learns then lives in memory only.
   for (const auto& [key, path] : {std::pair<std::string_view, const std::string&>{"controller.calibration.file",
                                                                                    config.controller.calibration_file},
                                   std::pair<std::string_view, const std::string&>{"controller.thermal.state_file",
@@ -188,13 +187,9 @@ int run(const Options& o) {
       continue;
     }
     if (const std::string why = unwritable_reason(path); !why.empty()) {
-      if (o.check) {
-        spdlog::warn("{} = {}: {}: the daemon would refuse to start here", key, path, why);
-      } else {
-        spdlog::error("{} = {}: {}: nothing could be stored there (create the directory, or StateDirectory= in the unit)",
-                      key, path, why);
-        return kExitConfig;
-      }
+      spdlog::warn("{} = {}: {}: nothing this run learns can be stored there (a calibration is kept in memory only; "
+                   "create the directory, or StateDirectory= in the unit)",
+                   key, path, why);
     }
   }
   {
@@ -401,11 +396,12 @@ int run(const Options& o) {
 int main(int argc, char** argv) {
   CLI::App app{"pmsm-thermald: PMSM drive controller with winding-temperature estimation, on CAN (one axis per process)"};
   Options o;
-  app.add_option("--config", o.config_path, "configuration file (TOML), e.g. /etc/pmsm-thermal/axis1.toml");
+  app.add_option("--config", o.config_path,
+                 "configuration file (TOML), e.g. /etc/pmsm-thermal/axis1.toml; required except with --keys and --version");
   app.add_flag("--check", o.check, "validate the configuration (and the stored calibration) and exit: 0 valid, 1 not");
   app.add_flag("--keys", o.keys, "print every configuration key of the daemon's own sections as Markdown and exit");
-  app.add_option("--log-level", o.log_level, "trace, debug, info, warn, error")
-      ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error"}))
+  app.add_option("--log-level", o.log_level, "trace, debug, info, warning (or warn), error: as the log lines name them")
+      ->check(CLI::IsMember({"trace", "debug", "info", "warning", "warn", "error"}))
       ->capture_default_str();
   app.set_version_flag("--version", std::string("pmsm-thermald ") + PMSM_VERSION);
   try {

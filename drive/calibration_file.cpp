@@ -266,6 +266,12 @@ core::Calibration read_calibration_file(const std::filesystem::path& path) {
   const toml::table t =
       read_stored(path, {"format", "rs0_ohm", "t0_C", "ke0_V_s_per_rad", "ke0_std_V_s_per_rad", "dead_time_band_A", "angle_correction_rad",
                          "vx_V", "vx_std_V", "written_utc", "source"});
+  // The record of who wrote it and when: text, if given (a number there is a hand edit gone wrong).
+  for (const char* key : {"written_utc", "source"}) {
+    if (const toml::node* n = t.get(key); n != nullptr && !n->is_string()) {
+      throw CalibrationFileError(fmt::format("{}:{}: {}: expected a string", file, n->source().begin.line, key));
+    }
+  }
   core::Calibration c;
   c.rs0_ohm = number(t, "rs0_ohm", file, 0.0, 10.0, true);
   c.t0_C = number(t, "t0_C", file, -50.0, 200.0, false);

@@ -566,6 +566,13 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
     ordered("derating.magnet_start_C", d.derating.magnet_start_C, "derating.magnet_limit_C", d.derating.magnet_limit_C, "C",
             "must be below");
   }
+  // The current loop regulates what its ADCs measure: a limit at or beyond their range lets a
+  // saturated reading stand for a current (and the daemon's overcurrent trip, 90 % of the range
+  // by default, would come first).
+  if (d.derating.max_current_A >= c.sensors.current_range_A) {
+    ordered("derating.max_current_A", d.derating.max_current_A, "sensors.current_range_A", c.sensors.current_range_A, "A",
+            "must be below");
+  }
   if (d.derating.min_current_A > d.derating.max_current_A) {
     ordered("derating.min_current_A", d.derating.min_current_A, "derating.max_current_A", d.derating.max_current_A, "A",
             "must not exceed");

@@ -725,13 +725,17 @@ void DriveController::update_thermal(double ambient_C) {
   observer_.predict(dt, i_sq, speed, ambient_C, thermal_enabled_count_ == 0);
   {
     // The time-to-limit's load: a first-order average over about one injection interval (the
-    // interval between events in drive time, at least 1 s and at most 60 s). With the last 10 ms
+    // interval between events in drive time, at least 1 s). With the last 10 ms
     // alone the prediction flickered with the pulses (valid in a quarter of the frames under a
     // steady load, docs/estimator.md section 7).
-    const double tau_s = std::clamp(config_.injection.interval_s, 1.0, 60.0);
-    const double a = load_i_sq_A2_ < 0.0 ? 1.0 : dt / (tau_s + dt);
-    load_i_sq_A2_ = load_i_sq_A2_ < 0.0 ? i_sq : load_i_sq_A2_ + a * (i_sq - load_i_sq_A2_);
-    load_speed_rad_s_ += a * (speed - load_speed_rad_s_);
+    // At most 10 s, so that a load step shows within seconds; a period's figures that are no
+    // number are left out (the average never turns NaN).
+    const double tau_s = std::clamp(config_.injection.interval_s, 1.0, 10.0);
+    if (std::isfinite(i_sq) && std::isfinite(speed)) {
+      const double a = load_i_sq_A2_ < 0.0 ? 1.0 : dt / (tau_s + dt);
+      load_i_sq_A2_ = load_i_sq_A2_ < 0.0 ? i_sq : load_i_sq_A2_ + a * (i_sq - load_i_sq_A2_);
+      load_speed_rad_s_ += a * (speed - load_speed_rad_s_);
+    }
   }
   i_sq_sum_ = 0.0;
   speed_sum_ = 0.0;
@@ -770,7 +774,7 @@ void DriveController::update_thermal(double ambient_C) {
     double t = 0.0;
     const double threshold_C = config_.derating.derate_start_C - config_.derating.confidence_sigma * e.winding_std_C;
     telemetry_.time_to_limit_valid =
-        observer_.time_to_limit_s(threshold_C, load_i_sq_A2_, load_speed_rad_s_, ambient_C, &t);
+        load_i_sq_A2_ >= 0.0 && observer_.time_to_limit_s(threshold_C, load_i_sq_A2_, load_speed_rad_s_, ambient_C, &t);
     telemetry_.time_to_limit_s = telemetry_.time_to_limit_valid ? t : 0.0;
   }
 }

@@ -216,6 +216,8 @@ TEST_F(CalibrationFile, BadFilesAreRejectedWithFileLineAndKey) {
   EXPECT_NE(error_of("format = 1\nrs0_ohm = 0.13\nt0_C = 25.0\ndead_time_band_A = -0.5\n")
                 .find("bad.toml:4: dead_time_band_A: -0.5 is out of range"),
             std::string::npos);
+  EXPECT_NE(error_of("format = 1\nrs0_ohm = 0.13\nt0_C = 25.0\nwritten_utc = 5\n").find("bad.toml:4: written_utc: expected a string"),
+            std::string::npos);
   // Ke0 may be absent (a calibration without EMF: standstill), and the band (a calibration
   // without the bridge sweep, or written before it existed: the configured band holds).
   EXPECT_EQ(error_of("format = 1\nrs0_ohm = 0.13\nt0_C = 25.0\n"), "");

@@ -192,6 +192,8 @@ TEST(ControllerConfig, CrossKeyRulesNameBothKeys) {
   EXPECT_EQ(error_of("[derating]\nstart_C = 160\nlimit_C = 155\n"), "drive.toml:2: derating.start_C (160 C) must be below derating.limit_C (155 C, drive.toml:3)");
   EXPECT_EQ(error_of("[derating]\nmin_current_A = 90\n"),
             "drive.toml:2: derating.min_current_A (90 A) must not exceed derating.max_current_A (80 A, its default)");
+  EXPECT_EQ(error_of("[derating]\nmax_current_A = 250\n"),
+            "drive.toml:2: derating.max_current_A (250 A) must be below sensors.current_range_A (200 A, its default)");
   EXPECT_EQ(error_of("[injection]\nF_A = 4\n"),
             "drive.toml:2: injection.F_min_A must not exceed injection.F_A times the smallest of injection.levels");
   EXPECT_EQ(error_of("[injection]\nsettle_s = 0.05\n"),

@@ -155,6 +155,13 @@ TEST(Scenario, AProfileBothInlineAndFromCsvIsAnError) {
             path_of("inline.toml") +
                 ":3: operation.speed_csv: given together with operation.speed_rad_s (line 2): a profile is either inline "
                 "or from a CSV file; remove one");
+  // Across bases the nearest file's profile holds, in whichever form it gives it.
+  const Scenario csv = load_scenario(kDir / "scenario_child_csv.toml");
+  EXPECT_EQ(csv.scenario.speed_rad_s.points.size(), 3U) << "the child's CSV replaces the base's inline points";
+  EXPECT_EQ(load_scenario(kDir / "scenario_grandchild_none.toml").scenario.speed_rad_s.points.size(), 3U);
+  const Scenario back = load_scenario(kDir / "scenario_grandchild_inline.toml");
+  ASSERT_EQ(back.scenario.speed_rad_s.points.size(), 1U) << "the grandchild's inline points replace the CSV";
+  EXPECT_EQ(back.scenario.speed_rad_s.points[0].value, 7.0);
   // Too short to see a thermal update.
   EXPECT_EQ(inline_error("[scenario]\nduration_s = 1e-5\n[operation]\nspeed_rad_s = [[0, 1]]\n"),
             path_of("inline.toml") + ":2: scenario.duration_s: must be in [0.1, 1e+06], got 1e-05");

@@ -90,21 +90,15 @@ check_bad '[controller.control]\nperiod_s = 2e-5\ndead_time_s = 5e-6\ncurrent_ba
 # A stored calibration of another motor: valid as a file, outside this drive's window.
 printf 'format = 1\nrs0_ohm = 5.0\nt0_C = 25.0\n' > "$dir/other-motor.toml"
 check_bad "[controller.calibration]\nfile = \"$dir/other-motor.toml\"\n" 1 'calibration file refused: '"$dir"'/other-motor.toml: rs0_ohm 5 ohm lies above the drive'"'"'s plausibility window (controller.injection.rs_max_ohm = 0.27 ohm)'
-# A calibration or thermal-state file where nothing can be written: a warning under --check
-# (which may run on another machine), a configuration error at start, before any device opens.
+# A calibration or thermal-state file where nothing can be written: warned about (a drive may
+# run on a read-only calibration), not found out when a calibration completes.
 printf '[controller.calibration]\nfile = "%s/no-such-dir/cal.toml"\n[controller.thermal]\nstate_file = "%s"\n' "$dir" "$dir" > "$dir/unwritable.toml"
 out=$("$exe" --config "$dir/unwritable.toml" --check 2>&1); rc=$?
-if [ "$rc" -ne 0 ] || [[ "$out" != *"controller.calibration.file = $dir/no-such-dir/cal.toml: its directory $dir/no-such-dir does not exist"* ]] ||
+if [ "$rc" -ne 0 ] || [[ "$out" != *"controller.calibration.file = $dir/no-such-dir/cal.toml: its directory $dir/no-such-dir does not exist: nothing this run learns can be stored there"* ]] ||
    [[ "$out" != *"controller.thermal.state_file = $dir: it is a directory"* ]]; then
   echo "FAIL: --check should warn (exit 0) about both unwritable files, got exit $rc: $out"; fail=1
 else
   echo "ok (warned): $out"
-fi
-out=$("$exe" --config "$dir/unwritable.toml" 2>&1); rc=$?
-if [ "$rc" -ne 2 ] || [[ "$out" != *"nothing could be stored there"* ]]; then
-  echo "FAIL: a start with an unwritable calibration file should exit 2, got exit $rc: $out"; fail=1
-else
-  echo "ok (refused): $out"
 fi
 # A bad command line is a configuration error (exit 2, which the unit does not restart on) and
 # names the option; --help and --version exit 0.

@@ -145,14 +145,15 @@ void register_command_command(CLI::App& app, int& exit_code) {
                       "with --inject-now: the time between the drive's periodic injections from then on, s (0: only on "
                       "request); INJECTION_COMMAND sets it with every request")
           ->check(signal_range(protocol::injection_command::kInterval));
-  cmd->add_option("--injection-method", options->injection_method, "with --inject-now: the method from then on")
-      ->check(CLI::IsMember({"fixed-magnitude-bipolar", "fixed-magnitude-unipolar", "fixed-angle-bipolar",
-                             "fixed-angle-unipolar", "dc"}))
-      ->capture_default_str();
+  CLI::Option* method =
+      cmd->add_option("--injection-method", options->injection_method, "with --inject-now: the method from then on")
+          ->check(CLI::IsMember({"fixed-magnitude-bipolar", "fixed-magnitude-unipolar", "fixed-angle-bipolar",
+                                 "fixed-angle-unipolar", "dc"}));
   cmd->add_flag("--inject-now", options->inject_now,
-                "request one injection event now (INJECTION_COMMAND; it also sets --injection-method and "
-                "--injection-interval, which must be given)")
-      ->needs(interval);
+                "request one injection event now (INJECTION_COMMAND; it also sets the drive's method and interval, "
+                "so --injection-method and --injection-interval must be given)")
+      ->needs(interval)
+      ->needs(method);
   cmd->callback([options, &exit_code] { exit_code = run_command(*options); });
 }
 

@@ -158,6 +158,10 @@ class Decoder {
           std::fprintf(stderr, "decode: line %llu is not a candump frame: %s\n",
                        static_cast<unsigned long long>(counts_.lines), parsed.error.c_str());
         }
+        if (counts_.malformed == kMaxReportedBadLines + 1) {
+          std::fprintf(stderr, "decode: more lines are not candump frames; the first %d are listed, the summary counts "
+                       "them all (--json gives each its error)\n", kMaxReportedBadLines);
+        }
       }
       emit(raw_line, blank ? LineKind::kBlank : LineKind::kMalformed, nullptr, nullptr, {}, parsed.error);
       return;
@@ -375,7 +379,7 @@ class Decoder {
   // whose base is one of this DBC's messages belongs to another axis, which the summary says
   // (a node-0 DBC on node 1's traffic decoded nothing and said only "unknown").
   void count_other_node(const hal::CanFrame& frame) {
-    if (frame.extended || frame.id > 0x7FFU) {
+    if (frame.extended || frame.id > 0x7FFU || !one_node_dbc()) {
       return;
     }
     const std::uint32_t base = frame.id & ~std::uint32_t{0xF};
@@ -385,6 +389,17 @@ class Decoder {
         return;
       }
     }
+  }
+
+  // A DBC shaped like the protocol's: standard IDs that all carry one node (the same low four
+  // bits). Another DBC's neighbouring IDs are no other axis.
+  [[nodiscard]] bool one_node_dbc() const {
+    for (const dbc::Message& m : db_.messages) {
+      if (m.extended || (m.id & 0xFU) != (db_.messages.front().id & 0xFU)) {
+        return false;
+      }
+    }
+    return !db_.messages.empty();
   }
 
   const dbc::Database& db_;

@@ -259,8 +259,8 @@ void register_simulate_command(CLI::App& app, int& exit_code) {
       "simulate", "Run scenarios in-process (controller + estimator + plant, lockstep) and report their accuracy");
   cmd->add_option("scenario", options->scenario_paths, "scenario files (TOML; see docs/scenarios.md)")
       ->required();  // a missing file is the scenario's error (exit 2, docs/scenarios.md), not a usage error
-  cmd->add_flag("--json", options->json, "print one JSON object per scenario with the figures");
-  cmd->add_flag("--markdown", options->markdown, "print one Markdown table, a row per scenario");
+  CLI::Option* json = cmd->add_flag("--json", options->json, "print one JSON object per scenario with the figures");
+  cmd->add_flag("--markdown", options->markdown, "print one Markdown table, a row per scenario")->excludes(json);
   cmd->add_option("--csv", options->csv_path, "write the time series as CSV (one scenario)");
   cmd->add_option("--plot", options->plot_path, "draw true vs estimated temperatures as PNG (one scenario; needs gnuplot)");
   cmd->add_option("--plot-dir", options->plot_dir, "draw a PNG per scenario into this directory, named after the file");

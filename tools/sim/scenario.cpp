@@ -116,7 +116,7 @@ std::optional<double> parse_cell(std::string_view cell) {
   }
   // Decimal only, as the plant's CSV reader takes it (strtod also took 0x10 as 16); a leading
   // '+' is allowed, from_chars alone does not.
-  if (cell.front() == '+') {
+  if (cell.front() == '+' && cell.size() > 1 && cell[1] != '-' && cell[1] != '+') {
     cell.remove_prefix(1);
   }
   double v = 0.0;
@@ -330,6 +330,18 @@ toml::table resolve_base(toml::table root, const std::filesystem::path& source, 
     }
   }
   root.get_as<toml::table>("scenario")->erase("base");
+  // A set-point profile is inline or from a CSV: a file that gives one, in either form, replaces
+  // its base's (which may have used the other form).
+  if (toml::table* base_operation = merged["operation"].as_table(); base_operation != nullptr) {
+    for (const auto& [inline_key, csv_key] :
+         {std::pair{"speed_rad_s", "speed_csv"}, std::pair{"torque_Nm", "torque_csv"}}) {
+      const toml::table* own = root["operation"].as_table();
+      if (own != nullptr && (own->contains(inline_key) || own->contains(csv_key))) {
+        base_operation->erase(inline_key);
+        base_operation->erase(csv_key);
+      }
+    }
+  }
   merge(merged, std::move(root));
   return merged;
 }
@@ -337,35 +349,23 @@ toml::table resolve_base(toml::table root, const std::filesystem::path& source, 
 }  // namespace
 
 Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path& source) {
-  toml::table root = resolve_base(parse_toml(toml_text, source), source, 0);
+  const toml::table root = resolve_base(parse_toml(toml_text, source), source, 0);
   Scenario out;
   out.source = source;
   schema().apply(root, out.scenario, source.string(),
                  {"plant", "controller", "scenario.seed", "operation.speed_rad_s", "operation.torque_Nm", "operation.speed_csv",
                   "operation.torque_csv"});
-  // Set-point profiles, inline or from CSV: one of the two. Given in the same file, both is a
-  // mistake (one would be ignored); a scenario may replace its base's profile with the other
-  // form, and then its own wins.
+  // Set-point profiles, inline or from CSV: one of the two (a file replaces its base's, in
+  // resolve_base), so both here were given in one file: one would be ignored.
   for (const auto& [inline_key, csv_key] : {std::pair{"operation.speed_rad_s", "operation.speed_csv"},
                                             std::pair{"operation.torque_Nm", "operation.torque_csv"}}) {
     const auto points = root.at_path(inline_key);
     const auto csv = root.at_path(csv_key);
-    if (!points || !csv) {
-      continue;
-    }
-    const auto file_of = [&](const toml::node& n) {
-      return n.source().path && !n.source().path->empty() ? *n.source().path : source.string();
-    };
-    const std::string points_file = file_of(*points.node());
-    const std::string csv_file = file_of(*csv.node());
-    if (points_file == csv_file) {
+    if (points && csv) {
       throw ConfigError(where(*csv.node(), source.string(), csv_key) + "given together with " + std::string(inline_key) +
                         " (line " + std::to_string(points.node()->source().begin.line) +
                         "): a profile is either inline or from a CSV file; remove one");
     }
-    // The scenario's own (or the nearer base's: the one that is `source`) replaces the other.
-    const std::string_view dropped = points_file == source.string() ? std::string_view(csv_key) : std::string_view(inline_key);
-    root["operation"].as_table()->erase(dropped.substr(dropped.find('.') + 1));
   }
   const std::filesystem::path dir = source.parent_path();
   if (const auto node = root.at_path("operation.speed_rad_s")) {

@@ -472,7 +472,7 @@ class DriveController {
   double last_baseline_publish_s_ = 0.0;
   int thermal_updates_ = 0;
   // The present load for the time-to-limit: i^2 and speed averaged over about one injection
-  // interval (at least 1 s of drive time), so that the prediction follows the load and the
+  // interval (1 to 10 s of drive time), so that the prediction follows the load and the
   // injection's mean heating, not whether the last 10 ms held a pulse. Negative: none yet.
   double load_i_sq_A2_ = -1.0;
   double load_speed_rad_s_ = 0.0;
