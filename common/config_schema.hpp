@@ -374,6 +374,13 @@ class ConfigSchema {
     }
   }
 
+  // An integer key's range, the value printed as the integer it is (4294967297, not 4.29497e+09).
+  static void check_range(const Entry& e, std::int64_t v, const std::string& at, std::string_view what = "") {
+    if (!e.range.contains(static_cast<double>(v))) {
+      throw ConfigError(at + std::string(what) + "must be " + e.range.describe() + ", got " + std::to_string(v));
+    }
+  }
+
   static const toml::array& array_of(const toml::node& node, const std::string& at, std::string_view of) {
     const auto* a = node.as_array();
     if (a == nullptr) {
@@ -400,13 +407,13 @@ class ConfigSchema {
       }
       case Kind::kInteger: {
         const std::int64_t v = integer_of(node, at);
-        check_range(e, static_cast<double>(v), at);
+        check_range(e, v, at);
         e.integer(config) = static_cast<int>(v);
         break;
       }
       case Kind::kSeed: {
         const std::int64_t v = integer_of(node, at);
-        check_range(e, static_cast<double>(v), at);
+        check_range(e, v, at);
         e.seed(config) = static_cast<std::uint64_t>(v);
         break;
       }
@@ -487,7 +494,7 @@ class ConfigSchema {
         for (const toml::node& item : a) {
           const std::string item_at = where(source, item, e.key, prefix);
           const std::int64_t v = integer_of(item, item_at);
-          check_range(e, static_cast<double>(v), item_at, "every value ");
+          check_range(e, v, item_at, "every value ");
           values.push_back(static_cast<int>(v));
         }
         e.int_list(config) = std::move(values);

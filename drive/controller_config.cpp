@@ -641,8 +641,8 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
       rule("injection.field_weakening_record_min_time_s", "injection.record_min_time_s",
            fmt::format("recordings of up to {:.3f} s (the longest of injection.record_time_s, record_min_time_s and "
                        "field_weakening_record_min_time_s, plus one turn at injection.min_speed_for_angle_rad_s) do not "
-                       "fit the {:.3f} s a recording holds at this control period",
-                       longest_s, holds_s));
+                       "fit the {:.3f} s a recording holds at control.period_s = {} s (its {} samples)",
+                       longest_s, holds_s, common::format_number(d.period_s), d.recording_capacity));
     }
   }
   if (!errors.empty()) {

@@ -201,7 +201,7 @@ TEST(ControllerConfig, CrossKeyRulesNameBothKeys) {
   EXPECT_EQ(error_of("[injection]\nfield_weakening_record_min_time_s = 0.7\n"),
             "drive.toml:2: recordings of up to 0.909 s (the longest of injection.record_time_s, record_min_time_s and "
             "field_weakening_record_min_time_s, plus one turn at injection.min_speed_for_angle_rad_s) do not fit the "
-            "0.819 s a recording holds at this control period");
+            "0.819 s a recording holds at control.period_s = 0.0001 s (its 8192 samples)");
   // Equal ends are rejected too (the derating would divide by zero).
   EXPECT_NE(error_of("[derating]\nstart_C = 155\nlimit_C = 155\n"), "");
   EXPECT_EQ(error_of("[derating]\nmagnet_start_C = 150\n"),

@@ -30,6 +30,7 @@ check_bad() {
   fi
 }
 check_bad '[can]\nnode = 22\n' 1 'bad.toml:2: can.node: must be in [0, 15], got 22'
+check_bad '[can]\nnode = 4294967297\n' 1 'bad.toml:2: can.node: must be in [0, 15], got 4294967297'
 check_bad '[can]\ninterfaec = "vcan0"\n' 1 'can.interfaec'
 check_bad '[rt]\npriority = "high"\n' 1 'rt.priority'
 check_bad '[supervisor]\ntrip_temp_C = 100\n' 1 'supervisor.trip_temp_C'
