@@ -723,17 +723,17 @@ void DriveController::update_thermal(double ambient_C) {
   const double i_sq = i_sq_sum_ / thermal_count_;
   const double speed = speed_sum_ / thermal_count_;
   observer_.predict(dt, i_sq, speed, ambient_C, thermal_enabled_count_ == 0);
-  {
-    // The time-to-limit's load: a first-order average over about one injection interval (the
-    // interval between events in drive time, at least 1 s). With the last 10 ms
-    // alone the prediction flickered with the pulses (valid in a quarter of the frames under a
-    // steady load, docs/estimator.md section 7).
-    // At most 10 s, so that a load step shows within seconds; a period's figures that are no
-    // number are left out (the average never turns NaN).
-    const double tau_s = std::clamp(config_.injection.interval_s, 1.0, 10.0);
-    if (std::isfinite(i_sq) && std::isfinite(speed)) {
-      const double a = load_i_sq_A2_ < 0.0 ? 1.0 : dt / (tau_s + dt);
-      load_i_sq_A2_ = load_i_sq_A2_ < 0.0 ? i_sq : load_i_sq_A2_ + a * (i_sq - load_i_sq_A2_);
+  // The time-to-limit's load: a first-order average over about one injection interval (1 to
+  // 10 s of drive time: a load step shows within seconds). With the last 10 ms alone the
+  // prediction flickered with the pulses (docs/estimator.md section 7). Figures that are no
+  // number are left out, so the average never turns NaN; the first one starts it.
+  if (std::isfinite(i_sq) && std::isfinite(speed)) {
+    if (load_i_sq_A2_ < 0.0) {
+      load_i_sq_A2_ = i_sq;
+      load_speed_rad_s_ = speed;
+    } else {
+      const double a = dt / (std::clamp(config_.injection.interval_s, 1.0, 10.0) + dt);
+      load_i_sq_A2_ += a * (i_sq - load_i_sq_A2_);
       load_speed_rad_s_ += a * (speed - load_speed_rad_s_);
     }
   }

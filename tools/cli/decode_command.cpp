@@ -379,7 +379,7 @@ class Decoder {
   // whose base is one of this DBC's messages belongs to another axis, which the summary says
   // (a node-0 DBC on node 1's traffic decoded nothing and said only "unknown").
   void count_other_node(const hal::CanFrame& frame) {
-    if (frame.extended || frame.id > 0x7FFU || !one_node_dbc()) {
+    if (frame.extended || frame.id > 0x7FFU || !one_node_dbc_) {
       return;
     }
     const std::uint32_t base = frame.id & ~std::uint32_t{0xF};
@@ -393,16 +393,14 @@ class Decoder {
 
   // A DBC shaped like the protocol's: standard IDs that all carry one node (the same low four
   // bits). Another DBC's neighbouring IDs are no other axis.
-  [[nodiscard]] bool one_node_dbc() const {
-    for (const dbc::Message& m : db_.messages) {
-      if (m.extended || (m.id & 0xFU) != (db_.messages.front().id & 0xFU)) {
-        return false;
-      }
-    }
-    return !db_.messages.empty();
+  [[nodiscard]] static bool one_node(const dbc::Database& db) {
+    return !db.messages.empty() && std::all_of(db.messages.begin(), db.messages.end(), [&](const dbc::Message& m) {
+      return !m.extended && (m.id & 0xFU) == (db.messages.front().id & 0xFU);
+    });
   }
 
   const dbc::Database& db_;
+  const bool one_node_dbc_ = one_node(db_);
   std::array<std::uint64_t, 16> other_node_frames_{};
   const DecodeOptions& options_;
   std::map<std::uint32_t, hal::protocol::AliveCounterCheck> counters_;  // per command CAN ID
