@@ -167,6 +167,28 @@ TEST(Scenario, AProfileBothInlineAndFromCsvIsAnError) {
             path_of("inline.toml") + ":2: scenario.duration_s: must be in [0.1, 1e+06], got 1e-05");
 }
 
+// A set-point profile of the other mode would be ignored: refused, naming its line. A file
+// that sets the mode leaves its base's profile of the other mode behind.
+TEST(Scenario, AProfileOfTheOtherModeIsAnError) {
+  EXPECT_EQ(inline_error("[operation]\nspeed_rad_s = [[0, 1]]\ntorque_Nm = [[0, 5]]\n"),
+            path_of("inline.toml") +
+                ":3: operation.torque_Nm: a set-point of torque mode, but operation.mode is \"speed\"; it would be "
+                "ignored (the load's torque is [plant.load]): remove it or set the mode");
+  EXPECT_EQ(inline_error("[operation]\nmode = \"torque\"\ntorque_Nm = [[0, 5]]\nspeed_csv = \"speed_profile.csv\"\n"),
+            path_of("inline.toml") +
+                ":4: operation.speed_csv: a set-point of speed mode, but operation.mode is \"torque\"; it would be "
+                "ignored (the speed follows the load, [plant.load]): remove it or set the mode");
+  // A torque scenario on a speed base (which has speed_rad_s): the base's speeds stay behind.
+  const Scenario t = parse("[scenario]\nbase = \"scenario_base.toml\"\n[operation]\nmode = \"torque\"\ntorque_Nm = [[0, 5]]\n");
+  EXPECT_EQ(t.scenario.mode, core::DriveMode::kTorque);
+  EXPECT_TRUE(t.scenario.speed_rad_s.empty());
+  EXPECT_EQ(t.scenario.torque_Nm.at(1.0), 5.0);
+  // Without the mode set in the file, the base's mode holds and the torque profile is refused.
+  EXPECT_EQ(inline_error("[scenario]\nbase = \"scenario_base.toml\"\n[operation]\ntorque_Nm = [[0, 5]]\n")
+                .rfind(path_of("inline.toml") + ":4: operation.torque_Nm: a set-point of torque mode", 0),
+            0U);
+}
+
 TEST(Scenario, ControllerErrorNamesTheLine) {
   EXPECT_EQ(inline_error("[operation]\nspeed_rad_s = [[0, 1]]\n[controller.injection]\nF_A = 2000\n"),
             path_of("inline.toml") + ":4: controller.injection.F_A: must be in (0, 1000], got 2000");

@@ -1,5 +1,6 @@
 #include "scenario.hpp"
 
+#include <array>
 #include <cerrno>
 #include <charconv>
 #include <cmath>
@@ -342,6 +343,17 @@ toml::table resolve_base(toml::table root, const std::filesystem::path& source, 
       }
     }
   }
+  // A file that chooses the mode leaves its base's profile of the other mode behind (a torque
+  // scenario built on a speed one need not, and could not, unset the base's speeds).
+  if (const toml::table* own = root["operation"].as_table(); own != nullptr) {
+    if (const auto mode = own->at_path("mode").value<std::string>(); mode && (*mode == "speed" || *mode == "torque")) {
+      if (toml::table* base_operation = merged["operation"].as_table(); base_operation != nullptr) {
+        const bool speed = *mode == "speed";
+        base_operation->erase(speed ? "torque_Nm" : "speed_rad_s");
+        base_operation->erase(speed ? "torque_csv" : "speed_csv");
+      }
+    }
+  }
   merge(merged, std::move(root));
   return merged;
 }
@@ -394,6 +406,18 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
   }
   if (!speed_mode && out.scenario.torque_Nm.empty()) {
     throw ConfigError(source.string() + ": operation.torque_Nm (or operation.torque_csv) is required in torque mode");
+  }
+  // A profile the mode does not follow would be ignored without a word (the load torque of a
+  // speed-mode run is plant.load's, not a set-point).
+  for (const char* key : speed_mode ? std::array{"operation.torque_Nm", "operation.torque_csv"}
+                                    : std::array{"operation.speed_rad_s", "operation.speed_csv"}) {
+    if (const auto node = root.at_path(key)) {
+      throw ConfigError(where(*node.node(), source.string(), key) + "a set-point of " +
+                        (speed_mode ? "torque" : "speed") + " mode, but operation.mode is \"" +
+                        (speed_mode ? "speed" : "torque") + "\"; it would be ignored" +
+                        (speed_mode ? " (the load's torque is [plant.load])" : " (the speed follows the load, [plant.load])") +
+                        ": remove it or set the mode");
+    }
   }
 
   out.plant = load_plant(root, source);
