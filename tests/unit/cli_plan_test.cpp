@@ -95,6 +95,11 @@ INSTANTIATE_TEST_SUITE_P(
                       BadInput{"losses --F 25 --pulses 0", "--pulses"},
                       BadInput{"losses --F 25 --method fixed-angle", "--omega"},
                       BadInput{"losses --F 25 --method trapezoid", "--method"},
+                      // An option the computation asked for does not use: refused, not ignored.
+                      BadInput{"budget --voltage 5 --iq 50", "--iq requires --speed"},
+                      BadInput{"budget --current 5 --Lq 1e-3", "--Lq requires --speed"},
+                      BadInput{"budget --voltage 5 --pole-pairs 4", "--pole-pairs requires --speed"},
+                      BadInput{"losses --F 25 --omega 300", "--omega applies to --method fixed-angle only"},
                       BadInput{"", "subcommand"},
                       // Not a finite number, or beyond any machine: refused, never printed as nan or inf.
                       BadInput{"budget --speed 100 --iq nan", "--iq: expected a number, got 'nan'"},

@@ -152,6 +152,10 @@ int run_losses(const LossOptions& o) {
     std::fprintf(stderr, "losses: --omega is required for --method fixed-angle (Eq. 31 depends on the electrical speed)\n");
     return 2;
   }
+  if (!fixed_angle && o.omega_given) {
+    std::fprintf(stderr, "losses: --omega applies to --method fixed-angle only (Eq. 32's loss does not depend on the speed)\n");
+    return 2;
+  }
   const core::InjectionSchedule& s = o.schedule;
   // Ninj pulses of Ti + 2 Tw each (rising edge Tw, flat top Ti, falling edge Tw) must fit in Tel: beyond
   // that Eqs. 31-32 average a loss over less time than the pulses take (a duty above 100 %).
@@ -214,23 +218,26 @@ void register_budget_command(CLI::App& app, int& exit_code) {
   CLI::App* cmd = app.add_subcommand(
       "budget", "Largest injection current for a voltage headroom, or voltage for a current (Eqs. 29-30)");
   cmd->add_option("--Ld", options->ld_H, "d-axis inductance, H")->check(positive(kMaxInductance_H))->capture_default_str();
-  cmd->add_option("--Lq", options->lq_H, "q-axis inductance, H (default: equal to Ld; --speed only)")->check(positive(kMaxInductance_H));
   cmd->add_option("--Rs", options->rs_ohm, "stator resistance, ohm (phase to neutral)")->check(positive(kMaxResistance_ohm))->capture_default_str();
   cmd->add_option("--Tw", options->tw_s, "window period, s")->check(positive(kMaxWindow_s))->capture_default_str();
   add_window_option(cmd, options->window_name);
   auto* mode = cmd->add_option_group("mode", "what to compute (exactly one)");
   mode->add_option("--voltage", options->voltage_V, "voltage available for injection, V")->check(positive(kMaxVoltage_V));
   mode->add_option("--current", options->current_A, "injection current F, A")->check(positive(kMaxCurrent_A));
-  mode->add_option("--speed", options->speed_rad_s, "mechanical speed, rad/s: largest F at this operating point")->check(non_negative(kMaxSpeed_rad_s));
+  CLI::Option* speed = mode->add_option("--speed", options->speed_rad_s, "mechanical speed, rad/s: largest F at this operating point")
+                           ->check(non_negative(kMaxSpeed_rad_s));
   mode->require_option(1);
+  // The operating point's options mean nothing to --voltage or --current: given there they
+  // would be ignored without a word, so CLI11 refuses them ("--iq requires --speed").
+  cmd->add_option("--Lq", options->lq_H, "q-axis inductance, H (default: equal to Ld; --speed only)")->check(positive(kMaxInductance_H))->needs(speed);
   cmd->add_option("--iq", options->iq_A, "motoring q-axis current, A peak (--speed only)")
-      ->check(number_in_range(-kMaxCurrent_A, kMaxCurrent_A))->capture_default_str();
-  cmd->add_option("--vdc", options->vdc_V, "DC-bus voltage, V (--speed only)")->check(positive(kMaxVoltage_V))->capture_default_str();
+      ->check(number_in_range(-kMaxCurrent_A, kMaxCurrent_A))->capture_default_str()->needs(speed);
+  cmd->add_option("--vdc", options->vdc_V, "DC-bus voltage, V (--speed only)")->check(positive(kMaxVoltage_V))->capture_default_str()->needs(speed);
   cmd->add_option("--voltage-fraction", options->voltage_fraction, "usable fraction of Vdc/sqrt(3) (--speed only)")
-      ->check(number_in_range(0.1, 1.0))->capture_default_str();
+      ->check(number_in_range(0.1, 1.0))->capture_default_str()->needs(speed);
   cmd->add_option("--Ke", options->ke_V_s_per_rad, "EMF constant, line-to-line RMS V per mechanical rad/s (--speed only)")
-      ->check(positive(kMaxKe))->capture_default_str();
-  cmd->add_option("--pole-pairs", options->pole_pairs, "pole pairs (--speed only)")->check(number_in_range(1, 100))->capture_default_str();
+      ->check(positive(kMaxKe))->capture_default_str()->needs(speed);
+  cmd->add_option("--pole-pairs", options->pole_pairs, "pole pairs (--speed only)")->check(number_in_range(1, 100))->capture_default_str()->needs(speed);
   cmd->add_flag("--json", options->json, "print one JSON object");
   cmd->callback([options, cmd, &exit_code] {
     options->window = window_from_name(options->window_name);
