@@ -26,6 +26,17 @@ grep -q "sample->command median < 16 us, p99 < 64 us; worst 87.3 us" "$work/out"
 "$exe" monitor --log "$work/wrap.log" > "$work/out"
 grep -q "node  0  daemon: 261 command(s) accepted, 8 frame(s) rejected" "$work/out" || fail "RECEIVE_STATUS's counts not unwrapped"
 
+# A daemon that started again (HEARTBEAT's uptime 3600.5 -> 2.0 s) counts from zero: its
+# RECEIVE_STATUS 5 accepted / 1 CRC rejection adds 5 and 1 (not 249 and 254 + ... as a wrap).
+{
+  cat "$log"
+  echo "(1795493853.589724) vcan0 140#C8000000022B0000"
+  echo "(1795493853.618043) vcan0 150#0504050100000000"
+} > "$work/restart.log"
+"$exe" monitor --log "$work/restart.log" > "$work/out"
+grep -q "node 0: the daemon started again (uptime 2.0 s after 3600.5 s)" "$work/out" || fail "a daemon restart not told"
+grep -q "node  0  daemon: 17 command(s) accepted, 8 frame(s) rejected" "$work/out" || fail "a restart's counts read as a wrap"
+
 # A replayed DRIVE_COMMAND (same alive counter) and one with a corrupted CRC.
 drive=$(grep -m1 " 040#" "$log")
 {

@@ -79,6 +79,10 @@ struct Axis {
   // the next (it comes every second, commands at most a few hundred a second): exact when this
   // monitor listened from the daemon's start, short by multiples of 256 otherwise.
   std::uint64_t accepted_seen = 0, rejected_seen = 0;
+  // The daemon's uptime in its last HEARTBEAT: when it falls, the daemon started again, and its
+  // counts with it (the next RECEIVE_STATUS counts from zero, not from the last one).
+  std::optional<double> daemon_uptime_s;
+  bool counts_restarted = false;
   std::optional<protocol::LoopTiming> timing;
   double worst_latency_us = 0.0;
   std::uint64_t timing_windows = 0, deadline_misses = 0;
@@ -159,6 +163,11 @@ class Monitor {
     } else if (const auto* s = std::get_if<protocol::DriveStatus>(&d.message)) {
       a.status = *s;
     } else if (const auto* rs = std::get_if<protocol::ReceiveStatus>(&d.message)) {
+      // After a restart the daemon's counts start from zero: that is the frame before this one.
+      if (a.counts_restarted && a.receive) {
+        a.receive = protocol::ReceiveStatus{};
+      }
+      a.counts_restarted = false;
       if (a.receive && rejections(*rs) != rejections(*a.receive)) {
         event(fmt::format("node {}: the daemon rejected {} more frame(s); last 0x{:03X}: {}", d.node,
                           (rejections(*rs) - rejections(*a.receive)) & 0xFFU, rs->last_rejected_id,
@@ -184,6 +193,12 @@ class Monitor {
       a.latency_saturated = a.latency_saturated || lt->latency_max_us >= protocol::loop_timing::kLatencyMax.maximum;
       a.misses_saturated = a.misses_saturated || lt->deadline_misses >= protocol::loop_timing::kDeadlineMisses.maximum;
     } else if (const auto* h = std::get_if<protocol::Heartbeat>(&d.message)) {
+      if (a.daemon_uptime_s && h->uptime_s < *a.daemon_uptime_s) {
+        event(fmt::format("node {}: the daemon started again (uptime {:.1f} s after {:.1f} s)", d.node, h->uptime_s,
+                          *a.daemon_uptime_s));
+        a.counts_restarted = true;
+      }
+      a.daemon_uptime_s = h->uptime_s;
       if (!a.plant_time) {
         set_time(a, h->uptime_s);
       }
