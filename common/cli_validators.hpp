@@ -11,6 +11,8 @@
 #include <cmath>
 #include <cstdlib>
 #include <string>
+#include <string_view>
+#include <utility>
 
 namespace pmsm::cli {
 
@@ -43,5 +45,11 @@ inline CLI::Validator number_in_range(double lo, double hi, bool strict_lo = fal
 // printing inf or nan as a planning result would be worse than refusing it.
 inline CLI::Validator positive(double hi = HUGE_VAL) { return number_in_range(0.0, hi, true); }
 inline CLI::Validator non_negative(double hi = HUGE_VAL) { return number_in_range(0.0, hi); }
+
+// A text checked by a rule that names what is wrong with it, "" when nothing is (e.g.
+// hal::can_interface_name_problem for an --iface).
+inline CLI::Validator text_rule(std::string (*problem)(std::string_view), std::string type_name) {
+  return CLI::Validator([problem](std::string& text) { return problem(text); }, std::move(type_name));
+}
 
 }  // namespace pmsm::cli

@@ -318,7 +318,7 @@ int main(int argc, char** argv) {
       ->required();
   app.add_option("--iface", o.iface, "CAN interface (CAN FD, MTU 72)")
       ->capture_default_str()
-      ->check(CLI::Validator([](std::string& name) { return pmsm::hal::can_interface_name_problem(name); }, "NAME"));
+      ->check(pmsm::cli::text_rule(pmsm::hal::can_interface_name_problem, "NAME"));
   app.add_option("--node", o.node, "node id 0..15 (added to every CAN ID)")->check(CLI::Range(0, 15))
       ->capture_default_str();
   app.add_option("--mode", o.mode, "lockstep: one period per command (the plant is deterministic; the daemon's wall-clock timeouts need not be); realtime: own clock")

@@ -125,7 +125,7 @@ void register_command_command(CLI::App& app, int& exit_code) {
   CLI::App* cmd = app.add_subcommand("command", "Send E2E-protected drive commands to pmsm-thermald (the supervisor's role)");
   cmd->add_option("--iface", options->iface, "CAN interface")
       ->capture_default_str()
-      ->check(CLI::Validator([](std::string& name) { return hal::can_interface_name_problem(name); }, "NAME"));
+      ->check(pmsm::cli::text_rule(pmsm::hal::can_interface_name_problem, "NAME"));
   cmd->add_option("--node", options->node, "node id of the axis, 0..15")->check(CLI::Range(0, 15))->capture_default_str();
   cmd->add_option("--mode", options->mode, "speed, torque or disabled")
       ->check(CLI::IsMember({"speed", "torque", "disabled"}))

@@ -505,7 +505,7 @@ void register_monitor_command(CLI::App& app, int& exit_code) {
   auto o = std::make_shared<MonitorOptions>();
   CLI::App* cmd = app.add_subcommand("monitor", "Watch the axes on a bus (or in a candump log): temperatures, state, faults");
   cmd->add_option("iface", o->iface, "CAN interface to open (e.g. vcan0)")
-      ->check(CLI::Validator([](std::string& name) { return hal::can_interface_name_problem(name); }, "NAME"));
+      ->check(pmsm::cli::text_rule(pmsm::hal::can_interface_name_problem, "NAME"));
   cmd->add_option("--log", o->log, "read a candump log instead ('-': stdin)");
   cmd->add_option("--node", o->node, "only this node")->check(CLI::Range(0, 15));
   cmd->add_option("--every", o->every_s, "seconds of drive time between lines per axis")->check(pmsm::cli::number_in_range(0.0, 1e6))->capture_default_str();
