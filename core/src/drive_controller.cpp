@@ -770,11 +770,22 @@ void DriveController::update_thermal(double ambient_C) {
   // present sigma), 0 once it derates. (Until 2026-11-29 it was derating.limit_C, the floor's
   // temperature, which a derating drive seldom reaches: the prediction said "never" under a load
   // that derated 10 s later.)
+  // The load continues as a torque: as the housing and the magnets with it warm, the flux
+  // falls by beta per kelvin of magnet and the current rises with 1/flux, the copper loss with
+  // its square, relative to the flux at the magnets' present temperature (their estimate, else
+  // the housing's: the rotor follows the housing). Without it the prediction assumed the
+  // present current for good and came late by up to twice the time remaining
+  // (docs/estimator.md section 7, "Time-to-limit, measured").
   if (++thermal_updates_ % 10 == 0) {
     double t = 0.0;
     const double threshold_C = config_.derating.derate_start_C - config_.derating.confidence_sigma * e.winding_std_C;
+    const double beta = config_.magnet_coefficient_per_C;
+    const double magnet_C = magnet_measured_ ? magnet_filtered_C_ : e.housing_C;
+    const double flux = 1.0 + beta * (magnet_C - observer_.calibration().t0_C);
+    const double loss_per_housing_C = flux > 0.1 ? -2.0 * beta / flux : 0.0;
     telemetry_.time_to_limit_valid =
-        load_i_sq_A2_ >= 0.0 && observer_.time_to_limit_s(threshold_C, load_i_sq_A2_, load_speed_rad_s_, ambient_C, &t);
+        load_i_sq_A2_ >= 0.0 && observer_.time_to_limit_s(threshold_C, load_i_sq_A2_, load_speed_rad_s_, ambient_C, &t,
+                                                          loss_per_housing_C);
     telemetry_.time_to_limit_s = telemetry_.time_to_limit_valid ? t : 0.0;
   }
 }

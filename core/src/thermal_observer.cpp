@@ -361,42 +361,57 @@ ThermalEstimate ThermalObserver::estimate() const {
 }
 
 bool ThermalObserver::time_to_limit_s(double limit_C, double copper_current_sq_A2,
-                                      double omega_m_rad_s, double ambient_C, double* out_s) const {
+                                      double omega_m_rad_s, double ambient_C, double* out_s,
+                                      double copper_loss_per_housing_C) const {
   if (x_(0) >= limit_C) {
     *out_s = 0.0;
     return true;
   }
   // Losses held constant; copper loss taken at the limit temperature (resistance rises with
   // temperature, so this errs towards a shorter time).
-  const double pcu = 1.5 * resistance_at_C(limit_C) * copper_current_sq_A2 * (1.0 + x_(3)) + x_(2);
+  const double pcu_copper = 1.5 * resistance_at_C(limit_C) * copper_current_sq_A2 * (1.0 + x_(3));
   const double pfe = iron_loss_W(omega_m_rad_s);
   const double gwh = 1.0 / config_.winding_to_housing_K_W;
   const double gha = 1.0 / config_.housing_to_ambient_K_W;
-  // Steady state of the two-node network.
-  const double th_ss = ambient_C + (pcu + pfe) / gha;
-  const double tw_ss = th_ss + pcu / gwh;
-  if (tw_ss <= limit_C) {
-    return false;
-  }
-  // x(t) = x_ss + V exp(L t) V^-1 (x0 - x_ss) on the 2x2 network; bisection on t.
-  // A = [-p p; q -(q + r)] (p = gwh/Cw, q = gwh/Ch, r = gha/Ch, all > 0): its eigenvalues are
-  // real, negative and distinct (the discriminant (a00 - a11)^2 + 4 p q > 0), in closed form;
-  // the larger in magnitude from the sum (no cancellation), the other from the determinant.
+  // The torque held, the copper loss grows with the housing's (and so the magnets')
+  // temperature as the flux falls: linearised, gamma W more per kelvin of housing above its
+  // present temperature. It stays below half the housing's conductance to ambient, so the
+  // network keeps a steady state (a loss growing faster than the housing sheds it would run
+  // away; no machine's magnets come near: 1-2 W/K against 8 W/K on the reference).
+  const double gamma = std::clamp(copper_loss_per_housing_C * pcu_copper, 0.0, 0.5 * gha);
+  const double pcu = pcu_copper + x_(2);
+  // d/dt (Tw, Th) = A (Tw, Th) + u, A = [a00 a01; a10 a11] with a00 = -p, a01 = p + gamma/Cw,
+  // a10 = q, a11 = -(q + r) (p = gwh/Cw, q = gwh/Ch, r = gha/Ch, all > 0).
   const double p = gwh / config_.winding_capacity_J_K;
   const double q = gwh / config_.housing_capacity_J_K;
   const double r = gha / config_.housing_capacity_J_K;
   const double a00 = -p;
+  const double a01 = p + gamma / config_.winding_capacity_J_K;
+  const double a10 = q;
   const double a11 = -(q + r);
+  const double u0 = (pcu - gamma * x_(1)) / config_.winding_capacity_J_K;
+  const double u1 = (pfe + gha * ambient_C) / config_.housing_capacity_J_K;
+  const double det = a00 * a11 - a01 * a10;  // p r - q gamma / Cw > 0 by the clamp
+  // Steady state: A x_ss + u = 0.
+  const double tw_ss = (a01 * u1 - a11 * u0) / det;
+  const double th_ss = (a10 * u0 - a00 * u1) / det;
+  if (tw_ss <= limit_C) {
+    return false;
+  }
+  // x(t) = x_ss + V exp(L t) V^-1 (x0 - x_ss); bisection on t. The eigenvalues are real,
+  // negative and distinct (the discriminant (a00 - a11)^2 + 4 a01 a10 > 0, the determinant
+  // > 0), in closed form: the larger in magnitude from the sum (no cancellation), the other
+  // from the determinant.
   const double trace = a00 + a11;
-  const double root = std::sqrt((a00 - a11) * (a00 - a11) + 4.0 * p * q);
-  const std::array<double, 2> lambda{0.5 * (trace - root), p * r / (0.5 * (trace - root))};
-  // Eigenvectors (p, lambda - a00); the winding's row of V is (p, p).
+  const double root = std::sqrt((a00 - a11) * (a00 - a11) + 4.0 * a01 * a10);
+  const std::array<double, 2> lambda{0.5 * (trace - root), det / (0.5 * (trace - root))};
+  // Eigenvectors (a01, lambda - a00); the winding's row of V is (a01, a01).
   const std::array<double, 2> v1{lambda[0] - a00, lambda[1] - a00};
   const double dw = x_(0) - tw_ss;
   const double dh = x_(1) - th_ss;
-  const double det_v = p * root;  // p (lambda1 - lambda0), without the difference's cancellation
-  // c = V^-1 (dw, dh); the winding's temperature is p c0 e^(l0 t) + p c1 e^(l1 t).
-  const std::array<double, 2> pc{p * (v1[1] * dw - p * dh) / det_v, p * (p * dh - v1[0] * dw) / det_v};
+  const double det_v = a01 * root;  // a01 (lambda1 - lambda0), without the difference's cancellation
+  // c = V^-1 (dw, dh); the winding's temperature is a01 c0 e^(l0 t) + a01 c1 e^(l1 t).
+  const std::array<double, 2> pc{a01 * (v1[1] * dw - a01 * dh) / det_v, a01 * (a01 * dh - v1[0] * dw) / det_v};
   auto winding_at = [&](double t) {
     return tw_ss + pc[0] * std::exp(lambda[0] * t) + pc[1] * std::exp(lambda[1] * t);
   };

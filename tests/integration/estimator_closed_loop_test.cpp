@@ -130,16 +130,15 @@ TEST(EstimatorClosedLoop, TimeToLimitPredictsTheDerating) {
     }
     ++valid;
     const double remaining = t_derate - row.time_s;
-    // The controller's model is a commissioning's (thermal parameters 5-10 % off, its loss
-    // model learned as it goes), and here it heats more slowly than the winding: each
-    // measurement lifts the estimate above what the model had predicted, so the predicted
-    // crossing lies late, measured by 0.3-6.7 s (up to 90 % of the time remaining), never
-    // early. Bound: not more than a second early, late by at most the remaining time plus a
-    // second (the prediction is refreshed every 0.1 s and sigma, in the threshold, moves by a
-    // few tenths of a degree with each measurement).
+    // The prediction holds the torque: the current rises as the magnets warm and lose flux
+    // (+13 % in i^2 from 7 s to the derating here). Holding the current instead, it came late
+    // by 0.3-6.7 s (up to 90 % of the time remaining, 150 % near the end); now it lies within
+    // -0.8 .. +2.0 s of the crossing. Bound: not more than 1.5 s early, late by at most 30 %
+    // of the remaining time plus 1.5 s (the threshold T + 2 sigma moves by a few tenths of a
+    // degree with each measurement, by a second of prediction near the steady state).
     const double error_s = row.time_s + row.time_to_limit_s - t_derate;
-    EXPECT_GT(error_s, -1.0) << "at " << row.time_s << " s, derating at " << t_derate << " s";
-    EXPECT_LT(error_s, remaining + 1.0) << "at " << row.time_s << " s, derating at " << t_derate << " s";
+    EXPECT_GT(error_s, -1.5) << "at " << row.time_s << " s, derating at " << t_derate << " s";
+    EXPECT_LT(error_s, 0.3 * remaining + 1.5) << "at " << row.time_s << " s, derating at " << t_derate << " s";
     last_predicted = row.time_to_limit_s;
   }
   ASSERT_GT(rows, 100U);

@@ -3,6 +3,8 @@
 // brute-force simulation.
 #include <gtest/gtest.h>
 
+#include <functional>
+
 #include <vector>
 
 #include <Eigen/Dense>
@@ -474,12 +476,16 @@ TEST(ThermalObserver, OutlierBeyondTheGateIsRejectedAndLeavesTheState) {
 
 // Brute force: RK4 on the two-node network with the losses held constant, until the winding
 // reaches the limit. Returns thermal seconds.
+// `scale_with_housing` (if given) multiplies the constant loss p_cu by a function of how far
+// the housing has warmed since the start.
 double brute_force_time(const Network& n, double tw0, double th0, double p_cu, double p_fe, double ambient,
-                        double limit, bool copper_follows_temperature, double i2) {
+                        double limit, bool copper_follows_temperature, double i2,
+                        const std::function<double(double)>& scale_with_housing = {}) {
   const double gwh = 1.0 / n.rwh;
   const double gha = 1.0 / n.rha;
   auto f = [&](const Eigen::Vector2d& x) {
-    const double pcu = copper_follows_temperature ? 1.5 * i2 * n.rs0 * (1.0 + kAlpha * (x(0) - n.t0)) : p_cu;
+    const double held = scale_with_housing ? p_cu * scale_with_housing(x(1) - th0) : p_cu;
+    const double pcu = copper_follows_temperature ? 1.5 * i2 * n.rs0 * (1.0 + kAlpha * (x(0) - n.t0)) : held;
     return Eigen::Vector2d((pcu - gwh * (x(0) - x(1))) / n.cw, (p_fe + gwh * (x(0) - x(1)) - gha * (x(1) - ambient)) / n.ch);
   };
   Eigen::Vector2d x(tw0, th0);
@@ -534,6 +540,47 @@ TEST(ThermalObserver, TimeToLimitMatchesABruteForceSimulation) {
   ASSERT_TRUE(obs_fast.time_to_limit_s(limit, i2, w, ambient, &t_fast));
   ASSERT_TRUE(obs_slow.time_to_limit_s(limit, i2, w, ambient, &t_slow));
   EXPECT_NEAR(t_fast, t_slow / 20.0, 1e-6 * t_slow);
+}
+
+// At a held torque the current rises as the magnets' flux falls: the copper loss grows with the
+// housing's temperature, linearised in the closed form (gamma W per K of housing).
+TEST(ThermalObserver, TimeToLimitWithTheCurrentRisingAsTheMagnetsWarm) {
+  ThermalModelConfig c;
+  Calibration cal;
+  ThermalObserver obs(c, cal, 25.0);
+  for (int k = 0; k < 300; ++k) obs.predict(0.5, 2500.0, 100.0, 25.0);  // warm up, housing lags
+  const ThermalEstimate e = obs.estimate();
+  const double i2 = 2500.0, w = 100.0, ambient = 25.0, limit = 155.0;
+  const double beta = -0.0012;  // NdFeB
+  const double flux = 1.0 + beta * (e.housing_C - cal.t0_C);
+  const double g = -2.0 * beta / flux;
+  double held = -1.0;
+  double rising = -1.0;
+  ASSERT_TRUE(obs.time_to_limit_s(limit, i2, w, ambient, &held));
+  ASSERT_TRUE(obs.time_to_limit_s(limit, i2, w, ambient, &rising, g));
+  const double p_cu = 1.5 * i2 * 0.133 * (1.0 + kAlpha * (limit - 25.0));
+  const double p_fe = c.iron_loss_k1_W_s_rad * w + c.iron_loss_k2_W_s2_rad2 * w * w;
+  const Network n = network_of(c, cal);
+  const double linear = brute_force_time(n, e.winding_C, e.housing_C, p_cu, p_fe, ambient, limit, false, i2,
+                                         [&](double dh) { return 1.0 + g * dh; });
+  ASSERT_GT(linear, 0.0);
+  EXPECT_NEAR(rising, linear, 1e-3 * linear) << "the closed form solves the linearised network";
+  // The flux's own law, i^2 ~ 1 / flux^2, grows faster than its tangent: the linearised time
+  // lies a little late, by less than 5 % here (the housing warms by about 50 K on the way).
+  const double exact = brute_force_time(n, e.winding_C, e.housing_C, p_cu, p_fe, ambient, limit, false, i2, [&](double dh) {
+    const double f = (flux + beta * dh) / flux;
+    return 1.0 / (f * f);
+  });
+  EXPECT_GE(rising, exact);
+  EXPECT_LT(rising, 1.05 * exact);
+  EXPECT_LT(rising, 0.9 * held) << "a rising current reaches the limit sooner";
+  // A gain that would let the loss outgrow the housing's cooling is held at half of it: the
+  // network keeps a steady state and the time stays a number.
+  double runaway = -1.0;
+  ASSERT_TRUE(obs.time_to_limit_s(limit, i2, w, ambient, &runaway, 1.0));
+  EXPECT_TRUE(std::isfinite(runaway));
+  EXPECT_GT(runaway, 0.0);
+  EXPECT_LT(runaway, rising);
 }
 
 TEST(ThermalObserver, TimeToLimitWhenSafeOrAlreadyThere) {

@@ -194,10 +194,14 @@ class ThermalObserver {
   [[nodiscard]] double temperature_from_resistance_C(double rs_ohm) const;
   [[nodiscard]] double resistance_at_C(double temp_C) const;
 
-  // Time (controller seconds) until the winding reaches limit_C if the present losses
-  // continue; nothing when the steady state stays below the limit.
+  // Time (controller seconds) until the winding reaches limit_C if the present load
+  // continues; nothing when the steady state stays below the limit. The copper loss is taken
+  // at the limit's resistance; copper_loss_per_housing_C (1/K) is its relative growth per
+  // kelvin the housing warms (at a held torque the current rises as the magnets' flux falls:
+  // DriveController passes -2 beta / (1 + beta (T_magnet - T0))), 0 for a loss held constant.
   [[nodiscard]] bool time_to_limit_s(double limit_C, double copper_current_sq_A2,
-                                     double omega_m_rad_s, double ambient_C, double* out_s) const;
+                                     double omega_m_rad_s, double ambient_C, double* out_s,
+                                     double copper_loss_per_housing_C = 0.0) const;
 
   // Copper loss for a mean current square at the estimated temperature.
   [[nodiscard]] double copper_loss_W(double copper_current_sq_A2) const;
