@@ -16,6 +16,11 @@ fail() { echo "FAIL: $*"; echo "--- output:"; cat "$work/out"; exit 1; }
 grep -q "0 not decodable (none)" "$work/out" || fail "a clean capture has undecodable frames"
 grep -q "node  0  daemon: 12 command(s) accepted, 7 frame(s) rejected" "$work/out" || fail "RECEIVE_STATUS not summarised"
 grep -q "sample->command median < 16 us, p99 < 64 us; worst 87.3 us" "$work/out" || fail "LOOP_TIMING not summarised"
+# The line's clock says which it is: the daemon's uptime until a PLANT_STATUS comes, then the
+# plant's simulated time, and the switch is told.
+grep -q "^node  0  uptime " "$work/out" || fail "the daemon's uptime not labelled"
+grep -q "node 0: a plant emulator is on the bus" "$work/out" || fail "the switch to the plant's time not told"
+grep -q "^node  0  plant    3600.5 s" "$work/out" || fail "the plant's time not labelled"
 
 # RECEIVE_STATUS counts modulo 256: a second one a second later whose CommandsAccepted went
 # 12 -> 5 (249 more: it wrapped) and RejectedCrc 3 -> 4 is summed, not read as it stands.

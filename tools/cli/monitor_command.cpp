@@ -236,6 +236,10 @@ class Monitor {
         a.truth_at = now;
       }
     } else if (const auto* ps = std::get_if<protocol::PlantStatus>(&d.message)) {
+      if (!a.plant_time && a.time_s) {
+        event(fmt::format("node {}: a plant emulator is on the bus: its simulated time from here, not the daemon's uptime",
+                          d.node));
+      }
       a.plant_time = true;
       set_time(a, ps->simulated_time_s);
     }
@@ -311,7 +315,9 @@ class Monitor {
   }
 
   [[nodiscard]] std::string line(int node, const Axis& a) const {
-    std::string out = fmt::format("node {:2d}  t {:8.1f} s  ", node, a.time_s.value_or(0.0));
+    // Which clock: the plant's simulated time once a PLANT_STATUS has come, else the daemon's
+    // uptime (a real power stage sends no PLANT_STATUS).
+    std::string out = fmt::format("node {:2d}  {} {:8.1f} s  ", node, a.plant_time ? "plant " : "uptime", a.time_s.value_or(0.0));
     if (a.thermal && a.thermal->valid) {
       out += fmt::format("winding {:6.1f} +- {:4.1f} C", a.thermal->winding_temp_C, a.thermal->winding_temp_sigma_C);
       if (a.truth_C) {
