@@ -47,9 +47,11 @@ inline CLI::Validator positive(double hi = HUGE_VAL) { return number_in_range(0.
 inline CLI::Validator non_negative(double hi = HUGE_VAL) { return number_in_range(0.0, hi); }
 
 // A text checked by a rule that names what is wrong with it, "" when nothing is (e.g.
-// hal::can_interface_name_problem for an --iface).
-inline CLI::Validator text_rule(std::string (*problem)(std::string_view), std::string type_name) {
-  return CLI::Validator([problem](std::string& text) { return problem(text); }, std::move(type_name));
+// hal::can_interface_name_problem for an --iface): any callable taking a std::string_view.
+template <class Rule>
+CLI::Validator text_rule(Rule rule, std::string type_name) {
+  return CLI::Validator([rule = std::move(rule)](std::string& text) { return std::string(rule(text)); },
+                        std::move(type_name));
 }
 
 }  // namespace pmsm::cli

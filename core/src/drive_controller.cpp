@@ -713,7 +713,7 @@ void DriveController::restore_thermal_state(const ThermalState& state, double do
   thermal_guess_pending_ = false;
 }
 
-void DriveController::update_thermal(double ambient_C) {
+void DriveController::update_thermal(double ambient_C, bool speed_mode) {
   if (thermal_guess_pending_) {
     // Nothing known about the winding yet: the ambient sensor is the best guess (a motor at
     // rest), with a wide uncertainty; the first measurement decides.
@@ -770,19 +770,22 @@ void DriveController::update_thermal(double ambient_C) {
   // present sigma), 0 once it derates. (Until 2026-11-29 it was derating.limit_C, the floor's
   // temperature, which a derating drive seldom reaches: the prediction said "never" under a load
   // that derated 10 s later.)
-  // The load continues as a torque: as the housing and the magnets with it warm, the flux
-  // falls by beta per kelvin of magnet and the current rises with 1/flux, the copper loss with
-  // its square, relative to the flux at the magnets' present temperature (their estimate, else
-  // the housing's: the rotor follows the housing). Without it the prediction assumed the
-  // present current for good and came late by up to twice the time remaining
-  // (docs/estimator.md section 7, "Time-to-limit, measured").
+  // Under speed control the load continues as a torque: as the housing and the magnets with it
+  // warm, the flux falls by beta per kelvin of magnet, the speed loop answers the torque lost
+  // with current, and the copper loss grows with 1/flux^2, relative to the flux at the magnets'
+  // present temperature (their estimate, else the housing's: the rotor follows the housing).
+  // Without it the prediction held the present current and came late by up to twice the time
+  // remaining (docs/estimator.md section 7, "Time-to-limit, measured"). In torque mode the
+  // reference current is the torque over the commissioned kt: the current holds and the shaft's
+  // torque falls instead, so the loss is held. (A magnet coefficient above zero would make the
+  // current fall; the gain is then 0, the earlier, safe answer.)
   if (++thermal_updates_ % 10 == 0) {
     double t = 0.0;
     const double threshold_C = config_.derating.derate_start_C - config_.derating.confidence_sigma * e.winding_std_C;
     const double beta = config_.magnet_coefficient_per_C;
     const double magnet_C = magnet_measured_ ? magnet_filtered_C_ : e.housing_C;
-    const double flux = 1.0 + beta * (magnet_C - observer_.calibration().t0_C);
-    const double loss_per_housing_C = flux > 0.1 ? -2.0 * beta / flux : 0.0;
+    const double flux = std::max(1.0 + beta * (magnet_C - observer_.calibration().t0_C), 0.1);
+    const double loss_per_housing_C = speed_mode ? -2.0 * beta / flux : 0.0;
     telemetry_.time_to_limit_valid =
         load_i_sq_A2_ >= 0.0 && observer_.time_to_limit_s(threshold_C, load_i_sq_A2_, load_speed_rad_s_, ambient_C, &t,
                                                           loss_per_housing_C);
@@ -1064,7 +1067,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   thermal_elapsed_s_ += config_.period_s;
   if (thermal_elapsed_s_ >= config_.thermal_update_s) {
     thermal_elapsed_s_ = 0.0;
-    update_thermal(command.ambient_C);
+    update_thermal(command.ambient_C, command.mode == DriveMode::kSpeed);
   }
   if (config_.estimator == EstimatorKind::kNoInjection && baseline_.updates() > 0 && !sweeping &&
       now - last_baseline_publish_s_ >= config_.baseline_publish_s) {

@@ -130,7 +130,7 @@ TEST(Scenario, ErrorsInTheScenarioNameFileLineAndKey) {
             path_of("inline.toml") + ":2: operation.speed_rad_s: expected a non-empty array of [time_s, value] pairs");
   EXPECT_EQ(inline_error("[scenario]\nname = \"no profile\"\n"),
             path_of("inline.toml") + ": operation.speed_rad_s (or operation.speed_csv) is required in speed mode");
-  EXPECT_EQ(inline_error("[operation]\nmode = \"torque\"\nspeed_rad_s = [[0, 1]]\n"),
+  EXPECT_EQ(inline_error("[operation]\nmode = \"torque\"\n"),
             path_of("inline.toml") + ": operation.torque_Nm (or operation.torque_csv) is required in torque mode");
   EXPECT_EQ(inline_error("[scenario]\nseed = -3\n[operation]\nspeed_rad_s = [[0, 1]]\n"),
             path_of("inline.toml") + ":2: scenario.seed: expected an integer >= 0");
@@ -172,8 +172,15 @@ TEST(Scenario, AProfileBothInlineAndFromCsvIsAnError) {
 TEST(Scenario, AProfileOfTheOtherModeIsAnError) {
   EXPECT_EQ(inline_error("[operation]\nspeed_rad_s = [[0, 1]]\ntorque_Nm = [[0, 5]]\n"),
             path_of("inline.toml") +
-                ":3: operation.torque_Nm: a set-point of torque mode, but operation.mode is \"speed\"; it would be "
-                "ignored (the load's torque is [plant.load]): remove it or set the mode");
+                ":3: operation.torque_Nm: a set-point of torque mode, but operation.mode is \"speed\" (the default); it "
+                "would be ignored (the load's torque is [plant.load]): remove it or set the mode");
+  // Told before the profile is read: the line, not a missing file or a value out of range.
+  EXPECT_EQ(inline_error("[operation]\nspeed_rad_s = [[0, 1]]\ntorque_csv = \"no_such.csv\"\n")
+                .rfind(path_of("inline.toml") + ":3: operation.torque_csv: a set-point of torque mode", 0),
+            0U);
+  EXPECT_EQ(inline_error("[operation]\nmode = \"torque\"\nspeed_rad_s = [[0, 1]]\n")
+                .rfind(path_of("inline.toml") + ":3: operation.speed_rad_s: a set-point of speed mode", 0),
+            0U);
   EXPECT_EQ(inline_error("[operation]\nmode = \"torque\"\ntorque_Nm = [[0, 5]]\nspeed_csv = \"speed_profile.csv\"\n"),
             path_of("inline.toml") +
                 ":4: operation.speed_csv: a set-point of speed mode, but operation.mode is \"torque\"; it would be "

@@ -41,6 +41,16 @@ grep -q "node  0  daemon: 261 command(s) accepted, 8 frame(s) rejected" "$work/o
 "$exe" monitor --log "$work/restart.log" > "$work/out"
 grep -q "node 0: the daemon started again (uptime 2.0 s after 3600.5 s)" "$work/out" || fail "a daemon restart not told"
 grep -q "node  0  daemon: 17 command(s) accepted, 8 frame(s) rejected" "$work/out" || fail "a restart's counts read as a wrap"
+# The restarted daemon reports a rejection (3 accepted, 1 CRC) before its first HEARTBEAT: read
+# as a wrap at first, undone when the HEARTBEAT tells the restart.
+{
+  cat "$log"
+  echo "(1795493853.500000) vcan0 150#0504030100000000"
+  echo "(1795493853.589724) vcan0 140#C8000000022B0000"
+  echo "(1795493853.618043) vcan0 150#0504050100000000"
+} > "$work/restart-early.log"
+"$exe" monitor --log "$work/restart-early.log" > "$work/out"
+grep -q "node  0  daemon: 17 command(s) accepted, 8 frame(s) rejected" "$work/out" || fail "an early report of a restarted daemon counted twice"
 
 # A replayed DRIVE_COMMAND (same alive counter) and one with a corrupted CRC.
 drive=$(grep -m1 " 040#" "$log")

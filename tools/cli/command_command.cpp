@@ -5,11 +5,14 @@
 // with enable off at the end.
 //
 //   pmsm-thermal command --iface vcan0 --node 1 --mode speed --speed 100 --duration 30
+#include <cctype>
 #include <chrono>
 #include <cstdio>
 #include <optional>
 #include <string>
 #include <thread>
+#include <utility>
+#include <vector>
 
 #include <fmt/format.h>
 
@@ -39,14 +42,31 @@ struct CommandOptions {
   double injection_interval_s = 0.0;
 };
 
-// INJECTION_COMMAND's methods by the names the command line takes (the DBC's labels in lower
-// case with dashes).
+// INJECTION_COMMAND's methods by the names the command line takes: the DBC's labels in lower
+// case with dashes (OFF aside: --inject-now asks for a measurement), so that the two never
+// disagree.
+std::vector<std::pair<std::string, protocol::InjectionMethod>> injection_methods() {
+  std::vector<std::pair<std::string, protocol::InjectionMethod>> out;
+  for (const protocol::ValueLabel& v : protocol::kInjectionMethodLabels) {
+    if (v.value == static_cast<std::int64_t>(protocol::InjectionMethod::kOff)) {
+      continue;
+    }
+    std::string name(v.label);
+    for (char& c : name) {
+      c = c == '_' ? '-' : static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+    }
+    out.emplace_back(std::move(name), static_cast<protocol::InjectionMethod>(v.value));
+  }
+  return out;
+}
+
 protocol::InjectionMethod injection_method(const std::string& name) {
-  if (name == "fixed-magnitude-unipolar") return protocol::InjectionMethod::kFixedMagnitudeUnipolar;
-  if (name == "fixed-angle-bipolar") return protocol::InjectionMethod::kFixedAngleBipolar;
-  if (name == "fixed-angle-unipolar") return protocol::InjectionMethod::kFixedAngleUnipolar;
-  if (name == "dc") return protocol::InjectionMethod::kDc;
-  return protocol::InjectionMethod::kFixedMagnitudeBipolar;
+  for (const auto& [option, method] : injection_methods()) {
+    if (option == name) {
+      return method;
+    }
+  }
+  return protocol::InjectionMethod::kFixedMagnitudeBipolar;  // unreachable: the option checks its member
 }
 
 // A command line option's range is its signal's: a value the frame cannot carry is refused
@@ -147,8 +167,11 @@ void register_command_command(CLI::App& app, int& exit_code) {
           ->check(signal_range(protocol::injection_command::kInterval));
   CLI::Option* method =
       cmd->add_option("--injection-method", options->injection_method, "with --inject-now: the method from then on")
-          ->check(CLI::IsMember({"fixed-magnitude-bipolar", "fixed-magnitude-unipolar", "fixed-angle-bipolar",
-                                 "fixed-angle-unipolar", "dc"}));
+          ->check(CLI::IsMember([] {
+            std::vector<std::string> names;
+            for (const auto& entry : injection_methods()) names.push_back(entry.first);
+            return names;
+          }()));
   cmd->add_flag("--inject-now", options->inject_now,
                 "request one injection event now (INJECTION_COMMAND; it also sets the drive's method and interval, "
                 "so --injection-method and --injection-interval must be given)")

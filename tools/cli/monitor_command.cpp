@@ -83,6 +83,11 @@ struct Axis {
   // counts with it (the next RECEIVE_STATUS counts from zero, not from the last one).
   std::optional<double> daemon_uptime_s;
   bool counts_restarted = false;
+  // The totals as the RECEIVE_STATUS sent with the last HEARTBEAT left them: a restarted
+  // daemon may report before its first HEARTBEAT tells the restart, and those reports, read as
+  // a wrap of the old daemon's counts, are undone back to here.
+  std::uint64_t accepted_confirmed = 0, rejected_confirmed = 0;
+  bool status_follows_heartbeat = true;
   std::optional<protocol::LoopTiming> timing;
   double worst_latency_us = 0.0;
   std::uint64_t timing_windows = 0, deadline_misses = 0;
@@ -163,9 +168,12 @@ class Monitor {
     } else if (const auto* s = std::get_if<protocol::DriveStatus>(&d.message)) {
       a.status = *s;
     } else if (const auto* rs = std::get_if<protocol::ReceiveStatus>(&d.message)) {
-      // After a restart the daemon's counts start from zero: that is the frame before this one.
+      // After a restart the daemon's counts start from zero: that is the frame before this one,
+      // and the totals are those the old daemon's last HEARTBEAT confirmed.
       if (a.counts_restarted && a.receive) {
         a.receive = protocol::ReceiveStatus{};
+        a.accepted_seen = a.accepted_confirmed;
+        a.rejected_seen = a.rejected_confirmed;
       }
       a.counts_restarted = false;
       if (a.receive && rejections(*rs) != rejections(*a.receive)) {
@@ -185,6 +193,11 @@ class Monitor {
                            delta(rs->rejected_other, a.receive->rejected_other);
       }
       a.receive = *rs;
+      if (a.status_follows_heartbeat) {
+        a.accepted_confirmed = a.accepted_seen;
+        a.rejected_confirmed = a.rejected_seen;
+        a.status_follows_heartbeat = false;
+      }
     } else if (const auto* lt = std::get_if<protocol::LoopTiming>(&d.message)) {
       a.timing = *lt;
       a.worst_latency_us = std::max(a.worst_latency_us, lt->latency_max_us);
@@ -199,6 +212,7 @@ class Monitor {
         a.counts_restarted = true;
       }
       a.daemon_uptime_s = h->uptime_s;
+      a.status_follows_heartbeat = true;  // the daemon sends its RECEIVE_STATUS right after
       if (!a.plant_time) {
         set_time(a, h->uptime_s);
       }

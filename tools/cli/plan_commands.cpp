@@ -152,6 +152,7 @@ int run_losses(const LossOptions& o) {
     std::fprintf(stderr, "losses: --omega is required for --method fixed-angle (Eq. 31 depends on the electrical speed)\n");
     return 2;
   }
+  // (A rule on --method's value, so not CLI11's needs() as budget's options have.)
   if (!fixed_angle && o.omega_given) {
     std::fprintf(stderr, "losses: --omega applies to --method fixed-angle only (Eq. 32's loss does not depend on the speed)\n");
     return 2;
@@ -229,15 +230,15 @@ void register_budget_command(CLI::App& app, int& exit_code) {
   mode->require_option(1);
   // The operating point's options mean nothing to --voltage or --current: given there they
   // would be ignored without a word, so CLI11 refuses them ("--iq requires --speed").
-  cmd->add_option("--Lq", options->lq_H, "q-axis inductance, H (default: equal to Ld; --speed only)")->check(positive(kMaxInductance_H))->needs(speed);
-  cmd->add_option("--iq", options->iq_A, "motoring q-axis current, A peak (--speed only)")
+  cmd->add_option("--Lq", options->lq_H, "q-axis inductance, H (default: equal to Ld)")->check(positive(kMaxInductance_H))->needs(speed);
+  cmd->add_option("--iq", options->iq_A, "motoring q-axis current, A peak")
       ->check(number_in_range(-kMaxCurrent_A, kMaxCurrent_A))->capture_default_str()->needs(speed);
-  cmd->add_option("--vdc", options->vdc_V, "DC-bus voltage, V (--speed only)")->check(positive(kMaxVoltage_V))->capture_default_str()->needs(speed);
-  cmd->add_option("--voltage-fraction", options->voltage_fraction, "usable fraction of Vdc/sqrt(3) (--speed only)")
+  cmd->add_option("--vdc", options->vdc_V, "DC-bus voltage, V")->check(positive(kMaxVoltage_V))->capture_default_str()->needs(speed);
+  cmd->add_option("--voltage-fraction", options->voltage_fraction, "usable fraction of Vdc/sqrt(3)")
       ->check(number_in_range(0.1, 1.0))->capture_default_str()->needs(speed);
-  cmd->add_option("--Ke", options->ke_V_s_per_rad, "EMF constant, line-to-line RMS V per mechanical rad/s (--speed only)")
+  cmd->add_option("--Ke", options->ke_V_s_per_rad, "EMF constant, line-to-line RMS V per mechanical rad/s")
       ->check(positive(kMaxKe))->capture_default_str()->needs(speed);
-  cmd->add_option("--pole-pairs", options->pole_pairs, "pole pairs (--speed only)")->check(number_in_range(1, 100))->capture_default_str()->needs(speed);
+  cmd->add_option("--pole-pairs", options->pole_pairs, "pole pairs")->check(number_in_range(1, 100))->capture_default_str()->needs(speed);
   cmd->add_flag("--json", options->json, "print one JSON object");
   cmd->callback([options, cmd, &exit_code] {
     options->window = window_from_name(options->window_name);

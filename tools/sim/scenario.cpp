@@ -379,6 +379,20 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
                         "): a profile is either inline or from a CSV file; remove one");
     }
   }
+  // A profile the mode does not follow would be ignored without a word (the load torque of a
+  // speed-mode run is plant.load's, not a set-point).
+  const bool speed_mode = out.scenario.mode == core::DriveMode::kSpeed;
+  for (const char* key : speed_mode ? std::array{"operation.torque_Nm", "operation.torque_csv"}
+                                    : std::array{"operation.speed_rad_s", "operation.speed_csv"}) {
+    if (const auto node = root.at_path(key)) {
+      throw ConfigError(where(*node.node(), source.string(), key) + "a set-point of " +
+                        (speed_mode ? "torque" : "speed") + " mode, but operation.mode is \"" +
+                        (speed_mode ? "speed" : "torque") + "\"" +
+                        (root.at_path("operation.mode") ? "" : " (the default)") + "; it would be ignored" +
+                        (speed_mode ? " (the load's torque is [plant.load])" : " (the speed follows the load, [plant.load])") +
+                        ": remove it or set the mode");
+    }
+  }
   const std::filesystem::path dir = source.parent_path();
   if (const auto node = root.at_path("operation.speed_rad_s")) {
     out.scenario.speed_rad_s = read_points(*node.node(), source.string(), "operation.speed_rad_s", kSpeedLimits);
@@ -400,26 +414,12 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
     out.scenario.torque_Nm = read_points(*node.node(), source.string(), "operation.torque_Nm", kTorqueLimits);
   }
   csv_profile("operation.torque_csv", out.scenario.torque_Nm, kTorqueLimits);
-  const bool speed_mode = out.scenario.mode == core::DriveMode::kSpeed;
   if (speed_mode && out.scenario.speed_rad_s.empty()) {
     throw ConfigError(source.string() + ": operation.speed_rad_s (or operation.speed_csv) is required in speed mode");
   }
   if (!speed_mode && out.scenario.torque_Nm.empty()) {
     throw ConfigError(source.string() + ": operation.torque_Nm (or operation.torque_csv) is required in torque mode");
   }
-  // A profile the mode does not follow would be ignored without a word (the load torque of a
-  // speed-mode run is plant.load's, not a set-point).
-  for (const char* key : speed_mode ? std::array{"operation.torque_Nm", "operation.torque_csv"}
-                                    : std::array{"operation.speed_rad_s", "operation.speed_csv"}) {
-    if (const auto node = root.at_path(key)) {
-      throw ConfigError(where(*node.node(), source.string(), key) + "a set-point of " +
-                        (speed_mode ? "torque" : "speed") + " mode, but operation.mode is \"" +
-                        (speed_mode ? "speed" : "torque") + "\"; it would be ignored" +
-                        (speed_mode ? " (the load's torque is [plant.load])" : " (the speed follows the load, [plant.load])") +
-                        ": remove it or set the mode");
-    }
-  }
-
   out.plant = load_plant(root, source);
   // The scenario's ambient, seed and acceleration apply to the plant unless it says otherwise.
   const bool plant_ambient = static_cast<bool>(root.at_path("plant.thermal.ambient_C"));

@@ -373,7 +373,7 @@ class DriveController {
   void handle_pair(const PairResult& r);
   [[nodiscard]] double measurement_age_s(const EventEstimate& e) const;
   void handle_estimate(const EventEstimate& e);
-  void update_thermal(double ambient_C);
+  void update_thermal(double ambient_C, bool speed_mode);
   [[nodiscard]] Dq motoring_reference(const DriveCommand& command);
 
   DriveConfig config_;

@@ -559,7 +559,7 @@ inline constexpr SignalDef kLimitSpeed{"LimitSpeed", 7, 1, false, 1, 0, 0, 1, ""
 inline constexpr SignalDef kCurrentLimit{"CurrentLimit", 8, 12, false, 0.1, 0, 0, 400, "A", detail::kNoValues,
     "Present (derated) current-amplitude limit."};
 inline constexpr SignalDef kTimeToLimit{"TimeToLimit", 20, 14, false, 1, 0, 0, 16383, "s", detail::kNoValues,
-    "Time until the winding reaches its derating threshold if the present torque and speed continue (saturates); see TimeToLimitValid."};
+    "Time until the winding reaches its derating threshold if the present load continues (saturates); see TimeToLimitValid."};
 inline constexpr SignalDef kTimeToLimitValid{"TimeToLimitValid", 34, 1, false, 1, 0, 0, 1, "", detail::kNoValues,
     "1: TimeToLimit holds a prediction; 0: none (not heating, or no estimate)."};
 inline constexpr SignalDef kSpeed{"Speed", 35, 15, true, 0.1, 0, -1600, 1600, "rad/s", detail::kNoValues,
