@@ -584,7 +584,24 @@ class ConfigSchema {
         best_key = e.key;
       }
     }
-    return best <= 3 ? " (did you mean " + std::string(prefix) + best_key + "?)" : "";
+    if (best > 3) {
+      // A key given without its unit ("rs" for "rs_ohm"): the shortest known key it begins
+      // (rs_ohm, not rs_reference_temp_C), none if two are as short.
+      const std::string* shortest = nullptr;
+      bool tie = false;
+      for (const Entry& e : entries_) {
+        if (e.key.size() > key.size() + 1 && e.key.compare(0, key.size(), key) == 0 && e.key[key.size()] == '_') {
+          if (shortest == nullptr || e.key.size() < shortest->size()) {
+            shortest = &e.key;
+            tie = false;
+          } else if (e.key.size() == shortest->size()) {
+            tie = true;
+          }
+        }
+      }
+      return shortest != nullptr && !tie ? " (did you mean " + std::string(prefix) + *shortest + "?)" : "";
+    }
+    return " (did you mean " + std::string(prefix) + best_key + "?)";
   }
 
   static std::size_t edit_distance(const std::string& a, const std::string& b) {
