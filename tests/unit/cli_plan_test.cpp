@@ -63,6 +63,20 @@ TEST(PlanCli, LossesFixedAngleMatchesEq31) {
   EXPECT_TRUE(r.err.empty()) << r.err;  // a 86 degree arc: no warning
 }
 
+// Without options the plan is the drive's: its default motor (5.5 mH), window (modified) and
+// edge (4 ms), not the paper's Fig. 8; and the loss's share is of the power asked for.
+TEST(PlanCli, DefaultsAreTheDrivesOwn) {
+  const ProcessResult r = run_process(kExe + " budget --current 10 --json");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("\"window\": \"modified\""), std::string::npos) << r.out;
+  EXPECT_EQ(json_number(r.out, "Tw_s").value_or(-1), 0.004);
+  EXPECT_EQ(json_number(r.out, "ld_H").value_or(-1), 0.0055);
+  const ProcessResult l = run_process(kExe + " losses --F 5 --rated-power 1500 --json");
+  ASSERT_EQ(l.exit_code, 0) << l.err;
+  EXPECT_NEAR(json_number(l.out, "fraction_of_rated_power").value_or(-1),
+              json_number(l.out, "average_loss_W").value_or(0) / 1500.0, 1e-9);
+}
+
 TEST(PlanCli, HumanReadableByDefault) {
   const ProcessResult r = run_process(kExe + " budget --voltage 40");
   ASSERT_EQ(r.exit_code, 0);

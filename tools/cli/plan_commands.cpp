@@ -11,6 +11,7 @@
 #include "commands.hpp"
 #include "cli_validators.hpp"
 #include "pmsm/core/injection.hpp"
+#include "pmsm/core/injection_scheduler.hpp"
 #include "pmsm/core/motor_params.hpp"
 #include "pmsm/core/window.hpp"
 
@@ -36,13 +37,16 @@ core::WindowKind window_from_name(const std::string& name) {
   return name == "modified" ? core::WindowKind::kModifiedBlackman : core::WindowKind::kBlackman;
 }
 
+// The defaults are the drive's own (core::MotorParams, core::InjectionConfig: what
+// pmsm-thermald runs with no key set), so that a plan without options is the drive's plan.
+// Fig. 8 of the paper is --Ld 0.009 --Tw 0.01 --window blackman.
 struct BudgetOptions {
-  double ld_H = 9e-3;   // Fig. 8's Ld
+  double ld_H = core::MotorParams{}.ld_H;
   double lq_H = 0.0;    // 0: equal to Ld
-  double rs_ohm = 0.133;
-  double tw_s = 0.01;
-  std::string window_name = "blackman";
-  core::WindowKind window = core::WindowKind::kBlackman;
+  double rs_ohm = core::MotorParams{}.rs_ohm;
+  double tw_s = core::InjectionConfig{}.tw_s;
+  std::string window_name = core::InjectionConfig{}.window == core::WindowKind::kBlackman ? "blackman" : "modified";
+  core::WindowKind window = core::InjectionConfig{}.window;
   double voltage_V = 0.0;
   double current_A = 0.0;
   double speed_rad_s = 0.0;
@@ -55,6 +59,7 @@ struct BudgetOptions {
 };
 
 struct LossOptions {
+  double rated_power_W = core::MotorParams{}.rated_power_W;
   std::string window_name = "blackman";
   std::string method = "fixed-magnitude";
   core::InjectionSchedule schedule{};
@@ -182,7 +187,7 @@ int run_losses(const LossOptions& o) {
                                    : core::fixed_magnitude_average_loss_W(s);
   const double exact = fixed_angle ? core::fixed_angle_average_loss_exact_W(s, o.omega_e_rad_s)
                                    : core::fixed_magnitude_average_loss_exact_W(s);
-  const double rated_W = core::MotorParams{}.rated_power_W;
+  const double rated_W = o.rated_power_W;
   if (o.json) {
     JsonWriter json;
     json.begin_object()
@@ -205,7 +210,7 @@ int run_losses(const LossOptions& o) {
       "Injection losses: %s, F = %g A, Rs = %g ohm, %d pulses every %g s, Ti = %g ms, Tw = %g ms (%s)\n"
       "  average loss           %.3f W   (%s as printed in the paper)\n"
       "  average loss, exact    %.3f W   (integral of 3/2 Rs i^2; see docs/equations.md)\n"
-      "  share of rated power   %.4f %%  (%.1f kW, Table I)\n",
+      "  share of rated power   %.4f %%  (of %.1f kW, --rated-power)\n",
       o.method.c_str(), s.f_A, s.rs_ohm, s.pulses, s.elapsed_s, s.ti_s * 1e3, s.tw_s * 1e3,
       std::string(core::to_string(s.window)).c_str(), paper, fixed_angle ? "Eq. 31" : "Eq. 32", exact,
       100.0 * paper / rated_W, rated_W / 1e3);
@@ -260,6 +265,8 @@ void register_losses_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--Tw", s.tw_s, "window period, s")->check(positive(kMaxWindow_s))->capture_default_str();
   add_window_option(cmd, options->window_name);
   cmd->add_option("--omega", options->omega_e_rad_s, "electrical speed, rad/s (fixed-angle)")->check(non_negative(kMaxSpeed_rad_s * 100.0));
+  cmd->add_option("--rated-power", options->rated_power_W, "the machine's rated power, W (the share printed; default Table I's)")
+      ->check(positive(1e9))->capture_default_str();
   cmd->add_flag("--json", options->json, "print one JSON object");
   cmd->callback([options, cmd, &exit_code] {
     options->omega_given = cmd->count("--omega") > 0;
