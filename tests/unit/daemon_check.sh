@@ -101,6 +101,23 @@ if [ "$rc" -ne 0 ] || [[ "$out" != *"controller.calibration.file = $dir/no-such-
 else
   echo "ok (warned): $out"
 fi
+# Another motor on the reference machine's thermal model and derating floor: warned, not refused.
+printf '[controller.motor]\ncontinuous_current_A_rms = 4.5\n[controller.sensors]\ncurrent_range_A = 25.0\n[controller.derating]\nmax_current_A = 19.0\n' > "$dir/small-motor.toml"
+out=$("$exe" --config "$dir/small-motor.toml" --check 2>&1); rc=$?
+if [ "$rc" -ne 0 ] || [[ "$out" != *"controller.thermal: the thermal model is the defaults', the 11.9 kW reference machine's"* ]] ||
+   [[ "$out" != *"controller.derating.min_current_A = 10 A lies above the motor's rated peak current (6.36 A"* ]]; then
+  echo "FAIL: --check should warn (exit 0) about the reference's thermal model and derating floor, got exit $rc: $out"; fail=1
+else
+  echo "ok (warned): $out"
+fi
+# Its own thermal model and floor: no warning.
+printf '[controller.motor]\ncontinuous_current_A_rms = 4.5\n[controller.sensors]\ncurrent_range_A = 25.0\n[controller.derating]\nmax_current_A = 19.0\nmin_current_A = 3.0\n[controller.thermal]\nwinding_capacity_J_K = 330.0\n' > "$dir/small-motor-own.toml"
+out=$("$exe" --config "$dir/small-motor-own.toml" --check 2>&1); rc=$?
+if [ "$rc" -ne 0 ] || [[ "$out" == *"warning"* ]]; then
+  echo "FAIL: a small motor with its own thermal model and floor should pass without a warning, got exit $rc: $out"; fail=1
+else
+  echo "ok: $out"
+fi
 # A bad command line is a configuration error (exit 2, which the unit does not restart on) and
 # names the option; --help and --version exit 0.
 for args in "--bogus" "--log-level loud --config $dir/bad.toml"; do
