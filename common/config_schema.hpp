@@ -585,23 +585,29 @@ class ConfigSchema {
       }
     }
     if (best > 3) {
-      // A key given without its unit ("rs" for "rs_ohm"): the shortest known key it begins
-      // (rs_ohm, not rs_reference_temp_C), none if two are as short.
-      const std::string* shortest = nullptr;
-      bool tie = false;
+      // A key given without its unit ("rs" for "rs_ohm", "winding_capacity" for
+      // "winding_capacity_J_K"): the key that is this one plus its unit as keys spell units.
       for (const Entry& e : entries_) {
-        if (e.key.size() > key.size() + 1 && e.key.compare(0, key.size(), key) == 0 && e.key[key.size()] == '_') {
-          if (shortest == nullptr || e.key.size() < shortest->size()) {
-            shortest = &e.key;
-            tie = false;
-          } else if (e.key.size() == shortest->size()) {
-            tie = true;
-          }
+        if (!e.unit.empty() && e.key == key + "_" + unit_as_key(e.unit)) {
+          return " (did you mean " + std::string(prefix) + e.key + "?)";
         }
       }
-      return shortest != nullptr && !tie ? " (did you mean " + std::string(prefix) + *shortest + "?)" : "";
+      return "";
     }
     return " (did you mean " + std::string(prefix) + best_key + "?)";
+  }
+
+  // A unit as the keys spell it: "J/K" -> "J_K", "W s^2/rad^2" -> "W_s2_rad2".
+  static std::string unit_as_key(const std::string& unit) {
+    std::string out;
+    for (const char c : unit) {
+      if (c == ' ' || c == '/') {
+        out += '_';
+      } else if (c != '^') {
+        out += c;
+      }
+    }
+    return out;
   }
 
   static std::size_t edit_distance(const std::string& a, const std::string& b) {

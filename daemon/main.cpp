@@ -192,37 +192,10 @@ int run(const Options& o) {
                    key, path, why);
     }
   }
-  {
-    // Defaults that describe the Table I machine (11.9 kW) and no other (a newcomer's 1.5 kW
-    // servo ran on them and read 11 C RMS off): told when the motor is another. Warnings: the
-    // drive runs, but its thermal model and derating are not this motor's.
-    const pmsm::core::DriveConfig& d = config.controller.drive;
-    const pmsm::core::MotorParams table_i{};
-    const double current_ratio = d.motor.continuous_current_A_rms / table_i.continuous_current_A_rms;
-    const bool another_motor = current_ratio < 0.5 || current_ratio > 2.0;
-    const pmsm::core::ThermalModelConfig t0{};
-    const pmsm::core::ThermalModelConfig& t = d.thermal;
-    if (another_motor && t.winding_capacity_J_K == t0.winding_capacity_J_K &&
-        t.housing_capacity_J_K == t0.housing_capacity_J_K && t.winding_to_housing_K_W == t0.winding_to_housing_K_W &&
-        t.housing_to_ambient_K_W == t0.housing_to_ambient_K_W && t.iron_loss_k1_W_s_rad == t0.iron_loss_k1_W_s_rad &&
-        t.iron_loss_k2_W_s2_rad2 == t0.iron_loss_k2_W_s2_rad2) {
-      spdlog::warn("controller.thermal: the thermal model is the defaults', the {:.1f} kW reference machine's (winding {:.0f} "
-                   "J/K, housing {:.0f} J/K, {:.3f} and {:.3f} K/W, iron loss {:.0f} W at {:.0f} rad/s), for a motor of "
-                   "{:.1f} A RMS (controller.motor.continuous_current_A_rms; the reference's {:.1f} A): between "
-                   "measurements the estimate follows that model (docs/configuration.md, the thermal keys)",
-                   table_i.rated_power_W / 1e3, t0.winding_capacity_J_K, t0.housing_capacity_J_K,
-                   t0.winding_to_housing_K_W, t0.housing_to_ambient_K_W,
-                   t0.iron_loss_k1_W_s_rad * table_i.rated_speed_rad_s +
-                       t0.iron_loss_k2_W_s2_rad2 * table_i.rated_speed_rad_s * table_i.rated_speed_rad_s,
-                   table_i.rated_speed_rad_s, d.motor.continuous_current_A_rms, table_i.continuous_current_A_rms);
-    }
-    const double rated_peak_A = pmsm::core::continuous_current_peak_A(d.motor);
-    if (d.derating.min_current_A > rated_peak_A) {
-      spdlog::warn("controller.derating.min_current_A = {:g} A lies above the motor's rated peak current ({:.2f} A: "
-                   "continuous_current_A_rms {:g} A x sqrt 2): at derating.limit_C the drive still allows more than "
-                   "the winding can carry for good, so it keeps heating past its limit",
-                   d.derating.min_current_A, rated_peak_A, d.motor.continuous_current_A_rms);
-    }
+  // Defaults that fit only the reference machine, on another motor (a newcomer's 1.5 kW servo
+  // ran on them and read 11 C RMS off).
+  for (const std::string& w : pmsm::app::reference_default_warnings(config.controller)) {
+    spdlog::warn("{}", w);
   }
   {
     // A stored calibration without the bridge's voltage: the estimates rest on the configured

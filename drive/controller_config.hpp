@@ -111,4 +111,11 @@ void finalize(ControllerConfig& config, std::string_view source, const toml::tab
 
 [[nodiscard]] ControllerConfig default_controller_config();
 
+// Defaults that describe the reference machine (Table I, 11.9 kW) and no other, on a motor
+// that is another (continuous current under half or over twice the reference's): the thermal
+// model left at the reference's values, a derating floor above the motor's rated peak current.
+// Warnings, not errors: the drive runs, but its model and derating are not this motor's.
+// pmsm-thermald logs them at start and under --check; simulate prints them.
+[[nodiscard]] std::vector<std::string> reference_default_warnings(const ControllerConfig& config);
+
 }  // namespace pmsm::app

@@ -175,8 +175,12 @@ t0_C = 22.0
 TEST(ControllerConfig, ErrorsNameFileLineAndKey) {
   EXPECT_EQ(error_of("[injection]\nF_A = 2000\n"), "drive.toml:2: injection.F_A: must be in (0, 1000], got 2000");
   EXPECT_EQ(error_of("[injection]\nF_AA = 20\n"), "drive.toml:2: injection.F_AA: unknown key (did you mean injection.F_A?)");
-  // A key without its unit: the shortest known key it begins (rs_ohm, not rs_reference_temp_C).
+  // A key without its unit: the key that is it plus its unit (rs_ohm, not rs_reference_temp_C;
+  // J/K spelled J_K), and no guess where no key is (winding: no unit makes a key of it).
   EXPECT_EQ(error_of("[motor]\nrs = 0.9\n"), "drive.toml:2: motor.rs: unknown key (did you mean motor.rs_ohm?)");
+  EXPECT_EQ(error_of("[thermal]\nwinding_capacity = 300\n"),
+            "drive.toml:2: thermal.winding_capacity: unknown key (did you mean thermal.winding_capacity_J_K?)");
+  EXPECT_EQ(error_of("[thermal]\nwinding = 300\n"), "drive.toml:2: thermal.winding: unknown key");
   EXPECT_EQ(error_of("[motor]\n\npole_pairs = 3.0\n"), "drive.toml:3: motor.pole_pairs: expected an integer, got a number");
   EXPECT_EQ(error_of("[injection]\nlevels = [1.0, 0.8, 0.6, 0.4, 0.2]\n"),
             "drive.toml:2: injection.levels: expected 1 to 4 values, got 5");

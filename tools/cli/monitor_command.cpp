@@ -82,12 +82,16 @@ struct Axis {
   // The daemon's uptime in its last HEARTBEAT: when it falls, the daemon started again, and its
   // counts with it (the next RECEIVE_STATUS counts from zero, not from the last one).
   std::optional<double> daemon_uptime_s;
-  bool counts_restarted = false;
-  // The totals as the RECEIVE_STATUS sent with the last HEARTBEAT left them: a restarted
-  // daemon may report before its first HEARTBEAT tells the restart, and those reports, read as
-  // a wrap of the old daemon's counts, are undone back to here.
-  std::uint64_t accepted_confirmed = 0, rejected_confirmed = 0;
-  bool status_follows_heartbeat = true;
+  // The RECEIVE_STATUS frames since the last HEARTBEAT, with their time (when the frames have
+  // one) and the totals before each: a restarted daemon may report before its first HEARTBEAT
+  // tells the restart, and those reports, read as a wrap of the old daemon's counts, are undone
+  // when it does; the old daemon's last reports stay.
+  struct Report {
+    std::optional<double> time_s;
+    std::uint64_t accepted_before, rejected_before;
+  };
+  std::array<Report, 16> reports{};
+  std::size_t report_count = 0;
   std::optional<protocol::LoopTiming> timing;
   double worst_latency_us = 0.0;
   std::uint64_t timing_windows = 0, deadline_misses = 0;
@@ -126,8 +130,15 @@ class Monitor {
     }
   }
 
-  void on_frame(const hal::CanFrame& frame) {
+  // time_s: when the frame was received or logged (seconds on any clock that does not go back),
+  // when known. Times that go back (a -td log: gaps, not times) are not used at all.
+  void on_frame(const hal::CanFrame& frame, std::optional<double> time_s = std::nullopt) {
     ++frames_;
+    if (time_s && last_time_s_ && *time_s < *last_time_s_) {
+      times_usable_ = false;
+    }
+    last_time_s_ = time_s;
+    const std::optional<double> frame_time_s = times_usable_ ? time_s : std::nullopt;
     protocol::AnyDecoded d;
     protocol::DecodeStatus status = protocol::decode_any(frame, d);
     if (status == protocol::DecodeStatus::kOk && o_.node && d.node != *o_.node) {
@@ -168,14 +179,9 @@ class Monitor {
     } else if (const auto* s = std::get_if<protocol::DriveStatus>(&d.message)) {
       a.status = *s;
     } else if (const auto* rs = std::get_if<protocol::ReceiveStatus>(&d.message)) {
-      // After a restart the daemon's counts start from zero: that is the frame before this one,
-      // and the totals are those the old daemon's last HEARTBEAT confirmed.
-      if (a.counts_restarted && a.receive) {
-        a.receive = protocol::ReceiveStatus{};
-        a.accepted_seen = a.accepted_confirmed;
-        a.rejected_seen = a.rejected_confirmed;
+      if (a.report_count < a.reports.size()) {
+        a.reports[a.report_count++] = {frame_time_s, a.accepted_seen, a.rejected_seen};
       }
-      a.counts_restarted = false;
       if (a.receive && rejections(*rs) != rejections(*a.receive)) {
         event(fmt::format("node {}: the daemon rejected {} more frame(s); last 0x{:03X}: {}", d.node,
                           (rejections(*rs) - rejections(*a.receive)) & 0xFFU, rs->last_rejected_id,
@@ -193,11 +199,6 @@ class Monitor {
                            delta(rs->rejected_other, a.receive->rejected_other);
       }
       a.receive = *rs;
-      if (a.status_follows_heartbeat) {
-        a.accepted_confirmed = a.accepted_seen;
-        a.rejected_confirmed = a.rejected_seen;
-        a.status_follows_heartbeat = false;
-      }
     } else if (const auto* lt = std::get_if<protocol::LoopTiming>(&d.message)) {
       a.timing = *lt;
       a.worst_latency_us = std::max(a.worst_latency_us, lt->latency_max_us);
@@ -209,10 +210,25 @@ class Monitor {
       if (a.daemon_uptime_s && h->uptime_s < *a.daemon_uptime_s) {
         event(fmt::format("node {}: the daemon started again (uptime {:.1f} s after {:.1f} s)", d.node, h->uptime_s,
                           *a.daemon_uptime_s));
-        a.counts_restarted = true;
+        // Its counts start from zero: reports that came after it started are undone (by the
+        // frames' times; without times, all but the first since the last HEARTBEAT, which the
+        // old daemon sent with it), and the next report counts from zero.
+        const std::optional<double> started_s = frame_time_s ? std::optional<double>(*frame_time_s - h->uptime_s) : std::nullopt;
+        for (std::size_t k = 0; k < a.report_count; ++k) {
+          const Axis::Report& report = a.reports[k];
+          const bool new_daemon = started_s && report.time_s ? *report.time_s >= *started_s - 0.05 : k >= 1;
+          if (new_daemon) {
+            a.accepted_seen = report.accepted_before;
+            a.rejected_seen = report.rejected_before;
+            break;
+          }
+        }
+        if (a.receive) {
+          a.receive = protocol::ReceiveStatus{};
+        }
       }
       a.daemon_uptime_s = h->uptime_s;
-      a.status_follows_heartbeat = true;  // the daemon sends its RECEIVE_STATUS right after
+      a.report_count = 0;  // the reports before a HEARTBEAT are its daemon's
       if (!a.plant_time) {
         set_time(a, h->uptime_s);
       }
@@ -452,6 +468,8 @@ class Monitor {
   const MonitorOptions& o_;
   std::map<int, Axis> axes_;
   std::uint64_t frames_ = 0;
+  std::optional<double> last_time_s_;
+  bool times_usable_ = true;
   std::array<std::uint64_t, protocol::kDecodeStatusCount> rejected_{};
   std::ofstream csv_;
   std::size_t block_lines_ = 0;  // axis lines on the terminal below the cursor's line
@@ -482,7 +500,9 @@ int run_monitor(MonitorOptions o) {
     for (std::string line; std::getline(*in, line);) {
       const candump::ParseResult parsed = candump::parse_line(line);
       if (parsed.ok()) {
-        m.on_frame(parsed.record->frame);
+        const auto& stamp = parsed.record->timestamp;
+        m.on_frame(parsed.record->frame,
+                   stamp ? std::optional<double>(std::chrono::duration<double>(*stamp).count()) : std::nullopt);
       } else if (!line.empty()) {
         ++malformed;
       }
@@ -513,7 +533,7 @@ int run_monitor(MonitorOptions o) {
       break;
     }
     if (bus->receive(r, std::chrono::milliseconds{100}) == hal::ReceiveStatus::kFrame && !r.frame.error) {
-      m.on_frame(r.frame);
+      m.on_frame(r.frame, r.timestamp_ns != 0 ? std::optional<double>(static_cast<double>(r.timestamp_ns) * 1e-9) : std::nullopt);
     }
   }
   return m.summary() ? 0 : 1;

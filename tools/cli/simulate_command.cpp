@@ -90,6 +90,9 @@ Report run_one(const std::string& path, const SimulateOptions& o) {
     r.status = 2;
     return r;
   }
+  for (const std::string& w : reference_default_warnings(scenario.controller)) {
+    r.err += fmt::format("simulate: {}: warning: {}\n", path, w);
+  }
   RunOptions run;
   run.progress = !o.quiet && o.jobs == 1;
   run.log_events = o.events;
