@@ -91,25 +91,30 @@ check_bad '[controller.control]\nperiod_s = 2e-5\ndead_time_s = 5e-6\ncurrent_ba
 # A stored calibration of another motor: valid as a file, outside this drive's window.
 printf 'format = 1\nrs0_ohm = 5.0\nt0_C = 25.0\n' > "$dir/other-motor.toml"
 check_bad "[controller.calibration]\nfile = \"$dir/other-motor.toml\"\n" 1 'calibration file refused: '"$dir"'/other-motor.toml: rs0_ohm 5 ohm lies above the drive'"'"'s plausibility window (controller.injection.rs_max_ohm = 0.27 ohm)'
+# A file that passes --check (exit 0) with a warning holding each of the texts given.
+#   check_warns FILE_TEXT WANT...
+check_warns() {
+  local text=$1 want
+  shift
+  printf '%b' "$text" > "$dir/warns.toml"
+  out=$("$exe" --config "$dir/warns.toml" --check 2>&1); rc=$?
+  for want in "$@"; do
+    if [ "$rc" -ne 0 ] || [[ "$out" != *"$want"* ]]; then
+      echo "FAIL: --check should pass (exit 0) warning '$want', got exit $rc: $out"; fail=1
+      return
+    fi
+  done
+  echo "ok (warned): $out"
+}
 # A calibration or thermal-state file where nothing can be written: warned about (a drive may
 # run on a read-only calibration), not found out when a calibration completes.
-printf '[controller.calibration]\nfile = "%s/no-such-dir/cal.toml"\n[controller.thermal]\nstate_file = "%s"\n' "$dir" "$dir" > "$dir/unwritable.toml"
-out=$("$exe" --config "$dir/unwritable.toml" --check 2>&1); rc=$?
-if [ "$rc" -ne 0 ] || [[ "$out" != *"controller.calibration.file = $dir/no-such-dir/cal.toml: its directory $dir/no-such-dir does not exist: nothing this run learns can be stored there"* ]] ||
-   [[ "$out" != *"controller.thermal.state_file = $dir: it is a directory"* ]]; then
-  echo "FAIL: --check should warn (exit 0) about both unwritable files, got exit $rc: $out"; fail=1
-else
-  echo "ok (warned): $out"
-fi
+check_warns "[controller.calibration]\nfile = \"$dir/no-such-dir/cal.toml\"\n[controller.thermal]\nstate_file = \"$dir\"\n" \
+  "controller.calibration.file = $dir/no-such-dir/cal.toml: its directory $dir/no-such-dir does not exist: nothing this run learns can be stored there" \
+  "controller.thermal.state_file = $dir: it is a directory"
 # Another motor on the reference machine's thermal model and derating floor: warned, not refused.
-printf '[controller.motor]\ncontinuous_current_A_rms = 4.5\n[controller.sensors]\ncurrent_range_A = 25.0\n[controller.derating]\nmax_current_A = 19.0\n' > "$dir/small-motor.toml"
-out=$("$exe" --config "$dir/small-motor.toml" --check 2>&1); rc=$?
-if [ "$rc" -ne 0 ] || [[ "$out" != *"controller.thermal: the thermal model has the reference machine's values (11.9 kW"* ]] ||
-   [[ "$out" != *"controller.derating.min_current_A = 10 A lies above the motor's rated peak current (6.36 A"* ]]; then
-  echo "FAIL: --check should warn (exit 0) about the reference's thermal model and derating floor, got exit $rc: $out"; fail=1
-else
-  echo "ok (warned): $out"
-fi
+check_warns '[controller.motor]\ncontinuous_current_A_rms = 4.5\n[controller.sensors]\ncurrent_range_A = 25.0\n[controller.derating]\nmax_current_A = 19.0\n' \
+  "controller.thermal: the thermal model has the reference machine's values (11.9 kW" \
+  "controller.derating.min_current_A = 10 A lies above the motor's rated peak current (6.36 A"
 # Its own thermal model and floor: no warning.
 printf '[controller.motor]\ncontinuous_current_A_rms = 4.5\n[controller.sensors]\ncurrent_range_A = 25.0\n[controller.derating]\nmax_current_A = 19.0\nmin_current_A = 3.0\n[controller.thermal]\nwinding_capacity_J_K = 330.0\n' > "$dir/small-motor-own.toml"
 out=$("$exe" --config "$dir/small-motor-own.toml" --check 2>&1); rc=$?

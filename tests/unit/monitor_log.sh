@@ -22,46 +22,33 @@ grep -q "^node  0  uptime " "$work/out" || fail "the daemon's uptime not labelle
 grep -q "node 0: a plant emulator is on the bus" "$work/out" || fail "the switch to the plant's time not told"
 grep -q "^node  0  plant    3600.5 s" "$work/out" || fail "the plant's time not labelled"
 
+# The capture with LINES appended, through the monitor into $work/out.
+#   monitor_with LINE...
+monitor_with() {
+  { cat "$log"; printf '%s\n' "$@"; } > "$work/appended.log"
+  "$exe" monitor --log "$work/appended.log" > "$work/out"
+}
+hb_restarted="(1795493853.589724) vcan0 140#32000000022B0000"  # HEARTBEAT, uptime 0.5 s (was 3600.5 s)
+
 # RECEIVE_STATUS counts modulo 256: a second one a second later whose CommandsAccepted went
 # 12 -> 5 (249 more: it wrapped) and RejectedCrc 3 -> 4 is summed, not read as it stands.
-{
-  cat "$log"
-  echo "(1795493853.618043) vcan0 150#0504050402010100"
-} > "$work/wrap.log"
-"$exe" monitor --log "$work/wrap.log" > "$work/out"
+monitor_with "(1795493853.618043) vcan0 150#0504050402010100"
 grep -q "node  0  daemon: 261 command(s) accepted, 8 frame(s) rejected" "$work/out" || fail "RECEIVE_STATUS's counts not unwrapped"
 
 # A daemon that started again (HEARTBEAT's uptime 3600.5 -> 0.5 s) counts from zero: its
 # RECEIVE_STATUS 5 accepted / 1 CRC rejection adds 5 and 1 (not 249 and 254 + ... as a wrap).
-{
-  cat "$log"
-  echo "(1795493853.589724) vcan0 140#32000000022B0000"
-  echo "(1795493853.618043) vcan0 150#0504050100000000"
-} > "$work/restart.log"
-"$exe" monitor --log "$work/restart.log" > "$work/out"
+monitor_with "$hb_restarted" "(1795493853.618043) vcan0 150#0504050100000000"
 grep -q "node 0: the daemon started again (uptime 0.5 s after 3600.5 s)" "$work/out" || fail "a daemon restart not told"
 grep -q "node  0  daemon: 17 command(s) accepted, 8 frame(s) rejected" "$work/out" || fail "a restart's counts read as a wrap"
 # The restarted daemon reports a rejection (3 accepted, 1 CRC) before its first HEARTBEAT: read
 # as a wrap at first, undone when the HEARTBEAT tells the restart.
-{
-  cat "$log"
-  echo "(1795493853.500000) vcan0 150#0504030100000000"
-  echo "(1795493853.589724) vcan0 140#32000000022B0000"
-  echo "(1795493853.618043) vcan0 150#0504050100000000"
-} > "$work/restart-early.log"
-"$exe" monitor --log "$work/restart-early.log" > "$work/out"
+monitor_with "(1795493853.500000) vcan0 150#0504030100000000" "$hb_restarted" "(1795493853.618043) vcan0 150#0504050100000000"
 grep -q "node  0  daemon: 17 command(s) accepted, 8 frame(s) rejected" "$work/out" || fail "an early report of a restarted daemon counted twice"
 # The old daemon's own last report (13 accepted, 1 more CRC rejection, 0.2 s after its last
 # HEARTBEAT's) stays; the new daemon (up 0.5 s at 1795493853.5897) reports before its first
 # HEARTBEAT and is undone: 13 + 5 accepted, 7 + 1 + 1 rejected.
-{
-  cat "$log"
-  echo "(1795493852.818043) vcan0 150#05040D0402010100"
-  echo "(1795493853.500000) vcan0 150#0504030100000000"
-  echo "(1795493853.589724) vcan0 140#32000000022B0000"
-  echo "(1795493853.618043) vcan0 150#0504050100000000"
-} > "$work/restart-late.log"
-"$exe" monitor --log "$work/restart-late.log" > "$work/out"
+monitor_with "(1795493852.818043) vcan0 150#05040D0402010100" "(1795493853.500000) vcan0 150#0504030100000000" \
+  "$hb_restarted" "(1795493853.618043) vcan0 150#0504050100000000"
 grep -q "node  0  daemon: 18 command(s) accepted, 9 frame(s) rejected" "$work/out" || fail "the old daemon's last report undone with the new one's"
 
 # A replayed DRIVE_COMMAND (same alive counter) and one with a corrupted CRC.
