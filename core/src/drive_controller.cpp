@@ -852,14 +852,13 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     // An angle correction made since the history was taken (the check's, inside the last step;
     // restore_angle's, between steps): the history moves with it.
     previous_theta_smooth_ += pending_angle_jump_rad_;
-    previous_smooth_wrapped_ = wrap_angle_0_2pi(previous_smooth_wrapped_ + pending_angle_jump_rad_);
+    // The two commands in flight were rotated in the old frame: in the new one they lie the
+    // correction further on.
+    planned_now_rad_ += pending_angle_jump_rad_;
+    planned_next_rad_ += pending_angle_jump_rad_;
     pending_angle_jump_rad_ = 0.0;
   }
-  // The smooth angle wrapped into a turn, carried along by its unwrapped advance: wrapping the
-  // unwrapped angle itself (it grows without bound) costs a division and a floor every period.
   const double smooth_advance = have_previous_ ? theta_smooth - previous_theta_smooth_ : 0.0;
-  const double smooth_wrapped = have_previous_ ? wrap_angle_0_2pi(previous_smooth_wrapped_ + smooth_advance)
-                                               : wrap_angle_0_2pi(theta_smooth);
 
   if (check_restart_.pending) {
     // The calibration's angle check, aborted or voided, starts again as the sweep does (below).
@@ -903,11 +902,15 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   const bool scheduler_reads = config_.estimator == EstimatorKind::kInjection && scheduler_.records(sample_theta);
   const PeriodSample* sample = nullptr;  // period_sample_ once built
   if (have_previous_ && (baseline_reads || scheduler_reads || sweep_.active())) {
-    // The rotation at the period's middle by the smooth angle, from the sample's by the small
-    // gap between the two (half a period's advance and the encoder's steps): no second sincos.
-    // (Both angles lie in a turn and half a period's advance is small: one wrap of the gap.)
-    const double mid_gap = wrap_angle_pm_pi(previous_smooth_wrapped_ + 0.5 * smooth_advance - theta);
-    const Rotation at_mid = compose(at_sample, small_rotation(mid_gap));
+    // The rotor's frame at the period's middle: the sample's angle less half the encoder's
+    // advance over the period (no second sincos). The rotor's, not the PLL's: the smooth angle
+    // lags the rotor by a / wn^2 under an acceleration a, and a pulse's own reluctance torque
+    // accelerates a light salient rotor by opposite amounts in a pair's two recordings. On the
+    // 1.5 kW servo (Lq - Ld = 1 mH, 5e-4 kg m^2) that lag, some 0.016 rad, turned the bridge's
+    // sign pattern by it, Vx dGd took Vx Gq times it, and every estimate read 2 % low
+    // (docs/accuracy.md, "A light salient servo"). The encoder's quantisation leaves half a
+    // count of noise, which averages out.
+    const Rotation at_mid = compose(at_sample, small_rotation(-0.5 * angle_.last_step_electrical_rad()));
     const Dq ends_mean{0.5 * (previous_i_A_.d + i.d), 0.5 * (previous_i_A_.q + i.q)};
     if (baseline_reads || scheduler_reads) {
       // Filled in place, every field (the member is reused: neither zero-filled nor copied).
@@ -930,7 +933,15 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
       // The period's means as the machine saw them: the stator-fixed command and bridge error,
       // turned back across the period, shrink; the current bends (machine_equations.hpp).
       const double shrink = period_voltage_shrink(smooth_advance);
-      s.v_V = {shrink * v_applied_now_.d, shrink * v_applied_now_.q};
+      // The command was rotated two steps ago to the angle that sample and the PLL's speed
+      // predicted for this period's middle, 1.5 periods on; the rotor turned by the encoder's
+      // two advances since (the sample's own quantisation cancels: the command was rotated from
+      // it). A PLL's speed that lags a pulse's transient leaves the command that gap off the
+      // rotor's d axis, where w psi_q (the EMF) is the largest voltage there is: a gap of 1e-3 rad
+      // at 110 V is 0.11 V in Vd, the size of the servo's whole bias (ibid.).
+      const Rotation off = small_rotation(planned_now_rad_ - previous_raw_step_rad_ - 0.5 * angle_.last_step_electrical_rad());
+      s.v_V = {shrink * (off.c * v_applied_now_.d - off.s * v_applied_now_.q),
+               shrink * (off.s * v_applied_now_.d + off.c * v_applied_now_.q)};
       s.dead_time_pattern = period_sign_pattern(pattern.mean, pattern.moment, smooth_advance);
       const double vx = scheduler_.vx_V();
       s.i_A = period_mean_current(ends_mean, {i.d - previous_i_A_.d, i.q - previous_i_A_.q},
@@ -1049,6 +1060,9 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
 
   // Shift the command history: what was "next" is applied during the coming period.
   v_applied_now_ = v_applied_next_;
+  planned_now_rad_ = planned_next_rad_;
+  planned_next_rad_ = 1.5 * omega_e * config_.period_s;  // the rotation at_apply was given (above)
+  previous_raw_step_rad_ = angle_.last_step_electrical_rad();
   limited_now_ = limited_next_;
   v_applied_next_ = v_total;
   limited_next_ = limited;
@@ -1056,7 +1070,6 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   previous_i_abc_A_ = in.i_A;
   // (An angle correction made in this step moves this history at the next step's start.)
   previous_theta_smooth_ = theta_smooth;
-  previous_smooth_wrapped_ = smooth_wrapped;
   have_previous_ = true;
 
   // Thermal model at its own rate.

@@ -115,12 +115,34 @@ TEST(EstimatorRobustness, AtTheVoltageLimitFieldWeakeningPairsMeasure) {
   EXPECT_GE(r.coverage_2sigma, 0.9) << "the band carries the pairs' shared error";
 }
 
+// A light salient rotor: a pulse's reluctance torque, 1.5 p (Ld - Lq) id iq, accelerates the
+// shaft one way in a pair's first recording and the other way in its second. The PLL's angle
+// lags an acceleration a by a / wn^2 (0.016 rad electrical here), and its speed enough to leave
+// the command about 1e-3 rad off the rotor's axis: a bridge pattern projected in the PLL's frame
+// took Vx Gq times the lag into dGd, a command taken in the frame it was planned in took
+// w psi_q times the gap into dVd, and both change sign between the recordings. Together they
+// read these probes 1.5 % low (+1.5 % with Ld and Lq swapped; now -0.11 and -0.16 %); a round
+// rotor's residual is -0.14 % (docs/accuracy.md, "A light salient servo"). Bound: a third of
+// the old bias.
+TEST(EstimatorRobustness, ALightSalientRotorsPulsesDoNotTurnTheFrame) {
+  for (const char* file : {"servo-salient-probe.toml", "servo-salient-probe-swapped.toml"}) {
+    const SimulationResult r = run_data(file);
+    ASSERT_TRUE(r.calibrated) << file;
+    ASSERT_GT(r.estimates_accepted, 12U) << file;
+    EXPECT_LT(std::abs(r.rs_error_mean_pct), 0.5) << file;
+  }
+}
+
 // A salient machine that stays at one load never resolves its Lq curve's slope: its pairs
 // measure the secant there, and the fit needs the incremental for the speed loop's answer to
 // the reluctance torque (docs/estimator.md section 5.1). On the 30 mohm IPM at 314 rad/s and
 // 75 A the gap is 3.4 % of Lq, and w diq 2 b u / (Rs dId) reads Rs about 5 % high: some 15 C
 // at 70 C (Eq. 1: 5 % of K + T). The flux map's secant at the rated current closes the gap to
-// its own error (-5 % on both Lq figures: about 0.4 %, 1 C).
+// its own error (-5 % on both Lq figures: about 0.4 %, 1 C) and to a residual of this saturating
+// machine, +0.8 % with the map commissioned exactly (+1.3 % without the bridge's dead time;
+// +0.5 % and -0.4 % with the plant's saturation off), not traced (docs/accuracy.md). Until
+// 2026-11-29 a bridge pattern taken in the PLL's lagging frame read these pairs 1.1 % low and
+// hid it: the RMS bound was 2.5 C then (0.39 C measured), 3.0 C since (2.54 C measured).
 TEST(EstimatorRobustness, ACruisingIpmTakesItsSaturationFromTheFluxMap) {
   const std::filesystem::path data = std::filesystem::path(PMSM_SOURCE_DIR) / "tests/integration/data";
   RunOptions o;
@@ -130,7 +152,7 @@ TEST(EstimatorRobustness, ACruisingIpmTakesItsSaturationFromTheFluxMap) {
   ASSERT_GT(map.max_winding_true_C, 60.0) << "the scenario no longer heats the winding";
   ASSERT_GT(map.estimates_accepted, 30U) << "pairs measure at 314 rad/s";
   EXPECT_LT(std::abs(map.winding_error_mean_C), 3.0);
-  EXPECT_LT(map.winding_error_rms_C, 2.5);
+  EXPECT_LT(map.winding_error_rms_C, 3.0);
   EXPECT_GE(map.coverage_2sigma, 0.9);
   const SimulationResult none = run_scenario(load_scenario(data / "ipm-cruise-short-no-map.toml"), o);
   ASSERT_GT(none.estimates_accepted, 30U);
