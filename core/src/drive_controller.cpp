@@ -852,10 +852,6 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     // An angle correction made since the history was taken (the check's, inside the last step;
     // restore_angle's, between steps): the history moves with it.
     previous_theta_smooth_ += pending_angle_jump_rad_;
-    // The two commands in flight were rotated in the old frame: in the new one they lie the
-    // correction further on.
-    planned_now_rad_ += pending_angle_jump_rad_;
-    planned_next_rad_ += pending_angle_jump_rad_;
     pending_angle_jump_rad_ = 0.0;
   }
   const double smooth_advance = have_previous_ ? theta_smooth - previous_theta_smooth_ : 0.0;
@@ -912,6 +908,14 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     // count of noise, which averages out.
     const Rotation at_mid = compose(at_sample, small_rotation(-0.5 * angle_.last_step_electrical_rad()));
     const Dq ends_mean{0.5 * (previous_i_A_.d + i.d), 0.5 * (previous_i_A_.q + i.q)};
+    // The period's command in the rotor's frame at its middle. It was rotated two steps ago to
+    // the angle that sample and the PLL's speed predicted, 1.5 periods on, and is kept in the
+    // stator's frame: projected here by the rotor's angle, not by that prediction. A PLL speed
+    // that lags a pulse's transient left the command that far off the rotor's d axis, where
+    // w psi_q (the EMF) is the largest voltage there is: 1e-3 rad at 110 V is 0.11 V in Vd, the
+    // size of the servo's bias without its dead time (ibid.). An angle correction needs
+    // nothing: the stator's frame does not move with it.
+    const Dq v_mid = park(v_applied_now_ab_, at_mid.c, at_mid.s);
     if (baseline_reads || scheduler_reads) {
       // Filled in place, every field (the member is reused: neither zero-filled nor copied).
       PeriodSample& s = period_sample_;
@@ -933,15 +937,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
       // The period's means as the machine saw them: the stator-fixed command and bridge error,
       // turned back across the period, shrink; the current bends (machine_equations.hpp).
       const double shrink = period_voltage_shrink(smooth_advance);
-      // The command was rotated two steps ago to the angle that sample and the PLL's speed
-      // predicted for this period's middle, 1.5 periods on; the rotor turned by the encoder's
-      // two advances since (the sample's own quantisation cancels: the command was rotated from
-      // it). A PLL's speed that lags a pulse's transient leaves the command that gap off the
-      // rotor's d axis, where w psi_q (the EMF) is the largest voltage there is: a gap of 1e-3 rad
-      // at 110 V is 0.11 V in Vd, the size of the servo's whole bias (ibid.).
-      const Rotation off = small_rotation(planned_now_rad_ - previous_raw_step_rad_ - 0.5 * angle_.last_step_electrical_rad());
-      s.v_V = {shrink * (off.c * v_applied_now_.d - off.s * v_applied_now_.q),
-               shrink * (off.s * v_applied_now_.d + off.c * v_applied_now_.q)};
+      s.v_V = {shrink * v_mid.d, shrink * v_mid.q};
       s.dead_time_pattern = period_sign_pattern(pattern.mean, pattern.moment, smooth_advance);
       const double vx = scheduler_.vx_V();
       s.i_A = period_mean_current(ends_mean, {i.d - previous_i_A_.d, i.q - previous_i_A_.q},
@@ -960,7 +956,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     // it runs near standstill, where the period's rotation is negligible, and its fit stays
     // consistent in itself.
     if (sweep_.active() &&
-        sweep_.step(enabled, in.i_A, at_mid, v_applied_now_.d, ends_mean.d, omega_e, limited_now_)) {
+        sweep_.step(enabled, in.i_A, at_mid, v_mid.d, ends_mean.d, omega_e, limited_now_)) {
       finish_inverter_sweep(now);
     }
   }
@@ -1010,7 +1006,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   }
 
   Dq v{};
-  Dq v_total{};
+  AlphaBeta v_total{};  // in the stator's frame
   bool limited = false;
   if (enabled) {
     const Dq i_ref{motoring.d + so.injection_A.d, motoring.q + so.injection_A.q};
@@ -1031,7 +1027,8 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     const Abc i_start = inverse_clarke(inverse_park(i_ref, at_start.c, at_start.s));
     const Abc i_end = inverse_clarke(inverse_park(i_ref, at_end.c, at_end.s));
     const Abc correction = dead_time_compensation_V(i_start, i_end, config_.dead_time, in.vdc_V, config_.period_s);
-    const Duties d = svpwm_corrected(inverse_park(v, c, sn), in.vdc_V, correction);
+    const AlphaBeta v_ab = inverse_park(v, c, sn);
+    const Duties d = svpwm_corrected(v_ab, in.vdc_V, correction);
     output_.duty = d.value;
     // The duties are clamped to [0, 1] or NaN (a NaN passes the clamp): their sum is finite
     // exactly when each one is.
@@ -1047,8 +1044,8 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     // What the bridge was asked for in total: the current controller's voltage plus the
     // compensation. The estimator models the bridge's whole error against this (see
     // pair_estimator.hpp), so it must see the compensation actually applied.
-    const Dq comp = park(clarke(correction), c, sn);
-    v_total = {v.d + comp.d, v.q + comp.q};
+    const AlphaBeta comp = clarke(correction);
+    v_total = {v_ab.alpha + comp.alpha, v_ab.beta + comp.beta};
     limited = limited || d.clipped;
     telemetry_.i_ref_A = i_ref;
     telemetry_.injection_A = so.injection_A;
@@ -1059,12 +1056,9 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   }
 
   // Shift the command history: what was "next" is applied during the coming period.
-  v_applied_now_ = v_applied_next_;
-  planned_now_rad_ = planned_next_rad_;
-  planned_next_rad_ = 1.5 * omega_e * config_.period_s;  // the rotation at_apply was given (above)
-  previous_raw_step_rad_ = angle_.last_step_electrical_rad();
+  v_applied_now_ab_ = v_applied_next_ab_;
   limited_now_ = limited_next_;
-  v_applied_next_ = v_total;
+  v_applied_next_ab_ = v_total;
   limited_next_ = limited;
   previous_i_A_ = i;
   previous_i_abc_A_ = in.i_A;

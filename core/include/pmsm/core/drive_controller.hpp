@@ -458,11 +458,9 @@ class DriveController {
   double pattern_noise_A_ = 0.0;  // effective noise of the sampled line (set_current_noise_A)
   PeriodSample period_sample_{};  // the period that just ended, when step() builds it
   double previous_theta_smooth_ = 0.0;
-  Dq v_applied_next_{};             // command of step k-1 (applies during period k)
-  Dq v_applied_now_{};              // command of step k-2 (applied during period k-1 -> k)
-  double planned_next_rad_ = 0.0;      // the rotation ahead each command was given (1.5 w T) ...
-  double planned_now_rad_ = 0.0;       // ... (the step history of v_applied_*)
-  double previous_raw_step_rad_ = 0.0; // the encoder's electrical advance over the previous period
+  // The commands in the stator's frame (alpha, beta), as the bridge was asked for them.
+  AlphaBeta v_applied_next_ab_{};   // command of step k-1 (applies during period k)
+  AlphaBeta v_applied_now_ab_{};    // command of step k-2 (applied during period k-1 -> k)
   bool limited_next_ = false;
   bool limited_now_ = false;
   // Thermal accumulation.

@@ -55,7 +55,7 @@ struct PeriodSample {
   double omega_m_rad_s = 0.0;   // the speed observer's (mechanical)
   Dq i_A{};                     // measured current, average over the period
   Dq di_dt_A_s{};               // its rate of change over the period
-  Dq v_V{};                     // voltage command applied during the period
+  Dq v_V{};                     // voltage command applied during the period, in the rotor's frame
   Dq dead_time_pattern{};       // dq projection of the phase-current sign pattern (see above)
   bool voltage_limited = false; // the applied command had been limited
 };
