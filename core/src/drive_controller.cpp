@@ -952,9 +952,12 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     // The bridge sweep sees the measured currents, as the estimator does: at speed they carry
     // the EMF harmonics' ripple, which moves the zero crossings (a pattern built from the
     // reference read Vx 6 % low there). It builds its own mid-angle pattern from them and takes
-    // the period's command and ends' mean current as they are, without the period's averages:
-    // it runs near standstill, where the period's rotation is negligible, and its fit stays
-    // consistent in itself.
+    // the period's command (in the rotor's frame at the period's middle, as the pattern) and the
+    // ends' mean current as they are, without the period's averages (the shrink and the
+    // current's bend): its fit stays consistent in itself. It runs where the calibration does,
+    // turning slowly (60 rad/s on the reference, 0.024 rad a period), not at standstill; which
+    // frame its command is taken in draws each reference seed's calibration anew
+    // (docs/accuracy.md, thirteenth session).
     if (sweep_.active() &&
         sweep_.step(enabled, in.i_A, at_mid, v_mid.d, ends_mean.d, omega_e, limited_now_)) {
       finish_inverter_sweep(now);

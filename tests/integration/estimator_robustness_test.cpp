@@ -120,17 +120,22 @@ TEST(EstimatorRobustness, AtTheVoltageLimitFieldWeakeningPairsMeasure) {
 // lags an acceleration a by a / wn^2 (0.016 rad electrical here), and its speed enough to leave
 // the command about 1e-3 rad off the rotor's axis: a bridge pattern projected in the PLL's frame
 // took Vx Gq times the lag into dGd, a command taken in the frame it was planned in took
-// w psi_q times the gap into dVd, and both change sign between the recordings. Together they
-// read these probes 1.5 % low (+1.5 % with Ld and Lq swapped; now -0.09 and -0.09 %); a round
-// rotor's residual is -0.14 % (docs/accuracy.md, "A light salient servo"). Bound: a third of
-// the old bias.
+// w psi_q times the gap into dVd, and both change sign with Ld - Lq. Together they read these
+// probes 1.5 % low and, with Ld and Lq swapped, 1.5 % high; with the pattern in the rotor's
+// frame and the command still in the planned one, -0.25 % and +0.05 %; now -0.09 % and -0.09 %
+// (docs/estimator.md section 5.5). Physics says the bias must not follow the sign of Ld - Lq:
+// the two probes must agree within 0.15 % (each half of the old bias moved them 3.1 % and
+// 0.30 % apart), and each read within 0.3 % (a round rotor's residual is -0.12 %).
 TEST(EstimatorRobustness, ALightSalientRotorsPulsesDoNotTurnTheFrame) {
-  for (const char* file : {"servo-salient-probe.toml", "servo-salient-probe-swapped.toml"}) {
-    const SimulationResult r = run_data(file);
-    ASSERT_TRUE(r.calibrated) << file;
-    ASSERT_GT(r.estimates_accepted, 12U) << file;
-    EXPECT_LT(std::abs(r.rs_error_mean_pct), 0.5) << file;
+  const SimulationResult lq_above = run_data("servo-salient-probe.toml");
+  const SimulationResult ld_above = run_data("servo-salient-probe-swapped.toml");
+  for (const SimulationResult* r : {&lq_above, &ld_above}) {
+    ASSERT_TRUE(r->calibrated) << r->scenario;
+    ASSERT_GT(r->estimates_accepted, 12U) << r->scenario;
+    EXPECT_LT(std::abs(r->rs_error_mean_pct), 0.3) << r->scenario;
   }
+  EXPECT_LT(std::abs(lq_above.rs_error_mean_pct - ld_above.rs_error_mean_pct), 0.15)
+      << "the estimates follow the sign of Ld - Lq";
 }
 
 // A salient machine that stays at one load never resolves its Lq curve's slope: its pairs
@@ -142,7 +147,9 @@ TEST(EstimatorRobustness, ALightSalientRotorsPulsesDoNotTurnTheFrame) {
 // machine, +0.6 % with the map commissioned exactly: mostly the one-point map's quadratic curve,
 // which puts the secant-to-incremental gap at this load 10 % below the plant's (docs/estimator.md
 // section 5.5). Until 2026-11-29 a bridge pattern taken in the PLL's lagging frame read these
-// pairs 1.1 % low and hid it (0.39 C RMS measured then, 2.41 C since, mean +2.21 C).
+// pairs 1.1 % low and hid it (0.39 C RMS measured then, 2.41 C since, mean +2.21 C). The bounds:
+// the map's error (0.4 %) and that residual (0.6 %) at about 70 C read 1 % of 234.5 + 70 K high,
+// 3 C, within which the mean and the RMS must stay.
 TEST(EstimatorRobustness, ACruisingIpmTakesItsSaturationFromTheFluxMap) {
   const std::filesystem::path data = std::filesystem::path(PMSM_SOURCE_DIR) / "tests/integration/data";
   RunOptions o;
@@ -152,7 +159,7 @@ TEST(EstimatorRobustness, ACruisingIpmTakesItsSaturationFromTheFluxMap) {
   ASSERT_GT(map.max_winding_true_C, 60.0) << "the scenario no longer heats the winding";
   ASSERT_GT(map.estimates_accepted, 30U) << "pairs measure at 314 rad/s";
   EXPECT_LT(std::abs(map.winding_error_mean_C), 3.0);
-  EXPECT_LT(map.winding_error_rms_C, 2.5);
+  EXPECT_LT(map.winding_error_rms_C, 3.0);
   EXPECT_GE(map.coverage_2sigma, 0.9);
   const SimulationResult none = run_scenario(load_scenario(data / "ipm-cruise-short-no-map.toml"), o);
   ASSERT_GT(none.estimates_accepted, 30U);
