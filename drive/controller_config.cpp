@@ -407,7 +407,7 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
   // Table I drive's 15 V at 650 V, as a share. An absolute 15 V was 58 % of a 48 V drive's
   // 26 V limit, where every pair from 200 rad/s on was a field-weakening pair
   // (docs/accuracy.md, "Two motors a new user would bring").
-  d.injection.headroom_margin_V = c.relative.headroom_margin_V.value_or(15.0 * (c.nominal_dc_bus_V / 650.0));
+  d.injection.headroom_margin_V = c.relative.headroom_margin_V.value_or(core::default_headroom_margin_V(c.nominal_dc_bus_V));
   // Injection shares the drive's current budget with motoring (the derated limit at run time).
   d.injection.current_limit_A = d.derating.max_current_A;
   // The calibration procedure: the run-time settings, as fixed-magnitude bipolar at two levels.

@@ -54,7 +54,7 @@ struct ControllerConfig {
   core::DriveConfig drive{};
   MotorRelativeKeys relative{};
   SensorScaling sensors{};
-  double nominal_dc_bus_V = 650.0;
+  double nominal_dc_bus_V = core::kReferenceDcBus_V;
   // The calibration procedure's injection magnitude (filled by finalize() from
   // calibration.F_A or the rated current): at no load the whole current budget is free, and a
   // larger F makes the bridge's zero-current band matter less (docs/estimator.md).

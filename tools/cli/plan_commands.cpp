@@ -11,6 +11,7 @@
 #include "json_writer.hpp"
 #include "commands.hpp"
 #include "cli_validators.hpp"
+#include "pmsm/core/current_controller.hpp"
 #include "pmsm/core/injection.hpp"
 #include "pmsm/core/injection_scheduler.hpp"
 #include "pmsm/core/motor_params.hpp"
@@ -52,8 +53,8 @@ struct BudgetOptions {
   double current_A = 0.0;
   double speed_rad_s = 0.0;
   double iq_A = 0.0;
-  double vdc_V = 650.0;
-  double voltage_fraction = 0.95;
+  double vdc_V = core::kReferenceDcBus_V;
+  double voltage_fraction = core::CurrentControllerConfig{}.voltage_limit_fraction;
   std::optional<double> margin_V;  // unset: the drive's default, 15 V at 650 V, following the bus
   double ke_V_s_per_rad = core::MotorParams{}.ke_V_s_per_rad;
   int pole_pairs = core::MotorParams{}.pole_pairs;
@@ -127,7 +128,7 @@ int run_budget(const BudgetOptions& o, const CLI::App& cmd) {
     in.iq_A = o.iq_A;
     // The drive keeps injection.headroom_margin_V of the limit free (15 V at a 650 V bus by
     // default, following the bus): the injection may use what is left.
-    const double margin_V = o.margin_V.value_or(15.0 * o.vdc_V / 650.0);
+    const double margin_V = o.margin_V.value_or(core::default_headroom_margin_V(o.vdc_V));
     in.voltage_limit_V = o.voltage_fraction * o.vdc_V / core::kSqrt3 - margin_V;
     in.tw_s = o.tw_s;
     in.window = o.window;

@@ -210,6 +210,16 @@ struct InjectionConfig {
   }
 };
 
+// The Table I drive's DC bus, at which InjectionConfig::headroom_margin_V's default (15 V)
+// holds. What the margin keeps free (the dead-time compensation's dead_time f_pwm Vdc, the
+// bus's ripple and sag, the current loop's reserve) scales with the bus, so the default at
+// another bus is the same share of it: the drive's configuration (finalize) and
+// `pmsm-thermal budget` both take it from here.
+inline constexpr double kReferenceDcBus_V = 650.0;
+[[nodiscard]] inline double default_headroom_margin_V(double dc_bus_V) {
+  return InjectionConfig{}.headroom_margin_V * (dc_bus_V / kReferenceDcBus_V);
+}
+
 struct SchedulerInput {
   double time_s = 0.0;
   double theta_e_rad = 0.0;       // smooth, unwrapped electrical angle now
