@@ -38,7 +38,16 @@ ConfigSchema<C> build() {
   s.real("motor.lq_rated_H", [](C& c) -> double& { return c.drive.motor.lq_rated_H; }, at_least(0, 1.0), "H",
          "Secant q-axis inductance (psi_q / iq) at the rated current, from the motor's flux map or datasheet; 0: not known. "
          "On a saturating machine it gives the estimator the gap between the secant Lq that pairs at one load measure "
-         "and the incremental Lq their fit needs (docs/estimator.md section 5.1).");
+         "and the incremental Lq their fit needs (docs/estimator.md section 5.1). A map of several points "
+         "(motor.lq_map_H) gives that gap between them better.");
+  s.list("motor.lq_map_current_A", 0, core::LqMap::kMaxPoints, positive(1e5),
+         [](const C& c) { return c.lq_map_current_A; }, [](C& c, const std::vector<double>& v) { c.lq_map_current_A = v; },
+         "A", "q-axis currents (peak, ascending) of the flux map's points in motor.lq_map_H, in place of motor.lq_rated_H.");
+  s.list("motor.lq_map_H", 0, core::LqMap::kMaxPoints, positive(1.0),
+         [](const C& c) { return c.lq_map_H; }, [](C& c, const std::vector<double>& v) { c.lq_map_H = v; }, "H",
+         "Secant q-axis inductance (psi_q / iq) of the flux map at each of motor.lq_map_current_A, from the motor's flux "
+         "map: the saturation curve's shape between them, which one point at the rated current can only draw as a "
+         "parabola (docs/estimator.md section 5.1; motor.lq_H is the map at no load).");
   s.real("motor.ke_V_s_per_rad", [](C& c) -> double& { return c.drive.motor.ke_V_s_per_rad; }, positive(100.0), "V s/rad",
          "EMF constant, line-to-line RMS volts per mechanical rad/s (Table I: 1.19).");
   s.integer("motor.pole_pairs", [](C& c) -> int& { return c.drive.motor.pole_pairs; }, between(1, 64), "Pole pairs.");
@@ -439,6 +448,13 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
   if (c.vx_initial_from_compensation) {
     d.injection.vx_initial_V = d.dead_time.dead_time_s / d.period_s * c.nominal_dc_bus_V + d.dead_time.device_drop_V;
   }
+  // The flux map's two lists, when they agree in length (the rules below name them otherwise).
+  d.motor.lq_map = {};
+  if (!c.lq_map_H.empty() && c.lq_map_H.size() == c.lq_map_current_A.size()) {
+    std::copy(c.lq_map_current_A.begin(), c.lq_map_current_A.end(), d.motor.lq_map.current_A.begin());
+    std::copy(c.lq_map_H.begin(), c.lq_map_H.end(), d.motor.lq_map.secant_H.begin());
+    d.motor.lq_map.points = static_cast<int>(c.lq_map_H.size());
+  }
   // Every sub-configuration's copy of the motor model and the period, in one place (core).
   d.derive_from_motor();
 
@@ -533,24 +549,65 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
              ref("control.nominal_dc_bus_V", c.nominal_dc_bus_V, "V", l) + ", " + common::format_number(limit_V) +
              " V (control.voltage_limit_fraction x bus / sqrt(3)): no injection could ever be budgeted");
   }
-  // Saturation only lowers the secant inductance; the estimator's curve is a first-order model,
-  // kept within half of Lq.
+  // Saturation only lowers the secant inductance; the estimator's curve is kept within half of Lq.
   if (m.lq_rated_H > 0.0 && (m.lq_rated_H > m.lq_H || m.lq_rated_H < 0.5 * m.lq_H)) {
     const std::string_view l = lead("motor.lq_rated_H", "motor.lq_H");
     rule("motor.lq_rated_H", "motor.lq_H",
          ref("motor.lq_rated_H", m.lq_rated_H, "H", l) + " must lie between half of " + ref("motor.lq_H", m.lq_H, "H", l) +
              " and it: saturation lowers the secant inductance with load");
-  } else if (m.lq_rated_H > 0.0) {
-    // The estimator's curve is linear in (iq / limit)^2: from the map's point it extrapolates to
-    // the current limit (u = 1), and the secant there must stay above half of Lq too.
-    const double at_limit_H = m.lq_H - core::commissioned_lq_saturation_H(d.injection);
+  }
+  const bool map_given = !c.lq_map_current_A.empty() || !c.lq_map_H.empty();
+  bool map_valid = m.lq_map.points > 0;
+  if (map_given && c.lq_map_current_A.size() != c.lq_map_H.size()) {
+    rule("motor.lq_map_H", "motor.lq_map_current_A",
+         std::string(key_prefix) + "motor.lq_map_H has " + std::to_string(c.lq_map_H.size()) + " points and " +
+             std::string(key_prefix) + "motor.lq_map_current_A " + std::to_string(c.lq_map_current_A.size()) +
+             ": one secant inductance per current");
+  } else if (map_given && m.lq_rated_H > 0.0) {
+    rule("motor.lq_map_H", "motor.lq_rated_H",
+         std::string(key_prefix) + "motor.lq_map_H and " + std::string(key_prefix) +
+             "motor.lq_rated_H are both given: the map's points replace its one point, give one of the two");
+    map_valid = false;
+  }
+  for (int k = 1; k < m.lq_map.points; ++k) {
+    const auto i = static_cast<std::size_t>(k);
+    if (!(m.lq_map.current_A[i] > m.lq_map.current_A[i - 1])) {
+      rule("motor.lq_map_current_A", "motor.lq_map_current_A",
+           std::string(key_prefix) + "motor.lq_map_current_A must ascend: point " + std::to_string(k) + " (" +
+               common::format_number(m.lq_map.current_A[i]) + " A) is not above point " + std::to_string(k - 1) + " (" +
+               common::format_number(m.lq_map.current_A[i - 1]) + " A)");
+      map_valid = false;
+      break;
+    }
+  }
+  for (int k = 0; k < m.lq_map.points; ++k) {
+    const double secant = m.lq_map.secant_H[static_cast<std::size_t>(k)];
+    if (secant > m.lq_H || secant < 0.5 * m.lq_H) {
+      const std::string_view l = lead("motor.lq_map_H", "motor.lq_H");
+      rule("motor.lq_map_H", "motor.lq_H",
+           std::string(key_prefix) + "motor.lq_map_H point " + std::to_string(k) + " (" + common::format_number(secant) +
+               " H at " + common::format_number(m.lq_map.current_A[static_cast<std::size_t>(k)]) +
+               " A) must lie between half of " + ref("motor.lq_H", m.lq_H, "H", l) +
+               " and it: saturation lowers the secant inductance with load");
+      map_valid = false;
+    }
+  }
+  if ((m.lq_rated_H > 0.0 && m.lq_rated_H <= m.lq_H && m.lq_rated_H >= 0.5 * m.lq_H && !map_given) || map_valid) {
+    // The estimator's curve extrapolates the map's last segment (linear in (iq / limit)^2) to the
+    // current limit, and the secant there must stay above half of Lq too.
+    const core::LqShape shape(d.injection);
+    const double at_limit_H = m.lq_H - shape.b0_H() * shape.at(d.injection.current_limit_A).s;
     if (at_limit_H < 0.5 * m.lq_H) {
-      const std::string_view l = lead("motor.lq_rated_H", "derating.max_current_A");
-      rule("motor.lq_rated_H", "derating.max_current_A",
-           ref("motor.lq_rated_H", m.lq_rated_H, "H", l) + " at the rated current (" +
-               common::format_number(core::continuous_current_peak_A(m)) + " A peak) implies a secant Lq of " +
-               common::format_number(at_limit_H) + " H at " + ref("derating.max_current_A", d.derating.max_current_A, "A", l) +
-               ", below half of motor.lq_H: more saturation than the estimator's curve, a - b (iq / limit)^2, can follow");
+      const std::string_view key = map_valid ? "motor.lq_map_H" : "motor.lq_rated_H";
+      const std::string_view l = lead(key, "derating.max_current_A");
+      const std::string what =
+          map_valid ? std::string(key_prefix) + "motor.lq_map_H's last segment"
+                    : ref("motor.lq_rated_H", m.lq_rated_H, "H", l) + " at the rated current (" +
+                          common::format_number(core::continuous_current_peak_A(m)) + " A peak)";
+      rule(key, "derating.max_current_A",
+           what + " implies a secant Lq of " + common::format_number(at_limit_H) + " H at " +
+               ref("derating.max_current_A", d.derating.max_current_A, "A", l) +
+               ", below half of motor.lq_H: more saturation than the estimator's curve, a - b s(iq), can follow");
     }
   }
   // Two keys, one order: "a (value, where) must be below b (value, where)".

@@ -76,6 +76,10 @@ struct ControllerConfig {
   // calibration.angle_correction_rad: the rotor-angle correction a calibration's angle check
   // measured (absent: none measured, sensors.encoder_offset_rad holds as configured).
   std::optional<double> angle_correction_rad;
+  // motor.lq_map_current_A and motor.lq_map_H as given (finalize() checks them together and
+  // fills drive.motor.lq_map).
+  std::vector<double> lq_map_current_A;
+  std::vector<double> lq_map_H;
 };
 
 // What became of the stored calibration at start-up.

@@ -18,6 +18,7 @@ void DriveConfig::derive_from_motor() {
   for (InjectionConfig* injection_config : {&injection, &calibration_injection}) {
     injection_config->lq_H = motor.lq_H;
     injection_config->lq_rated_H = motor.lq_rated_H;
+    injection_config->lq_map = motor.lq_map;
     injection_config->rated_current_A = continuous_current_peak_A(motor);
     injection_config->ld_H = motor.ld_H;
     injection_config->rs_nominal_ohm = motor.rs_ohm;

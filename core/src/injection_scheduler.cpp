@@ -57,16 +57,102 @@ double saturation_variable(double iq_A, double limit_A) {
   const double x = limit_A > 0.0 ? iq_A / limit_A : 0.0;
   return std::min(x * x, 1.44);  // a quadratic curve says nothing far beyond 1.2 x the limit
 }
+
+// The commissioned map's points: lq_map where it has any, else lq_rated_H at the rated current.
+LqMap commissioned_map(const InjectionConfig& c) {
+  if (c.lq_map.points > 0) {
+    return c.lq_map;
+  }
+  LqMap m;
+  if (c.lq_rated_H > 0.0 && c.rated_current_A > 0.0) {
+    m.current_A[0] = c.rated_current_A;
+    m.secant_H[0] = c.lq_rated_H;
+    m.points = 1;
+  }
+  return m;
+}
 }  // namespace
 
+LqShape::LqShape(const InjectionConfig& c) : limit_A_(c.current_limit_A) {
+  // The secant lq_H - b0 s(u) through (0, 0) and the map's points; b0 makes s equal u at the last
+  // point. u uncapped here: the cap bounds how far the curve is extrapolated, not where the
+  // map's points lie.
+  const LqMap m = commissioned_map(c);
+  if (m.points <= 0 || !(limit_A_ > 0.0)) {
+    return;
+  }
+  const auto n = static_cast<std::size_t>(m.points);
+  const double x_last = m.current_A[n - 1] / limit_A_;
+  const double u_last = x_last * x_last;
+  const double d_last = c.lq_H - m.secant_H[n - 1];
+  if (!(u_last > 0.0) || !(d_last > 0.0)) {
+    return;  // no saturation at the map's end: one Lq (saturation only lowers the secant)
+  }
+  b0_H_ = d_last / u_last;
+  if (n == 1) {
+    return;  // one point: the quadratic s = u, through it
+  }
+  for (std::size_t k = 0; k < n; ++k) {
+    const double x = m.current_A[k] / limit_A_;
+    u_[k + 1] = x * x;
+    s_[k + 1] = (c.lq_H - m.secant_H[k]) / b0_H_;
+  }
+  nodes_ = m.points;
+  // Each segment's chord slope, then the slope at each point: the parabola through it and its
+  // neighbours (one-sided at the ends), limited to [0, 3 x the smaller chord] where the chords
+  // agree in sign and 0 at a turn (Fritsch-Carlson: no overshoot between the points).
+  std::array<double, LqMap::kMaxPoints> width{};
+  std::array<double, LqMap::kMaxPoints> chord{};
+  for (std::size_t k = 0; k < n; ++k) {
+    width[k] = u_[k + 1] - u_[k];
+    chord[k] = (s_[k + 1] - s_[k]) / width[k];
+  }
+  auto limited = [](double slope, double a, double b) {
+    if (a * b <= 0.0 || slope * a <= 0.0) {
+      return 0.0;
+    }
+    const double bound = 3.0 * std::min(std::abs(a), std::abs(b));
+    return std::copysign(std::min(std::abs(slope), bound), a);
+  };
+  slope_[0] = limited(((2.0 * width[0] + width[1]) * chord[0] - width[0] * chord[1]) / (width[0] + width[1]),
+                      chord[0], chord[0]);
+  for (std::size_t k = 1; k < n; ++k) {
+    slope_[k] = limited((width[k - 1] * chord[k] + width[k] * chord[k - 1]) / (width[k - 1] + width[k]),
+                        chord[k - 1], chord[k]);
+  }
+  slope_[n] = limited(((2.0 * width[n - 1] + width[n - 2]) * chord[n - 1] - width[n - 1] * chord[n - 2]) /
+                          (width[n - 1] + width[n - 2]),
+                      chord[n - 1], chord[n - 1]);
+}
+
+LqShape::At LqShape::at(double iq_A) const {
+  const double u = saturation_variable(iq_A, limit_A_);
+  if (nodes_ == 0) {
+    return {u, 3.0 * u};  // psi = (a - b u) iq: d psi / d iq = a - 3 b u
+  }
+  const auto n = static_cast<std::size_t>(nodes_);
+  if (u >= u_[n]) {  // beyond the map: the straight line along its last slope
+    const double s = s_[n] + slope_[n] * (u - u_[n]);
+    return {s, s + 2.0 * u * slope_[n]};
+  }
+  std::size_t k = 1;  // the segment [u_{k-1}, u_k] holding u
+  while (k < n && u > u_[k]) {
+    ++k;
+  }
+  // The cubic Hermite segment and its derivative, t along it.
+  const double w = u_[k] - u_[k - 1];
+  const double t = (u - u_[k - 1]) / w;
+  const double t2 = t * t;
+  const double t3 = t2 * t;
+  const double s = (2.0 * t3 - 3.0 * t2 + 1.0) * s_[k - 1] + (t3 - 2.0 * t2 + t) * w * slope_[k - 1] +
+                   (3.0 * t2 - 2.0 * t3) * s_[k] + (t3 - t2) * w * slope_[k];
+  const double ds_du = 6.0 * (t2 - t) / w * (s_[k - 1] - s_[k]) + (3.0 * t2 - 4.0 * t + 1.0) * slope_[k - 1] +
+                       (3.0 * t2 - 2.0 * t) * slope_[k];
+  return {s, s + 2.0 * u * ds_du};
+}
+
 double commissioned_lq_saturation_H(const InjectionConfig& c) {
-  // The secant a - b u falls from lq_H at no load to lq_rated_H at u(rated), so
-  // b0 = (lq_H - lq_rated_H) / u(rated), u uncapped here (the cap bounds how far the curve is
-  // extrapolated, not where the map's point lies). Saturation only lowers the secant: b0 >= 0
-  // (the loader refuses a rated secant above lq_H).
-  const double x = c.current_limit_A > 0.0 ? c.rated_current_A / c.current_limit_A : 0.0;
-  const double u = x * x;
-  return c.lq_rated_H > 0.0 && u > 0.0 ? std::max(0.0, (c.lq_H - c.lq_rated_H) / u) : 0.0;
+  return LqShape(c).b0_H();
 }
 
 InjectionScheduler::InjectionScheduler(const InjectionConfig& config, double period_s,
@@ -79,7 +165,8 @@ InjectionScheduler::InjectionScheduler(const InjectionConfig& config, double per
       vx_var_(config.vx_initial_std_V * config.vx_initial_std_V),
       lq_H_(config.lq_H),
       lq_var_(config.lq_initial_std_fraction * config.lq_H * config.lq_initial_std_fraction * config.lq_H),
-      lq_b0_H_(commissioned_lq_saturation_H(config)),
+      lq_shape_(config),
+      lq_b0_H_(lq_shape_.b0_H()),
       lq_b_H_(config.learn_lq ? 0.0 : lq_b0_H_),  // (see InjectionConfig::lq_rated_H)
       lq_b_var_(config.lq_saturation_std_fraction * config.lq_H * config.lq_saturation_std_fraction * config.lq_H),
       recorder_capacity_(capacity) {
@@ -101,6 +188,8 @@ FitOptions InjectionScheduler::fit_options(bool fit_vx) const {
 }
 
 void InjectionScheduler::set_config(const InjectionConfig& config) {
+  // (The saturation curve's shape stays: the motor's flux map and current limit are the same in
+  // every configuration the drive switches between, DriveConfig::derive_from_motor.)
   config_ = config;
   phase_ = SchedulerPhase::kIdle;
   in_event_ = false;
@@ -223,7 +312,7 @@ void InjectionScheduler::begin_pair(const SchedulerInput& in) {
   fit.lq_H = lq_secant_H(in.motoring_ref_A.q);
   fit.lq_incremental_H = lq_incremental_H(in.motoring_ref_A.q);
   pair_lq_ = {};
-  pair_lq_.u = saturation_variable(in.motoring_ref_A.q, config_.current_limit_A);
+  pair_lq_.shape = lq_shape_.at(in.motoring_ref_A.q);
   pair_lq_.secant_H = fit.lq_H;
   pair_lq_.incremental_H = fit.lq_incremental_H;
   fit.ld_H = config_.ld_H;
@@ -389,7 +478,7 @@ PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
   const LqTerm lq = lq_term(c);
   LqGradient own;
   if (lq.x_sq_sum_A2 > 0.0) {
-    own.add(lq.secant_x_sum_A_V_H / lq.x_sq_sum_A2, lq.incremental_x_sum_A_V_H / lq.x_sq_sum_A2, lq.u);
+    own.add(lq.secant_x_sum_A_V_H / lq.x_sq_sum_A2, lq.incremental_x_sum_A_V_H / lq.x_sq_sum_A2, lq.shape);
   }
   const double lq_var_rs = lq_variance(own);
   const double vx_var_rs = fit.drs_dvx * fit.drs_dvx * (config_.fit_dead_time ? vx_var_ : 0.0);
@@ -452,15 +541,15 @@ PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
 
 // (Learning off, the curve keeps its priors: the commissioned lq_H and saturation.)
 double InjectionScheduler::lq_secant_H(double iq_A) const {
-  return lq_secant_at(saturation_variable(iq_A, config_.current_limit_A));
+  return lq_secant_at(lq_shape_.at(iq_A));
 }
 
 double InjectionScheduler::lq_incremental_H(double iq_A) const {
-  return lq_incremental_at(saturation_variable(iq_A, config_.current_limit_A));
+  return lq_incremental_at(lq_shape_.at(iq_A));
 }
 
-double InjectionScheduler::lq_secant_at(double u) const {
-  return std::clamp(lq_H_ - lq_b_H_ * u, 0.5 * lq_H_, 1.5 * lq_H_);
+double InjectionScheduler::lq_secant_at(const LqShape::At& shape) const {
+  return std::clamp(lq_H_ - lq_b_H_ * shape.s, 0.5 * lq_H_, 1.5 * lq_H_);
 }
 
 bool InjectionScheduler::saturation_variance_resolved() const {
@@ -468,18 +557,18 @@ bool InjectionScheduler::saturation_variance_resolved() const {
   return lq_b_var_ < 0.25 * prior * prior;
 }
 
-double InjectionScheduler::lq_incremental_at(double u) const {
-  // psi = (a - b u) iq with u = (iq / I)^2: d psi / d iq = a - 3 b u. Until pairs at two
+double InjectionScheduler::lq_incremental_at(const LqShape::At& shape) const {
+  // psi = (a - b s) iq: d psi / d iq = a - b h (3 b u on the quadratic). Until pairs at two
   // loads have resolved b (its variance below a quarter of its prior), a and b are known only
-  // in the combination a - b u of the loads seen, and 3 b u would triple whatever error b
+  // in the combination a - b s of the loads seen, and b h would multiply whatever error b
   // took from them: until then the incremental is the secant (which pairs at this load
-  // measure) less the commissioned gap 2 b0 u (which they cannot; 0 where no saturation was
-  // commissioned).
-  const double secant = lq_secant_at(u);
+  // measure) less the commissioned gap b0 (h - s) (which they cannot; 0 where no saturation
+  // was commissioned).
+  const double secant = lq_secant_at(shape);
   if (!lq_resolved_) {
-    return std::clamp(secant - 2.0 * lq_b0_H_ * u, 0.5 * secant, secant);
+    return std::clamp(secant - lq_b0_H_ * (shape.h - shape.s), 0.5 * secant, secant);
   }
-  return std::clamp(lq_H_ - 3.0 * lq_b_H_ * u, 0.5 * secant, 1.5 * secant);
+  return std::clamp(lq_H_ - lq_b_H_ * shape.h, 0.5 * secant, 1.5 * secant);
 }
 
 InjectionScheduler::LqTerm InjectionScheduler::lq_term(const PairConditions& c) const {
@@ -501,15 +590,15 @@ std::array<double, 2> InjectionScheduler::lq_change_H(const LqTerm& t) const {
   if (!config_.learn_lq) {
     return {0.0, 0.0};  // the commissioned Lq throughout: nothing newer to refit with
   }
-  return {lq_secant_at(t.u) - t.secant_H, lq_incremental_at(t.u) - t.incremental_H};
+  return {lq_secant_at(t.shape) - t.secant_H, lq_incremental_at(t.shape) - t.incremental_H};
 }
 
-void InjectionScheduler::LqGradient::add(double d_secant, double d_incremental, double u) {
-  // The curve's state (a, b): the secant is a - b u and the incremental a - 3 b u (an
-  // incremental not yet resolved is the secant less the commissioned 2 b0 u, about 2 (b - b0) u
-  // off the true incremental: the same form with b's uncertainty).
+void InjectionScheduler::LqGradient::add(double d_secant, double d_incremental, const LqShape::At& shape) {
+  // The curve's state (a, b): the secant is a - b s and the incremental a - b h (an
+  // incremental not yet resolved is the secant less the commissioned b0 (h - s), about
+  // (b - b0) (h - s) off the true incremental: the same form with b's uncertainty).
   a += d_secant + d_incremental;
-  b -= u * (d_secant + 3.0 * d_incremental);
+  b -= shape.s * d_secant + shape.h * d_incremental;
 }
 
 double InjectionScheduler::lq_variance(const LqGradient& g) const {
@@ -523,7 +612,7 @@ void InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit)
     return;
   }
   const double w_iq = c.omega_e_iq_mean_A_rad_s;
-  const double u = saturation_variable(c.iq_mean_A, config_.current_limit_A);
+  const double s_q = lq_shape_.at(c.iq_mean_A).s;  // the secant's shape at the pair's load
   if (!(std::abs(lq_secant_H(c.iq_mean_A) * w_iq) >= config_.lq_learning_min_voltage_V)) {
     return;
   }
@@ -550,11 +639,11 @@ void InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit)
   }
   lq_resolved_ = saturation_variance_resolved();
   // Gross outliers (a pair that passed its guards but whose means are off) are left out.
-  // The secant at this pair's load is a - b u: a Kalman update of (a, b) with h = (1, -u).
-  const double predicted = lq_H_ - lq_b_H_ * u;
-  const double ph0 = lq_var_ - lq_cov_ * u;      // (P h)_0
-  const double ph1 = lq_cov_ - lq_b_var_ * u;    // (P h)_1
-  const double s = ph0 - u * ph1 + var;          // h P h' + var
+  // The secant at this pair's load is a - b s_q: a Kalman update of (a, b) with h = (1, -s_q).
+  const double predicted = lq_H_ - lq_b_H_ * s_q;
+  const double ph0 = lq_var_ - lq_cov_ * s_q;      // (P h)_0
+  const double ph1 = lq_cov_ - lq_b_var_ * s_q;    // (P h)_1
+  const double s = ph0 - s_q * ph1 + var;          // h P h' + var
   if (lq < 0.5 * config_.lq_H || lq > 2.0 * config_.lq_H || !(s > 0.0) ||
       !(std::abs(lq - predicted) <= 4.0 * std::sqrt(s))) {
     return;
@@ -743,7 +832,7 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
       const auto k = static_cast<std::size_t>(j);
       if (event_means_[k]) {  // a pair without means is not in the fit (FixedVxMeans skips it)
         const double c = event_means_[k]->w * event_means_[k]->x_rs / norm;
-        g.add(c * event_pair_lq_[k].secant_mean_V_H, c * event_pair_lq_[k].incremental_mean_V_H, event_pair_lq_[k].u);
+        g.add(c * event_pair_lq_[k].secant_mean_V_H, c * event_pair_lq_[k].incremental_mean_V_H, event_pair_lq_[k].shape);
       }
     }
     const double lq_var = lq_variance(g);

@@ -358,6 +358,38 @@ TEST(ControllerConfig, RatedCurrentLqIsCheckedAgainstLq) {
   EXPECT_EQ(c.drive.calibration_injection.rated_current_A, c.drive.injection.rated_current_A);
 }
 
+// A flux map of several points: two lists of one length, the currents ascending, every secant
+// between half of Lq and Lq; it replaces the one point of motor.lq_rated_H (giving both is an
+// error) and reaches both of the scheduler's configurations.
+TEST(ControllerConfig, AFluxMapIsCheckedAsAWhole) {
+  const ControllerConfig c =
+      parse("[motor]\nlq_H = 5.5e-3\nlq_map_current_A = [20, 40, 60]\nlq_map_H = [5.45e-3, 5.3e-3, 5.0e-3]\n");
+  for (const core::InjectionConfig* i : {&c.drive.injection, &c.drive.calibration_injection}) {
+    ASSERT_EQ(i->lq_map.points, 3);
+    EXPECT_EQ(i->lq_map.current_A[2], 60.0);
+    EXPECT_EQ(i->lq_map.secant_H[1], 5.3e-3);
+  }
+  EXPECT_EQ(parse("").drive.injection.lq_map.points, 0);
+  EXPECT_EQ(parse("[motor]\nlq_map_current_A = []\nlq_map_H = []\n").drive.injection.lq_map.points, 0);
+  const std::string lengths = error_of("[motor]\nlq_map_current_A = [20, 40]\nlq_map_H = [5.4e-3]\n");
+  EXPECT_EQ(lengths, "drive.toml:3: motor.lq_map_H has 1 points and motor.lq_map_current_A 2: one secant inductance per current")
+      << lengths;
+  const std::string both = error_of("[motor]\nlq_rated_H = 5e-3\nlq_map_current_A = [20]\nlq_map_H = [5.4e-3]\n");
+  EXPECT_NE(both.find("motor.lq_map_H and motor.lq_rated_H are both given"), std::string::npos) << both;
+  const std::string order = error_of("[motor]\nlq_map_current_A = [40, 20]\nlq_map_H = [5.4e-3, 5.3e-3]\n");
+  EXPECT_EQ(order, "drive.toml:2: motor.lq_map_current_A must ascend: point 1 (20 A) is not above point 0 (40 A)") << order;
+  const std::string high = error_of("[motor]\nlq_H = 5.5e-3\nlq_map_current_A = [20, 40]\nlq_map_H = [5.4e-3, 5.6e-3]\n");
+  EXPECT_EQ(high.rfind("drive.toml:4: motor.lq_map_H point 1 (0.0056 H at 40 A) must lie between half of motor.lq_H "
+                       "(0.0055 H, drive.toml:2)", 0), 0U) << high;
+  EXPECT_EQ(error_of("[motor]\nlq_map_current_A = [20, nan]\nlq_map_H = [5.4e-3, 5.3e-3]\n")
+                .rfind("drive.toml:2: motor.lq_map_current_A", 0), 0U);
+  // The map's last segment, extrapolated to the current limit (80 A here), must keep the secant
+  // above half of Lq: from 5.5 mH to 4 mH between 30 and 40 A falls far below it by 80 A.
+  const std::string steep = error_of(
+      "[motor]\nlq_H = 5.5e-3\nlq_map_current_A = [30, 40]\nlq_map_H = [5.4e-3, 4.0e-3]\n[derating]\nmax_current_A = 80\n");
+  EXPECT_EQ(steep.rfind("drive.toml:4: motor.lq_map_H's last segment implies a secant Lq of ", 0), 0U) << steep;
+}
+
 // The controller's components take the motor model from DriveConfig::motor whatever the
 // sub-configurations say: the copies cannot disagree.
 TEST(ControllerConfig, DriveControllerDerivesFromTheMotor) {

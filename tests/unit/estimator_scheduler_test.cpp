@@ -1179,6 +1179,108 @@ TEST(InjectionScheduler, TheCommissionedCurveIsTheRatedSecantsExtrapolation) {
   EXPECT_EQ(none.lq_incremental_H(60.0), 5.5e-3);
 }
 
+// The 30 mohm IPM's q axis (the plant's saturating curve): psi = Ls i + (L - Ls) k x / sqrt(1 + x^2),
+// x = i / k, and its flux map's secant at a quarter to twice the rated 141 A.
+struct SaturatingAxis {
+  double l_H = 0.45e-3;
+  double l_sat_H = 0.30e-3;
+  double knee_A = 220.0;
+  [[nodiscard]] double secant(double i) const {
+    return l_sat_H + (l_H - l_sat_H) / std::sqrt(1.0 + (i / knee_A) * (i / knee_A));
+  }
+  [[nodiscard]] double incremental(double i) const {
+    const double r = std::sqrt(1.0 + (i / knee_A) * (i / knee_A));
+    return l_sat_H + (l_H - l_sat_H) / (r * r * r);
+  }
+};
+
+InjectionConfig mapped_config(const SaturatingAxis& axis, const std::vector<double>& currents_A) {
+  InjectionConfig c = test_config();
+  c.lq_H = axis.l_H;
+  c.current_limit_A = 300.0;
+  c.rated_current_A = 141.0;
+  c.learn_lq = false;
+  for (std::size_t k = 0; k < currents_A.size(); ++k) {
+    c.lq_map.current_A[k] = currents_A[k];
+    c.lq_map.secant_H[k] = axis.secant(currents_A[k]);
+  }
+  c.lq_map.points = static_cast<int>(currents_A.size());
+  return c;
+}
+
+// The gap between the secant Lq that pairs at one load measure and the incremental their fit
+// needs is the map's slope: iq d(secant)/diq. Through six points of a saturating curve the
+// shape gives it within 3 % from 20 to 200 A (2.1 % at worst, next to the rated point), and
+// within 20 % in the last and widest segment, 212-282 A, whose end has only a one-sided slope
+// (16 % at 280 A); the secant within 0.2 % everywhere (0.11 % at worst, in that segment), and
+// through the points themselves. The quadratic through the rated point alone misses the gap
+// by 10 % at 75 A, where the IPM cruises (docs/estimator.md §5.1).
+TEST(LqShape, AFluxMapOfSeveralPointsGivesTheIncrementalBetweenItsPoints) {
+  const SaturatingAxis axis;
+  const InjectionConfig c = mapped_config(axis, {35.0, 70.0, 106.0, 141.0, 212.0, 282.0});
+  const InjectionScheduler s(c, kPeriod, 64);
+  for (const double i : {35.0, 70.0, 106.0, 141.0, 212.0, 282.0}) {
+    EXPECT_NEAR(s.lq_secant_H(i), axis.secant(i), 1e-12) << "the map's point at " << i << " A";
+  }
+  for (double i = 20.0; i <= 280.0; i += 5.0) {
+    const double gap = axis.secant(i) - axis.incremental(i);
+    EXPECT_NEAR(s.lq_secant_H(i) - s.lq_incremental_H(i), gap, (i <= 200.0 ? 0.03 : 0.2) * gap) << i << " A";
+    EXPECT_NEAR(s.lq_secant_H(i), axis.secant(i), 2e-3 * axis.secant(i)) << i << " A";
+  }
+  InjectionConfig point = mapped_config(axis, {});
+  point.lq_rated_H = axis.secant(141.0);
+  const InjectionScheduler quadratic(point, kPeriod, 64);
+  const double gap_75 = axis.secant(75.0) - axis.incremental(75.0);
+  EXPECT_LT(quadratic.lq_secant_H(75.0) - quadratic.lq_incremental_H(75.0), 0.92 * gap_75);
+}
+
+// One point is the quadratic through it, to the last bit (the map of lq_rated_H and a map of
+// that one point are the same curve), and no saturation at the map's end is one Lq.
+TEST(LqShape, OnePointIsTheQuadraticAndAFlatMapIsOneLq) {
+  const SaturatingAxis axis;
+  InjectionConfig c = mapped_config(axis, {141.0});
+  const LqShape one(c);
+  c.lq_map.points = 0;
+  c.lq_rated_H = axis.secant(141.0);
+  const LqShape rated(c);
+  EXPECT_EQ(one.b0_H(), rated.b0_H());
+  EXPECT_GT(one.b0_H(), 0.0);
+  for (const double i : {0.0, 50.0, 141.0, 250.0, 400.0}) {
+    const double u = std::min((i / 300.0) * (i / 300.0), 1.44);
+    EXPECT_EQ(one.at(i).s, u);
+    EXPECT_EQ(one.at(i).h, 3.0 * u);
+    EXPECT_EQ(rated.at(-i).s, u) << "the sign of iq does not matter";
+  }
+  InjectionConfig flat = mapped_config(axis, {70.0, 141.0});
+  flat.lq_map.secant_H = {axis.l_H, axis.l_H};
+  EXPECT_EQ(LqShape(flat).b0_H(), 0.0);
+}
+
+// A map with a sharp knee (flat to 100 A, then falling fast): the curve between its points
+// neither rises nor overshoots (the secant only falls with load), and the incremental stays
+// below the secant.
+TEST(LqShape, ASharpKneeGivesAMonotoneCurve) {
+  InjectionConfig c = test_config();
+  c.lq_H = 1.0e-3;
+  c.current_limit_A = 200.0;
+  const std::array<double, 5> currents{50.0, 100.0, 120.0, 150.0, 200.0};
+  const std::array<double, 5> secants{1.0e-3, 0.999e-3, 0.90e-3, 0.80e-3, 0.78e-3};
+  for (std::size_t k = 0; k < currents.size(); ++k) {
+    c.lq_map.current_A[k] = currents[k];
+    c.lq_map.secant_H[k] = secants[k];
+  }
+  c.lq_map.points = static_cast<int>(currents.size());
+  const LqShape shape(c);
+  double last = -1.0;
+  for (double i = 0.0; i <= 240.0; i += 0.5) {
+    const LqShape::At a = shape.at(i);
+    EXPECT_GE(a.s, last) << i << " A";
+    EXPECT_GE(a.h, a.s - 1e-12) << i << " A";
+    last = a.s;
+  }
+  EXPECT_NEAR(c.lq_H - shape.b0_H() * shape.at(100.0).s, 0.999e-3, 1e-12);
+}
+
 TEST(InjectionScheduler, ACommissionedSaturationGivesTheIncrementalAtOneLoad) {
   // The plant's secant at the rated 45.1 A: 5.5 mH - 0.55 mH x (45.1 / 80)^2.
   const double rated_secant_H = 5.5e-3 - 0.55e-3 * (45.1 / 80.0) * (45.1 / 80.0);

@@ -7,9 +7,19 @@
 //   phase-peak forms, which the free functions below derive.
 #pragma once
 
+#include <array>
 #include <cmath>
 
 namespace pmsm::core {
+
+// A q-axis flux map as the estimator takes it: the secant inductance psi_q / iq at up to
+// kMaxPoints q-axis currents (peak A, ascending, > 0). The no-load value is motor.lq_H.
+struct LqMap {
+  static constexpr int kMaxPoints = 8;
+  std::array<double, kMaxPoints> current_A{};
+  std::array<double, kMaxPoints> secant_H{};
+  int points = 0;
+};
 
 struct MotorParams {
   double kt_Nm_per_A_rms = 2.08;          // Table I torque constant, per RMS phase ampere
@@ -27,6 +37,9 @@ struct MotorParams {
   // The secant q-axis inductance psi_q / iq at the rated current (continuous, peak), from the
   // motor's flux map or datasheet; 0: not known. A saturating machine's Lq falls with load.
   double lq_rated_H = 0.0;
+  // Or the flux map itself: its secant Lq at several q-axis currents (LqMap; lq_H is its no-load
+  // value). At most one of the two is given.
+  LqMap lq_map{};
   double inertia_kg_m2 = 0.00841;
   int pole_pairs = 3;
   double thermal_time_constant_s = 2880.0;
