@@ -42,12 +42,14 @@ ConfigSchema<C> build() {
          "(motor.lq_map_H) gives that gap between them better.");
   s.list("motor.lq_map_current_A", 0, core::LqMap::kMaxPoints, positive(1e5),
          [](const C& c) { return c.lq_map_current_A; }, [](C& c, const std::vector<double>& v) { c.lq_map_current_A = v; },
-         "A", "q-axis currents (peak, ascending) of the flux map's points in motor.lq_map_H, in place of motor.lq_rated_H.");
+         "A", "q-axis currents (peak A, ascending, above 0: motor.lq_H is the map at 0 A) of the flux map's points in "
+         "motor.lq_map_H, in place of motor.lq_rated_H. Let them reach past the loads the drive runs at.");
   s.list("motor.lq_map_H", 0, core::LqMap::kMaxPoints, positive(1.0),
          [](const C& c) { return c.lq_map_H; }, [](C& c, const std::vector<double>& v) { c.lq_map_H = v; }, "H",
-         "Secant q-axis inductance (psi_q / iq) of the flux map at each of motor.lq_map_current_A, from the motor's flux "
-         "map: the saturation curve's shape between them, which one point at the rated current can only draw as a "
-         "parabola (docs/estimator.md section 5.1; motor.lq_H is the map at no load).");
+         "Secant q-axis inductance (psi_q / iq, not the incremental d psi_q / d iq) of the flux map at each of "
+         "motor.lq_map_current_A, at id = 0, from the same map as motor.lq_H (its no-load value), non-increasing: the "
+         "saturation curve's shape between the points, which one point at the rated current can only draw as a "
+         "parabola (docs/estimator.md section 5.1).");
   s.real("motor.ke_V_s_per_rad", [](C& c) -> double& { return c.drive.motor.ke_V_s_per_rad; }, positive(100.0), "V s/rad",
          "EMF constant, line-to-line RMS volts per mechanical rad/s (Table I: 1.19).");
   s.integer("motor.pole_pairs", [](C& c) -> int& { return c.drive.motor.pole_pairs; }, between(1, 64), "Pole pairs.");
@@ -448,9 +450,11 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
   if (c.vx_initial_from_compensation) {
     d.injection.vx_initial_V = d.dead_time.dead_time_s / d.period_s * c.nominal_dc_bus_V + d.dead_time.device_drop_V;
   }
-  // The flux map's two lists, when they agree in length (the rules below name them otherwise).
+  // The flux map's two lists, when they agree in length and fit (the rules below name them
+  // otherwise). The lists are the map's one source: a drive.motor.lq_map set in code is replaced.
   d.motor.lq_map = {};
-  if (!c.lq_map_H.empty() && c.lq_map_H.size() == c.lq_map_current_A.size()) {
+  const std::size_t max_points = core::LqMap::kMaxPoints;
+  if (!c.lq_map_H.empty() && c.lq_map_H.size() == c.lq_map_current_A.size() && c.lq_map_H.size() <= max_points) {
     std::copy(c.lq_map_current_A.begin(), c.lq_map_current_A.end(), d.motor.lq_map.current_A.begin());
     std::copy(c.lq_map_H.begin(), c.lq_map_H.end(), d.motor.lq_map.secant_H.begin());
     d.motor.lq_map.points = static_cast<int>(c.lq_map_H.size());
@@ -558,7 +562,11 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
   }
   const bool map_given = !c.lq_map_current_A.empty() || !c.lq_map_H.empty();
   bool map_valid = m.lq_map.points > 0;
-  if (map_given && c.lq_map_current_A.size() != c.lq_map_H.size()) {
+  if (c.lq_map_current_A.size() > max_points || c.lq_map_H.size() > max_points) {
+    rule("motor.lq_map_H", "motor.lq_map_current_A",
+         std::string(key_prefix) + "motor.lq_map_H and motor.lq_map_current_A take at most " + std::to_string(max_points) +
+             " points, got " + std::to_string(c.lq_map_H.size()) + " and " + std::to_string(c.lq_map_current_A.size()));
+  } else if (map_given && c.lq_map_current_A.size() != c.lq_map_H.size()) {
     rule("motor.lq_map_H", "motor.lq_map_current_A",
          std::string(key_prefix) + "motor.lq_map_H has " + std::to_string(c.lq_map_H.size()) + " points and " +
              std::string(key_prefix) + "motor.lq_map_current_A " + std::to_string(c.lq_map_current_A.size()) +
@@ -582,7 +590,7 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
   }
   for (int k = 0; k < m.lq_map.points; ++k) {
     const double secant = m.lq_map.secant_H[static_cast<std::size_t>(k)];
-    if (secant > m.lq_H || secant < 0.5 * m.lq_H) {
+    if (!(secant <= m.lq_H && secant >= 0.5 * m.lq_H)) {
       const std::string_view l = lead("motor.lq_map_H", "motor.lq_H");
       rule("motor.lq_map_H", "motor.lq_H",
            std::string(key_prefix) + "motor.lq_map_H point " + std::to_string(k) + " (" + common::format_number(secant) +
@@ -592,16 +600,41 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
       map_valid = false;
     }
   }
+  // Saturation only lowers the secant: a map that rises with current, or one whose last point
+  // shows none (the curve is drawn through the loss at the last point), is not one the
+  // estimator's curve can follow.
+  if (map_valid) {
+    const auto n = static_cast<std::size_t>(m.lq_map.points);
+    for (std::size_t k = 1; k < n; ++k) {
+      if (m.lq_map.secant_H[k] > m.lq_map.secant_H[k - 1]) {
+        rule("motor.lq_map_H", "motor.lq_map_H",
+             std::string(key_prefix) + "motor.lq_map_H must not rise with the current: point " + std::to_string(k) + " (" +
+                 common::format_number(m.lq_map.secant_H[k]) + " H) is above point " + std::to_string(k - 1) + " (" +
+                 common::format_number(m.lq_map.secant_H[k - 1]) + " H); saturation lowers the secant inductance");
+        map_valid = false;
+        break;
+      }
+    }
+    if (map_valid && !(m.lq_map.secant_H[n - 1] < m.lq_H)) {
+      const std::string_view l = lead("motor.lq_map_H", "motor.lq_H");
+      rule("motor.lq_map_H", "motor.lq_H",
+           std::string(key_prefix) + "motor.lq_map_H's last point (" + common::format_number(m.lq_map.secant_H[n - 1]) +
+               " H) equals " + ref("motor.lq_H", m.lq_H, "H", l) +
+               ": a map that shows no saturation says nothing the estimator can use; leave it out");
+      map_valid = false;
+    }
+  }
   if ((m.lq_rated_H > 0.0 && m.lq_rated_H <= m.lq_H && m.lq_rated_H >= 0.5 * m.lq_H && !map_given) || map_valid) {
-    // The estimator's curve extrapolates the map's last segment (linear in (iq / limit)^2) to the
-    // current limit, and the secant there must stay above half of Lq too.
+    // The estimator's curve extrapolates from the map's last point along its slope there (at most
+    // three times the last segment's) to the current limit, and the secant there must stay above
+    // half of Lq too.
     const core::LqShape shape(d.injection);
     const double at_limit_H = m.lq_H - shape.b0_H() * shape.at(d.injection.current_limit_A).s;
     if (at_limit_H < 0.5 * m.lq_H) {
       const std::string_view key = map_valid ? "motor.lq_map_H" : "motor.lq_rated_H";
       const std::string_view l = lead(key, "derating.max_current_A");
       const std::string what =
-          map_valid ? std::string(key_prefix) + "motor.lq_map_H's last segment"
+          map_valid ? std::string(key_prefix) + "motor.lq_map_H, extrapolated from its last point,"
                     : ref("motor.lq_rated_H", m.lq_rated_H, "H", l) + " at the rated current (" +
                           common::format_number(core::continuous_current_peak_A(m)) + " A peak)";
       rule(key, "derating.max_current_A",

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 namespace pmsm::core {
 namespace {
@@ -180,6 +181,15 @@ double fixed_angle_average_loss_exact_W(const InjectionSchedule& s, double omega
   }
   const double integral_s = sum * h / 3.0;
   return 1.5 * s.f_A * s.f_A * s.rs_ohm * s.pulses / s.elapsed_s * integral_s;
+}
+
+double max_injection_current_for_torque_A(double budget_Nm, int pole_pairs, double ld_H, double lq_H,
+                                          double iq_A) {
+  const double saliency = 1.5 * pole_pairs * std::abs(ld_H - lq_H) * std::abs(iq_A);  // Nm per A of F
+  if (!(budget_Nm > 0.0) || !(saliency > 0.0)) {
+    return std::numeric_limits<double>::infinity();
+  }
+  return budget_Nm / saliency;
 }
 
 }  // namespace pmsm::core

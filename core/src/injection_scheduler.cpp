@@ -78,10 +78,18 @@ LqShape::LqShape(const InjectionConfig& c) : limit_A_(c.current_limit_A) {
   // point. u uncapped here: the cap bounds how far the curve is extrapolated, not where the
   // map's points lie.
   const LqMap m = commissioned_map(c);
-  if (m.points <= 0 || !(limit_A_ > 0.0)) {
+  if (m.points <= 0 || m.points > LqMap::kMaxPoints || !(limit_A_ > 0.0) || !std::isfinite(limit_A_)) {
     return;
   }
   const auto n = static_cast<std::size_t>(m.points);
+  // The loader refuses anything else (controller_config.cpp); a map built in code that is not a
+  // map (NaN, currents not ascending, a secant above lq_H) is one Lq, not a curve through it.
+  for (std::size_t k = 0; k < n; ++k) {
+    const bool ascending = m.current_A[k] > (k == 0 ? 0.0 : m.current_A[k - 1]);
+    if (!ascending || !std::isfinite(m.current_A[k]) || !(m.secant_H[k] > 0.0 && m.secant_H[k] <= c.lq_H)) {
+      return;
+    }
+  }
   const double x_last = m.current_A[n - 1] / limit_A_;
   const double u_last = x_last * x_last;
   const double d_last = c.lq_H - m.secant_H[n - 1];
@@ -261,12 +269,10 @@ InjectionScheduler::Budget InjectionScheduler::budget(const SchedulerInput& in, 
   }
 
   // Torque: reluctance torque 3/2 p |Ld - Lq| F |iq| within the budget (salient machines).
-  double f_torque = wanted_A;
-  const double saliency = 1.5 * config_.pole_pairs * std::abs(config_.ld_H - lq_H) * std::abs(im.q);
-  const bool torque_budget = config_.max_torque_disturbance_Nm > 0.0 && saliency > 0.0;
-  if (torque_budget) {
-    f_torque = std::min(f_torque, config_.max_torque_disturbance_Nm / saliency);
-  }
+  const double torque_room =
+      max_injection_current_for_torque_A(config_.max_torque_disturbance_Nm, config_.pole_pairs, config_.ld_H, lq_H, im.q);
+  const bool torque_budget = std::isfinite(torque_room);
+  const double f_torque = std::min(wanted_A, torque_room);
 
   b.f_A = std::max(0.0, std::min({f_current, f_voltage, f_torque}));
   if (b.f_A < config_.f_min_A && f_voltage < f_current && config_.field_weakening_pairs &&
@@ -283,7 +289,7 @@ InjectionScheduler::Budget InjectionScheduler::budget(const SchedulerInput& in, 
     }
     const double fw_wanted = config_.f_A * largest;
     const InjectionCurrentRange range = injection_current_range_at_operating_point_A(h, -1.0);
-    const double fw_torque = torque_budget ? config_.max_torque_disturbance_Nm / saliency : fw_wanted;
+    const double fw_torque = std::min(fw_wanted, torque_room);
     const double high = std::min({fw_wanted, current_room(-1.0), range.hi_A, fw_torque});
     const double low = std::max(range.lo_A, config_.field_weakening_low_fraction * high);
     if (range.valid && high - low >= config_.f_min_A) {

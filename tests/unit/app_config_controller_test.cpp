@@ -383,11 +383,25 @@ TEST(ControllerConfig, AFluxMapIsCheckedAsAWhole) {
                        "(0.0055 H, drive.toml:2)", 0), 0U) << high;
   EXPECT_EQ(error_of("[motor]\nlq_map_current_A = [20, nan]\nlq_map_H = [5.4e-3, 5.3e-3]\n")
                 .rfind("drive.toml:2: motor.lq_map_current_A", 0), 0U);
+  // Only one of the two lists, more than eight points, a map that rises with the current or ends
+  // at lq_H, a point at 0 A (lq_H is the map there): each named, none accepted.
+  EXPECT_EQ(error_of("[motor]\nlq_map_H = [5.4e-3]\n"),
+            "drive.toml:2: motor.lq_map_H has 1 points and motor.lq_map_current_A 0: one secant inductance per current");
+  const std::string nine =
+      error_of("[motor]\nlq_map_current_A = [1, 2, 3, 4, 5, 6, 7, 8, 9]\nlq_map_H = [5.4e-3, 5.3e-3]\n");
+  EXPECT_EQ(nine.rfind("drive.toml:2: motor.lq_map_current_A: expected 0 to 8 values, got 9", 0), 0U) << nine;
+  const std::string rises = error_of("[motor]\nlq_H = 5.5e-3\nlq_map_current_A = [20, 40]\nlq_map_H = [5.3e-3, 5.4e-3]\n");
+  EXPECT_EQ(rises.rfind("drive.toml:4: motor.lq_map_H must not rise with the current: point 1 (0.0054 H) is above point 0", 0),
+            0U) << rises;
+  const std::string flat = error_of("[motor]\nlq_H = 5.5e-3\nlq_map_current_A = [20, 40]\nlq_map_H = [5.5e-3, 5.5e-3]\n");
+  EXPECT_NE(flat.find("motor.lq_map_H's last point (0.0055 H) equals motor.lq_H"), std::string::npos) << flat;
+  const std::string zero = error_of("[motor]\nlq_map_current_A = [0, 40]\nlq_map_H = [5.5e-3, 5.3e-3]\n");
+  EXPECT_EQ(zero.rfind("drive.toml:2: motor.lq_map_current_A", 0), 0U) << zero;
   // The map's last segment, extrapolated to the current limit (80 A here), must keep the secant
   // above half of Lq: from 5.5 mH to 4 mH between 30 and 40 A falls far below it by 80 A.
   const std::string steep = error_of(
       "[motor]\nlq_H = 5.5e-3\nlq_map_current_A = [30, 40]\nlq_map_H = [5.4e-3, 4.0e-3]\n[derating]\nmax_current_A = 80\n");
-  EXPECT_EQ(steep.rfind("drive.toml:4: motor.lq_map_H's last segment implies a secant Lq of ", 0), 0U) << steep;
+  EXPECT_EQ(steep.rfind("drive.toml:4: motor.lq_map_H, extrapolated from its last point, implies a secant Lq of ", 0), 0U) << steep;
 }
 
 // The controller's components take the motor model from DriveConfig::motor whatever the

@@ -47,6 +47,26 @@ TEST(PlanCli, BudgetAtSpeedLeavesLessForPositiveInjection) {
   EXPECT_DOUBLE_EQ(json_number(r.out, "max_injection_current_A").value_or(-1), pos);
 }
 
+// On a salient machine the drive's torque budget (injection.max_torque_disturbance_Nm) limits F
+// to budget / (1.5 p |Ld - Lq| |iq|) before the voltage does: the 30 mohm IPM at 200 rad/s and
+// 50 A, 1.5 Nm: 1.5 / (1.5 x 4 x 0.2 mH x 50 A) = 25 A. Without a budget, or on a round rotor,
+// the voltage decides as before.
+TEST(PlanCli, BudgetAtSpeedKeepsTheTorqueBudget) {
+  const std::string ipm = kExe + " budget --speed 200 --iq 50 --Ld 0.25e-3 --Lq 0.45e-3 --pole-pairs 4 --Ke 0.5 "
+                                 "--vdc 320 --Rs 0.03 --json";
+  const ProcessResult with = run_process(ipm + " --max-torque-disturbance 1.5");
+  ASSERT_EQ(with.exit_code, 0) << with.err;
+  EXPECT_NEAR(json_number(with.out, "max_torque_injection_current_A").value_or(-1), 25.0, 1e-9);
+  EXPECT_NEAR(json_number(with.out, "max_injection_current_A").value_or(-1), 25.0, 1e-9);
+  const ProcessResult without = run_process(ipm);
+  ASSERT_EQ(without.exit_code, 0) << without.err;
+  EXPECT_FALSE(json_number(without.out, "max_torque_injection_current_A").has_value()) << without.out;
+  EXPECT_GT(json_number(without.out, "max_injection_current_A").value_or(-1), 100.0) << "the voltage alone";
+  const ProcessResult round = run_process(kExe + " budget --speed 200 --iq 50 --max-torque-disturbance 1.5 --json");
+  ASSERT_EQ(round.exit_code, 0) << round.err;
+  EXPECT_FALSE(json_number(round.out, "max_torque_injection_current_A").has_value()) << "Ld = Lq: no reluctance torque";
+}
+
 TEST(PlanCli, LossesFixedMagnitudeMatchesEq32) {
   const ProcessResult r = run_process(
       kExe + " losses --method fixed-magnitude --F 25 --Rs 0.133 --pulses 3 --elapsed 10 --Ti 0.2 --Tw 0.01 --window blackman --json");
@@ -113,6 +133,8 @@ INSTANTIATE_TEST_SUITE_P(
                       BadInput{"budget --voltage 5 --iq 50", "--iq requires --speed"},
                       BadInput{"budget --current 5 --Lq 1e-3", "--Lq requires --speed"},
                       BadInput{"budget --voltage 5 --pole-pairs 4", "--pole-pairs requires --speed"},
+                      BadInput{"budget --voltage 5 --max-torque-disturbance 1", "--max-torque-disturbance requires --speed"},
+                      BadInput{"budget --speed 100 --max-torque-disturbance -1", "--max-torque-disturbance"},
                       BadInput{"losses --F 25 --omega 300", "--omega applies to --method fixed-angle only"},
                       BadInput{"", "subcommand"},
                       // Not a finite number, or beyond any machine: refused, never printed as nan or inf.

@@ -1256,6 +1256,39 @@ TEST(LqShape, OnePointIsTheQuadraticAndAFlatMapIsOneLq) {
   EXPECT_EQ(LqShape(flat).b0_H(), 0.0);
 }
 
+// A map sampled from the quadratic curve itself (secant a - b0 u) is that curve: the three-point
+// slopes of a straight line in u are its slope, and the Hermite curve between them the line.
+// A map built in code that is no map (not ascending, NaN, above lq_H) is one Lq, never NaN.
+TEST(LqShape, AMapOfTheQuadraticIsTheQuadraticAndANonMapIsOneLq) {
+  InjectionConfig c = test_config();  // current limit 80 A
+  c.lq_H = 5.5e-3;
+  const double b0 = 0.6e-3;
+  const std::array<double, 4> currents{20.0, 40.0, 60.0, 80.0};
+  for (std::size_t k = 0; k < currents.size(); ++k) {
+    c.lq_map.current_A[k] = currents[k];
+    c.lq_map.secant_H[k] = c.lq_H - b0 * (currents[k] / 80.0) * (currents[k] / 80.0);
+  }
+  c.lq_map.points = 4;
+  const LqShape shape(c);
+  EXPECT_NEAR(shape.b0_H(), b0, 1e-15);
+  for (double i = 0.0; i <= 100.0; i += 2.5) {
+    const double u = std::min((i / 80.0) * (i / 80.0), 1.44);  // (the curve's cap, 1.2 x the limit)
+    EXPECT_NEAR(shape.at(i).s, u, 1e-12) << i << " A";
+    EXPECT_NEAR(shape.at(i).h, 3.0 * u, 1e-12) << i << " A";
+  }
+  for (const double bad : {std::nan(""), 10.0, 6e-3}) {
+    InjectionConfig broken = c;
+    if (bad == 10.0) {
+      broken.lq_map.current_A[2] = bad;  // not ascending
+    } else {
+      broken.lq_map.secant_H[1] = bad;   // NaN, or above lq_H
+    }
+    const LqShape none(broken);
+    EXPECT_EQ(none.b0_H(), 0.0) << bad;
+    EXPECT_EQ(none.at(50.0).s, (50.0 / 80.0) * (50.0 / 80.0)) << "the quadratic's shape, with no saturation";
+  }
+}
+
 // A map with a sharp knee (flat to 100 A, then falling fast): the curve between its points
 // neither rises nor overshoots (the secant only falls with load), and the incremental stays
 // below the secant.

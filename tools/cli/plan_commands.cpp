@@ -56,6 +56,7 @@ struct BudgetOptions {
   double vdc_V = core::kReferenceDcBus_V;
   double voltage_fraction = core::CurrentControllerConfig{}.voltage_limit_fraction;
   std::optional<double> margin_V;  // unset: the drive's default, 15 V at 650 V, following the bus
+  double max_torque_Nm = core::InjectionConfig{}.max_torque_disturbance_Nm;  // 0: no torque budget
   double ke_V_s_per_rad = core::MotorParams{}.ke_V_s_per_rad;
   int pole_pairs = core::MotorParams{}.pole_pairs;
   bool json = false;
@@ -136,21 +137,35 @@ int run_budget(const BudgetOptions& o, const CLI::App& cmd) {
     const double f_pos = core::max_injection_current_at_operating_point_A(in, 1.0);
     const double f_neg = core::max_injection_current_at_operating_point_A(in, -1.0);
     const double motoring = std::hypot(v0.d, v0.q);
+    // The torque budget (injection.max_torque_disturbance_Nm) on a salient machine: the pulse's
+    // reluctance torque, as the drive's scheduler limits it.
+    const double f_torque = core::max_injection_current_for_torque_A(o.max_torque_Nm, o.pole_pairs, in.ld_H, in.lq_H, o.iq_A);
+    const double f_bipolar = std::min({f_pos, f_neg, f_torque});
     json.field("speed_rad_s", o.speed_rad_s).field("iq_A", o.iq_A).field("vdc_V", o.vdc_V).field("margin_V", margin_V)
         .field("voltage_limit_V", in.voltage_limit_V).field("motoring_voltage_V", motoring)
         .field("voltage_headroom_V", in.voltage_limit_V - motoring)
         .field("max_positive_injection_current_A", f_pos)
         .field("max_negative_injection_current_A", f_neg)
-        .field("max_injection_current_A", std::min(f_pos, f_neg));
+        .field("max_torque_disturbance_Nm", o.max_torque_Nm);
+    if (std::isfinite(f_torque)) {
+      json.field("max_torque_injection_current_A", f_torque);
+    }
+    json.field("max_injection_current_A", f_bipolar);
+    const std::string torque_line =
+        std::isfinite(f_torque)
+            ? fmt::format("  largest F for torque   {:.2f} A   (1.5 p |Ld - Lq| F |iq| within {:g} Nm)\n", f_torque,
+                          o.max_torque_Nm)
+            : std::string{};
     text += fmt::format(
         "  operating point        {:.1f} rad/s mech, iq {:.1f} A, Vdc {:.0f} V\n"
         "  voltage limit          {:.1f} V   ({:.0f} % of Vdc/sqrt(3), less the margin {:.1f} V)\n"
         "  motoring voltage       {:.1f} V   (Eq. 3, steady state)\n"
         "  largest +F             {:.2f} A\n"
         "  largest -F             {:.2f} A\n"
-        "  largest bipolar F      {:.2f} A   (+F and -F both fit)\n",
+        "{}"
+        "  largest bipolar F      {:.2f} A   (+F and -F both fit{})\n",
         o.speed_rad_s, o.iq_A, o.vdc_V, in.voltage_limit_V, o.voltage_fraction * 100.0, margin_V, motoring,
-        f_pos, f_neg, std::min(f_pos, f_neg));
+        f_pos, f_neg, torque_line, f_bipolar, std::isfinite(f_torque) ? ", within the torque budget" : "");
   }
   json.end_object();
   std::printf("%s\n", o.json ? json.str().c_str() : text.c_str());
@@ -251,6 +266,9 @@ void register_budget_command(CLI::App& app, int& exit_code) {
                   "voltage kept free of the limit, V (injection.headroom_margin_V; default the drive's, 15 V at 650 V "
                   "scaled with --vdc)")
       ->check(non_negative(kMaxVoltage_V))->needs(speed);
+  cmd->add_option("--max-torque-disturbance", options->max_torque_Nm,
+                  "torque budget of the pulse's reluctance torque, Nm (injection.max_torque_disturbance_Nm; 0: none)")
+      ->check(non_negative(1e6))->capture_default_str()->needs(speed);
   cmd->add_option("--Ke", options->ke_V_s_per_rad, "EMF constant, line-to-line RMS V per mechanical rad/s")
       ->check(positive(kMaxKe))->capture_default_str()->needs(speed);
   cmd->add_option("--pole-pairs", options->pole_pairs, "pole pairs")->check(number_in_range(1, 100))->capture_default_str()->needs(speed);

@@ -232,7 +232,7 @@ struct DriveTelemetry {
   double vx_std_V = 0.0;
   double lq_H = 0.0;                  // the q-axis inductance the estimator has learned
   double lq_std_H = 0.0;
-  double lq_saturation_H = 0.0;       // its saturation: secant Lq lost at the current limit
+  double lq_saturation_H = 0.0;       // its saturation: secant Lq lost where s = 1 (core::LqShape)
   bool lq_saturation_resolved = false;       // by pairs at two loads (else the commissioned gap holds)
   bool calibrating = false;
   bool inverter_sweep_active = false;  // the calibration's bridge sweep is running

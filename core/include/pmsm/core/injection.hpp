@@ -127,6 +127,12 @@ struct InjectionHeadroomInput {
 [[nodiscard]] double max_injection_current_at_operating_point_A(const InjectionHeadroomInput& in,
                                                                 double polarity);
 
+// The largest d-axis injection F whose reluctance torque, 1.5 p |Ld - Lq| F |iq|, stays within
+// a budget (injection.max_torque_disturbance_Nm): budget / (1.5 p |Ld - Lq| |iq|). +infinity
+// where nothing limits it (no budget, Ld = Lq or no load).
+[[nodiscard]] double max_injection_current_for_torque_A(double budget_Nm, int pole_pairs, double ld_H, double lq_H,
+                                                        double iq_A);
+
 // The range of F >= 0 for one polarity inside which the same worst case stays within the
 // limit. At the voltage limit (|v0| at or beyond it) a polarity that weakens the field
 // (s = -1 at speed: w Ld F lowers vq) still has a range [lo, hi] with lo > 0: the level an

@@ -185,7 +185,7 @@ struct InjectionConfig {
   // Learning off, the curve is the commissioned one, b = b0.
   double lq_rated_H = 0.0;
   // Or the flux map's secant at several currents (MotorParams::lq_map; used where it has
-  // points, in place of lq_rated_H): the map's shape, piecewise linear in u, replaces u.
+  // points, in place of lq_rated_H): the map's shape (LqShape) replaces u.
   LqMap lq_map{};
   double rated_current_A = 45.1;  // peak
   double lq_learning_min_voltage_V = 2.0; // |Lq <w iq>| of a pair, to learn from it
@@ -340,7 +340,9 @@ class LqShape {
   explicit LqShape(const InjectionConfig& c);
   // At a q-axis current (its sign does not matter): a bounded walk over at most kMaxPoints nodes.
   [[nodiscard]] At at(double iq_A) const;
-  // The commissioned b (secant Lq lost at u = 1 along the map's shape); 0 without saturation.
+  // The commissioned b: the secant Lq lost where s = 1. Without a map, or with one point, s = u
+  // and that is the current limit; a map's s equals u at its last point and follows the map
+  // elsewhere (on the 30 mOhm IPM's map s = 0.93 at the limit). 0 without saturation.
   [[nodiscard]] double b0_H() const { return b0_H_; }
 
  private:
@@ -352,7 +354,7 @@ class LqShape {
   std::array<double, LqMap::kMaxPoints + 1> slope_{};  // ds/du at each point
 };
 
-// The commissioned saturation b0: the secant Lq lost at the current limit, from the flux map
+// The commissioned saturation b0: the secant Lq lost where s = 1 (LqShape), from the flux map
 // (InjectionConfig::lq_map or lq_rated_H; 0 where it is not known).
 [[nodiscard]] double commissioned_lq_saturation_H(const InjectionConfig& c);
 
@@ -414,7 +416,7 @@ class InjectionScheduler {
   }
   [[nodiscard]] double lq_H() const { return lq_H_; }   // the secant Lq at zero current
   [[nodiscard]] double lq_std_H() const { return std::sqrt(lq_var_); }
-  // The secant Lq lost at the current limit (the saturation model's b, see InjectionConfig).
+  // The saturation model's b: the secant Lq lost where s = 1, the current limit without a map (LqShape).
   [[nodiscard]] double lq_saturation_H() const { return lq_b_H_; }
   // Whether pairs at two loads have resolved it (its variance below a quarter of its prior);
   // until then the incremental Lq is the secant less the commissioned gap 2 b0 u.
@@ -512,7 +514,7 @@ class InjectionScheduler {
   LqShape lq_shape_;                // the saturation curve's shape (InjectionConfig::lq_map)
   double lq_b0_H_ = 0.0;            // the commissioned saturation (InjectionConfig::lq_rated_H)
   bool lq_resolved_ = false;        // saturation_variance_resolved(), kept as b's variance changes
-  double lq_b_H_ = 0.0;             // its saturation: secant lost at the current limit
+  double lq_b_H_ = 0.0;             // its saturation: secant lost where s = 1 (LqShape)
   double lq_b_var_ = 0.0;
   double lq_cov_ = 0.0;             // covariance of the two
   bool time_based_ = false;
