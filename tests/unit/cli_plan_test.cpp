@@ -2,6 +2,9 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <unistd.h>
 
 #include "run_process.hpp"
 
@@ -65,6 +68,50 @@ TEST(PlanCli, BudgetAtSpeedKeepsTheTorqueBudget) {
   const ProcessResult round = run_process(kExe + " budget --speed 200 --iq 50 --max-torque-disturbance 1.5 --json");
   ASSERT_EQ(round.exit_code, 0) << round.err;
   EXPECT_FALSE(json_number(round.out, "max_torque_injection_current_A").has_value()) << "Ld = Lq: no reluctance torque";
+}
+
+// A drive's own configuration (pmsm-thermald's [controller] section) gives every option the
+// command line does not: the motor, the bus and the margin the drive derives from it, the torque
+// budget, and Lq as the commissioned secant at --iq (here the flux map's, between its 70 and
+// 106 A points). A flag still wins; a bad or missing file is named and refused.
+TEST(PlanCli, BudgetTakesADrivesConfiguration) {
+  const std::filesystem::path dir =
+      std::filesystem::temp_directory_path() / ("pmsm-plan-" + std::to_string(::getpid()));
+  std::filesystem::create_directories(dir);
+  const std::filesystem::path axis = dir / "axis.toml";
+  std::ofstream(axis) << "[can]\ninterface = \"vcan0\"\n"
+                         "[controller.motor]\nrs_ohm = 0.0315\nld_H = 0.275e-3\nlq_H = 0.4275e-3\n"
+                         "lq_map_current_A = [35.0, 70.0, 106.0, 141.0]\n"
+                         "lq_map_H = [0.42573e-3, 0.42079e-3, 0.41338e-3, 0.40497e-3]\n"
+                         "ke_V_s_per_rad = 0.4925\npole_pairs = 4\ncontinuous_current_A_rms = 100.0\n"
+                         "[controller.sensors]\ncurrent_range_A = 400.0\n"
+                         "[controller.control]\nnominal_dc_bus_V = 320.0\n"
+                         "[controller.derating]\nmax_current_A = 300.0\n"
+                         "[controller.injection]\nmax_torque_disturbance_Nm = 1.5\n";
+  const std::string base = kExe + " budget --config " + axis.string() + " --speed 314 --iq 75 --json";
+  const ProcessResult r = run_process(base);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(json_number(r.out, "ld_H").value_or(-1), 0.275e-3);
+  EXPECT_EQ(json_number(r.out, "pole_pairs").value_or(-1), 4.0);
+  EXPECT_EQ(json_number(r.out, "vdc_V").value_or(-1), 320.0);
+  EXPECT_NEAR(json_number(r.out, "margin_V").value_or(-1), 15.0 * 320.0 / 650.0, 1e-6) << "the drive's margin at its bus";
+  const double lq = json_number(r.out, "lq_H").value_or(-1);
+  EXPECT_LT(lq, 0.42079e-3) << "below the map at 70 A";
+  EXPECT_GT(lq, 0.41338e-3) << "above the map at 106 A";
+  EXPECT_NEAR(json_number(r.out, "max_torque_injection_current_A").value_or(-1),
+              1.5 / (1.5 * 4.0 * (lq - 0.275e-3) * 75.0), 1e-6);
+  const ProcessResult flag = run_process(base + " --vdc 400 --Ld 0.3e-3");
+  ASSERT_EQ(flag.exit_code, 0) << flag.err;
+  EXPECT_EQ(json_number(flag.out, "vdc_V").value_or(-1), 400.0);
+  EXPECT_EQ(json_number(flag.out, "ld_H").value_or(-1), 0.3e-3);
+  std::ofstream(dir / "bad.toml") << "[controller.motor]\nld_H = -1\n";
+  const ProcessResult bad = run_process(kExe + " budget --config " + (dir / "bad.toml").string() + " --speed 3");
+  EXPECT_EQ(bad.exit_code, 2);
+  EXPECT_NE(bad.err.find("bad.toml:2: controller.motor.ld_H: must be in (0, 1], got -1"), std::string::npos) << bad.err;
+  const ProcessResult missing = run_process(kExe + " budget --config " + (dir / "none.toml").string() + " --speed 3");
+  EXPECT_EQ(missing.exit_code, 2);
+  EXPECT_NE(missing.err.find("--config"), std::string::npos) << missing.err;
+  std::filesystem::remove_all(dir);
 }
 
 TEST(PlanCli, LossesFixedMagnitudeMatchesEq32) {

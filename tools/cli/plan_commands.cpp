@@ -7,10 +7,13 @@
 #include <string>
 
 #include <fmt/core.h>
+#include <toml++/toml.h>
 
 #include "json_writer.hpp"
 #include "commands.hpp"
 #include "cli_validators.hpp"
+#include "config_schema.hpp"
+#include "controller_config.hpp"
 #include "pmsm/core/current_controller.hpp"
 #include "pmsm/core/injection.hpp"
 #include "pmsm/core/injection_scheduler.hpp"
@@ -20,9 +23,6 @@
 namespace pmsm::app {
 namespace {
 
-using cli::non_negative;
-using cli::number_in_range;
-using cli::positive;
 
 // Upper bounds of the planning options: generous for any industrial PMSM, finite so that no
 // answer is printed as inf or nan.
@@ -57,6 +57,7 @@ struct BudgetOptions {
   double voltage_fraction = core::CurrentControllerConfig{}.voltage_limit_fraction;
   std::optional<double> margin_V;  // unset: the drive's default, 15 V at 650 V, following the bus
   double max_torque_Nm = core::InjectionConfig{}.max_torque_disturbance_Nm;  // 0: no torque budget
+  std::string config_path;  // a drive's configuration: every option not given comes from it
   double ke_V_s_per_rad = core::MotorParams{}.ke_V_s_per_rad;
   int pole_pairs = core::MotorParams{}.pole_pairs;
   bool json = false;
@@ -78,6 +79,38 @@ void add_window_option(CLI::App* cmd, std::string& window_name) {
       ->capture_default_str();
 }
 
+// The options a drive's configuration gives (its [controller] section, as pmsm-thermald reads
+// it): every one the command line does not. The q-axis inductance is the commissioned secant at
+// --iq (the flux map's, core::LqShape, where the configuration has one). Throws ConfigError.
+void apply_drive_configuration(BudgetOptions& o, const CLI::App& cmd) {
+  toml::table root;
+  try {
+    root = toml::parse_file(o.config_path);
+  } catch (const toml::parse_error& e) {
+    throw ConfigError(o.config_path + ":" + std::to_string(e.source().begin.line) + ": " + std::string(e.description()));
+  }
+  static const toml::table kEmpty;
+  const toml::table* section = common::optional_section(root, "controller", o.config_path);
+  const ControllerConfig c =
+      parse_controller_config(section != nullptr ? *section : kEmpty, o.config_path, {}, "controller.");
+  const core::DriveConfig& d = c.drive;
+  auto unset = [&cmd](const char* flag) { return cmd.count(flag) == 0; };
+  if (unset("--Ld")) o.ld_H = d.motor.ld_H;
+  if (unset("--Rs")) o.rs_ohm = d.motor.rs_ohm;
+  if (unset("--Tw")) o.tw_s = d.injection.tw_s;
+  if (unset("--window")) o.window = d.injection.window;
+  if (unset("--vdc")) o.vdc_V = c.nominal_dc_bus_V;
+  if (unset("--voltage-fraction")) o.voltage_fraction = d.current.voltage_limit_fraction;
+  if (unset("--margin")) o.margin_V = d.injection.headroom_margin_V;
+  if (unset("--Ke")) o.ke_V_s_per_rad = d.motor.ke_V_s_per_rad;
+  if (unset("--pole-pairs")) o.pole_pairs = d.motor.pole_pairs;
+  if (unset("--max-torque-disturbance")) o.max_torque_Nm = d.injection.max_torque_disturbance_Nm;
+  if (unset("--Lq")) {
+    const core::LqShape shape(d.injection);
+    o.lq_H = d.motor.lq_H - shape.b0_H() * shape.at(o.iq_A).s;
+  }
+}
+
 int run_budget(const BudgetOptions& o, const CLI::App& cmd) {
   const core::WindowConstants constants = core::compute_window_constants(o.window);
   const bool by_voltage = cmd.count("--voltage") > 0;
@@ -92,6 +125,9 @@ int run_budget(const BudgetOptions& o, const CLI::App& cmd) {
       .field("rs_ohm", o.rs_ohm)
       .field("max_slope_per_Tw", constants.max_slope_times_tw)
       .field("window_integral_per_Tw", constants.integral_per_tw);
+  if (!o.config_path.empty()) {
+    json.field("config", o.config_path);
+  }
 
   std::string text = fmt::format(
       "Injection budget: {} window, Tw = {:g} ms, Ld = {:g} mH, Rs = {:g} ohm\n"
@@ -99,6 +135,9 @@ int run_budget(const BudgetOptions& o, const CLI::App& cmd) {
       "  window integral        {:.3f} * Tw   (Eqs. 27-28)\n",
       core::to_string(o.window), o.tw_s * 1e3, o.ld_H * 1e3, o.rs_ohm, constants.max_slope_times_tw,
       constants.integral_per_tw);
+  if (!o.config_path.empty()) {
+    text += fmt::format("  drive configuration    {}   (every option not given)\n", o.config_path);
+  }
 
   if (by_voltage) {
     const double f = core::max_injection_current_A(o.voltage_V, o.ld_H, o.rs_ohm, o.tw_s, o.window);
@@ -141,7 +180,8 @@ int run_budget(const BudgetOptions& o, const CLI::App& cmd) {
     // reluctance torque, as the drive's scheduler limits it.
     const double f_torque = core::max_injection_current_for_torque_A(o.max_torque_Nm, o.pole_pairs, in.ld_H, in.lq_H, o.iq_A);
     const double f_bipolar = std::min({f_pos, f_neg, f_torque});
-    json.field("speed_rad_s", o.speed_rad_s).field("iq_A", o.iq_A).field("vdc_V", o.vdc_V).field("margin_V", margin_V)
+    json.field("speed_rad_s", o.speed_rad_s).field("iq_A", o.iq_A).field("lq_H", in.lq_H).field("pole_pairs", o.pole_pairs)
+        .field("vdc_V", o.vdc_V).field("margin_V", margin_V)
         .field("voltage_limit_V", in.voltage_limit_V).field("motoring_voltage_V", motoring)
         .field("voltage_headroom_V", in.voltage_limit_V - motoring)
         .field("max_positive_injection_current_A", f_pos)
@@ -244,37 +284,50 @@ void register_budget_command(CLI::App& app, int& exit_code) {
   auto options = std::make_shared<BudgetOptions>();
   CLI::App* cmd = app.add_subcommand(
       "budget", "Largest injection current for a voltage headroom, or voltage for a current (Eqs. 29-30)");
-  cmd->add_option("--Ld", options->ld_H, "d-axis inductance, H")->check(positive(kMaxInductance_H))->capture_default_str();
-  cmd->add_option("--Rs", options->rs_ohm, "stator resistance, ohm (phase to neutral)")->check(positive(kMaxResistance_ohm))->capture_default_str();
-  cmd->add_option("--Tw", options->tw_s, "window period, s")->check(positive(kMaxWindow_s))->capture_default_str();
+  cmd->add_option("--Ld", options->ld_H, "d-axis inductance, H")->check(cli::positive(kMaxInductance_H))->capture_default_str();
+  cmd->add_option("--Rs", options->rs_ohm, "stator resistance, ohm (phase to neutral)")->check(cli::positive(kMaxResistance_ohm))->capture_default_str();
+  cmd->add_option("--Tw", options->tw_s, "window period, s")->check(cli::positive(kMaxWindow_s))->capture_default_str();
   add_window_option(cmd, options->window_name);
   auto* mode = cmd->add_option_group("mode", "what to compute (exactly one)");
-  mode->add_option("--voltage", options->voltage_V, "voltage available for injection, V")->check(positive(kMaxVoltage_V));
-  mode->add_option("--current", options->current_A, "injection current F, A")->check(positive(kMaxCurrent_A));
+  mode->add_option("--voltage", options->voltage_V, "voltage available for injection, V")->check(cli::positive(kMaxVoltage_V));
+  mode->add_option("--current", options->current_A, "injection current F, A")->check(cli::positive(kMaxCurrent_A));
   CLI::Option* speed = mode->add_option("--speed", options->speed_rad_s, "mechanical speed, rad/s: largest F at this operating point")
-                           ->check(non_negative(kMaxSpeed_rad_s));
+                           ->check(cli::non_negative(kMaxSpeed_rad_s));
   mode->require_option(1);
   // The operating point's options mean nothing to --voltage or --current: given there they
   // would be ignored without a word, so CLI11 refuses them ("--iq requires --speed").
-  cmd->add_option("--Lq", options->lq_H, "q-axis inductance, H (default: equal to Ld)")->check(positive(kMaxInductance_H))->needs(speed);
+  cmd->add_option("--Lq", options->lq_H, "q-axis inductance, H (default: equal to Ld)")->check(cli::positive(kMaxInductance_H))->needs(speed);
   cmd->add_option("--iq", options->iq_A, "motoring q-axis current, A peak")
-      ->check(number_in_range(-kMaxCurrent_A, kMaxCurrent_A))->capture_default_str()->needs(speed);
-  cmd->add_option("--vdc", options->vdc_V, "DC-bus voltage, V")->check(positive(kMaxVoltage_V))->capture_default_str()->needs(speed);
+      ->check(cli::number_in_range(-kMaxCurrent_A, kMaxCurrent_A))->capture_default_str()->needs(speed);
+  cmd->add_option("--vdc", options->vdc_V, "DC-bus voltage, V")->check(cli::positive(kMaxVoltage_V))->capture_default_str()->needs(speed);
   cmd->add_option("--voltage-fraction", options->voltage_fraction, "usable fraction of Vdc/sqrt(3)")
-      ->check(number_in_range(0.1, 1.0))->capture_default_str()->needs(speed);
+      ->check(cli::number_in_range(0.1, 1.0))->capture_default_str()->needs(speed);
   cmd->add_option("--margin", options->margin_V,
                   "voltage kept free of the limit, V (injection.headroom_margin_V; default the drive's, 15 V at 650 V "
                   "scaled with --vdc)")
-      ->check(non_negative(kMaxVoltage_V))->needs(speed);
+      ->check(cli::non_negative(kMaxVoltage_V))->needs(speed);
   cmd->add_option("--max-torque-disturbance", options->max_torque_Nm,
                   "torque budget of the pulse's reluctance torque, Nm (injection.max_torque_disturbance_Nm; 0: none)")
-      ->check(non_negative(1e6))->capture_default_str()->needs(speed);
+      ->check(cli::non_negative(1e6))->capture_default_str()->needs(speed);
   cmd->add_option("--Ke", options->ke_V_s_per_rad, "EMF constant, line-to-line RMS V per mechanical rad/s")
-      ->check(positive(kMaxKe))->capture_default_str()->needs(speed);
-  cmd->add_option("--pole-pairs", options->pole_pairs, "pole pairs")->check(number_in_range(1, 100))->capture_default_str()->needs(speed);
+      ->check(cli::positive(kMaxKe))->capture_default_str()->needs(speed);
+  cmd->add_option("--pole-pairs", options->pole_pairs, "pole pairs")->check(cli::number_in_range(1, 100))->capture_default_str()->needs(speed);
+  cmd->add_option("--config", options->config_path,
+                  "a pmsm-thermald axis configuration (its [controller] section): the motor, bus, margin, torque "
+                  "budget and window of every option not given; Lq is its commissioned secant at --iq")
+      ->check(CLI::ExistingFile);
   cmd->add_flag("--json", options->json, "print one JSON object");
   cmd->callback([options, cmd, &exit_code] {
     options->window = window_from_name(options->window_name);
+    if (!options->config_path.empty()) {
+      try {
+        apply_drive_configuration(*options, *cmd);
+      } catch (const ConfigError& e) {
+        std::fprintf(stderr, "pmsm-thermal budget: %s\n", e.what());
+        exit_code = 2;
+        return;
+      }
+    }
     exit_code = run_budget(*options, *cmd);
   });
 }
@@ -286,16 +339,16 @@ void register_losses_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--method", options->method, "fixed-magnitude (Eq. 32) or fixed-angle (Eq. 31)")
       ->check(CLI::IsMember({"fixed-magnitude", "fixed-angle"}))->capture_default_str();
   core::InjectionSchedule& s = options->schedule;
-  cmd->add_option("--F", s.f_A, "injection current magnitude, A")->check(positive(kMaxCurrent_A))->required();
-  cmd->add_option("--Rs", s.rs_ohm, "stator resistance, ohm")->check(positive(kMaxResistance_ohm))->capture_default_str();
-  cmd->add_option("--pulses", s.pulses, "injection pulses in the elapsed time (Ninj)")->check(number_in_range(1, 1000000))->capture_default_str();
-  cmd->add_option("--elapsed", s.elapsed_s, "elapsed time Tel, s")->check(positive(kMaxTime_s))->capture_default_str();
-  cmd->add_option("--Ti", s.ti_s, "duration of the flat top of one pulse, s")->check(non_negative(kMaxTime_s))->capture_default_str();
-  cmd->add_option("--Tw", s.tw_s, "window period, s")->check(positive(kMaxWindow_s))->capture_default_str();
+  cmd->add_option("--F", s.f_A, "injection current magnitude, A")->check(cli::positive(kMaxCurrent_A))->required();
+  cmd->add_option("--Rs", s.rs_ohm, "stator resistance, ohm")->check(cli::positive(kMaxResistance_ohm))->capture_default_str();
+  cmd->add_option("--pulses", s.pulses, "injection pulses in the elapsed time (Ninj)")->check(cli::number_in_range(1, 1000000))->capture_default_str();
+  cmd->add_option("--elapsed", s.elapsed_s, "elapsed time Tel, s")->check(cli::positive(kMaxTime_s))->capture_default_str();
+  cmd->add_option("--Ti", s.ti_s, "duration of the flat top of one pulse, s")->check(cli::non_negative(kMaxTime_s))->capture_default_str();
+  cmd->add_option("--Tw", s.tw_s, "window period, s")->check(cli::positive(kMaxWindow_s))->capture_default_str();
   add_window_option(cmd, options->window_name);
-  cmd->add_option("--omega", options->omega_e_rad_s, "electrical speed, rad/s (fixed-angle)")->check(non_negative(kMaxSpeed_rad_s * 100.0));
+  cmd->add_option("--omega", options->omega_e_rad_s, "electrical speed, rad/s (fixed-angle)")->check(cli::non_negative(kMaxSpeed_rad_s * 100.0));
   cmd->add_option("--rated-power", options->rated_power_W, "the machine's rated power, W (the share printed; default Table I's)")
-      ->check(positive(1e9))->capture_default_str();
+      ->check(cli::positive(1e9))->capture_default_str();
   cmd->add_flag("--json", options->json, "print one JSON object");
   cmd->callback([options, cmd, &exit_code] {
     options->omega_given = cmd->count("--omega") > 0;
