@@ -30,9 +30,10 @@ struct PlantModel {
   double vx_V = 1.5;
   double ld_H = 5.5e-3;
   double lq_H = 5.5e-3;
-  // q-axis saturation: psi_q = (lq_H - lq_sat_H (iq / lq_sat_current_A)^2) iq.
+  // q-axis saturation: psi_q = (lq_H - lq_sat_H u^lq_sat_power) iq, u = (iq / lq_sat_current_A)^2.
   double lq_sat_H = 0.0;
   double lq_sat_current_A = 80.0;
+  int lq_sat_power = 1;
   double ke_V_s_per_rad = 0.9716;  // phase peak per mechanical rad/s (Eq. 3)
   int pole_pairs = 3;
   double band_A = 1.0;             // soft-sign band of the bridge error
@@ -167,7 +168,8 @@ class Harness {
     const double wm = s.omega_m_rad_s;
     const double th = s.theta_e_rad;
     const double uq = s.i_A.q / plant.lq_sat_current_A;
-    const double psi_q = (plant.lq_H - plant.lq_sat_H * uq * uq) * s.i_A.q;
+    const double psi_q =
+        (plant.lq_H - plant.lq_sat_H * (plant.lq_sat_power == 2 ? uq * uq * uq * uq : uq * uq)) * s.i_A.q;
     const double rs = plant.rs_ohm + plant.rs_rate_ohm_per_s * s.time_s;
     s.v_V.d = rs * s.i_A.d - w * psi_q + plant.ld_H * s.di_dt_A_s.d +
               plant.vx_V * s.dead_time_pattern.d + plant.kd6 * std::sin(6.0 * th + 0.3) * wm;
@@ -1098,6 +1100,50 @@ double loaded_rs_error(double saturation_std_fraction, double* lq_a, double* lq_
   *lq_a = h.scheduler.lq_H();
   *lq_b = h.scheduler.lq_saturation_H();
   return mean_published_rs_error(h, before + 2);
+}
+
+// A machine whose secant falls as u^2, not u (lq_H - c u^2: the incremental lq_H - 5 c u^2), learned
+// at 5 A and 60 A. The quadratic curve, a - b u, fits both secants and resolves b, but then
+// draws the incremental at 60 A as a - 3 b u: the gap 2 c u^2 where the machine's is 4 c u^2,
+// 0.62 mH short, and the loaded Rs reads high by about w diq x 0.62 mH / (Rs dId), over 10 %.
+// A flux map of the machine (its secant at 20, 40, 60 and 80 A) gives the curve its shape;
+// resolved by the same pairs, the incremental is then the machine's and the Rs within 1 %.
+double quartic_rs_error(bool with_map, double* incremental_60_H) {
+  InjectionConfig c = saturation_test_config();  // current limit 80 A, lq_H 5.5 mH
+  const double loss_H = 0.55e-3 / ((60.0 / 80.0) * (60.0 / 80.0));  // the same secant at 60 A as above
+  if (with_map) {
+    const std::array<double, 4> currents{20.0, 40.0, 60.0, 80.0};
+    for (std::size_t k = 0; k < currents.size(); ++k) {
+      const double u = (currents[k] / 80.0) * (currents[k] / 80.0);
+      c.lq_map.current_A[k] = currents[k];
+      c.lq_map.secant_H[k] = c.lq_H - loss_H * u * u;
+    }
+    c.lq_map.points = static_cast<int>(currents.size());
+  }
+  Harness h(c);
+  h.plant.lq_sat_H = loss_H;
+  h.plant.lq_sat_power = 2;
+  double iq0 = 5.0;
+  answer_the_reluctance_torque(h, &iq0);
+  h.run_until(3.0);
+  iq0 = 60.0;
+  const std::size_t before = h.estimates.size();
+  h.run_until(8.0);
+  EXPECT_TRUE(h.scheduler.lq_saturation_resolved()) << "pairs at two loads resolve the curve";
+  *incremental_60_H = h.scheduler.lq_incremental_H(60.0);
+  return mean_published_rs_error(h, before + 2);
+}
+
+TEST(InjectionScheduler, AResolvedCurveTakesTheFluxMapsShape) {
+  const double u60 = (60.0 / 80.0) * (60.0 / 80.0);
+  const double true_incremental = 5.5e-3 - 5.0 * (0.55e-3 / u60) * u60 * u60;
+  double incremental = 0.0;
+  const double mapped = quartic_rs_error(true, &incremental);
+  EXPECT_NEAR(incremental, true_incremental, 0.05e-3);
+  EXPECT_LT(std::abs(mapped), 0.01) << "the map's shape, resolved by the pairs";
+  const double quadratic = quartic_rs_error(false, &incremental);
+  EXPECT_GT(incremental, true_incremental + 0.4e-3) << "a - 3 b u: the gap half the machine's";
+  EXPECT_GT(quadratic, 0.05) << "the quadratic's gap: the loaded Rs reads high";
 }
 
 TEST(InjectionScheduler, ASaturatingQAxisIsLearnedAcrossLoads) {
