@@ -70,48 +70,85 @@ TEST(PlanCli, BudgetAtSpeedKeepsTheTorqueBudget) {
   EXPECT_FALSE(json_number(round.out, "max_torque_injection_current_A").has_value()) << "Ld = Lq: no reluctance torque";
 }
 
-// A drive's own configuration (pmsm-thermald's [controller] section) gives every option the
-// command line does not: the motor, the bus and the margin the drive derives from it, the torque
-// budget, and Lq as the commissioned secant at --iq (here the flux map's, between its 70 and
-// 106 A points). A flag still wins; a bad or missing file is named and refused.
-TEST(PlanCli, BudgetTakesADrivesConfiguration) {
-  const std::filesystem::path dir =
+// A scratch directory removed however the test ends.
+struct ScratchDir {
+  std::filesystem::path path =
       std::filesystem::temp_directory_path() / ("pmsm-plan-" + std::to_string(::getpid()));
-  std::filesystem::create_directories(dir);
-  const std::filesystem::path axis = dir / "axis.toml";
+  ScratchDir() { std::filesystem::create_directories(path); }
+  ~ScratchDir() {
+    std::error_code ignored;
+    std::filesystem::remove_all(path, ignored);
+  }
+  ScratchDir(const ScratchDir&) = delete;
+  ScratchDir& operator=(const ScratchDir&) = delete;
+};
+
+// A drive's own configuration (pmsm-thermald's [controller] section) gives every option the
+// command line does not: the motor, the bus, the voltage fraction, the window and its Tw, the
+// torque budget, the margin (the file's, else the drive's default at the bus planned with),
+// and Lq as the commissioned secant at --iq (here the flux map's Hermite curve between its 70
+// and 106 A points: 0.41987 mH at 75 A). A flag still wins; a bad or missing file, or one with
+// no drive in it, is named and refused.
+TEST(PlanCli, BudgetTakesADrivesConfiguration) {
+  const ScratchDir dir;
+  const std::filesystem::path axis = dir.path / "axis.toml";
   std::ofstream(axis) << "[can]\ninterface = \"vcan0\"\n"
                          "[controller.motor]\nrs_ohm = 0.0315\nld_H = 0.275e-3\nlq_H = 0.4275e-3\n"
                          "lq_map_current_A = [35.0, 70.0, 106.0, 141.0]\n"
                          "lq_map_H = [0.42573e-3, 0.42079e-3, 0.41338e-3, 0.40497e-3]\n"
                          "ke_V_s_per_rad = 0.4925\npole_pairs = 4\ncontinuous_current_A_rms = 100.0\n"
                          "[controller.sensors]\ncurrent_range_A = 400.0\n"
-                         "[controller.control]\nnominal_dc_bus_V = 320.0\n"
+                         "[controller.control]\nnominal_dc_bus_V = 320.0\nvoltage_limit_fraction = 0.9\n"
                          "[controller.derating]\nmax_current_A = 300.0\n"
-                         "[controller.injection]\nmax_torque_disturbance_Nm = 1.5\n";
+                         "[controller.injection]\nmax_torque_disturbance_Nm = 1.5\nwindow = \"blackman\"\nTw_s = 0.006\n";
   const std::string base = kExe + " budget --config " + axis.string() + " --speed 314 --iq 75 --json";
   const ProcessResult r = run_process(base);
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_EQ(json_number(r.out, "ld_H").value_or(-1), 0.275e-3);
+  EXPECT_EQ(json_number(r.out, "rs_ohm").value_or(-1), 0.0315);
+  EXPECT_EQ(json_number(r.out, "Tw_s").value_or(-1), 0.006);
+  EXPECT_NE(r.out.find("\"window\": \"blackman\""), std::string::npos) << r.out;
   EXPECT_EQ(json_number(r.out, "pole_pairs").value_or(-1), 4.0);
   EXPECT_EQ(json_number(r.out, "vdc_V").value_or(-1), 320.0);
-  EXPECT_NEAR(json_number(r.out, "margin_V").value_or(-1), 15.0 * 320.0 / 650.0, 1e-6) << "the drive's margin at its bus";
+  const double margin = 15.0 * 320.0 / 650.0;  // the drive's default at its bus
+  EXPECT_NEAR(json_number(r.out, "margin_V").value_or(-1), margin, 1e-6);
+  EXPECT_NEAR(json_number(r.out, "voltage_limit_V").value_or(-1), 0.9 * 320.0 / std::sqrt(3.0) - margin, 1e-6);
   const double lq = json_number(r.out, "lq_H").value_or(-1);
-  EXPECT_LT(lq, 0.42079e-3) << "below the map at 70 A";
-  EXPECT_GT(lq, 0.41338e-3) << "above the map at 106 A";
+  EXPECT_NEAR(lq, 0.41987313e-3, 1e-10) << "the map's secant at 75 A";
   EXPECT_NEAR(json_number(r.out, "max_torque_injection_current_A").value_or(-1),
               1.5 / (1.5 * 4.0 * (lq - 0.275e-3) * 75.0), 1e-6);
-  const ProcessResult flag = run_process(base + " --vdc 400 --Ld 0.3e-3");
+  // Ke: the motoring voltage at 314 rad/s is mostly the EMF, Ke sqrt(2/3) x 314 = 126 V.
+  EXPECT_NEAR(json_number(r.out, "motoring_voltage_V").value_or(-1), 134.57, 0.1);
+  // Flags win; the margin follows --vdc unless the file gives one.
+  const ProcessResult flag = run_process(base + " --vdc 400 --Ld 0.3e-3 --Lq 0.4e-3");
   ASSERT_EQ(flag.exit_code, 0) << flag.err;
   EXPECT_EQ(json_number(flag.out, "vdc_V").value_or(-1), 400.0);
   EXPECT_EQ(json_number(flag.out, "ld_H").value_or(-1), 0.3e-3);
-  std::ofstream(dir / "bad.toml") << "[controller.motor]\nld_H = -1\n";
-  const ProcessResult bad = run_process(kExe + " budget --config " + (dir / "bad.toml").string() + " --speed 3");
+  EXPECT_EQ(json_number(flag.out, "lq_H").value_or(-1), 0.4e-3);
+  EXPECT_NEAR(json_number(flag.out, "margin_V").value_or(-1), 15.0 * 400.0 / 650.0, 1e-6);
+  std::ofstream(axis, std::ios::app) << "headroom_margin_V = 5.0\n";
+  const ProcessResult given = run_process(base + " --vdc 400");
+  ASSERT_EQ(given.exit_code, 0) << given.err;
+  EXPECT_EQ(json_number(given.out, "margin_V").value_or(-1), 5.0) << "the file's own margin";
+  // Refused: a bad key (named with its line), a file with no drive in it, a missing file.
+  std::ofstream(dir.path / "bad.toml") << "[controller.motor]\nld_H = -1\n";
+  const ProcessResult bad = run_process(kExe + " budget --config " + (dir.path / "bad.toml").string() + " --speed 3");
   EXPECT_EQ(bad.exit_code, 2);
   EXPECT_NE(bad.err.find("bad.toml:2: controller.motor.ld_H: must be in (0, 1], got -1"), std::string::npos) << bad.err;
-  const ProcessResult missing = run_process(kExe + " budget --config " + (dir / "none.toml").string() + " --speed 3");
+  std::ofstream(dir.path / "typo.toml") << "[controler.motor]\nld_H = 1e-3\n";
+  const ProcessResult typo = run_process(kExe + " budget --config " + (dir.path / "typo.toml").string() + " --speed 3");
+  EXPECT_EQ(typo.exit_code, 2);
+  EXPECT_NE(typo.err.find("typo.toml: no [controller] section"), std::string::npos) << typo.err;
+  const ProcessResult missing = run_process(kExe + " budget --config " + (dir.path / "none.toml").string() + " --speed 3");
   EXPECT_EQ(missing.exit_code, 2);
   EXPECT_NE(missing.err.find("--config"), std::string::npos) << missing.err;
-  std::filesystem::remove_all(dir);
+}
+
+// A margin that takes the whole voltage limit: named, not a budget of 0 A.
+TEST(PlanCli, BudgetRefusesAMarginBeyondTheLimit) {
+  const ProcessResult r = run_process(kExe + " budget --speed 100 --vdc 10 --margin 6");  // limit 5.48 V
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("takes the whole voltage limit"), std::string::npos) << r.err;
 }
 
 TEST(PlanCli, LossesFixedMagnitudeMatchesEq32) {

@@ -79,20 +79,28 @@ void add_window_option(CLI::App* cmd, std::string& window_name) {
       ->capture_default_str();
 }
 
-// The options a drive's configuration gives (its [controller] section, as pmsm-thermald reads
-// it): every one the command line does not. The q-axis inductance is the commissioned secant at
-// --iq (the flux map's, core::LqShape, where the configuration has one). Throws ConfigError.
+// The options a drive's configuration gives (its [controller] section, parsed and checked as
+// pmsm-thermald parses and checks it; the file's other sections are not read): every one the
+// command line does not. The q-axis inductance is the commissioned secant at --iq (the flux
+// map's, core::LqShape, where the configuration has one). The margin is the file's
+// injection.headroom_margin_V where it gives one, else the drive's default at the bus planned
+// with (--vdc, or the file's control.nominal_dc_bus_V). Throws ConfigError.
 void apply_drive_configuration(BudgetOptions& o, const CLI::App& cmd) {
   toml::table root;
   try {
     root = toml::parse_file(o.config_path);
   } catch (const toml::parse_error& e) {
-    throw ConfigError(o.config_path + ":" + std::to_string(e.source().begin.line) + ": " + std::string(e.description()));
+    const auto line = e.source().begin.line;
+    throw ConfigError(o.config_path + (line > 0 ? ":" + std::to_string(line) : std::string{}) + ": " +
+                      std::string(e.description()));
   }
-  static const toml::table kEmpty;
   const toml::table* section = common::optional_section(root, "controller", o.config_path);
-  const ControllerConfig c =
-      parse_controller_config(section != nullptr ? *section : kEmpty, o.config_path, {}, "controller.");
+  if (section == nullptr) {
+    // A file with no drive in it (or a misspelt section) would plan the default motor.
+    throw ConfigError(o.config_path + ": no [controller] section: not a drive's configuration (pmsm-thermald's axis "
+                                      "file keeps the drive under [controller.motor], [controller.control], ...)");
+  }
+  const ControllerConfig c = parse_controller_config(*section, o.config_path, {}, "controller.");
   const core::DriveConfig& d = c.drive;
   auto unset = [&cmd](const char* flag) { return cmd.count(flag) == 0; };
   if (unset("--Ld")) o.ld_H = d.motor.ld_H;
@@ -101,7 +109,7 @@ void apply_drive_configuration(BudgetOptions& o, const CLI::App& cmd) {
   if (unset("--window")) o.window = d.injection.window;
   if (unset("--vdc")) o.vdc_V = c.nominal_dc_bus_V;
   if (unset("--voltage-fraction")) o.voltage_fraction = d.current.voltage_limit_fraction;
-  if (unset("--margin")) o.margin_V = d.injection.headroom_margin_V;
+  if (unset("--margin") && c.relative.headroom_margin_V) o.margin_V = *c.relative.headroom_margin_V;
   if (unset("--Ke")) o.ke_V_s_per_rad = d.motor.ke_V_s_per_rad;
   if (unset("--pole-pairs")) o.pole_pairs = d.motor.pole_pairs;
   if (unset("--max-torque-disturbance")) o.max_torque_Nm = d.injection.max_torque_disturbance_Nm;
@@ -170,6 +178,13 @@ int run_budget(const BudgetOptions& o, const CLI::App& cmd) {
     // default, following the bus): the injection may use what is left.
     const double margin_V = o.margin_V.value_or(core::default_headroom_margin_V(o.vdc_V));
     in.voltage_limit_V = o.voltage_fraction * o.vdc_V / core::kSqrt3 - margin_V;
+    if (!(in.voltage_limit_V > 0.0)) {
+      std::fprintf(stderr,
+                   "pmsm-thermal budget: the margin %g V takes the whole voltage limit at --vdc %g V (%g V = "
+                   "--voltage-fraction x Vdc / sqrt(3)): no injection could ever be budgeted\n",
+                   margin_V, o.vdc_V, o.voltage_fraction * o.vdc_V / core::kSqrt3);
+      return 2;
+    }
     in.tw_s = o.tw_s;
     in.window = o.window;
     const core::Dq v0 = core::motoring_voltage(in);
@@ -197,14 +212,14 @@ int run_budget(const BudgetOptions& o, const CLI::App& cmd) {
                           o.max_torque_Nm)
             : std::string{};
     text += fmt::format(
-        "  operating point        {:.1f} rad/s mech, iq {:.1f} A, Vdc {:.0f} V\n"
+        "  operating point        {:.1f} rad/s mech, iq {:.1f} A, Vdc {:.0f} V, Lq {:g} mH, {} pole pairs\n"
         "  voltage limit          {:.1f} V   ({:.0f} % of Vdc/sqrt(3), less the margin {:.1f} V)\n"
         "  motoring voltage       {:.1f} V   (Eq. 3, steady state)\n"
         "  largest +F             {:.2f} A\n"
         "  largest -F             {:.2f} A\n"
         "{}"
         "  largest bipolar F      {:.2f} A   (+F and -F both fit{})\n",
-        o.speed_rad_s, o.iq_A, o.vdc_V, in.voltage_limit_V, o.voltage_fraction * 100.0, margin_V, motoring,
+        o.speed_rad_s, o.iq_A, o.vdc_V, in.lq_H * 1e3, o.pole_pairs, in.voltage_limit_V, o.voltage_fraction * 100.0, margin_V, motoring,
         f_pos, f_neg, torque_line, f_bipolar, std::isfinite(f_torque) ? ", within the torque budget" : "");
   }
   json.end_object();
@@ -296,7 +311,7 @@ void register_budget_command(CLI::App& app, int& exit_code) {
   mode->require_option(1);
   // The operating point's options mean nothing to --voltage or --current: given there they
   // would be ignored without a word, so CLI11 refuses them ("--iq requires --speed").
-  cmd->add_option("--Lq", options->lq_H, "q-axis inductance, H (default: equal to Ld)")->check(cli::positive(kMaxInductance_H))->needs(speed);
+  cmd->add_option("--Lq", options->lq_H, "q-axis inductance, H (default: equal to Ld; with --config the configuration's secant at --iq)")->check(cli::positive(kMaxInductance_H))->needs(speed);
   cmd->add_option("--iq", options->iq_A, "motoring q-axis current, A peak")
       ->check(cli::number_in_range(-kMaxCurrent_A, kMaxCurrent_A))->capture_default_str()->needs(speed);
   cmd->add_option("--vdc", options->vdc_V, "DC-bus voltage, V")->check(cli::positive(kMaxVoltage_V))->capture_default_str()->needs(speed);
@@ -308,13 +323,14 @@ void register_budget_command(CLI::App& app, int& exit_code) {
       ->check(cli::non_negative(kMaxVoltage_V))->needs(speed);
   cmd->add_option("--max-torque-disturbance", options->max_torque_Nm,
                   "torque budget of the pulse's reluctance torque, Nm (injection.max_torque_disturbance_Nm; 0: none)")
-      ->check(cli::non_negative(1e6))->capture_default_str()->needs(speed);
+      ->check(cli::non_negative(10000))->capture_default_str()->needs(speed);
   cmd->add_option("--Ke", options->ke_V_s_per_rad, "EMF constant, line-to-line RMS V per mechanical rad/s")
       ->check(cli::positive(kMaxKe))->capture_default_str()->needs(speed);
   cmd->add_option("--pole-pairs", options->pole_pairs, "pole pairs")->check(cli::number_in_range(1, 100))->capture_default_str()->needs(speed);
   cmd->add_option("--config", options->config_path,
-                  "a pmsm-thermald axis configuration (its [controller] section): the motor, bus, margin, torque "
-                  "budget and window of every option not given; Lq is its commissioned secant at --iq")
+                  "a pmsm-thermald axis configuration (its [controller] section, checked as the daemon checks it): "
+                  "the motor, bus, voltage fraction, margin, torque budget, window and Tw of every option not given "
+                  "(flags win); Lq is its commissioned secant at --iq. The current limit is not applied.")
       ->check(CLI::ExistingFile);
   cmd->add_flag("--json", options->json, "print one JSON object");
   cmd->callback([options, cmd, &exit_code] {
