@@ -92,6 +92,15 @@ inline std::string read_config_file(const std::filesystem::path& path, std::stri
   }
 }
 
+// Parses a configuration's text: a syntax error becomes a ConfigError naming file and line.
+[[nodiscard]] inline toml::table parse_toml(std::string_view text, std::string_view source) {
+  try {
+    return toml::parse(text, source);
+  } catch (const toml::parse_error& e) {
+    throw ConfigError(std::string(source) + ":" + std::to_string(e.source().begin.line) + ": " + std::string(e.description()));
+  }
+}
+
 // A section another parser reads (a schema's foreign table, e.g. [controller] in the
 // daemon's file): null when the file does not give it, an error naming file, line and key when
 // the key is there but is not a table (`controller = "x"`, `[[controller]]`), which would

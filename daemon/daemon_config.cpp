@@ -226,12 +226,7 @@ core::SupervisorConfig daemon_supervisor_defaults(const app::ControllerConfig& c
 }  // namespace
 
 DaemonConfig parse_daemon_config(const std::string& text, const std::filesystem::path& source) {
-  toml::table root;
-  try {
-    root = toml::parse(text, source.string());
-  } catch (const toml::parse_error& e) {
-    throw ConfigError(source.string() + ":" + std::to_string(e.source().begin.line) + ": " + std::string(e.description()));
-  }
+  const toml::table root = common::parse_toml(text, source.string());
   DaemonConfig c;
   c.source = source;
   // The drive first: the supervisor's defaults are relative to it.

@@ -628,8 +628,7 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
     // The estimator's curve extrapolates from the map's last point along its slope there (at most
     // three times the last segment's) to the current limit, and the secant there must stay above
     // half of Lq too.
-    const core::LqShape shape(d.injection);
-    const double at_limit_H = m.lq_H - shape.b0_H() * shape.at(d.injection.current_limit_A).s;
+    const double at_limit_H = core::LqShape(d.injection).commissioned_secant_H(d.injection.current_limit_A);
     if (at_limit_H < 0.5 * m.lq_H) {
       const std::string_view key = map_valid ? "motor.lq_map_H" : "motor.lq_rated_H";
       const std::string_view l = lead(key, "derating.max_current_A");

@@ -73,7 +73,7 @@ LqMap commissioned_map(const InjectionConfig& c) {
 }
 }  // namespace
 
-LqShape::LqShape(const InjectionConfig& c) : limit_A_(c.current_limit_A) {
+LqShape::LqShape(const InjectionConfig& c) : lq_H_(c.lq_H), limit_A_(c.current_limit_A) {
   // The secant lq_H - b0 s(u) through (0, 0) and the map's points; b0 makes s equal u at the last
   // point. u uncapped here: the cap bounds how far the curve is extrapolated, not where the
   // map's points lie.
@@ -174,8 +174,7 @@ InjectionScheduler::InjectionScheduler(const InjectionConfig& config, double per
       lq_H_(config.lq_H),
       lq_var_(config.lq_initial_std_fraction * config.lq_H * config.lq_initial_std_fraction * config.lq_H),
       lq_shape_(config),
-      lq_b0_H_(lq_shape_.b0_H()),
-      lq_b_H_(config.learn_lq ? 0.0 : lq_b0_H_),  // (see InjectionConfig::lq_rated_H)
+      lq_b_H_(config.learn_lq ? 0.0 : lq_shape_.b0_H()),  // (see InjectionConfig::lq_rated_H)
       lq_b_var_(config.lq_saturation_std_fraction * config.lq_H * config.lq_saturation_std_fraction * config.lq_H),
       recorder_capacity_(capacity) {
   // The window constants the budget needs at every pair start are computed here, once, not
@@ -572,7 +571,7 @@ double InjectionScheduler::lq_incremental_at(const LqShape::At& shape) const {
   // was commissioned).
   const double secant = lq_secant_at(shape);
   if (!lq_resolved_) {
-    return std::clamp(secant - lq_b0_H_ * (shape.h - shape.s), 0.5 * secant, secant);
+    return std::clamp(secant - lq_shape_.b0_H() * (shape.h - shape.s), 0.5 * secant, secant);
   }
   return std::clamp(lq_H_ - lq_b_H_ * shape.h, 0.5 * secant, 1.5 * secant);
 }

@@ -86,14 +86,7 @@ void add_window_option(CLI::App* cmd, std::string& window_name) {
 // injection.headroom_margin_V where it gives one, else the drive's default at the bus planned
 // with (--vdc, or the file's control.nominal_dc_bus_V). Throws ConfigError.
 void apply_drive_configuration(BudgetOptions& o, const CLI::App& cmd) {
-  toml::table root;
-  try {
-    root = toml::parse_file(o.config_path);
-  } catch (const toml::parse_error& e) {
-    const auto line = e.source().begin.line;
-    throw ConfigError(o.config_path + (line > 0 ? ":" + std::to_string(line) : std::string{}) + ": " +
-                      std::string(e.description()));
-  }
+  const toml::table root = common::parse_toml(common::read_config_file(o.config_path, "--config"), o.config_path);
   const toml::table* section = common::optional_section(root, "controller", o.config_path);
   if (section == nullptr) {
     // A file with no drive in it (or a misspelt section) would plan the default motor.
@@ -113,10 +106,7 @@ void apply_drive_configuration(BudgetOptions& o, const CLI::App& cmd) {
   if (unset("--Ke")) o.ke_V_s_per_rad = d.motor.ke_V_s_per_rad;
   if (unset("--pole-pairs")) o.pole_pairs = d.motor.pole_pairs;
   if (unset("--max-torque-disturbance")) o.max_torque_Nm = d.injection.max_torque_disturbance_Nm;
-  if (unset("--Lq")) {
-    const core::LqShape shape(d.injection);
-    o.lq_H = d.motor.lq_H - shape.b0_H() * shape.at(o.iq_A).s;
-  }
+  if (unset("--Lq")) o.lq_H = core::LqShape(d.injection).commissioned_secant_H(o.iq_A);
 }
 
 int run_budget(const BudgetOptions& o, const CLI::App& cmd) {

@@ -300,11 +300,7 @@ double Profile::at(double t_s) const {
 namespace {
 
 toml::table parse_toml(std::string_view text, const std::filesystem::path& source) {
-  try {
-    return toml::parse(text, source.string());
-  } catch (const toml::parse_error& e) {
-    throw ConfigError(source.string() + ":" + std::to_string(e.source().begin.line) + ": " + std::string(e.description()));
-  }
+  return common::parse_toml(text, source.string());
 }
 
 // A scenario may name a base scenario (scenario.base, relative to itself) and override only

@@ -344,8 +344,11 @@ class LqShape {
   // and that is the current limit; a map's s equals u at its last point and follows the map
   // elsewhere (on the 30 mOhm IPM's map s = 0.93 at the limit). 0 without saturation.
   [[nodiscard]] double b0_H() const { return b0_H_; }
+  // The commissioned secant at a q-axis current, lq_H - b0 s(iq) (the curve with b = b0).
+  [[nodiscard]] double commissioned_secant_H(double iq_A) const { return lq_H_ - b0_H_ * at(iq_A).s; }
 
  private:
+  double lq_H_ = 0.0;
   double limit_A_ = 0.0;
   double b0_H_ = 0.0;
   int nodes_ = 0;  // after (0, 0); 0: the quadratic
@@ -511,8 +514,7 @@ class InjectionScheduler {
   double vx_var_ = 0.0;
   double lq_H_ = 0.0;               // learned q-axis inductance (see InjectionConfig::learn_lq)
   double lq_var_ = 0.0;
-  LqShape lq_shape_;                // the saturation curve's shape (InjectionConfig::lq_map)
-  double lq_b0_H_ = 0.0;            // the commissioned saturation (InjectionConfig::lq_rated_H)
+  LqShape lq_shape_;                // the saturation curve's shape and its commissioned b0 (InjectionConfig::lq_map)
   bool lq_resolved_ = false;        // saturation_variance_resolved(), kept as b's variance changes
   double lq_b_H_ = 0.0;             // its saturation: secant lost where s = 1 (LqShape)
   double lq_b_var_ = 0.0;
