@@ -192,4 +192,10 @@ double max_injection_current_for_torque_A(double budget_Nm, int pole_pairs, doub
   return budget_Nm / saliency;
 }
 
+double max_injection_current_for_current_limit_A(double limit_A, double id_A, double iq_A, double polarity) {
+  const double room_sq = limit_A * limit_A - iq_A * iq_A;
+  const double s = polarity >= 0.0 ? 1.0 : -1.0;
+  return room_sq > 0.0 ? std::max(0.0, std::sqrt(room_sq) - s * id_A) : 0.0;
+}
+
 }  // namespace pmsm::core

@@ -232,8 +232,7 @@ InjectionScheduler::Budget InjectionScheduler::budget(const SchedulerInput& in, 
   double f_current = wanted_A;
   auto current_room = [&](double s) {
     if (config_.method == InjectionMethod::kFixedMagnitude) {
-      const double room_sq = limit * limit - im.q * im.q;
-      return room_sq > 0.0 ? std::sqrt(room_sq) - s * im.d : 0.0;
+      return max_injection_current_for_current_limit_A(limit, im.d, im.q, s);
     }
     // The injected vector turns relative to the rotor: take the worst direction.
     return limit - std::hypot(im.d, im.q);

@@ -70,6 +70,27 @@ TEST(PlanCli, BudgetAtSpeedKeepsTheTorqueBudget) {
   EXPECT_FALSE(json_number(round.out, "max_torque_injection_current_A").has_value()) << "Ld = Lq: no reluctance torque";
 }
 
+// The current limit motoring and injection share, as the scheduler applies it to
+// fixed-magnitude pulses: |(+-F, iq)| within it, sqrt(65^2 - 25^2) = 60 A at 25 A of iq; nothing
+// left where iq alone reaches it; no limit, no line.
+TEST(PlanCli, BudgetAtSpeedKeepsTheCurrentLimit) {
+  const std::string base = kExe + " budget --speed 10 --json";
+  const ProcessResult limited = run_process(base + " --iq 25 --current-limit 65");
+  ASSERT_EQ(limited.exit_code, 0) << limited.err;
+  EXPECT_NEAR(json_number(limited.out, "max_current_injection_current_A").value_or(-1), 60.0, 1e-9);
+  EXPECT_NEAR(json_number(limited.out, "max_injection_current_A").value_or(-1), 60.0, 1e-9) << "the voltage allows more";
+  const ProcessResult full = run_process(base + " --iq 70 --current-limit 65");
+  ASSERT_EQ(full.exit_code, 0) << full.err;
+  EXPECT_EQ(json_number(full.out, "max_injection_current_A").value_or(-1), 0.0);
+  const ProcessResult none = run_process(base + " --iq 25");
+  ASSERT_EQ(none.exit_code, 0) << none.err;
+  EXPECT_FALSE(json_number(none.out, "max_current_injection_current_A").has_value()) << none.out;
+  EXPECT_GT(json_number(none.out, "max_injection_current_A").value_or(-1), 60.0) << "the voltage alone";
+  const ProcessResult text = run_process(kExe + " budget --speed 10 --iq 25 --current-limit 65");
+  EXPECT_NE(text.out.find("largest F for current  60.00 A"), std::string::npos) << text.out;
+  EXPECT_NE(run_process(base + " --current-limit -1").exit_code, 0);
+}
+
 // A scratch directory removed however the test ends.
 struct ScratchDir {
   std::filesystem::path path =
@@ -117,11 +138,15 @@ TEST(PlanCli, BudgetTakesADrivesConfiguration) {
   EXPECT_NEAR(lq, 0.41987313e-3, 1e-10) << "the map's secant at 75 A";
   EXPECT_NEAR(json_number(r.out, "max_torque_injection_current_A").value_or(-1),
               1.5 / (1.5 * 4.0 * (lq - 0.275e-3) * 75.0), 1e-6);
+  EXPECT_EQ(json_number(r.out, "current_limit_A").value_or(-1), 300.0) << "derating.max_current_A";
+  EXPECT_NEAR(json_number(r.out, "max_current_injection_current_A").value_or(-1), std::sqrt(300.0 * 300.0 - 75.0 * 75.0),
+              1e-6);
   // Ke: the motoring voltage at 314 rad/s is mostly the EMF, Ke sqrt(2/3) x 314 = 126 V.
   EXPECT_NEAR(json_number(r.out, "motoring_voltage_V").value_or(-1), 134.57, 0.1);
   // Flags win; the margin follows --vdc unless the file gives one.
-  const ProcessResult flag = run_process(base + " --vdc 400 --Ld 0.3e-3 --Lq 0.4e-3");
+  const ProcessResult flag = run_process(base + " --vdc 400 --Ld 0.3e-3 --Lq 0.4e-3 --current-limit 100");
   ASSERT_EQ(flag.exit_code, 0) << flag.err;
+  EXPECT_EQ(json_number(flag.out, "current_limit_A").value_or(-1), 100.0);
   EXPECT_EQ(json_number(flag.out, "vdc_V").value_or(-1), 400.0);
   EXPECT_EQ(json_number(flag.out, "ld_H").value_or(-1), 0.3e-3);
   EXPECT_EQ(json_number(flag.out, "lq_H").value_or(-1), 0.4e-3);

@@ -199,6 +199,18 @@ TEST(Budget, HeadroomAtAnOperatingPointTouchesTheLimit) {
               max_injection_current_A(in.voltage_limit_V, in.ld_H, in.rs_ohm, in.tw_s, in.window), 1e-9);
 }
 
+// |(id + s F, iq)| within the limit: a 3-4-5 triangle; a motoring id takes from one polarity's
+// room and gives to the other's; nothing (never less) where iq alone reaches the limit.
+TEST(Budget, CurrentLimitLeavesTheRestOfTheCircle) {
+  EXPECT_DOUBLE_EQ(max_injection_current_for_current_limit_A(50.0, 0.0, 30.0, 1.0), 40.0);
+  EXPECT_DOUBLE_EQ(max_injection_current_for_current_limit_A(50.0, 0.0, -30.0, -1.0), 40.0);
+  EXPECT_DOUBLE_EQ(max_injection_current_for_current_limit_A(50.0, -10.0, 30.0, 1.0), 50.0);
+  EXPECT_DOUBLE_EQ(max_injection_current_for_current_limit_A(50.0, -10.0, 30.0, -1.0), 30.0);
+  EXPECT_EQ(max_injection_current_for_current_limit_A(50.0, 0.0, 50.0, 1.0), 0.0);
+  EXPECT_EQ(max_injection_current_for_current_limit_A(50.0, 0.0, 60.0, -1.0), 0.0);
+  EXPECT_EQ(max_injection_current_for_current_limit_A(50.0, -45.0, 30.0, -1.0), 0.0);
+}
+
 TEST(Losses, Eqs31And32WithHandComputedNumbers) {
   InjectionSchedule s;
   s.f_A = 25.0; s.rs_ohm = 0.133; s.pulses = 3; s.elapsed_s = 10.0; s.ti_s = 0.2; s.tw_s = 0.01;

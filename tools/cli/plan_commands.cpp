@@ -57,6 +57,7 @@ struct BudgetOptions {
   double voltage_fraction = core::CurrentControllerConfig{}.voltage_limit_fraction;
   std::optional<double> margin_V;  // unset: the drive's default, 15 V at 650 V, following the bus
   double max_torque_Nm = core::InjectionConfig{}.max_torque_disturbance_Nm;  // 0: no torque budget
+  double current_limit_A = 0.0;  // 0: none (the F printed is the voltage's and the torque's)
   std::string config_path;  // a drive's configuration: every option not given comes from it
   double ke_V_s_per_rad = core::MotorParams{}.ke_V_s_per_rad;
   int pole_pairs = core::MotorParams{}.pole_pairs;
@@ -106,6 +107,7 @@ void apply_drive_configuration(BudgetOptions& o, const CLI::App& cmd) {
   if (unset("--Ke")) o.ke_V_s_per_rad = d.motor.ke_V_s_per_rad;
   if (unset("--pole-pairs")) o.pole_pairs = d.motor.pole_pairs;
   if (unset("--max-torque-disturbance")) o.max_torque_Nm = d.injection.max_torque_disturbance_Nm;
+  if (unset("--current-limit")) o.current_limit_A = d.injection.current_limit_A;
   if (unset("--Lq")) o.lq_H = core::LqShape(d.injection).commissioned_secant_H(o.iq_A);
 }
 
@@ -184,7 +186,14 @@ int run_budget(const BudgetOptions& o, const CLI::App& cmd) {
     // The torque budget (injection.max_torque_disturbance_Nm) on a salient machine: the pulse's
     // reluctance torque, as the drive's scheduler limits it.
     const double f_torque = core::max_injection_current_for_torque_A(o.max_torque_Nm, o.pole_pairs, in.ld_H, in.lq_H, o.iq_A);
-    const double f_bipolar = std::min({f_pos, f_neg, f_torque});
+    // The current limit (derating.max_current_A) that motoring and injection share, as the
+    // scheduler applies it to fixed-magnitude pulses: |(id +- F, iq)| within it (id = 0 here).
+    const bool current_limited = o.current_limit_A > 0.0;
+    const double f_current =
+        current_limited ? std::min(core::max_injection_current_for_current_limit_A(o.current_limit_A, 0.0, o.iq_A, 1.0),
+                                   core::max_injection_current_for_current_limit_A(o.current_limit_A, 0.0, o.iq_A, -1.0))
+                        : std::numeric_limits<double>::infinity();
+    const double f_bipolar = std::min({f_pos, f_neg, f_torque, f_current});
     json.field("speed_rad_s", o.speed_rad_s).field("iq_A", o.iq_A).field("lq_H", in.lq_H).field("pole_pairs", o.pole_pairs)
         .field("vdc_V", o.vdc_V).field("margin_V", margin_V)
         .field("voltage_limit_V", in.voltage_limit_V).field("motoring_voltage_V", motoring)
@@ -195,22 +204,33 @@ int run_budget(const BudgetOptions& o, const CLI::App& cmd) {
     if (std::isfinite(f_torque)) {
       json.field("max_torque_injection_current_A", f_torque);
     }
+    if (current_limited) {
+      json.field("current_limit_A", o.current_limit_A).field("max_current_injection_current_A", f_current);
+    }
     json.field("max_injection_current_A", f_bipolar);
     const std::string torque_line =
         std::isfinite(f_torque)
             ? fmt::format("  largest F for torque   {:.2f} A   (1.5 p |Ld - Lq| F |iq| within {:g} Nm)\n", f_torque,
                           o.max_torque_Nm)
             : std::string{};
+    const std::string current_line =
+        current_limited ? fmt::format("  largest F for current  {:.2f} A   (|(+-F, iq)| within the limit {:g} A)\n",
+                                      f_current, o.current_limit_A)
+                        : std::string{};
+    std::string within = std::isfinite(f_torque) ? ", within the torque budget" : "";
+    if (current_limited) {
+      within += std::isfinite(f_torque) ? " and the current limit" : ", within the current limit";
+    }
     text += fmt::format(
         "  operating point        {:.1f} rad/s mech, iq {:.1f} A, Vdc {:.0f} V, Lq {:g} mH, {} pole pairs\n"
         "  voltage limit          {:.1f} V   ({:.0f} % of Vdc/sqrt(3), less the margin {:.1f} V)\n"
         "  motoring voltage       {:.1f} V   (Eq. 3, steady state)\n"
         "  largest +F             {:.2f} A\n"
         "  largest -F             {:.2f} A\n"
-        "{}"
+        "{}{}"
         "  largest bipolar F      {:.2f} A   (+F and -F both fit{})\n",
         o.speed_rad_s, o.iq_A, o.vdc_V, in.lq_H * 1e3, o.pole_pairs, in.voltage_limit_V, o.voltage_fraction * 100.0, margin_V, motoring,
-        f_pos, f_neg, torque_line, f_bipolar, std::isfinite(f_torque) ? ", within the torque budget" : "");
+        f_pos, f_neg, torque_line, current_line, f_bipolar, within);
   }
   json.end_object();
   std::printf("%s\n", o.json ? json.str().c_str() : text.c_str());
@@ -314,13 +334,16 @@ void register_budget_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--max-torque-disturbance", options->max_torque_Nm,
                   "torque budget of the pulse's reluctance torque, Nm (injection.max_torque_disturbance_Nm; 0: none)")
       ->check(cli::non_negative(10000))->capture_default_str()->needs(speed);
+  cmd->add_option("--current-limit", options->current_limit_A,
+                  "current limit shared by motoring and injection, A peak (derating.max_current_A; 0: none)")
+      ->check(cli::non_negative(kMaxCurrent_A))->capture_default_str()->needs(speed);
   cmd->add_option("--Ke", options->ke_V_s_per_rad, "EMF constant, line-to-line RMS V per mechanical rad/s")
       ->check(cli::positive(kMaxKe))->capture_default_str()->needs(speed);
   cmd->add_option("--pole-pairs", options->pole_pairs, "pole pairs")->check(cli::number_in_range(1, 100))->capture_default_str()->needs(speed);
   cmd->add_option("--config", options->config_path,
                   "a pmsm-thermald axis configuration (its [controller] section, checked as the daemon checks it): "
-                  "the motor, bus, voltage fraction, margin, torque budget, window and Tw of every option not given "
-                  "(flags win); Lq is its commissioned secant at --iq. The current limit is not applied.")
+                  "the motor, bus, voltage fraction, margin, torque budget, current limit, window and Tw of every option not given "
+                  "(flags win); Lq is its commissioned secant at --iq, the current limit its derating.max_current_A.")
       ->check(CLI::ExistingFile);
   cmd->add_flag("--json", options->json, "print one JSON object");
   cmd->callback([options, cmd, &exit_code] {
