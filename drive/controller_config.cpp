@@ -278,9 +278,9 @@ ConfigSchema<C> build() {
   s.real("thermal.housing_process_std_C_per_sqrt_s", [](C& c) -> double& { return c.drive.thermal.housing_process_std_C_per_sqrt_s; },
          at_least(0), "C/sqrt(s)", "Process noise of the housing node.");
   s.real("thermal.loss_error_process_std_W_per_sqrt_s", [](C& c) -> double& { return c.drive.thermal.loss_error_process_std_W_per_sqrt_s; },
-         at_least(0), "W/sqrt(s)", "Random walk of the winding node's missing loss (per thermal second).");
+         at_least(0), "W/sqrt(s)", "Random walk of the missing loss on the housing node (per thermal second).");
   s.real("thermal.initial_loss_error_std_W", [](C& c) -> double& { return c.drive.thermal.initial_loss_error_std_W; }, at_least(0), "W",
-         "Initial uncertainty of the winding node's missing loss.");
+         "Initial uncertainty of the missing loss on the housing node (iron, friction, rotor, cooling path).");
   s.real("thermal.loss_scale_process_std_per_sqrt_s", [](C& c) -> double& { return c.drive.thermal.loss_scale_process_std_per_sqrt_s; },
          at_least(0), "1/sqrt(s)", "Random walk of the copper-loss model's relative error (per thermal second).");
   s.real("thermal.initial_loss_scale_std", [](C& c) -> double& { return c.drive.thermal.initial_loss_scale_std; }, at_least(0), "",

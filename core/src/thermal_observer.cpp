@@ -8,10 +8,13 @@
 namespace pmsm::core {
 namespace {
 
-// Continuous-time matrices of the two-node network with the two loss-error states: dP, a
-// loss the model lacks (watts), and k, the copper loss model's relative error:
-// Cw dTw/dt = (1 + k) Pcu + dP - (Tw - Th)/Rwh
-// Ch dTh/dt = Pfe + (Tw - Th)/Rwh - (Th - Ta)/Rha
+// Continuous-time matrices of the two-node network with the two loss-error states: k, the
+// copper loss model's relative error, in the winding; dP, a loss the model lacks (watts), in
+// the housing: the iron and friction losses, the rotor's heat, the cooling path's error, all on
+// the housing's side (a commissioning's error in the winding's own path scales with the copper
+// loss, which is k's; docs/estimator.md section 7):
+// Cw dTw/dt = (1 + k) Pcu - (Tw - Th)/Rwh
+// Ch dTh/dt = Pfe + dP + (Tw - Th)/Rwh - (Th - Ta)/Rha
 // d(dP)/dt  = 0, dk/dt = 0 (random walks)
 // The k column carries this period's copper loss: the system is linear in the state for a
 // known loss, time-varying with it.
@@ -21,10 +24,10 @@ ThermalObserver::Matrix system_matrix(const ThermalModelConfig& c, double copper
   ThermalObserver::Matrix a = ThermalObserver::Matrix::Zero();
   a(0, 0) = -gwh / c.winding_capacity_J_K;
   a(0, 1) = gwh / c.winding_capacity_J_K;
-  a(0, 2) = 1.0 / c.winding_capacity_J_K;
   a(0, 3) = copper_loss_W / c.winding_capacity_J_K;
   a(1, 0) = gwh / c.housing_capacity_J_K;
   a(1, 1) = -(gwh + gha) / c.housing_capacity_J_K;
+  a(1, 2) = 1.0 / c.housing_capacity_J_K;
   return a;
 }
 
@@ -379,7 +382,7 @@ bool ThermalObserver::time_to_limit_s(double limit_C, double copper_current_sq_A
   // network keeps a steady state (a loss growing faster than the housing sheds it would run
   // away; no machine's magnets come near: 1-2 W/K against 8 W/K on the reference).
   const double gamma = std::clamp(copper_loss_per_housing_C * pcu_copper, 0.0, 0.5 * gha);
-  const double pcu = pcu_copper + x_(2);
+  const double pcu = pcu_copper;
   // d/dt (Tw, Th) = A (Tw, Th) + u, A = [a00 a01; a10 a11] with a00 = -p, a01 = p + gamma/Cw,
   // a10 = q, a11 = -(q + r) (p = gwh/Cw, q = gwh/Ch, r = gha/Ch, all > 0).
   const double p = gwh / config_.winding_capacity_J_K;
@@ -390,7 +393,7 @@ bool ThermalObserver::time_to_limit_s(double limit_C, double copper_current_sq_A
   const double a10 = q;
   const double a11 = -(q + r);
   const double u0 = (pcu - gamma * x_(1)) / config_.winding_capacity_J_K;
-  const double u1 = (pfe + gha * ambient_C) / config_.housing_capacity_J_K;
+  const double u1 = (pfe + x_(2) + gha * ambient_C) / config_.housing_capacity_J_K;
   const double det = a00 * a11 - a01 * a10;  // p r - q gamma / Cw > 0 by the clamp
   // Steady state: A x_ss + u = 0.
   const double tw_ss = (a01 * u1 - a11 * u0) / det;

@@ -1,7 +1,7 @@
 // Continuous winding temperature between injections: a two-node thermal model (winding,
 // stator/housing, to ambient) driven by the losses the controller can compute, fused with the
-// resistance measurements by a Kalman filter. Two more states, the winding-loss model's
-// errors (a missing loss in watts and the copper loss's relative error), let the filter learn
+// resistance measurements by a Kalman filter. Two more states, the loss model's errors (the
+// copper loss's relative error in the winding, a missing loss in watts in the housing), let the filter learn
 // a model mismatch from the measurements, which keeps the prediction honest between
 // measurements and the time-to-limit sensible.
 //
@@ -38,11 +38,13 @@ struct ThermalModelConfig {
   double initial_std_C = 5.0;
   double winding_process_std_C_per_sqrt_s = 0.02;  // per sqrt(thermal second)
   double housing_process_std_C_per_sqrt_s = 0.01;
-  // The winding node's loss errors, random walks the measurements teach: dP, a loss the
-  // model lacks (watts: e.g. iron loss reaching the winding), and k, the copper loss model's
-  // relative error (the node gets (1 + k) times the computed loss). A commissioning's error
-  // in the winding's capacity or thermal resistance acts like k: it scales with the loss, so
-  // what one load spell teaches carries over to the next at another load.
+  // The loss model's errors, random walks the measurements teach: k, the copper loss model's
+  // relative error (the winding node gets (1 + k) times the computed loss), and dP, a loss the
+  // model lacks (watts), on the housing node: the iron and friction losses, the rotor's heat,
+  // the cooling path's error. A commissioning's error in the winding's capacity or thermal
+  // resistance acts like k: it scales with the loss, so what one load spell teaches carries
+  // over to the next at another load; an error on the housing's side warms the winding and the
+  // housing alike and leaves the winding's rise over the housing to the copper loss.
   double loss_error_process_std_W_per_sqrt_s = 0.5;
   double initial_loss_error_std_W = 50.0;
   double loss_scale_process_std_per_sqrt_s = 0.002;
@@ -68,7 +70,7 @@ struct ThermalModelConfig {
 };
 
 // What the drive keeps across a restart (a warm motor): the filter's temperatures and their
-// uncertainty, and what it has learned of the winding's loss model (dP and k with their
+// uncertainty, and what it has learned of the loss model (dP and k with their
 // standard deviations), which a power cycle does not change.
 struct ThermalState {
   double winding_C = 0.0;
