@@ -306,6 +306,9 @@ struct LossKey {
   double lo;
   double hi;
 };
+// Where the filter's missing loss dP enters the network (core::ThermalObserver: the housing).
+constexpr const char* kMissingLossNode = "housing";
+
 constexpr LossKey kLossKeys[] = {{"missing_loss_W", -1e6, 1e6},
                                  {"missing_loss_std_W", 0.0, 1e6},
                                  {"loss_scale_error", -0.5, 1.0},
@@ -344,8 +347,11 @@ void write_thermal_state_file(const std::filesystem::path& path, const StoredThe
        << "ambient_C = " << toml_float(stored.ambient_C) << "\n"
        << "saved_unix_s = " << toml_float(stored.saved_unix_s) << "\n";
   if (s.has_loss_errors && loss_errors_storable(s)) {
-    // What the filter learned of the winding's loss model (absent: the priors at the restart).
-    text << "missing_loss_W = " << toml_float(s.missing_loss_W) << "\n"
+    // What the filter learned of the loss model (absent: the priors at the restart), and where
+    // its missing loss enters the network: a dP learned on the winding (a file written before
+    // dP moved to the housing has no such key) would mean another temperature on the housing.
+    text << "missing_loss_node = \"" << kMissingLossNode << "\"\n"
+         << "missing_loss_W = " << toml_float(s.missing_loss_W) << "\n"
          << "missing_loss_std_W = " << toml_float(s.missing_loss_std_W) << "\n"
          << "loss_scale_error = " << toml_float(s.loss_scale_error) << "\n"
          << "loss_scale_std = " << toml_float(s.loss_scale_std) << "\n"
@@ -358,8 +364,8 @@ StoredThermalState read_thermal_state_file(const std::filesystem::path& path) {
   const std::string file = path.string();
   const toml::table t =
       read_stored(path, {"format", "winding_C", "housing_C", "winding_std_C", "ambient_C", "saved_unix_s",
-                         "missing_loss_W", "missing_loss_std_W", "loss_scale_error", "loss_scale_std",
-                         "loss_correlation"});
+                         "missing_loss_node", "missing_loss_W", "missing_loss_std_W", "loss_scale_error",
+                         "loss_scale_std", "loss_correlation"});
   StoredThermalState s;
   s.state.winding_C = number(t, "winding_C", file, -60.0, 400.0, false);
   s.state.housing_C = number(t, "housing_C", file, -60.0, 400.0, false);
@@ -383,6 +389,14 @@ StoredThermalState read_thermal_state_file(const std::filesystem::path& path) {
                                                  file, kLossKeys[k].name));
         }
         values[k] = number(t, kLossKeys[k].name, file, kLossKeys[k].lo, kLossKeys[k].hi, false);
+      }
+      const std::optional<std::string> node = t["missing_loss_node"].value<std::string>();
+      if (node != kMissingLossNode) {
+        throw CalibrationFileError(fmt::format(
+            "{}: missing_loss_node is {} where this build's filter has \"{}\": its missing loss was learned "
+            "on {} (the loss model's errors restart from the priors)",
+            file, node ? "\"" + *node + "\"" : std::string("absent"), kMissingLossNode,
+            node ? "another node" : "the winding, before it moved to the housing"));
       }
       s.state.has_loss_errors = true;
       s.state.missing_loss_W = values[0];

@@ -53,11 +53,13 @@ void write_calibration_file(const std::filesystem::path& path, const core::Calib
 //   winding_std_C = 1.3
 //   ambient_C = 25.0
 //   saved_unix_s = 1795493852.25
+//   missing_loss_node = "housing" # where dP enters (absent: a file from when it was the winding's)
 //   missing_loss_W = 4.2         # the loss model's errors the filter learned (dP, k, their
 //   missing_loss_std_W = 21.0    # standard deviations and correlation): all five or none; a
 //   loss_scale_error = 0.11      # file without them, or with a bad block of them, restarts
 //   loss_scale_std = 0.05        # them from the priors (loss_errors_ignored says why) and
-//   loss_correlation = -0.8      # keeps the temperatures
+//   loss_correlation = -0.8      # keeps the temperatures; so does a block without
+//                                #   missing_loss_node = "housing" (dP learned on the winding)
 // The drive cools it through the downtime with its model (ThermalObserver::restore).
 struct StoredThermalState {
   core::ThermalState state;

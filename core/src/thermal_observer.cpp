@@ -145,7 +145,8 @@ void ThermalObserver::set_loss_errors(double dp_W, double dp_std_W, double k, do
   p_.block<2, 2>(2, 0).setZero();
   p_(2, 2) = s2 * s2;
   p_(3, 3) = s3 * s3;
-  // At one load the filter learns dP + k Pcu better than either: their correlation is kept
+  // At one load the filter learns a combination of dP and k Pcu better than either (the two
+  // heat the winding alike there, the one through the housing): their correlation is kept
   // (bounded by 1, so P stays positive semi-definite).
   p_(2, 3) = p_(3, 2) = std::clamp(correlation, -1.0, 1.0) * s2 * s3;
 }

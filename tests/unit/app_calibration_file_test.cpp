@@ -308,7 +308,8 @@ TEST_F(CalibrationFile, ThermalStateRoundTripAndBadFiles) {
   }
 }
 
-// The loss model's learned errors go with the thermal state: all four keys or none.
+// The loss model's learned errors go with the thermal state: all five keys or none, with the
+// node its missing loss enters (the housing; a block learned with it on the winding is refused).
 TEST_F(CalibrationFile, ThermalStateKeepsTheLossModelsErrors) {
   const fs::path path = dir_ / "axis1.thermal";
   StoredThermalState s;
@@ -336,7 +337,14 @@ TEST_F(CalibrationFile, ThermalStateKeepsTheLossModelsErrors) {
        "missing_loss_std_W is missing"},
       {"missing_loss_W = 3.0\nmissing_loss_std_W = 2.0\nloss_scale_error = 7.5\nloss_scale_std = 0.05\n"
        "loss_correlation = 0.0\n",
-       ":9: loss_scale_error"}};  // a copper loss 8.5 times the model's
+       ":9: loss_scale_error"},  // a copper loss 8.5 times the model's
+      // A file from before dP moved to the housing: its dP was the winding's.
+      {"missing_loss_W = 3.0\nmissing_loss_std_W = 2.0\nloss_scale_error = 0.1\nloss_scale_std = 0.05\n"
+       "loss_correlation = 0.0\n",
+       "missing_loss_node is absent where this build's filter has \"housing\": its missing loss was learned on the winding"},
+      {"missing_loss_node = \"winding\"\nmissing_loss_W = 3.0\nmissing_loss_std_W = 2.0\nloss_scale_error = 0.1\n"
+       "loss_scale_std = 0.05\nloss_correlation = 0.0\n",
+       "missing_loss_node is \"winding\""}};
   for (const auto& [tail, named] : refused) {
     write_text(path, head + tail);
     const StoredThermalState r = read_thermal_state_file(path);

@@ -155,6 +155,12 @@ TEST(PlanCli, BudgetTakesADrivesConfiguration) {
   const ProcessResult given = run_process(base + " --vdc 400");
   ASSERT_EQ(given.exit_code, 0) << given.err;
   EXPECT_EQ(json_number(given.out, "margin_V").value_or(-1), 5.0) << "the file's own margin";
+  // A drive injecting a turning vector (fixed-angle, DC) keeps F within limit - |i|, as its
+  // scheduler does: 300 - 75 A.
+  std::ofstream(axis, std::ios::app) << "method = \"fixed-angle\"\n";
+  const ProcessResult turning = run_process(base);
+  ASSERT_EQ(turning.exit_code, 0) << turning.err;
+  EXPECT_NEAR(json_number(turning.out, "max_current_injection_current_A").value_or(-1), 225.0, 1e-9);
   // Refused: a bad key (named with its line), a file with no drive in it, a missing file.
   std::ofstream(dir.path / "bad.toml") << "[controller.motor]\nld_H = -1\n";
   const ProcessResult bad = run_process(kExe + " budget --config " + (dir.path / "bad.toml").string() + " --speed 3");

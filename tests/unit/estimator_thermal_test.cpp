@@ -281,6 +281,8 @@ TEST(ThermalObserver, AHousingLossIsLearnedOnTheHousing) {
   struct Result {
     double error_C;
     double k;
+    double missing_loss_W;
+    double housing_error_C;  // at the end of the light load
   };
   auto run = [&](bool learn_watts) {
     ThermalModelConfig c;
@@ -297,18 +299,23 @@ TEST(ThermalObserver, AHousingLossIsLearnedOnTheHousing) {
         EXPECT_TRUE(obs.update_resistance(obs.resistance_at_C(m.tw), 0.0002));
       }
     }
-    const double k_learned = obs.estimate().loss_scale_error;
+    const ThermalEstimate learned = obs.estimate();
+    const double housing_error_C = learned.housing_C - m.th;
     for (int k = 0; k < 1500; ++k) {  // then 1500 s at ten times the current's square, unmeasured
       m.step(3000.0, 1.0);
       obs.predict(1.0, 3000.0, 0.0, 25.0);
     }
-    return Result{obs.estimate().winding_C - m.tw, k_learned};
+    return Result{obs.estimate().winding_C - m.tw, learned.loss_scale_error, learned.missing_loss_W, housing_error_C};
   };
   const Result housing = run(true);
   const Result scale_only = run(false);
   // Measured: dP 52.8 W and k 0.080 at the light load (at one load the two share what they
-  // learn, by their priors), 7.0 C off after the heavy spell (k's share scaled by the load);
-  // k alone: k 0.64 and 63.8 C off.
+  // learn, by their priors), the housing 0.28 C cold, 7.0 C off after the heavy spell (k's share
+  // scaled by the load); k alone: k 0.64 and 63.8 C off. A dP on the winding would give the same
+  // winding temperature at the light load with 60 Rha / (Rha + Rwh) = 42 W and leave the
+  // housing 2.3 C cold.
+  EXPECT_GT(housing.missing_loss_W, 45.0);
+  EXPECT_LT(std::abs(housing.housing_error_C), 1.0) << "the housing carries the loss";
   EXPECT_LT(std::abs(housing.error_C), 0.25 * std::abs(scale_only.error_C));
   EXPECT_LT(std::abs(housing.k), 0.5 * std::abs(scale_only.k)) << "the copper loss is the model's";
 }
@@ -333,7 +340,7 @@ TEST(ThermalObserver, TheLearnedLossModelSurvivesARestart) {
   EXPECT_DOUBLE_EQ(kept.estimate().missing_loss_W, stored.missing_loss_W);
   EXPECT_NEAR(kept.estimate().loss_scale_std, stored.loss_scale_std, 1e-12);
   EXPECT_NEAR(kept.state().loss_correlation, stored.loss_correlation, 1e-9) << "dP and k learned together";
-  EXPECT_LT(stored.loss_correlation, -0.5) << "at one load dP + k Pcu is what is learned";
+  EXPECT_LT(stored.loss_correlation, -0.5) << "at one load a combination of dP and k Pcu is what is learned";
   ThermalState old_file = stored;
   old_file.has_loss_errors = false;
   ThermalObserver forgot(c, cal, 25.0);

@@ -58,6 +58,10 @@ struct BudgetOptions {
   std::optional<double> margin_V;  // unset: the drive's default, 15 V at 650 V, following the bus
   double max_torque_Nm = core::InjectionConfig{}.max_torque_disturbance_Nm;  // 0: no torque budget
   double current_limit_A = 0.0;  // 0: none (the F printed is the voltage's and the torque's)
+  // The pulses the current limit is applied to: fixed-magnitude (|(+-F, iq)| within it), or a
+  // vector turning relative to the rotor (fixed-angle, DC: F within limit - |i|), as the
+  // scheduler applies it; from --config the drive's injection.method.
+  bool turning_vector = false;
   std::string config_path;  // a drive's configuration: every option not given comes from it
   double ke_V_s_per_rad = core::MotorParams{}.ke_V_s_per_rad;
   int pole_pairs = core::MotorParams{}.pole_pairs;
@@ -108,6 +112,7 @@ void apply_drive_configuration(BudgetOptions& o, const CLI::App& cmd) {
   if (unset("--pole-pairs")) o.pole_pairs = d.motor.pole_pairs;
   if (unset("--max-torque-disturbance")) o.max_torque_Nm = d.injection.max_torque_disturbance_Nm;
   if (unset("--current-limit")) o.current_limit_A = d.injection.current_limit_A;
+  o.turning_vector = d.injection.method != core::InjectionMethod::kFixedMagnitude;
   if (unset("--Lq")) o.lq_H = core::LqShape(d.injection).commissioned_secant_H(o.iq_A);
 }
 
@@ -189,10 +194,13 @@ int run_budget(const BudgetOptions& o, const CLI::App& cmd) {
     // The current limit (derating.max_current_A) that motoring and injection share, as the
     // scheduler applies it to fixed-magnitude pulses: |(id +- F, iq)| within it (id = 0 here).
     const bool current_limited = o.current_limit_A > 0.0;
-    const double f_current =
-        current_limited ? std::min(core::max_injection_current_for_current_limit_A(o.current_limit_A, 0.0, o.iq_A, 1.0),
-                                   core::max_injection_current_for_current_limit_A(o.current_limit_A, 0.0, o.iq_A, -1.0))
-                        : std::numeric_limits<double>::infinity();
+    double f_current = std::numeric_limits<double>::infinity();
+    if (current_limited) {
+      f_current = o.turning_vector
+                      ? std::max(0.0, o.current_limit_A - std::abs(o.iq_A))
+                      : std::min(core::max_injection_current_for_current_limit_A(o.current_limit_A, 0.0, o.iq_A, 1.0),
+                                 core::max_injection_current_for_current_limit_A(o.current_limit_A, 0.0, o.iq_A, -1.0));
+    }
     const double f_bipolar = std::min({f_pos, f_neg, f_torque, f_current});
     json.field("speed_rad_s", o.speed_rad_s).field("iq_A", o.iq_A).field("lq_H", in.lq_H).field("pole_pairs", o.pole_pairs)
         .field("vdc_V", o.vdc_V).field("margin_V", margin_V)
@@ -214,9 +222,10 @@ int run_budget(const BudgetOptions& o, const CLI::App& cmd) {
                           o.max_torque_Nm)
             : std::string{};
     const std::string current_line =
-        current_limited ? fmt::format("  largest F for current  {:.2f} A   (|(+-F, iq)| within the limit {:g} A)\n",
-                                      f_current, o.current_limit_A)
-                        : std::string{};
+        current_limited
+            ? fmt::format("  largest F for current  {:.2f} A   ({} within the limit {:g} A)\n", f_current,
+                          o.turning_vector ? "a turning vector: F + |iq|" : "|(+-F, iq)|", o.current_limit_A)
+            : std::string{};
     std::string within = std::isfinite(f_torque) ? ", within the torque budget" : "";
     if (current_limited) {
       within += std::isfinite(f_torque) ? " and the current limit" : ", within the current limit";

@@ -81,7 +81,7 @@ struct ThermalState {
   double missing_loss_std_W = 0.0;
   double loss_scale_error = 0.0;  // k
   double loss_scale_std = 0.0;
-  double loss_correlation = 0.0;  // of dP and k (at one load the filter learns dP + k Pcu)
+  double loss_correlation = 0.0;  // of dP and k (at one load the filter learns a combination of dP and k Pcu)
 };
 
 struct Calibration {
@@ -129,7 +129,7 @@ struct ThermalEstimate {
   double winding_C = 0.0;
   double winding_std_C = 0.0;
   double housing_C = 0.0;
-  double loss_error_W = 0.0;      // dP plus k times the last period's copper loss
+  double loss_error_W = 0.0;      // the heat the model lacks: dP (housing) plus k times the last period's copper loss (winding)
   double missing_loss_W = 0.0;    // dP
   double loss_scale_error = 0.0;  // k
   double loss_scale_std = 0.0;    // its standard deviation
