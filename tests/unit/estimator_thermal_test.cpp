@@ -190,39 +190,44 @@ TEST(ThermalObserver, AfterPredictionAMeasurementAlsoMovesTheCorrelatedStates) {
   EXPECT_LT(after.winding_std_C, before.winding_std_C);
 }
 
-// The machine of the loss-scale tests: the model's network with 25 % more copper loss than the
-// model computes, in 25 C ambient.
-struct HotterMachine {
+// A machine for the loss-model tests: the model's network, with a copper loss copper_scale
+// times the model's and housing_loss_W on the housing that the model lacks, in 25 C ambient.
+struct TestMachine {
   Network n;
+  double copper_scale = 1.0;
+  double housing_loss_W = 0.0;
   double tw = 25.0, th = 25.0;
   void step(double i2, double dt_s) {
     // Euler in 0.1 s steps: far below the network's time constants.
     for (int j = 0; j < static_cast<int>(std::lround(dt_s / 0.1)); ++j) {
-      const double pcu = 1.25 * 1.5 * i2 * n.rs0 * (1.0 + kAlpha * (tw - n.t0));
+      const double pcu = copper_scale * 1.5 * i2 * n.rs0 * (1.0 + kAlpha * (tw - n.t0));
       const double q = (tw - th) / n.rwh;
       tw += 0.1 * (pcu - q) / n.cw;
-      th += 0.1 * (q - (th - 25.0) / n.rha) / n.ch;
+      th += 0.1 * (housing_loss_W + q - (th - 25.0) / n.rha) / n.ch;
     }
   }
-  // 3000 s at 1500 A^2, a measurement every 20 s.
-  void learn(ThermalObserver& obs) {
+  // 3000 s at i2, a measurement every 20 s.
+  void learn(ThermalObserver& obs, double i2 = 1500.0) {
     for (int k = 1; k <= 3000; ++k) {
-      step(1500.0, 1.0);
-      obs.predict(1.0, 1500.0, 0.0, 25.0);
+      step(i2, 1.0);
+      obs.predict(1.0, i2, 0.0, 25.0);
       if (k % 20 == 0) {
         EXPECT_TRUE(obs.update_resistance(obs.resistance_at_C(tw), 0.0002));
       }
     }
   }
-  // Then 1500 s at 3000 A^2 with no measurement: the estimate's error at the end.
-  double unmeasured_error_C(ThermalObserver& obs) {
+  // Then 1500 s at i2 with no measurement: the estimate's error at the end (its size).
+  double unmeasured_error_C(ThermalObserver& obs, double i2 = 3000.0) {
     for (int k = 0; k < 1500; ++k) {
-      step(3000.0, 1.0);
-      obs.predict(1.0, 3000.0, 0.0, 25.0);
+      step(i2, 1.0);
+      obs.predict(1.0, i2, 0.0, 25.0);
     }
     return std::abs(obs.estimate().winding_C - tw);
   }
 };
+
+// The machine of the loss-scale tests: 25 % more copper loss than the model computes.
+TestMachine hotter_machine(const Network& n) { return TestMachine{n, 1.25, 0.0}; }
 
 // A winding whose copper loss is 25 % above the model's (its capacity, thermal resistance or
 // AC resistance as commissioned): measured during a spell at one load, the filter learns the
@@ -239,7 +244,7 @@ TEST(ThermalObserver, ALossScaleLearnedAtOneLoadCarriesToAnother) {
       c.loss_scale_process_std_per_sqrt_s = 0.0;
     }
     ThermalObserver obs(c, cal, 25.0);
-    HotterMachine m{network_of(c, cal)};
+    TestMachine m = hotter_machine(network_of(c, cal));
     m.learn(obs);
     return m.unmeasured_error_C(obs);
   };
@@ -253,22 +258,6 @@ TEST(ThermalObserver, ALossScaleLearnedAtOneLoadCarriesToAnother) {
   EXPECT_GT(watts_only, 10.0) << "the scenario no longer needs the loss's scale";
   EXPECT_LT(with_scale, 0.5 * watts_only);
 }
-
-// The machine of the housing-loss test: the model's network and copper loss exact, and 60 W more
-// on the housing than the model has (an iron or friction loss commissioned low, or the rotor's
-// heat coming back through the housing), in 25 C ambient.
-struct WarmerHousingMachine {
-  Network n;
-  double tw = 25.0, th = 25.0;
-  void step(double i2, double dt_s) {
-    for (int j = 0; j < static_cast<int>(std::lround(dt_s / 0.1)); ++j) {
-      const double pcu = 1.5 * i2 * n.rs0 * (1.0 + kAlpha * (tw - n.t0));
-      const double q = (tw - th) / n.rwh;
-      tw += 0.1 * (pcu - q) / n.cw;
-      th += 0.1 * (60.0 + q - (th - 25.0) / n.rha) / n.ch;
-    }
-  }
-};
 
 // A loss the model lacks on the housing's side is learned there (dP enters the housing node):
 // measured at light load, where the winding reads about the housing's temperature, it warms
@@ -291,21 +280,13 @@ TEST(ThermalObserver, AHousingLossIsLearnedOnTheHousing) {
       c.loss_error_process_std_W_per_sqrt_s = 0.0;
     }
     ThermalObserver obs(c, cal, 25.0);
-    WarmerHousingMachine m{network_of(c, cal)};
-    for (int k = 1; k <= 3000; ++k) {  // 3000 s at light load, a measurement every 20 s
-      m.step(300.0, 1.0);
-      obs.predict(1.0, 300.0, 0.0, 25.0);
-      if (k % 20 == 0) {
-        EXPECT_TRUE(obs.update_resistance(obs.resistance_at_C(m.tw), 0.0002));
-      }
-    }
+    // 60 W on the housing, measured at light load, then ten times the current's square unmeasured.
+    TestMachine m{network_of(c, cal), 1.0, 60.0};
+    m.learn(obs, 300.0);
     const ThermalEstimate learned = obs.estimate();
     const double housing_error_C = learned.housing_C - m.th;
-    for (int k = 0; k < 1500; ++k) {  // then 1500 s at ten times the current's square, unmeasured
-      m.step(3000.0, 1.0);
-      obs.predict(1.0, 3000.0, 0.0, 25.0);
-    }
-    return Result{obs.estimate().winding_C - m.tw, learned.loss_scale_error, learned.missing_loss_W, housing_error_C};
+    const double error_C = m.unmeasured_error_C(obs, 3000.0);
+    return Result{error_C, learned.loss_scale_error, learned.missing_loss_W, housing_error_C};
   };
   const Result housing = run(true);
   const Result scale_only = run(false);
@@ -327,7 +308,7 @@ TEST(ThermalObserver, TheLearnedLossModelSurvivesARestart) {
   const ThermalModelConfig c;
   const Calibration cal;
   ThermalObserver before(c, cal, 25.0);
-  HotterMachine m{network_of(c, cal)};
+  TestMachine m = hotter_machine(network_of(c, cal));
   m.learn(before);
   const ThermalState stored = before.state();
   ASSERT_TRUE(stored.has_loss_errors);
@@ -348,8 +329,8 @@ TEST(ThermalObserver, TheLearnedLossModelSurvivesARestart) {
   EXPECT_EQ(forgot.estimate().loss_scale_error, 0.0);
   EXPECT_DOUBLE_EQ(forgot.estimate().loss_scale_std, c.initial_loss_scale_std);
 
-  HotterMachine m_kept = m;
-  HotterMachine m_forgot = m;
+  TestMachine m_kept = m;
+  TestMachine m_forgot = m;
   const double error_kept = m_kept.unmeasured_error_C(kept);
   const double error_forgot = m_forgot.unmeasured_error_C(forgot);
   const double error_no_restart = m.unmeasured_error_C(before);
@@ -802,7 +783,7 @@ TEST(ThermalObserver, TheMeasurementAfterABlindSpellTeachesTheLossScale) {
     ThermalModelConfig c;
     c.model_error_fraction = fraction;
     ThermalObserver obs(c, cal, 25.0);
-    HotterMachine m{network_of(c, cal)};
+    TestMachine m = hotter_machine(network_of(c, cal));
     for (int k = 0; k < 600; ++k) {
       m.step(3000.0, 1.0);
       obs.predict(1.0, 3000.0, 0.0, 25.0);
