@@ -226,6 +226,20 @@ struct TestMachine {
   }
 };
 
+// The default filter with either loss state switched off (a prior and a random walk of 0).
+ThermalModelConfig with_loss_states(bool watts, bool scale) {
+  ThermalModelConfig c;
+  if (!watts) {
+    c.initial_loss_error_std_W = 0.0;
+    c.loss_error_process_std_W_per_sqrt_s = 0.0;
+  }
+  if (!scale) {
+    c.initial_loss_scale_std = 0.0;
+    c.loss_scale_process_std_per_sqrt_s = 0.0;
+  }
+  return c;
+}
+
 // The machine of the loss-scale tests: 25 % more copper loss than the model computes.
 TestMachine hotter_machine(const Network& n) { return TestMachine{n, 1.25, 0.0}; }
 
@@ -238,11 +252,7 @@ TestMachine hotter_machine(const Network& n) { return TestMachine{n, 1.25, 0.0};
 TEST(ThermalObserver, ALossScaleLearnedAtOneLoadCarriesToAnother) {
   const Calibration cal;
   auto run = [&](bool learn_scale) {
-    ThermalModelConfig c;
-    if (!learn_scale) {
-      c.initial_loss_scale_std = 0.0;
-      c.loss_scale_process_std_per_sqrt_s = 0.0;
-    }
+    const ThermalModelConfig c = with_loss_states(true, learn_scale);
     ThermalObserver obs(c, cal, 25.0);
     TestMachine m = hotter_machine(network_of(c, cal));
     m.learn(obs);
@@ -274,11 +284,7 @@ TEST(ThermalObserver, AHousingLossIsLearnedOnTheHousing) {
     double housing_error_C;  // at the end of the light load
   };
   auto run = [&](bool learn_watts) {
-    ThermalModelConfig c;
-    if (!learn_watts) {
-      c.initial_loss_error_std_W = 0.0;
-      c.loss_error_process_std_W_per_sqrt_s = 0.0;
-    }
+    const ThermalModelConfig c = with_loss_states(learn_watts, true);
     ThermalObserver obs(c, cal, 25.0);
     // 60 W on the housing, measured at light load, then ten times the current's square unmeasured.
     TestMachine m{network_of(c, cal), 1.0, 60.0};
