@@ -82,6 +82,10 @@ TEST(PlanCli, BudgetAtSpeedKeepsTheCurrentLimit) {
   const ProcessResult full = run_process(base + " --iq 70 --current-limit 65");
   ASSERT_EQ(full.exit_code, 0) << full.err;
   EXPECT_EQ(json_number(full.out, "max_injection_current_A").value_or(-1), 0.0);
+  EXPECT_NE(full.out.find("\"iq_beyond_current_limit\": true"), std::string::npos) << full.out;
+  EXPECT_NE(limited.out.find("\"iq_beyond_current_limit\": false"), std::string::npos) << limited.out;
+  EXPECT_NE(run_process(kExe + " budget --speed 10 --iq 70 --current-limit 65").out.find("at or beyond the current limit"),
+            std::string::npos);
   const ProcessResult none = run_process(base + " --iq 25");
   ASSERT_EQ(none.exit_code, 0) << none.err;
   EXPECT_FALSE(json_number(none.out, "max_current_injection_current_A").has_value()) << none.out;

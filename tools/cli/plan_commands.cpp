@@ -212,8 +212,12 @@ int run_budget(const BudgetOptions& o, const CLI::App& cmd) {
     if (std::isfinite(f_torque)) {
       json.field("max_torque_injection_current_A", f_torque);
     }
+    // The drive limits its motoring iq to the same limit: an --iq at or beyond it is not an
+    // operating point the drive reaches (the plan says so instead of a bare F = 0).
+    const bool iq_beyond_limit = current_limited && std::abs(o.iq_A) >= o.current_limit_A;
     if (current_limited) {
-      json.field("current_limit_A", o.current_limit_A).field("max_current_injection_current_A", f_current);
+      json.field("current_limit_A", o.current_limit_A).field("max_current_injection_current_A", f_current)
+          .field("iq_beyond_current_limit", iq_beyond_limit);
     }
     json.field("max_injection_current_A", f_bipolar);
     const std::string torque_line =
@@ -226,6 +230,11 @@ int run_budget(const BudgetOptions& o, const CLI::App& cmd) {
             ? fmt::format("  largest F for current  {:.2f} A   ({} within the limit {:g} A)\n", f_current,
                           o.turning_vector ? "a turning vector: F + |iq|" : "|(+-F, iq)|", o.current_limit_A)
             : std::string{};
+    const std::string beyond_line =
+        iq_beyond_limit ? fmt::format("  note                   |iq| {:g} A is at or beyond the current limit {:g} A: the drive "
+                                      "limits its motoring iq to it, and no injection fits\n",
+                                      std::abs(o.iq_A), o.current_limit_A)
+                        : std::string{};
     std::string within = std::isfinite(f_torque) ? ", within the torque budget" : "";
     if (current_limited) {
       within += std::isfinite(f_torque) ? " and the current limit" : ", within the current limit";
@@ -237,9 +246,10 @@ int run_budget(const BudgetOptions& o, const CLI::App& cmd) {
         "  largest +F             {:.2f} A\n"
         "  largest -F             {:.2f} A\n"
         "{}{}"
-        "  largest bipolar F      {:.2f} A   (+F and -F both fit{})\n",
+        "  largest bipolar F      {:.2f} A   (+F and -F both fit{})\n"
+        "{}",
         o.speed_rad_s, o.iq_A, o.vdc_V, in.lq_H * 1e3, o.pole_pairs, in.voltage_limit_V, o.voltage_fraction * 100.0, margin_V, motoring,
-        f_pos, f_neg, torque_line, current_line, f_bipolar, within);
+        f_pos, f_neg, torque_line, current_line, f_bipolar, within, beyond_line);
   }
   json.end_object();
   std::printf("%s\n", o.json ? json.str().c_str() : text.c_str());
