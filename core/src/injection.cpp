@@ -192,7 +192,11 @@ double max_injection_current_for_torque_A(double budget_Nm, int pole_pairs, doub
   return budget_Nm / saliency;
 }
 
-double max_injection_current_for_current_limit_A(double limit_A, double id_A, double iq_A, double polarity) {
+double max_injection_current_for_current_limit_A(double limit_A, double id_A, double iq_A, double polarity,
+                                                 bool turning_vector) {
+  if (turning_vector) {
+    return std::max(0.0, limit_A - std::hypot(id_A, iq_A));
+  }
   const double room_sq = limit_A * limit_A - iq_A * iq_A;
   const double s = polarity >= 0.0 ? 1.0 : -1.0;
   return room_sq > 0.0 ? std::max(0.0, std::sqrt(room_sq) - s * id_A) : 0.0;

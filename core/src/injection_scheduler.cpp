@@ -230,13 +230,8 @@ InjectionScheduler::Budget InjectionScheduler::budget(const SchedulerInput& in, 
 
   // Current: |i_motoring + s F e_d| <= limit for every polarity s the pair uses.
   double f_current = wanted_A;
-  auto current_room = [&](double s) {
-    if (config_.method == InjectionMethod::kFixedMagnitude) {
-      return max_injection_current_for_current_limit_A(limit, im.d, im.q, s);
-    }
-    // The injected vector turns relative to the rotor: take the worst direction.
-    return limit - std::hypot(im.d, im.q);
-  };
+  const bool turning = config_.method != InjectionMethod::kFixedMagnitude;  // the worst direction counts
+  auto current_room = [&](double s) { return max_injection_current_for_current_limit_A(limit, im.d, im.q, s, turning); };
   if (bipolar) {
     f_current = std::min({f_current, current_room(1.0), current_room(-1.0)});
   } else {

@@ -144,6 +144,10 @@ grep -q "calibration: loaded" "$work/daemon-2.log" || die "the restarted daemon 
 grep -q "thermal state restored from" "$work/daemon-2.log" || die "the restarted daemon did not restore the stored thermal state: $(grep -m2 'thermal state' "$work/daemon-2.log")"
 grep -q "the loss model's learned errors kept" "$work/daemon-2.log" ||
   die "the restarted daemon did not keep the loss model's learned errors: $(grep -m3 'thermal state' "$work/daemon-2.log")"
+# The state names where its missing loss enters the filter's network (docs/estimator.md section 7):
+# a file without it holds a dP learned on the winding, which a restart refuses.
+grep -qx 'missing_loss_node = "housing"' "$work/thermal-state.toml" ||
+  die "the stored thermal state does not name its missing loss's node: $(grep -m2 'missing_loss' "$work/thermal-state.toml")"
 echo "$prog: daemon killed: the plant waited; the restarted daemon loaded the stored calibration and thermal state ($(grep -o 'winding [0-9.]* +- [0-9.]* C [0-9]* s ago, cooled to [0-9.]* +- [0-9.]* C' "$work/daemon-2.log")), locked on, and the plant finished"
 
 # Every frame decodes with the DBC (can/pmsm-thermal.dbc describes node 0; the DBC of node

@@ -209,6 +209,10 @@ TEST(Budget, CurrentLimitLeavesTheRestOfTheCircle) {
   EXPECT_EQ(max_injection_current_for_current_limit_A(50.0, 0.0, 50.0, 1.0), 0.0);
   EXPECT_EQ(max_injection_current_for_current_limit_A(50.0, 0.0, 60.0, -1.0), 0.0);
   EXPECT_EQ(max_injection_current_for_current_limit_A(50.0, -45.0, 30.0, -1.0), 0.0);
+  // A turning vector (fixed-angle, DC) points every way in turn: limit - |(id, iq)|.
+  EXPECT_DOUBLE_EQ(max_injection_current_for_current_limit_A(50.0, 30.0, 40.0, 1.0, true), 0.0);
+  EXPECT_DOUBLE_EQ(max_injection_current_for_current_limit_A(65.0, 0.0, 25.0, -1.0, true), 40.0);
+  EXPECT_EQ(max_injection_current_for_current_limit_A(50.0, 0.0, 60.0, 1.0, true), 0.0);
 }
 
 TEST(Losses, Eqs31And32WithHandComputedNumbers) {

@@ -196,10 +196,9 @@ int run_budget(const BudgetOptions& o, const CLI::App& cmd) {
     const bool current_limited = o.current_limit_A > 0.0;
     double f_current = std::numeric_limits<double>::infinity();
     if (current_limited) {
-      f_current = o.turning_vector
-                      ? std::max(0.0, o.current_limit_A - std::abs(o.iq_A))
-                      : std::min(core::max_injection_current_for_current_limit_A(o.current_limit_A, 0.0, o.iq_A, 1.0),
-                                 core::max_injection_current_for_current_limit_A(o.current_limit_A, 0.0, o.iq_A, -1.0));
+      f_current = std::min(
+          core::max_injection_current_for_current_limit_A(o.current_limit_A, 0.0, o.iq_A, 1.0, o.turning_vector),
+          core::max_injection_current_for_current_limit_A(o.current_limit_A, 0.0, o.iq_A, -1.0, o.turning_vector));
     }
     const double f_bipolar = std::min({f_pos, f_neg, f_torque, f_current});
     json.field("speed_rad_s", o.speed_rad_s).field("iq_A", o.iq_A).field("lq_H", in.lq_H).field("pole_pairs", o.pole_pairs)

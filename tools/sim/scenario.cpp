@@ -299,10 +299,6 @@ double Profile::at(double t_s) const {
 
 namespace {
 
-toml::table parse_toml(std::string_view text, const std::filesystem::path& source) {
-  return common::parse_toml(text, source.string());
-}
-
 // A scenario may name a base scenario (scenario.base, relative to itself) and override only
 // what differs; bases may chain.
 toml::table resolve_base(toml::table root, const std::filesystem::path& source, int depth) {
@@ -317,7 +313,7 @@ toml::table resolve_base(toml::table root, const std::filesystem::path& source, 
     throw ConfigError(source.string() + ": scenario.base: bases nest too deep (a cycle?)");
   }
   const std::filesystem::path base_path = source.parent_path() / *base;
-  toml::table merged = resolve_base(parse_toml(common::read_config_file(base_path, "scenario.base"), base_path), base_path, depth + 1);
+  toml::table merged = resolve_base(common::parse_toml(common::read_config_file(base_path, "scenario.base"), base_path.string()), base_path, depth + 1);
   // Paths in the base are relative to the base, not to the file that inherits it.
   for (const char* key : {"plant.profile", "plant.load.csv_path", "operation.speed_csv", "operation.torque_csv",
                           "controller.calibration.file"}) {
@@ -357,7 +353,7 @@ toml::table resolve_base(toml::table root, const std::filesystem::path& source, 
 }  // namespace
 
 Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path& source) {
-  const toml::table root = resolve_base(parse_toml(toml_text, source), source, 0);
+  const toml::table root = resolve_base(common::parse_toml(toml_text, source.string()), source, 0);
   Scenario out;
   out.source = source;
   schema().apply(root, out.scenario, source.string(),

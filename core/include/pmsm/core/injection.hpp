@@ -133,12 +133,13 @@ struct InjectionHeadroomInput {
 [[nodiscard]] double max_injection_current_for_torque_A(double budget_Nm, int pole_pairs, double ld_H, double lq_H,
                                                         double iq_A);
 
-// The largest fixed-magnitude d-axis injection F of one polarity (+1 or -1) whose sum with the
-// motoring current (id, iq) stays within the current limit (peak A): |(id + polarity F, iq)| <=
-// limit, i.e. sqrt(limit^2 - iq^2) - polarity id; 0 where the motoring current alone reaches the
-// limit (never negative).
+// The largest injection F of one polarity (+1 or -1) whose sum with the motoring current
+// (id, iq) stays within the current limit (peak A). A fixed-magnitude d-axis pulse:
+// |(id + polarity F, iq)| <= limit, i.e. sqrt(limit^2 - iq^2) - polarity id. A vector turning
+// relative to the rotor (fixed-angle, DC: turning_vector) points every way in turn: F <= limit -
+// |(id, iq)|. 0 where the motoring current alone reaches the limit (never negative).
 [[nodiscard]] double max_injection_current_for_current_limit_A(double limit_A, double id_A, double iq_A,
-                                                               double polarity);
+                                                               double polarity, bool turning_vector = false);
 
 // The range of F >= 0 for one polarity inside which the same worst case stays within the
 // limit. At the voltage limit (|v0| at or beyond it) a polarity that weakens the field
