@@ -156,6 +156,7 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
   // The controller sees a sample only when the supervisor found it plausible, and runs the
   // current loop only when the supervisor lets the power stage switch.
   drive_in.valid = drive_in.valid && status.sample_usable;
+  drive_in.periods = si.periods;  // a lost sample's timeout stands for that many periods
   core::DriveCommand cmd;
   cmd.mode = status.power_stage_enabled ? in.mode : core::DriveMode::kDisabled;
   cmd.speed_ref_rad_s = in.speed_ref_rad_s;

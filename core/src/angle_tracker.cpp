@@ -19,6 +19,7 @@ double AngleTracker::electrical_base_rad() const {
 
 void AngleTracker::reset() {
   initialised_ = false;
+  speed_known_ = false;
   speed_m_rad_s_ = 0.0;
   integrator_m_rad_s_ = 0.0;
   unwrapped_e_rad_ = 0.0;
@@ -62,6 +63,16 @@ void AngleTracker::update(std::uint32_t encoder_count) {
   // The loop's velocity is its integrator plus the proportional path; the integrator alone
   // lags a speed ramp by 2 a / wn.
   const double dt = config_.period_s;
+  if (!speed_known_) {
+    // The second sample: the encoder's advance over the period is the speed (to a count a
+    // period, 0.38 rad/s at 14 bits and 10 kHz), and the loop starts locked on it.
+    speed_known_ = true;
+    smooth_m_rad_ = pll_measured_unwrapped_rad_;
+    integrator_m_rad_s_ = step_m / dt;
+    speed_m_rad_s_ = integrator_m_rad_s_;
+    pll_theta_rad_ = pll_measured_unwrapped_rad_ + speed_m_rad_s_ * dt;
+    return;
+  }
   const double error = pll_measured_unwrapped_rad_ - pll_theta_rad_;
   smooth_m_rad_ = pll_theta_rad_;
   integrator_m_rad_s_ += ki_ * error * dt;

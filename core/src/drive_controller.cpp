@@ -719,9 +719,10 @@ void DriveController::update_thermal(double ambient_C, bool speed_mode) {
     // rest), with a wide uncertainty; the first measurement decides.
     start_thermal_from_guess(ambient_C);
   }
-  const double dt = thermal_count_ * config_.period_s;
-  const double i_sq = i_sq_sum_ / thermal_count_;
-  const double speed = speed_sum_ / thermal_count_;
+  const auto count = static_cast<double>(thermal_count_);
+  const double dt = count * config_.period_s;
+  const double i_sq = i_sq_sum_ / count;
+  const double speed = speed_sum_ / count;
   observer_.predict(dt, i_sq, speed, ambient_C, thermal_enabled_count_ == 0);
   // The time-to-limit's load: a first-order average over about one injection interval (1 to
   // 10 s of drive time: a load step shows within seconds). With the last 10 ms alone the
@@ -805,15 +806,35 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   }
   calibration_failed_now_ = false;
   const double now = static_cast<double>(period_) * config_.period_s;
-  ++period_;
+  const std::uint32_t periods = std::max<std::uint32_t>(in.periods, 1U);
+  period_ += periods;
 
   const bool usable = controllable(in);
-  const bool enabled = command.mode != DriveMode::kDisabled && usable;
   if (!usable) {
     // No fresh sample: the safe output for this period, and the pair in progress is lost.
     output_ = {};
     was_enabled_ = false;
     have_previous_ = false;
+    // The shaft may turn on meanwhile (a coasting load): the angle and speed of before are no
+    // longer the rotor's. The tracker starts afresh from the next usable sample and takes its
+    // speed from the one after it; until then the bridge stays off (angle_lost_). With the old
+    // state, a shaft that turned during a 20 ms outage looked like a jump of up to half a turn,
+    // and the PLL read it as thousands of rad/s. (The power-up's samples, unusable until the
+    // sensors' offsets are known, find the tracker not yet started.)
+    angle_lost_ = angle_lost_ || angle_.initialised();
+    angle_.reset();
+    // Nothing drives the winding now, but it keeps cooling, and a latched OVERTEMPERATURE must
+    // see it cool to clear: the thermal model runs on at rest (no current, no speed), at the
+    // real time the step stands for. Not before the drive has run: the power-up's first samples
+    // are not an outage, and before the model ever ran there is nothing to carry on.
+    if (angle_lost_ && telemetry_.thermal_valid) {
+      thermal_count_ += periods;
+      thermal_elapsed_s_ += static_cast<double>(periods) * config_.period_s;
+      if (thermal_elapsed_s_ >= config_.thermal_update_s) {
+        thermal_elapsed_s_ = 0.0;
+        update_thermal(command.ambient_C, command.mode == DriveMode::kSpeed);
+      }
+    }
     if (sweep_.active()) {
       sweep_.abort();
       finish_inverter_sweep(now);
@@ -840,6 +861,10 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   }
 
   angle_.update(in.encoder_count);
+  // After an outage the bridge switches only once the tracker knows the rotor's speed again
+  // (from the second usable sample).
+  angle_lost_ = angle_lost_ && !angle_.speed_known();
+  const bool enabled = command.mode != DriveMode::kDisabled && !angle_lost_;
   const double theta = angle_.electrical_angle_rad();
   const double omega_e = angle_.electrical_speed_rad_s();
   const double theta_smooth = angle_.smooth_unwrapped_electrical_angle_rad();
@@ -1072,7 +1097,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   // Thermal model at its own rate.
   i_sq_sum_ += i.d * i.d + i.q * i.q;
   speed_sum_ += angle_.mechanical_speed_rad_s();
-  ++thermal_count_;
+  thermal_count_ += periods;
   thermal_enabled_count_ += enabled ? 1 : 0;
   thermal_elapsed_s_ += config_.period_s;
   if (thermal_elapsed_s_ >= config_.thermal_update_s) {

@@ -477,6 +477,11 @@ TEST(DriveControllerSafety, ImplausibleInputGivesTheSafeOutput) {
   in.vdc_V = 650.0;
   in.i_A.b = kNan;
   EXPECT_FALSE(drive.step(in, cmd).enable);
+  // Usable again: the first sample locates the rotor afresh (the shaft may have turned on), the
+  // bridge switches from the second, once the tracker has the speed too.
+  in.i_A.b = -0.5;
+  EXPECT_FALSE(drive.step(in, cmd).enable);
+  EXPECT_TRUE(drive.step(in, cmd).enable);
 }
 
 }  // namespace

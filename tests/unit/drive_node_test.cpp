@@ -366,6 +366,49 @@ TEST(DriveNode, NoThermalEstimateBeforeTheModelRan) {
   EXPECT_FALSE(first.publications.thermal->valid) << "no estimate yet is not 0 degC";
 }
 
+// A latched OVERTEMPERATURE switches the gates off, and the winding cools; the fault may be
+// cleared once the estimate is below the trip less the hysteresis. While a fault is latched no
+// sample is usable, so the thermal model must run on at rest, or the estimate would stay at the
+// trip for ever (the drive off until a restart) and the stored thermal state would keep a
+// temperature long gone. The model alone here (no injection), 2000 times faster than real time,
+// 40 Nm to heat it.
+TEST(DriveNode, ALatchedOvertemperatureCoolsOnAndClears) {
+  Rig rig;
+  // A fan (40 Nm at the 50 rad/s set-point) brakes the shaft while the gates are off; an active
+  // load would spin it away to OVERSPEED.
+  rig.plant_config.load.profile = plant::LoadProfile::fan;
+  rig.plant_config.load.torque_Nm = 0.0;
+  rig.plant_config.load.fan_k_Nm_s2 = 40.0 / (50.0 * 50.0);
+  rig.plant = std::make_unique<plant::Plant>(rig.plant_config);
+  rig.config.drive.estimator = core::EstimatorKind::kNone;
+  rig.config.drive.thermal.time_scale = 2000.0;
+  rig.supervisor.trip_temp_C = 45.0;
+  rig.supervisor.trip_hysteresis_C = 10.0;
+  rig.node = std::make_unique<DriveNode>(rig.config, rig.supervisor, PublishRates{});
+  const auto winding_C = [&] { return rig.node->controller().telemetry().thermal.winding_C; };
+  const auto tripped = [&] { return rig.node->supervisor().latched(core::FaultCode::kOvertemperature); };
+  int k = 0;
+  for (; k < 200000 && !tripped(); ++k) {
+    rig.run(1);
+  }
+  ASSERT_TRUE(tripped()) << "the winding estimate reached only " << winding_C() << " C";
+  EXPECT_FALSE(rig.run(1).command->enable);
+  const double at_trip_C = winding_C();
+  // A stop command asks for the clear every period; it holds while the cause lasts.
+  rig.in.mode = core::DriveMode::kDisabled;
+  rig.in.clear_faults = true;
+  rig.run(1000);  // 0.1 s: 200 s of thermal time
+  EXPECT_LT(winding_C(), at_trip_C - 0.5) << "the estimate froze while the fault was latched";
+  for (k = 0; k < 200000 && tripped(); ++k) {
+    rig.run(1);
+  }
+  EXPECT_FALSE(tripped()) << "still latched at " << winding_C() << " C";
+  EXPECT_LT(winding_C(), 35.0);
+  rig.in.clear_faults = false;
+  rig.in.mode = core::DriveMode::kSpeed;
+  EXPECT_TRUE(rig.run(10).command->enable) << "runs again";
+}
+
 TEST(DriveNode, CalibrationUsesTheOperatorsTemperatureOrTheAmbientSensor) {
   Rig rig;
   rig.in.mode = core::DriveMode::kSpeed;

@@ -59,6 +59,10 @@ class AngleTracker {
   [[nodiscard]] double mechanical_speed_rad_s() const { return speed_m_rad_s_; }
   [[nodiscard]] double electrical_speed_rad_s() const { return speed_m_rad_s_ * config_.pole_pairs; }
   [[nodiscard]] bool initialised() const { return initialised_; }
+  // Whether the speed is the rotor's: from the second sample after a start or a reset(), when
+  // the loop takes the encoder's advance over that period as its speed (rather than
+  // acquiring it from zero, which at speed reads thousands of rad/s off for milliseconds).
+  [[nodiscard]] bool speed_known() const { return speed_known_; }
 
   void reset();
 
@@ -76,6 +80,7 @@ class AngleTracker {
   double ki_;
   double electrical_base_rad_;
   bool initialised_ = false;
+  bool speed_known_ = false;
   double theta_m_rad_ = 0.0;
   double theta_e_rad_ = 0.0;
   double previous_theta_m_rad_ = 0.0;

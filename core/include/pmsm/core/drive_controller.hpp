@@ -123,6 +123,10 @@ struct DriveInput {
   std::uint32_t encoder_count = 0;
   double vdc_V = 0.0;
   bool valid = true;                // false: no fresh sample this period
+  // Control periods this step stands for: 1 with a sample; without one (a lost sample's
+  // timeout) the periods that timeout took, so that the drive's clocks (the thermal model, the
+  // calibration's timeout, the magnets' age) keep real time through an outage.
+  std::uint32_t periods = 1;
 };
 
 // Whether a sample can be controlled on at all: finite currents and a finite, positive DC
@@ -448,6 +452,9 @@ class DriveController {
   double band_before_calibration_A_ = 0.0;
 
   std::uint64_t period_ = 0;
+  // The rotor's angle was lost (an unusable sample after the tracker had started): the bridge
+  // stays off until the tracker has the speed again.
+  bool angle_lost_ = false;
   bool was_enabled_ = false;
   int speed_divider_ = 0;
   double torque_demand_Nm_ = 0.0;
@@ -466,11 +473,11 @@ class DriveController {
   // Thermal accumulation.
   double i_sq_sum_ = 0.0;
   double speed_sum_ = 0.0;
-  int thermal_count_ = 0;
+  std::int64_t thermal_count_ = 0;
   int thermal_enabled_count_ = 0;  // of those periods, the ones the drive was enabled in
   double thermal_elapsed_s_ = 0.0;
   double last_baseline_publish_s_ = 0.0;
-  int thermal_updates_ = 0;
+  std::uint32_t thermal_updates_ = 0;  // wraps after 1.4 years at 100 Hz: only its residue mod 10 is used
   // The present load for the time-to-limit: i^2 and speed averaged over about one injection
   // interval (1 to 10 s of drive time), so that the prediction follows the load and the
   // injection's mean heating, not whether the last 10 ms held a pulse. Negative: none yet.
