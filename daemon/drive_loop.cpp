@@ -94,6 +94,9 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns) 
     after_ns_ = hal::monotonic_ns();
     record_timing(after_ns_ - received_ns);
   } else {
+    // No sample to answer: the drive's last answer no longer holds (a repeat of that sample
+    // gets "off", on_frame()).
+    last_command_.enable = false;
     gates_enabled_.store(false, std::memory_order_relaxed);
   }
   counters_.periods.bump();
@@ -188,14 +191,18 @@ protocol::LoopTiming DriveLoop::close_timing_window() noexcept {
 void DriveLoop::on_frame(const hal::CanFrame& frame, std::int64_t now_ns) noexcept {
   const protocol::DaemonInput input = receiver_.receive(frame, nanoseconds{now_ns});
   if (const auto* sample = std::get_if<hal::SensorSample>(&input)) {
-    counters_.samples.bump();
     if (last_sequence_ && sample->sequence == *last_sequence_) {
-      // The plant did not hear our answer and sent the sample again: the same answer.
+      // The plant did not hear our answer and sent the sample again: the same answer. It is no
+      // fresh sample: it neither steps the drive nor moves the sample deadline, so a power
+      // stage that repeats one sample (a frozen counter, a replaying gateway) runs into the
+      // sensor timeout like a silent one; and once a period went missing since, the answer
+      // given then is stale and the repeat is answered "off" (step()).
       counters_.resent_samples.bump();
       (void)protocol::encode(last_command_, node_id_, frame_);
       send(frame_);
       return;
     }
+    counters_.samples.bump();
     last_sequence_ = sample->sequence;
     step(sample, now_ns);
   } else if (const auto* drive = std::get_if<protocol::DriveCommand>(&input)) {
@@ -312,6 +319,30 @@ void DriveLoop::run(const std::atomic<bool>& stop) {
       deadline = now + sample_timeout_ns_;
     }
   }
+  switch_off();
+}
+
+void DriveLoop::switch_off() noexcept {
+  // The drive's last word to the power stage is "off": the answer to the next sample if one
+  // comes within a sample timeout (a power stage in lockstep waits for it), else the last
+  // answer repeated with the gates off. Without it a stopped daemon left the stage with its last
+  // command, gates on, until the stage's own timeout.
+  gates_enabled_.store(false, std::memory_order_relaxed);
+  last_command_.enable = false;
+  const std::int64_t until = hal::monotonic_ns() + sample_timeout_ns_;
+  for (std::int64_t now = hal::monotonic_ns(); now < until; now = hal::monotonic_ns()) {
+    if (bus_.receive(received_, nanoseconds{until - now}) != hal::ReceiveStatus::kFrame) {
+      break;
+    }
+    const protocol::DaemonInput input = receiver_.receive(received_.frame, nanoseconds{now});
+    if (const auto* sample = std::get_if<hal::SensorSample>(&input)) {
+      last_command_.sequence = sample->sequence;
+      break;
+    }
+  }
+  (void)protocol::encode(last_command_, node_id_, frame_);
+  send(frame_);
+  counters_.commands_sent.bump();
 }
 
 LoopStats DriveLoop::stats() const noexcept {

@@ -98,7 +98,8 @@ class DriveLoop {
   DriveLoop(const DriveLoop&) = delete;
   DriveLoop& operator=(const DriveLoop&) = delete;
 
-  // Runs until `stop` becomes true (seen within one sample timeout). Call once.
+  // Runs until `stop` becomes true (seen within one sample timeout), then tells the power stage
+  // "off" (switch_off). Call once.
   void run(const std::atomic<bool>& stop);
 
   // Any thread.
@@ -122,6 +123,7 @@ class DriveLoop {
   void step(const hal::SensorSample* sample, std::int64_t received_ns) noexcept;
   void send(const hal::CanFrame& frame) noexcept;
   void recover_interface(const std::atomic<bool>& stop) noexcept;
+  void switch_off() noexcept;
   [[nodiscard]] std::int64_t sample_timeout_ns() const noexcept { return sample_timeout_ns_; }
   void record_timing(std::int64_t took_ns) noexcept;
   [[nodiscard]] hal::protocol::LoopTiming close_timing_window() noexcept;

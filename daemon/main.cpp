@@ -9,7 +9,7 @@
 // systemd (a no-op outside systemd). The main thread then feeds the watchdog while the RT
 // loop's heartbeat advances, mirrors the gate enable to GPIO and watches the fault input.
 //
-// Exit status: 0 after a clean stop (SIGINT, SIGTERM); 1 when the bus or GPIO cannot be
+// Exit status: 0 after a clean stop (SIGINT, SIGTERM, SIGHUP); 1 when the bus or GPIO cannot be
 // opened; 2 for a bad configuration or calibration file (the unit does not restart on it:
 // RestartPreventExitStatus=2). --check: 0 valid, 1 not.
 #include <systemd/sd-daemon.h>
@@ -365,14 +365,23 @@ int run(const Options& o) {
   auto next_watchdog = std::chrono::steady_clock::now();
   std::uint64_t last_heartbeat = loop.heartbeat();
   bool gate_state = false;
+  bool gate_write_failed = false;
   while (!stop.load(std::memory_order_relaxed)) {
     std::this_thread::sleep_for(1ms);
-    // The gate-enable line follows what the loop commands the power stage.
+    // The gate-enable line follows what the loop commands the power stage. A write that fails
+    // is tried again every millisecond (logged once until it succeeds): the line's state is
+    // what was written, not what was wanted.
     const bool gates = loop.gates_enabled();
     if (gates != gate_state) {
-      gate_state = gates;
-      if (!gate->set_active(gates)) {
-        spdlog::error("GPIO: cannot set the gate enable {}", gates ? "on" : "off");
+      if (gate->set_active(gates)) {
+        gate_state = gates;
+        if (gate_write_failed) {
+          spdlog::info("GPIO: the gate enable is set {} again", gates ? "on" : "off");
+        }
+        gate_write_failed = false;
+      } else if (!gate_write_failed) {
+        gate_write_failed = true;
+        spdlog::error("GPIO: cannot set the gate enable {} (tried again every millisecond)", gates ? "on" : "off");
       }
     }
     if (watchdog && std::chrono::steady_clock::now() >= next_watchdog) {
@@ -385,9 +394,13 @@ int run(const Options& o) {
     }
   }
   sd_notify(0, "STOPPING=1");
+  // The gates first: the threads take up to a sample timeout (the loop's last "off" to the
+  // power stage) or a reopen slice to end.
+  if (!gate->set_active(false)) {
+    spdlog::error("GPIO: cannot set the gate enable off at the stop");
+  }
   fault_thread.join();
   rt_thread.join();
-  (void)gate->set_active(false);
   drain.stop();
   if (loop.node().controller().telemetry().thermal_valid) {
     publisher.store_thermal_state(loop.node().controller().thermal_state(), loop.node().ambient_C());

@@ -6,7 +6,7 @@
 //              [--truth-period-ms 100] [--command-timeout-ms 5] [--duration-s S] [--check]
 //              [--accelerated-calibration]
 //
-// Exit status: 0 after a clean stop (duration reached, SIGINT or SIGTERM) or a passing
+// Exit status: 0 after a clean stop (duration reached, SIGINT, SIGTERM or SIGHUP) or a passing
 // --check; 1 when the bus cannot be opened (no CAN in the kernel, no such interface, no CAN
 // FD); 2 for a bad configuration (also a model that diverged while running: its state stopped
 // being a number); CLI11's codes for a bad command line.

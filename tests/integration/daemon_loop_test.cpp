@@ -115,6 +115,12 @@ class Axis {
       plant_thread_.join();
     }
   }
+  void stop_daemon() {
+    daemon_stop_ = true;
+    if (daemon_thread_.joinable()) {
+      daemon_thread_.join();
+    }
+  }
   void stop() {
     stop_plant();
     daemon_stop_ = true;
@@ -387,6 +393,95 @@ TEST(DaemonLoop, PlantOutageSafeStateThenRecovery) {
   supervise(bench, {2}, 50.0, 30s, seen, [&] { return has_state(seen, 2, protocol::DriveState::kRunning, back); });
   EXPECT_TRUE(has_fault(seen, 2, protocol::FaultCode::kSensorTimeout, false, back)) << "the fault clears itself";
   EXPECT_TRUE(has_state(seen, 2, protocol::DriveState::kRunning, back)) << "recovered without a restart";
+}
+
+// A power stage that repeats one sample (a frozen sequence counter, a replaying gateway) is as
+// good as a silent one: the repeats are answered but are no fresh samples, so the drive runs
+// into its sensor timeout, and once a period went missing the repeats are answered "off".
+// (Before, each repeat moved the sample deadline: the drive stayed enabled, its supervisor never
+// ran again, and the stage kept the last duty cycle with its gates on.)
+TEST(DaemonLoop, ARepeatedSampleIsNoFreshSample) {
+  Bench bench;
+  Axis axis(bench.bus, 4, 1e6);
+  axis.use_passive_load();
+  axis.start_daemon();
+  axis.start_plant();
+  std::vector<protocol::AnyDecoded> seen;
+  supervise(bench, {4}, 50.0, 30s, seen, [&] { return has_state(seen, 4, protocol::DriveState::kRunning); });
+  ASSERT_TRUE(has_state(seen, 4, protocol::DriveState::kRunning));
+  axis.stop_plant();
+  for (const protocol::AnyDecoded& d : bench.drain()) {
+    seen.push_back(d);
+  }
+  std::optional<hal::SensorSample> last;
+  for (const protocol::AnyDecoded& d : seen) {
+    if (const auto* sample = as<hal::SensorSample>(d); sample != nullptr && d.node == 4) {
+      last = *sample;
+    }
+  }
+  ASSERT_TRUE(last.has_value());
+  hal::CanFrame frame{};
+  ASSERT_EQ(protocol::encode(*last, 4, frame), protocol::EncodeStatus::kOk);
+  std::unique_ptr<hal::CanBus> replay = bench.bus.connect({.fd = true, .queue_capacity = 16});
+  ASSERT_TRUE(replay->set_filters({}).ok());
+  const std::size_t frozen = seen.size();
+  const std::uint64_t resent_before = axis.loop().stats().resent_samples;
+  // The same sample every 2 ms for a second, while the supervisor keeps commanding the drive on.
+  std::atomic<bool> replaying{true};
+  std::thread replayer([&] {
+    const auto until = std::chrono::steady_clock::now() + 1s;
+    while (std::chrono::steady_clock::now() < until) {
+      (void)replay->send(frame, 10ms);
+      std::this_thread::sleep_for(2ms);
+    }
+    replaying = false;
+  });
+  supervise(bench, {4}, 50.0, 10s, seen, [&] { return !replaying.load(); });
+  replayer.join();
+  EXPECT_TRUE(has_fault(seen, 4, protocol::FaultCode::kSensorTimeout, true, frozen));
+  EXPECT_TRUE(has_state(seen, 4, protocol::DriveState::kFault, frozen));
+  // The answers to the repeats: "off" from the sensor timeout on (5 timeouts of 20 ms); the
+  // second half of the replay holds none with the gates on.
+  std::size_t commands = 0, enabled_late = 0;
+  for (std::size_t k = frozen; k < seen.size(); ++k) {
+    if (const auto* c = as<hal::InverterCommand>(seen[k]); c != nullptr && seen[k].node == 4) {
+      ++commands;
+      if (commands > 250 && c->enable) {
+        ++enabled_late;
+      }
+    }
+  }
+  EXPECT_GT(commands, 300U) << "each repeat is answered";
+  EXPECT_EQ(enabled_late, 0U);
+  EXPECT_GT(axis.loop().stats().resent_samples - resent_before, 300U);
+}
+
+// A stopped daemon's last word to the power stage is "off": the plant, still running in lockstep,
+// gets its next sample answered with the gates off (before, it kept the last command, gates on,
+// until its own timeout).
+TEST(DaemonLoop, AStoppedDaemonLeavesThePowerStageOff) {
+  Bench bench;
+  Axis axis(bench.bus, 8, 1e6);
+  axis.use_passive_load();
+  axis.start_daemon();
+  axis.start_plant();
+  std::vector<protocol::AnyDecoded> seen;
+  supervise(bench, {8}, 50.0, 30s, seen, [&] { return has_state(seen, 8, protocol::DriveState::kRunning); });
+  ASSERT_TRUE(has_state(seen, 8, protocol::DriveState::kRunning));
+  bench.run_speed(8, 50.0);
+  axis.stop_daemon();
+  std::this_thread::sleep_for(100ms);  // the plant resends its unanswered sample every 20 ms
+  for (const protocol::AnyDecoded& d : bench.drain()) {
+    seen.push_back(d);
+  }
+  const hal::InverterCommand* last = nullptr;
+  for (const protocol::AnyDecoded& d : seen) {
+    if (const auto* c = as<hal::InverterCommand>(d); c != nullptr && d.node == 8) {
+      last = c;
+    }
+  }
+  ASSERT_NE(last, nullptr);
+  EXPECT_FALSE(last->enable);
 }
 
 TEST(DaemonLoop, CommandTimeoutSafeStateAndAStopCommandClearsIt) {

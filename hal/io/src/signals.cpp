@@ -38,9 +38,12 @@ Status install_stop_signals() {
   action.sa_handler = on_stop_signal;
   sigemptyset(&action.sa_mask);
   action.sa_flags = 0;  // no SA_RESTART: a blocked wait returns early (it re-checks anyway)
-  if (::sigaction(SIGINT, &action, nullptr) != 0 || ::sigaction(SIGTERM, &action, nullptr) != 0) {
+  // SIGHUP too: by default it kills the process at once (a daemon started from a terminal that
+  // closes), without the clean stop's last word to the power stage and its stored state.
+  if (::sigaction(SIGINT, &action, nullptr) != 0 || ::sigaction(SIGTERM, &action, nullptr) != 0 ||
+      ::sigaction(SIGHUP, &action, nullptr) != 0) {
     const int e = errno;
-    return Status::error(e, "cannot install the SIGINT/SIGTERM handlers: " + errno_text(e));
+    return Status::error(e, "cannot install the SIGINT/SIGTERM/SIGHUP handlers: " + errno_text(e));
   }
   g_installed = true;
   return {};

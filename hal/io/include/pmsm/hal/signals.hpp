@@ -1,9 +1,9 @@
-// SIGINT / SIGTERM as a stop request that both a flag and a descriptor wait can see.
+// SIGINT / SIGTERM / SIGHUP as a stop request that both a flag and a descriptor wait can see.
 //
 // install_stop_signals() installs an async-signal-safe handler (no SA_RESTART, so a blocked
 // wait returns early with EINTR) that sets a lock-free flag and writes one byte to a
 // self-pipe; a loop waiting with DescriptorWait adds stop_signal_fd() and wakes at once.
-// A second SIGINT/SIGTERM while the first is being handled changes nothing: stopping is
+// A second signal while the first is being handled changes nothing: stopping is
 // idempotent.
 #pragma once
 
