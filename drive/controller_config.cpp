@@ -3,6 +3,7 @@
 #include "calibration_file.hpp"
 #include "config_schema.hpp"
 #include "pmsm/core/machine_equations.hpp"
+#include "pmsm/core/thermal_observer.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -125,7 +126,7 @@ ConfigSchema<C> build() {
   inj.optional_real("injection.F_A", [](C& c) -> std::optional<double>& { return c.relative.injection_f_A; }, positive(1000), "A",
                     "0.776 I_rated", "Injection magnitude F (phase peak) at level 1 (Table I: 35 A).");
   inj.optional_real("injection.F_min_A", [](C& c) -> std::optional<double>& { return c.relative.injection_f_min_A; },
-                    at_least(0, 1000), "A", "0.111 I_rated",
+                    positive(1000), "A", "0.111 I_rated",
                     "Below this, after the current and voltage budget, a pair is skipped (Table I: 5 A).");
   inj.list("injection.levels", 1, core::InjectionConfig::kMaxLevels, between(0.05, 1.0),
            [](const C& c) {
@@ -268,7 +269,8 @@ ConfigSchema<C> build() {
   s.real("thermal.iron_loss_k2_W_s2_rad2", [](C& c) -> double& { return c.drive.thermal.iron_loss_k2_W_s2_rad2; }, at_least(0), "W s^2/rad^2",
          "Iron loss per (mechanical rad/s)^2.");
   s.real("thermal.acceleration", [](C& c) -> double& { return c.drive.thermal.time_scale; }, positive(1e6), "",
-         "Thermal time runs this many times faster than controller time (1 on a real machine; the plant's acceleration in tests).");
+         "Thermal time runs this many times faster than controller time (1 on a real machine; the plant's acceleration in "
+         "tests). Times thermal.update_s, at most half the thermal model's fastest time constant (the filter's step).");
   s.boolean("thermal.calibration_real_time", [](C& c) -> bool& { return c.calibration_real_time; },
             "With an acceleration other than 1 (a test), run a calibration at real thermal time, as on a machine (pmsm-plant follows THERMAL_ESTIMATE.Calibrating).");
   s.real("thermal.update_s", [](C& c) -> double& { return c.drive.thermal_update_s; }, positive(10), "s", "Thermal filter period.");
@@ -470,7 +472,8 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
   };
   auto lead = [&](std::string_view a, std::string_view b) { return given(a) || !given(b) ? a : b; };
   auto ref = [&](std::string_view key, double v, std::string_view unit, std::string_view lead_key) {
-    std::string out = std::string(key_prefix) + std::string(key) + " (" + common::format_number(v) + " " + std::string(unit);
+    std::string out = std::string(key_prefix) + std::string(key) + " (" + common::format_number(v) +
+                      (unit.empty() ? std::string() : " " + std::string(unit));
     if (key != lead_key) {
       const std::string where = location(key);
       out += given(key) ? ", " + where.substr(0, where.size() - 2) : std::string(", its default");
@@ -665,6 +668,21 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
   if (d.derating.min_current_A > d.derating.max_current_A) {
     ordered("derating.min_current_A", d.derating.min_current_A, "derating.max_current_A", d.derating.max_current_A, "A",
             "must not exceed");
+  }
+  // The thermal filter's prediction is a second-order step per update: accurate while an
+  // update's thermal time is a fraction of the model's fastest time constant, divergent beyond
+  // twice it (an estimate of -1e96 C that reads as cold and derates nothing).
+  if (const double tau_s = core::thermal_model_fastest_time_constant_s(d.thermal),
+      step_s = d.thermal_update_s * d.thermal.time_scale;
+      !(step_s <= core::kMaxThermalStepPerTimeConstant * tau_s)) {
+    const std::string_view l = lead("thermal.update_s", "thermal.acceleration");
+    rule("thermal.update_s", "thermal.acceleration",
+         ref("thermal.update_s", d.thermal_update_s, "s", l) + " times " +
+             ref("thermal.acceleration", d.thermal.time_scale, "", l) + " is " + common::format_number(step_s) +
+             " s of thermal time per update, more than " + common::format_number(core::kMaxThermalStepPerTimeConstant) +
+             " of the thermal model's fastest time constant, " + common::format_number(tau_s) +
+             " s (thermal.winding_capacity_J_K with its resistances): the filter's prediction would be wrong, and "
+             "beyond twice it diverge; shorten thermal.update_s or lower the acceleration");
   }
   // The current loop cancels the machine's pole (Kp = wc L, Ki = wc Rs) and its command takes
   // effect 1.5 periods later (a period of computation, half a period of PWM averaging): a lag

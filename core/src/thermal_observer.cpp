@@ -432,6 +432,19 @@ bool ThermalObserver::time_to_limit_s(double limit_C, double copper_current_sq_A
   return true;
 }
 
+double thermal_model_fastest_time_constant_s(const ThermalModelConfig& c) {
+  // The larger eigenvalue in magnitude of the network's 2x2 matrix (system_matrix's upper left
+  // block), real and negative: (|trace| + sqrt(trace^2 - 4 det)) / 2.
+  const double gwh = 1.0 / c.winding_to_housing_K_W;
+  const double gha = 1.0 / c.housing_to_ambient_K_W;
+  const double a00 = gwh / c.winding_capacity_J_K;
+  const double a11 = (gwh + gha) / c.housing_capacity_J_K;
+  const double det = a00 * (gha / c.housing_capacity_J_K);
+  const double trace = a00 + a11;
+  const double fastest = 0.5 * (trace + std::sqrt(std::max(trace * trace - 4.0 * det, 0.0)));
+  return 1.0 / fastest;
+}
+
 namespace {
 // Linear from max_current_A at start_C to min_current_A at limit_C and beyond.
 DeratingResult derate_linear(const DeratingConfig& config, double temp_C, double start_C, double limit_C) {

@@ -189,6 +189,8 @@ TEST(ControllerConfig, ErrorsNameFileLineAndKey) {
   EXPECT_EQ(error_of("[injection]\nfit_dead_time = \"yes\"\n"),
             "drive.toml:2: injection.fit_dead_time: expected true or false, got a string");
   EXPECT_EQ(error_of("[thermal]\ngate_sigma = 0\n"), "drive.toml:2: thermal.gate_sigma: must be in (0, 1000], got 0");
+  // A pair whose budget leaves no current would run without injection: F_min_A is no zero.
+  EXPECT_EQ(error_of("[injection]\nF_min_A = 0\n"), "drive.toml:2: injection.F_min_A: must be in (0, 1000], got 0");
   EXPECT_EQ(error_of("[motr]\nrs_ohm = 0.1\n"), "drive.toml:1: motr: unknown key");
 }
 
@@ -213,6 +215,14 @@ TEST(ControllerConfig, CrossKeyRulesNameBothKeys) {
   EXPECT_EQ(error_of("[derating]\nmagnet_start_C = 150\n"),
             "drive.toml:2: derating.magnet_start_C (150 C) must be below derating.magnet_limit_C (150 C, its default)");
   EXPECT_NE(error_of("[derating]\nmagnet_start_C = 90\nmagnet_limit_C = 90\n"), "");
+  // The thermal filter's step against its model's fastest time constant (132 s with the
+  // defaults): 40000 x 10 ms is 400 s a step, where the prediction diverged to -1e96 C.
+  EXPECT_EQ(error_of("[thermal]\nacceleration = 40000\n"),
+            "drive.toml:2: thermal.update_s (0.01 s, its default) times thermal.acceleration (40000) is 400 s of thermal "
+            "time per update, more than 0.5 of the thermal model's fastest time constant, 132.159 s "
+            "(thermal.winding_capacity_J_K with its resistances): the filter's prediction would be wrong, and beyond "
+            "twice it diverge; shorten thermal.update_s or lower the acceleration");
+  EXPECT_EQ(error_of("[thermal]\nacceleration = 6000\n"), "") << "60 s a step";
 }
 
 // motor.rs_ohm outside the resistance plausibility window: no estimate near the reference

@@ -15,6 +15,7 @@
 #include <toml++/toml.h>
 
 #include "config_schema.hpp"
+#include "pmsm/core/thermal_observer.hpp"
 
 namespace pmsm::app {
 namespace {
@@ -459,6 +460,21 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
   // controller section sets its own.
   if (root.at_path("scenario.thermal_acceleration") && !root.at_path("controller.thermal.acceleration")) {
     out.controller.drive.thermal.time_scale = out.scenario.thermal_acceleration;
+    // The controller's check of thermal.update_s against its model's time constant saw its own
+    // acceleration (1): the scenario's is judged here.
+    const double tau_s = core::thermal_model_fastest_time_constant_s(out.controller.drive.thermal);
+    const double step_s = out.controller.drive.thermal_update_s * out.scenario.thermal_acceleration;
+    if (!(step_s <= core::kMaxThermalStepPerTimeConstant * tau_s)) {
+      throw ConfigError(where(*root.at_path("scenario.thermal_acceleration").node(), source.string(),
+                              "scenario.thermal_acceleration") +
+                        common::format_number(out.scenario.thermal_acceleration) + " times controller.thermal.update_s (" +
+                        common::format_number(out.controller.drive.thermal_update_s) + " s) is " +
+                        common::format_number(step_s) + " s of thermal time per update of the drive's thermal filter, more than " +
+                        common::format_number(core::kMaxThermalStepPerTimeConstant) +
+                        " of its model's fastest time constant, " + common::format_number(tau_s) +
+                        " s: its prediction would be wrong, and beyond twice it diverge; lower the acceleration or "
+                        "controller.thermal.update_s");
+    }
   }
   // The drive steps once per plant sample, so its period is the plant's PWM period: a
   // mismatch would run every clock of the drive (its timers, the speed from the angle's

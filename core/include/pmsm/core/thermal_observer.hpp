@@ -244,6 +244,14 @@ class ThermalObserver {
   static constexpr double kMaxLossScale = 1.0;
 };
 
+// The thermal model's fastest time constant (thermal seconds): the two-node network's faster
+// mode, about the winding's capacity times its resistance to the housing. The filter's
+// prediction (a second-order step) stays accurate while an update's thermal time,
+// thermal.update_s x thermal.acceleration, is at most kMaxThermalStepPerTimeConstant of it;
+// beyond twice it the step diverges (a configuration check refuses that).
+[[nodiscard]] double thermal_model_fastest_time_constant_s(const ThermalModelConfig& c);
+inline constexpr double kMaxThermalStepPerTimeConstant = 0.5;
+
 // The derated current limit and whether derating is active, from the estimate's upper bound.
 struct DeratingResult {
   double current_limit_A = 0.0;
