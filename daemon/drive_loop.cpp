@@ -70,7 +70,8 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns) 
                                                  : std::numeric_limits<double>::infinity();
   inputs_.deadline_misses = static_cast<std::uint32_t>(counters_.deadline_misses.get());
   inputs_.missing_periods = missing_periods_;
-  node_.report(core::FaultCode::kGpioFault, gpio_fault_.load(std::memory_order_relaxed));
+  const bool pulse = gpio_fault_seen_.exchange(false, std::memory_order_relaxed);
+  node_.report(core::FaultCode::kGpioFault, pulse || gpio_fault_.load(std::memory_order_relaxed));
   node_.report(core::FaultCode::kInterfaceDown, counters_.interface_down.load(std::memory_order_relaxed));
   if (calibrate_at_first_run_ && node_.supervisor().status().state == core::DriveState::kRunning) {
     inputs_.start_calibration = true;  // at the ambient sensor's temperature

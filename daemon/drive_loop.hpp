@@ -107,7 +107,14 @@ class DriveLoop {
   // Advances while the loop runs: what the systemd watchdog is fed on.
   [[nodiscard]] std::uint64_t heartbeat() const noexcept { return counters_.periods.get(); }
   // A condition another thread watches (GPIO fault input): handed to the supervisor.
-  void set_gpio_fault(bool active) noexcept { gpio_fault_.store(active, std::memory_order_relaxed); }
+  // A report of "active" is kept until the control thread has stepped on it: a pulse the
+  // watcher saw and then saw end before the next period must still trip the drive.
+  void set_gpio_fault(bool active) noexcept {
+    if (active) {
+      gpio_fault_seen_.store(true, std::memory_order_relaxed);
+    }
+    gpio_fault_.store(active, std::memory_order_relaxed);
+  }
   // The power stage's gate enable as the loop last commanded it (for the GPIO output).
   [[nodiscard]] bool gates_enabled() const noexcept { return gates_enabled_.load(std::memory_order_relaxed); }
 
@@ -150,7 +157,8 @@ class DriveLoop {
   std::array<std::uint32_t, kTimingBuckets> window_timing_{};
   std::uint64_t window_max_ns_ = 0;
   std::uint32_t window_misses_ = 0;
-  std::atomic<bool> gpio_fault_{false};
+  std::atomic<bool> gpio_fault_{false};       // the line's level as last read
+  std::atomic<bool> gpio_fault_seen_{false};  // active since the last step (sticky)
   std::atomic<bool> gates_enabled_{false};
 
   struct Counters {

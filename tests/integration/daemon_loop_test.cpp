@@ -515,6 +515,26 @@ TEST(DaemonLoop, CommandTimeoutSafeStateAndAStopCommandClearsIt) {
   EXPECT_TRUE(has_state(seen, 3, protocol::DriveState::kRunning, cleared));
 }
 
+// A fault pulse the watcher saw begin and end between two control periods still trips the
+// drive: the report of "active" is kept until the control thread has stepped on it (before,
+// the level written after it overwrote it, and the pulse was lost).
+TEST(DaemonLoop, AGpioFaultPulseBetweenTwoPeriodsTripsTheDrive) {
+  Bench bench;
+  Axis axis(bench.bus, 9, 1e6);
+  axis.use_passive_load();
+  axis.start_daemon();
+  axis.start_plant();
+  std::vector<protocol::AnyDecoded> seen;
+  supervise(bench, {9}, 50.0, 30s, seen, [&] { return has_state(seen, 9, protocol::DriveState::kRunning); });
+  ASSERT_TRUE(has_state(seen, 9, protocol::DriveState::kRunning));
+  const std::size_t pulse = seen.size();
+  axis.loop().set_gpio_fault(true);
+  axis.loop().set_gpio_fault(false);
+  supervise(bench, {9}, 50.0, 10s, seen,
+            [&] { return has_fault(seen, 9, protocol::FaultCode::kGpioFault, true, pulse); });
+  EXPECT_TRUE(has_fault(seen, 9, protocol::FaultCode::kGpioFault, true, pulse));
+}
+
 // The power stage's fault line, through the daemon's watcher (edge events): the drive trips
 // at once, gates off, FAULT on the bus; once the line is quiet a stop command clears it.
 TEST(DaemonLoop, GpioFaultInputTripsTheDriveAndClearsWhenQuiet) {

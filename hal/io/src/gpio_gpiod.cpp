@@ -133,9 +133,13 @@ class GpiodFaultInput final : public FaultInput {
   [[nodiscard]] int event_fd() const noexcept override { return event_fd_; }
 
   [[nodiscard]] std::optional<bool> fault_active() noexcept override {
-    // Consume the pending edges (the level below is what counts, not their number).
-    // Bounded: a line chattering faster than this reads must not keep the level unread.
+    // Consume the pending edges. Any edge is a fault: a pulse shorter than this thread's wake
+    // (a desaturation comparator, a gate driver's self-resetting FAULT) has ended by the time
+    // the level below is read, and the edges are all that is left of it. (A quiet fault line
+    // has no edges; the level then decides.) Bounded: a line chattering faster than this reads
+    // must not keep the level unread.
     const timespec none{0, 0};
+    bool edges = false;
     for (int batch = 0; event_fd_ >= 0 && batch < 4; ++batch) {
       const int pending = gpiod_line_event_wait(line_.line, &none);
       if (pending < 0) {
@@ -146,17 +150,19 @@ class GpiodFaultInput final : public FaultInput {
         break;
       }
       std::array<gpiod_line_event, 16> events{};
-      if (gpiod_line_event_read_multiple(line_.line, events.data(), static_cast<unsigned>(events.size())) < 0) {
+      const int read = gpiod_line_event_read_multiple(line_.line, events.data(), static_cast<unsigned>(events.size()));
+      if (read < 0) {
         last_errno_ = errno;
         return std::nullopt;
       }
+      edges = edges || read > 0;
     }
     const int value = gpiod_line_get_value(line_.line);
     if (value < 0) {
       last_errno_ = errno;
       return std::nullopt;
     }
-    return value != 0;
+    return edges || value != 0;
   }
   [[nodiscard]] int last_error_number() const noexcept override { return last_errno_; }
   [[nodiscard]] std::string_view backend_name() const noexcept override { return "gpiod"; }

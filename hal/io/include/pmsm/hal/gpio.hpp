@@ -51,7 +51,8 @@ class FaultInput {
   FaultInput(const FaultInput&) = delete;
   FaultInput& operator=(const FaultInput&) = delete;
 
-  // True if the power stage reports a fault, false if not, nothing if the read failed
+  // True if the power stage reports a fault (its level, or an edge since the last read: a pulse
+  // that has ended), false if not, nothing if the read failed
   // (a failed read is not "no fault": the caller decides, typically the safe state).
   // Consumes the edge events that made event_fd() readable.
   [[nodiscard]] virtual std::optional<bool> fault_active() noexcept = 0;
