@@ -82,11 +82,42 @@ void Publisher::send(const Message& m) {
     ++stats_.frames_failed;
     return;
   }
-  if (bus_.send(frame, std::chrono::milliseconds{2}) == hal::SendResult::kOk) {
+  const hal::SendResult result = bus_.send(frame, std::chrono::milliseconds{2});
+  if (result == hal::SendResult::kOk) {
     ++stats_.frames_sent;
-  } else {
-    ++stats_.frames_failed;
+    return;
   }
+  ++stats_.frames_failed;
+  if (result == hal::SendResult::kInterfaceDown) {
+    reopen_if_due();
+  }
+}
+
+void Publisher::reopen_if_due() {
+  // An interface deleted and created again (a USB adapter replugged, `ip link del/add`) leaves
+  // this socket unbound for good: every send fails until it is reopened. The control socket
+  // has its own recovery (DriveLoop::recover_interface); this one is reopened here, at most once
+  // a reopen interval, once the interface is up.
+  const auto now = std::chrono::steady_clock::now();
+  const auto interval = std::chrono::duration<double, std::milli>(config_.can.reopen_interval_ms);
+  if (now - last_reopen_try_ < interval) {
+    return;
+  }
+  last_reopen_try_ = now;
+  if (!bus_.interface_up()) {
+    return;
+  }
+  if (const hal::Status status = bus_.reopen(); status.ok()) {
+    ++stats_.reopens;
+    spdlog::warn("CAN interface '{}': the publishing socket reopened ({} time(s) so far)", config_.can.interface,
+                 stats_.reopens);
+  } else if (!reopen_failure_logged_) {
+    reopen_failure_logged_ = true;
+    spdlog::error("CAN interface '{}': cannot reopen the publishing socket: {} (tried again every {:g} ms)",
+                  config_.can.interface, status.message(), config_.can.reopen_interval_ms);
+    return;
+  }
+  reopen_failure_logged_ = false;
 }
 
 void Publisher::log_fault(const protocol::FaultReport& f, const PublicationRecord& r) {
@@ -342,10 +373,11 @@ std::string Publisher::summary() const {
   return fmt::format(
       "periods {}, samples {} (re-sent {}, missing {}), commands sent {}, accepted drive/injection/calibration commands "
       "{}/{}/{}, rejected frames {} ({}), deadline misses {}, {}, frames published {} (failed {}), calibrations stored {}, "
-      "interface losses {}",
+      "interface losses {} (publishing socket reopened {})",
       s.periods, s.samples, s.resent_samples, s.missing_samples, s.commands_sent, s.commands_accepted[0], s.commands_accepted[1],
       s.commands_accepted[2], rejected, rejected == 0U ? std::string("none") : rejected_text(s, LoopStats{}), s.deadline_misses,
-      timing_text(s), stats_.frames_sent, stats_.frames_failed, stats_.calibrations_stored, s.interface_losses);
+      timing_text(s), stats_.frames_sent, stats_.frames_failed, stats_.calibrations_stored, s.interface_losses,
+      stats_.reopens);
 }
 
 }  // namespace pmsm::daemon

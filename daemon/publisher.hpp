@@ -24,6 +24,7 @@ struct PublisherStats {
   std::uint64_t calibration_store_failures = 0;
   std::uint64_t thermal_states_stored = 0;
   std::uint64_t thermal_state_store_failures = 0;
+  std::uint64_t reopens = 0;             // the publishing socket reopened after an interface loss
 };
 
 class Publisher {
@@ -49,6 +50,7 @@ class Publisher {
   void log_refusals(const PublicationRecord& r);
   void report();
   void send_receive_status(const LoopStats& s);
+  void reopen_if_due();
 
   const DaemonConfig& config_;
   hal::CanBus& bus_;
@@ -63,6 +65,8 @@ class Publisher {
   std::uint32_t magnet_rejected_logged_ = 0;
   std::uint64_t rejected_sent_ = 0;  // total rejections in the last RECEIVE_STATUS
   std::chrono::steady_clock::time_point receive_status_sent_{};
+  std::chrono::steady_clock::time_point last_reopen_try_{};
+  bool reopen_failure_logged_ = false;
 };
 
 }  // namespace pmsm::daemon

@@ -18,6 +18,7 @@
 #include <functional>
 #include <memory>
 #include <optional>
+#include <span>
 #include <string>
 #include <thread>
 #include <vector>
@@ -43,6 +44,36 @@ namespace {
 using namespace std::chrono_literals;
 namespace protocol = hal::protocol;
 const std::filesystem::path kData = std::filesystem::path(PMSM_SOURCE_DIR) / "tests/integration/data";
+
+// An endpoint that can lose its binding as a socket does when its interface is deleted and
+// created again: every send fails with the interface down until reopen().
+class Unbindable final : public hal::CanBus {
+ public:
+  explicit Unbindable(std::unique_ptr<hal::CanBus> inner) : inner_(std::move(inner)) {}
+  void unbind() { unbound_ = true; }
+  hal::Status set_filters(std::span<const hal::CanFilter> filters) override { return inner_->set_filters(filters); }
+  hal::Status set_error_mask(std::uint32_t classes) override { return inner_->set_error_mask(classes); }
+  hal::Status reopen() override {
+    unbound_ = false;
+    return inner_->reopen();
+  }
+  [[nodiscard]] hal::CanBusCounters counters() const noexcept override { return inner_->counters(); }
+  [[nodiscard]] hal::CanBusState state() const noexcept override { return inner_->state(); }
+  [[nodiscard]] bool interface_up() const noexcept override { return inner_->interface_up(); }
+  [[nodiscard]] bool fd_enabled() const noexcept override { return inner_->fd_enabled(); }
+
+ protected:
+  hal::SendResult do_send(const hal::CanFrame& frame, std::chrono::nanoseconds max_wait) noexcept override {
+    return unbound_ ? hal::SendResult::kInterfaceDown : inner_->send(frame, max_wait);
+  }
+  hal::ReceiveStatus do_receive(hal::ReceivedFrame& out, std::chrono::nanoseconds timeout) noexcept override {
+    return unbound_ ? hal::ReceiveStatus::kInterfaceDown : inner_->receive(out, timeout);
+  }
+
+ private:
+  std::unique_ptr<hal::CanBus> inner_;
+  std::atomic<bool> unbound_{false};
+};
 
 // One axis: a plant node and a daemon (loop + publisher) on a shared bus.
 class Axis {
@@ -78,7 +109,7 @@ class Axis {
     rt_bus_ = bus.connect({.fd = true, .queue_capacity = 1024});
     const protocol::FilterSet daemon_filters = protocol::receive_filters(protocol::Role::kDaemon, node);
     EXPECT_TRUE(rt_bus_->set_filters(daemon_filters.view()).ok());
-    pub_bus_ = bus.connect({.fd = true, .queue_capacity = 16});
+    pub_bus_ = std::make_unique<Unbindable>(bus.connect({.fd = true, .queue_capacity = 16}));
     EXPECT_TRUE(pub_bus_->set_filters({}).ok());
     loop_ = std::make_unique<DriveLoop>(config_, *rt_bus_, ring_);
     publisher_ = std::make_unique<Publisher>(config_, *pub_bus_, *loop_);
@@ -135,13 +166,16 @@ class Axis {
   [[nodiscard]] const DriveLoop& loop() const { return *loop_; }
   [[nodiscard]] DriveLoop& loop() { return *loop_; }
   [[nodiscard]] protocol::NodeId node() const { return node_; }
+  // The publishing socket loses its binding (its interface deleted and created again).
+  void unbind_publishing() { pub_bus_->unbind(); }
 
  private:
   protocol::NodeId node_;
   DaemonConfig config_;
   plant::PlantConfig plant_config_;
   plant::PlantNodeOptions plant_options_;
-  std::unique_ptr<hal::CanBus> plant_bus_, rt_bus_, pub_bus_;
+  std::unique_ptr<hal::CanBus> plant_bus_, rt_bus_;
+  std::unique_ptr<Unbindable> pub_bus_;
   PublicationRing ring_;
   std::unique_ptr<DriveLoop> loop_;
   std::unique_ptr<Publisher> publisher_;
@@ -727,6 +761,36 @@ TEST(DaemonLoop, InterfaceDownAndUpBothProcessesRecover) {
   EXPECT_GE(s.interface_losses, 1U);
   EXPECT_GE(s.reopens, 1U);
   EXPECT_FALSE(s.interface_down);
+}
+
+// The interface deleted and created again unbinds both sockets. The control socket has always
+// been reopened by the loop; the publishing one now is too, by the publisher, at the reopen
+// interval: THERMAL_ESTIMATE frames come back (before, none for the rest of the run).
+TEST(DaemonLoop, ThePublishingSocketIsReopenedAfterItsInterfaceCameBack) {
+  Bench bench;
+  Axis axis(bench.bus, 10, 1e6);
+  axis.use_passive_load();
+  axis.start_daemon();
+  axis.start_plant();
+  std::vector<protocol::AnyDecoded> seen;
+  supervise(bench, {10}, 50.0, 30s, seen, [&] { return has_state(seen, 10, protocol::DriveState::kRunning); });
+  ASSERT_TRUE(has_state(seen, 10, protocol::DriveState::kRunning));
+  axis.unbind_publishing();
+  std::this_thread::sleep_for(50ms);
+  for (const protocol::AnyDecoded& d : bench.drain()) {
+    seen.push_back(d);
+  }
+  const std::size_t lost = seen.size();
+  const auto thermal_after = [&](std::size_t from) {
+    for (std::size_t k = from; k < seen.size(); ++k) {
+      if (as<protocol::ThermalEstimate>(seen[k]) != nullptr && seen[k].node == 10) {
+        return true;
+      }
+    }
+    return false;
+  };
+  supervise(bench, {10}, 50.0, 10s, seen, [&] { return thermal_after(lost); });
+  EXPECT_TRUE(thermal_after(lost)) << "no publication since the socket lost its binding";
 }
 
 TEST(DaemonLoop, TwoAxesOnOneBusEachTrackItsOwnPlant) {
