@@ -73,6 +73,7 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns) 
   const bool pulse = gpio_fault_seen_.exchange(false, std::memory_order_relaxed);
   node_.report(core::FaultCode::kGpioFault, pulse || gpio_fault_.load(std::memory_order_relaxed));
   node_.report(core::FaultCode::kInterfaceDown, counters_.interface_down.load(std::memory_order_relaxed));
+  node_.report(core::FaultCode::kBusOff, bus_off_);
   if (calibrate_at_first_run_ && node_.supervisor().status().state == core::DriveState::kRunning) {
     inputs_.start_calibration = true;  // at the ambient sensor's temperature
     calibrate_at_first_run_ = false;
@@ -289,7 +290,11 @@ void DriveLoop::run(const std::atomic<bool>& stop) {
         const std::int64_t at = hal::monotonic_ns();
         now = at;
         if (received_.frame.error) {
-          break;  // no error classes are selected; ignore any that arrive anyway
+          // The controller's state as its error frames left it (kErrorClasses): bus-off until
+          // it restarts. The backend counts them; the supervisor latches BUS_OFF at the next
+          // step (no samples come meanwhile: a missing period).
+          bus_off_ = bus_.state() == hal::CanBusState::kBusOff;
+          break;
         }
         const std::uint64_t samples_before = counters_.samples.get();
         after_ns_ = at;

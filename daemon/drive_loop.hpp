@@ -98,6 +98,11 @@ class DriveLoop {
   DriveLoop(const DriveLoop&) = delete;
   DriveLoop& operator=(const DriveLoop&) = delete;
 
+  // The error-frame classes the control socket should select (CanBus::set_error_mask): the
+  // controller's bus-off and restart, and its state changes. A bus-off latches BUS_OFF.
+  static constexpr std::uint32_t kErrorClasses =
+      hal::kCanErrBusOff | hal::kCanErrRestarted | hal::kCanErrController;
+
   // Runs until `stop` becomes true (seen within one sample timeout), then tells the power stage
   // "off" (switch_off). Call once.
   void run(const std::atomic<bool>& stop);
@@ -157,6 +162,7 @@ class DriveLoop {
   std::array<std::uint32_t, kTimingBuckets> window_timing_{};
   std::uint64_t window_max_ns_ = 0;
   std::uint32_t window_misses_ = 0;
+  bool bus_off_ = false;                      // the control socket's controller, from its error frames
   std::atomic<bool> gpio_fault_{false};       // the line's level as last read
   std::atomic<bool> gpio_fault_seen_{false};  // active since the last step (sticky)
   std::atomic<bool> gates_enabled_{false};

@@ -251,6 +251,9 @@ int run(const Options& o) {
   rt_bus_config.interface = config.can.interface;
   rt_bus_config.fd = true;
   rt_bus_config.filters = std::vector<pmsm::hal::CanFilter>(filters.view().begin(), filters.view().end());
+  // The controller's state changes reach the loop (bus-off, its restart, error-passive): a
+  // drive whose controller went bus-off hears no sample and would only say SENSOR_TIMEOUT.
+  rt_bus_config.error_mask = pmsm::daemon::DriveLoop::kErrorClasses;
   pmsm::hal::Status error;
   std::unique_ptr<pmsm::hal::SocketCanBus> rt_bus = pmsm::hal::SocketCanBus::open(rt_bus_config, error);
   if (!rt_bus) {

@@ -109,6 +109,7 @@ class Axis {
     rt_bus_ = bus.connect({.fd = true, .queue_capacity = 1024});
     const protocol::FilterSet daemon_filters = protocol::receive_filters(protocol::Role::kDaemon, node);
     EXPECT_TRUE(rt_bus_->set_filters(daemon_filters.view()).ok());
+    EXPECT_TRUE(rt_bus_->set_error_mask(DriveLoop::kErrorClasses).ok());
     pub_bus_ = std::make_unique<Unbindable>(bus.connect({.fd = true, .queue_capacity = 16}));
     EXPECT_TRUE(pub_bus_->set_filters({}).ok());
     loop_ = std::make_unique<DriveLoop>(config_, *rt_bus_, ring_);
@@ -791,6 +792,30 @@ TEST(DaemonLoop, ThePublishingSocketIsReopenedAfterItsInterfaceCameBack) {
   };
   supervise(bench, {10}, 50.0, 10s, seen, [&] { return thermal_after(lost); });
   EXPECT_TRUE(thermal_after(lost)) << "no publication since the socket lost its binding";
+}
+
+// The CAN controller goes bus-off: the drive latches BUS_OFF (the reason, where before it said
+// only SENSOR_TIMEOUT), and once the controller has restarted a stop clears it.
+TEST(DaemonLoop, ABusOffIsReportedAsSuchAndClearsAfterTheRestart) {
+  Bench bench;
+  Axis axis(bench.bus, 11, 1e6);
+  axis.use_passive_load();
+  axis.start_daemon();
+  axis.start_plant();
+  std::vector<protocol::AnyDecoded> seen;
+  supervise(bench, {11}, 50.0, 30s, seen, [&] { return has_state(seen, 11, protocol::DriveState::kRunning); });
+  ASSERT_TRUE(has_state(seen, 11, protocol::DriveState::kRunning));
+  const std::size_t off = seen.size();
+  bench.bus.inject_error_frame(hal::make_error_frame(hal::CanBusState::kBusOff));
+  supervise(bench, {11}, 50.0, 10s, seen, [&] { return has_fault(seen, 11, protocol::FaultCode::kBusOff, true, off); });
+  EXPECT_TRUE(has_fault(seen, 11, protocol::FaultCode::kBusOff, true, off));
+  bench.bus.inject_error_frame(hal::make_error_frame(hal::CanBusState::kErrorActive));
+  std::this_thread::sleep_for(100ms);
+  bench.stop_drive(11);
+  const std::size_t back = seen.size();
+  supervise(bench, {11}, 50.0, 30s, seen, [&] { return has_state(seen, 11, protocol::DriveState::kRunning, back); });
+  EXPECT_TRUE(has_fault(seen, 11, protocol::FaultCode::kBusOff, false, back));
+  EXPECT_TRUE(has_state(seen, 11, protocol::DriveState::kRunning, back));
 }
 
 TEST(DaemonLoop, TwoAxesOnOneBusEachTrackItsOwnPlant) {
