@@ -857,6 +857,9 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     if (so.completed) {
       handle_pair(*so.completed);
     }
+    if (so.estimate) {
+      handle_estimate(*so.estimate);  // an event the loss ended: reported and counted like any
+    }
     return output_;
   }
 
