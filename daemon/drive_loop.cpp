@@ -44,6 +44,9 @@ DriveLoop::DriveLoop(const DaemonConfig& config, hal::CanBus& bus, PublicationRi
       reopen_interval_ns_(static_cast<std::int64_t>(config.can.reopen_interval_ms * 1e6)),
       period_ns_(static_cast<std::int64_t>(config.controller.drive.period_s * 1e9)),
       missing_periods_(static_cast<std::uint32_t>(std::max(1.0, std::round(config.can.sample_timeout_ms * 1e-3 / config.controller.drive.period_s)))),
+      outage_slice_periods_(static_cast<std::uint32_t>(
+          std::max(1.0, std::round(std::min(config.can.sample_timeout_ms, config.can.reopen_interval_ms) * 1e-3 /
+                                   config.controller.drive.period_s)))),
       calibrate_at_first_run_(config.startup.calibrate_if_missing && !config.controller.calibration_file.empty() &&
                               !config.controller.drive.calibration.calibrated) {}
 
@@ -65,11 +68,11 @@ void DriveLoop::send(const hal::CanFrame& frame) noexcept {
   counters_.tx_failures.bump();
 }
 
-void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns) noexcept {
+void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns, std::uint32_t missing_periods) noexcept {
   inputs_.command_age_s = last_drive_command_ns_ ? static_cast<double>(received_ns - *last_drive_command_ns_) * 1e-9
                                                  : std::numeric_limits<double>::infinity();
   inputs_.deadline_misses = static_cast<std::uint32_t>(counters_.deadline_misses.get());
-  inputs_.missing_periods = missing_periods_;
+  inputs_.missing_periods = missing_periods != 0U ? missing_periods : missing_periods_;
   const bool pulse = gpio_fault_seen_.exchange(false, std::memory_order_relaxed);
   node_.report(core::FaultCode::kGpioFault, pulse || gpio_fault_.load(std::memory_order_relaxed));
   node_.report(core::FaultCode::kInterfaceDown, counters_.interface_down.load(std::memory_order_relaxed));
@@ -255,11 +258,12 @@ void DriveLoop::on_frame(const hal::CanFrame& frame, std::int64_t now_ns) noexce
 void DriveLoop::recover_interface(const std::atomic<bool>& stop) noexcept {
   counters_.interface_losses.bump();
   counters_.interface_down.store(true, std::memory_order_relaxed);
-  // The drive keeps its own time meanwhile: every sample timeout is a missing period (the
-  // fault is latched and queued for publication once the bus is back).
+  // The drive keeps its own time meanwhile: every slice of the wait (a sample timeout, or the
+  // reopen interval if shorter) is a step without a sample standing for that slice's periods
+  // (the fault is latched and queued for publication once the bus is back).
   const bool back = hal::wait_and_reopen(bus_, nanoseconds{reopen_interval_ns_}, nanoseconds{sample_timeout_ns_}, stop, [this] {
     counters_.missing_samples.bump();
-    step(nullptr, hal::monotonic_ns());
+    step(nullptr, hal::monotonic_ns(), outage_slice_periods_);
   });
   if (back) {
     counters_.reopens.bump();

@@ -132,7 +132,9 @@ class DriveLoop {
 
  private:
   void on_frame(const hal::CanFrame& frame, std::int64_t now_ns) noexcept;
-  void step(const hal::SensorSample* sample, std::int64_t received_ns) noexcept;
+  // Without a sample, the step stands for `missing_periods` control periods (0: one sample
+  // timeout's).
+  void step(const hal::SensorSample* sample, std::int64_t received_ns, std::uint32_t missing_periods = 0) noexcept;
   void send(const hal::CanFrame& frame) noexcept;
   void recover_interface(const std::atomic<bool>& stop) noexcept;
   void switch_off() noexcept;
@@ -149,6 +151,7 @@ class DriveLoop {
   std::int64_t reopen_interval_ns_;
   std::int64_t period_ns_;
   std::uint32_t missing_periods_;  // control periods in one sample timeout
+  std::uint32_t outage_slice_periods_;  // in one slice of an interface outage (the shorter of the timeout and the reopen interval)
   double next_thermal_state_s_ = kThermalStateEvery_s;  // drive uptime of the next one
   bool calibrate_at_first_run_;
   app::NodeInputs inputs_{};
