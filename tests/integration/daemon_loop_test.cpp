@@ -301,6 +301,24 @@ bool has_fault(const std::vector<protocol::AnyDecoded>& seen, protocol::NodeId n
   return false;
 }
 
+// Everything the monitor received since, appended to `seen`.
+void collect(Bench& bench, std::vector<protocol::AnyDecoded>& seen) {
+  for (protocol::AnyDecoded& d : bench.drain()) {
+    seen.push_back(std::move(d));
+  }
+}
+
+// A running axis on a passive load (gates off a while in these tests: the free shaft brakes
+// instead of being spun away), the start the fault tests share.
+void start_running(Bench& bench, Axis& axis, std::vector<protocol::AnyDecoded>& seen) {
+  axis.use_passive_load();
+  axis.start_daemon();
+  axis.start_plant();
+  const protocol::NodeId node = axis.node();
+  supervise(bench, {node}, 50.0, 30s, seen, [&] { return has_state(seen, node, protocol::DriveState::kRunning); });
+  ASSERT_TRUE(has_state(seen, node, protocol::DriveState::kRunning));
+}
+
 TEST(DaemonLoop, HeatUpOverTheBusTracksThePlantsTruth) {
   Bench bench;
   Axis axis(bench.bus, 1, 30.0);
@@ -438,16 +456,10 @@ TEST(DaemonLoop, PlantOutageSafeStateThenRecovery) {
 TEST(DaemonLoop, ARepeatedSampleIsNoFreshSample) {
   Bench bench;
   Axis axis(bench.bus, 4, 1e6);
-  axis.use_passive_load();
-  axis.start_daemon();
-  axis.start_plant();
   std::vector<protocol::AnyDecoded> seen;
-  supervise(bench, {4}, 50.0, 30s, seen, [&] { return has_state(seen, 4, protocol::DriveState::kRunning); });
-  ASSERT_TRUE(has_state(seen, 4, protocol::DriveState::kRunning));
+  ASSERT_NO_FATAL_FAILURE(start_running(bench, axis, seen));
   axis.stop_plant();
-  for (const protocol::AnyDecoded& d : bench.drain()) {
-    seen.push_back(d);
-  }
+  collect(bench, seen);
   std::optional<hal::SensorSample> last;
   for (const protocol::AnyDecoded& d : seen) {
     if (const auto* sample = as<hal::SensorSample>(d); sample != nullptr && d.node == 4) {
@@ -497,18 +509,12 @@ TEST(DaemonLoop, ARepeatedSampleIsNoFreshSample) {
 TEST(DaemonLoop, AStoppedDaemonLeavesThePowerStageOff) {
   Bench bench;
   Axis axis(bench.bus, 8, 1e6);
-  axis.use_passive_load();
-  axis.start_daemon();
-  axis.start_plant();
   std::vector<protocol::AnyDecoded> seen;
-  supervise(bench, {8}, 50.0, 30s, seen, [&] { return has_state(seen, 8, protocol::DriveState::kRunning); });
-  ASSERT_TRUE(has_state(seen, 8, protocol::DriveState::kRunning));
+  ASSERT_NO_FATAL_FAILURE(start_running(bench, axis, seen));
   bench.run_speed(8, 50.0);
   axis.stop_daemon();
   std::this_thread::sleep_for(100ms);  // the plant resends its unanswered sample every 20 ms
-  for (const protocol::AnyDecoded& d : bench.drain()) {
-    seen.push_back(d);
-  }
+  collect(bench, seen);
   const hal::InverterCommand* last = nullptr;
   for (const protocol::AnyDecoded& d : seen) {
     if (const auto* c = as<hal::InverterCommand>(d); c != nullptr && d.node == 8) {
@@ -522,12 +528,9 @@ TEST(DaemonLoop, AStoppedDaemonLeavesThePowerStageOff) {
 TEST(DaemonLoop, CommandTimeoutSafeStateAndAStopCommandClearsIt) {
   Bench bench;
   Axis axis(bench.bus, 3, 1e6, 25.0, 0.3);
-  axis.use_passive_load();  // 200 ms and more in the safe state, the shaft free
-  axis.start_daemon();
-  axis.start_plant();
+  // 200 ms and more in the safe state, the shaft free
   std::vector<protocol::AnyDecoded> seen;
-  supervise(bench, {3}, 50.0, 30s, seen, [&] { return has_state(seen, 3, protocol::DriveState::kRunning); });
-  ASSERT_TRUE(has_state(seen, 3, protocol::DriveState::kRunning));
+  ASSERT_NO_FATAL_FAILURE(start_running(bench, axis, seen));
   const std::size_t silent = seen.size();
   supervise(bench, {3}, 50.0, 10s, seen, [&] { return has_fault(seen, 3, protocol::FaultCode::kCommandTimeout, true, silent); },
             false);
@@ -556,12 +559,8 @@ TEST(DaemonLoop, CommandTimeoutSafeStateAndAStopCommandClearsIt) {
 TEST(DaemonLoop, AGpioFaultPulseBetweenTwoPeriodsTripsTheDrive) {
   Bench bench;
   Axis axis(bench.bus, 9, 1e6);
-  axis.use_passive_load();
-  axis.start_daemon();
-  axis.start_plant();
   std::vector<protocol::AnyDecoded> seen;
-  supervise(bench, {9}, 50.0, 30s, seen, [&] { return has_state(seen, 9, protocol::DriveState::kRunning); });
-  ASSERT_TRUE(has_state(seen, 9, protocol::DriveState::kRunning));
+  ASSERT_NO_FATAL_FAILURE(start_running(bench, axis, seen));
   const std::size_t pulse = seen.size();
   axis.loop().set_gpio_fault(true);
   axis.loop().set_gpio_fault(false);
@@ -737,12 +736,9 @@ TEST(DaemonLoop, BadCommandsAreRejectedByReasonAndValidOnesActedOn) {
 TEST(DaemonLoop, InterfaceDownAndUpBothProcessesRecover) {
   Bench bench;
   Axis axis(bench.bus, 7, 1e6);
-  axis.use_passive_load();  // the command timeout after the interface comes back: gates off a while
-  axis.start_daemon();
-  axis.start_plant();
+  // the command timeout after the interface comes back: gates off a while
   std::vector<protocol::AnyDecoded> seen;
-  supervise(bench, {7}, 50.0, 30s, seen, [&] { return has_state(seen, 7, protocol::DriveState::kRunning); });
-  ASSERT_TRUE(has_state(seen, 7, protocol::DriveState::kRunning));
+  ASSERT_NO_FATAL_FAILURE(start_running(bench, axis, seen));
   bench.bus.set_interface_up(false);
   const auto until = std::chrono::steady_clock::now() + 10s;
   while (!axis.loop().stats().interface_down && std::chrono::steady_clock::now() < until) {
@@ -770,17 +766,11 @@ TEST(DaemonLoop, InterfaceDownAndUpBothProcessesRecover) {
 TEST(DaemonLoop, ThePublishingSocketIsReopenedAfterItsInterfaceCameBack) {
   Bench bench;
   Axis axis(bench.bus, 10, 1e6);
-  axis.use_passive_load();
-  axis.start_daemon();
-  axis.start_plant();
   std::vector<protocol::AnyDecoded> seen;
-  supervise(bench, {10}, 50.0, 30s, seen, [&] { return has_state(seen, 10, protocol::DriveState::kRunning); });
-  ASSERT_TRUE(has_state(seen, 10, protocol::DriveState::kRunning));
+  ASSERT_NO_FATAL_FAILURE(start_running(bench, axis, seen));
   axis.unbind_publishing();
   std::this_thread::sleep_for(50ms);
-  for (const protocol::AnyDecoded& d : bench.drain()) {
-    seen.push_back(d);
-  }
+  collect(bench, seen);
   const std::size_t lost = seen.size();
   const auto thermal_after = [&](std::size_t from) {
     for (std::size_t k = from; k < seen.size(); ++k) {
@@ -799,12 +789,8 @@ TEST(DaemonLoop, ThePublishingSocketIsReopenedAfterItsInterfaceCameBack) {
 TEST(DaemonLoop, ABusOffIsReportedAsSuchAndClearsAfterTheRestart) {
   Bench bench;
   Axis axis(bench.bus, 11, 1e6);
-  axis.use_passive_load();
-  axis.start_daemon();
-  axis.start_plant();
   std::vector<protocol::AnyDecoded> seen;
-  supervise(bench, {11}, 50.0, 30s, seen, [&] { return has_state(seen, 11, protocol::DriveState::kRunning); });
-  ASSERT_TRUE(has_state(seen, 11, protocol::DriveState::kRunning));
+  ASSERT_NO_FATAL_FAILURE(start_running(bench, axis, seen));
   const std::size_t off = seen.size();
   bench.bus.inject_error_frame(hal::make_error_frame(hal::CanBusState::kBusOff));
   supervise(bench, {11}, 50.0, 10s, seen, [&] { return has_fault(seen, 11, protocol::FaultCode::kBusOff, true, off); });
