@@ -69,7 +69,6 @@ struct DriveConfig {
   DeratingConfig derating{};
   double thermal_update_s = 0.01;    // thermal model / filter period
   double magnet_coefficient_per_C = -0.0012;  // NdFeB remanence (flux) temperature coefficient
-  double magnet_min_speed_rad_s = 50.0;       // electrical; below it the EMF is too small
   // The magnet estimate is valid this long (thermal time) after its last EMF measurement: at
   // standstill (time-based recordings) nothing measures it, and a value kept from an hour ago
   // must not read as today's.
