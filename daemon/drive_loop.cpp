@@ -269,6 +269,9 @@ void DriveLoop::recover_interface(const std::atomic<bool>& stop) noexcept {
     counters_.reopens.bump();
     counters_.interface_down.store(false, std::memory_order_relaxed);
     last_sequence_.reset();
+    // A reopened socket starts error-active; a healthy bus sends no error frame to say so (a
+    // controller recovered by the interface going down and up sends no RESTARTED).
+    bus_off_ = bus_.state() == hal::CanBusState::kBusOff;
   }
 }
 
@@ -322,7 +325,7 @@ void DriveLoop::run(const std::atomic<bool>& stop) {
         now = hal::monotonic_ns();
         break;
     }
-    if (counters_.interface_down.load(std::memory_order_relaxed)) {
+    if (counters_.interface_down.load(std::memory_order_relaxed) && !stop.load(std::memory_order_relaxed)) {
       // A send found the interface gone.
       recover_interface(stop);
       now = hal::monotonic_ns();
@@ -351,8 +354,11 @@ void DriveLoop::switch_off() noexcept {
     }
   }
   (void)protocol::encode(last_command_, node_id_, frame_);
-  send(frame_);
-  counters_.commands_sent.bump();
+  if (bus_.send(frame_, std::chrono::microseconds{200}) == hal::SendResult::kOk) {
+    counters_.commands_sent.bump();
+  } else {
+    counters_.tx_failures.bump();
+  }
 }
 
 LoopStats DriveLoop::stats() const noexcept {

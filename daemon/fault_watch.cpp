@@ -1,5 +1,6 @@
 #include "fault_watch.hpp"
 
+#include <algorithm>
 #include <thread>
 
 #include "pmsm/hal/wait.hpp"
@@ -31,7 +32,10 @@ void watch_fault_input(hal::FaultInput& input, const std::atomic<bool>& stop, in
       std::this_thread::sleep_for(std::chrono::milliseconds{10});
       continue;
     }
-    (void)wait.wait_for(timeout);
+    // While the line reports a fault, read it again every millisecond: its end shows no edge
+    // of its own kind to wake on (the backend reports any edge as a fault), and a stop command
+    // must find the fault's cause gone soon after the line went quiet.
+    (void)wait.wait_for(*level ? std::min(timeout, std::chrono::nanoseconds{std::chrono::milliseconds{1}}) : timeout);
   }
 }
 

@@ -277,6 +277,9 @@ void Publisher::handle(const PublicationRecord& r) {
         app::write_calibration_file(config_.controller.calibration_file, c, config_.source.filename().string());
         ++stats_.calibrations_stored;
         spdlog::info("calibration stored in {}", config_.controller.calibration_file);
+      } catch (const app::CalibrationFileNotDurable& e) {
+        ++stats_.calibrations_stored;
+        spdlog::warn("calibration stored, but not flushed to the disk: {}", e.what());
       } catch (const app::CalibrationFileError& e) {
         ++stats_.calibration_store_failures;
         spdlog::error("cannot store the calibration: {} (it is used until the daemon stops)", e.what());
@@ -315,6 +318,12 @@ void Publisher::store_thermal_state(const core::ThermalState& state, double ambi
   try {
     app::write_thermal_state_file(path, stored);
     ++stats_.thermal_states_stored;
+  } catch (const app::CalibrationFileNotDurable& e) {
+    ++stats_.thermal_states_stored;
+    if (!not_durable_logged_) {  // logged once: it would repeat every 10 s
+      not_durable_logged_ = true;
+      spdlog::warn("thermal state stored, but not flushed to the disk: {}", e.what());
+    }
   } catch (const app::CalibrationFileError& e) {
     if (stats_.thermal_state_store_failures++ == 0) {  // logged once: it repeats every 10 s
       spdlog::error("cannot store the thermal state: {} (a restart will start the filter from the ambient sensor)", e.what());

@@ -67,6 +67,7 @@ class Publisher {
   std::chrono::steady_clock::time_point receive_status_sent_{};
   std::chrono::steady_clock::time_point last_reopen_try_{};
   bool reopen_failure_logged_ = false;
+  bool not_durable_logged_ = false;
 };
 
 }  // namespace pmsm::daemon

@@ -178,14 +178,14 @@ void write_atomically(const std::filesystem::path& path, const std::string& text
   // new file is in place, but a power loss may bring the old one back).
   const int dfd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
   if (dfd < 0) {
-    throw CalibrationFileError(fmt::format("{}: replaced, but its directory {} cannot be opened to flush it: {}",
+    throw CalibrationFileNotDurable(fmt::format("{}: replaced, but its directory {} cannot be opened to flush it: {}",
                                            path.string(), dir.string(), errno_text(errno)));
   }
   const int flushed = ::fsync(dfd);
   const int flush_errno = errno;
   ::close(dfd);
   if (flushed != 0) {
-    throw CalibrationFileError(fmt::format("{}: replaced, but its directory {} cannot be flushed (a power loss may bring "
+    throw CalibrationFileNotDurable(fmt::format("{}: replaced, but its directory {} cannot be flushed (a power loss may bring "
                                            "the old file back): {}",
                                            path.string(), dir.string(), errno_text(flush_errno)));
   }

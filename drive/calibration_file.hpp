@@ -32,6 +32,12 @@ class CalibrationFileError : public std::runtime_error {
  public:
   using std::runtime_error::runtime_error;
 };
+// The new file is in place, but its directory could not be flushed: a power loss may bring
+// the old one back. Stored, not durable.
+class CalibrationFileNotDurable : public CalibrationFileError {
+ public:
+  using CalibrationFileError::CalibrationFileError;
+};
 
 inline constexpr int kCalibrationFileFormat = 1;
 

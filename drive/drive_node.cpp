@@ -157,6 +157,12 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
   // current loop only when the supervisor lets the power stage switch.
   drive_in.valid = drive_in.valid && status.sample_usable;
   drive_in.periods = si.periods;  // a lost sample's timeout stands for that many periods
+  // The sample follows the last one the controller used (the power stage's sequence): the shaft
+  // turned by one period since, whatever the wall clock did meanwhile.
+  drive_in.continuous = sample != nullptr && last_used_sequence_ && sample->sequence == *last_used_sequence_ + 1U;
+  if (sample != nullptr && drive_in.valid) {
+    last_used_sequence_ = sample->sequence;
+  }
   core::DriveCommand cmd;
   cmd.mode = status.power_stage_enabled ? in.mode : core::DriveMode::kDisabled;
   cmd.speed_ref_rad_s = in.speed_ref_rad_s;

@@ -123,6 +123,8 @@ class DriveNode {
   SensorFrontend frontend_;
   bool noise_known_ = false;  // the sensors' noise handed to the controller
   std::uint16_t reported_period_code_ = 0;  // the power stage's last reported PWM period (its code)
+  // The sequence of the last sample the controller used (DriveInput::continuous).
+  std::optional<std::uint32_t> last_used_sequence_;
   double period_s_;
   PublishRates rates_;
   hal::protocol::InjectionMethod method_;

@@ -143,10 +143,10 @@ const char* magnet_refusal_text(MagnetRefusal r) {
   return "unknown";
 }
 
-void DriveController::age_magnet() {
+void DriveController::age_magnet(std::uint32_t periods) {
   // A magnet estimate ages in thermal time; past its limit it is no estimate (and the next
   // measurement starts the smoothing afresh instead of blending with the stale value).
-  magnet_age_s_ += config_.period_s * observer_.time_scale();
+  magnet_age_s_ += static_cast<double>(periods) * config_.period_s * observer_.time_scale();
   if (magnet_valid_ && magnet_age_s_ > config_.magnet_max_age_s) {
     magnet_valid_ = false;
   }
@@ -815,24 +815,29 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     output_ = {};
     was_enabled_ = false;
     have_previous_ = false;
-    // The shaft may turn on meanwhile (a coasting load): the angle and speed of before are no
-    // longer the rotor's. The tracker starts afresh from the next usable sample and takes its
-    // speed from the one after it; until then the bridge stays off (angle_lost_). With the old
-    // state, a shaft that turned during a 20 ms outage looked like a jump of up to half a turn,
-    // and the PLL read it as thousands of rad/s. (The power-up's samples, unusable until the
-    // sensors' offsets are known, find the tracker not yet started.)
-    angle_lost_ = angle_lost_ || angle_.initialised();
-    angle_.reset();
+    // The shaft may turn on meanwhile (a coasting load): unless the next usable sample follows
+    // the tracker's last one (DriveInput::continuous), its angle and speed are no longer the
+    // rotor's (below). (The power-up's samples, unusable until the sensors' offsets are known,
+    // find the tracker not yet started.)
+    angle_gap_ = angle_gap_ || angle_.initialised();
     // Nothing drives the winding now, but it keeps cooling, and a latched OVERTEMPERATURE must
     // see it cool to clear: the thermal model runs on at rest (no current, no speed), at the
-    // real time the step stands for. Not before the drive has run: the power-up's first samples
-    // are not an outage, and before the model ever ran there is nothing to carry on.
-    if (angle_lost_ && telemetry_.thermal_valid) {
-      thermal_count_ += periods;
-      thermal_elapsed_s_ += static_cast<double>(periods) * config_.period_s;
-      if (thermal_elapsed_s_ >= config_.thermal_update_s) {
-        thermal_elapsed_s_ = 0.0;
-        update_thermal(command.ambient_C, command.mode == DriveMode::kSpeed);
+    // real time the step stands for, one update's time at a time (a lost sample's timeout may
+    // be longer than an update, and the filter's step is bounded: controller_config). Not before
+    // the drive has run: the power-up's first samples are not an outage, and before the model
+    // ever ran there is nothing to carry on.
+    if (angle_gap_ && telemetry_.thermal_valid) {
+      const auto per_update = static_cast<std::uint32_t>(
+          std::max(1.0, std::round(config_.thermal_update_s / config_.period_s)));
+      for (std::uint32_t left = periods; left > 0;) {
+        const std::uint32_t take = std::min(left, per_update);
+        left -= take;
+        thermal_count_ += take;
+        thermal_elapsed_s_ += static_cast<double>(take) * config_.period_s;
+        if (thermal_elapsed_s_ >= config_.thermal_update_s) {
+          thermal_elapsed_s_ = 0.0;
+          update_thermal(command.ambient_C, command.mode == DriveMode::kSpeed);
+        }
       }
     }
     if (sweep_.active()) {
@@ -850,7 +855,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     telemetry_.inverter_sweep_active = false;
     telemetry_.angle_check_active = false;
     clear_motoring_telemetry();
-    age_magnet();  // a fault or a lost sample does not stop the clock of the magnet's estimate
+    age_magnet(periods);  // a fault or a lost sample does not stop the clock of the magnet's estimate
     SchedulerInput s;
     s.time_s = now;
     const SchedulerOutput& so = scheduler_.step(s, nullptr);
@@ -863,9 +868,19 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     return output_;
   }
 
+  // After unusable steps (an outage, a latched fault), a sample that does not follow the
+  // tracker's last one finds the shaft turned by an unknown angle: with the old state, a shaft
+  // that turned on for 20 ms at 157 rad/s looked like a step of half a turn, read by the PLL as
+  // thousands of rad/s. The tracker starts afresh (this sample locates the rotor, the next gives
+  // its speed) and the bridge stays off until then (angle_lost_). The same while it seeds its
+  // speed: a sample lost between the two would double it. A sample that does follow (a
+  // lockstep power stage slower than the sample timeout) continues the tracker as it is.
+  if ((angle_gap_ || (angle_.initialised() && !angle_.speed_known())) && !in.continuous) {
+    angle_lost_ = true;
+    angle_.reset();
+  }
+  angle_gap_ = false;
   angle_.update(in.encoder_count);
-  // After an outage the bridge switches only once the tracker knows the rotor's speed again
-  // (from the second usable sample).
   angle_lost_ = angle_lost_ && !angle_.speed_known();
   const bool enabled = command.mode != DriveMode::kDisabled && !angle_lost_;
   const double theta = angle_.electrical_angle_rad();
@@ -1131,7 +1146,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   telemetry_.voltage_limited = limited;
   telemetry_.injection_phase = so.phase;
   telemetry_.injection_active = so.active;
-  age_magnet();
+  age_magnet(periods);
   telemetry_.torque_estimate_Nm = electromagnetic_torque_Nm(
       config_.current.flux_linkage_Wb, config_.current.ld_H, config_.current.lq_H, config_.motor.pole_pairs, i);
   telemetry_.inverter_sweep_active = sweep_.active();

@@ -477,10 +477,19 @@ TEST(DriveControllerSafety, ImplausibleInputGivesTheSafeOutput) {
   in.vdc_V = 650.0;
   in.i_A.b = kNan;
   EXPECT_FALSE(drive.step(in, cmd).enable);
-  // Usable again: the first sample locates the rotor afresh (the shaft may have turned on), the
-  // bridge switches from the second, once the tracker has the speed too.
+  // Usable again, after samples were lost (the node compares the sequences): the first sample
+  // locates the rotor afresh (the shaft may have turned on), the bridge switches from the
+  // second, once the tracker has the speed too.
   in.i_A.b = -0.5;
+  in.continuous = false;
   EXPECT_FALSE(drive.step(in, cmd).enable);
+  in.continuous = true;
+  EXPECT_TRUE(drive.step(in, cmd).enable);
+  // A sample that follows the last one used (a slow lockstep power stage, no sample lost): the
+  // tracker goes on as it was.
+  in.vdc_V = 0.0;
+  EXPECT_FALSE(drive.step(in, cmd).enable);
+  in.vdc_V = 650.0;
   EXPECT_TRUE(drive.step(in, cmd).enable);
 }
 

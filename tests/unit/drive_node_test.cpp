@@ -174,6 +174,22 @@ TEST(DriveNode, MissingSamplesNoCommandThenSensorTimeoutThenRecovery) {
   EXPECT_FALSE(rig.node->supervisor().latched(core::FaultCode::kSensorTimeout));
 }
 
+// A lockstep power stage slower than the sample timeout: a step without a sample, then the
+// next sample in sequence (the plant did not move on meanwhile). The shaft turned by one period:
+// the drive answers it with the gates on, the angle tracker as it was. After a sample that
+// does not follow (lost ones), the tracker starts afresh and the gates stay off for a sample.
+TEST(DriveNode, ASampleThatFollowsAfterAWaitKeepsTheAngleOneThatDoesNotLocatesItAfresh) {
+  Rig rig;
+  rig.run(2000);
+  ASSERT_TRUE(rig.run(1).command->enable);
+  EXPECT_FALSE(rig.node->step(nullptr, rig.in).command.has_value());
+  EXPECT_TRUE(rig.run(1).command->enable) << "the next sample in sequence";
+  EXPECT_FALSE(rig.node->step(nullptr, rig.in).command.has_value());
+  EXPECT_FALSE(rig.run(1, [](hal::SensorSample& s) { s.sequence += 5; }).command->enable)
+      << "five samples lost: the rotor is located afresh";
+  EXPECT_TRUE(rig.run(1, [](hal::SensorSample& s) { s.sequence += 5; }).command->enable) << "and has its speed";
+}
+
 // A plant whose PWM runs at 20 kHz against a drive configured for 10 kHz: every clock of the
 // drive would run at half its rate. Its samples say so (SENSOR_SAMPLE PwmPeriod), and the
 // drive refuses them: PERIOD_MISMATCH latched, gates off, the fault published; the plant at

@@ -126,6 +126,10 @@ struct DriveInput {
   // timeout) the periods that timeout took, so that the drive's clocks (the thermal model, the
   // calibration's timeout, the magnets' age) keep real time through an outage.
   std::uint32_t periods = 1;
+  // Whether this sample follows the one the controller last used (its sequence the next): the
+  // shaft then turned by one period since. False after lost samples (DriveNode compares the
+  // power stage's sequence numbers): after unusable steps the angle tracker then starts afresh.
+  bool continuous = true;
 };
 
 // Whether a sample can be controlled on at all: finite currents and a finite, positive DC
@@ -398,7 +402,7 @@ class DriveController {
   [[nodiscard]] AngleCheckMotor angle_check_motor() const;
   void restore_band();
   void restore_angle();
-  void age_magnet();
+  void age_magnet(std::uint32_t periods);
   void update_magnet(const EventEstimate& e, const Calibration& cal);
   void restore_vx();
   [[nodiscard]] double magnet_var_now_C2() const;
@@ -451,8 +455,10 @@ class DriveController {
   double band_before_calibration_A_ = 0.0;
 
   std::uint64_t period_ = 0;
-  // The rotor's angle was lost (an unusable sample after the tracker had started): the bridge
-  // stays off until the tracker has the speed again.
+  // Unusable steps came after the tracker had started (the shaft may have turned on), and the
+  // rotor's angle was lost (a sample after them that did not follow the last one used): the
+  // bridge stays off until the tracker has the speed again.
+  bool angle_gap_ = false;
   bool angle_lost_ = false;
   bool was_enabled_ = false;
   int speed_divider_ = 0;
