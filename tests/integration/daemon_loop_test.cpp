@@ -308,6 +308,17 @@ void collect(Bench& bench, std::vector<protocol::AnyDecoded>& seen) {
   }
 }
 
+// A stop command (it clears the faults whose cause is gone), then until the axis runs again;
+// `from` receives where in `seen` that wait began. Whether it runs again.
+bool runs_again_after_a_stop(Bench& bench, protocol::NodeId node, std::vector<protocol::AnyDecoded>& seen,
+                             std::size_t& from) {
+  bench.stop_drive(node);
+  from = seen.size();
+  const std::size_t back = from;
+  supervise(bench, {node}, 50.0, 30s, seen, [&] { return has_state(seen, node, protocol::DriveState::kRunning, back); });
+  return has_state(seen, node, protocol::DriveState::kRunning, back);
+}
+
 // A running axis on a passive load (gates off a while in these tests: the free shaft brakes
 // instead of being spun away), the start the fault tests share.
 void start_running(Bench& bench, Axis& axis, std::vector<protocol::AnyDecoded>& seen) {
@@ -750,10 +761,8 @@ TEST(DaemonLoop, InterfaceDownAndUpBothProcessesRecover) {
   // The supervisor's commands could not arrive either: the drive is in COMMAND_TIMEOUT too,
   // which an operator clears with a stop, as after any latched fault.
   std::this_thread::sleep_for(300ms);
-  bench.stop_drive(7);
-  const std::size_t back = seen.size();
-  supervise(bench, {7}, 50.0, 30s, seen, [&] { return has_state(seen, 7, protocol::DriveState::kRunning, back); });
-  EXPECT_TRUE(has_state(seen, 7, protocol::DriveState::kRunning, back)) << "both recovered without a restart";
+  std::size_t back = 0;
+  EXPECT_TRUE(runs_again_after_a_stop(bench, 7, seen, back)) << "both recovered without a restart";
   const LoopStats s = axis.loop().stats();
   EXPECT_GE(s.interface_losses, 1U);
   EXPECT_GE(s.reopens, 1U);
@@ -797,11 +806,9 @@ TEST(DaemonLoop, ABusOffIsReportedAsSuchAndClearsAfterTheRestart) {
   EXPECT_TRUE(has_fault(seen, 11, protocol::FaultCode::kBusOff, true, off));
   bench.bus.inject_error_frame(hal::make_error_frame(hal::CanBusState::kErrorActive));
   std::this_thread::sleep_for(100ms);
-  bench.stop_drive(11);
-  const std::size_t back = seen.size();
-  supervise(bench, {11}, 50.0, 30s, seen, [&] { return has_state(seen, 11, protocol::DriveState::kRunning, back); });
+  std::size_t back = 0;
+  EXPECT_TRUE(runs_again_after_a_stop(bench, 11, seen, back));
   EXPECT_TRUE(has_fault(seen, 11, protocol::FaultCode::kBusOff, false, back));
-  EXPECT_TRUE(has_state(seen, 11, protocol::DriveState::kRunning, back));
   // Recovered by the interface going down and up instead: the reopened socket starts
   // error-active, with no error frame to say so.
   const std::size_t again = seen.size();
@@ -812,10 +819,7 @@ TEST(DaemonLoop, ABusOffIsReportedAsSuchAndClearsAfterTheRestart) {
   std::this_thread::sleep_for(300ms);
   bench.bus.set_interface_up(true);
   std::this_thread::sleep_for(300ms);
-  bench.stop_drive(11);
-  const std::size_t up = seen.size();
-  supervise(bench, {11}, 50.0, 30s, seen, [&] { return has_state(seen, 11, protocol::DriveState::kRunning, up); });
-  EXPECT_TRUE(has_state(seen, 11, protocol::DriveState::kRunning, up)) << "BUS_OFF cleared after the reopen";
+  EXPECT_TRUE(runs_again_after_a_stop(bench, 11, seen, back)) << "BUS_OFF cleared after the reopen";
 }
 
 TEST(DaemonLoop, TwoAxesOnOneBusEachTrackItsOwnPlant) {
