@@ -72,11 +72,13 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns, 
   inputs_.command_age_s = last_drive_command_ns_ ? static_cast<double>(received_ns - *last_drive_command_ns_) * 1e-9
                                                  : std::numeric_limits<double>::infinity();
   inputs_.deadline_misses = static_cast<std::uint32_t>(counters_.deadline_misses.get());
-  inputs_.missing_periods = missing_periods != 0U ? missing_periods : missing_periods_;
+  inputs_.missing_periods = missing_periods;
   const bool pulse = gpio_fault_seen_.exchange(false, std::memory_order_relaxed);
   node_.report(core::FaultCode::kGpioFault, pulse || gpio_fault_.load(std::memory_order_relaxed));
   node_.report(core::FaultCode::kInterfaceDown, counters_.interface_down.load(std::memory_order_relaxed));
-  node_.report(core::FaultCode::kBusOff, bus_off_);
+  // The controller's state as its error frames left it (kErrorClasses), an atomic the backend
+  // keeps: bus-off until it restarts, or until the socket is reopened (it starts error-active).
+  node_.report(core::FaultCode::kBusOff, bus_.state() == hal::CanBusState::kBusOff);
   if (calibrate_at_first_run_ && node_.supervisor().status().state == core::DriveState::kRunning) {
     inputs_.start_calibration = true;  // at the ambient sensor's temperature
     calibrate_at_first_run_ = false;
@@ -209,7 +211,7 @@ void DriveLoop::on_frame(const hal::CanFrame& frame, std::int64_t now_ns) noexce
     }
     counters_.samples.bump();
     last_sequence_ = sample->sequence;
-    step(sample, now_ns);
+    step(sample, now_ns, 1);
   } else if (const auto* drive = std::get_if<protocol::DriveCommand>(&input)) {
     counters_.commands_accepted[0].bump();
     last_drive_command_ns_ = now_ns;
@@ -269,9 +271,6 @@ void DriveLoop::recover_interface(const std::atomic<bool>& stop) noexcept {
     counters_.reopens.bump();
     counters_.interface_down.store(false, std::memory_order_relaxed);
     last_sequence_.reset();
-    // A reopened socket starts error-active; a healthy bus sends no error frame to say so (a
-    // controller recovered by the interface going down and up sends no RESTARTED).
-    bus_off_ = bus_.state() == hal::CanBusState::kBusOff;
   }
 }
 
@@ -287,7 +286,7 @@ void DriveLoop::run(const std::atomic<bool>& stop) {
       // No sample within the timeout: a missing period for the supervisor.
       counters_.missing_samples.bump();
       after_ns_ = now;
-      step(nullptr, now);
+      step(nullptr, now, missing_periods_);
       deadline = now + sample_timeout_ns_;
       now = after_ns_;
       continue;
@@ -297,10 +296,8 @@ void DriveLoop::run(const std::atomic<bool>& stop) {
         const std::int64_t at = hal::monotonic_ns();
         now = at;
         if (received_.frame.error) {
-          // The controller's state as its error frames left it (kErrorClasses): bus-off until
-          // it restarts. The backend counts them; the supervisor latches BUS_OFF at the next
-          // step (no samples come meanwhile: a missing period).
-          bus_off_ = bus_.state() == hal::CanBusState::kBusOff;
+          // The backend keeps the controller's state from these (kErrorClasses); the next
+          // step reports it (no samples come during a bus-off: a missing period).
           break;
         }
         const std::uint64_t samples_before = counters_.samples.get();

@@ -132,9 +132,9 @@ class DriveLoop {
 
  private:
   void on_frame(const hal::CanFrame& frame, std::int64_t now_ns) noexcept;
-  // Without a sample, the step stands for `missing_periods` control periods (0: one sample
-  // timeout's).
-  void step(const hal::SensorSample* sample, std::int64_t received_ns, std::uint32_t missing_periods = 0) noexcept;
+  // Without a sample, the step stands for `missing_periods` control periods (a sample
+  // timeout's, or an outage slice's); with one, for one.
+  void step(const hal::SensorSample* sample, std::int64_t received_ns, std::uint32_t missing_periods) noexcept;
   void send(const hal::CanFrame& frame) noexcept;
   void recover_interface(const std::atomic<bool>& stop) noexcept;
   void switch_off() noexcept;
@@ -165,7 +165,6 @@ class DriveLoop {
   std::array<std::uint32_t, kTimingBuckets> window_timing_{};
   std::uint64_t window_max_ns_ = 0;
   std::uint32_t window_misses_ = 0;
-  bool bus_off_ = false;                      // the control socket's controller, from its error frames
   std::atomic<bool> gpio_fault_{false};       // the line's level as last read
   std::atomic<bool> gpio_fault_seen_{false};  // active since the last step (sticky)
   std::atomic<bool> gates_enabled_{false};

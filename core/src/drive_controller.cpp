@@ -74,6 +74,8 @@ DriveController::DriveController(const DriveConfig& config)
       kt_dq_Nm_per_A_(1.5 * config_.motor.pole_pairs * config_.current.flux_linkage_Wb),
       speed_limit_rad_s_(config_.speed_limit_rad_s > 0.0 ? config_.speed_limit_rad_s
                                                          : std::numeric_limits<double>::infinity()),
+      thermal_update_periods_(static_cast<std::uint32_t>(
+          std::max(1.0, std::round(config_.thermal_update_s / config_.period_s)))),
       speed_limit_gain_Nm_s_(config_.speed.inertia_kg_m2 *
                              std::min(5.0 * config_.speed.bandwidth_rad_s, 0.5 * config_.angle.pll_bandwidth_rad_s)),
       angle_(config_.angle),
@@ -713,6 +715,22 @@ void DriveController::restore_thermal_state(const ThermalState& state, double do
   thermal_guess_pending_ = false;
 }
 
+void DriveController::advance_thermal(std::uint32_t periods, const DriveCommand& command) {
+  // The periods' time in steps of at most one update's (a lost sample's timeout may be longer
+  // than an update, and the filter's step is bounded: controller_config), each update run when
+  // its time is complete.
+  for (std::uint32_t left = periods; left > 0;) {
+    const std::uint32_t take = std::min(left, thermal_update_periods_);
+    left -= take;
+    thermal_count_ += take;
+    thermal_elapsed_s_ += static_cast<double>(take) * config_.period_s;
+    if (thermal_elapsed_s_ >= config_.thermal_update_s) {
+      thermal_elapsed_s_ = 0.0;
+      update_thermal(command.ambient_C, command.mode == DriveMode::kSpeed);
+    }
+  }
+}
+
 void DriveController::update_thermal(double ambient_C, bool speed_mode) {
   if (thermal_guess_pending_) {
     // Nothing known about the winding yet: the ambient sensor is the best guess (a motor at
@@ -822,23 +840,11 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     angle_gap_ = angle_gap_ || angle_.initialised();
     // Nothing drives the winding now, but it keeps cooling, and a latched OVERTEMPERATURE must
     // see it cool to clear: the thermal model runs on at rest (no current, no speed), at the
-    // real time the step stands for, one update's time at a time (a lost sample's timeout may
-    // be longer than an update, and the filter's step is bounded: controller_config). Not before
+    // real time the step stands for (advance_thermal). Not before
     // the drive has run: the power-up's first samples are not an outage, and before the model
     // ever ran there is nothing to carry on.
     if (angle_gap_ && telemetry_.thermal_valid) {
-      const auto per_update = static_cast<std::uint32_t>(
-          std::max(1.0, std::round(config_.thermal_update_s / config_.period_s)));
-      for (std::uint32_t left = periods; left > 0;) {
-        const std::uint32_t take = std::min(left, per_update);
-        left -= take;
-        thermal_count_ += take;
-        thermal_elapsed_s_ += static_cast<double>(take) * config_.period_s;
-        if (thermal_elapsed_s_ >= config_.thermal_update_s) {
-          thermal_elapsed_s_ = 0.0;
-          update_thermal(command.ambient_C, command.mode == DriveMode::kSpeed);
-        }
-      }
+      advance_thermal(periods, command);
     }
     if (sweep_.active()) {
       sweep_.abort();
@@ -1115,13 +1121,8 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   // Thermal model at its own rate.
   i_sq_sum_ += i.d * i.d + i.q * i.q;
   speed_sum_ += angle_.mechanical_speed_rad_s();
-  thermal_count_ += periods;
   thermal_enabled_count_ += enabled ? 1 : 0;
-  thermal_elapsed_s_ += config_.period_s;
-  if (thermal_elapsed_s_ >= config_.thermal_update_s) {
-    thermal_elapsed_s_ = 0.0;
-    update_thermal(command.ambient_C, command.mode == DriveMode::kSpeed);
-  }
+  advance_thermal(periods, command);
   if (config_.estimator == EstimatorKind::kNoInjection && baseline_.updates() > 0 && !sweeping &&
       now - last_baseline_publish_s_ >= config_.baseline_publish_s) {
     last_baseline_publish_s_ = now;

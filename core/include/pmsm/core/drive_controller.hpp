@@ -380,12 +380,14 @@ class DriveController {
   void handle_pair(const PairResult& r);
   [[nodiscard]] double measurement_age_s(const EventEstimate& e) const;
   void handle_estimate(const EventEstimate& e);
+  void advance_thermal(std::uint32_t periods, const DriveCommand& command);
   void update_thermal(double ambient_C, bool speed_mode);
   [[nodiscard]] Dq motoring_reference(const DriveCommand& command);
 
   DriveConfig config_;
   double kt_dq_Nm_per_A_;
   double speed_limit_rad_s_;  // config_.speed_limit_rad_s, or infinity without a limit
+  std::uint32_t thermal_update_periods_;  // control periods in one thermal update (at least 1)
   double speed_limit_gain_Nm_s_;  // G of the torque-mode fold-back (DriveConfig::speed_limit_rad_s)
   AngleTracker angle_;
   CurrentController current_;
