@@ -188,7 +188,7 @@ struct InjectionConfig {
   // points, in place of lq_rated_H): the map's shape (LqShape) replaces u.
   LqMap lq_map{};
   double rated_current_A = 45.1;  // peak
-  double lq_learning_min_voltage_V = 2.0; // |Lq <w iq>| of a pair, to learn from it
+  double lq_learning_min_voltage_V = 1.0; // |Lq <w iq>| of a pair, to learn from it
   double ld_H = 5.5e-3;
   double rs_nominal_ohm = 0.133;  // for the headroom calculation
   double flux_linkage_Wb = 0.3239;
