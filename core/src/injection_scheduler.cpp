@@ -612,12 +612,17 @@ void InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit)
   }
   const double w_iq = c.omega_e_iq_mean_A_rad_s;
   const double s_q = lq_shape_.at(c.iq_mean_A).s;  // the secant's shape at the pair's load
-  if (!(std::abs(lq_secant_H(c.iq_mean_A) * w_iq) >= config_.lq_learning_min_voltage_V)) {
-    return;
-  }
   // Over whole turns (Eq. 3, d-axis): Lq <w iq> = Rs <id> + Ld <dId/dt> + Vx <Gd> - <vd>.
   const double vx = config_.fit_dead_time ? vx_V_ : 0.0;
   const double var_vx = config_.fit_dead_time ? vx_var_ : 0.0;
+  // Learn only where the Lq term stands out: at least the configured volts, and at least the
+  // known terms it is told apart from (a unipolar pair's Rs <id> and Vx <Gd>; about 0 for a
+  // bipolar pair), whose model errors in proportion (the bridge's pattern) the variance below
+  // does not carry.
+  const double separated = std::abs(fit.rs_ohm * c.id_mean_A) + std::abs(vx * c.gd_mean);
+  if (!(std::abs(lq_secant_H(c.iq_mean_A) * w_iq) >= std::max(config_.lq_learning_min_voltage_V, separated))) {
+    return;
+  }
   const double lq =
       (fit.rs_ohm * c.id_mean_A + config_.ld_H * c.did_dt_mean_A_s + vx * c.gd_mean - c.vd_mean_V) / w_iq;
   // Its variance: what the uncertain Vx and Rs move it by, and the noise of <vd> (the pair's
