@@ -68,11 +68,11 @@ void DriveLoop::send(const hal::CanFrame& frame) noexcept {
   counters_.tx_failures.bump();
 }
 
-void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns, std::uint32_t missing_periods) noexcept {
+void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns, std::uint32_t periods) noexcept {
   inputs_.command_age_s = last_drive_command_ns_ ? static_cast<double>(received_ns - *last_drive_command_ns_) * 1e-9
                                                  : std::numeric_limits<double>::infinity();
   inputs_.deadline_misses = static_cast<std::uint32_t>(counters_.deadline_misses.get());
-  inputs_.missing_periods = missing_periods;
+  inputs_.periods = periods;
   const bool pulse = gpio_fault_seen_.exchange(false, std::memory_order_relaxed);
   node_.report(core::FaultCode::kGpioFault, pulse || gpio_fault_.load(std::memory_order_relaxed));
   node_.report(core::FaultCode::kInterfaceDown, counters_.interface_down.load(std::memory_order_relaxed));
@@ -210,8 +210,24 @@ void DriveLoop::on_frame(const hal::CanFrame& frame, std::int64_t now_ns) noexce
       return;
     }
     counters_.samples.bump();
+    // Sequence numbers skipped since the last sample (lost on the bus, the power stage running on
+    // at its own pace) while no sample timeout fired: this sample stands for the periods since
+    // the last one, and the drive's clocks and angle tracker take them. A larger jump (a power
+    // stage that restarted its count) is an outage of unknown length first: the rotor is then
+    // located afresh. After a timeout its time is counted already: a sample as after any wait.
+    const std::uint32_t gap = last_sequence_ ? sample->sequence - *last_sequence_ : 1U;
     last_sequence_ = sample->sequence;
-    step(sample, now_ns, 1);
+    if (sample_missed_ || gap == 1U) {
+      sample_missed_ = false;
+      step(sample, now_ns, 1);
+    } else if (gap <= missing_periods_) {
+      counters_.skipped_samples.bump(gap - 1U);
+      step(sample, now_ns, gap);
+    } else {
+      counters_.missing_samples.bump();
+      step(nullptr, now_ns, missing_periods_);
+      step(sample, now_ns, 1);
+    }
   } else if (const auto* drive = std::get_if<protocol::DriveCommand>(&input)) {
     counters_.commands_accepted[0].bump();
     last_drive_command_ns_ = now_ns;
@@ -265,6 +281,7 @@ void DriveLoop::recover_interface(const std::atomic<bool>& stop) noexcept {
   // (the fault is latched and queued for publication once the bus is back).
   const bool back = hal::wait_and_reopen(bus_, nanoseconds{reopen_interval_ns_}, nanoseconds{sample_timeout_ns_}, stop, [this] {
     counters_.missing_samples.bump();
+    sample_missed_ = true;
     step(nullptr, hal::monotonic_ns(), outage_slice_periods_);
   });
   if (back) {
@@ -286,6 +303,7 @@ void DriveLoop::run(const std::atomic<bool>& stop) {
       // No sample within the timeout: a missing period for the supervisor.
       counters_.missing_samples.bump();
       after_ns_ = now;
+      sample_missed_ = true;
       step(nullptr, now, missing_periods_);
       deadline = now + sample_timeout_ns_;
       now = after_ns_;
@@ -365,6 +383,7 @@ LoopStats DriveLoop::stats() const noexcept {
   s.samples = c.samples.get();
   s.resent_samples = c.resent_samples.get();
   s.missing_samples = c.missing_samples.get();
+  s.skipped_samples = c.skipped_samples.get();
   s.commands_sent = c.commands_sent.get();
   for (std::size_t k = 0; k < s.commands_accepted.size(); ++k) {
     s.commands_accepted[k] = c.commands_accepted[k].get();

@@ -71,6 +71,7 @@ struct LoopStats {
   std::uint64_t samples = 0;             // SENSOR_SAMPLE frames stepped on
   std::uint64_t resent_samples = 0;      // the same sequence again: answered, not stepped
   std::uint64_t missing_samples = 0;     // deadlines without a sample
+  std::uint64_t skipped_samples = 0;     // sequence numbers skipped (lost on the bus) within a sample timeout
   std::uint64_t commands_sent = 0;       // INVERTER_COMMAND frames
   std::array<std::uint64_t, 3> commands_accepted{};  // drive, injection, calibration
   std::array<std::uint64_t, hal::protocol::kDecodeStatusCount> rejected{};  // by DecodeStatus
@@ -132,9 +133,10 @@ class DriveLoop {
 
  private:
   void on_frame(const hal::CanFrame& frame, std::int64_t now_ns) noexcept;
-  // Without a sample, the step stands for `missing_periods` control periods (a sample
-  // timeout's, or an outage slice's); with one, for one.
-  void step(const hal::SensorSample* sample, std::int64_t received_ns, std::uint32_t missing_periods) noexcept;
+  // The step stands for `periods` control periods: without a sample, a sample timeout's or an
+  // outage slice's; with one, 1, or the periods since the last sample when the ones between
+  // were lost on the bus (on_frame).
+  void step(const hal::SensorSample* sample, std::int64_t received_ns, std::uint32_t periods) noexcept;
   void send(const hal::CanFrame& frame) noexcept;
   void recover_interface(const std::atomic<bool>& stop) noexcept;
   void switch_off() noexcept;
@@ -157,6 +159,7 @@ class DriveLoop {
   app::NodeInputs inputs_{};
   std::optional<std::int64_t> last_drive_command_ns_;
   std::optional<std::uint32_t> last_sequence_;
+  bool sample_missed_ = false;  // a step without a sample since the last sample (its time is counted)
   hal::InverterCommand last_command_{};
   std::int64_t after_ns_ = 0;  // the clock after the last command was sent (run() waits from it)
   hal::CanFrame frame_{};
@@ -170,7 +173,7 @@ class DriveLoop {
   std::atomic<bool> gates_enabled_{false};
 
   struct Counters {
-    hal::SingleWriterCounter periods, samples, resent_samples, missing_samples, commands_sent;
+    hal::SingleWriterCounter periods, samples, resent_samples, missing_samples, skipped_samples, commands_sent;
     std::array<hal::SingleWriterCounter, 3> commands_accepted;
     std::array<hal::SingleWriterCounter, hal::protocol::kDecodeStatusCount> rejected;
     hal::SingleWriterCounter tx_dropped, tx_failures, rx_errors, publications_dropped, deadline_misses;

@@ -380,10 +380,10 @@ std::string Publisher::summary() const {
   const LoopStats s = loop_.stats();
   const std::uint64_t rejected = total_rejected(s);
   return fmt::format(
-      "periods {}, samples {} (re-sent {}, missing {}), commands sent {}, accepted drive/injection/calibration commands "
+      "periods {}, samples {} (re-sent {}, missing {}, skipped {}), commands sent {}, accepted drive/injection/calibration commands "
       "{}/{}/{}, rejected frames {} ({}), deadline misses {}, {}, frames published {} (failed {}), calibrations stored {}, "
       "interface losses {} (publishing socket reopened {})",
-      s.periods, s.samples, s.resent_samples, s.missing_samples, s.commands_sent, s.commands_accepted[0], s.commands_accepted[1],
+      s.periods, s.samples, s.resent_samples, s.missing_samples, s.skipped_samples, s.commands_sent, s.commands_accepted[0], s.commands_accepted[1],
       s.commands_accepted[2], rejected, rejected == 0U ? std::string("none") : rejected_text(s, LoopStats{}), s.deadline_misses,
       timing_text(s), stats_.frames_sent, stats_.frames_failed, stats_.calibrations_stored, s.interface_losses,
       stats_.reopens);

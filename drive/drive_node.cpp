@@ -89,7 +89,7 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
   out_.publications = {};
   out_.calibration_to_store.reset();
   out_.calibration_failed = false;
-  advance_ = sample != nullptr ? 1U : std::max<std::uint64_t>(1U, in.missing_periods);
+  advance_ = std::max<std::uint64_t>(1U, in.periods);
 
   // Front end first: codes to amperes and volts, with the power-up offset calibration.
   core::DriveInput drive_in;
@@ -157,9 +157,10 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
   // current loop only when the supervisor lets the power stage switch.
   drive_in.valid = drive_in.valid && status.sample_usable;
   drive_in.periods = si.periods;  // a lost sample's timeout stands for that many periods
-  // The sample follows the last one the controller used (the power stage's sequence): the shaft
-  // turned by one period since, whatever the wall clock did meanwhile.
-  drive_in.continuous = sample != nullptr && last_used_sequence_ && sample->sequence == *last_used_sequence_ + 1U;
+  // The sample follows the last one the controller used by the periods it stands for (the power
+  // stage's sequence): the shaft turned by that many periods since, whatever the wall clock did.
+  drive_in.continuous = sample != nullptr && last_used_sequence_ &&
+                        sample->sequence == *last_used_sequence_ + si.periods;
   if (sample != nullptr && drive_in.valid) {
     last_used_sequence_ = sample->sequence;
   }

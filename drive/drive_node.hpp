@@ -54,10 +54,11 @@ struct NodeInputs {
   bool abort_calibration = false;
   bool clear_faults = false;
   std::uint32_t deadline_misses = 0; // the caller's count, for HEARTBEAT
-  // Without a sample: how many control periods this step stands for (a daemon waits longer
-  // than one period before it calls a sample missing), so that the drive's time and the
-  // publication rates stay right through an outage.
-  std::uint32_t missing_periods = 1;
+  // How many control periods this step stands for, so that the drive's time and the
+  // publication rates stay right: without a sample, the wait's (a daemon waits longer than one
+  // period before it calls a sample missing); with one, 1, or the periods since the last sample
+  // when the ones between were lost on the bus (the power stage's sequence numbers say so).
+  std::uint32_t periods = 1;
 };
 
 // The frames due this period. A fixed-size record: it goes through the SPSC ring as is.

@@ -886,7 +886,10 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     angle_.reset();
   }
   angle_gap_ = false;
-  angle_.update(in.encoder_count);
+  angle_.update(in.encoder_count, periods);
+  // A sample that follows lost ones (DriveInput::periods): no period sample across the gap.
+  const bool after_lost = periods > 1U;
+  have_previous_ = have_previous_ && !after_lost;
   angle_lost_ = angle_lost_ && !angle_.speed_known();
   const bool enabled = command.mode != DriveMode::kDisabled && !angle_lost_;
   const double theta = angle_.electrical_angle_rad();
@@ -1042,7 +1045,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   si.voltage_limit_V = current_.voltage_limit_V(in.vdc_V);
   si.current_limit_A = derating_.current_limit_A;
   si.rs_rate_ohm_per_s = std::isfinite(rs_rate_ohm_per_s_) ? rs_rate_ohm_per_s_ : 0.0;
-  si.enabled = enabled && config_.estimator == EstimatorKind::kInjection && !sweeping;
+  si.enabled = enabled && config_.estimator == EstimatorKind::kInjection && !sweeping && !after_lost;
   if (calibrating_ && !sweeping && now - calibration_started_s_ > config_.calibration_timeout_s) {
     // No usable events in time (the method cannot inject here, or every pair was
     // rejected): keep the stored calibration and say so.
@@ -1119,8 +1122,10 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   have_previous_ = true;
 
   // Thermal model at its own rate.
-  i_sq_sum_ += i.d * i.d + i.q * i.q;
-  speed_sum_ += angle_.mechanical_speed_rad_s();
+  // The sample stands for its periods (more than 1 after lost ones).
+  const auto weight = static_cast<double>(periods);
+  i_sq_sum_ += weight * (i.d * i.d + i.q * i.q);
+  speed_sum_ += weight * angle_.mechanical_speed_rad_s();
   thermal_enabled_count_ += enabled ? 1 : 0;
   advance_thermal(periods, command);
   if (config_.estimator == EstimatorKind::kNoInjection && baseline_.updates() > 0 && !sweeping &&

@@ -169,6 +169,8 @@ const SupervisorStatus& Supervisor::step(const SupervisorInput& in) noexcept {
       // long wait): the angle is taken afresh, not judged against the one before the loss.
       have_encoder_ = false;
     }
+    // A sample that follows samples lost on the bus (SupervisorInput::periods > 1) spans them.
+    periods_without_sample_ += std::max<std::uint32_t>(in.periods, 1U) - 1U;
     check_sample(*in.sample);
     periods_without_sample_ = 0;
     ++present_samples_;

@@ -514,6 +514,47 @@ TEST(DaemonLoop, ARepeatedSampleIsNoFreshSample) {
   EXPECT_EQ(axis.loop().stats().resent_samples - resent_before, kRepeats);
 }
 
+// Samples lost on the bus between two that arrive within the sample timeout (a free-running
+// power stage's sequence skips): counted as skipped, and the sample that follows them stands
+// for the periods since the last (DriveNode, ASampleAfterLostOnesStandsForItsPeriods). A jump
+// beyond the timeout's periods (a power stage that restarted its count) is an outage first.
+TEST(DaemonLoop, SkippedSequenceNumbersAreCountedAsLostSamples) {
+  Bench bench;
+  Axis axis(bench.bus, 4, 60.0);
+  std::vector<protocol::AnyDecoded> seen;
+  ASSERT_NO_FATAL_FAILURE(start_running(bench, axis, seen));
+  axis.stop_plant();
+  collect(bench, seen);
+  std::optional<hal::SensorSample> last;
+  for (const protocol::AnyDecoded& d : seen) {
+    if (const auto* sample = as<hal::SensorSample>(d); sample != nullptr && d.node == 4) {
+      last = *sample;
+    }
+  }
+  ASSERT_TRUE(last.has_value());
+  std::unique_ptr<hal::CanBus> stage = bench.bus.connect({.fd = true, .queue_capacity = 16});
+  ASSERT_TRUE(stage->set_filters({}).ok());
+  const LoopStats before = axis.loop().stats();
+  // Sequence + 1 (after the plant's silence: a sample as after any wait), + 4 (two lost), + 5,
+  // then + 100005: 1 ms apart, well inside the 20 ms sample timeout.
+  for (const std::uint32_t step : {1U, 4U, 5U, 100005U}) {
+    hal::SensorSample s = *last;
+    s.sequence = last->sequence + step;
+    hal::CanFrame frame{};
+    ASSERT_EQ(protocol::encode(s, 4, frame), protocol::EncodeStatus::kOk);
+    ASSERT_EQ(stage->send(frame, 10ms), hal::SendResult::kOk);
+    std::this_thread::sleep_for(1ms);
+  }
+  const auto deadline = std::chrono::steady_clock::now() + 10s;
+  while (axis.loop().stats().samples - before.samples < 4U && std::chrono::steady_clock::now() < deadline) {
+    std::this_thread::sleep_for(1ms);
+  }
+  const LoopStats after = axis.loop().stats();
+  EXPECT_EQ(after.samples - before.samples, 4U);
+  EXPECT_EQ(after.skipped_samples - before.skipped_samples, 2U) << "the jump's 99,999 are no lost samples";
+  EXPECT_EQ(after.resent_samples, before.resent_samples);
+}
+
 // A stopped daemon's last word to the power stage is "off": the plant, still running in lockstep,
 // gets its next sample answered with the gates off (before, it kept the last command, gates on,
 // until its own timeout).

@@ -190,6 +190,41 @@ TEST(DriveNode, ASampleThatFollowsAfterAWaitKeepsTheAngleOneThatDoesNotLocatesIt
   EXPECT_TRUE(rig.run(1, [](hal::SensorSample& s) { s.sequence += 5; }).command->enable) << "and has its speed";
 }
 
+// A free-running power stage whose samples are lost on the bus now and then: it runs on with
+// the last command, and the next sample that arrives is three periods on (sequence + 3). Told
+// so (NodeInputs::periods, from the sequence numbers), the drive keeps its gates on and its
+// angle tracker, predicts the rotor over the gap, and its clock advances by three periods. Taken
+// as one period (as before), the encoder's advance over three read as a speed error that the
+// PLL's proportional path passed on at once: 18 rad/s (12 %) at 150 rad/s, into the speed loop.
+TEST(DriveNode, ASampleAfterLostOnesStandsForItsPeriods) {
+  for (const bool told : {true, false}) {
+    Rig rig;
+    rig.in.speed_ref_rad_s = 150.0;
+    rig.run(4000);
+    const NodeStep& before = rig.run(1);
+    ASSERT_TRUE(before.command->enable);
+    const hal::InverterCommand held = *before.command;
+    const double uptime = rig.node->uptime_s();
+    for (int lost = 0; lost < 2; ++lost) {
+      (void)rig.plant->sample();  // sent, and lost on the bus
+      rig.plant->step(held);      // the stage runs on with the last command
+    }
+    rig.in.periods = told ? 3U : 1U;
+    const NodeStep& after = rig.run(1);
+    rig.in.periods = 1;
+    const double truth = rig.plant->truth().speed_rad_s;
+    const double speed = rig.node->controller().telemetry().speed_m_rad_s;
+    if (told) {
+      EXPECT_TRUE(after.command->enable) << "the tracker continues over the gap";
+      EXPECT_NEAR(rig.node->uptime_s() - uptime, 3 * rig.config.drive.period_s, 1e-12);
+      EXPECT_NEAR(speed, truth, 0.01 * truth);  // (0.005 rad/s off here)
+      EXPECT_FALSE(rig.node->supervisor().latched(core::FaultCode::kEncoderJump));
+    } else {
+      EXPECT_GT(std::abs(speed - truth), 0.08 * truth) << "the failure this test guards against";
+    }
+  }
+}
+
 // A plant whose PWM runs at 20 kHz against a drive configured for 10 kHz: every clock of the
 // drive would run at half its rate. Its samples say so (SENSOR_SAMPLE PwmPeriod), and the
 // drive refuses them: PERIOD_MISMATCH latched, gates off, the fault published; the plant at

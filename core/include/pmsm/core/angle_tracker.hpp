@@ -30,8 +30,9 @@ class AngleTracker {
  public:
   explicit AngleTracker(const AngleTrackerConfig& config);
 
-  // One sample of the encoder.
-  void update(std::uint32_t encoder_count);
+  // One sample of the encoder, `periods` after the previous one (more than 1 when the samples
+  // between were lost: the loop's prediction runs on over them).
+  void update(std::uint32_t encoder_count, std::uint32_t periods = 1);
 
   [[nodiscard]] double mechanical_angle_rad() const { return theta_m_rad_; }   // [0, 2 pi)
   [[nodiscard]] double electrical_angle_rad() const { return theta_e_rad_; }   // [0, 2 pi)

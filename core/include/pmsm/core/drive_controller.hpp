@@ -122,13 +122,15 @@ struct DriveInput {
   std::uint32_t encoder_count = 0;
   double vdc_V = 0.0;
   bool valid = true;                // false: no fresh sample this period
-  // Control periods this step stands for: 1 with a sample; without one (a lost sample's
-  // timeout) the periods that timeout took, so that the drive's clocks (the thermal model, the
-  // calibration's timeout, the magnets' age) keep real time through an outage.
+  // Control periods this step stands for, so that the drive's clocks (the thermal model, the
+  // calibration's timeout, the magnets' age) keep real time: without a sample (a lost sample's
+  // timeout) the periods that timeout took; with one, 1, or more when the samples before it
+  // were lost on the bus (its sequence says how many): the angle tracker then predicts over
+  // them, no period sample is built across them and the injection event in progress is lost.
   std::uint32_t periods = 1;
-  // Whether this sample follows the one the controller last used (its sequence the next): the
-  // shaft then turned by one period since. False after lost samples (DriveNode compares the
-  // power stage's sequence numbers): after unusable steps the angle tracker then starts afresh.
+  // Whether this sample follows the one the controller last used by `periods` (the power
+  // stage's sequence numbers, DriveNode): the shaft turned by that many periods since. False
+  // otherwise: after unusable steps the angle tracker then starts afresh.
   bool continuous = true;
 };
 
