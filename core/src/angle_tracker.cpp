@@ -1,7 +1,5 @@
 #include "pmsm/core/angle_tracker.hpp"
 
-#include <algorithm>
-
 #include "pmsm/core/transforms.hpp"
 
 namespace pmsm::core {
@@ -28,7 +26,7 @@ void AngleTracker::reset() {
   last_step_e_rad_ = 0.0;
 }
 
-void AngleTracker::update(std::uint32_t encoder_count, std::uint32_t periods) {
+void AngleTracker::update(std::uint32_t encoder_count) {
   // Counts beyond the encoder's range are wrapped into it (a corrupt reading must not put the
   // angle outside [0, 2 pi)).
   const std::uint64_t mask = (std::uint64_t{1} << config_.encoder_bits) - 1;  // a power of two
@@ -70,14 +68,10 @@ void AngleTracker::update(std::uint32_t encoder_count, std::uint32_t periods) {
     // period, 0.38 rad/s at 14 bits and 10 kHz), and the loop starts locked on it.
     speed_known_ = true;
     smooth_m_rad_ = pll_measured_unwrapped_rad_;
-    integrator_m_rad_s_ = step_m / (dt * static_cast<double>(std::max<std::uint32_t>(periods, 1U)));
+    integrator_m_rad_s_ = step_m / dt;
     speed_m_rad_s_ = integrator_m_rad_s_;
     pll_theta_rad_ = pll_measured_unwrapped_rad_ + speed_m_rad_s_ * dt;
     return;
-  }
-  if (periods > 1U) {
-    // The samples between were lost: the prediction for this one is that many periods on.
-    pll_theta_rad_ += speed_m_rad_s_ * dt * static_cast<double>(periods - 1U);
   }
   const double error = pll_measured_unwrapped_rad_ - pll_theta_rad_;
   smooth_m_rad_ = pll_theta_rad_;

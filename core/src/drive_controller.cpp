@@ -886,10 +886,20 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     angle_.reset();
   }
   angle_gap_ = false;
-  angle_.update(in.encoder_count, periods);
-  // A sample that follows lost ones (DriveInput::periods): no period sample across the gap.
+  // A sample that follows lost ones (DriveInput::periods, the sample continuous): the tracker's
+  // prediction runs on over them (or, while it has no speed yet, it starts afresh), and no
+  // period sample spans the gap.
   const bool after_lost = periods > 1U;
-  have_previous_ = have_previous_ && !after_lost;
+  if (after_lost) {
+    if (angle_.speed_known()) {
+      angle_.skip(periods - 1U);
+    } else {
+      angle_.reset();
+      angle_lost_ = true;
+    }
+    have_previous_ = false;
+  }
+  angle_.update(in.encoder_count);
   angle_lost_ = angle_lost_ && !angle_.speed_known();
   const bool enabled = command.mode != DriveMode::kDisabled && !angle_lost_;
   const double theta = angle_.electrical_angle_rad();
@@ -1122,11 +1132,16 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   have_previous_ = true;
 
   // Thermal model at its own rate.
-  // The sample stands for its periods (more than 1 after lost ones).
-  const auto weight = static_cast<double>(periods);
-  i_sq_sum_ += weight * (i.d * i.d + i.q * i.q);
-  speed_sum_ += weight * angle_.mechanical_speed_rad_s();
+  const double i_sq = i.d * i.d + i.q * i.q;
+  i_sq_sum_ += i_sq;
+  speed_sum_ += angle_.mechanical_speed_rad_s();
   thermal_enabled_count_ += enabled ? 1 : 0;
+  if (after_lost) {
+    // The sample stands for the lost periods before it too.
+    const auto lost = static_cast<double>(periods - 1U);
+    i_sq_sum_ += lost * i_sq;
+    speed_sum_ += lost * angle_.mechanical_speed_rad_s();
+  }
   advance_thermal(periods, command);
   if (config_.estimator == EstimatorKind::kNoInjection && baseline_.updates() > 0 && !sweeping &&
       now - last_baseline_publish_s_ >= config_.baseline_publish_s) {

@@ -30,9 +30,13 @@ class AngleTracker {
  public:
   explicit AngleTracker(const AngleTrackerConfig& config);
 
-  // One sample of the encoder, `periods` after the previous one (more than 1 when the samples
-  // between were lost: the loop's prediction runs on over them).
-  void update(std::uint32_t encoder_count, std::uint32_t periods = 1);
+  // One sample of the encoder.
+  void update(std::uint32_t encoder_count);
+  // Samples lost before the next update (`periods` of them, the power stage running on): the
+  // loop's prediction for the next sample runs on over them. Once the speed is known.
+  void skip(std::uint32_t periods) {
+    pll_theta_rad_ += speed_m_rad_s_ * config_.period_s * static_cast<double>(periods);
+  }
 
   [[nodiscard]] double mechanical_angle_rad() const { return theta_m_rad_; }   // [0, 2 pi)
   [[nodiscard]] double electrical_angle_rad() const { return theta_e_rad_; }   // [0, 2 pi)
