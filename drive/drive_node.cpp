@@ -156,7 +156,7 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
   // The controller sees a sample only when the supervisor found it plausible, and runs the
   // current loop only when the supervisor lets the power stage switch.
   drive_in.valid = drive_in.valid && status.sample_usable;
-  drive_in.periods = si.periods;  // a lost sample's timeout stands for that many periods
+  drive_in.periods = si.periods;  // a timeout, or a sample after lost ones, stands for that many periods
   // The sample follows the last one the controller used by the periods it stands for (the power
   // stage's sequence): the shaft turned by that many periods since, whatever the wall clock did.
   drive_in.continuous = sample != nullptr && last_used_sequence_ &&

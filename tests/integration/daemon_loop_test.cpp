@@ -330,6 +330,21 @@ void start_running(Bench& bench, Axis& axis, std::vector<protocol::AnyDecoded>& 
   ASSERT_TRUE(has_state(seen, node, protocol::DriveState::kRunning));
 }
 
+// A running axis whose plant then falls silent; `last` receives the plant's last sample, which
+// a test sends again as it likes (a replaying or skipping power stage).
+void run_then_silence_the_plant(Bench& bench, Axis& axis, std::vector<protocol::AnyDecoded>& seen,
+                                std::optional<hal::SensorSample>& last) {
+  ASSERT_NO_FATAL_FAILURE(start_running(bench, axis, seen));
+  axis.stop_plant();
+  collect(bench, seen);
+  for (const protocol::AnyDecoded& d : seen) {
+    if (const auto* sample = as<hal::SensorSample>(d); sample != nullptr && d.node == axis.node()) {
+      last = *sample;
+    }
+  }
+  ASSERT_TRUE(last.has_value());
+}
+
 TEST(DaemonLoop, HeatUpOverTheBusTracksThePlantsTruth) {
   Bench bench;
   Axis axis(bench.bus, 1, 30.0);
@@ -468,16 +483,8 @@ TEST(DaemonLoop, ARepeatedSampleIsNoFreshSample) {
   Bench bench;
   Axis axis(bench.bus, 4, 1e6);
   std::vector<protocol::AnyDecoded> seen;
-  ASSERT_NO_FATAL_FAILURE(start_running(bench, axis, seen));
-  axis.stop_plant();
-  collect(bench, seen);
   std::optional<hal::SensorSample> last;
-  for (const protocol::AnyDecoded& d : seen) {
-    if (const auto* sample = as<hal::SensorSample>(d); sample != nullptr && d.node == 4) {
-      last = *sample;
-    }
-  }
-  ASSERT_TRUE(last.has_value());
+  ASSERT_NO_FATAL_FAILURE(run_then_silence_the_plant(bench, axis, seen, last));
   hal::CanFrame frame{};
   ASSERT_EQ(protocol::encode(*last, 4, frame), protocol::EncodeStatus::kOk);
   std::unique_ptr<hal::CanBus> replay = bench.bus.connect({.fd = true, .queue_capacity = 16});
@@ -522,16 +529,8 @@ TEST(DaemonLoop, SkippedSequenceNumbersAreCountedAsLostSamples) {
   Bench bench;
   Axis axis(bench.bus, 4, 60.0);
   std::vector<protocol::AnyDecoded> seen;
-  ASSERT_NO_FATAL_FAILURE(start_running(bench, axis, seen));
-  axis.stop_plant();
-  collect(bench, seen);
   std::optional<hal::SensorSample> last;
-  for (const protocol::AnyDecoded& d : seen) {
-    if (const auto* sample = as<hal::SensorSample>(d); sample != nullptr && d.node == 4) {
-      last = *sample;
-    }
-  }
-  ASSERT_TRUE(last.has_value());
+  ASSERT_NO_FATAL_FAILURE(run_then_silence_the_plant(bench, axis, seen, last));
   std::unique_ptr<hal::CanBus> stage = bench.bus.connect({.fd = true, .queue_capacity = 16});
   ASSERT_TRUE(stage->set_filters({}).ok());
   const LoopStats before = axis.loop().stats();
