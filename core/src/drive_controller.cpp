@@ -722,12 +722,16 @@ void DriveController::advance_thermal(std::uint32_t periods, const DriveCommand&
   for (std::uint32_t left = periods; left > 0;) {
     const std::uint32_t take = std::min(left, thermal_update_periods_);
     left -= take;
-    thermal_count_ += take;
-    thermal_elapsed_s_ += static_cast<double>(take) * config_.period_s;
-    if (thermal_elapsed_s_ >= config_.thermal_update_s) {
-      thermal_elapsed_s_ = 0.0;
-      update_thermal(command.ambient_C, command.mode == DriveMode::kSpeed);
-    }
+    count_thermal_periods(take, command);
+  }
+}
+
+void DriveController::count_thermal_periods(std::uint32_t periods, const DriveCommand& command) {
+  thermal_count_ += periods;
+  thermal_elapsed_s_ += static_cast<double>(periods) * config_.period_s;
+  if (thermal_elapsed_s_ >= config_.thermal_update_s) {
+    thermal_elapsed_s_ = 0.0;
+    update_thermal(command.ambient_C, command.mode == DriveMode::kSpeed);
   }
 }
 
@@ -1136,13 +1140,15 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   i_sq_sum_ += i_sq;
   speed_sum_ += angle_.mechanical_speed_rad_s();
   thermal_enabled_count_ += enabled ? 1 : 0;
-  if (after_lost) {
+  if (!after_lost) {
+    count_thermal_periods(1U, command);  // advance_thermal without its chunking (docs/performance.md)
+  } else {
     // The sample stands for the lost periods before it too.
     const auto lost = static_cast<double>(periods - 1U);
     i_sq_sum_ += lost * i_sq;
     speed_sum_ += lost * angle_.mechanical_speed_rad_s();
+    advance_thermal(periods, command);
   }
-  advance_thermal(periods, command);
   if (config_.estimator == EstimatorKind::kNoInjection && baseline_.updates() > 0 && !sweeping &&
       now - last_baseline_publish_s_ >= config_.baseline_publish_s) {
     last_baseline_publish_s_ = now;

@@ -383,6 +383,8 @@ class DriveController {
   [[nodiscard]] double measurement_age_s(const EventEstimate& e) const;
   void handle_estimate(const EventEstimate& e);
   void advance_thermal(std::uint32_t periods, const DriveCommand& command);
+  // Periods (at most an update's) into the thermal model's clock; its update when one is due.
+  void count_thermal_periods(std::uint32_t periods, const DriveCommand& command);
   void update_thermal(double ambient_C, bool speed_mode);
   [[nodiscard]] Dq motoring_reference(const DriveCommand& command);
 
