@@ -212,7 +212,7 @@ TEST(DriveNode, ASampleAfterLostOnesStandsForItsPeriods) {
     rig.in.periods = told ? 3U : 1U;
     const NodeStep& after = rig.run(1);
     rig.in.periods = 1;
-    const double truth = rig.plant->truth().speed_rad_s;
+    const auto truth = static_cast<double>(rig.plant->truth().speed_rad_s);
     const double speed = rig.node->controller().telemetry().speed_m_rad_s;
     if (told) {
       EXPECT_TRUE(after.command->enable) << "the tracker continues over the gap";
