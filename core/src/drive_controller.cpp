@@ -63,10 +63,12 @@ PeriodPattern dead_time_pattern(const Abc& i0, const Abc& i1, double band_A, dou
 }  // namespace
 
 bool controllable(const DriveInput& in) noexcept {
-  // Every reading finite, in one test: x - x is 0 for a finite x and NaN for inf or NaN, and a
-  // NaN anywhere makes the sum NaN (four isfinite calls cost the step about 20 instructions).
-  const double zero = (in.i_A.a - in.i_A.a) + (in.i_A.b - in.i_A.b) + (in.i_A.c - in.i_A.c) + (in.vdc_V - in.vdc_V);
-  return in.valid && zero == 0.0 && in.vdc_V > 0.0;
+  // Every reading finite, in one test: the sum of the readings is inf or NaN when any one is
+  // (inf - inf is NaN), and s - s is 0 for a finite s and NaN otherwise (four isfinite calls
+  // cost the step about 20 instructions). Finite readings whose sum overflows (beyond 1e308 A
+  // or V) are no readings either.
+  const double sum = in.i_A.a + in.i_A.b + in.i_A.c + in.vdc_V;
+  return in.valid && sum - sum == 0.0 && in.vdc_V > 0.0;
 }
 
 DriveController::DriveController(const DriveConfig& config)
@@ -105,6 +107,19 @@ DriveController::DriveController(const DriveConfig& config)
       std::isfinite(config_.calibration.vx_V)) {
     scheduler_.set_vx_prior(config_.calibration.vx_V, config_.calibration.vx_std_V);
   }
+  publish_learned();
+}
+
+void DriveController::publish_learned() {
+  learned_version_published_ = scheduler_.learned_version();
+  telemetry_.angle_correction_rad = angle_.offset_correction_rad();
+  telemetry_.dead_time_band_A = config_.dead_time.current_band_A;
+  telemetry_.vx_V = scheduler_.vx_V();
+  telemetry_.vx_std_V = scheduler_.vx_std_V();
+  telemetry_.lq_H = scheduler_.lq_H();
+  telemetry_.lq_std_H = scheduler_.lq_std_H();
+  telemetry_.lq_saturation_H = scheduler_.lq_saturation_H();
+  telemetry_.calibrated = observer_.calibration().calibrated;
 }
 
 void DriveController::fail_calibration(CalibrationFailure why) {
@@ -151,9 +166,8 @@ void DriveController::age_magnet(std::uint32_t periods) {
   magnet_age_s_ += static_cast<double>(periods) * config_.period_s * observer_.time_scale();
   if (magnet_valid_ && magnet_age_s_ > config_.magnet_max_age_s) {
     magnet_valid_ = false;
+    telemetry_.magnet_valid = false;  // (set with the estimate, update_magnet)
   }
-  telemetry_.magnet_valid = magnet_valid_;
-  telemetry_.magnet_C = magnet_filtered_C_;
 }
 
 double DriveController::magnet_var_now_C2() const {
@@ -216,6 +230,7 @@ void DriveController::restore_band() {
   if (!(nameplate && band_measured_ && !band_measured_before_)) {
     config_.dead_time.current_band_A = band_before_calibration_A_;
     band_measured_ = band_measured_before_;
+    publish_learned();
   }
 }
 
@@ -243,6 +258,7 @@ void DriveController::set_angle_correction(double correction_rad) {
   const double change = correction_rad - angle_.offset_correction_rad();
   angle_.set_offset_correction_rad(correction_rad);
   pending_angle_jump_rad_ += change;
+  publish_learned();
 }
 
 void DriveController::restore_angle() {
@@ -317,6 +333,7 @@ void DriveController::finish_inverter_sweep(double now_s) {
     // (docs/estimator.md section 4). The calibration's joint fit learns Vx itself.
     config_.dead_time.current_band_A = r.band_A;
     band_measured_ = true;
+    publish_learned();
   }
   // The calibration's events (and its timeout) start now, whatever the sweep found: without a
   // measurement the configured band and Vx prior hold, as before the sweep existed.
@@ -517,8 +534,6 @@ void DriveController::handle_estimate(const EventEstimate& e) {
     ++telemetry_.events_without_estimate;
     return;
   }
-  telemetry_.vx_V = e.vx_V;
-  telemetry_.vx_std_V = e.vx_std_V;
   if (calibrating_) {
     // Inverse-variance weights: an event whose inverter voltage was still unknown carries
     // a large error bar and must not pull Rs0.
@@ -583,8 +598,10 @@ void DriveController::handle_estimate(const EventEstimate& e) {
       // The filter keeps its state (the winding has warmed during the calibration); only the
       // temperature scale changes.
       observer_.set_calibration(c);
+      publish_learned();
       report(calibration_done_, c);
       magnet_valid_ = false;  // the next estimate is against the new Ke0, not blended with the old
+      telemetry_.magnet_valid = false;
       magnet_reset_ = true;
       calibration_outcome_ = CalibrationOutcome::kDone;
       publish_calibration_state();
@@ -679,6 +696,8 @@ void DriveController::update_magnet(const EventEstimate& e, const Calibration& c
   magnet_valid_ = true;
   magnet_measured_ = true;
   magnet_age_s_ = 0.0;
+  telemetry_.magnet_valid = true;
+  telemetry_.magnet_C = magnet_filtered_C_;
   publish_magnet_std();  // at age 0: the bar as this measurement leaves it
   magnet_upper_C_ = magnet_filtered_C_ + config_.derating.confidence_sigma * telemetry_.magnet_std_C;
   telemetry_.magnet_upper_C = magnet_upper_C_;
@@ -767,8 +786,11 @@ void DriveController::update_thermal(double ambient_C, bool speed_mode) {
 
   const ThermalEstimate e = observer_.estimate();
   // dRs/dt for the scheduler: the model's warming through Eq. 1's slope at the estimate.
-  rs_rate_ohm_per_s_ = observer_.winding_rate_C_per_s() *
-                       (observer_.resistance_at_C(e.winding_C + 0.5) - observer_.resistance_at_C(e.winding_C - 0.5));
+  // Kept finite here, where it changes, so that the step passes it on as it is (a filter
+  // without an estimate yet has no rate).
+  const double rate = observer_.winding_rate_C_per_s() *
+                      (observer_.resistance_at_C(e.winding_C + 0.5) - observer_.resistance_at_C(e.winding_C - 0.5));
+  rs_rate_ohm_per_s_ = std::isfinite(rate) ? rate : 0.0;
   derating_ = derate(config_.derating, e);
   telemetry_.derating = derating_.derating;
   // The magnets' limit, on the last magnet estimate even after it aged out (no longer
@@ -829,7 +851,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   calibration_failed_now_ = false;
   const double now = static_cast<double>(period_) * config_.period_s;
   const std::uint32_t periods = std::max<std::uint32_t>(in.periods, 1U);
-  period_ += periods;
+  period_ += static_cast<std::int64_t>(periods);
 
   const bool usable = controllable(in);
   if (!usable) {
@@ -1058,7 +1080,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   si.motoring_ref_A = motoring;
   si.voltage_limit_V = current_.voltage_limit_V(in.vdc_V);
   si.current_limit_A = derating_.current_limit_A;
-  si.rs_rate_ohm_per_s = std::isfinite(rs_rate_ohm_per_s_) ? rs_rate_ohm_per_s_ : 0.0;
+  si.rs_rate_ohm_per_s = rs_rate_ohm_per_s_;  // finite (update_thermal)
   si.enabled = enabled && config_.estimator == EstimatorKind::kInjection && !sweeping && !after_lost;
   if (calibrating_ && !sweeping && now - calibration_started_s_ > config_.calibration_timeout_s) {
     // No usable events in time (the method cannot inject here, or every pair was
@@ -1164,7 +1186,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     handle_estimate(e);
   }
 
-  telemetry_.period = period_;
+  telemetry_.period = static_cast<std::uint64_t>(period_);
   telemetry_.time_s = now;
   telemetry_.theta_e_rad = theta;
   telemetry_.speed_m_rad_s = angle_.mechanical_speed_rad_s();
@@ -1178,14 +1200,9 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
       config_.current.flux_linkage_Wb, config_.current.ld_H, config_.current.lq_H, config_.motor.pole_pairs, i);
   telemetry_.inverter_sweep_active = sweep_.active();
   telemetry_.angle_check_active = check_.active();
-  telemetry_.angle_correction_rad = angle_.offset_correction_rad();
-  telemetry_.dead_time_band_A = config_.dead_time.current_band_A;
-  telemetry_.vx_V = scheduler_.vx_V();
-  telemetry_.vx_std_V = scheduler_.vx_std_V();
-  telemetry_.lq_H = scheduler_.lq_H();
-  telemetry_.lq_std_H = scheduler_.lq_std_H();
-  telemetry_.lq_saturation_H = scheduler_.lq_saturation_H();
-  telemetry_.calibrated = observer_.calibration().calibrated;
+  if (scheduler_.learned_version() != learned_version_published_) {
+    publish_learned();  // the rest changes outside the scheduler, where publish_learned() is called
+  }
   return output_;
 }
 

@@ -638,6 +638,7 @@ void InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit)
   // a state that has become confidently wrong widens until pairs pass again).
   const double drift = config_.lq_drift_fraction * config_.lq_H;
   lq_var_ += drift * drift;
+  ++learned_version_;  // (and the update below, if the pair passes the gate)
   if (config_.lq_saturation_std_fraction > 0.0) {
     lq_b_var_ += drift * drift;  // (without the saturation model b stays at 0)
   }
@@ -667,6 +668,7 @@ void InjectionScheduler::carry_vx(double vx_V, double var_V2) {
   // The event's Vx becomes the next one's prior, which may drift meanwhile.
   vx_V_ = vx_V;
   vx_var_ = var_V2 + config_.vx_drift_std_V * config_.vx_drift_std_V;
+  ++learned_version_;
 }
 
 MeansFit InjectionScheduler::sample_fit_fixed_vx(double vx_V) const {

@@ -700,6 +700,65 @@ TEST(DriveNode, TheRotorAngleCheckCorrectsAnEncoderOffsetAndRefusesAGrossOne) {
 }
 
 
+// What the drive learns reaches its telemetry in the period it is learned, not a period late
+// and never lost: the angle check's correction, the calibration's Vx and its flag, through a
+// calibration and through an aborted one that puts the stored values back (the step copies
+// them only when they change, DriveController::publish_learned).
+TEST(DriveNode, TheLearnedTelemetryFollowsWhatTheDriveLearnsInTheSamePeriod) {
+  constexpr double kDeg = std::numbers::pi / 180.0;
+  Rig rig;
+  rig.plant_config.load.torque_Nm = 0.0;  // a calibration runs unloaded
+  rig.plant_config.encoder.offset_rad = 2.0 * kDeg / rig.config.drive.motor.pole_pairs;
+  rig.plant = std::make_unique<plant::Plant>(rig.plant_config);
+  int mismatches = 0;
+  int vx_changes = 0;
+  double last_vx = rig.node->controller().vx_V();
+  auto run_checked = [&](int periods) {
+    for (int k = 0; k < periods; ++k) {
+      const NodeStep& step = rig.run(1);
+      const core::DriveController& c = rig.node->controller();
+      const core::DriveTelemetry& t = c.telemetry();
+      const bool same = t.vx_V == c.vx_V() && t.vx_std_V == c.vx_std_V() &&
+                        t.angle_correction_rad == c.angle_correction_rad() &&
+                        t.calibrated == c.calibration().calibrated;
+      if (!same && ++mismatches <= 3) {
+        ADD_FAILURE() << "period " << k << ": telemetry Vx " << t.vx_V << " +- " << t.vx_std_V << " against "
+                      << c.vx_V() << " +- " << c.vx_std_V() << ", angle " << t.angle_correction_rad << " against "
+                      << c.angle_correction_rad() << ", calibrated " << t.calibrated;
+      }
+      vx_changes += c.vx_V() != last_vx ? 1 : 0;
+      last_vx = c.vx_V();
+      if (step.calibration_to_store) {
+        return true;
+      }
+    }
+    return false;
+  };
+  run_checked(3000);
+  rig.in.start_calibration = true;
+  run_checked(1);
+  rig.in.start_calibration = false;
+  ASSERT_TRUE(run_checked(300000)) << "the calibration did not complete";
+  EXPECT_EQ(mismatches, 0);
+  EXPECT_GE(vx_changes, 2) << "the calibration's events learned Vx";
+  EXPECT_NE(rig.node->controller().angle_correction_rad(), 0.0) << "the angle check corrected";
+  EXPECT_TRUE(rig.node->controller().telemetry().calibrated);
+
+  // A second calibration, aborted once its check has measured: the stored values come back.
+  run_checked(1000);
+  rig.in.start_calibration = true;
+  run_checked(1);
+  rig.in.start_calibration = false;
+  for (int k = 0; k < 30000 && !rig.node->controller().telemetry().inverter_sweep_active; ++k) {
+    run_checked(1);
+  }
+  rig.in.abort_calibration = true;
+  run_checked(1);
+  rig.in.abort_calibration = false;
+  run_checked(100);
+  EXPECT_EQ(mismatches, 0);
+}
+
 // A calibration that gives up says so on the bus, and the one in use (here the configured
 // default) stays: a supervisor that asked for it sees TIMED_OUT with Calibrated 0.
 TEST(DriveNode, ACalibrationThatTimesOutIsPublishedAsSuch) {

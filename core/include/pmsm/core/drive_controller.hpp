@@ -425,6 +425,11 @@ class DriveController {
   void fail_calibration(CalibrationFailure why);
   void publish_calibration_state();
   void clear_motoring_telemetry();  // nothing asked of the motor this period (disabled, no sample)
+  // The telemetry of what the drive has learned or been given (the angle correction, the
+  // bridge's band and Vx, Lq, the calibration's flag): copied where it changes, and after a
+  // step in which the scheduler learned (InjectionScheduler::learned_version), not every period.
+  void publish_learned();
+  std::uint32_t learned_version_published_ = 0;
 
   // The period's reports (last_pair() ... inverter_sweep_completed()): set only through
   // report(), which notes that the next step must clear them.
@@ -460,7 +465,9 @@ class DriveController {
   CalibrationStepRestart sweep_restart_;
   double band_before_calibration_A_ = 0.0;
 
-  std::uint64_t period_ = 0;
+  // Signed: its conversion to a time is one instruction, an unsigned one's a branch and more
+  // (2^63 periods are 29 million years at 10 kHz).
+  std::int64_t period_ = 0;
   // Unusable steps came after the tracker had started (the shaft may have turned on), and the
   // rotor's angle was lost (a sample after them that did not follow the last one used): the
   // bridge stays off until the tracker has the speed again.

@@ -416,6 +416,7 @@ class InjectionScheduler {
   void set_vx_prior(double vx_V, double std_V) {
     vx_V_ = vx_V;
     vx_var_ = std_V * std_V;
+    ++learned_version_;
   }
   [[nodiscard]] double lq_H() const { return lq_H_; }   // the secant Lq at zero current
   [[nodiscard]] double lq_std_H() const { return std::sqrt(lq_var_); }
@@ -424,6 +425,9 @@ class InjectionScheduler {
   // Whether pairs at two loads have resolved it (its variance below a quarter of its prior);
   // until then the incremental Lq is the secant less the commissioned gap 2 b0 u.
   [[nodiscard]] bool lq_saturation_resolved() const { return lq_resolved_; }
+  // Counts the changes of the learned Vx and Lq (and their variances): a reader that publishes
+  // them copies them when this moves, not every period.
+  [[nodiscard]] std::uint32_t learned_version() const { return learned_version_; }
   // The learned secant and incremental Lq at a q-axis current (the commissioned curve when
   // learning is off).
   [[nodiscard]] double lq_secant_H(double iq_A) const;
@@ -510,6 +514,7 @@ class InjectionScheduler {
   LqTerm pair_lq_{};                // the Lq the pair in progress is fitted with (u, secant, incremental)
   std::array<PairConditions, InjectionConfig::kMaxLevels> event_q_{};
   int event_q_pairs_ = 0;
+  std::uint32_t learned_version_ = 0;  // learned_version()
   double vx_V_ = 0.0;               // inverter voltage prior
   double vx_var_ = 0.0;
   double lq_H_ = 0.0;               // learned q-axis inductance (see InjectionConfig::learn_lq)
