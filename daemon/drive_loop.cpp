@@ -394,6 +394,7 @@ LoopStats DriveLoop::stats() const noexcept {
   s.tx_dropped = c.tx_dropped.get();
   s.tx_failures = c.tx_failures.get();
   s.rx_errors = c.rx_errors.get();
+  s.rx_overflow = bus_.counters().rx_overflow;  // (counters() may be read from any thread)
   s.publications_dropped = c.publications_dropped.get();
   s.deadline_misses = c.deadline_misses.get();
   s.interface_losses = c.interface_losses.get();

@@ -80,6 +80,9 @@ struct LoopStats {
   std::uint64_t tx_dropped = 0;
   std::uint64_t tx_failures = 0;
   std::uint64_t rx_errors = 0;
+  // Frames the kernel dropped for the loop's socket, its receive buffer full (SO_RXQ_OVFL):
+  // samples and commands that never reached the loop (the backend's count, kept over reopens).
+  std::uint64_t rx_overflow = 0;
   std::uint64_t publications_dropped = 0;  // the ring was full
   std::uint64_t deadline_misses = 0;       // receive -> send longer than one control period
   std::uint64_t interface_losses = 0;

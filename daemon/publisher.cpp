@@ -362,9 +362,12 @@ void Publisher::report() {
     spdlog::warn("{} deadline miss(es) since the last report (sample->command longer than one period); {}",
                  s.deadline_misses - p.deadline_misses, timing_text(s));
   }
-  if (s.tx_dropped != p.tx_dropped || s.tx_failures != p.tx_failures || s.rx_errors != p.rx_errors) {
-    spdlog::warn("CAN I/O since the last report: {} command(s) dropped (queue full), {} failed send(s), {} failed read(s)",
-                 s.tx_dropped - p.tx_dropped, s.tx_failures - p.tx_failures, s.rx_errors - p.rx_errors);
+  if (s.tx_dropped != p.tx_dropped || s.tx_failures != p.tx_failures || s.rx_errors != p.rx_errors ||
+      s.rx_overflow != p.rx_overflow) {
+    spdlog::warn("CAN I/O since the last report: {} command(s) dropped (queue full), {} failed send(s), {} failed read(s), "
+                 "{} frame(s) dropped by the kernel before the control loop read them (its receive buffer full)",
+                 s.tx_dropped - p.tx_dropped, s.tx_failures - p.tx_failures, s.rx_errors - p.rx_errors,
+                 s.rx_overflow - p.rx_overflow);
   }
   if (s.publications_dropped != p.publications_dropped) {
     spdlog::warn("{} publication record(s) dropped: this thread did not keep up with the control loop",
@@ -382,11 +385,12 @@ std::string Publisher::summary() const {
   return fmt::format(
       "periods {}, samples {} (re-sent {}, missing {}, skipped {}), commands sent {}, accepted drive/injection/calibration commands "
       "{}/{}/{}, rejected frames {} ({}), deadline misses {}, {}, frames published {} (failed {}), calibrations stored {}, "
-      "interface losses {} (publishing socket reopened {})",
+      "interface losses {} (publishing socket reopened {}), CAN I/O: commands dropped {} (queue full), failed sends {}, "
+      "failed reads {}, frames dropped on receive {}",
       s.periods, s.samples, s.resent_samples, s.missing_samples, s.skipped_samples, s.commands_sent, s.commands_accepted[0], s.commands_accepted[1],
       s.commands_accepted[2], rejected, rejected == 0U ? std::string("none") : rejected_text(s, LoopStats{}), s.deadline_misses,
       timing_text(s), stats_.frames_sent, stats_.frames_failed, stats_.calibrations_stored, s.interface_losses,
-      stats_.reopens);
+      stats_.reopens, s.tx_dropped, s.tx_failures, s.rx_errors, s.rx_overflow);
 }
 
 }  // namespace pmsm::daemon

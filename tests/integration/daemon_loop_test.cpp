@@ -166,6 +166,7 @@ class Axis {
   [[nodiscard]] bool plant_done() const { return plant_done_; }
   [[nodiscard]] const DriveLoop& loop() const { return *loop_; }
   [[nodiscard]] DriveLoop& loop() { return *loop_; }
+  [[nodiscard]] const Publisher& publisher() const { return *publisher_; }
   [[nodiscard]] protocol::NodeId node() const { return node_; }
   // The publishing socket loses its binding (its interface deleted and created again).
   void unbind_publishing() { pub_bus_->unbind(); }
@@ -552,6 +553,26 @@ TEST(DaemonLoop, SkippedSequenceNumbersAreCountedAsLostSamples) {
   EXPECT_EQ(after.samples - before.samples, 4U);
   EXPECT_EQ(after.skipped_samples - before.skipped_samples, 2U) << "the jump's 99,999 are no lost samples";
   EXPECT_EQ(after.resent_samples, before.resent_samples);
+}
+
+// Frames the kernel drops for the control loop's socket (its receive buffer full: a loop that
+// stalled) are counted and named in the daemon's summary, not only seen as missing samples.
+TEST(DaemonLoop, FramesDroppedOnReceiveAreCountedAndReported) {
+  Bench bench;
+  Axis axis(bench.bus, 5, 60.0);  // the loop not started: nothing reads its socket (1,024 frames)
+  std::unique_ptr<hal::CanBus> stage = bench.bus.connect({.fd = true, .queue_capacity = 16});
+  ASSERT_TRUE(stage->set_filters({}).ok());
+  EXPECT_EQ(axis.loop().stats().rx_overflow, 0U);
+  for (std::uint32_t k = 0; k < 1024U + 76U; ++k) {
+    hal::SensorSample s{};
+    s.sequence = k;
+    hal::CanFrame frame{};
+    ASSERT_EQ(protocol::encode(s, 5, frame), protocol::EncodeStatus::kOk);
+    ASSERT_EQ(stage->send(frame), hal::SendResult::kOk);
+  }
+  EXPECT_EQ(axis.loop().stats().rx_overflow, 76U);
+  const std::string summary = axis.publisher().summary();
+  EXPECT_NE(summary.find("frames dropped on receive 76"), std::string::npos) << summary;
 }
 
 // A stopped daemon's last word to the power stage is "off": the plant, still running in lockstep,
