@@ -140,6 +140,7 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns, 
     }
     if (p.heartbeat) {
       r.timing = close_timing_window();
+      realtime_offset_ns_ = hal::realtime_minus_monotonic_ns();  // (the wall clock may have been set)
     }
     if (r.uptime_s >= next_thermal_state_s_ && node_.controller().telemetry().thermal_valid) {
       next_thermal_state_s_ = r.uptime_s + kThermalStateEvery_s;
@@ -291,7 +292,22 @@ void DriveLoop::recover_interface(const std::atomic<bool>& stop) noexcept {
   }
 }
 
+// A frame's arrival on the monotonic clock: the kernel's software receive timestamp where the
+// backend gives one, else the moment it was read. A loop that was late to read a sample (its
+// thread preempted, a burst of frames before it) was late to answer it: the step's latency and
+// the deadline count from the arrival. (A hardware timestamp is on the controller's own clock;
+// a wait longer than the sample timeout, or a negative one, is a wall clock that was set since
+// the offset was read: the reading then stands.)
+std::int64_t DriveLoop::arrival_ns(std::int64_t read_ns) const noexcept {
+  if (received_.timestamp_ns == 0 || received_.hardware_timestamp) {
+    return read_ns;
+  }
+  const std::int64_t waited = read_ns + realtime_offset_ns_ - received_.timestamp_ns;
+  return waited > 0 && waited < sample_timeout_ns_ ? read_ns - waited : read_ns;
+}
+
 void DriveLoop::run(const std::atomic<bool>& stop) {
+  realtime_offset_ns_ = hal::realtime_minus_monotonic_ns();
   // In the steady state the clock is read twice a period: when the sample arrives and after the
   // command is sent (the step's latency). The wait for the next sample starts from the second
   // reading; only a wake-up without a sample reads the clock again. (Under User-Mode Linux a
@@ -320,7 +336,7 @@ void DriveLoop::run(const std::atomic<bool>& stop) {
         }
         const std::uint64_t samples_before = counters_.samples.get();
         after_ns_ = at;
-        on_frame(received_.frame, at);
+        on_frame(received_.frame, arrival_ns(at));
         now = after_ns_;
         if (counters_.samples.get() != samples_before) {
           deadline = at + sample_timeout_ns_;

@@ -165,6 +165,11 @@ class DriveLoop {
   bool sample_missed_ = false;  // a step without a sample since the last sample (its time is counted)
   hal::InverterCommand last_command_{};
   std::int64_t after_ns_ = 0;  // the clock after the last command was sent (run() waits from it)
+  // CLOCK_REALTIME - CLOCK_MONOTONIC (hal::realtime_minus_monotonic_ns), read at the start and
+  // with every HEARTBEAT: how long a frame waited in the socket before the loop read it
+  // (arrival_ns()).
+  std::int64_t realtime_offset_ns_ = 0;
+  [[nodiscard]] std::int64_t arrival_ns(std::int64_t read_ns) const noexcept;
   hal::CanFrame frame_{};
   hal::ReceivedFrame received_{};
   // The timing window closed by each heartbeat (this thread only).

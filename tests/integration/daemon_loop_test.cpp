@@ -575,6 +575,32 @@ TEST(DaemonLoop, FramesDroppedOnReceiveAreCountedAndReported) {
   EXPECT_NE(summary.find("frames dropped on receive 76"), std::string::npos) << summary;
 }
 
+// The step's latency counts from the sample's arrival (the receive timestamp), not from the
+// moment the loop read it: a sample that waited 5 ms in the socket (here for the loop to start;
+// on a drive, a control thread preempted) was answered 5 ms late, a deadline miss.
+TEST(DaemonLoop, ASampleThatWaitedInTheSocketIsADeadlineMiss) {
+  Bench bench;
+  Axis axis(bench.bus, 6, 60.0);
+  std::unique_ptr<hal::CanBus> stage = bench.bus.connect({.fd = true, .queue_capacity = 16});
+  ASSERT_TRUE(stage->set_filters({}).ok());
+  hal::SensorSample s{};
+  s.sequence = 1;
+  hal::CanFrame frame{};
+  ASSERT_EQ(protocol::encode(s, 6, frame), protocol::EncodeStatus::kOk);
+  ASSERT_EQ(stage->send(frame), hal::SendResult::kOk);
+  std::this_thread::sleep_for(5ms);
+  axis.start_daemon();
+  const auto deadline = std::chrono::steady_clock::now() + 10s;
+  while (axis.loop().stats().samples == 0U && std::chrono::steady_clock::now() < deadline) {
+    std::this_thread::sleep_for(1ms);
+  }
+  const LoopStats stats = axis.loop().stats();
+  ASSERT_EQ(stats.samples, 1U);
+  EXPECT_EQ(stats.deadline_misses, 1U);
+  EXPECT_GE(stats.max_step_ns, 5'000'000U) << "the 5 ms in the socket are the answer's";
+  EXPECT_LT(stats.max_step_ns, 20'000'000U) << "within the sample timeout";
+}
+
 // A stopped daemon's last word to the power stage is "off": the plant, still running in lockstep,
 // gets its next sample answered with the gates off (before, it kept the last command, gates on,
 // until its own timeout).

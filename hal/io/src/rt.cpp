@@ -119,6 +119,14 @@ std::int64_t monotonic_ns() noexcept {
   return std::int64_t{ts.tv_sec} * kNsPerS + std::int64_t{ts.tv_nsec};
 }
 
+std::int64_t realtime_minus_monotonic_ns() noexcept {
+  const std::int64_t before = monotonic_ns();
+  timespec ts{};
+  ::clock_gettime(CLOCK_REALTIME, &ts);
+  const std::int64_t after = monotonic_ns();
+  return std::int64_t{ts.tv_sec} * kNsPerS + std::int64_t{ts.tv_nsec} - (before + (after - before) / 2);
+}
+
 PeriodicTimer::PeriodicTimer(std::chrono::nanoseconds period) : period_(period) {
   if (period_.count() <= 0) {
     throw HalError(EINVAL, "periodic timer: the period must be positive, got " +

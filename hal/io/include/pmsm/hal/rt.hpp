@@ -39,6 +39,12 @@ void prefault_stack(std::size_t bytes = 256U * 1024U) noexcept;
 // CLOCK_MONOTONIC in nanoseconds.
 [[nodiscard]] std::int64_t monotonic_ns() noexcept;
 
+// CLOCK_REALTIME less CLOCK_MONOTONIC, in nanoseconds: what turns a monotonic reading into the
+// clock of the kernel's software receive timestamps (ReceivedFrame::timestamp_ns). Read between
+// two monotonic readings, whose midpoint it is taken against. It moves when the wall clock is
+// set or slewed: read it again now and then, not once for a process's life.
+[[nodiscard]] std::int64_t realtime_minus_monotonic_ns() noexcept;
+
 // A periodic wake-up on absolute deadlines (clock_nanosleep(CLOCK_MONOTONIC,
 // TIMER_ABSTIME)), so that the period does not drift with the loop's own run time.
 //
