@@ -900,33 +900,39 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     return output_;
   }
 
-  // After unusable steps (an outage, a latched fault), a sample that does not follow the
-  // tracker's last one finds the shaft turned by an unknown angle: with the old state, a shaft
-  // that turned on for 20 ms at 157 rad/s looked like a step of half a turn, read by the PLL as
-  // thousands of rad/s. The tracker starts afresh (this sample locates the rotor, the next gives
-  // its speed) and the bridge stays off until then (angle_lost_). The same while it seeds its
-  // speed: a sample lost between the two would double it. A sample that does follow (a
-  // lockstep power stage slower than the sample timeout) continues the tracker as it is.
-  if ((angle_gap_ || (angle_.initialised() && !angle_.speed_known())) && !in.continuous) {
-    angle_lost_ = true;
-    angle_.reset();
-  }
-  angle_gap_ = false;
-  // A sample that follows lost ones (DriveInput::periods, the sample continuous): the tracker's
-  // prediction runs on over them (or, while it has no speed yet, it starts afresh), and no
-  // period sample spans the gap.
   const bool after_lost = periods > 1U;
-  if (after_lost) {
-    if (angle_.speed_known()) {
-      angle_.skip(periods - 1U);
-    } else {
-      angle_.reset();
+  if (angle_gap_ || after_lost || !angle_.speed_known()) {
+    // After unusable steps (an outage, a latched fault), a sample that does not follow the
+    // tracker's last one finds the shaft turned by an unknown angle: with the old state, a shaft
+    // that turned on for 20 ms at 157 rad/s looked like a step of half a turn, read by the PLL
+    // as thousands of rad/s. The tracker starts afresh (this sample locates the rotor, the next
+    // gives its speed) and the bridge stays off until then (angle_lost_). The same while it
+    // seeds its speed: a sample lost between the two would double it. A sample that does follow
+    // (a lockstep power stage slower than the sample timeout) continues the tracker as it is.
+    if ((angle_gap_ || (angle_.initialised() && !angle_.speed_known())) && !in.continuous) {
       angle_lost_ = true;
+      angle_.reset();
     }
-    have_previous_ = false;
+    angle_gap_ = false;
+    // A sample that follows lost ones (DriveInput::periods, the sample continuous): the
+    // tracker's prediction runs on over them (or, while it has no speed yet, it starts afresh),
+    // and no period sample spans the gap.
+    if (after_lost) {
+      if (angle_.speed_known()) {
+        angle_.skip(periods - 1U);
+      } else {
+        angle_.reset();
+        angle_lost_ = true;
+      }
+      have_previous_ = false;
+    }
+    angle_.update(in.encoder_count);
+    angle_lost_ = angle_lost_ && !angle_.speed_known();
+  } else {
+    // The common period: the tracker has its speed and nothing came between (angle_lost_ is
+    // false whenever the tracker has its speed: it is cleared by the update that gives it).
+    angle_.update(in.encoder_count);
   }
-  angle_.update(in.encoder_count);
-  angle_lost_ = angle_lost_ && !angle_.speed_known();
   const bool enabled = command.mode != DriveMode::kDisabled && !angle_lost_;
   const double theta = angle_.electrical_angle_rad();
   const double omega_e = angle_.electrical_speed_rad_s();
