@@ -514,7 +514,9 @@ class ConfigSchema {
         std::vector<TimePoint> values;
         std::size_t k = 0;
         for (const toml::node& item : a) {
-          const std::string element = where(source, item, e.key, prefix) + "element " + std::to_string(k++) + ": ";
+          // Counted from 1, "of" the total: no doubt which element is meant.
+          const std::string element =
+              where(source, item, e.key, prefix) + "element " + std::to_string(++k) + " of " + std::to_string(a.size()) + ": ";
           const auto* pair = item.as_array();
           if (pair == nullptr || pair->size() != 2) {
             throw ConfigError(element + "expected [time_s, value]");

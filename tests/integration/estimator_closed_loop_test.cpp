@@ -434,7 +434,7 @@ TEST(SimulateCli, JsonFiguresCsvAndPlot) {
                                                   (dir / "s.csv").string());
   ASSERT_EQ(r.exit_code, 0) << r.err;
   for (const char* key : {"winding_error_rms_C", "winding_error_max_C", "rs_error_rms_mohm", "estimates_accepted",
-                          "estimates_rejected", "speed_disturbance_pct", "torque_disturbance_pct", "injection_loss_W",
+                          "pairs_rejected", "estimates_rejected", "speed_disturbance_pct", "torque_disturbance_pct", "injection_loss_W",
                           "sim_time_s", "wall_time_s"}) {
     EXPECT_NE(r.out.find(std::string("\"") + key + "\""), std::string::npos) << key;
   }

@@ -87,8 +87,9 @@ TEST(Scenario, ErrorInTheBaseNamesTheBaseFile) {
 // A device or a directory named as a file is refused by name, never read (/dev/zero would be
 // read forever).
 TEST(Scenario, DevicesAndDirectoriesAreNotConfigurationFiles) {
-  EXPECT_EQ(inline_error("[scenario]\nbase = \"/dev/zero\"\n"), "/dev/zero: scenario.base: is not a regular file");
-  EXPECT_EQ(inline_error("[scenario]\nbase = \"/\"\n"), "/: scenario.base: is a directory");
+  EXPECT_EQ(inline_error("[scenario]\nbase = \"/dev/zero\"\n"),
+            path_of("inline.toml") + ":2: scenario.base: /dev/zero: scenario: is not a regular file");
+  EXPECT_EQ(inline_error("[scenario]\nbase = \"/\"\n"), path_of("inline.toml") + ":2: scenario.base: /: scenario: is a directory");
   EXPECT_EQ(inline_error("[operation]\nspeed_csv = \"/dev/zero\"\n"),
             path_of("inline.toml") + ":2: operation.speed_csv: /dev/zero: CSV: is not a regular file");
 }
@@ -100,7 +101,7 @@ TEST(Scenario, BaseCycleIsReported) {
 
 TEST(Scenario, MissingBaseIsReported) {
   const std::string e = inline_error("[scenario]\nbase = \"no_such_base.toml\"\n");
-  EXPECT_EQ(e, path_of("no_such_base.toml") + ": scenario.base: no such file");
+  EXPECT_EQ(e, path_of("inline.toml") + ":2: scenario.base: " + path_of("no_such_base.toml") + ": scenario: no such file");
 }
 
 TEST(Scenario, ErrorsInTheScenarioNameFileLineAndKey) {

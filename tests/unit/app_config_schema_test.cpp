@@ -255,9 +255,9 @@ TEST(ConfigSchema, PlantKindErrorsNameFileLineAndKey) {
   EXPECT_EQ(plantish_error("[adc]\noffset_A = [0.1, 2, 0]\n"), "p.toml:2: adc.offset_A: every value must be in [-1, 1], got 2");
   EXPECT_EQ(plantish_error("[emf]\norders = [5, 7, 11, 13]\n"), "p.toml:2: emf.orders: at most 3 values, got 4");
   EXPECT_EQ(plantish_error("[load]\nsteps = [[1, 0], [0.5, 1]]\n"),
-            "p.toml:2: load.steps: element 1: times must be ascending, got 0.5 after 1");
-  EXPECT_EQ(plantish_error("[load]\nsteps = [[0, 20]]\n"), "p.toml:2: load.steps: element 0: value must be in [-10, 10], got 20");
-  EXPECT_EQ(plantish_error("[load]\nsteps = [[0]]\n"), "p.toml:2: load.steps: element 0: expected [time_s, value]");
+            "p.toml:2: load.steps: element 2 of 2: times must be ascending, got 0.5 after 1");
+  EXPECT_EQ(plantish_error("[load]\nsteps = [[0, 20]]\n"), "p.toml:2: load.steps: element 1 of 1: value must be in [-10, 10], got 20");
+  EXPECT_EQ(plantish_error("[load]\nsteps = [[0]]\n"), "p.toml:2: load.steps: element 1 of 1: expected [time_s, value]");
   EXPECT_EQ(plantish_error("[load]\ncsv = 3\n"), "p.toml:2: load.csv: expected a file path (string), got an integer");
   EXPECT_EQ(plantish_error("[thermal]\ninitial_C = 300\n"), "p.toml:2: thermal.initial_C: must be in [-50, 250], got 300");
 }

@@ -703,7 +703,8 @@ std::string result_json(const SimulationResult& r) {
   for (std::size_t k = 1; k < r.pairs.size(); ++k) {
     rejected += r.pairs[k];
   }
-  j.field("estimates_rejected", rejected);
+  j.field("pairs_rejected", rejected);
+  j.field("estimates_rejected", rejected);  // its former name (it counts pairs): kept for the scripts that read it
   j.key("pairs").begin_object();
   for (std::size_t k = 0; k < r.pairs.size(); ++k) {
     j.field(core::to_string(static_cast<core::PairOutcome>(k)), static_cast<std::uint64_t>(r.pairs[k]));

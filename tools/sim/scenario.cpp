@@ -314,7 +314,16 @@ toml::table resolve_base(toml::table root, const std::filesystem::path& source, 
     throw ConfigError(source.string() + ": scenario.base: bases nest too deep (a cycle?)");
   }
   const std::filesystem::path base_path = source.parent_path() / *base;
-  toml::table merged = resolve_base(common::parse_toml(common::read_config_file(base_path, "scenario.base"), base_path.string()), base_path, depth + 1);
+  std::string base_text;
+  try {
+    // A base that cannot be read is the referring file's error: its file and line first, then
+    // the path it resolved to (relative to the referring file), as for a CSV.
+    base_text = common::read_config_file(base_path, "scenario");
+  } catch (const ConfigError& e) {
+    throw ConfigError(common::node_location(*root.at_path("scenario.base").node(), source.string()) +
+                      "scenario.base: " + e.what());
+  }
+  toml::table merged = resolve_base(common::parse_toml(base_text, base_path.string()), base_path, depth + 1);
   // Paths in the base are relative to the base, not to the file that inherits it.
   for (const char* key : {"plant.profile", "plant.load.csv_path", "operation.speed_csv", "operation.torque_csv",
                           "controller.calibration.file"}) {
