@@ -50,8 +50,11 @@ DriveLoop::DriveLoop(const DaemonConfig& config, hal::CanBus& bus, PublicationRi
       calibrate_at_first_run_(config.startup.calibrate_if_missing && !config.controller.calibration_file.empty() &&
                               !config.controller.drive.calibration.calibrated) {}
 
-void DriveLoop::send(const hal::CanFrame& frame) noexcept {
-  switch (bus_.send(frame, std::chrono::microseconds{200})) {
+void DriveLoop::send_answer(const hal::CanFrame& frame, std::int64_t arrival_ns) noexcept {
+  // after_ns_ is the clock as the sample was read (run()): the step's own few microseconds
+  // since are not read again (under User-Mode Linux a clock reading is a system call).
+  const std::int64_t left_ns = arrival_ns + period_ns_ - after_ns_;
+  switch (bus_.send(frame, nanoseconds{left_ns > 0 ? left_ns : 0})) {
     case hal::SendResult::kOk:
       return;
     case hal::SendResult::kNoBufferSpace:
@@ -96,7 +99,7 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns, 
     last_command_ = *out.command;
     gates_enabled_.store(out.command->enable, std::memory_order_relaxed);
     (void)protocol::encode(*out.command, node_id_, frame_);
-    send(frame_);
+    send_answer(frame_, received_ns);
     counters_.commands_sent.bump();
     after_ns_ = hal::monotonic_ns();
     record_timing(after_ns_ - received_ns);
@@ -207,7 +210,7 @@ void DriveLoop::on_frame(const hal::CanFrame& frame, std::int64_t now_ns) noexce
       // given then is stale and the repeat is answered "off" (step()).
       counters_.resent_samples.bump();
       (void)protocol::encode(last_command_, node_id_, frame_);
-      send(frame_);
+      send_answer(frame_, now_ns);
       return;
     }
     counters_.samples.bump();

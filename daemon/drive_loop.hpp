@@ -140,7 +140,10 @@ class DriveLoop {
   // outage slice's; with one, 1, or the periods since the last sample when the ones between
   // were lost on the bus (on_frame).
   void step(const hal::SensorSample* sample, std::int64_t received_ns, std::uint32_t periods) noexcept;
-  void send(const hal::CanFrame& frame) noexcept;
+  // Sends the answer to a sample that arrived at `arrival_ns`: on a full transmit queue it waits
+  // for room until that sample's period ends, not longer (a later command is stale, and the
+  // wait would hold up the next sample); what cannot go is dropped and counted.
+  void send_answer(const hal::CanFrame& frame, std::int64_t arrival_ns) noexcept;
   void recover_interface(const std::atomic<bool>& stop) noexcept;
   void switch_off() noexcept;
   [[nodiscard]] std::int64_t sample_timeout_ns() const noexcept { return sample_timeout_ns_; }

@@ -51,6 +51,8 @@ class Unbindable final : public hal::CanBus {
  public:
   explicit Unbindable(std::unique_ptr<hal::CanBus> inner) : inner_(std::move(inner)) {}
   void unbind() { unbound_ = true; }
+  // The longest wait for room any send was allowed (CanBus::send's max_wait), in ns.
+  [[nodiscard]] std::int64_t longest_send_wait_ns() const { return longest_wait_ns_.load(); }
   hal::Status set_filters(std::span<const hal::CanFilter> filters) override { return inner_->set_filters(filters); }
   hal::Status set_error_mask(std::uint32_t classes) override { return inner_->set_error_mask(classes); }
   hal::Status reopen() override {
@@ -64,6 +66,9 @@ class Unbindable final : public hal::CanBus {
 
  protected:
   hal::SendResult do_send(const hal::CanFrame& frame, std::chrono::nanoseconds max_wait) noexcept override {
+    if (max_wait.count() > longest_wait_ns_.load()) {
+      longest_wait_ns_.store(max_wait.count());
+    }
     return unbound_ ? hal::SendResult::kInterfaceDown : inner_->send(frame, max_wait);
   }
   hal::ReceiveStatus do_receive(hal::ReceivedFrame& out, std::chrono::nanoseconds timeout) noexcept override {
@@ -73,6 +78,7 @@ class Unbindable final : public hal::CanBus {
  private:
   std::unique_ptr<hal::CanBus> inner_;
   std::atomic<bool> unbound_{false};
+  std::atomic<std::int64_t> longest_wait_ns_{-1};
 };
 
 // One axis: a plant node and a daemon (loop + publisher) on a shared bus.
@@ -106,7 +112,7 @@ class Axis {
 
     plant_bus_ = bus.connect({.fd = true, .queue_capacity = 1024});
     EXPECT_TRUE(plant_bus_->set_filters(plant::plant_receive_filters(plant_options_)).ok());
-    rt_bus_ = bus.connect({.fd = true, .queue_capacity = 1024});
+    rt_bus_ = std::make_unique<Unbindable>(bus.connect({.fd = true, .queue_capacity = 1024}));
     const protocol::FilterSet daemon_filters = protocol::receive_filters(protocol::Role::kDaemon, node);
     EXPECT_TRUE(rt_bus_->set_filters(daemon_filters.view()).ok());
     EXPECT_TRUE(rt_bus_->set_error_mask(DriveLoop::kErrorClasses).ok());
@@ -167,6 +173,7 @@ class Axis {
   [[nodiscard]] const DriveLoop& loop() const { return *loop_; }
   [[nodiscard]] DriveLoop& loop() { return *loop_; }
   [[nodiscard]] const Publisher& publisher() const { return *publisher_; }
+  [[nodiscard]] std::int64_t longest_command_wait_ns() const { return rt_bus_->longest_send_wait_ns(); }
   [[nodiscard]] protocol::NodeId node() const { return node_; }
   // The publishing socket loses its binding (its interface deleted and created again).
   void unbind_publishing() { pub_bus_->unbind(); }
@@ -176,7 +183,8 @@ class Axis {
   DaemonConfig config_;
   plant::PlantConfig plant_config_;
   plant::PlantNodeOptions plant_options_;
-  std::unique_ptr<hal::CanBus> plant_bus_, rt_bus_;
+  std::unique_ptr<hal::CanBus> plant_bus_;
+  std::unique_ptr<Unbindable> rt_bus_;  // (never unbound: it records the sends' waits)
   std::unique_ptr<Unbindable> pub_bus_;
   PublicationRing ring_;
   std::unique_ptr<DriveLoop> loop_;
@@ -599,6 +607,19 @@ TEST(DaemonLoop, ASampleThatWaitedInTheSocketIsADeadlineMiss) {
   EXPECT_EQ(stats.deadline_misses, 1U);
   EXPECT_GE(stats.max_step_ns, 5'000'000U) << "the 5 ms in the socket are the answer's";
   EXPECT_LT(stats.max_step_ns, 20'000'000U) << "within the sample timeout";
+  // Its period long over, its answer may not wait for room on a full transmit queue (before,
+  // any answer could wait 200 us, two periods, and hold up the next sample).
+  EXPECT_EQ(axis.longest_command_wait_ns(), 0);
+}
+
+// An answer in time may wait for room until its period ends, never longer.
+TEST(DaemonLoop, AnAnswerWaitsForRoomAtMostUntilItsPeriodEnds) {
+  Bench bench;
+  Axis axis(bench.bus, 7, 60.0);
+  std::vector<protocol::AnyDecoded> seen;
+  ASSERT_NO_FATAL_FAILURE(start_running(bench, axis, seen));
+  EXPECT_GE(axis.longest_command_wait_ns(), 0) << "commands were sent";
+  EXPECT_LE(axis.longest_command_wait_ns(), 100'000) << "the control period, 100 us";
 }
 
 // A stopped daemon's last word to the power stage is "off": the plant, still running in lockstep,
