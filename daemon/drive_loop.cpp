@@ -43,6 +43,7 @@ DriveLoop::DriveLoop(const DaemonConfig& config, hal::CanBus& bus, PublicationRi
       sample_timeout_ns_(static_cast<std::int64_t>(config.can.sample_timeout_ms * 1e6)),
       reopen_interval_ns_(static_cast<std::int64_t>(config.can.reopen_interval_ms * 1e6)),
       period_ns_(static_cast<std::int64_t>(config.controller.drive.period_s * 1e9)),
+      offset_refresh_periods_(static_cast<std::uint32_t>(std::max(1.0, std::round(1.0 / config.controller.drive.period_s)))),
       missing_periods_(static_cast<std::uint32_t>(std::max(1.0, std::round(config.can.sample_timeout_ms * 1e-3 / config.controller.drive.period_s)))),
       outage_slice_periods_(static_cast<std::uint32_t>(
           std::max(1.0, std::round(std::min(config.can.sample_timeout_ms, config.can.reopen_interval_ms) * 1e-3 /
@@ -110,6 +111,11 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns, 
     gates_enabled_.store(false, std::memory_order_relaxed);
   }
   counters_.periods.bump();
+  if (++periods_since_offset_ >= offset_refresh_periods_) {
+    // Once a second of control periods (the wall clock may have been set or slewed).
+    periods_since_offset_ = 0;
+    realtime_offset_ns_ = hal::realtime_minus_monotonic_ns();
+  }
 
   const app::NodePublications& p = out.publications;
   if (p.thermal || p.resistance || p.injection || p.status || p.heartbeat || p.fault_count > 0 ||
@@ -143,7 +149,6 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns, 
     }
     if (p.heartbeat) {
       r.timing = close_timing_window();
-      realtime_offset_ns_ = hal::realtime_minus_monotonic_ns();  // (the wall clock may have been set)
     }
     if (r.uptime_s >= next_thermal_state_s_ && node_.controller().telemetry().thermal_valid) {
       next_thermal_state_s_ = r.uptime_s + kThermalStateEvery_s;
@@ -296,16 +301,17 @@ void DriveLoop::recover_interface(const std::atomic<bool>& stop) noexcept {
 }
 
 // A frame's arrival on the monotonic clock: the kernel's software receive timestamp where the
-// backend gives one, else the moment it was read. A loop that was late to read a sample (its
-// thread preempted, a burst of frames before it) was late to answer it: the step's latency and
-// the deadline count from the arrival. (A hardware timestamp is on the controller's own clock;
-// a wait longer than the sample timeout, or a negative one, is a wall clock that was set since
-// the offset was read: the reading then stands.)
+// backend gives one (beside a hardware one, which is on the controller's own clock), else the
+// moment it was read. A loop that was late to read a sample (its thread preempted, a burst of
+// frames before it) was late to answer it: the step's latency and the deadline count from the
+// arrival. (A wait longer than the sample timeout, or a negative one, is taken for a wall clock
+// set since the offset was read: the reading then stands. A stall that long is counted anyway,
+// by the sample deadline: missing samples.)
 std::int64_t DriveLoop::arrival_ns(std::int64_t read_ns) const noexcept {
-  if (received_.timestamp_ns == 0 || received_.hardware_timestamp) {
+  if (received_.software_timestamp_ns == 0) {
     return read_ns;
   }
-  const std::int64_t waited = read_ns + realtime_offset_ns_ - received_.timestamp_ns;
+  const std::int64_t waited = read_ns + realtime_offset_ns_ - received_.software_timestamp_ns;
   return waited > 0 && waited < sample_timeout_ns_ ? read_ns - waited : read_ns;
 }
 

@@ -158,6 +158,7 @@ class DriveLoop {
   std::int64_t sample_timeout_ns_;
   std::int64_t reopen_interval_ns_;
   std::int64_t period_ns_;
+  std::uint32_t offset_refresh_periods_;  // control periods in a second (realtime_offset_ns_)
   std::uint32_t missing_periods_;  // control periods in one sample timeout
   std::uint32_t outage_slice_periods_;  // in one slice of an interface outage (the shorter of the timeout and the reopen interval)
   double next_thermal_state_s_ = kThermalStateEvery_s;  // drive uptime of the next one
@@ -169,9 +170,10 @@ class DriveLoop {
   hal::InverterCommand last_command_{};
   std::int64_t after_ns_ = 0;  // the clock after the last command was sent (run() waits from it)
   // CLOCK_REALTIME - CLOCK_MONOTONIC (hal::realtime_minus_monotonic_ns), read at the start and
-  // with every HEARTBEAT: how long a frame waited in the socket before the loop read it
-  // (arrival_ns()).
+  // then once a second of periods: how long a frame waited in the socket before the loop read
+  // it (arrival_ns()).
   std::int64_t realtime_offset_ns_ = 0;
+  std::uint32_t periods_since_offset_ = 0;
   [[nodiscard]] std::int64_t arrival_ns(std::int64_t read_ns) const noexcept;
   hal::CanFrame frame_{};
   hal::ReceivedFrame received_{};

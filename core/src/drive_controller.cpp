@@ -897,6 +897,9 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     if (so.estimate) {
       handle_estimate(*so.estimate);  // an event the loss ended: reported and counted like any
     }
+    if (scheduler_.learned_version() != learned_version_published_) {
+      publish_learned();  // (an event's Vx carried, a failed calibration's restored: as below)
+    }
     return output_;
   }
 

@@ -713,9 +713,9 @@ TEST(DriveNode, TheLearnedTelemetryFollowsWhatTheDriveLearnsInTheSamePeriod) {
   int mismatches = 0;
   int vx_changes = 0;
   double last_vx = rig.node->controller().vx_V();
-  auto run_checked = [&](int periods) {
+  auto run_checked = [&](int periods, const std::function<void(hal::SensorSample&)>& alter = {}) {
     for (int k = 0; k < periods; ++k) {
-      const NodeStep& step = rig.run(1);
+      const NodeStep& step = rig.run(1, alter);
       const core::DriveController& c = rig.node->controller();
       const core::DriveTelemetry& t = c.telemetry();
       const bool same = t.vx_V == c.vx_V() && t.vx_std_V == c.vx_std_V() &&
@@ -756,6 +756,24 @@ TEST(DriveNode, TheLearnedTelemetryFollowsWhatTheDriveLearnsInTheSamePeriod) {
   run_checked(1);
   rig.in.abort_calibration = false;
   run_checked(100);
+  EXPECT_EQ(mismatches, 0);
+
+  // A third, aborted while a fault holds the drive in its safe state: the steps without a usable
+  // sample publish what the abort put back too.
+  rig.in.start_calibration = true;
+  run_checked(1);
+  rig.in.start_calibration = false;
+  for (int k = 0; k < 30000 && !rig.node->controller().telemetry().inverter_sweep_active; ++k) {
+    run_checked(1);
+  }
+  const double vx_calibrating = rig.node->controller().vx_V();
+  auto dc_bus_lost = [](hal::SensorSample& s) { s.dc_bus_adc = 0; };
+  run_checked(10, dc_bus_lost);
+  rig.in.abort_calibration = true;
+  run_checked(1, dc_bus_lost);
+  rig.in.abort_calibration = false;
+  run_checked(100, dc_bus_lost);
+  EXPECT_NE(rig.node->controller().vx_V(), vx_calibrating) << "the abort put the stored Vx back";
   EXPECT_EQ(mismatches, 0);
 }
 

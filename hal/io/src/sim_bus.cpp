@@ -107,7 +107,7 @@ class SimEndpoint final : public CanBus {
         ++counters_.rx_overflow;
         return;
       }
-      queue_[(head_ + count_) % queue_.size()] = ReceivedFrame{frame, timestamp_ns, false};
+      queue_[(head_ + count_) % queue_.size()] = ReceivedFrame{frame, timestamp_ns, false, timestamp_ns};
       ++count_;
     }
     ready_.notify_one();

@@ -565,6 +565,7 @@ ReceiveStatus SocketCanBus::read_one(ReceivedFrame& out, bool block) noexcept {
   }
   out.hardware_timestamp = hardware_ns != 0;
   out.timestamp_ns = hardware_ns != 0 ? hardware_ns : software_ns;
+  out.software_timestamp_ns = software_ns;
 
   if (out.frame.error) {
     bump(counters_.error_frames);

@@ -88,6 +88,10 @@ struct ReceivedFrame {
   // 0 when the backend delivered none.
   std::int64_t timestamp_ns = 0;
   bool hardware_timestamp = false;
+  // The kernel's software receive timestamp (CLOCK_REALTIME) also where timestamp_ns is a
+  // hardware one (on the controller's own clock): what the host's clocks can be compared with.
+  // 0 when the backend delivered none.
+  std::int64_t software_timestamp_ns = 0;
 };
 
 // Monotonic counts since the endpoint was created (reopen() keeps them).
