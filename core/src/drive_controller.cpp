@@ -897,9 +897,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     if (so.estimate) {
       handle_estimate(*so.estimate);  // an event the loss ended: reported and counted like any
     }
-    if (scheduler_.learned_version() != learned_version_published_) {
-      publish_learned();  // (an event's Vx carried, a failed calibration's restored: as below)
-    }
+    publish_learned_if_moved();  // (an event's Vx carried, a failed calibration's restored)
     return output_;
   }
 
@@ -1209,9 +1207,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
       config_.current.flux_linkage_Wb, config_.current.ld_H, config_.current.lq_H, config_.motor.pole_pairs, i);
   telemetry_.inverter_sweep_active = sweep_.active();
   telemetry_.angle_check_active = check_.active();
-  if (scheduler_.learned_version() != learned_version_published_) {
-    publish_learned();  // the rest changes outside the scheduler, where publish_learned() is called
-  }
+  publish_learned_if_moved();
   return output_;
 }
 

@@ -208,6 +208,14 @@ class Axis {
   std::thread plant_thread_, daemon_thread_;
 };
 
+// Sends one SENSOR_SAMPLE of `node` from `stage` (waiting up to `wait` for room).
+void send_sample(hal::CanBus& stage, const hal::SensorSample& s, protocol::NodeId node,
+                 std::chrono::nanoseconds wait = std::chrono::nanoseconds{0}) {
+  hal::CanFrame frame{};
+  ASSERT_EQ(protocol::encode(s, node, frame), protocol::EncodeStatus::kOk);
+  ASSERT_EQ(stage.send(frame, wait), hal::SendResult::kOk);
+}
+
 // The supervisor's endpoint and a monitor that keeps what a bench logs.
 struct Bench {
   hal::SimBus bus;
@@ -216,6 +224,13 @@ struct Bench {
   std::array<std::optional<protocol::CommandSender>, 16> senders;
 
   Bench() { EXPECT_TRUE(supervisor->set_filters({}).ok()); }
+
+  // A power stage of the test's own beside the plant: an FD endpoint that hears nothing.
+  std::unique_ptr<hal::CanBus> power_stage() {
+    std::unique_ptr<hal::CanBus> stage = bus.connect({.fd = true, .queue_capacity = 16});
+    EXPECT_TRUE(stage->set_filters({}).ok());
+    return stage;
+  }
 
   protocol::CommandSender& sender(protocol::NodeId node) {
     if (!senders[node]) {
@@ -509,8 +524,7 @@ TEST(DaemonLoop, ARepeatedSampleIsNoFreshSample) {
   ASSERT_NO_FATAL_FAILURE(run_then_silence_the_plant(bench, axis, seen, last));
   hal::CanFrame frame{};
   ASSERT_EQ(protocol::encode(*last, 4, frame), protocol::EncodeStatus::kOk);
-  std::unique_ptr<hal::CanBus> replay = bench.bus.connect({.fd = true, .queue_capacity = 16});
-  ASSERT_TRUE(replay->set_filters({}).ok());
+  std::unique_ptr<hal::CanBus> replay = bench.power_stage();
   const std::size_t frozen = seen.size();
   const std::uint64_t resent_before = axis.loop().stats().resent_samples;
   // The same sample 400 times, 2 ms or more apart (at least 0.8 s), while the supervisor keeps
@@ -553,17 +567,14 @@ TEST(DaemonLoop, SkippedSequenceNumbersAreCountedAsLostSamples) {
   std::vector<protocol::AnyDecoded> seen;
   std::optional<hal::SensorSample> last;
   ASSERT_NO_FATAL_FAILURE(run_then_silence_the_plant(bench, axis, seen, last));
-  std::unique_ptr<hal::CanBus> stage = bench.bus.connect({.fd = true, .queue_capacity = 16});
-  ASSERT_TRUE(stage->set_filters({}).ok());
+  std::unique_ptr<hal::CanBus> stage = bench.power_stage();
   const LoopStats before = axis.loop().stats();
   // Sequence + 1 (after the plant's silence: a sample as after any wait), + 4 (two lost), + 5,
   // then + 100005: 1 ms apart, well inside the 20 ms sample timeout.
   for (const std::uint32_t step : {1U, 4U, 5U, 100005U}) {
     hal::SensorSample s = *last;
     s.sequence = last->sequence + step;
-    hal::CanFrame frame{};
-    ASSERT_EQ(protocol::encode(s, 4, frame), protocol::EncodeStatus::kOk);
-    ASSERT_EQ(stage->send(frame, 10ms), hal::SendResult::kOk);
+    ASSERT_NO_FATAL_FAILURE(send_sample(*stage, s, 4, 10ms));
     std::this_thread::sleep_for(1ms);
   }
   const auto deadline = std::chrono::steady_clock::now() + 10s;
@@ -581,15 +592,12 @@ TEST(DaemonLoop, SkippedSequenceNumbersAreCountedAsLostSamples) {
 TEST(DaemonLoop, FramesDroppedOnReceiveAreCountedAndReported) {
   Bench bench;
   Axis axis(bench.bus, 5, 60.0);  // the loop not started: nothing reads its socket (1,024 frames)
-  std::unique_ptr<hal::CanBus> stage = bench.bus.connect({.fd = true, .queue_capacity = 16});
-  ASSERT_TRUE(stage->set_filters({}).ok());
+  std::unique_ptr<hal::CanBus> stage = bench.power_stage();
   EXPECT_EQ(axis.loop().stats().rx_overflow, 0U);
   for (std::uint32_t k = 0; k < 1024U + 76U; ++k) {
     hal::SensorSample s{};
     s.sequence = k;
-    hal::CanFrame frame{};
-    ASSERT_EQ(protocol::encode(s, 5, frame), protocol::EncodeStatus::kOk);
-    ASSERT_EQ(stage->send(frame), hal::SendResult::kOk);
+    ASSERT_NO_FATAL_FAILURE(send_sample(*stage, s, 5));
   }
   EXPECT_EQ(axis.loop().stats().rx_overflow, 76U);
   const std::string summary = axis.publisher().summary();
@@ -605,13 +613,10 @@ TEST(DaemonLoop, ASampleThatWaitedInTheSocketIsADeadlineMiss) {
   Bench bench;
   Axis axis(bench.bus, 6, 60.0);
   axis.shift_arrivals(5'000'000);
-  std::unique_ptr<hal::CanBus> stage = bench.bus.connect({.fd = true, .queue_capacity = 16});
-  ASSERT_TRUE(stage->set_filters({}).ok());
+  std::unique_ptr<hal::CanBus> stage = bench.power_stage();
   hal::SensorSample s{};
   s.sequence = 1;
-  hal::CanFrame frame{};
-  ASSERT_EQ(protocol::encode(s, 6, frame), protocol::EncodeStatus::kOk);
-  ASSERT_EQ(stage->send(frame), hal::SendResult::kOk);
+  ASSERT_NO_FATAL_FAILURE(send_sample(*stage, s, 6));
   axis.start_daemon();
   const auto deadline = std::chrono::steady_clock::now() + 10s;
   while (axis.loop().stats().periods == 0U && std::chrono::steady_clock::now() < deadline) {

@@ -429,6 +429,13 @@ class DriveController {
   // bridge's band and Vx, Lq, the calibration's flag): copied where it changes, and after a
   // step in which the scheduler learned (InjectionScheduler::learned_version), not every period.
   void publish_learned();
+  // At a step's end: what the scheduler learned in it (the rest changes outside the scheduler,
+  // where publish_learned() is called).
+  void publish_learned_if_moved() {
+    if (scheduler_.learned_version() != learned_version_published_) {
+      publish_learned();
+    }
+  }
   std::uint32_t learned_version_published_ = 0;
 
   // The period's reports (last_pair() ... inverter_sweep_completed()): set only through
