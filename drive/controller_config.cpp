@@ -203,7 +203,7 @@ ConfigSchema<C> build() {
                     "... or by more than this (electrical), whichever is larger (Table I: 3 rad/s).");
   inj.optional_real("injection.max_load_change_A", [](C& c) -> std::optional<double>& { return c.relative.max_load_change_A; },
                     at_least(0), "A", "0.0332 I_rated",
-                    "Reject a pair whose recordings differ in motoring iq by more than this (Table I: 1.5 A).");
+                    "Reject a pair whose recordings differ in motoring iq by more than this, beyond the speed loop's answer to the pulses' reluctance torque (Table I: 1.5 A).");
   inj.real("injection.max_residual_V", [](C& c) -> double& { return c.drive.injection.max_residual_V; }, positive(1000), "V",
            "Reject a pair whose fit residual (RMS) exceeds this.");
   inj.real("injection.min_condition", [](C& c) -> double& { return c.drive.injection.min_condition; }, between(0, 1), "",
@@ -532,18 +532,6 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
     rule("calibration.vx_std_V", "calibration.vx_V",
          ref("calibration.vx_std_V", d.calibration.vx_std_V, "V", "calibration.vx_std_V") +
              " is the standard error of a stored calibration.vx_V, which is not given");
-  }
-  // A reluctance-torque budget the load-change guard always rejects: the speed loop answers a
-  // torque disturbance dT with dT / kt of iq, and a pair whose recordings differ in iq by more
-  // than max_load_change_A is rejected.
-  const double budget_iq_A = d.injection.max_torque_disturbance_Nm / core::torque_constant_dq_Nm_per_A(m);
-  if (budget_iq_A > d.injection.max_load_change_A) {
-    const std::string_view l = lead("injection.max_torque_disturbance_Nm", "injection.max_load_change_A");
-    rule("injection.max_torque_disturbance_Nm", "injection.max_load_change_A",
-         ref("injection.max_torque_disturbance_Nm", d.injection.max_torque_disturbance_Nm, "Nm", l) +
-             " lets the speed loop move iq by up to " + common::format_number(budget_iq_A) + " A, more than " +
-             ref("injection.max_load_change_A", d.injection.max_load_change_A, "A", l) +
-             ": the load-change guard would reject every pair the torque budget lets through");
   }
   // The current loop's voltage limit at the nominal bus (a share of the space vector's
   // Vdc / sqrt(3) per phase): a margin that takes all of it leaves no voltage to inject with

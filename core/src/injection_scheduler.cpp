@@ -488,7 +488,8 @@ PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
   r.delta_omega_e_rad_s = c.omega_e_mean_1_rad_s - c.omega_e_mean_2_rad_s;
   // The motoring current is what remains of iq after the injection's own q-axis part, which
   // is zero on average for every method used here (fixed-magnitude, fixed-angle with beta = 0,
-  // DC over whole turns), so the means compare directly.
+  // DC over whole turns), so the means compare directly. The guard below sets apart what the
+  // speed loop's answer to a salient machine's reluctance torque adds.
   r.delta_iq_A = c.iq_mean_1_A - c.iq_mean_2_A;
 
   const double omega = 0.5 * std::abs(c.omega_e_mean_1_rad_s + c.omega_e_mean_2_rad_s);
@@ -500,7 +501,7 @@ PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
     r.outcome = PairOutcome::kRejectedVoltageSaturation;
   } else if (!time_based_ && std::abs(r.delta_omega_e_rad_s) > speed_limit) {
     r.outcome = PairOutcome::kRejectedSpeedChange;
-  } else if (std::abs(r.delta_iq_A) > config_.max_load_change_A) {
+  } else if (unexplained_load_change_A(c) > config_.max_load_change_A) {
     r.outcome = PairOutcome::kRejectedLoadChange;
   } else if (fit.residual_rms_V > config_.max_residual_V) {
     r.outcome = PairOutcome::kRejectedResidual;
@@ -568,6 +569,23 @@ double InjectionScheduler::lq_incremental_at(const LqShape::At& shape) const {
     return std::clamp(secant - lq_shape_.b0_H() * (shape.h - shape.s), 0.5 * secant, secant);
   }
   return std::clamp(lq_H_ - lq_b_H_ * shape.h, 0.5 * secant, 1.5 * secant);
+}
+
+double InjectionScheduler::unexplained_load_change_A(const PairConditions& c) const {
+  // On a salient machine each pulse's reluctance torque 3/2 p (Ld - Lq) id iq differs between
+  // the recordings, and the speed loop answers it with iq: not yet, in part, or fully, when
+  // the torque is the same in both recordings, iq2 (psi + (Ld - Lq) id2) = iq1 (psi + (Ld -
+  // Lq) id1). Any answer from none to the full one is the injection's own doing, not a load
+  // change, and the fit models its d-axis voltage through Lq d(w iq) (docs/estimator.md
+  // section 3). The guard judges what lies outside that range. With Ld = Lq the full answer
+  // is 0 and this is |diq|, the plain guard.
+  const double delta_iq_A = c.iq_mean_1_A - c.iq_mean_2_A;
+  const double saliency_H = config_.ld_H - lq_secant_H(0.5 * (c.iq_mean_1_A + c.iq_mean_2_A));
+  const double flux_2_Wb = config_.flux_linkage_Wb + saliency_H * c.id_mean_2_A;
+  const double full_A = flux_2_Wb > 0.0 ? c.iq_mean_1_A * saliency_H * (c.id_mean_2_A - c.id_mean_1_A) / flux_2_Wb : 0.0;
+  const double lo_A = std::min(0.0, full_A);
+  const double hi_A = std::max(0.0, full_A);
+  return delta_iq_A < lo_A ? lo_A - delta_iq_A : (delta_iq_A > hi_A ? delta_iq_A - hi_A : 0.0);
 }
 
 InjectionScheduler::LqTerm InjectionScheduler::lq_term(const PairConditions& c) const {

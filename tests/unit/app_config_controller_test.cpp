@@ -249,22 +249,6 @@ TEST(ControllerConfig, CalibrationResistanceOutsideTheWindowIsAnError) {
             "plausibility window would reject every resistance estimate near the reference temperature");
 }
 
-// A reluctance-torque budget the load-change guard always rejects: the speed loop answers
-// 5 Nm with 5 / 1.457 = 3.4 A of iq, more than the 1.5 A guard.
-TEST(ControllerConfig, TorqueBudgetBeyondTheLoadGuardIsAnError) {
-  const std::string e = error_of("[injection]\nmax_torque_disturbance_Nm = 5.0\n");
-  EXPECT_EQ(e.rfind("drive.toml:2: injection.max_torque_disturbance_Nm (5 Nm) lets the speed loop move iq by up to 3.43", 0), 0U)
-      << e;
-  EXPECT_NE(e.find("more than injection.max_load_change_A (1.5 A, its default): the load-change guard would reject"),
-            std::string::npos)
-      << e;
-  const std::string both = error_of("[injection]\nmax_load_change_A = 0.2\nmax_torque_disturbance_Nm = 0.5\n");
-  EXPECT_EQ(both.rfind("drive.toml:3: injection.max_torque_disturbance_Nm (0.5 Nm) lets", 0), 0U) << both;
-  EXPECT_NE(both.find("injection.max_load_change_A (0.2 A, drive.toml:2)"), std::string::npos) << both;
-  // The salient benchmark's 0.5 Nm with the default guard is consistent.
-  EXPECT_EQ(error_of("[injection]\nmax_torque_disturbance_Nm = 0.5\n"), "");
-}
-
 // The defaults that scale with the motor give exactly the Table I numbers at Table I.
 TEST(ControllerConfig, MotorRelativeDefaultsAreTableIAtTableI) {
   const ControllerConfig c = default_controller_config();

@@ -1511,6 +1511,50 @@ TEST(InjectionScheduler, LoadChangeBetweenRecordingsRejectsThePair) {
   EXPECT_EQ(h.estimates[0].outcome, EventOutcome::kNoAcceptedPairs);
 }
 
+// A salient machine (Ld 1 mH below Lq) whose speed loop holds the torque through every pulse:
+// iq (psi + (Ld - Lq) id) = iq0 psi, so iq moves by 6.2 A between the +25 A and -25 A
+// recordings at 40 A of load, four times the 1.5 A guard. That answer is the injection's own,
+// and the fit models its d-axis voltage (Lq d(w iq)): the pairs are accepted and read Rs right.
+// The same move the other way is no answer to the pulses (the load changed): rejected, as on a
+// machine with Ld = Lq, where the pulses make no reluctance torque to answer.
+int load_changes_rejected(double ld_H, double answer_sign, double* rs_error) {
+  InjectionConfig c = test_config();
+  c.ld_H = ld_H;
+  c.learn_lq = false;     // the commissioned Lq is the plant's
+  c.vx_initial_V = 1.5;   // and the bridge's voltage known (a calibrated drive; at this load
+  c.vx_initial_std_V = 0.01;  // the events do not learn it)
+  Harness h(c);
+  h.plant.ld_H = ld_H;
+  const double iq0 = 40.0;
+  // The speed loop's iq: a salient machine's answer (Ld - Lq = -1 mH) whatever the scheduler
+  // is told of Ld, or its mirror image.
+  h.hook = [=](Harness& x) {
+    const double id = x.records.empty() ? 0.0 : x.records.back().out.injection_A.d;
+    const double held = iq0 * c.flux_linkage_Wb / (c.flux_linkage_Wb - 1.0e-3 * id);
+    x.motoring_A = {0.0, iq0 + answer_sign * (held - iq0)};
+  };
+  h.run_until(3.0);
+  int rejected = 0;
+  for (const PairResult& p : h.pairs) {
+    rejected += p.outcome == PairOutcome::kRejectedLoadChange ? 1 : 0;
+    if (p.f_A > 20.0 && p.outcome != PairOutcome::kAborted) {
+      EXPECT_NEAR(std::abs(p.delta_iq_A), 6.2, 0.3) << "the speed loop's answer at F = 25 A";
+    }
+  }
+  EXPECT_GE(h.pairs.size(), 8U);
+  *rs_error = rejected == 0 ? mean_published_rs_error(h, 0) : 1.0;
+  return rejected;
+}
+
+TEST(InjectionScheduler, TheSpeedLoopsAnswerToTheReluctanceTorqueIsNoLoadChange) {
+  double rs_error = 1.0;
+  EXPECT_EQ(load_changes_rejected(4.5e-3, 1.0, &rs_error), 0) << "the answer to the pulses";
+  EXPECT_NEAR(rs_error, 0.0, 0.005);
+  double unused = 0.0;
+  EXPECT_GE(load_changes_rejected(4.5e-3, -1.0, &unused), 8) << "the load moving against the answer";
+  EXPECT_GE(load_changes_rejected(5.5e-3, 1.0, &unused), 8) << "Ld = Lq: no reluctance torque to answer";
+}
+
 TEST(InjectionScheduler, VoltageLimitWhileRecordingRejectsThePair) {
   Harness h(test_config());
   h.hook = [](Harness& x) {

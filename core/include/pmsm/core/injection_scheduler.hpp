@@ -432,6 +432,9 @@ class InjectionScheduler {
   // learning is off).
   [[nodiscard]] double lq_secant_H(double iq_A) const;
   [[nodiscard]] double lq_incremental_H(double iq_A) const;
+  // The change of the motoring current between a pair's recordings that the injection does
+  // not explain (the load-change guard's measure; amperes, >= 0).
+  [[nodiscard]] double unexplained_load_change_A(const PairConditions& c) const;
 
  private:
   [[nodiscard]] bool saturation_variance_resolved() const;
