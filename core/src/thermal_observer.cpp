@@ -175,6 +175,18 @@ double ThermalObserver::copper_loss_W(double copper_current_sq_A2) const {
   return 1.5 * resistance_at_C(x_(0)) * copper_current_sq_A2;
 }
 
+double ThermalObserver::housing_loss_floor_W(double iron_loss_W, double ambient_C) const {
+  // A machine makes no cold. The missing loss dP may be negative: the model's iron loss too
+  // high, or its cooling path too weak, which takes more heat out the warmer the housing is.
+  // But at most all of the iron loss and once more what the modelled path takes out (a cooling
+  // path twice as good as modelled): beyond that, a dP learned while the housing was warm (or
+  // from estimates that read low) would cool a motor at rest below its coolant, and the stored
+  // state would carry that to the next start. What the linear model's dP term puts below that
+  // floor is added back.
+  const double rise_C = std::max(x_(1) - ambient_C, 0.0);
+  return std::max(-iron_loss_W - rise_C / config_.housing_to_ambient_K_W - x_(2), 0.0);
+}
+
 double ThermalObserver::iron_loss_W(double omega_m_rad_s) const {
   const double w = std::abs(omega_m_rad_s);
   return config_.iron_loss_k1_W_s_rad * w + config_.iron_loss_k2_W_s2_rad2 * w * w;
@@ -186,10 +198,10 @@ void ThermalObserver::predict(double dt_s, double copper_current_sq_A2, double o
   const double pcu = copper_loss_W(copper_current_sq_A2);
   last_copper_loss_W_ = pcu;
   const Matrix a = system_matrix(config_, pcu);
+  const double pfe = iron_loss_W(omega_m_rad_s);
   Vector u;
   u << pcu / config_.winding_capacity_J_K,
-      (iron_loss_W(omega_m_rad_s) + ambient_C / config_.housing_to_ambient_K_W) /
-          config_.housing_capacity_J_K,
+      (pfe + housing_loss_floor_W(pfe, ambient_C) + ambient_C / config_.housing_to_ambient_K_W) / config_.housing_capacity_J_K,
       0.0, 0.0;
   // Exact discretisation is not needed at the update rate used (dt far below the winding
   // time constant); a second-order Taylor step keeps it accurate and allocation-free.
@@ -394,7 +406,7 @@ bool ThermalObserver::time_to_limit_s(double limit_C, double copper_current_sq_A
   const double a10 = q;
   const double a11 = -(q + r);
   const double u0 = (pcu - gamma * x_(1)) / config_.winding_capacity_J_K;
-  const double u1 = (pfe + x_(2) + gha * ambient_C) / config_.housing_capacity_J_K;
+  const double u1 = (pfe + x_(2) + housing_loss_floor_W(pfe, ambient_C) + gha * ambient_C) / config_.housing_capacity_J_K;
   const double det = a00 * a11 - a01 * a10;  // p r - q gamma / Cw > 0 by the clamp
   // Steady state: A x_ss + u = 0.
   const double tw_ss = (a01 * u1 - a11 * u0) / det;

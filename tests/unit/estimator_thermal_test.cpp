@@ -861,5 +861,39 @@ TEST(ThermalObserver, AStoredStateIsCooledThroughTheDowntime) {
   EXPECT_NEAR(obs.estimate().winding_C, 20.0, 1.0) << "long enough: at the ambient";
 }
 
+// A machine makes no cold. A missing loss learned negative (a cooling path better than the
+// model's while the housing was warm, or estimates that read low) must not cool a motor below
+// its coolant: it may take out at most the iron loss and once more what the modelled path to
+// the ambient takes out, so it fades as the housing nears the ambient; where the iron loss
+// covers it, dP holds in full.
+TEST(ThermalObserver, ALearnedNegativeLossNeverCoolsTheMachineBelowItsAmbient) {
+  const ThermalModelConfig c;
+  const Calibration cal;
+  ThermalState learned{30.0, 29.0, 1.0};
+  learned.has_loss_errors = true;
+  learned.missing_loss_W = -100.0;  // the state a helper found stored after DC-injection runs
+  learned.missing_loss_std_W = 5.0;
+  learned.loss_scale_std = 0.05;
+  auto settle = [&](double speed_rad_s) {
+    ThermalObserver obs(c, cal, 25.0);
+    obs.restore(learned, 0.0, 25.0);
+    for (int k = 0; k < 4000; ++k) {
+      obs.predict(10.0, 0.0, speed_rad_s, 25.0, speed_rad_s == 0.0);  // 11 h, no current
+    }
+    return obs.estimate();
+  };
+  // At rest: no iron loss; the machine settles at its ambient (100 W out of a 0.125 K/W path
+  // would have put it 12.5 C below).
+  const ThermalEstimate rest = settle(0.0);
+  EXPECT_NEAR(rest.winding_C, 25.0, 0.01);
+  EXPECT_NEAR(rest.housing_C, 25.0, 0.01);
+  EXPECT_DOUBLE_EQ(rest.missing_loss_W, -100.0) << "what was learned is kept for a faster spell";
+  // At 100 rad/s the model's iron loss is 0.6 x 100 + 1e-3 x 100^2 = 70 W, less than dP takes:
+  // the ambient again (21.25 C without the floor).
+  EXPECT_NEAR(settle(100.0).housing_C, 25.0, 0.01);
+  // At 150 rad/s it is 112.5 W: the housing gets 12.5 W, dP applies in full.
+  EXPECT_NEAR(settle(150.0).housing_C, 25.0 + 12.5 * c.housing_to_ambient_K_W, 0.01);
+}
+
 }  // namespace
 }  // namespace pmsm::core

@@ -210,6 +210,9 @@ class ThermalObserver {
   [[nodiscard]] double iron_loss_W(double omega_m_rad_s) const;
 
  private:
+  // What keeps the missing loss dP from taking more heat out of the housing than a machine can
+  // lose: the iron loss and once more what the modelled path to the ambient takes out.
+  [[nodiscard]] double housing_loss_floor_W(double iron_loss_W, double ambient_C) const;
   ThermalModelConfig config_;
   Calibration calibration_;
   Vector x_;   // winding C, housing C, the missing loss dP W, the copper loss's relative error k
