@@ -120,7 +120,8 @@ plant3=$plant_pid
 sleep 1.5
 grep -q "waiting for a controller" "$work/plant-3.log" || die "the plant did not notice the missing controller"
 "$thermald" --config "$work/daemon.toml" > "$work/daemon-2.log" 2>&1 &
-pids+=("$!")
+daemon2_pid=$!
+pids+=("$daemon2_pid")
 wait "$plant3" || die "the plant did not finish with the restarted daemon: $(tail -3 "$work/plant-3.log")"
 grep -q "controller locked on" "$work/plant-3.log" || die "the restarted daemon did not lock on"
 grep -q "calibration stored in" "$work/daemon.log" || die "the first daemon did not store its calibration"
@@ -214,5 +215,20 @@ wait "$plant6" || die "the 10 kHz plant did not finish: $(tail -3 "$work/plant-6
 grep -q "fault PERIOD_MISMATCH cleared" "$work/mismatch.txt" ||
   die "PERIOD_MISMATCH did not clear with a 10 kHz plant and a stop command"
 echo "$prog: a 10 kHz plant again and a stop command: PERIOD_MISMATCH cleared"
+
+# Two more supervisor runs each ask for a calibration. Every run starts its alive counters at 0
+# while the daemon holds the last run's, so a request sent as its stream's only frame was
+# refused (a repeated counter) and lost; the tool sends a frame asking for nothing first. This
+# daemon saw no calibration frame before: 2 from the first run, the second run's request after
+# its refused synchronising frame: 3 accepted.
+for run in 1 2; do
+  "$tool" command --iface "$iface" --node $node --mode disabled --calibrate-at 25 --period-ms 50 --duration 0.2 \
+    > "$work/command-again-$run.log" 2>&1 || die "the calibration request $run failed: $(tail -3 "$work/command-again-$run.log")"
+done
+kill -TERM "$daemon2_pid"
+wait "$daemon2_pid" || die "the restarted daemon did not stop cleanly: $(tail -3 "$work/daemon-2.log")"
+grep -q "accepted drive/injection/calibration commands [0-9]*/0/3," "$work/daemon-2.log" ||
+  die "a repeated calibration request was lost: $(grep -o 'accepted drive/injection/calibration commands [0-9/]*' "$work/daemon-2.log")"
+echo "$prog: a second supervisor run's calibration request reached the daemon"
 ok=1
 echo "$prog: PASS"

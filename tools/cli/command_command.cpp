@@ -4,6 +4,12 @@
 // CALIBRATION_COMMAND frames, for a given time or until SIGINT/SIGTERM; a last DRIVE_COMMAND
 // with enable off at the end.
 //
+// Every run starts its alive counters at 0, where the daemon's receiver still holds the last
+// run's: its first frame of each stream is then refused (a repeated counter or a jump) and
+// re-synchronises the stream (docs/protocol.md, "The alive-counter state machine"). The cyclic
+// DRIVE_COMMAND loses one frame to that; a one-off request would be lost, so each is preceded
+// by a frame of the same stream that asks for nothing.
+//
 //   pmsm-thermal command --iface vcan0 --node 1 --mode speed --speed 100 --duration 30
 #include <cctype>
 #include <chrono>
@@ -32,8 +38,8 @@ struct CommandOptions {
   std::string iface = "vcan0";
   int node = 0;
   std::string mode = "speed";
-  double speed_rad_s = 0.0;
-  double torque_Nm = 0.0;
+  std::optional<double> speed_rad_s;
+  std::optional<double> torque_Nm;
   double period_ms = 50.0;
   std::optional<double> duration_s;
   std::optional<double> calibrate_at_C;
@@ -87,6 +93,7 @@ int run_command(const CommandOptions& o) {
     return 1;
   }
   (void)hal::install_stop_signals();
+  std::uint64_t failed_requests = 0;
   protocol::CommandSender sender(static_cast<protocol::NodeId>(o.node));
   hal::CanFrame frame{};
   auto send = [&](const auto& message) {
@@ -104,21 +111,35 @@ int run_command(const CommandOptions& o) {
   drive.mode = o.mode == "torque" ? protocol::DriveMode::kTorque
                : o.mode == "speed" ? protocol::DriveMode::kSpeed
                                    : protocol::DriveMode::kDisabled;
-  drive.speed_setpoint_rad_s = o.speed_rad_s;
-  drive.torque_setpoint_Nm = o.torque_Nm;
+  drive.speed_setpoint_rad_s = o.speed_rad_s.value_or(0.0);
+  drive.torque_setpoint_Nm = o.torque_Nm.value_or(0.0);
+  // A one-off request after a frame of its stream that asks for nothing (above), a few
+  // milliseconds apart so that the two arrive in order.
+  auto send_request = [&](auto synchronising, const auto& request) {
+    bool ok = send(synchronising);
+    std::this_thread::sleep_for(std::chrono::milliseconds{5});
+    ok = send(request) && ok;
+    if (!ok) {
+      ++failed_requests;
+    }
+  };
   if (o.calibrate_at_C) {
     protocol::CalibrationCommand c;
     c.action = protocol::CalibrationAction::kStart;
     c.known_temp_C = *o.calibrate_at_C;
-    (void)send(c);
+    protocol::CalibrationCommand nothing = c;
+    nothing.action = protocol::CalibrationAction::kNone;
+    send_request(nothing, c);
   }
   if (o.inject_now) {
     protocol::InjectionCommand i;
-    // The frame sets the method and the interval too (amplitude 0: the drive keeps its own).
+    // The frame sets the method and the interval too (amplitude 0: the drive keeps its own);
+    // the synchronising frame sets the same.
     i.method = injection_method(o.injection_method);
     i.interval_s = o.injection_interval_s;
+    protocol::InjectionCommand nothing = i;
     i.request_now = true;
-    (void)send(i);
+    send_request(nothing, i);
   }
   const std::int64_t start = hal::monotonic_ns();
   std::uint64_t sent = 0;
@@ -135,7 +156,11 @@ int run_command(const CommandOptions& o) {
   (void)send(drive);
   std::fprintf(stderr, "pmsm-thermal command: %llu DRIVE_COMMAND frame(s) sent to node %d, %llu failed; drive disabled\n",
                static_cast<unsigned long long>(sent), o.node, static_cast<unsigned long long>(failed));
-  return failed == 0 ? 0 : 1;
+  if (failed_requests > 0) {
+    std::fprintf(stderr, "pmsm-thermal command: %llu one-off request(s) not sent (the transmit queue stayed full)\n",
+                 static_cast<unsigned long long>(failed_requests));
+  }
+  return failed == 0 && failed_requests == 0 ? 0 : 1;
 }
 
 }  // namespace
@@ -177,7 +202,20 @@ void register_command_command(CLI::App& app, int& exit_code) {
                 "so --injection-method and --injection-interval must be given)")
       ->needs(interval)
       ->needs(method);
-  cmd->callback([options, &exit_code] { exit_code = run_command(*options); });
+  // A set-point belongs to its mode: torque mode without a torque would send 0 Nm unasked, and a
+  // set-point for another mode would be sent and ignored without a word.
+  cmd->callback([options, &exit_code] {
+    const CommandOptions& o = *options;
+    const char* problem = o.mode == "torque" && !o.torque_Nm    ? "--mode torque needs --torque"
+                          : o.mode == "speed" && !o.speed_rad_s ? "--mode speed needs --speed"
+                          : o.mode != "torque" && o.torque_Nm   ? "--torque applies to --mode torque only"
+                          : o.mode != "speed" && o.speed_rad_s  ? "--speed applies to --mode speed only"
+                                                                : nullptr;
+    if (problem != nullptr) {
+      throw CLI::ValidationError("command", problem);
+    }
+    exit_code = run_command(o);
+  });
 }
 
 }  // namespace pmsm::app
