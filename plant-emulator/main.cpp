@@ -142,7 +142,7 @@ class Monitor {
         spdlog::info("waiting for a controller: sample {} not answered; re-sending it every {} ms", s.periods,
                      resend_interval_ms_);
       } else {
-        spdlog::info("controller locked on at period {}", s.periods);
+        spdlog::info("controller locked on (period {} at this report)", s.periods);
       }
     }
     const std::uint64_t new_timeouts = s.command_timeouts - p.command_timeouts;
