@@ -17,6 +17,7 @@
 
 #include <algorithm>
 #include <array>
+#include <cctype>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
@@ -255,6 +256,21 @@ class ConfigSchema {
       }
     }
     if (!errors.empty()) {
+      // In the file's order, unknown keys and bad values alike, as a compiler lists its errors.
+      const std::string head = std::string(source) + ":";
+      auto line_of = [&head](const std::string& message) {
+        std::size_t line = 0;
+        std::size_t i = head.size();
+        if (message.rfind(head, 0) != 0 || i >= message.size() || std::isdigit(static_cast<unsigned char>(message[i])) == 0) {
+          return std::numeric_limits<std::size_t>::max();
+        }
+        for (; i < message.size() && std::isdigit(static_cast<unsigned char>(message[i])) != 0; ++i) {
+          line = line * 10 + static_cast<std::size_t>(message[i] - '0');
+        }
+        return line;
+      };
+      std::stable_sort(errors.begin(), errors.end(),
+                       [&](const std::string& a, const std::string& b) { return line_of(a) < line_of(b); });
       std::string all = errors.front();
       for (std::size_t k = 1; k < errors.size(); ++k) {
         all += "\n" + errors[k];
