@@ -141,6 +141,9 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns, 
     r.uptime_s = node_.uptime_s();
     r.current_noise_A = node_.frontend().current_noise_A();
     r.reported_period_s = node_.supervisor().status().reported_period_s;
+    if (p.fault_count > 0) {
+      r.fault_values = node_.supervisor().latched_values();
+    }
     {
       const core::DriveTelemetry& t = node_.controller().telemetry();
       r.estimates_gated = t.estimates_gated;

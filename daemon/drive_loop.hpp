@@ -54,6 +54,8 @@ struct PublicationRecord {
   double uptime_s = 0.0;
   double current_noise_A = 0.0;  // the current sensors' noise the front end measured (or was given)
   double reported_period_s = 0.0;  // the power stage's sampling period, as it reports it (0: never)
+  // With fault reports: what each fault's cause measured when it latched (Supervisor::latched_values).
+  std::array<double, core::kFaultCodeCount> fault_values{};
   // The estimator's refusals so far (the publisher logs them when they grow): winding estimates
   // the thermal filter gated out, and EMF (magnet) readings refused, with the last one's reason.
   std::uint32_t estimates_gated = 0;

@@ -120,12 +120,49 @@ void Publisher::reopen_if_due() {
   reopen_failure_logged_ = false;
 }
 
+// What a fault's cause measured, against the key that set the limit, e.g. "DC bus 0.0 V, below
+// supervisor.dc_bus_min_V (390 V): "; empty for the faults the caller reports.
+std::string Publisher::fault_cause(protocol::FaultCode code, double value) const {
+  const core::SupervisorConfig& c = config_.supervisor;
+  switch (code) {
+    case protocol::FaultCode::kDcBusUndervoltage:
+      return fmt::format("DC bus {:.1f} V, below supervisor.dc_bus_min_V ({:g} V): ", value, c.dc_bus_min_V);
+    case protocol::FaultCode::kDcBusOvervoltage:
+      return fmt::format("DC bus {:.1f} V, above supervisor.dc_bus_max_V ({:g} V): ", value, c.dc_bus_max_V);
+    case protocol::FaultCode::kOvercurrent:
+      return fmt::format("a phase current of {:.1f} A, above supervisor.overcurrent_A ({:g} A): ", value, c.overcurrent_A);
+    case protocol::FaultCode::kCurrentSum:
+      return fmt::format("|ia + ib + ic| = {:.2f} A, above supervisor.current_sum_max_A ({:g} A; a phase-current sensor "
+                         "is broken): ",
+                         value, c.current_sum_max_A);
+    case protocol::FaultCode::kAmbientImplausible:
+      return fmt::format("the ambient sensor reads {:.1f} C, outside supervisor.ambient_min_C .. ambient_max_C ({:g} .. "
+                         "{:g} C): ",
+                         value, c.ambient_min_C, c.ambient_max_C);
+    case protocol::FaultCode::kEncoderJump:
+      return fmt::format("the encoder jumped {:.0f} counts in one step (or read a count beyond its {} a turn): ", value,
+                         c.encoder_counts);
+    case protocol::FaultCode::kOvertemperature:
+      return fmt::format("winding estimate {:.1f} C, above supervisor.trip_temp_C ({:g} C): ", value, c.trip_temp_C);
+    case protocol::FaultCode::kOverspeed:
+      return fmt::format("the shaft at {:.1f} rad/s, above supervisor.overspeed_rad_s ({:g} rad/s): ", value, c.overspeed_rad_s);
+    case protocol::FaultCode::kSensorTimeout:
+      return fmt::format("{:.0f} periods without a sample (supervisor.sensor_timeout_periods {}): ", value,
+                         c.sensor_timeout_periods);
+    case protocol::FaultCode::kCommandTimeout:
+      return fmt::format("no valid DRIVE_COMMAND for {:.3f} s, above supervisor.command_timeout_s ({:g} s): ", value,
+                         c.command_timeout_s);
+    default:
+      return {};
+  }
+}
+
 void Publisher::log_fault(const protocol::FaultReport& f, const PublicationRecord& r) {
   const std::uint32_t bit = 1U << static_cast<unsigned>(f.code);
   const bool was = (active_faults_ & bit) != 0U;
   if (f.active && !was) {
-    spdlog::error("fault {}: the drive is in its safe state (gates off); {} time(s) since start", fault_name(f.code),
-                  f.occurrence_count);
+    spdlog::error("fault {}: {}the drive is in its safe state (gates off); {} time(s) since start", fault_name(f.code),
+                  fault_cause(f.code, r.fault_values[static_cast<std::size_t>(f.code)]), f.occurrence_count);
     if (f.code == protocol::FaultCode::kPeriodMismatch) {
       spdlog::error("fault PERIOD_MISMATCH: the power stage samples every {:.2f} us (SENSOR_SAMPLE PwmPeriod), this "
                     "drive steps every {:.2f} us (controller.control.period_s = {:g} s): every clock of the drive would run at "

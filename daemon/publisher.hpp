@@ -46,6 +46,7 @@ class Publisher {
  private:
   template <typename Message>
   void send(const Message& m);
+  [[nodiscard]] std::string fault_cause(hal::protocol::FaultCode code, double value) const;
   void log_fault(const hal::protocol::FaultReport& f, const PublicationRecord& r);
   void log_refusals(const PublicationRecord& r);
   void report();

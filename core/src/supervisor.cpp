@@ -61,10 +61,16 @@ void Supervisor::latch(FaultCode code) noexcept {
   if ((status_.latched_mask & b) == 0U) {
     status_.latched_mask |= b;
     ++counts_[static_cast<std::size_t>(code)];
+    latched_value_[static_cast<std::size_t>(code)] = cause_value_[static_cast<std::size_t>(code)];
     if (status_.first_fault == FaultCode::kNone) {
       status_.first_fault = code;
     }
   }
+}
+
+void Supervisor::cause(FaultCode code, double value) noexcept {
+  cause_mask_ |= bit(code);
+  cause_value_[static_cast<std::size_t>(code)] = value;
 }
 
 void Supervisor::report(FaultCode code, bool present) noexcept {
@@ -102,27 +108,26 @@ void Supervisor::check_sample(const SupervisedSample& s) noexcept {
     return;  // nothing else can be judged from NaN
   }
   if (s.vdc_V < config_.dc_bus_min_V) {
-    cause_mask_ |= bit(FaultCode::kDcBusUndervoltage);
+    cause(FaultCode::kDcBusUndervoltage, s.vdc_V);
   }
   if (s.vdc_V > config_.dc_bus_max_V) {
-    cause_mask_ |= bit(FaultCode::kDcBusOvervoltage);
+    cause(FaultCode::kDcBusOvervoltage, s.vdc_V);
   }
-  if (std::fabs(i.a) > config_.overcurrent_A || std::fabs(i.b) > config_.overcurrent_A ||
-      std::fabs(i.c) > config_.overcurrent_A) {
-    cause_mask_ |= bit(FaultCode::kOvercurrent);
+  if (const double largest = std::max({std::fabs(i.a), std::fabs(i.b), std::fabs(i.c)}); largest > config_.overcurrent_A) {
+    cause(FaultCode::kOvercurrent, largest);
   }
-  if (std::fabs(i.a + i.b + i.c) > config_.current_sum_max_A) {
-    cause_mask_ |= bit(FaultCode::kCurrentSum);
+  if (const double sum = std::fabs(i.a + i.b + i.c); sum > config_.current_sum_max_A) {
+    cause(FaultCode::kCurrentSum, sum);
   }
   if (s.hardware_overcurrent) {
     cause_mask_ |= bit(FaultCode::kHardwareOvercurrent);
   }
   if (s.ambient_C && !(*s.ambient_C >= config_.ambient_min_C && *s.ambient_C <= config_.ambient_max_C)) {
-    cause_mask_ |= bit(FaultCode::kAmbientImplausible);
+    cause(FaultCode::kAmbientImplausible, *s.ambient_C);
   }
   const auto counts = static_cast<std::uint32_t>(config_.encoder_counts);
   if (s.encoder_count >= counts) {
-    cause_mask_ |= bit(FaultCode::kEncoderJump);  // not an angle this encoder can report
+    cause(FaultCode::kEncoderJump, static_cast<double>(s.encoder_count));  // not an angle this encoder can report
     have_encoder_ = false;
     return;
   }
@@ -138,7 +143,7 @@ void Supervisor::check_sample(const SupervisedSample& s) noexcept {
     const std::uint32_t elapsed = periods_without_sample_ + 1U;  // the periods the step spans
     const double allowed = max_step_counts_ * static_cast<double>(elapsed);
     if (std::fabs(static_cast<double>(delta)) > allowed) {
-      cause_mask_ |= bit(FaultCode::kEncoderJump);
+      cause(FaultCode::kEncoderJump, std::fabs(static_cast<double>(delta)));
     } else if (config_.overspeed_rad_s > 0.0) {
       // The shaft's speed over the window, from the counts it moved: judged once per window,
       // the cause held until the next window's answer.
@@ -148,6 +153,7 @@ void Supervisor::check_sample(const SupervisedSample& s) noexcept {
         const double speed_rad_s = std::fabs(static_cast<double>(window_counts_)) * (2.0 * std::numbers::pi) /
                                    (static_cast<double>(counts) * static_cast<double>(window_periods_) * period_s_);
         overspeed_cause_ = speed_rad_s > config_.overspeed_rad_s;
+        cause_value_[static_cast<std::size_t>(FaultCode::kOverspeed)] = speed_rad_s;
         window_counts_ = 0;
         window_periods_ = 0;
       }
@@ -188,15 +194,16 @@ const SupervisorStatus& Supervisor::step(const SupervisorInput& in) noexcept {
     ++status_.missing_samples;
     periods_without_sample_ += std::max<std::uint32_t>(in.periods, 1U);
     if (status_.missing_samples >= static_cast<std::uint32_t>(config_.sensor_timeout_periods)) {
-      cause_mask_ |= bit(FaultCode::kSensorTimeout);
+      cause(FaultCode::kSensorTimeout, static_cast<double>(status_.missing_samples));
     }
   }
   if (in.enable_requested && config_.command_timeout_s > 0.0 && !(in.command_age_s <= config_.command_timeout_s)) {
-    cause_mask_ |= bit(FaultCode::kCommandTimeout);
+    cause(FaultCode::kCommandTimeout, in.command_age_s);
   }
   if (in.winding_C) {
     if (*in.winding_C > config_.trip_temp_C) {
       overtemp_cause_ = true;
+      cause_value_[static_cast<std::size_t>(FaultCode::kOvertemperature)] = *in.winding_C;
     } else if (*in.winding_C < config_.trip_temp_C - config_.trip_hysteresis_C) {
       overtemp_cause_ = false;
     }

@@ -484,6 +484,7 @@ TEST(DaemonLoop, ImplausibleMagnetReadingsAreRefusedAndLoggedWithTheirReason) {
 }
 
 TEST(DaemonLoop, PlantOutageSafeStateThenRecovery) {
+  LogCapture log;
   Bench bench;
   Axis axis(bench.bus, 2, 1e6);
   // Gates off between the plant's return and the drive's: an active load would spin the free
@@ -504,6 +505,13 @@ TEST(DaemonLoop, PlantOutageSafeStateThenRecovery) {
   });
   EXPECT_TRUE(has_fault(seen, 2, protocol::FaultCode::kSensorTimeout, true, outage));
   EXPECT_TRUE(has_state(seen, 2, protocol::DriveState::kFault, outage));
+  // The log says what tripped it, against its key (the publisher's thread may log it a moment
+  // after the frame).
+  const std::string cause = "fault SENSOR_TIMEOUT: 5 periods without a sample (supervisor.sensor_timeout_periods 5)";
+  for (int k = 0; k < 100 && log.lines_with(cause).empty(); ++k) {
+    std::this_thread::sleep_for(10ms);
+  }
+  EXPECT_EQ(log.lines_with(cause).size(), 1U) << "the fault's log line names what it measured";
   axis.start_plant();
   const std::size_t back = seen.size();
   supervise(bench, {2}, 50.0, 30s, seen, [&] { return has_state(seen, 2, protocol::DriveState::kRunning, back); });

@@ -80,6 +80,7 @@ struct SampleFaultCase {
   const char* name;
   FaultCode code;
   SupervisedSample bad;
+  double measured = 0.0;  // what the fault's cause measured (Supervisor::latched_values; the log)
 };
 
 SupervisedSample with_currents(double a, double b, double c) {
@@ -122,6 +123,7 @@ TEST_P(SampleFault, LatchesGatesOffCountsOnceAndClearsOnlyWhenGone) {
   EXPECT_TRUE(sup.latched(c.code));
   EXPECT_EQ(s.first_fault, c.code);
   EXPECT_EQ(count(sup, c.code), 1U);
+  EXPECT_DOUBLE_EQ(sup.latched_values()[static_cast<std::size_t>(c.code)], c.measured);
 
   // The cause persists: still latched, counted once, a clear request does nothing. (A jump
   // is an event between two samples: the same angle again is no jump.)
@@ -156,17 +158,17 @@ INSTANTIATE_TEST_SUITE_P(
         SampleFaultCase{"InfiniteCurrent", FaultCode::kInputNotFinite,
                         with_currents(std::numeric_limits<double>::infinity(), 0.0, 0.0)},
         SampleFaultCase{"NanDcBus", FaultCode::kInputNotFinite, with_vdc(kNan)},
-        SampleFaultCase{"ZeroDcBus", FaultCode::kDcBusUndervoltage, with_vdc(0.0)},
-        SampleFaultCase{"LowDcBus", FaultCode::kDcBusUndervoltage, with_vdc(399.0)},
-        SampleFaultCase{"HighDcBus", FaultCode::kDcBusOvervoltage, with_vdc(801.0)},
-        SampleFaultCase{"Overcurrent", FaultCode::kOvercurrent, with_currents(181.0, -90.5, -90.5)},
-        SampleFaultCase{"NegativeOvercurrent", FaultCode::kOvercurrent, with_currents(-90.5, -90.5, 181.0)},
-        SampleFaultCase{"CurrentSum", FaultCode::kCurrentSum, with_currents(30.0, 0.0, 0.0)},
-        SampleFaultCase{"EncoderJump", FaultCode::kEncoderJump, with_encoder(1000 + 500)},
-        SampleFaultCase{"EncoderOutOfRange", FaultCode::kEncoderJump, with_encoder(16384)},
+        SampleFaultCase{"ZeroDcBus", FaultCode::kDcBusUndervoltage, with_vdc(0.0), 0.0},
+        SampleFaultCase{"LowDcBus", FaultCode::kDcBusUndervoltage, with_vdc(399.0), 399.0},
+        SampleFaultCase{"HighDcBus", FaultCode::kDcBusOvervoltage, with_vdc(801.0), 801.0},
+        SampleFaultCase{"Overcurrent", FaultCode::kOvercurrent, with_currents(181.0, -90.5, -90.5), 181.0},
+        SampleFaultCase{"NegativeOvercurrent", FaultCode::kOvercurrent, with_currents(-90.5, -90.5, 181.0), 181.0},
+        SampleFaultCase{"CurrentSum", FaultCode::kCurrentSum, with_currents(30.0, 0.0, 0.0), 30.0},
+        SampleFaultCase{"EncoderJump", FaultCode::kEncoderJump, with_encoder(1000 + 500), 500.0},
+        SampleFaultCase{"EncoderOutOfRange", FaultCode::kEncoderJump, with_encoder(16384), 16384.0},
         SampleFaultCase{"HardwareOvercurrent", FaultCode::kHardwareOvercurrent, with_hardware_overcurrent()},
-        SampleFaultCase{"AmbientTooHot", FaultCode::kAmbientImplausible, with_ambient(327.0)},
-        SampleFaultCase{"AmbientTooCold", FaultCode::kAmbientImplausible, with_ambient(-60.0)}),
+        SampleFaultCase{"AmbientTooHot", FaultCode::kAmbientImplausible, with_ambient(327.0), 327.0},
+        SampleFaultCase{"AmbientTooCold", FaultCode::kAmbientImplausible, with_ambient(-60.0), -60.0}),
     [](const ::testing::TestParamInfo<SampleFaultCase>& param_info) { return std::string(param_info.param.name); });
 
 TEST(Supervisor, EncoderMovesFreelyWithinTheSpeedLimitAndAcrossTheWrap) {

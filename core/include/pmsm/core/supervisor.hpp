@@ -160,6 +160,12 @@ class Supervisor {
   }
   // Times each fault was latched (indexed by FaultCode).
   [[nodiscard]] const std::array<std::uint32_t, kFaultCodeCount>& counts() const noexcept { return counts_; }
+  // What each fault's cause measured when it last latched (indexed by FaultCode), for the log:
+  // the DC bus (V) for its two faults, the largest phase current (A), |ia + ib + ic| (A), the
+  // ambient sensor (C), the angle's step (encoder counts), the winding estimate (C), the
+  // shaft's speed (rad/s), the periods without a sample, the command's age (s); 0 for the
+  // faults the caller reports.
+  [[nodiscard]] const std::array<double, kFaultCodeCount>& latched_values() const noexcept { return latched_value_; }
   [[nodiscard]] const SupervisorConfig& config() const noexcept { return config_; }
 
   [[nodiscard]] static constexpr std::uint32_t bit(FaultCode code) noexcept {
@@ -168,6 +174,8 @@ class Supervisor {
 
  private:
   void latch(FaultCode code) noexcept;
+  // A cause present this period, with what it measured.
+  void cause(FaultCode code, double value) noexcept;
   // Sets cause_mask_ bits for this sample's implausible measurements.
   void check_sample(const SupervisedSample& s) noexcept;
 
@@ -176,6 +184,8 @@ class Supervisor {
   double max_step_counts_;
   SupervisorStatus status_{};
   std::array<std::uint32_t, kFaultCodeCount> counts_{};
+  std::array<double, kFaultCodeCount> cause_value_{};    // what each cause measured when last seen
+  std::array<double, kFaultCodeCount> latched_value_{};  // ... when its fault last latched
   std::uint32_t cause_mask_ = 0;   // causes present this period
   std::uint32_t external_mask_ = 0;  // caller-reported causes (cleared by request_clear when gone)
   bool clear_requested_ = false;
