@@ -269,7 +269,8 @@ void DriveLoop::on_frame(const hal::CanFrame& frame, std::int64_t now_ns) noexce
       case protocol::InjectionMethod::kOff: break;
     }
     node_.configure_injection(method, separation, injection->amplitude_A, injection->interval_s);
-    inputs_.request_injection = injection->request_now;
+    // A request is kept until the step takes it, whatever frame of the stream follows it.
+    inputs_.request_injection = inputs_.request_injection || injection->request_now;
   } else if (const auto* calibration = std::get_if<protocol::CalibrationCommand>(&input)) {
     counters_.commands_accepted[2].bump();
     if (calibration->action == protocol::CalibrationAction::kStart) {

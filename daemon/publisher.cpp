@@ -140,15 +140,18 @@ std::string Publisher::fault_cause(protocol::FaultCode code, double value) const
                          "{:g} C): ",
                          value, c.ambient_min_C, c.ambient_max_C);
     case protocol::FaultCode::kEncoderJump:
-      return fmt::format("the encoder jumped {:.0f} counts in one step (or read a count beyond its {} a turn): ", value,
-                         c.encoder_counts);
+      if (value >= static_cast<double>(c.encoder_counts)) {
+        return fmt::format("the encoder read a count of {:.0f}, beyond its {} a turn: ", value, c.encoder_counts);
+      }
+      return fmt::format("the encoder moved {:.0f} counts between two samples, more than supervisor.max_speed_rad_s "
+                         "({:g} rad/s) allows: ",
+                         value, c.max_speed_rad_s);
     case protocol::FaultCode::kOvertemperature:
       return fmt::format("winding estimate {:.1f} C, above supervisor.trip_temp_C ({:g} C): ", value, c.trip_temp_C);
     case protocol::FaultCode::kOverspeed:
       return fmt::format("the shaft at {:.1f} rad/s, above supervisor.overspeed_rad_s ({:g} rad/s): ", value, c.overspeed_rad_s);
     case protocol::FaultCode::kSensorTimeout:
-      return fmt::format("{:.0f} periods without a sample (supervisor.sensor_timeout_periods {}): ", value,
-                         c.sensor_timeout_periods);
+      return fmt::format("no sample for {:.0f} periods (supervisor.sensor_timeout_periods): ", value);
     case protocol::FaultCode::kCommandTimeout:
       return fmt::format("no valid DRIVE_COMMAND for {:.3f} s, above supervisor.command_timeout_s ({:g} s): ", value,
                          c.command_timeout_s);

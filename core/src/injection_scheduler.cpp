@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include "pmsm/core/injection.hpp"
 
@@ -501,7 +502,7 @@ PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
     r.outcome = PairOutcome::kRejectedVoltageSaturation;
   } else if (!time_based_ && std::abs(r.delta_omega_e_rad_s) > speed_limit) {
     r.outcome = PairOutcome::kRejectedSpeedChange;
-  } else if (unexplained_load_change_A(c) > config_.max_load_change_A) {
+  } else if (unexplained_load_change_A(c, r.delta_iq_A) > config_.max_load_change_A) {
     r.outcome = PairOutcome::kRejectedLoadChange;
   } else if (fit.residual_rms_V > config_.max_residual_V) {
     r.outcome = PairOutcome::kRejectedResidual;
@@ -571,18 +572,28 @@ double InjectionScheduler::lq_incremental_at(const LqShape::At& shape) const {
   return std::clamp(lq_H_ - lq_b_H_ * shape.h, 0.5 * secant, 1.5 * secant);
 }
 
-double InjectionScheduler::unexplained_load_change_A(const PairConditions& c) const {
+double InjectionScheduler::unexplained_load_change_A(const PairConditions& c, double delta_iq_A) const {
   // On a salient machine each pulse's reluctance torque 3/2 p (Ld - Lq) id iq differs between
   // the recordings, and the speed loop answers it with iq: not yet, in part, or fully, when
   // the torque is the same in both recordings, iq2 (psi + (Ld - Lq) id2) = iq1 (psi + (Ld -
   // Lq) id1). Any answer from none to the full one is the injection's own doing, not a load
   // change, and the fit models its d-axis voltage through Lq d(w iq) (docs/estimator.md
-  // section 3). The guard judges what lies outside that range. With Ld = Lq the full answer
-  // is 0 and this is |diq|, the plain guard.
-  const double delta_iq_A = c.iq_mean_1_A - c.iq_mean_2_A;
+  // section 3). The guard judges what lies outside that range. Only on a machine configured as
+  // salient (a reluctance-torque budget, as the angle check asks): on a round rotor the
+  // commissioned Ld and the learned Lq differ by their errors alone, and a window from them
+  // would let load changes through. Without it, or with the fluxes far from the magnet's (a
+  // range the model does not hold), the plain |diq|.
+  if (!std::isfinite(delta_iq_A)) {
+    return std::numeric_limits<double>::infinity();
+  }
+  const double psi_Wb = config_.flux_linkage_Wb;
   const double saliency_H = config_.ld_H - lq_secant_H(0.5 * (c.iq_mean_1_A + c.iq_mean_2_A));
-  const double flux_2_Wb = config_.flux_linkage_Wb + saliency_H * c.id_mean_2_A;
-  const double full_A = flux_2_Wb > 0.0 ? c.iq_mean_1_A * saliency_H * (c.id_mean_2_A - c.id_mean_1_A) / flux_2_Wb : 0.0;
+  const double flux_1_Wb = psi_Wb + saliency_H * c.id_mean_1_A;
+  const double flux_2_Wb = psi_Wb + saliency_H * c.id_mean_2_A;
+  if (!(config_.max_torque_disturbance_Nm > 0.0) || !(flux_1_Wb >= 0.5 * psi_Wb && flux_2_Wb >= 0.5 * psi_Wb)) {
+    return std::abs(delta_iq_A);
+  }
+  const double full_A = c.iq_mean_1_A * (flux_2_Wb - flux_1_Wb) / flux_2_Wb;
   const double lo_A = std::min(0.0, full_A);
   const double hi_A = std::max(0.0, full_A);
   return delta_iq_A < lo_A ? lo_A - delta_iq_A : (delta_iq_A > hi_A ? delta_iq_A - hi_A : 0.0);

@@ -197,12 +197,23 @@ void ThermalObserver::predict(double dt_s, double copper_current_sq_A2, double o
   const double dt = dt_s * config_.time_scale;  // thermal seconds
   const double pcu = copper_loss_W(copper_current_sq_A2);
   last_copper_loss_W_ = pcu;
-  const Matrix a = system_matrix(config_, pcu);
+  Matrix a = system_matrix(config_, pcu);
   const double pfe = iron_loss_W(omega_m_rad_s);
+  const double gha_ch = 1.0 / (config_.housing_to_ambient_K_W * config_.housing_capacity_J_K);
   Vector u;
-  u << pcu / config_.winding_capacity_J_K,
-      (pfe + housing_loss_floor_W(pfe, ambient_C) + ambient_C / config_.housing_to_ambient_K_W) / config_.housing_capacity_J_K,
-      0.0, 0.0;
+  u << pcu / config_.winding_capacity_J_K, pfe / config_.housing_capacity_J_K + ambient_C * gha_ch, 0.0, 0.0;
+  if (housing_loss_floor_W(pfe, ambient_C) > 0.0) {
+    // The floor binds (housing_loss_floor_W): the housing gets -max(Th - Ta, 0) / Rha in place
+    // of Pfe + dP. dP then has no part in the prediction (its column is 0, so its covariance
+    // with the temperatures does not grow on a term that is not there), and above the ambient
+    // the path to it counts twice.
+    a(1, 2) = 0.0;
+    u(1) = ambient_C * gha_ch;
+    if (x_(1) > ambient_C) {
+      a(1, 1) -= gha_ch;
+      u(1) += ambient_C * gha_ch;
+    }
+  }
   // Exact discretisation is not needed at the update rate used (dt far below the winding
   // time constant); a second-order Taylor step keeps it accurate and allocation-free.
   const Matrix ad = Matrix::Identity() + a * dt + 0.5 * a * a * dt * dt;

@@ -507,7 +507,7 @@ TEST(DaemonLoop, PlantOutageSafeStateThenRecovery) {
   EXPECT_TRUE(has_state(seen, 2, protocol::DriveState::kFault, outage));
   // The log says what tripped it, against its key (the publisher's thread may log it a moment
   // after the frame).
-  const std::string cause = "fault SENSOR_TIMEOUT: 5 periods without a sample (supervisor.sensor_timeout_periods 5)";
+  const std::string cause = "fault SENSOR_TIMEOUT: no sample for 5 periods (supervisor.sensor_timeout_periods)";
   for (int k = 0; k < 100 && log.lines_with(cause).empty(); ++k) {
     std::this_thread::sleep_for(10ms);
   }

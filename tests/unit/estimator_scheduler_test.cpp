@@ -1514,31 +1514,33 @@ TEST(InjectionScheduler, LoadChangeBetweenRecordingsRejectsThePair) {
 // A salient machine (Ld 1 mH below Lq) whose speed loop holds the torque through every pulse:
 // iq (psi + (Ld - Lq) id) = iq0 psi, so iq moves by 6.2 A between the +25 A and -25 A
 // recordings at 40 A of load, four times the 1.5 A guard. That answer is the injection's own,
-// and the fit models its d-axis voltage (Lq d(w iq)): the pairs are accepted and read Rs right.
-// The same move the other way is no answer to the pulses (the load changed): rejected, as on a
-// machine with Ld = Lq, where the pulses make no reluctance torque to answer.
-int load_changes_rejected(double ld_H, double answer_sign, double* rs_error) {
+// and the fit models its d-axis voltage (Lq d(w iq)): on a machine configured as salient (a
+// torque budget) the pairs are accepted and read Rs right, whether the speed loop answers in
+// full, in half or not yet. The same move the other way, or twice the full answer, is no answer
+// to the pulses (the load changed), and without the budget (a machine configured as round-rotor) or with Ld = Lq every
+// such move is judged as a load change: rejected.
+int load_changes_rejected(double ld_H, double answer, bool configured_salient, double* rs_error) {
   InjectionConfig c = test_config();
   c.ld_H = ld_H;
   c.learn_lq = false;     // the commissioned Lq is the plant's
   c.vx_initial_V = 1.5;   // and the bridge's voltage known (a calibrated drive; at this load
   c.vx_initial_std_V = 0.01;  // the events do not learn it)
+  c.max_torque_disturbance_Nm = configured_salient ? 10.0 : 0.0;  // 6 Nm at 40 A and 25 A
   Harness h(c);
   h.plant.ld_H = ld_H;
   const double iq0 = 40.0;
-  // The speed loop's iq: a salient machine's answer (Ld - Lq = -1 mH) whatever the scheduler
-  // is told of Ld, or its mirror image.
+  // The speed loop's iq: the answer of a machine with Ld - Lq = -1 mH, times `answer`.
   h.hook = [=](Harness& x) {
     const double id = x.records.empty() ? 0.0 : x.records.back().out.injection_A.d;
     const double held = iq0 * c.flux_linkage_Wb / (c.flux_linkage_Wb - 1.0e-3 * id);
-    x.motoring_A = {0.0, iq0 + answer_sign * (held - iq0)};
+    x.motoring_A = {0.0, iq0 + answer * (held - iq0)};
   };
   h.run_until(3.0);
   int rejected = 0;
   for (const PairResult& p : h.pairs) {
     rejected += p.outcome == PairOutcome::kRejectedLoadChange ? 1 : 0;
     if (p.f_A > 20.0 && p.outcome != PairOutcome::kAborted) {
-      EXPECT_NEAR(std::abs(p.delta_iq_A), 6.2, 0.3) << "the speed loop's answer at F = 25 A";
+      EXPECT_NEAR(std::abs(p.delta_iq_A), 6.2 * std::abs(answer), 0.3) << "the speed loop's answer at F = 25 A";
     }
   }
   EXPECT_GE(h.pairs.size(), 8U);
@@ -1547,12 +1549,16 @@ int load_changes_rejected(double ld_H, double answer_sign, double* rs_error) {
 }
 
 TEST(InjectionScheduler, TheSpeedLoopsAnswerToTheReluctanceTorqueIsNoLoadChange) {
-  double rs_error = 1.0;
-  EXPECT_EQ(load_changes_rejected(4.5e-3, 1.0, &rs_error), 0) << "the answer to the pulses";
-  EXPECT_NEAR(rs_error, 0.0, 0.005);
+  for (const double answer : {1.0, 0.5, 0.0}) {
+    double rs_error = 1.0;
+    EXPECT_EQ(load_changes_rejected(4.5e-3, answer, true, &rs_error), 0) << "the answer to the pulses: " << answer;
+    EXPECT_NEAR(rs_error, 0.0, 0.005) << answer;
+  }
   double unused = 0.0;
-  EXPECT_GE(load_changes_rejected(4.5e-3, -1.0, &unused), 8) << "the load moving against the answer";
-  EXPECT_GE(load_changes_rejected(5.5e-3, 1.0, &unused), 8) << "Ld = Lq: no reluctance torque to answer";
+  EXPECT_GE(load_changes_rejected(4.5e-3, -1.0, true, &unused), 8) << "the load moving against the answer";
+  EXPECT_GE(load_changes_rejected(4.5e-3, 2.0, true, &unused), 8) << "twice the full answer";
+  EXPECT_GE(load_changes_rejected(4.5e-3, 1.0, false, &unused), 8) << "a machine not configured as salient";
+  EXPECT_GE(load_changes_rejected(5.5e-3, 1.0, true, &unused), 8) << "Ld = Lq: no reluctance torque to answer";
 }
 
 TEST(InjectionScheduler, VoltageLimitWhileRecordingRejectsThePair) {

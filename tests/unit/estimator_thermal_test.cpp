@@ -893,6 +893,15 @@ TEST(ThermalObserver, ALearnedNegativeLossNeverCoolsTheMachineBelowItsAmbient) {
   EXPECT_NEAR(settle(100.0).housing_C, 25.0, 0.01);
   // At 150 rad/s it is 112.5 W: the housing gets 12.5 W, dP applies in full.
   EXPECT_NEAR(settle(150.0).housing_C, 25.0 + 12.5 * c.housing_to_ambient_K_W, 0.01);
+  // On the way, at rest and 4 K above the ambient, the housing loses its path's heat twice
+  // over (dP takes out once more what the path does), not 100 W, and not nothing (a floor at
+  // Pfe + dP = 0 would take out only the path's): its first second against the network's rate.
+  ThermalObserver obs(c, cal, 25.0);
+  obs.restore(learned, 0.0, 25.0);
+  obs.predict(1.0, 0.0, 0.0, 25.0, true);
+  const double rate_C_per_s =
+      ((30.0 - 29.0) / c.winding_to_housing_K_W - 2.0 * (29.0 - 25.0) / c.housing_to_ambient_K_W) / c.housing_capacity_J_K;
+  EXPECT_NEAR(obs.estimate().housing_C - 29.0, rate_C_per_s, 0.01 * std::abs(rate_C_per_s));
 }
 
 }  // namespace

@@ -130,8 +130,6 @@ class Monitor {
     }
   }
 
-  // time_s: when the frame was received or logged (seconds on any clock that does not go back),
-  // when known. Times that go back (a -td log: gaps, not times) are not used at all.
   // Frames the kernel dropped for this monitor's own socket (its receive queue full), as the
   // socket counts them: an alive-counter jump after such a drop is this monitor's loss, not
   // the bus's, and is reported so.
@@ -145,6 +143,8 @@ class Monitor {
     }
   }
 
+  // time_s: when the frame was received or logged (seconds on any clock that does not go back),
+  // when known. Times that go back (a -td log: gaps, not times) are not used at all.
   void on_frame(const hal::CanFrame& frame, std::optional<double> time_s = std::nullopt) {
     ++frames_;
     if (time_s && last_time_s_ && *time_s < *last_time_s_) {
@@ -543,8 +543,9 @@ int run_monitor(MonitorOptions o) {
   hal::SocketCanConfig config;
   config.interface = o.iface;
   config.fd = true;
-  // A large receive queue (as `candump -r`): a monitor that falls behind a fast loop for a
-  // moment (a loaded host, User-Mode Linux) should not lose the frames it counts.
+  // A large receive queue: a monitor that falls behind a fast loop for a moment (a loaded
+  // host, User-Mode Linux) should not lose the frames it counts. SO_RCVBUF asks for it; the
+  // kernel grants at most net.core.rmem_max (drops beyond are reported, on_own_drops).
   config.receive_buffer_bytes = 16 * 1024 * 1024;
   hal::Status error;
   std::unique_ptr<hal::SocketCanBus> bus = hal::SocketCanBus::open(config, error);

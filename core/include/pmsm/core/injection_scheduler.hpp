@@ -432,9 +432,10 @@ class InjectionScheduler {
   // learning is off).
   [[nodiscard]] double lq_secant_H(double iq_A) const;
   [[nodiscard]] double lq_incremental_H(double iq_A) const;
-  // The change of the motoring current between a pair's recordings that the injection does
-  // not explain (the load-change guard's measure; amperes, >= 0).
-  [[nodiscard]] double unexplained_load_change_A(const PairConditions& c) const;
+  // The part of a pair's motoring-current change delta_iq_A (recording 1 minus 2) that the
+  // injection does not explain (the load-change guard's measure; amperes, >= 0; infinite for a
+  // non-finite change).
+  [[nodiscard]] double unexplained_load_change_A(const PairConditions& c, double delta_iq_A) const;
 
  private:
   [[nodiscard]] bool saturation_variance_resolved() const;
