@@ -586,11 +586,14 @@ double InjectionScheduler::unexplained_load_change_A(const PairConditions& c, do
   if (!std::isfinite(delta_iq_A)) {
     return std::numeric_limits<double>::infinity();
   }
+  if (!(config_.max_torque_disturbance_Nm > 0.0)) {
+    return std::abs(delta_iq_A);
+  }
   const double psi_Wb = config_.flux_linkage_Wb;
   const double saliency_H = config_.ld_H - lq_secant_H(0.5 * (c.iq_mean_1_A + c.iq_mean_2_A));
   const double flux_1_Wb = psi_Wb + saliency_H * c.id_mean_1_A;
   const double flux_2_Wb = psi_Wb + saliency_H * c.id_mean_2_A;
-  if (!(config_.max_torque_disturbance_Nm > 0.0) || !(flux_1_Wb >= 0.5 * psi_Wb && flux_2_Wb >= 0.5 * psi_Wb)) {
+  if (!(flux_1_Wb >= 0.5 * psi_Wb && flux_2_Wb >= 0.5 * psi_Wb)) {
     return std::abs(delta_iq_A);
   }
   const double full_A = c.iq_mean_1_A * (flux_2_Wb - flux_1_Wb) / flux_2_Wb;
