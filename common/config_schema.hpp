@@ -17,7 +17,6 @@
 
 #include <algorithm>
 #include <array>
-#include <cctype>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
@@ -242,7 +241,7 @@ class ConfigSchema {
   // mistakes shows all three at once).
   void apply(const toml::table& table, Config& config, std::string_view source,
              const std::vector<std::string>& foreign_tables = {}, std::string_view key_prefix = {}) const {
-    std::vector<std::string> errors;
+    std::vector<LocatedError> errors;
     check_unknown(table, "", source, foreign_tables, key_prefix, errors);
     for (const Entry& e : entries_) {
       const toml::node_view<const toml::node> node = table.at_path(e.key);
@@ -252,28 +251,16 @@ class ConfigSchema {
       try {
         apply_entry(e, *node.node(), config, source, key_prefix);
       } catch (const ConfigError& error) {
-        errors.emplace_back(error.what());
+        errors.push_back({order_of(*node.node(), source), error.what()});
       }
     }
     if (!errors.empty()) {
       // In the file's order, unknown keys and bad values alike, as a compiler lists its errors.
-      const std::string head = std::string(source) + ":";
-      auto line_of = [&head](const std::string& message) {
-        std::size_t line = 0;
-        std::size_t i = head.size();
-        if (message.rfind(head, 0) != 0 || i >= message.size() || std::isdigit(static_cast<unsigned char>(message[i])) == 0) {
-          return std::numeric_limits<std::size_t>::max();
-        }
-        for (; i < message.size() && std::isdigit(static_cast<unsigned char>(message[i])) != 0; ++i) {
-          line = line * 10 + static_cast<std::size_t>(message[i] - '0');
-        }
-        return line;
-      };
       std::stable_sort(errors.begin(), errors.end(),
-                       [&](const std::string& a, const std::string& b) { return line_of(a) < line_of(b); });
-      std::string all = errors.front();
+                       [](const LocatedError& a, const LocatedError& b) { return a.order < b.order; });
+      std::string all = errors.front().message;
       for (std::size_t k = 1; k < errors.size(); ++k) {
-        all += "\n" + errors[k];
+        all += "\n" + errors[k].message;
       }
       throw ConfigError(all);
     }
@@ -567,9 +554,22 @@ class ConfigSchema {
     return out;
   }
 
+  // An error with where it sorts: its line in `source`; after those, in the order found, one
+  // from another file (a scenario's base) or without a line.
+  struct LocatedError {
+    std::size_t order = 0;
+    std::string message;
+  };
+  static std::size_t order_of(const toml::node& node, std::string_view source) {
+    const auto& region = node.source();
+    const bool here = !region.path || region.path->empty() || *region.path == source;
+    return here && region.begin.line > 0 ? static_cast<std::size_t>(region.begin.line)
+                                         : std::numeric_limits<std::size_t>::max();
+  }
+
   void check_unknown(const toml::table& table, const std::string& prefix, std::string_view source,
                      const std::vector<std::string>& foreign_tables, std::string_view key_prefix,
-                     std::vector<std::string>& errors) const {
+                     std::vector<LocatedError>& errors) const {
     for (const auto& [k, node] : table) {
       const std::string key = prefix.empty() ? std::string(k.str()) : prefix + "." + std::string(k.str());
       bool foreign = false;
@@ -593,10 +593,10 @@ class ConfigSchema {
           check_unknown(*sub, key, source, foreign_tables, key_prefix, errors);
           continue;
         }
-        errors.push_back(where(source, node, key, key_prefix) + "expected a table (section)");
+        errors.push_back({order_of(node, source), where(source, node, key, key_prefix) + "expected a table (section)"});
         continue;
       }
-      errors.push_back(where(source, node, key, key_prefix) + "unknown key" + suggestion(key, key_prefix));
+      errors.push_back({order_of(node, source), where(source, node, key, key_prefix) + "unknown key" + suggestion(key, key_prefix)});
     }
   }
 

@@ -432,13 +432,13 @@ class InjectionScheduler {
   // learning is off).
   [[nodiscard]] double lq_secant_H(double iq_A) const;
   [[nodiscard]] double lq_incremental_H(double iq_A) const;
+
+ private:
+  [[nodiscard]] bool saturation_variance_resolved() const;
   // The part of a pair's motoring-current change delta_iq_A (recording 1 minus 2) that the
   // injection does not explain (the load-change guard's measure; amperes, >= 0; infinite for a
   // non-finite change).
   [[nodiscard]] double unexplained_load_change_A(const PairConditions& c, double delta_iq_A) const;
-
- private:
-  [[nodiscard]] bool saturation_variance_resolved() const;
   // Fixed-angle: how far past the pulse's start an angle is, in the direction of rotation.
   [[nodiscard]] double pulse_phase(double theta_e_rad) const { return direction_ * (theta_e_rad - pulse_start_theta_); }
   void begin_pair(const SchedulerInput& in);
