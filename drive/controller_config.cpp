@@ -97,6 +97,13 @@ ConfigSchema<C> build() {
                   "torque by G (limit - speed), G = motor.inertia_kg_m2 x min(5 control.speed_bandwidth_rad_s, "
                   "control.pll_bandwidth_rad_s / 2), so that an unloaded shaft settles there and one under a load T at "
                   "limit - T / G; DRIVE_STATUS.LimitSpeed says when it binds. Below supervisor.overspeed_rad_s.");
+  s.optional_real("control.speed_ramp_rad_s2", [](C& c) -> std::optional<double>& { return c.relative.speed_ramp_rad_s2; },
+                  at_least(0, 1e7), "rad/s^2", "a quarter of the current limit's torque / motor.inertia_kg_m2",
+                  "Speed mode's set-point ramp (0: none, steps as commanded): the reference moves towards the set-point at "
+                  "most this fast, with J x its slope as a torque feed-forward, so that a step neither winds the speed "
+                  "loop's integral up nor overshoots the set-point (or the speed limit). The default, a quarter of "
+                  "min(Kt derating.max_current_A, control.max_torque_Nm) / motor.inertia_kg_m2, leaves the rest of the "
+                  "torque for the load and the loop, and keeps the PLL's speed lag (the ramp / its bandwidth) small.");
   s.real("control.max_torque_Nm", [](C& c) -> double& { return c.drive.speed.max_torque_Nm; }, positive(10000), "Nm", "Torque demand limit.");
   s.real("control.pll_bandwidth_rad_s", [](C& c) -> double& { return c.drive.angle.pll_bandwidth_rad_s; }, positive(10000), "rad/s",
          "Speed observer (PLL) bandwidth.");
@@ -414,6 +421,14 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
   // A fifth above rated: the reference's duty cycles run up to rated speed, and the supervisor's
   // OVERSPEED (1.5 x rated by default) stays well above what the limit lets the shaft reach.
   d.speed_limit_rad_s = c.relative.speed_limit_rad_s.value_or(1.2 * m.rated_speed_rad_s);
+  // A quarter of the acceleration the drive's torque limit gives the commissioned inertia: the
+  // ramp's feed-forward takes at most a quarter of the torque, the rest is left for the load and
+  // the loop. The PLL's speed lags a ramp by about a / its bandwidth, which the shaft carries
+  // past the set-point when the ramp ends: half the acceleration overshot a 200 rad/s step of
+  // the Table I motor by 3.9 %, a quarter by 1.8 %, an eighth by 0.9 % (DriveNode.ASpeedStep...).
+  d.speed_ramp_rad_s2 = c.relative.speed_ramp_rad_s2.value_or(
+      0.25 * std::min(core::torque_constant_dq_Nm_per_A(m) * d.derating.max_current_A, d.speed.max_torque_Nm) /
+      m.inertia_kg_m2);
   c.calibration_f_A = c.relative.calibration_f_A.value_or(relative.calibration_f_A);
   // What the margin keeps free (the dead-time compensation's dead_time f_pwm Vdc, the bus's
   // ripple and sag, the modulator's and the current loop's reserve) scales with the bus: the

@@ -46,6 +46,7 @@ struct MotorRelativeKeys {
   std::optional<double> calibration_f_A;
   std::optional<double> max_speed_change_rad_s;
   std::optional<double> speed_limit_rad_s;
+  std::optional<double> speed_ramp_rad_s2;
   // Follows the bus, not the motor: a share of control.nominal_dc_bus_V.
   std::optional<double> headroom_margin_V;
 };

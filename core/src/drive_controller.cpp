@@ -481,10 +481,27 @@ Dq DriveController::motoring_reference(const DriveCommand& command) {
     }
     if (++speed_divider_ >= config_.speed_decimation) {
       speed_divider_ = 0;
-      torque_demand_Nm_ = speed_.step(reference, angle_.mechanical_speed_rad_s(), limit * kt_dq_Nm_per_A_);
+      const double speed = angle_.mechanical_speed_rad_s();
+      const double dt = config_.speed.period_s;
+      double feed_forward = 0.0;
+      if (config_.speed_ramp_rad_s2 > 0.0) {
+        if (!speed_ramp_started_) {
+          speed_ramp_ref_rad_s_ = speed;  // from where the shaft is, not from rest
+          speed_ramp_started_ = true;
+        }
+        const double max_step = config_.speed_ramp_rad_s2 * dt;
+        const double step = std::clamp(reference - speed_ramp_ref_rad_s_, -max_step, max_step);
+        speed_ramp_ref_rad_s_ += step;
+        reference = speed_ramp_ref_rad_s_;
+        feed_forward = config_.speed.inertia_kg_m2 * step / dt;
+      }
+      torque_demand_Nm_ = speed_.step(reference, speed, limit * kt_dq_Nm_per_A_, voltage_limited_since_speed_step_,
+                                      feed_forward);
+      voltage_limited_since_speed_step_ = false;
     }
     torque = torque_demand_Nm_;
   } else if (command.mode == DriveMode::kTorque) {
+    speed_ramp_started_ = false;
     torque = command.torque_ref_Nm;
     // Near the limit the torque folds back as a proportional speed loop would hold the shaft
     // there: at most G (limit - speed) forwards, G (-limit - speed) backwards (infinite bounds
@@ -1063,6 +1080,8 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     current_.reset();
     speed_.reset();
     torque_demand_Nm_ = 0.0;
+    voltage_limited_since_speed_step_ = false;
+    speed_ramp_started_ = false;
   }
   was_enabled_ = enabled;
 
@@ -1158,6 +1177,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   limited_now_ = limited_next_;
   v_applied_next_ab_ = v_total;
   limited_next_ = limited;
+  voltage_limited_since_speed_step_ = voltage_limited_since_speed_step_ || limited;
   previous_i_A_ = i;
   previous_i_abc_A_ = in.i_A;
   // (An angle correction made in this step moves this history at the next step's start.)

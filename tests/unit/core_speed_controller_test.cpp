@@ -31,5 +31,27 @@ TEST(SpeedController, RespectsTheTighterTorqueLimit) {
   }
 }
 
+// While the current loop below cannot deliver (on its voltage limit), the integral does not
+// grow the demand further; it may still shrink it, and the feed-forward passes through.
+TEST(SpeedController, ASaturatedCurrentLoopHoldsTheIntegral) {
+  SpeedController controller(SpeedControllerConfig{});
+  const double first = controller.step(110.0, 100.0, 80.0, true);
+  double last = first;
+  for (int k = 0; k < 100; ++k) {
+    last = controller.step(110.0, 100.0, 80.0, true);
+  }
+  EXPECT_NEAR(last, first, 1e-9) << "held: no growth away from zero torque";
+  const double free = controller.step(110.0, 100.0, 80.0, false);
+  EXPECT_GT(free, last) << "integrates again once the current loop follows";
+  for (int k = 0; k < 100; ++k) {
+    (void)controller.step(110.0, 100.0, 80.0, false);  // an integral well above Kp x 1 rad/s
+  }
+  const double back = controller.step(99.0, 100.0, 80.0, true);
+  const double back_again = controller.step(99.0, 100.0, 80.0, true);
+  ASSERT_GT(back_again, 0.0);
+  EXPECT_LT(back_again, back) << "integration towards zero torque is never held";
+  EXPECT_NEAR(controller.step(100.0, 100.0, 80.0, true, 5.0) - controller.step(100.0, 100.0, 80.0, true, 0.0), 5.0, 1e-9);
+}
+
 }  // namespace
 }  // namespace pmsm::core

@@ -369,6 +369,59 @@ TEST(DriveNode, TheSpeedLimitHoldsAnUnloadedShaftAndClampsASetPoint) {
   }
 }
 
+// A speed step: the set-point's ramp (control.speed_ramp_rad_s2, J x its slope fed forward)
+// leaves no accelerating torque in the speed loop's integral, so the shaft overshoots neither
+// the set-point nor, asked beyond it, the speed limit. Without the ramp the PI's zero
+// overshoots a 200 rad/s step by about 10 % (and a set-point beyond the limit by 15 rad/s).
+TEST(DriveNode, ASpeedStepOvershootsNeitherTheSetPointNorTheLimit) {
+  for (const double set_point : {250.0, 1000.0}) {
+    Rig rig;
+    rig.plant->set_load_torque_Nm(0.0);
+    rig.run(5000);  // the ADC offsets, then 50 rad/s
+    rig.in.speed_ref_rad_s = set_point;
+    const double target = std::min(set_point, rig.config.drive.speed_limit_rad_s);
+    double highest = 0.0;
+    double at_half_second = 0.0;
+    for (int k = 0; k < 20000; ++k) {
+      rig.run(1);
+      highest = std::max(highest, static_cast<double>(rig.plant->truth().speed_rad_s));
+      if (k == 5000) {
+        at_half_second = static_cast<double>(rig.plant->truth().speed_rad_s);
+      }
+    }
+    EXPECT_LT(highest, target + 0.025 * (target - 50.0)) << "set-point " << set_point;
+    // Still quick: the ramp takes a quarter of the torque limit's acceleration (about 0.14 s
+    // for 200 rad/s here). Beyond
+    // the limit the Table I machine runs out of voltage a little below it (no field weakening).
+    EXPECT_GT(at_half_second, 0.98 * target) << "set-point " << set_point;
+    EXPECT_EQ(rig.node->supervisor().status().state, core::DriveState::kRunning);
+  }
+}
+
+// Held below its set-point by the voltage limit (the Table I machine, without field weakening,
+// tops out a little below its 376.8 rad/s limit), the speed loop does not wind its integral up:
+// the injection events' field-weakening pulses give the shaft headroom for a moment, and a
+// wound-up integral ran it through the speed limit then (398.9 rad/s here, one second of
+// events; the speed ramp alone does not prevent it).
+TEST(DriveNode, TheVoltageLimitDoesNotWindTheSpeedLoopUp) {
+  Rig rig;
+  rig.plant->set_load_torque_Nm(0.0);
+  rig.run(5000);
+  rig.in.speed_ref_rad_s = 1000.0;  // clamped to the limit, above what the voltage allows
+  const double limit = rig.config.drive.speed_limit_rad_s;
+  double highest = 0.0;
+  int voltage_limited = 0;
+  for (int k = 0; k < 30000; ++k) {
+    rig.run(1);
+    highest = std::max(highest, static_cast<double>(rig.plant->truth().speed_rad_s));
+    voltage_limited += rig.node->controller().telemetry().voltage_limited ? 1 : 0;
+  }
+  ASSERT_GT(voltage_limited, 10000) << "the voltage limit no longer holds the shaft";
+  ASSERT_GT(rig.node->controller().telemetry().outcomes[static_cast<std::size_t>(core::PairOutcome::kAccepted)], 0U)
+      << "no injection events ran";
+  EXPECT_LT(highest, limit + 0.005 * limit);
+}
+
 // A torque command beyond what the (derated) current limit allows is cut to the limit, and
 // DRIVE_STATUS says so (LimitCurrent); within it, not.
 TEST(DriveNode, ATorqueBeyondTheCurrentLimitIsReportedAsLimited) {

@@ -54,6 +54,13 @@ struct DriveConfig {
   // 60 rad/s) left the Table I motor 31.7 Nm at its rated speed, below its rated torque, and
   // wfb stays where the PLL's speed lags little (docs/daemon.md, "Faults and limits").
   double speed_limit_rad_s = 0.0;
+  // The speed set-point's ramp (mechanical rad/s^2, 0: none). Speed mode moves its reference
+  // towards the set-point at most this fast and adds the torque J x the ramp's slope (the
+  // commissioned inertia) as a feed-forward, so that the speed loop's integral does not carry
+  // the accelerating torque. Without it a set-point step leaves that torque in the integral at
+  // the step's end, which overshoots the set-point by several per cent of the step (and a
+  // step to the speed limit overshoots the limit).
+  double speed_ramp_rad_s2 = 0.0;
   DeadTimeCompensation dead_time{0.9e-6, 0.0, 1.0};
   InjectionConfig injection{};
   // The calibration procedure, whatever the run-time method: fixed-magnitude bipolar at two
@@ -483,6 +490,9 @@ class DriveController {
   bool was_enabled_ = false;
   int speed_divider_ = 0;
   double torque_demand_Nm_ = 0.0;
+  bool voltage_limited_since_speed_step_ = false;  // SpeedController::step's current_loop_saturated
+  double speed_ramp_ref_rad_s_ = 0.0;  // the ramped speed reference (DriveConfig::speed_ramp_rad_s2)
+  bool speed_ramp_started_ = false;    // it follows from the measured speed when speed mode begins
   // History for the period record: the last two commands and the previous sample.
   bool have_previous_ = false;
   Dq previous_i_A_{};

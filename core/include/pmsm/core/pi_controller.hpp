@@ -43,6 +43,17 @@ class PiController {
     }
   }
 
+  // The loop below could not follow the output (it saturated on a limit this controller does
+  // not see, as a current loop on the voltage limit): take back this period's integration if
+  // it pushed the output further in `direction`'s sign. Returns what was taken back (0 if
+  // nothing), for the caller to take off the output it already has.
+  [[nodiscard]] double hold(double direction) {
+    const double taken = direction * last_increment_ > 0.0 ? last_increment_ : 0.0;
+    integral_ -= taken;
+    last_increment_ -= taken;
+    return taken;
+  }
+
   // Convenience for a stand-alone loop with a symmetric or asymmetric clamp.
   [[nodiscard]] double update_clamped(double error, double dt_s, double feed_forward, double lo,
                                       double hi) {

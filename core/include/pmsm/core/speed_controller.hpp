@@ -21,7 +21,16 @@ class SpeedController {
 
   // One speed-loop period; returns the torque demand, limited to +-max_torque (or to the
   // tighter limit given, e.g. from the derated current limit).
-  double step(double speed_ref_rad_s, double speed_meas_rad_s, double torque_limit_Nm);
+  // `current_loop_saturated`: the current loop was on its voltage limit since the last call,
+  // so the torque asked was not all delivered. The integral then does not grow the demand
+  // further (conditional integration on a limit outside this loop): without this, a drive held
+  // below its set-point by the voltage limit winds its integral up, and the first moment of
+  // headroom (a field-weakening injection pulse, a lighter load) releases it as a speed
+  // overshoot far beyond the set-point.
+  // `feed_forward_Nm` is added to the PI's output inside the limit (e.g. J x the reference's
+  // slope).
+  double step(double speed_ref_rad_s, double speed_meas_rad_s, double torque_limit_Nm,
+              bool current_loop_saturated = false, double feed_forward_Nm = 0.0);
 
   void reset(double torque_Nm = 0.0) { pi_.reset(torque_Nm); }
   [[nodiscard]] const SpeedControllerConfig& config() const { return config_; }
