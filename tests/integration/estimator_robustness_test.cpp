@@ -14,9 +14,12 @@
 //     -2 C at these temperatures and their band carries it.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <filesystem>
 #include <numbers>
+#include <vector>
 
 #include "runner.hpp"
 
@@ -93,12 +96,32 @@ TEST(EstimatorRobustness, AHeldBridgeVoltageIsASharedErrorInTheBand) {
 // instead, their Rs carried an error bar of 40 mOhm (30 %) against errors of 2 mOhm, and a warm
 // restart's filter, starting from the ambient sensor, ignored them: these 40 s read 19.9 /
 // 61.2 C RMS / max before the calibration kept Vx, and the whole run a max of 56 C with it.
+//
+// Five noise seeds, not one: at 157 rad/s and 60 Nm these estimates read 1.5-3 % high, and
+// whether one of them comes with a narrow error bar (and pulls the band off the truth) is a
+// draw. Over seeds 606-613 the band held the truth >= 90 % of the time on 5 of 8 before the
+// speed ramp (control.speed_ramp_rad_s2) changed the trajectories and on 7 of 8 after it
+// (docs/accuracy-journal.md, twentieth session); every max stayed under 9.5 C. So every seed
+// must stay far from the old failure (max < 10 C), and the median seed inside RMS < 4 C and
+// coverage >= 90 %.
 TEST(EstimatorRobustness, AFixedAngleWarmRestartTakesItsLightLoadEvents) {
-  const SimulationResult r = run_data("warm-restart-fixed-angle.toml");
-  ASSERT_GT(r.winding_error_samples, 500U);
-  EXPECT_LT(r.winding_error_max_C, 10.0);
-  EXPECT_LT(r.winding_error_rms_C, 4.0);
-  EXPECT_GE(r.coverage_2sigma, 0.9);
+  std::vector<double> rms;
+  std::vector<double> coverage;
+  for (const std::uint64_t seed : {606U, 607U, 608U, 609U, 610U}) {
+    Scenario scenario = load_scenario(std::filesystem::path(PMSM_SOURCE_DIR) / "tests/integration/data/warm-restart-fixed-angle.toml");
+    scenario.plant.simulation.seed = seed;
+    RunOptions o;
+    o.twin_for_disturbance = false;
+    const SimulationResult r = run_scenario(scenario, o);
+    ASSERT_GT(r.winding_error_samples, 500U);
+    EXPECT_LT(r.winding_error_max_C, 10.0) << "seed " << seed;
+    rms.push_back(r.winding_error_rms_C);
+    coverage.push_back(r.coverage_2sigma);
+  }
+  std::sort(rms.begin(), rms.end());
+  std::sort(coverage.begin(), coverage.end());
+  EXPECT_LT(rms[rms.size() / 2], 4.0);
+  EXPECT_GE(coverage[coverage.size() / 2], 0.9);
 }
 
 TEST(EstimatorRobustness, AtTheVoltageLimitFieldWeakeningPairsMeasure) {
