@@ -14,8 +14,8 @@ SpeedController::SpeedController(const SpeedControllerConfig& config) : config_(
 double SpeedController::step(double speed_ref_rad_s, double speed_meas_rad_s,
                              double torque_limit_Nm, bool current_loop_saturated, double feed_forward_Nm) {
   const double limit = std::min(torque_limit_Nm, config_.max_torque_Nm);
-  double torque = pi_.update_clamped(speed_ref_rad_s - speed_meas_rad_s, config_.period_s, feed_forward_Nm,
-                                           -limit, limit);
+  double torque =
+      pi_.update_clamped(speed_ref_rad_s - speed_meas_rad_s, config_.period_s, feed_forward_Nm, -limit, limit);
   if (current_loop_saturated) {
     torque -= pi_.hold(torque);  // no further integration away from zero torque
   }
