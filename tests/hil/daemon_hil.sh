@@ -172,6 +172,11 @@ for _ in $(seq 100); do
 done
 sleep 0.3  # in lockstep with the daemon by now
 kill -0 "$plant4" 2>/dev/null || die "the fourth plant ended before the interface test: $(tail -3 "$work/plant-4.log")"
+# A live monitor watches the outage too: it must say the interface went down and came back (a
+# drive cannot publish INTERFACE_DOWN while it is down), and not spin meanwhile.
+"$tool" monitor "$iface" --node $node --duration 3 > "$work/live-monitor.txt" 2>&1 &
+live_monitor=$!
+sleep 0.3
 ip link set dev "$iface" down 2>"$work/ip.err" ||
   die "cannot take $iface down ($(cat "$work/ip.err")): this phase needs CAP_NET_ADMIN (root, or User-Mode Linux through scripts/vcan-env)"
 sleep 1
@@ -180,7 +185,14 @@ wait "$plant4" || die "the plant did not finish after the interface came back: $
 grep -q "is down or gone" "$work/daemon-2.log" || die "the daemon did not notice $iface going down: $(tail -3 "$work/daemon-2.log")"
 grep -q "is back: socket reopened" "$work/daemon-2.log" || die "the daemon did not reopen its socket: $(tail -3 "$work/daemon-2.log")"
 grep -qi "down or gone" "$work/plant-4.log" || die "the plant did not notice $iface going down: $(tail -3 "$work/plant-4.log")"
-echo "$prog: $iface down for 1 s and up again: daemon and plant reopened their sockets and the plant finished its run"
+wait "$live_monitor" || true
+grep -q "is down (this monitor's own socket)" "$work/live-monitor.txt" ||
+  die "the live monitor did not report $iface going down: $(tail -5 "$work/live-monitor.txt")"
+grep -q "is back up: socket reopened" "$work/live-monitor.txt" ||
+  die "the live monitor did not report $iface coming back: $(tail -5 "$work/live-monitor.txt")"
+grep -q "the interface went down 1 time(s) while watching" "$work/live-monitor.txt" ||
+  die "the live monitor's summary does not count the outage: $(tail -5 "$work/live-monitor.txt")"
+echo "$prog: $iface down for 1 s and up again: daemon and plant reopened their sockets, the plant finished its run, and a live monitor reported the outage"
 
 # A plant whose PWM runs at 20 kHz against the daemon's 100 us period: every clock of the drive
 # would run at half its rate. Its samples say so (SENSOR_SAMPLE PwmPeriod): the daemon must

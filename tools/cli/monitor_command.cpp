@@ -12,6 +12,7 @@
 #include <unistd.h>
 
 #include <array>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -141,6 +142,21 @@ class Monitor {
       own_drops_ = total;
       own_drops_unexplained_ = true;
     }
+  }
+
+  // The live socket found the interface down (ENETDOWN, or gone), and later back. A drive on it
+  // cannot publish INTERFACE_DOWN while it is down: it sends the fault once the bus is back,
+  // often already cleared, so this monitor says what it saw itself.
+  void on_interface(const std::string& iface, bool up) {
+    if (!up && !interface_down_) {
+      ++interface_losses_;
+      event(fmt::format("monitor: {} is down (this monitor's own socket): no frame can cross it until it is back; "
+                        "a drive on it reports INTERFACE_DOWN once it can send again",
+                        iface));
+    } else if (up && interface_down_) {
+      event(fmt::format("monitor: {} is back up: socket reopened", iface));
+    }
+    interface_down_ = !up;
   }
 
   // time_s: when the frame was received or logged (seconds on any clock that does not go back),
@@ -437,6 +453,10 @@ class Monitor {
       }
     }
     std::printf("%s)\n", first ? "none" : "");
+    if (interface_losses_ != 0U) {
+      std::printf("the interface went down %llu time(s) while watching%s\n", static_cast<unsigned long long>(interface_losses_),
+                  interface_down_ ? " (and was still down at the end)" : "");
+    }
     for (auto& [node, a] : axes_) {
       a.not_compared += a.pending.size();  // after the last truth frame: no truth to interpolate
       a.pending.clear();
@@ -496,6 +516,8 @@ class Monitor {
   std::uint64_t frames_ = 0;
   std::uint64_t own_drops_ = 0;             // frames the kernel dropped for the live socket
   bool own_drops_unexplained_ = false;      // since then, no command stream in step yet
+  std::uint64_t interface_losses_ = 0;      // on_interface: the live socket found it down
+  bool interface_down_ = false;
   std::optional<double> last_time_s_;
   bool times_usable_ = true;
   std::array<std::uint64_t, protocol::kDecodeStatusCount> rejected_{};
@@ -568,6 +590,20 @@ int run_monitor(MonitorOptions o) {
     m.on_own_drops(bus->counters().rx_overflow);
     if (got == hal::ReceiveStatus::kFrame && !r.frame.error) {
       m.on_frame(r.frame, r.timestamp_ns != 0 ? std::optional<double>(static_cast<double>(r.timestamp_ns) * 1e-9) : std::nullopt);
+    } else if (got == hal::ReceiveStatus::kInterfaceDown) {
+      // A down interface answers every read at once: wait for it (as the daemon does) rather
+      // than spin, and stop waiting on a signal or at the end of --duration.
+      m.on_interface(o.iface, false);
+      std::atomic<bool> give_up{false};
+      const bool back = hal::wait_and_reopen(*bus, std::chrono::milliseconds{200}, std::chrono::milliseconds{100}, give_up, [&] {
+        if (hal::stop_requested().load() ||
+            (o.duration_s && static_cast<double>(hal::monotonic_ns() - start) * 1e-9 > *o.duration_s)) {
+          give_up.store(true);
+        }
+      });
+      if (back) {
+        m.on_interface(o.iface, true);
+      }
     }
   }
   return m.summary() ? 0 : 1;
