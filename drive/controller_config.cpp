@@ -203,6 +203,10 @@ ConfigSchema<C> build() {
                     "Voltage kept free of the limit when budgeting F: the dead-time compensation, the bus's ripple and sag, the current loop's transients, all of which scale with the bus (Table I: 15 V at 650 V).");
   inj.real("injection.max_torque_disturbance_Nm", [](C& c) -> double& { return c.drive.injection.max_torque_disturbance_Nm; },
            at_least(0, 10000), "Nm", "Budget for the reluctance torque of an injection on a salient machine (0: none).");
+  inj.boolean("injection.torque_neutral", [](C& c) -> bool& { return c.drive.injection.torque_neutral; },
+              "With a torque budget: each fixed-magnitude pulse moves iq so that iq (psi + (Ld - Lq) id) holds the "
+              "motoring torque (commissioned Ld, learned Lq); the budget still bounds F by the uncompensated torque. "
+              "false: the pulses are on the d-axis alone and the speed loop answers their torque.");
   inj.real("injection.max_speed_change_fraction", [](C& c) -> double& { return c.drive.injection.max_speed_change_fraction; },
            between(0, 1), "", "Reject a pair whose recordings differ in speed by more than this fraction...");
   inj.optional_real("injection.max_speed_change_rad_s", [](C& c) -> std::optional<double>& { return c.relative.max_speed_change_rad_s; },

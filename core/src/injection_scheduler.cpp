@@ -376,6 +376,31 @@ void InjectionScheduler::begin_pair(const SchedulerInput& in) {
   }
 }
 
+Dq InjectionScheduler::torque_neutral(Dq injection_A, const Dq& motoring_A) const {
+  // A d-axis pulse on a salient machine changes the torque 3/2 p iq (psi + (Ld - Lq) id) by its
+  // reluctance part, with opposite signs in a bipolar pair's two recordings. Left alone, the
+  // speed loop answers it late and in part, the shaft's speed moves between the recordings,
+  // and the shaft feels the pulse. Here the q-current moves with the pulse instead, so that
+  // iq (psi + (Ld - Lq) id) stays what the motoring point asks: iq' = iq flux0 / flux1, with
+  // the commissioned Ld and the learned secant Lq. The change is at most the torque budget
+  // over Kt (the budget bounds F by the uncompensated torque, which it still does: what is
+  // left is the saliency model's error), and the fit models its d-axis voltage through
+  // Lq d(w iq) as it does the speed loop's answer (docs/estimator.md section 2). Only on a
+  // machine configured as salient (a torque budget), and only where both fluxes stay above
+  // half the magnet's (as the load-change guard's range).
+  if (!config_.torque_neutral || !(config_.max_torque_disturbance_Nm > 0.0)) {
+    return injection_A;
+  }
+  const double psi_Wb = config_.flux_linkage_Wb;
+  const double saliency_H = config_.ld_H - lq_secant_H(motoring_A.q);
+  const double flux_0_Wb = psi_Wb + saliency_H * motoring_A.d;
+  const double flux_1_Wb = flux_0_Wb + saliency_H * injection_A.d;
+  if (flux_0_Wb >= 0.5 * psi_Wb && flux_1_Wb >= 0.5 * psi_Wb) {
+    injection_A.q += motoring_A.q * (flux_0_Wb - flux_1_Wb) / flux_1_Wb;
+  }
+  return injection_A;
+}
+
 Dq InjectionScheduler::injection_current(const SchedulerInput& in) const {
   double level = 0.0;
   double envelope = 1.0;
@@ -410,7 +435,7 @@ Dq InjectionScheduler::injection_current(const SchedulerInput& in) const {
   }
   switch (config_.method) {
     case InjectionMethod::kFixedMagnitude:
-      return fixed_magnitude_injection_current(f);  // Eqs. 18-19
+      return torque_neutral(fixed_magnitude_injection_current(f), in.motoring_ref_A);  // Eqs. 18-19
     case InjectionMethod::kFixedAngle:
       if (time_based_) {
         return fixed_magnitude_injection_current(f);  // at standstill the arc is the d-axis

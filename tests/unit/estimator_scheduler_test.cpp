@@ -1511,12 +1511,12 @@ TEST(InjectionScheduler, LoadChangeBetweenRecordingsRejectsThePair) {
   EXPECT_EQ(h.estimates[0].outcome, EventOutcome::kNoAcceptedPairs);
 }
 
-// A salient machine (Ld 1 mH below Lq) whose speed loop holds the torque through every pulse:
-// iq (psi + (Ld - Lq) id) = iq0 psi, so iq moves by 6.2 A between the +25 A and -25 A
-// recordings at 40 A of load, four times the 1.5 A guard. That answer is the injection's own,
-// and the fit models its d-axis voltage (Lq d(w iq)): on a machine configured as salient (a
-// torque budget) the pairs are accepted and read Rs right, whether the speed loop answers in
-// full, in half or not yet. The same move the other way, or twice the full answer, is no answer
+// A salient machine (Ld 1 mH below Lq) whose torque is held through every pulse (by the
+// scheduler's torque-neutral pulses, or by the speed loop): iq (psi + (Ld - Lq) id) = iq0 psi,
+// so iq moves by 6.2 A between the +25 A and -25 A recordings at 40 A of load, four times the
+// 1.5 A guard. That move is the injection's own, and the fit models its d-axis voltage
+// (Lq d(w iq)): on a machine configured as salient (a torque budget) the pairs are accepted and
+// read Rs right, whether the move is full, half or none. The same move the other way, or twice the full answer, is no answer
 // to the pulses (the load changed), and without the budget (a machine configured as round-rotor) or with Ld = Lq every
 // such move is judged as a load change: rejected.
 int load_changes_rejected(double ld_H, double answer, bool configured_salient, double* rs_error) {
@@ -1529,23 +1529,64 @@ int load_changes_rejected(double ld_H, double answer, bool configured_salient, d
   Harness h(c);
   h.plant.ld_H = ld_H;
   const double iq0 = 40.0;
-  // The speed loop's iq: the answer of a machine with Ld - Lq = -1 mH, times `answer`.
+  // The q-current's move: the answer of a machine with Ld - Lq = -1 mH, times `answer`. On a
+  // machine configured as salient the scheduler makes that move itself (its torque-neutral
+  // pulses, with the model's Ld - Lq), and the speed loop's share is what is left: the motoring
+  // reference here is the total over the compensation's factor flux1 / flux0.
+  const double model_saliency_H = configured_salient ? ld_H - c.lq_H : 0.0;
   h.hook = [=](Harness& x) {
     const double id = x.records.empty() ? 0.0 : x.records.back().out.injection_A.d;
     const double held = iq0 * c.flux_linkage_Wb / (c.flux_linkage_Wb - 1.0e-3 * id);
-    x.motoring_A = {0.0, iq0 + answer * (held - iq0)};
+    const double total = iq0 + answer * (held - iq0);
+    x.motoring_A = {0.0, total * (c.flux_linkage_Wb + model_saliency_H * id) / c.flux_linkage_Wb};
   };
   h.run_until(3.0);
   int rejected = 0;
   for (const PairResult& p : h.pairs) {
     rejected += p.outcome == PairOutcome::kRejectedLoadChange ? 1 : 0;
     if (p.f_A > 20.0 && p.outcome != PairOutcome::kAborted) {
-      EXPECT_NEAR(std::abs(p.delta_iq_A), 6.2 * std::abs(answer), 0.3) << "the speed loop's answer at F = 25 A";
+      EXPECT_NEAR(std::abs(p.delta_iq_A), 6.2 * std::abs(answer), 0.3) << "the move at F = 25 A";
     }
   }
   EXPECT_GE(h.pairs.size(), 8U);
   *rs_error = rejected == 0 ? mean_published_rs_error(h, 0) : 1.0;
   return rejected;
+}
+
+// On a machine configured as salient (a torque budget) every fixed-magnitude pulse carries the
+// q-current that holds the torque 3/2 p iq (psi + (Ld - Lq) id) of the motoring point, with the
+// model's Ld - Lq (commissioned Ld, learned secant Lq); on a round rotor's configuration (no
+// budget) the pulse is on the d-axis alone.
+TEST(InjectionScheduler, ASalientMachinesPulsesHoldTheTorque) {
+  for (const bool configured_salient : {true, false}) {
+    InjectionConfig c = test_config();
+    c.ld_H = 4.5e-3;  // 1 mH below Lq
+    c.learn_lq = false;
+    c.max_torque_disturbance_Nm = configured_salient ? 10.0 : 0.0;
+    Harness h(c);
+    h.plant.ld_H = c.ld_H;
+    h.motoring_A = {0.0, 40.0};
+    h.run_until(0.45);
+    const double psi = c.flux_linkage_Wb;
+    const double saliency = c.ld_H - c.lq_H;
+    int pulses = 0;
+    for (const StepRecord& r : h.records) {
+      const Dq& inj = r.out.injection_A;
+      if (inj.d == 0.0) {
+        EXPECT_EQ(inj.q, 0.0);
+        continue;
+      }
+      ++pulses;
+      if (!configured_salient) {
+        EXPECT_EQ(inj.q, 0.0);
+        continue;
+      }
+      const double torque_flux = (psi + saliency * inj.d) * (40.0 + inj.q);
+      EXPECT_NEAR(torque_flux, psi * 40.0, 1e-9 * psi * 40.0) << "id " << inj.d;
+      EXPECT_EQ(inj.q > 0.0, inj.d > 0.0) << "Ld < Lq: a positive id lowers the torque, so iq rises";
+    }
+    EXPECT_GT(pulses, 100) << configured_salient;
+  }
 }
 
 TEST(InjectionScheduler, TheSpeedLoopsAnswerToTheReluctanceTorqueIsNoLoadChange) {

@@ -124,11 +124,15 @@ struct InjectionConfig {
   double headroom_margin_V = 15.0; // kept free of the voltage limit for dead-time compensation and transients
   // On a salient (interior-magnet) machine d-axis injection makes reluctance torque,
   // 3/2 p (Ld - Lq) F iq: F is reduced (or the pair skipped) so that this stays within the
-  // budget. Compensating it with iq instead would make the estimate hang on Lq: the
+  // budget. Compensating a larger F with iq instead would make the estimate hang on Lq: the
   // Lq d(w iq) term of Eq. 37 would then be many times the resistive signal. Off (0) by
   // default: on a surface-magnet machine the commissioned Ld and Lq differ only by their
   // errors, and the budget would then skip injection under load for nothing.
   double max_torque_disturbance_Nm = 0.0;
+  // Within the budget, a fixed-magnitude pulse on a machine configured as salient carries the
+  // q-current that holds the torque (InjectionScheduler::torque_neutral): at most the budget
+  // over Kt, so its Lq d(w iq) stays small, and the speed loop has nothing left to answer.
+  bool torque_neutral = true;
   // Guards.
   double max_speed_change_fraction = 0.02;
   double max_speed_change_rad_s = 3.0;   // electrical; the larger of the two limits applies
@@ -431,6 +435,8 @@ class InjectionScheduler {
   // The learned secant and incremental Lq at a q-axis current (the commissioned curve when
   // learning is off).
   [[nodiscard]] double lq_secant_H(double iq_A) const;
+  // The q-current that keeps a salient machine's torque through a d-axis pulse, added to it.
+  [[nodiscard]] Dq torque_neutral(Dq injection_A, const Dq& motoring_A) const;
   [[nodiscard]] double lq_incremental_H(double iq_A) const;
 
  private:
