@@ -387,10 +387,7 @@ Dq InjectionScheduler::torque_neutral(Dq injection_A, const Dq& motoring_A) cons
   // left is the saliency model's error), and the fit models its d-axis voltage through
   // Lq d(w iq) as it does the speed loop's answer (docs/estimator.md section 2). Only on a
   // machine configured as salient (a torque budget), and only where both fluxes stay above
-  // half the magnet's (as the load-change guard's range).
-  if (!config_.torque_neutral || !(config_.max_torque_disturbance_Nm > 0.0)) {
-    return injection_A;
-  }
+  // half the magnet's (as the load-change guard's range). The caller asks for the first.
   const double psi_Wb = config_.flux_linkage_Wb;
   const double saliency_H = config_.ld_H - lq_secant_H(motoring_A.q);
   const double flux_0_Wb = psi_Wb + saliency_H * motoring_A.d;
@@ -435,7 +432,12 @@ Dq InjectionScheduler::injection_current(const SchedulerInput& in) const {
   }
   switch (config_.method) {
     case InjectionMethod::kFixedMagnitude:
-      return torque_neutral(fixed_magnitude_injection_current(f), in.motoring_ref_A);  // Eqs. 18-19
+      // Eqs. 18-19; on a machine configured as salient, holding the torque (asked here: the
+      // call costs a round rotor's step 15 instructions).
+      if (config_.torque_neutral && config_.max_torque_disturbance_Nm > 0.0) {
+        return torque_neutral(fixed_magnitude_injection_current(f), in.motoring_ref_A);
+      }
+      return fixed_magnitude_injection_current(f);
     case InjectionMethod::kFixedAngle:
       if (time_based_) {
         return fixed_magnitude_injection_current(f);  // at standstill the arc is the d-axis

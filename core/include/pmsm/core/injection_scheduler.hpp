@@ -435,7 +435,8 @@ class InjectionScheduler {
   // The learned secant and incremental Lq at a q-axis current (the commissioned curve when
   // learning is off).
   [[nodiscard]] double lq_secant_H(double iq_A) const;
-  // The q-current that keeps a salient machine's torque through a d-axis pulse, added to it.
+  // The q-current that keeps a salient machine's torque through a d-axis pulse, added to it
+  // (for a machine configured as salient, with injection.torque_neutral).
   [[nodiscard]] Dq torque_neutral(Dq injection_A, const Dq& motoring_A) const;
   [[nodiscard]] double lq_incremental_H(double iq_A) const;
 
