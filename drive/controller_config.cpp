@@ -449,6 +449,11 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
   // Rs0 must not carry the field-weakening pairs' bias (docs/estimator.md §2): a calibration
   // at the voltage limit waits for headroom (and says so, by its timeout) instead.
   d.calibration_injection.field_weakening_pairs = false;
+  // At no load the pulses' reluctance torque is the friction current's, and the calibration
+  // learns Lq from the speed loop's answer to it: its pulses stay on the d-axis (a
+  // compensation would use the Lq being learned; with it the salient calibration's Lq read
+  // 1.4 % low on its seed).
+  d.calibration_injection.torque_neutral = false;
   d.calibration_injection.separation = core::Separation::kBipolar;
   d.calibration_injection.levels = {1.0, 0.4, 0.0, 0.0};
   d.calibration_injection.level_count = 2;

@@ -485,7 +485,7 @@ Dq DriveController::motoring_reference(const DriveCommand& command) {
       const double dt = config_.speed.period_s;
       double feed_forward = 0.0;
       if (config_.speed_ramp_rad_s2 > 0.0) {
-        if (!speed_ramp_started_) {
+        if (!speed_ramp_started_ || !std::isfinite(speed_ramp_ref_rad_s_)) {
           speed_ramp_ref_rad_s_ = speed;  // from where the shaft is, not from rest
           speed_ramp_started_ = true;
         }

@@ -226,13 +226,24 @@ InjectionScheduler::Budget InjectionScheduler::budget(const SchedulerInput& in, 
   Budget b;
   const bool bipolar = config_.separation == Separation::kBipolar;
   const double s_uni = config_.unipolar_polarity >= 0 ? 1.0 : -1.0;
-  const Dq im = in.motoring_ref_A;
   const double limit = std::min(in.current_limit_A, config_.current_limit_A);
+  // Torque-neutral pulses (torque_neutral) move iq by up to the budget's torque over Kt, twice
+  // that where the flux guard binds: the current and voltage rooms take the motoring point with
+  // iq that much further from zero (both polarities' worst case).
+  const Dq im = in.motoring_ref_A;
+  Dq room_point = im;  // the operating point the current and voltage rooms take
+  if (config_.method == InjectionMethod::kFixedMagnitude && config_.torque_neutral &&
+      config_.max_torque_disturbance_Nm > 0.0) {
+    const double kt_Nm_per_A = 1.5 * config_.pole_pairs * config_.flux_linkage_Wb;
+    room_point.q += std::copysign(2.0 * config_.max_torque_disturbance_Nm / kt_Nm_per_A, im.q);
+  }
 
   // Current: |i_motoring + s F e_d| <= limit for every polarity s the pair uses.
   double f_current = wanted_A;
   const bool turning = config_.method != InjectionMethod::kFixedMagnitude;  // the worst direction counts
-  auto current_room = [&](double s) { return max_injection_current_for_current_limit_A(limit, im.d, im.q, s, turning); };
+  auto current_room = [&](double s) {
+    return max_injection_current_for_current_limit_A(limit, room_point.d, room_point.q, s, turning);
+  };
   if (bipolar) {
     f_current = std::min({f_current, current_room(1.0), current_room(-1.0)});
   } else {
@@ -248,8 +259,8 @@ InjectionScheduler::Budget InjectionScheduler::budget(const SchedulerInput& in, 
   h.lq_H = lq_H;
   h.flux_linkage_Wb = config_.flux_linkage_Wb;
   h.omega_e_rad_s = in.omega_e_rad_s;
-  h.id_A = im.d;
-  h.iq_A = im.q;
+  h.id_A = room_point.d;
+  h.iq_A = room_point.q;
   h.voltage_limit_V = in.voltage_limit_V - config_.headroom_margin_V;
   h.tw_s = tw_s;
   h.window = config_.window;
@@ -382,9 +393,10 @@ Dq InjectionScheduler::torque_neutral(Dq injection_A, const Dq& motoring_A) cons
   // speed loop answers it late and in part, the shaft's speed moves between the recordings,
   // and the shaft feels the pulse. Here the q-current moves with the pulse instead, so that
   // iq (psi + (Ld - Lq) id) stays what the motoring point asks: iq' = iq flux0 / flux1, with
-  // the commissioned Ld and the learned secant Lq. The change is at most the torque budget
-  // over Kt (the budget bounds F by the uncompensated torque, which it still does: what is
-  // left is the saliency model's error), and the fit models its d-axis voltage through
+  // the commissioned Ld and the learned secant Lq. The change is about the torque budget over
+  // Kt, at most twice that (the budget bounds F by the uncompensated torque, which it still
+  // does: what is left is the saliency model's error; budget() counts the change in the
+  // current and voltage rooms), and the fit models its d-axis voltage through
   // Lq d(w iq) as it does the speed loop's answer (docs/estimator.md section 2). Only on a
   // machine configured as salient (a torque budget), and only where both fluxes stay above
   // half the magnet's (as the load-change guard's range). The caller asks for the first.

@@ -174,9 +174,13 @@ sleep 0.3  # in lockstep with the daemon by now
 kill -0 "$plant4" 2>/dev/null || die "the fourth plant ended before the interface test: $(tail -3 "$work/plant-4.log")"
 # A live monitor watches the outage too: it must say the interface went down and came back (a
 # drive cannot publish INTERFACE_DOWN while it is down), and not spin meanwhile.
-"$tool" monitor "$iface" --node $node --duration 3 > "$work/live-monitor.txt" 2>&1 &
+"$tool" monitor "$iface" --node $node --duration 4 > "$work/live-monitor.txt" 2>&1 &
 live_monitor=$!
-sleep 0.3
+for _ in $(seq 50); do
+  [ -s "$work/live-monitor.txt" ] && break  # its first line: the socket is open and reading
+  sleep 0.1
+done
+[ -s "$work/live-monitor.txt" ] || die "the live monitor printed nothing in 5 s"
 ip link set dev "$iface" down 2>"$work/ip.err" ||
   die "cannot take $iface down ($(cat "$work/ip.err")): this phase needs CAP_NET_ADMIN (root, or User-Mode Linux through scripts/vcan-env)"
 sleep 1

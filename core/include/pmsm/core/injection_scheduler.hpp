@@ -130,8 +130,9 @@ struct InjectionConfig {
   // errors, and the budget would then skip injection under load for nothing.
   double max_torque_disturbance_Nm = 0.0;
   // Within the budget, a fixed-magnitude pulse on a machine configured as salient carries the
-  // q-current that holds the torque (InjectionScheduler::torque_neutral): at most the budget
-  // over Kt, so its Lq d(w iq) stays small, and the speed loop has nothing left to answer.
+  // q-current that holds the torque (InjectionScheduler::torque_neutral): about the budget
+  // over Kt (at most twice that, where the flux guard binds), so its Lq d(w iq) stays small,
+  // and the speed loop has nothing left to answer. Not in the calibration (no load).
   bool torque_neutral = true;
   // Guards.
   double max_speed_change_fraction = 0.02;

@@ -36,11 +36,7 @@ class PiController {
   // proportional term caused and leave the integral short after every step, to recover at
   // the slow rate of the PI zero.
   void limit_to(double limited_output, double unlimited_output) {
-    const double excess = unlimited_output - limited_output;
-    if (excess * last_increment_ > 0.0) {
-      integral_ -= last_increment_;
-      last_increment_ = 0.0;
-    }
+    (void)hold(unlimited_output - limited_output);
   }
 
   // The loop below could not follow the output (it saturated on a limit this controller does
