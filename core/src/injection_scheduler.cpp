@@ -232,8 +232,7 @@ InjectionScheduler::Budget InjectionScheduler::budget(const SchedulerInput& in, 
   // iq that much further from zero (both polarities' worst case).
   const Dq im = in.motoring_ref_A;
   Dq room_point = im;  // the operating point the current and voltage rooms take
-  if (config_.method == InjectionMethod::kFixedMagnitude && config_.torque_neutral &&
-      config_.max_torque_disturbance_Nm > 0.0) {
+  if (config_.method == InjectionMethod::kFixedMagnitude && torque_neutral_pulses()) {
     const double kt_Nm_per_A = 1.5 * config_.pole_pairs * config_.flux_linkage_Wb;
     room_point.q += std::copysign(2.0 * config_.max_torque_disturbance_Nm / kt_Nm_per_A, im.q);
   }
@@ -400,14 +399,21 @@ Dq InjectionScheduler::torque_neutral(Dq injection_A, const Dq& motoring_A) cons
   // Lq d(w iq) as it does the speed loop's answer (docs/estimator.md section 2). Only on a
   // machine configured as salient (a torque budget), and only where both fluxes stay above
   // half the magnet's (as the load-change guard's range). The caller asks for the first.
-  const double psi_Wb = config_.flux_linkage_Wb;
-  const double saliency_H = config_.ld_H - lq_secant_H(motoring_A.q);
-  const double flux_0_Wb = psi_Wb + saliency_H * motoring_A.d;
-  const double flux_1_Wb = flux_0_Wb + saliency_H * injection_A.d;
-  if (flux_0_Wb >= 0.5 * psi_Wb && flux_1_Wb >= 0.5 * psi_Wb) {
+  double flux_0_Wb = 0.0;
+  double flux_1_Wb = 0.0;
+  if (salient_fluxes(motoring_A.q, motoring_A.d, motoring_A.d + injection_A.d, flux_0_Wb, flux_1_Wb)) {
     injection_A.q += motoring_A.q * (flux_0_Wb - flux_1_Wb) / flux_1_Wb;
   }
   return injection_A;
+}
+
+bool InjectionScheduler::salient_fluxes(double iq_A, double id_a_A, double id_b_A, double& flux_a_Wb,
+                                        double& flux_b_Wb) const {
+  const double psi_Wb = config_.flux_linkage_Wb;
+  const double saliency_H = config_.ld_H - lq_secant_H(iq_A);
+  flux_a_Wb = psi_Wb + saliency_H * id_a_A;
+  flux_b_Wb = psi_Wb + saliency_H * id_b_A;
+  return flux_a_Wb >= 0.5 * psi_Wb && flux_b_Wb >= 0.5 * psi_Wb;
 }
 
 Dq InjectionScheduler::injection_current(const SchedulerInput& in) const {
@@ -446,7 +452,7 @@ Dq InjectionScheduler::injection_current(const SchedulerInput& in) const {
     case InjectionMethod::kFixedMagnitude:
       // Eqs. 18-19; on a machine configured as salient, holding the torque (asked here: the
       // call costs a round rotor's step 15 instructions).
-      if (config_.torque_neutral && config_.max_torque_disturbance_Nm > 0.0) {
+      if (torque_neutral_pulses()) {
         return torque_neutral(fixed_magnitude_injection_current(f), in.motoring_ref_A);
       }
       return fixed_magnitude_injection_current(f);
@@ -628,11 +634,9 @@ double InjectionScheduler::unexplained_load_change_A(const PairConditions& c, do
   if (!(config_.max_torque_disturbance_Nm > 0.0)) {
     return std::abs(delta_iq_A);
   }
-  const double psi_Wb = config_.flux_linkage_Wb;
-  const double saliency_H = config_.ld_H - lq_secant_H(0.5 * (c.iq_mean_1_A + c.iq_mean_2_A));
-  const double flux_1_Wb = psi_Wb + saliency_H * c.id_mean_1_A;
-  const double flux_2_Wb = psi_Wb + saliency_H * c.id_mean_2_A;
-  if (!(flux_1_Wb >= 0.5 * psi_Wb && flux_2_Wb >= 0.5 * psi_Wb)) {
+  double flux_1_Wb = 0.0;
+  double flux_2_Wb = 0.0;
+  if (!salient_fluxes(0.5 * (c.iq_mean_1_A + c.iq_mean_2_A), c.id_mean_1_A, c.id_mean_2_A, flux_1_Wb, flux_2_Wb)) {
     return std::abs(delta_iq_A);
   }
   const double full_A = c.iq_mean_1_A * (flux_2_Wb - flux_1_Wb) / flux_2_Wb;

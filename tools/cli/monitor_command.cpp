@@ -582,8 +582,11 @@ int run_monitor(MonitorOptions o) {
   (void)hal::install_stop_signals();
   const std::int64_t start = hal::monotonic_ns();
   hal::ReceivedFrame r;
+  auto over = [&] {
+    return o.duration_s && static_cast<double>(hal::monotonic_ns() - start) * 1e-9 > *o.duration_s;
+  };
   while (!hal::stop_requested().load()) {
-    if (o.duration_s && static_cast<double>(hal::monotonic_ns() - start) * 1e-9 > *o.duration_s) {
+    if (over()) {
       break;
     }
     const hal::ReceiveStatus got = bus->receive(r, std::chrono::milliseconds{100});
@@ -591,13 +594,12 @@ int run_monitor(MonitorOptions o) {
     if (got == hal::ReceiveStatus::kFrame && !r.frame.error) {
       m.on_frame(r.frame, r.timestamp_ns != 0 ? std::optional<double>(static_cast<double>(r.timestamp_ns) * 1e-9) : std::nullopt);
     } else if (got == hal::ReceiveStatus::kInterfaceDown) {
-      // A down interface answers every read at once: wait for it (as the daemon does) rather
-      // than spin, and stop waiting on a signal or at the end of --duration.
+      // Wait for the interface and reopen the socket (as the daemon does); stop waiting on a
+      // signal or at the end of --duration.
       m.on_interface(o.iface, false);
       std::atomic<bool> give_up{false};
       const bool back = hal::wait_and_reopen(*bus, std::chrono::milliseconds{200}, std::chrono::milliseconds{100}, give_up, [&] {
-        if (hal::stop_requested().load() ||
-            (o.duration_s && static_cast<double>(hal::monotonic_ns() - start) * 1e-9 > *o.duration_s)) {
+        if (hal::stop_requested().load() || over()) {
           give_up.store(true);
         }
       });
