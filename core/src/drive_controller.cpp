@@ -484,10 +484,20 @@ Dq DriveController::motoring_reference(const DriveCommand& command) {
       const double speed = angle_.mechanical_speed_rad_s();
       const double dt = config_.speed.period_s;
       double feed_forward = 0.0;
+      if (!speed_loop_started_) {
+        // Speed mode begins (on enabling, or from torque mode), bumplessly: the loop takes
+        // over the torque the drive asks now (zero on enabling; torque mode's, held in
+        // torque_demand_Nm_ until this update) as its integral, and the ramp starts from
+        // where the shaft is, not from rest. An integral left at what speed mode last held
+        // jolted the shaft on the switch (DriveNode.ASwitchToSpeedModeDoesNotJoltTheShaft).
+        speed_loop_started_ = true;
+        const double torque_limit_Nm = limit * kt_dq_Nm_per_A_;
+        speed_.reset(std::clamp(torque_demand_Nm_, -torque_limit_Nm, torque_limit_Nm));
+        speed_ramp_ref_rad_s_ = speed;
+      }
       if (config_.speed_ramp_rad_s2 > 0.0) {
-        if (!speed_ramp_started_ || !std::isfinite(speed_ramp_ref_rad_s_)) {
-          speed_ramp_ref_rad_s_ = speed;  // from where the shaft is, not from rest
-          speed_ramp_started_ = true;
+        if (!std::isfinite(speed_ramp_ref_rad_s_)) {
+          speed_ramp_ref_rad_s_ = speed;
         }
         const double max_step = config_.speed_ramp_rad_s2 * dt;
         const double step = std::clamp(reference - speed_ramp_ref_rad_s_, -max_step, max_step);
@@ -501,7 +511,7 @@ Dq DriveController::motoring_reference(const DriveCommand& command) {
     }
     torque = torque_demand_Nm_;
   } else if (command.mode == DriveMode::kTorque) {
-    speed_ramp_started_ = false;
+    speed_loop_started_ = false;
     torque = command.torque_ref_Nm;
     // Near the limit the torque folds back as a proportional speed loop would hold the shaft
     // there: at most G (limit - speed) forwards, G (-limit - speed) backwards (infinite bounds
@@ -517,6 +527,7 @@ Dq DriveController::motoring_reference(const DriveCommand& command) {
       torque = lower;
       speed_limited = lower > -limit * kt_dq_Nm_per_A_;
     }
+    torque_demand_Nm_ = torque;  // for a switch to speed mode
   }
   // id = 0 control: Eq. 10, Tem = Kt iqr.
   const double wanted = torque / kt_dq_Nm_per_A_;
@@ -1078,10 +1089,9 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
 
   if (enabled && !was_enabled_) {
     current_.reset();
-    speed_.reset();
-    torque_demand_Nm_ = 0.0;
+    torque_demand_Nm_ = 0.0;  // the speed loop starts from it (speed_loop_started_)
     voltage_limited_since_speed_step_ = false;
-    speed_ramp_started_ = false;
+    speed_loop_started_ = false;
   }
   was_enabled_ = enabled;
 

@@ -398,6 +398,36 @@ TEST(DriveNode, ASpeedStepOvershootsNeitherTheSetPointNorTheLimit) {
   }
 }
 
+// Torque mode to speed mode, bumplessly: the speed loop takes over the torque the shaft has.
+// Here speed mode held 20 Nm for a second, then torque mode 5 Nm against a 5 Nm load; switched
+// back with the set-point at the shaft's speed, a speed loop that kept its old integral asked
+// for 20 Nm again at once (12 A more q-current) and ran the shaft 23 rad/s off. What is left is
+// the shaft's own deceleration (friction beyond the 5 Nm) until the loop answers it.
+TEST(DriveNode, ASwitchToSpeedModeDoesNotJoltTheShaft) {
+  Rig rig;
+  rig.plant->set_load_torque_Nm(20.0);
+  rig.in.speed_ref_rad_s = 100.0;
+  rig.run(10000);
+  rig.in.mode = core::DriveMode::kTorque;
+  rig.plant->set_load_torque_Nm(5.0);
+  rig.in.torque_ref_Nm = 5.0;
+  rig.run(2000);
+  const double speed = static_cast<double>(rig.plant->truth().speed_rad_s);
+  ASSERT_GT(speed, 30.0) << "the shaft should still turn";
+  const double iq_A = rig.node->controller().telemetry().i_ref_A.q;
+  rig.in.mode = core::DriveMode::kSpeed;
+  rig.in.speed_ref_rad_s = speed;
+  double iq_move_A = 0.0;
+  double speed_move = 0.0;
+  for (int k = 0; k < 5000; ++k) {
+    rig.run(1);
+    iq_move_A = std::max(iq_move_A, std::abs(rig.node->controller().telemetry().i_ref_A.q - iq_A));
+    speed_move = std::max(speed_move, std::abs(static_cast<double>(rig.plant->truth().speed_rad_s) - speed));
+  }
+  EXPECT_LT(iq_move_A, 3.0) << "a 15 Nm step would be about 12 A";
+  EXPECT_LT(speed_move, 5.0);
+}
+
 // Held below its set-point by the voltage limit (the Table I machine, without field weakening,
 // tops out a little below its 376.8 rad/s limit), the speed loop does not wind its integral up:
 // the injection events' field-weakening pulses give the shaft headroom for a moment, and a

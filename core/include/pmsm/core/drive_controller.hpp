@@ -492,7 +492,7 @@ class DriveController {
   double torque_demand_Nm_ = 0.0;
   bool voltage_limited_since_speed_step_ = false;  // SpeedController::step's current_loop_saturated
   double speed_ramp_ref_rad_s_ = 0.0;  // the ramped speed reference (DriveConfig::speed_ramp_rad_s2)
-  bool speed_ramp_started_ = false;    // it follows from the measured speed when speed mode begins
+  bool speed_loop_started_ = false;  // speed mode began: the loop took over the torque, the ramp the shaft's speed
   // History for the period record: the last two commands and the previous sample.
   bool have_previous_ = false;
   Dq previous_i_A_{};
