@@ -386,7 +386,9 @@ void InjectionScheduler::begin_pair(const SchedulerInput& in) {
   }
 }
 
-Dq InjectionScheduler::torque_neutral(Dq injection_A, const Dq& motoring_A) const {
+// Kept out of line: inlined into injection_current(), it cost a round rotor's injecting step 2
+// instructions on the path it never takes, and a salient one's 3 (bench/step-cost.sh).
+[[gnu::noinline]] Dq InjectionScheduler::torque_neutral(Dq injection_A, const Dq& motoring_A) const {
   // A d-axis pulse on a salient machine changes the torque 3/2 p iq (psi + (Ld - Lq) id) by its
   // reluctance part, with opposite signs in a bipolar pair's two recordings. Left alone, the
   // speed loop answers it late and in part, the shaft's speed moves between the recordings,
@@ -399,18 +401,20 @@ Dq InjectionScheduler::torque_neutral(Dq injection_A, const Dq& motoring_A) cons
   // Lq d(w iq) as it does the speed loop's answer (docs/estimator.md section 2). Only on a
   // machine configured as salient (a torque budget), and only where both fluxes stay above
   // half the magnet's (as the load-change guard's range). The caller asks for the first.
+  // Lq is the pair's, drawn at its start (begin_pair): the motoring iq moves little within a
+  // pair, and the saturation curve's evaluation stays out of the injecting steps.
   double flux_0_Wb = 0.0;
   double flux_1_Wb = 0.0;
-  if (salient_fluxes(motoring_A.q, motoring_A.d, motoring_A.d + injection_A.d, flux_0_Wb, flux_1_Wb)) {
+  if (salient_fluxes(config_.ld_H - pair_lq_.secant_H, motoring_A.d, motoring_A.d + injection_A.d, flux_0_Wb,
+                     flux_1_Wb)) {
     injection_A.q += motoring_A.q * (flux_0_Wb - flux_1_Wb) / flux_1_Wb;
   }
   return injection_A;
 }
 
-bool InjectionScheduler::salient_fluxes(double iq_A, double id_a_A, double id_b_A, double& flux_a_Wb,
+bool InjectionScheduler::salient_fluxes(double saliency_H, double id_a_A, double id_b_A, double& flux_a_Wb,
                                         double& flux_b_Wb) const {
   const double psi_Wb = config_.flux_linkage_Wb;
-  const double saliency_H = config_.ld_H - lq_secant_H(iq_A);
   flux_a_Wb = psi_Wb + saliency_H * id_a_A;
   flux_b_Wb = psi_Wb + saliency_H * id_b_A;
   return flux_a_Wb >= 0.5 * psi_Wb && flux_b_Wb >= 0.5 * psi_Wb;
@@ -636,7 +640,8 @@ double InjectionScheduler::unexplained_load_change_A(const PairConditions& c, do
   }
   double flux_1_Wb = 0.0;
   double flux_2_Wb = 0.0;
-  if (!salient_fluxes(0.5 * (c.iq_mean_1_A + c.iq_mean_2_A), c.id_mean_1_A, c.id_mean_2_A, flux_1_Wb, flux_2_Wb)) {
+  if (!salient_fluxes(config_.ld_H - lq_secant_H(0.5 * (c.iq_mean_1_A + c.iq_mean_2_A)), c.id_mean_1_A,
+                      c.id_mean_2_A, flux_1_Wb, flux_2_Wb)) {
     return std::abs(delta_iq_A);
   }
   const double full_A = c.iq_mean_1_A * (flux_2_Wb - flux_1_Wb) / flux_2_Wb;

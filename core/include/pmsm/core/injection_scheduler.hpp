@@ -443,11 +443,11 @@ class InjectionScheduler {
   [[nodiscard]] bool torque_neutral_pulses() const {
     return config_.torque_neutral && config_.max_torque_disturbance_Nm > 0.0;
   }
-  // A salient machine's torque flux psi + (Ld - Lq) id at two d-currents (the commissioned Ld,
-  // the learned secant Lq at iq): false where either is below half the magnet's, a range the
-  // model does not hold. The torque iq (psi + (Ld - Lq) id) is held when iq moves by the flux
-  // ratio (torque_neutral, unexplained_load_change_A).
-  [[nodiscard]] bool salient_fluxes(double iq_A, double id_a_A, double id_b_A, double& flux_a_Wb,
+  // A salient machine's torque flux psi + (Ld - Lq) id at two d-currents, saliency_H = Ld - Lq
+  // (the commissioned Ld, the learned secant Lq at the motoring iq): false where either is
+  // below half the magnet's, a range the model does not hold. The torque iq (psi + (Ld - Lq) id)
+  // is held when iq moves by the flux ratio (torque_neutral, unexplained_load_change_A).
+  [[nodiscard]] bool salient_fluxes(double saliency_H, double id_a_A, double id_b_A, double& flux_a_Wb,
                                     double& flux_b_Wb) const;
   [[nodiscard]] double lq_incremental_H(double iq_A) const;
 
