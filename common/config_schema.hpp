@@ -67,10 +67,16 @@ inline std::string read_config_file(const std::filesystem::path& path, std::stri
 // "file:line: " of a node: the file it came from (a scenario may inherit keys from a base
 // file), else `source`.
 [[nodiscard]] inline std::string node_location(const toml::node& node, std::string_view source) {
+  // Appended piece by piece: GCC 12 at -O3 took ":" + std::to_string(...) for an overlapping
+  // memcpy (a false -Wrestrict warning in the release build, GCC bug 105329).
   const auto& region = node.source();
-  const std::string file = region.path && !region.path->empty() ? *region.path : std::string(source);
-  const std::string line = region.begin.line > 0 ? ":" + std::to_string(region.begin.line) : "";
-  return file + line + ": ";
+  std::string location = region.path && !region.path->empty() ? *region.path : std::string(source);
+  if (region.begin.line > 0) {
+    location += ':';
+    location += std::to_string(region.begin.line);
+  }
+  location += ": ";
+  return location;
 }
 
 // "file:line: " of `key` (a dotted path) in `table` when the file gives it, else "source: ".

@@ -491,7 +491,7 @@ Dq DriveController::motoring_reference(const DriveCommand& command) {
         // where the shaft is, not from rest. An integral left at what speed mode last held
         // jolted the shaft on the switch (DriveNode.ASwitchToSpeedModeDoesNotJoltTheShaft).
         speed_loop_started_ = true;
-        const double torque_limit_Nm = limit * kt_dq_Nm_per_A_;
+        const double torque_limit_Nm = std::min(limit * kt_dq_Nm_per_A_, config_.speed.max_torque_Nm);
         speed_.reset(std::clamp(torque_demand_Nm_, -torque_limit_Nm, torque_limit_Nm));
         speed_ramp_ref_rad_s_ = speed;
       }

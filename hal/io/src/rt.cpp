@@ -92,7 +92,10 @@ Status set_cpu_affinity(std::span<const int> cpus) {
                                        std::to_string(online) + " CPUs, numbered from 0)");
     }
     CPU_SET(static_cast<std::size_t>(cpu), &set);
-    list += (list.empty() ? "" : ",") + std::to_string(cpu);
+    if (!list.empty()) {
+      list += ',';
+    }
+    list += std::to_string(cpu);
   }
   const int e = ::pthread_setaffinity_np(::pthread_self(), sizeof set, &set);
   if (e != 0) {

@@ -149,7 +149,10 @@ std::string can_interface_name_problem(std::string_view name) {
     return "an interface name is 1 to 15 characters, got " + std::to_string(name.size()) + " in '" + std::string(name) + "'";
   }
   if (name == "." || name == "..") {
-    return "'" + std::string(name) + "' is not an interface name";
+    std::string problem{"'"};  // (appended: GCC 12's false -Wrestrict on "literal" + string&&)
+    problem += name;
+    problem += "' is not an interface name";
+    return problem;
   }
   for (const char ch : name) {
     if (ch == '/' || ch == ':' || std::isspace(static_cast<unsigned char>(ch)) != 0) {
@@ -293,14 +296,16 @@ Status SocketCanBus::apply_error_mask() {
 }
 
 Status SocketCanBus::set_filters(std::span<const CanFilter> filters) {
-  auto previous = std::move(config_.filters);
-  config_.filters.emplace(filters.begin(), filters.end());
+  // Swapped in and, on failure, back (a move-assignment of the optional drew GCC 12's false
+  // -Wmaybe-uninitialized at -O3).
+  std::optional<std::vector<CanFilter>> other(std::in_place, filters.begin(), filters.end());
+  config_.filters.swap(other);
   if (!fd_.valid()) {
     return {};  // applied by the next reopen()
   }
   Status s = apply_filters();
   if (!s) {
-    config_.filters = std::move(previous);
+    config_.filters.swap(other);
   }
   return s;
 }

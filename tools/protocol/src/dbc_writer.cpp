@@ -73,7 +73,9 @@ std::string generate_dbc(NodeId node) {
         "ENVVAR_DATA_", "SGTYPE_", "SGTYPE_VAL_", "BA_DEF_SGTYPE_", "BA_SGTYPE_", "SIG_TYPE_REF_", "VAL_TABLE_",
         "SIG_GROUP_", "SIG_VALTYPE_", "SIGTYPE_VALTYPE_", "BO_TX_BU_", "BA_DEF_REL_", "BA_REL_", "BA_DEF_DEF_REL_",
         "BU_SG_REL_", "BU_EV_REL_", "BU_BO_REL_", "SG_MUL_VAL_"}) {
-    line(out, "\t" + std::string(symbol));
+    std::string entry{"\t"};  // (appended: GCC 12's false -Wrestrict on "literal" + string&&)
+    entry += symbol;
+    line(out, entry);
   }
   line(out, "");
   line(out, "BS_:");
@@ -144,7 +146,11 @@ std::string generate_dbc(NodeId node) {
       }
       std::string val = "VAL_ " + std::to_string(m.can_id(node)) + " " + std::string(s.name);
       for (const ValueLabel& v : s.values) {
-        val += " " + std::to_string(v.value) + " \"" + std::string(v.label) + "\"";
+        val += ' ';
+        val += std::to_string(v.value);
+        val += " \"";
+        val += v.label;
+        val += '"';
       }
       line(out, val + " ;");
     }
