@@ -585,10 +585,7 @@ int run_monitor(MonitorOptions o) {
   auto over = [&] {
     return o.duration_s && static_cast<double>(hal::monotonic_ns() - start) * 1e-9 > *o.duration_s;
   };
-  while (!hal::stop_requested().load()) {
-    if (over()) {
-      break;
-    }
+  while (!hal::stop_requested().load() && !over()) {
     const hal::ReceiveStatus got = bus->receive(r, std::chrono::milliseconds{100});
     m.on_own_drops(bus->counters().rx_overflow);
     if (got == hal::ReceiveStatus::kFrame && !r.frame.error) {
