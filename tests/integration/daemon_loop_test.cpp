@@ -997,7 +997,15 @@ TEST(DaemonLoop, TwoAxesOnOneBusEachTrackItsOwnPlant) {
   // The estimation tests' bound on a single estimate (max 6 C).
   EXPECT_NEAR(*last_5, *truth_5, 6.0);
   EXPECT_NEAR(*last_6, *truth_6, 6.0);
-  EXPECT_GT(*last_6 - *last_5, 15.0) << "each axis reports its own winding";
+  // Each axis reports its own winding: each estimate lies nearer its own plant's truth than
+  // the other's. The plants were soaked 25 C apart, but each heats at its scenario's thermal
+  // acceleration from the end of its own calibration, and the two calibrations end up to a
+  // second apart in wall time: the truths end 12-38 C apart (25 runs). 5 C keeps the comparison
+  // meaningful against estimates within 1.5 C of their truths. (A bound on the estimates' difference, 15 C, failed about one run in
+  // forty with every estimate within 1.5 C of its own plant.)
+  EXPECT_GT(*truth_6 - *truth_5, 5.0) << "the plants ran apart";
+  EXPECT_LT(std::abs(*last_5 - *truth_5), std::abs(*last_5 - *truth_6)) << "axis 5 reads its own plant";
+  EXPECT_LT(std::abs(*last_6 - *truth_6), std::abs(*last_6 - *truth_5)) << "axis 6 reads its own plant";
   // No cross-talk: each daemon heard only its own supervisor's commands.
   const LoopStats s5 = cold.loop().stats();
   const LoopStats s6 = warm.loop().stats();
