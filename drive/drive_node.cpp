@@ -263,7 +263,7 @@ void DriveNode::publish(const NodeInputs& in) noexcept {
     s.time_to_limit_valid = tel.time_to_limit_valid;
     s.time_to_limit_s = tel.time_to_limit_valid ? tel.time_to_limit_s : 0.0;
     s.speed_rad_s = tel.speed_m_rad_s;
-    s.torque_Nm = tel.torque_estimate_Nm;
+    s.torque_Nm = controller_.torque_estimate_Nm();
     p.status = s;
   }
   if (due(heartbeat_every_)) {

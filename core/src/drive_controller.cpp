@@ -1233,8 +1233,6 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   telemetry_.injection_phase = so.phase;
   telemetry_.injection_active = so.active;
   age_magnet(periods);
-  telemetry_.torque_estimate_Nm = electromagnetic_torque_Nm(
-      config_.current.flux_linkage_Wb, config_.current.ld_H, config_.current.lq_H, config_.motor.pole_pairs, i);
   telemetry_.inverter_sweep_active = sweep_.active();
   telemetry_.angle_check_active = check_.active();
   publish_learned_if_moved();

@@ -25,6 +25,7 @@
 #include "pmsm/core/current_controller.hpp"
 #include "pmsm/core/injection_scheduler.hpp"
 #include "pmsm/core/inverter_sweep.hpp"
+#include "pmsm/core/machine_equations.hpp"
 #include "pmsm/core/modulation.hpp"
 #include "pmsm/core/motor_params.hpp"
 #include "pmsm/core/speed_controller.hpp"
@@ -239,7 +240,6 @@ struct DriveTelemetry {
   double magnet_upper_C = 0.0;       // what the magnets derate on (DriveController::update_magnet)
   std::uint32_t magnet_rejected = 0;  // EMF measurements refused as implausible
   MagnetRefusalReport magnet_last_refusal{};  // the last refused one
-  double torque_estimate_Nm = 0.0;  // from the measured currents (with reluctance torque)
   OutcomeCounts outcomes{};
   std::uint32_t estimates_published = 0;
   std::uint32_t estimates_gated = 0;  // implausible against the thermal filter's prediction
@@ -345,6 +345,12 @@ class DriveController {
   [[nodiscard]] ThermalState thermal_state() const { return observer_.state(); }
 
   [[nodiscard]] const DriveTelemetry& telemetry() const { return telemetry_; }
+  // The torque of the last sample's currents (Eq. 10 with the reluctance torque), computed when
+  // asked: the drive publishes it a few times a second, not every period.
+  [[nodiscard]] double torque_estimate_Nm() const noexcept {
+    return electromagnetic_torque_Nm(config_.current.flux_linkage_Wb, config_.current.ld_H, config_.current.lq_H,
+                                     config_.motor.pole_pairs, telemetry_.i_A);
+  }
   // Set for the one period in which a pair finished (accepted, rejected or skipped).
   [[nodiscard]] const std::optional<PairResult>& last_pair() const { return last_pair_; }
   // Set for the one period in which an estimate was published.
