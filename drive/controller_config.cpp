@@ -7,7 +7,11 @@
 
 #include <algorithm>
 #include <cmath>
+#include <filesystem>
 #include <numbers>
+#include <string>
+#include <system_error>
+#include <tuple>
 
 #include <fmt/format.h>
 
@@ -528,6 +532,51 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
     errors += text;
   };
 
+  // The files the drive writes, relative to the configuration's directory. Each is written
+  // whole, so each must be a file of its own: a thermal state written over the calibration
+  // loses the commissioning (the next start refuses the file), and either written over the
+  // configuration loses that.
+  if (table != nullptr) {
+    const std::filesystem::path dir = std::filesystem::path(source).parent_path();
+    for (std::string* file : {&c.calibration_file, &c.thermal_state_file}) {
+      if (!file->empty() && std::filesystem::path(*file).is_relative()) {
+        *file = std::filesystem::absolute(dir / *file).lexically_normal().string();
+      }
+    }
+    // The same file under two spellings (a symbolic link, "..") is the same file.
+    const auto same = [](const std::string& a, const std::string& b) {
+      std::error_code ec_a;
+      std::error_code ec_b;
+      const std::filesystem::path ca = std::filesystem::weakly_canonical(a, ec_a);
+      const std::filesystem::path cb = std::filesystem::weakly_canonical(b, ec_b);
+      return ec_a || ec_b ? a == b : ca == cb;
+    };
+    const std::string config_file = std::filesystem::absolute(source).lexically_normal().string();
+    std::string prefixed_cal{key_prefix};
+    prefixed_cal += "calibration.file";
+    std::string prefixed_state{key_prefix};
+    prefixed_state += "thermal.state_file";
+    if (!c.calibration_file.empty() && !c.thermal_state_file.empty() && same(c.calibration_file, c.thermal_state_file)) {
+      std::string text = prefixed_cal;
+      text += " and ";
+      text += prefixed_state;
+      text += " name the same file (";
+      text += c.calibration_file;
+      text += "): the thermal state written there would replace the calibration, and the next start would refuse it";
+      rule("thermal.state_file", "calibration.file", text);
+    }
+    for (const auto& [key, prefixed, file] : {std::tuple<std::string_view, const std::string&, const std::string&>{
+                                                  "calibration.file", prefixed_cal, c.calibration_file},
+                                              {"thermal.state_file", prefixed_state, c.thermal_state_file}}) {
+      if (!file.empty() && same(file, config_file)) {
+        std::string text = prefixed;
+        text += " names this configuration file itself (";
+        text += file;
+        text += "): the drive would write over it";
+        rule(key, key, text);
+      }
+    }
+  }
   // Both ends given and crossed: that is the contradiction (else the resistance checks below
   // name the nameplate and the one end the file gives).
   const bool window_given = given("injection.rs_min_ohm") && given("injection.rs_max_ohm");
@@ -802,12 +851,6 @@ ControllerConfig parse_controller_config(const toml::table& table, std::string_v
     c.drive.calibration.t0_C = c.drive.motor.rs_reference_temp_C;
   }
   finalize(c, source, &table, key_prefix);
-  for (std::string* file : {&c.calibration_file, &c.thermal_state_file}) {
-    if (!file->empty() && std::filesystem::path(*file).is_relative()) {
-      const std::filesystem::path dir = std::filesystem::path(source).parent_path();
-      *file = std::filesystem::absolute(dir / *file).lexically_normal().string();
-    }
-  }
   return c;
 }
 

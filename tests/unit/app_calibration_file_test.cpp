@@ -276,6 +276,40 @@ TEST_F(CalibrationFile, ControllerConfigLoadsTheFileRelativeToItself) {
 }
 
 
+// Each file the drive writes is a file of its own: a thermal state written over the
+// calibration lost the commissioning (the next start refused the file), and either written
+// over the configuration would lose that. Relative paths, "..", and a symbolic link are the
+// same file as written out.
+TEST_F(CalibrationFile, TheFilesTheDriveWritesAreFilesOfTheirOwn) {
+  const fs::path config_path = dir_ / "drive.toml";
+  const auto error_of = [&](const std::string& text) -> std::string {
+    try {
+      (void)parse_controller_config(toml::parse(text, config_path.string()), config_path.string(), {});
+    } catch (const ConfigError& e) {
+      return e.what();
+    }
+    return "";
+  };
+  EXPECT_EQ(error_of("[calibration]\nfile = \"state/cal.toml\"\n[thermal]\nstate_file = \"state/thermal.toml\"\n"), "");
+  const std::string both = error_of(
+      "[calibration]\nfile = \"state/cal.toml\"\n[thermal]\nstate_file = \"state/../state/cal.toml\"\n");
+  EXPECT_NE(both.find("drive.toml:4: calibration.file and thermal.state_file name the same file (" +
+                      (dir_ / "state" / "cal.toml").string() + ")"),
+            std::string::npos)
+      << both;
+  fs::create_directories(dir_ / "state");
+  write_text(dir_ / "state" / "cal.toml", "format = 1\nrs0_ohm = 0.13\nt0_C = 25\n");
+  fs::create_symlink(dir_ / "state" / "cal.toml", dir_ / "link.toml");
+  EXPECT_NE(error_of("[calibration]\nfile = \"state/cal.toml\"\n[thermal]\nstate_file = \"link.toml\"\n")
+                .find("name the same file"),
+            std::string::npos);
+  const std::string self = error_of("[thermal]\nstate_file = \"drive.toml\"\n");
+  EXPECT_NE(self.find("drive.toml:2: thermal.state_file names this configuration file itself"), std::string::npos)
+      << self;
+  EXPECT_NE(error_of("[calibration]\nfile = \"./drive.toml\"\n").find("calibration.file names this configuration file"),
+            std::string::npos);
+}
+
 // The thermal state kept across a restart: the same atomic write and strict read.
 TEST_F(CalibrationFile, ThermalStateRoundTripAndBadFiles) {
   const fs::path path = dir_ / "axis1.thermal";
