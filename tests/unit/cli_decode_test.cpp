@@ -242,5 +242,15 @@ TEST(cli_decode, AMissingInputFileIsNamed) {
   EXPECT_TRUE(contains(r.err, "cannot open '/nonexistent/capture.log'")) << r.err;
 }
 
+// A directory reads as nothing: named as one, not decoded as an empty (clean) capture.
+TEST(cli_decode, ADirectoryIsNoCapture) {
+  const ProcessResult file = run_process(kDecode + "/tmp");
+  EXPECT_EQ(file.exit_code, 2);
+  EXPECT_TRUE(contains(file.err, "decode: '/tmp' is a directory, not a file")) << file.err;
+  const ProcessResult piped = run_process(kDecode + "--strict - < /tmp");
+  EXPECT_EQ(piped.exit_code, 2);
+  EXPECT_TRUE(contains(piped.err, "decode: standard input is a directory, not a file")) << piped.err;
+}
+
 }  // namespace
 }  // namespace pmsm::test

@@ -74,4 +74,19 @@ grep -q "^node  3 " "$work/out" || fail "--node 3 does not show node 3"
 if grep -q "^node  0 " "$work/out"; then fail "--node 3 shows node 0"; fi
 "$exe" monitor --log "$work/two.log" > "$work/out"
 grep -q "^node  0 " "$work/out" && grep -q "^node  3 " "$work/out" || fail "without --node, not both axes are shown"
+# What is no capture, or no bound, is refused by name, not read as an empty log or a check that
+# every run passes (exit 2).
+refused() {  # refused EXPECTED_TEXT ARGS...
+  local want=$1
+  shift
+  if "$exe" monitor "$@" > "$work/out" 2>&1; then fail "monitor $* exited 0"; fi
+  grep -qF -- "$want" "$work/out" || fail "monitor $*: no '$want'"
+}
+refused "monitor: '$work' is a directory, not a file" --log "$work"
+refused "monitor: standard input is a directory, not a file" --log - < "$work"
+refused "--check-rms: expected a number, got 'nan'" --log "$log" --check-rms nan
+refused "--check-max: must be >= 0, got -1" --log "$log" --check-max -1
+refused "--threshold: expected a number, got 'nan'" --log "$log" --threshold nan
+refused "--min-estimates: must be >= 0, got -1" --log "$log" --min-estimates -1
+refused "--duration: must be > 0, got -5" --log "$log" --duration -5
 echo "monitor_log: ok"

@@ -39,6 +39,7 @@
 
 #include "json_writer.hpp"
 #include "commands.hpp"
+#include "text_input.hpp"
 #include "pmsm/hal/codec.hpp"
 #include "pmsm/tools/candump.hpp"
 #include "pmsm/tools/dbc.hpp"
@@ -434,27 +435,23 @@ int run_decode(const DecodeOptions& o) {
     return kExitInput;
   }
 
-  const bool from_stdin = o.input.empty() || o.input == "-";
-  std::ifstream file;
-  if (!from_stdin) {
-    file.open(o.input, std::ios::binary);
-    if (!file) {
-      std::fprintf(stderr, "decode: cannot open '%s': %s\n", o.input.c_str(), std::strerror(errno));
-      return kExitInput;
-    }
+  TextInput input;
+  if (const std::string problem = input.open(o.input); !problem.empty()) {
+    std::fprintf(stderr, "decode: %s\n", problem.c_str());
+    return kExitInput;
   }
-  std::istream& in = from_stdin ? std::cin : file;
+  std::istream& in = input.stream();
 
   Decoder decoder(db, o);
   for (std::string line; std::getline(in, line);) {
     decoder.line(line);
   }
-  if (in.bad()) {
-    std::fprintf(stderr, "decode: error reading '%s'\n", from_stdin ? "stdin" : o.input.c_str());
+  if (input.failed()) {
+    std::fprintf(stderr, "decode: error reading '%s'\n", input.name().c_str());
     return kExitInput;
   }
   std::fflush(stdout);
-  decoder.print_summary(dbc_path, from_stdin ? "-" : o.input);
+  decoder.print_summary(dbc_path, input.from_stdin() ? "-" : o.input);
   if (o.strict && decoder.counts().bad() != 0U) {
     std::fprintf(stderr, "decode: --strict: %llu line(s) were not cleanly decoded frames\n",
                  static_cast<unsigned long long>(decoder.counts().bad()));

@@ -27,6 +27,7 @@
 
 #include "cli_validators.hpp"
 #include "commands.hpp"
+#include "text_input.hpp"
 #include "pmsm/hal/codec.hpp"
 #include "pmsm/hal/rt.hpp"
 #include "pmsm/hal/signals.hpp"
@@ -536,18 +537,13 @@ int run_monitor(MonitorOptions o) {
   }
   Monitor& m = *monitor;
   if (!o.log.empty()) {
-    std::ifstream file;
-    std::istream* in = &std::cin;
-    if (o.log != "-") {
-      file.open(o.log);
-      if (!file) {
-        std::fprintf(stderr, "monitor: cannot read '%s'\n", o.log.c_str());
-        return 2;
-      }
-      in = &file;
+    TextInput input;
+    if (const std::string problem = input.open(o.log); !problem.empty()) {
+      std::fprintf(stderr, "monitor: %s\n", problem.c_str());
+      return 2;
     }
     std::uint64_t malformed = 0;
-    for (std::string line; std::getline(*in, line);) {
+    for (std::string line; std::getline(input.stream(), line);) {
       const candump::ParseResult parsed = candump::parse_line(line);
       if (parsed.ok()) {
         const auto& stamp = parsed.record->timestamp;
@@ -556,6 +552,10 @@ int run_monitor(MonitorOptions o) {
       } else if (!line.empty()) {
         ++malformed;
       }
+    }
+    if (input.failed()) {
+      std::fprintf(stderr, "monitor: error reading '%s'\n", input.name().c_str());
+      return 2;
     }
     if (malformed != 0U) {
       std::printf("%llu line(s) were not candump frames\n", static_cast<unsigned long long>(malformed));
@@ -618,12 +618,19 @@ void register_monitor_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--log", o->log, "read a candump log instead ('-': stdin)");
   cmd->add_option("--node", o->node, "only this node")->check(CLI::Range(0, 15));
   cmd->add_option("--every", o->every_s, "seconds of drive time between lines per axis")->check(pmsm::cli::number_in_range(0.0, 1e6))->capture_default_str();
-  cmd->add_option("--threshold", o->threshold_C, "compare with the truth above this winding temperature, C")->capture_default_str();
-  cmd->add_option("--check-rms", o->check_rms_C, "exit 1 when an axis's error RMS is above this, C");
-  cmd->add_option("--check-max", o->check_max_C, "exit 1 when an axis's largest error is above this, C");
-  cmd->add_option("--min-estimates", o->min_estimates, "exit 1 when an axis has fewer compared estimates");
+  cmd->add_option("--threshold", o->threshold_C, "compare with the truth above this winding temperature, C")
+      ->check(pmsm::cli::number_in_range(-273.15, 1000.0))
+      ->capture_default_str();
+  // The checks gate CI runs: a NaN bound would pass every run (no error is above NaN).
+  cmd->add_option("--check-rms", o->check_rms_C, "exit 1 when an axis's error RMS is above this, C")
+      ->check(pmsm::cli::non_negative(1000.0));
+  cmd->add_option("--check-max", o->check_max_C, "exit 1 when an axis's largest error is above this, C")
+      ->check(pmsm::cli::non_negative(1000.0));
+  cmd->add_option("--min-estimates", o->min_estimates, "exit 1 when an axis has fewer compared estimates")
+      ->check(pmsm::cli::number_in_range(0.0, 1e9));
   cmd->add_option("--csv", o->csv, "write every THERMAL_ESTIMATE with the truth beside it as CSV");
-  cmd->add_option("--duration", o->duration_s, "stop watching a live bus after this many seconds");
+  cmd->add_option("--duration", o->duration_s, "stop watching a live bus after this many seconds")
+      ->check(pmsm::cli::positive(1e7));
   cmd->add_flag("--plain", o->plain, "one line per update even on a terminal (no redraw in place)");
   cmd->callback([o, &exit_code, cmd] {
     if (o->iface.empty() == o->log.empty()) {
