@@ -223,6 +223,30 @@ TEST(PlanCli, HumanReadableByDefault) {
   EXPECT_EQ(r.out.find('{'), std::string::npos);
 }
 
+// simulate loads every scenario before it runs any: one it cannot use stops them all, each
+// such named with its file, line and key (docs/scenarios.md), and a calibration asked for at
+// or after the run's end is one it cannot use.
+TEST(SimulateCli, AnUnusableScenarioStopsTheRunBeforeAnythingRuns) {
+  const std::filesystem::path dir = std::filesystem::temp_directory_path() / ("pmsm-sim-cli-" + std::to_string(getpid()));
+  std::filesystem::create_directories(dir);
+  const std::string base = std::string("[scenario]\nbase = \"") + PMSM_SOURCE_DIR + "/bench/scenarios/reference-fm-bipolar.toml\"\n";
+  std::ofstream(dir / "ok.toml") << base << "duration_s = 0.6\n";
+  std::ofstream(dir / "late.toml") << base << "duration_s = 1\n[operation]\ncalibrate_at_s = 100\n";
+  const ProcessResult r = run_process(kExe + " simulate --json --quiet " + (dir / "ok.toml").string() + " " +
+                                      (dir / "late.toml").string() + " " + (dir / "absent.toml").string());
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_EQ(r.out, "") << "ok.toml ran before the others were found unusable";
+  EXPECT_NE(r.err.find("late.toml:5: operation.calibrate_at_s: the calibration starts at operation.calibrate_at_s = 100 s, "
+                       "not before the run ends at scenario.duration_s = 1 s"),
+            std::string::npos)
+      << r.err;
+  EXPECT_NE(r.err.find("absent.toml: scenario: no such file"), std::string::npos) << r.err;
+  const ProcessResult ok = run_process(kExe + " simulate --json --quiet " + (dir / "ok.toml").string());
+  EXPECT_EQ(ok.exit_code, 0) << ok.err;
+  EXPECT_NE(ok.out.find("\"calibrated\""), std::string::npos) << ok.out;
+  std::filesystem::remove_all(dir);
+}
+
 struct BadInput {
   std::string args;
   std::string expected_in_message;

@@ -80,16 +80,8 @@ std::string markdown_row(const SimulationResult& r, const std::string& file) {
                      cell(r.torque_disturbance_pct, r.disturbance_measured), r.injection_loss_W, r.sim_time_s, r.wall_time_s);
 }
 
-Report run_one(const std::string& path, const SimulateOptions& o) {
+Report run_one(const std::string& path, const Scenario& scenario, const SimulateOptions& o) {
   Report r;
-  Scenario scenario;
-  try {
-    scenario = load_scenario(path);
-  } catch (const ConfigError& e) {  // the plant's, the controller's and the scenario's alike
-    r.err += fmt::format("simulate: {}\n", e.what());
-    r.status = 2;
-    return r;
-  }
   for (const std::string& w : reference_default_warnings(scenario.controller)) {
     r.err += fmt::format("simulate: {}: warning: {}\n", path, w);
   }
@@ -177,23 +169,33 @@ int run_simulate(const SimulateOptions& o) {
       }
     }
   }
+  // Every scenario is loaded before any runs: one that cannot be used is named (all of them,
+  // each with its file, line and key) and nothing runs, as docs/scenarios.md says.
+  const std::size_t n = o.scenario_paths.size();
+  std::vector<Scenario> scenarios(n);
+  bool unusable = false;
+  for (std::size_t k = 0; k < n; ++k) {
+    try {
+      scenarios[k] = load_scenario(o.scenario_paths[k]);
+    } catch (const ConfigError& e) {  // the plant's, the controller's and the scenario's alike
+      std::fprintf(stderr, "simulate: %s\n", e.what());
+      unusable = true;
+    }
+  }
+  if (unusable) {
+    return 2;
+  }
   // -j N: N scenarios at a time, each (with its own twin thread) independent of the others;
   // reports are printed in the order the scenarios were given, each as soon as it and those
   // before it are done.
-  const std::size_t n = o.scenario_paths.size();
   if (o.jobs > 1 && n > 1) {
     // Scenarios that store and load the same calibration or thermal-state file depend on their order: with
-    // -j it would be a race. (A scenario that cannot be loaded is reported by its run.)
+    // -j it would be a race.
     std::map<std::filesystem::path, std::string> owner;
-    for (const std::string& path : o.scenario_paths) {
-      std::vector<std::string> files;
-      try {
-        const ControllerConfig controller = load_scenario(path).controller;
-        files = {controller.calibration_file, controller.thermal_state_file};
-      } catch (const std::exception&) {
-        continue;
-      }
-      for (const std::string& file : files) {
+    for (std::size_t k = 0; k < n; ++k) {
+      const std::string& path = o.scenario_paths[k];
+      const ControllerConfig& controller = scenarios[k].controller;
+      for (const std::string& file : {controller.calibration_file, controller.thermal_state_file}) {
         if (file.empty()) {
           continue;
         }
@@ -217,7 +219,7 @@ int run_simulate(const SimulateOptions& o) {
     for (std::size_t k = next++; k < n; k = next++) {
       Report r;
       try {
-        r = run_one(o.scenario_paths[k], o);
+        r = run_one(o.scenario_paths[k], scenarios[k], o);
       } catch (const std::exception& e) {  // not one of the documented failures: say so, go on
         r.err = fmt::format("simulate: {}: {}\n", o.scenario_paths[k], e.what());
         r.status = 1;

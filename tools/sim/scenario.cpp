@@ -485,6 +485,18 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
                         "controller.thermal.update_s");
     }
   }
+  // A calibration asked for at or after the run's end never runs: the run's figures would count
+  // from a calibration that is not there, and say nothing.
+  if (out.scenario.calibrate && out.scenario.calibrate_at_s >= out.scenario.duration_s) {
+    const auto at_key = root.at_path("operation.calibrate_at_s");
+    const char* key = at_key ? "operation.calibrate_at_s" : "scenario.duration_s";
+    const auto node = at_key ? at_key : root.at_path("scenario.duration_s");
+    const std::string at = node ? where(*node.node(), source.string(), key) : source.string() + ": " + key + ": ";
+    throw ConfigError(at + "the calibration starts at operation.calibrate_at_s = " +
+                      common::format_number(out.scenario.calibrate_at_s) + " s, not before the run ends at scenario.duration_s = " +
+                      common::format_number(out.scenario.duration_s) +
+                      " s: start it earlier, run longer, or set operation.calibrate = false");
+  }
   // The drive steps once per plant sample, so its period is the plant's PWM period: a
   // mismatch would run every clock of the drive (its timers, the speed from the angle's
   // advance, the thermal model, an estimate's age) at the wrong rate without a word.
