@@ -286,6 +286,9 @@ INSTANTIATE_TEST_SUITE_P(
                       BadInput{"budget --speed inf", "--speed: expected a number"},
                       BadInput{"budget --voltage 1e400", "--voltage: expected a number"},
                       BadInput{"losses --F nan", "--F: expected a number"},
+                      // Finite but so small that a result overflows (inf V, a share of 8e299 %).
+                      BadInput{"budget --current 10 --Tw 1e-300", "--Tw: must be >= 1e-06"},
+                      BadInput{"losses --F 10 --rated-power 1e-300", "--rated-power: must be >= 1"},
                       // 1000 pulses of 30 ms in 1 s: a duty above 100 %.
                       BadInput{"losses --F 10 --pulses 1000 --elapsed 1 --Ti 0.01", "more than --elapsed 1 s"}));
 

@@ -34,6 +34,10 @@ constexpr double kMaxCurrent_A = 100e3;
 constexpr double kMaxSpeed_rad_s = 10e3;  // mechanical, ~95,000 rpm
 constexpr double kMaxKe = 1000.0;
 constexpr double kMaxTime_s = 1e9;
+// The shortest window a drive can shape (a microsecond: ten PWM periods at 10 MHz): shorter,
+// the slope's voltage overflows into inf (--Tw 1e-300 printed "voltage required inf V").
+constexpr double kMinWindow_s = 1e-6;
+constexpr double kMinRatedPower_W = 1.0;
 
 core::WindowKind window_from_name(const std::string& name) {
   return name == "modified" ? core::WindowKind::kModifiedBlackman : core::WindowKind::kBlackman;
@@ -329,7 +333,7 @@ void register_budget_command(CLI::App& app, int& exit_code) {
       "budget", "Largest injection current for a voltage headroom, or voltage for a current (Eqs. 29-30)");
   cmd->add_option("--Ld", options->ld_H, "d-axis inductance, H")->check(cli::positive(kMaxInductance_H))->capture_default_str();
   cmd->add_option("--Rs", options->rs_ohm, "stator resistance, ohm (phase to neutral)")->check(cli::positive(kMaxResistance_ohm))->capture_default_str();
-  cmd->add_option("--Tw", options->tw_s, "window period, s")->check(cli::positive(kMaxWindow_s))->capture_default_str();
+  cmd->add_option("--Tw", options->tw_s, "window period, s")->check(cli::number_in_range(kMinWindow_s, kMaxWindow_s))->capture_default_str();
   add_window_option(cmd, options->window_name);
   auto* mode = cmd->add_option_group("mode", "what to compute (exactly one)");
   mode->add_option("--voltage", options->voltage_V, "voltage available for injection, V")->check(cli::positive(kMaxVoltage_V));
@@ -391,11 +395,11 @@ void register_losses_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--pulses", s.pulses, "injection pulses in the elapsed time (Ninj)")->check(cli::number_in_range(1, 1000000))->capture_default_str();
   cmd->add_option("--elapsed", s.elapsed_s, "elapsed time Tel, s")->check(cli::positive(kMaxTime_s))->capture_default_str();
   cmd->add_option("--Ti", s.ti_s, "duration of the flat top of one pulse, s")->check(cli::non_negative(kMaxTime_s))->capture_default_str();
-  cmd->add_option("--Tw", s.tw_s, "window period, s")->check(cli::positive(kMaxWindow_s))->capture_default_str();
+  cmd->add_option("--Tw", s.tw_s, "window period, s")->check(cli::number_in_range(kMinWindow_s, kMaxWindow_s))->capture_default_str();
   add_window_option(cmd, options->window_name);
   cmd->add_option("--omega", options->omega_e_rad_s, "electrical speed, rad/s (fixed-angle)")->check(cli::non_negative(kMaxSpeed_rad_s * 100.0));
   cmd->add_option("--rated-power", options->rated_power_W, "the machine's rated power, W (the share printed; default Table I's)")
-      ->check(cli::positive(1e9))->capture_default_str();
+      ->check(cli::number_in_range(kMinRatedPower_W, 1e9))->capture_default_str();
   cmd->add_flag("--json", options->json, "print one JSON object");
   cmd->callback([options, cmd, &exit_code] {
     options->omega_given = cmd->count("--omega") > 0;
