@@ -282,7 +282,7 @@ core::Calibration read_calibration_file(const std::filesystem::path& path) {
     }
   }
   core::Calibration c;
-  c.rs0_ohm = number(t, "rs0_ohm", file, 0.0, 10.0, true);
+  c.rs0_ohm = number(t, "rs0_ohm", file, 0.0, kMaxResistance_ohm, true);
   c.t0_C = number(t, "t0_C", file, -50.0, 200.0, false);
   c.ke0_V_s_per_rad = t.get("ke0_V_s_per_rad") != nullptr ? number(t, "ke0_V_s_per_rad", file, 0.0, 100.0, false) : 0.0;
   c.ke0_std_V_s_per_rad =

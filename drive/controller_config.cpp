@@ -27,7 +27,7 @@ using C = ControllerConfig;
 ConfigSchema<C> build() {
   ConfigSchema<C> s;
   // [motor] — the controller's commissioned model of the machine.
-  s.real("motor.rs_ohm", [](C& c) -> double& { return c.drive.motor.rs_ohm; }, positive(100.0), "ohm",
+  s.real("motor.rs_ohm", [](C& c) -> double& { return c.drive.motor.rs_ohm; }, positive(kMaxResistance_ohm), "ohm",
          "Nameplate phase-to-neutral resistance at motor.rs_reference_temp_C; the temperature scale until a calibration replaces it.");
   s.real("motor.rs_reference_temp_C", [](C& c) -> double& { return c.drive.motor.rs_reference_temp_C; }, between(-50, 200), "C",
          "Temperature at which motor.rs_ohm holds (T0 of Eq. 1).");
@@ -315,7 +315,7 @@ ConfigSchema<C> build() {
   s.real("thermal.gate_sigma", [](C& c) -> double& { return c.drive.thermal.gate_sigma; }, positive(1000), "",
          "A measurement further than this many sigma from the prediction is gated out.");
   // [calibration]
-  s.real("calibration.rs0_ohm", [](C& c) -> double& { return c.drive.calibration.rs0_ohm; }, positive(100), "ohm",
+  s.real("calibration.rs0_ohm", [](C& c) -> double& { return c.drive.calibration.rs0_ohm; }, positive(kMaxResistance_ohm), "ohm",
          "Rs0 of a stored calibration (defaults to motor.rs_ohm).");
   s.real("calibration.t0_C", [](C& c) -> double& { return c.drive.calibration.t0_C; }, between(-50, 200), "C", "T0 of that calibration.");
   s.real("calibration.ke0_V_s_per_rad", [](C& c) -> double& { return c.drive.calibration.ke0_V_s_per_rad; }, at_least(0, 100), "V s/rad",

@@ -276,6 +276,23 @@ TEST_F(CalibrationFile, ControllerConfigLoadsTheFileRelativeToItself) {
 }
 
 
+// A motor the configuration takes reloads the calibration it stored: the file's bound on
+// rs0_ohm is the keys' (it was 10 ohm against motor.rs_ohm's 100: a 20 ohm motor's own file
+// was refused).
+TEST_F(CalibrationFile, AHighResistanceMotorReloadsItsOwnCalibration) {
+  const fs::path config_path = dir_ / "drive.toml";
+  ControllerConfig c = parse_controller_config(
+      toml::parse("[motor]\nrs_ohm = 20.0\n[calibration]\nfile = \"cal.toml\"\n", config_path.string()),
+      config_path.string(), {});
+  core::Calibration stored = sample();
+  stored.rs0_ohm = 20.5;
+  write_calibration_file(c.calibration_file, stored, "test");
+  EXPECT_EQ(load_stored_calibration(c), StoredCalibration::kLoaded);
+  EXPECT_NEAR(c.drive.calibration.rs0_ohm, 20.5, 1e-12);
+  write_text(c.calibration_file, "format = 1\nrs0_ohm = 101\nt0_C = 25\n");
+  EXPECT_THROW((void)read_calibration_file(c.calibration_file), CalibrationFileError);
+}
+
 // Each file the drive writes is a file of its own: a thermal state written over the
 // calibration lost the commissioning (the next start refused the file), and either written
 // over the configuration would lose that. Relative paths, "..", and a symbolic link are the
