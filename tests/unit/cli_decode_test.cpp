@@ -195,6 +195,20 @@ TEST(cli_decode, JsonLinesOnePerFrame) {
   EXPECT_TRUE(contains(r.err, "\"THERMAL_ESTIMATE\": 2")) << r.err;
 }
 
+// A line's bytes that are no UTF-8 are written as U+FFFD: the output stays JSON whatever the
+// capture holds; well-formed UTF-8 passes as it is.
+TEST(cli_decode, JsonStaysJsonWhateverTheLineHolds) {
+  const TempFile log("(1.000000) vcan0 \xff\xfe caf\xc3\xa9 \xed\xa0\x80 \xe2\x82\n");
+  const ProcessResult r = run_process(kDecode + "--json " + log.path());
+  const std::vector<std::string> lines = lines_of(r.out);
+  ASSERT_EQ(lines.size(), 1U) << r.out;
+  EXPECT_TRUE(contains(lines[0], "\\ufffd\\ufffd caf\xc3\xa9 \\ufffd\\ufffd\\ufffd \\ufffd\\ufffd")) << lines[0];
+  for (const char c : lines[0]) {
+    const auto b = static_cast<unsigned char>(c);
+    EXPECT_TRUE(b < 0x80 || b == 0xc3 || b == 0xa9) << "a raw byte " << static_cast<int>(b) << " in " << lines[0];
+  }
+}
+
 TEST(cli_decode, FindsTheDbcWithoutBeingTold) {
   // The executable lives in a build directory under the source tree: can/pmsm-thermal.dbc
   // of that tree is found.
