@@ -24,7 +24,10 @@ using common::ValueRange;
 constexpr std::size_t kMaxHarmonics = 12;
 
 // The plant's names for the ranges of the common engine.
-ValueRange any() { return common::any_number(); }
+// An angle, in radians: within a thousand of them (about 160 turns) either way. A number far
+// beyond is a typo, and the shaft's angle kept at 1e300 rad lost every digit it turns by (the
+// drive saw a shaft at -380 rad/s where it ran at 60).
+ValueRange angle() { return common::between(-1000.0, 1000.0); }
 ValueRange positive(double hi = std::numeric_limits<double>::infinity()) { return common::positive(hi); }
 ValueRange non_negative(double hi = std::numeric_limits<double>::infinity()) { return common::at_least(0.0, hi); }
 ValueRange closed(double lo, double hi) { return common::between(lo, hi); }
@@ -57,7 +60,8 @@ common::ConfigSchema<PlantConfig> build_schema() {
     // [motor]
     integer("motor.pole_pairs", PMSM_MEMBER(motor.pole_pairs), closed(1, 64),
                         "Pole pairs p (Table I: 3).");
-    real("motor.rs_ohm", PMSM_MEMBER(motor.rs_ohm), positive(),
+    // The drive's configuration takes the same ranges (drive/controller_config.cpp).
+    real("motor.rs_ohm", PMSM_MEMBER(motor.rs_ohm), positive(100.0),
                      "Phase-to-neutral stator resistance Rs0 at rs_reference_temp_C (Table I: "
                      "0.133 Ω at 25 °C).");
     real("motor.rs_reference_temp_C", PMSM_MEMBER(motor.rs_reference_temp_C), closed(-50, 250),
@@ -74,9 +78,9 @@ common::ConfigSchema<PlantConfig> build_schema() {
     real("motor.ke_V_s_per_rad", PMSM_MEMBER(motor.ke_V_s_per_rad), positive(100.0),
                      "EMF constant of Table I: line-to-line RMS volts per mechanical rad/s, "
                      "at magnet_ref_temp_C. psi_m = Ke·sqrt(2/3)/p.");
-    real("motor.ld_H", PMSM_MEMBER(motor.ld_H), positive(),
+    real("motor.ld_H", PMSM_MEMBER(motor.ld_H), positive(1.0),
                      "d-axis inductance (default L_ll/2 of Table I).");
-    real("motor.lq_H", PMSM_MEMBER(motor.lq_H), positive(),
+    real("motor.lq_H", PMSM_MEMBER(motor.lq_H), positive(1.0),
                      "q-axis inductance; Lq != Ld gives reluctance torque.");
     real("motor.magnet_temp_coefficient_per_C", PMSM_MEMBER(motor.magnet_temp_coefficient_per_C),
                      closed(-0.01, 0.0),
@@ -86,9 +90,9 @@ common::ConfigSchema<PlantConfig> build_schema() {
     // [saturation]
     boolean("saturation.enabled", PMSM_MEMBER(saturation.enabled),
                         "Magnetic saturation of both axes (no cross-saturation).");
-    real("saturation.ld_sat_H", PMSM_MEMBER(saturation.ld_sat_H), positive(),
+    real("saturation.ld_sat_H", PMSM_MEMBER(saturation.ld_sat_H), positive(1.0),
                      "Incremental d-axis inductance far beyond the knee (<= motor.ld_H).");
-    real("saturation.lq_sat_H", PMSM_MEMBER(saturation.lq_sat_H), positive(),
+    real("saturation.lq_sat_H", PMSM_MEMBER(saturation.lq_sat_H), positive(1.0),
                      "Incremental q-axis inductance far beyond the knee (<= motor.lq_H).");
     real("saturation.id_knee_A", PMSM_MEMBER(saturation.id_knee_A), positive(1e4),
                      "d-axis current at the knee of the saturation curve.");
@@ -118,7 +122,7 @@ common::ConfigSchema<PlantConfig> build_schema() {
                      non_negative(100.0), "Cogging torque amplitude.");
     integer("cogging.order", PMSM_MEMBER(cogging.order), closed(1, 1000),
                         "Cogging cycles per mechanical revolution.");
-    real("cogging.phase_rad", PMSM_MEMBER(cogging.phase_rad), any(),
+    real("cogging.phase_rad", PMSM_MEMBER(cogging.phase_rad), angle(),
                      "Cogging phase.");
     // [mechanics]
     real("mechanics.inertia_kg_m2", PMSM_MEMBER(mechanics.inertia_kg_m2), positive(1e3),
@@ -134,7 +138,7 @@ common::ConfigSchema<PlantConfig> build_schema() {
     real("mechanics.initial_speed_rad_s", PMSM_MEMBER(mechanics.initial_speed_rad_s),
                      closed(-2000, 2000), "Mechanical speed at t = 0.");
     real("mechanics.initial_angle_rad", PMSM_MEMBER(mechanics.initial_angle_rad),
-                     any(), "Mechanical angle of the rotor d-axis from phase a at t = 0.");
+                     angle(), "Mechanical angle of the rotor d-axis from phase a at t = 0.");
     // [load]
     s.choice("load.profile",
              {{"constant", static_cast<int>(LoadProfile::constant_torque)},
@@ -174,7 +178,7 @@ common::ConfigSchema<PlantConfig> build_schema() {
                      "Ripple amplitude relative to the load torque (reference: 2 %).");
     real("load.ripple_order", PMSM_MEMBER(load.ripple_order), positive(1000.0),
                      "Ripple cycles per mechanical revolution.");
-    real("load.ripple_phase_rad", PMSM_MEMBER(load.ripple_phase_rad), any(),
+    real("load.ripple_phase_rad", PMSM_MEMBER(load.ripple_phase_rad), angle(),
                      "Ripple phase.");
     // [inverter]
     real("inverter.pwm_frequency_Hz", PMSM_MEMBER(inverter.pwm_frequency_Hz),
@@ -234,7 +238,7 @@ common::ConfigSchema<PlantConfig> build_schema() {
     integer("encoder.bits", PMSM_MEMBER(encoder.bits), closed(1, 16),
                         "Absolute encoder resolution: counts 0 .. 2^bits - 1 per mechanical "
                         "revolution.");
-    real("encoder.offset_rad", PMSM_MEMBER(encoder.offset_rad), any(),
+    real("encoder.offset_rad", PMSM_MEMBER(encoder.offset_rad), angle(),
                      "Mechanical angle read as count 0.");
     // [dc_bus_adc]
     integer("dc_bus_adc.bits", PMSM_MEMBER(dc_bus_adc.bits), closed(2, 16),

@@ -30,10 +30,10 @@ std::string error_of(const std::string& text,
 // (or a substep) must follow it, or the model runs away (a 400 ohm winding on the reference's
 // inductances reached 78 million C; 0.1 nH gave NaN currents).
 TEST(plant_config, TheWindingsTimeConstantMustSpanTwoIntegrationSteps) {
-  const std::string runaway = error_of("[motor]\nrs_ohm = 400.0\n");
+  const std::string runaway = error_of("[motor]\nrs_ohm = 100.0\n");
   EXPECT_NE(runaway.find("motor.rs_ohm: the winding's electrical time constant"), std::string::npos) << runaway;
-  EXPECT_NE(runaway.find("6.87e-06 s, is shorter than two integration steps"), std::string::npos) << runaway;
-  EXPECT_NE(runaway.find("raise simulation.substeps to 30"), std::string::npos) << runaway;
+  EXPECT_NE(runaway.find("2.75e-05 s, is shorter than two integration steps"), std::string::npos) << runaway;
+  EXPECT_NE(runaway.find("raise simulation.substeps to 8"), std::string::npos) << runaway;
   const std::string tiny = error_of("[motor]\nld_H = 1e-10\n[saturation]\nenabled = false\n");
   EXPECT_NE(tiny.find("raise simulation.substeps to its 64 and lower the PWM period"), std::string::npos) << tiny;
   // 0.3 mH over twice 1 ohm is 0.15 ms: not two 100 us steps, but two 50 us substeps.
@@ -145,9 +145,16 @@ TEST(plant_config, OutOfRangeNamesKeyAndRange) {
   const std::string e = error_of("[motor]\nld_H = -1\n");
   EXPECT_NE(e.find("motor.ld_H"), std::string::npos) << e;
   EXPECT_NE(e.find("must be"), std::string::npos) << e;
-  EXPECT_NE(e.find("> 0"), std::string::npos) << e;
+  EXPECT_NE(e.find("(0, 1]"), std::string::npos) << e;
   EXPECT_NE(e.find("-1"), std::string::npos) << e;
   EXPECT_NE(e.find("test.toml:2"), std::string::npos) << e;  // file and line
+  // Finite but beyond any machine: the motor's keys take the drive's ranges, an angle a
+  // thousand radians (1e300 rad left the shaft's angle without a digit to turn by).
+  EXPECT_EQ(error_of("[motor]\nld_H = 1e300\n"), "test.toml:2: motor.ld_H: must be in (0, 1], got 1e+300");
+  EXPECT_EQ(error_of("[motor]\nrs_ohm = 101\n"), "test.toml:2: motor.rs_ohm: must be in (0, 100], got 101");
+  EXPECT_EQ(error_of("[mechanics]\ninitial_angle_rad = 1e300\n"),
+            "test.toml:2: mechanics.initial_angle_rad: must be in [-1000, 1000], got 1e+300");
+  EXPECT_EQ(error_of("[mechanics]\ninitial_angle_rad = -7.5\n"), "");
 
   const std::string bits = error_of("[encoder]\nbits = 17\n");
   EXPECT_NE(bits.find("encoder.bits"), std::string::npos) << bits;
