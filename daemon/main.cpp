@@ -187,9 +187,9 @@ int run(const Options& o) {
       continue;
     }
     if (const std::string why = unwritable_reason(path); !why.empty()) {
-      spdlog::warn("{} = {}: {}: nothing this run learns can be stored there (a calibration is kept in memory only; "
+      spdlog::warn("{} = {}: {}: nothing this run learns can be stored there ({} is kept in memory only; "
                    "create the directory, or StateDirectory= in the unit)",
-                   key, path, why);
+                   key, path, why, key == "controller.calibration.file" ? "a calibration" : "the thermal state");
     }
   }
   // Defaults that fit only the reference machine, on another motor (a newcomer's 1.5 kW servo

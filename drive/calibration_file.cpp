@@ -243,12 +243,20 @@ namespace {
 // Parses a stored file strictly: TOML, only the known keys, the supported format.
 toml::table read_stored(const std::filesystem::path& path, const std::set<std::string, std::less<>>& known) {
   const std::string file = path.string();
+  std::error_code ec;
+  if (std::filesystem::is_directory(path, ec)) {
+    // (An ifstream opens a directory and reads nothing: "format: missing" said nothing useful.)
+    throw CalibrationFileError(fmt::format("{}: is a directory, not a file", file));
+  }
   std::ifstream in(path, std::ios::binary);
   if (!in) {
     throw CalibrationFileError(fmt::format("{}: cannot open: {}", file, errno_text(errno)));
   }
   std::ostringstream buffer;
   buffer << in.rdbuf();
+  if (in.bad()) {
+    throw CalibrationFileError(fmt::format("{}: cannot read: {}", file, errno_text(errno)));
+  }
   toml::table t;
   try {
     t = toml::parse(buffer.str(), file);

@@ -293,6 +293,20 @@ TEST_F(CalibrationFile, AHighResistanceMotorReloadsItsOwnCalibration) {
   EXPECT_THROW((void)read_calibration_file(c.calibration_file), CalibrationFileError);
 }
 
+// A directory where a stored file should be is named as one (it read as an empty file:
+// "format: missing").
+TEST_F(CalibrationFile, ADirectoryIsNamedAsOne) {
+  for (const auto& read : {+[](const fs::path& p) { (void)read_calibration_file(p); },
+                           +[](const fs::path& p) { (void)read_thermal_state_file(p); }}) {
+    try {
+      read(dir_);
+      ADD_FAILURE() << "a directory was read";
+    } catch (const CalibrationFileError& e) {
+      EXPECT_EQ(std::string(e.what()), dir_.string() + ": is a directory, not a file");
+    }
+  }
+}
+
 // Each file the drive writes is a file of its own: a thermal state written over the
 // calibration lost the commissioning (the next start refused the file), and either written
 // over the configuration would lose that. Relative paths, "..", and a symbolic link are the
