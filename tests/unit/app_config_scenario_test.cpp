@@ -331,6 +331,10 @@ TEST(Scenario, CsvSetPoints) {
   // Decimal numbers only: strtod read 0x10 as 16.
   EXPECT_EQ(inline_error("[operation]\nspeed_csv = \"speed_hex.csv\"\n"),
             path_of("speed_hex.csv") + ":3: operation.speed_csv: expected 'time_s,value' (two numbers), got '1.0,0x10'");
+  // A first line with a digit is a row, not a header: malformed, it is named (",100" was dropped).
+  EXPECT_EQ(inline_error("[operation]\nspeed_csv = \"speed_first_row_malformed.csv\"\n"),
+            path_of("speed_first_row_malformed.csv") +
+                ":1: operation.speed_csv: expected 'time_s,value' (two numbers), got ',100'");
   const Scenario t = parse("[operation]\nmode = \"torque\"\ntorque_csv = \"speed_profile.csv\"\n");
   EXPECT_EQ(t.scenario.mode, core::DriveMode::kTorque);
   EXPECT_EQ(t.scenario.torque_Nm.at(2.0), 150.0);

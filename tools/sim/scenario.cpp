@@ -148,7 +148,9 @@ Profile read_csv(const std::filesystem::path& path, std::string_view key, const 
     if (!line.empty() && line.back() == '\r') {
       line.pop_back();
     }
-    if (line.empty() || line[0] == '#' || (number == 1 && line.find_first_of("0123456789") != 0 && line[0] != '-')) {
+    // A first line without a digit is a header (docs/scenarios.md); one with a digit is a row,
+    // and a malformed row is an error, not a header dropped in silence (",100" was).
+    if (line.empty() || line[0] == '#' || (number == 1 && line.find_first_of("0123456789") == std::string::npos)) {
       continue;
     }
     const std::string row_at = path.string() + ":" + std::to_string(number) + ": " + std::string(key) + ": ";
