@@ -9,6 +9,7 @@
 #include <limits>
 #include <stdexcept>
 #include <string>
+#include <string_view>
 
 namespace pmsm::common {
 
@@ -50,6 +51,15 @@ struct ValueRange {
   char buffer[32];
   std::snprintf(buffer, sizeof buffer, "%g", v);
   return buffer;
+}
+
+// Input echoed in a message, cut to its first `max` bytes with the length of the rest said: a
+// 10 MB line must not make a 10 MB message.
+[[nodiscard]] inline std::string excerpt(std::string_view text, std::size_t max = 80) {
+  if (text.size() <= max) {
+    return std::string(text);
+  }
+  return std::string(text.substr(0, max)) + "... (" + std::to_string(text.size()) + " bytes)";
 }
 
 inline std::string ValueRange::describe() const {

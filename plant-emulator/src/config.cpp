@@ -418,7 +418,7 @@ void load_drive_cycle_csv(const std::filesystem::path& path, LoadConfig& load,
       const auto res = std::from_chars(cell.data(), cell.data() + cell.size(), v);
       if (res.ec != std::errc{} || res.ptr != cell.data() + cell.size() || !std::isfinite(v)) {
         throw ConfigError(fmt::format("{}:{}: column {}: not a number: \"{}\"", where, line_no,
-                                      col + 1, cell));
+                                      col + 1, common::excerpt(cell)));
       }
       return v;
     };

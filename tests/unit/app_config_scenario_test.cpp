@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <filesystem>
+#include <fstream>
 #include <string>
 
 #include "config_schema.hpp"
@@ -335,6 +336,13 @@ TEST(Scenario, CsvSetPoints) {
   EXPECT_EQ(inline_error("[operation]\nspeed_csv = \"speed_first_row_malformed.csv\"\n"),
             path_of("speed_first_row_malformed.csv") +
                 ":1: operation.speed_csv: expected 'time_s,value' (two numbers), got ',100'");
+  // A long line is cut in the message, its length said.
+  const std::filesystem::path long_csv = std::filesystem::temp_directory_path() / "pmsm-long-row.csv";
+  std::ofstream(long_csv) << "time_s,speed_rad_s\n0," << std::string(1000000, '7') << "x\n";
+  const std::string long_error = inline_error("[operation]\nspeed_csv = \"" + long_csv.string() + "\"\n");
+  std::filesystem::remove(long_csv);
+  EXPECT_LT(long_error.size(), 400U);
+  EXPECT_NE(long_error.find("got '0," + std::string(78, '7') + "... (1000003 bytes)'"), std::string::npos) << long_error;
   const Scenario t = parse("[operation]\nmode = \"torque\"\ntorque_csv = \"speed_profile.csv\"\n");
   EXPECT_EQ(t.scenario.mode, core::DriveMode::kTorque);
   EXPECT_EQ(t.scenario.torque_Nm.at(2.0), 150.0);

@@ -161,13 +161,13 @@ Profile read_csv(const std::filesystem::path& path, std::string_view key, const 
     }
     cells.push_back(rest);
     if (cells.size() != 2) {
-      throw ConfigError(row_at + "expected 2 columns 'time_s,value', got " + std::to_string(cells.size()) + ": '" + line +
-                        "'");
+      throw ConfigError(row_at + "expected 2 columns 'time_s,value', got " + std::to_string(cells.size()) + ": '" +
+                        common::excerpt(line) + "'");
     }
     const std::optional<double> t = parse_cell(cells[0]);
     const std::optional<double> v = parse_cell(cells[1]);
     if (!t || !v) {
-      throw ConfigError(row_at + "expected 'time_s,value' (two numbers), got '" + line + "'");
+      throw ConfigError(row_at + "expected 'time_s,value' (two numbers), got '" + common::excerpt(line) + "'");
     }
     add_point(p, *t, *v, limits, row_at);
   }
