@@ -4,14 +4,18 @@
 //   pmsm-dbc-gen --node 3 --dbc axis3.dbc         the DBC of another node
 //   pmsm-dbc-gen --dbc can/pmsm-thermal.dbc --docs docs/protocol.md
 //   pmsm-dbc-gen --check --dbc ... --docs ...     exit 1 if a file is out of date
+#include <cerrno>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
+#include <filesystem>
 #include <fstream>
 #include <iostream>
 #include <optional>
 #include <sstream>
 #include <string>
 #include <string_view>
+#include <system_error>
 
 #include "pmsm/tools/dbc_writer.hpp"
 
@@ -24,13 +28,25 @@ constexpr std::string_view kUsage =
     "  --docs FILE  rewrite the generated section of FILE (docs/protocol.md)\n"
     "  --check      compare instead of writing; exit status 1 if a file differs\n";
 
-std::optional<std::string> read_file(const std::string& path) {
+// The file's text, or nullopt with `error` saying why (a directory is named as one: an ifstream
+// opens it and reads nothing).
+std::optional<std::string> read_file(const std::string& path, std::string& error) {
+  std::error_code ec;
+  if (std::filesystem::is_directory(path, ec)) {
+    error = "is a directory, not a file";
+    return std::nullopt;
+  }
   std::ifstream in(path, std::ios::binary);
   if (!in) {
+    error = std::strerror(errno);
     return std::nullopt;
   }
   std::ostringstream buffer;
   buffer << in.rdbuf();
+  if (in.bad()) {
+    error = "cannot read it";
+    return std::nullopt;
+  }
   return buffer.str();
 }
 
@@ -43,8 +59,13 @@ bool write_file(const std::string& path, const std::string& text) {
 // Writes or checks one file; returns false on a difference (check) or an error.
 bool emit(const std::string& path, const std::string& wanted, bool check) {
   if (check) {
-    const std::optional<std::string> current = read_file(path);
-    if (!current || *current != wanted) {
+    std::string error;
+    const std::optional<std::string> current = read_file(path, error);
+    if (!current) {
+      std::cerr << "pmsm-dbc-gen: cannot check " << path << ": " << error << "\n";
+      return false;
+    }
+    if (*current != wanted) {
       std::cerr << "pmsm-dbc-gen: " << path << " is out of date; regenerate with pmsm-dbc-gen\n";
       return false;
     }
@@ -99,6 +120,10 @@ int main(int argc, char** argv) {
 
   const std::string dbc = pmsm::hal::protocol::generate_dbc(static_cast<pmsm::hal::protocol::NodeId>(node));
   if (dbc_path.empty() && docs_path.empty()) {
+    if (check) {
+      std::cerr << "pmsm-dbc-gen: --check compares files: give --dbc FILE, --docs FILE or both\n" << kUsage;
+      return 2;
+    }
     std::cout << dbc;
     return 0;
   }
@@ -107,9 +132,10 @@ int main(int argc, char** argv) {
     ok = emit(dbc_path, dbc, check) && ok;
   }
   if (!docs_path.empty()) {
-    const std::optional<std::string> document = read_file(docs_path);
+    std::string error;
+    const std::optional<std::string> document = read_file(docs_path, error);
     if (!document) {
-      std::cerr << "pmsm-dbc-gen: cannot read " << docs_path << "\n";
+      std::cerr << "pmsm-dbc-gen: cannot read " << docs_path << ": " << error << "\n";
       return 1;
     }
     try {
