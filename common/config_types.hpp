@@ -37,7 +37,6 @@ struct ValueRange {
   [[nodiscard]] std::string describe() const;
 };
 
-[[nodiscard]] inline ValueRange any_number() { return {}; }
 [[nodiscard]] inline ValueRange positive(double hi = std::numeric_limits<double>::infinity()) {
   return {0.0, hi, true};
 }
@@ -73,7 +72,7 @@ inline std::string ValueRange::describe() const {
   } else if (has_hi) {
     std::snprintf(buffer, sizeof buffer, "<= %g", hi);
   } else {
-    return "any number";
+    return "a finite number";
   }
   return buffer;
 }

@@ -806,15 +806,23 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
     smallest_level = std::min(smallest_level, d.injection.levels[static_cast<std::size_t>(k)]);
   }
   if (d.injection.f_min_A > d.injection.f_A * smallest_level) {
+    const std::string_view l = lead("injection.F_min_A", "injection.F_A");
     rule("injection.F_min_A", "injection.F_A",
-         "injection.F_min_A must not exceed injection.F_A times the smallest of injection.levels");
+         ref("injection.F_min_A", d.injection.f_min_A, "A", l) + " must not exceed " +
+             ref("injection.F_A", d.injection.f_A, "A", l) + " times the smallest of injection.levels (" +
+             common::format_number(smallest_level) + ")");
   }
   if (d.injection.f_min_A > c.calibration_f_A * 0.4) {
+    const std::string_view l = lead("injection.F_min_A", "calibration.F_A");
     rule("injection.F_min_A", "calibration.F_A",
-         "injection.F_min_A must not exceed 0.4 calibration.F_A (the calibration's smaller level)");
+         ref("injection.F_min_A", d.injection.f_min_A, "A", l) + " must not exceed 0.4 " +
+             ref("calibration.F_A", c.calibration_f_A, "A", l) + " (the calibration's smaller level)");
   }
   if (d.injection.settle_s + 2.0 * d.period_s > d.injection.record_time_s) {
-    rule("injection.record_time_s", "injection.settle_s", "injection.record_time_s must be longer than injection.settle_s");
+    const std::string_view l = lead("injection.record_time_s", "injection.settle_s");
+    rule("injection.record_time_s", "injection.settle_s",
+         ref("injection.record_time_s", d.injection.record_time_s, "s", l) + " must be longer than " +
+             ref("injection.settle_s", d.injection.settle_s, "s", l) + " by two control periods");
   }
   {
     // A recording must fit the recorder (preallocated): the longest asked for, in whole turns

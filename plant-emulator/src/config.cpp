@@ -492,21 +492,30 @@ void check_rules(const PlantConfig& c, Fail&& fail) {
     // inductance (the saturated ones where saturation is on) and the resistance doubled, as a
     // copper winding has it near 280 C: a 400 ohm winding on the reference's 0.4 mH ran away
     // to 78 million C, 0.1 nH gave NaN currents.
-    double l_min = std::min(c.motor.ld_H, c.motor.lq_H);
+    std::pair<std::string_view, double> l_min{"motor.ld_H", c.motor.ld_H};
+    const auto smaller = [&](std::string_view key, double l) {
+      if (l < l_min.second) {
+        l_min = {key, l};
+      }
+    };
+    smaller("motor.lq_H", c.motor.lq_H);
     if (c.saturation.enabled) {
-      l_min = std::min({l_min, c.saturation.ld_sat_H, c.saturation.lq_sat_H});
+      smaller("saturation.ld_sat_H", c.saturation.ld_sat_H);
+      smaller("saturation.lq_sat_H", c.saturation.lq_sat_H);
     }
-    const double tau_s = l_min / (2.0 * c.motor.rs_ohm);
+    const double tau_s = l_min.second / (2.0 * c.motor.rs_ohm);
     const double h_s = 1.0 / (c.inverter.pwm_frequency_Hz * c.simulation.substeps);
     if (!(h_s <= 0.5 * tau_s)) {
       const double needed = std::ceil(2.0 / (tau_s * c.inverter.pwm_frequency_Hz));
-      fail("motor.rs_ohm",
-           fmt::format("the winding's electrical time constant, the smallest inductance over twice motor.rs_ohm, "
-                       "{:.3g} s, is shorter than two integration steps (1 / (inverter.pwm_frequency_Hz x "
-                       "simulation.substeps) = {:.3g} s): the model would diverge; check motor.rs_ohm ({}) and the "
-                       "inductances, or raise simulation.substeps to {}",
-                       tau_s, h_s, c.motor.rs_ohm,
-                       needed <= 64.0 ? fmt::format("{:.0f}", needed) : std::string("its 64 and lower the PWM period")));
+      // Located at the resistance where it left its default, else at the inductance.
+      const bool resistance_moved = c.motor.rs_ohm != PlantConfig{}.motor.rs_ohm;
+      fail(resistance_moved ? std::string_view("motor.rs_ohm") : l_min.first,
+           fmt::format("the winding's electrical time constant, the smallest inductance ({} = {} H) over twice "
+                       "motor.rs_ohm ({} ohm), {:.3g} s, is shorter than two integration steps (1 / "
+                       "(inverter.pwm_frequency_Hz x simulation.substeps) = {:.3g} s): the model would diverge; check "
+                       "the resistance and the inductances, or raise simulation.substeps to {}",
+                       l_min.first, common::format_number(l_min.second), common::format_number(c.motor.rs_ohm), tau_s,
+                       h_s, needed <= 64.0 ? fmt::format("{:.0f}", needed) : std::string("its 64 and lower the PWM period")));
     }
   }
   const double half_period_s = 0.5 / c.inverter.pwm_frequency_Hz;

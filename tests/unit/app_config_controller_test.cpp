@@ -203,9 +203,11 @@ TEST(ControllerConfig, CrossKeyRulesNameBothKeys) {
   EXPECT_EQ(error_of("[derating]\nmax_current_A = 250\n"),
             "drive.toml:2: derating.max_current_A (250 A) must be below sensors.current_range_A (200 A, its default)");
   EXPECT_EQ(error_of("[injection]\nF_A = 4\n"),
-            "drive.toml:2: injection.F_min_A must not exceed injection.F_A times the smallest of injection.levels");
+            "drive.toml:2: injection.F_min_A (5 A, its default) must not exceed injection.F_A (4 A) times the smallest "
+            "of injection.levels (0.4)");
   EXPECT_EQ(error_of("[injection]\nsettle_s = 0.05\n"),
-            "drive.toml:2: injection.record_time_s must be longer than injection.settle_s");
+            "drive.toml:2: injection.record_time_s (0.05 s, its default) must be longer than injection.settle_s (0.05 s) "
+            "by two control periods");
   EXPECT_EQ(error_of("[injection]\nfield_weakening_record_min_time_s = 0.7\n"),
             "drive.toml:2: recordings of up to 0.909 s (the longest of injection.record_time_s, record_min_time_s and "
             "field_weakening_record_min_time_s, plus one turn at injection.min_speed_for_angle_rad_s) do not fit the "

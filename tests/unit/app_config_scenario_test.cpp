@@ -91,6 +91,8 @@ TEST(Scenario, DevicesAndDirectoriesAreNotConfigurationFiles) {
   EXPECT_EQ(inline_error("[scenario]\nbase = \"/dev/zero\"\n"),
             path_of("inline.toml") + ":2: scenario.base: /dev/zero: scenario: is not a regular file");
   EXPECT_EQ(inline_error("[scenario]\nbase = \"/\"\n"), path_of("inline.toml") + ":2: scenario.base: /: scenario: is a directory");
+  EXPECT_EQ(inline_error("[operation]\nspeed_rad_s = [[0, 1]]\n[plant]\nprofile = \"nope.toml\"\n"),
+            path_of("inline.toml") + ":4: plant.profile: " + path_of("nope.toml") + ": plant profile: no such file");
   EXPECT_EQ(inline_error("[operation]\nspeed_csv = \"/dev/zero\"\n"),
             path_of("inline.toml") + ":2: operation.speed_csv: /dev/zero: CSV: is not a regular file");
 }

@@ -285,7 +285,7 @@ TEST(ValueRange, Describe) {
   EXPECT_EQ(positive().describe(), "> 0");
   EXPECT_EQ(at_least(2.0).describe(), ">= 2");
   EXPECT_EQ(between(-1.0, 1.0).describe(), "in [-1, 1]");
-  EXPECT_EQ(ValueRange{}.describe(), "any number");
+  EXPECT_EQ(ValueRange{}.describe(), "a finite number");  // NaN and inf never pass
   EXPECT_FALSE(positive().contains(0.0));
   EXPECT_TRUE(positive().contains(1e-300));
   EXPECT_TRUE(at_least(2.0).contains(2.0));

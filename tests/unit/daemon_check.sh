@@ -58,7 +58,7 @@ for want in 'supervisor.overcurrent_A (5000 A) must be below' 'gpio.fault_line n
 done
 check_bad '[controller.derating]\nstart_C = 200\nlimit_C = 150\n[controller.injection]\nrecord_time_s = 0.01\nsettle_s = 0.5\n' 1 'controller.derating.start_C (200 C) must be below controller.derating.limit_C (150 C, '
 out=$("$exe" --config "$dir/bad.toml" --check 2>&1)
-if [[ "$out" != *'injection.record_time_s must be longer'* ]]; then
+if [[ "$out" != *'controller.injection.record_time_s (0.01 s) must be longer than controller.injection.settle_s (0.5 s'* ]]; then
   echo "FAIL: the second broken drive rule is missing: $out"; fail=1
 fi
 if "$exe" --config "$dir/missing.toml" --check >/dev/null 2>&1; then

@@ -36,6 +36,12 @@ TEST(plant_config, TheWindingsTimeConstantMustSpanTwoIntegrationSteps) {
   EXPECT_NE(runaway.find("raise simulation.substeps to 8"), std::string::npos) << runaway;
   const std::string tiny = error_of("[motor]\nld_H = 1e-10\n[saturation]\nenabled = false\n");
   EXPECT_NE(tiny.find("raise simulation.substeps to its 64 and lower the PWM period"), std::string::npos) << tiny;
+  // At the inductance's line, the resistance being its default, and naming the inductance.
+  EXPECT_EQ(tiny.rfind("test.toml:2: motor.ld_H: the winding's electrical time constant, the smallest inductance "
+                       "(motor.ld_H = 1e-10 H) over twice motor.rs_ohm (0.133 ohm)",
+                       0),
+            0U)
+      << tiny;
   // 0.3 mH over twice 1 ohm is 0.15 ms: not two 100 us steps, but two 50 us substeps.
   const std::string fast = "[motor]\nrs_ohm = 1.0\nld_H = 0.3e-3\nlq_H = 0.3e-3\n[saturation]\nenabled = false\n";
   const std::string one_step = error_of(fast);

@@ -237,7 +237,14 @@ plant::PlantConfig load_plant(const toml::table& root, const std::filesystem::pa
   if (plant_table != nullptr) {
     if (const auto profile = (*plant_table)["profile"].value<std::string>()) {
       const std::filesystem::path profile_path = dir / *profile;
-      const std::string text = common::read_config_file(profile_path, "plant profile");
+      std::string text;
+      try {
+        text = common::read_config_file(profile_path, "plant profile");
+      } catch (const ConfigError& e) {
+        // Named at the scenario's line that asks for it (it said "nope.toml: plant profile: no
+        // such file", neither the key nor where).
+        throw ConfigError(where(*(*plant_table).get("profile"), source.string(), "plant.profile") + e.what());
+      }
       // The profile on its own first, so its own mistakes are reported with its own lines.
       (void)plant::parse_plant_config(text, profile_path.string(), profile_path.parent_path());
       merged = toml::parse(text, profile_path.string());
