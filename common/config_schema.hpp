@@ -14,6 +14,7 @@
 #include <toml++/toml.h>
 
 #include "config_types.hpp"
+#include "text_file.hpp"
 
 #include <algorithm>
 #include <array>
@@ -38,30 +39,11 @@ namespace pmsm::common {
 // (/dev/zero would be read forever) or a file beyond 256 MiB (hours of a 1 kHz drive cycle
 // fit) is a ConfigError naming the path, never a hang or an exhausted memory. `what` names the file's role ("plant profile").
 inline std::string read_config_file(const std::filesystem::path& path, std::string_view what) {
-  constexpr std::uintmax_t kMaxBytes = 256U << 20U;
-  const std::string prefix = path.string() + ": " + std::string(what) + ": ";
-  std::error_code ec;
-  const std::filesystem::file_status status = std::filesystem::status(path, ec);
-  if (status.type() == std::filesystem::file_type::not_found) {
-    throw ConfigError(prefix + "no such file");
+  std::string text;
+  if (const std::string problem = read_text_file(path, text); !problem.empty()) {
+    throw ConfigError(path.string() + ": " + std::string(what) + ": " + problem);
   }
-  if (ec) {
-    throw ConfigError(prefix + "cannot read (" + ec.message() + ")");
-  }
-  if (status.type() != std::filesystem::file_type::regular) {
-    throw ConfigError(prefix + (status.type() == std::filesystem::file_type::directory ? "is a directory" : "is not a regular file"));
-  }
-  const std::uintmax_t bytes = std::filesystem::file_size(path, ec);
-  if (!ec && bytes > kMaxBytes) {
-    throw ConfigError(prefix + "is " + std::to_string(bytes) + " bytes, more than any configuration (256 MiB)");
-  }
-  std::ifstream in(path, std::ios::binary);
-  if (!in) {
-    throw ConfigError(prefix + "cannot read (permissions?)");
-  }
-  std::ostringstream text;
-  text << in.rdbuf();
-  return text.str();
+  return text;
 }
 
 // "file:line: " of a node: the file it came from (a scenario may inherit keys from a base

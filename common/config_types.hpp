@@ -45,6 +45,11 @@ struct ValueRange {
 }
 [[nodiscard]] inline ValueRange between(double lo, double hi) { return {lo, hi, false}; }
 
+// The largest stator resistance any configuration, stored calibration or planning option
+// accepts: one bound, so that a motor the drive's configuration takes can reload the
+// calibration it stored (the file's was 10 ohm, the keys' 100) and the plant takes it too.
+inline constexpr double kMaxStatorResistance_ohm = 100.0;
+
 // "%g" of a number, as every message and table prints it.
 [[nodiscard]] inline std::string format_number(double v) {
   char buffer[32];

@@ -56,15 +56,15 @@ const ConfigSchema<D>& schema() {
     c.boolean("gpio.fault_active_low", [](D& d) -> bool& { return d.gpio.fault_active_low; }, "The fault input is active low.");
     // [publish]
     c.real("publish.thermal_estimate_s", [](D& d) -> double& { return d.publish.thermal_estimate_s; }, app::between(0, 3600), "s",
-           "THERMAL_ESTIMATE period (0: never).");
+           "THERMAL_ESTIMATE period, at least the control period (0: never).");
     c.real("publish.resistance_estimate_s", [](D& d) -> double& { return d.publish.resistance_estimate_s; }, app::between(0, 3600), "s",
-           "RESISTANCE_ESTIMATE period, besides one per new estimate (0: only new estimates).");
+           "RESISTANCE_ESTIMATE period, at least the control period, besides one per new estimate (0: only new estimates).");
     c.real("publish.drive_status_s", [](D& d) -> double& { return d.publish.drive_status_s; }, app::between(0, 3600), "s",
-           "DRIVE_STATUS period (0: never).");
+           "DRIVE_STATUS period, at least the control period (0: never).");
     c.real("publish.heartbeat_s", [](D& d) -> double& { return d.publish.heartbeat_s; }, app::between(0, 3600), "s",
-           "HEARTBEAT period (0: never).");
+           "HEARTBEAT period, at least the control period (0: never).");
     c.real("publish.fault_repeat_s", [](D& d) -> double& { return d.publish.fault_repeat_s; }, app::between(0, 3600), "s",
-           "Latched faults are repeated this often, besides one FAULT frame per change (0: changes only).");
+           "Latched faults are repeated this often (at least the control period), besides one FAULT frame per change (0: changes only).");
     c.real("publish.stale_after_s", [](D& d) -> double& { return d.publish.stale_after_s; }, app::between(0.1, 1e6), "s",
            "THERMAL_ESTIMATE says stale when no resistance estimate was accepted for this long.");
     // [supervisor]
@@ -215,7 +215,7 @@ std::string check_cross_keys(const DaemonConfig& c, const toml::table& root, con
                                      {"publish.fault_repeat_s", c.publish.fault_repeat_s}}) {
     if (every_s > 0.0 && every_s < c.controller.drive.period_s) {
       rule(fmt::format("{} ({} s) is shorter than the control period controller.control.period_s ({} s): the drive "
-                       "publishes once a period at most (0: never)",
+                       "publishes once a period at most (0 turns the periodic frames off)",
                        key, common::format_number(every_s), common::format_number(c.controller.drive.period_s)));
     }
   }

@@ -1,5 +1,8 @@
 #include "calibration_file.hpp"
 
+#include "config_types.hpp"
+#include "text_file.hpp"
+
 #include <fcntl.h>
 #include <sys/stat.h>
 #include <unistd.h>
@@ -243,23 +246,13 @@ namespace {
 // Parses a stored file strictly: TOML, only the known keys, the supported format.
 toml::table read_stored(const std::filesystem::path& path, const std::set<std::string, std::less<>>& known) {
   const std::string file = path.string();
-  std::error_code ec;
-  if (std::filesystem::is_directory(path, ec)) {
-    // (An ifstream opens a directory and reads nothing: "format: missing" said nothing useful.)
-    throw CalibrationFileError(fmt::format("{}: is a directory, not a file", file));
-  }
-  std::ifstream in(path, std::ios::binary);
-  if (!in) {
-    throw CalibrationFileError(fmt::format("{}: cannot open: {}", file, errno_text(errno)));
-  }
-  std::ostringstream buffer;
-  buffer << in.rdbuf();
-  if (in.bad()) {
-    throw CalibrationFileError(fmt::format("{}: cannot read: {}", file, errno_text(errno)));
+  std::string text;
+  if (const std::string problem = common::read_text_file(path, text); !problem.empty()) {
+    throw CalibrationFileError(fmt::format("{}: {}", file, problem));
   }
   toml::table t;
   try {
-    t = toml::parse(buffer.str(), file);
+    t = toml::parse(text, file);
   } catch (const toml::parse_error& e) {
     throw CalibrationFileError(fmt::format("{}:{}: {}", file, e.source().begin.line, e.description()));
   }
@@ -290,7 +283,7 @@ core::Calibration read_calibration_file(const std::filesystem::path& path) {
     }
   }
   core::Calibration c;
-  c.rs0_ohm = number(t, "rs0_ohm", file, 0.0, kMaxResistance_ohm, true);
+  c.rs0_ohm = number(t, "rs0_ohm", file, 0.0, common::kMaxStatorResistance_ohm, true);
   c.t0_C = number(t, "t0_C", file, -50.0, 200.0, false);
   c.ke0_V_s_per_rad = t.get("ke0_V_s_per_rad") != nullptr ? number(t, "ke0_V_s_per_rad", file, 0.0, 100.0, false) : 0.0;
   c.ke0_std_V_s_per_rad =

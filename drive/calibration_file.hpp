@@ -28,11 +28,6 @@
 
 namespace pmsm::app {
 
-// The largest stator resistance a configuration (motor.rs_ohm, calibration.rs0_ohm) and a
-// stored calibration (rs0_ohm) accept: one bound, so that a motor the configuration takes can
-// reload the calibration it stored (the file's was 10 ohm, the keys' 100).
-inline constexpr double kMaxResistance_ohm = 100.0;
-
 class CalibrationFileError : public std::runtime_error {
  public:
   using std::runtime_error::runtime_error;

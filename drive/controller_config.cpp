@@ -27,7 +27,7 @@ using C = ControllerConfig;
 ConfigSchema<C> build() {
   ConfigSchema<C> s;
   // [motor] — the controller's commissioned model of the machine.
-  s.real("motor.rs_ohm", [](C& c) -> double& { return c.drive.motor.rs_ohm; }, positive(kMaxResistance_ohm), "ohm",
+  s.real("motor.rs_ohm", [](C& c) -> double& { return c.drive.motor.rs_ohm; }, positive(common::kMaxStatorResistance_ohm), "ohm",
          "Nameplate phase-to-neutral resistance at motor.rs_reference_temp_C; the temperature scale until a calibration replaces it.");
   s.real("motor.rs_reference_temp_C", [](C& c) -> double& { return c.drive.motor.rs_reference_temp_C; }, between(-50, 200), "C",
          "Temperature at which motor.rs_ohm holds (T0 of Eq. 1).");
@@ -315,7 +315,7 @@ ConfigSchema<C> build() {
   s.real("thermal.gate_sigma", [](C& c) -> double& { return c.drive.thermal.gate_sigma; }, positive(1000), "",
          "A measurement further than this many sigma from the prediction is gated out.");
   // [calibration]
-  s.real("calibration.rs0_ohm", [](C& c) -> double& { return c.drive.calibration.rs0_ohm; }, positive(kMaxResistance_ohm), "ohm",
+  s.real("calibration.rs0_ohm", [](C& c) -> double& { return c.drive.calibration.rs0_ohm; }, positive(common::kMaxStatorResistance_ohm), "ohm",
          "Rs0 of a stored calibration (defaults to motor.rs_ohm).");
   s.real("calibration.t0_C", [](C& c) -> double& { return c.drive.calibration.t0_C; }, between(-50, 200), "C", "T0 of that calibration.");
   s.real("calibration.ke0_V_s_per_rad", [](C& c) -> double& { return c.drive.calibration.ke0_V_s_per_rad; }, at_least(0, 100), "V s/rad",
@@ -551,7 +551,8 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
       const std::filesystem::path cb = std::filesystem::weakly_canonical(b, ec_b);
       return ec_a || ec_b ? a == b : ca == cb;
     };
-    const std::string config_file = std::filesystem::absolute(source).lexically_normal().string();
+    const std::string config_file =
+        source.empty() ? std::string() : std::filesystem::absolute(source).lexically_normal().string();
     std::string prefixed_cal{key_prefix};
     prefixed_cal += "calibration.file";
     std::string prefixed_state{key_prefix};
@@ -568,7 +569,7 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
     for (const auto& [key, prefixed, file] : {std::tuple<std::string_view, const std::string&, const std::string&>{
                                                   "calibration.file", prefixed_cal, c.calibration_file},
                                               {"thermal.state_file", prefixed_state, c.thermal_state_file}}) {
-      if (!file.empty() && same(file, config_file)) {
+      if (!file.empty() && !config_file.empty() && same(file, config_file)) {
         std::string text = prefixed;
         text += " names this configuration file itself (";
         text += file;

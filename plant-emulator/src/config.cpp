@@ -61,7 +61,7 @@ common::ConfigSchema<PlantConfig> build_schema() {
     integer("motor.pole_pairs", PMSM_MEMBER(motor.pole_pairs), closed(1, 64),
                         "Pole pairs p (Table I: 3).");
     // The drive's configuration takes the same ranges (drive/controller_config.cpp).
-    real("motor.rs_ohm", PMSM_MEMBER(motor.rs_ohm), positive(100.0),
+    real("motor.rs_ohm", PMSM_MEMBER(motor.rs_ohm), positive(common::kMaxStatorResistance_ohm),
                      "Phase-to-neutral stator resistance Rs0 at rs_reference_temp_C (Table I: "
                      "0.133 Ω at 25 °C).");
     real("motor.rs_reference_temp_C", PMSM_MEMBER(motor.rs_reference_temp_C), closed(-50, 250),
@@ -449,9 +449,10 @@ void load_drive_cycle_csv(const std::filesystem::path& path, LoadConfig& load,
 
 namespace {
 
-// The cross-field rules; `fail(key, message)` throws.
-template <typename Fail>
-void check_rules(const PlantConfig& c, Fail&& fail) {
+// The cross-field rules; `fail(key, message)` throws; `given(key)` says whether the file gives
+// the key (false for a configuration built in code), for a rule that may lie at either of two.
+template <typename Fail, typename Given>
+void check_rules(const PlantConfig& c, Fail&& fail, Given&& given) {
   if (c.saturation.enabled && c.saturation.ld_sat_H > c.motor.ld_H) {
     fail("saturation.ld_sat_H", fmt::format("must be <= motor.ld_H ({}), got {}", c.motor.ld_H,
                                             c.saturation.ld_sat_H));
@@ -507,9 +508,10 @@ void check_rules(const PlantConfig& c, Fail&& fail) {
     const double h_s = 1.0 / (c.inverter.pwm_frequency_Hz * c.simulation.substeps);
     if (!(h_s <= 0.5 * tau_s)) {
       const double needed = std::ceil(2.0 / (tau_s * c.inverter.pwm_frequency_Hz));
-      // Located at the resistance where it left its default, else at the inductance.
-      const bool resistance_moved = c.motor.rs_ohm != PlantConfig{}.motor.rs_ohm;
-      fail(resistance_moved ? std::string_view("motor.rs_ohm") : l_min.first,
+      // At the inductance's line where the file gives it and not the resistance, else at the
+      // resistance's.
+      const bool at_inductance = given(l_min.first) && !given("motor.rs_ohm");
+      fail(at_inductance ? l_min.first : std::string_view("motor.rs_ohm"),
            fmt::format("the winding's electrical time constant, the smallest inductance ({} = {} H) over twice "
                        "motor.rs_ohm ({} ohm), {:.3g} s, is shorter than two integration steps (1 / "
                        "(inverter.pwm_frequency_Hz x simulation.substeps) = {:.3g} s): the model would diverge; check "
@@ -548,9 +550,9 @@ const common::ConfigSchema<PlantConfig>& plant_schema() {
 void validate_plant_config(const PlantConfig& c) {
   // The ranges of the key table hold for configs built in code too.
   plant_schema().validate(c, "");
-  check_rules(c, [](std::string_view key, const std::string& message) {
-    throw ConfigError(fmt::format("{}: {}", key, message));
-  });
+  check_rules(
+      c, [](std::string_view key, const std::string& message) { throw ConfigError(fmt::format("{}: {}", key, message)); },
+      [](std::string_view) { return false; });
 }
 
 PlantConfig parse_plant_config(std::string_view toml_text, std::string_view source_name,
@@ -600,9 +602,9 @@ PlantConfig parse_plant_config(std::string_view toml_text, std::string_view sour
   }
 
   plant_schema().validate(config, source_name);
-  check_rules(config, [&](std::string_view key, const std::string& message) {
-    throw ConfigError(at(key) + message);
-  });
+  check_rules(
+      config, [&](std::string_view key, const std::string& message) { throw ConfigError(at(key) + message); },
+      [&](std::string_view key) { return static_cast<bool>(root.at_path(key)); });
   return config;
 }
 

@@ -18,9 +18,9 @@ expect() {
 }
 "$exe" --check --dbc "$src/can/pmsm-thermal.dbc" --docs "$src/docs/protocol.md" > "$work/out" 2>&1 ||
   fail "the committed DBC and docs are not what the generator writes"
-expect 1 "pmsm-dbc-gen: cannot check $work/absent.dbc: No such file or directory" --check --dbc "$work/absent.dbc"
-expect 1 "pmsm-dbc-gen: cannot check $work: is a directory, not a file" --check --dbc "$work"
-expect 1 "pmsm-dbc-gen: cannot read $work: is a directory, not a file" --docs "$work"
+expect 1 "pmsm-dbc-gen: cannot check $work/absent.dbc: no such file" --check --dbc "$work/absent.dbc"
+expect 1 "pmsm-dbc-gen: cannot check $work: is a directory" --check --dbc "$work"
+expect 1 "pmsm-dbc-gen: cannot read $work: is a directory" --docs "$work"
 expect 2 "pmsm-dbc-gen: --check compares files: give --dbc FILE, --docs FILE or both" --check
 printf 'old\n' > "$work/stale.dbc"
 expect 1 "pmsm-dbc-gen: $work/stale.dbc is out of date" --check --dbc "$work/stale.dbc"

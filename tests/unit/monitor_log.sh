@@ -79,7 +79,9 @@ grep -q "^node  0 " "$work/out" && grep -q "^node  3 " "$work/out" || fail "with
 refused() {  # refused EXPECTED_TEXT ARGS...
   local want=$1
   shift
-  if "$exe" monitor "$@" > "$work/out" 2>&1; then fail "monitor $* exited 0"; fi
+  local status=0
+  "$exe" monitor "$@" > "$work/out" 2>&1 || status=$?
+  [ "$status" -eq 2 ] || fail "monitor $*: exit $status, expected 2"
   grep -qF -- "$want" "$work/out" || fail "monitor $*: no '$want'"
 }
 refused "monitor: '$work' is a directory, not a file" --log "$work"

@@ -27,7 +27,7 @@ namespace {
 // Upper bounds of the planning options: generous for any industrial PMSM, finite so that no
 // answer is printed as inf or nan.
 constexpr double kMaxInductance_H = 10.0;
-constexpr double kMaxResistance_ohm = 1000.0;
+constexpr double kMaxResistance_ohm = common::kMaxStatorResistance_ohm;  // the configurations' bound
 constexpr double kMaxWindow_s = 10.0;
 constexpr double kMaxVoltage_V = 100e3;
 constexpr double kMaxCurrent_A = 100e3;

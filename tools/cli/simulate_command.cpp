@@ -180,6 +180,9 @@ int run_simulate(const SimulateOptions& o) {
     } catch (const ConfigError& e) {  // the plant's, the controller's and the scenario's alike
       std::fprintf(stderr, "simulate: %s\n", e.what());
       unusable = true;
+    } catch (const std::exception& e) {  // not one of the documented failures: say so
+      std::fprintf(stderr, "simulate: %s: %s\n", o.scenario_paths[k].c_str(), e.what());
+      unusable = true;
     }
   }
   if (unusable) {
@@ -195,11 +198,16 @@ int run_simulate(const SimulateOptions& o) {
     for (std::size_t k = 0; k < n; ++k) {
       const std::string& path = o.scenario_paths[k];
       const ControllerConfig& controller = scenarios[k].controller;
-      for (const std::string& file : {controller.calibration_file, controller.thermal_state_file}) {
+      for (const std::string* file_ptr : {&controller.calibration_file, &controller.thermal_state_file}) {
+        const std::string& file = *file_ptr;
         if (file.empty()) {
           continue;
         }
-        const std::filesystem::path key = std::filesystem::weakly_canonical(file);
+        std::error_code ec;
+        std::filesystem::path key = std::filesystem::weakly_canonical(file, ec);
+        if (ec) {
+          key = std::filesystem::path(file).lexically_normal();
+        }
         const auto [it, inserted] = owner.emplace(key, path);
         if (!inserted && it->second != path) {
           std::fprintf(stderr,

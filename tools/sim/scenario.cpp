@@ -196,7 +196,7 @@ ConfigSchema<S> build_schema() {
            [](S& c, int v) { c.mode = static_cast<core::DriveMode>(v); }, "Speed or torque control.");
   s.boolean("operation.calibrate", [](S& c) -> bool& { return c.calibrate; },
             "Calibrate Rs0 (and Ke0) at the start, when the winding is known to be at ambient.");
-  s.real("operation.calibrate_at_s", [](S& c) -> double& { return c.calibrate_at_s; }, at_least(0), "s", "When to start the calibration.");
+  s.real("operation.calibrate_at_s", [](S& c) -> double& { return c.calibrate_at_s; }, at_least(0), "s", "When to start the calibration (with operation.calibrate): before scenario.duration_s.");
   s.boolean("operation.calibration_real_time", [](S& c) -> bool& { return c.calibration_real_time; },
             "Run the calibration at real thermal time (no test acceleration), as on a machine; for the plant and the "
             "drive alike (it replaces the drive's controller.thermal.calibration_real_time).");
@@ -270,7 +270,13 @@ plant::PlantConfig load_plant(const toml::table& root, const std::filesystem::pa
     static const std::regex key_pattern(R"(: ([a-z_]+(?:\.[A-Za-z0-9_]+)*): (.*)$)");
     std::smatch m;
     if (plant_table != nullptr && std::regex_search(message, m, key_pattern)) {
-      const auto node = plant_table->at_path(m[1].str());
+      auto node = plant_table->at_path(m[1].str());
+      // A rule between keys may name one the profile gives and involve one the scenario
+      // overrides: the line is the first key of the message the scenario gives.
+      static const std::regex any_key(R"([a-z_]+\.[A-Za-z0-9_]+)");
+      for (auto k = std::sregex_iterator(message.begin(), message.end(), any_key); !node && k != std::sregex_iterator(); ++k) {
+        node = plant_table->at_path(k->str());
+      }
       if (node) {
         const auto& where = node.node()->source();
         const std::string file = where.path && !where.path->empty() ? *where.path : source.string();

@@ -18,6 +18,7 @@
 #include <system_error>
 
 #include "pmsm/tools/dbc_writer.hpp"
+#include "text_file.hpp"
 
 namespace {
 
@@ -26,28 +27,17 @@ constexpr std::string_view kUsage =
     "  --node N     node id 0..15 for the DBC's IDs (default 0, the committed file)\n"
     "  --dbc FILE   write the DBC to FILE (without --dbc/--docs: to stdout)\n"
     "  --docs FILE  rewrite the generated section of FILE (docs/protocol.md)\n"
-    "  --check      compare instead of writing; exit status 1 if a file differs\n";
+    "  --check      compare instead of writing\n"
+    "exit status: 0; 1 if a file differs or cannot be read or written; 2 for a bad command line\n";
 
-// The file's text, or nullopt with `error` saying why (a directory is named as one: an ifstream
-// opens it and reads nothing).
+// The file's text, or nullopt with `error` saying why (common::read_text_file).
 std::optional<std::string> read_file(const std::string& path, std::string& error) {
-  std::error_code ec;
-  if (std::filesystem::is_directory(path, ec)) {
-    error = "is a directory, not a file";
+  std::string text;
+  error = pmsm::common::read_text_file(path, text);
+  if (!error.empty()) {
     return std::nullopt;
   }
-  std::ifstream in(path, std::ios::binary);
-  if (!in) {
-    error = std::strerror(errno);
-    return std::nullopt;
-  }
-  std::ostringstream buffer;
-  buffer << in.rdbuf();
-  if (in.bad()) {
-    error = "cannot read it";
-    return std::nullopt;
-  }
-  return buffer.str();
+  return text;
 }
 
 bool write_file(const std::string& path, const std::string& text) {

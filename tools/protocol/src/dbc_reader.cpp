@@ -2,6 +2,8 @@
 // DBC format, not our messages (see dbc.hpp).
 #include "pmsm/tools/dbc.hpp"
 
+#include "text_file.hpp"
+
 #include <algorithm>
 #include <bit>
 #include <cctype>
@@ -791,18 +793,12 @@ int decimals_for(double step) {
 Database parse(std::string_view text) { return Parser(text).run(); }
 
 Database load(const std::filesystem::path& path) {
-  std::error_code ec;
-  if (std::filesystem::is_directory(path, ec)) {
-    throw ParseError(0, "is a directory, not a DBC file", path.string());  // an ifstream opens one
+  std::string text;
+  if (const std::string problem = common::read_text_file(path, text); !problem.empty()) {
+    throw ParseError(0, problem, path.string());
   }
-  std::ifstream in(path, std::ios::binary);
-  if (!in) {
-    throw ParseError(0, "cannot read the DBC file", path.string());
-  }
-  std::ostringstream buffer;
-  buffer << in.rdbuf();
   try {
-    return parse(buffer.str());
+    return parse(text);
   } catch (const ParseError& e) {
     throw ParseError(e.line(), e.message(), path.string());  // "file.dbc:12: message"
   }

@@ -1,0 +1,57 @@
+// Reading a whole text file the program was pointed at (a configuration, a stored calibration,
+// a DBC): what is wrong with the path is said in words, not read as an empty file. A directory
+// (an ifstream opens one and reads nothing), a device (/dev/zero would be read forever), a
+// file beyond any such file's size, and a read that fails part way are each refused.
+// Header only, standard library only.
+#pragma once
+
+#include <cerrno>
+#include <cstdint>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <string>
+#include <system_error>
+
+namespace pmsm::common {
+
+inline constexpr std::uintmax_t kMaxTextFileBytes = 256U << 20U;
+
+// Reads `path` into `text`; returns "" when it did, else what is wrong ("no such file", "is a
+// directory", ...), for the caller to put behind the path and what the file is.
+[[nodiscard]] inline std::string read_text_file(const std::filesystem::path& path, std::string& text) {
+  std::error_code ec;
+  const std::filesystem::file_status status = std::filesystem::status(path, ec);
+  if (status.type() == std::filesystem::file_type::not_found) {
+    return "no such file";
+  }
+  if (ec) {
+    return "cannot read (" + ec.message() + ")";
+  }
+  if (status.type() == std::filesystem::file_type::directory) {
+    return "is a directory";
+  }
+  if (status.type() != std::filesystem::file_type::regular) {
+    return "is not a regular file";
+  }
+  const std::uintmax_t bytes = std::filesystem::file_size(path, ec);
+  if (!ec && bytes > kMaxTextFileBytes) {
+    return "is " + std::to_string(bytes) + " bytes, more than any such file (256 MiB)";
+  }
+  std::ifstream in(path, std::ios::binary);
+  if (!in) {
+    return std::string("cannot read (") + std::strerror(errno) + ")";
+  }
+  text.clear();
+  char chunk[1U << 16U];
+  // read() sets badbit on a failed read (an inserter of rdbuf() would not tell it).
+  while (in.read(chunk, sizeof chunk) || in.gcount() > 0) {
+    text.append(chunk, static_cast<std::size_t>(in.gcount()));
+  }
+  if (in.bad()) {
+    return std::string("cannot read (") + std::strerror(errno) + ")";
+  }
+  return {};
+}
+
+}  // namespace pmsm::common
