@@ -553,28 +553,19 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
     };
     const std::string config_file =
         source.empty() ? std::string() : std::filesystem::absolute(source).lexically_normal().string();
-    std::string prefixed_cal{key_prefix};
-    prefixed_cal += "calibration.file";
-    std::string prefixed_state{key_prefix};
-    prefixed_state += "thermal.state_file";
+    const std::string cal_key = fmt::format("{}calibration.file", key_prefix);
+    const std::string state_key = fmt::format("{}thermal.state_file", key_prefix);
     if (!c.calibration_file.empty() && !c.thermal_state_file.empty() && same(c.calibration_file, c.thermal_state_file)) {
-      std::string text = prefixed_cal;
-      text += " and ";
-      text += prefixed_state;
-      text += " name the same file (";
-      text += c.calibration_file;
-      text += "): the thermal state written there would replace the calibration, and the next start would refuse it";
-      rule("thermal.state_file", "calibration.file", text);
+      rule("thermal.state_file", "calibration.file",
+           fmt::format("{} and {} name the same file ({}): the thermal state written there would replace the calibration, "
+                       "and the next start would refuse it",
+                       cal_key, state_key, c.calibration_file));
     }
     for (const auto& [key, prefixed, file] : {std::tuple<std::string_view, const std::string&, const std::string&>{
-                                                  "calibration.file", prefixed_cal, c.calibration_file},
-                                              {"thermal.state_file", prefixed_state, c.thermal_state_file}}) {
+                                                  "calibration.file", cal_key, c.calibration_file},
+                                              {"thermal.state_file", state_key, c.thermal_state_file}}) {
       if (!file.empty() && !config_file.empty() && same(file, config_file)) {
-        std::string text = prefixed;
-        text += " names this configuration file itself (";
-        text += file;
-        text += "): the drive would write over it";
-        rule(key, key, text);
+        rule(key, key, fmt::format("{} names this configuration file itself ({}): the drive would write over it", prefixed, file));
       }
     }
   }
