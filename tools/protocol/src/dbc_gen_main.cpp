@@ -4,18 +4,12 @@
 //   pmsm-dbc-gen --node 3 --dbc axis3.dbc         the DBC of another node
 //   pmsm-dbc-gen --dbc can/pmsm-thermal.dbc --docs docs/protocol.md
 //   pmsm-dbc-gen --check --dbc ... --docs ...     exit 1 if a file is out of date
-#include <cerrno>
 #include <cstdio>
 #include <cstdlib>
-#include <cstring>
-#include <filesystem>
 #include <fstream>
 #include <iostream>
-#include <optional>
-#include <sstream>
 #include <string>
 #include <string_view>
-#include <system_error>
 
 #include "pmsm/tools/dbc_writer.hpp"
 #include "text_file.hpp"
@@ -30,16 +24,6 @@ constexpr std::string_view kUsage =
     "  --check      compare instead of writing\n"
     "exit status: 0; 1 if a file differs or cannot be read or written; 2 for a bad command line\n";
 
-// The file's text, or nullopt with `error` saying why (common::read_text_file).
-std::optional<std::string> read_file(const std::string& path, std::string& error) {
-  std::string text;
-  error = pmsm::common::read_text_file(path, text);
-  if (!error.empty()) {
-    return std::nullopt;
-  }
-  return text;
-}
-
 bool write_file(const std::string& path, const std::string& text) {
   std::ofstream out(path, std::ios::binary | std::ios::trunc);
   out << text;
@@ -49,13 +33,12 @@ bool write_file(const std::string& path, const std::string& text) {
 // Writes or checks one file; returns false on a difference (check) or an error.
 bool emit(const std::string& path, const std::string& wanted, bool check) {
   if (check) {
-    std::string error;
-    const std::optional<std::string> current = read_file(path, error);
-    if (!current) {
-      std::cerr << "pmsm-dbc-gen: cannot check " << path << ": " << error << "\n";
+    std::string current;
+    if (const std::string problem = pmsm::common::read_text_file(path, current); !problem.empty()) {
+      std::cerr << "pmsm-dbc-gen: cannot check " << path << ": " << problem << "\n";
       return false;
     }
-    if (*current != wanted) {
+    if (current != wanted) {
       std::cerr << "pmsm-dbc-gen: " << path << " is out of date; regenerate with pmsm-dbc-gen\n";
       return false;
     }
@@ -122,14 +105,13 @@ int main(int argc, char** argv) {
     ok = emit(dbc_path, dbc, check) && ok;
   }
   if (!docs_path.empty()) {
-    std::string error;
-    const std::optional<std::string> document = read_file(docs_path, error);
-    if (!document) {
-      std::cerr << "pmsm-dbc-gen: cannot read " << docs_path << ": " << error << "\n";
+    std::string document;
+    if (const std::string problem = pmsm::common::read_text_file(docs_path, document); !problem.empty()) {
+      std::cerr << "pmsm-dbc-gen: cannot read " << docs_path << ": " << problem << "\n";
       return 1;
     }
     try {
-      ok = emit(docs_path, pmsm::hal::protocol::update_docs(*document), check) && ok;
+      ok = emit(docs_path, pmsm::hal::protocol::update_docs(document), check) && ok;
     } catch (const std::exception& e) {
       std::cerr << "pmsm-dbc-gen: " << docs_path << ": " << e.what() << "\n";
       return 1;
