@@ -86,7 +86,8 @@ DriveController::DriveController(const DriveConfig& config)
       scheduler_(config_.injection, config_.period_s, config_.recording_capacity),
       baseline_(config_.baseline),
       observer_(config_.thermal, config_.calibration, config_.calibration.t0_C, false),
-      derating_{config_.derating.max_current_A, false} {
+      derating_{config_.derating.max_current_A, false},
+      injection_current_limit_A_(config_.derating.max_current_A) {
   // DRIVE_STATUS reads the limit before the first thermal update sets it.
   telemetry_.current_limit_A = derating_.current_limit_A;
   // A stored calibration that measured the bridge replaces the configured band.
@@ -834,6 +835,14 @@ void DriveController::update_thermal(double ambient_C, bool speed_mode) {
   telemetry_.magnet_derating = magnet.derating;
   publish_magnet_std();
   derating_.current_limit_A = std::min(derating_.current_limit_A, magnet.current_limit_A);
+  // The winding's derating limits the motoring current, for its heat. A pair's pulses may reach
+  // past it, up to the drive's current limit: their heat is a small, modelled share (the
+  // injection loss, Eqs. 30-32), and a derated drive is the one that most needs to measure.
+  // Kept within the derated limit, every pair of a drive at its limit found no room, and the
+  // filter, blind while derating on T + k sigma with a growing sigma, held the current low for
+  // good (docs/estimator.md §2, the guards). The magnets' derating binds the pulses too: a -F pulse at hot
+  // magnets is the demagnetising current that limit is there for.
+  injection_current_limit_A_ = magnet.current_limit_A;
   telemetry_.thermal = e;
   telemetry_.thermal_valid = true;
   telemetry_.current_limit_A = derating_.current_limit_A;
@@ -1115,7 +1124,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   si.omega_e_rad_s = omega_e;
   si.motoring_ref_A = motoring;
   si.voltage_limit_V = current_.voltage_limit_V(in.vdc_V);
-  si.current_limit_A = derating_.current_limit_A;
+  si.current_limit_A = injection_current_limit_A_;
   si.rs_rate_ohm_per_s = rs_rate_ohm_per_s_;  // finite (update_thermal)
   si.enabled = enabled && config_.estimator == EstimatorKind::kInjection && !sweeping && !after_lost;
   if (calibrating_ && !sweeping && now - calibration_started_s_ > config_.calibration_timeout_s) {

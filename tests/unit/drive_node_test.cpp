@@ -1112,6 +1112,32 @@ TEST(DriveNode, TheMagnetEstimateDeratesTheCurrentLimitAndSaysSo) {
               1e-9);
 }
 
+// A drive derating on its winding's estimate still measures: the winding's limit binds the
+// motoring current, the pulses may reach the drive's own limit (docs/estimator.md §2, the
+// guards). Derated to 6 A under a 5 Nm load (iq about 4.5 A), F = 35 A found no room in the
+// derated limit (sqrt(6^2 - 4.5^2) = 4 A, below F_min = 5 A): every pair was
+// rejected_current_limit and the filter, blind, derated on a band that only grew.
+TEST(DriveNode, ADriveDeratingOnItsWindingStillMeasures) {
+  Rig rig;
+  core::DeratingConfig& d = rig.config.drive.derating;
+  d.derate_start_C = -60.0;  // derating from the first thermal update, at its floor
+  d.limit_C = -50.0;
+  d.min_current_A = 6.0;
+  rig.config.drive.injection.interval_s = 0.5;
+  rig.node = std::make_unique<DriveNode>(rig.config, rig.supervisor, PublishRates{});
+  rig.run(80000);  // 8 s
+  const auto& tel = rig.node->controller().telemetry();
+  ASSERT_TRUE(tel.derating);
+  EXPECT_EQ(tel.current_limit_A, d.min_current_A);
+  EXPECT_NEAR(rig.plant->truth().speed_rad_s, 50.0, 5.0) << "the drive holds its load within the derated limit";
+  const auto count = [&](core::PairOutcome o) { return tel.outcomes[static_cast<std::size_t>(o)]; };
+  EXPECT_EQ(count(core::PairOutcome::kRejectedCurrentLimit), 0U);
+  EXPECT_GE(count(core::PairOutcome::kAccepted), 8U);
+  EXPECT_GE(tel.estimates_published, 4U);
+  // The motoring current stays within the derated limit; only the pulses go past it.
+  EXPECT_LE(tel.motoring_iq_limit_A, d.min_current_A);
+}
+
 // A fault suspends a calibration (the result stays NONE, the calibration's state reaches the
 // telemetry in the safe state too) and it completes after the fault is cleared: a passing
 // sensor timeout must not cost the commissioning. An ABORT shows at once, even in a fault; a

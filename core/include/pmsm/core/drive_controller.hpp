@@ -556,6 +556,8 @@ class DriveController {
   double vx_before_calibration_V_ = 0.0;  // the scheduler's Vx prior when the run started
   double vx_std_before_calibration_V_ = 0.0;
   DeratingResult derating_{};
+  // The pulses' current limit: the magnets' derating only (update_thermal).
+  double injection_current_limit_A_ = 0.0;
 };
 
 }  // namespace pmsm::core
