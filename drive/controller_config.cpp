@@ -294,10 +294,16 @@ ConfigSchema<C> build() {
          at_least(0), "C/sqrt(s)", "Process noise of the winding node (per thermal second).");
   s.real("thermal.housing_process_std_C_per_sqrt_s", [](C& c) -> double& { return c.drive.thermal.housing_process_std_C_per_sqrt_s; },
          at_least(0), "C/sqrt(s)", "Process noise of the housing node.");
-  s.real("thermal.loss_error_process_std_W_per_sqrt_s", [](C& c) -> double& { return c.drive.thermal.loss_error_process_std_W_per_sqrt_s; },
-         at_least(0), "W/sqrt(s)", "Random walk of the missing loss on the housing node (per thermal second).");
-  s.real("thermal.initial_loss_error_std_W", [](C& c) -> double& { return c.drive.thermal.initial_loss_error_std_W; }, at_least(0), "W",
-         "Initial uncertainty of the missing loss on the housing node (iron, friction, rotor, cooling path).");
+  s.optional_real("thermal.loss_error_process_std_W_per_sqrt_s",
+                  [](C& c) -> std::optional<double>& { return c.relative.loss_error_process_std_W_per_sqrt_s; }, at_least(0),
+                  "W/sqrt(s)", "0.0625 K/sqrt(s) / thermal.housing_to_ambient_K_W",
+                  "Random walk of the missing loss on the housing node (per thermal second; Table I: 0.5 W/sqrt(s)), in "
+                  "proportion to the cooling path's conductance.");
+  s.optional_real("thermal.initial_loss_error_std_W",
+                  [](C& c) -> std::optional<double>& { return c.relative.initial_loss_error_std_W; }, at_least(0), "W",
+                  "6.25 K / thermal.housing_to_ambient_K_W",
+                  "Initial uncertainty of the missing loss on the housing node (iron, friction, rotor, cooling path; "
+                  "Table I: 50 W), in proportion to the cooling path's conductance.");
   s.real("thermal.loss_scale_process_std_per_sqrt_s", [](C& c) -> double& { return c.drive.thermal.loss_scale_process_std_per_sqrt_s; },
          at_least(0), "1/sqrt(s)", "Random walk of the copper-loss model's relative error (per thermal second).");
   s.real("thermal.initial_loss_scale_std", [](C& c) -> double& { return c.drive.thermal.initial_loss_scale_std; }, at_least(0), "",
@@ -426,6 +432,16 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
   d.injection.rs_max_ohm = c.relative.rs_max_ohm.value_or(relative.rs_max_ohm);
   d.injection.max_load_change_A = c.relative.max_load_change_A.value_or(relative.max_load_change_A);
   d.injection.max_speed_change_rad_s = c.relative.max_speed_change_rad_s.value_or(relative.max_speed_change_rad_s);
+  // The missing loss's prior and random walk: Table I's 50 W and 0.5 W/sqrt(s) in proportion to
+  // the commissioned cooling path's conductance (1 / 0.125 K/W there: 50 W is what 6.25 K over
+  // the ambient drives through it). dP stands for the cooling path's error and the heat the loss
+  // model lacks, both of which go with the heat the machine sheds. Absolute, they let a 7 W pump
+  // learn a missing loss of -9.6 W within a minute and read 9 C low (docs/accuracy.md, "Unseen
+  // motors, third round").
+  const double loss_ratio = core::ThermalModelConfig{}.housing_to_ambient_K_W / d.thermal.housing_to_ambient_K_W;
+  d.thermal.initial_loss_error_std_W = c.relative.initial_loss_error_std_W.value_or(50.0 * loss_ratio);
+  d.thermal.loss_error_process_std_W_per_sqrt_s =
+      c.relative.loss_error_process_std_W_per_sqrt_s.value_or(0.5 * loss_ratio);
   // A fifth above rated: the reference's duty cycles run up to rated speed, and the supervisor's
   // OVERSPEED (1.5 x rated by default) stays well above what the limit lets the shaft reach.
   d.speed_limit_rad_s = c.relative.speed_limit_rad_s.value_or(1.2 * m.rated_speed_rad_s);

@@ -264,6 +264,8 @@ TEST(ControllerConfig, MotorRelativeDefaultsAreTableIAtTableI) {
   EXPECT_EQ(c.calibration_f_A, 50.0);
   EXPECT_EQ(d.calibration_injection.f_A, 50.0);
   EXPECT_EQ(d.injection.headroom_margin_V, 15.0);  // at the Table I drive's 650 V bus
+  EXPECT_EQ(d.thermal.initial_loss_error_std_W, 50.0);  // at the Table I model's 0.125 K/W to ambient
+  EXPECT_EQ(d.thermal.loss_error_process_std_W_per_sqrt_s, 0.5);
   // Given keys win over the rule.
   const ControllerConfig g = parse("[injection]\nF_A = 20\nrs_max_ohm = 0.3\n[calibration]\nF_A = 30\n");
   EXPECT_EQ(g.drive.injection.f_A, 20.0);
@@ -310,6 +312,19 @@ min_current_A = 2.0
   EXPECT_EQ(d.baseline.initial_rs_ohm, 1.6);
   EXPECT_EQ(d.speed.inertia_kg_m2, 2e-4);
   EXPECT_EQ(d.calibration.rs0_ohm, 1.6);
+}
+
+// The missing loss's prior and random walk follow the cooling path's conductance: a small
+// pump (6.4 K/W to ambient, about 7 W of loss) gets 0.98 W, not the Table I machine's 50 W,
+// which let it learn a missing loss larger than its whole loss.
+TEST(ControllerConfig, TheMissingLossPriorFollowsTheCoolingPath) {
+  const ControllerConfig c = parse("[thermal]\nhousing_to_ambient_K_W = 6.4\n");
+  EXPECT_NEAR(c.drive.thermal.initial_loss_error_std_W, 50.0 * 0.125 / 6.4, 1e-12);
+  EXPECT_NEAR(c.drive.thermal.loss_error_process_std_W_per_sqrt_s, 0.5 * 0.125 / 6.4, 1e-12);
+  const ControllerConfig g =
+      parse("[thermal]\nhousing_to_ambient_K_W = 6.4\ninitial_loss_error_std_W = 3\nloss_error_process_std_W_per_sqrt_s = 0.1\n");
+  EXPECT_EQ(g.drive.thermal.initial_loss_error_std_W, 3.0);
+  EXPECT_EQ(g.drive.thermal.loss_error_process_std_W_per_sqrt_s, 0.1);
 }
 
 // The voltage margin follows the bus: a 48 V drive keeps 1.1 V free of its 26 V limit, not
