@@ -1011,6 +1011,16 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
     // figures, which count the held Vx through (a d + b) of their own.)
     e.rs_systematic_std_ohm = std::hypot(e.rs_systematic_std_ohm, drs_dvx_held * std::sqrt(var_vx));
   }
+  if (event_q_pairs_ == 0) {
+    // Every pair at standstill (time-based): the rotor rests at one angle, so every event there
+    // sees the same bridge sign pattern and the same position's errors, and the next event
+    // repeats this one's error rather than averaging it (a newcomer's servo, estimates every
+    // 0.5 s through 6-minute stops: the stops' mean errors -1.06, +0.78, -1.31, +0.73, -1.35 mOhm
+    // against a band fused down to a third of one estimate's, its coverage 97 -> 59 % over each
+    // stop). The whole error bar is shared: the band keeps one estimate's width while the rotor
+    // rests (the gain is unchanged), and running events' smaller shares take over once it turns.
+    e.rs_systematic_std_ohm = e.rs_std_ohm;
+  }
   return e;
 }
 

@@ -727,6 +727,17 @@ TEST(InjectionScheduler, StandstillRecordsOverTime) {
   EXPECT_EQ(h.estimates[0].outcome, EventOutcome::kPublished);
   EXPECT_NEAR(h.estimates[0].rs_ohm, h.plant.rs_ohm, 2e-4);
   EXPECT_FALSE(h.estimates[0].has_emf);
+  // At rest the next event repeats this one's error (one angle, one bridge sign pattern): the
+  // whole error bar is shared, so the filter's band cannot fuse it away.
+  EXPECT_GT(h.estimates[0].rs_std_ohm, 0.0);
+  EXPECT_EQ(h.estimates[0].rs_systematic_std_ohm, h.estimates[0].rs_std_ohm);
+  // Turning, the events see the bridge's pattern at every angle: only the model's part is shared.
+  Harness turning(test_config(), 300.0);
+  turning.motoring_A = {0.0, 10.0};
+  turning.run_until(0.5);
+  ASSERT_GE(turning.estimates.size(), 1U);
+  EXPECT_EQ(turning.estimates[0].outcome, EventOutcome::kPublished);
+  EXPECT_LT(turning.estimates[0].rs_systematic_std_ohm, turning.estimates[0].rs_std_ohm);
 }
 
 // The controller leaves a period's sample unbuilt when records() is false: the scheduler must
