@@ -200,6 +200,27 @@ TEST(Scenario, AProfileOfTheOtherModeIsAnError) {
             0U);
 }
 
+// A file that chooses another load profile or EMF shape leaves its base's tables of the old
+// one behind: no way to unset an inherited key, and the plant refuses a table its choice does
+// not use (a fan load on a steps base was refused at the base's line).
+TEST(Scenario, AnotherLoadProfileOrEmfShapeLeavesTheBasesTablesBehind) {
+  const Scenario fan = parse("[scenario]\nbase = \"scenario_base_loaded.toml\"\n[plant.load]\nprofile = \"fan\"\n"
+                             "fan_k_Nm_s2 = 1e-4\n[plant.emf]\nshape = \"trapezoidal\"\n");
+  EXPECT_EQ(fan.plant.load.profile, plant::LoadProfile::fan);
+  EXPECT_TRUE(fan.plant.load.points.empty());
+  EXPECT_EQ(fan.plant.load.torque_Nm, 2.0);  // not a table of the old profile: kept
+  EXPECT_EQ(fan.plant.emf.shape, plant::EmfShape::trapezoidal);
+  // Without the choice, the base's tables hold.
+  const Scenario same = parse("[scenario]\nbase = \"scenario_base_loaded.toml\"\n[plant.load]\ntorque_Nm = 3.0\n");
+  EXPECT_EQ(same.plant.load.profile, plant::LoadProfile::torque_steps);
+  EXPECT_EQ(same.plant.load.points.size(), 2U);
+  EXPECT_EQ(same.plant.emf.shape, plant::EmfShape::custom);
+  // The same profile chosen again with its own table: the file's table.
+  const Scenario steps = parse("[scenario]\nbase = \"scenario_base_loaded.toml\"\n[plant.load]\nprofile = \"steps\"\n"
+                               "steps = [[0.0, 1.0]]\n");
+  ASSERT_EQ(steps.plant.load.points.size(), 1U);
+}
+
 TEST(Scenario, ControllerErrorNamesTheLine) {
   EXPECT_EQ(inline_error("[operation]\nspeed_rad_s = [[0, 1]]\n[controller.injection]\nF_A = 2000\n"),
             path_of("inline.toml") + ":4: controller.injection.F_A: must be in (0, 1000], got 2000");

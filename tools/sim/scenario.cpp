@@ -371,6 +371,30 @@ toml::table resolve_base(toml::table root, const std::filesystem::path& source, 
       }
     }
   }
+  // A file that chooses the load profile or the EMF shape leaves its base's tables of the old
+  // one behind (the plant refuses a load table or harmonics its choice does not use, and a file
+  // has no way to unset an inherited key): a fan load built on a steps scenario.
+  struct Choice {
+    const char* selector;
+    const char* section;
+    std::array<const char*, 3> tables;  // (nullptr: none)
+  };
+  static constexpr std::array<Choice, 2> kChoices{{
+      {"plant.load.profile", "plant.load", {"steps", "speed_points", "csv_path"}},
+      {"plant.emf.shape", "plant.emf", {"harmonic_orders", "harmonic_amplitudes", nullptr}},
+  }};
+  for (const Choice& choice : kChoices) {
+    if (!root.at_path(choice.selector)) {
+      continue;
+    }
+    if (toml::table* base_section = merged.at_path(choice.section).as_table(); base_section != nullptr) {
+      for (const char* key : choice.tables) {
+        if (key != nullptr) {
+          base_section->erase(key);
+        }
+      }
+    }
+  }
   merge(merged, std::move(root));
   return merged;
 }
