@@ -928,6 +928,18 @@ std::vector<std::string> reference_default_warnings(const ControllerConfig& conf
         t0.housing_to_ambient_K_W, t0.iron_loss_k1_W_s_rad * w + t0.iron_loss_k2_W_s2_rad2 * w * w, w,
         d.motor.continuous_current_A_rms, table_i.continuous_current_A_rms));
   }
+  // id = 0 control has no field weakening: the drive reaches no speed whose EMF takes more than
+  // the voltage the bus allows (docs/daemon.md, "No field weakening").
+  const double emf_speed_rad_s = d.current.voltage_limit_fraction * config.nominal_dc_bus_V / std::sqrt(3.0) /
+                                 core::emf_constant_dq_V_s_per_rad(d.motor);
+  if (d.motor.rated_speed_rad_s > emf_speed_rad_s) {
+    out.push_back(fmt::format(
+        "controller.motor.rated_speed_rad_s = {:g} rad/s lies beyond the {:.0f} rad/s where the EMF (motor.ke_V_s_per_rad) "
+        "takes the whole voltage control.nominal_dc_bus_V = {:g} V allows (control.voltage_limit_fraction x bus / "
+        "sqrt 3): the drive has no field-weakening control and does not reach it; set-points beyond it are best "
+        "kept out, since the injection's field-weakening pairs can carry the shaft there (docs/daemon.md)",
+        d.motor.rated_speed_rad_s, emf_speed_rad_s, config.nominal_dc_bus_V));
+  }
   const double rated_peak_A = core::continuous_current_peak_A(d.motor);
   if (d.derating.min_current_A > rated_peak_A) {
     out.push_back(fmt::format(

@@ -116,6 +116,9 @@ check_warns "[controller.calibration]\nfile = \"$dir/no-such-dir/cal.toml\"\n[co
 check_warns '[controller.motor]\ncontinuous_current_A_rms = 4.5\n[controller.sensors]\ncurrent_range_A = 25.0\n[controller.derating]\nmax_current_A = 19.0\n' \
   "controller.thermal: the thermal model has the reference machine's values (11.9 kW" \
   "controller.derating.min_current_A = 10 A lies above the motor's rated peak current (6.36 A"
+# A rated speed the bus cannot hold without field weakening (Table I's EMF at 650 V: 367 rad/s).
+check_warns '[controller.motor]\nrated_speed_rad_s = 400.0\n[controller.control]\nspeed_limit_rad_s = 450.0\n' \
+  "controller.motor.rated_speed_rad_s = 400 rad/s lies beyond the 367 rad/s where the EMF"
 # Its own thermal model and floor: no warning.
 printf '[controller.motor]\ncontinuous_current_A_rms = 4.5\n[controller.sensors]\ncurrent_range_A = 25.0\n[controller.derating]\nmax_current_A = 19.0\nmin_current_A = 3.0\n[controller.thermal]\nwinding_capacity_J_K = 330.0\n' > "$dir/small-motor-own.toml"
 out=$("$exe" --config "$dir/small-motor-own.toml" --check 2>&1); rc=$?
