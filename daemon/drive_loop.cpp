@@ -133,6 +133,7 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns, 
     if (out.calibration_failed) {
       const core::DriveTelemetry& t = node_.controller().telemetry();
       r.calibration_failure = t.calibration_failure;
+      r.calibration_winding_rise_C = t.calibration_winding_rise_C;
       if (t.calibration_failure == core::CalibrationFailure::kUncertain) {
         r.calibration_rs0_ohm = t.calibration_rs0_ohm;
         r.calibration_rs0_std_ohm = t.calibration_rs0_std_ohm;

@@ -290,6 +290,12 @@ void Publisher::handle(const PublicationRecord& r) {
     if (r.calibration_failure == core::CalibrationFailure::kAngleOffset) {
       spdlog::warn("calibration refused: the rotor angle is off by more than the check corrects (above); the previous "
                    "calibration stays in use");
+    } else if (r.calibration_failure == core::CalibrationFailure::kWindingWarm) {
+      spdlog::warn("calibration refused: the thermal filter holds the winding {:.1f} C above the ambient sensor's "
+                   "temperature (calibration.max_winding_rise_C): Rs0 would be referred to a temperature the winding is "
+                   "not at; let the motor cool to the ambient, or give the winding's temperature with the request. The "
+                   "previous calibration stays in use",
+                   r.calibration_winding_rise_C);
     } else if (r.calibration_failure == core::CalibrationFailure::kUncertain) {
       spdlog::warn("calibration refused: Rs0 {:.5f} +- {:.5f} ohm is less certain than "
                    "calibration.max_rs0_std_fraction allows (the bridge's voltage was not learned: calibrate "

@@ -347,6 +347,12 @@ ConfigSchema<C> build() {
             "Injection events averaged by a calibration run.");
   s.real("calibration.timeout_s", [](C& c) -> double& { return c.drive.calibration_timeout_s; }, between(1, 3600), "s",
          "A calibration run without enough published events by then gives up; the calibration in use stays.");
+  s.real("calibration.max_winding_rise_C", [](C& c) -> double& { return c.drive.calibration_max_winding_rise_C; },
+         between(0, 200), "C",
+         "A calibration on the ambient sensor's temperature is refused while the thermal filter holds the winding more "
+         "than this above the ambient it runs on (the drive's own losses since it started, a stored warm state): Rs0 "
+         "would be referred to a temperature the winding is not at. 0: no check. An operator's temperature "
+         "(CALIBRATION_REQUEST) is not checked.");
   s.real("calibration.max_rs0_std_fraction", [](C& c) -> double& { return c.drive.calibration_max_rs0_std_fraction; },
          between(1e-4, 1.0), "",
          "A calibration run whose Rs0 standard error exceeds this fraction of Rs0 is refused and the calibration in use "

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <utility>
 
 #include "pmsm/core/machine_equations.hpp"
 
@@ -130,7 +131,8 @@ void DriveController::fail_calibration(CalibrationFailure why) {
   calibration_failure_ = why;
   switch (why) {
     case CalibrationFailure::kUncertain:
-    case CalibrationFailure::kAngleOffset: calibration_outcome_ = CalibrationOutcome::kRefused; break;
+    case CalibrationFailure::kAngleOffset:
+    case CalibrationFailure::kWindingWarm: calibration_outcome_ = CalibrationOutcome::kRefused; break;
     case CalibrationFailure::kTimeout: calibration_outcome_ = CalibrationOutcome::kTimedOut; break;
     case CalibrationFailure::kNone: calibration_outcome_ = CalibrationOutcome::kNone; break;
   }
@@ -147,6 +149,7 @@ const char* calibration_failure_name(CalibrationFailure f) {
     case CalibrationFailure::kTimeout: return "timeout";
     case CalibrationFailure::kUncertain: return "uncertain";
     case CalibrationFailure::kAngleOffset: return "angle_offset";
+    case CalibrationFailure::kWindingWarm: return "winding_warm";
   }
   return "unknown";
 }
@@ -341,8 +344,29 @@ void DriveController::finish_inverter_sweep(double now_s) {
   calibration_started_s_ = now_s;
 }
 
-void DriveController::start_calibration(double known_temp_C) {
+void DriveController::start_calibration(double known_temp_C, bool from_ambient_sensor) {
   const bool was_calibrating = calibrating_;
+  // A winding the filter holds well above the ambient sensor's reading (the drive's own losses
+  // since it started, a stored warm state cooled through the downtime) is not at that
+  // temperature: Rs0 referred to it would put every later estimate low by the difference (a
+  // newcomer's hub motor, calibrated after a 12 s ride at 20x thermal time with the winding
+  // 12 K warm, read 13.6 C low for the whole run). Refused, as an uncertain Rs0 is; the
+  // calibration in use and the filter stay. Before the filter's first update it knows nothing.
+  if (from_ambient_sensor && !was_calibrating && !thermal_guess_pending_ &&
+      config_.calibration_max_winding_rise_C > 0.0) {
+    // Against the ambient the filter runs on, not the one given now: a configured ambient
+    // changed just before the request (no sensor) is no warmth of the winding.
+    const double rise = observer_.estimate().winding_C - thermal_ambient_C_;
+    if (rise > config_.calibration_max_winding_rise_C) {
+      calibration_failed_ = true;
+      calibration_refused_on_request_ = true;
+      calibration_failure_ = CalibrationFailure::kWindingWarm;
+      calibration_outcome_ = CalibrationOutcome::kRefused;
+      telemetry_.calibration_winding_rise_C = rise;
+      publish_calibration_state();
+      return;
+    }
+  }
   scheduler_.set_config(config_.calibration_injection);
   // The winding is at the known temperature now; the thermal model carries it through the
   // calibration, whose own injections warm the winding a little.
@@ -784,6 +808,7 @@ void DriveController::count_thermal_periods(std::uint32_t periods, const DriveCo
 }
 
 void DriveController::update_thermal(double ambient_C, bool speed_mode) {
+  thermal_ambient_C_ = ambient_C;
   if (thermal_guess_pending_) {
     // Nothing known about the winding yet: the ambient sensor is the best guess (a motor at
     // rest), with a wide uncertainty; the first measurement decides.
@@ -885,7 +910,8 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     check_done_.reset();
     reported_ = false;
   }
-  calibration_failed_now_ = false;
+  // (A calibration refused as it was asked for, before this step, is this step's news.)
+  calibration_failed_now_ = std::exchange(calibration_refused_on_request_, false);
   const double now = static_cast<double>(period_) * config_.period_s;
   const std::uint32_t periods = std::max<std::uint32_t>(in.periods, 1U);
   period_ += static_cast<std::int64_t>(periods);

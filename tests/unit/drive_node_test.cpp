@@ -596,6 +596,41 @@ TEST(DriveNode, CalibrationUsesTheOperatorsTemperatureOrTheAmbientSensor) {
   EXPECT_NEAR(rig.node->controller().telemetry().thermal.winding_C, 18.5, 0.2) << "the operator's value";
 }
 
+// A calibration on the ambient sensor's temperature while the filter holds the winding warm
+// (the drive's own losses since it started) is refused, said on the step it was asked in, and
+// the calibration in use stays; with the operator's temperature of the winding it runs.
+TEST(DriveNode, ACalibrationOnTheAmbientOfAWarmWindingIsRefused) {
+  Rig rig;
+  rig.plant_config.load.torque_Nm = 30.0;
+  rig.plant = std::make_unique<plant::Plant>(rig.plant_config);
+  rig.config.drive.thermal.time_scale = 2000.0;
+  rig.config.drive.estimator = core::EstimatorKind::kNone;  // the model alone warms it
+  rig.node = std::make_unique<DriveNode>(rig.config, rig.supervisor, PublishRates{});
+  const core::DriveTelemetry& tel = rig.node->controller().telemetry();
+  const double ambient_C = 25.0;
+  for (int k = 0; k < 100000 && !(tel.thermal.winding_C > ambient_C + 10.0); ++k) {
+    rig.run(1);
+  }
+  ASSERT_GT(tel.thermal.winding_C, ambient_C + 10.0);
+  const double rs0_before = rig.node->controller().calibration().rs0_ohm;
+  rig.in.start_calibration = true;
+  const NodeStep& asked = rig.run(1);
+  rig.in.start_calibration = false;
+  EXPECT_TRUE(asked.calibration_failed);
+  EXPECT_FALSE(tel.calibrating);
+  EXPECT_EQ(tel.calibration_failure, core::CalibrationFailure::kWindingWarm);
+  EXPECT_EQ(tel.calibration_outcome, core::CalibrationOutcome::kRefused);
+  EXPECT_GT(tel.calibration_winding_rise_C, 10.0);
+  EXPECT_GT(tel.thermal.winding_C, ambient_C + 10.0) << "the filter keeps what it held";
+  EXPECT_EQ(rig.node->controller().calibration().rs0_ohm, rs0_before);
+  // The operator's reading of the winding: no check, the calibration runs.
+  rig.in.start_calibration = true;
+  rig.in.calibration_known_C = tel.thermal.winding_C;
+  rig.run(1);
+  rig.in.start_calibration = false;
+  EXPECT_TRUE(tel.calibrating);
+}
+
 // The calibration's bridge sweep (docs/estimator.md section 4.1) against the plant's bridge
 // (zero-current band 0.75 A; the controller's key says 1 A): its band is used at once; if the
 // calibration does not complete, it stays in place of the configured guess but a stored

@@ -383,6 +383,8 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
           tel.calibration_failure == core::CalibrationFailure::kUncertain ? tel.calibration_rs0_ohm : 0.0;
       result.calibration_failure_rs0_std_ohm =
           tel.calibration_failure == core::CalibrationFailure::kUncertain ? tel.calibration_rs0_std_ohm : 0.0;
+      result.calibration_failure_winding_rise_C =
+          tel.calibration_failure == core::CalibrationFailure::kWindingWarm ? tel.calibration_winding_rise_C : 0.0;
     }
     if (step.calibration_to_store) {
       result.calibrated = true;
@@ -744,6 +746,9 @@ std::string result_json(const SimulationResult& r) {
         .field("rs0_ohm", r.calibration_failure == core::CalibrationFailure::kUncertain ? r.calibration_failure_rs0_ohm : kNan)
         .field("rs0_std_ohm",
                r.calibration_failure == core::CalibrationFailure::kUncertain ? r.calibration_failure_rs0_std_ohm : kNan)
+        .field("winding_rise_C", r.calibration_failure == core::CalibrationFailure::kWindingWarm
+                                     ? r.calibration_failure_winding_rise_C
+                                     : kNan)
         .end_object();
   }
   // Every fault the drive latched, by name (an empty object: none).
@@ -889,6 +894,10 @@ std::string result_text(const SimulationResult& r) {
     out += fmt::format("  calibration failed at {:.2f} s    timeout: not enough published events in calibration.timeout_s; the "
                        "calibration in use stays\n",
                        r.calibration_failure_time_s);
+  } else if (r.calibration_failure == core::CalibrationFailure::kWindingWarm) {
+    out += fmt::format("  calibration failed at {:.2f} s    winding_warm: the thermal filter held the winding {:.1f} C above "
+                       "the ambient sensor (calibration.max_winding_rise_C); the calibration in use stays\n",
+                       r.calibration_failure_time_s, r.calibration_failure_winding_rise_C);
   } else if (r.calibration_failure == core::CalibrationFailure::kUncertain) {
     out += fmt::format("  calibration failed at {:.2f} s    uncertain: Rs0 {:.5f} +- {:.5f} ohm ({:.2f} %, above "
                        "calibration.max_rs0_std_fraction); the calibration in use stays\n",

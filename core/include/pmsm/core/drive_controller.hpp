@@ -102,6 +102,11 @@ struct DriveConfig {
   // the current), so Rs0 rests on the inverter-voltage prior.
   double calibration_max_rs0_std_fraction = 0.02;
   double calibration_timeout_s = 20.0;  // give up (keep the stored calibration) after this
+  // A calibration refers Rs0 to the temperature it is given. From the ambient sensor that is the
+  // winding's only on a machine at rest long enough: one the thermal filter holds warmer than
+  // that by more than this (the drive's own losses since it started, a stored warm state) is
+  // refused, and the calibration in use stays. 0: no check.
+  double calibration_max_winding_rise_C = 5.0;
   std::size_t recording_capacity = 8192;      // periods per recording (preallocated)
 
   // Fills every sub-configuration's copy of the motor model and of the period from `motor`
@@ -164,6 +169,7 @@ enum class CalibrationFailure : std::uint8_t {
   kTimeout = 1,    // not enough published events within calibration_timeout_s
   kUncertain = 2,  // Rs0's standard error above calibration_max_rs0_std_fraction
   kAngleOffset = 3,  // the angle check found the rotor angle further off than it corrects
+  kWindingWarm = 4,  // the filter holds the winding above the ambient it would be referred to
 };
 [[nodiscard]] const char* calibration_failure_name(CalibrationFailure f);
 
@@ -264,6 +270,9 @@ struct DriveTelemetry {
   // calibration run, and after one that timed out.
   double calibration_rs0_ohm = 0.0;
   double calibration_rs0_std_ohm = 0.0;
+  // A calibration refused as kWindingWarm: how far above the given temperature the filter held
+  // the winding.
+  double calibration_winding_rise_C = 0.0;
 };
 
 // One published resistance estimate, from an event's accepted pairs (rejected pairs are
@@ -319,7 +328,10 @@ class DriveController {
 
   // Starts an Rs0 calibration at a known winding temperature: the next calibration_pairs
   // accepted pairs are averaged into Rs0 (and Ke0), and the thermal filter restarts there.
-  void start_calibration(double known_temp_C);
+  // `from_ambient_sensor`: the temperature is the ambient / coolant sensor's (not an operator's
+  // reading of the winding): refused with kWindingWarm while the filter holds the winding more
+  // than calibration_max_winding_rise_C above it.
+  void start_calibration(double known_temp_C, bool from_ambient_sensor = false);
   // Stops a calibration in progress and keeps the calibration in use (nothing is stored).
   void abort_calibration();
 
@@ -541,6 +553,8 @@ class DriveController {
   bool calibrating_ = false;
   bool calibration_failed_ = false;
   bool calibration_failed_now_ = false;
+  bool calibration_refused_on_request_ = false;  // start_calibration refused it (kWindingWarm)
+  double thermal_ambient_C_ = 0.0;  // the ambient of the filter's last update
   CalibrationFailure calibration_failure_ = CalibrationFailure::kNone;
   CalibrationOutcome calibration_outcome_ = CalibrationOutcome::kNone;
   double calibration_started_s_ = 0.0;
