@@ -325,7 +325,8 @@ ConfigSchema<C> build() {
          "Rs0 of a stored calibration (defaults to motor.rs_ohm).");
   s.real("calibration.t0_C", [](C& c) -> double& { return c.drive.calibration.t0_C; }, between(-50, 200), "C", "T0 of that calibration.");
   s.real("calibration.ke0_V_s_per_rad", [](C& c) -> double& { return c.drive.calibration.ke0_V_s_per_rad; }, at_least(0, 100), "V s/rad",
-         "Eq. 3's Ke at T0 (0: not calibrated; no magnet temperature).");
+         "Eq. 3's Ke at T0 (0: not calibrated; no magnet temperature): phase-peak volts per mechanical rad/s, psi p, "
+         "which is motor.ke_V_s_per_rad (line-to-line RMS) x sqrt(2/3) for the same machine.");
   s.real("calibration.dead_time_band_A", [](C& c) -> double& { return c.drive.calibration.dead_time_band_A; }, at_least(0, 1000),
          "A", "The bridge's zero-current band a calibration's sweep measured (0: not measured, control.dead_time_band_A holds).");
   s.real("calibration.vx_V", [](C& c) -> double& { return c.drive.calibration.vx_V; }, between(-50, 50), "V",
