@@ -865,8 +865,8 @@ void DriveController::update_thermal(double ambient_C, bool speed_mode) {
   // injection loss, Eqs. 30-32), and a derated drive is the one that most needs to measure.
   // Kept within the derated limit, every pair of a drive at its limit found no room, and the
   // filter, blind while derating on T + k sigma with a growing sigma, held the current low for
-  // good (docs/estimator.md §2, the guards). The magnets' derating binds the pulses too: a -F pulse at hot
-  // magnets is the demagnetising current that limit is there for.
+  // good (docs/estimator.md §2, the guards). The magnets' derating binds the pulses too: a -F
+  // pulse at hot magnets is the demagnetising current that limit is there for.
   injection_current_limit_A_ = magnet.current_limit_A;
   telemetry_.thermal = e;
   telemetry_.thermal_valid = true;

@@ -270,7 +270,7 @@ struct DriveTelemetry {
   // calibration run, and after one that timed out.
   double calibration_rs0_ohm = 0.0;
   double calibration_rs0_std_ohm = 0.0;
-  // A calibration refused as kWindingWarm: how far above the given temperature the filter held
+  // A calibration refused as kWindingWarm: how far above the ambient it runs on the filter held
   // the winding.
   double calibration_winding_rise_C = 0.0;
 };
