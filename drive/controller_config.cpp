@@ -944,7 +944,7 @@ std::vector<std::string> reference_default_warnings(const ControllerConfig& conf
         "controller.motor.rated_speed_rad_s = {:g} rad/s lies beyond the {:.0f} rad/s where the EMF (motor.ke_V_s_per_rad) "
         "takes the whole voltage control.nominal_dc_bus_V = {:g} V allows (control.voltage_limit_fraction x bus / "
         "sqrt 3): the drive has no field-weakening control and does not reach it; set-points beyond it are best "
-        "kept out, since the injection's field-weakening pairs can carry the shaft there (docs/daemon.md)",
+        "kept out, since the injection's pulses can carry the shaft there (docs/daemon.md)",
         d.motor.rated_speed_rad_s, emf_speed_rad_s, config.nominal_dc_bus_V));
   }
   const double rated_peak_A = core::continuous_current_peak_A(d.motor);
