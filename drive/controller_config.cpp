@@ -642,7 +642,7 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
   // The current loop's voltage limit at the nominal bus (a share of the space vector's
   // Vdc / sqrt(3) per phase): a margin that takes all of it leaves no voltage to inject with
   // at any speed.
-  if (const double limit_V = d.current.voltage_limit_fraction * c.nominal_dc_bus_V / std::sqrt(3.0);
+  if (const double limit_V = core::voltage_limit_V(d.current, c.nominal_dc_bus_V);
       d.injection.headroom_margin_V >= limit_V) {
     const std::string_view l = lead("injection.headroom_margin_V", "control.nominal_dc_bus_V");
     rule("injection.headroom_margin_V", "control.nominal_dc_bus_V",
@@ -937,8 +937,8 @@ std::vector<std::string> reference_default_warnings(const ControllerConfig& conf
   }
   // id = 0 control has no field weakening: the drive reaches no speed whose EMF takes more than
   // the voltage the bus allows (docs/daemon.md, "No field weakening").
-  const double emf_speed_rad_s = d.current.voltage_limit_fraction * config.nominal_dc_bus_V / std::sqrt(3.0) /
-                                 core::emf_constant_dq_V_s_per_rad(d.motor);
+  const double emf_speed_rad_s =
+      core::voltage_limit_V(d.current, config.nominal_dc_bus_V) / core::emf_constant_dq_V_s_per_rad(d.motor);
   if (d.motor.rated_speed_rad_s > emf_speed_rad_s) {
     out.push_back(fmt::format(
         "controller.motor.rated_speed_rad_s = {:g} rad/s lies beyond the {:.0f} rad/s where the EMF (motor.ke_V_s_per_rad) "

@@ -126,8 +126,16 @@ void DriveController::publish_learned() {
 
 void DriveController::fail_calibration(CalibrationFailure why) {
   calibrating_ = false;
-  calibration_failed_ = true;
   calibration_failed_now_ = true;
+  record_calibration_failure(why);
+  restore_band();
+  restore_angle();
+  restore_vx();
+  scheduler_.set_config(config_.injection);
+}
+
+void DriveController::record_calibration_failure(CalibrationFailure why) {
+  calibration_failed_ = true;
   calibration_failure_ = why;
   switch (why) {
     case CalibrationFailure::kUncertain:
@@ -137,10 +145,6 @@ void DriveController::fail_calibration(CalibrationFailure why) {
     case CalibrationFailure::kNone: calibration_outcome_ = CalibrationOutcome::kNone; break;
   }
   publish_calibration_state();
-  restore_band();
-  restore_angle();
-  restore_vx();
-  scheduler_.set_config(config_.injection);
 }
 
 const char* calibration_failure_name(CalibrationFailure f) {
@@ -358,12 +362,10 @@ void DriveController::start_calibration(double known_temp_C, bool from_ambient_s
     // changed just before the request (no sensor) is no warmth of the winding.
     const double rise = observer_.estimate().winding_C - thermal_ambient_C_;
     if (rise > config_.calibration_max_winding_rise_C) {
-      calibration_failed_ = true;
+      // Nothing of a calibration run has started: nothing to restore (fail_calibration).
       calibration_refused_on_request_ = true;
-      calibration_failure_ = CalibrationFailure::kWindingWarm;
-      calibration_outcome_ = CalibrationOutcome::kRefused;
       telemetry_.calibration_winding_rise_C = rise;
-      publish_calibration_state();
+      record_calibration_failure(CalibrationFailure::kWindingWarm);
       return;
     }
   }

@@ -31,6 +31,11 @@ struct CurrentControllerConfig {
   double voltage_limit_fraction = 0.95;
 };
 
+// Voltage limit for a DC-bus voltage (radius of the usable circle).
+[[nodiscard]] constexpr double voltage_limit_V(const CurrentControllerConfig& config, double vdc_V) {
+  return config.voltage_limit_fraction * vdc_V / kSqrt3;
+}
+
 struct CurrentControllerStatus {
   Dq v_V{};                 // the command after limiting
   Dq v_unlimited_V{};       // before limiting
@@ -50,11 +55,8 @@ class CurrentController {
   [[nodiscard]] const CurrentControllerConfig& config() const { return config_; }
   [[nodiscard]] const CurrentControllerStatus& status() const { return status_; }
 
-  // Voltage limit for a DC-bus voltage (radius of the usable circle). Inline: asked twice a
-  // period.
-  [[nodiscard]] double voltage_limit_V(double vdc_V) const {
-    return config_.voltage_limit_fraction * vdc_V / kSqrt3;
-  }
+  // The voltage limit for a DC-bus voltage (the free function). Inline: asked twice a period.
+  [[nodiscard]] double voltage_limit_V(double vdc_V) const { return core::voltage_limit_V(config_, vdc_V); }
 
  private:
   CurrentControllerConfig config_;

@@ -448,6 +448,8 @@ class DriveController {
   // One pair's Ke scatter before any event has shown it (the first events of one pair each).
   static constexpr double kUnknownKePairStdFraction = 0.005;
   void fail_calibration(CalibrationFailure why);
+  // The failure's status (failed, reason, outcome) and its publication, without ending a run.
+  void record_calibration_failure(CalibrationFailure why);
   void publish_calibration_state();
   void clear_motoring_telemetry();  // nothing asked of the motor this period (disabled, no sample)
   // The telemetry of what the drive has learned or been given (the angle correction, the
