@@ -108,6 +108,26 @@ ConfigSchema<C> build() {
                   "loop's integral up nor overshoots the set-point (or the speed limit). The default, a quarter of "
                   "min(Kt derating.max_current_A, control.max_torque_Nm) / motor.inertia_kg_m2, leaves the rest of the "
                   "torque for the load and the loop, and keeps the PLL's speed lag (the ramp / its bandwidth) small.");
+  s.boolean("control.field_weakening", [](C& c) -> bool& { return c.drive.field_weakening.enabled; },
+            "Field weakening above the id = 0 speed: a negative d current, from a voltage loop, holds the current "
+            "loop's command at control.field_weakening_voltage_fraction of its limit, so that the current stays under "
+            "control and the shaft runs on past the speed where the EMF takes the bus (docs/daemon.md, \"Field "
+            "weakening\"). Below that speed it asks nothing. Off by default: id = 0 control at every speed, as the "
+            "reference benchmarks are measured.");
+  s.optional_real("control.field_weakening_max_current_A",
+                  [](C& c) -> std::optional<double>& { return c.relative.field_weakening_max_current_A; },
+                  at_least(0, 100000), "A", "min(psi / motor.ld_H, derating.max_current_A)",
+                  "Largest |id| field weakening asks (peak A); the q axis keeps sqrt(I^2 - id^2) of the current limit I. "
+                  "Beyond the characteristic current psi / Ld (psi from motor.ke_V_s_per_rad) more -id weakens nothing. It "
+                  "is also bounded by the magnets' derated current limit (derating.magnet_*).");
+  s.real("control.field_weakening_bandwidth_rad_s", [](C& c) -> double& { return c.drive.field_weakening.bandwidth_rad_s; },
+         positive(20000), "rad/s",
+         "The field-weakening voltage loop's bandwidth (its gain is scheduled with the speed and motor.ld_H); keep it "
+         "well below control.current_bandwidth_rad_s.");
+  s.real("control.field_weakening_voltage_fraction",
+         [](C& c) -> double& { return c.drive.field_weakening.voltage_fraction; }, between(0.5, 1.0), "",
+         "Share of the current loop's voltage limit (control.voltage_limit_fraction x bus / sqrt(3)) at which field "
+         "weakening holds the command: the rest is the current loop's reserve for its transients.");
   s.real("control.max_torque_Nm", [](C& c) -> double& { return c.drive.speed.max_torque_Nm; }, positive(10000), "Nm", "Torque demand limit.");
   s.real("control.pll_bandwidth_rad_s", [](C& c) -> double& { return c.drive.angle.pll_bandwidth_rad_s; }, positive(10000), "rad/s",
          "Speed observer (PLL) bandwidth.");
@@ -452,6 +472,10 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
   // A fifth above rated: the reference's duty cycles run up to rated speed, and the supervisor's
   // OVERSPEED (1.5 x rated by default) stays well above what the limit lets the shaft reach.
   d.speed_limit_rad_s = c.relative.speed_limit_rad_s.value_or(1.2 * m.rated_speed_rad_s);
+  // Field weakening's bound: past the characteristic current psi / Ld the d current weakens the
+  // flux to nothing and then reverses it; and never more than the drive's current.
+  d.field_weakening.max_current_A = c.relative.field_weakening_max_current_A.value_or(
+      std::min(core::flux_linkage_Wb(m) / m.ld_H, d.derating.max_current_A));
   // A quarter of the acceleration the drive's torque limit gives the commissioned inertia: the
   // ramp's feed-forward takes at most a quarter of the torque, the rest is left for the load and
   // the loop. The PLL's speed lags a ramp by about a / its bandwidth, which the shaft carries
@@ -935,16 +959,16 @@ std::vector<std::string> reference_default_warnings(const ControllerConfig& conf
         t0.housing_to_ambient_K_W, t0.iron_loss_k1_W_s_rad * w + t0.iron_loss_k2_W_s2_rad2 * w * w, w,
         d.motor.continuous_current_A_rms, table_i.continuous_current_A_rms));
   }
-  // id = 0 control has no field weakening: the drive reaches no speed whose EMF takes more than
-  // the voltage the bus allows (docs/daemon.md, "No field weakening").
+  // Without field weakening (control.field_weakening, off by default) the drive reaches no speed
+  // whose EMF takes more than the voltage the bus allows (docs/daemon.md, "Field weakening").
   const double emf_speed_rad_s =
       core::voltage_limit_V(d.current, config.nominal_dc_bus_V) / core::emf_constant_dq_V_s_per_rad(d.motor);
-  if (d.motor.rated_speed_rad_s > emf_speed_rad_s) {
+  if (!d.field_weakening.enabled && d.motor.rated_speed_rad_s > emf_speed_rad_s) {
     out.push_back(fmt::format(
         "controller.motor.rated_speed_rad_s = {:g} rad/s lies beyond the {:.0f} rad/s where the EMF (motor.ke_V_s_per_rad) "
         "takes the whole voltage control.nominal_dc_bus_V = {:g} V allows (control.voltage_limit_fraction x bus / "
-        "sqrt 3): the drive has no field-weakening control and does not reach it; set-points beyond it are best "
-        "kept out, since the injection's pulses can carry the shaft there (docs/daemon.md)",
+        "sqrt 3): without control.field_weakening = true the drive does not reach it, and set-points beyond it are "
+        "best kept out, since the injection's pulses can carry the shaft there (docs/daemon.md)",
         d.motor.rated_speed_rad_s, emf_speed_rad_s, config.nominal_dc_bus_V));
   }
   const double rated_peak_A = core::continuous_current_peak_A(d.motor);

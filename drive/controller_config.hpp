@@ -47,6 +47,7 @@ struct MotorRelativeKeys {
   std::optional<double> max_speed_change_rad_s;
   std::optional<double> speed_limit_rad_s;
   std::optional<double> speed_ramp_rad_s2;
+  std::optional<double> field_weakening_max_current_A;
   std::optional<double> initial_loss_error_std_W;
   std::optional<double> loss_error_process_std_W_per_sqrt_s;
   // Follows the bus, not the motor: a share of control.nominal_dc_bus_V.

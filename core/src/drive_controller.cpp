@@ -83,12 +83,14 @@ DriveController::DriveController(const DriveConfig& config)
                              std::min(5.0 * config_.speed.bandwidth_rad_s, 0.5 * config_.angle.pll_bandwidth_rad_s)),
       angle_(config_.angle),
       current_(config_.current),
+      field_weakening_(config_.field_weakening),
       speed_(config_.speed),
       scheduler_(config_.injection, config_.period_s, config_.recording_capacity),
       baseline_(config_.baseline),
       observer_(config_.thermal, config_.calibration, config_.calibration.t0_C, false),
       derating_{config_.derating.max_current_A, false},
       injection_current_limit_A_(config_.derating.max_current_A) {
+  field_weakening_.set_machine(config_.current.ld_H, config_.current.flux_linkage_Wb, config_.period_s);
   // DRIVE_STATUS reads the limit before the first thermal update sets it.
   telemetry_.current_limit_A = derating_.current_limit_A;
   // A stored calibration that measured the bridge replaces the configured band.
@@ -497,7 +499,11 @@ bool DriveController::configure_injection(InjectionMethod method, Separation sep
 }
 
 Dq DriveController::motoring_reference(const DriveCommand& command) {
-  const double limit = derating_.current_limit_A;
+  // Field weakening's d current takes its share of the current limit first; the torque gets
+  // what is left of the circle.
+  const double id_A = field_weakening_.id_A();
+  const double limit = id_A == 0.0 ? derating_.current_limit_A
+                                   : std::sqrt(std::max(derating_.current_limit_A * derating_.current_limit_A - id_A * id_A, 0.0));
   bool speed_limited = false;
   double torque = 0.0;
   if (command.mode == DriveMode::kSpeed) {
@@ -556,12 +562,12 @@ Dq DriveController::motoring_reference(const DriveCommand& command) {
     }
     torque_demand_Nm_ = torque;  // for a switch to speed mode
   }
-  // id = 0 control: Eq. 10, Tem = Kt iqr.
+  // id = 0 control (below the field-weakening speed): Eq. 10, Tem = Kt iqr.
   const double wanted = torque / kt_dq_Nm_per_A_;
   telemetry_.motoring_iq_wanted_A = wanted;  // DriveTelemetry::current_limited() compares
   telemetry_.motoring_iq_limit_A = limit;
   telemetry_.speed_limited = speed_limited;
-  return {0.0, std::clamp(wanted, -limit, limit)};
+  return {id_A, std::clamp(wanted, -limit, limit)};
 }
 
 void DriveController::clear_motoring_telemetry() {
@@ -1132,14 +1138,23 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   }
   was_enabled_ = enabled;
 
-  Dq motoring{};
-  if (enabled) {
-    motoring = motoring_reference(command);
-  } else {
-    clear_motoring_telemetry();
-  }
   // A sweep waiting to start again holds the calibration's events back as a running one does.
   const bool sweeping = sweep_.active() || sweep_restart_.pending || check_.active() || check_restart_.pending;
+  Dq motoring{};
+  if (enabled) {
+    // Field weakening on the last period's command (reset with the current loop on enabling:
+    // its limit reads 0 until the first period), held while a pair records or the sweep and
+    // the angle check run: their separations take the motoring point as still.
+    if (field_weakening_.enabled() && scheduler_.phase() == SchedulerPhase::kIdle && !sweeping) {
+      const CurrentControllerStatus& last = current_.status();
+      field_weakening_.step(std::sqrt(last.v_unlimited_V.d * last.v_unlimited_V.d + last.v_unlimited_V.q * last.v_unlimited_V.q),
+                            last.voltage_limit_V, omega_e, injection_current_limit_A_);
+    }
+    motoring = motoring_reference(command);
+  } else {
+    field_weakening_.reset();
+    clear_motoring_telemetry();
+  }
   if ((sweep_.active() || check_.active()) && enabled) {
     // The bridge sweep's or the angle check's level, on top of id = 0 control, inside the
     // drive's current limit.
@@ -1153,6 +1168,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   si.motoring_ref_A = motoring;
   si.voltage_limit_V = current_.voltage_limit_V(in.vdc_V);
   si.current_limit_A = injection_current_limit_A_;
+  si.motoring_settling = !field_weakening_.settled();
   si.rs_rate_ohm_per_s = rs_rate_ohm_per_s_;  // finite (update_thermal)
   si.enabled = enabled && config_.estimator == EstimatorKind::kInjection && !sweeping && !after_lost;
   if (calibrating_ && !sweeping && now - calibration_started_s_ > config_.calibration_timeout_s) {

@@ -1108,6 +1108,9 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
         out.estimate = finish_event(in);
         break;
       }
+      if (in.motoring_settling) {
+        break;  // the pair waits for the motoring point (SchedulerInput::motoring_settling)
+      }
       double tw = config_.tw_s;
       if (config_.method == InjectionMethod::kFixedAngle &&
           std::abs(in.omega_e_rad_s) >= config_.min_speed_for_angle_rad_s) {

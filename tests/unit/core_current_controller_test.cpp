@@ -1,9 +1,11 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <limits>
 #include <vector>
 
 #include "pmsm/core/current_controller.hpp"
+#include "pmsm/core/field_weakening.hpp"
 
 namespace pmsm::core {
 namespace {
@@ -153,6 +155,132 @@ TEST(CurrentController, VoltageLimitWithDAxisPriorityAndAntiWindup) {
   }
   EXPECT_GE(recovered_at, 0);
   EXPECT_LT(recovered_at, 50);
+}
+
+}  // namespace
+}  // namespace pmsm::core
+
+namespace pmsm::core {
+namespace {
+
+struct WeakenedRun {
+  double id = 0.0;           // the machine's currents at the end
+  double iq = 0.0;
+  double v = 0.0;            // |v*| at the end
+  double limit = 0.0;
+  double fw_id = 0.0;        // what the regulator asked
+  bool settled = false;
+  int limited_late = 0;      // periods on the voltage limit in the last half
+};
+
+// The current loop with field weakening (the drive's order: the regulator on the last period's
+// command, then the loop) on the ideal machine turning at a fixed electrical speed, asked for a
+// q current. The commissioned model is off from the machine, as after commissioning.
+WeakenedRun run_weakened(double omega_e, double iq_ref, FieldWeakeningConfig fw_config, int periods) {
+  CurrentControllerConfig config;
+  config.rs_ohm = 0.12;
+  config.ld_H = 6.0e-3;
+  config.lq_H = 5.0e-3;
+  config.flux_linkage_Wb = 0.3239 * 1.03;
+  IdealMachine machine;
+  machine.omega_e = omega_e;
+  CurrentController controller(config);
+  FieldWeakening fw(fw_config);
+  fw.set_machine(config.ld_H, config.flux_linkage_Wb, config.period_s);
+  const double vdc = 650.0;
+  Dq pending{};
+  WeakenedRun out;
+  for (int k = 0; k < periods; ++k) {
+    const CurrentControllerStatus& last = controller.status();
+    const double id_ref = fw.step(std::hypot(last.v_unlimited_V.d, last.v_unlimited_V.q), last.voltage_limit_V,
+                                  omega_e, 80.0);
+    const CurrentControllerStatus& s = controller.step({id_ref, iq_ref}, {machine.id, machine.iq}, omega_e, vdc);
+    machine.advance(pending.d, pending.q, config.period_s);
+    pending = s.v_V;
+    if (k >= periods / 2 && s.voltage_limited) {
+      ++out.limited_late;
+    }
+    out.v = std::hypot(s.v_unlimited_V.d, s.v_unlimited_V.q);
+    out.limit = s.voltage_limit_V;
+  }
+  out.id = machine.id;
+  out.iq = machine.iq;
+  out.fw_id = fw.id_A();
+  out.settled = fw.settled();
+  return out;
+}
+
+// Below the speed where the EMF takes the voltage (Table I at 650 V: 356 V over psi = 0.3239 Wb,
+// 1100 rad/s electrical), the regulator asks nothing: id = 0 control, untouched.
+TEST(FieldWeakening, AsksNothingBelowTheVoltageLimit) {
+  FieldWeakeningConfig fw;
+  fw.enabled = true;
+  fw.max_current_A = 55.0;
+  const WeakenedRun r = run_weakened(600.0, 30.0, fw, 4000);
+  EXPECT_EQ(r.fw_id, 0.0);
+  EXPECT_TRUE(r.settled);
+  EXPECT_NEAR(r.iq, 30.0, 0.05);
+}
+
+// Above it, id = 0 control cannot deliver the q current (the EMF alone exceeds the limit) and
+// the regulator finds the d current at which the machine's voltage is the held share of the
+// limit: the one Eq. 3 gives in the steady state, with the machine's own parameters.
+TEST(FieldWeakening, HoldsTheVoltageAndDeliversTheTorqueCurrentAboveBaseSpeed) {
+  const double omega_e = 1400.0;  // EMF 453 V on the machine's psi, against a 356 V limit
+  const double iq_ref = 20.0;
+  FieldWeakeningConfig off;
+  off.enabled = false;
+  const WeakenedRun without = run_weakened(omega_e, iq_ref, off, 6000);
+  // Without it the loop sits on the limit and the q current is far from its reference.
+  EXPECT_GT(without.limited_late, 2000);
+  EXPECT_LT(without.iq, 0.5 * iq_ref);
+
+  FieldWeakeningConfig on;
+  on.enabled = true;
+  on.max_current_A = 55.0;
+  const WeakenedRun with = run_weakened(omega_e, iq_ref, on, 6000);
+  EXPECT_EQ(with.limited_late, 0);
+  EXPECT_TRUE(with.settled);
+  EXPECT_NEAR(with.iq, iq_ref, 0.01 * iq_ref);
+  EXPECT_NEAR(with.v, on.voltage_fraction * with.limit, 0.5);
+  // The steady state of the machine (rs 0.133, ld = lq = 5.5 mH, psi 0.3239): the id that puts
+  // |v| = |(rs id - w lq iq, rs iq + w (psi + ld id))| on the held voltage, by bisection.
+  const IdealMachine m;
+  const double target = on.voltage_fraction * with.limit;
+  auto voltage = [&](double id) {
+    return std::hypot(m.rs * id - omega_e * m.lq * iq_ref, m.rs * iq_ref + omega_e * (m.psi + m.ld * id));
+  };
+  double lo = -55.0, hi = 0.0;  // voltage(lo) < target < voltage(hi)
+  for (int k = 0; k < 60; ++k) {
+    const double mid = 0.5 * (lo + hi);
+    (voltage(mid) > target ? hi : lo) = mid;
+  }
+  EXPECT_NEAR(with.id, lo, 0.2);
+  EXPECT_NEAR(with.fw_id, with.id, 0.2);
+}
+
+// The d current stays within its bound: asked for more than it allows, the regulator rests on
+// it (and says it is settled there: nothing more will move), and the loop is back on its limit.
+TEST(FieldWeakening, StaysWithinItsBound) {
+  FieldWeakeningConfig fw;
+  fw.enabled = true;
+  fw.max_current_A = 10.0;
+  const WeakenedRun r = run_weakened(1400.0, 20.0, fw, 6000);
+  EXPECT_EQ(r.fw_id, -10.0);
+  EXPECT_TRUE(r.settled);
+  EXPECT_GT(r.limited_late, 2000);
+  // A bound that shrinks (a derating) takes the current with it at once; a NaN voltage moves
+  // nothing; disabled, it asks nothing.
+  FieldWeakening reg(fw);
+  reg.set_machine(5.5e-3, 0.3239, 1e-4);
+  for (int k = 0; k < 2000; ++k) reg.step(400.0, 356.0, 1400.0, 80.0);
+  EXPECT_EQ(reg.id_A(), -10.0);
+  EXPECT_EQ(reg.step(400.0, 356.0, 1400.0, 4.0), -4.0);
+  EXPECT_EQ(reg.step(std::numeric_limits<double>::quiet_NaN(), 356.0, 1400.0, 4.0), -4.0);
+  fw.enabled = false;
+  FieldWeakening disabled(fw);
+  disabled.set_machine(5.5e-3, 0.3239, 1e-4);
+  EXPECT_EQ(disabled.step(400.0, 356.0, 1400.0, 80.0), 0.0);
 }
 
 }  // namespace

@@ -435,6 +435,7 @@ TEST(DriveNode, ASwitchToSpeedModeDoesNotJoltTheShaft) {
 // events; the speed ramp alone does not prevent it).
 TEST(DriveNode, TheVoltageLimitDoesNotWindTheSpeedLoopUp) {
   Rig rig;
+  ASSERT_FALSE(rig.config.drive.field_weakening.enabled);  // the default: id = 0 control
   rig.plant->set_load_torque_Nm(0.0);
   rig.run(5000);
   rig.in.speed_ref_rad_s = 1000.0;  // clamped to the limit, above what the voltage allows
@@ -450,6 +451,46 @@ TEST(DriveNode, TheVoltageLimitDoesNotWindTheSpeedLoopUp) {
   ASSERT_GT(rig.node->controller().telemetry().outcomes[static_cast<std::size_t>(core::PairOutcome::kAccepted)], 0U)
       << "no injection events ran";
   EXPECT_LT(highest, limit + 0.005 * limit);
+}
+
+// With control.field_weakening the same machine runs on past its id = 0 speed (367 rad/s at
+// 650 V, where the EMF takes the limit): a set-point of 420 rad/s is reached under load with a
+// negative d current within its bound, the current loop off its voltage limit, no fault, and
+// the injection still measuring there (its pairs hold the d current while they record).
+TEST(DriveNode, FieldWeakeningCarriesTheShaftPastTheIdZeroSpeed) {
+  Rig rig;
+  rig.config.drive.field_weakening.enabled = true;
+  rig.config.drive.speed_limit_rad_s = 450.0;
+  rig.config.drive.injection.interval_s = 0.5;
+  rig.supervisor.overspeed_rad_s = 480.0;
+  rig.node = std::make_unique<DriveNode>(rig.config, rig.supervisor, PublishRates{});
+  rig.run(5000);
+  rig.in.speed_ref_rad_s = 420.0;
+  rig.run(20000);  // the ramp (a quarter of the torque limit over J) takes about a second
+  double lowest = 1e9;
+  double highest = 0.0;
+  double id_most = 0.0;
+  int voltage_limited = 0;
+  const auto accepted_before =
+      rig.node->controller().telemetry().outcomes[static_cast<std::size_t>(core::PairOutcome::kAccepted)];
+  for (int k = 0; k < 20000; ++k) {
+    rig.run(1);
+    const double speed = rig.plant->truth().speed_rad_s;
+    lowest = std::min(lowest, speed);
+    highest = std::max(highest, speed);
+    const core::DriveTelemetry& t = rig.node->controller().telemetry();
+    id_most = std::min(id_most, t.i_ref_A.d - t.injection_A.d);
+    voltage_limited += t.voltage_limited && !t.injection_active ? 1 : 0;  // a pair's own are its to reject
+  }
+  const core::DriveTelemetry& t = rig.node->controller().telemetry();
+  EXPECT_EQ(rig.node->supervisor().status().state, core::DriveState::kRunning);
+  EXPECT_GT(lowest, 420.0 * 0.98);
+  EXPECT_LT(highest, 420.0 * 1.02);
+  // Ld id must take about psi (1 - 367 / 420) of the flux: some -7 A at least.
+  EXPECT_LT(t.i_ref_A.d - t.injection_A.d, -5.0);
+  EXPECT_GE(id_most, -rig.config.drive.field_weakening.max_current_A - 1e-9);
+  EXPECT_LT(voltage_limited, 200);
+  EXPECT_GT(t.outcomes[static_cast<std::size_t>(core::PairOutcome::kAccepted)], accepted_before);
 }
 
 // A torque command beyond what the (derated) current limit allows is cut to the limit, and

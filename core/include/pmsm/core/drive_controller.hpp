@@ -23,6 +23,7 @@
 #include "pmsm/core/angle_tracker.hpp"
 #include "pmsm/core/baseline_estimator.hpp"
 #include "pmsm/core/current_controller.hpp"
+#include "pmsm/core/field_weakening.hpp"
 #include "pmsm/core/injection_scheduler.hpp"
 #include "pmsm/core/inverter_sweep.hpp"
 #include "pmsm/core/machine_equations.hpp"
@@ -46,6 +47,9 @@ struct DriveConfig {
   CurrentControllerConfig current{};
   SpeedControllerConfig speed{};
   int speed_decimation = 10;         // speed loop every N current-loop periods
+  // Above the id = 0 speed, a negative d current that holds the current loop's command at a
+  // share of its voltage limit (field_weakening.hpp); held while an injection pair runs.
+  FieldWeakeningConfig field_weakening{};
   // The shaft's speed limit (mechanical, either direction; 0: none). Speed mode clamps its
   // set-point to it; torque mode bounds the torque by a proportional speed loop around it,
   // G (limit - speed) forwards and G (-limit - speed) backwards (ODrive's torque-mode velocity
@@ -420,6 +424,7 @@ class DriveController {
   double speed_limit_gain_Nm_s_;  // G of the torque-mode fold-back (DriveConfig::speed_limit_rad_s)
   AngleTracker angle_;
   CurrentController current_;
+  FieldWeakening field_weakening_;
   SpeedController speed_;
   InjectionScheduler scheduler_;
   BaselineEstimator baseline_;

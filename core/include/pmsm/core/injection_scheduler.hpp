@@ -239,6 +239,9 @@ struct SchedulerInput {
   double current_limit_A = 80.0;  // |i| limit now (may be derated)
   bool enabled = false;           // the drive is running and healthy
   bool request_now = false;       // start an event at the next opportunity
+  // The motoring point's d current is still moving (field weakening settling): no pair starts
+  // until it holds still, since the pair holds it where it is for both recordings.
+  bool motoring_settling = false;
   // How fast the winding's resistance changes now, as the thermal model predicts it (ohm per
   // controller second): an event's pairs lie at different times, and their joint fit refers
   // each to the event's time (finish_event).
