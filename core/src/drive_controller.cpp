@@ -498,6 +498,17 @@ bool DriveController::configure_injection(InjectionMethod method, Separation sep
   return true;
 }
 
+// Kept out of line, as the drive runs it only with field weakening on (the step without it
+// pays one test).
+[[gnu::noinline]] bool DriveController::weaken_field(bool sweeping, double omega_e_rad_s) {
+  if (scheduler_.phase() == SchedulerPhase::kIdle && !sweeping) {
+    const Dq& v = current_.status().v_unlimited_V;
+    field_weakening_.step(std::sqrt(v.d * v.d + v.q * v.q), current_.status().voltage_limit_V, omega_e_rad_s,
+                          injection_current_limit_A_);
+  }
+  return !field_weakening_.settled();
+}
+
 Dq DriveController::motoring_reference(const DriveCommand& command) {
   // Field weakening's d current takes its share of the current limit first; the torque gets
   // what is left of the circle.
@@ -1141,14 +1152,13 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   // A sweep waiting to start again holds the calibration's events back as a running one does.
   const bool sweeping = sweep_.active() || sweep_restart_.pending || check_.active() || check_restart_.pending;
   Dq motoring{};
+  bool motoring_settling = false;  // (SchedulerInput::motoring_settling)
   if (enabled) {
     // Field weakening on the last period's command (reset with the current loop on enabling:
     // its limit reads 0 until the first period), held while a pair records or the sweep and
     // the angle check run: their separations take the motoring point as still.
-    if (field_weakening_.enabled() && scheduler_.phase() == SchedulerPhase::kIdle && !sweeping) {
-      const CurrentControllerStatus& last = current_.status();
-      field_weakening_.step(std::sqrt(last.v_unlimited_V.d * last.v_unlimited_V.d + last.v_unlimited_V.q * last.v_unlimited_V.q),
-                            last.voltage_limit_V, omega_e, injection_current_limit_A_);
+    if (field_weakening_.enabled()) {
+      motoring_settling = weaken_field(sweeping, omega_e);
     }
     motoring = motoring_reference(command);
   } else {
@@ -1168,7 +1178,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   si.motoring_ref_A = motoring;
   si.voltage_limit_V = current_.voltage_limit_V(in.vdc_V);
   si.current_limit_A = injection_current_limit_A_;
-  si.motoring_settling = !field_weakening_.settled();
+  si.motoring_settling = motoring_settling;
   si.rs_rate_ohm_per_s = rs_rate_ohm_per_s_;  // finite (update_thermal)
   si.enabled = enabled && config_.estimator == EstimatorKind::kInjection && !sweeping && !after_lost;
   if (calibrating_ && !sweeping && now - calibration_started_s_ > config_.calibration_timeout_s) {

@@ -416,6 +416,8 @@ class DriveController {
   void count_thermal_periods(std::uint32_t periods, const DriveCommand& command);
   void update_thermal(double ambient_C, bool speed_mode);
   [[nodiscard]] Dq motoring_reference(const DriveCommand& command);
+  // One period of field weakening (when it is on); true while its d current is still moving.
+  bool weaken_field(bool sweeping, double omega_e_rad_s);
 
   DriveConfig config_;
   double kt_dq_Nm_per_A_;
