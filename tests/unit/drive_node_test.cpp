@@ -475,7 +475,7 @@ TEST(DriveNode, FieldWeakeningCarriesTheShaftPastTheIdZeroSpeed) {
       rig.node->controller().telemetry().outcomes[static_cast<std::size_t>(core::PairOutcome::kAccepted)];
   for (int k = 0; k < 20000; ++k) {
     rig.run(1);
-    const double speed = rig.plant->truth().speed_rad_s;
+    const auto speed = static_cast<double>(rig.plant->truth().speed_rad_s);
     lowest = std::min(lowest, speed);
     highest = std::max(highest, speed);
     const core::DriveTelemetry& t = rig.node->controller().telemetry();
