@@ -333,7 +333,7 @@ TEST(protocol_codec, TelemetryRoundTrip) {
   status.current_limit_A = 400.0;
   status.time_to_limit_valid = true;
   status.time_to_limit_s = 16383.0;
-  status.speed_rad_s = -1600.0;
+  status.speed_rad_s = -3200.0;
   status.torque_Nm = 400.0;
   const DriveStatus sr = round_trip(status);
   EXPECT_EQ(sr.state, status.state);
@@ -341,7 +341,10 @@ TEST(protocol_codec, TelemetryRoundTrip) {
   EXPECT_NEAR(sr.current_limit_A, 400.0, 0.05);
   EXPECT_TRUE(sr.time_to_limit_valid);
   EXPECT_NEAR(sr.time_to_limit_s, 16383.0, 0.5);
-  EXPECT_NEAR(sr.speed_rad_s, -1600.0, 0.05);
+  EXPECT_NEAR(sr.speed_rad_s, -3200.0, 0.1);
+  // A field-weakening spindle's 1885 rad/s, which the 1.2 layout's +-1600 clamped.
+  status.speed_rad_s = 1885.0;
+  EXPECT_NEAR(round_trip(status).speed_rad_s, 1885.0, 0.1);
   EXPECT_NEAR(sr.torque_Nm, 400.0, 0.025);
 
   ThermalEstimate thermal;

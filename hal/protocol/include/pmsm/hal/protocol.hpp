@@ -38,7 +38,7 @@ inline constexpr std::uint32_t kNodeIdMask = 0x00F;  // the node-id bits of a CA
 inline constexpr std::uint32_t kIdBaseMask = 0x7F0;  // the message bits of a CAN ID
 
 // Protocol version, written into the DBC's VERSION line. Bump it on any layout change.
-inline constexpr std::string_view kProtocolVersion = "pmsm-thermal-can 1.2";
+inline constexpr std::string_view kProtocolVersion = "pmsm-thermal-can 1.3";
 
 // The parties on the bus (DBC "BU_" nodes). A receive-filter role is one of these.
 enum class Role : std::uint8_t {
@@ -562,8 +562,8 @@ inline constexpr SignalDef kTimeToLimit{"TimeToLimit", 20, 14, false, 1, 0, 0, 1
     "Time until the winding reaches its derating threshold if the present load continues (saturates); see TimeToLimitValid."};
 inline constexpr SignalDef kTimeToLimitValid{"TimeToLimitValid", 34, 1, false, 1, 0, 0, 1, "", detail::kNoValues,
     "1: TimeToLimit holds a prediction; 0: none (not heating, or no estimate)."};
-inline constexpr SignalDef kSpeed{"Speed", 35, 15, true, 0.1, 0, -1600, 1600, "rad/s", detail::kNoValues,
-    "Mechanical speed."};
+inline constexpr SignalDef kSpeed{"Speed", 35, 15, true, 0.2, 0, -3200, 3200, "rad/s", detail::kNoValues,
+    "Mechanical speed (0.2 rad/s steps; beyond the set-point range, so that a shaft carried past it reads true)."};
 inline constexpr SignalDef kTorque{"Torque", 50, 14, true, 0.05, 0, -400, 400, "Nm", detail::kNoValues,
     "Estimated electromagnetic torque, including reluctance torque."};
 inline constexpr std::array<SignalDef, 11> kSignals{
