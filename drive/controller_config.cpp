@@ -674,6 +674,16 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
              ref("control.nominal_dc_bus_V", c.nominal_dc_bus_V, "V", l) + ", " + common::format_number(limit_V) +
              " V (control.voltage_limit_fraction x bus / sqrt(3)): no injection could ever be budgeted");
   }
+  // The field-weakening loop acts through the current loop: it must be the slower of the two by
+  // far, or the two fight (its plant is the current loop's closed-loop response).
+  if (d.field_weakening.bandwidth_rad_s > 0.5 * d.current.bandwidth_rad_s) {
+    const std::string_view l = lead("control.field_weakening_bandwidth_rad_s", "control.current_bandwidth_rad_s");
+    rule("control.field_weakening_bandwidth_rad_s", "control.current_bandwidth_rad_s",
+         ref("control.field_weakening_bandwidth_rad_s", d.field_weakening.bandwidth_rad_s, "rad/s", l) +
+             " must be at most half of " +
+             ref("control.current_bandwidth_rad_s", d.current.bandwidth_rad_s, "rad/s", l) +
+             ": the voltage loop acts through the current loop and must be the slower of the two");
+  }
   // Saturation only lowers the secant inductance; the estimator's curve is kept within half of Lq.
   if (m.lq_rated_H > 0.0 && (m.lq_rated_H > m.lq_H || m.lq_rated_H < 0.5 * m.lq_H)) {
     const std::string_view l = lead("motor.lq_rated_H", "motor.lq_H");

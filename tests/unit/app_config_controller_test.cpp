@@ -342,6 +342,22 @@ TEST(ControllerConfig, HeadroomMarginFollowsTheBus) {
   EXPECT_EQ(error_of("[control]\nnominal_dc_bus_V = 48\n[injection]\nheadroom_margin_V = 26\n"), "");
 }
 
+// The field-weakening loop must be well inside the current loop's bandwidth (2000 rad/s here).
+TEST(ControllerConfig, TheFieldWeakeningLoopIsSlowerThanTheCurrentLoop) {
+  const std::string e = error_of("[control]\nfield_weakening = true\nfield_weakening_bandwidth_rad_s = 1500\n");
+  EXPECT_EQ(e.rfind("drive.toml:3: control.field_weakening_bandwidth_rad_s (1500 rad/s) must be at most half of "
+                    "control.current_bandwidth_rad_s (2000 rad/s",
+                    0),
+            0U)
+      << e;
+  EXPECT_EQ(error_of("[control]\nfield_weakening = true\nfield_weakening_bandwidth_rad_s = 1000\n"), "");
+  // Its bound follows the motor: psi / Ld (Table I: 58.9 A) below the current limit.
+  const ControllerConfig c = parse("[control]\nfield_weakening = true\n");
+  EXPECT_TRUE(c.drive.field_weakening.enabled);
+  EXPECT_NEAR(c.drive.field_weakening.max_current_A, core::flux_linkage_Wb(c.drive.motor) / c.drive.motor.ld_H, 1e-9);
+  EXPECT_LT(c.drive.field_weakening.max_current_A, c.drive.derating.max_current_A);
+}
+
 // A flux map's secant Lq at the rated current: saturation lowers it, so it lies between half
 // of the commissioned Lq and Lq itself; it reaches the scheduler with the rated current.
 TEST(ControllerConfig, RatedCurrentLqIsCheckedAgainstLq) {
