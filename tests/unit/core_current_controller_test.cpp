@@ -108,13 +108,18 @@ TEST(CurrentController, TracksDAndQStepsWithTheDesignedBandwidth) {
   }
 }
 
-TEST(CurrentController, NoSteadyStateErrorWithModelMismatch) {
-  // The controller's parameters are off from the machine's (as after commissioning).
+// The controller's parameters off from the ideal machine's, as after commissioning.
+CurrentControllerConfig commissioned_config() {
   CurrentControllerConfig config;
   config.rs_ohm = 0.12;
   config.ld_H = 6.0e-3;
   config.lq_H = 5.0e-3;
   config.flux_linkage_Wb = 0.3239 * 1.03;
+  return config;
+}
+
+TEST(CurrentController, NoSteadyStateErrorWithModelMismatch) {
+  const CurrentControllerConfig config = commissioned_config();
   IdealMachine machine;
   machine.omega_e = 600.0;
   machine.rs = 0.17;
@@ -177,11 +182,7 @@ struct WeakenedRun {
 // command, then the loop) on the ideal machine turning at a fixed electrical speed, asked for a
 // q current. The commissioned model is off from the machine, as after commissioning.
 WeakenedRun run_weakened(double omega_e, double iq_ref, FieldWeakeningConfig fw_config, int periods) {
-  CurrentControllerConfig config;
-  config.rs_ohm = 0.12;
-  config.ld_H = 6.0e-3;
-  config.lq_H = 5.0e-3;
-  config.flux_linkage_Wb = 0.3239 * 1.03;
+  const CurrentControllerConfig config = commissioned_config();
   IdealMachine machine;
   machine.omega_e = omega_e;
   CurrentController controller(config);

@@ -119,22 +119,22 @@ check_warns '[controller.motor]\ncontinuous_current_A_rms = 4.5\n[controller.sen
 # A rated speed the bus cannot hold without field weakening (Table I's EMF at 650 V: 367 rad/s).
 check_warns '[controller.motor]\nrated_speed_rad_s = 400.0\n[controller.control]\nspeed_limit_rad_s = 450.0\n' \
   "controller.motor.rated_speed_rad_s = 400 rad/s lies beyond the 367 rad/s where the EMF"
+# check_clean NAME TOML WHAT: the configuration passes --check without a warning.
+check_clean() {
+  printf "$2" > "$dir/$1.toml"
+  out=$("$exe" --config "$dir/$1.toml" --check 2>&1); rc=$?
+  if [ "$rc" -ne 0 ] || [[ "$out" == *"warning"* ]]; then
+    echo "FAIL: $3 should pass without a warning, got exit $rc: $out"; fail=1
+  else
+    echo "ok: $out"
+  fi
+}
 # With field weakening on, the same rated speed is reachable: no warning.
-printf '[controller.motor]\nrated_speed_rad_s = 400.0\n[controller.control]\nspeed_limit_rad_s = 450.0\nfield_weakening = true\n' > "$dir/field-weakening.toml"
-out=$("$exe" --config "$dir/field-weakening.toml" --check 2>&1); rc=$?
-if [ "$rc" -ne 0 ] || [[ "$out" == *"warning"* ]]; then
-  echo "FAIL: a rated speed beyond the EMF speed with field weakening on should pass without a warning, got exit $rc: $out"; fail=1
-else
-  echo "ok: $out"
-fi
+check_clean field-weakening '[controller.motor]\nrated_speed_rad_s = 400.0\n[controller.control]\nspeed_limit_rad_s = 450.0\nfield_weakening = true\n' \
+  "a rated speed beyond the EMF speed with field weakening on"
 # Its own thermal model and floor: no warning.
-printf '[controller.motor]\ncontinuous_current_A_rms = 4.5\n[controller.sensors]\ncurrent_range_A = 25.0\n[controller.derating]\nmax_current_A = 19.0\nmin_current_A = 3.0\n[controller.thermal]\nwinding_capacity_J_K = 330.0\n' > "$dir/small-motor-own.toml"
-out=$("$exe" --config "$dir/small-motor-own.toml" --check 2>&1); rc=$?
-if [ "$rc" -ne 0 ] || [[ "$out" == *"warning"* ]]; then
-  echo "FAIL: a small motor with its own thermal model and floor should pass without a warning, got exit $rc: $out"; fail=1
-else
-  echo "ok: $out"
-fi
+check_clean small-motor-own '[controller.motor]\ncontinuous_current_A_rms = 4.5\n[controller.sensors]\ncurrent_range_A = 25.0\n[controller.derating]\nmax_current_A = 19.0\nmin_current_A = 3.0\n[controller.thermal]\nwinding_capacity_J_K = 330.0\n' \
+  "a small motor with its own thermal model and floor"
 # A bad command line is a configuration error (exit 2, which the unit does not restart on) and
 # names the option; --help and --version exit 0.
 for args in "--bogus" "--log-level loud --config $dir/bad.toml"; do
