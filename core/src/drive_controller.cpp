@@ -521,8 +521,10 @@ Dq DriveController::motoring_reference(const DriveCommand& command) {
   double kt_Nm_per_A = kt_dq_Nm_per_A_;
   if (id_A != 0.0) {
     limit = std::sqrt(std::max(limit * limit - id_A * id_A, 0.0));
-    const double psi_Wb = config_.current.flux_linkage_Wb;
-    kt_Nm_per_A *= std::max(psi_Wb + (config_.motor.ld_H - scheduler_.lq_H()) * id_A, 0.5 * psi_Wb) / psi_Wb;
+    // Eq. 10 with the reluctance term, per ampere of iq.
+    kt_Nm_per_A = std::max(electromagnetic_torque_Nm(config_.current.flux_linkage_Wb, config_.current.ld_H,
+                                                     scheduler_.lq_H(), config_.motor.pole_pairs, {id_A, 1.0}),
+                           0.5 * kt_dq_Nm_per_A_);
   }
   bool speed_limited = false;
   double torque = 0.0;
@@ -582,7 +584,8 @@ Dq DriveController::motoring_reference(const DriveCommand& command) {
     }
     torque_demand_Nm_ = torque;  // for a switch to speed mode
   }
-  // id = 0 control (below the field-weakening speed): Eq. 10, Tem = Kt iqr.
+  // Eq. 10: Tem = Kt iqr (id = 0 control below the field-weakening speed; above it, Kt with the
+  // reluctance term of field weakening's d current).
   const double wanted = torque / kt_Nm_per_A;
   telemetry_.motoring_iq_wanted_A = wanted;  // DriveTelemetry::current_limited() compares
   telemetry_.motoring_iq_limit_A = limit;
