@@ -132,9 +132,9 @@ ConfigSchema<C> build() {
   s.real("control.pll_bandwidth_rad_s", [](C& c) -> double& { return c.drive.angle.pll_bandwidth_rad_s; }, positive(10000), "rad/s",
          "Speed observer (PLL) bandwidth.");
   s.real("control.nominal_dc_bus_V", [](C& c) -> double& { return c.nominal_dc_bus_V; }, positive(10000), "V",
-         "Nominal DC-bus voltage (sets the inverter-error prior).");
+         "Nominal DC-bus voltage (the inverter-error prior and Vx are referred to it).");
   s.real("control.dead_time_s", [](C& c) -> double& { return c.drive.dead_time.dead_time_s; }, between(0, 1e-5), "s",
-         "Dead time the compensation assumes.");
+         "Dead time the compensation assumes; the estimator's Vx follows the bus by it.");
   s.real("control.device_drop_V", [](C& c) -> double& { return c.drive.dead_time.device_drop_V; }, between(0, 10), "V",
          "Device forward drop the compensation assumes.");
   s.real("control.dead_time_band_A", [](C& c) -> double& { return c.drive.dead_time.current_band_A; }, between(0, 20), "A",
@@ -524,6 +524,8 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
     d.calibration.angle_correction_measured = true;
     d.calibration.angle_correction_rad = *c.angle_correction_rad;
   }
+  // The estimator's Vx is the bridge's error at the nominal bus, as its prior below is.
+  d.vx_reference_bus_V = c.nominal_dc_bus_V;
   if (c.vx_initial_from_compensation) {
     d.injection.vx_initial_V = d.dead_time.dead_time_s / d.period_s * c.nominal_dc_bus_V + d.dead_time.device_drop_V;
   }

@@ -91,6 +91,9 @@ DriveController::DriveController(const DriveConfig& config)
       derating_{config_.derating.max_current_A, false},
       injection_current_limit_A_(config_.derating.max_current_A) {
   field_weakening_.set_machine(config_.current.ld_H, config_.current.flux_linkage_Wb, config_.period_s);
+  if (config_.vx_reference_bus_V > 0.0 && std::isfinite(config_.vx_reference_bus_V)) {
+    vx_bus_slope_ = config_.dead_time.dead_time_s / config_.period_s;
+  }
   // DRIVE_STATUS reads the limit before the first thermal update sets it.
   telemetry_.current_limit_A = derating_.current_limit_A;
   // A stored calibration that measured the bridge replaces the configured band.
@@ -1126,8 +1129,11 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
       // The period's means as the machine saw them: the stator-fixed command and bridge error,
       // turned back across the period, shrink; the current bends (machine_equations.hpp).
       const double shrink = period_voltage_shrink(smooth_advance);
-      s.v_V = {shrink * v_mid.d, shrink * v_mid.q};
       s.dead_time_pattern = period_sign_pattern(pattern.mean, pattern.moment, smooth_advance);
+      // The bridge's error beyond the one at the reference bus (DriveConfig::vx_reference_bus_V)
+      // taken out, so that Vx is the error at that bus.
+      const double bus_error_V = vx_bus_slope_ * (in.vdc_V - config_.vx_reference_bus_V);
+      s.v_V = {shrink * v_mid.d - bus_error_V * s.dead_time_pattern.d, shrink * v_mid.q - bus_error_V * s.dead_time_pattern.q};
       const double vx = scheduler_.vx_V();
       s.i_A = period_mean_current(ends_mean, {i.d - previous_i_A_.d, i.q - previous_i_A_.q},
                                   {s.v_V.d - vx * s.dead_time_pattern.d, s.v_V.q - vx * s.dead_time_pattern.q},

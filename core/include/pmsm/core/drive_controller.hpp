@@ -67,6 +67,14 @@ struct DriveConfig {
   // step to the speed limit overshoots the limit).
   double speed_ramp_rad_s2 = 0.0;
   DeadTimeCompensation dead_time{0.9e-6, 0.0, 1.0};
+  // The bus the estimator's bridge error Vx is referred to (0: none). The bridge loses its dead
+  // time's share of the bus, dead_time / period x Vdc, plus the devices' drop: on a bus that
+  // moves, a Vx learned at one voltage is wrong at another (the Table I bridge's 6.4 V at 540 V
+  // is 5.6 V at 459 V). Each period's voltage reaches the estimator with
+  // dead_time / period x (Vdc - this) x its sign pattern taken out, so that Vx, its prior and
+  // the one stored with the calibration are the error at this bus whatever the bus does
+  // (docs/estimator.md section 4). The loader sets control.nominal_dc_bus_V.
+  double vx_reference_bus_V = 0.0;
   InjectionConfig injection{};
   // The calibration procedure, whatever the run-time method: fixed-magnitude bipolar at two
   // levels, the one procedure that separates Rs0 from the inverter's voltage error without
@@ -525,6 +533,7 @@ class DriveController {
   Dq previous_i_A_{};
   Abc previous_i_abc_A_{};
   double pattern_noise_A_ = 0.0;  // effective noise of the sampled line (set_current_noise_A)
+  double vx_bus_slope_ = 0.0;     // dead_time / period, when Vx is referred to a bus (else 0)
   PeriodSample period_sample_{};  // the period that just ended, when step() builds it
   double previous_theta_smooth_ = 0.0;
   // The commands in the stator's frame (alpha, beta), as the bridge was asked for them.
