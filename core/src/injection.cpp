@@ -98,8 +98,9 @@ double max_injection_current_A(double headroom_V, double ld_H, double rs_ohm, do
 }
 
 Dq motoring_voltage(const InjectionHeadroomInput& in) {
-  return {in.rs_ohm * in.id_A - in.omega_e_rad_s * in.lq_H * in.iq_A,
-          in.rs_ohm * in.iq_A + in.omega_e_rad_s * (in.ld_H * in.id_A + in.flux_linkage_Wb)};
+  return {in.rs_ohm * in.id_A - in.omega_e_rad_s * in.lq_H * in.iq_A + in.motoring_voltage_error_V.d,
+          in.rs_ohm * in.iq_A + in.omega_e_rad_s * (in.ld_H * in.id_A + in.flux_linkage_Wb) +
+              in.motoring_voltage_error_V.q};
 }
 
 namespace {

@@ -839,8 +839,10 @@ TEST(InjectionScheduler, ReadsASampleOnlyWhenItSaysItRecords) {
 
 // ---- budget ----
 
-// Largest F with |v0 + s F u| <= limit (Eq. 29 at the operating point), computed here.
-double voltage_budget(double omega_e, const Dq& im, double limit_V, const InjectionConfig& c, double s) {
+// Largest F with |v0 + s F u| <= limit (Eq. 29 at the operating point), computed here; v0 is
+// Eq. 3's motoring voltage, or `motoring_V` when given.
+double voltage_budget(double omega_e, const Dq& im, double limit_V, const InjectionConfig& c, double s,
+                      std::optional<Dq> motoring_V = std::nullopt) {
   // k = max |dB2/dt| Tw by dense sampling of Eq. 24's derivative.
   double k = 0.0;
   for (int n = 0; n <= 200000; ++n) {
@@ -848,7 +850,8 @@ double voltage_budget(double omega_e, const Dq& im, double limit_V, const Inject
     k = std::max(k, std::abs(0.5 * kPi * std::sin(kPi * x) - 0.25 * kPi * std::sin(2.0 * kPi * x)));
   }
   const double rs = c.rs_nominal_ohm;
-  const Dq v0{rs * im.d - omega_e * c.lq_H * im.q, rs * im.q + omega_e * (c.ld_H * im.d + c.flux_linkage_Wb)};
+  const Dq v0 = motoring_V.value_or(
+      Dq{rs * im.d - omega_e * c.lq_H * im.q, rs * im.q + omega_e * (c.ld_H * im.d + c.flux_linkage_Wb)});
   const double ud = s * std::hypot(k * c.ld_H / c.tw_s, rs);
   const double uq = s * omega_e * c.ld_H;
   // Bisection on F (monotone beyond the vertex; v0 is inside the circle).
@@ -966,6 +969,45 @@ TEST(InjectionBudget, VoltageHeadroomReducesFAtSpeed) {
   // At 1000 rad/s the motoring voltage alone is close to the limit: F must be small.
   in.omega_e_rad_s = 1000.0;
   EXPECT_LT(s.budget(in, c.tw_s, 25.0).f_A, c.f_min_A);
+}
+
+// The machine needs what the current loop commands, not what the commissioned model says: given
+// the loop's mean command (and its mean square), the budget takes it as the motoring voltage,
+// lengthened by twice its spread. Given for another period, it is not used.
+TEST(InjectionBudget, TheLoopsMotoringVoltageReplacesTheModels) {
+  InjectionConfig c = test_config();
+  c.field_weakening_pairs = false;  // the configured pair's own budget
+  InjectionScheduler s(c, kPeriod, 64);
+  SchedulerInput in;
+  in.time_s = 3.0;
+  in.voltage_limit_V = 356.0;
+  in.motoring_ref_A = {0.0, 20.0};
+  in.omega_e_rad_s = 900.0;
+  const double limit = in.voltage_limit_V - c.headroom_margin_V;
+  const Dq im = in.motoring_ref_A;
+  auto expected = [&](std::optional<Dq> v0) {
+    return std::min({25.0, voltage_budget(in.omega_e_rad_s, im, limit, c, 1.0, v0),
+                     voltage_budget(in.omega_e_rad_s, im, limit, c, -1.0, v0)});
+  };
+  const double model_f = s.budget(in, c.tw_s, 25.0).f_A;
+  ASSERT_NEAR(model_f, expected(std::nullopt), 1e-3);
+  const double rs = c.rs_nominal_ohm;
+  const Dq model{rs * im.d - in.omega_e_rad_s * c.lq_H * im.q,
+                 rs * im.q + in.omega_e_rad_s * (c.ld_H * im.d + c.flux_linkage_Wb)};
+  // The machine needs 12 V more on q than the model (a bridge error, a Ke commissioned low).
+  const Dq measured{model.d, model.q + 12.0};
+  s.set_motoring_voltage(in.time_s, measured, measured.d * measured.d + measured.q * measured.q);
+  const double f = s.budget(in, c.tw_s, 25.0).f_A;
+  EXPECT_NEAR(f, expected(measured), 1e-3);
+  EXPECT_LT(f, model_f - 1.0);
+  // A spread of 4 V about the mean: the mean lengthened by 8 V.
+  const double mean_sq = measured.d * measured.d + measured.q * measured.q;
+  s.set_motoring_voltage(in.time_s, measured, mean_sq + 16.0);
+  const double scale = 1.0 + 8.0 / std::sqrt(mean_sq);
+  EXPECT_NEAR(s.budget(in, c.tw_s, 25.0).f_A, expected(Dq{scale * measured.d, scale * measured.q}), 1e-3);
+  // Given for the period before: the model's.
+  in.time_s += kPeriod;
+  EXPECT_NEAR(s.budget(in, c.tw_s, 25.0).f_A, model_f, 1e-9);
 }
 
 // At the voltage limit (the motoring point alone needs more than limit - margin) no level of

@@ -448,7 +448,11 @@ class DriveController {
   [[nodiscard]] AngleCheckMotor angle_check_motor() const;
   void restore_band();
   void restore_angle();
-  void age_magnet(std::uint32_t periods);
+  void age_magnet(double controller_s);
+  // Thermal time since the last EMF measurement: what the updates have aged it by, plus the
+  // time since the last update.
+  [[nodiscard]] double magnet_age_now_s() const { return magnet_age_s_ + thermal_elapsed_s_ * observer_.time_scale(); }
+  void track_motoring_voltage(double now_s);
   void update_magnet(const EventEstimate& e, const Calibration& cal);
   void restore_vx();
   [[nodiscard]] double magnet_var_now_C2() const;
@@ -534,6 +538,13 @@ class DriveController {
   Abc previous_i_abc_A_{};
   double pattern_noise_A_ = 0.0;  // effective noise of the sampled line (set_current_noise_A)
   double vx_bus_slope_ = 0.0;     // dead_time / period, when Vx is referred to a bus (else 0)
+  // The current loop's motoring voltage, low-passed over the periods without a pulse
+  // (track_motoring_voltage), and how many periods it has seen since the loop started.
+  Dq motoring_voltage_mean_V_{};
+  double motoring_voltage_mean_sq_V2_ = 0.0;  // of |v|^2
+  double motoring_voltage_gain_ = 0.0;
+  std::uint32_t motoring_voltage_periods_ = 0;
+  std::uint32_t motoring_voltage_settle_periods_ = 0;
   PeriodSample period_sample_{};  // the period that just ended, when step() builds it
   double previous_theta_smooth_ = 0.0;
   // The commands in the stator's frame (alpha, beta), as the bridge was asked for them.
@@ -566,7 +577,7 @@ class DriveController {
   double calibration_ke_sq_sum_ = 0.0;
   bool magnet_valid_ = false;
   bool magnet_measured_ = false;  // an estimate exists (valid or aged out): the magnets derate on it
-  double magnet_age_s_ = 0.0;  // thermal time since the last EMF measurement
+  double magnet_age_s_ = 0.0;  // thermal time since the last EMF measurement, to the last thermal update
   // Calibration.
   bool calibrating_ = false;
   bool calibration_failed_ = false;

@@ -117,9 +117,13 @@ struct InjectionHeadroomInput {
   double voltage_limit_V = 356.0; // usable voltage, e.g. 0.95 Vdc / sqrt(3)
   double tw_s = 0.01;
   WindowKind window = WindowKind::kBlackman;
+  // Added to Eq. 3's motoring voltage: what the machine needs beyond the model at this operating
+  // point (the current loop's command less the model's, InjectionScheduler::budget). Zero: the
+  // model alone.
+  Dq motoring_voltage_error_V{};
 };
 
-// Steady-state motoring voltage (Eq. 3 with d/dt = 0).
+// Steady-state motoring voltage (Eq. 3 with d/dt = 0), plus motoring_voltage_error_V.
 [[nodiscard]] Dq motoring_voltage(const InjectionHeadroomInput& in);
 
 // Largest F >= 0 for one polarity (+1 or -1); 0 when the motoring voltage alone is at or

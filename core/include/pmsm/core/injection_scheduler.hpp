@@ -36,6 +36,7 @@
 #include <cstdint>
 #include <optional>
 #include <cmath>
+#include <limits>
 #include <string_view>
 
 #include "pmsm/core/motor_params.hpp"
@@ -419,6 +420,16 @@ class InjectionScheduler {
   // The inverter voltage prior carried between events.
   [[nodiscard]] double vx_V() const { return vx_V_; }
   [[nodiscard]] double vx_std_V() const { return std::sqrt(vx_var_); }
+  // The machine's motoring voltage as the current loop commands it before its limit: the mean
+  // of the command (rotor frame) and the mean of its square magnitude, over the same recent
+  // periods. Given in a period with no pulse on, before step() of the same `time_s`: a pair
+  // starting in that step sizes its voltage budget on them instead of on the model's Eq. 3
+  // (budget()).
+  void set_motoring_voltage(double time_s, const Dq& mean_V, double mean_sq_V2) {
+    motoring_voltage_time_s_ = time_s;
+    motoring_voltage_V_ = mean_V;
+    motoring_voltage_mean_sq_V2_ = mean_sq_V2;
+  }
   // Replaces the inverter-voltage prior (a stored calibration's Vx at start-up; the configured
   // guess when a calibration run starts, so that it learns Vx afresh).
   void set_vx_prior(double vx_V, double std_V) {
@@ -542,6 +553,10 @@ class InjectionScheduler {
   std::uint32_t learned_version_ = 0;  // learned_version()
   double vx_V_ = 0.0;               // inverter voltage prior
   double vx_var_ = 0.0;
+  // set_motoring_voltage(): NaN time until given.
+  double motoring_voltage_time_s_ = std::numeric_limits<double>::quiet_NaN();
+  Dq motoring_voltage_V_{};
+  double motoring_voltage_mean_sq_V2_ = 0.0;
   double lq_H_ = 0.0;               // learned q-axis inductance (see InjectionConfig::learn_lq)
   double lq_var_ = 0.0;
   LqShape lq_shape_;                // the saturation curve's shape and its commissioned b0 (InjectionConfig::lq_map)
