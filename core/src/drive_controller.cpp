@@ -511,8 +511,6 @@ bool DriveController::configure_injection(InjectionMethod method, Separation sep
   return true;
 }
 
-// Kept out of line, as the drive runs it only with field weakening on (the step without it
-// pays one test).
 // The loop's last command was a motoring one (it ran, and no pulse was on): low-passed, it is
 // the machine's motoring voltage, which the voltage budget of a pair starting in this period
 // takes instead of the model's (InjectionScheduler::set_motoring_voltage). Its mean and its
@@ -540,6 +538,8 @@ bool DriveController::configure_injection(InjectionMethod method, Separation sep
   }
 }
 
+// Kept out of line, as the drive runs it only with field weakening on (the step without it
+// pays one test).
 [[gnu::noinline]] bool DriveController::weaken_field(bool sweeping, double omega_e_rad_s) {
   if (scheduler_.phase() == SchedulerPhase::kIdle && !sweeping) {
     const Dq& v = current_.status().v_unlimited_V;

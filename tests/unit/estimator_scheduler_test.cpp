@@ -946,18 +946,35 @@ TEST(InjectionBudget, ReluctanceTorqueBudgetOnASalientMachine) {
   EXPECT_EQ(so.budget(in, c.tw_s, 25.0).f_A, 25.0);
 }
 
-TEST(InjectionBudget, VoltageHeadroomReducesFAtSpeed) {
+// The configured pair's own voltage budget (no field-weakening pairs), its operating point, and
+// the F that both polarities allow for 25 A wanted (voltage_budget).
+InjectionConfig configured_pair_config() {
   InjectionConfig c = test_config();
-  c.field_weakening_pairs = false;  // the configured pair's own budget
-  InjectionScheduler s(c, kPeriod, 64);
+  c.field_weakening_pairs = false;
+  return c;
+}
+
+SchedulerInput voltage_budget_input(double omega_e) {
   SchedulerInput in;
   in.voltage_limit_V = 356.0;
   in.motoring_ref_A = {0.0, 20.0};
+  in.omega_e_rad_s = omega_e;
+  return in;
+}
+
+double expected_voltage_f(const SchedulerInput& in, const InjectionConfig& c, std::optional<Dq> motoring_V = std::nullopt) {
+  const double limit = in.voltage_limit_V - c.headroom_margin_V;
+  return std::min({25.0, voltage_budget(in.omega_e_rad_s, in.motoring_ref_A, limit, c, 1.0, motoring_V),
+                   voltage_budget(in.omega_e_rad_s, in.motoring_ref_A, limit, c, -1.0, motoring_V)});
+}
+
+TEST(InjectionBudget, VoltageHeadroomReducesFAtSpeed) {
+  const InjectionConfig c = configured_pair_config();
+  InjectionScheduler s(c, kPeriod, 64);
+  SchedulerInput in = voltage_budget_input(0.0);
   for (double w : {300.0, 900.0, 980.0, 1000.0}) {
     in.omega_e_rad_s = w;
-    const double limit = in.voltage_limit_V - c.headroom_margin_V;
-    const double expected = std::min({25.0, voltage_budget(w, in.motoring_ref_A, limit, c, 1.0),
-                                      voltage_budget(w, in.motoring_ref_A, limit, c, -1.0)});
+    const double expected = expected_voltage_f(in, c);
     const InjectionScheduler::Budget b = s.budget(in, c.tw_s, 25.0);
     EXPECT_NEAR(b.f_A, expected, 1e-3) << "w " << w;
     if (expected < c.f_min_A) {
@@ -975,20 +992,12 @@ TEST(InjectionBudget, VoltageHeadroomReducesFAtSpeed) {
 // the loop's mean command (and its mean square), the budget takes it as the motoring voltage,
 // lengthened by twice its spread. Given for another period, it is not used.
 TEST(InjectionBudget, TheLoopsMotoringVoltageReplacesTheModels) {
-  InjectionConfig c = test_config();
-  c.field_weakening_pairs = false;  // the configured pair's own budget
+  const InjectionConfig c = configured_pair_config();
   InjectionScheduler s(c, kPeriod, 64);
-  SchedulerInput in;
+  SchedulerInput in = voltage_budget_input(900.0);
   in.time_s = 3.0;
-  in.voltage_limit_V = 356.0;
-  in.motoring_ref_A = {0.0, 20.0};
-  in.omega_e_rad_s = 900.0;
-  const double limit = in.voltage_limit_V - c.headroom_margin_V;
   const Dq im = in.motoring_ref_A;
-  auto expected = [&](std::optional<Dq> v0) {
-    return std::min({25.0, voltage_budget(in.omega_e_rad_s, im, limit, c, 1.0, v0),
-                     voltage_budget(in.omega_e_rad_s, im, limit, c, -1.0, v0)});
-  };
+  auto expected = [&](std::optional<Dq> v0) { return expected_voltage_f(in, c, v0); };
   const double model_f = s.budget(in, c.tw_s, 25.0).f_A;
   ASSERT_NEAR(model_f, expected(std::nullopt), 1e-3);
   const double rs = c.rs_nominal_ohm;

@@ -69,11 +69,11 @@ struct DriveConfig {
   DeadTimeCompensation dead_time{0.9e-6, 0.0, 1.0};
   // The bus the estimator's bridge error Vx is referred to (0: none). The bridge loses its dead
   // time's share of the bus, dead_time / period x Vdc, plus the devices' drop: on a bus that
-  // moves, a Vx learned at one voltage is wrong at another (the Table I bridge's 6.4 V at 540 V
-  // is 5.6 V at 459 V). Each period's voltage reaches the estimator with
-  // dead_time / period x (Vdc - this) x its sign pattern taken out, so that Vx, its prior and
-  // the one stored with the calibration are the error at this bus whatever the bus does
-  // (docs/estimator.md section 4). The loader sets control.nominal_dc_bus_V.
+  // moves, a Vx learned at one voltage is wrong at another (the reference plant's bridge, 1 us
+  // and 1 V at 10 kHz, loses 6.4 V at 540 V and 5.6 V at 459 V). Each period's voltage reaches
+  // the estimator with dead_time / period x (Vdc - this) x its sign pattern taken out, so that
+  // Vx, its prior and the one stored with the calibration are the error at this bus whatever
+  // the bus does (docs/estimator.md section 4). The loader sets control.nominal_dc_bus_V.
   double vx_reference_bus_V = 0.0;
   InjectionConfig injection{};
   // The calibration procedure, whatever the run-time method: fixed-magnitude bipolar at two
