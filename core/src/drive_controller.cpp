@@ -196,7 +196,8 @@ void DriveController::age_magnet(double controller_s) {
 double DriveController::magnet_var_now_C2() const {
   // Between measurements the magnets may warm or cool: the variance grows as a random walk's,
   // from what the last measurement left, with the thermal time since (no work per period).
-  return magnet_var_C2_ + config_.magnet_drift_C_per_sqrt_s * config_.magnet_drift_C_per_sqrt_s * magnet_age_now_s();
+  return magnet_var_C2_ +
+         config_.magnet_drift_C_per_sqrt_s * config_.magnet_drift_C_per_sqrt_s * std::max(magnet_age_now_s(), 0.0);
 }
 
 void DriveController::publish_magnet_std() {
@@ -522,18 +523,17 @@ bool DriveController::configure_injection(InjectionMethod method, Separation sep
   const Dq& v = current_.status().v_unlimited_V;
   Dq& m = motoring_voltage_mean_V_;
   const double v_sq = v.d * v.d + v.q * v.q;
-  if (motoring_voltage_periods_ == 0) {
-    m = v;
-    motoring_voltage_mean_sq_V2_ = v_sq;
-  } else {
-    m.d += motoring_voltage_gain_ * (v.d - m.d);
-    m.q += motoring_voltage_gain_ * (v.q - m.q);
-    motoring_voltage_mean_sq_V2_ += motoring_voltage_gain_ * (v_sq - motoring_voltage_mean_sq_V2_);
-  }
-  // Known once the filter has seen three of its time constants.
+  // A plain average over its first periods, then the low-pass: the first sample after a start
+  // or a sweep (the loop's transient, the sweep's last level) weighs no more than any other.
+  double gain = motoring_voltage_gain_;
   if (motoring_voltage_periods_ < motoring_voltage_settle_periods_) {
-    ++motoring_voltage_periods_;
-  } else {
+    gain = std::max(gain, 1.0 / static_cast<double>(++motoring_voltage_periods_));
+  }
+  m.d += gain * (v.d - m.d);
+  m.q += gain * (v.q - m.q);
+  motoring_voltage_mean_sq_V2_ += gain * (v_sq - motoring_voltage_mean_sq_V2_);
+  // Known once the filter has seen three of its time constants.
+  if (motoring_voltage_periods_ >= motoring_voltage_settle_periods_) {
     scheduler_.set_motoring_voltage(now_s, m, motoring_voltage_mean_sq_V2_);
   }
 }

@@ -263,7 +263,8 @@ InjectionScheduler::Budget InjectionScheduler::budget(const SchedulerInput& in, 
   h.voltage_limit_V = in.voltage_limit_V - config_.headroom_margin_V;
   h.tw_s = tw_s;
   h.window = config_.window;
-  if (motoring_voltage_time_s_ == in.time_s) {
+  if (motoring_voltage_time_s_ == in.time_s &&
+      std::isfinite(motoring_voltage_V_.d + motoring_voltage_V_.q + motoring_voltage_mean_sq_V2_)) {
     // The machine's voltage at the motoring point is what the current loop commands there, not
     // Eq. 3 on the commissioned model: that leaves out the bridge's uncompensated error, the
     // EMF constant's and the inductances' commissioning errors, and the flux the stator's load

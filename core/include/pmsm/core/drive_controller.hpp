@@ -70,7 +70,7 @@ struct DriveConfig {
   // The bus the estimator's bridge error Vx is referred to (0: none). The bridge loses its dead
   // time's share of the bus, dead_time / period x Vdc, plus the devices' drop: on a bus that
   // moves, a Vx learned at one voltage is wrong at another (the reference plant's bridge, 1 us
-  // and 1 V at 10 kHz, loses 6.4 V at 540 V and 5.6 V at 459 V). Each period's voltage reaches
+  // and 1 V at 10 kHz, loses 7.5 V at 650 V and 6.5 V at 552.5 V). Each period's voltage reaches
   // the estimator with dead_time / period x (Vdc - this) x its sign pattern taken out, so that
   // Vx, its prior and the one stored with the calibration are the error at this bus whatever
   // the bus does (docs/estimator.md section 4). The loader sets control.nominal_dc_bus_V.
@@ -354,7 +354,12 @@ class DriveController {
   bool configure_injection(InjectionMethod method, Separation separation, double f_A, double interval_s);
 
   // Thermal time scale of the controller's model (the test acceleration; 1 on a machine).
-  void set_thermal_time_scale(double time_scale) { observer_.set_time_scale(time_scale); }
+  // The magnet estimate's age keeps the thermal time it had (magnet_age_now_s() scales the time
+  // since the last thermal update by the scale in force).
+  void set_thermal_time_scale(double time_scale) {
+    magnet_age_s_ += thermal_elapsed_s_ * (observer_.time_scale() - time_scale);
+    observer_.set_time_scale(time_scale);
+  }
   [[nodiscard]] double thermal_time_scale() const { return observer_.time_scale(); }
   // The standard deviation of one current sample's noise (A; the drive measures it with the
   // ADC offsets at power-up): the sign pattern built from measured currents is corrected for
