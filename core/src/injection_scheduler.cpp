@@ -583,7 +583,7 @@ PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
     r.outcome = PairOutcome::kRejectedImplausible;
   } else {
     r.outcome = PairOutcome::kAccepted;
-    learn_lq(c, fit);
+    learn_lq(c, fit, in);
     event_sums_.add(recorder_.sums());
     const auto slot = static_cast<std::size_t>(std::min(event_pairs_, InjectionConfig::kMaxLevels - 1));
     event_pair_sums_[slot] = recorder_.sums();
@@ -600,6 +600,10 @@ PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
     event_time_weight_ += w;
     event_time_sum_s_ += w * (c.rs_time_s - event_start_s_);
     event_time_plain_sum_s_ += c.rs_time_s - event_start_s_;
+    event_span_sums_s_[0] += w * (c.time_1_s - c.rs_time_s);
+    event_span_sums_s_[1] += w * (c.time_2_s - c.rs_time_s);
+    event_span_sums_s_[2] += c.time_1_s - c.rs_time_s;
+    event_span_sums_s_[3] += c.time_2_s - c.rs_time_s;
     event_field_weakening_ = event_field_weakening_ || field_weakening_;
     // The magnet's EMF constant from the q axis, field-weakening pairs included: each pair
     // measures the Ld its <w id> needs (finish_event; docs/estimator.md §8).
@@ -708,7 +712,7 @@ double InjectionScheduler::lq_variance(const LqGradient& g) const {
   return std::isfinite(var) ? std::max(var, 0.0) : 0.0;
 }
 
-void InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit) {
+void InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit, const SchedulerInput& in) {
   if (!config_.learn_lq || time_based_) {
     return;
   }
@@ -725,12 +729,27 @@ void InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit)
   if (!(std::abs(lq_secant_H(c.iq_mean_A) * w_iq) >= std::max(config_.lq_learning_min_voltage_V, separated))) {
     return;
   }
+  // <Rs id> over the two recordings, 0.5 (Rs(t1) Id1 + Rs(t2) Id2), with the thermal filter's
+  // resistance carried to each recording's time by the model's rate. Not the pair's own Rs:
+  // that belongs to the pair's time (PairConditions::rs_time_s), which on a motoring point in
+  // field weakening lies some 3 recordings' spacings beyond the second, where a warming winding
+  // is warmer than the recordings saw; and it carries the pair's noise (2 % of Rs on a
+  // field-weakening pair, against the filter's fraction of that). Taken from the pair, a
+  // newcomer's salient servo heating at 1100 rad/s learned Lq 0.5 % low and a saturation it
+  // does not have (docs/estimator.md section 5.1). The pair's own Rs before the filter has one.
+  double rs_id_V = fit.rs_ohm * c.id_mean_A;
+  double var_rs_id = c.id_mean_A * c.id_mean_A * fit.var_rs;
+  if (std::isfinite(winding_rs_ohm_) && std::isfinite(in.rs_rate_ohm_per_s) && config_.method == InjectionMethod::kFixedMagnitude) {
+    rs_id_V = 0.5 * ((winding_rs_ohm_ + in.rs_rate_ohm_per_s * (c.time_1_s - in.time_s)) * c.id_mean_1_A +
+                     (winding_rs_ohm_ + in.rs_rate_ohm_per_s * (c.time_2_s - in.time_s)) * c.id_mean_2_A);
+    var_rs_id = c.id_mean_A * c.id_mean_A * winding_rs_var_ohm2_;
+  }
   const double lq =
-      (fit.rs_ohm * c.id_mean_A + config_.ld_H * c.did_dt_mean_A_s + vx * c.gd_mean - c.vd_mean_V) / w_iq;
+      (rs_id_V + config_.ld_H * c.did_dt_mean_A_s + vx * c.gd_mean - c.vd_mean_V) / w_iq;
   // Its variance: what the uncertain Vx and Rs move it by, and the noise of <vd> (the pair's
   // residual over its independent samples, about one per filter length).
   const double independent = std::max(1.0, static_cast<double>(c.samples) / 8.0);
-  const double var = (c.gd_mean * c.gd_mean * var_vx + c.id_mean_A * c.id_mean_A * fit.var_rs +
+  const double var = (c.gd_mean * c.gd_mean * var_vx + var_rs_id +
                       fit.residual_rms_V * fit.residual_rms_V / independent) /
                      (w_iq * w_iq);
   if (!std::isfinite(lq) || !(var > 0.0)) {
@@ -831,6 +850,10 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
   }
   e.pairs = event_pairs_;
   e.measured_at_s = event_time_s();
+  const bool weighted = event_time_weight_ > 0.0;
+  const double span_n = weighted ? event_time_weight_ : static_cast<double>(std::max(event_pairs_, 1));
+  e.measured_from_s = e.measured_at_s + event_span_sums_s_[weighted ? 0 : 2] / span_n;
+  e.measured_to_s = e.measured_at_s + event_span_sums_s_[weighted ? 1 : 3] / span_n;
   double rs = 0.0;
   double var_rs = 0.0;
   double vx = config_.fit_dead_time ? vx_V_ : 0.0;
@@ -1048,16 +1071,15 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
   // field-weakening pair; any pair on a motoring point in field weakening) lies beyond the
   // second recording, some 3 times the recordings' spacing beyond on a point in field weakening.
   // The pair measured that time's resistance (its fit extrapolates the warming between its
-  // recordings), and fused as now it read a newcomer's salient servo at 1100 rad/s 6.8 mOhm
-  // (3.8 C) high while the winding heated. The filter takes no measurement from the future: it
-  // is referred back to now by the change the thermal model predicts. (After the magnet's
-  // figures, which belong to the pairs' own time.) Fixed-magnitude pairs only: their levels
-  // differ by F_min at least, so the time stays within the current limit over F_min times the
-  // recordings' spacing; a DC event's rotor-frame levels can nearly coincide, and the reference
-  // DC heat-up dated one event 46 s ahead (a referral of 0.17 ohm): those stay fused as now.
-  if (e.measured_at_s > e.time_s && config_.method == InjectionMethod::kFixedMagnitude) {
-    e.rs_ohm -= in.rs_rate_ohm_per_s * (e.measured_at_s - e.time_s);
-    e.measured_at_s = e.time_s;
+  // recordings). A fixed-magnitude event keeps that date: DriveController holds the estimate
+  // until the filter's clock reaches it (their levels differ by F_min at least, so the date lies
+  // within the current limit over F_min times the recordings' spacing). A DC event's rotor-frame
+  // levels can nearly coincide, and the reference DC heat-up dated one event 46 s ahead: those
+  // are fused as now.
+  if (config_.method != InjectionMethod::kFixedMagnitude) {
+    // (A turning pulse's recordings are not two levels in the rotor's frame: no line.)
+    e.measured_at_s = std::min(e.measured_at_s, e.time_s);
+    e.measured_from_s = e.measured_to_s = e.measured_at_s;
   }
   return e;
 }
@@ -1113,6 +1135,7 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
         event_time_weight_ = 0.0;
         event_time_sum_s_ = 0.0;
         event_time_plain_sum_s_ = 0.0;
+        event_span_sums_s_ = {};
         event_start_s_ = in.time_s;
         event_q_pairs_ = 0;
         event_field_weakening_ = false;

@@ -573,6 +573,8 @@ PairConditions PairRecorder::conditions() const {
     const double t1 = sum_time1_ / static_cast<double>(std::max<std::size_t>(size1_, 1));
     const double t2 = sum_time2_ / m;
     const double di = c.id_mean_1_A - c.id_mean_2_A;
+    c.time_1_s = t1;
+    c.time_2_s = t2;
     // Midway where the levels' difference is too small to weigh the times (no pair is accepted
     // with so little signal; the guard keeps the division finite).
     c.rs_time_s = std::abs(di) > 1e-3 * std::max({std::abs(c.id_mean_1_A), std::abs(c.id_mean_2_A), 1.0})

@@ -241,13 +241,14 @@ void ThermalObserver::predict(double dt_s, double copper_current_sq_A2, double o
   cap_variance(3, config_.initial_loss_scale_std * config_.initial_loss_scale_std);
   since_measurement_s_ += dt_s;
   clock_s_ += dt_s;
-  history_C_[history_next_] = x_(0);
+  history_C_[history_next_] = x_(0) - history_offset_C_;
   history_s_[history_next_] = clock_s_;
   history_next_ = (history_next_ + 1) % kHistory;
   history_size_ = std::min(history_size_ + 1, kHistory);
 }
 
 void ThermalObserver::restart_history() {
+  history_offset_C_ = 0.0;
   history_C_[0] = x_(0);
   history_s_[0] = clock_s_;
   history_next_ = 1;
@@ -266,7 +267,7 @@ double ThermalObserver::winding_at_age_C(double age_s) const {
   const std::size_t oldest = (history_next_ + kHistory - history_size_) % kHistory;
   auto at = [&](std::size_t n) { return (oldest + n) % kHistory; };
   if (wanted <= history_s_[at(0)]) {
-    return history_C_[at(0)];
+    return history_C_[at(0)] + history_offset_C_;
   }
   if (wanted >= history_s_[at(history_size_ - 1)]) {
     return x_(0);  // after the last update (the state has not moved since)
@@ -284,16 +285,23 @@ double ThermalObserver::winding_at_age_C(double age_s) const {
   const double t0 = history_s_[at(lo)];
   const double t1 = history_s_[at(hi)];
   const double f = t1 > t0 ? (wanted - t0) / (t1 - t0) : 1.0;
-  return history_C_[at(lo)] + f * (history_C_[at(hi)] - history_C_[at(lo)]);
+  return history_C_[at(lo)] + f * (history_C_[at(hi)] - history_C_[at(lo)]) + history_offset_C_;
 }
 
 bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm, double systematic_std_ohm,
-                                        double age_s) {
+                                        double age_s, double from_age_s, double to_age_s) {
   // Measurement of the winding temperature through Eq. 1; its variance from the resistance's.
   // It belongs to a moment age_s ago: carried to now by the change the filter predicted since
   // then (the measurement's innovation is against the estimate of its own time). Under a
   // heavy load the winding warms by a noticeable fraction of a degree over an event.
-  const double z = temperature_from_resistance_C(rs_ohm) + (x_(0) - winding_at_age_C(age_s));
+  double then_C = winding_at_age_C(age_s);
+  if (from_age_s > to_age_s && std::isfinite(from_age_s) && std::isfinite(to_age_s)) {
+    // A line through two earlier times (EventEstimate::measured_from_s): compared with the same
+    // line through the filter's trajectory, whose warming slows as the winding's does.
+    const double from_C = winding_at_age_C(from_age_s);
+    then_C = from_C + (winding_at_age_C(to_age_s) - from_C) * (from_age_s - age_s) / (from_age_s - to_age_s);
+  }
+  const double z = temperature_from_resistance_C(rs_ohm) + (x_(0) - then_C);
   const double dt_dr =
       temperature_per_resistance_C_per_ohm(calibration_.rs0_ohm, calibration_.t0_C, config_.conductor_inferred_zero_C);
   const double r = std::pow(rs_std_ohm * dt_dr, 2) + std::pow(config_.measurement_floor_std_C, 2);
@@ -340,6 +348,7 @@ bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm, double
   rest_drift_C_ = 0.0;
   anchored_ = true;
   const Vector k = p_ * h.transpose() / s;
+  const double before_C = x_(0);
   x_ += k * (z - x_(0));
   // Joseph form keeps P symmetric and positive.
   const Matrix i_kh = Matrix::Identity() - k * h;
@@ -355,9 +364,11 @@ bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm, double
   shared_error_C_ = k(0) * (std::isfinite(systematic_C) ? systematic_C : 0.0) + (1.0 - k(0)) * shared_error_C_;
   since_measurement_s_ = 0.0;
   anchor_C_ = x_(0);
-  // The state jumped: the kept estimates belong to the old trajectory. The new one starts here,
-  // so that a later measurement whose time lies before the next update is compared with it.
-  restart_history();
+  // The state jumped: the kept trajectory moves with it, so that a later measurement whose
+  // time lies before the jump (a held one's recordings, DriveController::hold_estimate) is
+  // carried to now by the change the model predicted since then, not by the change since the
+  // jump alone.
+  history_offset_C_ += x_(0) - before_C;
   return true;
 }
 

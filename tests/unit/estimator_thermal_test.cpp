@@ -464,8 +464,8 @@ TEST(ThermalObserver, AMeasurementIsComparedWithTheEstimateOfItsOwnTime) {
 }
 
 // The look-back over a history that has wrapped (more updates than it keeps) and after a
-// fusion, which restarts it from the fused state.
-TEST(ThermalObserver, TheLookBackWrapsAndRestartsAtAFusion) {
+// fusion, which moves the kept trajectory with the state.
+TEST(ThermalObserver, TheLookBackWrapsAndMovesWithAFusion) {
   ThermalModelConfig c;
   c.time_scale = 60.0;
   Calibration cal;
@@ -485,16 +485,47 @@ TEST(ThermalObserver, TheLookBackWrapsAndRestartsAtAFusion) {
   EXPECT_NEAR(obs.winding_at_age_C(100.0), after[299 - 255], 1e-9);
   EXPECT_LT(after[299 - 255], now_C - 5.0);  // a warming run: the ages are told apart
 
-  // A fusion moves the state; the history restarts from it, so a time after the fusion and
-  // before the next update is compared with the fused state, not with the old trajectory.
+  // A fusion moves the state, and the kept trajectory with it: a time before the fusion is
+  // the old trajectory moved by the jump, so that the change since then is the model's.
   ASSERT_TRUE(obs.update_resistance(obs.resistance_at_C(now_C + 2.0), 0.0002));
   const double fused_C = obs.estimate().winding_C;
-  ASSERT_GT(fused_C, now_C + 0.5);
-  EXPECT_EQ(obs.winding_at_age_C(0.5), fused_C);
+  const double jump_C = fused_C - now_C;
+  ASSERT_GT(jump_C, 0.5);
+  EXPECT_NEAR(obs.winding_at_age_C(0.5), after[299 - 50] + jump_C, 1e-9);
   obs.predict(0.01, 60.0 * 60.0, 30.0, 25.0);
   const double next_C = obs.estimate().winding_C;
   EXPECT_NEAR(obs.winding_at_age_C(0.005), 0.5 * (fused_C + next_C), 1e-9);
-  EXPECT_NEAR(obs.winding_at_age_C(0.5), fused_C, 1e-9);
+  EXPECT_NEAR(obs.winding_at_age_C(0.5), after[299 - 49] + jump_C, 1e-9);
+}
+
+// A measurement that extrapolates along a line through two earlier times (a field-weakening
+// pair's Rs, EventEstimate::measured_from_s) is compared with the same line through the
+// filter's trajectory: on a winding whose warming slows, the line lies above the trajectory,
+// and that is no news.
+TEST(ThermalObserver, AnExtrapolatedMeasurementIsComparedWithTheSameLine) {
+  ThermalModelConfig c;
+  c.time_scale = 60.0;
+  Calibration cal;
+  auto warmed = [&] {
+    ThermalObserver obs(c, cal, 60.0);
+    for (int k = 0; k < 200; ++k) {
+      obs.predict(0.01, 60.0 * 60.0, 30.0, 25.0);
+    }
+    return obs;
+  };
+  ThermalObserver obs = warmed();
+  const double now_C = obs.estimate().winding_C;
+  // The line through the trajectory 1.2 s and 0.9 s ago, at now.
+  const double a_C = obs.winding_at_age_C(1.2);
+  const double b_C = obs.winding_at_age_C(0.9);
+  const double line_C = a_C + (b_C - a_C) * 1.2 / 0.3;
+  ASSERT_GT(line_C - now_C, 0.05);  // the warming slows: the line overshoots
+  ASSERT_TRUE(obs.update_resistance(obs.resistance_at_C(line_C), 0.0002, 0.0, 0.0, 1.2, 0.9));
+  EXPECT_NEAR(obs.estimate().winding_C, now_C, 1e-6);
+  // Taken as of now, the same measurement pulls the state up by most of the overshoot.
+  ThermalObserver plain = warmed();
+  ASSERT_TRUE(plain.update_resistance(plain.resistance_at_C(line_C), 0.0002));
+  EXPECT_GT(plain.estimate().winding_C - now_C, 0.5 * (line_C - now_C));
 }
 
 TEST(ThermalObserver, OutlierBeyondTheGateIsRejectedAndLeavesTheState) {

@@ -292,8 +292,19 @@ struct EventEstimate {
   int pairs = 0;                   // accepted pairs that went into it
   // The time the estimate belongs to: its pairs' mid times weighted by their information.
   // It lies before time_s (an event lasts up to seconds while the winding warms or cools),
-  // and the thermal filter fuses it there (ThermalObserver::update_resistance).
+  // and the thermal filter fuses it there (ThermalObserver::update_resistance); or after it,
+  // for a fixed-magnitude event on a motoring point in field weakening (below), and the drive
+  // holds the estimate until then (DriveController::hold_estimate).
   double measured_at_s = 0.0;
+  // The times the estimate extrapolates from: a pair measures Rs(t1) Id1 - Rs(t2) Id2 over its
+  // recordings' times t1 and t2, which on a winding warming linearly is Rs(t) (Id1 - Id2) at
+  // measured_at_s, and on a winding whose warming slows (or speeds up) is that line through
+  // Rs(t1) and Rs(t2) at measured_at_s. Where measured_at_s lies beyond t2 (a field-weakening
+  // pair: some 3 spacings), a winding whose warming slows reads high; the thermal filter compares
+  // the estimate with the same line through its own trajectory. Their weighted means over the
+  // event's pairs (as measured_at_s); both equal to measured_at_s when no line is known.
+  double measured_from_s = 0.0;
+  double measured_to_s = 0.0;
   double rs_ohm = 0.0;
   double rs_std_ohm = 0.0;
   // The part of rs_std_ohm that more estimates do not average away: a model error common to
@@ -420,6 +431,13 @@ class InjectionScheduler {
   // The inverter voltage prior carried between events.
   [[nodiscard]] double vx_V() const { return vx_V_; }
   [[nodiscard]] double vx_std_V() const { return std::sqrt(vx_var_); }
+  // The thermal filter's winding resistance and its variance (at its last update; NaN: no
+  // estimate yet): the ohmic part of the d-axis voltage that Lq learning takes out
+  // (learn_lq).
+  void set_winding_resistance(double rs_ohm, double var_ohm2) {
+    winding_rs_ohm_ = rs_ohm;
+    winding_rs_var_ohm2_ = var_ohm2;
+  }
   // The machine's motoring voltage as the current loop commands it before its limit: the mean
   // of the command (rotor frame) and the mean of its square magnitude, over the same recent
   // periods. Given in a period with no pulse on, before step() of the same `time_s`: a pair
@@ -490,7 +508,7 @@ class InjectionScheduler {
   [[nodiscard]] double event_time_s() const;
   [[nodiscard]] FitOptions fit_options(bool fit_vx) const;
   [[nodiscard]] bool plausible(double rs_ohm, double margin_ohm) const;
-  void learn_lq(const PairConditions& c, const FitResult& fit);
+  void learn_lq(const PairConditions& c, const FitResult& fit, const SchedulerInput& in);
   // A pair's Lq term (Eq. 37: y moves by S_sec dLq_sec + S_inc dLq_inc, PairConditions) and
   // the Lq it was fitted with.
   struct LqTerm {
@@ -544,6 +562,9 @@ class InjectionScheduler {
   double event_time_weight_ = 0.0;  // sum of their weights (1 / var Rs)
   double event_time_sum_s_ = 0.0;   // sum of weight * (pair's Rs time - event_start_s_)
   double event_time_plain_sum_s_ = 0.0;  // sum of (pair's Rs time - event_start_s_), unweighted
+  // The same sums of its recordings' times relative to its Rs time (t1 - t, t2 - t): weighted
+  // [0] and [1], unweighted [2] and [3] (EventEstimate::measured_from_s).
+  std::array<double, 4> event_span_sums_s_{};
   double event_start_s_ = 0.0;
   std::array<double, InjectionConfig::kMaxLevels> event_pair_time_s_{};  // each pair's Rs time (PairConditions::rs_time_s)
   std::array<LqTerm, InjectionConfig::kMaxLevels> event_pair_lq_{};  // each pair's Lq term (lq_term)
@@ -555,6 +576,8 @@ class InjectionScheduler {
   double vx_var_ = 0.0;
   // set_motoring_voltage(): NaN time until given.
   double motoring_voltage_time_s_ = std::numeric_limits<double>::quiet_NaN();
+  double winding_rs_ohm_ = std::numeric_limits<double>::quiet_NaN();  // set_winding_resistance
+  double winding_rs_var_ohm2_ = 0.0;
   Dq motoring_voltage_V_{};
   double motoring_voltage_mean_sq_V2_ = 0.0;
   double lq_H_ = 0.0;               // learned q-axis inductance (see InjectionConfig::learn_lq)

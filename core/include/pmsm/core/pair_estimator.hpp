@@ -196,6 +196,8 @@ struct PairConditions {
   // recording 2 for a field-weakening one (both levels negative; with levels -0.3 F and -F,
   // 0.43 of the recordings' spacing after recording 2).
   double rs_time_s = 0.0;
+  double time_1_s = 0.0;  // the recordings' mean times (t1, t2 above)
+  double time_2_s = 0.0;
   bool any_voltage_limited = false;
   // q-axis means over both recordings at the same angles.
   double vq_mean_V = 0.0;

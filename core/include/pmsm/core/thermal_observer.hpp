@@ -177,12 +177,15 @@ class ThermalObserver {
   // `age_s` (controller seconds) is how long ago the measurement's time lies (an event's
   // pairs take up to seconds while the winding warms or cools): the innovation is taken
   // against the filter's winding estimate of that time, from the last kHistory updates.
+  // `from_age_s` > `to_age_s`: the measurement is the line through the winding's resistance at
+  // those ages, taken at age_s (EventEstimate::measured_from_s), and is compared with the same
+  // line through the filter's trajectory.
   bool update_resistance(double rs_ohm, double rs_std_ohm, double systematic_std_ohm = 0.0,
-                         double age_s = 0.0);
+                         double age_s = 0.0, double from_age_s = 0.0, double to_age_s = 0.0);
 
   // The filter's winding estimate `age_s` controller seconds before its last update, from the
-  // history below (linear between updates; before the oldest kept, the oldest; after a jump
-  // of the state, which restarts the history, the state since the jump).
+  // history below (linear between updates; before the oldest kept, the oldest), moved by the
+  // jumps of the state since (a fusion), so that differences are the model's predictions.
   [[nodiscard]] double winding_at_age_C(double age_s) const;
 
   void set_calibration(const Calibration& c) { calibration_ = c; }
@@ -229,16 +232,17 @@ class ThermalObserver {
   double gated_sum_C_ = 0.0, gated_sq_sum_C2_ = 0.0, gated_r_sum_C2_ = 0.0;  // of those
   static constexpr int kReanchorAfterGated = 5;
   // The winding estimate after each of the last predict() calls (controller seconds on a
-  // clock of the observer's own), for measurements that belong to a moment past. The state
-  // jumps at a fusion and a restart, which restart it from the new state: a later measurement's
-  // time lies after those (an event starts after the previous one's fusion).
+  // clock of the observer's own), for measurements that belong to a moment past. A fusion's
+  // jump moves the kept trajectory with the state (history_offset_C_); a restart (restore())
+  // starts it afresh from the new state.
   static constexpr std::size_t kHistory = 256;  // 2.56 s at the 10 ms thermal update
   std::array<double, kHistory> history_C_{};
   std::array<double, kHistory> history_s_{};
   std::size_t history_size_ = 0;
   std::size_t history_next_ = 0;
   double clock_s_ = 0.0;
-  void restart_history();  // only the present state: after a jump of the state
+  double history_offset_C_ = 0.0;  // added to the kept values: the fusions' jumps since they were kept
+  void restart_history();  // only the present state: after a restart
   [[nodiscard]] bool reanchor_consistent(double z, double r) const;
   void cap_variance(int i, double limit);
   void set_loss_errors(double dp_W, double dp_std_W, double k, double k_std, double correlation,
