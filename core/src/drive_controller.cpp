@@ -392,7 +392,7 @@ void DriveController::start_calibration(double known_temp_C, bool from_ambient_s
   const double time_scale = observer_.time_scale();
   // What the filter has learned of the loss model is the machine's, not the moment's: it
   // survives the restart of the temperatures (and a calibration that then fails).
-  release_held_estimates();  // measurements of the winding before the restart
+  drop_held_estimates();  // measurements of the winding before the restart
   const ThermalObserver before = observer_;
   observer_ = ThermalObserver(config_.thermal, observer_.calibration(), known_temp_C);
   observer_.keep_loss_errors(before);
@@ -648,7 +648,8 @@ void DriveController::handle_pair(const PairResult& r) {
 
 // The event's pairs span up to seconds: the filter takes its estimate at the event's own time,
 // on the filter's clock (its last update was thermal_elapsed_s_ ago). A time after the last
-// update (a field-weakening pair's may lie beyond publication) takes the present estimate.
+// update (within the period since it; one after publication is held: hold_estimate) takes the
+// present estimate.
 double DriveController::measurement_age_s(const EventEstimate& e) const {
   return e.measured_at_s > 0.0 ? std::max(e.time_s - e.measured_at_s - thermal_elapsed_s_, 0.0) : 0.0;
 }
@@ -815,10 +816,8 @@ void DriveController::fuse_held_estimate(double dt_s) {
   fuse_estimate(e, age_s);
 }
 
-void DriveController::release_held_estimates() {
-  for (std::size_t i = 0; i < held_count_; ++i) {
-    fuse_held_now(i);
-  }
+void DriveController::drop_held_estimates() {
+  telemetry_.estimates_dropped_at_restart += static_cast<std::uint32_t>(held_count_);
   held_count_ = 0;
 }
 
@@ -826,9 +825,11 @@ void DriveController::fuse_held_now(std::size_t i) {
   // Referred back to now by the model's rate of warming, as far as its date lies ahead of now.
   EventEstimate e = held_[i];
   const double ahead_s = std::max(held_left_s_[i] - thermal_elapsed_s_, 0.0);
-  e.rs_ohm -= rs_rate_ohm_per_s_ * ahead_s;
-  e.measured_at_s -= ahead_s;
-  e.measured_from_s = e.measured_to_s = e.measured_at_s;  // (referred: no longer on its line)
+  if (ahead_s > 0.0) {
+    e.rs_ohm -= rs_rate_ohm_per_s_ * ahead_s;
+    e.measured_at_s -= ahead_s;
+    e.measured_from_s = e.measured_to_s = e.measured_at_s;  // (referred: no longer on its line)
+  }
   fuse_estimate(e, std::max(-held_left_s_[i], 0.0));
 }
 
@@ -925,7 +926,7 @@ void DriveController::start_thermal_from_guess(double guess_C) {
 }
 
 void DriveController::restore_thermal_state(const ThermalState& state, double downtime_s, double ambient_C) {
-  release_held_estimates();
+  drop_held_estimates();
   observer_.restore(state, downtime_s * observer_.time_scale(), ambient_C);
   thermal_guess_pending_ = false;
 }
@@ -995,8 +996,10 @@ void DriveController::update_thermal(double ambient_C, bool speed_mode) {
   const double rs_per_C = rs_above - rs_below;
   const double rate = observer_.winding_rate_C_per_s() * rs_per_C;
   rs_rate_ohm_per_s_ = std::isfinite(rate) ? rate : 0.0;
-  // And the resistance itself, with its variance, for the scheduler's Lq learning.
-  scheduler_.set_winding_resistance(0.5 * (rs_above + rs_below), e.winding_std_C * e.winding_std_C * rs_per_C * rs_per_C);
+  // And the resistance itself, with its variance, for the scheduler's Lq learning; none while
+  // a calibration runs, whose filter carries the old Rs0 that the calibration is replacing.
+  scheduler_.set_winding_resistance(calibrating_ ? std::numeric_limits<double>::quiet_NaN() : 0.5 * (rs_above + rs_below),
+                                    e.winding_std_C * e.winding_std_C * rs_per_C * rs_per_C);
   derating_ = derate(config_.derating, e);
   telemetry_.derating = derating_.derating;
   // The magnets' limit, on the last magnet estimate even after it aged out (no longer

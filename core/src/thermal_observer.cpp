@@ -258,7 +258,7 @@ void ThermalObserver::restart_history() {
 double ThermalObserver::winding_at_age_C(double age_s) const {
   // Linear between the two updates around the wanted time; the oldest kept value beyond
   // them (the measurement's time precedes the history: a long event, or one right after a
-  // jump of the state), the present state when there is none. The kept times increase from
+  // restart), the present state when there is none. The kept times increase from
   // the oldest (n = 0) to the newest: a binary search bounds the work at log2(kHistory) steps.
   if (!(age_s > 0.0) || history_size_ == 0) {
     return x_(0);
@@ -294,12 +294,17 @@ bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm, double
   // It belongs to a moment age_s ago: carried to now by the change the filter predicted since
   // then (the measurement's innovation is against the estimate of its own time). Under a
   // heavy load the winding warms by a noticeable fraction of a degree over an event.
-  double then_C = winding_at_age_C(age_s);
-  if (from_age_s > to_age_s && std::isfinite(from_age_s) && std::isfinite(to_age_s)) {
+  double then_C = 0.0;
+  if (from_age_s > to_age_s && std::isfinite(from_age_s) && std::isfinite(to_age_s) &&
+      history_size_ > 0 && from_age_s <= clock_s_ - history_s_[(history_next_ + kHistory - history_size_) % kHistory]) {
     // A line through two earlier times (EventEstimate::measured_from_s): compared with the same
-    // line through the filter's trajectory, whose warming slows as the winding's does.
+    // line through the filter's trajectory, whose warming slows as the winding's does. Only
+    // where the history reaches back to both: a value clamped to the oldest kept would bend
+    // the line's slope, and the extrapolation multiplies that.
     const double from_C = winding_at_age_C(from_age_s);
     then_C = from_C + (winding_at_age_C(to_age_s) - from_C) * (from_age_s - age_s) / (from_age_s - to_age_s);
+  } else {
+    then_C = winding_at_age_C(age_s);
   }
   const double z = temperature_from_resistance_C(rs_ohm) + (x_(0) - then_C);
   const double dt_dr =

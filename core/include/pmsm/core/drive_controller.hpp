@@ -261,6 +261,9 @@ struct DriveTelemetry {
   OutcomeCounts outcomes{};
   std::uint32_t estimates_published = 0;
   std::uint32_t estimates_gated = 0;  // implausible against the thermal filter's prediction
+  // Held estimates (dated after their publication) dropped because the filter restarted before
+  // their time: a calibration (which sets the winding's temperature) or a restored state.
+  std::uint32_t estimates_dropped_at_restart = 0;
   std::uint32_t events_without_estimate = 0;
   double vx_V = 0.0;                  // the inverter voltage estimate
   double vx_std_V = 0.0;
@@ -435,10 +438,12 @@ class DriveController {
   // At a thermal update, `dt_s` after the one before: the held estimate whose time has come
   // first is fused (one an update, and not in a step that reported another estimate).
   void fuse_held_estimate(double dt_s);
-  // Before the filter restarts (a calibration, a restored state): every held estimate is
-  // fused now, referred back by the model's rate of warming.
-  void release_held_estimates();
-  void fuse_held_now(std::size_t i);  // held_[i] now, referred back (release_held_estimates)
+  // When the filter restarts (a calibration sets the winding's temperature, a restored state
+  // replaces it): the held estimates are of the winding before, and are dropped (counted).
+  void drop_held_estimates();
+  // held_[i] now, referred back by the model's rate as far as its date lies ahead (a fifth
+  // estimate to hold).
+  void fuse_held_now(std::size_t i);
   void remove_held(std::size_t i);
   void advance_thermal(std::uint32_t periods, const DriveCommand& command);
   // Periods (at most an update's) into the thermal model's clock; its update when one is due.
