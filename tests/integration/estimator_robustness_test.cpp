@@ -148,8 +148,8 @@ TEST(EstimatorRobustness, PulsesAreSizedOnTheVoltageTheMachineNeeds) {
 // events (at 17.7 s, heating under load) read 9 % high with a 1.5 % error bar, and the filter
 // jumped 10-13 C above the truth on every seed (these 30 s: 3.8-5.4 C RMS, max 10.0-12.7 C,
 // coverage 76-89 % over the file's seed and 9001-9004). With the filter's resistance, whose
-// error is a fraction of a pair's and not the pair's own, the same runs read 0.6-1.6 C RMS,
-// max 1.4-5.2 C (docs/estimator.md section 5.1). Three seeds: each must stay far from the old
+// error is a fraction of a pair's and not the pair's own, the same runs read 0.6-1.3 C RMS,
+// max 1.4-4.8 C (docs/estimator.md section 5.1). Three seeds: each must stay far from the old
 // failure (max < 8 C), the median inside RMS < 2.5 C.
 TEST(EstimatorRobustness, LqLearningTakesTheFiltersResistanceNotThePairs) {
   const std::vector<SimulationResult> runs = run_data_seeds("ipm-traction-fw-short.toml", {0U, 9001U, 9002U});
