@@ -148,6 +148,7 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns, 
     {
       const core::DriveTelemetry& t = node_.controller().telemetry();
       r.estimates_gated = t.estimates_gated;
+      r.estimates_dropped_at_restart = t.estimates_dropped_at_restart;
       r.magnet_rejected = t.magnet_rejected;
       r.magnet_refusal = t.magnet_last_refusal;
     }

@@ -60,6 +60,7 @@ struct PublicationRecord {
   // The estimator's refusals so far (the publisher logs them when they grow): winding estimates
   // the thermal filter gated out, and EMF (magnet) readings refused, with the last one's reason.
   std::uint32_t estimates_gated = 0;
+  std::uint32_t estimates_dropped_at_restart = 0;  // held field-weakening estimates a restart dropped
   std::uint32_t magnet_rejected = 0;
   core::MagnetRefusalReport magnet_refusal{};
 };

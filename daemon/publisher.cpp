@@ -187,6 +187,12 @@ void Publisher::log_refusals(const PublicationRecord& r) {
                  r.estimates_gated - estimates_gated_logged_, config_.controller.drive.thermal.gate_sigma, r.estimates_gated);
     estimates_gated_logged_ = r.estimates_gated;
   }
+  if (r.estimates_dropped_at_restart != estimates_dropped_logged_) {
+    spdlog::info("{} winding estimate(s) dropped: dated after their event, they were waiting for their time when the "
+                 "thermal filter restarted (a calibration or a restored state; {} in all)",
+                 r.estimates_dropped_at_restart - estimates_dropped_logged_, r.estimates_dropped_at_restart);
+    estimates_dropped_logged_ = r.estimates_dropped_at_restart;
+  }
   if (r.magnet_rejected != magnet_rejected_logged_) {
     const std::uint32_t n = r.magnet_rejected - magnet_rejected_logged_;
     magnet_rejected_logged_ = r.magnet_rejected;

@@ -63,6 +63,7 @@ class Publisher {
   std::chrono::steady_clock::time_point last_report_{};
   bool first_thermal_logged_ = false;
   std::uint32_t estimates_gated_logged_ = 0;  // the estimator's refusals as last logged
+  std::uint32_t estimates_dropped_logged_ = 0;
   std::uint32_t magnet_rejected_logged_ = 0;
   std::uint64_t rejected_sent_ = 0;  // total rejections in the last RECEIVE_STATUS
   std::chrono::steady_clock::time_point receive_status_sent_{};

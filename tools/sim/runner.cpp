@@ -598,6 +598,7 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
   result.lq_std_H = drive.telemetry().lq_std_H;
   result.lq_saturation_H = drive.telemetry().lq_saturation_H;
   result.lq_saturation_resolved = drive.telemetry().lq_saturation_resolved;
+  result.estimates_dropped_at_restart = drive.telemetry().estimates_dropped_at_restart;
   result.lq_commissioned_saturation_H = core::commissioned_lq_saturation_H(scenario.controller.drive.injection);
 
   return result;
@@ -700,7 +701,8 @@ std::string result_json(const SimulationResult& r) {
       .field("magnet_coverage_2sigma", r.magnet_error_samples > 0 ? r.magnet_coverage_2sigma : kNan)
       .field("magnet_rejected", static_cast<std::uint64_t>(r.magnet_rejected))
       .field("estimates_accepted", static_cast<std::uint64_t>(r.estimates_accepted))
-      .field("estimates_gated", static_cast<std::uint64_t>(r.estimates_gated));
+      .field("estimates_gated", static_cast<std::uint64_t>(r.estimates_gated))
+      .field("estimates_dropped_at_restart", static_cast<std::uint64_t>(r.estimates_dropped_at_restart));
   std::uint64_t rejected = 0;
   for (std::size_t k = 1; k < r.pairs.size(); ++k) {
     rejected += r.pairs[k];

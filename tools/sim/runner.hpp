@@ -117,6 +117,7 @@ struct SimulationResult {
   double magnet_last_refused_C = 0.0;   // and what it read
   std::size_t estimates_accepted = 0;   // fused by the thermal filter
   std::size_t estimates_gated = 0;      // published but gated out as implausible
+  std::size_t estimates_dropped_at_restart = 0;  // held (dated after their event) when the filter restarted
   [[nodiscard]] std::size_t estimates_published() const noexcept { return estimates_accepted + estimates_gated; }
   core::OutcomeCounts pairs{};          // every pair's outcome
   std::size_t field_weakening_pairs_accepted = 0;  // of the accepted: at the voltage limit (-lo, -F)
