@@ -736,7 +736,8 @@ void InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit,
   // is warmer than the recordings saw; and it carries the pair's noise (2 % of Rs on a
   // field-weakening pair, against the filter's fraction of that). Taken from the pair, a
   // newcomer's salient servo heating at 1100 rad/s learned Lq 0.5 % low and a saturation it
-  // does not have (docs/estimator.md section 5.1). The pair's own Rs before the filter has one.
+  // does not have (docs/estimator.md section 5.1). The pair's own Rs when the drive gives none
+  // (before the filter's first update, and while a calibration runs).
   double rs_id_V = fit.rs_ohm * c.id_mean_A;
   double var_rs_id = c.id_mean_A * c.id_mean_A * fit.var_rs;
   if (std::isfinite(winding_rs_ohm_) && std::isfinite(in.rs_rate_ohm_per_s) && config_.method == InjectionMethod::kFixedMagnitude) {
@@ -832,10 +833,12 @@ bool InjectionScheduler::event_joint_fit() const {
 }
 
 double InjectionScheduler::event_time_s() const {
-  if (event_time_weight_ > 0.0) {
-    return event_start_s_ + event_time_sum_s_ / event_time_weight_;
-  }
-  return event_start_s_ + event_time_plain_sum_s_ / std::max(event_pairs_, 1);
+  return event_start_s_ + event_pairs_mean(event_time_sum_s_, event_time_plain_sum_s_);
+}
+
+double InjectionScheduler::event_pairs_mean(double weighted_sum, double plain_sum) const {
+  // Weighted by the pairs' information where any has a weight, else plain.
+  return event_time_weight_ > 0.0 ? weighted_sum / event_time_weight_ : plain_sum / std::max(event_pairs_, 1);
 }
 
 bool InjectionScheduler::event_uses_means() const {
@@ -855,10 +858,8 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
   }
   e.pairs = event_pairs_;
   e.measured_at_s = event_time_s();
-  const bool weighted = event_time_weight_ > 0.0;
-  const double span_n = weighted ? event_time_weight_ : static_cast<double>(std::max(event_pairs_, 1));
-  e.measured_from_s = e.measured_at_s + event_span_sums_s_[weighted ? 0 : 2] / span_n;
-  e.measured_to_s = e.measured_at_s + event_span_sums_s_[weighted ? 1 : 3] / span_n;
+  e.measured_from_s = e.measured_at_s + event_pairs_mean(event_span_sums_s_[0], event_span_sums_s_[2]);
+  e.measured_to_s = e.measured_at_s + event_pairs_mean(event_span_sums_s_[1], event_span_sums_s_[3]);
   double rs = 0.0;
   double var_rs = 0.0;
   double vx = config_.fit_dead_time ? vx_V_ : 0.0;

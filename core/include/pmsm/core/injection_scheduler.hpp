@@ -506,6 +506,9 @@ class InjectionScheduler {
   // The time the event's estimate belongs to: its pairs' Rs times weighted by their information
   // (their plain mean where no pair has a variance; EventEstimate::measured_at_s).
   [[nodiscard]] double event_time_s() const;
+  // The accepted pairs' mean of a quantity given as its weighted and its plain sums (as
+  // event_time_s() weighs their times).
+  [[nodiscard]] double event_pairs_mean(double weighted_sum, double plain_sum) const;
   [[nodiscard]] FitOptions fit_options(bool fit_vx) const;
   [[nodiscard]] bool plausible(double rs_ohm, double margin_ohm) const;
   void learn_lq(const PairConditions& c, const FitResult& fit, const SchedulerInput& in);
