@@ -310,15 +310,21 @@ void DriveLoop::recover_interface(const std::atomic<bool>& stop) noexcept {
 // backend gives one (beside a hardware one, which is on the controller's own clock), else the
 // moment it was read. A loop that was late to read a sample (its thread preempted, a burst of
 // frames before it) was late to answer it: the step's latency and the deadline count from the
-// arrival. (A wait longer than the sample timeout, or a negative one, is taken for a wall clock
-// set since the offset was read: the reading then stands. A stall that long is counted anyway,
-// by the sample deadline: missing samples.)
-std::int64_t DriveLoop::arrival_ns(std::int64_t read_ns) const noexcept {
+// arrival, and its answer may wait for room only until that period ends. A wait that reads as a
+// sample timeout or longer is a stall that long or a wall clock set forward since the offset was
+// read: the offset is read again, and what still reads that long counts as one sample timeout (a
+// deadline miss either way; a clock set by hours would otherwise enter the latency figures). A
+// negative wait (the wall clock set back) counts as none.
+std::int64_t DriveLoop::arrival_ns(std::int64_t read_ns) noexcept {
   if (received_.software_timestamp_ns == 0) {
     return read_ns;
   }
-  const std::int64_t waited = read_ns + realtime_offset_ns_ - received_.software_timestamp_ns;
-  return waited > 0 && waited < sample_timeout_ns_ ? read_ns - waited : read_ns;
+  std::int64_t waited = read_ns + realtime_offset_ns_ - received_.software_timestamp_ns;
+  if (waited >= sample_timeout_ns_) {
+    realtime_offset_ns_ = hal::realtime_minus_monotonic_ns();
+    waited = read_ns + realtime_offset_ns_ - received_.software_timestamp_ns;
+  }
+  return read_ns - std::clamp<std::int64_t>(waited, 0, sample_timeout_ns_);
 }
 
 void DriveLoop::run(const std::atomic<bool>& stop) {

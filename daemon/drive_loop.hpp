@@ -178,7 +178,7 @@ class DriveLoop {
   // it (arrival_ns()).
   std::int64_t realtime_offset_ns_ = 0;
   std::uint32_t periods_since_offset_ = 0;
-  [[nodiscard]] std::int64_t arrival_ns(std::int64_t read_ns) const noexcept;
+  [[nodiscard]] std::int64_t arrival_ns(std::int64_t read_ns) noexcept;
   hal::CanFrame frame_{};
   hal::ReceivedFrame received_{};
   // The timing window closed by each heartbeat (this thread only).

@@ -617,24 +617,44 @@ TEST(DaemonLoop, FramesDroppedOnReceiveAreCountedAndReported) {
 // preempted; here its timestamp reads 5 ms early) was answered 5 ms late, a deadline miss, and
 // its answer, its period long over, may not wait for room on a full transmit queue (before, any
 // answer could wait 200 us, two periods, and hold up the next sample).
-TEST(DaemonLoop, ASampleThatWaitedInTheSocketIsADeadlineMiss) {
-  Bench bench;
-  Axis axis(bench.bus, 6, 60.0);
-  axis.shift_arrivals(5'000'000);
+// One sample that reads as having waited `shift_ns` in the socket, answered by a fresh daemon.
+LoopStats answer_one_late_sample(Bench& bench, Axis& axis, std::int64_t shift_ns) {
+  axis.shift_arrivals(shift_ns);
   std::unique_ptr<hal::CanBus> stage = bench.power_stage();
   hal::SensorSample s{};
   s.sequence = 1;
-  ASSERT_NO_FATAL_FAILURE(send_sample(*stage, s, 6));
+  send_sample(*stage, s, axis.node());
   axis.start_daemon();
   const auto deadline = std::chrono::steady_clock::now() + 10s;
   while (axis.loop().stats().periods == 0U && std::chrono::steady_clock::now() < deadline) {
     std::this_thread::sleep_for(1ms);  // (periods counts a step once its answer is sent and timed)
   }
-  const LoopStats stats = axis.loop().stats();
+  return axis.loop().stats();
+}
+
+TEST(DaemonLoop, ASampleThatWaitedInTheSocketIsADeadlineMiss) {
+  Bench bench;
+  Axis axis(bench.bus, 6, 60.0);
+  const LoopStats stats = answer_one_late_sample(bench, axis, 5'000'000);
   ASSERT_EQ(stats.samples, 1U);
   EXPECT_EQ(stats.deadline_misses, 1U);
   EXPECT_GE(stats.max_step_ns, 5'000'000U) << "the 5 ms in the socket are the answer's";
   EXPECT_LT(stats.max_step_ns, 20'000'000U) << "within the sample timeout";
+  EXPECT_EQ(axis.longest_command_wait_ns(), 0);
+}
+
+// A sample that reads as having waited longer than the sample timeout (a stalled thread, or a
+// wall clock set forward) is a deadline miss of one sample timeout, and its answer does not wait
+// for room (before, it was taken for a clock set since the offset was read, and its answer could
+// wait a whole period: on a loaded machine a 20 ms stall failed the test below).
+TEST(DaemonLoop, ASampleOlderThanTheSampleTimeoutIsAnsweredAtOnce) {
+  Bench bench;
+  Axis axis(bench.bus, 6, 60.0);
+  const LoopStats stats = answer_one_late_sample(bench, axis, 30'000'000);
+  ASSERT_EQ(stats.samples, 1U);
+  EXPECT_EQ(stats.deadline_misses, 1U);
+  EXPECT_GE(stats.max_step_ns, 20'000'000U) << "one sample timeout";
+  EXPECT_LT(stats.max_step_ns, 30'000'000U) << "counted as one sample timeout, not the 30 ms it reads";
   EXPECT_EQ(axis.longest_command_wait_ns(), 0);
 }
 

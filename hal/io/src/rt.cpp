@@ -12,6 +12,7 @@
 
 #include <cerrno>
 #include <cstring>
+#include <limits>
 #include <string>
 
 namespace pmsm::hal {
@@ -123,11 +124,23 @@ std::int64_t monotonic_ns() noexcept {
 }
 
 std::int64_t realtime_minus_monotonic_ns() noexcept {
-  const std::int64_t before = monotonic_ns();
-  timespec ts{};
-  ::clock_gettime(CLOCK_REALTIME, &ts);
-  const std::int64_t after = monotonic_ns();
-  return std::int64_t{ts.tv_sec} * kNsPerS + std::int64_t{ts.tv_nsec} - (before + (after - before) / 2);
+  // The thread may be preempted between the readings: the offset is then wrong by up to half
+  // the gap (on a loaded machine, hundreds of microseconds, more than a frame's wait in the
+  // socket). Of a few tries the one with the narrowest bracket stands.
+  constexpr int kTries = 4;
+  std::int64_t best_gap = std::numeric_limits<std::int64_t>::max();
+  std::int64_t best = 0;
+  for (int k = 0; k < kTries; ++k) {
+    const std::int64_t before = monotonic_ns();
+    timespec ts{};
+    ::clock_gettime(CLOCK_REALTIME, &ts);
+    const std::int64_t after = monotonic_ns();
+    if (after - before < best_gap) {
+      best_gap = after - before;
+      best = std::int64_t{ts.tv_sec} * kNsPerS + std::int64_t{ts.tv_nsec} - (before + (after - before) / 2);
+    }
+  }
+  return best;
 }
 
 PeriodicTimer::PeriodicTimer(std::chrono::nanoseconds period) : period_(period) {

@@ -41,7 +41,8 @@ void prefault_stack(std::size_t bytes = 256U * 1024U) noexcept;
 
 // CLOCK_REALTIME less CLOCK_MONOTONIC, in nanoseconds: what turns a monotonic reading into the
 // clock of the kernel's software receive timestamps (ReceivedFrame::timestamp_ns). Read between
-// two monotonic readings, whose midpoint it is taken against. It moves when the wall clock is
+// two monotonic readings, whose midpoint it is taken against; of four tries the narrowest
+// bracket stands (a preemption between the readings skews it). It moves when the wall clock is
 // set or slewed: read it again now and then, not once for a process's life.
 [[nodiscard]] std::int64_t realtime_minus_monotonic_ns() noexcept;
 
