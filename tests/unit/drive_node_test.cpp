@@ -493,6 +493,40 @@ TEST(DriveNode, FieldWeakeningCarriesTheShaftPastTheIdZeroSpeed) {
   EXPECT_GT(t.outcomes[static_cast<std::size_t>(core::PairOutcome::kAccepted)], accepted_before);
 }
 
+// A field-weakening event's Rs belongs to a time after its publication and waits for it
+// (DriveController::hold_estimate). A calibration started meanwhile sets the winding's
+// temperature anew: what waits is of the winding before, dropped and counted, never fused into
+// the calibration's filter (nor taken for a calibration event).
+TEST(DriveNode, EstimatesWaitingForTheirTimeAreDroppedWhenACalibrationStarts) {
+  Rig rig;
+  rig.config.drive.field_weakening.enabled = true;
+  rig.config.drive.speed_limit_rad_s = 450.0;
+  rig.config.drive.injection.interval_s = 0.2;
+  rig.supervisor.overspeed_rad_s = 480.0;
+  rig.node = std::make_unique<DriveNode>(rig.config, rig.supervisor, PublishRates{});
+  rig.run(5000);
+  rig.in.speed_ref_rad_s = 420.0;
+  const core::DriveController& c = rig.node->controller();
+  int k = 0;
+  for (; k < 200000 && c.held_estimates() == 0U; ++k) {
+    rig.run(1);
+  }
+  ASSERT_GT(c.held_estimates(), 0U) << "no field-weakening estimate waited within 20 s";
+  const std::size_t held = c.held_estimates();
+  const std::uint32_t published = c.telemetry().estimates_published;
+  EXPECT_EQ(c.telemetry().estimates_dropped_at_restart, 0U);
+  rig.in.start_calibration = true;
+  rig.in.calibration_known_C = static_cast<double>(rig.plant->truth().winding_temp_C);  // an operator's reading
+  rig.run(1);
+  rig.in.start_calibration = false;
+  ASSERT_TRUE(c.telemetry().calibrating);
+  EXPECT_EQ(c.held_estimates(), 0U);
+  EXPECT_EQ(c.telemetry().estimates_dropped_at_restart, held);
+  rig.run(20000);  // beyond the dates they had
+  EXPECT_EQ(c.telemetry().estimates_published, published);
+  EXPECT_EQ(c.telemetry().estimates_dropped_at_restart, held);
+}
+
 // In field weakening a salient machine's reluctance torque, 3/2 p (Ld - Lq) id iq (Eq. 10), is
 // part of what each ampere of iq gives: a torque command is met with the d current counted
 // (Lq = 1.5 Ld, held at 420 rad/s by a dynamometer, where id = 0 control has no voltage left).

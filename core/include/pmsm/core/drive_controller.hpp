@@ -375,6 +375,8 @@ class DriveController {
   // measurement ungated, never from the calibration's T0 as if the motor were soaked there.
   void restore_thermal_state(const ThermalState& state, double downtime_s, double ambient_C);
   [[nodiscard]] ThermalState thermal_state() const { return observer_.state(); }
+  // Estimates dated after their publication, waiting for their time (hold_estimate()).
+  [[nodiscard]] std::size_t held_estimates() const noexcept { return held_count_; }
 
   [[nodiscard]] const DriveTelemetry& telemetry() const { return telemetry_; }
   // The torque of the last sample's currents (Eq. 10 with the reluctance torque), computed when
