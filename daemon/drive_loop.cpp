@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <bit>
 #include <cmath>
+#include <cstdlib>
 #include <thread>
 #include <variant>
 
@@ -311,17 +312,23 @@ void DriveLoop::recover_interface(const std::atomic<bool>& stop) noexcept {
 // moment it was read. A loop that was late to read a sample (its thread preempted, a burst of
 // frames before it) was late to answer it: the step's latency and the deadline count from the
 // arrival, and its answer may wait for room only until that period ends. A wait that reads as a
-// sample timeout or longer is a stall that long or a wall clock set forward since the offset was
-// read: the offset is read again, and what still reads that long counts as one sample timeout (a
-// deadline miss either way; a clock set by hours would otherwise enter the latency figures). A
-// negative wait (the wall clock set back) counts as none.
+// sample timeout or longer is a stall that long or a wall clock set since the offset was read:
+// the offset is read again. If it stood (within a millisecond) the stall was real and counts in
+// full; if it moved, the wait is unknown and counts as one sample timeout (a deadline miss either
+// way; a clock set by hours would otherwise enter the latency figures). A negative wait (the wall
+// clock set back) counts as none.
 std::int64_t DriveLoop::arrival_ns(std::int64_t read_ns) noexcept {
   if (received_.software_timestamp_ns == 0) {
     return read_ns;
   }
   std::int64_t waited = read_ns + realtime_offset_ns_ - received_.software_timestamp_ns;
   if (waited >= sample_timeout_ns_) {
+    constexpr std::int64_t kOffsetStood_ns = 1'000'000;
+    const std::int64_t before = realtime_offset_ns_;
     realtime_offset_ns_ = hal::realtime_minus_monotonic_ns();
+    if (std::abs(realtime_offset_ns_ - before) <= kOffsetStood_ns) {
+      return read_ns - waited;
+    }
     waited = read_ns + realtime_offset_ns_ - received_.software_timestamp_ns;
   }
   return read_ns - std::clamp<std::int64_t>(waited, 0, sample_timeout_ns_);

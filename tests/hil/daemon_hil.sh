@@ -93,12 +93,17 @@ fi
 tail -4 "$work/heatup-monitor.txt"
 
 # Plant outage: the pmsm-plant above has exited (duration reached). The daemon must publish
-# the SENSOR_TIMEOUT fault within sensor_timeout_periods x sample_timeout_ms (5 x 50 ms).
+# the SENSOR_TIMEOUT fault, due after sensor_timeout_periods x sample_timeout_ms (5 x 50 ms);
+# polled for up to 30 s (a loaded host stalls User-Mode Linux for longer than the fault takes:
+# how soon it comes is the latency benchmark's to measure, not this test's).
 mark=$(wc -l < "$work/candump.log")
-sleep 1
-tail -n +"$mark" "$work/candump.log" | "$tool" monitor --log - --node $node > "$work/outage.txt" || true
+for _ in $(seq 150); do
+  sleep 0.2
+  tail -n +"$mark" "$work/candump.log" | "$tool" monitor --log - --node $node > "$work/outage.txt" || true
+  grep -q "SENSOR_TIMEOUT" "$work/outage.txt" && break
+done
 grep -q "SENSOR_TIMEOUT" "$work/outage.txt" ||
-  die "no SENSOR_TIMEOUT fault on the bus 1 s after the plant stopped"
+  die "no SENSOR_TIMEOUT fault on the bus within 30 s after the plant stopped"
 echo "$prog: plant gone: the daemon published SENSOR_TIMEOUT"
 mark=$(wc -l < "$work/candump.log")
 plant_run "$hil_plant" 1 plant-2.log || die "the second pmsm-plant failed: $(tail -3 "$work/plant-2.log")"
@@ -117,8 +122,7 @@ kill -KILL "$daemon_pid"
 wait "$daemon_pid" 2>/dev/null || true
 plant_start "$hil_plant" 0.5 plant-3.log
 plant3=$plant_pid
-sleep 1.5
-grep -q "waiting for a controller" "$work/plant-3.log" || die "the plant did not notice the missing controller"
+hil_wait_for "$work/plant-3.log" "waiting for a controller" "$plant3" 30 "the third pmsm-plant"
 "$thermald" --config "$work/daemon.toml" > "$work/daemon-2.log" 2>&1 &
 daemon2_pid=$!
 pids+=("$daemon2_pid")
@@ -174,7 +178,9 @@ sleep 0.3  # in lockstep with the daemon by now
 kill -0 "$plant4" 2>/dev/null || die "the fourth plant ended before the interface test: $(tail -3 "$work/plant-4.log")"
 # A live monitor watches the outage too: it must say the interface went down and came back (a
 # drive cannot publish INTERFACE_DOWN while it is down), and not spin meanwhile.
-"$tool" monitor "$iface" --node $node --duration 4 > "$work/live-monitor.txt" 2>&1 &
+# (Its duration is a bound only: it is stopped with SIGINT, as an operator would, once it has
+# reported the interface back; a loaded host may stall User-Mode Linux for seconds.)
+"$tool" monitor "$iface" --node $node --duration 120 > "$work/live-monitor.txt" 2>&1 &
 live_monitor=$!
 for _ in $(seq 50); do
   [ -s "$work/live-monitor.txt" ] && break  # its first line: the socket is open and reading
@@ -189,6 +195,11 @@ wait "$plant4" || die "the plant did not finish after the interface came back: $
 grep -q "is down or gone" "$work/daemon-2.log" || die "the daemon did not notice $iface going down: $(tail -3 "$work/daemon-2.log")"
 grep -q "is back: socket reopened" "$work/daemon-2.log" || die "the daemon did not reopen its socket: $(tail -3 "$work/daemon-2.log")"
 grep -qi "down or gone" "$work/plant-4.log" || die "the plant did not notice $iface going down: $(tail -3 "$work/plant-4.log")"
+for _ in $(seq 300); do
+  grep -q "is back up: socket reopened" "$work/live-monitor.txt" && break
+  sleep 0.1
+done
+kill -INT "$live_monitor" 2>/dev/null || true
 wait "$live_monitor" || true
 grep -q "is down (this monitor's own socket)" "$work/live-monitor.txt" ||
   die "the live monitor did not report $iface going down: $(tail -5 "$work/live-monitor.txt")"

@@ -277,7 +277,15 @@ TEST(plant_process_hil, LockstepResendsAndIgnoresWrongSequences) {
   ASSERT_EQ(s->sequence, 2U);
   controller.send(0, true);  // stale
 
-  std::this_thread::sleep_for(100ms);  // let the plant read it before it is stopped
+  // The plant has read it before it is stopped: it re-sends sample 2 after each wait for a
+  // command that brought none, and the second re-send from now ends a wait that began after
+  // the stale command had arrived (a fixed pause of 100 ms was too short on a loaded host).
+  for (int resends = 0; resends < 2;) {
+    const std::optional<SensorSample> r = controller.next_sample(10s);
+    ASSERT_TRUE(r) << "no re-send of sample 2; log:\n" << plant.log();
+    ASSERT_EQ(r->sequence, 2U);
+    ++resends;
+  }
   EXPECT_EQ(plant.stop(), 0);
   const std::string log = plant.log();
   EXPECT_EQ(summary_number(log, "periods"), 2) << log;

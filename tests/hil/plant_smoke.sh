@@ -146,11 +146,24 @@ set -e
 [ "$plant_rc" = 0 ] || die "pmsm-plant exited with $plant_rc: $(tail -n 20 "$work/plant.log")"
 grep -q 'stopped (duration reached)' "$work/plant.log" || die "no summary line in the plant's log: $(tail -n 5 "$work/plant.log")"
 
-# Let candump drain what is still queued, then stop it (it flushes on SIGINT).
-sleep 0.3
+# Let candump drain what is still queued, then stop it (it flushes on SIGINT): a marker frame
+# sent now comes after everything the plant sent, so once candump has written it, it has
+# written them all (a fixed pause lost the last frames when User-Mode Linux stalled candump).
+# Its ID (0x7F0 + node, no message of the protocol) passes the capture's node filter; its line
+# is taken out before the strict decode.
+marker=$(printf '%03X' $((0x7F0 + node)))
+command -v cansend >/dev/null || die "cansend is missing (apt-get install can-utils)"
+cansend "$iface" "$marker#00" || die "cansend of the end marker failed"
+for _ in $(seq 1 300); do
+  grep -q " $marker#00" "$work/capture.log" && break
+  sleep 0.1
+done
 kill -INT "$candump_pid" 2>/dev/null || true
 wait "$candump_pid" 2>/dev/null || true
 candump_pid=
+grep -q " $marker#00" "$work/capture.log" || die "candump did not record the end marker within 30 s"
+grep -v " $marker#00" "$work/capture.log" > "$work/capture.tmp" || true
+mv "$work/capture.tmp" "$work/capture.log"
 
 # 3. Decode every line with the DBC; --strict fails on anything unknown or undecodable.
 set +e
