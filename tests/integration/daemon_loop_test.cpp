@@ -1047,15 +1047,25 @@ TEST(DaemonLoop, TwoAxesOnOneBusEachTrackItsOwnPlant) {
   // Both calibrations take about 3 s of drive time; both plants then run on to their 10 s.
   supervise(bench, {5, 6}, 50.0, 300s, seen, [&] { return cold.plant_done() && warm.plant_done(); });
   ASSERT_TRUE(cold.plant_done() && warm.plant_done()) << "the plants did not finish their 10 s in time";
+  // Each axis's last calibrated estimate while its plant ran (one its plant's truth followed:
+  // after the plant stopped, the daemon's model cools the winding on through the outage, at
+  // 400x thermal time, while the last truth stays), and the truth last before it.
   std::optional<double> last_5, last_6, truth_5, truth_6;
   std::size_t calibrated_5 = 0, calibrated_6 = 0;
+  std::array<std::optional<double>, 2> truth, pending, pending_truth;
   for (const protocol::AnyDecoded& d : seen) {
-    if (const auto* e = as<protocol::ThermalEstimate>(d); e != nullptr && e->valid && e->calibrated) {
-      (d.node == 5 ? last_5 : last_6) = e->winding_temp_C;
-      (d.node == 5 ? calibrated_5 : calibrated_6) += 1;
+    const std::size_t a = d.node == 5 ? 0 : 1;
+    if (const auto* e = as<protocol::ThermalEstimate>(d); e != nullptr && e->valid && e->calibrated && truth[a]) {
+      pending[a] = e->winding_temp_C;
+      pending_truth[a] = truth[a];
+      (a == 0 ? calibrated_5 : calibrated_6) += 1;
     }
     if (const auto* t = as<protocol::TruthThermal>(d)) {
-      (d.node == 5 ? truth_5 : truth_6) = t->winding_temp_C;
+      truth[a] = t->winding_temp_C;
+      if (pending[a]) {
+        (a == 0 ? last_5 : last_6) = pending[a];
+        (a == 0 ? truth_5 : truth_6) = pending_truth[a];
+      }
     }
   }
   ASSERT_TRUE(last_5 && last_6 && truth_5 && truth_6);
@@ -1066,8 +1076,8 @@ TEST(DaemonLoop, TwoAxesOnOneBusEachTrackItsOwnPlant) {
   EXPECT_NEAR(*last_6, *truth_6, 6.0);
   // Each axis reports its own winding: each estimate lies nearer its own plant's truth than
   // the other's. The plants were soaked 25 C apart and ran the same 10 s: their truths end 30 C
-  // apart (52.9 and 83.0 C, the same on every run since both stop at their duration), the
-  // estimates within 3.5 C of their own.
+  // apart (52.9 and 83.0 C at the end, the same on every run since both stop at their
+  // duration), the estimates within 3.5 C of their own.
   EXPECT_GT(*truth_6 - *truth_5, 20.0) << "the plants ran apart";
   EXPECT_LT(std::abs(*last_5 - *truth_5), std::abs(*last_5 - *truth_6)) << "axis 5 reads its own plant";
   EXPECT_LT(std::abs(*last_6 - *truth_6), std::abs(*last_6 - *truth_5)) << "axis 6 reads its own plant";
