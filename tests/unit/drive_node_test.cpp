@@ -453,19 +453,25 @@ TEST(DriveNode, TheVoltageLimitDoesNotWindTheSpeedLoopUp) {
   EXPECT_LT(highest, limit + 0.005 * limit);
 }
 
+// The rig's machine with control.field_weakening, a speed limit of 450 rad/s and events every
+// `interval_s`: run half a second at 50 rad/s, then asked for 420 rad/s, past its id = 0 speed.
+void run_into_field_weakening(Rig& rig, double interval_s) {
+  rig.config.drive.field_weakening.enabled = true;
+  rig.config.drive.speed_limit_rad_s = 450.0;
+  rig.config.drive.injection.interval_s = interval_s;
+  rig.supervisor.overspeed_rad_s = 480.0;
+  rig.node = std::make_unique<DriveNode>(rig.config, rig.supervisor, PublishRates{});
+  rig.run(5000);
+  rig.in.speed_ref_rad_s = 420.0;
+}
+
 // With control.field_weakening the same machine runs on past its id = 0 speed (367 rad/s at
 // 650 V, where the EMF takes the limit): a set-point of 420 rad/s is reached under load with a
 // negative d current within its bound, the current loop off its voltage limit, no fault, and
 // the injection still measuring there (its pairs hold the d current while they record).
 TEST(DriveNode, FieldWeakeningCarriesTheShaftPastTheIdZeroSpeed) {
   Rig rig;
-  rig.config.drive.field_weakening.enabled = true;
-  rig.config.drive.speed_limit_rad_s = 450.0;
-  rig.config.drive.injection.interval_s = 0.5;
-  rig.supervisor.overspeed_rad_s = 480.0;
-  rig.node = std::make_unique<DriveNode>(rig.config, rig.supervisor, PublishRates{});
-  rig.run(5000);
-  rig.in.speed_ref_rad_s = 420.0;
+  run_into_field_weakening(rig, 0.5);
   rig.run(20000);  // the ramp (a quarter of the torque limit over J) takes about a second
   double lowest = 1e9;
   double highest = 0.0;
@@ -499,13 +505,7 @@ TEST(DriveNode, FieldWeakeningCarriesTheShaftPastTheIdZeroSpeed) {
 // the calibration's filter (nor taken for a calibration event).
 TEST(DriveNode, EstimatesWaitingForTheirTimeAreDroppedWhenACalibrationStarts) {
   Rig rig;
-  rig.config.drive.field_weakening.enabled = true;
-  rig.config.drive.speed_limit_rad_s = 450.0;
-  rig.config.drive.injection.interval_s = 0.2;
-  rig.supervisor.overspeed_rad_s = 480.0;
-  rig.node = std::make_unique<DriveNode>(rig.config, rig.supervisor, PublishRates{});
-  rig.run(5000);
-  rig.in.speed_ref_rad_s = 420.0;
+  run_into_field_weakening(rig, 0.2);
   const core::DriveController& c = rig.node->controller();
   int k = 0;
   for (; k < 200000 && c.held_estimates() == 0U; ++k) {
