@@ -115,7 +115,7 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns, 
   if (++periods_since_offset_ >= offset_refresh_periods_) {
     // Once a second of control periods (the wall clock may have been set or slewed).
     periods_since_offset_ = 0;
-    realtime_offset_ns_ = hal::realtime_minus_monotonic_ns();
+    read_realtime_offset(after_ns_);
   }
 
   const app::NodePublications& p = out.publications;
@@ -307,35 +307,47 @@ void DriveLoop::recover_interface(const std::atomic<bool>& stop) noexcept {
   }
 }
 
+void DriveLoop::read_realtime_offset(std::int64_t now_ns) noexcept {
+  constexpr std::int64_t kStood_ns = 1'000'000;
+  const std::int64_t before = realtime_offset_ns_;
+  realtime_offset_ns_ = hal::realtime_minus_monotonic_ns();
+  offset_stood_ = offset_read_ns_ == kNever || std::abs(realtime_offset_ns_ - before) <= kStood_ns;
+  offset_read_ns_ = now_ns;
+}
+
 // A frame's arrival on the monotonic clock: the kernel's software receive timestamp where the
 // backend gives one (beside a hardware one, which is on the controller's own clock), else the
 // moment it was read. A loop that was late to read a sample (its thread preempted, a burst of
 // frames before it) was late to answer it: the step's latency and the deadline count from the
-// arrival, and its answer may wait for room only until that period ends. A wait that reads as a
-// sample timeout or longer is a stall that long or a wall clock set since the offset was read:
-// the offset is read again. If it stood (within a millisecond) the stall was real and counts in
-// full; if it moved, the wait is unknown and counts as one sample timeout (a deadline miss either
-// way; a clock set by hours would otherwise enter the latency figures). A negative wait (the wall
-// clock set back) counts as none.
+// arrival, and its answer may wait for room only until that period ends.
+//   A wait that reads as a sample timeout or longer is a stall that long or a wall clock set
+// back since the offset was read; one that reads more than a millisecond negative, a wall clock
+// set forward. Either reads the offset again (once a sample timeout at most: not for each frame
+// of a stall's backlog). If it stood (within a millisecond), a long wait was a real stall and
+// counts in full; if it moved, the wait is taken with the new offset, between none and one
+// sample timeout (a frame stamped before the set is off by the set: a clock set by hours must
+// not enter the latency figures). A wait a little negative (the offset's own error) counts as
+// none.
 std::int64_t DriveLoop::arrival_ns(std::int64_t read_ns) noexcept {
   if (received_.software_timestamp_ns == 0) {
     return read_ns;
   }
+  constexpr std::int64_t kForward_ns = -1'000'000;
   std::int64_t waited = read_ns + realtime_offset_ns_ - received_.software_timestamp_ns;
-  if (waited >= sample_timeout_ns_) {
-    constexpr std::int64_t kOffsetStood_ns = 1'000'000;
-    const std::int64_t before = realtime_offset_ns_;
-    realtime_offset_ns_ = hal::realtime_minus_monotonic_ns();
-    if (std::abs(realtime_offset_ns_ - before) <= kOffsetStood_ns) {
+  if (waited >= sample_timeout_ns_ || waited < kForward_ns) {
+    if (read_ns - offset_read_ns_ >= sample_timeout_ns_) {
+      read_realtime_offset(read_ns);
+      waited = read_ns + realtime_offset_ns_ - received_.software_timestamp_ns;
+    }
+    if (offset_stood_ && waited >= sample_timeout_ns_) {
       return read_ns - waited;
     }
-    waited = read_ns + realtime_offset_ns_ - received_.software_timestamp_ns;
   }
   return read_ns - std::clamp<std::int64_t>(waited, 0, sample_timeout_ns_);
 }
 
 void DriveLoop::run(const std::atomic<bool>& stop) {
-  realtime_offset_ns_ = hal::realtime_minus_monotonic_ns();
+  read_realtime_offset(hal::monotonic_ns());
   // In the steady state the clock is read twice a period: when the sample arrives and after the
   // command is sent (the step's latency). The wait for the next sample starts from the second
   // reading; only a wake-up without a sample reads the clock again. (Under User-Mode Linux a

@@ -18,6 +18,7 @@
 #include <atomic>
 #include <chrono>
 #include <cstdint>
+#include <limits>
 #include <optional>
 
 #include "daemon_config.hpp"
@@ -173,11 +174,15 @@ class DriveLoop {
   bool sample_missed_ = false;  // a step without a sample since the last sample (its time is counted)
   hal::InverterCommand last_command_{};
   std::int64_t after_ns_ = 0;  // the clock after the last command was sent (run() waits from it)
-  // CLOCK_REALTIME - CLOCK_MONOTONIC (hal::realtime_minus_monotonic_ns), read at the start and
-  // then once a second of periods: how long a frame waited in the socket before the loop read
-  // it (arrival_ns()).
+  // CLOCK_REALTIME - CLOCK_MONOTONIC (hal::realtime_minus_monotonic_ns), read at the start, then
+  // once a second of periods and when a frame's wait reads as a stall or a clock set
+  // (arrival_ns()): how long a frame waited in the socket before the loop read it.
+  static constexpr std::int64_t kNever = std::numeric_limits<std::int64_t>::min() / 2;
   std::int64_t realtime_offset_ns_ = 0;
+  std::int64_t offset_read_ns_ = kNever;  // when it was last read (monotonic)
+  bool offset_stood_ = true;              // that reading moved it by a millisecond at most
   std::uint32_t periods_since_offset_ = 0;
+  void read_realtime_offset(std::int64_t now_ns) noexcept;
   [[nodiscard]] std::int64_t arrival_ns(std::int64_t read_ns) noexcept;
   hal::CanFrame frame_{};
   hal::ReceivedFrame received_{};
