@@ -278,8 +278,10 @@ TEST(plant_process_hil, LockstepResendsAndIgnoresWrongSequences) {
   controller.send(0, true);  // stale
 
   // The plant has read it before it is stopped: it re-sends sample 2 after each wait for a
-  // command that brought none, and the second re-send from now ends a wait that began after
-  // the stale command had arrived (a fixed pause of 100 ms was too short on a loaded host).
+  // command that brought none. Re-sends already queued here are drained; of those that come
+  // after, the second ends a wait that began after the stale command had arrived (a fixed
+  // pause of 100 ms was too short on a loaded host).
+  controller.drain();
   for (int resends = 0; resends < 2;) {
     const std::optional<SensorSample> r = controller.next_sample(10s);
     ASSERT_TRUE(r) << "no re-send of sample 2; log:\n" << plant.log();

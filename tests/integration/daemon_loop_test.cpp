@@ -100,7 +100,7 @@ class Axis {
   // timeout then lets the scenario's active load spin the free shaft away.
   // adjust: changes to the daemon's controller configuration (e.g. a stored calibration).
   // sample_timeout_ms: how long the daemon waits for a sample before it counts a missing period
-  // (a test that must not see one, whatever a loaded machine does to its threads, takes seconds).
+  // (a test that must not see one, whatever a loaded machine does to its threads, takes 500).
   Axis(hal::SimBus& bus, protocol::NodeId node, double plant_duration_s, double ambient_C = 25.0,
        double command_timeout_s = 5.0, const std::function<void(app::ControllerConfig&)>& adjust = {},
        double sample_timeout_ms = 20.0)
@@ -742,10 +742,12 @@ TEST(DaemonLoop, CommandTimeoutSafeStateAndAStopCommandClearsIt) {
   ASSERT_TRUE(has_fault(seen, 3, protocol::FaultCode::kCommandTimeout, true, silent));
   // The power stage is commanded off: every command after the fault's report (the answers
   // before it may still be the running drive's), until ten of them have come.
-  std::size_t fault_at = silent;  // the fault's last report so far
-  while (!has_fault(seen, 3, protocol::FaultCode::kCommandTimeout, true, fault_at) ||
-         has_fault(seen, 3, protocol::FaultCode::kCommandTimeout, true, fault_at + 1)) {
-    ++fault_at;
+  std::size_t fault_at = seen.size();  // the fault's last report so far
+  while (fault_at-- > silent) {
+    const auto* f = as<protocol::FaultReport>(seen[fault_at]);
+    if (f != nullptr && seen[fault_at].node == 3 && f->code == protocol::FaultCode::kCommandTimeout && f->active) {
+      break;
+    }
   }
   std::size_t enabled = 0, disabled = 0;
   const auto deadline = std::chrono::steady_clock::now() + 10s;
@@ -1075,9 +1077,10 @@ TEST(DaemonLoop, TwoAxesOnOneBusEachTrackItsOwnPlant) {
   EXPECT_NEAR(*last_5, *truth_5, 6.0);
   EXPECT_NEAR(*last_6, *truth_6, 6.0);
   // Each axis reports its own winding: each estimate lies nearer its own plant's truth than
-  // the other's. The plants were soaked 25 C apart and ran the same 10 s: their truths end 30 C
-  // apart (52.9 and 83.0 C at the end, the same on every run since both stop at their
-  // duration), the estimates within 3.5 C of their own.
+  // the other's. The plants were soaked 25 C apart and ran the same 10 s: their truths end about
+  // 30 C apart (52.9 and 83.0 C on three runs: both stop at their duration, and only when each
+  // plant hears its calibration's start and end moves them), the estimates within 3.5 C of
+  // their own.
   EXPECT_GT(*truth_6 - *truth_5, 20.0) << "the plants ran apart";
   EXPECT_LT(std::abs(*last_5 - *truth_5), std::abs(*last_5 - *truth_6)) << "axis 5 reads its own plant";
   EXPECT_LT(std::abs(*last_6 - *truth_6), std::abs(*last_6 - *truth_5)) << "axis 6 reads its own plant";
