@@ -671,7 +671,7 @@ void DriveController::handle_estimate(const EventEstimate& e) {
     // between an event's pairs and its publication (docs/estimator.md section 7, docs/hil.md).
     // (An event dated after now, which the calibration's pairs at no load do not make, is
     // referred back by the model's rate of warming: the calibration cannot wait for it.)
-    const double rs_now = e.rs_ohm - rs_rate_ohm_per_s_ * std::max(e.measured_at_s - e.time_s, 0.0);
+    const double rs_now = referred_back_ohm(e.rs_ohm, e.measured_at_s - e.time_s);
     const double rs_at_known =
         rs_now * resistance_at_temperature_ohm(1.0, observer_.estimate().winding_C,
                                                  calibration_temp_C_,
@@ -826,7 +826,7 @@ void DriveController::fuse_held_now(std::size_t i) {
   EventEstimate e = held_[i];
   const double ahead_s = std::max(held_left_s_[i] - thermal_elapsed_s_, 0.0);
   if (ahead_s > 0.0) {
-    e.rs_ohm -= rs_rate_ohm_per_s_ * ahead_s;
+    e.rs_ohm = referred_back_ohm(e.rs_ohm, ahead_s);
     e.measured_at_s -= ahead_s;
     e.measured_from_s = e.measured_to_s = e.measured_at_s;  // (referred: no longer on its line)
   }

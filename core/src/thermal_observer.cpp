@@ -255,6 +255,10 @@ void ThermalObserver::restart_history() {
   history_size_ = 1;
 }
 
+std::size_t ThermalObserver::history_oldest() const noexcept {
+  return (history_next_ + kHistory - history_size_) % kHistory;
+}
+
 double ThermalObserver::winding_at_age_C(double age_s) const {
   // Linear between the two updates around the wanted time; the oldest kept value beyond
   // them (the measurement's time precedes the history: a long event, or one right after a
@@ -264,7 +268,7 @@ double ThermalObserver::winding_at_age_C(double age_s) const {
     return x_(0);
   }
   const double wanted = clock_s_ - age_s;
-  const std::size_t oldest = (history_next_ + kHistory - history_size_) % kHistory;
+  const std::size_t oldest = history_oldest();
   auto at = [&](std::size_t n) { return (oldest + n) % kHistory; };
   if (wanted <= history_s_[at(0)]) {
     return history_C_[at(0)] + history_offset_C_;
@@ -296,7 +300,7 @@ bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm, double
   // heavy load the winding warms by a noticeable fraction of a degree over an event.
   double then_C = 0.0;
   if (from_age_s > to_age_s && std::isfinite(from_age_s) && std::isfinite(to_age_s) &&
-      history_size_ > 0 && from_age_s <= clock_s_ - history_s_[(history_next_ + kHistory - history_size_) % kHistory]) {
+      history_size_ > 0 && from_age_s <= clock_s_ - history_s_[history_oldest()]) {
     // A line through two earlier times (EventEstimate::measured_from_s): compared with the same
     // line through the filter's trajectory, whose warming slows as the winding's does. Only
     // where the history reaches back to both: a value clamped to the oldest kept would bend

@@ -12,6 +12,7 @@
 // the two ends of that period (docs/estimator.md).
 #pragma once
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstdint>
@@ -446,6 +447,10 @@ class DriveController {
   // held_[i] now, referred back by the model's rate as far as its date lies ahead (a fifth
   // estimate to hold).
   void fuse_held_now(std::size_t i);
+  // An Rs dated `ahead_s` after now, referred back to now by the model's rate of warming.
+  [[nodiscard]] double referred_back_ohm(double rs_ohm, double ahead_s) const {
+    return rs_ohm - rs_rate_ohm_per_s_ * std::max(ahead_s, 0.0);
+  }
   void remove_held(std::size_t i);
   void advance_thermal(std::uint32_t periods, const DriveCommand& command);
   // Periods (at most an update's) into the thermal model's clock; its update when one is due.

@@ -243,6 +243,7 @@ class ThermalObserver {
   double clock_s_ = 0.0;
   double history_offset_C_ = 0.0;  // added to the kept values: the fusions' jumps since they were kept
   void restart_history();  // only the present state: after a restart
+  [[nodiscard]] std::size_t history_oldest() const noexcept;  // the oldest kept entry's index
   [[nodiscard]] bool reanchor_consistent(double z, double r) const;
   void cap_variance(int i, double limit);
   void set_loss_errors(double dp_W, double dp_std_W, double k, double k_std, double correlation,
