@@ -397,12 +397,9 @@ void run_then_silence_the_plant(Bench& bench, Axis& axis, std::vector<protocol::
     }
   }
   ASSERT_TRUE(last.has_value());
-  auto read = [&] { return axis.loop().stats().samples + axis.loop().stats().resent_samples; };
-  const auto deadline = std::chrono::steady_clock::now() + 10s;
-  while (read() < sent && std::chrono::steady_clock::now() < deadline) {
-    std::this_thread::sleep_for(1ms);
-  }
-  ASSERT_EQ(read(), sent) << "the daemon read every sample the plant sent";
+  auto read = [](const LoopStats& s) { return s.samples + s.resent_samples; };
+  wait_for(axis, [&](const LoopStats& s) { return read(s) >= sent; });
+  ASSERT_EQ(read(axis.loop().stats()), sent) << "the daemon read every sample the plant sent";
 }
 
 TEST(DaemonLoop, HeatUpOverTheBusTracksThePlantsTruth) {
@@ -651,10 +648,8 @@ LoopStats answer_one_late_sample(Bench& bench, Axis& axis, std::int64_t shift_ns
   const auto sent = std::chrono::steady_clock::now();
   send_sample(*stage, s, axis.node());
   axis.start_daemon();
-  const auto deadline = std::chrono::steady_clock::now() + 10s;
-  while (axis.loop().stats().periods == 0U && std::chrono::steady_clock::now() < deadline) {
-    std::this_thread::sleep_for(1ms);  // (periods counts a step once its answer is sent and timed)
-  }
+  // (periods counts a step once its answer is sent and timed)
+  wait_for(axis, [](const LoopStats& stats) { return stats.periods > 0U; });
   elapsed_ns = static_cast<std::uint64_t>(std::chrono::nanoseconds{std::chrono::steady_clock::now() - sent}.count());
   return axis.loop().stats();
 }
