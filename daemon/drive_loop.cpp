@@ -310,7 +310,7 @@ void DriveLoop::recover_interface(const std::atomic<bool>& stop) noexcept {
 void DriveLoop::read_realtime_offset(std::int64_t now_ns) noexcept {
   constexpr std::int64_t kStood_ns = 1'000'000;
   const std::int64_t before = realtime_offset_ns_;
-  realtime_offset_ns_ = hal::realtime_minus_monotonic_ns();
+  realtime_offset_ns_ = realtime_offset_source_();
   offset_stood_ = offset_read_ns_ == kNever || std::abs(realtime_offset_ns_ - before) <= kStood_ns;
   offset_read_ns_ = now_ns;
 }

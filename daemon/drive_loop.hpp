@@ -27,6 +27,7 @@
 #include "pmsm/hal/can_bus.hpp"
 #include "pmsm/hal/codec.hpp"
 #include "pmsm/hal/counters.hpp"
+#include "pmsm/hal/rt.hpp"
 #include "pmsm/hal/spsc_ring.hpp"
 
 namespace pmsm::daemon {
@@ -132,6 +133,12 @@ class DriveLoop {
   // The power stage's gate enable as the loop last commanded it (for the GPIO output).
   [[nodiscard]] bool gates_enabled() const noexcept { return gates_enabled_.load(std::memory_order_relaxed); }
 
+  // Before run(): where CLOCK_REALTIME - CLOCK_MONOTONIC is read from (hal::realtime_minus_
+  // monotonic_ns unless changed). A seam for tests: the host's wall clock cannot be set by one,
+  // but a source that moves stands for it (arrival_ns()).
+  using RealtimeOffsetSource = std::int64_t (*)() noexcept;
+  void use_realtime_offset_source(RealtimeOffsetSource source) noexcept { realtime_offset_source_ = source; }
+
   // The node, for tests after run() has returned.
   [[nodiscard]] const app::DriveNode& node() const noexcept { return node_; }
   // Before run(): the thermal state kept from before a restart, `downtime_s` old.
@@ -178,6 +185,7 @@ class DriveLoop {
   // once a second of periods and when a frame's wait reads as a stall or a clock set
   // (arrival_ns()): how long a frame waited in the socket before the loop read it.
   static constexpr std::int64_t kNever = std::numeric_limits<std::int64_t>::min() / 2;
+  RealtimeOffsetSource realtime_offset_source_ = hal::realtime_minus_monotonic_ns;
   std::int64_t realtime_offset_ns_ = 0;
   std::int64_t offset_read_ns_ = kNever;  // when it was last read (monotonic)
   bool offset_stood_ = true;              // that reading moved it by a millisecond at most

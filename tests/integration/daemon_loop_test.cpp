@@ -689,6 +689,60 @@ TEST(DaemonLoop, ASampleOlderThanTheSampleTimeoutIsAnsweredAtOnce) {
   EXPECT_EQ(axis.longest_command_wait_ns(), 0);
 }
 
+// The wall clock as the daemon reads it: the host's, set by g_wall_clock_set_ns (a test cannot
+// set the host's own; DriveLoop::use_realtime_offset_source).
+std::atomic<std::int64_t> g_wall_clock_set_ns{0};
+std::int64_t set_wall_clock_offset() noexcept { return hal::realtime_minus_monotonic_ns() + g_wall_clock_set_ns.load(); }
+
+// One sample, `waited_ns` in the socket, answered by a daemon that read the wall clock's offset
+// at its start, a sample timeout or more before the wall clock was set by `set_ns` (forward when
+// positive); the sample's receive timestamp is on the set clock. `elapsed_ns` as above.
+LoopStats answer_one_sample_after_a_clock_set(Bench& bench, Axis& axis, std::int64_t set_ns, std::int64_t waited_ns,
+                                              std::uint64_t& elapsed_ns) {
+  g_wall_clock_set_ns = 0;
+  axis.loop().use_realtime_offset_source(set_wall_clock_offset);
+  axis.start_daemon();
+  // (the first missing sample is counted a sample timeout after the offset was read)
+  wait_for(axis, [](const LoopStats& stats) { return stats.missing_samples > 0U; });
+  g_wall_clock_set_ns = set_ns;
+  axis.shift_arrivals(waited_ns - set_ns);
+  std::unique_ptr<hal::CanBus> stage = bench.power_stage();
+  hal::SensorSample s{};
+  s.sequence = 1;
+  const auto sent = std::chrono::steady_clock::now();
+  send_sample(*stage, s, axis.node());
+  wait_for(axis, [](const LoopStats& stats) { return stats.samples > 0U; });
+  elapsed_ns = static_cast<std::uint64_t>(std::chrono::nanoseconds{std::chrono::steady_clock::now() - sent}.count());
+  return axis.loop().stats();
+}
+
+// A wall clock set back 10 s since the offset was read makes a fresh sample read as 10 s old:
+// the offset, read again, moved, so the wait is taken with the new one (a few microseconds to
+// what the test's threads took), not as a 10 s stall.
+TEST(DaemonLoop, AWallClockSetBackIsNoStall) {
+  Bench bench;
+  Axis axis(bench.bus, 6, 60.0, 25.0, 5.0, {}, 500.0);
+  std::uint64_t elapsed_ns = 0;
+  const LoopStats stats = answer_one_sample_after_a_clock_set(bench, axis, -10'000'000'000, 0, elapsed_ns);
+  ASSERT_EQ(stats.samples, 1U);
+  EXPECT_LE(stats.max_step_ns, elapsed_ns) << "read as the clock's 10 s";
+}
+
+// A wall clock set forward 10 s makes a sample that waited 5 ms read as 10 s from the future:
+// with the offset read again it waited its 5 ms, a deadline miss (taken as none, it would hide
+// the stall).
+TEST(DaemonLoop, AWallClockSetForwardLeavesTheSocketWaitCounted) {
+  Bench bench;
+  Axis axis(bench.bus, 6, 60.0, 25.0, 5.0, {}, 500.0);
+  std::uint64_t elapsed_ns = 0;
+  const LoopStats stats = answer_one_sample_after_a_clock_set(bench, axis, 10'000'000'000, 5'000'000, elapsed_ns);
+  ASSERT_EQ(stats.samples, 1U);
+  EXPECT_EQ(stats.deadline_misses, 1U);
+  EXPECT_GE(stats.max_step_ns, 5'000'000U) << "the 5 ms in the socket";
+  EXPECT_LE(stats.max_step_ns, 5'000'000U + elapsed_ns);
+  EXPECT_EQ(axis.longest_command_wait_ns(), 0);
+}
+
 // An answer in time may wait for room until its period ends, never longer: with every sample
 // arriving 60 us before the bus delivers it, no answer may wait more than the 40 us left of its
 // 100 us period (a wait of one period, or the former 200 us, fails).
