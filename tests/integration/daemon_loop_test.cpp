@@ -868,9 +868,25 @@ TEST(DaemonLoop, GpioFaultInputTripsTheDriveAndClearsWhenQuiet) {
   // supervisor.overspeed_rad_s the supervisor latches OVERSPEED, as it should (beyond the
   // encoder's plausible speed ENCODER_JUMP); how far it got in the wall time of this test
   // depended on the plant's speed.)
+  // Checked once the loop has taken the stop and two DRIVE_STATUS have come since (the first may
+  // be from a step before it).
+  const std::uint64_t drive_commands = axis.loop().stats().commands_accepted[0];
   bench.stop_drive(6);
-  std::this_thread::sleep_for(50ms);
-  const std::vector<protocol::AnyDecoded> held = bench.drain();
+  ASSERT_TRUE(wait_for(axis, [&](const LoopStats& s) { return s.commands_accepted[0] > drive_commands; }));
+  std::vector<protocol::AnyDecoded> held;
+  std::vector<protocol::DriveState> states;
+  const auto statuses_until = std::chrono::steady_clock::now() + 10s;
+  while (states.size() < 2 && std::chrono::steady_clock::now() < statuses_until) {
+    std::this_thread::sleep_for(20ms);
+    for (protocol::AnyDecoded& d : bench.drain()) {
+      if (const auto* st = as<protocol::DriveStatus>(d); st != nullptr && d.node == 6) {
+        states.push_back(st->state);
+      }
+      held.push_back(std::move(d));
+    }
+  }
+  ASSERT_GE(states.size(), 2U) << "no drive status after the stop";
+  EXPECT_EQ(states.back(), protocol::DriveState::kFault);
   EXPECT_FALSE(has_fault(held, 6, protocol::FaultCode::kGpioFault, false)) << "cleared while the line is active";
   for (const protocol::AnyDecoded& d : held) {
     seen.push_back(d);
@@ -942,7 +958,9 @@ TEST(DaemonLoop, BadCommandsAreRejectedByReasonAndValidOnesActedOn) {
     std::this_thread::sleep_for(20ms);
     s = axis.loop().stats();
   }
-  std::this_thread::sleep_for(100ms);  // anything counted twice would show by now
+  // Anything counted twice would show once the loop has read on: a thousand periods more.
+  const std::uint64_t read_on = s.periods + 1000U;
+  EXPECT_TRUE(wait_for(axis, [&](const LoopStats& now) { return now.periods >= read_on; }));
   s = axis.loop().stats();
   EXPECT_EQ(rejected(protocol::DecodeStatus::kBadCrc), 1U);
   EXPECT_EQ(rejected(protocol::DecodeStatus::kWrongLength), 1U);
