@@ -636,22 +636,36 @@ TEST(DaemonLoop, FramesDroppedOnReceiveAreCountedAndReported) {
   EXPECT_NE(summary.find("frames dropped on receive 76"), std::string::npos) << summary;
 }
 
-// One sample that reads as having waited `shift_ns` in the socket, answered by a fresh daemon;
-// `elapsed_ns` receives the wall time from the sample's sending to its answer's counting, an
-// upper bound on what the sample really waited beyond the shift (the daemon's thread started
-// meanwhile: on a loaded or sanitized build, milliseconds).
-LoopStats answer_one_late_sample(Bench& bench, Axis& axis, std::int64_t shift_ns, std::uint64_t& elapsed_ns) {
-  axis.shift_arrivals(shift_ns);
+// Sends one sample (sequence 1) from a power stage, to a daemon started after it when
+// `start_daemon` is set (else already running), and returns the loop's statistics once the
+// sample's step has counted its period (after its answer was sent and timed). `elapsed_ns`
+// receives the wall time from the sending to then: an upper bound on what the sample really
+// waited (a daemon's thread started meanwhile: on a loaded or sanitized build, milliseconds).
+LoopStats answer_one_sample(Bench& bench, Axis& axis, bool start_daemon, std::uint64_t& elapsed_ns) {
   std::unique_ptr<hal::CanBus> stage = bench.power_stage();
   hal::SensorSample s{};
   s.sequence = 1;
   const auto sent = std::chrono::steady_clock::now();
   send_sample(*stage, s, axis.node());
-  axis.start_daemon();
-  // (periods counts a step once its answer is sent and timed)
-  wait_for(axis, [](const LoopStats& stats) { return stats.periods > 0U; });
+  // The first period of a daemon started now is the sample's; a running one's, the next period
+  // once the sample is counted (if the sample's step ended first, a missing sample's step, a
+  // sample timeout later).
+  std::uint64_t periods = 0;
+  if (start_daemon) {
+    axis.start_daemon();
+  } else {
+    wait_for(axis, [](const LoopStats& stats) { return stats.samples > 0U; });
+    periods = axis.loop().stats().periods;
+  }
+  wait_for(axis, [&](const LoopStats& stats) { return stats.periods > periods; });
   elapsed_ns = static_cast<std::uint64_t>(std::chrono::nanoseconds{std::chrono::steady_clock::now() - sent}.count());
   return axis.loop().stats();
+}
+
+// One sample that reads as having waited `shift_ns` in the socket, answered by a fresh daemon.
+LoopStats answer_one_late_sample(Bench& bench, Axis& axis, std::int64_t shift_ns, std::uint64_t& elapsed_ns) {
+  axis.shift_arrivals(shift_ns);
+  return answer_one_sample(bench, axis, true, elapsed_ns);
 }
 
 // The step's latency counts from the sample's arrival (the receive timestamp), not from the
@@ -696,7 +710,7 @@ std::int64_t set_wall_clock_offset() noexcept { return hal::realtime_minus_monot
 
 // One sample, `waited_ns` in the socket, answered by a daemon that read the wall clock's offset
 // at its start, a sample timeout or more before the wall clock was set by `set_ns` (forward when
-// positive); the sample's receive timestamp is on the set clock. `elapsed_ns` as above.
+// positive); the sample's receive timestamp is on the set clock. `elapsed_ns` as answer_one_sample's.
 LoopStats answer_one_sample_after_a_clock_set(Bench& bench, Axis& axis, std::int64_t set_ns, std::int64_t waited_ns,
                                               std::uint64_t& elapsed_ns) {
   g_wall_clock_set_ns = 0;
@@ -706,14 +720,7 @@ LoopStats answer_one_sample_after_a_clock_set(Bench& bench, Axis& axis, std::int
   wait_for(axis, [](const LoopStats& stats) { return stats.missing_samples > 0U; });
   g_wall_clock_set_ns = set_ns;
   axis.shift_arrivals(waited_ns - set_ns);
-  std::unique_ptr<hal::CanBus> stage = bench.power_stage();
-  hal::SensorSample s{};
-  s.sequence = 1;
-  const auto sent = std::chrono::steady_clock::now();
-  send_sample(*stage, s, axis.node());
-  wait_for(axis, [](const LoopStats& stats) { return stats.samples > 0U; });
-  elapsed_ns = static_cast<std::uint64_t>(std::chrono::nanoseconds{std::chrono::steady_clock::now() - sent}.count());
-  return axis.loop().stats();
+  return answer_one_sample(bench, axis, false, elapsed_ns);
 }
 
 // A wall clock set back 10 s since the offset was read makes a fresh sample read as 10 s old:
