@@ -307,12 +307,14 @@ void DriveLoop::recover_interface(const std::atomic<bool>& stop) noexcept {
   }
 }
 
-void DriveLoop::read_realtime_offset(std::int64_t now_ns) noexcept {
+bool DriveLoop::read_realtime_offset(std::int64_t now_ns) noexcept {
   constexpr std::int64_t kStood_ns = 1'000'000;
   const std::int64_t before = realtime_offset_ns_;
   realtime_offset_ns_ = realtime_offset_source_();
-  offset_stood_ = offset_read_ns_ == kNever || std::abs(realtime_offset_ns_ - before) <= kStood_ns;
+  const bool stood = offset_read_ns_ == kNever || std::abs(realtime_offset_ns_ - before) <= kStood_ns;
   offset_read_ns_ = now_ns;
+  stall_stamp_ns_ = kNoStall;
+  return stood;
 }
 
 // A frame's arrival on the monotonic clock: the kernel's software receive timestamp where the
@@ -322,24 +324,33 @@ void DriveLoop::read_realtime_offset(std::int64_t now_ns) noexcept {
 // arrival, and its answer may wait for room only until that period ends.
 //   A wait that reads as a sample timeout or longer is a stall that long or a wall clock set
 // back since the offset was read; one that reads more than a millisecond negative, a wall clock
-// set forward. Either reads the offset again (once a sample timeout at most: not for each frame
-// of a stall's backlog). If it stood (within a millisecond), a long wait was a real stall and
-// counts in full; if it moved, the wait is taken with the new offset, between none and one
-// sample timeout (a frame stamped before the set is off by the set: a clock set by hours must
-// not enter the latency figures). A wait a little negative (the offset's own error) counts as
-// none.
+// set forward. Either reads the offset again. If it stood (within a millisecond), a long wait
+// was a real stall and counts in full, and so do the later frames of that stall's backlog (their
+// receive timestamps no earlier than its frame's) without reading it again; if it moved, the
+// wait is taken with the new offset, between none and one sample timeout (a frame stamped
+// before the set is off by the set: a clock set by hours must not enter the latency figures).
+// A long wait not explained as such a later frame (none was found since the last reading, or
+// the frame is stamped before that stall's frame: the clock was set back since) reads the offset
+// again at once; otherwise, and for a wall clock set forward, at most once a sample timeout (not
+// for each frame of a backlog, nor for each frame of a backend whose timestamps run ahead). A
+// wait a little negative (the offset's own error) counts as none.
 std::int64_t DriveLoop::arrival_ns(std::int64_t read_ns) noexcept {
-  if (received_.software_timestamp_ns == 0) {
+  const std::int64_t stamp = received_.software_timestamp_ns;
+  if (stamp == 0) {
     return read_ns;
   }
   constexpr std::int64_t kForward_ns = -1'000'000;
-  std::int64_t waited = read_ns + realtime_offset_ns_ - received_.software_timestamp_ns;
-  if (waited >= sample_timeout_ns_ || waited < kForward_ns) {
-    if (read_ns - offset_read_ns_ >= sample_timeout_ns_) {
-      read_realtime_offset(read_ns);
-      waited = read_ns + realtime_offset_ns_ - received_.software_timestamp_ns;
+  std::int64_t waited = read_ns + realtime_offset_ns_ - stamp;
+  const bool long_wait = waited >= sample_timeout_ns_;
+  if (long_wait || waited < kForward_ns) {
+    if ((long_wait && stamp < stall_stamp_ns_) || read_ns - offset_read_ns_ >= sample_timeout_ns_) {
+      const bool stood = read_realtime_offset(read_ns);
+      waited = read_ns + realtime_offset_ns_ - stamp;
+      if (stood && waited >= sample_timeout_ns_) {
+        stall_stamp_ns_ = stamp;
+      }
     }
-    if (offset_stood_ && waited >= sample_timeout_ns_) {
+    if (waited >= sample_timeout_ns_ && stamp >= stall_stamp_ns_) {
       return read_ns - waited;
     }
   }

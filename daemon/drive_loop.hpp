@@ -188,9 +188,13 @@ class DriveLoop {
   RealtimeOffsetSource realtime_offset_source_ = hal::realtime_minus_monotonic_ns;
   std::int64_t realtime_offset_ns_ = 0;
   std::int64_t offset_read_ns_ = kNever;  // when it was last read (monotonic)
-  bool offset_stood_ = true;              // that reading moved it by a millisecond at most
+  // The receive timestamp (realtime) of the frame whose long wait a reading of the offset since
+  // the last one found a real stall; kNoStall: none.
+  static constexpr std::int64_t kNoStall = std::numeric_limits<std::int64_t>::max();
+  std::int64_t stall_stamp_ns_ = kNoStall;
   std::uint32_t periods_since_offset_ = 0;
-  void read_realtime_offset(std::int64_t now_ns) noexcept;
+  // Reads the offset at `now_ns` (monotonic); whether it stood (moved by a millisecond at most).
+  bool read_realtime_offset(std::int64_t now_ns) noexcept;
   [[nodiscard]] std::int64_t arrival_ns(std::int64_t read_ns) noexcept;
   hal::CanFrame frame_{};
   hal::ReceivedFrame received_{};

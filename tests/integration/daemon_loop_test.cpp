@@ -704,20 +704,33 @@ TEST(DaemonLoop, ASampleOlderThanTheSampleTimeoutIsAnsweredAtOnce) {
 }
 
 // The wall clock as the daemon reads it: the host's, set by g_wall_clock_set_ns (a test cannot
-// set the host's own; DriveLoop::use_realtime_offset_source).
+// set the host's own; DriveLoop::use_realtime_offset_source), and how often it was read.
 std::atomic<std::int64_t> g_wall_clock_set_ns{0};
-std::int64_t set_wall_clock_offset() noexcept { return hal::realtime_minus_monotonic_ns() + g_wall_clock_set_ns.load(); }
+std::atomic<int> g_offset_reads{0};
+std::int64_t set_wall_clock_offset() noexcept {
+  g_offset_reads.fetch_add(1);
+  return hal::realtime_minus_monotonic_ns() + g_wall_clock_set_ns.load();
+}
 
 // One sample, `waited_ns` in the socket, answered by a daemon that read the wall clock's offset
-// at its start, a sample timeout or more before the wall clock was set by `set_ns` (forward when
-// positive); the sample's receive timestamp is on the set clock. `elapsed_ns` as answer_one_sample's.
+// at its start, and then the wall clock was set by `set_ns` (forward when positive): a sample
+// timeout or more after that reading, or at once when `at_once`. The sample's receive timestamp
+// is on the set clock. `elapsed_ns` as answer_one_sample's.
 LoopStats answer_one_sample_after_a_clock_set(Bench& bench, Axis& axis, std::int64_t set_ns, std::int64_t waited_ns,
-                                              std::uint64_t& elapsed_ns) {
+                                              std::uint64_t& elapsed_ns, bool at_once = false) {
   g_wall_clock_set_ns = 0;
+  g_offset_reads = 0;
   axis.loop().use_realtime_offset_source(set_wall_clock_offset);
   axis.start_daemon();
-  // (the first missing sample is counted a sample timeout after the offset was read)
-  wait_for(axis, [](const LoopStats& stats) { return stats.missing_samples > 0U; });
+  if (at_once) {
+    const auto until = std::chrono::steady_clock::now() + 10s;
+    while (g_offset_reads.load() == 0 && std::chrono::steady_clock::now() < until) {
+      std::this_thread::sleep_for(1ms);
+    }
+  } else {
+    // (the first missing sample is counted a sample timeout after the offset was read)
+    wait_for(axis, [](const LoopStats& stats) { return stats.missing_samples > 0U; });
+  }
   g_wall_clock_set_ns = set_ns;
   axis.shift_arrivals(waited_ns - set_ns);
   return answer_one_sample(bench, axis, false, elapsed_ns);
@@ -733,6 +746,21 @@ TEST(DaemonLoop, AWallClockSetBackIsNoStall) {
   const LoopStats stats = answer_one_sample_after_a_clock_set(bench, axis, -10'000'000'000, 0, elapsed_ns);
   ASSERT_EQ(stats.samples, 1U);
   EXPECT_LE(stats.max_step_ns, elapsed_ns) << "read as the clock's 10 s";
+}
+
+// The same set within a sample timeout of the offset's reading (here its first, at the start;
+// on a drive, the once-a-second one): the wait is read again then too (before, that reading
+// still vouched for the offset, and the sample read as a 10 s stall; a command read so would
+// have dated the drive's last command 10 s back, a command timeout).
+// (A 2 s sample timeout: the sample must come within it of the daemon's start.)
+TEST(DaemonLoop, AWallClockSetBackJustAfterTheOffsetWasReadIsNoStall) {
+  Bench bench;
+  Axis axis(bench.bus, 6, 60.0, 25.0, 5.0, {}, 2000.0);
+  std::uint64_t elapsed_ns = 0;
+  const LoopStats stats = answer_one_sample_after_a_clock_set(bench, axis, -10'000'000'000, 0, elapsed_ns, true);
+  ASSERT_EQ(stats.samples, 1U);
+  EXPECT_LE(stats.max_step_ns, elapsed_ns) << "read as the clock's 10 s";
+  EXPECT_GE(g_offset_reads.load(), 2) << "the offset read again for the sample";
 }
 
 // A wall clock set forward 10 s makes a sample that waited 5 ms read as 10 s from the future:
