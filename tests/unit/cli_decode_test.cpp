@@ -139,6 +139,27 @@ TEST(cli_decode, StrictFailsOnMismatchOutOfRangeAndMalformedLines) {
   EXPECT_EQ(run_process(kDecode + bad.path()).exit_code, 0);
 }
 
+// A line without an end (a binary file, a capture cut mid-write) is read up to 4096 characters
+// and the rest of it skipped, not into memory whole: named, counted, and the frames around it
+// decoded. (Before, decode read a line of any length: /dev/zero grew it by gigabytes a second
+// until std::bad_alloc aborted it.)
+TEST(cli_decode, AnOverlongLineIsCutNamedAndSkipped) {
+  const std::string frame = "(1.000100) vcan0 100#0200000000000000\n";
+  const TempFile log(frame + std::string(1'000'000, 'A') + "\n" + frame + std::string(5000, '7'));
+  const ProcessResult r = run_process(kDecode + log.path());
+  EXPECT_EQ(r.exit_code, 0);
+  EXPECT_TRUE(contains(r.err, "line 2 is not a candump frame: longer than 4096 characters (the rest of it skipped)"))
+      << r.err;
+  EXPECT_TRUE(contains(r.err, "line 4 is not a candump frame: longer than 4096")) << r.err;
+  EXPECT_TRUE(contains(r.err, "2 malformed line(s)")) << r.err;
+  std::size_t frames = 0;
+  for (const std::string& line : lines_of(r.out)) {
+    frames += contains(line, ":: DRIVE_STATUS(") ? 1U : 0U;
+    EXPECT_LE(line.size(), 4096U) << "a line echoed longer than it was read";
+  }
+  EXPECT_EQ(frames, 2U) << "the frames before and after";
+}
+
 TEST(cli_decode, ACommandWithABadCrcIsReportedAsCorrupt) {
   // The DRIVE_COMMAND of protocol_node0.log (CRC 0x7B), once as sent and once with its CRC
   // byte changed: a DBC tool decodes both alike; the codec knows the second is corrupt.

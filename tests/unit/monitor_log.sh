@@ -74,6 +74,12 @@ grep -q "^node  3 " "$work/out" || fail "--node 3 does not show node 3"
 if grep -q "^node  0 " "$work/out"; then fail "--node 3 shows node 0"; fi
 "$exe" monitor --log "$work/two.log" > "$work/out"
 grep -q "^node  0 " "$work/out" && grep -q "^node  3 " "$work/out" || fail "without --node, not both axes are shown"
+# A line without an end is cut at 4096 characters and the rest of it skipped (not read into
+# memory whole): one line that is no frame, and the capture around it read.
+{ cat "$log"; head -c 1000000 /dev/zero | tr '\0' 'A'; echo; cat "$log"; } > "$work/long.log"
+"$exe" monitor --log "$work/long.log" > "$work/out"
+grep -q "^1 line(s) were not candump frames" "$work/out" || fail "an overlong line not counted as one"
+grep -q "^34 frame(s)" "$work/out" || fail "the capture after an overlong line not read (17 frames each side)"
 # What is no capture, or no bound, is refused by name, not read as an empty log or a check that
 # every run passes (exit 2).
 refused() {  # refused EXPECTED_TEXT ARGS...

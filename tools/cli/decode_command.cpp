@@ -142,12 +142,15 @@ class Decoder {
     counts_.per_message.assign(db.messages.size(), 0);
   }
 
-  void line(std::string_view raw_line) {
+  // `too_long`: the line was cut (TextInput::next_line), so it is no frame whatever it holds.
+  void line(std::string_view raw_line, bool too_long = false) {
     while (!raw_line.empty() && (raw_line.back() == '\n' || raw_line.back() == '\r')) {
       raw_line.remove_suffix(1);
     }
     ++counts_.lines;
-    const candump::ParseResult parsed = candump::parse_line(raw_line);
+    const candump::ParseResult parsed =
+        too_long ? candump::ParseResult{.record = std::nullopt, .error = TextInput::too_long_error()}
+                 : candump::parse_line(raw_line);
     if (!parsed.ok()) {
       const bool blank = raw_line.find_first_not_of(" \t") == std::string_view::npos;
       if (!blank) {
@@ -437,11 +440,11 @@ int run_decode(const DecodeOptions& o) {
     std::fprintf(stderr, "decode: %s\n", problem.c_str());
     return kExitInput;
   }
-  std::istream& in = input.stream();
 
   Decoder decoder(db, o);
-  for (std::string line; std::getline(in, line);) {
-    decoder.line(line);
+  std::string line;
+  for (bool too_long = false; input.next_line(line, too_long);) {
+    decoder.line(line, too_long);
   }
   if (input.failed()) {
     std::fprintf(stderr, "decode: error reading '%s'\n", input.name().c_str());

@@ -2,6 +2,8 @@
 #include <CLI/CLI.hpp>
 
 #include <cstdio>
+#include <exception>
+#include <new>
 #include <string>
 
 #include "commands.hpp"
@@ -39,6 +41,13 @@ int main(int argc, char** argv) {
     // --help and --version exit 0; a bad command line is unusable input (2), as a bad file is,
     // not one of CLI11's own codes.
     return app.exit(e) == 0 ? 0 : 2;
+  } catch (const std::bad_alloc&) {
+    // (Each command bounds what it reads; this is the last line of defence, not an abort.)
+    std::fprintf(stderr, "pmsm-thermal: out of memory\n");
+    return 1;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "pmsm-thermal: %s\n", e.what());
+    return 1;
   }
   return exit_code;
 }

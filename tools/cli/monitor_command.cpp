@@ -543,8 +543,11 @@ int run_monitor(MonitorOptions o) {
       return 2;
     }
     std::uint64_t malformed = 0;
-    for (std::string line; std::getline(input.stream(), line);) {
-      const candump::ParseResult parsed = candump::parse_line(line);
+    std::string line;
+    for (bool too_long = false; input.next_line(line, too_long);) {
+      const candump::ParseResult parsed =
+          too_long ? candump::ParseResult{.record = std::nullopt, .error = TextInput::too_long_error()}
+                   : candump::parse_line(line);
       if (parsed.ok()) {
         const auto& stamp = parsed.record->timestamp;
         m.on_frame(parsed.record->frame,

@@ -1,18 +1,22 @@
 // A text input named on the command line (decode, monitor --log): a file, or standard input
 // for "-" or no name. A directory is refused by name: a std::ifstream opens one and reads
 // nothing, which read as an empty log and passed every check. A read that fails is told apart
-// from the end of the input.
+// from the end of the input. Lines are read up to kMaxLine characters: a log line is a few
+// hundred at most, and an input without newlines (a binary file, /dev/zero) must not be read
+// into memory whole.
 #pragma once
 
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <array>
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <limits>
 #include <string>
 #include <system_error>
 
@@ -43,6 +47,38 @@ class TextInput {
     return {};
   }
   [[nodiscard]] std::istream& stream() { return from_stdin_ ? std::cin : file_; }
+
+  static constexpr std::size_t kMaxLine = 4096;
+  // The next line into `line`, without its newline; false at the end of the input or on a read
+  // error (failed()). A line longer than kMaxLine characters comes cut there, the rest of it
+  // skipped, with `too_long` set.
+  [[nodiscard]] bool next_line(std::string& line, bool& too_long) {
+    too_long = false;
+    std::istream& in = stream();
+    in.getline(buffer_.data(), static_cast<std::streamsize>(buffer_.size()));
+    const auto got = static_cast<std::size_t>(in.gcount());
+    if (in.bad()) {
+      return false;
+    }
+    if (in.fail()) {
+      if (got == 0) {
+        return false;  // nothing left
+      }
+      // The buffer filled before a newline came.
+      too_long = true;
+      in.clear();
+      in.ignore(std::numeric_limits<std::streamsize>::max(), '\n');
+      line.assign(buffer_.data(), kMaxLine);
+      return !in.bad();
+    }
+    // gcount counts the newline, which is not stored, unless the input ended first.
+    line.assign(buffer_.data(), in.eof() ? got : got - 1);
+    return true;
+  }
+  // What to say of a line next_line() cut.
+  [[nodiscard]] static std::string too_long_error() {
+    return "longer than " + std::to_string(kMaxLine) + " characters (the rest of it skipped)";
+  }
   // A read error, not the end of the input (std::cin reads through stdio: its errors are
   // stdin's).
   [[nodiscard]] bool failed() { return stream().bad() || (from_stdin_ && std::ferror(stdin) != 0); }
@@ -53,6 +89,7 @@ class TextInput {
   bool from_stdin_ = true;
   std::string name_ = "stdin";
   std::ifstream file_;
+  std::array<char, kMaxLine + 1> buffer_{};
 };
 
 }  // namespace pmsm::app
