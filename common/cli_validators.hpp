@@ -54,4 +54,11 @@ CLI::Validator text_rule(Rule rule, std::string type_name) {
                         std::move(type_name));
 }
 
+// A file or directory name: an empty one, given explicitly (--csv ''), is refused rather than
+// read as "not given" (which wrote nothing, or read standard input, and said nothing).
+inline CLI::Validator file_name() {
+  return text_rule([](std::string_view text) { return text.empty() ? "expected a file name, got an empty one" : ""; },
+                   "FILE");
+}
+
 }  // namespace pmsm::cli

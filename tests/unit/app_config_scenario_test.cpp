@@ -97,9 +97,31 @@ TEST(Scenario, DevicesAndDirectoriesAreNotConfigurationFiles) {
             path_of("inline.toml") + ":2: operation.speed_csv: /dev/zero: CSV: is not a regular file");
 }
 
+// A cycle is named as one, with the files in it; a chain longer than 8 bases (not a cycle) with
+// its files and the limit (before, both read "bases nest too deep (a cycle?)", at the ninth file).
 TEST(Scenario, BaseCycleIsReported) {
   const std::string e = error_of([] { (void)load_scenario(kDir / "cycle_a.toml"); });
-  EXPECT_NE(e.find("scenario.base: bases nest too deep"), std::string::npos) << e;
+  EXPECT_EQ(e, path_of("cycle_b.toml") + ":2: scenario.base: the bases form a cycle: " + path_of("cycle_a.toml") +
+                   " -> " + path_of("cycle_b.toml") + " -> " + path_of("cycle_a.toml"));
+}
+
+TEST(Scenario, AChainOfMoreThanEightBasesIsReported) {
+  const std::filesystem::path dir = std::filesystem::temp_directory_path() / "pmsm-scenario-chain";
+  std::filesystem::create_directories(dir);
+  for (int k = 0; k <= 9; ++k) {
+    std::ofstream(dir / ("c" + std::to_string(k) + ".toml"))
+        << (k == 0 ? std::string("[scenario]\nduration_s = 1\n")
+                   : "[scenario]\nbase = \"c" + std::to_string(k - 1) + ".toml\"\n");
+  }
+  const std::string e = error_of([&] { (void)load_scenario(dir / "c9.toml"); });
+  EXPECT_NE(e.find((dir / "c1.toml").string() + ":2: scenario.base: more than 8 bases in a chain: " +
+                   (dir / "c9.toml").string() + " -> "),
+            std::string::npos)
+      << e;
+  // Eight bases are fine (the chain's end is no complete scenario: its own error, not the chain's).
+  const std::string eight = error_of([&] { (void)load_scenario(dir / "c8.toml"); });
+  EXPECT_EQ(eight.find("bases in a chain"), std::string::npos) << eight;
+  std::filesystem::remove_all(dir);
 }
 
 TEST(Scenario, MissingBaseIsReported) {

@@ -4,6 +4,8 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <sstream>
+#include <string>
 #include <unistd.h>
 
 #include "run_process.hpp"
@@ -244,6 +246,38 @@ TEST(SimulateCli, AnUnusableScenarioStopsTheRunBeforeAnythingRuns) {
   const ProcessResult ok = run_process(kExe + " simulate --json --quiet " + (dir / "ok.toml").string());
   EXPECT_EQ(ok.exit_code, 0) << ok.err;
   EXPECT_NE(ok.out.find("\"sim_time_s\": 0.6"), std::string::npos) << "ok.toml alone runs: " << ok.out;
+  std::filesystem::remove_all(dir);
+}
+
+// An output is not written over anything the scenario reads or keeps (itself, a base, a CSV,
+// the stored calibration), nor over the other output; an empty output name is refused. (Before,
+// only the top-level scenario was guarded: --csv over the speed CSV or a base replaced it and
+// exited 0, and --csv '' wrote nothing and said nothing.)
+TEST(SimulateCli, AnOutputIsNotWrittenOverAnInput) {
+  const std::filesystem::path dir = std::filesystem::temp_directory_path() / ("pmsm-sim-out-" + std::to_string(getpid()));
+  std::filesystem::create_directories(dir);
+  std::ofstream(dir / "base.toml") << "[scenario]\nbase = \"" << PMSM_SOURCE_DIR
+                                   << "/bench/scenarios/reference-fm-bipolar.toml\"\nduration_s = 0.6\n";
+  std::ofstream(dir / "speed.csv") << "time_s,speed_rad_s\n0,0\n1,10\n";
+  std::ofstream(dir / "s.toml") << "[scenario]\nbase = \"base.toml\"\n[operation]\nspeed_csv = \"speed.csv\"\n"
+                                   "[controller.calibration]\nfile = \"cal.toml\"\n";
+  const std::string run = kExe + " simulate --quiet ";
+  const std::string s = (dir / "s.toml").string();
+  const auto refused = [&](const std::string& args, const std::string& message) {
+    const ProcessResult r = run_process(run + args + " " + s);
+    EXPECT_EQ(r.exit_code, 2) << args;
+    EXPECT_NE(r.err.find(message), std::string::npos) << args << ": " << r.err;
+  };
+  refused("--csv " + (dir / "speed.csv").string(),
+          "would write over " + (dir / "speed.csv").string() + ", which the scenario " + s + " reads");
+  refused("--plot " + (dir / "." / "base.toml").string(), "would write over " + (dir / "base.toml").string());
+  refused("--csv " + (dir / "cal.toml").string(), "would write over " + (dir / "cal.toml").string());
+  refused("--csv " + s, "would write over the scenario " + s);
+  refused("--csv " + (dir / "x").string() + " --plot " + (dir / "x").string(), "--csv and --plot name the same file");
+  refused("--csv ''", "--csv: expected a file name, got an empty one");
+  std::stringstream kept;
+  kept << std::ifstream(dir / "speed.csv").rdbuf();
+  EXPECT_EQ(kept.str(), "time_s,speed_rad_s\n0,0\n1,10\n");
   std::filesystem::remove_all(dir);
 }
 

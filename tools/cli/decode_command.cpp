@@ -34,6 +34,7 @@
 
 #include <fmt/core.h>
 
+#include "cli_validators.hpp"
 #include "json_writer.hpp"
 #include "commands.hpp"
 #include "text_input.hpp"
@@ -466,10 +467,13 @@ void register_decode_command(CLI::App& app, int& exit_code) {
   auto options = std::make_shared<DecodeOptions>();
   CLI::App* cmd = app.add_subcommand(
       "decode", "Decode candump output (default, -ta, -L, ...) through a DBC, like cantools decode --single-line");
-  cmd->add_option("file", options->input, "candump output to read; '-' or none: stdin")->capture_default_str();
+  cmd->add_option("file", options->input, "candump output to read; '-' or none: stdin")
+      ->capture_default_str()
+      ->check(pmsm::cli::file_name());
   cmd->add_option("--dbc", options->dbc_path,
                   "DBC file (default: share/pmsm-thermal/pmsm-thermal.dbc of the installation, or can/pmsm-thermal.dbc "
-                  "of the source tree)");
+                  "of the source tree)")
+      ->check(pmsm::cli::file_name());
   cmd->add_flag("--json", options->json, "one JSON object per input line (JSON Lines); JSON summary on stderr");
   cmd->add_flag("--strict", options->strict,
                 "exit 1 if any line is not a cleanly decoded frame (unknown ID, error frame, length/format "

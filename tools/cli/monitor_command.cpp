@@ -618,7 +618,7 @@ void register_monitor_command(CLI::App& app, int& exit_code) {
   CLI::App* cmd = app.add_subcommand("monitor", "Watch the axes on a bus (or in a candump log): temperatures, state, faults");
   cmd->add_option("iface", o->iface, "CAN interface to open (e.g. vcan0)")
       ->check(pmsm::cli::text_rule(pmsm::hal::can_interface_name_problem, "NAME"));
-  cmd->add_option("--log", o->log, "read a candump log instead ('-': stdin)");
+  cmd->add_option("--log", o->log, "read a candump log instead ('-': stdin)")->check(pmsm::cli::file_name());
   cmd->add_option("--node", o->node, "only this node")->check(CLI::Range(0, 15));
   cmd->add_option("--every", o->every_s, "seconds of drive time between lines per axis")->check(pmsm::cli::number_in_range(0.0, 1e6))->capture_default_str();
   cmd->add_option("--threshold", o->threshold_C, "compare with the truth above this winding temperature, C")
@@ -631,7 +631,8 @@ void register_monitor_command(CLI::App& app, int& exit_code) {
       ->check(pmsm::cli::non_negative(1000.0));
   cmd->add_option("--min-estimates", o->min_estimates, "exit 1 when an axis has fewer compared estimates")
       ->check(pmsm::cli::number_in_range(0.0, 1e9));
-  cmd->add_option("--csv", o->csv, "write every THERMAL_ESTIMATE with the truth beside it as CSV");
+  cmd->add_option("--csv", o->csv, "write every THERMAL_ESTIMATE with the truth beside it as CSV")
+      ->check(pmsm::cli::file_name());
   cmd->add_option("--duration", o->duration_s, "stop watching a live bus after this many seconds")
       ->check(pmsm::cli::positive(1e7));
   cmd->add_flag("--plain", o->plain, "one line per update even on a terminal (no redraw in place)");

@@ -17,6 +17,7 @@
 
 #include <fmt/format.h>
 
+#include "cli_validators.hpp"
 #include "calibration_file.hpp"
 #include "runner.hpp"
 #include "commands.hpp"
@@ -150,24 +151,20 @@ Report run_one(const std::string& path, const Scenario& scenario, const Simulate
   return r;
 }
 
+// Whether two paths name one file: the same file under two spellings (a symbolic link, ".."),
+// or, when either does not exist yet, the same normalized absolute path.
+bool same_file(const std::filesystem::path& a, const std::filesystem::path& b) {
+  std::error_code ec;
+  if (std::filesystem::equivalent(a, b, ec)) {
+    return true;
+  }
+  return std::filesystem::absolute(a, ec).lexically_normal() == std::filesystem::absolute(b, ec).lexically_normal();
+}
+
 int run_simulate(const SimulateOptions& o) {
   if (o.scenario_paths.size() > 1 && (!o.csv_path.empty() || !o.plot_path.empty())) {
     std::fprintf(stderr, "simulate: --csv and --plot take one scenario; use --plot-dir for several\n");
     return 2;
-  }
-  // An output written over an input: the scenario would be replaced by its own CSV or plot.
-  for (const std::string& output : {o.csv_path, o.plot_path}) {
-    if (output.empty()) {
-      continue;
-    }
-    std::error_code ec;
-    for (const std::string& path : o.scenario_paths) {
-      if (std::filesystem::equivalent(output, path, ec)) {
-        std::fprintf(stderr, "simulate: %s is the scenario %s itself: refusing to write the output over it\n",
-                     output.c_str(), path.c_str());
-        return 2;
-      }
-    }
   }
   // Every scenario is loaded before any runs: one that cannot be used is named (all of them,
   // each with its file, line and key) and nothing runs, as docs/scenarios.md says.
@@ -187,6 +184,37 @@ int run_simulate(const SimulateOptions& o) {
   }
   if (unusable) {
     return 2;
+  }
+  // An output written over an input (the scenario, a base, a CSV, the plant profile, the stored
+  // calibration or thermal state) would replace it with a CSV or a plot; two outputs on one
+  // file would keep only the last.
+  if (!o.csv_path.empty() && !o.plot_path.empty() && same_file(o.csv_path, o.plot_path)) {
+    std::fprintf(stderr, "simulate: --csv and --plot name the same file %s: one would replace the other\n",
+                 o.csv_path.c_str());
+    return 2;
+  }
+  for (std::size_t k = 0; k < n; ++k) {
+    const std::string plot_in_dir =
+        o.plot_dir.empty() ? std::string()
+                           : (std::filesystem::path(o.plot_dir) / (std::filesystem::path(o.scenario_paths[k]).stem().string() + ".png"))
+                                 .string();
+    for (const auto& [option, output] : {std::pair<const char*, const std::string&>{"--csv", o.csv_path},
+                                         {"--plot", o.plot_path},
+                                         {"--plot-dir", plot_in_dir}}) {
+      if (output.empty()) {
+        continue;
+      }
+      for (const std::filesystem::path& input : scenarios[k].files) {
+        if (same_file(output, input)) {
+          const bool itself = &input == &scenarios[k].files.front();
+          std::fprintf(stderr, "simulate: %s %s would write over %s%s: refusing\n", option, output.c_str(),
+                       itself ? "the scenario " : "", itself ? o.scenario_paths[k].c_str()
+                                                             : (input.string() + ", which the scenario " + o.scenario_paths[k] +
+                                                                " reads or keeps its state in").c_str());
+          return 2;
+        }
+      }
+    }
   }
   // -j N: N scenarios at a time, each (with its own twin thread) independent of the others;
   // reports are printed in the order the scenarios were given, each as soon as it and those
@@ -274,9 +302,11 @@ void register_simulate_command(CLI::App& app, int& exit_code) {
       ->required();  // a missing file is the scenario's error (exit 2, docs/scenarios.md), not a usage error
   CLI::Option* json = cmd->add_flag("--json", options->json, "print one JSON object per scenario with the figures");
   cmd->add_flag("--markdown", options->markdown, "print one Markdown table, a row per scenario")->excludes(json);
-  cmd->add_option("--csv", options->csv_path, "write the time series as CSV (one scenario)");
-  cmd->add_option("--plot", options->plot_path, "draw true vs estimated temperatures as PNG (one scenario; needs gnuplot)");
-  cmd->add_option("--plot-dir", options->plot_dir, "draw a PNG per scenario into this directory, named after the file");
+  cmd->add_option("--csv", options->csv_path, "write the time series as CSV (one scenario)")->check(pmsm::cli::file_name());
+  cmd->add_option("--plot", options->plot_path, "draw true vs estimated temperatures as PNG (one scenario; needs gnuplot)")
+      ->check(pmsm::cli::file_name());
+  cmd->add_option("--plot-dir", options->plot_dir, "draw a PNG per scenario into this directory, named after the file")
+      ->check(pmsm::cli::file_name());
   cmd->add_flag("--quiet", options->quiet, "no progress line on a terminal");
   cmd->add_option("-j,--jobs", options->jobs, "run this many scenarios at a time (each also runs its twin on a thread of its own)")
       ->check(CLI::Range(1, 256))->capture_default_str();

@@ -230,7 +230,9 @@ void merge(toml::table& base, toml::table&& overrides) {
 }
 
 
-plant::PlantConfig load_plant(const toml::table& root, const std::filesystem::path& source) {
+// `files` receives the plant profile's path when one is named.
+plant::PlantConfig load_plant(const toml::table& root, const std::filesystem::path& source,
+                              std::vector<std::filesystem::path>& files) {
   const std::filesystem::path dir = source.parent_path();
   const toml::table* plant_table = common::optional_section(root, "plant", source.string());
   toml::table merged;
@@ -245,6 +247,7 @@ plant::PlantConfig load_plant(const toml::table& root, const std::filesystem::pa
         // such file", neither the key nor where).
         throw ConfigError(where(*(*plant_table).get("profile"), source.string(), "plant.profile") + e.what());
       }
+      files.push_back(profile_path);
       // The profile on its own first, so its own mistakes are reported with its own lines.
       (void)plant::parse_plant_config(text, profile_path.string(), profile_path.parent_path());
       merged = toml::parse(text, profile_path.string());
@@ -315,9 +318,20 @@ double Profile::at(double t_s) const {
 
 namespace {
 
+constexpr std::size_t kMaxBases = 8;
+
+std::string chain_text(const std::vector<std::filesystem::path>& chain, const std::filesystem::path& next) {
+  std::string text;
+  for (const std::filesystem::path& p : chain) {
+    text += p.string() + " -> ";
+  }
+  return text + next.string();
+}
+
 // A scenario may name a base scenario (scenario.base, relative to itself) and override only
-// what differs; bases may chain.
-toml::table resolve_base(toml::table root, const std::filesystem::path& source, int depth) {
+// what differs; bases may chain, up to kMaxBases. `chain`: the files from the one loaded down
+// to `source`, which is its last; each base read is added.
+toml::table resolve_base(toml::table root, const std::filesystem::path& source, std::vector<std::filesystem::path>& chain) {
   const auto base = root.at_path("scenario.base").value<std::string>();
   if (!base) {
     if (root.at_path("scenario.base")) {
@@ -325,20 +339,27 @@ toml::table resolve_base(toml::table root, const std::filesystem::path& source, 
     }
     return root;
   }
-  if (depth > 8) {
-    throw ConfigError(source.string() + ": scenario.base: bases nest too deep (a cycle?)");
-  }
   const std::filesystem::path base_path = source.parent_path() / *base;
+  const std::string at = common::node_location(*root.at_path("scenario.base").node(), source.string()) + "scenario.base: ";
+  for (const std::filesystem::path& earlier : chain) {
+    std::error_code ec;
+    if (std::filesystem::equivalent(earlier, base_path, ec)) {
+      throw ConfigError(at + "the bases form a cycle: " + chain_text(chain, base_path));
+    }
+  }
+  if (chain.size() > kMaxBases) {
+    throw ConfigError(at + "more than " + std::to_string(kMaxBases) + " bases in a chain: " + chain_text(chain, base_path));
+  }
   std::string base_text;
   try {
     // A base that cannot be read is the referring file's error: its file and line first, then
     // the path it resolved to (relative to the referring file), as for a CSV.
     base_text = common::read_config_file(base_path, "scenario");
   } catch (const ConfigError& e) {
-    throw ConfigError(common::node_location(*root.at_path("scenario.base").node(), source.string()) +
-                      "scenario.base: " + e.what());
+    throw ConfigError(at + e.what());
   }
-  toml::table merged = resolve_base(common::parse_toml(base_text, base_path.string()), base_path, depth + 1);
+  chain.push_back(base_path);
+  toml::table merged = resolve_base(common::parse_toml(base_text, base_path.string()), base_path, chain);
   // Paths in the base are relative to the base, not to the file that inherits it.
   for (const char* key : {"plant.profile", "plant.load.csv_path", "operation.speed_csv", "operation.torque_csv",
                           "controller.calibration.file"}) {
@@ -402,9 +423,11 @@ toml::table resolve_base(toml::table root, const std::filesystem::path& source, 
 }  // namespace
 
 Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path& source) {
-  const toml::table root = resolve_base(common::parse_toml(toml_text, source.string()), source, 0);
+  std::vector<std::filesystem::path> chain{source};
+  const toml::table root = resolve_base(common::parse_toml(toml_text, source.string()), source, chain);
   Scenario out;
   out.source = source;
+  out.files = std::move(chain);
   schema().apply(root, out.scenario, source.string(),
                  {"plant", "controller", "scenario.seed", "operation.speed_rad_s", "operation.torque_Nm", "operation.speed_csv",
                   "operation.torque_csv"});
@@ -449,6 +472,7 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
       throw ConfigError(at + "expected a path (string)");
     }
     into = read_csv(dir / text->get(), key, at, limits);
+    out.files.push_back(dir / text->get());
   };
   csv_profile("operation.speed_csv", out.scenario.speed_rad_s, kSpeedLimits);
   if (const auto node = root.at_path("operation.torque_Nm")) {
@@ -461,7 +485,10 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
   if (!speed_mode && out.scenario.torque_Nm.empty()) {
     throw ConfigError(source.string() + ": operation.torque_Nm (or operation.torque_csv) is required in torque mode");
   }
-  out.plant = load_plant(root, source);
+  out.plant = load_plant(root, source, out.files);
+  if (!out.plant.load.csv_path.empty()) {
+    out.files.push_back(out.plant.load.csv_path);
+  }
   // The scenario's ambient, seed and acceleration apply to the plant unless it says otherwise.
   const bool plant_ambient = static_cast<bool>(root.at_path("plant.thermal.ambient_C"));
   if (!plant_ambient) {
@@ -504,6 +531,11 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
   const toml::table* controller_table = common::optional_section(root, "controller", source.string());
   out.controller = parse_controller_config(controller_table != nullptr ? *controller_table : kEmpty, source.string(), {},
                                            "controller.");
+  for (const std::string& file : {out.controller.calibration_file, out.controller.thermal_state_file}) {
+    if (!file.empty()) {
+      out.files.emplace_back(file);
+    }
+  }
   // The scenario's acceleration applies to the controller's thermal model too, unless the
   // controller section sets its own.
   if (root.at_path("scenario.thermal_acceleration") && !root.at_path("controller.thermal.acceleration")) {

@@ -54,6 +54,10 @@ struct Scenario {
   plant::PlantConfig plant;
   ControllerConfig controller;
   std::filesystem::path source;
+  // Every file the scenario is read from or keeps its state in: itself, its bases, its CSV
+  // files, the plant profile and the drive's calibration and thermal-state files (an output
+  // must not be written over one of them).
+  std::vector<std::filesystem::path> files;
 };
 
 // Loads a scenario file. Paths inside it (plant profile, CSV files) are relative to the
