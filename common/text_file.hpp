@@ -54,4 +54,17 @@ inline constexpr std::uintmax_t kMaxTextFileBytes = 256U << 20U;
   return {};
 }
 
+// Whether two paths name one file: the same file under two spellings (a symbolic link, ".."),
+// whether or not it exists yet (an output about to be written over an input).
+[[nodiscard]] inline bool same_file(const std::filesystem::path& a, const std::filesystem::path& b) {
+  std::error_code ec_a;
+  std::error_code ec_b;
+  const std::filesystem::path ca = std::filesystem::weakly_canonical(a, ec_a);
+  const std::filesystem::path cb = std::filesystem::weakly_canonical(b, ec_b);
+  if (ec_a || ec_b) {
+    return std::filesystem::absolute(a, ec_a).lexically_normal() == std::filesystem::absolute(b, ec_b).lexically_normal();
+  }
+  return ca == cb;
+}
+
 }  // namespace pmsm::common

@@ -4,6 +4,7 @@
 #include "config_schema.hpp"
 #include "pmsm/core/machine_equations.hpp"
 #include "pmsm/core/thermal_observer.hpp"
+#include "text_file.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -592,14 +593,7 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
         *file = std::filesystem::absolute(dir / *file).lexically_normal().string();
       }
     }
-    // The same file under two spellings (a symbolic link, "..") is the same file.
-    const auto same = [](const std::string& a, const std::string& b) {
-      std::error_code ec_a;
-      std::error_code ec_b;
-      const std::filesystem::path ca = std::filesystem::weakly_canonical(a, ec_a);
-      const std::filesystem::path cb = std::filesystem::weakly_canonical(b, ec_b);
-      return ec_a || ec_b ? a == b : ca == cb;
-    };
+    const auto same = [](const std::string& a, const std::string& b) { return common::same_file(a, b); };
     const std::string config_file =
         source.empty() ? std::string() : std::filesystem::absolute(source).lexically_normal().string();
     const std::string cal_key = fmt::format("{}calibration.file", key_prefix);

@@ -90,6 +90,10 @@ refused() {  # refused EXPECTED_TEXT ARGS...
   [ "$status" -eq 2 ] || fail "monitor $*: exit $status, expected 2"
   grep -qF -- "$want" "$work/out" || fail "monitor $*: no '$want'"
 }
+cp "$log" "$work/own.log"
+refused "would write over the log it reads" --log "$work/own.log" --csv "$work/./own.log"
+cmp -s "$log" "$work/own.log" || fail "monitor --csv over its --log changed the log"
+refused "--csv: expected a file name, got an empty one" --log "$log" --csv ""
 refused "monitor: '$work' is a directory, not a file" --log "$work"
 refused "monitor: standard input is a directory, not a file" --log - < "$work"
 refused "--check-rms: expected a number, got 'nan'" --log "$log" --check-rms nan

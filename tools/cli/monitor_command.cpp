@@ -26,6 +26,7 @@
 #include <fmt/format.h>
 
 #include "cli_validators.hpp"
+#include "text_file.hpp"
 #include "commands.hpp"
 #include "text_input.hpp"
 #include "pmsm/hal/codec.hpp"
@@ -639,6 +640,13 @@ void register_monitor_command(CLI::App& app, int& exit_code) {
   cmd->callback([o, &exit_code, cmd] {
     if (o->iface.empty() == o->log.empty()) {
       std::fprintf(stderr, "monitor: give either an interface or --log FILE\n%s", cmd->help().c_str());
+      exit_code = 2;
+      return;
+    }
+    // The CSV is opened (emptied) before the log is read: over the log, it would erase it.
+    if (!o->csv.empty() && !o->log.empty() && o->log != "-" && common::same_file(o->csv, o->log)) {
+      std::fprintf(stderr, "monitor: --csv %s would write over the log it reads (--log %s): refusing\n", o->csv.c_str(),
+                   o->log.c_str());
       exit_code = 2;
       return;
     }

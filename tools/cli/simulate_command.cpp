@@ -20,6 +20,7 @@
 #include "cli_validators.hpp"
 #include "calibration_file.hpp"
 #include "runner.hpp"
+#include "text_file.hpp"
 #include "commands.hpp"
 #include "pmsm/plant/config.hpp"
 
@@ -151,16 +152,6 @@ Report run_one(const std::string& path, const Scenario& scenario, const Simulate
   return r;
 }
 
-// Whether two paths name one file: the same file under two spellings (a symbolic link, ".."),
-// or, when either does not exist yet, the same normalized absolute path.
-bool same_file(const std::filesystem::path& a, const std::filesystem::path& b) {
-  std::error_code ec;
-  if (std::filesystem::equivalent(a, b, ec)) {
-    return true;
-  }
-  return std::filesystem::absolute(a, ec).lexically_normal() == std::filesystem::absolute(b, ec).lexically_normal();
-}
-
 int run_simulate(const SimulateOptions& o) {
   if (o.scenario_paths.size() > 1 && (!o.csv_path.empty() || !o.plot_path.empty())) {
     std::fprintf(stderr, "simulate: --csv and --plot take one scenario; use --plot-dir for several\n");
@@ -188,7 +179,7 @@ int run_simulate(const SimulateOptions& o) {
   // An output written over an input (the scenario, a base, a CSV, the plant profile, the stored
   // calibration or thermal state) would replace it with a CSV or a plot; two outputs on one
   // file would keep only the last.
-  if (!o.csv_path.empty() && !o.plot_path.empty() && same_file(o.csv_path, o.plot_path)) {
+  if (!o.csv_path.empty() && !o.plot_path.empty() && common::same_file(o.csv_path, o.plot_path)) {
     std::fprintf(stderr, "simulate: --csv and --plot name the same file %s: one would replace the other\n",
                  o.csv_path.c_str());
     return 2;
@@ -205,7 +196,7 @@ int run_simulate(const SimulateOptions& o) {
         continue;
       }
       for (const std::filesystem::path& input : scenarios[k].files) {
-        if (same_file(output, input)) {
+        if (common::same_file(output, input)) {
           const bool itself = &input == &scenarios[k].files.front();
           std::fprintf(stderr, "simulate: %s %s would write over %s%s: refusing\n", option, output.c_str(),
                        itself ? "the scenario " : "", itself ? o.scenario_paths[k].c_str()
