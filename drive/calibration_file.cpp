@@ -8,6 +8,7 @@
 #include <unistd.h>
 
 #include <atomic>
+#include <cctype>
 #include <cerrno>
 #include <chrono>
 #include <csignal>
@@ -19,6 +20,7 @@
 #include <iterator>
 #include <set>
 #include <sstream>
+#include <string_view>
 
 #include <fmt/format.h>
 #include <toml++/toml.h>
@@ -338,9 +340,35 @@ bool loss_errors_storable(const core::ThermalState& s) {
 
 }  // namespace
 
+namespace {
+constexpr std::string_view kThermalStateHeader = "# pmsm-thermal thermal state";
+}  // namespace
+
+std::string foreign_thermal_state_file(const std::filesystem::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) {
+    return {};  // none there (or unreadable: the write will say why)
+  }
+  std::string first(kThermalStateHeader.size(), '\0');
+  in.read(first.data(), static_cast<std::streamsize>(first.size()));
+  first.resize(static_cast<std::size_t>(in.gcount()));
+  if (first.empty() || first == kThermalStateHeader) {
+    return {};
+  }
+  std::string shown;
+  for (const char c : first.substr(0, first.find('\n'))) {
+    shown += std::isprint(static_cast<unsigned char>(c)) != 0 ? c : '?';
+  }
+  return fmt::format("{} is there and is no thermal state file (it starts \"{}\", not \"{}\"): not written over",
+                     path.string(), shown, kThermalStateHeader);
+}
+
 void write_thermal_state_file(const std::filesystem::path& path, const StoredThermalState& stored) {
   if (path.empty()) {
     throw CalibrationFileError("thermal state file: no path given");
+  }
+  if (const std::string why = foreign_thermal_state_file(path); !why.empty()) {
+    throw CalibrationFileError(why);
   }
   const core::ThermalState& s = stored.state;
   if (!std::isfinite(s.winding_C) || !std::isfinite(s.housing_C) || !(s.winding_std_C >= 0.0) ||
@@ -349,7 +377,7 @@ void write_thermal_state_file(const std::filesystem::path& path, const StoredThe
                                            path.string(), s.winding_C, s.winding_std_C, s.housing_C));
   }
   std::ostringstream text;
-  text << "# pmsm-thermal thermal state; replaced atomically by the drive\n"
+  text << kThermalStateHeader << "; replaced atomically by the drive\n"
        << "format = " << kCalibrationFileFormat << "\n"
        << "winding_C = " << toml_float(s.winding_C) << "\n"
        << "housing_C = " << toml_float(s.housing_C) << "\n"

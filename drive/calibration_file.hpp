@@ -73,7 +73,14 @@ struct StoredThermalState {
   double saved_unix_s = 0.0;  // CLOCK_REALTIME when it held
   std::string loss_errors_ignored;  // why a loss-error block was not used (empty: used or absent)
 };
+// Refuses (CalibrationFileError, nothing written) to replace a file there that is no thermal
+// state file (foreign_thermal_state_file).
 void write_thermal_state_file(const std::filesystem::path& path, const StoredThermalState& stored);
+// Why the file at `path` is not one the drive may replace with its thermal state, or "": none
+// there, an empty one, or one that starts with the header the drive writes. Anything else
+// (another axis's calibration, a log: a mistyped thermal.state_file) may be anything, and is
+// not written over.
+[[nodiscard]] std::string foreign_thermal_state_file(const std::filesystem::path& path);
 [[nodiscard]] StoredThermalState read_thermal_state_file(const std::filesystem::path& path);
 
 }  // namespace pmsm::app

@@ -344,6 +344,35 @@ TEST_F(CalibrationFile, TheFilesTheDriveWritesAreFilesOfTheirOwn) {
             std::string::npos);
 }
 
+// A thermal.state_file that names a file the drive did not write (another axis's calibration, a
+// log: a mistyped path) is not written over; an empty file, or its own earlier state, is
+// replaced. (Before, the drive replaced whatever was there every 10 s.)
+TEST_F(CalibrationFile, AThermalStateIsNotWrittenOverAFileOfAnotherKind) {
+  const fs::path path = dir_ / "axis2.calibration";
+  const std::string other = "# pmsm-thermal calibration; replaced atomically by the drive\nformat = 1\nrs0_ohm = 0.133\n";
+  write_text(path, other);
+  StoredThermalState s;
+  s.state = {92.4, 71.25, 1.3};
+  s.saved_unix_s = 1795493852.25;
+  try {
+    write_thermal_state_file(path, s);
+    FAIL() << "written over another kind of file";
+  } catch (const CalibrationFileError& e) {
+    EXPECT_NE(std::string(e.what()).find("is there and is no thermal state file (it starts \"# pmsm-thermal calibrat"),
+              std::string::npos)
+        << e.what();
+  }
+  std::ifstream in(path);
+  const std::string kept((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  EXPECT_EQ(kept, other);
+  const fs::path empty = dir_ / "empty.thermal";
+  write_text(empty, "");
+  EXPECT_EQ(foreign_thermal_state_file(empty), "");
+  write_thermal_state_file(empty, s);
+  write_thermal_state_file(empty, s);  // its own state, replaced
+  EXPECT_DOUBLE_EQ(read_thermal_state_file(empty).state.winding_C, 92.4);
+}
+
 // The thermal state kept across a restart: the same atomic write and strict read.
 TEST_F(CalibrationFile, ThermalStateRoundTripAndBadFiles) {
   const fs::path path = dir_ / "axis1.thermal";
