@@ -160,6 +160,17 @@ TEST(cli_decode, AnOverlongLineIsCutNamedAndSkipped) {
   EXPECT_EQ(frames, 2U) << "the frames before and after";
 }
 
+// An input without a single frame is no capture (a binary file, the wrong file): exit 2, with or
+// without --strict (before, without it, 0 with every line counted as malformed).
+TEST(cli_decode, AnInputWithoutAFrameIsNoCapture) {
+  const TempFile junk("\x7f" "ELF\x02\x01\x01 binary\nnot a frame either\n");
+  const ProcessResult r = run_process(kDecode + junk.path());
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_TRUE(contains(r.err, "decode: no line of '" + junk.path() + "' is a candump frame: not a capture")) << r.err;
+  const TempFile empty("");
+  EXPECT_EQ(run_process(kDecode + empty.path()).exit_code, 0) << "an empty capture is a capture of nothing";
+}
+
 TEST(cli_decode, ACommandWithABadCrcIsReportedAsCorrupt) {
   // The DRIVE_COMMAND of protocol_node0.log (CRC 0x7B), once as sent and once with its CRC
   // byte changed: a DBC tool decodes both alike; the codec knows the second is corrupt.

@@ -94,6 +94,8 @@ cp "$log" "$work/own.log"
 refused "would write over the log it reads" --log "$work/own.log" --csv "$work/./own.log"
 cmp -s "$log" "$work/own.log" || fail "monitor --csv over its --log changed the log"
 refused "--csv: expected a file name, got an empty one" --log "$log" --csv ""
+printf 'not a frame\n\177ELF binary\n' > "$work/junk.log"
+refused "monitor: no line of '$work/junk.log' is a candump frame: not a capture" --log "$work/junk.log"
 refused "monitor: '$work' is a directory, not a file" --log "$work"
 refused "monitor: standard input is a directory, not a file" --log - < "$work"
 refused "--check-rms: expected a number, got 'nan'" --log "$log" --check-rms nan

@@ -13,7 +13,8 @@
 // Exit status: 0; 1 with --strict when any line was not a cleanly decoded frame (unknown
 // ID, error frame, length or CAN FD/classic mismatch, signal outside its DBC range, or a
 // non-empty line that is not a candump frame); 2 when the DBC or the input cannot be read
-// (the message names the file and, for a DBC syntax error, the line). Without --strict,
+// (the message names the file and, for a DBC syntax error, the line), or when no line of the
+// input is a candump frame (it is no capture). Without --strict,
 // unknown frames are reported and counted but do not change the exit status, as with
 // cantools: a bus usually carries traffic that one DBC does not describe.
 #include <unistd.h>
@@ -453,6 +454,11 @@ int run_decode(const DecodeOptions& o) {
   }
   std::fflush(stdout);
   decoder.print_summary(dbc_path, input.from_stdin() ? "-" : o.input);
+  if (decoder.counts().frames == 0U && decoder.counts().malformed != 0U) {
+    // Not one frame: this is no capture (a binary file, the wrong file), whatever --strict says.
+    std::fprintf(stderr, "decode: no line of '%s' is a candump frame: not a capture\n", input.name().c_str());
+    return kExitInput;
+  }
   if (o.strict && decoder.counts().bad() != 0U) {
     std::fprintf(stderr, "decode: --strict: %llu line(s) were not cleanly decoded frames\n",
                  static_cast<unsigned long long>(decoder.counts().bad()));

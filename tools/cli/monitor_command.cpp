@@ -544,12 +544,14 @@ int run_monitor(MonitorOptions o) {
       return 2;
     }
     std::uint64_t malformed = 0;
+    std::uint64_t frames = 0;
     std::string line;
     for (bool too_long = false; input.next_line(line, too_long);) {
       const candump::ParseResult parsed =
           too_long ? candump::ParseResult{.record = std::nullopt, .error = TextInput::too_long_error()}
                    : candump::parse_line(line);
       if (parsed.ok()) {
+        ++frames;
         const auto& stamp = parsed.record->timestamp;
         m.on_frame(parsed.record->frame,
                    stamp ? std::optional<double>(std::chrono::duration<double>(*stamp).count()) : std::nullopt);
@@ -563,6 +565,10 @@ int run_monitor(MonitorOptions o) {
     }
     if (malformed != 0U) {
       std::printf("%llu line(s) were not candump frames\n", static_cast<unsigned long long>(malformed));
+      if (frames == 0U) {
+        std::fprintf(stderr, "monitor: no line of '%s' is a candump frame: not a capture\n", input.name().c_str());
+        return 2;
+      }
     }
     return m.summary() ? 0 : 1;
   }
