@@ -134,6 +134,10 @@ std::string check_cross_keys(const DaemonConfig& c, const toml::table& root, con
                              bool controller_valid) {
   std::string errors;
   auto rule = [&](const std::string& text) { errors += (errors.empty() ? "" : "\n") + source + ": " + text; };
+  // The same at the line of `key` when the file gives it.
+  auto rule_at = [&](std::string_view key, const std::string& text) {
+    errors += (errors.empty() ? "" : "\n") + common::key_location(root, key, source) + text;
+  };
   // "supervisor.x (v unit)", or "supervisor.x (v unit, its default: how)" for a key the file
   // does not give: a rule broken by a default names what the default follows.
   auto value = [&](std::string_view key, double v, std::string_view unit, std::string_view default_from) {
@@ -143,24 +147,26 @@ std::string check_cross_keys(const DaemonConfig& c, const toml::table& root, con
   };
   const core::SupervisorConfig& s = c.supervisor;
   if (const std::string problem = hal::can_interface_name_problem(c.can.interface); !problem.empty()) {
-    rule("can.interface: " + problem);
+    rule_at("can.interface", "can.interface: " + problem);
   }
   if (!(s.ambient_min_C < s.ambient_max_C)) {
-    rule(fmt::format("supervisor.ambient_min_C ({} C) must be below supervisor.ambient_max_C ({} C): every ambient reading "
-                     "would be implausible",
-                     s.ambient_min_C, s.ambient_max_C));
+    rule_at(root.at_path("supervisor.ambient_min_C") ? "supervisor.ambient_min_C" : "supervisor.ambient_max_C",
+            fmt::format("supervisor.ambient_min_C ({} C) must be below supervisor.ambient_max_C ({} C): every "
+                        "ambient reading would be implausible",
+                        s.ambient_min_C, s.ambient_max_C));
   }
   if (c.gpio.chip.empty() != (c.gpio.enable_line < 0)) {
-    rule(fmt::format("gpio.chip and gpio.enable_line go together (chip '{}', enable_line {})", c.gpio.chip,
-                     c.gpio.enable_line));
+    rule_at(c.gpio.chip.empty() ? "gpio.enable_line" : "gpio.chip",
+            fmt::format("gpio.chip and gpio.enable_line go together (chip '{}', enable_line {})", c.gpio.chip,
+                        c.gpio.enable_line));
   }
   if (c.gpio.fault_line >= 0 && c.gpio.chip.empty()) {
-    rule("gpio.fault_line needs gpio.chip");
+    rule_at("gpio.fault_line", "gpio.fault_line needs gpio.chip");
   }
   if (c.gpio.fault_line >= 0 && c.gpio.fault_line == c.gpio.enable_line) {
-    rule(fmt::format("gpio.fault_line and gpio.enable_line are both line {}: one line cannot be the gate enable output "
-                     "and the fault input",
-                     c.gpio.fault_line));
+    rule_at("gpio.fault_line", fmt::format("gpio.fault_line and gpio.enable_line are both line {}: one line cannot "
+                                           "be the gate enable output and the fault input",
+                                           c.gpio.fault_line));
   }
   if (!controller_valid) {
     return errors;

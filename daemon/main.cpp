@@ -424,8 +424,11 @@ int main(int argc, char** argv) {
   Options o;
   app.add_option("--config", o.config_path,
                  "configuration file (TOML), e.g. /etc/pmsm-thermal/axis1.toml; required except with --keys and --version");
-  app.add_flag("--check", o.check, "validate the configuration (and the stored calibration) and exit: 0 valid, 1 not");
-  app.add_flag("--keys", o.keys, "print every configuration key of the daemon's own sections as Markdown and exit");
+  CLI::Option* check =
+      app.add_flag("--check", o.check, "validate the configuration (and the stored calibration) and exit: 0 valid, 1 not");
+  // (--keys prints and exits: with --check it would answer 0 having validated nothing.)
+  app.add_flag("--keys", o.keys, "print every configuration key of the daemon's own sections as Markdown and exit")
+      ->excludes(check);
   app.add_option("--log-level", o.log_level, "trace, debug, info, warning (or warn), error: as the log lines name them")
       ->check(CLI::IsMember({"trace", "debug", "info", "warning", "warn", "error"}))
       ->capture_default_str();

@@ -75,7 +75,7 @@ fi
 check_bad 'controller = "x"\n' 1 'bad.toml:1: controller: expected a table (section [controller]), got a string'
 check_bad '[[controller]]\nmotor = 1\n' 1 'controller: expected a table (section [controller]), got an array'
 # Rules between the daemon's keys and the drive's.
-check_bad '[can]\ninterface = ""\n' 1 'can.interface: an interface name is 1 to 15 characters, got an empty one'
+check_bad '[can]\ninterface = ""\n' 1 'bad.toml:2: can.interface: an interface name is 1 to 15 characters, got an empty one'
 check_bad '[can]\ninterface = "vcan0123456789abcdef"\n' 1 'can.interface: an interface name is 1 to 15 characters, got 20'
 check_bad '[can]\ninterface = "can/0"\n' 1 "can.interface: an interface name has no '/', ':' or white space"
 check_bad '[can]\nsample_timeout_ms = 0.05\n' 1 'can.sample_timeout_ms (0.05 ms) must be above the control period controller.control.period_s (0.1 ms)'
@@ -83,7 +83,8 @@ check_bad '[publish]\nthermal_estimate_s = 1e-9\n' 1 'publish.thermal_estimate_s
 check_bad '[supervisor]\novercurrent_A = 50\n' 1 'supervisor.overcurrent_A (50 A) must be above controller.derating.max_current_A (80 A)'
 check_bad '[supervisor]\ndc_bus_max_V = 5000\n' 1 'supervisor.dc_bus_max_V (5000 V) must be below controller.sensors.dc_bus_full_scale_V (1000 V)'
 check_bad '[controller.sensors]\ndc_bus_full_scale_V = 10\n' 1 'supervisor.dc_bus_min_V (390 V, its default: 0.6 x controller.control.nominal_dc_bus_V) must be below supervisor.dc_bus_max_V (9.8 V, its default: the lower of'
-check_bad '[gpio]\nchip = "gpiochip0"\nenable_line = 17\nfault_line = 17\n' 1 'gpio.fault_line and gpio.enable_line are both line 17'
+check_bad '[gpio]\nchip = "gpiochip0"\nenable_line = 17\nfault_line = 17\n' 1 'bad.toml:4: gpio.fault_line and gpio.enable_line are both line 17'
+check_bad '[gpio]\nchip = ""\nenable_line = 17\n' 1 'bad.toml:3: gpio.chip and gpio.enable_line go together'
 # Rules between the drive's own keys (the loops and the bridge).
 check_bad '[controller.control]\nperiod_s = 1e-3\n' 1 'controller.control.current_bandwidth_rad_s (2000 rad/s, its default) times controller.control.period_s (0.001 s) is 2, above 0.5'
 check_bad '[controller.control]\nspeed_bandwidth_rad_s = 1000\n' 1 'controller.control.speed_bandwidth_rad_s (1000 rad/s) must be at most a fifth of controller.control.current_bandwidth_rad_s (2000 rad/s, its default)'
@@ -137,7 +138,8 @@ check_clean small-motor-own '[controller.motor]\ncontinuous_current_A_rms = 4.5\
   "a small motor with its own thermal model and floor"
 # A bad command line is a configuration error (exit 2, which the unit does not restart on) and
 # names the option; --help and --version exit 0.
-for args in "--bogus" "--log-level loud --config $dir/bad.toml"; do
+# (--check with --keys printed the keys and answered 0 without validating anything.)
+for args in "--bogus" "--log-level loud --config $dir/bad.toml" "--check --keys --config $dir/bad.toml"; do
   # shellcheck disable=SC2086
   out=$("$exe" $args 2>&1)
   rc=$?

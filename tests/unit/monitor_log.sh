@@ -102,5 +102,6 @@ refused "--check-rms: expected a number, got 'nan'" --log "$log" --check-rms nan
 refused "--check-max: must be >= 0, got -1" --log "$log" --check-max -1
 refused "--threshold: expected a number, got 'nan'" --log "$log" --threshold nan
 refused "--min-estimates: must be >= 0, got -1" --log "$log" --min-estimates -1
-refused "--duration: must be > 0, got -5" --log "$log" --duration -5
+refused "--duration: must be > 0, got -5" vcan0 --duration -5
+refused "--log excludes --duration" --log "$log" --duration 5
 echo "monitor_log: ok"

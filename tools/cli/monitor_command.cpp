@@ -625,7 +625,7 @@ void register_monitor_command(CLI::App& app, int& exit_code) {
   CLI::App* cmd = app.add_subcommand("monitor", "Watch the axes on a bus (or in a candump log): temperatures, state, faults");
   cmd->add_option("iface", o->iface, "CAN interface to open (e.g. vcan0)")
       ->check(pmsm::cli::text_rule(pmsm::hal::can_interface_name_problem, "NAME"));
-  cmd->add_option("--log", o->log, "read a candump log instead ('-': stdin)")->check(pmsm::cli::file_name());
+  CLI::Option* log = cmd->add_option("--log", o->log, "read a candump log instead ('-': stdin)")->check(pmsm::cli::file_name());
   cmd->add_option("--node", o->node, "only this node")->check(CLI::Range(0, 15));
   cmd->add_option("--every", o->every_s, "seconds of drive time between lines per axis")->check(pmsm::cli::number_in_range(0.0, 1e6))->capture_default_str();
   cmd->add_option("--threshold", o->threshold_C, "compare with the truth above this winding temperature, C")
@@ -640,8 +640,10 @@ void register_monitor_command(CLI::App& app, int& exit_code) {
       ->check(pmsm::cli::number_in_range(0.0, 1e9));
   cmd->add_option("--csv", o->csv, "write every THERMAL_ESTIMATE with the truth beside it as CSV")
       ->check(pmsm::cli::file_name());
+  // (A log is read to its end: a duration given with it would be ignored without a word.)
   cmd->add_option("--duration", o->duration_s, "stop watching a live bus after this many seconds")
-      ->check(pmsm::cli::positive(1e7));
+      ->check(pmsm::cli::positive(1e7))
+      ->excludes(log);
   cmd->add_flag("--plain", o->plain, "one line per update even on a terminal (no redraw in place)");
   cmd->callback([o, &exit_code, cmd] {
     if (o->iface.empty() == o->log.empty()) {

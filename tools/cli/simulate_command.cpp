@@ -11,6 +11,7 @@
 #include <memory>
 #include <mutex>
 #include <optional>
+#include <stdexcept>
 #include <string>
 #include <thread>
 #include <vector>
@@ -131,7 +132,11 @@ Report run_one(const std::string& path, const Scenario& scenario, const Simulate
       write_plot(result, o.plot_path);
     }
     if (!o.plot_dir.empty()) {
-      std::filesystem::create_directories(o.plot_dir);
+      std::error_code ec;
+      std::filesystem::create_directories(o.plot_dir, ec);
+      if (ec) {
+        throw std::runtime_error(fmt::format("--plot-dir {}: cannot create the directory ({})", o.plot_dir, ec.message()));
+      }
       write_plot(result, (std::filesystem::path(o.plot_dir) / (stem + ".png")).string());
     }
   } catch (const std::exception& e) {
