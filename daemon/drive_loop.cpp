@@ -159,8 +159,9 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns, 
     if (r.uptime_s >= next_thermal_state_s_ && node_.controller().telemetry().thermal_valid) {
       next_thermal_state_s_ = r.uptime_s + kThermalStateEvery_s;
       r.thermal_state = node_.controller().thermal_state();
-      r.ambient_C = node_.ambient_C();
     }
+    r.ambient_C = node_.ambient_C();
+    r.ambient_held = node_.ambient_held();
     if (!ring_.try_push(r)) {
       counters_.publications_dropped.bump();
     }

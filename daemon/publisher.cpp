@@ -253,6 +253,16 @@ void Publisher::handle(const PublicationRecord& r) {
   if (r.thermal_state) {
     store_thermal_state(*r.thermal_state, r.ambient_C);
   }
+  if (r.ambient_held != ambient_held_) {
+    ambient_held_ = r.ambient_held;
+    if (r.ambient_held) {
+      spdlog::warn("the ambient sensor stopped reporting (SENSOR_SAMPLE AmbientValid = 0): the drive holds its last "
+                   "reading, {:.1f} C, for the thermal model and a calibration at the ambient",
+                   r.ambient_C);
+    } else {
+      spdlog::info("the ambient sensor reports again: {:.1f} C", r.ambient_C);
+    }
+  }
   if (r.angle_check) {
     // The calibration's rotor-angle check ended: the offset it found and whether it corrected it.
     const core::AngleCheckResult& a = *r.angle_check;

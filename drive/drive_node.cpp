@@ -128,9 +128,14 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
   }
   const core::SupervisorStatus& status = supervisor_.step(si);
   // The ambient / coolant sensor of the sample, once the supervisor found the sample
-  // plausible; without one (a power stage without the sensor) the caller's value.
+  // plausible; without one (a power stage without the sensor) the caller's value. A sensor
+  // that reported and then stops (its stage's own sensor check, a loose connector) is held at
+  // its last reading: the boundary of the thermal model does not jump to the caller's 25 C.
   if (status.sample_usable && si.sample) {
-    sensed_ambient_C_ = si.sample->ambient_C;  // a sample without the sensor: the input again
+    ambient_held_ = !si.sample->ambient_C && sensed_ambient_C_.has_value();
+    if (si.sample->ambient_C) {
+      sensed_ambient_C_ = si.sample->ambient_C;
+    }
   }
   const double ambient_C = sensed_ambient_C_.value_or(in.ambient_C);
   ambient_used_C_ = ambient_C;

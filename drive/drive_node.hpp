@@ -105,6 +105,9 @@ class DriveNode {
   [[nodiscard]] core::DriveController& controller() noexcept { return controller_; }
   // The ambient / coolant temperature the drive used last (the sample's sensor, or the input).
   [[nodiscard]] double ambient_C() const noexcept { return ambient_used_C_; }
+  // The sensor reported and then stopped (AmbientValid cleared): ambient_C() holds its last
+  // reading rather than falling back to the input (25 C by default). Cleared when it reports again.
+  [[nodiscard]] bool ambient_held() const noexcept { return ambient_held_; }
   [[nodiscard]] const core::Supervisor& supervisor() const noexcept { return supervisor_; }
   [[nodiscard]] const SensorFrontend& frontend() const noexcept { return frontend_; }
   [[nodiscard]] std::uint64_t periods() const noexcept { return period_; }
@@ -146,6 +149,7 @@ class DriveNode {
   bool real_time_calibration_ = false;
   bool calibrating_published_ = false;  // THERMAL_ESTIMATE's Calibrating bit as last published
   std::optional<double> sensed_ambient_C_;  // the sample's ambient sensor, last plausible reading
+  bool ambient_held_ = false;
   double ambient_used_C_ = 25.0;
   std::uint8_t heartbeat_counter_ = 0;
   std::uint8_t injection_count_ = 0;

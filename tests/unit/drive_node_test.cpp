@@ -1400,6 +1400,31 @@ TEST(DriveNode, WithoutAnAmbientSensorTheConfiguredAmbientIsUsed) {
   rig.in.start_calibration = false;
   rig.run(200, no_sensor);
   EXPECT_NEAR(rig.node->controller().telemetry().thermal.winding_C, 12.0, 0.2);
+  EXPECT_FALSE(rig.node->ambient_held()) << "no sensor ever reported: nothing to hold";
+}
+
+// A sensor that reported and then stops is held at its last reading, not replaced by the
+// configured ambient (before: the thermal model's boundary jumped from 31 to 12 C here without a
+// word); it is followed again when it reports.
+TEST(DriveNode, AnAmbientSensorThatStopsReportingIsHeldAtItsLastReading) {
+  Rig rig;
+  rig.in.ambient_C = 12.0;
+  rig.plant->set_ambient_C(31.0);
+  rig.run(1000);
+  EXPECT_DOUBLE_EQ(rig.node->ambient_C(), 31.0);
+  auto no_sensor = [](hal::SensorSample& s) { s.flags = static_cast<std::uint8_t>(s.flags & ~hal::kSensorAmbientValid); };
+  rig.run(100, no_sensor);
+  EXPECT_DOUBLE_EQ(rig.node->ambient_C(), 31.0);
+  EXPECT_TRUE(rig.node->ambient_held());
+  rig.in.start_calibration = true;  // "at the ambient": the held reading
+  rig.run(1, no_sensor);
+  rig.in.start_calibration = false;
+  rig.run(200, no_sensor);
+  EXPECT_NEAR(rig.node->controller().telemetry().thermal.winding_C, 31.0, 0.2);
+  rig.plant->set_ambient_C(33.0);
+  rig.run(10);
+  EXPECT_DOUBLE_EQ(rig.node->ambient_C(), 33.0);
+  EXPECT_FALSE(rig.node->ambient_held());
 }
 
 }  // namespace
