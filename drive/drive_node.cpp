@@ -176,7 +176,11 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
   cmd.ambient_C = ambient_C;
   cmd.request_injection = in.request_injection;
   const core::DriveOutput& out = controller_.step(drive_in, cmd);
-  if (out.fault) {
+  // A command, or a winding estimate the filter calls valid, that is not a finite number: the
+  // drive cannot trust its own arithmetic (never seen; the last line of defence).
+  const core::DriveTelemetry& telemetry = controller_.telemetry();
+  if (out.fault || (telemetry.thermal_valid && !(std::isfinite(telemetry.thermal.winding_C) &&
+                                                 std::isfinite(telemetry.thermal.winding_std_C)))) {
     supervisor_.trip(core::FaultCode::kInternal);
   }
   if (sample != nullptr) {

@@ -1403,6 +1403,25 @@ TEST(DriveNode, WithoutAnAmbientSensorTheConfiguredAmbientIsUsed) {
   EXPECT_FALSE(rig.node->ambient_held()) << "no sensor ever reported: nothing to hold";
 }
 
+// A winding estimate the filter calls valid but that is no number trips INTERNAL (the last line
+// of defence: the estimate is never published as a plausible number, and the drive does not run
+// on at the derating's floor without a fault). A NaN restored state stands for a filter gone wrong.
+TEST(DriveNode, ANonFiniteWindingEstimateTripsTheDrive) {
+  Rig rig;
+  rig.in.mode = core::DriveMode::kSpeed;
+  rig.run(1000);
+  ASSERT_FALSE(rig.node->supervisor().latched(core::FaultCode::kInternal));
+  core::ThermalState broken{};
+  broken.winding_C = std::nan("");
+  broken.housing_C = 30.0;
+  broken.winding_std_C = 1.0;
+  rig.node->controller().restore_thermal_state(broken, 0.0, 25.0);
+  rig.run(200);
+  ASSERT_TRUE(rig.node->controller().telemetry().thermal_valid) << "the NaN state stands for a filter gone wrong";
+  EXPECT_TRUE(rig.node->supervisor().latched(core::FaultCode::kInternal));
+  EXPECT_FALSE(rig.node->supervisor().status().power_stage_enabled);
+}
+
 // A sensor that reported and then stops is held at its last reading, not replaced by the
 // configured ambient (before: the thermal model's boundary jumped from 31 to 12 C here without a
 // word); it is followed again when it reports.
