@@ -41,6 +41,24 @@ inline CLI::Validator number_in_range(double lo, double hi, bool strict_lo = fal
       description, "NUMBER");
 }
 
+// A whole number within [lo, hi] (CLI::Range said "Value abc not in range 0 to 15" of a word).
+inline CLI::Validator integer_in_range(long long lo, long long hi) {
+  return CLI::Validator(
+      [lo, hi](std::string& input) -> std::string {
+        errno = 0;
+        char* end = nullptr;
+        const long long value = std::strtoll(input.c_str(), &end, 10);
+        if (end == input.c_str() || *end != '\0' || errno == ERANGE) {
+          return "expected a whole number, got '" + input + "'";
+        }
+        if (value < lo || value > hi) {
+          return "must be in [" + std::to_string(lo) + ", " + std::to_string(hi) + "], got " + input;
+        }
+        return {};
+      },
+      "INT in [" + std::to_string(lo) + " - " + std::to_string(hi) + "]", "INT");
+}
+
 // Physical options take a finite upper bound too: a value far beyond any machine is a typo, and
 // printing inf or nan as a planning result would be worse than refusing it.
 inline CLI::Validator positive(double hi = HUGE_VAL) { return number_in_range(0.0, hi, true); }

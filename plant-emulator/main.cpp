@@ -319,7 +319,7 @@ int main(int argc, char** argv) {
   app.add_option("--iface", o.iface, "CAN interface (CAN FD, MTU 72)")
       ->capture_default_str()
       ->check(pmsm::cli::text_rule(pmsm::hal::can_interface_name_problem, "NAME"));
-  app.add_option("--node", o.node, "node id 0..15 (added to every CAN ID)")->check(CLI::Range(0, 15))
+  app.add_option("--node", o.node, "node id 0..15 (added to every CAN ID)")->check(pmsm::cli::integer_in_range(0, 15))
       ->capture_default_str();
   app.add_option("--mode", o.mode, "lockstep: one period per command (the plant is deterministic; the daemon's wall-clock timeouts need not be); realtime: own clock")
       ->check(CLI::IsMember({"lockstep", "realtime"}))->capture_default_str();
@@ -335,7 +335,7 @@ int main(int argc, char** argv) {
                  "lockstep: re-send an unanswered sample after this long (wall clock), ms")
       ->check(pmsm::cli::number_in_range(0.1, 60000.0))->capture_default_str();
   app.add_option("--rt-priority", o.rt_priority, "realtime: SCHED_FIFO priority 1..99 for the plant thread (0: leave)")
-      ->check(CLI::Range(0, 99))->capture_default_str();
+      ->check(pmsm::cli::integer_in_range(0, 99))->capture_default_str();
   app.add_option("--log-level", o.log_level, "trace, debug, info, warn, error")
       ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error"}))->capture_default_str();
   app.add_flag("--check", o.check, "validate the configuration and exit (0: valid)");

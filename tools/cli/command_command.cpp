@@ -171,7 +171,7 @@ void register_command_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--iface", options->iface, "CAN interface")
       ->capture_default_str()
       ->check(pmsm::cli::text_rule(pmsm::hal::can_interface_name_problem, "NAME"));
-  cmd->add_option("--node", options->node, "node id of the axis, 0..15")->check(CLI::Range(0, 15))->capture_default_str();
+  cmd->add_option("--node", options->node, "node id of the axis, 0..15")->check(pmsm::cli::integer_in_range(0, 15))->capture_default_str();
   cmd->add_option("--mode", options->mode, "speed, torque or disabled")
       ->check(CLI::IsMember({"speed", "torque", "disabled"}))
       ->capture_default_str();

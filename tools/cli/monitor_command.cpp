@@ -626,7 +626,7 @@ void register_monitor_command(CLI::App& app, int& exit_code) {
   cmd->add_option("iface", o->iface, "CAN interface to open (e.g. vcan0)")
       ->check(pmsm::cli::text_rule(pmsm::hal::can_interface_name_problem, "NAME"));
   CLI::Option* log = cmd->add_option("--log", o->log, "read a candump log instead ('-': stdin)")->check(pmsm::cli::file_name());
-  cmd->add_option("--node", o->node, "only this node")->check(CLI::Range(0, 15));
+  cmd->add_option("--node", o->node, "only this node")->check(pmsm::cli::integer_in_range(0, 15));
   cmd->add_option("--every", o->every_s, "seconds of drive time between lines per axis")->check(pmsm::cli::number_in_range(0.0, 1e6))->capture_default_str();
   cmd->add_option("--threshold", o->threshold_C, "compare with the truth above this winding temperature, C")
       ->check(pmsm::cli::number_in_range(-273.15, 1000.0))

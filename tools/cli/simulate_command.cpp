@@ -305,7 +305,7 @@ void register_simulate_command(CLI::App& app, int& exit_code) {
       ->check(pmsm::cli::file_name());
   cmd->add_flag("--quiet", options->quiet, "no progress line on a terminal");
   cmd->add_option("-j,--jobs", options->jobs, "run this many scenarios at a time (each also runs its twin on a thread of its own)")
-      ->check(CLI::Range(1, 256))->capture_default_str();
+      ->check(pmsm::cli::integer_in_range(1, 256))->capture_default_str();
   cmd->add_flag("--events", options->events, "list every published estimate with the truth and diagnostics");
   cmd->callback([options, &exit_code] { exit_code = run_simulate(*options); });
 }
