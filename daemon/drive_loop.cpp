@@ -314,6 +314,9 @@ bool DriveLoop::read_realtime_offset(std::int64_t now_ns) noexcept {
   realtime_offset_ns_ = realtime_offset_source_();
   const bool stood = offset_read_ns_ == kNever || std::abs(realtime_offset_ns_ - before) <= kStood_ns;
   offset_read_ns_ = now_ns;
+  if (!stood) {
+    moved_realtime_ns_ = now_ns + realtime_offset_ns_;
+  }
   stall_stamp_ns_ = kNoStall;
   return stood;
 }
@@ -325,16 +328,16 @@ bool DriveLoop::read_realtime_offset(std::int64_t now_ns) noexcept {
 // arrival, and its answer may wait for room only until that period ends.
 //   A wait that reads as a sample timeout or longer is a stall that long or a wall clock set
 // back since the offset was read; one that reads more than a millisecond negative, a wall clock
-// set forward. Either reads the offset again. If it stood (within a millisecond), a long wait
-// was a real stall and counts in full, and so do the later frames of that stall's backlog (their
-// receive timestamps no earlier than its frame's) without reading it again; if it moved, the
-// wait is taken with the new offset, between none and one sample timeout (a frame stamped
-// before the set is off by the set: a clock set by hours must not enter the latency figures).
-// A long wait not explained as such a later frame (none was found since the last reading, or
-// the frame is stamped before that stall's frame: the clock was set back since) reads the offset
-// again at once; otherwise, and for a wall clock set forward, at most once a sample timeout (not
-// for each frame of a backlog, nor for each frame of a backend whose timestamps run ahead). A
-// wait a little negative (the offset's own error) counts as none.
+// set forward. Either reads the offset again. A long wait counts in full, as a real stall, when
+// that reading found the offset standing (within a millisecond) and the frame was stamped after
+// the last reading that found it moved (a frame stamped before a set is off by the set, in
+// either direction: a clock set by hours must not enter the latency figures, nor date a command
+// back into a command timeout); so do the later frames of that stall's backlog, stamped between
+// its frame and that reading, without another reading. Any other wait is taken with the offset
+// as it stands, between none and one sample timeout. A frame on time ends the backlog. Other
+// than for a long wait outside a backlog, the offset is read at most once a sample timeout (not
+// for each frame of a backend whose timestamps run ahead). A wait a little negative (the
+// offset's own error) counts as none.
 std::int64_t DriveLoop::arrival_ns(std::int64_t read_ns) noexcept {
   const std::int64_t stamp = received_.software_timestamp_ns;
   if (stamp == 0) {
@@ -343,15 +346,20 @@ std::int64_t DriveLoop::arrival_ns(std::int64_t read_ns) noexcept {
   constexpr std::int64_t kForward_ns = -1'000'000;
   std::int64_t waited = read_ns + realtime_offset_ns_ - stamp;
   const bool long_wait = waited >= sample_timeout_ns_;
+  if (!long_wait) {
+    stall_stamp_ns_ = kNoStall;
+  }
   if (long_wait || waited < kForward_ns) {
-    if ((long_wait && stamp < stall_stamp_ns_) || read_ns - offset_read_ns_ >= sample_timeout_ns_) {
+    const bool in_backlog = stamp >= stall_stamp_ns_ && stamp <= stall_read_realtime_ns_;
+    if ((long_wait && !in_backlog) || read_ns - offset_read_ns_ >= sample_timeout_ns_) {
       const bool stood = read_realtime_offset(read_ns);
       waited = read_ns + realtime_offset_ns_ - stamp;
-      if (stood && waited >= sample_timeout_ns_) {
+      if (stood && waited >= sample_timeout_ns_ && stamp > moved_realtime_ns_) {
         stall_stamp_ns_ = stamp;
+        stall_read_realtime_ns_ = read_ns + realtime_offset_ns_;
       }
     }
-    if (waited >= sample_timeout_ns_ && stamp >= stall_stamp_ns_) {
+    if (waited >= sample_timeout_ns_ && stamp >= stall_stamp_ns_ && stamp <= stall_read_realtime_ns_) {
       return read_ns - waited;
     }
   }

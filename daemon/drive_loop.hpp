@@ -190,9 +190,14 @@ class DriveLoop {
   std::int64_t realtime_offset_ns_ = 0;
   std::int64_t offset_read_ns_ = kNever;  // when it was last read (monotonic)
   // The receive timestamp (realtime) of the frame whose long wait a reading of the offset since
-  // the last one found a real stall; kNoStall: none.
+  // the last one found a real stall (kNoStall: none), and the realtime of that reading: the
+  // frames stamped between the two are that stall's backlog.
   static constexpr std::int64_t kNoStall = std::numeric_limits<std::int64_t>::max();
   std::int64_t stall_stamp_ns_ = kNoStall;
+  std::int64_t stall_read_realtime_ns_ = kNever;
+  // The realtime (after the set) of the last reading that found the offset moved: a frame
+  // stamped before it may be stamped on the clock before the set.
+  std::int64_t moved_realtime_ns_ = kNever;
   std::uint32_t periods_since_offset_ = 0;
   // Reads the offset at `now_ns` (monotonic); whether it stood (moved by a millisecond at most).
   bool read_realtime_offset(std::int64_t now_ns) noexcept;

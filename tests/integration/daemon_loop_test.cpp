@@ -708,8 +708,9 @@ TEST(DaemonLoop, ASampleOlderThanTheSampleTimeoutIsAnsweredAtOnce) {
 std::atomic<std::int64_t> g_wall_clock_set_ns{0};
 std::atomic<int> g_offset_reads{0};
 std::int64_t set_wall_clock_offset() noexcept {
-  g_offset_reads.fetch_add(1);
-  return hal::realtime_minus_monotonic_ns() + g_wall_clock_set_ns.load();
+  const std::int64_t offset = hal::realtime_minus_monotonic_ns() + g_wall_clock_set_ns.load();
+  g_offset_reads.fetch_add(1);  // after the set was taken: a test that waits for a reading sets it after
+  return offset;
 }
 
 // One sample, `waited_ns` in the socket, answered by a daemon that read the wall clock's offset
@@ -761,6 +762,35 @@ TEST(DaemonLoop, AWallClockSetBackJustAfterTheOffsetWasReadIsNoStall) {
   ASSERT_EQ(stats.samples, 1U);
   EXPECT_LE(stats.max_step_ns, elapsed_ns) << "read as the clock's 10 s";
   EXPECT_GE(g_offset_reads.load(), 2) << "the offset read again for the sample";
+}
+
+// A frame stamped on the clock before a set forward, read after a reading found the set: its
+// wait reads as the set's 10 s, and the offset stands at the reading it prompts, but it was
+// stamped before the set was seen, so it is no stall (before, it counted 10 s; a command read
+// so would have dated the drive's last command back into a command timeout).
+TEST(DaemonLoop, AFrameStampedBeforeASetForwardIsNoStall) {
+  Bench bench;
+  Axis axis(bench.bus, 6, 60.0, 25.0, 5.0, {}, 500.0);
+  std::uint64_t elapsed_ns = 0;
+  // The first sample is stamped on the set clock: its reading finds the offset moved.
+  const LoopStats first = answer_one_sample_after_a_clock_set(bench, axis, 10'000'000'000, 0, elapsed_ns);
+  ASSERT_EQ(first.samples, 1U);
+  ASSERT_LE(first.max_step_ns, elapsed_ns);
+  // The second is stamped on the clock before the set.
+  axis.shift_arrivals(0);
+  std::unique_ptr<hal::CanBus> stage = bench.power_stage();
+  hal::SensorSample s{};
+  s.sequence = 2;
+  const auto sent = std::chrono::steady_clock::now();
+  send_sample(*stage, s, axis.node());
+  wait_for(axis, [](const LoopStats& stats) { return stats.samples > 1U; });
+  const std::uint64_t periods = axis.loop().stats().periods;
+  wait_for(axis, [&](const LoopStats& stats) { return stats.periods > periods; });
+  const auto second_elapsed_ns =
+      static_cast<std::uint64_t>(std::chrono::nanoseconds{std::chrono::steady_clock::now() - sent}.count());
+  const LoopStats stats = axis.loop().stats();
+  ASSERT_EQ(stats.samples, 2U);
+  EXPECT_LE(stats.max_step_ns, 500'000'000U + second_elapsed_ns) << "read as the set's 10 s";
 }
 
 // A wall clock set forward 10 s makes a sample that waited 5 ms read as 10 s from the future:
