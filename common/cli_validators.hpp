@@ -56,7 +56,7 @@ inline CLI::Validator integer_in_range(long long lo, long long hi) {
         }
         return {};
       },
-      "INT in [" + std::to_string(lo) + " - " + std::to_string(hi) + "]", "INT");
+      "whole number in [" + std::to_string(lo) + ", " + std::to_string(hi) + "]", "INT");
 }
 
 // Physical options take a finite upper bound too: a value far beyond any machine is a typo, and

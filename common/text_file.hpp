@@ -54,9 +54,13 @@ inline constexpr std::uintmax_t kMaxTextFileBytes = 256U << 20U;
   return {};
 }
 
-// Whether two paths name one file: the same file under two spellings (a symbolic link, ".."),
-// whether or not it exists yet (an output about to be written over an input).
+// Whether two paths name one file: the same file under two spellings (a symbolic link, "..",
+// a hard link), whether or not it exists yet (an output about to be written over an input).
 [[nodiscard]] inline bool same_file(const std::filesystem::path& a, const std::filesystem::path& b) {
+  std::error_code ec;
+  if (std::filesystem::equivalent(a, b, ec)) {
+    return true;  // both there, one file (a hard link, a bind mount too)
+  }
   std::error_code ec_a;
   std::error_code ec_b;
   const std::filesystem::path ca = std::filesystem::weakly_canonical(a, ec_a);

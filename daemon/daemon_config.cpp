@@ -133,11 +133,12 @@ double frame_time_s(std::size_t bytes, bool fd, double nominal, double data) {
 std::string check_cross_keys(const DaemonConfig& c, const toml::table& root, const std::string& source,
                              bool controller_valid) {
   std::string errors;
-  auto rule = [&](const std::string& text) { errors += (errors.empty() ? "" : "\n") + source + ": " + text; };
-  // The same at the line of `key` when the file gives it.
-  auto rule_at = [&](std::string_view key, const std::string& text) {
-    errors += (errors.empty() ? "" : "\n") + common::key_location(root, key, source) + text;
+  auto add = [&](const std::string& location, const std::string& text) {
+    errors += (errors.empty() ? "" : "\n") + location + text;
   };
+  auto rule = [&](const std::string& text) { add(source + ": ", text); };
+  // The same at the line of `key` when the file gives it.
+  auto rule_at = [&](std::string_view key, const std::string& text) { add(common::key_location(root, key, source), text); };
   // "supervisor.x (v unit)", or "supervisor.x (v unit, its default: how)" for a key the file
   // does not give: a rule broken by a default names what the default follows.
   auto value = [&](std::string_view key, double v, std::string_view unit, std::string_view default_from) {

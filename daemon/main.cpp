@@ -192,10 +192,12 @@ int run(const Options& o) {
                    key, path, why, key == "controller.calibration.file" ? "a calibration" : "the thermal state");
     }
   }
-  if (const std::string foreign = pmsm::app::foreign_thermal_state_file(config.controller.thermal_state_file);
-      !config.controller.thermal_state_file.empty() && !foreign.empty()) {
-    spdlog::warn("controller.thermal.state_file: {}; the thermal state is kept in memory only (name a file of its own)",
-                 foreign);
+  if (!config.controller.thermal_state_file.empty()) {
+    if (const std::string foreign = pmsm::app::foreign_thermal_state_file(config.controller.thermal_state_file);
+        !foreign.empty()) {
+      spdlog::warn("controller.thermal.state_file: {}; the thermal state is kept in memory only (name a file of its own)",
+                   foreign);
+    }
   }
   // Defaults that fit only the reference machine, on another motor (a newcomer's 1.5 kW servo
   // ran on them and read 11 C RMS off).

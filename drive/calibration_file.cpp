@@ -345,9 +345,18 @@ constexpr std::string_view kThermalStateHeader = "# pmsm-thermal thermal state";
 }  // namespace
 
 std::string foreign_thermal_state_file(const std::filesystem::path& path) {
+  std::error_code ec;
+  const std::filesystem::file_type type = std::filesystem::status(path, ec).type();
+  if (type == std::filesystem::file_type::not_found) {
+    return {};
+  }
+  if (type != std::filesystem::file_type::regular) {
+    // (Opened, a FIFO would block until a writer came; /dev/null would be replaced by the rename.)
+    return fmt::format("{} is there and is not a regular file: not written over", path.string());
+  }
   std::ifstream in(path, std::ios::binary);
   if (!in) {
-    return {};  // none there (or unreadable: the write will say why)
+    return {};  // unreadable: the write will say why
   }
   std::string first(kThermalStateHeader.size(), '\0');
   in.read(first.data(), static_cast<std::streamsize>(first.size()));

@@ -103,8 +103,10 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
       si.sample->ambient_C = 0.01 * static_cast<double>(sample->ambient_centi_C);
     }
     if (sample->pwm_period_code != reported_period_code_) {
-      // Judged when it changes (a new power stage), not every period.
+      // Judged when it changes (a new power stage), not every period. A held ambient reading
+      // was the old stage's sensor's: not carried over.
       reported_period_code_ = sample->pwm_period_code;
+      sensed_ambient_C_.reset();
       supervisor_.set_reported_period(hal::kPwmPeriodStep_s * static_cast<double>(reported_period_code_),
                                       hal::kPwmPeriodStep_s);
     }

@@ -375,7 +375,7 @@ void InjectionScheduler::begin_pair(const SchedulerInput& in) {
     // Signed distance (in the direction of rotation) from now to the next theta_F.
     const double now = in.theta_e_rad;
     double centre = now + direction_ * wrap_angle_0_2pi(direction_ * (config_.theta_f_rad - now));
-    // Whole turns further until it lies more than half + margin ahead: in closed form, so that
+    // Whole turns further until it lies at least half + margin ahead: in closed form, so that
     // the step's cost does not grow with the speed (a loop would not end for a speed of inf).
     const double short_rad = half + margin - direction_ * (centre - now);
     if (short_rad > 0.0 && std::isfinite(short_rad)) {

@@ -371,6 +371,13 @@ TEST_F(CalibrationFile, AThermalStateIsNotWrittenOverAFileOfAnotherKind) {
   write_thermal_state_file(empty, s);
   write_thermal_state_file(empty, s);  // its own state, replaced
   EXPECT_DOUBLE_EQ(read_thermal_state_file(empty).state.winding_C, 92.4);
+  // Nor a FIFO (opened to look, it would block until a writer came) or a device.
+  const fs::path fifo = dir_ / "state.fifo";
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+  EXPECT_NE(foreign_thermal_state_file(fifo).find("is not a regular file"), std::string::npos);
+  EXPECT_THROW(write_thermal_state_file(fifo, s), CalibrationFileError);
+  EXPECT_TRUE(fs::is_fifo(fifo)) << "replaced by the rename";
+  EXPECT_NE(foreign_thermal_state_file("/dev/null").find("is not a regular file"), std::string::npos);
 }
 
 // The thermal state kept across a restart: the same atomic write and strict read.

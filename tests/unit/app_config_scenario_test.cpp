@@ -1,6 +1,7 @@
 // Scenario files: base inheritance, plant profiles with overrides, CSV set-points, Profile,
 // and error messages that point at the right file, line and key.
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <filesystem>
 #include <fstream>
@@ -106,7 +107,8 @@ TEST(Scenario, BaseCycleIsReported) {
 }
 
 TEST(Scenario, AChainOfMoreThanEightBasesIsReported) {
-  const std::filesystem::path dir = std::filesystem::temp_directory_path() / "pmsm-scenario-chain";
+  const std::filesystem::path dir =
+      std::filesystem::temp_directory_path() / ("pmsm-scenario-chain-" + std::to_string(::getpid()));
   std::filesystem::create_directories(dir);
   for (int k = 0; k <= 9; ++k) {
     std::ofstream(dir / ("c" + std::to_string(k) + ".toml"))

@@ -150,11 +150,9 @@ class Decoder {
       raw_line.remove_suffix(1);
     }
     ++counts_.lines;
-    const candump::ParseResult parsed =
-        too_long ? candump::ParseResult{.record = std::nullopt, .error = TextInput::too_long_error()}
-                 : candump::parse_line(raw_line);
+    const candump::ParseResult parsed = TextInput::parse_candump(raw_line, too_long);
     if (!parsed.ok()) {
-      const bool blank = raw_line.find_first_not_of(" \t") == std::string_view::npos;
+      const bool blank = !too_long && raw_line.find_first_not_of(" \t") == std::string_view::npos;
       if (!blank) {
         ++counts_.malformed;
         if (counts_.malformed <= kMaxReportedBadLines) {
@@ -456,7 +454,7 @@ int run_decode(const DecodeOptions& o) {
   decoder.print_summary(dbc_path, input.from_stdin() ? "-" : o.input);
   if (decoder.counts().frames == 0U && decoder.counts().malformed != 0U) {
     // Not one frame: this is no capture (a binary file, the wrong file), whatever --strict says.
-    std::fprintf(stderr, "decode: no line of '%s' is a candump frame: not a capture\n", input.name().c_str());
+    std::fprintf(stderr, "decode: %s\n", input.no_frame_error().c_str());
     return kExitInput;
   }
   if (o.strict && decoder.counts().bad() != 0U) {

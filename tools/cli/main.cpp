@@ -42,12 +42,13 @@ int main(int argc, char** argv) {
     // not one of CLI11's own codes.
     return app.exit(e) == 0 ? 0 : 2;
   } catch (const std::bad_alloc&) {
-    // (Each command bounds what it reads; this is the last line of defence, not an abort.)
+    // (Each command bounds what it reads; this is the last line of defence, not an abort.) 2:
+    // the command could not do its work, never a check's 1 (monitor's gate, decode --strict).
     std::fprintf(stderr, "pmsm-thermal: out of memory\n");
-    return 1;
+    return 2;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "pmsm-thermal: %s\n", e.what());
-    return 1;
+    return 2;
   }
   return exit_code;
 }

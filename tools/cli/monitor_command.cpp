@@ -547,9 +547,7 @@ int run_monitor(MonitorOptions o) {
     std::uint64_t frames = 0;
     std::string line;
     for (bool too_long = false; input.next_line(line, too_long);) {
-      const candump::ParseResult parsed =
-          too_long ? candump::ParseResult{.record = std::nullopt, .error = TextInput::too_long_error()}
-                   : candump::parse_line(line);
+      const candump::ParseResult parsed = TextInput::parse_candump(line, too_long);
       if (parsed.ok()) {
         ++frames;
         const auto& stamp = parsed.record->timestamp;
@@ -566,7 +564,7 @@ int run_monitor(MonitorOptions o) {
     if (malformed != 0U) {
       std::printf("%llu line(s) were not candump frames\n", static_cast<unsigned long long>(malformed));
       if (frames == 0U) {
-        std::fprintf(stderr, "monitor: no line of '%s' is a candump frame: not a capture\n", input.name().c_str());
+        std::fprintf(stderr, "monitor: %s\n", input.no_frame_error().c_str());
         return 2;
       }
     }
@@ -653,8 +651,8 @@ void register_monitor_command(CLI::App& app, int& exit_code) {
     }
     // The CSV is opened (emptied) before the log is read: over the log, it would erase it.
     if (!o->csv.empty() && !o->log.empty() && o->log != "-" && common::same_file(o->csv, o->log)) {
-      std::fprintf(stderr, "monitor: --csv %s would write over the log it reads (--log %s): refusing\n", o->csv.c_str(),
-                   o->log.c_str());
+      std::fprintf(stderr, "monitor: --csv '%s' would write over the log it reads (--log '%s'): refusing\n",
+                   o->csv.c_str(), o->log.c_str());
       exit_code = 2;
       return;
     }

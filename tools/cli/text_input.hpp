@@ -18,7 +18,10 @@
 #include <iostream>
 #include <limits>
 #include <string>
+#include <string_view>
 #include <system_error>
+
+#include "pmsm/tools/candump.hpp"
 
 namespace pmsm::app {
 
@@ -75,9 +78,17 @@ class TextInput {
     line.assign(buffer_.data(), in.eof() ? got : got - 1);
     return true;
   }
-  // What to say of a line next_line() cut.
-  [[nodiscard]] static std::string too_long_error() {
-    return "longer than " + std::to_string(kMaxLine) + " characters (the rest of it skipped)";
+  // A line next_line() gave, as a candump frame: one it cut is none, whatever it holds.
+  [[nodiscard]] static hal::candump::ParseResult parse_candump(std::string_view line, bool too_long) {
+    if (too_long) {
+      return {.record = std::nullopt,
+              .error = "longer than " + std::to_string(kMaxLine) + " characters (the rest of it skipped)"};
+    }
+    return hal::candump::parse_line(line);
+  }
+  // Said when an input had lines and not a single candump frame: it is no capture.
+  [[nodiscard]] std::string no_frame_error() const {
+    return "no line of '" + name_ + "' is a candump frame: not a capture";
   }
   // A read error, not the end of the input (std::cin reads through stdio: its errors are
   // stdin's).
