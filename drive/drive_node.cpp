@@ -107,6 +107,7 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
       // was the old stage's sensor's: not carried over.
       reported_period_code_ = sample->pwm_period_code;
       sensed_ambient_C_.reset();
+      ambient_held_ = false;
       supervisor_.set_reported_period(hal::kPwmPeriodStep_s * static_cast<double>(reported_period_code_),
                                       hal::kPwmPeriodStep_s);
     }

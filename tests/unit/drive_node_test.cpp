@@ -1444,6 +1444,16 @@ TEST(DriveNode, AnAmbientSensorThatStopsReportingIsHeldAtItsLastReading) {
   rig.run(10);
   EXPECT_DOUBLE_EQ(rig.node->ambient_C(), 33.0);
   EXPECT_FALSE(rig.node->ambient_held());
+  // Held again, then another power stage (its PWM period reported anew) without the sensor: the
+  // old stage's reading is not carried over.
+  rig.run(10, no_sensor);
+  EXPECT_TRUE(rig.node->ambient_held());
+  rig.run(10, [&](hal::SensorSample& s) {
+    no_sensor(s);
+    s.pwm_period_code = 200;
+  });
+  EXPECT_DOUBLE_EQ(rig.node->ambient_C(), 12.0);
+  EXPECT_FALSE(rig.node->ambient_held());
 }
 
 }  // namespace
