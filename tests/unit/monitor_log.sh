@@ -62,6 +62,26 @@ drive=$(grep -m1 " 040#" "$log")
 grep -q "monitor: frame 0x040 fails this monitor's check: repeated_counter" "$work/out" || fail "a replayed command was not flagged"
 grep -q "monitor: frame 0x040 fails this monitor's check: bad_crc" "$work/out" || fail "a corrupt command was not flagged"
 grep -q "2 not decodable (bad_crc 1, repeated_counter 1)" "$work/out" || fail "the summary does not count both"
+# The deadline misses: HEARTBEAT's count since start where it says more than the LOOP_TIMING
+# windows' sum (each window's count stops at 255; the demo's summary said "at least 5355" of
+# about 200,000).
+monitor_with "(1795493853.589724) vcan0 140#D67E0500022BE803"
+grep -q ", 1000 deadline miss(es)" "$work/out" || fail "HEARTBEAT's deadline misses since start not taken"
+
+# A plant that stopped reporting while the daemon runs on: its last truth is not compared with
+# the daemon's later estimates (the demo's last line read "error -52.1": the daemon's model
+# cooling the winding through the plant's absence at 400x, against a truth frozen at the stop).
+estimate="(1795493852.500898) vcan0 110#15229600E8171700"
+printf '%s\n' "$estimate" "(1795493852.589724) vcan0 140#727E0500022A0000" \
+  "(1795493852.674761) vcan0 200#6022A217D417C409" "$estimate" > "$work/truth.log"
+"$exe" monitor --log "$work/truth.log" --plain > "$work/out"
+grep -q "(true   88.0, error  -0.8)" "$work/out" || fail "a fresh truth not compared"
+printf '%s\n' "(1795493853.589724) vcan0 140#D67E0500022B0000" "(1795493854.589724) vcan0 140#3A7F0500022C0000" \
+  "$estimate" >> "$work/truth.log"
+"$exe" monitor --log "$work/truth.log" --plain > "$work/out"
+grep -q "the plant's last truth 88.0, at least 1 s of the daemon's time before: not compared" "$work/out" ||
+  fail "a truth the plant stopped sending compared with later estimates"
+
 # --node: another axis's frames (here node 0's, with node 3's HEARTBEAT beside them) stay out
 # of the summary, its checks included.
 heartbeat=$(grep -m1 " 140#" "$log")

@@ -85,6 +85,14 @@ std::vector<fs::path> default_dbc_candidates() {
   return candidates;
 }
 
+// How to run pmsm-dbc-gen: its path beside this executable when it is there (a build tree keeps
+// both in tools/, not on the PATH), else its name.
+std::string dbc_generator_command() {
+  std::error_code ec;
+  const fs::path beside = fs::read_symlink("/proc/self/exe", ec).parent_path() / "pmsm-dbc-gen";
+  return !ec && fs::is_regular_file(beside, ec) ? beside.string() : "pmsm-dbc-gen";
+}
+
 std::optional<fs::path> find_default_dbc(std::string& looked_in) {
   for (const fs::path& candidate : default_dbc_candidates()) {
     std::error_code ec;
@@ -272,8 +280,8 @@ class Decoder {
       if (other_node_frames_[node] != 0U) {
         text += fmt::format(
             "  {} unknown frame(s) are this DBC's messages for node {} (CAN ID = base + node): decode them with that "
-            "node's DBC, `pmsm-dbc-gen --node {} --dbc node{}.dbc`\n",
-            other_node_frames_[node], node, node, node);
+            "node's DBC, `{} --node {} --dbc node{}.dbc`\n",
+            other_node_frames_[node], node, dbc_generator_command(), node, node);
       }
     }
     std::fputs(text.c_str(), stderr);

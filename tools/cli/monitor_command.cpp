@@ -70,6 +70,10 @@ struct Axis {
   std::optional<protocol::ResistanceEstimate> rs;
   std::optional<protocol::DriveStatus> status;
   std::optional<double> truth_C;
+  // HEARTBEATs since the last TRUTH_THERMAL (the plant reports every 100 ms of its time, the
+  // daemon beats every second of its own): two or more, and the plant has stopped reporting
+  // while the daemon runs on; its last truth is then no measure of the estimate.
+  std::uint32_t heartbeats_since_truth = 0;
   std::optional<double> time_s;       // plant's simulated time, else the daemon's uptime
   bool plant_time = false;            // time_s comes from PLANT_STATUS
   double next_print_s = 0.0;
@@ -101,6 +105,9 @@ struct Axis {
   // Windows whose LatencyMax or DeadlineMisses stood at the signal's top: the figures are then
   // lower bounds, and the summary says "at least".
   bool latency_saturated = false, misses_saturated = false;
+  // HEARTBEAT's DeadlineMisses, since the daemon started (saturates at 65535): the larger of it
+  // and the windows' sum is reported (a window's count saturates at 255).
+  std::uint64_t heartbeat_misses = 0;
   // The commands this monitor has seen, per stream: alive counter checked as the daemon does.
   std::array<protocol::AliveCounterCheck, protocol::kMessageCount> counters;
   // Error statistics of calibrated estimates where the truth is above the threshold.
@@ -272,6 +279,8 @@ class Monitor {
         }
       }
       a.daemon_uptime_s = h->uptime_s;
+      ++a.heartbeats_since_truth;
+      a.heartbeat_misses = h->deadline_misses;  // (a restarted daemon's count starts again)
       a.report_count = 0;  // the reports before a HEARTBEAT are its daemon's
       if (!a.plant_time) {
         set_time(a, h->uptime_s);
@@ -292,6 +301,7 @@ class Monitor {
       a.injections_accepted += i->result == protocol::InjectionResult::kAccepted ? 1U : 0U;
     } else if (const auto* tt = std::get_if<protocol::TruthThermal>(&d.message)) {
       a.truth_C = tt->winding_temp_C;
+      a.heartbeats_since_truth = 0;
       if (a.sample_seq) {
         const std::pair<std::uint32_t, double> now{*a.sample_seq, tt->winding_temp_C};
         for (const Axis::Pending& p : a.pending) {
@@ -394,7 +404,10 @@ class Monitor {
     std::string out = fmt::format("node {:2d}  {} {:8.1f} s  ", node, a.plant_time ? "plant " : "uptime", a.time_s.value_or(0.0));
     if (a.thermal && a.thermal->valid) {
       out += fmt::format("winding {:6.1f} +- {:4.1f} C", a.thermal->winding_temp_C, a.thermal->winding_temp_sigma_C);
-      if (a.truth_C) {
+      if (a.truth_C && a.heartbeats_since_truth >= 2) {
+        out += fmt::format(" (the plant's last truth {:.1f}, at least {} s of the daemon's time before: not compared)", *a.truth_C,
+                           a.heartbeats_since_truth - 1);
+      } else if (a.truth_C) {
         out += fmt::format(" (true {:6.1f}, error {:+5.1f})", *a.truth_C, a.thermal->winding_temp_C - *a.truth_C);
       }
       out += a.thermal->calibrated ? "" : " uncalibrated";
@@ -472,14 +485,20 @@ class Monitor {
       }
       if (a.timing) {
         // A window's LatencyMax and DeadlineMisses saturate (6553.5 us, 255): then the worst and
-        // the sum are at least what they say (the daemon's log has the exact figures).
+        // the sum are at least what they say (the daemon's log has the exact figures). The
+        // HEARTBEAT's count since start (up to 65535) is taken where it says more.
+        const bool from_heartbeat = a.heartbeat_misses > a.deadline_misses;
+        const std::uint64_t misses = from_heartbeat ? a.heartbeat_misses : a.deadline_misses;
+        const bool misses_saturated =
+            from_heartbeat ? static_cast<double>(a.heartbeat_misses) >= protocol::heartbeat::kDeadlineMisses.maximum
+                           : a.misses_saturated;
         std::printf("node %2d  control loop (last window with steps): sample->command median < %.0f us, p99 < %.0f us; worst %s%.1f us "
                     "over %llu window(s), %s%llu deadline miss(es)%s\n",
                     node, a.timing->latency_p50_us, a.timing->latency_p99_us, a.latency_saturated ? "at least " : "",
                     a.worst_latency_us, static_cast<unsigned long long>(a.timing_windows),
-                    a.misses_saturated ? "at least " : "", static_cast<unsigned long long>(a.deadline_misses),
-                    a.latency_saturated || a.misses_saturated ? " (LOOP_TIMING saturated; the daemon's log has the exact figures)"
-                                                              : "");
+                    misses_saturated ? "at least " : "", static_cast<unsigned long long>(misses),
+                    a.latency_saturated || misses_saturated ? " (saturated on the bus; the daemon's log has the exact figures)"
+                                                            : "");
       }
       if (a.n > 0U) {
         const double rms = std::sqrt(a.sq / static_cast<double>(a.n));
