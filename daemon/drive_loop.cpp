@@ -162,6 +162,7 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns, 
     }
     r.ambient_C = node_.ambient_C();
     r.ambient_held = node_.ambient_held();
+    r.ambient_sensed = node_.ambient_sensed();
     if (!ring_.try_push(r)) {
       counters_.publications_dropped.bump();
     }
@@ -335,15 +336,17 @@ bool DriveLoop::read_realtime_offset(std::int64_t now_ns) noexcept {
 // back into a command timeout); so do the later frames of that stall's backlog, stamped between
 // its frame and that reading, without another reading. Any other wait is taken with the offset
 // as it stands, between none and one sample timeout. A frame on time ends the backlog. Other
-// than for a long wait outside a backlog, the offset is read at most once a sample timeout (not
-// for each frame of a backend whose timestamps run ahead). A wait a little negative (the
-// offset's own error) counts as none.
+// than for a long wait outside a backlog (and stamped after the last move), the offset is read
+// at most once a sample timeout, and for a wall clock set forward once a second (not for each
+// frame of a backend whose timestamps run ahead). A wait a little negative (the offset's own
+// error) counts as none.
 std::int64_t DriveLoop::arrival_ns(std::int64_t read_ns) noexcept {
   const std::int64_t stamp = received_.software_timestamp_ns;
   if (stamp == 0) {
     return read_ns;
   }
   constexpr std::int64_t kForward_ns = -1'000'000;
+  constexpr std::int64_t kSecond_ns = 1'000'000'000;
   std::int64_t waited = read_ns + realtime_offset_ns_ - stamp;
   const bool long_wait = waited >= sample_timeout_ns_;
   if (!long_wait) {
@@ -351,7 +354,12 @@ std::int64_t DriveLoop::arrival_ns(std::int64_t read_ns) noexcept {
   }
   if (long_wait || waited < kForward_ns) {
     const bool in_backlog = stamp >= stall_stamp_ns_ && stamp <= stall_read_realtime_ns_;
-    if ((long_wait && !in_backlog) || read_ns - offset_read_ns_ >= sample_timeout_ns_) {
+    // A frame stamped before the last move of the offset cannot be judged by reading it again.
+    const bool judge_now = long_wait && !in_backlog && stamp > moved_realtime_ns_;
+    // A wall clock set forward is read at most once a second (a backend whose timestamps run
+    // ahead would otherwise cost a reading every sample timeout).
+    const std::int64_t reread_after_ns = long_wait ? sample_timeout_ns_ : std::max(sample_timeout_ns_, kSecond_ns);
+    if (judge_now || read_ns - offset_read_ns_ >= reread_after_ns) {
       const bool stood = read_realtime_offset(read_ns);
       waited = read_ns + realtime_offset_ns_ - stamp;
       if (stood && waited >= sample_timeout_ns_ && stamp > moved_realtime_ns_) {

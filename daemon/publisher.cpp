@@ -259,8 +259,12 @@ void Publisher::handle(const PublicationRecord& r) {
       spdlog::warn("the ambient sensor stopped reporting (SENSOR_SAMPLE AmbientValid = 0): the drive holds its last "
                    "reading, {:.1f} C, for the thermal model and a calibration at the ambient",
                    r.ambient_C);
-    } else {
+    } else if (r.ambient_sensed) {
       spdlog::info("the ambient sensor reports again: {:.1f} C", r.ambient_C);
+    } else {
+      spdlog::warn("the held ambient reading dropped with a new power stage (another PWM period reported): the drive "
+                   "assumes {:.1f} C until a sensor reports",
+                   r.ambient_C);
     }
   }
   if (r.angle_check) {

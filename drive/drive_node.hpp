@@ -108,6 +108,8 @@ class DriveNode {
   // The sensor reported and then stopped (AmbientValid cleared): ambient_C() holds its last
   // reading rather than falling back to the input (25 C by default). Cleared when it reports again.
   [[nodiscard]] bool ambient_held() const noexcept { return ambient_held_; }
+  // A reading of the sample's sensor is in use (held or fresh), not the input.
+  [[nodiscard]] bool ambient_sensed() const noexcept { return sensed_ambient_C_.has_value(); }
   [[nodiscard]] const core::Supervisor& supervisor() const noexcept { return supervisor_; }
   [[nodiscard]] const SensorFrontend& frontend() const noexcept { return frontend_; }
   [[nodiscard]] std::uint64_t periods() const noexcept { return period_; }

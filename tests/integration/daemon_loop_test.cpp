@@ -714,8 +714,8 @@ std::int64_t set_wall_clock_offset() noexcept {
 }
 
 // One sample, `waited_ns` in the socket, answered by a daemon that read the wall clock's offset
-// at its start, and then the wall clock was set by `set_ns` (forward when positive): a sample
-// timeout or more after that reading, or at once when `at_once`. The sample's receive timestamp
+// at its start, and then the wall clock was set by `set_ns` (forward when positive): a second
+// or more after that reading, or at once when `at_once`. The sample's receive timestamp
 // is on the set clock. `elapsed_ns` as answer_one_sample's.
 LoopStats answer_one_sample_after_a_clock_set(Bench& bench, Axis& axis, std::int64_t set_ns, std::int64_t waited_ns,
                                               std::uint64_t& elapsed_ns, bool at_once = false) {
@@ -729,8 +729,9 @@ LoopStats answer_one_sample_after_a_clock_set(Bench& bench, Axis& axis, std::int
       std::this_thread::sleep_for(1ms);
     }
   } else {
-    // (the first missing sample is counted a sample timeout after the offset was read)
-    wait_for(axis, [](const LoopStats& stats) { return stats.missing_samples > 0U; });
+    // (the first missing sample is counted a sample timeout after the offset was read; a set
+    // forward is looked for once a second at most: three of 0.5 s)
+    wait_for(axis, [](const LoopStats& stats) { return stats.missing_samples > 2U; });
   }
   g_wall_clock_set_ns = set_ns;
   axis.shift_arrivals(waited_ns - set_ns);

@@ -278,7 +278,7 @@ TEST(cli_decode, AnotherNodesFramesAreNamedInTheSummary) {
   EXPECT_EQ(r.exit_code, 0) << r.err;
   EXPECT_TRUE(contains(r.err, "1 decoded, 3 unknown")) << r.err;
   EXPECT_TRUE(contains(r.err, "2 unknown frame(s) are this DBC's messages for node 1")) << r.err;
-  EXPECT_TRUE(contains(r.err, "pmsm-dbc-gen --node 1 --dbc node1.dbc")) << r.err;
+  EXPECT_TRUE(contains(r.err, "pmsm-dbc-gen' --node 1 --dbc node1.dbc")) << "beside this tool in the build tree: " << r.err;
   EXPECT_FALSE(contains(r.err, "for node 3")) << "0x7F3 is no message's base: " << r.err;
 }
 

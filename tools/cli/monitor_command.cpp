@@ -70,10 +70,15 @@ struct Axis {
   std::optional<protocol::ResistanceEstimate> rs;
   std::optional<protocol::DriveStatus> status;
   std::optional<double> truth_C;
-  // HEARTBEATs since the last TRUTH_THERMAL (the plant reports every 100 ms of its time, the
-  // daemon beats every second of its own): two or more, and the plant has stopped reporting
-  // while the daemon runs on; its last truth is then no measure of the estimate.
-  std::uint32_t heartbeats_since_truth = 0;
+  // HEARTBEATs since the last TRUTH_THERMAL, the most seen between two truths while the plant
+  // reported, and the daemon's uptime at the last truth (its last HEARTBEAT's). More HEARTBEATs
+  // than ever came between two truths, and at least two: the plant has stopped reporting while
+  // the daemon runs on, and its last truth is no measure of the estimates that follow.
+  std::uint32_t heartbeats_since_truth = 0, most_heartbeats_between_truths = 0;
+  std::optional<double> uptime_at_truth_s;
+  [[nodiscard]] bool truth_stale() const {
+    return truth_C && heartbeats_since_truth >= 2 && heartbeats_since_truth > most_heartbeats_between_truths;
+  }
   std::optional<double> time_s;       // plant's simulated time, else the daemon's uptime
   bool plant_time = false;            // time_s comes from PLANT_STATUS
   double next_print_s = 0.0;
@@ -101,13 +106,27 @@ struct Axis {
   std::size_t report_count = 0;
   std::optional<protocol::LoopTiming> timing;
   double worst_latency_us = 0.0;
-  std::uint64_t timing_windows = 0, deadline_misses = 0;
+  std::uint64_t timing_windows = 0;
   // Windows whose LatencyMax or DeadlineMisses stood at the signal's top: the figures are then
   // lower bounds, and the summary says "at least".
-  bool latency_saturated = false, misses_saturated = false;
-  // HEARTBEAT's DeadlineMisses, since the daemon started (saturates at 65535): the larger of it
-  // and the windows' sum is reported (a window's count saturates at 255).
-  std::uint64_t heartbeat_misses = 0;
+  bool latency_saturated = false;
+  // Deadline misses per daemon run: the LOOP_TIMING windows' sum (a window's count saturates at
+  // 255) and HEARTBEAT's count since the daemon started (saturates at 65535), the larger of the
+  // two counting; the runs before a restart, summed.
+  std::uint64_t window_misses = 0, heartbeat_misses = 0, earlier_misses = 0;
+  bool window_misses_saturated = false, earlier_misses_saturated = false, earlier_since_start = false;
+  struct Misses {
+    std::uint64_t count;
+    bool saturated;    // a lower bound
+    bool since_start;  // HEARTBEAT's: since the daemon started, windows this monitor saw or not
+  };
+  [[nodiscard]] Misses run_misses() const {
+    const bool heartbeat = heartbeat_misses > window_misses;
+    return {heartbeat ? heartbeat_misses : window_misses,
+            heartbeat ? static_cast<double>(heartbeat_misses) >= protocol::heartbeat::kDeadlineMisses.maximum
+                      : window_misses_saturated,
+            heartbeat};
+  }
   // The commands this monitor has seen, per stream: alive counter checked as the daemon does.
   std::array<protocol::AliveCounterCheck, protocol::kMessageCount> counters;
   // Error statistics of calibrated estimates where the truth is above the threshold.
@@ -215,6 +234,8 @@ class Monitor {
         } else {
           ++a.not_compared;  // no truth frame for 64 samples that carried estimates: the plant is gone
         }
+      } else if (a.truth_stale()) {
+        ++a.not_compared;  // the plant stopped reporting: no truth for it
       } else {
         judge(d.node, a, *t, a.time_s.value_or(0.0), a.truth_C);
       }
@@ -254,9 +275,10 @@ class Monitor {
       }
       a.worst_latency_us = std::max(a.worst_latency_us, lt->latency_max_us);
       ++a.timing_windows;
-      a.deadline_misses += lt->deadline_misses;
+      a.window_misses += lt->deadline_misses;
       a.latency_saturated = a.latency_saturated || lt->latency_max_us >= protocol::loop_timing::kLatencyMax.maximum;
-      a.misses_saturated = a.misses_saturated || lt->deadline_misses >= protocol::loop_timing::kDeadlineMisses.maximum;
+      a.window_misses_saturated =
+          a.window_misses_saturated || lt->deadline_misses >= protocol::loop_timing::kDeadlineMisses.maximum;
     } else if (const auto* h = std::get_if<protocol::Heartbeat>(&d.message)) {
       if (a.daemon_uptime_s && h->uptime_s < *a.daemon_uptime_s) {
         event(fmt::format("node {}: the daemon started again (uptime {:.1f} s after {:.1f} s)", d.node, h->uptime_s,
@@ -277,10 +299,17 @@ class Monitor {
         if (a.receive) {
           a.receive = protocol::ReceiveStatus{};
         }
+        const Axis::Misses run = a.run_misses();
+        a.earlier_misses += run.count;
+        a.earlier_misses_saturated = a.earlier_misses_saturated || run.saturated;
+        a.earlier_since_start = a.earlier_since_start || run.since_start;
+        a.window_misses = 0;
+        a.heartbeat_misses = 0;
+        a.window_misses_saturated = false;
       }
       a.daemon_uptime_s = h->uptime_s;
       ++a.heartbeats_since_truth;
-      a.heartbeat_misses = h->deadline_misses;  // (a restarted daemon's count starts again)
+      a.heartbeat_misses = h->deadline_misses;
       a.report_count = 0;  // the reports before a HEARTBEAT are its daemon's
       if (!a.plant_time) {
         set_time(a, h->uptime_s);
@@ -300,8 +329,12 @@ class Monitor {
       ++a.injections;
       a.injections_accepted += i->result == protocol::InjectionResult::kAccepted ? 1U : 0U;
     } else if (const auto* tt = std::get_if<protocol::TruthThermal>(&d.message)) {
+      if (a.truth_C) {  // (the HEARTBEATs before the plant's first report say nothing of its cadence)
+        a.most_heartbeats_between_truths = std::max(a.most_heartbeats_between_truths, a.heartbeats_since_truth);
+      }
       a.truth_C = tt->winding_temp_C;
       a.heartbeats_since_truth = 0;
+      a.uptime_at_truth_s = a.daemon_uptime_s;
       if (a.sample_seq) {
         const std::pair<std::uint32_t, double> now{*a.sample_seq, tt->winding_temp_C};
         for (const Axis::Pending& p : a.pending) {
@@ -404,9 +437,11 @@ class Monitor {
     std::string out = fmt::format("node {:2d}  {} {:8.1f} s  ", node, a.plant_time ? "plant " : "uptime", a.time_s.value_or(0.0));
     if (a.thermal && a.thermal->valid) {
       out += fmt::format("winding {:6.1f} +- {:4.1f} C", a.thermal->winding_temp_C, a.thermal->winding_temp_sigma_C);
-      if (a.truth_C && a.heartbeats_since_truth >= 2) {
-        out += fmt::format(" (the plant's last truth {:.1f}, at least {} s of the daemon's time before: not compared)", *a.truth_C,
-                           a.heartbeats_since_truth - 1);
+      if (a.truth_stale()) {
+        out += a.uptime_at_truth_s && a.daemon_uptime_s
+                   ? fmt::format(" (the plant's last truth {:.1f}, about {:.0f} s of the daemon's time ago: not compared)",
+                                 *a.truth_C, *a.daemon_uptime_s - *a.uptime_at_truth_s)
+                   : fmt::format(" (the plant's last truth {:.1f}, no longer reported: not compared)", *a.truth_C);
       } else if (a.truth_C) {
         out += fmt::format(" (true {:6.1f}, error {:+5.1f})", *a.truth_C, a.thermal->winding_temp_C - *a.truth_C);
       }
@@ -487,16 +522,16 @@ class Monitor {
         // A window's LatencyMax and DeadlineMisses saturate (6553.5 us, 255): then the worst and
         // the sum are at least what they say (the daemon's log has the exact figures). The
         // HEARTBEAT's count since start (up to 65535) is taken where it says more.
-        const bool from_heartbeat = a.heartbeat_misses > a.deadline_misses;
-        const std::uint64_t misses = from_heartbeat ? a.heartbeat_misses : a.deadline_misses;
-        const bool misses_saturated =
-            from_heartbeat ? static_cast<double>(a.heartbeat_misses) >= protocol::heartbeat::kDeadlineMisses.maximum
-                           : a.misses_saturated;
+        const Axis::Misses run = a.run_misses();
+        const std::uint64_t misses = a.earlier_misses + run.count;
+        const bool misses_saturated = a.earlier_misses_saturated || run.saturated;
+        const bool since_start = a.earlier_since_start || run.since_start;
         std::printf("node %2d  control loop (last window with steps): sample->command median < %.0f us, p99 < %.0f us; worst %s%.1f us "
-                    "over %llu window(s), %s%llu deadline miss(es)%s\n",
+                    "over %llu window(s), %s%llu deadline miss(es)%s%s\n",
                     node, a.timing->latency_p50_us, a.timing->latency_p99_us, a.latency_saturated ? "at least " : "",
                     a.worst_latency_us, static_cast<unsigned long long>(a.timing_windows),
                     misses_saturated ? "at least " : "", static_cast<unsigned long long>(misses),
+                    since_start ? " since the daemon started (HEARTBEAT)" : "",
                     a.latency_saturated || misses_saturated ? " (saturated on the bus; the daemon's log has the exact figures)"
                                                             : "");
       }
