@@ -641,10 +641,12 @@ TEST(DaemonLoop, FramesDroppedOnReceiveAreCountedAndReported) {
 // sample's step has counted its period (after its answer was sent and timed). `elapsed_ns`
 // receives the wall time from the sending to then: an upper bound on what the sample really
 // waited (a daemon's thread started meanwhile: on a loaded or sanitized build, milliseconds).
-LoopStats answer_one_sample(Bench& bench, Axis& axis, bool start_daemon, std::uint64_t& elapsed_ns) {
+// `sequence`: the sample's, the daemon's `sequence`-th.
+LoopStats answer_one_sample(Bench& bench, Axis& axis, bool start_daemon, std::uint64_t& elapsed_ns,
+                            std::uint32_t sequence = 1) {
   std::unique_ptr<hal::CanBus> stage = bench.power_stage();
   hal::SensorSample s{};
-  s.sequence = 1;
+  s.sequence = sequence;
   const auto sent = std::chrono::steady_clock::now();
   send_sample(*stage, s, axis.node());
   // The first period of a daemon started now is the sample's; a running one's, the next period
@@ -654,7 +656,7 @@ LoopStats answer_one_sample(Bench& bench, Axis& axis, bool start_daemon, std::ui
   if (start_daemon) {
     axis.start_daemon();
   } else {
-    wait_for(axis, [](const LoopStats& stats) { return stats.samples > 0U; });
+    wait_for(axis, [&](const LoopStats& stats) { return stats.samples >= sequence; });
     periods = axis.loop().stats().periods;
   }
   wait_for(axis, [&](const LoopStats& stats) { return stats.periods > periods; });
@@ -779,17 +781,8 @@ TEST(DaemonLoop, AFrameStampedBeforeASetForwardIsNoStall) {
   ASSERT_LE(first.max_step_ns, elapsed_ns);
   // The second is stamped on the clock before the set.
   axis.shift_arrivals(0);
-  std::unique_ptr<hal::CanBus> stage = bench.power_stage();
-  hal::SensorSample s{};
-  s.sequence = 2;
-  const auto sent = std::chrono::steady_clock::now();
-  send_sample(*stage, s, axis.node());
-  wait_for(axis, [](const LoopStats& stats) { return stats.samples > 1U; });
-  const std::uint64_t periods = axis.loop().stats().periods;
-  wait_for(axis, [&](const LoopStats& stats) { return stats.periods > periods; });
-  const auto second_elapsed_ns =
-      static_cast<std::uint64_t>(std::chrono::nanoseconds{std::chrono::steady_clock::now() - sent}.count());
-  const LoopStats stats = axis.loop().stats();
+  std::uint64_t second_elapsed_ns = 0;
+  const LoopStats stats = answer_one_sample(bench, axis, false, second_elapsed_ns, 2);
   ASSERT_EQ(stats.samples, 2U);
   EXPECT_LE(stats.max_step_ns, 500'000'000U + second_elapsed_ns) << "read as the set's 10 s";
 }

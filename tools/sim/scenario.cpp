@@ -16,6 +16,7 @@
 
 #include "config_schema.hpp"
 #include "pmsm/core/thermal_observer.hpp"
+#include "text_file.hpp"
 
 namespace pmsm::app {
 namespace {
@@ -342,8 +343,7 @@ toml::table resolve_base(toml::table root, const std::filesystem::path& source, 
   const std::filesystem::path base_path = source.parent_path() / *base;
   const std::string at = common::node_location(*root.at_path("scenario.base").node(), source.string()) + "scenario.base: ";
   for (const std::filesystem::path& earlier : chain) {
-    std::error_code ec;
-    if (std::filesystem::equivalent(earlier, base_path, ec)) {
+    if (common::same_file(earlier, base_path)) {
       throw ConfigError(at + "the bases form a cycle: " + chain_text(chain, base_path));
     }
   }
