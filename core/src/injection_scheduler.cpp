@@ -1130,7 +1130,7 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
         // A request starts an event early, but not before the retry delay that follows an
         // event which yielded nothing (a calibration must not hammer a motor it cannot inject).
         const bool requested = in.request_now && in.time_s >= retry_after_s_;
-        if (in.time_s < next_event_s_ && !requested) {
+        if (held_ || (in.time_s < next_event_s_ && !requested)) {
           break;
         }
         in_event_ = true;

@@ -1101,6 +1101,15 @@ struct Plant::Impl {
 Plant::Plant(const PlantConfig& config) : impl_(std::make_unique<Impl>(config)) {}
 Plant::~Plant() = default;
 Plant::Plant(Plant&&) noexcept = default;
+// A copy carries on from the same state, its noise generator's included: stepped with the same
+// commands, it gives the same samples (the simulator forks its twin so).
+Plant::Plant(const Plant& other) : impl_(std::make_unique<Impl>(*other.impl_)) {}
+Plant& Plant::operator=(const Plant& other) {
+  if (this != &other) {
+    *impl_ = *other.impl_;  // the configuration's vectors keep their capacity: no allocation after the first
+  }
+  return *this;
+}
 Plant& Plant::operator=(Plant&&) noexcept = default;
 
 const hal::SensorSample& Plant::sample() const { return impl_->sample; }

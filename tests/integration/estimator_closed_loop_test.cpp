@@ -402,6 +402,36 @@ TEST(SimulateMemory, FiguresDoNotDependOnWhatIsKept) {
   EXPECT_LT(a.speed_disturbance_at_s, s.scenario.duration_s);
 }
 
+// The twin forks from a snapshot of the run taken between events and catches up to the
+// event's start: how often the snapshots are taken changes no figure, to the last digit (a
+// catch-up one period short or long, or from a snapshot taken inside an event, would move the
+// twin's rows against the run's). And the twin runs around the events only.
+TEST(SimulateTwin, FiguresDoNotDependOnTheSnapshots) {
+  Scenario s = load_scenario(kData / "heatup-short.toml");
+  s.scenario.duration_s = 12.0;
+  RunOptions options;
+  options.keep_series = false;
+  options.keep_estimates = false;
+  options.twin_snapshot_periods = 1;
+  const SimulationResult every = run_scenario(s, options);
+  for (const std::uint64_t periods : {std::uint64_t{200}, std::uint64_t{1999}}) {
+    options.twin_snapshot_periods = periods;
+    const SimulationResult r = run_scenario(s, options);
+    SCOPED_TRACE(periods);
+    ASSERT_TRUE(r.disturbance_measured);
+    EXPECT_EQ(r.speed_disturbance_pct, every.speed_disturbance_pct);
+    EXPECT_EQ(r.torque_disturbance_pct, every.torque_disturbance_pct);
+    EXPECT_EQ(r.speed_disturbance_at_s, every.speed_disturbance_at_s);
+    EXPECT_EQ(r.speed_difference_outside_pct, every.speed_difference_outside_pct);
+    EXPECT_EQ(r.torque_difference_outside_pct, every.torque_difference_outside_pct);
+    EXPECT_EQ(r.twin_sim_time_s, every.twin_sim_time_s);
+    EXPECT_EQ(r.winding_error_rms_C, every.winding_error_rms_C) << "the twin never touches the run";
+  }
+  EXPECT_GT(every.speed_disturbance_pct, 0.0) << "the twin injects nothing: the pulses move the shaft";
+  EXPECT_GT(every.twin_sim_time_s, 0.0);
+  EXPECT_LT(every.twin_sim_time_s, 0.8 * every.sim_time_s) << "the twin runs around the events, not beside the whole run";
+}
+
 // A figure with no row to judge is none (NaN, null in the JSON, a dash in the tables), not a
 // difference of zero: a drive whose events follow each other (the 14-pole-pair direct drive of
 // the robustness suite) has no row away from injection and reported 0 % there. Here a window

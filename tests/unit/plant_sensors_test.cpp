@@ -229,14 +229,10 @@ TEST(plant_sensors, PhaseVoltageSensing) {
   EXPECT_EQ(s.phase_voltage_adc[0], 0);
 }
 
-std::vector<hal::SensorSample> run(std::uint64_t seed) {
-  PlantConfig c;  // reference profile: every noise source on
-  c.simulation.seed = seed;
-  c.phase_voltage_sensing.enabled = true;
-  hold_shaft(c, 120.0);
-  Plant plant(c);
+// Periods from .. to - 1 under a slowly turning voltage.
+std::vector<hal::SensorSample> steps(Plant& plant, std::uint32_t from, std::uint32_t to) {
   std::vector<hal::SensorSample> out;
-  for (std::uint32_t k = 0; k < 3000; ++k) {
+  for (std::uint32_t k = from; k < to; ++k) {
     hal::InverterCommand cmd;
     cmd.sequence = k;
     cmd.enable = k > 10;
@@ -246,6 +242,20 @@ std::vector<hal::SensorSample> run(std::uint64_t seed) {
     out.push_back(plant.step(cmd));
   }
   return out;
+}
+
+PlantConfig noisy(std::uint64_t seed) {
+  PlantConfig c;  // reference profile: every noise source on
+  c.simulation.seed = seed;
+  c.phase_voltage_sensing.enabled = true;
+  return c;
+}
+
+std::vector<hal::SensorSample> run(std::uint64_t seed) {
+  PlantConfig c = noisy(seed);
+  hold_shaft(c, 120.0);
+  Plant plant(c);
+  return steps(plant, 0, 3000);
 }
 
 bool same_stream(const std::vector<hal::SensorSample>& a, const std::vector<hal::SensorSample>& b) {
@@ -268,6 +278,30 @@ TEST(plant_sensors, SameSeedSameStreamDifferentSeedDifferentStream) {
   const auto other = run(43);
   EXPECT_TRUE(same_stream(a, b));
   EXPECT_FALSE(same_stream(a, other));
+}
+
+// A copy carries on as the original would, noise and shaft included (the simulator forks the
+// disturbance metric's twin so), and a copy assigned over another plant as well.
+TEST(plant_sensors, ACopyCarriesOnAsTheOriginal) {
+  Plant original(noisy(7));
+  steps(original, 0, 2000);
+  const Plant copy_source = original;  // a copy taken mid-run
+  Plant copy = copy_source;
+  Plant assigned(noisy(8));
+  steps(assigned, 0, 500);
+  assigned = copy_source;
+  const auto a = steps(original, 2000, 5000);
+  const auto b = steps(copy, 2000, 5000);
+  const auto c = steps(assigned, 2000, 5000);
+  EXPECT_TRUE(same_stream(a, b));
+  EXPECT_TRUE(same_stream(a, c));
+  EXPECT_EQ(original.state().omega_m_rad_s, copy.state().omega_m_rad_s);
+  EXPECT_EQ(original.state().winding_temp_C, assigned.state().winding_temp_C);
+  EXPECT_NE(original.state().omega_m_rad_s, 0.0) << "the shaft turns: its state is part of what is copied";
+  // ... where a plant that did not take the copy (its own noise, the same commands) is another.
+  Plant other(noisy(8));
+  steps(other, 0, 2000);
+  EXPECT_FALSE(same_stream(a, steps(other, 2000, 5000)));
 }
 
 }  // namespace

@@ -8,16 +8,12 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
-#include <exception>
 #include <fstream>
-#include <condition_variable>
 #include <deque>
-#include <functional>
 #include <limits>
-#include <mutex>
 #include <numbers>
+#include <optional>
 #include <stdexcept>
-#include <thread>
 
 #include <fmt/format.h>
 
@@ -131,6 +127,7 @@ class DisturbanceMeter {
     }
   }
 
+  [[nodiscard]] std::size_t after() const noexcept { return after_; }
   [[nodiscard]] const Disturbance& speed() const noexcept { return speed_; }
   [[nodiscard]] const Disturbance& torque() const noexcept { return torque_; }
 
@@ -183,146 +180,18 @@ class DisturbanceMeter {
   Disturbance torque_;
 };
 
-// The twin's rows on their way to the run's thread, in chunks, with bounded memory: the
-// producer waits while the channel is full, the consumer while it is empty. abandon() lets a
-// producer finish without a consumer (the run failed).
-class FastRowChannel {
- public:
-  static constexpr std::size_t kChunk = 1024;
-  static constexpr std::size_t kMaxChunks = 8;  // at most 8 s of the twin ahead: 200 kB
+// One simulated drive on its plant, and what the runner keeps between its periods. The run is
+// one; its twin without injection is a copy of it (the copy carries on bit for bit: the plant's
+// noise generator and the drive's whole state are values).
+struct Rig {
+  Rig(const Scenario& scenario, const ControllerConfig& controller)
+      : plant(scenario.plant),
+        node(controller, default_supervisor_config(scenario.controller), PublishRates{}) {}
 
-  void push(const FastRow& row) {
-    chunk_.push_back(row);
-    if (chunk_.size() == kChunk) {
-      flush();
-    }
-  }
-  // The producer is done (also after an exception): flushes and wakes the consumer.
-  void close() {
-    flush();
-    const std::lock_guard lock(mutex_);
-    closed_ = true;
-    changed_.notify_all();
-  }
-  void abandon() {
-    const std::lock_guard lock(mutex_);
-    abandoned_ = true;
-    chunks_.clear();
-    changed_.notify_all();
-  }
-  // The next chunk, waiting for it; empty once the producer closed and everything was taken.
-  std::vector<FastRow> pop() {
-    std::unique_lock lock(mutex_);
-    changed_.wait(lock, [&] { return !chunks_.empty() || closed_; });
-    if (chunks_.empty()) {
-      return {};
-    }
-    std::vector<FastRow> chunk = std::move(chunks_.front());
-    chunks_.pop_front();
-    changed_.notify_all();
-    return chunk;
-  }
-
- private:
-  void flush() {
-    if (chunk_.empty()) {
-      return;
-    }
-    std::unique_lock lock(mutex_);
-    changed_.wait(lock, [&] { return chunks_.size() < kMaxChunks || abandoned_; });
-    if (!abandoned_) {
-      chunks_.push_back(std::move(chunk_));
-      changed_.notify_all();
-    }
-    chunk_ = {};
-    chunk_.reserve(kChunk);
-  }
-
-  std::vector<FastRow> chunk_;  // the producer's own
-  std::mutex mutex_;
-  std::condition_variable changed_;
-  std::deque<std::vector<FastRow>> chunks_;
-  bool closed_ = false;
-  bool abandoned_ = false;
-};
-
-// Pairs the run's rows (this thread) with the twin's (from the channel) and feeds the meter.
-class DisturbanceFeed {
- public:
-  DisturbanceFeed(FastRowChannel& twin, DisturbanceMeter& meter) : twin_(twin), meter_(meter) {}
-  void operator()(const FastRow& run) {
-    if (next_ == twin_rows_.size()) {
-      twin_rows_ = twin_.pop();
-      next_ = 0;
-      if (twin_rows_.empty()) {
-        return;  // the twin ended early (its error is reported): nothing to compare
-      }
-    }
-    meter_.add(run, twin_rows_[next_++]);
-  }
-
- private:
-  FastRowChannel& twin_;
-  DisturbanceMeter& meter_;
-  std::vector<FastRow> twin_rows_;
-  std::size_t next_ = 0;
-};
-
-using FastRowSink = std::function<void(const FastRow&)>;
-
-// One closed-loop run. `fast` (optional) receives a row every millisecond for the
-// disturbance figures.
-SimulationResult run_once(const Scenario& scenario, const RunOptions& options, const FastRowSink& fast,
-                          bool store_calibration) {
-  const ScenarioConfig& sc = scenario.scenario;
-  SimulationResult result;
-  result.scenario = sc.name;
-  result.method = method_name(scenario.controller);
-
-  plant::Plant plant(scenario.plant);
-  // The drive's whole per-sample path, as pmsm-thermald runs it; the runner only feeds it
-  // the plant's samples and the scenario's set-points, and measures.
-  // In a scenario operation.calibration_real_time decides for the drive and the plant alike.
-  ControllerConfig controller_config = scenario.controller;
-  controller_config.calibration_real_time = sc.calibration_real_time;
-  DriveNode node(controller_config, default_supervisor_config(scenario.controller), PublishRates{});
-  core::DriveController& drive = node.controller();
-
-  const double ts = plant.period_s();
-  const auto periods = static_cast<std::uint64_t>(std::llround(sc.duration_s / ts));
-  const auto log_every = std::max<std::uint64_t>(1, static_cast<std::uint64_t>(std::llround(sc.log_period_s / ts)));
-
-  if (options.keep_series) {
-    result.series.reserve(periods / log_every + 1);
-  }
-
-  bool calibration_started = false;
-  bool real_time_calibration = false;
-  std::uint32_t latched_before = 0;  // the supervisor's latched faults after the previous period
-  double metrics_from_s = -1.0;  // -1: not yet (calibration, or the first estimate, pending)
-  std::size_t covered = 0;        // counted samples with the truth inside +-2 sigma
-  double injection_energy_J = 0.0;
-  std::uint64_t injection_periods = 0;
-  bool fast_injection = false;
-  double fast_speed_sum = 0.0;
-  double fast_torque_sum = 0.0;
-  plant::PlantState truth = plant.state();
-  TruthHistory history;
-  history.record(plant.time_s(), truth.rs_ohm, truth.winding_temp_C);
-  double sq_err = 0.0, sum_err = 0.0, sq_rs = 0.0, sq_magnet = 0.0;
-  std::size_t rs_compared = 0;
-  double rel_rs_sum = 0.0;  // fused estimates' relative error at their own time
-  std::size_t rel_rs_count = 0;
-  std::size_t magnet_covered = 0;
-
-  const auto wall_start = std::chrono::steady_clock::now();
-  auto last_progress = wall_start;
-  const bool tty = options.progress && isatty(STDERR_FILENO) != 0;
-
-  for (std::uint64_t k = 0; k < periods; ++k) {
+  // The period's set-points as the scenario gives them at the plant's time, with the plant's
+  // ambient and the start of the calibration (in real time, for the drive and the plant alike).
+  NodeInputs inputs(const ScenarioConfig& sc) {
     const double t = plant.time_s();
-    const hal::SensorSample& sample = plant.sample();
-
     NodeInputs cmd;
     cmd.mode = sc.mode;
     cmd.speed_ref_rad_s = sc.speed_rad_s.at(t);
@@ -342,8 +211,234 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
         real_time_calibration = true;
       }
     }
+    return cmd;
+  }
 
-    const NodeStep& step = node.step(&sample, cmd);
+  // After the drive's step: a calibration in real time that ended gives the plant back its
+  // thermal acceleration. Returns whether it did.
+  bool end_real_time_calibration(double acceleration) {
+    if (!real_time_calibration || node.controller().telemetry().calibrating) {
+      return false;
+    }
+    plant.set_thermal_acceleration(acceleration);
+    real_time_calibration = false;
+    return true;
+  }
+
+  // The period's share of the 1 ms row (speed and torque at the sample the step consumed); the
+  // row when period k completes one.
+  std::optional<FastRow> accumulate(std::uint64_t k, const plant::PlantState& truth, bool injection, bool counted) {
+    fast_injection = fast_injection || injection;
+    fast_speed_sum += truth.omega_m_rad_s;
+    fast_torque_sum += truth.torque_em_Nm;
+    if (k % kFastEvery != kFastEvery - 1) {
+      return std::nullopt;
+    }
+    const FastRow row{fast_speed_sum / kFastEvery, fast_torque_sum / kFastEvery, fast_injection, counted};
+    fast_injection = false;
+    fast_speed_sum = 0.0;
+    fast_torque_sum = 0.0;
+    return row;
+  }
+
+  // The plant's period under the drive's command.
+  void finish(const NodeStep& step) {
+    plant.step(*step.command);
+    if (plant.diverged()) {
+      throw PlantDivergedError(fmt::format(
+          "the plant's model diverged at {:.6g} s (its currents or speed are no longer numbers): a machine its "
+          "integration cannot follow; check [plant.motor] and plant.simulation.substeps",
+          plant.diverged_at_s()));
+    }
+  }
+
+  plant::Plant plant;
+  DriveNode node;
+  bool calibration_started = false;
+  bool real_time_calibration = false;
+  bool fast_injection = false;
+  double fast_speed_sum = 0.0;
+  double fast_torque_sum = 0.0;
+};
+
+// The disturbance metric's twin: the same drive without injection. Running a second drive
+// beside the whole run would double the simulation's cost for the few hundred milliseconds
+// around each event that the metric compares; the twin instead forks from the run where an
+// event begins and lives until the metric has judged the event's last row.
+// - A snapshot of the run is taken between events: a few periods before the next scheduled
+//   event is due, and every RunOptions::twin_snapshot_periods for the events a request starts
+//   (a copy of the plant and the drive: about 0.7 M instructions, most of it the pair
+//   recorder's buffers, without allocation after the first).
+// - When the run's drive starts an event in period k, the twin is the snapshot stepped to
+//   period k - 1 exactly as the run was (the same state, set-points and noise), then told to
+//   start no event (DriveController::hold_injection_events) before its period k. Until the
+//   event the two are the same bit for bit; from it on they differ by the injection alone,
+//   noise included.
+// - It lives until the run is between events again and the rows the metric judges as during
+//   the event (`after` rows past its last injection row) have their steadiness windows
+//   (2 half + 1 rows more); away from it the twin's rows are the run's own.
+class ForkedTwin {
+ public:
+  ForkedTwin(const Rig& run, std::size_t after, std::uint64_t snapshot_every)
+      : snapshot_every_(std::max<std::uint64_t>(1, snapshot_every)),
+        snapshot_(run),
+        twin_(run),
+        tail_rows_(after + 2 * (after / 2) + 2) {}
+
+  // At the start of period k of the run, before its step.
+  void before(const Rig& run, std::uint64_t k) {
+    const core::DriveController& drive = run.node.controller();
+    if (alive_ || !drive.between_injection_events()) {
+      return;
+    }
+    const double next_event_s = drive.next_injection_event_s();
+    const bool event_due = next_event_s != snapshot_event_s_ &&
+                           next_event_s - drive.telemetry().time_s <= kLeadPeriods * run.plant.period_s();
+    if (event_due || snapshot_stale_ || k >= snapshot_k_ + snapshot_every_) {
+      snapshot_ = run;
+      snapshot_k_ = k;
+      snapshot_stale_ = false;
+      snapshot_event_s_ = event_due ? next_event_s : snapshot_event_s_;
+    }
+  }
+
+  // After the run's step in period k (its drive's step done, its plant not yet stepped): the
+  // twin's own period k, forked first when the run's drive has just begun an event. The twin's
+  // row for a row the run completes in period k, if any.
+  std::optional<FastRow> step(const Rig& run, const ScenarioConfig& sc, double acceleration, std::uint64_t k) {
+    if (!alive_) {
+      if (run.node.controller().between_injection_events()) {
+        return std::nullopt;
+      }
+      const auto start = std::chrono::steady_clock::now();
+      twin_ = snapshot_;
+      for (std::uint64_t j = snapshot_k_; j < k; ++j) {
+        period(sc, acceleration, j, true);  // the run's own periods again: the rows are the run's
+      }
+      twin_.node.controller().hold_injection_events();
+      alive_ = true;
+      rows_since_injection_ = 0;
+      wall_s_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    }
+    const auto start = std::chrono::steady_clock::now();
+    std::optional<FastRow> row = period(sc, acceleration, k, false);
+    periods_ += 1;
+    wall_s_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    return row;
+  }
+
+  // The run's row and the twin's for the metric (the run's own where no twin runs); ends the
+  // twin once the metric needs it no more.
+  FastRow row_after(const Rig& run, const FastRow& run_row, const std::optional<FastRow>& twin_row) {
+    if (!alive_ || !twin_row) {
+      return run_row;
+    }
+    rows_since_injection_ = run_row.injection ? 0 : rows_since_injection_ + 1;
+    if (rows_since_injection_ >= tail_rows_ && run.node.controller().between_injection_events()) {
+      alive_ = false;
+      snapshot_stale_ = true;  // the next snapshot as soon as the run allows one
+    }
+    return *twin_row;
+  }
+
+  // The run's plant got its thermal acceleration back (the end of a real-time calibration):
+  // the twin's too, and no snapshot from before.
+  void acceleration_changed(double acceleration) {
+    if (alive_) {
+      twin_.plant.set_thermal_acceleration(acceleration);
+      twin_.real_time_calibration = false;
+    }
+    snapshot_stale_ = true;
+  }
+
+  [[nodiscard]] double wall_s() const noexcept { return wall_s_; }
+  [[nodiscard]] std::uint64_t periods() const noexcept { return periods_; }
+
+ private:
+  // One period of the twin: in a catch-up (`replay`) the run's own, afterwards without events.
+  std::optional<FastRow> period(const ScenarioConfig& sc, double acceleration, std::uint64_t k, bool replay) {
+    Rig& t = twin_;
+    const NodeInputs cmd = t.inputs(sc);
+    const NodeStep& step = t.node.step(&t.plant.sample(), cmd);
+    if (replay) {
+      t.end_real_time_calibration(acceleration);  // the run's rule: the twin is the run until the fork
+    }
+    const std::optional<FastRow> row = t.accumulate(k, t.plant.state(), false, false);
+    t.finish(step);
+    return row;
+  }
+
+  static constexpr double kLeadPeriods = 3.0;  // the scheduled event's snapshot: at most this early
+
+  std::uint64_t snapshot_every_;  // RunOptions::twin_snapshot_periods
+  Rig snapshot_;
+  std::uint64_t snapshot_k_ = 0;
+  double snapshot_event_s_ = -1.0;  // the scheduled event the last snapshot was taken for
+  bool snapshot_stale_ = false;
+  Rig twin_;  // a copy of the snapshot while alive_ (assigned: no allocation after the first)
+  bool alive_ = false;
+  std::size_t tail_rows_;
+  std::size_t rows_since_injection_ = 0;
+  double wall_s_ = 0.0;
+  std::uint64_t periods_ = 0;
+};
+
+// One closed-loop run; with `meter`, its twin without injection beside it (ForkedTwin) and
+// the disturbance figures.
+SimulationResult run_once(const Scenario& scenario, const RunOptions& options, DisturbanceMeter* meter) {
+  const ScenarioConfig& sc = scenario.scenario;
+  SimulationResult result;
+  result.scenario = sc.name;
+  result.method = method_name(scenario.controller);
+
+  // The drive's whole per-sample path, as pmsm-thermald runs it; the runner only feeds it
+  // the plant's samples and the scenario's set-points, and measures.
+  // In a scenario operation.calibration_real_time decides for the drive and the plant alike.
+  ControllerConfig controller_config = scenario.controller;
+  controller_config.calibration_real_time = sc.calibration_real_time;
+  Rig run(scenario, controller_config);
+  plant::Plant& plant = run.plant;
+  DriveNode& node = run.node;
+  core::DriveController& drive = node.controller();
+  std::optional<ForkedTwin> twin;
+  if (meter != nullptr) {
+    twin.emplace(run, meter->after(), options.twin_snapshot_periods);
+  }
+
+  const double ts = plant.period_s();
+  const auto periods = static_cast<std::uint64_t>(std::llround(sc.duration_s / ts));
+  const auto log_every = std::max<std::uint64_t>(1, static_cast<std::uint64_t>(std::llround(sc.log_period_s / ts)));
+
+  if (options.keep_series) {
+    result.series.reserve(periods / log_every + 1);
+  }
+
+  std::uint32_t latched_before = 0;  // the supervisor's latched faults after the previous period
+  double metrics_from_s = -1.0;  // -1: not yet (calibration, or the first estimate, pending)
+  std::size_t covered = 0;        // counted samples with the truth inside +-2 sigma
+  double injection_energy_J = 0.0;
+  std::uint64_t injection_periods = 0;
+  plant::PlantState truth = plant.state();
+  TruthHistory history;
+  history.record(plant.time_s(), truth.rs_ohm, truth.winding_temp_C);
+  double sq_err = 0.0, sum_err = 0.0, sq_rs = 0.0, sq_magnet = 0.0;
+  std::size_t rs_compared = 0;
+  double rel_rs_sum = 0.0;  // fused estimates' relative error at their own time
+  std::size_t rel_rs_count = 0;
+  std::size_t magnet_covered = 0;
+
+  const auto wall_start = std::chrono::steady_clock::now();
+  auto last_progress = wall_start;
+  const bool tty = options.progress && isatty(STDERR_FILENO) != 0;
+
+  for (std::uint64_t k = 0; k < periods; ++k) {
+    const double t = plant.time_s();
+    if (twin) {
+      twin->before(run, k);
+    }
+    const NodeInputs cmd = run.inputs(sc);
+    const NodeStep& step = node.step(&plant.sample(), cmd);
+    const std::optional<FastRow> twin_row = twin ? twin->step(run, sc, scenario.plant.thermal.acceleration, k) : std::nullopt;
     const core::DriveTelemetry& tel = drive.telemetry();
     if (const std::uint32_t latched = node.supervisor().status().latched_mask; latched != latched_before) {
       // A code latched for the first time: when (the supervisor counts the latches).
@@ -364,9 +459,8 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
       history.record(plant.time_s(), truth.rs_ohm, truth.winding_temp_C);
     }
 
-    if (real_time_calibration && !tel.calibrating) {
-      plant.set_thermal_acceleration(scenario.plant.thermal.acceleration);
-      real_time_calibration = false;
+    if (run.end_real_time_calibration(scenario.plant.thermal.acceleration) && twin) {
+      twin->acceleration_changed(scenario.plant.thermal.acceleration);
     }
     if (drive.inverter_sweep_completed()) {
       result.inverter_sweep = *drive.inverter_sweep_completed();
@@ -392,7 +486,7 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
       result.calibration_rs0_std_ohm = tel.calibration_rs0_std_ohm;
       result.calibration_time_s = t;
       metrics_from_s = t;
-      if (store_calibration && !scenario.controller.calibration_file.empty()) {
+      if (!scenario.controller.calibration_file.empty()) {
         try {
           write_calibration_file(scenario.controller.calibration_file, result.calibration,
                                  scenario.source.filename().string());
@@ -463,17 +557,9 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
     const double inj_sq = tel.injection_A.d * tel.injection_A.d + tel.injection_A.q * tel.injection_A.q;
     injection_energy_J += 1.5 * truth.rs_ohm * inj_sq * ts;
     injection_periods += tel.injection_active ? 1U : 0U;
-    fast_injection = fast_injection || tel.injection_active;
-    fast_speed_sum += truth.omega_m_rad_s;
-    fast_torque_sum += truth.torque_em_Nm;
-    if (fast_now) {
-      const bool counted = metrics_from_s >= 0.0 && t >= metrics_from_s;
-      if (fast) {
-        fast({fast_speed_sum / kFastEvery, fast_torque_sum / kFastEvery, fast_injection, counted});
-      }
-      fast_injection = false;
-      fast_speed_sum = 0.0;
-      fast_torque_sum = 0.0;
+    const bool counted = metrics_from_s >= 0.0 && t >= metrics_from_s;
+    if (const std::optional<FastRow> row = run.accumulate(k, truth, tel.injection_active, counted); row && twin) {
+      meter->add(*row, twin->row_after(run, *row, twin_row));
     }
 
     if (log_now) {
@@ -533,13 +619,7 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
       }
     }
 
-    plant.step(*step.command);
-    if (plant.diverged()) {
-      throw PlantDivergedError(fmt::format(
-          "the plant's model diverged at {:.6g} s (its currents or speed are no longer numbers): a machine its "
-          "integration cannot follow; check [plant.motor] and plant.simulation.substeps",
-          plant.diverged_at_s()));
-    }
+    run.finish(step);
 
     if (tty && (k & 0x3FFF) == 0) {
       const auto now = std::chrono::steady_clock::now();
@@ -560,6 +640,10 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, c
     result.faults[c].count = node.supervisor().counts()[c];
   }
   result.wall_time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
+  if (twin) {
+    result.twin_wall_time_s = twin->wall_s();
+    result.twin_sim_time_s = static_cast<double>(twin->periods()) * ts;
+  }
   result.magnet_rejected = drive.telemetry().magnet_rejected;
   result.magnet_last_refusal = drive.telemetry().magnet_last_refusal.reason;
   result.magnet_last_refused_C = drive.telemetry().magnet_last_refusal.reading_C;
@@ -615,56 +699,16 @@ SimulationResult run_scenario(const Scenario& given, const RunOptions& options) 
   const core::DriveConfig& d = scenario.controller.drive;
   const bool injects = d.estimator == core::EstimatorKind::kInjection && d.injection.method != core::InjectionMethod::kNone;
   const bool with_twin = injects && options.twin_for_disturbance;
-  // The twin is the same drive without injection, for the disturbance metric only: its
-  // model-only thermal estimate (whose band widens without measurements) must not derate it
-  // to a different operating point, or the metric would measure the derating. It runs on a
-  // second thread beside the run (they share nothing but read-only tables).
-  Scenario twin = scenario;
-  twin.controller.drive.estimator = core::EstimatorKind::kNone;
-  twin.controller.drive.derating.derate_start_C = 1e6;
-  twin.controller.drive.derating.limit_C = 1e6 + 1.0;
-  RunOptions twin_options = options;
-  twin_options.progress = false;
-  twin_options.keep_series = false;
-  twin_options.keep_estimates = false;
-  twin_options.log_events = false;
   const ScenarioConfig& sc = scenario.scenario;
   const auto after = static_cast<std::size_t>(std::llround(sc.disturbance_window_s / (d.period_s * kFastEvery)));
   DisturbanceMeter meter(after, d.motor.rated_speed_rad_s, sc.rated_torque_Nm);
-  FastRowChannel twin_rows;
-  double twin_wall_s = 0.0;
-  std::exception_ptr twin_error;
-  std::thread twin_thread;
-  if (with_twin) {
-    twin_thread = std::thread([&] {
-      try {
-        twin_wall_s = run_once(twin, twin_options, [&](const FastRow& row) { twin_rows.push(row); }, false).wall_time_s;
-      } catch (...) {
-        twin_error = std::current_exception();
-      }
-      twin_rows.close();
-    });
-  }
-  DisturbanceFeed feed(twin_rows, meter);
-  SimulationResult result;
-  try {
-    result = run_once(scenario, options, with_twin ? FastRowSink{std::ref(feed)} : FastRowSink{}, true);
-  } catch (...) {
-    twin_rows.abandon();
-    if (twin_thread.joinable()) twin_thread.join();
-    throw;
-  }
-  if (twin_thread.joinable()) twin_thread.join();
-  if (twin_error) {
-    std::rethrow_exception(twin_error);
-  }
+  SimulationResult result = run_once(scenario, options, with_twin ? &meter : nullptr);
   result.calibration_file = scenario.controller.calibration_file;
   result.calibration_at_start = stored;
   if (!with_twin) {
     result.wall_time_s = wall_s();
     return result;
   }
-  result.twin_wall_time_s = twin_wall_s;
   const Disturbance& speed = meter.speed();
   const Disturbance& torque = meter.torque();
   result.disturbance_measured = true;
@@ -818,6 +862,7 @@ std::string result_json(const SimulationResult& r) {
       .field("sim_time_s", r.sim_time_s)
       .field("wall_time_s", r.wall_time_s)
       .field("twin_wall_time_s", r.twin_wall_time_s)
+      .field("twin_sim_time_s", r.twin_sim_time_s)
       .field("sim_speed_ratio", r.wall_time_s > 0.0 ? r.sim_time_s / r.wall_time_s : kNan)
       .end_object();
   return j.str();
@@ -926,7 +971,8 @@ std::string result_text(const SimulationResult& r) {
                          : std::string(" (not resolved: incremental = secant)"));
   out += fmt::format("  simulated {:.1f} s in {:.1f} s ({:.1f}x real time{})\n", r.sim_time_s, r.wall_time_s,
                      r.wall_time_s > 0 ? r.sim_time_s / r.wall_time_s : 0.0,
-                     r.twin_wall_time_s > 0 ? fmt::format("; the twin without injection took {:.1f} s on a second thread", r.twin_wall_time_s)
+                     r.twin_wall_time_s > 0 ? fmt::format("; of which {:.1f} s the twin without injection, beside {:.1f} s of the run",
+                                                          r.twin_wall_time_s, r.twin_sim_time_s)
                                             : std::string());
   return out;
 }

@@ -24,9 +24,15 @@ struct PlantDivergedError : std::runtime_error {
 
 struct RunOptions {
   bool progress = false;            // a progress line on stderr (for terminals)
-  // Measure speed and torque disturbance against a twin run of the same scenario without
-  // injection (same seed, same cycle): the difference is what the injection caused.
+  // Measure speed and torque disturbance against a twin of the run without injection, forked
+  // from it where each event begins (the same state, set-points and noise from there on): the
+  // difference is what the injection caused.
   bool twin_for_disturbance = true;
+  // The twin forks from a snapshot of the run taken between events, a few periods before each
+  // scheduled event, and at most this many periods apart for the events a request starts (a
+  // copy of the plant and the drive each time; a longer interval costs more catch-up from the
+  // snapshot to such an event). The figures do not depend on it.
+  std::uint64_t twin_snapshot_periods = 2000;
   bool log_events = false;          // keep a line per event that published nothing
   // Keep the time series (SimulationResult::series, for a CSV or a plot) and the published
   // estimates (estimates: --events, plots). The figures do not need them: they are computed as
@@ -121,10 +127,11 @@ struct SimulationResult {
   [[nodiscard]] std::size_t estimates_published() const noexcept { return estimates_accepted + estimates_gated; }
   core::OutcomeCounts pairs{};          // every pair's outcome
   std::size_t field_weakening_pairs_accepted = 0;  // of the accepted: at the voltage limit (-lo, -F)
-  // Disturbance: the largest difference from the twin run without injection, during an
-  // injection event and the disturbance window after it (speed relative to the speed, at
-  // least 10 % of rated; torque relative to rated torque), and the same difference outside
-  // (how far the two runs drift apart for other reasons); both only where the twin runs
+  // Disturbance: the largest difference from the twin without injection (forked from the run
+  // where each event begins, RunOptions::twin_for_disturbance), during an injection event and
+  // the disturbance window after it (speed relative to the speed, at least 10 % of rated;
+  // torque relative to rated torque), and the same difference outside (what remains after the
+  // window while the twin still runs; zero away from the events); both only where the twin runs
   // steadily (its speed within 0.5 % of its 50 ms moving average), so that the scenario's
   // own steps do not count.
   bool disturbance_measured = false;
@@ -189,7 +196,10 @@ struct SimulationResult {
   // Wall time of everything the scenario cost: the run, the twin without injection (for the
   // disturbance metric) and the metrics; sim_speed_ratio = sim_time_s / wall_time_s.
   double wall_time_s = 0.0;
-  double twin_wall_time_s = 0.0;  // the twin's own wall time, on a second thread beside the run (0 without a twin)
+  // The twin's own share of wall_time_s (0 without a twin), and the simulated time it ran
+  // beside the run (around the events; its catch-ups from a snapshot not counted).
+  double twin_wall_time_s = 0.0;
+  double twin_sim_time_s = 0.0;
   std::vector<SeriesRow> series;
   std::vector<EstimateRow> estimates;
   std::array<std::uint32_t, 5> events_without_estimate{};  // by EventOutcome

@@ -357,6 +357,15 @@ class DriveController {
   // during a calibration they take effect once it ends. Returns whether anything changed.
   bool configure_injection(InjectionMethod method, Separation separation, double f_A, double interval_s);
 
+  // Injection events (InjectionScheduler::between_events, hold_events): whether none is in
+  // progress, and from here on none starts (events held). The simulator forks its twin without injection
+  // from a copy of the drive taken between events.
+  [[nodiscard]] bool between_injection_events() const { return scheduler_.between_events(); }
+  // When the next scheduled event is due (drive time; an operator's or a calibration's request
+  // may start one sooner).
+  [[nodiscard]] double next_injection_event_s() const { return scheduler_.next_event_s(); }
+  void hold_injection_events() { scheduler_.hold_events(); }
+
   // Thermal time scale of the controller's model (the test acceleration; 1 on a machine).
   // The magnet estimate's age keeps the thermal time it had (magnet_age_now_s() scales the time
   // since the last thermal update by the scale in force).

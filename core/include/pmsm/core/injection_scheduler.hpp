@@ -396,6 +396,12 @@ class InjectionScheduler {
   [[nodiscard]] const InjectionConfig& config() const { return config_; }
   [[nodiscard]] SchedulerPhase phase() const { return phase_; }
   [[nodiscard]] double next_event_s() const { return next_event_s_; }
+  // Between events: no event in progress and none started (what the drive does next is
+  // motoring alone until the next event begins).
+  [[nodiscard]] bool between_events() const { return phase_ == SchedulerPhase::kIdle && !in_event_; }
+  // No event starts from here on, by schedule or request (an event in progress carries on):
+  // the simulator's twin, the same drive from the same state without injection.
+  void hold_events() { held_ = true; }
   // Whether the next step() may read its sample, whose angle (PeriodSample::theta_e_rad) is
   // sample_theta_e_rad: in a recording, and in the waits before one only once the sample's angle
   // has reached it (recording 2's start, a fixed-angle pulse's arc); a pair's ramps and
@@ -553,6 +559,7 @@ class InjectionScheduler {
   double retry_after_s_ = 0.0;      // a request waits until then after an event that yielded nothing
   int level_index_ = 0;             // next level of the event in progress
   bool in_event_ = false;
+  bool held_ = false;               // hold_events()
   BlockedSums event_sums_{};        // accepted pairs of the event, summed
   std::array<BlockedSums, InjectionConfig::kMaxLevels> event_pair_sums_{};  // and one by one
   // Their means, one computed per control period once the pairs are done (finish_event).

@@ -68,8 +68,8 @@ class Plant {
  public:
   explicit Plant(const PlantConfig& config);
   ~Plant();
-  Plant(const Plant&) = delete;
-  Plant& operator=(const Plant&) = delete;
+  Plant(const Plant&);
+  Plant& operator=(const Plant&);
   Plant(Plant&&) noexcept;
   Plant& operator=(Plant&&) noexcept;
 
