@@ -6,7 +6,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 build=${1:-build/release}
-jobs=${JOBS:-$(nproc)}   # scenarios at a time (simulate -j), one thread each
+jobs=${JOBS:-$(nproc)}   # scenarios at a time (simulate -j); each steps its twin on a second thread
 if [ ! -x "$build/tools/pmsm-thermal" ]; then
   cmake --preset release >/dev/null
   cmake --build --preset release --target pmsm-thermal

@@ -1105,8 +1105,13 @@ Plant::Plant(Plant&&) noexcept = default;
 // commands, it gives the same samples (the simulator forks its twin so).
 Plant::Plant(const Plant& other) : impl_(std::make_unique<Impl>(*other.impl_)) {}
 Plant& Plant::operator=(const Plant& other) {
-  if (this != &other) {
+  if (this == &other) {
+    return *this;
+  }
+  if (impl_) {
     *impl_ = *other.impl_;  // the configuration's vectors keep their capacity: no allocation after the first
+  } else {
+    impl_ = std::make_unique<Impl>(*other.impl_);  // a moved-from plant
   }
   return *this;
 }

@@ -403,24 +403,28 @@ TEST(SimulateMemory, FiguresDoNotDependOnWhatIsKept) {
 }
 
 // The twin forks from a snapshot of the run taken between events and catches up to the
-// event's start: how often the snapshots are taken changes no figure, to the last digit (a
-// catch-up one period short or long, or from a snapshot taken inside an event, would move the
-// twin's rows against the run's). And the twin runs around the events only.
-TEST(SimulateTwin, FiguresDoNotDependOnTheSnapshots) {
+// event's start, on the run's thread or on its own: how often the snapshots are taken and where
+// the twin runs change no figure, to the last digit (a catch-up one period short or long, a
+// snapshot taken inside an event, or a row paired with the wrong one of the twin's would move
+// the twin's rows against the run's). And the twin runs around the events only.
+TEST(SimulateTwin, FiguresDoNotDependOnTheSnapshotsOrTheThread) {
   Scenario s = load_scenario(kData / "heatup-short.toml");
   s.scenario.duration_s = 12.0;
   RunOptions options;
   options.keep_series = false;
   options.keep_estimates = false;
   options.twin_snapshot_periods = 1;
+  options.twin_thread = false;
   const SimulationResult every = run_scenario(s, options);
-  for (const std::uint64_t periods : {std::uint64_t{200}, std::uint64_t{1999}}) {
+  for (const auto& [periods, thread] : {std::pair<std::uint64_t, bool>{1, true}, {200, false}, {1999, true}, {2000, false}}) {
     options.twin_snapshot_periods = periods;
+    options.twin_thread = thread;
     const SimulationResult r = run_scenario(s, options);
-    SCOPED_TRACE(periods);
+    SCOPED_TRACE(::testing::Message() << periods << (thread ? " periods, twin on its thread" : " periods, one thread"));
     ASSERT_TRUE(r.disturbance_measured);
     EXPECT_EQ(r.speed_disturbance_pct, every.speed_disturbance_pct);
     EXPECT_EQ(r.torque_disturbance_pct, every.torque_disturbance_pct);
+    EXPECT_EQ(r.torque_disturbance_mean_pct, every.torque_disturbance_mean_pct);
     EXPECT_EQ(r.speed_disturbance_at_s, every.speed_disturbance_at_s);
     EXPECT_EQ(r.speed_difference_outside_pct, every.speed_difference_outside_pct);
     EXPECT_EQ(r.torque_difference_outside_pct, every.torque_difference_outside_pct);
@@ -430,6 +434,31 @@ TEST(SimulateTwin, FiguresDoNotDependOnTheSnapshots) {
   EXPECT_GT(every.speed_disturbance_pct, 0.0) << "the twin injects nothing: the pulses move the shaft";
   EXPECT_GT(every.twin_sim_time_s, 0.0);
   EXPECT_LT(every.twin_sim_time_s, 0.8 * every.sim_time_s) << "the twin runs around the events, not beside the whole run";
+}
+
+// The twin lives as long as the metric needs it: living longer changes no figure during
+// injection (only the comparison after the window, where it then runs longer). A twin that
+// stopped before an event's last rows judged as during it would have them compared with the
+// run's own rows (a difference of zero), which moves the means (checked: a twin 60 rows short
+// fails here; one 10 rows short, whose last rows' steadiness windows alone lack it, does not).
+TEST(SimulateTwin, LivingLongerChangesNoFigureDuringInjection) {
+  Scenario s = load_scenario(kData / "heatup-short.toml");
+  s.scenario.duration_s = 12.0;
+  RunOptions options;
+  options.keep_series = false;
+  options.keep_estimates = false;
+  const SimulationResult r = run_scenario(s, options);
+  options.twin_extra_rows = 30;  // 30 ms: shorter than the gaps between events, so no two merge
+  const SimulationResult longer = run_scenario(s, options);
+  EXPECT_EQ(r.speed_disturbance_pct, longer.speed_disturbance_pct);
+  EXPECT_EQ(r.torque_disturbance_pct, longer.torque_disturbance_pct);
+  EXPECT_EQ(r.torque_disturbance_at_s, longer.torque_disturbance_at_s);
+  // The means count every row judged: one compared with the run's own row in place of the
+  // twin's (a difference of zero) would move them.
+  EXPECT_EQ(r.speed_disturbance_mean_pct, longer.speed_disturbance_mean_pct);
+  EXPECT_EQ(r.torque_disturbance_mean_pct, longer.torque_disturbance_mean_pct);
+  EXPECT_GT(r.torque_disturbance_mean_pct, 0.0);
+  EXPECT_GT(longer.twin_sim_time_s, r.twin_sim_time_s) << "the longer twin did run longer";
 }
 
 // A figure with no row to judge is none (NaN, null in the JSON, a dash in the tables), not a

@@ -290,11 +290,15 @@ TEST(plant_sensors, ACopyCarriesOnAsTheOriginal) {
   Plant assigned(noisy(8));
   steps(assigned, 0, 500);
   assigned = copy_source;
+  Plant moved_from(noisy(9));
+  const Plant moved_to(std::move(moved_from));
+  moved_from = copy_source;  // NOLINT(bugprone-use-after-move): assigning revives a moved-from plant
   const auto a = steps(original, 2000, 5000);
   const auto b = steps(copy, 2000, 5000);
   const auto c = steps(assigned, 2000, 5000);
   EXPECT_TRUE(same_stream(a, b));
   EXPECT_TRUE(same_stream(a, c));
+  EXPECT_TRUE(same_stream(a, steps(moved_from, 2000, 5000)));
   EXPECT_EQ(original.state().omega_m_rad_s, copy.state().omega_m_rad_s);
   EXPECT_EQ(original.state().winding_temp_C, assigned.state().winding_temp_C);
   EXPECT_NE(original.state().omega_m_rad_s, 0.0) << "the shaft turns: its state is part of what is copied";

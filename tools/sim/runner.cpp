@@ -5,15 +5,21 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
-#include <fstream>
+#include <condition_variable>
 #include <deque>
+#include <exception>
+#include <fstream>
 #include <limits>
+#include <memory>
+#include <mutex>
 #include <numbers>
 #include <optional>
 #include <stdexcept>
+#include <thread>
 
 #include <fmt/format.h>
 
@@ -52,6 +58,7 @@ struct FastRow {
 
 struct Disturbance {
   double during = 0.0;
+  double during_sum = 0.0;      // of the rows judged during injection (their mean)
   double outside = 0.0;
   std::size_t during_row = 0;   // where the largest difference during injection occurred
   std::size_t during_rows = 0;  // rows judged during injection and away from it: a figure of
@@ -127,6 +134,10 @@ class DisturbanceMeter {
     }
   }
 
+  // A twin forked before the next row: until the fork it is the run, so the torque rows its
+  // moving average trails are the run's (not those of a twin that ended just before).
+  void fork() noexcept { twin_torque_ = run_torque_; }
+
   [[nodiscard]] std::size_t after() const noexcept { return after_; }
   [[nodiscard]] const Disturbance& speed() const noexcept { return speed_; }
   [[nodiscard]] const Disturbance& torque() const noexcept { return torque_; }
@@ -159,6 +170,7 @@ class DisturbanceMeter {
       return;
     }
     ++d.during_rows;
+    d.during_sum += deviation;
     if (deviation > d.during) {
       d.during = deviation;
       d.during_row = k;
@@ -246,14 +258,15 @@ struct Rig {
     plant.step(*step.command);
     if (plant.diverged()) {
       throw PlantDivergedError(fmt::format(
-          "the plant's model diverged at {:.6g} s (its currents or speed are no longer numbers): a machine its "
+          "{}the plant's model diverged at {:.6g} s (its currents or speed are no longer numbers): a machine its "
           "integration cannot follow; check [plant.motor] and plant.simulation.substeps",
-          plant.diverged_at_s()));
+          twin ? "the disturbance metric's twin (the run without injection): " : "", plant.diverged_at_s()));
     }
   }
 
   plant::Plant plant;
   DriveNode node;
+  bool twin = false;  // the disturbance metric's twin (its errors say so)
   bool calibration_started = false;
   bool real_time_calibration = false;
   bool fast_injection = false;
@@ -268,7 +281,7 @@ struct Rig {
 // - A snapshot of the run is taken between events: a few periods before the next scheduled
 //   event is due, and every RunOptions::twin_snapshot_periods for the events a request starts
 //   (a copy of the plant and the drive: about 0.7 M instructions, most of it the pair
-//   recorder's buffers, without allocation after the first).
+//   recorder's buffers).
 // - When the run's drive starts an event in period k, the twin is the snapshot stepped to
 //   period k - 1 exactly as the run was (the same state, set-points and noise), then told to
 //   start no event (DriveController::hold_injection_events) before its period k. Until the
@@ -277,13 +290,20 @@ struct Rig {
 // - It lives until the run is between events again and the rows the metric judges as during
 //   the event (`after` rows past its last injection row) have their steadiness windows
 //   (2 half + 1 rows more); away from it the twin's rows are the run's own.
-class ForkedTwin {
+// The run's side (TwinSchedule) decides all of that from the run alone; the twin's side
+// (TwinStepper) steps the twin as far as the rows asked of it, on the run's thread or on one of
+// its own (TwinLink): the figures are the same either way.
+
+// The run's side: the snapshots, and when the twin runs.
+class TwinSchedule {
  public:
-  ForkedTwin(const Rig& run, std::size_t after, std::uint64_t snapshot_every)
+  // The twin's rows for an event: `after` rows past its last injection row are judged as
+  // during it, each once 2 half + 1 rows more have come (DisturbanceMeter::add), with two to
+  // spare; `extra_rows` more (RunOptions::twin_extra_rows).
+  TwinSchedule(const Rig& run, std::size_t after, std::uint64_t snapshot_every, std::size_t extra_rows)
       : snapshot_every_(std::max<std::uint64_t>(1, snapshot_every)),
         snapshot_(run),
-        twin_(run),
-        tail_rows_(after + 2 * (after / 2) + 2) {}
+        tail_rows_(after + 2 * (after / 2) + 2 + extra_rows) {}
 
   // At the start of period k of the run, before its step.
   void before(const Rig& run, std::uint64_t k) {
@@ -302,72 +322,50 @@ class ForkedTwin {
     }
   }
 
-  // After the run's step in period k (its drive's step done, its plant not yet stepped): the
-  // twin's own period k, forked first when the run's drive has just begun an event. The twin's
-  // row for a row the run completes in period k, if any.
-  std::optional<FastRow> step(const Rig& run, const ScenarioConfig& sc, double acceleration, std::uint64_t k) {
-    if (!alive_) {
-      if (run.node.controller().between_injection_events()) {
-        return std::nullopt;
-      }
-      const auto start = std::chrono::steady_clock::now();
-      twin_ = snapshot_;
-      for (std::uint64_t j = snapshot_k_; j < k; ++j) {
-        period(sc, acceleration, j, true);  // the run's own periods again: the rows are the run's
-      }
-      twin_.node.controller().hold_injection_events();
-      alive_ = true;
-      rows_since_injection_ = 0;
-      wall_s_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  // After the run's drive stepped: whether the twin forks here (the drive has just begun an
+  // event), from snapshot() taken at the start of period snapshot_k(). Not in a calibration:
+  // its rows are never counted (the figures start when it ends), and a twin held in it would
+  // stay calibrating, and time out, beside a run that has stored its calibration.
+  bool fork(const Rig& run) {
+    const core::DriveController& drive = run.node.controller();
+    if (alive_ || drive.between_injection_events() || drive.telemetry().calibrating) {
+      return false;
     }
-    const auto start = std::chrono::steady_clock::now();
-    std::optional<FastRow> row = period(sc, acceleration, k, false);
-    periods_ += 1;
-    wall_s_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-    return row;
+    alive_ = true;
+    rows_since_injection_ = 0;
+    return true;
   }
+  [[nodiscard]] const Rig& snapshot() const noexcept { return snapshot_; }
+  [[nodiscard]] std::uint64_t snapshot_k() const noexcept { return snapshot_k_; }
 
-  // The run's row and the twin's for the metric (the run's own where no twin runs); ends the
-  // twin once the metric needs it no more.
-  FastRow row_after(const Rig& run, const FastRow& run_row, const std::optional<FastRow>& twin_row) {
-    if (!alive_ || !twin_row) {
-      return run_row;
+  // A row of the run: whether the twin gives this row; ends the twin once the metric needs it
+  // no more (or the run has begun a calibration, fork()).
+  bool twin_row(const Rig& run, const FastRow& run_row) {
+    if (!alive_) {
+      return false;
+    }
+    const core::DriveController& drive = run.node.controller();
+    if (drive.telemetry().calibrating) {
+      alive_ = false;
+      snapshot_stale_ = true;
+      return false;
     }
     rows_since_injection_ = run_row.injection ? 0 : rows_since_injection_ + 1;
-    if (rows_since_injection_ >= tail_rows_ && run.node.controller().between_injection_events()) {
+    if (rows_since_injection_ >= tail_rows_ && drive.between_injection_events()) {
       alive_ = false;
       snapshot_stale_ = true;  // the next snapshot as soon as the run allows one
     }
-    return *twin_row;
+    return true;
   }
 
-  // The run's plant got its thermal acceleration back (the end of a real-time calibration):
-  // the twin's too, and no snapshot from before.
-  void acceleration_changed(double acceleration) {
-    if (alive_) {
-      twin_.plant.set_thermal_acceleration(acceleration);
-      twin_.real_time_calibration = false;
-    }
+  // The run's plant got its thermal acceleration back (the end of a real-time calibration): no
+  // snapshot from before; whether the running twin must follow.
+  bool acceleration_changed() {
     snapshot_stale_ = true;
+    return alive_;
   }
-
-  [[nodiscard]] double wall_s() const noexcept { return wall_s_; }
-  [[nodiscard]] std::uint64_t periods() const noexcept { return periods_; }
 
  private:
-  // One period of the twin: in a catch-up (`replay`) the run's own, afterwards without events.
-  std::optional<FastRow> period(const ScenarioConfig& sc, double acceleration, std::uint64_t k, bool replay) {
-    Rig& t = twin_;
-    const NodeInputs cmd = t.inputs(sc);
-    const NodeStep& step = t.node.step(&t.plant.sample(), cmd);
-    if (replay) {
-      t.end_real_time_calibration(acceleration);  // the run's rule: the twin is the run until the fork
-    }
-    const std::optional<FastRow> row = t.accumulate(k, t.plant.state(), false, false);
-    t.finish(step);
-    return row;
-  }
-
   static constexpr double kLeadPeriods = 3.0;  // the scheduled event's snapshot: at most this early
 
   std::uint64_t snapshot_every_;  // RunOptions::twin_snapshot_periods
@@ -375,12 +373,281 @@ class ForkedTwin {
   std::uint64_t snapshot_k_ = 0;
   double snapshot_event_s_ = -1.0;  // the scheduled event the last snapshot was taken for
   bool snapshot_stale_ = false;
-  Rig twin_;  // a copy of the snapshot while alive_ (assigned: no allocation after the first)
   bool alive_ = false;
   std::size_t tail_rows_;
   std::size_t rows_since_injection_ = 0;
+};
+
+// The twin's side: steps the twin as far as it is asked.
+class TwinStepper {
+ public:
+  // `acceleration`: the scenario's thermal acceleration, which a real-time calibration's end
+  // gives the plant back.
+  TwinStepper(const Rig& run, const ScenarioConfig& sc, double acceleration)
+      : twin_(run), sc_(sc), acceleration_(acceleration) {}
+
+  // The twin from a snapshot of the run taken at the start of period snapshot_k, stepped as
+  // the run was to period k - 1 (its rows are the run's), then without events from period k.
+  void fork(const Rig& snapshot, std::uint64_t snapshot_k, std::uint64_t k) {
+    const auto start = std::chrono::steady_clock::now();
+    twin_ = snapshot;
+    twin_.twin = true;
+    for (std::uint64_t j = snapshot_k; j < k; ++j) {
+      period(j, true);
+    }
+    twin_.node.controller().hold_injection_events();
+    next_k_ = k;
+    wall_s_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  }
+
+  // The run's plant got back its thermal acceleration in its period k (between its drive's step
+  // and its plant's): the twin's too, from its period k.
+  void acceleration_changed(std::uint64_t k) {
+    if (k > 0) {
+      advance(k - 1);
+    }
+    twin_.plant.set_thermal_acceleration(acceleration_);
+    twin_.real_time_calibration = false;
+  }
+
+  // The twin's row that ends with period k.
+  FastRow row(std::uint64_t k) { return advance(k).value_or(FastRow{}); }
+
+  [[nodiscard]] double wall_s() const noexcept { return wall_s_; }
+  [[nodiscard]] std::uint64_t periods() const noexcept { return periods_; }
+
+ private:
+  // Steps the twin through period k; the row its period k completed, if any.
+  std::optional<FastRow> advance(std::uint64_t k) {
+    const auto start = std::chrono::steady_clock::now();
+    std::optional<FastRow> row;
+    for (; next_k_ <= k; ++next_k_) {
+      row = period(next_k_, false);
+      ++periods_;
+    }
+    wall_s_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    return row;
+  }
+
+  // One period of the twin: in a catch-up (`replay`) the run's own, afterwards without events
+  // and with the run's thermal acceleration (acceleration_changed).
+  std::optional<FastRow> period(std::uint64_t k, bool replay) {
+    Rig& t = twin_;
+    const NodeInputs cmd = t.inputs(sc_);
+    const NodeStep& step = t.node.step(&t.plant.sample(), cmd);
+    if (replay) {
+      t.end_real_time_calibration(acceleration_);  // the run's rule: the twin is the run until the fork
+    }
+    const std::optional<FastRow> row = t.accumulate(k, t.plant.state(), false, false);
+    t.finish(step);
+    return row;
+  }
+
+  Rig twin_;  // a copy of the snapshot once forked (assigned: no allocation after the first)
+  const ScenarioConfig& sc_;
+  double acceleration_;
+  std::uint64_t next_k_ = 0;  // the twin's next period
   double wall_s_ = 0.0;
   std::uint64_t periods_ = 0;
+};
+
+// A bounded channel of chunks from one producer thread to one consumer: the producer waits
+// while it is full, the consumer while it is empty; abandon() lets a producer finish without a
+// consumer.
+template <typename T>
+class Channel {
+ public:
+  static constexpr std::size_t kChunk = 256;
+  static constexpr std::size_t kMaxChunks = 4;
+
+  void push(T item) {
+    chunk_.push_back(std::move(item));
+    if (chunk_.size() == kChunk) {
+      flush();
+    }
+  }
+  // The producer is done (also after an exception): flushes and wakes the consumer.
+  void close() {
+    flush();
+    const std::lock_guard lock(mutex_);
+    closed_ = true;
+    changed_.notify_all();
+  }
+  void abandon() {
+    const std::lock_guard lock(mutex_);
+    abandoned_ = true;
+    chunks_.clear();
+    changed_.notify_all();
+  }
+  // Hands over what was pushed so far, before its chunk is full.
+  void flush() {
+    if (chunk_.empty()) {
+      return;
+    }
+    std::unique_lock lock(mutex_);
+    changed_.wait(lock, [&] { return chunks_.size() < kMaxChunks || abandoned_; });
+    if (!abandoned_) {
+      chunks_.push_back(std::move(chunk_));
+      changed_.notify_all();
+    }
+    chunk_ = std::vector<T>();
+    chunk_.reserve(kChunk);
+  }
+  // The next chunk, waiting for it; empty once the producer closed and everything was taken.
+  std::vector<T> pop() {
+    std::unique_lock lock(mutex_);
+    changed_.wait(lock, [&] { return !chunks_.empty() || closed_ || abandoned_; });
+    if (chunks_.empty()) {
+      return {};
+    }
+    std::vector<T> chunk = std::move(chunks_.front());
+    chunks_.pop_front();
+    changed_.notify_all();
+    return chunk;
+  }
+
+ private:
+  std::vector<T> chunk_;  // the producer's own
+  std::mutex mutex_;
+  std::condition_variable changed_;
+  std::deque<std::vector<T>> chunks_;
+  bool closed_ = false;
+  bool abandoned_ = false;
+};
+
+// Connects the run's side to the twin's and the meter: directly, or through a channel to a
+// thread of the twin's own (RunOptions::twin_thread). Either way the twin's side sees the same
+// calls in the same order.
+class TwinLink {
+ public:
+  TwinLink(const Rig& run, const ScenarioConfig& sc, double acceleration, DisturbanceMeter& meter, bool thread)
+      : stepper_(run, sc, acceleration), meter_(meter) {
+    if (thread) {
+      for (std::unique_ptr<Rig>& buffer : buffers_) {
+        buffer = std::make_unique<Rig>(run);
+        free_.push_back(buffer.get());
+      }
+      thread_ = std::thread([this] { consume(); });
+    }
+  }
+  TwinLink(const TwinLink&) = delete;
+  TwinLink& operator=(const TwinLink&) = delete;
+  ~TwinLink() {
+    if (thread_.joinable()) {
+      stop();
+      thread_.join();
+    }
+  }
+
+  void fork(const Rig& snapshot, std::uint64_t snapshot_k, std::uint64_t k) {
+    if (!thread_.joinable()) {
+      stepper_.fork(snapshot, snapshot_k, k);
+      meter_.fork();
+      return;
+    }
+    // A snapshot buffer the twin's thread has done with (it holds at most two): the memory
+    // stays what it was at the start, however far behind the twin's thread falls.
+    Rig* buffer = nullptr;
+    {
+      std::unique_lock lock(buffers_mutex_);
+      buffers_free_.wait(lock, [&] { return !free_.empty() || stopped_; });
+      if (stopped_) {
+        return;  // the twin's side failed: finish() reports why
+      }
+      buffer = free_.back();
+      free_.pop_back();
+    }
+    *buffer = snapshot;
+    channel_.push(Message{Message::Kind::kFork, k, snapshot_k, buffer, {}, false});
+    channel_.flush();  // in the twin's hands before the next fork may wait for its buffer
+  }
+  void acceleration_changed(std::uint64_t k) {
+    if (!thread_.joinable()) {
+      stepper_.acceleration_changed(k);
+      return;
+    }
+    channel_.push(Message{Message::Kind::kAcceleration, k, 0, nullptr, {}, false});
+  }
+  // The run's row that ends with period k, and whether the twin gives its own.
+  void row(std::uint64_t k, const FastRow& run_row, bool twin) {
+    if (!thread_.joinable()) {
+      meter_.add(run_row, twin ? stepper_.row(k) : run_row);
+      return;
+    }
+    channel_.push(Message{Message::Kind::kRow, k, 0, nullptr, run_row, twin});
+  }
+
+  // The run is done: waits for the twin's side; rethrows what stopped it.
+  const TwinStepper& finish() {
+    if (thread_.joinable()) {
+      channel_.close();
+      thread_.join();
+    }
+    if (error_) {
+      std::rethrow_exception(error_);
+    }
+    return stepper_;
+  }
+
+ private:
+  struct Message {
+    enum class Kind : std::uint8_t { kFork, kAcceleration, kRow };
+    Kind kind;
+    std::uint64_t k;           // the fork's period, the acceleration's, the row's last
+    std::uint64_t snapshot_k;  // kFork
+    Rig* snapshot;             // kFork: one of buffers_
+    FastRow row;
+    bool twin;
+  };
+
+  void consume() {
+    try {
+      for (std::vector<Message> chunk = channel_.pop(); !chunk.empty(); chunk = channel_.pop()) {
+        for (Message& m : chunk) {
+          switch (m.kind) {
+            case Message::Kind::kFork:
+              stepper_.fork(*m.snapshot, m.snapshot_k, m.k);
+              meter_.fork();
+              {
+                const std::lock_guard lock(buffers_mutex_);
+                free_.push_back(m.snapshot);
+              }
+              buffers_free_.notify_one();
+              break;
+            case Message::Kind::kAcceleration:
+              stepper_.acceleration_changed(m.k);
+              break;
+            case Message::Kind::kRow:
+              meter_.add(m.row, m.twin ? stepper_.row(m.k) : m.row);
+              break;
+          }
+        }
+      }
+    } catch (...) {
+      error_ = std::current_exception();
+      stop();  // the run's pushes and forks return at once from here on
+    }
+  }
+
+  void stop() {
+    channel_.abandon();
+    {
+      const std::lock_guard lock(buffers_mutex_);
+      stopped_ = true;
+    }
+    buffers_free_.notify_all();
+  }
+
+  TwinStepper stepper_;
+  DisturbanceMeter& meter_;
+  Channel<Message> channel_;
+  std::array<std::unique_ptr<Rig>, 2> buffers_;  // snapshots on their way to the twin's thread
+  std::mutex buffers_mutex_;
+  std::condition_variable buffers_free_;
+  std::vector<Rig*> free_;  // of buffers_, guarded by buffers_mutex_
+  bool stopped_ = false;    // guarded by buffers_mutex_
+  std::exception_ptr error_;
+  std::thread thread_;  // last: started once the rest is built
 };
 
 // One closed-loop run; with `meter`, its twin without injection beside it (ForkedTwin) and
@@ -400,9 +667,11 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
   plant::Plant& plant = run.plant;
   DriveNode& node = run.node;
   core::DriveController& drive = node.controller();
-  std::optional<ForkedTwin> twin;
+  std::optional<TwinSchedule> twin;
+  std::optional<TwinLink> twin_link;
   if (meter != nullptr) {
-    twin.emplace(run, meter->after(), options.twin_snapshot_periods);
+    twin.emplace(run, meter->after(), options.twin_snapshot_periods, options.twin_extra_rows);
+    twin_link.emplace(run, sc, scenario.plant.thermal.acceleration, *meter, options.twin_thread);
   }
 
   const double ts = plant.period_s();
@@ -438,7 +707,9 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
     }
     const NodeInputs cmd = run.inputs(sc);
     const NodeStep& step = node.step(&plant.sample(), cmd);
-    const std::optional<FastRow> twin_row = twin ? twin->step(run, sc, scenario.plant.thermal.acceleration, k) : std::nullopt;
+    if (twin && twin->fork(run)) {
+      twin_link->fork(twin->snapshot(), twin->snapshot_k(), k);
+    }
     const core::DriveTelemetry& tel = drive.telemetry();
     if (const std::uint32_t latched = node.supervisor().status().latched_mask; latched != latched_before) {
       // A code latched for the first time: when (the supervisor counts the latches).
@@ -459,8 +730,8 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
       history.record(plant.time_s(), truth.rs_ohm, truth.winding_temp_C);
     }
 
-    if (run.end_real_time_calibration(scenario.plant.thermal.acceleration) && twin) {
-      twin->acceleration_changed(scenario.plant.thermal.acceleration);
+    if (run.end_real_time_calibration(scenario.plant.thermal.acceleration) && twin && twin->acceleration_changed()) {
+      twin_link->acceleration_changed(k);
     }
     if (drive.inverter_sweep_completed()) {
       result.inverter_sweep = *drive.inverter_sweep_completed();
@@ -559,7 +830,7 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
     injection_periods += tel.injection_active ? 1U : 0U;
     const bool counted = metrics_from_s >= 0.0 && t >= metrics_from_s;
     if (const std::optional<FastRow> row = run.accumulate(k, truth, tel.injection_active, counted); row && twin) {
-      meter->add(*row, twin->row_after(run, *row, twin_row));
+      twin_link->row(k, *row, twin->twin_row(run, *row));
     }
 
     if (log_now) {
@@ -640,9 +911,10 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
     result.faults[c].count = node.supervisor().counts()[c];
   }
   result.wall_time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
-  if (twin) {
-    result.twin_wall_time_s = twin->wall_s();
-    result.twin_sim_time_s = static_cast<double>(twin->periods()) * ts;
+  if (twin_link) {
+    const TwinStepper& stepper = twin_link->finish();
+    result.twin_wall_time_s = stepper.wall_s();
+    result.twin_sim_time_s = static_cast<double>(stepper.periods()) * ts;
   }
   result.magnet_rejected = drive.telemetry().magnet_rejected;
   result.magnet_last_refusal = drive.telemetry().magnet_last_refusal.reason;
@@ -722,6 +994,8 @@ SimulationResult run_scenario(const Scenario& given, const RunOptions& options) 
   result.torque_disturbance_at_s = during ? static_cast<double>(torque.during_row * kFastEvery) * d.period_s : kNone;
   result.speed_difference_outside_pct = outside ? 100.0 * speed.outside : kNone;
   result.torque_disturbance_pct = during ? 100.0 * torque.during : kNone;
+  result.speed_disturbance_mean_pct = during ? 100.0 * speed.during_sum / static_cast<double>(speed.during_rows) : kNone;
+  result.torque_disturbance_mean_pct = during ? 100.0 * torque.during_sum / static_cast<double>(torque.during_rows) : kNone;
   result.torque_difference_outside_pct = outside ? 100.0 * torque.outside : kNone;
   // Everything the scenario cost: the run, its twin and the metrics.
   result.wall_time_s = wall_s();
@@ -761,6 +1035,8 @@ std::string result_json(const SimulationResult& r) {
   j.field("field_weakening_pairs", static_cast<std::uint64_t>(r.field_weakening_pairs_accepted));
   j.field("speed_disturbance_pct", r.disturbance_measured ? r.speed_disturbance_pct : kNan)
       .field("torque_disturbance_pct", r.disturbance_measured ? r.torque_disturbance_pct : kNan)
+      .field("speed_disturbance_mean_pct", r.disturbance_measured ? r.speed_disturbance_mean_pct : kNan)
+      .field("torque_disturbance_mean_pct", r.disturbance_measured ? r.torque_disturbance_mean_pct : kNan)
       .field("speed_disturbance_at_s", r.disturbance_measured ? r.speed_disturbance_at_s : kNan)
       .field("torque_disturbance_at_s", r.disturbance_measured ? r.torque_disturbance_at_s : kNan)
       .field("speed_difference_outside_injection_pct", r.disturbance_measured ? r.speed_difference_outside_pct : kNan)

@@ -33,6 +33,12 @@ struct RunOptions {
   // copy of the plant and the drive each time; a longer interval costs more catch-up from the
   // snapshot to such an event). The figures do not depend on it.
   std::uint64_t twin_snapshot_periods = 2000;
+  // Step the twin on a thread of its own, beside the run (the figures are the same either way;
+  // with a core to spare it costs the run's thread nothing but the snapshots' copies).
+  bool twin_thread = true;
+  // The twin outlives the rows the metric needs by this many (a test's check that it lives long
+  // enough: the figures during injection must not change).
+  std::size_t twin_extra_rows = 0;
   bool log_events = false;          // keep a line per event that published nothing
   // Keep the time series (SimulationResult::series, for a CSV or a plot) and the published
   // estimates (estimates: --events, plots). The figures do not need them: they are computed as
@@ -137,6 +143,8 @@ struct SimulationResult {
   bool disturbance_measured = false;
   double speed_disturbance_pct = 0.0;
   double torque_disturbance_pct = 0.0;
+  double speed_disturbance_mean_pct = 0.0;   // the mean over the rows judged during injection
+  double torque_disturbance_mean_pct = 0.0;
   double speed_disturbance_at_s = 0.0;   // when the largest one occurred
   double torque_disturbance_at_s = 0.0;
   double speed_difference_outside_pct = 0.0;
