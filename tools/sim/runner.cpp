@@ -410,8 +410,14 @@ class TwinStepper {
     twin_.real_time_calibration = false;
   }
 
-  // The twin's row that ends with period k.
-  FastRow row(std::uint64_t k) { return advance(k).value_or(FastRow{}); }
+  // The twin's row that ends with period k (rows are asked for in order, each once).
+  FastRow row(std::uint64_t k) {
+    const std::optional<FastRow> r = advance(k);
+    if (!r) {
+      throw std::logic_error(fmt::format("the disturbance metric's twin was asked for its row of period {} past it", k));
+    }
+    return *r;
+  }
 
   [[nodiscard]] double wall_s() const noexcept { return wall_s_; }
   [[nodiscard]] std::uint64_t periods() const noexcept { return periods_; }
