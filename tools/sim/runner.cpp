@@ -1253,8 +1253,8 @@ std::string result_text(const SimulationResult& r) {
                          : std::string(" (not resolved: incremental = secant)"));
   out += fmt::format("  simulated {:.1f} s in {:.1f} s ({:.1f}x real time{})\n", r.sim_time_s, r.wall_time_s,
                      r.wall_time_s > 0 ? r.sim_time_s / r.wall_time_s : 0.0,
-                     r.twin_wall_time_s > 0 ? fmt::format("; of which {:.1f} s the twin without injection, beside {:.1f} s of the run",
-                                                          r.twin_wall_time_s, r.twin_sim_time_s)
+                     r.twin_wall_time_s > 0 ? fmt::format("; the twin without injection ran {:.1f} s of it around the events, in {:.1f} s",
+                                                          r.twin_sim_time_s, r.twin_wall_time_s)
                                             : std::string());
   return out;
 }
