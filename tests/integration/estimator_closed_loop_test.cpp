@@ -350,6 +350,20 @@ long peak_rss_kib() {
   return -1;
 }
 
+// The first 12 s of the short heat-up (calibration, then events every 0.5 s), and options that
+// keep nothing but the figures.
+Scenario heatup_12s() {
+  Scenario s = load_scenario(kData / "heatup-short.toml");
+  s.scenario.duration_s = 12.0;
+  return s;
+}
+RunOptions figures_only() {
+  RunOptions o;
+  o.keep_series = false;
+  o.keep_estimates = false;
+  return o;
+}
+
 // The figures are computed as the run goes: a run without a CSV, a plot or --events keeps
 // nothing per row, so its memory does not grow with the simulated time. (Before, every run kept
 // a 1 kHz record of itself and of its twin for the disturbance figures, and the series: about
@@ -358,10 +372,8 @@ TEST(SimulateMemory, PeakDoesNotGrowWithTheSimulatedTime) {
   if (PMSM_TEST_ASAN) {
     GTEST_SKIP() << "AddressSanitizer's quarantine holds freed memory: resident size is not the program's";
   }
-  Scenario s = load_scenario(kData / "heatup-short.toml");
-  RunOptions o;
-  o.keep_series = false;
-  o.keep_estimates = false;
+  Scenario s = heatup_12s();
+  const RunOptions o = figures_only();
   s.scenario.duration_s = 10.0;
   const SimulationResult short_run = run_scenario(s, o);
   const long after_short = peak_rss_kib();
@@ -380,11 +392,8 @@ TEST(SimulateMemory, PeakDoesNotGrowWithTheSimulatedTime) {
 
 // What is kept for the outputs does not change a figure.
 TEST(SimulateMemory, FiguresDoNotDependOnWhatIsKept) {
-  Scenario s = load_scenario(kData / "heatup-short.toml");
-  s.scenario.duration_s = 12.0;
-  RunOptions lean;
-  lean.keep_series = false;
-  lean.keep_estimates = false;
+  const Scenario s = heatup_12s();
+  const RunOptions lean = figures_only();
   const SimulationResult a = run_scenario(s, RunOptions{});
   const SimulationResult b = run_scenario(s, lean);
   ASSERT_TRUE(a.disturbance_measured);
@@ -408,11 +417,8 @@ TEST(SimulateMemory, FiguresDoNotDependOnWhatIsKept) {
 // snapshot taken inside an event, or a row paired with the wrong one of the twin's would move
 // the twin's rows against the run's). And the twin runs around the events only.
 TEST(SimulateTwin, FiguresDoNotDependOnTheSnapshotsOrTheThread) {
-  Scenario s = load_scenario(kData / "heatup-short.toml");
-  s.scenario.duration_s = 12.0;
-  RunOptions options;
-  options.keep_series = false;
-  options.keep_estimates = false;
+  const Scenario s = heatup_12s();
+  RunOptions options = figures_only();
   options.twin_snapshot_periods = 1;
   options.twin_thread = false;
   const SimulationResult every = run_scenario(s, options);
@@ -442,11 +448,8 @@ TEST(SimulateTwin, FiguresDoNotDependOnTheSnapshotsOrTheThread) {
 // run's own rows (a difference of zero), which moves the means (checked: a twin 60 rows short
 // fails here; one 10 rows short, whose last rows' steadiness windows alone lack it, does not).
 TEST(SimulateTwin, LivingLongerChangesNoFigureDuringInjection) {
-  Scenario s = load_scenario(kData / "heatup-short.toml");
-  s.scenario.duration_s = 12.0;
-  RunOptions options;
-  options.keep_series = false;
-  options.keep_estimates = false;
+  const Scenario s = heatup_12s();
+  RunOptions options = figures_only();
   const SimulationResult r = run_scenario(s, options);
   options.twin_extra_rows = 30;  // 30 ms: shorter than the gaps between events, so no two merge
   const SimulationResult longer = run_scenario(s, options);
