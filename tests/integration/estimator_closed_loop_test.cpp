@@ -431,6 +431,8 @@ TEST(SimulateTwin, FiguresDoNotDependOnTheSnapshotsOrTheThread) {
     EXPECT_EQ(r.speed_disturbance_pct, every.speed_disturbance_pct);
     EXPECT_EQ(r.torque_disturbance_pct, every.torque_disturbance_pct);
     EXPECT_EQ(r.torque_disturbance_mean_pct, every.torque_disturbance_mean_pct);
+    EXPECT_EQ(r.speed_disturbance_mean_pct, every.speed_disturbance_mean_pct);
+    EXPECT_EQ(r.torque_disturbance_at_s, every.torque_disturbance_at_s);
     EXPECT_EQ(r.speed_disturbance_at_s, every.speed_disturbance_at_s);
     EXPECT_EQ(r.speed_difference_outside_pct, every.speed_difference_outside_pct);
     EXPECT_EQ(r.torque_difference_outside_pct, every.torque_difference_outside_pct);
@@ -462,6 +464,27 @@ TEST(SimulateTwin, LivingLongerChangesNoFigureDuringInjection) {
   EXPECT_EQ(r.torque_disturbance_mean_pct, longer.torque_disturbance_mean_pct);
   EXPECT_GT(r.torque_disturbance_mean_pct, 0.0);
   EXPECT_GT(longer.twin_sim_time_s, r.twin_sim_time_s) << "the longer twin did run longer";
+}
+
+// The twin never asks for the scenario's calibration: the run does. Here the run's drive
+// refuses it (the winding is warm after the ride), so the twin, alive through the chain of
+// events, carries on as the run does. Whether the calibration would have run in real time then
+// changes nothing in the run, and must change nothing in the twin: a twin that asked for the
+// calibration itself set its plant to real time and left it there (torque mean 4.05 against
+// 4.22 % of rated).
+TEST(SimulateTwin, ARefusedCalibrationLeavesTheTwinAsTheRun) {
+  Scenario s = load_scenario(kData / "hub-calibration-refused.toml");
+  const RunOptions options = figures_only();
+  s.scenario.calibration_real_time = true;
+  const SimulationResult real_time = run_scenario(s, options);
+  s.scenario.calibration_real_time = false;
+  const SimulationResult accelerated = run_scenario(s, options);
+  ASSERT_EQ(real_time.calibration_failure, core::CalibrationFailure::kWindingWarm);
+  EXPECT_GT(real_time.twin_sim_time_s, real_time.calibration_failure_time_s) << "the twin was alive at the refusal";
+  EXPECT_EQ(real_time.winding_error_rms_C, accelerated.winding_error_rms_C);
+  EXPECT_EQ(real_time.torque_disturbance_mean_pct, accelerated.torque_disturbance_mean_pct);
+  EXPECT_EQ(real_time.speed_disturbance_mean_pct, accelerated.speed_disturbance_mean_pct);
+  EXPECT_EQ(real_time.torque_disturbance_pct, accelerated.torque_disturbance_pct);
 }
 
 // A figure with no row to judge is none (NaN, null in the JSON, a dash in the tables), not a

@@ -304,7 +304,7 @@ void register_simulate_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--plot-dir", options->plot_dir, "draw a PNG per scenario into this directory, named after the file")
       ->check(pmsm::cli::file_name());
   cmd->add_flag("--quiet", options->quiet, "no progress line on a terminal");
-  cmd->add_option("-j,--jobs", options->jobs, "run this many scenarios at a time (each also steps its twin, around its events, on a thread of its own)")
+  cmd->add_option("-j,--jobs", options->jobs, "run this many scenarios at a time (an injecting one also steps its twin, around its events, on a thread of its own)")
       ->check(pmsm::cli::integer_in_range(1, 256))->capture_default_str();
   cmd->add_flag("--events", options->events, "list every published estimate with the truth and diagnostics");
   cmd->callback([options, &exit_code] { exit_code = run_simulate(*options); });

@@ -396,6 +396,10 @@ class TwinStepper {
       period(j, true);
     }
     twin_.node.controller().hold_injection_events();
+    // Nor does it ask for the scenario's calibration: the run asks, and if its drive accepts,
+    // the twin ends (TwinSchedule::twin_row); if it refuses, the twin carries on without one
+    // as the run does, its plant at the run's thermal acceleration.
+    twin_.calibration_started = true;
     next_k_ = k;
     wall_s_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   }

@@ -205,7 +205,9 @@ ConfigSchema<S> build_schema() {
   s.real("metrics.error_threshold_C", [](S& c) -> double& { return c.error_threshold_C; }, between(-50, 300), "C",
          "Winding errors count where the true winding temperature is above this.");
   s.real("metrics.disturbance_window_s", [](S& c) -> double& { return c.disturbance_window_s; }, positive(10), "s",
-         "Moving-average window against which speed and torque disturbance are measured.");
+         "How long after an injection a row still counts as disturbed by it, and the half-width of the window in which "
+         "the twin without injection must run steadily for a row to be judged (the torque is a 10 ms average; "
+         "docs/scenarios.md, Disturbance).");
   s.real("metrics.rated_torque_Nm", [](S& c) -> double& { return c.rated_torque_Nm; }, positive(1e5), "Nm",
          "Torque disturbance is relative to this.");
   return s;
