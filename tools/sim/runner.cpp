@@ -289,9 +289,7 @@ struct Rig {
 //   noise included.
 // - It lives until the run is between events again and the rows the metric judges as during
 //   the event (`after` rows past its last injection row) have their steadiness windows
-//   (2 half + 1 rows more); away from it the twin's rows are the run's own. An event that
-//   begins while it still runs forks a twin of its own once the last event's rows during it
-//   are past; closer events share one (a chain).
+//   (2 half + 1 rows more); away from it the twin's rows are the run's own.
 // The run's side (TwinSchedule) decides all of that from the run alone; the twin's side
 // (TwinStepper) steps the twin as far as the rows asked of it, on the run's thread or on one of
 // its own (TwinLink): the figures are the same either way.
@@ -305,15 +303,12 @@ class TwinSchedule {
   TwinSchedule(const Rig& run, std::size_t after, std::uint64_t snapshot_every, std::size_t extra_rows)
       : snapshot_every_(std::max<std::uint64_t>(1, snapshot_every)),
         snapshot_(run),
-        after_(after),
         tail_rows_(after + 2 * (after / 2) + 2 + extra_rows) {}
 
-  // At the start of period k of the run, before its step: a snapshot when one is due and the
-  // run is between events (also with a twin running: the next event may fork afresh, fork()).
+  // At the start of period k of the run, before its step.
   void before(const Rig& run, std::uint64_t k) {
     const core::DriveController& drive = run.node.controller();
-    between_before_step_ = drive.between_injection_events();
-    if (!between_before_step_) {
+    if (alive_ || !drive.between_injection_events()) {
       return;
     }
     const double next_event_s = drive.next_injection_event_s();
@@ -328,20 +323,12 @@ class TwinSchedule {
   }
 
   // After the run's drive stepped: whether the twin forks here (the drive has just begun an
-  // event), from snapshot() taken at the start of period snapshot_k(). Also with a twin still
-  // running, when the last event's rows during it are past: each event of a chain is compared
-  // with a twin of its own, not with one that has gone without the chain's earlier events (the
-  // rows after the fork are the new twin's, so the steadiness windows of the last event's final
-  // rows may see the step between the two twins' speeds: it can only leave a row unjudged). Not
-  // in a calibration: its rows are never counted (the figures start when it ends), and a twin
-  // held in it would stay calibrating, and time out, beside a run that has stored its
-  // calibration.
+  // event), from snapshot() taken at the start of period snapshot_k(). Not in a calibration:
+  // its rows are never counted (the figures start when it ends), and a twin held in it would
+  // stay calibrating, and time out, beside a run that has stored its calibration.
   bool fork(const Rig& run) {
     const core::DriveController& drive = run.node.controller();
-    if (drive.between_injection_events() || drive.telemetry().calibrating) {
-      return false;
-    }
-    if (alive_ && !(between_before_step_ && last_event_past())) {
+    if (alive_ || drive.between_injection_events() || drive.telemetry().calibrating) {
       return false;
     }
     alive_ = true;
@@ -381,17 +368,12 @@ class TwinSchedule {
  private:
   static constexpr double kLeadPeriods = 3.0;  // the scheduled event's snapshot: at most this early
 
-  // The running twin's last event has no row left to be judged as during it.
-  [[nodiscard]] bool last_event_past() const noexcept { return rows_since_injection_ > after_; }
-
   std::uint64_t snapshot_every_;  // RunOptions::twin_snapshot_periods
   Rig snapshot_;
   std::uint64_t snapshot_k_ = 0;
   double snapshot_event_s_ = -1.0;  // the scheduled event the last snapshot was taken for
   bool snapshot_stale_ = false;
-  bool between_before_step_ = true;  // the run was between events at the start of this period
   bool alive_ = false;
-  std::size_t after_;
   std::size_t tail_rows_;
   std::size_t rows_since_injection_ = 0;
 };
