@@ -357,12 +357,11 @@ class DriveController {
   // during a calibration they take effect once it ends. Returns whether anything changed.
   bool configure_injection(InjectionMethod method, Separation separation, double f_A, double interval_s);
 
-  // Injection events (InjectionScheduler::between_events, hold_events): whether none is in
-  // progress, and from here on none starts (events held). The simulator forks its twin without injection
-  // from a copy of the drive taken between events.
+  // Injection events, for the simulator, which forks its twin without injection from a copy of
+  // the drive taken between events (InjectionScheduler::between_events, hold_events): whether
+  // none is in progress; when the next scheduled one is due (drive time; an operator's or a
+  // calibration's request may start one sooner); and from here on none starts.
   [[nodiscard]] bool between_injection_events() const { return scheduler_.between_events(); }
-  // When the next scheduled event is due (drive time; an operator's or a calibration's request
-  // may start one sooner).
   [[nodiscard]] double next_injection_event_s() const { return scheduler_.next_event_s(); }
   void hold_injection_events() { scheduler_.hold_events(); }
 
