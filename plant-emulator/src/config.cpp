@@ -3,6 +3,7 @@
 // key once: its place in PlantConfig, type, range and meaning. Parsing, range checks, the
 // unknown-key check and the Markdown reference in docs/plant.md are all driven by it.
 #include "pmsm/plant/config.hpp"
+#include "pmsm/plant/emf.hpp"
 
 #include "config_schema.hpp"
 
@@ -108,7 +109,7 @@ common::ConfigSchema<PlantConfig> build_schema() {
              [](PlantConfig& c, int v) { c.emf.shape = static_cast<EmfShape>(v); },
              "Back-EMF waveform (Fig. 11): sinusoidal 100 %, modular 89 %, trapezoidal 77 % "
              "fundamental (fundamental / peak, fundamental fixed by Ke), or custom.");
-    s.int_list("emf.harmonic_orders", kMaxHarmonics, closed(5, 99), PMSM_MEMBER(emf.custom_orders),
+    s.int_list("emf.harmonic_orders", kMaxHarmonics, closed(5, kMaxEmfOrder), PMSM_MEMBER(emf.custom_orders),
                "shape = \"custom\": harmonic orders n (odd, not multiples of 3, at most 12).");
     s.list("emf.harmonic_amplitudes", 0, kMaxHarmonics, closed(-1, 1),
            [](const PlantConfig& c) { return c.emf.custom_amplitudes; },

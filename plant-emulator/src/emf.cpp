@@ -70,15 +70,15 @@ EmfModel::EmfModel(const EmfConfig& config) {
   for (const EmfHarmonic& h : source) {
     // validate_plant_config() rejects even and triplen orders; skip them defensively so
     // that a hand-built config cannot inject a zero-sequence term.
-    if (h.order < 5 || h.order % 2 == 0 || h.order % 3 == 0 || count_ >= kMaxEmfHarmonics) {
+    if (h.order < 5 || h.order > kMaxEmfOrder || h.order % 2 == 0 || h.order % 3 == 0 ||
+        count_ >= kMaxEmfHarmonics) {
       continue;
     }
     harmonics_[count_] = h;
     // n = 6k+1 is a positive-sequence set, n = 6k-1 a negative-sequence set; both appear
     // at 6k·theta in the rotor frame.
-    const int k = (h.order + 1) / 6;
-    six_multiple_[count_] = k;
-    q_sign_[count_] = (h.order % 6 == 1) ? 1.0 : -1.0;
+    const auto k = static_cast<std::size_t>((h.order + 1) / 6);
+    terms_[count_] = RotorTerm{h.amplitude, (h.order % 6 == 1) ? h.amplitude : -h.amplitude, k};
     max_six_multiple_ = std::max(max_six_multiple_, k);
     peak_bound_ += std::abs(h.amplitude);
     ++count_;
@@ -103,30 +103,35 @@ void EmfModel::dq_shape(double cos_theta, double sin_theta, double& g_d, double&
   if (count_ == 0) {
     return;
   }
-  // e^{j6θ} = ((e^{jθ})³)² by complex multiplication, then e^{j6kθ} by repeated
-  // multiplication: no trigonometric call per harmonic, rounding errors of order 1e-15.
+  // e^{j6θ} = ((e^{jθ})³)² by complex multiplication: no trigonometric call per harmonic,
+  // rounding errors of order 1e-15.
   const double c2 = cos_theta * cos_theta - sin_theta * sin_theta;
   const double s2 = 2.0 * cos_theta * sin_theta;
   const double c3 = c2 * cos_theta - s2 * sin_theta;
   const double s3 = s2 * cos_theta + c2 * sin_theta;
   const double c6 = c3 * c3 - s3 * s3;
   const double s6 = 2.0 * c3 * s3;
-  // Only the first max_six_multiple_ + 1 entries are written and read; skipping the
-  // zero-initialisation of the rest matters in this hot path.
-  std::array<double, kMaxEmfHarmonics + 1> ck;  // NOLINT(cppcoreguidelines-pro-type-member-init)
-  std::array<double, kMaxEmfHarmonics + 1> sk;  // NOLINT(cppcoreguidelines-pro-type-member-init)
+  // Then e^{j6kθ} by repeated multiplication. Only the first max_six_multiple_ + 1 entries
+  // are written and read; skipping the zero-initialisation of the rest matters in this hot path.
+  std::array<double, kMaxEmfSixMultiple + 1> ck;  // NOLINT(cppcoreguidelines-pro-type-member-init)
+  std::array<double, kMaxEmfSixMultiple + 1> sk;  // NOLINT(cppcoreguidelines-pro-type-member-init)
   ck[0] = 1.0;
   sk[0] = 0.0;
-  const auto kmax = static_cast<std::size_t>(max_six_multiple_);
-  for (std::size_t k = 1; k <= kmax && k <= kMaxEmfHarmonics; ++k) {
+  for (std::size_t k = 1; k <= max_six_multiple_; ++k) {
     ck[k] = ck[k - 1] * c6 - sk[k - 1] * s6;
     sk[k] = sk[k - 1] * c6 + ck[k - 1] * s6;
   }
+  // Local sums: g_d and g_q could alias this object, and storing them through their
+  // references every term cost a third of the function.
+  double d = 0.0;
+  double q = 1.0;
   for (std::size_t i = 0; i < count_; ++i) {
-    const auto k = static_cast<std::size_t>(six_multiple_[i]);
-    g_d -= harmonics_[i].amplitude * sk[k];
-    g_q += q_sign_[i] * harmonics_[i].amplitude * ck[k];
+    const RotorTerm& term = terms_[i];
+    d -= term.d_weight * sk[term.six_multiple];
+    q += term.q_weight * ck[term.six_multiple];
   }
+  g_d = d;
+  g_q = q;
 }
 
 double EmfModel::fundamental_fraction() const {

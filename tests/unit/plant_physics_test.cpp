@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "pmsm/plant/emf.hpp"
 #include "pmsm/plant/plant.hpp"
 
 namespace pmsm::plant {
@@ -215,6 +216,40 @@ INSTANTIATE_TEST_SUITE_P(Shapes, plant_emf,
                          ::testing::Values(EmfCase{EmfShape::sinusoidal, 1.00},
                                            EmfCase{EmfShape::modular, 0.89},
                                            EmfCase{EmfShape::trapezoidal, 0.77}));
+
+// The rotor-frame shape (g_d, g_q) the plant integrates is the Park transform of the three
+// phase shapes f(θ), f(θ - 120°), f(θ + 120°), with f(θ) = g_d·cos θ - g_q·sin θ for phase a:
+// for the built-in shapes and for a custom one that reaches the highest orders the schema
+// allows (n = 95 and 97 appear at 96·θ in the rotor frame).
+TEST(plant_emf, RotorFrameShapeIsTheParkTransformOfThePhaseShapes) {
+  std::vector<EmfConfig> shapes(3);
+  shapes[0].shape = EmfShape::modular;
+  shapes[1].shape = EmfShape::trapezoidal;
+  shapes[2].shape = EmfShape::custom;
+  shapes[2].custom_orders = {5, 7, 11, 13, 35, 37, 71, 73, 77, 79, 95, 97};
+  shapes[2].custom_amplitudes = {0.05, -0.03, 0.02, 0.01, -0.01, 0.008,
+                                 0.006, -0.005, 0.004, 0.003, -0.002, 0.002};
+  for (const EmfConfig& shape : shapes) {
+    const EmfModel emf(shape);
+    ASSERT_GT(emf.harmonics().size(), 0U);
+    constexpr double kThird = 2.0 * std::numbers::pi / 3.0;
+    for (int i = 0; i < 1000; ++i) {
+      const double theta = 2.0 * std::numbers::pi * i / 1000.0 + 1e-3;
+      double d = 0.0;
+      double q = 0.0;
+      for (int ph = 0; ph < 3; ++ph) {
+        const double a = theta - kThird * ph;
+        d += 2.0 / 3.0 * emf.phase_shape(a) * std::cos(a);
+        q -= 2.0 / 3.0 * emf.phase_shape(a) * std::sin(a);
+      }
+      double g_d = 0.0;
+      double g_q = 0.0;
+      emf.dq_shape(theta, g_d, g_q);
+      EXPECT_NEAR(g_d, d, 1e-12) << "theta " << theta;
+      EXPECT_NEAR(g_q, q, 1e-12) << "theta " << theta;
+    }
+  }
+}
 
 TEST(plant_physics, MagnetFluxFallsWithTemperature) {
   PlantConfig c = quiet_config();

@@ -24,6 +24,10 @@ struct EmfHarmonic {
 };
 
 inline constexpr std::size_t kMaxEmfHarmonics = 12;
+// The highest harmonic order a custom shape may name (plant.emf.harmonic_orders), and the
+// highest multiple k of 6·theta it reaches in the rotor frame (k = (n + 1) / 6).
+inline constexpr int kMaxEmfOrder = 99;
+inline constexpr std::size_t kMaxEmfSixMultiple = (kMaxEmfOrder + 1) / 6;
 
 // Harmonic spectra of the built-in shapes (empty for sinusoidal and custom).
 std::span<const EmfHarmonic> builtin_emf_harmonics(EmfShape shape);
@@ -52,12 +56,17 @@ class EmfModel {
 
  private:
   std::array<EmfHarmonic, kMaxEmfHarmonics> harmonics_{};
-  // Per harmonic: the multiple k of 6·theta it appears at in the rotor frame and the sign
-  // of its q-axis term (+1 for n = 6k+1, -1 for n = 6k-1).
-  std::array<int, kMaxEmfHarmonics> six_multiple_{};
-  std::array<double, kMaxEmfHarmonics> q_sign_{};
+  // Per harmonic, in the order given: its amplitude b_n, the same with the sign of its q-axis
+  // term (+b_n for n = 6k+1, -b_n for n = 6k-1), and the multiple k of 6·theta it appears at
+  // in the rotor frame.
+  struct RotorTerm {
+    double d_weight = 0.0;
+    double q_weight = 0.0;
+    std::size_t six_multiple = 0;
+  };
+  std::array<RotorTerm, kMaxEmfHarmonics> terms_{};
   std::size_t count_ = 0;
-  int max_six_multiple_ = 0;
+  std::size_t max_six_multiple_ = 0;
   double peak_bound_ = 1.0;
 };
 
