@@ -401,7 +401,7 @@ MeansFit solve_means_fit_fixed_vx(const std::optional<PairMeans>* means, int cou
   return means_fit(FixedVxMeans{vx_V}, means, count);
 }
 
-PairRecorder::PairRecorder(std::size_t capacity) : coord1_(capacity), row1_(capacity), limited1_(capacity) {}
+PairRecorder::PairRecorder(std::size_t capacity) : first_(capacity) {}
 
 void PairRecorder::start(const PairFitConfig& config, MatchBy match_by, double direction) {
   config_ = config;
@@ -410,7 +410,7 @@ void PairRecorder::start(const PairFitConfig& config, MatchBy match_by, double d
   }
   match_by_ = match_by;
   direction_ = direction >= 0.0 ? 1.0 : -1.0;
-  size1_ = 0;
+  first_.size = 0;
   cursor_ = 0;
   origin1_ = 0.0;
   origin2_ = 0.0;
@@ -429,17 +429,17 @@ void PairRecorder::start(const PairFitConfig& config, MatchBy match_by, double d
 }
 
 bool PairRecorder::add_first(const PeriodSample& s) {
-  if (size1_ >= row1_.size()) {
+  if (first_.size >= first_.row.size()) {
     return false;
   }
-  if (size1_ == 0) {
+  if (first_.size == 0) {
     origin1_ = coordinate(s);
   }
-  coord1_[size1_] = coordinate(s) - origin1_;
-  row1_[size1_] = {s.i_A.d, s.i_A.q, s.di_dt_A_s.d, s.v_V.d, s.v_V.q, s.dead_time_pattern.d,
+  first_.coord[first_.size] = coordinate(s) - origin1_;
+  first_.row[first_.size] = {s.i_A.d, s.i_A.q, s.di_dt_A_s.d, s.v_V.d, s.v_V.q, s.dead_time_pattern.d,
                    s.dead_time_pattern.q, s.omega_e_rad_s, s.omega_m_rad_s, 0.0};
-  limited1_[size1_] = s.voltage_limited ? 1U : 0U;
-  ++size1_;
+  first_.limited[first_.size] = s.voltage_limited ? 1U : 0U;
+  ++first_.size;
   sum_time1_ += s.time_s;
   sum_omega1_ += s.omega_e_rad_s;
   sum_iq1_ += s.i_A.q;
@@ -459,20 +459,20 @@ void PairRecorder::begin_second(double origin) {
 double PairRecorder::add_second(const PeriodSample& s) {
   const double phi = coordinate(s) - origin2_;
   const double extent = first_extent();
-  if (size1_ < 4 || phi < 0.0 || phi > extent) {
+  if (first_.size < 4 || phi < 0.0 || phi > extent) {
     return phi;
   }
   // Recording 1's samples are in increasing coordinate; advance the cursor to the pair that
   // brackets phi.
-  while (cursor_ + 2 < size1_ && coord1_[cursor_ + 1] < phi) {
+  while (cursor_ + 2 < first_.size && first_.coord[cursor_ + 1] < phi) {
     ++cursor_;
   }
   // Four samples around the bracket [cursor, cursor + 1], shifted inwards at the ends.
-  const std::size_t first = std::min(cursor_ > 0 ? cursor_ - 1 : 0, size1_ >= 4 ? size1_ - 4 : 0);
-  if (size1_ < 4) {
+  const std::size_t first = std::min(cursor_ > 0 ? cursor_ - 1 : 0, first_.size >= 4 ? first_.size - 4 : 0);
+  if (first_.size < 4) {
     return phi;
   }
-  const std::array<double, 4> c4{coord1_[first], coord1_[first + 1], coord1_[first + 2], coord1_[first + 3]};
+  const std::array<double, 4> c4{first_.coord[first], first_.coord[first + 1], first_.coord[first + 2], first_.coord[first + 3]};
   for (std::size_t j = 1; j < 4; ++j) {
     if (!(c4[j] - c4[j - 1] > 1e-12)) {
       return phi;  // repeated coordinates (a stalled rotor): no sensible interpolation here
@@ -480,15 +480,15 @@ double PairRecorder::add_second(const PeriodSample& s) {
   }
   // Recording 1 at phi: every channel the same weighted sum of the four rows.
   const Weights w = lagrange_weights(c4, phi);
-  const Row& r0 = row1_[first];
-  const Row& r1 = row1_[first + 1];
-  const Row& r2 = row1_[first + 2];
-  const Row& r3 = row1_[first + 3];
+  const Row& r0 = first_.row[first];
+  const Row& r1 = first_.row[first + 1];
+  const Row& r2 = first_.row[first + 2];
+  const Row& r3 = first_.row[first + 3];
   Row r;
   for (std::size_t k = 0; k < kChannels; ++k) {
     r[k] = 0.0 + w.w[0] * r0[k] + w.w[1] * r1[k] + w.w[2] * r2[k] + w.w[3] * r3[k];
   }
-  const bool r1_limited = limited1_[first + 1] != 0U || limited1_[first + 2] != 0U;
+  const bool r1_limited = first_.limited[first + 1] != 0U || first_.limited[first + 2] != 0U;
 
   // Eqs. 37 / 43, recording 1 minus recording 2 at the same angle:
   // dVd + d(w psi_q) = Rs dId + Vx dGd + Ld d(dId/dt), with d(w psi_q) = Lq iq dw +
@@ -559,8 +559,8 @@ PairConditions PairRecorder::conditions() const {
   PairConditions c;
   c.samples = matched_;
   c.any_voltage_limited = any_limited_;
-  if (size1_ > 0) {
-    const auto n1 = static_cast<double>(size1_);
+  if (first_.size > 0) {
+    const auto n1 = static_cast<double>(first_.size);
     c.omega_e_mean_1_rad_s = sum_omega1_ / n1;
     c.iq_mean_1_A = sum_iq1_ / n1;
     c.id_mean_1_A = sum_id1_ / n1;
@@ -570,7 +570,7 @@ PairConditions PairRecorder::conditions() const {
     c.omega_e_mean_2_rad_s = sum_omega2_ / m;
     c.iq_mean_2_A = sum_iq2_ / m;
     c.id_mean_2_A = sum_id2_ / m;
-    const double t1 = sum_time1_ / static_cast<double>(std::max<std::size_t>(size1_, 1));
+    const double t1 = sum_time1_ / static_cast<double>(std::max<std::size_t>(first_.size, 1));
     const double t2 = sum_time2_ / m;
     const double di = c.id_mean_1_A - c.id_mean_2_A;
     c.time_1_s = t1;

@@ -35,6 +35,7 @@
 // averaged over both recordings), hence the magnet temperature.
 #pragma once
 
+#include <algorithm>
 #include <array>
 #include <cstddef>
 #include <cstdint>
@@ -244,8 +245,8 @@ class PairRecorder {
   bool add_first(const PeriodSample& s);
   // The extent of recording 1, in the matching coordinate (angle from its first sample, or
   // time); recording 2 must cover the same.
-  [[nodiscard]] double first_extent() const { return size1_ == 0 ? 0.0 : coord1_[size1_ - 1]; }
-  [[nodiscard]] std::size_t first_size() const { return size1_; }
+  [[nodiscard]] double first_extent() const { return first_.size == 0 ? 0.0 : first_.coord[first_.size - 1]; }
+  [[nodiscard]] std::size_t first_size() const { return first_.size; }
   // Start of recording 1 in the matching coordinate (absolute angle or time).
   [[nodiscard]] double first_origin() const { return origin1_; }
   // Recording 2: origin is the matching coordinate of recording 1's origin plus dTheta.
@@ -275,10 +276,43 @@ class PairRecorder {
   // whether its command was limited.
   enum Channel : std::size_t { kId, kIq, kDidDt, kVd, kVq, kGd, kGq, kOmegaE, kOmegaM, kPad, kChannels };
   using Row = std::array<double, kChannels>;
-  std::vector<double> coord1_;
-  std::vector<Row> row1_;
-  std::vector<std::uint8_t> limited1_;
-  std::size_t size1_ = 0;
+  // A copy carries only the samples recorded, not the whole capacity: the simulator copies a
+  // drive at every injection event (its twin), and the buffers are sized for the longest pulse.
+  struct Recording {
+    std::vector<double> coord;
+    std::vector<Row> row;
+    std::vector<std::uint8_t> limited;
+    std::size_t size = 0;
+
+    explicit Recording(std::size_t capacity) : coord(capacity), row(capacity), limited(capacity) {}
+    ~Recording() = default;
+    Recording(const Recording& other)
+        : coord(other.coord.size()), row(other.row.size()), limited(other.limited.size()) {
+      copy_recorded(other);
+    }
+    Recording& operator=(const Recording& other) {
+      if (this != &other) {
+        if (row.size() != other.row.size()) {
+          coord.resize(other.coord.size());
+          row.resize(other.row.size());
+          limited.resize(other.limited.size());
+        }
+        copy_recorded(other);
+      }
+      return *this;
+    }
+    Recording(Recording&&) noexcept = default;
+    Recording& operator=(Recording&&) noexcept = default;
+
+   private:
+    void copy_recorded(const Recording& other) {
+      std::copy_n(other.coord.begin(), other.size, coord.begin());
+      std::copy_n(other.row.begin(), other.size, row.begin());
+      std::copy_n(other.limited.begin(), other.size, limited.begin());
+      size = other.size;
+    }
+  };
+  Recording first_;
   std::size_t cursor_ = 0;
   PairFitConfig config_{};
   MatchBy match_by_ = MatchBy::kAngle;
