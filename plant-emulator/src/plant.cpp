@@ -13,6 +13,7 @@
 #include <optional>
 
 #include "pmsm/fixed_sincos.hpp"
+#include "pmsm/fmod_two_pi.hpp"
 #include "pmsm/plant/emf.hpp"
 #include "pmsm/plant/rng.hpp"
 #include "pmsm/plant/thermal.hpp"
@@ -114,6 +115,33 @@ struct Aux {
   double dc_bus_V = 0.0;
 };
 
+// What the derivative evaluation computes from the time, the state and the mechanical
+// mode alone: everything but the bridge's applied voltage and what follows from it.
+struct Motion {
+  Trig3 tr;
+  std::array<double, 3> i_abc{};
+  std::array<double, 3> e_abc{};
+  double omega = 0.0;
+  double we = 0.0;
+  double e_d = 0.0;
+  double e_q = 0.0;
+  double Ld_inc = 0.0;
+  double Lq_inc = 0.0;
+  double a_d = 0.0;  // everything of Eq. 3 except the applied voltage and the L·di/dt term
+  double a_q = 0.0;
+  double vdc = 0.0;
+  double torque_em = 0.0;
+  double torque_cog = 0.0;
+  double torque_load = 0.0;
+  double d_theta = 0.0;  // the mechanical states' derivatives
+  double d_omega = 0.0;
+  double d_dyno_int = 0.0;
+  double friction_W = 0.0;
+  double iron_W = 0.0;
+  double copper_W = 0.0;
+  double load_W = 0.0;
+};
+
 // Modes held constant over one RK4 step; switching happens only between steps.
 struct Modes {
   Mech mech = Mech::sliding;
@@ -194,6 +222,15 @@ struct Plant::Impl {
   double ambient_C = 25.0;
   mutable double dc_bus_cache_t_s = std::numeric_limits<double>::quiet_NaN();
   mutable double dc_bus_cache_V = 0.0;
+  // evaluate_at_start's last motion and what it was computed from; the parameters it also
+  // depends on (resistance, flux, load) change only between periods or by a run-time change,
+  // which clears it.
+  mutable Motion start_motion;
+  mutable bool start_motion_valid = false;
+  mutable double start_motion_t_s = 0.0;
+  mutable Mech start_motion_mech = Mech::sliding;
+  mutable double start_motion_slide_sign = 0.0;
+  mutable State start_motion_state;
   // What the sample's evaluation computed, for state() at the same instant: valid until the
   // next period or a run-time change (set_*); keyed by the gates' state it was made with.
   Aux sample_aux;
@@ -269,6 +306,12 @@ struct Plant::Impl {
     set_flags();
   }
 
+  // After a run-time change: the evaluations kept at the sample instant are no longer the model's.
+  void invalidate_evaluations() {
+    sample_aux_valid = false;
+    start_motion_valid = false;
+  }
+
   void configure_dyno() {
     ideal_dyno = cfg.load.profile == LoadProfile::speed_cycle && cfg.load.dyno_bandwidth_Hz <= 0.0;
     // PI speed loop of the dynamometer on the shaft inertia: critically damped, natural
@@ -279,6 +322,7 @@ struct Plant::Impl {
   }
 
   void update_temperature_parameters() {
+    start_motion_valid = false;
     const auto& t = thermal.temperatures_C();
     rs_ohm = cfg.motor.rs_at_C(t[ThermalNetwork::kWinding]);  // Eq. 1
     psi_m_Wb = psi_m0_Wb * (1.0 + cfg.motor.magnet_temp_coefficient_per_C *
@@ -357,12 +401,9 @@ struct Plant::Impl {
     return 0.0;
   }
 
-  // The derivative of the state and the powers at (t, s) for the given period input and
-  // modes. This is the whole continuous-time model.
-  void evaluate(double t, const State& s, const PeriodInput& in, const Modes& m, State& ds,
-                Meters& pw, Aux& aux) const {
+  void motion(double t, const State& s, const Modes& m, Motion& mo) const {
     const double theta_e = p * s.theta_m_rad;
-    const Trig3 tr = trig3(theta_e);
+    const Trig3& tr = mo.tr = trig3(theta_e);
     double omega = s.omega_m_rad_s;
     double alpha_ref = 0.0;
     if (m.mech == Mech::ideal_dyno) {
@@ -372,27 +413,102 @@ struct Plant::Impl {
     } else if (m.mech == Mech::stuck) {
       omega = 0.0;
     }
-    const double we = p * omega;
-    const std::array<double, 3> i_abc = currents_abc(s.id_A, s.iq_A, tr);
+    mo.omega = omega;
+    const double we = mo.we = p * omega;
+    mo.i_abc = currents_abc(s.id_A, s.iq_A, tr);
 
     // EMF in the rotor frame (Eq. 3 plus the harmonic terms kd, kq of Eqs. 33-36).
     double g_d = 0.0;
     double g_q = 1.0;
     emf.dq_shape(tr.c[0], tr.s[0], g_d, g_q);
-    const double e_d = we * psi_m_Wb * g_d;
-    const double e_q = we * psi_m_Wb * g_q;
+    const double e_d = mo.e_d = we * psi_m_Wb * g_d;
+    const double e_q = mo.e_q = we * psi_m_Wb * g_q;
     double psi_d_i = 0.0;
-    double Ld_inc = 0.0;
     double psi_q = 0.0;
-    double Lq_inc = 0.0;
-    d_axis.eval(s.id_A, psi_d_i, Ld_inc);
-    q_axis.eval(s.iq_A, psi_q, Lq_inc);
-    // Everything of Eq. 3 except the applied voltage and the L·di/dt term.
-    const double a_d = rs_ohm * s.id_A - we * psi_q + e_d;
-    const double a_q = rs_ohm * s.iq_A + we * psi_d_i + e_q;
+    d_axis.eval(s.id_A, psi_d_i, mo.Ld_inc);
+    q_axis.eval(s.iq_A, psi_q, mo.Lq_inc);
+    mo.a_d = rs_ohm * s.id_A - we * psi_q + e_d;
+    mo.a_q = rs_ohm * s.iq_A + we * psi_d_i + e_q;
+    mo.vdc = dc_bus_V(t);
+    for (std::size_t ph = 0; ph < 3; ++ph) {
+      mo.e_abc[ph] = e_d * tr.c[ph] - e_q * tr.s[ph];
+    }
+
+    // Air-gap torque, consistent with the power converted by the EMF and by saliency.
+    const double torque_em = mo.torque_em =
+        1.5 * p * (psi_m_Wb * (g_d * s.id_A + g_q * s.iq_A) + psi_d_i * s.iq_A - psi_q * s.id_A);
+    const double torque_cog = mo.torque_cog =
+        cfg.cogging.enabled
+            ? cfg.cogging.amplitude_Nm *
+                  math::fixed_sincos(cfg.cogging.order * s.theta_m_rad + cfg.cogging.phase_rad).s
+            : 0.0;
+
+    // Iron loss P = k_h·|ω_e| + k_e·ω_e², applied as a drag torque with a Coulomb part
+    // (hysteresis) and a viscous part (eddy currents) so that it is paid for mechanically.
+    const double fe_coulomb_Nm = iron_scale * cfg.iron_loss.hysteresis_W_s_rad * p;
+    const double fe_viscous_Nm_s = iron_scale * cfg.iron_loss.eddy_W_s2_rad2 * p * p;
+    const double coulomb_Nm = cfg.mechanics.coulomb_Nm;
+    const double viscous_Nm_s = cfg.mechanics.viscous_Nm_s_rad;
+    const double ripple = (cfg.load.ripple_enabled && m.mech != Mech::ideal_dyno)
+                              ? 1.0 + cfg.load.ripple_fraction *
+                                          math::fixed_sincos(cfg.load.ripple_order * s.theta_m_rad +
+                                                             cfg.load.ripple_phase_rad).s
+                              : 1.0;
+
+    double torque_load = 0.0;
+    mo.d_dyno_int = 0.0;
+    if (m.mech == Mech::ideal_dyno) {
+      // The dynamometer takes whatever torque keeps the speed on its profile.
+      const double sgn = sign_of(omega);
+      const double friction = sgn * (coulomb_Nm + fe_coulomb_Nm) + (viscous_Nm_s + fe_viscous_Nm_s) * omega;
+      torque_load = torque_em + torque_cog - friction - cfg.mechanics.inertia_kg_m2 * alpha_ref;
+      mo.d_theta = omega;
+      mo.d_omega = alpha_ref;
+      mo.friction_W = coulomb_Nm * std::abs(omega) + viscous_Nm_s * omega * omega;
+      mo.iron_W = fe_coulomb_Nm * std::abs(omega) + fe_viscous_Nm_s * omega * omega;
+    } else {
+      if (cfg.load.profile == LoadProfile::speed_cycle) {
+        const auto [w_ref, a_ref] = speed_reference(t);
+        torque_load = (kp_dyno * (omega - w_ref) + ki_dyno * s.dyno_int_rad +
+                       cfg.mechanics.inertia_kg_m2 * a_ref) * ripple;
+        mo.d_dyno_int = omega - w_ref;
+      } else {
+        torque_load = load_torque_base(t, omega) * ripple;
+      }
+      if (m.mech == Mech::stuck) {
+        mo.d_theta = 0.0;
+        mo.d_omega = 0.0;
+        mo.friction_W = 0.0;
+        mo.iron_W = 0.0;
+      } else {
+        const double sgn = m.slide_sign;
+        const double drive = torque_em + torque_cog - torque_load;
+        mo.d_theta = omega;
+        mo.d_omega = (drive - sgn * (coulomb_Nm + fe_coulomb_Nm) -
+                      (viscous_Nm_s + fe_viscous_Nm_s) * omega) / cfg.mechanics.inertia_kg_m2;
+        mo.friction_W = sgn * coulomb_Nm * omega + viscous_Nm_s * omega * omega;
+        mo.iron_W = sgn * fe_coulomb_Nm * omega + fe_viscous_Nm_s * omega * omega;
+      }
+    }
+    mo.torque_load = torque_load;
+    mo.copper_W = 1.5 * rs_ohm * (s.id_A * s.id_A + s.iq_A * s.iq_A);
+    mo.load_W = torque_load * omega;
+  }
+
+  // The derivative of the state and the powers at (t, s) for the given period input and
+  // modes, from what motion() computed there. With motion(), the whole continuous-time model.
+  void evaluate(const Motion& mo, const State& s, const PeriodInput& in, const Modes& m, State& ds,
+                Meters& pw, Aux& aux) const {
+    const Trig3& tr = mo.tr;
+    const double we = mo.we;
+    const double a_d = mo.a_d;
+    const double a_q = mo.a_q;
+    const double Ld_inc = mo.Ld_inc;
+    const double Lq_inc = mo.Lq_inc;
+    const std::array<double, 3>& i_abc = mo.i_abc;
 
     // Applied voltages.
-    const double vdc = dc_bus_V(t);
+    const double vdc = mo.vdc;
     aux.dc_bus_V = vdc;
     std::array<double, 3> pole{};
     double vd = 0.0;
@@ -453,7 +569,7 @@ struct Plant::Impl {
           vd = a_d;
           vq = a_q;
           for (std::size_t ph = 0; ph < 3; ++ph) {
-            pole[ph] = e_d * tr.c[ph] - e_q * tr.s[ph];
+            pole[ph] = mo.e_d * tr.c[ph] - mo.e_q * tr.s[ph];
           }
         } else {
           park(pole, tr, vd, vq);
@@ -464,80 +580,56 @@ struct Plant::Impl {
     const double pole_mean = (pole[0] + pole[1] + pole[2]) / 3.0;
     for (std::size_t ph = 0; ph < 3; ++ph) {
       aux.v_phase_V[ph] = pole[ph] - pole_mean;
-      aux.e_abc_V[ph] = e_d * tr.c[ph] - e_q * tr.s[ph];
     }
+    aux.e_abc_V = mo.e_abc;
 
     ds.id_A = zero_current ? 0.0 : (vd - a_d) / Ld_inc;
     ds.iq_A = zero_current ? 0.0 : (vq - a_q) / Lq_inc;
+    ds.theta_m_rad = mo.d_theta;
+    ds.omega_m_rad_s = mo.d_omega;
+    ds.dyno_int_rad = mo.d_dyno_int;
 
-    // Air-gap torque, consistent with the power converted by the EMF and by saliency.
-    const double torque_em =
-        1.5 * p * (psi_m_Wb * (g_d * s.id_A + g_q * s.iq_A) + psi_d_i * s.iq_A - psi_q * s.id_A);
-    const double torque_cog =
-        cfg.cogging.enabled
-            ? cfg.cogging.amplitude_Nm *
-                  math::fixed_sincos(cfg.cogging.order * s.theta_m_rad + cfg.cogging.phase_rad).s
-            : 0.0;
-
-    // Iron loss P = k_h·|ω_e| + k_e·ω_e², applied as a drag torque with a Coulomb part
-    // (hysteresis) and a viscous part (eddy currents) so that it is paid for mechanically.
-    const double fe_coulomb_Nm = iron_scale * cfg.iron_loss.hysteresis_W_s_rad * p;
-    const double fe_viscous_Nm_s = iron_scale * cfg.iron_loss.eddy_W_s2_rad2 * p * p;
-    const double coulomb_Nm = cfg.mechanics.coulomb_Nm;
-    const double viscous_Nm_s = cfg.mechanics.viscous_Nm_s_rad;
-    const double ripple = (cfg.load.ripple_enabled && m.mech != Mech::ideal_dyno)
-                              ? 1.0 + cfg.load.ripple_fraction *
-                                          math::fixed_sincos(cfg.load.ripple_order * s.theta_m_rad +
-                                                             cfg.load.ripple_phase_rad).s
-                              : 1.0;
-
-    double torque_load = 0.0;
-    ds.dyno_int_rad = 0.0;
-    if (m.mech == Mech::ideal_dyno) {
-      // The dynamometer takes whatever torque keeps the speed on its profile.
-      const double sgn = sign_of(omega);
-      const double friction = sgn * (coulomb_Nm + fe_coulomb_Nm) + (viscous_Nm_s + fe_viscous_Nm_s) * omega;
-      torque_load = torque_em + torque_cog - friction - cfg.mechanics.inertia_kg_m2 * alpha_ref;
-      ds.theta_m_rad = omega;
-      ds.omega_m_rad_s = alpha_ref;
-      pw.friction_J = coulomb_Nm * std::abs(omega) + viscous_Nm_s * omega * omega;
-      pw.iron_J = fe_coulomb_Nm * std::abs(omega) + fe_viscous_Nm_s * omega * omega;
-    } else {
-      if (cfg.load.profile == LoadProfile::speed_cycle) {
-        const auto [w_ref, a_ref] = speed_reference(t);
-        torque_load = (kp_dyno * (omega - w_ref) + ki_dyno * s.dyno_int_rad +
-                       cfg.mechanics.inertia_kg_m2 * a_ref) * ripple;
-        ds.dyno_int_rad = omega - w_ref;
-      } else {
-        torque_load = load_torque_base(t, omega) * ripple;
-      }
-      if (m.mech == Mech::stuck) {
-        ds.theta_m_rad = 0.0;
-        ds.omega_m_rad_s = 0.0;
-        pw.friction_J = 0.0;
-        pw.iron_J = 0.0;
-      } else {
-        const double sgn = m.slide_sign;
-        const double drive = torque_em + torque_cog - torque_load;
-        ds.theta_m_rad = omega;
-        ds.omega_m_rad_s = (drive - sgn * (coulomb_Nm + fe_coulomb_Nm) -
-                            (viscous_Nm_s + fe_viscous_Nm_s) * omega) / cfg.mechanics.inertia_kg_m2;
-        pw.friction_J = sgn * coulomb_Nm * omega + viscous_Nm_s * omega * omega;
-        pw.iron_J = sgn * fe_coulomb_Nm * omega + fe_viscous_Nm_s * omega * omega;
-      }
-    }
-
+    pw.friction_J = mo.friction_W;
+    pw.iron_J = mo.iron_W;
     pw.input_J = aux.v_phase_V[0] * i_abc[0] + aux.v_phase_V[1] * i_abc[1] +
                  aux.v_phase_V[2] * i_abc[2];
-    pw.copper_J = 1.5 * rs_ohm * (s.id_A * s.id_A + s.iq_A * s.iq_A);
-    pw.load_J = torque_load * omega;
+    pw.copper_J = mo.copper_W;
+    pw.load_J = mo.load_W;
     pw.v_int_V_s = aux.v_phase_V;
 
     aux.i_abc_A = i_abc;
-    aux.torque_em_Nm = torque_em;
-    aux.torque_cog_Nm = torque_cog;
-    aux.torque_load_Nm = torque_load;
-    aux.omega_m_rad_s = omega;
+    aux.torque_em_Nm = mo.torque_em;
+    aux.torque_cog_Nm = mo.torque_cog;
+    aux.torque_load_Nm = mo.torque_load;
+    aux.omega_m_rad_s = mo.omega;
+  }
+
+  void evaluate(double t, const State& s, const PeriodInput& in, const Modes& m, State& ds,
+                Meters& pw, Aux& aux) const {
+    Motion mo;
+    motion(t, s, m, mo);
+    evaluate(mo, s, in, m, ds, pw, aux);
+  }
+
+  // The same where a step starts. The sample's evaluation at t_k and the period's first step
+  // from there, and a step's redo up to an event, evaluate the same state at the same time in
+  // the same mechanical mode: the last such motion is kept (a pure function of them, as the
+  // bus voltage's cache is), which saves one evaluation in five.
+  void evaluate_at_start(double t, const State& s, const PeriodInput& in, const Modes& m,
+                         State& ds, Meters& pw, Aux& aux) const {
+    if (!(start_motion_valid && t == start_motion_t_s && m.mech == start_motion_mech &&
+          m.slide_sign == start_motion_slide_sign && s.id_A == start_motion_state.id_A &&
+          s.iq_A == start_motion_state.iq_A && s.theta_m_rad == start_motion_state.theta_m_rad &&
+          s.omega_m_rad_s == start_motion_state.omega_m_rad_s &&
+          s.dyno_int_rad == start_motion_state.dyno_int_rad)) {
+      motion(t, s, m, start_motion);
+      start_motion_valid = true;
+      start_motion_t_s = t;
+      start_motion_mech = m.mech;
+      start_motion_slide_sign = m.slide_sign;
+      start_motion_state = s;
+    }
+    evaluate(start_motion, s, in, m, ds, pw, aux);
   }
 
   // One classic RK4 step; the meters get the same weights, as extra states would.
@@ -552,7 +644,7 @@ struct Plant::Impl {
     Meters p3;
     Meters p4;
     Aux aux;
-    evaluate(t, s0, in, m, k1, p1, aux);
+    evaluate_at_start(t, s0, in, m, k1, p1, aux);
     if (i0_abc_A != nullptr) {
       *i0_abc_A = aux.i_abc_A;
     }
@@ -933,7 +1025,7 @@ struct Plant::Impl {
     if (in.drive == Drive::off && !conduction_valid) {
       m.conduct = {0, 0, 0};
     }
-    evaluate(t, x, in, m, ds, pw, aux);
+    evaluate_at_start(t, x, in, m, ds, pw, aux);
   }
 
   double noise(bool enabled, double sigma) {
@@ -953,7 +1045,7 @@ struct Plant::Impl {
       const double measured = aux.i_abc_A[ph] * gain + offset + noise(adc.noise_enabled, adc.noise_A);
       out.phase_current_adc[ph] = clamp_code<std::int16_t>(measured / current_lsb_A, -full, full - 1.0);
     }
-    double angle = std::fmod(x.theta_m_rad - cfg.encoder.offset_rad, kTwoPi);
+    double angle = math::fmod_two_pi(x.theta_m_rad - cfg.encoder.offset_rad);
     if (angle < 0.0) {
       angle += kTwoPi;
     }
@@ -1066,11 +1158,11 @@ struct Plant::Impl {
     s.id_A = x.id_A;
     s.iq_A = x.iq_A;
     s.phase_current_A = aux.i_abc_A;
-    s.theta_m_rad = std::fmod(x.theta_m_rad, kTwoPi);
+    s.theta_m_rad = math::fmod_two_pi(x.theta_m_rad);
     if (s.theta_m_rad < 0.0) {
       s.theta_m_rad += kTwoPi;
     }
-    s.theta_e_rad = std::fmod(p * s.theta_m_rad, kTwoPi);
+    s.theta_e_rad = math::fmod_two_pi(p * s.theta_m_rad);
     s.omega_m_rad_s = aux.omega_m_rad_s;
     s.omega_e_rad_s = p * aux.omega_m_rad_s;
     s.phase_emf_V = aux.e_abc_V;
@@ -1165,7 +1257,7 @@ void Plant::set_thermal_acceleration(double acceleration) {
 void Plant::set_temperatures_C(double winding_C, double housing_C, double rotor_C) {
   impl_->thermal.set_temperatures_C({winding_C, housing_C, rotor_C});
   impl_->update_temperature_parameters();
-  impl_->sample_aux_valid = false;
+  impl_->invalidate_evaluations();
 }
 
 void Plant::set_load_torque_Nm(double torque_Nm) {
@@ -1174,7 +1266,7 @@ void Plant::set_load_torque_Nm(double torque_Nm) {
   im.cfg.load.torque_Nm = torque_Nm;
   im.cfg.load.points.clear();  // keeps the capacity: no deallocation on the RT side
   im.configure_dyno();
-  im.sample_aux_valid = false;
+  im.invalidate_evaluations();
 }
 
 void Plant::set_imposed_speed_rad_s(double speed_rad_s) {
@@ -1188,7 +1280,7 @@ void Plant::set_imposed_speed_rad_s(double speed_rad_s) {
   } else {
     im.x.dyno_int_rad = 0.0;
   }
-  im.sample_aux_valid = false;
+  im.invalidate_evaluations();
 }
 
 }  // namespace pmsm::plant

@@ -1,10 +1,15 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
+#include <cstdint>
 #include <limits>
+#include <numbers>
+#include <random>
 
 #include "pmsm/core/transforms.hpp"
+#include "pmsm/fmod_two_pi.hpp"
 
 namespace pmsm::core {
 namespace {
@@ -97,6 +102,46 @@ TEST(Transforms, AngleWrappingMatchesFmodWithinATurnAndStaysInRangeFarOut) {
   }
   EXPECT_TRUE(std::isnan(wrap_angle_0_2pi(std::numeric_limits<double>::quiet_NaN())));
   EXPECT_TRUE(std::isnan(wrap_angle_0_2pi(std::numeric_limits<double>::infinity())));
+}
+
+// The plant's angle reduction (common/math/pmsm/fmod_two_pi.hpp) against fmod, bit for bit:
+// random angles out to ten million radians either side, the doubles next to the multiples of
+// 2π (where x / 2π rounds to the wrong quotient), signed zeros, the largest fraction-carrying
+// doubles and the fallback beyond them.
+TEST(Transforms, FmodTwoPiIsFmodBitForBit) {
+  constexpr double kTwoPi = 2.0 * std::numbers::pi;
+  const auto same = [](double x) {
+    const double want = std::fmod(x, kTwoPi);
+    const double got = pmsm::math::fmod_two_pi(x);
+    if (std::isnan(want)) {
+      return std::isnan(got);
+    }
+    return std::bit_cast<std::uint64_t>(want) == std::bit_cast<std::uint64_t>(got);
+  };
+  std::mt19937_64 rng(2024);
+  std::uniform_real_distribution<double> wide(-1e7, 1e7);
+  std::uniform_real_distribution<double> near(-10.0, 10.0);
+  int mismatches = 0;
+  for (int i = 0; i < 200000; ++i) {
+    const double x = (i % 2 == 0) ? wide(rng) : near(rng);
+    mismatches += same(x) ? 0 : 1;
+  }
+  for (double k = -2e6; k <= 2e6; k += 997.0) {
+    double x = k * kTwoPi;
+    for (int u = 0; u < 4; ++u) {
+      x = std::nextafter(x, -std::numeric_limits<double>::infinity());
+    }
+    for (int u = 0; u < 9; ++u) {
+      mismatches += same(x) ? 0 : 1;
+      x = std::nextafter(x, std::numeric_limits<double>::infinity());
+    }
+  }
+  for (const double x : {0.0, -0.0, 1e-300, -1e-300, kTwoPi, -kTwoPi, 0x1p52 - 0.5, -0x1p52 + 0.5,
+                         0x1p52, 1e300, -1e300, std::numeric_limits<double>::infinity(),
+                         std::numeric_limits<double>::quiet_NaN()}) {
+    EXPECT_TRUE(same(x)) << x;
+  }
+  EXPECT_EQ(mismatches, 0);
 }
 
 // The fixed-cost sincos (common/math/pmsm/fixed_sincos.hpp, also the plant's) against libm: a
