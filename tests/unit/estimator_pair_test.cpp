@@ -15,6 +15,9 @@
 
 #include <array>
 #include <cmath>
+#include <cstring>
+#include <functional>
+#include <optional>
 #include <random>
 #include <vector>
 
@@ -120,7 +123,9 @@ struct PairRun {
 };
 
 // Records one pair through the recorder. Returns the recorder (by pointer, it is large).
-void run_pair(const PairSpec& p, PairRun& out, std::mt19937_64* rng = nullptr) {
+// between_recordings, if given, sees the recorder once recording 2 has begun.
+void run_pair(const PairSpec& p, PairRun& out, std::mt19937_64* rng = nullptr,
+              const std::function<void(const PairRecorder&)>& between_recordings = {}) {
   PairFitConfig cfg;
   cfg.lq_H = p.lq_config_H;
   cfg.ld_H = p.ld_config_H;
@@ -141,6 +146,9 @@ void run_pair(const PairSpec& p, PairRun& out, std::mt19937_64* rng = nullptr) {
   out.first_count = static_cast<std::size_t>(r1.samples);
   const double origin2 = out.recorder.first_origin() + p.dtheta_rad;
   out.recorder.begin_second(origin2);
+  if (between_recordings) {
+    between_recordings(out.recorder);
+  }
   RecordingSpec r2 = r1;
   r2.arc_origin_rad = r1.theta0_rad + direction * p.dtheta_rad;
   r2.theta0_rad = r2.arc_origin_rad + direction * p.offset_samples * std::abs(p.omega2_rad_s) * kPeriod;
@@ -162,6 +170,38 @@ FitOptions options(bool fit_vx, bool fit_ld, double fixed_vx = 0.0) {
   o.fit_ld = fit_ld;
   o.fixed_vx_V = fixed_vx;
   return o;
+}
+
+// The simulator copies a drive (the disturbance metric's twin) at any period, a pair's first
+// recording included, and a copy carries only the samples recorded. A copy made between the two
+// recordings, constructed or assigned over a recorder of another capacity or over one holding a
+// recording of its own, matches recording 2 as the original does, to the last bit.
+TEST(PairFit, ARecorderCopiedBetweenItsRecordingsCarriesOnAsTheOriginal) {
+  PairSpec p;
+  PairRun run;
+  std::optional<PairRecorder> constructed;
+  PairRecorder wider(2048);
+  PairRun other;
+  PairSpec q = p;
+  q.level1 = 0.5;
+  q.omega1_rad_s = 200.0;
+  run_pair(q, other);  // a longer recording of its own, to be overwritten
+  ASSERT_GT(other.first_count, 0U);
+  run_pair(p, run, nullptr, [&](const PairRecorder& r) {
+    constructed.emplace(r);
+    wider = r;
+    other.recorder = r;
+  });
+  for (PairRecorder* copy : {&*constructed, &wider, &other.recorder}) {
+    EXPECT_EQ(copy->first_size(), run.first_count);
+    for (const PeriodSample& s : run.second) {
+      copy->add_second(s);
+    }
+    const BlockedSums& a = copy->sums();
+    const BlockedSums& b = run.recorder.sums();
+    EXPECT_EQ(std::memcmp(&a, &b, sizeof(BlockedSums)), 0);
+    EXPECT_GT(b.total().n, 0.0);
+  }
 }
 
 TEST(PairFit, RecoversRsVxAndLdFromABipolarPairWithoutHarmonics) {
