@@ -251,6 +251,52 @@ TEST(plant_emf, RotorFrameShapeIsTheParkTransformOfThePhaseShapes) {
   }
 }
 
+// A run-time change takes effect from the very period that follows it, although the plant keeps
+// the sample's evaluation for that period's first RK4 stage: a change of load or of winding
+// temperature between two periods moves the next period's speed or current by what Eq. 3 and
+// the shaft's equation say (a stale first stage would move it by 5/6 of that).
+TEST(plant_physics, RunTimeChangesActInTheNextPeriod) {
+  {
+    PlantConfig c = quiet_config();
+    c.mechanics.initial_speed_rad_s = 50.0;  // gates off: a line EMF far below the bus
+    c.mechanics.viscous_Nm_s_rad = 0.0;
+    c.iron_loss.enabled = false;
+    Plant a(c);
+    hal::InverterCommand off;
+    for (int n = 0; n < 10; ++n) {
+      off.sequence = a.period();
+      a.step(off);
+    }
+    Plant b = a;
+    a.set_load_torque_Nm(5.0);
+    b.set_load_torque_Nm(0.0);
+    off.sequence = a.period();
+    a.step(off);
+    b.step(off);
+    const double expected = -5.0 * a.period_s() / c.mechanics.inertia_kg_m2;
+    EXPECT_NEAR(a.state().omega_m_rad_s - b.state().omega_m_rad_s, expected, 1e-3 * std::abs(expected));
+  }
+  {
+    PlantConfig c = quiet_config();
+    impose_speed(c, 0.0);
+    Plant a(c);
+    for (int n = 0; n < 100; ++n) {
+      a.step_with_dq_voltage(5.0, 0.0);
+    }
+    Plant b = a;
+    const double id = a.state().id_A;
+    const double r_cold = a.state().rs_ohm;
+    a.set_temperatures_C(125.0, 25.0, 25.0);
+    b.set_temperatures_C(25.0, 25.0, 25.0);
+    const double r_hot = a.state().rs_ohm;
+    ASSERT_GT(r_hot, 1.3 * r_cold);
+    a.step_with_dq_voltage(5.0, 0.0);
+    b.step_with_dq_voltage(5.0, 0.0);
+    const double expected = -(r_hot - r_cold) * id * a.period_s() / c.motor.ld_H;
+    EXPECT_NEAR(a.state().id_A - b.state().id_A, expected, 0.01 * std::abs(expected));
+  }
+}
+
 TEST(plant_physics, MagnetFluxFallsWithTemperature) {
   PlantConfig c = quiet_config();
   impose_speed(c, 100.0);
