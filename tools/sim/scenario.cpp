@@ -1,5 +1,6 @@
 #include "scenario.hpp"
 
+#include <algorithm>
 #include <array>
 #include <cerrno>
 #include <charconv>
@@ -309,14 +310,15 @@ double Profile::at(double t_s) const {
   if (t_s >= points.back().time_s) {
     return points.back().value;
   }
-  for (std::size_t k = 1; k < points.size(); ++k) {
-    if (t_s < points[k].time_s) {
-      const ProfilePoint& a = points[k - 1];
-      const ProfilePoint& b = points[k];
-      return a.value + (b.value - a.value) * (t_s - a.time_s) / (b.time_s - a.time_s);
-    }
+  // The first point after t (the loader keeps the times in order): asked every period, a
+  // search from the front cost more the longer the run and the profile (a CSV drive cycle).
+  const auto b = std::upper_bound(points.begin() + 1, points.end(), t_s,
+                                  [](double t, const ProfilePoint& q) { return t < q.time_s; });
+  if (b == points.end()) {
+    return points.back().value;
   }
-  return points.back().value;
+  const ProfilePoint& a = *(b - 1);
+  return a.value + (b->value - a.value) * (t_s - a.time_s) / (b->time_s - a.time_s);
 }
 
 namespace {
