@@ -68,7 +68,7 @@ struct NodePublications {
   std::optional<hal::protocol::InjectionReport> injection;
   std::optional<hal::protocol::DriveStatus> status;
   std::optional<hal::protocol::Heartbeat> heartbeat;
-  std::array<hal::protocol::FaultReport, core::kFaultCodeCount> faults{};
+  std::array<hal::protocol::FaultReport, core::kFaultCodeCount> faults{};  // the first fault_count
   std::size_t fault_count = 0;
 };
 
