@@ -231,6 +231,10 @@ struct Plant::Impl {
   mutable Mech start_motion_mech = Mech::sliding;
   mutable double start_motion_slide_sign = 0.0;
   mutable State start_motion_state;
+  // find_kink's trig3 at the end of a step, for motion() at the start of the next (a pure
+  // function of the angle, kept as the bus voltage is).
+  mutable double kept_trig_theta_e = std::numeric_limits<double>::quiet_NaN();
+  mutable Trig3 kept_trig;
   // What the sample's evaluation computed, for state() at the same instant: valid until the
   // next period or a run-time change (set_*); keyed by the gates' state it was made with.
   Aux sample_aux;
@@ -341,7 +345,7 @@ struct Plant::Impl {
       dc_bus_cache_t_s = t;
       dc_bus_cache_V = cfg.inverter.dc_bus_V *
                        (1.0 + cfg.inverter.dc_ripple_fraction *
-                                  math::fixed_sincos(kTwoPi * cfg.inverter.dc_ripple_frequency_Hz * t).s);
+                                  math::fixed_sin(kTwoPi * cfg.inverter.dc_ripple_frequency_Hz * t));
     }
     return dc_bus_cache_V;
   }
@@ -403,7 +407,7 @@ struct Plant::Impl {
 
   void motion(double t, const State& s, const Modes& m, Motion& mo) const {
     const double theta_e = p * s.theta_m_rad;
-    const Trig3& tr = mo.tr = trig3(theta_e);
+    const Trig3& tr = mo.tr = (theta_e == kept_trig_theta_e) ? kept_trig : trig3(theta_e);
     double omega = s.omega_m_rad_s;
     double alpha_ref = 0.0;
     if (m.mech == Mech::ideal_dyno) {
@@ -440,7 +444,7 @@ struct Plant::Impl {
     const double torque_cog = mo.torque_cog =
         cfg.cogging.enabled
             ? cfg.cogging.amplitude_Nm *
-                  math::fixed_sincos(cfg.cogging.order * s.theta_m_rad + cfg.cogging.phase_rad).s
+                  math::fixed_sin(cfg.cogging.order * s.theta_m_rad + cfg.cogging.phase_rad)
             : 0.0;
 
     // Iron loss P = k_h·|ω_e| + k_e·ω_e², applied as a drag torque with a Coulomb part
@@ -451,8 +455,8 @@ struct Plant::Impl {
     const double viscous_Nm_s = cfg.mechanics.viscous_Nm_s_rad;
     const double ripple = (cfg.load.ripple_enabled && m.mech != Mech::ideal_dyno)
                               ? 1.0 + cfg.load.ripple_fraction *
-                                          math::fixed_sincos(cfg.load.ripple_order * s.theta_m_rad +
-                                                             cfg.load.ripple_phase_rad).s
+                                          math::fixed_sin(cfg.load.ripple_order * s.theta_m_rad +
+                                                          cfg.load.ripple_phase_rad)
                               : 1.0;
 
     double torque_load = 0.0;
@@ -844,7 +848,10 @@ struct Plant::Impl {
     if (kinks.count[0] == 0) {
       return first;
     }
-    const auto i1 = currents_abc(s1.id_A, s1.iq_A, trig3(p * s1.theta_m_rad));
+    // Where the step ends the next one starts, and the sample is taken: motion() there reuses it.
+    kept_trig_theta_e = p * s1.theta_m_rad;
+    kept_trig = trig3(kept_trig_theta_e);
+    const auto i1 = currents_abc(s1.id_A, s1.iq_A, kept_trig);
     constexpr double kMinFraction = 1e-3;
     for (std::size_t ph = 0; ph < 3; ++ph) {
       for (int j = 0; j < kinks.count[ph]; ++j) {

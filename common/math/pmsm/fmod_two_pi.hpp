@@ -9,16 +9,21 @@
 #pragma once
 
 #include <cmath>
+#include <cstdint>
 #include <numbers>
 
 namespace pmsm::math {
 
 [[nodiscard]] inline double fmod_two_pi(double x) {
   constexpr double kTwoPi = 2.0 * std::numbers::pi;
+  if (x >= 0.0 && x < kTwoPi) {
+    return x;  // -0.0 too, as fmod returns it
+  }
   if (!(std::abs(x) < 0x1p52)) {
     return std::fmod(x, kTwoPi);
   }
-  double n = std::trunc(x / kTwoPi);
+  // trunc by the integer conversion (exact below 2^63): no library call.
+  double n = static_cast<double>(static_cast<std::int64_t>(x / kTwoPi));
   double r = std::fma(-n, kTwoPi, x);
   // fmod's result has the sign of x and a magnitude below 2π.
   const double step = x < 0.0 ? -1.0 : 1.0;
