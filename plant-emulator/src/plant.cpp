@@ -705,9 +705,6 @@ struct Plant::Impl {
 
   // Decides the modes for the RK4 step starting at (t, x).
   void decide_modes(double t, const PeriodInput& in) {
-    State ds;
-    Meters pw;
-    Aux aux;
     // Mechanics first: the conduction decisions below need the right speed for the EMF.
     if (ideal_dyno) {
       modes.mech = Mech::ideal_dyno;
@@ -718,6 +715,9 @@ struct Plant::Impl {
       // At standstill the shaft stays stuck while static friction can hold it.
       Modes probe = modes;
       probe.mech = Mech::stuck;
+      State ds;
+      Meters pw;
+      Aux aux;
       evaluate(t, x, in, probe, ds, pw, aux);
       const double drive = aux.torque_em_Nm + aux.torque_cog_Nm - aux.torque_load_Nm;
       const double hold = std::max(cfg.mechanics.breakaway_Nm,
@@ -758,6 +758,9 @@ struct Plant::Impl {
         return;
       }
     }
+    State ds;
+    Meters pw;
+    Aux aux;
     evaluate(t, x, in, modes, ds, pw, aux);
     const double vdc = aux.dc_bus_V;
     if (blocked == 1) {
@@ -1154,12 +1157,13 @@ struct Plant::Impl {
   }
 
   PlantState make_state() const {
-    Aux aux;
-    if (sample_aux_valid && sample_aux_gates == gates_now) {
-      aux = sample_aux;
-    } else {
-      evaluate_aux(static_cast<double>(k) * Ts_s, aux);
+    Aux evaluated;
+    const Aux* kept = &sample_aux;
+    if (!(sample_aux_valid && sample_aux_gates == gates_now)) {
+      evaluate_aux(static_cast<double>(k) * Ts_s, evaluated);
+      kept = &evaluated;
     }
+    const Aux& aux = *kept;
     PlantState s;
     s.time_s = static_cast<double>(k) * Ts_s;
     s.id_A = x.id_A;

@@ -697,9 +697,11 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
   std::size_t covered = 0;        // counted samples with the truth inside +-2 sigma
   double injection_energy_J = 0.0;
   std::uint64_t injection_periods = 0;
-  plant::PlantState truth = plant.state();
   TruthHistory history;
-  history.record(plant.time_s(), truth.rs_ohm, truth.winding_temp_C);
+  {
+    const plant::PlantState start = plant.state();
+    history.record(plant.time_s(), start.rs_ohm, start.winding_temp_C);
+  }
   double sq_err = 0.0, sum_err = 0.0, sq_rs = 0.0, sq_magnet = 0.0;
   std::size_t rs_compared = 0;
   double rel_rs_sum = 0.0;  // fused estimates' relative error at their own time
@@ -733,7 +735,7 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
     }
     const bool log_now = k % log_every == 0;
     const bool fast_now = k % kFastEvery == kFastEvery - 1;
-    truth = plant.state();
+    const plant::PlantState truth = plant.state();  // built in place: no copy of the whole record a period
     // Every 10 periods, and at a publication between them, so that an age under a millisecond
     // finds its truth too (records stay in time order).
     if (fast_now || drive.last_estimate()) {
