@@ -280,8 +280,8 @@ struct Rig {
 // event begins and lives until the metric has judged the event's last row.
 // - A snapshot of the run is taken between events: a few periods before the next scheduled
 //   event is due, and every RunOptions::twin_snapshot_periods for the events a request starts
-//   (a copy of the plant and the drive: about 0.7 M instructions, most of it the pair
-//   recorder's buffers).
+//   (a copy of the plant and the drive: about 40,000 instructions, the pair recorder's
+//   samples copied only as far as it recorded).
 // - When the run's drive starts an event in period k, the twin is the snapshot stepped to
 //   period k - 1 exactly as the run was (the same state, set-points and noise), then told to
 //   start no event (DriveController::hold_injection_events) before its period k. Until the
