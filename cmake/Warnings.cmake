@@ -25,6 +25,10 @@ endif()
 
 function(pmsm_target_defaults target)
   target_compile_options(${target} PRIVATE ${PMSM_WARNINGS})
+  # No fused multiply-adds the source does not write: the simulator's figures are the same to
+  # the last digit in every build only while each expression rounds as written (a build with
+  # -march=x86-64-v3 would otherwise contract a·b + c; docs/performance.md, "Bit for bit").
+  target_compile_options(${target} PRIVATE -ffp-contract=off)
   if(PMSM_WERROR)
     target_compile_options(${target} PRIVATE -Werror)
   endif()
