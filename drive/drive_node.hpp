@@ -70,6 +70,17 @@ struct NodePublications {
   std::optional<hal::protocol::Heartbeat> heartbeat;
   std::array<hal::protocol::FaultReport, core::kFaultCodeCount> faults{};  // the first fault_count
   std::size_t fault_count = 0;
+
+  // Nothing due. Not `= {}`: zeroing the fault reports past fault_count, which nobody reads,
+  // cost a twentieth of the node's step. A field added above is reset here.
+  void clear() noexcept {
+    thermal.reset();
+    resistance.reset();
+    injection.reset();
+    status.reset();
+    heartbeat.reset();
+    fault_count = 0;
+  }
 };
 
 struct NodeStep {

@@ -3,7 +3,9 @@
 // angle is unwrapped: after three simulated minutes at speed, its three fmods a period cost more
 // than the sample they serve. The remainder x - n·2π for the true integer quotient n is exactly
 // representable (that is why fmod is exact), so one fused multiply-add gives it exactly; x / 2π,
-// rounded, can miss n by one next to a multiple of 2π, which the range check corrects. Beyond
+// rounded, can reach n + 1 just below a multiple of 2π (never below n: the division rounds
+// monotonically and n is a double), which the sign check corrects; the other check is only
+// defensive. Beyond
 // 2^52 (no fraction left), and for NaN and inf, fmod's own. Unit test
 // Transforms.FmodTwoPiIsFmodBitForBit.
 #pragma once

@@ -41,6 +41,7 @@
 #include <cstdint>
 #include <optional>
 #include <span>
+#include <utility>
 #include <vector>
 
 #include "pmsm/core/transforms.hpp"
@@ -276,8 +277,9 @@ class PairRecorder {
   // whether its command was limited.
   enum Channel : std::size_t { kId, kIq, kDidDt, kVd, kVq, kGd, kGq, kOmegaE, kOmegaM, kPad, kChannels };
   using Row = std::array<double, kChannels>;
-  // A copy carries only the samples recorded, not the whole capacity: the simulator copies a
-  // drive at every injection event (its twin), and the buffers are sized for the longest pulse.
+  // A copy-assignment carries only the samples recorded, not the whole capacity: the simulator
+  // copies a drive into its twin's buffers at every injection event, and the buffers are sized
+  // for the longest pulse (a copy-construction allocates the capacity, once per buffer).
   struct Recording {
     std::vector<double> coord;
     std::vector<Row> row;
@@ -301,8 +303,19 @@ class PairRecorder {
       }
       return *this;
     }
-    Recording(Recording&&) noexcept = default;
-    Recording& operator=(Recording&&) noexcept = default;
+    // A moved-from recording is empty (its buffers went with the move).
+    Recording(Recording&& other) noexcept
+        : coord(std::move(other.coord)),
+          row(std::move(other.row)),
+          limited(std::move(other.limited)),
+          size(std::exchange(other.size, 0)) {}
+    Recording& operator=(Recording&& other) noexcept {
+      coord = std::move(other.coord);
+      row = std::move(other.row);
+      limited = std::move(other.limited);
+      size = std::exchange(other.size, 0);
+      return *this;
+    }
 
    private:
     void copy_recorded(const Recording& other) {
