@@ -176,13 +176,15 @@ const PlantConfig& validated(const PlantConfig& config) {
 }
 
 // An ADC's code for v; a reading that is no number (a model that diverged: Plant::diverged)
-// reads as code 0, never through a float-to-integer cast of NaN, which is undefined.
+// reads as code 0, never through a float-to-integer cast of NaN, which is undefined. rint is
+// nearbyint in the rounding mode the plant never changes; without trap semantics (the release
+// build) the compiler inlines it.
 template <typename T>
 T clamp_code(double v, double lo, double hi) {
   if (std::isnan(v)) {
     return T{0};
   }
-  return static_cast<T>(std::clamp(std::nearbyint(v), lo, hi));
+  return static_cast<T>(std::clamp(std::rint(v), lo, hi));
 }
 
 }  // namespace
