@@ -75,6 +75,8 @@ struct State {
   double omega_m_rad_s = 0.0;
   double dyno_int_rad = 0.0;   // integral of the speed error of the PI dynamometer
 
+  bool operator==(const State&) const = default;
+
   State plus(const State& d, double h) const {
     return State{id_A + h * d.id_A, iq_A + h * d.iq_A, theta_m_rad + h * d.theta_m_rad,
                  omega_m_rad_s + h * d.omega_m_rad_s, dyno_int_rad + h * d.dyno_int_rad};
@@ -225,8 +227,8 @@ struct Plant::Impl {
   mutable double dc_bus_cache_t_s = std::numeric_limits<double>::quiet_NaN();
   mutable double dc_bus_cache_V = 0.0;
   // evaluate_at_start's last motion and what it was computed from; the parameters it also
-  // depends on (resistance, flux, load) change only between periods or by a run-time change,
-  // which clears it.
+  // depends on (resistance, flux, load) change only between periods, where the time moves on,
+  // or by a run-time change, which clears it (invalidate_evaluations).
   mutable Motion start_motion;
   mutable bool start_motion_valid = false;
   mutable double start_motion_t_s = 0.0;
@@ -328,7 +330,6 @@ struct Plant::Impl {
   }
 
   void update_temperature_parameters() {
-    start_motion_valid = false;
     const auto& t = thermal.temperatures_C();
     rs_ohm = cfg.motor.rs_at_C(t[ThermalNetwork::kWinding]);  // Eq. 1
     psi_m_Wb = psi_m0_Wb * (1.0 + cfg.motor.magnet_temp_coefficient_per_C *
@@ -624,10 +625,7 @@ struct Plant::Impl {
   void evaluate_at_start(double t, const State& s, const PeriodInput& in, const Modes& m,
                          State& ds, Meters& pw, Aux& aux) const {
     if (!(start_motion_valid && t == start_motion_t_s && m.mech == start_motion_mech &&
-          m.slide_sign == start_motion_slide_sign && s.id_A == start_motion_state.id_A &&
-          s.iq_A == start_motion_state.iq_A && s.theta_m_rad == start_motion_state.theta_m_rad &&
-          s.omega_m_rad_s == start_motion_state.omega_m_rad_s &&
-          s.dyno_int_rad == start_motion_state.dyno_int_rad)) {
+          m.slide_sign == start_motion_slide_sign && s == start_motion_state)) {
       motion(t, s, m, start_motion);
       start_motion_valid = true;
       start_motion_t_s = t;
