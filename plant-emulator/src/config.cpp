@@ -193,6 +193,18 @@ common::ConfigSchema<PlantConfig> build_schema() {
     real("inverter.dc_ripple_frequency_Hz",
                      PMSM_MEMBER(inverter.dc_ripple_frequency_Hz), positive(1e5),
                      "DC-bus ripple frequency (six-pulse rectifier on 50 Hz: 300 Hz).");
+    s.points("inverter.dc_source_points", positive(2000.0), PMSM_MEMBER(inverter.dc_source_points), "",
+             "[[time_s, V], ...]: the supply's voltage over time in place of dc_bus_V (a sag, a step, a "
+             "battery discharging): linear interpolation (repeat a time for a step), ends held. The bus "
+             "moves between PWM periods; the ripple is relative to it.");
+    real("inverter.dc_source_resistance_ohm", PMSM_MEMBER(inverter.dc_source_resistance_ohm),
+         closed(0, 1000),
+         "Resistance of the supply behind the DC link (a battery's internal resistance, cables, a weak "
+         "rectifier): the bus falls by R x the DC current while motoring and rises while braking (no "
+         "brake chopper). 0: a stiff bus.");
+    real("inverter.dc_link_capacitance_F", PMSM_MEMBER(inverter.dc_link_capacitance_F), positive(10.0),
+         "The DC link's capacitance: with dc_source_resistance_ohm it sets how fast the bus follows "
+         "the load (time constant R x C).");
     boolean("inverter.dead_time_enabled", PMSM_MEMBER(inverter.dead_time_enabled),
                         "Dead-time voltage error (not compensated by the plant).");
     real("inverter.dead_time_s", PMSM_MEMBER(inverter.dead_time_s),

@@ -11,6 +11,7 @@
 #include <limits>
 #include <numbers>
 #include <optional>
+#include <utility>
 
 #include "pmsm/fixed_sincos.hpp"
 #include "pmsm/fmod_two_pi.hpp"
@@ -172,6 +173,28 @@ void park(const std::array<double, 3>& abc, const Trig3& t, double& d, double& q
   q = -kTwoThirds * (abc[0] * t.s[0] + abc[1] * t.s[1] + abc[2] * t.s[2]);
 }
 
+// Piecewise-linear interpolation in a time table (times ascending; a repeated time is a step);
+// ends held. Returns the value and its slope.
+std::pair<double, double> interpolate_points(const std::vector<TimePoint>& pts, double t) {
+  if (t <= pts.front().time_s) {
+    return {pts.front().value, 0.0};
+  }
+  if (t >= pts.back().time_s) {
+    return {pts.back().value, 0.0};
+  }
+  const auto it = std::upper_bound(pts.begin(), pts.end(), t, [](double v, const TimePoint& q) {
+    return v < q.time_s;
+  });
+  const TimePoint& b = *it;
+  const TimePoint& a = *(it - 1);
+  const double dt = b.time_s - a.time_s;
+  if (dt <= 0.0) {
+    return {b.value, 0.0};
+  }
+  const double slope = (b.value - a.value) / dt;
+  return {a.value + slope * (t - a.time_s), slope};
+}
+
 const PlantConfig& validated(const PlantConfig& config) {
   validate_plant_config(config);
   return config;
@@ -224,6 +247,11 @@ struct Plant::Impl {
   double psi_m_Wb = 0.0;
   double iron_scale = 1.0;
   double ambient_C = 25.0;
+  // The bus before its ripple, held for a period (update_bus_level); whether it moves at all,
+  // and the link's decay over a period, exp(-Ts / (R C)).
+  double bus_level_V = 0.0;
+  bool bus_moves = false;
+  double bus_decay = 0.0;
   mutable double dc_bus_cache_t_s = std::numeric_limits<double>::quiet_NaN();
   mutable double dc_bus_cache_V = 0.0;
   // evaluate_at_start's last motion and what it was computed from; the parameters it also
@@ -304,6 +332,11 @@ struct Plant::Impl {
     encoder_counts = std::ldexp(1.0, cfg.encoder.bits);
     ambient_C = cfg.thermal.ambient_C;
     update_temperature_parameters();
+    bus_level_V = source_V(0.0);
+    bus_moves = !cfg.inverter.dc_source_points.empty() || cfg.inverter.dc_source_resistance_ohm > 0.0;
+    if (cfg.inverter.dc_source_resistance_ohm > 0.0) {
+      bus_decay = std::exp(-Ts_s / (cfg.inverter.dc_source_resistance_ohm * cfg.inverter.dc_link_capacitance_F));
+    }
 
     x.theta_m_rad = cfg.mechanics.initial_angle_rad;
     x.omega_m_rad_s = ideal_dyno ? speed_reference(0.0).first : cfg.mechanics.initial_speed_rad_s;
@@ -329,6 +362,33 @@ struct Plant::Impl {
     ki_dyno = wn * wn * cfg.mechanics.inertia_kg_m2;
   }
 
+  // The supply's voltage at t (DESIGN §5's bus when no table is given).
+  [[nodiscard]] double source_V(double t) const {
+    return cfg.inverter.dc_source_points.empty() ? cfg.inverter.dc_bus_V
+                                                 : interpolate_points(cfg.inverter.dc_source_points, t).first;
+  }
+
+  // The bus for the period that starts at t, from the power the motor drew in the one before
+  // (the terminals' mean power; the bridge's conduction loss is left out): the link's capacitor
+  // charged through the source's resistance by a constant current over the period, solved
+  // exactly, so any time constant R·C is stable. Where the bus moves, the values kept at the
+  // period's end were computed with the old level.
+  void update_bus_level(double t, double power_W) {
+    const double source = source_V(t);
+    double level = source;
+    if (cfg.inverter.dc_source_resistance_ohm > 0.0) {
+      const double settled = source - cfg.inverter.dc_source_resistance_ohm * power_W / bus_level_V;
+      level = settled + (bus_level_V - settled) * bus_decay;
+    }
+    constexpr double kMinBus_V = 1.0;  // a collapsed bus (the drive trips on its under-voltage long before)
+    level = std::max(level, kMinBus_V);
+    if (level != bus_level_V) {
+      bus_level_V = level;
+      dc_bus_cache_t_s = std::numeric_limits<double>::quiet_NaN();
+      invalidate_evaluations();
+    }
+  }
+
   void update_temperature_parameters() {
     const auto& t = thermal.temperatures_C();
     rs_ohm = cfg.motor.rs_at_C(t[ThermalNetwork::kWinding]);  // Eq. 1
@@ -340,13 +400,13 @@ struct Plant::Impl {
 
   [[nodiscard]] double dc_bus_V(double t) const {
     if (!cfg.inverter.dc_ripple_enabled) {
-      return cfg.inverter.dc_bus_V;
+      return bus_level_V;
     }
     // An RK4 step evaluates its middle twice and its end where the next step starts: the
-    // last value is kept (a pure function of t).
+    // last value is kept (a pure function of t within a period; cleared where the level moves).
     if (t != dc_bus_cache_t_s) {
       dc_bus_cache_t_s = t;
-      dc_bus_cache_V = cfg.inverter.dc_bus_V *
+      dc_bus_cache_V = bus_level_V *
                        (1.0 + cfg.inverter.dc_ripple_fraction *
                                   math::fixed_sin(kTwoPi * cfg.inverter.dc_ripple_frequency_Hz * t));
     }
@@ -354,26 +414,7 @@ struct Plant::Impl {
   }
 
   // Piecewise-linear interpolation in the load table; ends held. Returns value and slope.
-  [[nodiscard]] std::pair<double, double> interpolate(double t) const {
-    const auto& pts = cfg.load.points;
-    if (t <= pts.front().time_s) {
-      return {pts.front().value, 0.0};
-    }
-    if (t >= pts.back().time_s) {
-      return {pts.back().value, 0.0};
-    }
-    const auto it = std::upper_bound(pts.begin(), pts.end(), t, [](double v, const TimePoint& q) {
-      return v < q.time_s;
-    });
-    const TimePoint& b = *it;
-    const TimePoint& a = *(it - 1);
-    const double dt = b.time_s - a.time_s;
-    if (dt <= 0.0) {
-      return {b.value, 0.0};
-    }
-    const double slope = (b.value - a.value) / dt;
-    return {a.value + slope * (t - a.time_s), slope};
-  }
+  [[nodiscard]] std::pair<double, double> interpolate(double t) const { return interpolate_points(cfg.load.points, t); }
 
   // Imposed speed and its derivative.
   [[nodiscard]] std::pair<double, double> speed_reference(double t) const {
@@ -751,7 +792,7 @@ struct Plant::Impl {
       const double line_emf_bound = std::sqrt(3.0) * std::abs(p * x.omega_m_rad_s) *
                                     psi_m_Wb * emf.peak_bound();
       const double speed_bound = ideal_dyno ? std::abs(speed_reference(t).first) : 0.0;
-      const double bus_min = cfg.inverter.dc_bus_V *
+      const double bus_min = bus_level_V *
                              (1.0 - (cfg.inverter.dc_ripple_enabled ? cfg.inverter.dc_ripple_fraction : 0.0));
       const double dyno_bound = std::sqrt(3.0) * p * speed_bound * psi_m_Wb * emf.peak_bound();
       if (std::max(line_emf_bound, dyno_bound) < bus_min) {
@@ -1000,6 +1041,9 @@ struct Plant::Impl {
       v_avg_V[ph] = (meters.v_int_V_s[ph] - start.v_int_V_s[ph]) / Ts_s;
     }
     ++k;
+    if (bus_moves) {
+      update_bus_level(t_end, (meters.input_J - start.input_J) / Ts_s);
+    }
 
     if (cfg.thermal.enabled) {
       const double fr = cfg.iron_loss.rotor_fraction;

@@ -528,9 +528,9 @@ TEST(SimulateCli, JsonFiguresCsvAndPlot) {
   std::string header;
   std::getline(csv, header);
   EXPECT_EQ(header.rfind("time_s,winding_true_C,winding_est_C", 0), 0U) << header;
-  // The filter's learned model, then the magnet estimate's sigma, last: empty (not 0) while
-  // there is no estimate (no magnet estimate), numbers after.
-  const std::string learned = ",housing_est_C,missing_loss_W,loss_scale_error,magnet_std_C";
+  // The filter's learned model, then the magnet estimate's sigma: empty (not 0) while there is
+  // no estimate (no magnet estimate), numbers after; last the true bus, always a number.
+  const std::string learned = ",housing_est_C,missing_loss_W,loss_scale_error,magnet_std_C,dc_bus_V";
   ASSERT_EQ(header.size() - header.rfind(learned), learned.size()) << header;
   std::string line;
   std::size_t empty_rows = 0;
@@ -545,12 +545,13 @@ TEST(SimulateCli, JsonFiguresCsvAndPlot) {
       fields.emplace_back();  // getline drops an empty last field
     }
     ASSERT_GE(fields.size(), 4U) << line;
-    ASSERT_EQ(fields.size(), 23U) << line;
+    ASSERT_EQ(fields.size(), 24U) << line;
     const bool has_estimate = !fields[2].empty();  // winding_est_C
-    for (std::size_t k = fields.size() - 4; k < fields.size() - 1; ++k) {
+    for (std::size_t k = 19; k < 22; ++k) {
       EXPECT_EQ(fields[k].empty(), !has_estimate) << line;
     }
-    EXPECT_EQ(fields.back().empty(), fields[6] != "1") << line;  // magnet_std_C with magnet_valid
+    EXPECT_EQ(fields[22].empty(), fields[6] != "1") << line;  // magnet_std_C with magnet_valid
+    EXPECT_GT(std::stod(fields[23]), 600.0) << line;  // the reference's 650 V bus and its 1 % ripple
     ++(has_estimate ? filled_rows : empty_rows);
   }
   EXPECT_GT(empty_rows, 0U) << "the first row has no estimate yet";

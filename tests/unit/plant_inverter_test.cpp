@@ -195,5 +195,56 @@ TEST(plant_inverter, HardwareOvercurrentTripsAndClears) {
   EXPECT_GT(plant.state().phase_current_A[0], 0.1);  // switching again
 }
 
+// The supply's voltage over time (inverter.dc_source_points): the bus follows it between
+// periods, linearly between the table's points and in one period at a repeated time.
+TEST(plant_inverter, TheBusFollowsTheSupplysTable) {
+  PlantConfig c = bench_config();
+  c.inverter.dc_source_points = {{0.0, 600.0}, {0.01, 700.0}, {0.02, 700.0}, {0.02, 500.0}};
+  c.dc_bus_adc.noise_enabled = false;
+  Plant plant(c);
+  hal::InverterCommand off;
+  auto run_to = [&](std::uint32_t period) {
+    while (plant.period() < period) {
+      off.sequence = plant.period();
+      plant.step(off);
+    }
+  };
+  EXPECT_DOUBLE_EQ(plant.state().dc_bus_V, 600.0);
+  run_to(50);  // t = 5 ms: halfway up the ramp
+  EXPECT_NEAR(plant.state().dc_bus_V, 650.0, 1e-9);
+  run_to(199);
+  EXPECT_NEAR(plant.state().dc_bus_V, 700.0, 1e-9);
+  run_to(201);  // past the step at 20 ms
+  EXPECT_DOUBLE_EQ(plant.state().dc_bus_V, 500.0);
+  // The drive's bus sensor reads it (12-bit ADC, its full scale over 4096 codes).
+  EXPECT_NEAR(plant.sample().dc_bus_adc * c.dc_bus_adc.full_scale_V / 4096.0, 500.0, c.dc_bus_adc.full_scale_V / 4096.0);
+}
+
+// A supply with a resistance behind the DC link sags by R times the current the bridge draws.
+// A d-axis voltage d Vdc at standstill drives id = d Vdc / Rs, and the motor takes
+// P = 3/2 (d Vdc)^2 / Rs, so the settled bus solves Vdc = Vs - R P / Vdc:
+// Vdc = Vs / (1 + 3/2 R d^2 / Rs).
+TEST(plant_inverter, ASupplysResistanceSagsTheBusByTheCurrentDrawn) {
+  PlantConfig c = bench_config();
+  c.inverter.dc_source_resistance_ohm = 20.0;
+  c.inverter.dc_link_capacitance_F = 1.0e-3;  // 20 ms
+  constexpr double kDelta = 0.01;
+  Plant plant(c);
+  for (std::uint32_t k = 0; k < 5000; ++k) {  // 0.5 s: ten of the winding's L / R, 25 of R C
+    plant.step(d_axis_command(plant.period(), kDelta));
+  }
+  const PlantState s = plant.state();
+  const double expected = c.inverter.dc_bus_V / (1.0 + 1.5 * c.inverter.dc_source_resistance_ohm * kDelta * kDelta / s.rs_ohm);
+  ASSERT_GT(s.id_A, 40.0) << "the command no longer drives a current";
+  EXPECT_NEAR(s.dc_bus_V, expected, 0.002 * (c.inverter.dc_bus_V - expected));
+  // Gates off: nothing drawn, the bus recovers to the supply's voltage.
+  hal::InverterCommand off;
+  for (int n = 0; n < 3000; ++n) {
+    off.sequence = plant.period();
+    plant.step(off);
+  }
+  EXPECT_NEAR(plant.state().dc_bus_V, c.inverter.dc_bus_V, 1e-6 * c.inverter.dc_bus_V);
+}
+
 }  // namespace
 }  // namespace pmsm::plant

@@ -865,6 +865,7 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
       row.speed_rad_s = truth.omega_m_rad_s;
       row.torque_Nm = truth.torque_em_Nm;
       row.load_torque_Nm = truth.load_torque_Nm;
+      row.dc_bus_V = truth.dc_bus_V;
       row.id_A = tel.i_A.d;
       row.iq_A = tel.i_A.q;
       row.current_limit_A = tel.current_limit_A;
@@ -1287,9 +1288,9 @@ void write_series_csv(const SimulationResult& r, const std::string& path) {
   }
   out << "time_s,winding_true_C,winding_est_C,winding_std_C,magnet_true_C,magnet_est_C,magnet_valid,housing_true_C,"
          "rs_true_ohm,speed_ref_rad_s,speed_rad_s,torque_Nm,load_torque_Nm,id_A,iq_A,current_limit_A,derating,"
-         "time_to_limit_s,injection_active,housing_est_C,missing_loss_W,loss_scale_error,magnet_std_C\n";
+         "time_to_limit_s,injection_active,housing_est_C,missing_loss_W,loss_scale_error,magnet_std_C,dc_bus_V\n";
   for (const SeriesRow& s : r.series) {
-    out << fmt::format("{:.4f},{:.3f},{},{},{:.3f},{},{},{:.3f},{:.6f},{:.3f},{:.3f},{:.3f},{:.3f},{:.3f},{:.3f},{:.2f},{},{},{},{},{},{},{}\n",
+    out << fmt::format("{:.4f},{:.3f},{},{},{:.3f},{},{},{:.3f},{:.6f},{:.3f},{:.3f},{:.3f},{:.3f},{:.3f},{:.3f},{:.2f},{},{},{},{},{},{},{},{:.2f}\n",
                        s.time_s, s.winding_true_C, s.winding_est_valid ? fmt::format("{:.3f}", s.winding_est_C) : "",
                        s.winding_est_valid ? fmt::format("{:.3f}", s.winding_std_C) : "", s.magnet_true_C,
                        s.magnet_valid ? fmt::format("{:.3f}", s.magnet_est_C) : "", s.magnet_valid ? 1 : 0,
@@ -1299,7 +1300,7 @@ void write_series_csv(const SimulationResult& r, const std::string& path) {
                        s.winding_est_valid ? fmt::format("{:.3f}", s.housing_est_C) : "",
                        s.winding_est_valid ? fmt::format("{:.2f}", s.missing_loss_W) : "",
                        s.winding_est_valid ? fmt::format("{:.4f}", s.loss_scale_error) : "",
-                       s.magnet_valid ? fmt::format("{:.3f}", s.magnet_std_C) : "");
+                       s.magnet_valid ? fmt::format("{:.3f}", s.magnet_std_C) : "", s.dc_bus_V);
   }
 }
 

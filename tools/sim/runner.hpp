@@ -65,6 +65,7 @@ struct SeriesRow {
   double speed_rad_s = 0.0;         // true shaft speed
   double torque_Nm = 0.0;           // true electromagnetic torque
   double load_torque_Nm = 0.0;
+  double dc_bus_V = 0.0;            // true DC bus (its ripple included)
   double id_A = 0.0;
   double iq_A = 0.0;
   double current_limit_A = 0.0;

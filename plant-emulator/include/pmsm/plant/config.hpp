@@ -125,6 +125,12 @@ struct InverterConfig {
   bool dc_ripple_enabled = true;
   double dc_ripple_fraction = 0.01;   // peak ripple relative to dc_bus_V
   double dc_ripple_frequency_Hz = 300.0;
+  // The supply behind the DC link: its voltage over time (empty: dc_bus_V throughout) and its
+  // resistance (0: a stiff bus), which with the link's capacitance makes the bus sag while
+  // motoring and rise while braking. The bus is held for a period and moves between periods.
+  std::vector<TimePoint> dc_source_points;
+  double dc_source_resistance_ohm = 0.0;
+  double dc_link_capacitance_F = 1.0e-3;
   bool dead_time_enabled = true;
   double dead_time_s = 1.0e-6;
   bool device_drop_enabled = true;
