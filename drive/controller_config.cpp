@@ -258,6 +258,11 @@ ConfigSchema<C> build() {
            "Its uncertainty.");
   inj.real("injection.vx_drift_std_V", [](C& c) -> double& { return c.drive.injection.vx_drift_std_V; }, at_least(0, 100), "V",
            "How far it may wander between events.");
+  inj.optional_real("injection.vx_bus_slope_std_V_per_V", [](C& c) -> std::optional<double>& { return c.relative.vx_bus_slope_std; },
+                    at_least(0, 1), "V/V", "0.2 control.dead_time_s x PWM frequency",
+                    "Uncertainty of the bridge's dead-time share of the bus (V of Vx per V of bus) beyond what control.dead_time_s "
+                    "assumes: learned from events that learn Vx at different buses, and until then the held Vx's uncertainty "
+                    "grows with the bus's distance from control.nominal_dc_bus_V (docs/estimator.md section 4). 0: not modelled.");
   inj.real("injection.vx_learning_max_speed_rad_s", [](C& c) -> double& { return c.drive.injection.vx_learning_max_speed_rad_s; },
            at_least(0, 1e5), "rad/s",
            "Learn Vx only from events slower than this (electrical; docs/estimator.md section 4); a calibration faster "
@@ -494,6 +499,8 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
   d.injection.headroom_margin_V = c.relative.headroom_margin_V.value_or(core::default_headroom_margin_V(c.nominal_dc_bus_V));
   // Injection shares the drive's current budget with motoring (the derated limit at run time).
   d.injection.current_limit_A = d.derating.max_current_A;
+  // A dead time is commissioned from the gate driver's data within about a fifth.
+  d.injection.vx_bus_slope_std = c.relative.vx_bus_slope_std.value_or(0.2 * d.dead_time.dead_time_s / d.period_s);
   // The calibration procedure: the run-time settings, as fixed-magnitude bipolar at two levels.
   // (Its vx_initial_V is never used: set_config() keeps the scheduler's learned Vx.)
   d.calibration_injection = d.injection;

@@ -52,6 +52,7 @@ struct MotorRelativeKeys {
   std::optional<double> loss_error_process_std_W_per_sqrt_s;
   // Follows the bus, not the motor: a share of control.nominal_dc_bus_V.
   std::optional<double> headroom_margin_V;
+  std::optional<double> vx_bus_slope_std;
 };
 
 struct ControllerConfig {

@@ -100,6 +100,7 @@ DriveController::DriveController(const DriveConfig& config)
   motoring_voltage_settle_periods_ = static_cast<std::uint32_t>(std::ceil(3.0 / motoring_voltage_gain_));
   if (config_.vx_reference_bus_V > 0.0 && std::isfinite(config_.vx_reference_bus_V)) {
     vx_bus_slope_ = config_.dead_time.dead_time_s / config_.period_s;
+    vx_referred_to_bus_ = true;
   }
   // DRIVE_STATUS reads the limit before the first thermal update sets it.
   telemetry_.current_limit_A = derating_.current_limit_A;
@@ -130,6 +131,8 @@ void DriveController::publish_learned() {
   telemetry_.dead_time_band_A = config_.dead_time.current_band_A;
   telemetry_.vx_V = scheduler_.vx_V();
   telemetry_.vx_std_V = scheduler_.vx_std_V();
+  telemetry_.vx_bus_slope = scheduler_.vx_bus_slope();
+  telemetry_.vx_bus_slope_std = scheduler_.vx_bus_slope_std();
   telemetry_.lq_H = scheduler_.lq_H();
   telemetry_.lq_std_H = scheduler_.lq_std_H();
   telemetry_.lq_saturation_H = scheduler_.lq_saturation_H();
@@ -1203,6 +1206,8 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     }
   }
 
+  // The measured bus's distance from the one Vx is referred to (0 without one).
+  const double bus_offset_V = vx_referred_to_bus_ ? in.vdc_V - config_.vx_reference_bus_V : 0.0;
   // The period that just ended, [k-1, k]: its voltage was commanded two steps ago. Built only
   // for a reader: the scheduler's recording phases (InjectionScheduler::records) or the
   // no-injection baseline; the rest of a pair and the time between events need none (about a
@@ -1255,8 +1260,9 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
       const double shrink = period_voltage_shrink(smooth_advance);
       s.dead_time_pattern = period_sign_pattern(pattern.mean, pattern.moment, smooth_advance);
       // The bridge's error beyond the one at the reference bus (DriveConfig::vx_reference_bus_V)
-      // taken out, so that Vx is the error at that bus.
-      const double bus_error_V = vx_bus_slope_ * (in.vdc_V - config_.vx_reference_bus_V);
+      // taken out, so that Vx is the error at that bus: the compensation's dead-time share of the
+      // bus and what the estimator has learned it misses (InjectionConfig::vx_bus_slope_std).
+      const double bus_error_V = (vx_bus_slope_ + scheduler_.vx_bus_slope()) * bus_offset_V;
       s.v_V = {shrink * v_mid.d - bus_error_V * s.dead_time_pattern.d, shrink * v_mid.q - bus_error_V * s.dead_time_pattern.q};
       const double vx = scheduler_.vx_V();
       s.i_A = period_mean_current(ends_mean, {i.d - previous_i_A_.d, i.q - previous_i_A_.q},
@@ -1329,6 +1335,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   si.current_limit_A = injection_current_limit_A_;
   si.motoring_settling = motoring_settling;
   si.rs_rate_ohm_per_s = rs_rate_ohm_per_s_;  // finite (update_thermal)
+  si.bus_offset_V = bus_offset_V;
   si.enabled = enabled && config_.estimator == EstimatorKind::kInjection && !sweeping && !after_lost;
   if (calibrating_ && !sweeping && now - calibration_started_s_ > config_.calibration_timeout_s) {
     // No usable events in time (the method cannot inject here, or every pair was

@@ -172,6 +172,7 @@ InjectionScheduler::InjectionScheduler(const InjectionConfig& config, double per
       next_event_s_(config.first_event_s),
       vx_V_(config.vx_initial_V),
       vx_var_(config.vx_initial_std_V * config.vx_initial_std_V),
+      vx_slope_var_(config.vx_bus_slope_std * config.vx_bus_slope_std),
       lq_H_(config.lq_H),
       lq_var_(config.lq_initial_std_fraction * config.lq_H * config.lq_initial_std_fraction * config.lq_H),
       lq_shape_(config),
@@ -794,10 +795,38 @@ void InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit,
   lq_resolved_ = saturation_variance_resolved();
 }
 
-void InjectionScheduler::carry_vx(double vx_V, double var_V2) {
-  // The event's Vx becomes the next one's prior, which may drift meanwhile.
-  vx_V_ = vx_V;
-  vx_var_ = var_V2 + config_.vx_drift_std_V * config_.vx_drift_std_V;
+double InjectionScheduler::vx_variance_at(double bus_offset_V) const {
+  // Vx at the reference bus plus the slope's error times the bus's distance from it (the
+  // period's voltages were referred with the slope learned so far): h = (1, u).
+  const double u = bus_offset_V;
+  const double var = vx_var_ + 2.0 * u * vx_cov_ + u * u * vx_slope_var_;
+  return std::isfinite(var) ? std::max(var, 0.0) : vx_var_;
+}
+
+void InjectionScheduler::learn_vx(double bus_offset_V, double vx_V, double var_V2) {
+  // A Kalman update of (Vx, slope) with the Vx an event learned at its bus, referred with the
+  // slope learned so far: vx_V = Vx + (slope - learned slope) u, h = (1, u). At one bus the
+  // slope learns nothing; events at two buses tell the dead time's share from the drop's.
+  const double u = bus_offset_V;
+  const double p0 = vx_var_ + u * vx_cov_;        // (P h)_0
+  const double p1 = vx_cov_ + u * vx_slope_var_;  // (P h)_1
+  const double s = p0 + u * p1 + var_V2;
+  if (s > 0.0 && std::isfinite(s) && std::isfinite(vx_V)) {
+    const double k0 = p0 / s;
+    const double k1 = p1 / s;
+    const double innovation = vx_V - vx_V_;
+    vx_V_ += k0 * innovation;
+    vx_slope_ += k1 * innovation;
+    vx_var_ -= k0 * p0;
+    vx_cov_ -= k0 * p1;
+    vx_slope_var_ -= k1 * p1;
+  }
+  drift_vx();
+}
+
+void InjectionScheduler::drift_vx() {
+  // The next event's prior: Vx may drift meanwhile (the bridge warms); the dead time does not.
+  vx_var_ += config_.vx_drift_std_V * config_.vx_drift_std_V;
   ++learned_version_;
 }
 
@@ -865,8 +894,11 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
   e.measured_to_s = e.measured_at_s + event_pairs_mean(event_span_sums_s_[1], event_span_sums_s_[3]);
   double rs = 0.0;
   double var_rs = 0.0;
+  // The event's bus, and the prior's variance of Vx there (vx_variance_at).
+  const double bus_offset_V = event_bus_periods_ > 0 ? event_bus_sum_V_ / static_cast<double>(event_bus_periods_) : 0.0;
+  const double vx_var_here = vx_variance_at(bus_offset_V);
   double vx = config_.fit_dead_time ? vx_V_ : 0.0;
-  double var_vx = config_.fit_dead_time ? vx_var_ : 0.0;
+  double var_vx = config_.fit_dead_time ? vx_var_here : 0.0;
   double cov_rs_vx = 0.0;     // Rs and Vx come out correlated (the magnet's error bar below)
   double drs_dvx_held = 0.0;  // Rs's dependence on a Vx held at the prior (shared by events)
   bool vx_held = false;
@@ -889,8 +921,8 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
   e.joint_vx_V = joint.vx_V;
   if (e.vx_learning && joint.var_vx > 0.0) {
     // ... fused with the prior on Vx: Gaussian conditioning of (Rs, Vx) on the combined Vx.
-    const double vx_post = (joint.vx_V * vx_var_ + vx_V_ * joint.var_vx) / (vx_var_ + joint.var_vx);
-    const double var_post = vx_var_ * joint.var_vx / (vx_var_ + joint.var_vx);
+    const double vx_post = (joint.vx_V * vx_var_here + vx_V_ * joint.var_vx) / (vx_var_here + joint.var_vx);
+    const double var_post = vx_var_here * joint.var_vx / (vx_var_here + joint.var_vx);
     // Fixed-magnitude pulses are flat, and so is any pulse at standstill: the means hold all of
     // the resistive signal (and none of the sample fit's closed-loop bias, section 5.2).
     const bool flat = config_.method == InjectionMethod::kFixedMagnitude ||
@@ -909,7 +941,7 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
       // read 1.4 % low where the means read right (docs/estimator.md section 5.2).
       const MeansFit f = sample_fit_fixed_vx(vx_post);
       if (!f.valid) {
-        carry_vx(vx_post, var_post);  // the means learned Vx all the same
+        learn_vx(bus_offset_V, joint.vx_V, joint.var_vx);  // the means learned Vx all the same
         e.outcome = EventOutcome::kNoFit;
         return e;
       }
@@ -987,7 +1019,11 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
   e.rs_ohm = rs;
   e.rs_std_ohm = std::sqrt(var_rs);
   if (config_.fit_dead_time) {
-    carry_vx(vx, var_vx);
+    if (e.vx_from_event) {
+      learn_vx(bus_offset_V, joint.vx_V, joint.var_vx);
+    } else {
+      drift_vx();
+    }
   }
   e.vx_V = vx;
   e.vx_std_V = std::sqrt(var_vx);
@@ -1118,6 +1154,10 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
     return out;
   }
 
+  if (in_event_) {
+    event_bus_sum_V_ += in.bus_offset_V;  // the event's mean bus (finish_event)
+    ++event_bus_periods_;
+  }
   const double elapsed = in.time_s - phase_start_s_;
   auto enter = [&](SchedulerPhase p) {
     phase_ = p;
@@ -1148,6 +1188,8 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
         event_start_s_ = in.time_s;
         event_q_pairs_ = 0;
         event_field_weakening_ = false;
+        event_bus_sum_V_ = 0.0;
+        event_bus_periods_ = 0;
         next_event_s_ = in.time_s + config_.interval_s;
       }
       if (level_index_ >= std::clamp(config_.level_count, 1, InjectionConfig::kMaxLevels)) {

@@ -177,6 +177,8 @@ struct SimulationResult {
   std::string calibration_file_error;   // the write failed: the result is in the report only
   double vx_V = 0.0;
   double vx_std_V = 0.0;
+  double vx_bus_slope = 0.0;            // learned: what the compensation's dead time misses of the bus (V/V)
+  double vx_bus_slope_std = 0.0;
   double lq_H = 0.0;                    // learned q-axis inductance at the end
   double lq_std_H = 0.0;
   double lq_saturation_H = 0.0;         // its saturation: secant lost at the current limit

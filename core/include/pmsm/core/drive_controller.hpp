@@ -268,6 +268,8 @@ struct DriveTelemetry {
   std::uint32_t events_without_estimate = 0;
   double vx_V = 0.0;                  // the inverter voltage estimate
   double vx_std_V = 0.0;
+  double vx_bus_slope = 0.0;          // what the compensation's dead-time share of the bus misses (V/V)
+  double vx_bus_slope_std = 0.0;
   double lq_H = 0.0;                  // the q-axis inductance the estimator has learned
   double lq_std_H = 0.0;
   double lq_saturation_H = 0.0;       // its saturation: secant Lq lost where s = 1 (core::LqShape)
@@ -579,6 +581,7 @@ class DriveController {
   Abc previous_i_abc_A_{};
   double pattern_noise_A_ = 0.0;  // effective noise of the sampled line (set_current_noise_A)
   double vx_bus_slope_ = 0.0;     // dead_time / period, when Vx is referred to a bus (else 0)
+  bool vx_referred_to_bus_ = false;  // DriveConfig::vx_reference_bus_V is set
   // The current loop's motoring voltage, low-passed over the periods without a pulse
   // (track_motoring_voltage), and how many periods it has seen since the loop started.
   Dq motoring_voltage_mean_V_{};

@@ -152,6 +152,13 @@ struct InjectionConfig {
   double vx_initial_V = 0.0;      // prior before the first event
   double vx_initial_std_V = 3.0;
   double vx_drift_std_V = 0.005;  // how far Vx may wander between events
+  // Vx is the bridge's error at the reference bus; each period's voltage is referred to it by
+  // the dead time the compensation assumes (DriveController, vx_reference_bus_V). What that
+  // dead time misses, a slope in V of Vx per V of bus, is a second learned state with this
+  // prior (0: none modelled): it shows only in events that learn Vx at different buses, and
+  // until then its uncertainty times the bus's distance from the reference is the held Vx's
+  // (docs/estimator.md section 4, "Vx follows the bus").
+  double vx_bus_slope_std = 0.0;
   // Vx is learned only from events whose pairs reverse the current vector, i.e. whose
   // motoring |iq| stays below this fraction of the smallest F of the event: then the
   // current-sign pattern simply inverts and its plateaus carry the information. Under load
@@ -247,6 +254,8 @@ struct SchedulerInput {
   // controller second): an event's pairs lie at different times, and their joint fit refers
   // each to the event's time (finish_event).
   double rs_rate_ohm_per_s = 0.0;
+  // The period's measured bus less the reference Vx is referred to (0 without one).
+  double bus_offset_V = 0.0;
 };
 
 enum class SchedulerPhase : std::uint8_t {
@@ -437,6 +446,10 @@ class InjectionScheduler {
   // The inverter voltage prior carried between events.
   [[nodiscard]] double vx_V() const { return vx_V_; }
   [[nodiscard]] double vx_std_V() const { return std::sqrt(vx_var_); }
+  // The learned correction to the compensation's dead-time share of the bus (V per V), by
+  // which each period's voltage is referred to the reference bus beyond the compensation's.
+  [[nodiscard]] double vx_bus_slope() const { return vx_slope_; }
+  [[nodiscard]] double vx_bus_slope_std() const { return std::sqrt(vx_slope_var_); }
   // The thermal filter's winding resistance and its variance (at its last update; NaN: no
   // estimate yet): the ohmic part of the d-axis voltage that Lq learning takes out
   // (learn_lq).
@@ -459,6 +472,7 @@ class InjectionScheduler {
   void set_vx_prior(double vx_V, double std_V) {
     vx_V_ = vx_V;
     vx_var_ = std_V * std_V;
+    vx_cov_ = 0.0;  // a new prior, independent of the bus slope learned so far
     ++learned_version_;
   }
   [[nodiscard]] double lq_H() const { return lq_H_; }   // the secant Lq at zero current
@@ -507,7 +521,9 @@ class InjectionScheduler {
   // The event's sample fit with Vx held at vx_V, its Lq terms refitted (fixed-angle and DC).
   [[nodiscard]] MeansFit sample_fit_fixed_vx(double vx_V) const;
   // An event's fused Vx as the prior of the next (with the drift between events).
-  void carry_vx(double vx_V, double var_V2);
+  [[nodiscard]] double vx_variance_at(double bus_offset_V) const;
+  void learn_vx(double bus_offset_V, double vx_V, double var_V2);
+  void drift_vx();
   [[nodiscard]] bool event_uses_means() const;
   // The time the event's estimate belongs to: its pairs' Rs times weighted by their information
   // (their plain mean where no pair has a variance; EventEstimate::measured_at_s).
@@ -584,6 +600,11 @@ class InjectionScheduler {
   std::uint32_t learned_version_ = 0;  // learned_version()
   double vx_V_ = 0.0;               // inverter voltage prior
   double vx_var_ = 0.0;
+  double vx_slope_ = 0.0;           // vx_bus_slope()
+  double vx_slope_var_ = 0.0;
+  double vx_cov_ = 0.0;             // covariance of Vx and the slope
+  double event_bus_sum_V_ = 0.0;    // the event's bus offsets (SchedulerInput::bus_offset_V), summed
+  std::uint32_t event_bus_periods_ = 0;
   // set_motoring_voltage(): NaN time until given.
   double motoring_voltage_time_s_ = std::numeric_limits<double>::quiet_NaN();
   double winding_rs_ohm_ = std::numeric_limits<double>::quiet_NaN();  // set_winding_resistance
