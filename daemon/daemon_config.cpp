@@ -76,6 +76,11 @@ const ConfigSchema<D>& schema() {
            "Phase-current trip (default: 90 % of the current ADC's range).");
     c.real("supervisor.current_sum_max_A", [](D& d) -> double& { return d.supervisor.current_sum_max_A; }, app::positive(100000), "A",
            "|ia + ib + ic| above this: a phase-current sensor is broken (default: 10 % of the ADC's range).");
+    c.real("supervisor.current_offset_max_A", [](D& d) -> double& { return d.supervisor.current_offset_max_A; },
+           app::positive(100000), "A",
+           "A phase current sensor whose power-up offset (its mean reading with the gates off) lies further from zero "
+           "than this is broken or stuck: CURRENT_OFFSET fault, the gates stay off until a restart (default: 5 % of the "
+           "ADC's range).");
     c.real("supervisor.ambient_min_C", [](D& d) -> double& { return d.supervisor.ambient_min_C; }, app::between(-273, 500), "C",
            "The ambient / coolant sensor (in SENSOR_SAMPLE) reading below this is implausible: AMBIENT_IMPLAUSIBLE fault.");
     c.real("supervisor.ambient_max_C", [](D& d) -> double& { return d.supervisor.ambient_max_C; }, app::between(-273, 500), "C",

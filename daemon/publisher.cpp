@@ -135,6 +135,11 @@ std::string Publisher::fault_cause(protocol::FaultCode code, double value) const
       return fmt::format("|ia + ib + ic| = {:.2f} A, above supervisor.current_sum_max_A ({:g} A; a phase-current sensor "
                          "is broken): ",
                          value, c.current_sum_max_A);
+    case protocol::FaultCode::kCurrentOffset:
+      return fmt::format("a phase current sensor read {:.2f} A with the gates off at power-up, further from zero than "
+                         "supervisor.current_offset_max_A ({:g} A; a broken or stuck sensor; restart the daemon once it is "
+                         "fixed): ",
+                         value, c.current_offset_max_A);
     case protocol::FaultCode::kAmbientImplausible:
       return fmt::format("the ambient sensor reads {:.1f} C, outside supervisor.ambient_min_C .. ambient_max_C ({:g} .. "
                          "{:g} C): ",

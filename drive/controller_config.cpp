@@ -74,7 +74,9 @@ ConfigSchema<C> build() {
   s.integer("sensors.dc_bus_adc_bits", [](C& c) -> int& { return c.sensors.dc_bus_adc_bits; }, between(8, 16), "DC-bus ADC resolution.");
   s.real("sensors.dc_bus_full_scale_V", [](C& c) -> double& { return c.sensors.dc_bus_full_scale_V; }, positive(10000), "V",
          "DC-bus ADC full scale.");
-  s.integer("sensors.encoder_bits", [](C& c) -> int& { return c.drive.angle.encoder_bits; }, between(8, 24), "Absolute encoder resolution.");
+  s.integer("sensors.encoder_bits", [](C& c) -> int& { return c.drive.angle.encoder_bits; }, between(8, 16),
+            "Absolute encoder resolution (at most 16: SENSOR_SAMPLE's EncoderCount is 16 bits; a wider setting made every "
+            "count the bus can carry look plausible, and the encoder-jump check never tripped).");
   s.real("sensors.encoder_count_centre", [](C& c) -> double& { return c.drive.angle.count_centre; }, between(0, 1), "counts",
          "Where the rotor lies on average inside the angles that read one count, from the count's lower edge: 0.5 for an "
          "encoder that truncates (reports the whole counts below the angle), 0 for one that rounds.");

@@ -36,6 +36,10 @@ core::SupervisorConfig default_supervisor_config(const ControllerConfig& config)
   s.overcurrent_A = 0.9 * config.sensors.current_range_A;
   // Three healthy sensors sum to noise and gain error; 10 % of full scale is a broken one.
   s.current_sum_max_A = 0.1 * config.sensors.current_range_A;
+  // A Hall or shunt amplifier's offset is a few tenths of a per cent of its range; 5 % is a
+  // broken or stuck sensor (a frozen ADC reading 117 A with the gates off was taken as its
+  // offset, and the drive enabled on it).
+  s.current_offset_max_A = 0.05 * config.sensors.current_range_A;
   s.max_speed_rad_s = 3.0 * d.motor.rated_speed_rad_s;
   // Field weakening takes a drive above its rated speed; half as much again is a runaway.
   s.overspeed_rad_s = 1.5 * d.motor.rated_speed_rad_s;
@@ -114,6 +118,8 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
   }
   si.periods = static_cast<std::uint32_t>(std::min<std::uint64_t>(advance_, 1000000U));
   si.frontend_ready = frontend_.ready();
+  const std::array<double, 3>& offsets = frontend_.offsets_A();
+  si.current_offsets_A = {offsets[0], offsets[1], offsets[2]};
   if (si.frontend_ready && !noise_known_) {
     // Once, when the offsets (and with them the sensors' noise) are known.
     controller_.set_current_noise_A(frontend_.current_noise_A());

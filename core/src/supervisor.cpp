@@ -41,6 +41,7 @@ const char* to_string(FaultCode code) noexcept {
     case FaultCode::kAmbientImplausible: return "ambient-implausible";
     case FaultCode::kOverspeed: return "overspeed";
     case FaultCode::kPeriodMismatch: return "period-mismatch";
+    case FaultCode::kCurrentOffset: return "current-offset";
     case FaultCode::kCount: break;
   }
   return "?";
@@ -195,6 +196,15 @@ const SupervisorStatus& Supervisor::step(const SupervisorInput& in) noexcept {
     periods_without_sample_ += std::max<std::uint32_t>(in.periods, 1U);
     if (status_.missing_samples >= static_cast<std::uint32_t>(config_.sensor_timeout_periods)) {
       cause(FaultCode::kSensorTimeout, static_cast<double>(status_.missing_samples));
+    }
+  }
+  if (in.frontend_ready) {
+    // Judged every period, not once: the cause stays while the offsets do, so that clearing
+    // the fault cannot enable the gates on readings the offsets have made plausible.
+    const Abc& o = in.current_offsets_A;
+    const double largest = std::max({std::fabs(o.a), std::fabs(o.b), std::fabs(o.c)});
+    if (!(largest <= config_.current_offset_max_A)) {
+      cause(FaultCode::kCurrentOffset, largest);
     }
   }
   if (in.enable_requested && config_.command_timeout_s > 0.0 && !(in.command_age_s <= config_.command_timeout_s)) {

@@ -174,6 +174,8 @@ t0_C = 22.0
 
 TEST(ControllerConfig, ErrorsNameFileLineAndKey) {
   EXPECT_EQ(error_of("[injection]\nF_A = 2000\n"), "drive.toml:2: injection.F_A: must be in (0, 1000], got 2000");
+  // SENSOR_SAMPLE's EncoderCount is 16 bits: a wider encoder made every count look plausible.
+  EXPECT_EQ(error_of("[sensors]\nencoder_bits = 24\n"), "drive.toml:2: sensors.encoder_bits: must be in [8, 16], got 24");
   EXPECT_EQ(error_of("[injection]\nF_AA = 20\n"), "drive.toml:2: injection.F_AA: unknown key (did you mean injection.F_A?)");
   // A key without its unit: the key that is it plus its unit (rs_ohm, not rs_reference_temp_C;
   // J/K spelled J_K), and no guess where no key is (winding: no unit makes a key of it).

@@ -158,6 +158,35 @@ INSTANTIATE_TEST_SUITE_P(
                   }}),
     [](const ::testing::TestParamInfo<WireFault>& param_info) { return std::string(param_info.param.name); });
 
+// A current sensor stuck far from zero (a frozen ADC, a broken amplifier) reads the same with
+// the gates off at power-up: taken as its offset, it made every later reading plausible and the
+// drive enabled its gates. The offset's size is judged: CURRENT_OFFSET, published, and the gates
+// stay off, cleared or not, while the offsets stay what they are.
+TEST(DriveNode, AStuckCurrentSensorAtPowerUpIsAFaultNotAnOffset) {
+  Rig rig;
+  auto stuck = [](hal::SensorSample& s) {
+    s.phase_current_adc = {1200, -600, -600};  // 117 A and -59 A with no current flowing
+  };
+  bool published_fault = false;
+  for (int k = 0; k < 2000; ++k) {
+    const NodeStep& step = rig.run(1, stuck);
+    published_fault = published_fault || published(step, protocol::FaultCode::kCurrentOffset, true);
+    ASSERT_TRUE(!step.command || !step.command->enable) << "gates enabled at period " << k;
+  }
+  ASSERT_TRUE(rig.node->frontend().ready());
+  EXPECT_TRUE(rig.node->supervisor().latched(core::FaultCode::kCurrentOffset));
+  EXPECT_TRUE(published_fault);
+  rig.in.clear_faults = true;
+  const NodeStep& after_clear = rig.run(10, stuck);
+  EXPECT_FALSE(after_clear.command && after_clear.command->enable) << "the cause stays while the offsets do";
+  EXPECT_TRUE(rig.node->supervisor().latched(core::FaultCode::kCurrentOffset));
+
+  Rig healthy;  // the plant's own offsets (0.1 A) are no fault
+  const NodeStep& running = healthy.run(2000);
+  EXPECT_FALSE(healthy.node->supervisor().latched(core::FaultCode::kCurrentOffset));
+  EXPECT_TRUE(running.command && running.command->enable);
+}
+
 TEST(DriveNode, MissingSamplesNoCommandThenSensorTimeoutThenRecovery) {
   Rig rig;
   rig.run(2000);

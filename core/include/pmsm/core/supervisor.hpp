@@ -63,7 +63,8 @@ enum class FaultCode : std::uint8_t {
   kAmbientImplausible = 19,  // the ambient / coolant sensor reads outside its plausible window
   kOverspeed = 20,           // the shaft turns faster than overspeed_rad_s (over a 1 ms window)
   kPeriodMismatch = 21,      // the power stage reports another sampling period than the drive's
-  kCount = 22,
+  kCurrentOffset = 22,       // a current sensor read far from zero with the gates off at power-up
+  kCount = 23,
 };
 
 [[nodiscard]] const char* to_string(DriveState state) noexcept;
@@ -76,6 +77,9 @@ struct SupervisorConfig {
   double dc_bus_max_V = 800.0;           // above: over-voltage trip
   double overcurrent_A = 180.0;          // any phase current above: trip (below the ADC range)
   double current_sum_max_A = 20.0;       // |ia + ib + ic| above: a phase sensor is broken
+  // A phase's power-up offset (its mean reading with the gates off) further from zero than
+  // this: a broken or stuck sensor, whose readings the offset would turn into plausible ones.
+  double current_offset_max_A = 10.0;
   double max_speed_rad_s = 1000.0;       // mechanical; the encoder may not move faster
   // Mechanical; the encoder's speed over a window of about 1 ms above this trips the drive
   // (an overhauling load, a runaway in torque control). 0: off. Below max_speed_rad_s.
@@ -106,6 +110,7 @@ struct SupervisorInput {
   // periods that really passed.
   std::uint32_t periods = 1;
   bool frontend_ready = false;             // the ADC offset calibration is done
+  Abc current_offsets_A{};                 // its offsets, once ready (judged every period)
   bool enable_requested = false;           // the operator's command asks for torque
   bool calibrating = false;                // the controller runs an Rs0 calibration
   double command_age_s = 0.0;              // since the last valid, fresh command
