@@ -61,12 +61,19 @@ inline constexpr std::uintmax_t kMaxTextFileBytes = 256U << 20U;
   if (std::filesystem::equivalent(a, b, ec)) {
     return true;  // both there, one file (a hard link, a bind mount too)
   }
+  // Absolute first: weakly_canonical leaves a relative path relative when nothing of it exists
+  // yet ("x.csv"), and "./x.csv" or a stored absolute name then never compared equal to it.
   std::error_code ec_a;
   std::error_code ec_b;
-  const std::filesystem::path ca = std::filesystem::weakly_canonical(a, ec_a);
-  const std::filesystem::path cb = std::filesystem::weakly_canonical(b, ec_b);
+  const std::filesystem::path aa = std::filesystem::absolute(a, ec_a).lexically_normal();
+  const std::filesystem::path ab = std::filesystem::absolute(b, ec_b).lexically_normal();
   if (ec_a || ec_b) {
-    return std::filesystem::absolute(a, ec_a).lexically_normal() == std::filesystem::absolute(b, ec_b).lexically_normal();
+    return a.lexically_normal() == b.lexically_normal();
+  }
+  const std::filesystem::path ca = std::filesystem::weakly_canonical(aa, ec_a);
+  const std::filesystem::path cb = std::filesystem::weakly_canonical(ab, ec_b);
+  if (ec_a || ec_b) {
+    return aa == ab;
   }
   return ca == cb;
 }

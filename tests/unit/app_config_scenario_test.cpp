@@ -353,6 +353,24 @@ gate_sigma = 4.0
 )");
   EXPECT_EQ(u.controller.drive.thermal.time_scale, 50.0);
   EXPECT_EQ(u.controller.drive.thermal.gate_sigma, 4.0);
+  // The plant's own acceleration and seed win as its ambient does (they were overwritten by the
+  // scenario's, silently).
+  const Scenario w = parse(R"([scenario]
+thermal_acceleration = 50.0
+seed = 42
+[operation]
+speed_rad_s = [[0, 100]]
+[plant.thermal]
+acceleration = 3.0
+[plant.simulation]
+seed = 7
+)");
+  EXPECT_EQ(w.plant.thermal.acceleration, 3.0);
+  EXPECT_EQ(w.plant.simulation.seed, 7U);
+  EXPECT_EQ(w.controller.drive.thermal.time_scale, 50.0);
+  // Below the plant's least acceleration: named in the scenario, before anything runs.
+  EXPECT_EQ(inline_error("[scenario]\nthermal_acceleration = 0.0005\n[operation]\nspeed_rad_s = [[0, 100]]\n"),
+            path_of("inline.toml") + ":2: scenario.thermal_acceleration: must be in [0.001, 100000], got 0.0005");
   // An ambient profile sets the plant's starting ambient.
   const Scenario v = parse(R"([scenario]
 ambient_profile = [0, 18, 100, 40]

@@ -275,9 +275,42 @@ TEST(SimulateCli, AnOutputIsNotWrittenOverAnInput) {
   refused("--csv " + s, "would write over the scenario " + s);
   refused("--csv " + (dir / "x").string() + " --plot " + (dir / "x").string(), "--csv and --plot name the same file");
   refused("--csv ''", "--csv: expected a file name, got an empty one");
+  // Relative names of files that do not exist yet, as a user in the scenario's directory types
+  // them: a name and the same name spelled with "./" or resolved by the scenario.
+  const auto refused_here = [&](const std::string& args, const std::string& message) {
+    const ProcessResult r = run_process("cd " + dir.string() + " && " + run + args + " s.toml");
+    EXPECT_EQ(r.exit_code, 2) << args;
+    EXPECT_NE(r.err.find(message), std::string::npos) << args << ": " << r.err;
+  };
+  refused_here("--csv cal.toml", "would write over " + (dir / "cal.toml").string());
+  refused_here("--csv ./y.csv --plot y.csv", "--csv and --plot name the same file");
+  EXPECT_FALSE(std::filesystem::exists(dir / "cal.toml"));
   std::stringstream kept;
   kept << std::ifstream(dir / "speed.csv").rdbuf();
   EXPECT_EQ(kept.str(), "time_s,speed_rad_s\n0,0\n1,10\n");
+  std::filesystem::remove_all(dir);
+}
+
+// A scenario's name and the output's path reach gnuplot's script as strings: a name that closed
+// its quote and went on a new line ran `system` (a file was created); a quote in either made
+// gnuplot fail. Now they are quoted, and a name's line break is a space.
+TEST(SimulateCli, TheScenariosNameIsTextInThePlotNotCommands) {
+  const std::filesystem::path dir = std::filesystem::temp_directory_path() / ("pmsm-sim-plot-" + std::to_string(getpid()));
+  std::filesystem::create_directories(dir);
+  const std::filesystem::path pwned = dir / "pwned";
+  std::ofstream(dir / "s.toml") << "[scenario]\nbase = \"" << PMSM_SOURCE_DIR
+                                << "/bench/scenarios/reference-fm-bipolar.toml\"\nduration_s = 0.6\n"
+                                << "name = \"it's \\\"x\\\"\\nsystem \\\"touch " << pwned.string()
+                                << "\\\"\\nset title \\\"y\"\n";
+  const std::filesystem::path png = dir / "it's.png";
+  const ProcessResult r = run_process(kExe + " simulate --quiet --plot \"" + png.string() + "\" " + (dir / "s.toml").string());
+  EXPECT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_TRUE(std::filesystem::exists(png)) << r.err;
+  EXPECT_FALSE(std::filesystem::exists(pwned)) << "the scenario's name ran a command";
+  // An output that cannot take the series fails with exit 3 and says so.
+  const ProcessResult full = run_process(kExe + " simulate --quiet --csv /dev/full " + (dir / "s.toml").string());
+  EXPECT_EQ(full.exit_code, 3);
+  EXPECT_NE(full.err.find("cannot write /dev/full"), std::string::npos) << full.err;
   std::filesystem::remove_all(dir);
 }
 

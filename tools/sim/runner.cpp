@@ -19,6 +19,7 @@
 #include <numbers>
 #include <optional>
 #include <stdexcept>
+#include <string_view>
 #include <thread>
 
 #include <fmt/format.h>
@@ -1306,6 +1307,27 @@ void write_series_csv(const SimulationResult& r, const std::string& path) {
                        s.winding_est_valid ? fmt::format("{:.4f}", s.loss_scale_error) : "",
                        s.magnet_valid ? fmt::format("{:.3f}", s.magnet_std_C) : "", s.dc_bus_V);
   }
+  out.close();
+  if (!out) {
+    throw std::runtime_error("cannot write " + path + " (a full disk, or a device that takes nothing?)");
+  }
+}
+
+// A text as a gnuplot string literal: single-quoted, where nothing is special but the quote
+// itself (written twice). A control character (a newline would end the command, and what
+// followed would run as gnuplot's, `system` included) becomes a space.
+static std::string gnuplot_quoted(std::string_view text) {
+  std::string out = "'";
+  for (const char ch : text) {
+    if (ch == '\'') {
+      out += "''";
+    } else if (static_cast<unsigned char>(ch) < 0x20 || ch == 0x7f) {
+      out += ' ';
+    } else {
+      out += ch;
+    }
+  }
+  return out + "'";
 }
 
 void write_plot(const SimulationResult& r, const std::string& path) {
@@ -1336,18 +1358,25 @@ void write_plot(const SimulationResult& r, const std::string& path) {
       // At the time the estimate belongs to, against the truth's curve there.
       points << fmt::format("{:.4f} {:.3f} {}\n", e.time_s - e.age_s, e.winding_est_C, e.fused ? 1 : 0);
     }
+    data.close();
+    points.close();
+    if (!data || !points) {
+      std::remove(data_path);
+      std::remove(points_path);
+      throw std::runtime_error(fmt::format("cannot write the plot's data to {} and {} (a full disk?)", data_path, points_path));
+    }
   }
   const std::string title = r.scenario + " — " + r.method;
   std::string script = fmt::format(R"gp(set terminal pngcairo size 1280,860 font "DejaVu Sans,10"
-set output '{}'
-set multiplot layout 2,1 title "{}" font ",12"
+set output {}
+set multiplot layout 2,1 title {} font ",12"
 set grid
 set key left top
 set ylabel "temperature (°C)"
 set size 1,0.62
 set origin 0,0.36
 set xlabel ""
-plot '{}' using 1:($3-2*$4):($3+2*$4) with filledcurves fc rgb "#cce0ff" fs solid 0.6 title "estimate ± 2σ", \
+plot {} using 1:($3-2*$4):($3+2*$4) with filledcurves fc rgb "#cce0ff" fs solid 0.6 title "estimate ± 2σ", \
      '' using 1:2 with lines lw 2 lc rgb "#c00000" title "winding (true)", \
      '' using 1:3 with lines lw 1.5 lc rgb "#0050c0" title "winding (estimate)", \
      '' using 1:5 with lines lw 1.5 dt 2 lc rgb "#d08000" title "magnet (true)", \
@@ -1356,18 +1385,18 @@ set size 1,0.34
 set origin 0,0.0
 set ylabel "speed (rad/s), torque (Nm)"
 set xlabel "simulated time (s)"
-plot '{}' using 1:7 with lines lw 1.2 lc rgb "#404040" title "speed (true)", \
+plot {} using 1:7 with lines lw 1.2 lc rgb "#404040" title "speed (true)", \
      '' using 1:9 with lines lw 1 dt 3 lc rgb "#808080" title "speed set-point", \
      '' using 1:8 with lines lw 1 lc rgb "#8000a0" title "torque (true)"
 unset multiplot
 )gp",
-                                   path, title, data_path,
+                                   gnuplot_quoted(path), gnuplot_quoted(title), gnuplot_quoted(data_path),
                                    r.estimates.empty()
                                        ? std::string()
-                                       : fmt::format(", \\\n     '{}' using 1:($3>0?$2:1/0) with points pt 7 ps 0.5 lc rgb \"#303030\" "
+                                       : fmt::format(", \\\n     {} using 1:($3>0?$2:1/0) with points pt 7 ps 0.5 lc rgb \"#303030\" "
                                                      "title \"resistance estimates (Eq. 1)\"",
-                                                     points_path),
-                                   data_path);
+                                                     gnuplot_quoted(points_path)),
+                                   gnuplot_quoted(data_path));
   FILE* gp = popen("gnuplot", "w");  // its own messages go to stderr, not into our stdout
   if (gp == nullptr) {
     std::remove(data_path);

@@ -9,9 +9,10 @@
 #include <fstream>
 #include <optional>
 #include <string_view>
-#include <utility>
-#include <regex>
 #include <sstream>
+#include <string>
+#include <utility>
+#include <vector>
 
 #include <toml++/toml.h>
 
@@ -186,7 +187,7 @@ ConfigSchema<S> build_schema() {
   s.real("scenario.duration_s", [](S& c) -> double& { return c.duration_s; }, between(0.1, 1e6), "s",
          "Simulated time (at least 0.1 s: the drive's thermal filter, which every estimate and figure goes through, "
          "updates every 10 ms).");
-  s.real("scenario.thermal_acceleration", [](S& c) -> double& { return c.thermal_acceleration; }, positive(1e5), "",
+  s.real("scenario.thermal_acceleration", [](S& c) -> double& { return c.thermal_acceleration; }, between(0.001, 1e5), "",
          "Thermal time runs this many times faster, in the plant and in the controller's thermal model alike.");
   s.real("scenario.ambient_C", [](S& c) -> double& { return c.ambient_C; }, between(-40, 80), "C",
          "Ambient temperature; the motor starts soaked at it.");
@@ -234,6 +235,81 @@ void merge(toml::table& base, toml::table&& overrides) {
 }
 
 
+// What a plant error message says: its key and the rest, from its first ": key: " (a key is
+// [a-z_]+ followed by .[A-Za-z0-9_]+ segments). Scanned by hand: std::regex recurses once per
+// character, and a message quoting a 20,000-character value overflowed the stack.
+struct KeyMessage {
+  std::string key;
+  std::string detail;
+};
+
+bool lower_key_char(char c) { return (c >= 'a' && c <= 'z') || c == '_'; }
+bool key_char(char c) { return lower_key_char(c) || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9'); }
+
+std::optional<KeyMessage> key_message(const std::string& message) {
+  for (std::size_t pos = message.find(": "); pos != std::string::npos; pos = message.find(": ", pos + 1)) {
+    std::size_t end = pos + 2;
+    while (end < message.size() && lower_key_char(message[end])) {
+      ++end;
+    }
+    if (end == pos + 2) {
+      continue;
+    }
+    while (end + 1 < message.size() && message[end] == '.' && key_char(message[end + 1])) {
+      ++end;
+      while (end < message.size() && key_char(message[end])) {
+        ++end;
+      }
+    }
+    if (message.compare(end, 2, ": ") == 0) {
+      return KeyMessage{message.substr(pos + 2, end - pos - 2), message.substr(end + 2)};
+    }
+  }
+  return std::nullopt;
+}
+
+// Every "section.key" in a message, in order ([a-z_]+ "." [A-Za-z0-9_]+, not overlapping).
+std::vector<std::string> dotted_keys(const std::string& message) {
+  std::vector<std::string> keys;
+  std::size_t i = 0;
+  while (i < message.size()) {
+    if (!lower_key_char(message[i])) {
+      ++i;
+      continue;
+    }
+    std::size_t j = i;
+    while (j < message.size() && lower_key_char(message[j])) {
+      ++j;
+    }
+    if (j + 1 < message.size() && message[j] == '.' && key_char(message[j + 1])) {
+      std::size_t k = j + 1;
+      while (k < message.size() && key_char(message[k])) {
+        ++k;
+      }
+      keys.push_back(message.substr(i, k - i));
+      i = k;
+    } else {
+      i = j;
+    }
+  }
+  return keys;
+}
+
+// "(did you mean motor.rs_ohm?)" -> "(did you mean plant.motor.rs_ohm?)".
+std::string with_plant_prefix(std::string detail) {
+  constexpr std::string_view kAsk = "(did you mean ";
+  for (std::size_t pos = detail.find(kAsk); pos != std::string::npos; pos = detail.find(kAsk, pos + 1)) {
+    std::size_t end = pos + kAsk.size();
+    while (end < detail.size() && (key_char(detail[end]) || detail[end] == '.')) {
+      ++end;
+    }
+    if (end > pos + kAsk.size() && detail.compare(end, 2, "?)") == 0) {
+      detail.insert(pos + kAsk.size(), "plant.");
+    }
+  }
+  return detail;
+}
+
 // `files` receives the plant profile's path when one is named.
 plant::PlantConfig load_plant(const toml::table& root, const std::filesystem::path& source,
                               std::vector<std::filesystem::path>& files) {
@@ -274,24 +350,23 @@ plant::PlantConfig load_plant(const toml::table& root, const std::filesystem::pa
   } catch (const plant::ConfigError& e) {
     // Point at the scenario's own line when the offending key is one of its overrides.
     const std::string message = e.what();
-    static const std::regex key_pattern(R"(: ([a-z_]+(?:\.[A-Za-z0-9_]+)*): (.*)$)");
-    std::smatch m;
-    if (plant_table != nullptr && std::regex_search(message, m, key_pattern)) {
-      auto node = plant_table->at_path(m[1].str());
+    const std::optional<KeyMessage> km = plant_table != nullptr ? key_message(message) : std::nullopt;
+    if (km) {
+      auto node = plant_table->at_path(km->key);
       // A rule between keys may name one the profile gives and involve one the scenario
       // overrides: the line is the first key of the message the scenario gives.
-      static const std::regex any_key(R"([a-z_]+\.[A-Za-z0-9_]+)");
-      for (auto k = std::sregex_iterator(message.begin(), message.end(), any_key); !node && k != std::sregex_iterator(); ++k) {
-        node = plant_table->at_path(k->str());
+      for (const std::string& k : dotted_keys(message)) {
+        if (node) {
+          break;
+        }
+        node = plant_table->at_path(k);
       }
       if (node) {
         const auto& where = node.node()->source();
         const std::string file = where.path && !where.path->empty() ? *where.path : source.string();
         const std::string line = where.begin.line > 0 ? ":" + std::to_string(where.begin.line) : "";
         // A suggested key is the plant file's; in a scenario it lives under [plant] too.
-        static const std::regex suggestion(R"(\(did you mean ([A-Za-z0-9_.]+)\?\))");
-        const std::string detail = std::regex_replace(m[2].str(), suggestion, "(did you mean plant.$1?)");
-        throw ConfigError(file + line + ": plant." + m[1].str() + ": " + detail);
+        throw ConfigError(file + line + ": plant." + km->key + ": " + with_plant_prefix(km->detail));
       }
     }
     throw ConfigError(message);
@@ -499,10 +574,10 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
     out.plant.thermal.ambient_C = out.scenario.ambient_profile.empty() ? out.scenario.ambient_C
                                                                         : out.scenario.ambient_profile.at(0.0);
   }
-  if (root.at_path("scenario.thermal_acceleration")) {
+  if (root.at_path("scenario.thermal_acceleration") && !root.at_path("plant.thermal.acceleration")) {
     out.plant.thermal.acceleration = out.scenario.thermal_acceleration;
   }
-  if (const auto node = root.at_path("scenario.seed")) {
+  if (const auto node = root.at_path("scenario.seed"); node && !root.at_path("plant.simulation.seed")) {
     const auto* seed = node.as_integer();
     if (seed == nullptr || seed->get() < 0) {
       throw ConfigError(where(*node.node(), source.string(), "scenario.seed") + "expected an integer >= 0");
