@@ -432,10 +432,22 @@ class ConfigSchema {
           throw ConfigError(at + (e.kind == Kind::kPath ? "expected a file path (string), got " : "expected a string, got ") +
                             type_name(node));
         }
+        // A control character has no place in a name, a path or an interface: a NUL cut the
+        // text where the system read it (another file, a message's reason lost), a newline
+        // split a report's line or a plot's command.
+        const std::string& text = s->get();
+        for (std::size_t k = 0; k < text.size(); ++k) {
+          const auto ch = static_cast<unsigned char>(text[k]);
+          if (ch < 0x20U || ch == 0x7fU) {
+            char code[16];
+            std::snprintf(code, sizeof code, "U+%04X", static_cast<unsigned>(ch));
+            throw ConfigError(at + "contains a control character (" + code + ") at position " + std::to_string(k + 1));
+          }
+        }
         if (e.kind == Kind::kPath) {
-          e.path(config) = std::filesystem::path(s->get());
+          e.path(config) = std::filesystem::path(text);
         } else {
-          e.string(config) = s->get();
+          e.string(config) = text;
         }
         break;
       }

@@ -97,6 +97,15 @@ TEST(ConfigSchema, DottedKeysAndInlineTablesAreTheSameKeys) {
   EXPECT_EQ(parse_demo("motor = { gain = 4.5 }\n").gain, 4.5);
 }
 
+// A NUL in a path cut it where the system read it (the daemon read another file than the one
+// named, and an error message lost its reason); a newline split a report's line. Any control
+// character in a string is refused, named with its position.
+TEST(ConfigSchema, AStringWithAControlCharacterIsRefused) {
+  EXPECT_EQ(error_of("[motor]\nname = \"a\\u0000.toml\"\n"), "demo.toml:2: motor.name: contains a control character (U+0000) at position 2");
+  EXPECT_EQ(error_of("[motor]\nname = \"two\\nlines\"\n"), "demo.toml:2: motor.name: contains a control character (U+000A) at position 4");
+  EXPECT_EQ(parse_demo("[motor]\nname = \"it's \\\"fine\\\"\"\n").name, "it's \"fine\"");
+}
+
 TEST(ConfigSchema, UnknownKeyNamesFileLineKeyAndSuggests) {
   EXPECT_EQ(error_of("[motor]\ngain = 2\ngian = 3\n"), "demo.toml:3: motor.gian: unknown key (did you mean motor.gain?)");
   // Nothing close: no suggestion.

@@ -293,7 +293,8 @@ TEST(SimulateCli, AnOutputIsNotWrittenOverAnInput) {
 
 // A scenario's name and the output's path reach gnuplot's script as strings: a name that closed
 // its quote and went on a new line ran `system` (a file was created); a quote in either made
-// gnuplot fail. Now they are quoted, and a name's line break is a space.
+// gnuplot fail. Now they are quoted, and a name with a line break is refused at load (a
+// control character in any string key is).
 TEST(SimulateCli, TheScenariosNameIsTextInThePlotNotCommands) {
   const std::filesystem::path dir = std::filesystem::temp_directory_path() / ("pmsm-sim-plot-" + std::to_string(getpid()));
   std::filesystem::create_directories(dir);
@@ -303,12 +304,21 @@ TEST(SimulateCli, TheScenariosNameIsTextInThePlotNotCommands) {
                                 << "name = \"it's \\\"x\\\"\\nsystem \\\"touch " << pwned.string()
                                 << "\\\"\\nset title \\\"y\"\n";
   const std::filesystem::path png = dir / "it's.png";
-  const ProcessResult r = run_process(kExe + " simulate --quiet --plot \"" + png.string() + "\" " + (dir / "s.toml").string());
+  const ProcessResult refused = run_process(kExe + " simulate --quiet --plot \"" + png.string() + "\" " + (dir / "s.toml").string());
+  EXPECT_EQ(refused.exit_code, 2) << refused.err;
+  EXPECT_NE(refused.err.find("s.toml:4: scenario.name: contains a control character (U+000A) at position 9"), std::string::npos)
+      << refused.err;
+  EXPECT_FALSE(std::filesystem::exists(pwned)) << "the scenario's name ran a command";
+  // Quotes of both kinds in the name and in the path: one line, quoted in the script.
+  std::ofstream(dir / "q.toml") << "[scenario]\nbase = \"" << PMSM_SOURCE_DIR
+                                << "/bench/scenarios/reference-fm-bipolar.toml\"\nduration_s = 0.6\n"
+                                << "name = \"it's \\\"x\\\" system \\\"touch " << pwned.string() << "\\\"\"\n";
+  const ProcessResult r = run_process(kExe + " simulate --quiet --plot \"" + png.string() + "\" " + (dir / "q.toml").string());
   EXPECT_EQ(r.exit_code, 0) << r.err;
   EXPECT_TRUE(std::filesystem::exists(png)) << r.err;
   EXPECT_FALSE(std::filesystem::exists(pwned)) << "the scenario's name ran a command";
   // An output that cannot take the series fails with exit 3 and says so.
-  const ProcessResult full = run_process(kExe + " simulate --quiet --csv /dev/full " + (dir / "s.toml").string());
+  const ProcessResult full = run_process(kExe + " simulate --quiet --csv /dev/full " + (dir / "q.toml").string());
   EXPECT_EQ(full.exit_code, 3);
   EXPECT_NE(full.err.find("cannot write /dev/full"), std::string::npos) << full.err;
   std::filesystem::remove_all(dir);
@@ -330,6 +340,8 @@ TEST_P(PlanCliBadInput, NamesTheFlagAndFails) {
 INSTANTIATE_TEST_SUITE_P(
     Flags, PlanCliBadInput,
     ::testing::Values(BadInput{"budget --Ld -1 --voltage 3", "--Ld"},
+                      BadInput{"budget --voltage 1e5 --Ld 1e-200 --Rs 1e-6", "--Ld"},  // printed "inf A"
+                      BadInput{"budget --voltage 1e5 --Ld 0.009 --Rs 1e-200", "--Rs"},
                       BadInput{"budget --Ld 0.009", "--voltage,--current,--speed"},
                       BadInput{"budget --voltage 3 --current 2", "--voltage,--current,--speed"},
                       BadInput{"budget --window hamming --voltage 3", "--window"},

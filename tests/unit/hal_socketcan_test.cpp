@@ -33,6 +33,7 @@ TEST(SocketCan, InterfaceNamesFollowTheKernelsRule) {
   }
   EXPECT_TRUE(contains(can_interface_name_problem(""), "got an empty one"));
   EXPECT_TRUE(contains(can_interface_name_problem("abcdefghijklmnop"), "got 16 in 'abcdefghijklmnop'"));
+  EXPECT_TRUE(contains(can_interface_name_problem(std::string_view("vcan0\0x", 7)), "no control characters"));
   EXPECT_TRUE(contains(can_interface_name_problem(".."), "is not an interface name"));
   for (const char* bad : {"can/0", "can:0", "can 0", "can\t0"}) {
     EXPECT_TRUE(contains(can_interface_name_problem(bad), "no '/', ':' or white space")) << bad;

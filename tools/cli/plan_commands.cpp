@@ -27,6 +27,10 @@ namespace {
 // Upper bounds of the planning options: generous for any industrial PMSM, finite so that no
 // answer is printed as inf or nan.
 constexpr double kMaxInductance_H = 10.0;
+// ... and lower bounds below every real machine, for the same reason: with --Ld and --Rs of
+// 1e-200 the largest F was printed as "inf A".
+constexpr double kMinInductance_H = 1e-9;
+constexpr double kMinResistance_ohm = 1e-6;
 constexpr double kMaxWindow_s = 10.0;
 constexpr double kMaxVoltage_V = 100e3;
 constexpr double kMaxCurrent_A = 100e3;
@@ -330,8 +334,8 @@ void register_budget_command(CLI::App& app, int& exit_code) {
   auto options = std::make_shared<BudgetOptions>();
   CLI::App* cmd = app.add_subcommand(
       "budget", "Largest injection current for a voltage headroom, or voltage for a current (Eqs. 29-30)");
-  cmd->add_option("--Ld", options->ld_H, "d-axis inductance, H")->check(cli::positive(kMaxInductance_H))->capture_default_str();
-  cmd->add_option("--Rs", options->rs_ohm, "stator resistance, ohm (phase to neutral)")->check(cli::positive(common::kMaxStatorResistance_ohm))->capture_default_str();
+  cmd->add_option("--Ld", options->ld_H, "d-axis inductance, H")->check(cli::number_in_range(kMinInductance_H, kMaxInductance_H))->capture_default_str();
+  cmd->add_option("--Rs", options->rs_ohm, "stator resistance, ohm (phase to neutral)")->check(cli::number_in_range(kMinResistance_ohm, common::kMaxStatorResistance_ohm))->capture_default_str();
   cmd->add_option("--Tw", options->tw_s, "window period, s")->check(cli::number_in_range(kMinWindow_s, kMaxWindow_s))->capture_default_str();
   add_window_option(cmd, options->window_name);
   auto* mode = cmd->add_option_group("mode", "what to compute (exactly one)");
@@ -342,7 +346,7 @@ void register_budget_command(CLI::App& app, int& exit_code) {
   mode->require_option(1);
   // The operating point's options mean nothing to --voltage or --current: given there they
   // would be ignored without a word, so CLI11 refuses them ("--iq requires --speed").
-  cmd->add_option("--Lq", options->lq_H, "q-axis inductance, H (default: equal to Ld; with --config the configuration's secant at --iq)")->check(cli::positive(kMaxInductance_H))->needs(speed);
+  cmd->add_option("--Lq", options->lq_H, "q-axis inductance, H (default: equal to Ld; with --config the configuration's secant at --iq)")->check(cli::number_in_range(kMinInductance_H, kMaxInductance_H))->needs(speed);
   cmd->add_option("--iq", options->iq_A, "motoring q-axis current, A peak")
       ->check(cli::number_in_range(-kMaxCurrent_A, kMaxCurrent_A))->capture_default_str()->needs(speed);
   cmd->add_option("--vdc", options->vdc_V, "DC-bus voltage, V")->check(cli::positive(kMaxVoltage_V))->capture_default_str()->needs(speed);
@@ -390,7 +394,7 @@ void register_losses_command(CLI::App& app, int& exit_code) {
       ->check(CLI::IsMember({"fixed-magnitude", "fixed-angle"}))->capture_default_str();
   core::InjectionSchedule& s = options->schedule;
   cmd->add_option("--F", s.f_A, "injection current magnitude, A")->check(cli::positive(kMaxCurrent_A))->required();
-  cmd->add_option("--Rs", s.rs_ohm, "stator resistance, ohm")->check(cli::positive(common::kMaxStatorResistance_ohm))->capture_default_str();
+  cmd->add_option("--Rs", s.rs_ohm, "stator resistance, ohm")->check(cli::number_in_range(kMinResistance_ohm, common::kMaxStatorResistance_ohm))->capture_default_str();
   cmd->add_option("--pulses", s.pulses, "injection pulses in the elapsed time (Ninj)")->check(cli::number_in_range(1, 1000000))->capture_default_str();
   cmd->add_option("--elapsed", s.elapsed_s, "elapsed time Tel, s")->check(cli::positive(kMaxTime_s))->capture_default_str();
   cmd->add_option("--Ti", s.ti_s, "duration of the flat top of one pulse, s")->check(cli::non_negative(kMaxTime_s))->capture_default_str();

@@ -2,6 +2,7 @@
 // scheduler + estimator + plant library), lockstep and faster than real time, and reports
 // the figures. Several scenarios make a side-by-side table (--markdown), the accuracy
 // benchmark of docs/accuracy.md.
+#include <algorithm>
 #include <atomic>
 #include <cmath>
 #include <condition_variable>
@@ -109,6 +110,11 @@ Report run_one(const std::string& path, const Scenario& scenario, const Simulate
     return r;
   }
   int& status = r.status;
+  if (result.calibration_running_at_end) {
+    r.err += fmt::format("simulate: {}: the calibration had not finished when the run ended; the figures count from "
+                         "a calibration that is not there (run longer, or start it earlier)\n",
+                         path);
+  }
   if (result.calibration_failure != core::CalibrationFailure::kNone) {
     r.err += fmt::format("simulate: {}: the calibration failed ({} at {:.2f} s); the figures are those of the "
                          "calibration in use before it\n",
@@ -209,6 +215,22 @@ int run_simulate(const SimulateOptions& o) {
                                                                 " reads or keeps its state in").c_str());
           return 2;
         }
+      }
+    }
+  }
+  // A time series is kept whole for --csv and --plot (SeriesRow, about 200 bytes a row): one
+  // beyond ten million rows (2 GB) is refused before it runs, not as std::bad_alloc after.
+  if (!o.csv_path.empty() || !o.plot_path.empty() || !o.plot_dir.empty()) {
+    constexpr double kMaxSeriesRows = 1e7;
+    for (std::size_t k = 0; k < n; ++k) {
+      const ScenarioConfig& sc = scenarios[k].scenario;
+      const double rows = sc.duration_s / std::max(sc.log_period_s, scenarios[k].controller.drive.period_s);
+      if (rows > kMaxSeriesRows) {
+        std::fprintf(stderr,
+                     "simulate: %s: scenario.duration_s / metrics.log_period_s = %.3g rows of time series for --csv or "
+                     "--plot, more than %.0f (about 2 GB): raise metrics.log_period_s or leave the series out\n",
+                     o.scenario_paths[k].c_str(), rows, kMaxSeriesRows);
+        return 2;
       }
     }
   }

@@ -962,6 +962,7 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
   result.injection_loss_W = result.sim_time_s > 0.0 ? injection_energy_J / result.sim_time_s : 0.0;
   result.injection_duty = periods > 0 ? static_cast<double>(injection_periods) / static_cast<double>(periods) : 0.0;
   result.angle_correction_rad = drive.angle_correction_rad();
+  result.calibration_running_at_end = drive.telemetry().calibrating;
   result.vx_V = drive.telemetry().vx_V;
   result.vx_std_V = drive.telemetry().vx_std_V;
   result.vx_bus_slope = drive.telemetry().vx_bus_slope;
@@ -1059,7 +1060,8 @@ std::string result_json(const SimulationResult& r) {
       .field("torque_difference_outside_injection_pct", r.disturbance_measured ? r.torque_difference_outside_pct : kNan)
       .field("injection_loss_W", r.injection_loss_W)
       .field("injection_duty", r.injection_duty)
-      .field("calibrated", r.calibrated);
+      .field("calibrated", r.calibrated)
+      .field("calibration_running_at_end", r.calibration_running_at_end);
   if (r.calibrated) {
     j.key("calibration")
         .begin_object()
@@ -1176,6 +1178,8 @@ std::string result_text(const SimulationResult& r) {
     out += fmt::format("  winding error above threshold   RMS {:.2f} C, max {:.2f} C, mean {:+.2f} C ({} samples)\n",
                        r.winding_error_rms_C, r.winding_error_max_C, r.winding_error_mean_C, r.winding_error_samples);
     out += fmt::format("  truth inside the +-2 sigma band {:.1f} % of those samples\n", 100.0 * r.coverage_2sigma);
+  } else if (r.calibration_running_at_end) {
+    out += "  winding error                   none counted: the calibration had not finished when the run ended\n";
   } else {
     out += "  winding error                   no samples above the threshold after calibration\n";
   }

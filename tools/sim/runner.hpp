@@ -154,6 +154,7 @@ struct SimulationResult {
   double injection_duty = 0.0;          // fraction of time an event was in progress
   // Calibration.
   bool calibrated = false;
+  bool calibration_running_at_end = false;  // asked for, and neither done nor failed when the run ended
   double calibration_time_s = 0.0;
   core::Calibration calibration{};
   double calibration_rs0_std_ohm = 0.0;  // the calibration's Rs0 standard error

@@ -647,6 +647,15 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
                       common::format_number(out.scenario.duration_s) +
                       " s: start it earlier, run longer, or set operation.calibrate = false");
   }
+  // The error figures and the time series are sampled every log period: one longer than the run
+  // samples nothing, and the report said "no samples above the threshold" of a run that heated.
+  if (out.scenario.log_period_s > out.scenario.duration_s) {
+    const auto given = root.at_path("metrics.log_period_s");
+    const std::string at = given ? where(*given.node(), source.string(), "metrics.log_period_s")
+                                 : source.string() + ": metrics.log_period_s: ";
+    throw ConfigError(at + common::format_number(out.scenario.log_period_s) + " s is longer than the run, scenario.duration_s = " +
+                      common::format_number(out.scenario.duration_s) + " s: the figures would sample nothing");
+  }
   // The drive steps once per plant sample, so its period is the plant's PWM period: a
   // mismatch would run every clock of the drive (its timers, the speed from the angle's
   // advance, the thermal model, an estimate's age) at the wrong rate without a word.

@@ -158,6 +158,10 @@ std::string can_interface_name_problem(std::string_view name) {
     if (ch == '/' || ch == ':' || std::isspace(static_cast<unsigned char>(ch)) != 0) {
       return "an interface name has no '/', ':' or white space, got '" + std::string(name) + "'";
     }
+    if (std::iscntrl(static_cast<unsigned char>(ch)) != 0) {
+      return "an interface name has no control characters (a NUL would end it early), got one in a name of " +
+             std::to_string(name.size()) + " characters";
+    }
   }
   return {};
 }
