@@ -887,10 +887,11 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
     const double holds_s = static_cast<double>(d.recording_capacity) * d.period_s;
     if (longest_s > holds_s) {
       rule("injection.field_weakening_record_min_time_s", "injection.record_min_time_s",
-           fmt::format("recordings of up to {:.3f} s (the longest of injection.record_time_s, record_min_time_s and "
-                       "field_weakening_record_min_time_s, plus one turn at injection.min_speed_for_angle_rad_s) do not "
-                       "fit the {:.3f} s a recording holds at control.period_s = {} s (its {} samples)",
-                       longest_s, holds_s, common::format_number(d.period_s), d.recording_capacity));
+           fmt::format("recordings of up to {:.4g} s (the longest of injection.record_time_s, record_min_time_s and "
+                       "field_weakening_record_min_time_s, plus one turn at injection.min_speed_for_angle_rad_s = {} rad/s) "
+                       "do not fit the {:.4g} s a recording holds at control.period_s = {} s (its {} samples)",
+                       longest_s, common::format_number(d.injection.min_speed_for_angle_rad_s), holds_s,
+                       common::format_number(d.period_s), d.recording_capacity));
     }
   }
   if (!errors.empty()) {

@@ -211,9 +211,11 @@ TEST(ControllerConfig, CrossKeyRulesNameBothKeys) {
             "drive.toml:2: injection.record_time_s (0.05 s, its default) must be longer than injection.settle_s (0.05 s) "
             "by two control periods");
   EXPECT_EQ(error_of("[injection]\nfield_weakening_record_min_time_s = 0.7\n"),
-            "drive.toml:2: recordings of up to 0.909 s (the longest of injection.record_time_s, record_min_time_s and "
-            "field_weakening_record_min_time_s, plus one turn at injection.min_speed_for_angle_rad_s) do not fit the "
-            "0.819 s a recording holds at control.period_s = 0.0001 s (its 8192 samples)");
+            "drive.toml:2: recordings of up to 0.9094 s (the longest of injection.record_time_s, record_min_time_s and "
+            "field_weakening_record_min_time_s, plus one turn at injection.min_speed_for_angle_rad_s = 30 rad/s) do not "
+            "fit the 0.8192 s a recording holds at control.period_s = 0.0001 s (its 8192 samples)");
+  // A tiny speed is a number of a few digits, not of three hundred ({:.3f} printed them all).
+  EXPECT_NE(error_of("[injection]\nmin_speed_for_angle_rad_s = 1e-300\n").find("recordings of up to 6.283e+300 s"), std::string::npos);
   // Equal ends are rejected too (the derating would divide by zero).
   EXPECT_NE(error_of("[derating]\nstart_C = 155\nlimit_C = 155\n"), "");
   EXPECT_EQ(error_of("[derating]\nmagnet_start_C = 150\n"),

@@ -46,6 +46,16 @@ TEST(plant_cli, CheckAcceptsEveryProfile) {
   }
 }
 
+// The truth is published every whole number of PWM periods, at least one: --check says what
+// the node will do (it printed the flag as given, 0.001 ms where the node publishes every 0.1).
+TEST(plant_cli, CheckPrintsTheTruthPeriodTheNodeUses) {
+  const ProcessResult r = run_process(kPlant + " --check --truth-period-ms 0.001 --config " + kProfiles + "reference.toml");
+  EXPECT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_TRUE(contains(r.out, "truth every 0.1 ms, --truth-period-ms rounded to whole PWM periods")) << r.out;
+  const ProcessResult whole = run_process(kPlant + " --check --truth-period-ms 20 --config " + kProfiles + "reference.toml");
+  EXPECT_TRUE(contains(whole.out, "truth every 20 ms)")) << whole.out;
+}
+
 TEST(plant_cli, CheckRejectsABadValueNamingFileLineAndKey) {
   const TempToml bad("[motor]\nld_H = -1\n");
   const ProcessResult r = run_process(kPlant + " --check --config " + bad.path());
