@@ -90,6 +90,10 @@ const ConfigSchema<D>& schema() {
     c.real("supervisor.overspeed_rad_s", [](D& d) -> double& { return d.supervisor.overspeed_rad_s; }, app::between(0, 100000), "rad/s",
            "Mechanical speed over about 1 ms of encoder counts above which the drive trips: OVERSPEED fault, gates off (an "
            "overhauling load, a runaway in torque control; default: 1.5 x rated; 0: off).");
+    c.integer("supervisor.output_feedback_periods", [](D& d) -> int& { return d.supervisor.output_feedback_periods; },
+              app::between(0, 100000),
+              "Samples in a row that report the gates off (SENSOR_SAMPLE OutputEnabled) while the drive has enabled them: "
+              "OUTPUT_FEEDBACK fault (an open enable chain, a safe torque off, a stage's own latched fault); 0: not judged.");
     c.integer("supervisor.sensor_timeout_periods", [](D& d) -> int& { return d.supervisor.sensor_timeout_periods; }, app::between(1, 100000),
               "Missing samples in a row before the sensor-timeout fault (gates off).");
     c.integer("supervisor.sensor_recovery_periods", [](D& d) -> int& { return d.supervisor.sensor_recovery_periods; },

@@ -140,6 +140,11 @@ std::string Publisher::fault_cause(protocol::FaultCode code, double value) const
                          "supervisor.current_offset_max_A ({:g} A; a broken or stuck sensor; restart the daemon once it is "
                          "fixed): ",
                          value, c.current_offset_max_A);
+    case protocol::FaultCode::kOutputFeedback:
+      return fmt::format("the power stage reported its gates off for {:.0f} samples in a row while the drive enabled them "
+                         "(supervisor.output_feedback_periods = {}; an open enable chain, a safe torque off, a fault of the "
+                         "stage's own): ",
+                         value, c.output_feedback_periods);
     case protocol::FaultCode::kAmbientImplausible:
       return fmt::format("the ambient sensor reads {:.1f} C, outside supervisor.ambient_min_C .. ambient_max_C ({:g} .. "
                          "{:g} C): ",

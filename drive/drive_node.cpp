@@ -102,7 +102,8 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
   if (sample != nullptr) {
     drive_in = frontend_.convert(*sample);
     si.sample = core::SupervisedSample{drive_in.i_A, drive_in.vdc_V, drive_in.encoder_count,
-                                       (sample->flags & hal::kSensorHardwareOvercurrent) != 0U, std::nullopt};
+                                       (sample->flags & hal::kSensorHardwareOvercurrent) != 0U,
+                                       (sample->flags & hal::kSensorOutputEnabled) != 0U, std::nullopt};
     if ((sample->flags & hal::kSensorAmbientValid) != 0U) {
       si.sample->ambient_C = 0.01 * static_cast<double>(sample->ambient_centi_C);
     }

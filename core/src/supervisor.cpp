@@ -42,6 +42,7 @@ const char* to_string(FaultCode code) noexcept {
     case FaultCode::kOverspeed: return "overspeed";
     case FaultCode::kPeriodMismatch: return "period-mismatch";
     case FaultCode::kCurrentOffset: return "current-offset";
+    case FaultCode::kOutputFeedback: return "output-feedback";
     case FaultCode::kCount: break;
   }
   return "?";
@@ -122,6 +123,17 @@ void Supervisor::check_sample(const SupervisedSample& s) noexcept {
   }
   if (s.hardware_overcurrent) {
     cause_mask_ |= bit(FaultCode::kHardwareOvercurrent);
+  }
+  // The gates this drive enabled (its last decision) against what the stage reports; the
+  // stage applies a command a period or two later, so only a run of samples counts.
+  if (status_.power_stage_enabled && !s.output_enabled) {
+    ++output_off_samples_;
+    if (config_.output_feedback_periods > 0 &&
+        output_off_samples_ >= static_cast<std::uint32_t>(config_.output_feedback_periods)) {
+      cause(FaultCode::kOutputFeedback, static_cast<double>(output_off_samples_));
+    }
+  } else {
+    output_off_samples_ = 0;
   }
   if (s.ambient_C && !(*s.ambient_C >= config_.ambient_min_C && *s.ambient_C <= config_.ambient_max_C)) {
     cause(FaultCode::kAmbientImplausible, *s.ambient_C);

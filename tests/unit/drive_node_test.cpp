@@ -187,6 +187,27 @@ TEST(DriveNode, AStuckCurrentSensorAtPowerUpIsAFaultNotAnOffset) {
   EXPECT_TRUE(running.command && running.command->enable);
 }
 
+// A power stage that keeps its gates off while the drive enables them (an open enable chain,
+// a safe torque off) went unnoticed: the drive commanded torque into a stage that did nothing.
+// A run of samples reporting the gates off while enabled is OUTPUT_FEEDBACK; a stage that
+// switches as told is no fault, nor are the period or two it takes to follow.
+TEST(DriveNode, AStageThatKeepsItsGatesOffIsAFault) {
+  Rig rig;
+  auto gates_off = [](hal::SensorSample& s) { s.flags = static_cast<std::uint8_t>(s.flags & ~hal::kSensorOutputEnabled); };
+  rig.run(1000);  // the offsets, then running
+  ASSERT_TRUE(rig.run(1).command->enable);
+  ASSERT_FALSE(rig.node->supervisor().latched(core::FaultCode::kOutputFeedback));
+  bool published_fault = false;
+  int periods = 0;
+  while (!rig.node->supervisor().latched(core::FaultCode::kOutputFeedback) && periods < 1000) {
+    published_fault = published_fault || published(rig.run(1, gates_off), protocol::FaultCode::kOutputFeedback, true);
+    ++periods;
+  }
+  EXPECT_EQ(periods, rig.supervisor.output_feedback_periods) << "a run of that many samples, not fewer";
+  EXPECT_TRUE(published_fault || published(rig.run(1, gates_off), protocol::FaultCode::kOutputFeedback, true));
+  EXPECT_FALSE(rig.run(1, gates_off).command->enable);
+}
+
 TEST(DriveNode, MissingSamplesNoCommandThenSensorTimeoutThenRecovery) {
   Rig rig;
   rig.run(2000);

@@ -140,12 +140,12 @@ TEST(protocol_table, ValueTablesMatchEnums) {
   check(kCalibrationActionLabels, static_cast<std::size_t>(CalibrationAction::kAbort) + 1);
   check(kDriveStateLabels, static_cast<std::size_t>(DriveState::kFault) + 1);
   check(kInjectionResultLabels, static_cast<std::size_t>(InjectionResult::kSkippedTorqueDisturbance) + 1);
-  check(kFaultCodeLabels, static_cast<std::size_t>(FaultCode::kCurrentOffset) + 1);
+  check(kFaultCodeLabels, static_cast<std::size_t>(FaultCode::kOutputFeedback) + 1);
   check(kPlantModeLabels, 2);
   check(kCalibrationResultLabels, static_cast<std::size_t>(CalibrationResult::kRefused) + 1);
   EXPECT_EQ(thermal_estimate::kCalibrationResult.raw_max(), static_cast<std::int64_t>(CalibrationResult::kRefused));
   EXPECT_EQ(drive_command::kMode.raw_max(), 2);
-  EXPECT_EQ(fault::kCode.raw_max(), static_cast<std::int64_t>(FaultCode::kCurrentOffset));
+  EXPECT_EQ(fault::kCode.raw_max(), static_cast<std::int64_t>(FaultCode::kOutputFeedback));
   EXPECT_EQ(injection_report::kResult.raw_max(), static_cast<std::int64_t>(InjectionResult::kSkippedTorqueDisturbance));
 }
 

@@ -64,7 +64,8 @@ enum class FaultCode : std::uint8_t {
   kOverspeed = 20,           // the shaft turns faster than overspeed_rad_s (over a 1 ms window)
   kPeriodMismatch = 21,      // the power stage reports another sampling period than the drive's
   kCurrentOffset = 22,       // a current sensor read far from zero with the gates off at power-up
-  kCount = 23,
+  kOutputFeedback = 23,      // the power stage kept its gates off while the drive enabled them
+  kCount = 24,
 };
 
 [[nodiscard]] const char* to_string(DriveState state) noexcept;
@@ -87,6 +88,10 @@ struct SupervisorConfig {
   int encoder_counts = 16384;            // counts per mechanical revolution
   int sensor_timeout_periods = 10;       // periods without a sample before the fault
   int sensor_recovery_periods = 10;      // periods with samples before it clears itself
+  // Samples in a row reporting the gates off (SENSOR_SAMPLE's OutputEnabled) while the drive
+  // has enabled them: the stage is not doing what it is told (an open enable chain, a safe
+  // torque off, a stage that latched a fault of its own). 0: not judged.
+  int output_feedback_periods = 100;
   double command_timeout_s = 0.0;        // enabled without a fresh command this long: trip (0: off)
   double trip_temp_C = 180.0;            // winding estimate above: over-temperature trip
   double trip_hysteresis_C = 10.0;       // may be cleared once below trip - hysteresis
@@ -100,6 +105,7 @@ struct SupervisedSample {
   double vdc_V = 0.0;
   std::uint32_t encoder_count = 0;
   bool hardware_overcurrent = false;
+  bool output_enabled = true;       // the stage's report that its gates switch (a sample without one: true)
   std::optional<double> ambient_C;  // the ambient / coolant sensor, if the sample carries it
 };
 
@@ -203,6 +209,7 @@ class Supervisor {
   std::int64_t window_counts_ = 0;
   std::uint32_t window_periods_ = 0;
   std::uint32_t periods_without_sample_ = 0;  // since the last sample, as the steps said
+  std::uint32_t output_off_samples_ = 0;      // in a row reporting the gates off while enabled
   bool overspeed_cause_ = false;
 };
 

@@ -268,8 +268,9 @@ enum class FaultCode : std::uint8_t {
   kOverspeed = 20,           // the shaft turned faster than the overspeed limit
   kPeriodMismatch = 21,      // the power stage samples at another period than the drive's
   kCurrentOffset = 22,       // a current sensor read far from zero with the gates off at power-up
+  kOutputFeedback = 23,      // the power stage kept its gates off while the drive enabled them
 };
-inline constexpr std::size_t kFaultCodeCount = 23;
+inline constexpr std::size_t kFaultCodeCount = 24;
 inline constexpr std::array<ValueLabel, kFaultCodeCount> kFaultCodeLabels{{
     {0, "NONE"},
     {1, "SENSOR_TIMEOUT"},
@@ -293,7 +294,8 @@ inline constexpr std::array<ValueLabel, kFaultCodeCount> kFaultCodeLabels{{
     {19, "AMBIENT_IMPLAUSIBLE"},
     {20, "OVERSPEED"},
     {21, "PERIOD_MISMATCH"},
-    {22, "CURRENT_OFFSET"}}};
+    {22, "CURRENT_OFFSET"},
+    {23, "OUTPUT_FEEDBACK"}}};
 
 enum class PlantMode : std::uint8_t { kRealtime = 0, kLockstep = 1 };
 inline constexpr std::array<ValueLabel, 2> kPlantModeLabels{{{0, "REALTIME"}, {1, "LOCKSTEP"}}};
@@ -536,7 +538,7 @@ inline constexpr std::array<SignalDef, 4> kSignals{e2e::kCrc, e2e::kAliveCounter
 }  // namespace calibration_command
 
 namespace fault {
-inline constexpr SignalDef kCode{"Code", 0, 8, false, 1, 0, 0, 22, "", kFaultCodeLabels, "Fault code."};
+inline constexpr SignalDef kCode{"Code", 0, 8, false, 1, 0, 0, 23, "", kFaultCodeLabels, "Fault code."};
 inline constexpr SignalDef kActive{"Active", 8, 1, false, 1, 0, 0, 1, "", detail::kNoValues,
     "1: the fault is active; 0: it has cleared."};
 inline constexpr SignalDef kOccurrenceCount{"OccurrenceCount", 16, 16, false, 1, 0, 0, 65535, "", detail::kNoValues,
