@@ -390,6 +390,9 @@ void load_drive_cycle_csv(const std::filesystem::path& path, LoadConfig& load,
   std::vector<TimePoint> points;
   while (std::getline(in, line)) {
     ++line_no;
+    if (line_no == 1 && line.rfind("\xEF\xBB\xBF", 0) == 0) {
+      line.erase(0, 3);  // a UTF-8 byte-order mark (a spreadsheet's export) is no part of the header
+    }
     const std::string t = trim(line);
     if (t.empty() || t.front() == '#') {
       continue;

@@ -408,6 +408,16 @@ TEST(Scenario, CsvSetPoints) {
   std::filesystem::remove(long_csv);
   EXPECT_LT(long_error.size(), 400U);
   EXPECT_NE(long_error.find("got '0," + std::string(78, '7') + "... (1000003 bytes)'"), std::string::npos) << long_error;
+  // A spreadsheet's byte-order mark before the header, and blank lines of spaces, are no rows
+  // ("got '\xEF\xBB\xBF0,0'" and "got '  '" were).
+  const std::filesystem::path bom_csv = std::filesystem::temp_directory_path() / "pmsm-bom.csv";
+  std::ofstream(bom_csv) << "\xEF\xBB\xBFtime_s,speed_rad_s\r\n0,0\r\n   \r\n2,40\r\n";
+  const Scenario bom = parse("[operation]\nspeed_csv = \"" + bom_csv.string() + "\"\n");
+  std::ofstream(bom_csv) << "\xEF\xBB\xBF" << "0,0\n1,10\n";
+  const Scenario bom_no_header = parse("[operation]\nspeed_csv = \"" + bom_csv.string() + "\"\n");
+  std::filesystem::remove(bom_csv);
+  EXPECT_EQ(bom.scenario.speed_rad_s.at(1.0), 20.0);
+  EXPECT_EQ(bom_no_header.scenario.speed_rad_s.at(1.0), 10.0);
   const Scenario t = parse("[operation]\nmode = \"torque\"\ntorque_csv = \"speed_profile.csv\"\n");
   EXPECT_EQ(t.scenario.mode, core::DriveMode::kTorque);
   EXPECT_EQ(t.scenario.torque_Nm.at(2.0), 150.0);

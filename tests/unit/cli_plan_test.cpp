@@ -317,6 +317,12 @@ TEST(SimulateCli, TheScenariosNameIsTextInThePlotNotCommands) {
   EXPECT_EQ(r.exit_code, 0) << r.err;
   EXPECT_TRUE(std::filesystem::exists(png)) << r.err;
   EXPECT_FALSE(std::filesystem::exists(pwned)) << "the scenario's name ran a command";
+  // In a Markdown row a '|' of the name is escaped: it would end the cell and shift the figures.
+  std::ofstream(dir / "bar.toml") << "[scenario]\nbase = \"" << PMSM_SOURCE_DIR
+                                  << "/bench/scenarios/reference-fm-bipolar.toml\"\nduration_s = 0.6\nname = \"a | b\"\n";
+  const ProcessResult md = run_process(kExe + " simulate --quiet --markdown " + (dir / "bar.toml").string());
+  EXPECT_EQ(md.exit_code, 0) << md.err;
+  EXPECT_NE(md.out.find("| a \\| b (`bar.toml`) | fixed-magnitude bipolar |"), std::string::npos) << md.out;
   // An output that cannot take the series fails with exit 3 and says so.
   const ProcessResult full = run_process(kExe + " simulate --quiet --csv /dev/full " + (dir / "q.toml").string());
   EXPECT_EQ(full.exit_code, 3);

@@ -280,6 +280,13 @@ TEST_F(plant_config_csv, TorqueAndSpeedCycles) {
   EXPECT_DOUBLE_EQ(s.load.points[1].time_s, 1.0);
   EXPECT_DOUBLE_EQ(s.load.points[1].value, 200.0);
 
+  // A spreadsheet's UTF-8 byte-order mark before the header is no part of it (the header "did
+  // not name time_s" with it).
+  write("bom.csv", "\xEF\xBB\xBFtime_s,torque_Nm\r\n0,0\r\n1,10\r\n");
+  const PlantConfig b = parse_plant_config("[load]\nprofile = \"csv\"\ncsv_path = \"bom.csv\"\n", "t", dir_);
+  ASSERT_EQ(b.load.points.size(), 2U);
+  EXPECT_DOUBLE_EQ(b.load.points[1].value, 10.0);
+
   // load_plant_config resolves the CSV relative to the TOML file.
   write("cycle.toml", "[load]\nprofile = \"csv\"\ncsv_path = \"speed.csv\"\n");
   EXPECT_EQ(load_plant_config(dir_ / "cycle.toml").load.profile, LoadProfile::speed_cycle);

@@ -151,6 +151,12 @@ Profile read_csv(const std::filesystem::path& path, std::string_view key, const 
     if (!line.empty() && line.back() == '\r') {
       line.pop_back();
     }
+    if (number == 1 && line.rfind("\xEF\xBB\xBF", 0) == 0) {
+      line.erase(0, 3);  // a UTF-8 byte-order mark (a spreadsheet's export)
+    }
+    if (line.find_first_not_of(" \t") == std::string::npos) {
+      line.clear();  // blank, as an empty line
+    }
     // A first line without a digit is a header (docs/scenarios.md); one with a digit is a row,
     // and a malformed row is an error, not a header dropped in silence (",100" was).
     if (line.empty() || line[0] == '#' || (number == 1 && line.find_first_of("0123456789") == std::string::npos)) {
