@@ -81,10 +81,12 @@ const ConfigSchema<D>& schema() {
            "A phase current sensor whose power-up offset (its mean reading with the gates off) lies further from zero "
            "than this is broken or stuck: CURRENT_OFFSET fault, the gates stay off until a restart (default: 5 % of the "
            "ADC's range).");
-    c.real("supervisor.ambient_min_C", [](D& d) -> double& { return d.supervisor.ambient_min_C; }, app::between(-273, 500), "C",
+    c.real("supervisor.ambient_min_C", [](D& d) -> double& { return d.supervisor.ambient_min_C; }, app::between(-50, 200), "C",
            "The ambient / coolant sensor (in SENSOR_SAMPLE) reading below this is implausible: AMBIENT_IMPLAUSIBLE fault.");
-    c.real("supervisor.ambient_max_C", [](D& d) -> double& { return d.supervisor.ambient_max_C; }, app::between(-273, 500), "C",
-           "The ambient / coolant sensor reading above this is implausible: AMBIENT_IMPLAUSIBLE fault.");
+    c.real("supervisor.ambient_max_C", [](D& d) -> double& { return d.supervisor.ambient_max_C; }, app::between(-50, 200), "C",
+           "The ambient / coolant sensor reading above this is implausible: AMBIENT_IMPLAUSIBLE fault. (Both within "
+           "[-50, 200] C, the T0 a calibration on the ambient may store: a wider window let one store a calibration the "
+           "next start refused.)");
     c.real("supervisor.max_speed_rad_s", [](D& d) -> double& { return d.supervisor.max_speed_rad_s; }, app::positive(100000), "rad/s",
            "Mechanical speed the encoder may show; a larger step between samples is an encoder-jump fault (default: 3 x rated).");
     c.real("supervisor.overspeed_rad_s", [](D& d) -> double& { return d.supervisor.overspeed_rad_s; }, app::between(0, 100000), "rad/s",

@@ -33,6 +33,11 @@ check_bad '[can]\nnode = 22\n' 1 'bad.toml:2: can.node: must be in [0, 15], got 
 check_bad '[can]\nnode = 4294967297\n' 1 'bad.toml:2: can.node: must be in [0, 15], got 4294967297'
 check_bad '[can]\ninterfaec = "vcan0"\n' 1 'can.interfaec'
 check_bad '[rt]\npriority = "high"\n' 1 'rt.priority'
+# Outside what a calibration's T0 may be: a calibration on such an ambient stored a file the
+# next start refused.
+check_bad '[supervisor]\nambient_max_C = 250.0\n' 1 'bad.toml:2: supervisor.ambient_max_C: must be in [-50, 200], got 250'
+# A NUL in the interface's name is no name (it read as "vcan0").
+check_bad '[can]\ninterface = "vcan0\\u0000x"\n' 1 'can.interface: contains a control character (U+0000) at position 6'
 check_bad '[supervisor]\ntrip_temp_C = 100\n' 1 'supervisor.trip_temp_C'
 check_bad '[supervisor]\ndc_bus_min_V = 700\n' 1 'nominal_dc_bus_V'
 check_bad '[supervisor]\noverspeed_rad_s = 1000\nmax_speed_rad_s = 900\n' 1 'supervisor.overspeed_rad_s (1000 rad/s) must be below supervisor.max_speed_rad_s (900 rad/s)'
