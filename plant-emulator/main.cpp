@@ -245,10 +245,11 @@ int run(const Options& o) {
   node_options.duration_s = o.duration_s;
   node_options.follow_calibration = config.thermal.acceleration != 1.0 && !o.accelerated_calibration;
   if (o.check) {
-    // The node publishes truth every whole number of PWM periods, at least one
-    // (PlantNode: round(truth period / PWM period)): what it will do, not the flag as given.
-    const double pwm_period_ms = 1e3 / config.inverter.pwm_frequency_Hz;
-    const double truth_ms = std::max(1.0, std::round(o.truth_period_ms / pwm_period_ms)) * pwm_period_ms;
+    // The node publishes truth every whole number of PWM periods, at least one: what it will
+    // do, not the flag as given.
+    const double pwm_period_s = 1.0 / config.inverter.pwm_frequency_Hz;
+    const double truth_ms =
+        static_cast<double>(pmsm::plant::truth_every_periods(node_options.truth_period, pwm_period_s)) * pwm_period_s * 1e3;
     std::printf("%s: OK (PWM %.0f Hz, %s mode, node %d, truth every %g ms%s)\n", o.config_path.c_str(),
                 config.inverter.pwm_frequency_Hz, o.mode.c_str(), o.node, truth_ms,
                 std::abs(truth_ms - o.truth_period_ms) > 1e-9 * truth_ms ? ", --truth-period-ms rounded to whole PWM periods" : "");

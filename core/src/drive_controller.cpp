@@ -432,14 +432,14 @@ void DriveController::start_calibration(double known_temp_C, bool from_ambient_s
     band_measured_before_ = band_measured_;
     angle_before_calibration_rad_ = angle_.offset_correction_rad();
     angle_measured_before_ = angle_measured_;
-    vx_before_calibration_V_ = scheduler_.vx_V();
-    vx_std_before_calibration_V_ = scheduler_.vx_std_V();
+    vx_before_calibration_ = scheduler_.vx_state();
   }
   // The calibration learns the bridge's voltage afresh, from the configured guess: conditioned
   // on a stored or learned Vx it could not see a changed bridge (another inverter, PWM
   // frequency or dead time), and one that cannot learn Vx (at speed, under load) would pass
   // its Rs0 uncertainty check on the old Vx's error bar.
   scheduler_.set_vx_prior(config_.injection.vx_initial_V, config_.injection.vx_initial_std_V);
+  scheduler_.reset_vx_bus_slope(config_.injection.vx_bus_slope_std);
   // First the rotor angle (the sweep and the events inject d current, which an angle off the
   // rotor's turns into torque), then the bridge, then the events.
   check_restart_.reset();
@@ -492,7 +492,7 @@ void DriveController::abort_calibration() {
 void DriveController::restore_vx() {
   // A calibration that does not complete keeps the calibration in use, and the Vx its Rs0 was
   // learned with (or the one learned since).
-  scheduler_.set_vx_prior(vx_before_calibration_V_, vx_std_before_calibration_V_);
+  scheduler_.set_vx_state(vx_before_calibration_);
 }
 
 bool DriveController::configure_injection(InjectionMethod method, Separation separation, double f_A, double interval_s) {

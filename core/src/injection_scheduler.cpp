@@ -556,7 +556,9 @@ PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
     own.add(lq.secant_x_sum_A_V_H / lq.x_sq_sum_A2, lq.incremental_x_sum_A_V_H / lq.x_sq_sum_A2, lq.shape);
   }
   const double lq_var_rs = lq_variance(own);
-  const double vx_var_rs = fit.drs_dvx * fit.drs_dvx * (config_.fit_dead_time ? vx_var_ : 0.0);
+  // Vx's variance at the bus the event has seen so far (its slope's uncertainty away from the
+  // reference bus; vx_variance_at).
+  const double vx_var_rs = fit.drs_dvx * fit.drs_dvx * (config_.fit_dead_time ? vx_variance_at(event_bus_offset_V()) : 0.0);
   r.rs_ohm = fit.rs_ohm;
   r.rs_std_ohm = std::sqrt(fit.var_rs + vx_var_rs + lq_var_rs);
   r.residual_rms_V = fit.residual_rms_V;
@@ -724,7 +726,7 @@ void InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit,
   const double s_q = lq_shape_.at(c.iq_mean_A).s;  // the secant's shape at the pair's load
   // Over whole turns (Eq. 3, d-axis): Lq <w iq> = Rs <id> + Ld <dId/dt> + Vx <Gd> - <vd>.
   const double vx = config_.fit_dead_time ? vx_V_ : 0.0;
-  const double var_vx = config_.fit_dead_time ? vx_var_ : 0.0;
+  const double var_vx = config_.fit_dead_time ? vx_variance_at(event_bus_offset_V()) : 0.0;
   // Learn only where the Lq term stands out: at least the configured volts, and at least the
   // known terms it is told apart from (a unipolar pair's Rs <id> and Vx <Gd>; about 0 for a
   // bipolar pair), whose model errors in proportion (the bridge's pattern) the variance below
@@ -895,7 +897,7 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
   double rs = 0.0;
   double var_rs = 0.0;
   // The event's bus, and the prior's variance of Vx there (vx_variance_at).
-  const double bus_offset_V = event_bus_periods_ > 0 ? event_bus_sum_V_ / static_cast<double>(event_bus_periods_) : 0.0;
+  const double bus_offset_V = event_bus_offset_V();
   const double vx_var_here = vx_variance_at(bus_offset_V);
   double vx = config_.fit_dead_time ? vx_V_ : 0.0;
   double var_vx = config_.fit_dead_time ? vx_var_here : 0.0;

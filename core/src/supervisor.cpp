@@ -124,9 +124,12 @@ void Supervisor::check_sample(const SupervisedSample& s) noexcept {
   if (s.hardware_overcurrent) {
     cause_mask_ |= bit(FaultCode::kHardwareOvercurrent);
   }
-  // The gates this drive enabled (its last decision) against what the stage reports; the
-  // stage applies a command a period or two later, so only a run of samples counts.
-  if (status_.power_stage_enabled && !s.output_enabled) {
+  // The gates this drive means to switch (it runs or calibrates; a period without a sample in
+  // between switches them off for that period alone and does not restart the count) against
+  // what the stage reports; the stage applies a command a period or two later, so only a run of
+  // samples counts.
+  const bool meant_on = status_.state == DriveState::kRunning || status_.state == DriveState::kCalibrating;
+  if (meant_on && !s.output_enabled) {
     ++output_off_samples_;
     if (config_.output_feedback_periods > 0 &&
         output_off_samples_ >= static_cast<std::uint32_t>(config_.output_feedback_periods)) {

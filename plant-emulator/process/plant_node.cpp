@@ -51,6 +51,11 @@ std::vector<hal::CanFilter> plant_receive_filters(const PlantNodeOptions& option
   return out;
 }
 
+std::uint64_t truth_every_periods(std::chrono::nanoseconds truth_period, double period_s) {
+  const double truth_periods = static_cast<double>(truth_period.count()) * 1e-9 / period_s;
+  return static_cast<std::uint64_t>(std::max(1.0, std::round(truth_periods)));
+}
+
 PlantNode::PlantNode(const PlantConfig& config, hal::CanBus& bus, const PlantNodeOptions& options)
     : plant_(config),
       bus_(bus),
@@ -70,8 +75,7 @@ PlantNode::PlantNode(const PlantConfig& config, hal::CanBus& bus, const PlantNod
   }
   const double period_s = plant_.period_s();
   period_ = nanoseconds{std::llround(period_s * 1e9)};
-  const double truth_periods = static_cast<double>(options.truth_period.count()) * 1e-9 / period_s;
-  truth_every_ = static_cast<std::uint64_t>(std::max(1.0, std::round(truth_periods)));
+  truth_every_ = plant::truth_every_periods(options.truth_period, period_s);
   if (options.duration_s) {
     if (!std::isfinite(*options.duration_s) || *options.duration_s < 0.0) {
       throw std::invalid_argument("duration must be a finite number of seconds >= 0");

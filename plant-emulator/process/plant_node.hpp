@@ -43,6 +43,10 @@ enum class RunMode : std::uint8_t { kLockstep, kRealtime };
 
 [[nodiscard]] const char* to_string(RunMode mode) noexcept;
 
+// The truth's publication interval in whole PWM periods, at least one: the given period over
+// the plant's, rounded (pmsm-plant --check prints what this gives).
+[[nodiscard]] std::uint64_t truth_every_periods(std::chrono::nanoseconds truth_period, double period_s);
+
 struct PlantNodeOptions {
   hal::protocol::NodeId node = 0;
   RunMode mode = RunMode::kLockstep;

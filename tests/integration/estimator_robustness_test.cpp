@@ -140,6 +140,7 @@ TEST(EstimatorRobustness, TheBridgeVoltagesShareOfTheBusIsLearned) {
   const SimulationResult with = run_scenario(load_scenario(file), o);
   Scenario off = load_scenario(file);
   off.controller.drive.injection.vx_bus_slope_std = 0.0;
+  off.controller.drive.calibration_injection.vx_bus_slope_std = 0.0;
   const SimulationResult without = run_scenario(off, o);
   ASSERT_TRUE(with.calibrated);
   ASSERT_TRUE(without.calibrated);

@@ -308,6 +308,14 @@ rs_ohmm = 0.2
   EXPECT_EQ(unknown, path_of("inline.toml") + ":4: plant.motor.rs_ohmm: unknown key (did you mean plant.motor.rs_ohm?)");
 }
 
+// Every bad override is pointed at its own line (the plant lists them one a line; the second
+// was left with a line number of the merged table and no plant. prefix).
+TEST(Scenario, EachBadPlantOverrideNamesItsOwnLine) {
+  EXPECT_EQ(inline_error("[operation]\nspeed_rad_s = [[0, 100]]\n[plant.inverter]\ndc_ripple_fraction = 0.9\ndead_time_s = 1.0\n"),
+            path_of("inline.toml") + ":4: plant.inverter.dc_ripple_fraction: must be in [0, 0.5], got 0.9\n" +
+                path_of("inline.toml") + ":5: plant.inverter.dead_time_s: must be in [0, 0.0001], got 1");
+}
+
 TEST(Scenario, ErrorInTheProfileNamesTheProfile) {
   const std::string e = inline_error("[operation]\nspeed_rad_s = [[0, 100]]\n[plant]\nprofile = \"bad_profile.toml\"\n");
   EXPECT_EQ(e.rfind(path_of("bad_profile.toml") + ":4: motor.ld_H: must be", 0), 0U) << e;

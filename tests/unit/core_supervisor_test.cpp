@@ -434,6 +434,45 @@ TEST(Supervisor, APowerStageSamplingAtAnotherPeriodIsAFaultThatHoldsWhileItLasts
   }
 }
 
+// A stage that keeps its gates off while the drive runs trips OUTPUT_FEEDBACK after a run of
+// output_feedback_periods such samples; a sample lost now and then (the drive switches the
+// gates off for that period alone) does not restart the count, the stage switching does, and
+// 0 turns the check off.
+TEST(Supervisor, AStageThatKeepsItsGatesOffTripsOutputFeedback) {
+  SupervisorConfig c = config();
+  c.output_feedback_periods = 50;
+  SupervisedSample off = healthy();
+  off.output_enabled = false;
+  SupervisorInput missing = running();
+  missing.sample.reset();
+  auto run = [&](Supervisor& sup, int samples, bool drop_some) {
+    for (int k = 0; k < samples && !sup.latched(FaultCode::kOutputFeedback); ++k) {
+      if (drop_some && k % 10 == 9) {
+        sup.step(missing);
+      }
+      sup.step(running(off));
+    }
+  };
+  Supervisor sup(c, kPeriod);
+  sup.step(running());
+  run(sup, 49, true);
+  EXPECT_FALSE(sup.latched(FaultCode::kOutputFeedback));
+  run(sup, 1, false);
+  EXPECT_TRUE(sup.latched(FaultCode::kOutputFeedback)) << "50 samples with the gates off, a few lost between them";
+  EXPECT_FALSE(sup.status().power_stage_enabled);
+
+  Supervisor switching(c, kPeriod);
+  for (int k = 0; k < 200; ++k) {
+    switching.step(running(k % 40 == 39 ? healthy() : off));  // the stage switches now and then
+  }
+  EXPECT_FALSE(switching.latched(FaultCode::kOutputFeedback));
+
+  c.output_feedback_periods = 0;
+  Supervisor unjudged(c, kPeriod);
+  run(unjudged, 500, false);
+  EXPECT_FALSE(unjudged.latched(FaultCode::kOutputFeedback));
+}
+
 TEST(Supervisor, TripIsImmediateAndLatched) {
   Supervisor sup(config(), kPeriod);
   sup.step(running());

@@ -54,6 +54,9 @@ TEST(plant_cli, CheckPrintsTheTruthPeriodTheNodeUses) {
   EXPECT_TRUE(contains(r.out, "truth every 0.1 ms, --truth-period-ms rounded to whole PWM periods")) << r.out;
   const ProcessResult whole = run_process(kPlant + " --check --truth-period-ms 20 --config " + kProfiles + "reference.toml");
   EXPECT_TRUE(contains(whole.out, "truth every 20 ms)")) << whole.out;
+  // Half a period rounds as the node rounds it (0.15 ms: two periods).
+  const ProcessResult half = run_process(kPlant + " --check --truth-period-ms 0.15 --config " + kProfiles + "reference.toml");
+  EXPECT_TRUE(contains(half.out, "truth every 0.2 ms,")) << half.out;
 }
 
 TEST(plant_cli, CheckRejectsABadValueNamingFileLineAndKey) {

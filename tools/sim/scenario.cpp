@@ -316,6 +316,30 @@ std::string with_plant_prefix(std::string detail) {
   return detail;
 }
 
+// One line of a plant error, pointed at the scenario's own line when its key (or, for a rule
+// between keys, the first key it names) is one of the scenario's [plant] overrides.
+std::string scenario_line(const std::string& line, const toml::table& plant_table, const std::filesystem::path& source) {
+  const std::optional<KeyMessage> km = key_message(line);
+  if (!km) {
+    return line;
+  }
+  auto node = plant_table.at_path(km->key);
+  for (const std::string& k : dotted_keys(line)) {
+    if (node) {
+      break;
+    }
+    node = plant_table.at_path(k);
+  }
+  if (!node) {
+    return line;
+  }
+  const auto& where = node.node()->source();
+  const std::string file = where.path && !where.path->empty() ? *where.path : source.string();
+  const std::string at = where.begin.line > 0 ? ":" + std::to_string(where.begin.line) : "";
+  // A suggested key is the plant file's; in a scenario it lives under [plant] too.
+  return file + at + ": plant." + km->key + ": " + with_plant_prefix(km->detail);
+}
+
 // `files` receives the plant profile's path when one is named.
 plant::PlantConfig load_plant(const toml::table& root, const std::filesystem::path& source,
                               std::vector<std::filesystem::path>& files) {
@@ -354,28 +378,24 @@ plant::PlantConfig load_plant(const toml::table& root, const std::filesystem::pa
   try {
     return plant::parse_plant_config(text.str(), source.string() + " [plant]", dir);
   } catch (const plant::ConfigError& e) {
-    // Point at the scenario's own line when the offending key is one of its overrides.
+    // Point at the scenario's own line when the offending key is one of its overrides; the
+    // schema lists every bad key of the table, one a line, and each line is pointed alone.
     const std::string message = e.what();
-    const std::optional<KeyMessage> km = plant_table != nullptr ? key_message(message) : std::nullopt;
-    if (km) {
-      auto node = plant_table->at_path(km->key);
-      // A rule between keys may name one the profile gives and involve one the scenario
-      // overrides: the line is the first key of the message the scenario gives.
-      for (const std::string& k : dotted_keys(message)) {
-        if (node) {
-          break;
-        }
-        node = plant_table->at_path(k);
-      }
-      if (node) {
-        const auto& where = node.node()->source();
-        const std::string file = where.path && !where.path->empty() ? *where.path : source.string();
-        const std::string line = where.begin.line > 0 ? ":" + std::to_string(where.begin.line) : "";
-        // A suggested key is the plant file's; in a scenario it lives under [plant] too.
-        throw ConfigError(file + line + ": plant." + km->key + ": " + with_plant_prefix(km->detail));
-      }
+    if (plant_table == nullptr) {
+      throw ConfigError(message);
     }
-    throw ConfigError(message);
+    std::string out;
+    std::size_t begin = 0;
+    while (begin <= message.size()) {
+      const std::size_t newline = message.find('\n', begin);
+      const std::string line = message.substr(begin, newline == std::string::npos ? std::string::npos : newline - begin);
+      out += (out.empty() ? "" : "\n") + scenario_line(line, *plant_table, source);
+      if (newline == std::string::npos) {
+        break;
+      }
+      begin = newline + 1;
+    }
+    throw ConfigError(out);
   }
 }
 

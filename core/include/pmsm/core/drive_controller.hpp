@@ -645,8 +645,7 @@ class DriveController {
   int calibration_ke_pairs_ = 0;
   double calibration_ke_model_var_sum_ = 0.0;
   bool calibration_vx_learned_ = false;  // an event of this calibration run learned Vx
-  double vx_before_calibration_V_ = 0.0;  // the scheduler's Vx prior when the run started
-  double vx_std_before_calibration_V_ = 0.0;
+  InjectionScheduler::VxState vx_before_calibration_{};  // the scheduler's Vx state when the run started
   DeratingResult derating_{};
   // The pulses' current limit: the magnets' derating only (update_thermal).
   double injection_current_limit_A_ = 0.0;

@@ -450,6 +450,31 @@ class InjectionScheduler {
   // which each period's voltage is referred to the reference bus beyond the compensation's.
   [[nodiscard]] double vx_bus_slope() const { return vx_slope_; }
   [[nodiscard]] double vx_bus_slope_std() const { return std::sqrt(vx_slope_var_); }
+  // The whole inverter-voltage state (Vx, its bus slope and their covariance), for a
+  // calibration that puts it back when it does not complete.
+  struct VxState {
+    double vx_V = 0.0;
+    double vx_var = 0.0;
+    double slope = 0.0;
+    double slope_var = 0.0;
+    double cov = 0.0;
+  };
+  [[nodiscard]] VxState vx_state() const { return {vx_V_, vx_var_, vx_slope_, vx_slope_var_, vx_cov_}; }
+  void set_vx_state(const VxState& s) {
+    vx_V_ = s.vx_V;
+    vx_var_ = s.vx_var;
+    vx_slope_ = s.slope;
+    vx_slope_var_ = s.slope_var;
+    vx_cov_ = s.cov;
+    ++learned_version_;
+  }
+  // The bus slope back to its prior (a calibration learns the bridge afresh).
+  void reset_vx_bus_slope(double std) {
+    vx_slope_ = 0.0;
+    vx_slope_var_ = std * std;
+    vx_cov_ = 0.0;
+    ++learned_version_;
+  }
   // The thermal filter's winding resistance and its variance (at its last update; NaN: no
   // estimate yet): the ohmic part of the d-axis voltage that Lq learning takes out
   // (learn_lq).
@@ -605,6 +630,9 @@ class InjectionScheduler {
   double vx_cov_ = 0.0;             // covariance of Vx and the slope
   double event_bus_sum_V_ = 0.0;    // the event's bus offsets (SchedulerInput::bus_offset_V), summed
   std::uint32_t event_bus_periods_ = 0;
+  [[nodiscard]] double event_bus_offset_V() const {
+    return event_bus_periods_ > 0 ? event_bus_sum_V_ / static_cast<double>(event_bus_periods_) : 0.0;
+  }
   // set_motoring_voltage(): NaN time until given.
   double motoring_voltage_time_s_ = std::numeric_limits<double>::quiet_NaN();
   double winding_rs_ohm_ = std::numeric_limits<double>::quiet_NaN();  // set_winding_resistance
