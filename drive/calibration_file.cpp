@@ -206,12 +206,14 @@ void write_calibration_file(const std::filesystem::path& path, const core::Calib
   if (!(c.rs0_ohm > 0.0) || !std::isfinite(c.rs0_ohm) || !std::isfinite(c.t0_C) || !std::isfinite(c.ke0_V_s_per_rad) ||
       !(c.ke0_std_V_s_per_rad >= 0.0 && c.ke0_std_V_s_per_rad <= 100.0) || !(c.dead_time_band_A >= 0.0 && c.dead_time_band_A <= 1000.0) ||
       (c.angle_correction_measured && !(std::abs(c.angle_correction_rad) <= 1.0)) ||
-      !(c.vx_std_V >= 0.0 && c.vx_std_V <= 100.0) || (c.vx_std_V > 0.0 && !(std::abs(c.vx_V) <= 50.0))) {
+      !(c.vx_std_V >= 0.0 && c.vx_std_V <= 100.0) || (c.vx_std_V > 0.0 && !(std::abs(c.vx_V) <= 50.0)) ||
+      !(c.vx_bus_V >= 0.0 && c.vx_bus_V <= 10000.0)) {
     throw CalibrationFileError(fmt::format("{}: refusing to store an invalid calibration (Rs0 {}, T0 {}, Ke0 {} +- {}, "
-                                           "band {} A, angle correction {} rad, Vx {} +- {} V)",
+                                           "band {} A, angle correction {} rad, Vx {} +- {} V at a bus of {} V)",
                                            path.string(), c.rs0_ohm, c.t0_C, c.ke0_V_s_per_rad, c.ke0_std_V_s_per_rad,
                                            c.dead_time_band_A,
-                                           c.angle_correction_measured ? c.angle_correction_rad : 0.0, c.vx_V, c.vx_std_V));
+                                           c.angle_correction_measured ? c.angle_correction_rad : 0.0, c.vx_V, c.vx_std_V,
+                                           c.vx_bus_V));
   }
   std::ostringstream text;
   text << "# pmsm-thermal calibration (Eq. 1: Rs = Rs0 (1 + alpha (T - T0))); replaced atomically by the drive\n"
@@ -236,6 +238,10 @@ void write_calibration_file(const std::filesystem::path& path, const core::Calib
     // learned; the configured prior then holds).
     text << "vx_V = " << toml_float(c.vx_V) << "\n"
          << "vx_std_V = " << toml_float(c.vx_std_V) << "\n";
+    if (c.vx_bus_V > 0.0) {
+      // The bus it was learned on: vx_std_V is its error there (absent: the reference bus).
+      text << "vx_bus_V = " << toml_float(c.vx_bus_V) << "\n";
+    }
   }
   text << "written_utc = " << quoted(utc_now()) << "\n"
        << "source = " << quoted(source) << "\n";
@@ -277,7 +283,7 @@ core::Calibration read_calibration_file(const std::filesystem::path& path) {
   const std::string file = path.string();
   const toml::table t =
       read_stored(path, {"format", "rs0_ohm", "t0_C", "ke0_V_s_per_rad", "ke0_std_V_s_per_rad", "dead_time_band_A", "angle_correction_rad",
-                         "vx_V", "vx_std_V", "written_utc", "source"});
+                         "vx_V", "vx_std_V", "vx_bus_V", "written_utc", "source"});
   // The record of who wrote it and when: text, if given (a number there is a hand edit gone wrong).
   for (const char* key : {"written_utc", "source"}) {
     if (const toml::node* n = t.get(key); n != nullptr && !n->is_string()) {
@@ -303,6 +309,12 @@ core::Calibration read_calibration_file(const std::filesystem::path& path) {
   if (t.get("vx_V") != nullptr) {
     c.vx_V = number(t, "vx_V", file, -50.0, 50.0, false);
     c.vx_std_V = number(t, "vx_std_V", file, 0.0, 100.0, true);
+  }
+  if (t.get("vx_bus_V") != nullptr) {
+    if (t.get("vx_V") == nullptr) {
+      throw CalibrationFileError(fmt::format("{}: vx_bus_V is the bus of a stored vx_V, which the file does not have", file));
+    }
+    c.vx_bus_V = number(t, "vx_bus_V", file, 0.0, 10000.0, true);
   }
   c.calibrated = true;
   return c;

@@ -361,7 +361,10 @@ ConfigSchema<C> build() {
          "The bridge's voltage error (dead time and drop per phase) the calibration's events learned with Rs0; with "
          "calibration.vx_std_V it replaces injection.vx_initial_V as the estimator's prior (docs/estimator.md section 4).");
   s.real("calibration.vx_std_V", [](C& c) -> double& { return c.drive.calibration.vx_std_V; }, at_least(0, 100), "V",
-         "Its standard error (0: not learned; injection.vx_initial_V and vx_initial_std_V hold).");
+         "Its standard error (0: not learned; injection.vx_initial_V and vx_initial_std_V hold), at calibration.vx_bus_V.");
+  s.real("calibration.vx_bus_V", [](C& c) -> double& { return c.drive.calibration.vx_bus_V; }, at_least(0, 10000), "V",
+         "The bus the calibration learned calibration.vx_V on (0: control.nominal_dc_bus_V): calibration.vx_std_V is its error "
+         "there, and away from it the bus slope's uncertainty (injection.vx_bus_slope_std_V_per_V) adds.");
   s.optional_real("calibration.angle_correction_rad", [](C& c) -> std::optional<double>& { return c.angle_correction_rad; },
                   between(-1, 1), "rad", "none measured",
                   "The correction of sensors.encoder_offset_rad a calibration's rotor-angle check measured (electrical, "

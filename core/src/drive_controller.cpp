@@ -120,7 +120,12 @@ DriveController::DriveController(const DriveConfig& config)
   // learned with it: the two belong together), in place of the configured guess.
   if (config_.injection.fit_dead_time && config_.calibration.vx_std_V > 0.0 && std::isfinite(config_.calibration.vx_std_V) &&
       std::isfinite(config_.calibration.vx_V)) {
-    scheduler_.set_vx_prior(config_.calibration.vx_V, config_.calibration.vx_std_V);
+    if (vx_referred_to_bus_ && config_.calibration.vx_bus_V > 0.0 && std::isfinite(config_.calibration.vx_bus_V)) {
+      scheduler_.set_vx_prior_at(config_.calibration.vx_V, config_.calibration.vx_std_V,
+                                 config_.calibration.vx_bus_V - config_.vx_reference_bus_V, config_.injection.vx_bus_slope_std);
+    } else {
+      scheduler_.set_vx_prior(config_.calibration.vx_V, config_.calibration.vx_std_V);
+    }
   }
   publish_learned();
 }
@@ -722,8 +727,13 @@ void DriveController::handle_estimate(const EventEstimate& e) {
       // And the bridge's voltage Rs0 was learned with, when this run's events learned it (not
       // the configured guess they started from).
       if (config_.injection.fit_dead_time && calibration_vx_learned_) {
+        // Referred to the reference bus, with its error where the events measured it: the
+        // error at the reference would carry the bus slope's prior times the distance, and a
+        // restart adds that again (docs/estimator.md section 4).
+        const double u = vx_referred_to_bus_ ? scheduler_.last_learned_bus_offset_V() : 0.0;
         c.vx_V = scheduler_.vx_V();
-        c.vx_std_V = scheduler_.vx_std_V();
+        c.vx_std_V = scheduler_.vx_std_at_V(u);
+        c.vx_bus_V = vx_referred_to_bus_ ? config_.vx_reference_bus_V + u : 0.0;
       }
       calibrating_ = false;
       scheduler_.set_config(config_.injection);

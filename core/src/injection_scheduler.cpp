@@ -810,6 +810,7 @@ void InjectionScheduler::learn_vx(double bus_offset_V, double vx_V, double var_V
   // slope learned so far: vx_V = Vx + (slope - learned slope) u, h = (1, u). At one bus the
   // slope learns nothing; events at two buses tell the dead time's share from the drop's.
   const double u = bus_offset_V;
+  learned_bus_offset_V_ = u;
   const double p0 = vx_var_ + u * vx_cov_;        // (P h)_0
   const double p1 = vx_cov_ + u * vx_slope_var_;  // (P h)_1
   const double s = p0 + u * p1 + var_V2;

@@ -142,6 +142,16 @@ TEST_F(CalibrationFile, TheBridgeVoltageIsKeptWithItsErrorBarWhenLearned) {
   const core::Calibration c = read_calibration_file(p);
   EXPECT_DOUBLE_EQ(c.vx_V, 7.508249925);
   EXPECT_DOUBLE_EQ(c.vx_std_V, 0.0242);
+  EXPECT_EQ(c.vx_bus_V, 0.0) << "not written: the reference bus";
+  // Learned on another bus: kept with it (its error bar is the one there).
+  learned.vx_bus_V = 559.9947;
+  write_calibration_file(p, learned, "test");
+  EXPECT_DOUBLE_EQ(read_calibration_file(p).vx_bus_V, 559.9947);
+  EXPECT_NE(error_of("format = 1\nrs0_ohm = 0.13\nt0_C = 25.0\nvx_bus_V = 560.0\n").find("vx_bus_V is the bus of a stored vx_V"),
+            std::string::npos);
+  learned.vx_bus_V = std::nan("");
+  EXPECT_THROW(write_calibration_file(dir_ / "c.toml", learned, "test"), CalibrationFileError);
+  learned.vx_bus_V = 0.0;
   write_calibration_file(p, sample(), "test");
   EXPECT_EQ(toml::parse_file(p.string()).get("vx_V"), nullptr) << "not learned is left out, not written as 0";
   EXPECT_EQ(read_calibration_file(p).vx_std_V, 0.0);

@@ -468,6 +468,13 @@ TEST(ControllerConfig, AStoredBridgeVoltageIsTheVxPrior) {
   stored.abort_calibration();
   EXPECT_EQ(stored.vx_V(), 7.508);
   EXPECT_DOUBLE_EQ(stored.vx_std_V(), 0.024);
+  // Learned on another bus than the nominal one (650 V): its error bar is the one there, and at
+  // the nominal bus the bus slope's prior times the distance adds (a fifth of 0.9 us x 10 kHz).
+  const ControllerConfig off_bus = parse("[calibration]\nvx_V = 7.508\nvx_std_V = 0.024\nvx_bus_V = 560\n");
+  const core::DriveController low(off_bus.drive);
+  const double slope_std = 0.2 * 0.9e-6 * 1e4;
+  EXPECT_NEAR(low.vx_std_V(), std::hypot(0.024, 90.0 * slope_std), 1e-12);
+  EXPECT_NEAR(low.vx_std_at_V(-90.0), 0.024, 1e-12) << "at the bus it was learned on, its own error bar";
   const ControllerConfig none = parse("");
   const core::DriveController guess(none.drive);
   EXPECT_EQ(guess.vx_V(), none.drive.injection.vx_initial_V);

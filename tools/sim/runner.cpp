@@ -1075,6 +1075,7 @@ std::string result_json(const SimulationResult& r) {
         .field("dead_time_band_A", r.calibration.dead_time_band_A > 0.0 ? r.calibration.dead_time_band_A : kNan)
         .field("vx_V", r.calibration.vx_std_V > 0.0 ? r.calibration.vx_V : kNan)
         .field("vx_std_V", r.calibration.vx_std_V > 0.0 ? r.calibration.vx_std_V : kNan)
+        .field("vx_bus_V", r.calibration.vx_std_V > 0.0 && r.calibration.vx_bus_V > 0.0 ? r.calibration.vx_bus_V : kNan)
         .field("angle_correction_rad", r.calibration.angle_correction_measured ? r.calibration.angle_correction_rad : kNan)
         .end_object();
   }

@@ -434,6 +434,8 @@ class DriveController {
   // The estimator's inverter-voltage prior now (docs/estimator.md section 4).
   [[nodiscard]] double vx_V() const { return scheduler_.vx_V(); }
   [[nodiscard]] double vx_std_V() const { return scheduler_.vx_std_V(); }
+  // Its standard error at a bus this far from the reference (InjectionScheduler::vx_std_at_V).
+  [[nodiscard]] double vx_std_at_V(double bus_offset_V) const { return scheduler_.vx_std_at_V(bus_offset_V); }
   [[nodiscard]] const DriveConfig& config() const { return config_; }
 
  private:

@@ -468,6 +468,22 @@ class InjectionScheduler {
     vx_cov_ = s.cov;
     ++learned_version_;
   }
+  // Vx's standard error at a bus this far from the reference (the slope's uncertainty added).
+  [[nodiscard]] double vx_std_at_V(double bus_offset_V) const { return std::sqrt(vx_variance_at(bus_offset_V)); }
+  // The bus offset of the last event that learned Vx (0 before one).
+  [[nodiscard]] double last_learned_bus_offset_V() const { return learned_bus_offset_V_; }
+  // A stored Vx, known to std_V at a bus this far from the reference, with the slope at its
+  // prior: Vx at the reference carries the slope's uncertainty times that distance, and the two
+  // are correlated so that at the stored bus the error is std_V again.
+  void set_vx_prior_at(double vx_V, double std_V, double bus_offset_V, double slope_std) {
+    const double v_b = slope_std * slope_std;
+    vx_V_ = vx_V;
+    vx_var_ = std_V * std_V + bus_offset_V * bus_offset_V * v_b;
+    vx_cov_ = -bus_offset_V * v_b;
+    vx_slope_ = 0.0;
+    vx_slope_var_ = v_b;
+    ++learned_version_;
+  }
   // The bus slope back to its prior (a calibration learns the bridge afresh).
   void reset_vx_bus_slope(double std) {
     vx_slope_ = 0.0;
@@ -628,6 +644,7 @@ class InjectionScheduler {
   double vx_slope_ = 0.0;           // vx_bus_slope()
   double vx_slope_var_ = 0.0;
   double vx_cov_ = 0.0;             // covariance of Vx and the slope
+  double learned_bus_offset_V_ = 0.0;  // last_learned_bus_offset_V()
   double event_bus_sum_V_ = 0.0;    // the event's bus offsets (SchedulerInput::bus_offset_V), summed
   std::uint32_t event_bus_periods_ = 0;
   [[nodiscard]] double event_bus_offset_V() const {

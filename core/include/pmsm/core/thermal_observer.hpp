@@ -109,6 +109,10 @@ struct Calibration {
   // under load) does not fall back to a guess several volts wide.
   double vx_V = 0.0;
   double vx_std_V = 0.0;
+  // The bus the calibration's events learned Vx on (0: the reference bus, as before it was kept).
+  // vx_V is referred to the reference bus; vx_std_V is its error at this bus, where the events
+  // measured it: away from it the bus slope's uncertainty adds (docs/estimator.md section 4).
+  double vx_bus_V = 0.0;
 };
 
 struct DeratingConfig {
