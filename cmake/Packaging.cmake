@@ -20,12 +20,16 @@ set(CPACK_DEBIAN_PACKAGE_SHLIBDEPS ON)
 set(CPACK_DEBIAN_PACKAGE_RECOMMENDS "can-utils, systemd")
 set(CPACK_DEBIAN_PACKAGE_SUGGESTS "gnuplot-nox")
 # conffiles: dpkg keeps a changed /etc/pmsm-thermal/*.toml across upgrades and asks.
-# postinst: the system user (sysusers.d) and a daemon-reload; postrm: a daemon-reload.
+# postinst: the system user (sysusers.d), a daemon-reload, and after an upgrade the running
+# instances named (not restarted); prerm: on removal the running instances stopped; postrm: a
+# daemon-reload, and on purge the instances' enable links removed.
 configure_file(${CMAKE_CURRENT_LIST_DIR}/debian/conffiles ${CMAKE_BINARY_DIR}/debian/conffiles COPYONLY)
 configure_file(${CMAKE_CURRENT_LIST_DIR}/debian/postinst ${CMAKE_BINARY_DIR}/debian/postinst COPYONLY)
+configure_file(${CMAKE_CURRENT_LIST_DIR}/debian/prerm ${CMAKE_BINARY_DIR}/debian/prerm COPYONLY)
 configure_file(${CMAKE_CURRENT_LIST_DIR}/debian/postrm ${CMAKE_BINARY_DIR}/debian/postrm COPYONLY)
 set(CPACK_DEBIAN_PACKAGE_CONTROL_EXTRA
-  ${CMAKE_BINARY_DIR}/debian/conffiles ${CMAKE_BINARY_DIR}/debian/postinst ${CMAKE_BINARY_DIR}/debian/postrm)
+  ${CMAKE_BINARY_DIR}/debian/conffiles ${CMAKE_BINARY_DIR}/debian/postinst ${CMAKE_BINARY_DIR}/debian/prerm
+  ${CMAKE_BINARY_DIR}/debian/postrm)
 set(CPACK_DEBIAN_PACKAGE_CONTROL_STRICT_PERMISSION ON)
 # A native package's changelog (lintian: no-changelog), compressed as Debian policy asks.
 string(TIMESTAMP pmsm_changelog_date "%a, %d %b %Y %H:%M:%S +0000" UTC)

@@ -9,9 +9,11 @@
 // systemd (a no-op outside systemd). The main thread then feeds the watchdog while the RT
 // loop's heartbeat advances, mirrors the gate enable to GPIO and watches the fault input.
 //
-// Exit status: 0 after a clean stop (SIGINT, SIGTERM, SIGHUP); 1 when the bus or GPIO cannot be
-// opened; 2 for a bad configuration or calibration file (the unit does not restart on it:
+// Exit status: 0 after a clean stop (SIGINT, SIGTERM, SIGHUP); 1 when the CAN interface does not
+// exist (yet); 2 for a bad configuration or calibration file, an interface that exists and cannot
+// be opened, or a GPIO chip or line that cannot be had (the unit does not restart on it:
 // RestartPreventExitStatus=2). --check: 0 valid, 1 not.
+#include <net/if.h>
 #include <systemd/sd-daemon.h>
 #include <unistd.h>
 
@@ -61,6 +63,16 @@ using pmsm::daemon::DaemonConfig;
 
 constexpr int kExitIo = 1;
 constexpr int kExitConfig = 2;
+
+// An interface that does not exist (yet: a USB adapter, a .netdev that comes late) is worth
+// waiting for: exit 1, which the unit restarts. One that exists and still cannot be opened (not
+// a CAN interface, classic CAN only, no permission) is a configuration to fix: exit 2, which
+// the unit does not restart (a non-CAN interface restarted it every second for good).
+int bus_open_failure(const char* what, const std::string& interface, const pmsm::hal::Status& error) {
+  const bool exists = ::if_nametoindex(interface.c_str()) != 0;
+  spdlog::error("{}: {}{}", what, error.message(), exists ? " (the interface exists: a configuration to fix, not retried)" : "");
+  return exists ? kExitConfig : kExitIo;
+}
 
 void setup_logging(const std::string& level) {
   // Under systemd (INVOCATION_ID, or stderr connected to the journal) log to the journal
@@ -264,8 +276,7 @@ int run(const Options& o) {
   pmsm::hal::Status error;
   std::unique_ptr<pmsm::hal::SocketCanBus> rt_bus = pmsm::hal::SocketCanBus::open(rt_bus_config, error);
   if (!rt_bus) {
-    spdlog::error("cannot open the CAN bus: {}", error.message());
-    return kExitIo;
+    return bus_open_failure("cannot open the CAN bus", config.can.interface, error);
   }
   pmsm::hal::SocketCanConfig pub_bus_config;
   pub_bus_config.interface = config.can.interface;
@@ -273,8 +284,7 @@ int run(const Options& o) {
   pub_bus_config.filters = std::vector<pmsm::hal::CanFilter>{};
   std::unique_ptr<pmsm::hal::SocketCanBus> pub_bus = pmsm::hal::SocketCanBus::open(pub_bus_config, error);
   if (!pub_bus) {
-    spdlog::error("cannot open the CAN bus for publishing: {}", error.message());
-    return kExitIo;
+    return bus_open_failure("cannot open the CAN bus for publishing", config.can.interface, error);
   }
 
   // GPIO: the gate enable is requested inactive; a configured chip or line that is missing
@@ -289,8 +299,10 @@ int run(const Options& o) {
                                     static_cast<unsigned>(std::max(config.gpio.fault_line, 0)), config.gpio.fault_active_low};
     fault_input = pmsm::hal::make_fault_input(fault);
   } catch (const std::exception& e) {
-    spdlog::error("GPIO: {}", e.what());
-    return kExitIo;
+    // A chip or line the configuration names and the machine does not have (or has busy) is not
+    // cured by restarting every second: exit 2, which the unit does not restart.
+    spdlog::error("GPIO: {} (a configuration to fix: not retried)", e.what());
+    return kExitConfig;
   }
   spdlog::info("GPIO: gate enable {}, fault input {}", gate->describe(), fault_input->describe());
 

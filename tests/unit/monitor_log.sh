@@ -129,4 +129,18 @@ refused "--threshold: expected a number, got 'nan'" --log "$log" --threshold nan
 refused "--min-estimates: must be >= 0, got -1" --log "$log" --min-estimates -1
 refused "--duration: must be > 0, got -5" vcan0 --duration -5
 refused "--log excludes --duration" --log "$log" --duration 5
+# A check with nothing to check fails (exit 1): an empty capture, and one whose axis has no
+# truth to compare with, passed --check-rms before.
+: > "$work/empty.log"
+status=0
+"$exe" monitor --log "$work/empty.log" --check-rms 1 > "$work/out" 2>&1 || status=$?
+[ "$status" -eq 1 ] || fail "an empty capture passed --check-rms (exit $status)"
+grep -q "CHECK FAILED: no axis seen" "$work/out" || fail "an empty capture's failed check not named"
+status=0
+"$exe" monitor --log "$work/empty.log" > "$work/out" 2>&1 || status=$?
+[ "$status" -eq 0 ] || fail "an empty capture without a check: exit $status, expected 0 (a capture of nothing)"
+status=0
+"$exe" monitor --log "$log" --check-rms 100 > "$work/out" 2>&1 || status=$?
+[ "$status" -eq 1 ] || fail "a capture with no compared estimate passed --check-rms (exit $status)"
+grep -q "CHECK FAILED: node 0 has no compared estimate" "$work/out" || fail "the axis without a compared estimate not named"
 echo "monitor_log: ok"

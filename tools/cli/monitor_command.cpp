@@ -551,15 +551,23 @@ class Monitor {
           std::printf("CHECK FAILED: node %d max %.2f C > %.2f C\n", node, a.max, *o_.check_max_C);
           ok = false;
         }
-      } else if (a.truth_C) {
-        std::printf("node %2d  no calibrated estimate with the truth above %.0f C to compare\n", node, o_.threshold_C);
+      } else {
+        if (a.truth_C) {
+          std::printf("node %2d  no calibrated estimate with the truth above %.0f C to compare\n", node, o_.threshold_C);
+        }
+        // A check with nothing to check is no pass: a CI gate on a capture without a compared
+        // estimate (a silent bus, a log without truth frames) passed.
+        if (o_.check_rms_C || o_.check_max_C) {
+          std::printf("CHECK FAILED: node %d has no compared estimate for --check-rms / --check-max\n", node);
+          ok = false;
+        }
       }
       if (a.n < o_.min_estimates) {
         std::printf("CHECK FAILED: node %d has %zu compared estimates, fewer than %zu\n", node, a.n, o_.min_estimates);
         ok = false;
       }
     }
-    if (axes_.empty() && o_.min_estimates > 0U) {
+    if (axes_.empty() && (o_.min_estimates > 0U || o_.check_rms_C || o_.check_max_C)) {
       std::printf("CHECK FAILED: no axis seen\n");
       ok = false;
     }
