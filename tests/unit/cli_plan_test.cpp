@@ -347,6 +347,10 @@ INSTANTIATE_TEST_SUITE_P(
     Flags, PlanCliBadInput,
     ::testing::Values(BadInput{"budget --Ld -1 --voltage 3", "--Ld"},
                       BadInput{"budget --voltage 1e5 --Ld 1e-200 --Rs 1e-6", "--Ld"},  // printed "inf A"
+                      // command: a setting that would not be sent is refused, not ignored; a period the
+                      // daemon's command timeout (0.5 s as shipped) would trip between frames is refused
+                      BadInput{"command --node 1 --speed 100 --duration 0.2 --injection-interval 5", "give --inject-now too"},
+                      BadInput{"command --node 1 --speed 100 --period-ms 1000", "--period-ms: must be <= 250"},
                       BadInput{"budget --voltage 1e5 --Ld 0.009 --Rs 1e-200", "--Rs"},
                       BadInput{"budget --Ld 0.009", "--voltage,--current,--speed"},
                       BadInput{"budget --voltage 3 --current 2", "--voltage,--current,--speed"},

@@ -149,18 +149,26 @@ int run_command(const CommandOptions& o) {
       break;
     }
     (send(drive) ? sent : failed) += 1;
-    std::this_thread::sleep_for(std::chrono::microseconds{static_cast<std::int64_t>(o.period_ms * 1e3)});
+    // The period in slices of at most 10 ms: Ctrl-C sends the disabling frame at once, not
+    // after the rest of a long period.
+    const std::int64_t next = hal::monotonic_ns() + static_cast<std::int64_t>(o.period_ms * 1e6);
+    for (std::int64_t now = hal::monotonic_ns(); now < next && !hal::stop_requested().load(); now = hal::monotonic_ns()) {
+      std::this_thread::sleep_for(std::chrono::nanoseconds{std::min<std::int64_t>(next - now, 10'000'000)});
+    }
   }
   drive.enable = false;
   drive.mode = protocol::DriveMode::kDisabled;
-  (void)send(drive);
-  std::fprintf(stderr, "pmsm-thermal command: %llu DRIVE_COMMAND frame(s) sent to node %d, %llu failed; drive disabled\n",
-               static_cast<unsigned long long>(sent), o.node, static_cast<unsigned long long>(failed));
+  const bool disabled = send(drive);
+  std::fprintf(stderr, "pmsm-thermal command: %llu DRIVE_COMMAND frame(s) sent to node %d, %llu failed; %s\n",
+               static_cast<unsigned long long>(sent), o.node, static_cast<unsigned long long>(failed),
+               disabled ? "drive disabled"
+                        : "the disabling frame was NOT sent: the drive stops by its command timeout "
+                          "(supervisor.command_timeout_s), not by this tool");
   if (failed_requests > 0) {
     std::fprintf(stderr, "pmsm-thermal command: %llu one-off request(s) not sent (the transmit queue stayed full)\n",
                  static_cast<unsigned long long>(failed_requests));
   }
-  return failed == 0 && failed_requests == 0 ? 0 : 1;
+  return failed == 0 && failed_requests == 0 && disabled ? 0 : 1;
 }
 
 }  // namespace
@@ -178,8 +186,9 @@ void register_command_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--speed", options->speed_rad_s, "speed set-point, mechanical rad/s")
       ->check(signal_range(protocol::drive_command::kSpeedSetpoint));
   cmd->add_option("--torque", options->torque_Nm, "torque set-point, Nm")->check(signal_range(protocol::drive_command::kTorqueSetpoint));
-  cmd->add_option("--period-ms", options->period_ms, "time between DRIVE_COMMAND frames (below the daemon's command timeout)")
-      ->check(pmsm::cli::number_in_range(1.0, 10000.0))
+  cmd->add_option("--period-ms", options->period_ms,
+                  "time between DRIVE_COMMAND frames, at most 250 ms (well below the daemon's command timeout, 0.5 s as shipped)")
+      ->check(pmsm::cli::number_in_range(1.0, 250.0))
       ->capture_default_str();
   cmd->add_option("--duration", options->duration_s, "stop after this many seconds (default: until Ctrl-C)")
       ->check(pmsm::cli::number_in_range(0.0, 1e7));
@@ -204,13 +213,17 @@ void register_command_command(CLI::App& app, int& exit_code) {
       ->needs(method);
   // A set-point belongs to its mode: torque mode without a torque would send 0 Nm unasked, and a
   // set-point for another mode would be sent and ignored without a word.
-  cmd->callback([options, &exit_code] {
+  cmd->callback([options, interval, method, &exit_code] {
     const CommandOptions& o = *options;
+    const bool injection_set = interval->count() > 0 || method->count() > 0;
     const char* problem = o.mode == "torque" && !o.torque_Nm    ? "--mode torque needs --torque"
                           : o.mode == "speed" && !o.speed_rad_s ? "--mode speed needs --speed"
                           : o.mode != "torque" && o.torque_Nm   ? "--torque applies to --mode torque only"
                           : o.mode != "speed" && o.speed_rad_s  ? "--speed applies to --mode speed only"
-                                                                : nullptr;
+                          : injection_set && !o.inject_now
+                              ? "--injection-method and --injection-interval are sent with --inject-now only (the "
+                                "INJECTION_COMMAND frame carries them): give --inject-now too"
+                              : nullptr;
     if (problem != nullptr) {
       throw CLI::ValidationError("command", problem);
     }
