@@ -33,6 +33,21 @@ check_bad '[can]\nnode = 22\n' 1 'bad.toml:2: can.node: must be in [0, 15], got 
 check_bad '[can]\nnode = 4294967297\n' 1 'bad.toml:2: can.node: must be in [0, 15], got 4294967297'
 check_bad '[can]\ninterfaec = "vcan0"\n' 1 'can.interfaec'
 check_bad '[rt]\npriority = "high"\n' 1 'rt.priority'
+# An interface that exists and cannot be opened (not CAN; here, or without CAN in the kernel) is
+# a configuration to fix: exit 2, which the unit does not restart. One that does not exist (yet)
+# is waited for: exit 1, restarted.
+printf '[can]\ninterface = "lo"\n[rt]\npriority = 0\nlock_memory = false\n[controller.control]\nperiod_s = 0.001\ncurrent_bandwidth_rad_s = 500\n' > "$dir/lo.toml"
+rc=0
+out=$(timeout 20 "$exe" --config "$dir/lo.toml" 2>&1) || rc=$?
+if [ "$rc" -ne 2 ] || [[ "$out" != *"the interface exists: a configuration to fix, not retried"* ]]; then
+  echo "FAIL: an existing non-CAN interface: exit $rc (expected 2): $out"; fail=1
+fi
+sed 's/"lo"/"pmsmnosuch9"/' "$dir/lo.toml" > "$dir/nosuch.toml"
+rc=0
+out=$(timeout 20 "$exe" --config "$dir/nosuch.toml" 2>&1) || rc=$?
+if [ "$rc" -ne 1 ]; then
+  echo "FAIL: a missing interface: exit $rc (expected 1, restarted until it appears): $out"; fail=1
+fi
 # Outside what a calibration's T0 may be: a calibration on such an ambient stored a file the
 # next start refused.
 check_bad '[supervisor]\nambient_max_C = 250.0\n' 1 'bad.toml:2: supervisor.ambient_max_C: must be in [-50, 200], got 250'
