@@ -733,13 +733,8 @@ std::string ConfigSchema<Config>::markdown(const Config& defaults) const {
         break;
       }
     }
-    // A '|' inside a cell would end it: escape the ones in formulas such as ω·|ω|.
-    std::string doc;
-    for (char ch : e.doc) {
-      if (ch == '|') doc += '\\';
-      doc += ch;
-    }
-    out += "| `" + e.key + "` | " + value + " | " + range + " | " + doc + " |\n";
+    // (the formulas such as ω·|ω| have their '|' escaped)
+    out += "| `" + e.key + "` | " + value + " | " + range + " | " + markdown_cell(e.doc) + " |\n";
   }
   return out;
 }

@@ -57,6 +57,18 @@ inline constexpr double kMaxStatorResistance_ohm = 100.0;
   return buffer;
 }
 
+// Text for a Markdown table cell: a '|' would end the cell (and shift every cell after it).
+[[nodiscard]] inline std::string markdown_cell(std::string_view text) {
+  std::string out;
+  for (const char ch : text) {
+    if (ch == '|') {
+      out += '\\';
+    }
+    out += ch;
+  }
+  return out;
+}
+
 // Input echoed in a message, cut to its first `max` bytes with the length of the rest said: a
 // 10 MB line must not make a 10 MB message.
 [[nodiscard]] inline std::string excerpt(std::string_view text, std::size_t max = 80) {

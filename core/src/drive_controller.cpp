@@ -120,12 +120,11 @@ DriveController::DriveController(const DriveConfig& config)
   // learned with it: the two belong together), in place of the configured guess.
   if (config_.injection.fit_dead_time && config_.calibration.vx_std_V > 0.0 && std::isfinite(config_.calibration.vx_std_V) &&
       std::isfinite(config_.calibration.vx_V)) {
-    if (vx_referred_to_bus_ && config_.calibration.vx_bus_V > 0.0 && std::isfinite(config_.calibration.vx_bus_V)) {
-      scheduler_.set_vx_prior_at(config_.calibration.vx_V, config_.calibration.vx_std_V,
-                                 config_.calibration.vx_bus_V - config_.vx_reference_bus_V, config_.injection.vx_bus_slope_std);
-    } else {
-      scheduler_.set_vx_prior(config_.calibration.vx_V, config_.calibration.vx_std_V);
-    }
+    // At the bus it was learned on (none stored: the reference bus, where the slope adds nothing).
+    const bool at_bus = vx_referred_to_bus_ && config_.calibration.vx_bus_V > 0.0 && std::isfinite(config_.calibration.vx_bus_V);
+    scheduler_.set_vx_prior_at(config_.calibration.vx_V, config_.calibration.vx_std_V,
+                               at_bus ? config_.calibration.vx_bus_V - config_.vx_reference_bus_V : 0.0,
+                               config_.injection.vx_bus_slope_std);
   }
   publish_learned();
 }

@@ -20,6 +20,7 @@
 #include <fmt/format.h>
 
 #include "cli_validators.hpp"
+#include "config_types.hpp"
 #include "calibration_file.hpp"
 #include "runner.hpp"
 #include "text_file.hpp"
@@ -61,18 +62,6 @@ std::string markdown_header() {
          "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
 }
 
-// A table cell's text: a '|' would end the cell (and shift every figure of the row).
-std::string markdown_text(const std::string& text) {
-  std::string out;
-  for (const char ch : text) {
-    if (ch == '|') {
-      out += '\\';
-    }
-    out += ch;
-  }
-  return out;
-}
-
 std::string markdown_row(const SimulationResult& r, const std::string& file) {
   std::uint32_t rejected = 0;
   for (std::size_t k = 1; k < r.pairs.size(); ++k) {
@@ -89,7 +78,7 @@ std::string markdown_row(const SimulationResult& r, const std::string& file) {
   const std::string tripped =
       trip == nullptr ? std::string() : fmt::format(" — tripped: {} at {:.1f} s", core::to_string(r.fault_code(*trip)), trip->first_s);
   return fmt::format("| {} (`{}`){}{} | {} | {} | {} | {} | {} | {} | {} | {} | {} / {} | {} | {} | {:.1f} | {:.0f} / {:.1f} |\n",
-                     markdown_text(r.scenario), markdown_text(file), failed, tripped, r.method, cell(r.winding_error_rms_C, w), cell(r.winding_error_max_C, w),
+                     common::markdown_cell(r.scenario), common::markdown_cell(file), failed, tripped, r.method, cell(r.winding_error_rms_C, w), cell(r.winding_error_max_C, w),
                      cell(r.winding_error_mean_C, w, "{:+.2f}"), cell(100.0 * r.coverage_2sigma, w, "{:.0f}"),
                      cell(r.rs_error_rms_mohm, r.estimates_published() > 0 && std::isfinite(r.rs_error_rms_mohm)), cell(r.magnet_error_rms_C, r.magnet_error_samples > 0),
                      r.estimates_accepted, r.pairs[0], rejected, cell(r.speed_disturbance_pct, r.disturbance_measured, "{:.3f}"),

@@ -384,16 +384,10 @@ plant::PlantConfig load_plant(const toml::table& root, const std::filesystem::pa
     if (plant_table == nullptr) {
       throw ConfigError(message);
     }
+    std::istringstream lines(message);
     std::string out;
-    std::size_t begin = 0;
-    while (begin <= message.size()) {
-      const std::size_t newline = message.find('\n', begin);
-      const std::string line = message.substr(begin, newline == std::string::npos ? std::string::npos : newline - begin);
+    for (std::string line; std::getline(lines, line);) {
       out += (out.empty() ? "" : "\n") + scenario_line(line, *plant_table, source);
-      if (newline == std::string::npos) {
-        break;
-      }
-      begin = newline + 1;
     }
     throw ConfigError(out);
   }
