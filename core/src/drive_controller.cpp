@@ -548,11 +548,47 @@ bool DriveController::configure_injection(InjectionMethod method, Separation sep
 
 // Kept out of line, as the drive runs it only with field weakening on (the step without it
 // pays one test).
-[[gnu::noinline]] bool DriveController::weaken_field(bool sweeping, double omega_e_rad_s) {
+[[gnu::noinline]] bool DriveController::weaken_field(bool sweeping, double omega_e_rad_s, bool& release_motoring) {
+  const double limit_V = current_.status().voltage_limit_V;
+  // Last period's motoring current: its reference less the pulse (both zero while disabled).
+  const Dq motoring_A{telemetry_.i_ref_A.d - telemetry_.injection_A.d, telemetry_.i_ref_A.q - telemetry_.injection_A.q};
   if (scheduler_.phase() == SchedulerPhase::kIdle && !sweeping) {
     const Dq& v = current_.status().v_unlimited_V;
-    field_weakening_.step(std::sqrt(v.d * v.d + v.q * v.q), current_.status().voltage_limit_V, omega_e_rad_s,
-                          injection_current_limit_A_);
+    field_weakening_.step(std::sqrt(v.d * v.d + v.q * v.q), limit_V, omega_e_rad_s, injection_current_limit_A_);
+    pair_watch_.armed = false;
+  } else if (!sweeping) {
+    // A pair holds the regulator, so that its recordings share one motoring point. The EMF
+    // moves with the speed all the same: a salient servo accelerating at 1000 rad/s^2 through
+    // 1.4 times its base speed, its pair's -F pulse doing the weakening the held id no longer
+    // did, lost its current loop when the pulse ramped off (the EMF above the bus; a hardware
+    // over-current trip, docs/estimator.md section 2). So the motoring point's voltage is
+    // followed through the pair: as the loop commanded it before the pair (its tracked mean),
+    // plus the change Eq. 3 gives for the speed and the q current since (vd = Rs id - w Lq iq,
+    // vq = w (psi + Ld id) + Rs iq at the held id: the model's errors enter only through the
+    // change). Where it would take more than half the reserve the regulator keeps, the pair
+    // ends and the regulator takes the pulse's d current over, weakening as much as the pulse
+    // did, and relaxes it from there.
+    if (!pair_watch_.armed) {
+      pair_watch_.armed = motoring_voltage_periods_ >= motoring_voltage_settle_periods_;
+      pair_watch_.v_V = motoring_voltage_mean_V_;
+      pair_watch_.omega_e_rad_s = omega_e_rad_s;
+      pair_watch_.iq_A = motoring_A.q;
+    }
+    if (pair_watch_.armed) {
+      const Watch& w0 = pair_watch_;
+      const double lq = scheduler_.lq_H();
+      const double rs = config_.current.rs_ohm;
+      const double flux = config_.current.flux_linkage_Wb + config_.current.ld_H * field_weakening_.id_A();
+      const double vd = w0.v_V.d - lq * (omega_e_rad_s * motoring_A.q - w0.omega_e_rad_s * w0.iq_A);
+      const double vq = w0.v_V.q + (omega_e_rad_s - w0.omega_e_rad_s) * flux + rs * (motoring_A.q - w0.iq_A);
+      const double fraction = 0.5 * (1.0 + field_weakening_.voltage_fraction());
+      if (vd * vd + vq * vq > fraction * fraction * limit_V * limit_V) {
+        field_weakening_.take_over(field_weakening_.id_A() + std::min(telemetry_.injection_A.d, 0.0),
+                                   injection_current_limit_A_);
+        release_motoring = true;
+        pair_watch_.armed = false;
+      }
+    }
   }
   return !field_weakening_.settled();
 }
@@ -1312,12 +1348,13 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   const bool sweeping = sweep_.active() || sweep_restart_.pending || check_.active() || check_restart_.pending;
   Dq motoring{};
   bool motoring_settling = false;  // (SchedulerInput::motoring_settling)
+  bool release_motoring = false;   // (SchedulerInput::release_motoring)
   if (enabled) {
     // Field weakening on the last period's command (reset with the current loop on enabling:
     // its limit reads 0 until the first period), held while a pair records or the sweep and
     // the angle check run: their separations take the motoring point as still.
     if (field_weakening_.enabled()) {
-      motoring_settling = weaken_field(sweeping, omega_e);
+      motoring_settling = weaken_field(sweeping, omega_e, release_motoring);
     }
     if (sweeping) {
       motoring_voltage_periods_ = 0;  // the sweep's and the check's levels are not motoring
@@ -1343,6 +1380,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   si.voltage_limit_V = current_.voltage_limit_V(in.vdc_V);
   si.current_limit_A = injection_current_limit_A_;
   si.motoring_settling = motoring_settling;
+  si.release_motoring = release_motoring;
   si.rs_rate_ohm_per_s = rs_rate_ohm_per_s_;  // finite (update_thermal)
   si.bus_offset_V = bus_offset_V;
   si.enabled = enabled && config_.estimator == EstimatorKind::kInjection && !sweeping && !after_lost;

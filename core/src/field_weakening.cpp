@@ -27,4 +27,13 @@ double FieldWeakening::step(double v_command_V, double voltage_limit_V, double o
   return id_A_;
 }
 
+void FieldWeakening::take_over(double id_A, double bound_A) {
+  if (!config_.enabled || !(id_A < id_A_)) {
+    return;  // (a NaN takes nothing over)
+  }
+  // (A bound that shrank below the present id is step()'s to apply, as a derating's.)
+  id_A_ = std::min(id_A_, std::max(id_A, -std::min(config_.max_current_A, bound_A)));
+  settled_ = false;
+}
+
 }  // namespace pmsm::core

@@ -1150,9 +1150,10 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
     abort(out, in);
     return out;
   }
-  // An angle-based pair cannot survive the rotor stopping or reversing.
-  if (busy && !time_based_ &&
-      (direction_ * in.omega_e_rad_s < 0.5 * config_.min_speed_for_angle_rad_s)) {
+  // An angle-based pair cannot survive the rotor stopping or reversing, and no pair may keep
+  // the field weakening held where the motoring point needs it to move.
+  if (busy && (in.release_motoring || (!time_based_ &&
+                                      direction_ * in.omega_e_rad_s < 0.5 * config_.min_speed_for_angle_rad_s))) {
     abort(out, in);
     return out;
   }

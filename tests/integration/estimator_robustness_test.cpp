@@ -205,6 +205,28 @@ TEST(EstimatorRobustness, LqLearningTakesTheFiltersResistanceNotThePairs) {
   EXPECT_LT(median(rms), 2.5);
 }
 
+// A pair holds the field weakening's d current where it started, so that its two recordings
+// share one motoring point, while its -F pulses weaken the field further. On the reversing
+// salient servo of unseen round 5, with a torque budget of 0.5 N m (a tenth of its rated
+// torque) and the shaft accelerating at 1000 rad/s^2 into field weakening, the pulse ramping
+// off left the held id short of what the speed had come to need: the current loop lost the
+// machine to its EMF, above the bus, and the drive tripped on over-current (5.96 s into seed
+// 100, 9.99 s into seed 101). The drive now follows the motoring point's voltage through each
+// pair and ends the pair where that voltage would eat half the regulator's reserve, the
+// regulator taking the pulse's d current over (DriveController::weaken_field). Nothing trips,
+// and the pairs it ended are counted as aborted.
+TEST(EstimatorRobustness, APairEndsBeforeTheHeldFieldWeakeningFallsShortOfTheSpeed) {
+  std::uint32_t aborted = 0;
+  for (const SimulationResult& r : run_data_seeds("salient-servo-fw-reversals.toml", {0U, 100U, 101U})) {
+    ASSERT_TRUE(r.calibrated);
+    const SimulationResult::FaultSeen* first = r.first_fault();
+    EXPECT_EQ(first, nullptr) << core::to_string(r.fault_code(*first)) << " at " << first->first_s << " s";
+    aborted += r.pairs[static_cast<std::size_t>(core::PairOutcome::kAborted)];
+    EXPECT_GT(r.pairs[static_cast<std::size_t>(core::PairOutcome::kAccepted)], 20U);
+  }
+  EXPECT_GT(aborted, 0U);
+}
+
 // A field-weakening event dates its Rs some 3 recordings' spacings after its second recording.
 // The drive holds it until the filter's clock reaches that time, and the filter compares it
 // with the line through its own trajectory that the pairs extrapolate along

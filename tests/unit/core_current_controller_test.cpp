@@ -162,6 +162,36 @@ TEST(CurrentController, VoltageLimitWithDAxisPriorityAndAntiWindup) {
   EXPECT_LT(recovered_at, 50);
 }
 
+// A pulse's d current handed over at the end of a pair (DriveController::weaken_field): taken
+// where it weakens more than the regulator's own, within the bound, never where it weakens
+// less (a +F pulse), a NaN or disabled; afterwards the regulator is unsettled and relaxes it
+// from there by its own law (below the limit, back towards zero).
+TEST(FieldWeakening, TakesAPulsesCurrentOverOnlyWhereItWeakensMore) {
+  FieldWeakeningConfig fw;
+  fw.enabled = true;
+  fw.max_current_A = 10.0;
+  FieldWeakening reg(fw);
+  reg.set_machine(5.5e-3, 0.3239, 1e-4);
+  reg.take_over(-6.0, 80.0);
+  EXPECT_EQ(reg.id_A(), -6.0);
+  EXPECT_FALSE(reg.settled());
+  reg.take_over(-2.0, 80.0);  // weaker than the present d current: nothing
+  reg.take_over(3.0, 80.0);
+  reg.take_over(std::numeric_limits<double>::quiet_NaN(), 80.0);
+  EXPECT_EQ(reg.id_A(), -6.0);
+  reg.take_over(-25.0, 80.0);  // the configured bound
+  EXPECT_EQ(reg.id_A(), -10.0);
+  reg.take_over(-25.0, 8.0);   // (the drive's current limit, tighter, would be the bound)
+  EXPECT_EQ(reg.id_A(), -10.0);
+  const double after = reg.step(200.0, 356.0, 1400.0, 80.0);  // far below the held voltage
+  EXPECT_GT(after, -10.0);
+  EXPECT_LE(after, 0.0);
+  fw.enabled = false;
+  FieldWeakening disabled(fw);
+  disabled.take_over(-6.0, 80.0);
+  EXPECT_EQ(disabled.id_A(), 0.0);
+}
+
 }  // namespace
 }  // namespace pmsm::core
 

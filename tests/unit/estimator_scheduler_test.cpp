@@ -138,6 +138,7 @@ class Harness {
     in.voltage_limit_V = voltage_limit_V;
     in.current_limit_A = current_limit_A;
     in.enabled = enabled;
+    in.release_motoring = release_motoring;
     in.request_now = request_now;
     in.rs_rate_ohm_per_s = tell_rs_rate ? plant.rs_rate_ohm_per_s : 0.0;
     // The controller builds a period's sample only when the scheduler says it reads one.
@@ -203,6 +204,7 @@ class Harness {
   double voltage_limit_V = 356.0;
   double current_limit_A = 80.0;
   bool enabled = true;
+  bool release_motoring = false;
   bool request_now = false;
   bool flag_voltage_limited = false;
   bool tell_rs_rate = true;  // pass the plant's dRs/dt as the thermal model's prediction
@@ -1536,6 +1538,42 @@ TEST(InjectionScheduler, DisabledDriveAbortsThePair) {
     }
   }
   EXPECT_GE(h.scheduler.next_event_s(), abort_time + c.retry_s - 1e-9);
+}
+
+// The drive ends a pair whose held field weakening no longer suits the speed
+// (SchedulerInput::release_motoring, DriveController::weaken_field): at once, counted as
+// aborted, the event with it, and no pulse from that period on.
+TEST(InjectionScheduler, ReleasingTheMotoringPointAbortsThePair) {
+  InjectionConfig c = test_config();
+  Harness h(c);
+  double release_time = -1.0;
+  h.hook = [&](Harness& x) {
+    if (release_time < 0.0 && !x.records.empty() && x.records.back().out.phase == P::kRecord1) {
+      x.release_motoring = true;
+      release_time = x.time_s;
+    } else {
+      x.release_motoring = false;  // (one period of it suffices)
+    }
+  };
+  h.run_until(0.45);
+  ASSERT_GE(h.pairs.size(), 1U);
+  EXPECT_EQ(h.pairs[0].outcome, PairOutcome::kAborted);
+  ASSERT_GE(h.estimates.size(), 1U);
+  EXPECT_EQ(h.estimates[0].outcome, EventOutcome::kAborted);
+  for (const StepRecord& r : h.records) {
+    if (r.time_s >= release_time && r.time_s < release_time + c.retry_s - 1e-9) {
+      EXPECT_FALSE(r.out.active);
+      EXPECT_EQ(r.out.injection_A.d, 0.0);
+    }
+  }
+  EXPECT_GE(h.scheduler.next_event_s(), release_time + c.retry_s - 1e-9);
+  // Between pairs it ends nothing: the flag up in every idle period, the event publishes.
+  Harness idle(c);
+  idle.hook = [](Harness& x) { x.release_motoring = x.records.empty() || x.records.back().out.phase == P::kIdle; };
+  idle.run_until(0.45);
+  ASSERT_GE(idle.estimates.size(), 1U);
+  EXPECT_EQ(idle.estimates[0].outcome, EventOutcome::kPublished);
+  for (const PairResult& p : idle.pairs) EXPECT_NE(p.outcome, PairOutcome::kAborted);
 }
 
 TEST(InjectionScheduler, LosingSpeedAbortsAnAngleBasedPair) {

@@ -470,7 +470,7 @@ class DriveController {
   void update_thermal(double ambient_C, bool speed_mode);
   [[nodiscard]] Dq motoring_reference(const DriveCommand& command);
   // One period of field weakening (when it is on); true while its d current is still moving.
-  bool weaken_field(bool sweeping, double omega_e_rad_s);
+  bool weaken_field(bool sweeping, double omega_e_rad_s, bool& release_motoring);
 
   DriveConfig config_;
   double kt_dq_Nm_per_A_;
@@ -587,6 +587,15 @@ class DriveController {
   // The current loop's motoring voltage, low-passed over the periods without a pulse
   // (track_motoring_voltage), and how many periods it has seen since the loop started.
   Dq motoring_voltage_mean_V_{};
+  // The motoring point a pair holds the field weakening at (weaken_field): its voltage before
+  // the pair, and the speed and q current that voltage was at.
+  struct Watch {
+    bool armed = false;
+    Dq v_V{};
+    double omega_e_rad_s = 0.0;
+    double iq_A = 0.0;
+  };
+  Watch pair_watch_{};
   double motoring_voltage_mean_sq_V2_ = 0.0;  // of |v|^2
   double motoring_voltage_gain_ = 0.0;
   std::uint32_t motoring_voltage_periods_ = 0;

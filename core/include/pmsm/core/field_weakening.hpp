@@ -42,6 +42,11 @@ class FieldWeakening {
     settled_ = true;
   }
   [[nodiscard]] double id_A() const { return id_A_; }
+  // A pulse's d current that ends while the regulator is held (DriveController::weaken_field):
+  // id takes it over where it weakens the field more, within the bounds of step(), so that the
+  // d current does not step back and the regulator relaxes it from there.
+  void take_over(double id_A, double bound_A);
+  [[nodiscard]] double voltage_fraction() const { return config_.voltage_fraction; }
   // The voltage sits where the regulator holds it (within kSettledFraction of the limit), or id
   // rests on a bound the margin presses it against (zero below the field-weakening speed, the
   // largest |id| where even that is not enough): id will not move on its own.

@@ -250,6 +250,10 @@ struct SchedulerInput {
   // The motoring point's d current is still moving (field weakening settling): no pair starts
   // until it holds still, since the pair holds it where it is for both recordings.
   bool motoring_settling = false;
+  // The field weakening a pair holds no longer keeps the motoring point's voltage inside the
+  // current loop's reserve (the speed moved the EMF while the regulator was held): the pair
+  // ends now, aborted, its pulse handed to the regulator (DriveController::weaken_field).
+  bool release_motoring = false;
   // How fast the winding's resistance changes now, as the thermal model predicts it (ohm per
   // controller second): an event's pairs lie at different times, and their joint fit refers
   // each to the event's time (finish_event).
