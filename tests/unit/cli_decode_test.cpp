@@ -278,8 +278,49 @@ TEST(cli_decode, AnotherNodesFramesAreNamedInTheSummary) {
   EXPECT_EQ(r.exit_code, 0) << r.err;
   EXPECT_TRUE(contains(r.err, "1 decoded, 3 unknown")) << r.err;
   EXPECT_TRUE(contains(r.err, "2 unknown frame(s) are this DBC's messages for node 1")) << r.err;
-  EXPECT_TRUE(contains(r.err, "pmsm-dbc-gen' --node 1 --dbc node1.dbc")) << "beside this tool in the build tree: " << r.err;
+  EXPECT_TRUE(contains(r.err, "`pmsm-thermal dbc --node 1 -o node1.dbc`")) << r.err;
   EXPECT_FALSE(contains(r.err, "for node 3")) << "0x7F3 is no message's base: " << r.err;
+  // What the summary says to run gives the DBC that decodes them.
+  const TempFile node1("", ".dbc");
+  const ProcessResult made = run_process(kExe + " dbc --node 1 -o " + node1.path());
+  ASSERT_EQ(made.exit_code, 0) << made.err;
+  const ProcessResult again = run_process(kExe + " decode --dbc " + node1.path() + " " + log.path());
+  EXPECT_EQ(again.exit_code, 0) << again.err;
+  EXPECT_TRUE(contains(again.err, "2 decoded, 2 unknown")) << again.err;
+}
+
+// `pmsm-thermal dbc`: node 0's is the committed (and packaged) file byte for byte, on standard
+// output or written; another node's differs from it in the IDs alone; a node outside 0..15, a
+// directory and an unwritable path are refused with their reason, an existing file is
+// replaced whole.
+TEST(cli_dbc, GivesEachNodesDbc) {
+  const std::string committed = read_file(kDbc);
+  ProcessResult r = run_process(kExe + " dbc");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(r.out, committed);
+  const TempFile written("stale contents", ".dbc");
+  r = run_process(kExe + " dbc --node 0 --output " + written.path());
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(read_file(written.path()), committed);
+  r = run_process(kExe + " dbc --node 15");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out, committed);
+  const auto count = [](const std::string& text, const std::string& what) {
+    std::size_t n = 0;
+    for (std::size_t at = text.find(what); at != std::string::npos; at = text.find(what, at + 1)) ++n;
+    return n;
+  };
+  EXPECT_EQ(count(r.out, "\nBO_ "), count(committed, "\nBO_ ")) << "the same messages, other IDs";
+  EXPECT_EQ(count(r.out, "\n SG_ "), count(committed, "\n SG_ ")) << "the same signals";
+  r = run_process(kExe + " dbc --node 16");
+  EXPECT_EQ(r.exit_code, 2) << "a bad command line";
+  EXPECT_TRUE(contains(r.err, "--node")) << r.err;
+  r = run_process(kExe + " dbc -o /tmp");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_TRUE(contains(r.err, "dbc: '/tmp' is a directory")) << r.err;
+  r = run_process(kExe + " dbc -o /nonexistent/axis2.dbc");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_TRUE(contains(r.err, "dbc: cannot create /nonexistent/axis2.dbc.tmp (No such file or directory)")) << r.err;
 }
 
 TEST(cli_decode, AMissingInputFileIsNamed) {

@@ -66,7 +66,16 @@ done
 for p in "$root"/usr/share/pmsm-thermal/plant-profiles/*.toml; do
   "$root/usr/bin/pmsm-plant" --check --config "$p" >/dev/null 2>&1 || fail "$(basename "$p") fails pmsm-plant --check"
 done
-echo "package: layout, conffiles, maintainer scripts, Depends, --version and the shipped configurations: ok"
+# The packaged DBC is what the installed tool generates for node 0, and it makes the shipped
+# axis1.toml's (node 1) too.
+"$root/usr/bin/pmsm-thermal" dbc | cmp -s - "$root/usr/share/pmsm-thermal/pmsm-thermal.dbc" \
+  || fail "the packaged DBC differs from \`pmsm-thermal dbc\` (node 0)"
+node=$(sed -n 's/^node *= *\([0-9]*\).*/\1/p' "$root/etc/pmsm-thermal/axis1.toml" | head -1)
+[ -n "$node" ] || fail "the shipped axis1.toml names no can.node"
+"$root/usr/bin/pmsm-thermal" dbc --node "$node" -o "$work/node.dbc" || fail "\`pmsm-thermal dbc --node $node\` failed"
+grep -q "^BA_ \"ProtocolNodeId\" $node;" "$work/node.dbc" \
+  || fail "\`pmsm-thermal dbc --node $node\` does not describe node $node"
+echo "package: layout, conffiles, maintainer scripts, Depends, --version, the shipped configurations and DBCs: ok"
 
 if command -v lintian >/dev/null; then
   echo "package: lintian:"

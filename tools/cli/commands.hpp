@@ -13,5 +13,6 @@ void register_config_keys_command(CLI::App& app, int& exit_code);
 void register_decode_command(CLI::App& app, int& exit_code);
 void register_command_command(CLI::App& app, int& exit_code);
 void register_monitor_command(CLI::App& app, int& exit_code);
+void register_dbc_command(CLI::App& app, int& exit_code);
 
 }  // namespace pmsm::app

@@ -85,18 +85,6 @@ std::vector<fs::path> default_dbc_candidates() {
   return candidates;
 }
 
-// How to run pmsm-dbc-gen: its path beside this executable when it is there (a build tree keeps
-// both in tools/, not on the PATH), quoted; else its name, and where it comes from (the package
-// ships pmsm-thermal alone).
-std::string dbc_generator_command(std::size_t node) {
-  std::error_code ec;
-  const fs::path beside = fs::read_symlink("/proc/self/exe", ec).parent_path() / "pmsm-dbc-gen";
-  const std::string args = fmt::format(" --node {} --dbc node{}.dbc", node, node);
-  return !ec && fs::is_regular_file(beside, ec)
-             ? fmt::format("`'{}'{}`", beside.string(), args)
-             : fmt::format("`pmsm-dbc-gen{}` (built with the sources, tools/)", args);
-}
-
 std::optional<fs::path> find_default_dbc(std::string& looked_in) {
   for (const fs::path& candidate : default_dbc_candidates()) {
     std::error_code ec;
@@ -284,8 +272,8 @@ class Decoder {
       if (other_node_frames_[node] != 0U) {
         text += fmt::format(
             "  {} unknown frame(s) are this DBC's messages for node {} (CAN ID = base + node): decode them with that "
-            "node's DBC, {}\n",
-            other_node_frames_[node], node, dbc_generator_command(node));
+            "node's DBC, `pmsm-thermal dbc --node {} -o node{}.dbc`\n",
+            other_node_frames_[node], node, node, node);
       }
     }
     std::fputs(text.c_str(), stderr);

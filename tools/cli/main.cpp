@@ -20,6 +20,7 @@ int main(int argc, char** argv) {
   pmsm::app::register_decode_command(app, exit_code);
   pmsm::app::register_command_command(app, exit_code);
   pmsm::app::register_monitor_command(app, exit_code);
+  pmsm::app::register_dbc_command(app, exit_code);
   // A first word that is no command: say so and list them (CLI11 says only "A subcommand is
   // required").
   if (argc > 1 && argv[1][0] != '-') {
