@@ -527,7 +527,7 @@ bool DriveController::configure_injection(InjectionMethod method, Separation sep
 // several volts in single periods (the reference's peaks over 0.2 s, taken as the motoring
 // voltage, left its pairs at rated speed a third of their signal and read 4 % low). Out of
 // line, as weaken_field: not in the injecting periods' instructions.
-[[gnu::noinline]] void DriveController::track_motoring_voltage(double now_s) {
+[[gnu::noinline]] void DriveController::track_motoring_voltage(double now_s, double omega_e_rad_s) {
   const Dq& v = current_.status().v_unlimited_V;
   Dq& m = motoring_voltage_mean_V_;
   const double v_sq = v.d * v.d + v.q * v.q;
@@ -540,6 +540,12 @@ bool DriveController::configure_injection(InjectionMethod method, Separation sep
   m.d += gain * (v.d - m.d);
   m.q += gain * (v.q - m.q);
   motoring_voltage_mean_sq_V2_ += gain * (v_sq - motoring_voltage_mean_sq_V2_);
+  // The speed and the motoring current that mean belongs to, filtered alike (a ramp's mean
+  // voltage lags its speed, and field weakening's d current, by the filter's 20 ms:
+  // weaken_field's watch takes the change from these).
+  motoring_omega_mean_rad_s_ += gain * (omega_e_rad_s - motoring_omega_mean_rad_s_);
+  motoring_current_mean_A_.d += gain * (telemetry_.i_ref_A.d - telemetry_.injection_A.d - motoring_current_mean_A_.d);
+  motoring_current_mean_A_.q += gain * (telemetry_.i_ref_A.q - telemetry_.injection_A.q - motoring_current_mean_A_.q);
   // Known once the filter has seen three of its time constants.
   if (motoring_voltage_periods_ >= motoring_voltage_settle_periods_) {
     scheduler_.set_motoring_voltage(now_s, m, motoring_voltage_mean_sq_V2_);
@@ -562,25 +568,29 @@ bool DriveController::configure_injection(InjectionMethod method, Separation sep
     // 1.4 times its base speed, its pair's -F pulse doing the weakening the held id no longer
     // did, lost its current loop when the pulse ramped off (the EMF above the bus; a hardware
     // over-current trip, docs/estimator.md section 2). So the motoring point's voltage is
-    // followed through the pair: as the loop commanded it before the pair (its tracked mean),
-    // plus the change Eq. 3 gives for the speed and the q current since (vd = Rs id - w Lq iq,
-    // vq = w (psi + Ld id) + Rs iq at the held id: the model's errors enter only through the
-    // change). Where it would take more than half the reserve the regulator keeps, the pair
-    // ends and the regulator takes the pulse's d current over, weakening as much as the pulse
-    // did, and relaxes it from there.
+    // followed through the pair: as the loop commanded it before the pair (its tracked mean,
+    // with the speed and current filtered alike), plus the change Eq. 3 gives for the speed
+    // and the current since (vd = Rs id - w Lq iq, vq = w (psi + Ld id) + Rs iq, at the held
+    // id: the model's errors enter only through the change). Where it would take more than
+    // half the reserve the regulator keeps, the pair ends and the regulator takes the pulse's
+    // d current over, weakening as much as the pulse did, and relaxes it from there.
     if (!pair_watch_.armed) {
       pair_watch_.armed = motoring_voltage_periods_ >= motoring_voltage_settle_periods_;
       pair_watch_.v_V = motoring_voltage_mean_V_;
-      pair_watch_.omega_e_rad_s = omega_e_rad_s;
-      pair_watch_.iq_A = motoring_A.q;
+      pair_watch_.omega_e_rad_s = motoring_omega_mean_rad_s_;
+      pair_watch_.i_A = motoring_current_mean_A_;
     }
     if (pair_watch_.armed) {
+      // Eq. 3's steady state at the held d current, less the same at the mean's point.
       const Watch& w0 = pair_watch_;
       const double lq = scheduler_.lq_H();
+      const double ld = config_.current.ld_H;
       const double rs = config_.current.rs_ohm;
-      const double flux = config_.current.flux_linkage_Wb + config_.current.ld_H * field_weakening_.id_A();
-      const double vd = w0.v_V.d - lq * (omega_e_rad_s * motoring_A.q - w0.omega_e_rad_s * w0.iq_A);
-      const double vq = w0.v_V.q + (omega_e_rad_s - w0.omega_e_rad_s) * flux + rs * (motoring_A.q - w0.iq_A);
+      const double psi = config_.current.flux_linkage_Wb;
+      const double id = field_weakening_.id_A();
+      const double vd = w0.v_V.d + rs * (id - w0.i_A.d) - lq * (omega_e_rad_s * motoring_A.q - w0.omega_e_rad_s * w0.i_A.q);
+      const double vq = w0.v_V.q + omega_e_rad_s * (psi + ld * id) - w0.omega_e_rad_s * (psi + ld * w0.i_A.d) +
+                        rs * (motoring_A.q - w0.i_A.q);
       const double fraction = 0.5 * (1.0 + field_weakening_.voltage_fraction());
       if (vd * vd + vq * vq > fraction * fraction * limit_V * limit_V) {
         field_weakening_.take_over(field_weakening_.id_A() + std::min(telemetry_.injection_A.d, 0.0),
@@ -1359,7 +1369,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     if (sweeping) {
       motoring_voltage_periods_ = 0;  // the sweep's and the check's levels are not motoring
     } else if (scheduler_.phase() == SchedulerPhase::kIdle && loop_ran) {
-      track_motoring_voltage(now);
+      track_motoring_voltage(now, omega_e);
     }
     motoring = motoring_reference(command);
   } else {

@@ -497,7 +497,7 @@ class DriveController {
   // Thermal time since the last EMF measurement: what the updates have aged it by, plus the
   // time since the last update.
   [[nodiscard]] double magnet_age_now_s() const { return magnet_age_s_ + thermal_elapsed_s_ * observer_.time_scale(); }
-  void track_motoring_voltage(double now_s);
+  void track_motoring_voltage(double now_s, double omega_e_rad_s);
   void update_magnet(const EventEstimate& e, const Calibration& cal);
   void restore_vx();
   [[nodiscard]] double magnet_var_now_C2() const;
@@ -587,13 +587,15 @@ class DriveController {
   // The current loop's motoring voltage, low-passed over the periods without a pulse
   // (track_motoring_voltage), and how many periods it has seen since the loop started.
   Dq motoring_voltage_mean_V_{};
+  double motoring_omega_mean_rad_s_ = 0.0;  // filtered as the mean voltage (track_motoring_voltage)
+  Dq motoring_current_mean_A_{};
   // The motoring point a pair holds the field weakening at (weaken_field): its voltage before
   // the pair, and the speed and q current that voltage was at.
   struct Watch {
     bool armed = false;
     Dq v_V{};
     double omega_e_rad_s = 0.0;
-    double iq_A = 0.0;
+    Dq i_A{};
   };
   Watch pair_watch_{};
   double motoring_voltage_mean_sq_V2_ = 0.0;  // of |v|^2
