@@ -41,6 +41,11 @@ void AngleCheck::abort() {
   }
 }
 
+void AngleCheck::refuse(AngleCheckOutcome outcome) {
+  result_ = {};
+  finish(outcome);
+}
+
 void AngleCheck::finish(AngleCheckOutcome outcome) {
   stage_ = Stage::kIdle;
   result_.outcome = outcome;

@@ -302,6 +302,10 @@ void DriveController::restore_angle() {
   }
 }
 
+bool DriveController::field_weakened() const {
+  return field_weakening_.enabled() && field_weakening_.id_A() < 0.0;
+}
+
 void DriveController::start_calibration_sweep(double now_s) {
   sweep_restart_.reset();
   if (config_.inverter_sweep.enabled) {
@@ -537,6 +541,14 @@ bool DriveController::configure_injection(InjectionMethod method, Separation sep
   if (motoring_voltage_periods_ < motoring_voltage_settle_periods_) {
     gain = std::max(gain, 1.0 / static_cast<double>(++motoring_voltage_periods_));
   }
+  if (gain >= 1.0) {
+    // The first sample is taken, not blended: a mean left not a number before (a period with no
+    // command to read) must not stay so.
+    m = {};
+    motoring_voltage_mean_sq_V2_ = 0.0;
+    motoring_omega_mean_rad_s_ = 0.0;
+    motoring_current_mean_A_ = {};
+  }
   m.d += gain * (v.d - m.d);
   m.q += gain * (v.q - m.q);
   motoring_voltage_mean_sq_V2_ += gain * (v_sq - motoring_voltage_mean_sq_V2_);
@@ -554,26 +566,32 @@ bool DriveController::configure_injection(InjectionMethod method, Separation sep
 
 // Kept out of line, as the drive runs it only with field weakening on (the step without it
 // pays one test).
-[[gnu::noinline]] bool DriveController::weaken_field(bool sweeping, double omega_e_rad_s, bool& release_motoring) {
+[[gnu::noinline]] bool DriveController::weaken_field(bool levels_active, double omega_e_rad_s,
+                                                     bool& release_motoring) {
   const double limit_V = current_.status().voltage_limit_V;
   // Last period's motoring current: its reference less the pulse (both zero while disabled).
   const Dq motoring_A{telemetry_.i_ref_A.d - telemetry_.injection_A.d, telemetry_.i_ref_A.q - telemetry_.injection_A.q};
-  if (scheduler_.phase() == SchedulerPhase::kIdle && !sweeping) {
-    const Dq& v = current_.status().v_unlimited_V;
-    field_weakening_.step(std::sqrt(v.d * v.d + v.q * v.q), limit_V, omega_e_rad_s, injection_current_limit_A_);
+  if (scheduler_.phase() == SchedulerPhase::kIdle) {
+    // Held while the sweep's or the angle check's levels run (their separations take the
+    // motoring point as still; neither runs in field weakening: step() refuses them), not
+    // while they wait to start again.
+    if (!levels_active) {
+      const Dq& v = current_.status().v_unlimited_V;
+      field_weakening_.step(std::sqrt(v.d * v.d + v.q * v.q), limit_V, omega_e_rad_s, injection_current_limit_A_);
+    }
     pair_watch_.armed = false;
-  } else if (!sweeping) {
+  } else {
     // A pair holds the regulator, so that its recordings share one motoring point. The EMF
     // moves with the speed all the same: a salient servo accelerating at 1000 rad/s^2 through
-    // 1.4 times its base speed, its pair's -F pulse doing the weakening the held id no longer
+    // 1.4 times its id = 0 speed, its pair's -F pulse doing the weakening the held id no longer
     // did, lost its current loop when the pulse ramped off (the EMF above the bus; a hardware
     // over-current trip, docs/estimator.md section 2). So the motoring point's voltage is
     // followed through the pair: as the loop commanded it before the pair (its tracked mean,
     // with the speed and current filtered alike), plus the change Eq. 3 gives for the speed
     // and the current since (vd = Rs id - w Lq iq, vq = w (psi + Ld id) + Rs iq, at the held
     // id: the model's errors enter only through the change). Where it would take more than
-    // half the reserve the regulator keeps, the pair ends and the regulator takes the pulse's
-    // d current over, weakening as much as the pulse did, and relaxes it from there.
+    // half the reserve the regulator keeps, the pair ends (and the regulator takes its pulse
+    // over: hand_pulse_over).
     if (!pair_watch_.armed) {
       pair_watch_.armed = motoring_voltage_periods_ >= motoring_voltage_settle_periods_;
       pair_watch_.v_V = motoring_voltage_mean_V_;
@@ -593,14 +611,35 @@ bool DriveController::configure_injection(InjectionMethod method, Separation sep
                         rs * (motoring_A.q - w0.i_A.q);
       const double fraction = 0.5 * (1.0 + field_weakening_.voltage_fraction());
       if (vd * vd + vq * vq > fraction * fraction * limit_V * limit_V) {
-        field_weakening_.take_over(field_weakening_.id_A() + std::min(telemetry_.injection_A.d, 0.0),
-                                   injection_current_limit_A_);
         release_motoring = true;
         pair_watch_.armed = false;
       }
     }
   }
-  return !field_weakening_.settled();
+  // In field weakening no pair starts before the watch can arm (the motoring voltage tracked for
+  // three of its filter's time constants since the drive was enabled or a sweep ended).
+  return !field_weakening_.settled() ||
+         (field_weakening_.id_A() < 0.0 && motoring_voltage_periods_ < motoring_voltage_settle_periods_);
+}
+
+[[gnu::noinline]] void DriveController::hand_pulse_over(Dq& motoring_A) {
+  // A pair that ends early (the watch above, the current limit, a calibration's commissioning
+  // step, a lost sample) takes its pulse away at once. In field weakening a -F pulse was doing
+  // part of the weakening: the regulator takes its d current over, this period's reference
+  // included, so that the d current does not step back, and relaxes it from there; the q
+  // current keeps within the drive's limit beside it. Within the regulator's own bound
+  // (control.field_weakening_max_current_A, psi/Ld by default: beyond it the stator's flux
+  // would reverse the magnet's): the part of a pulse beyond it does step back.
+  const double pulse_d_A = std::min(telemetry_.injection_A.d, 0.0);  // last period's pulse
+  const double before_A = field_weakening_.id_A();
+  field_weakening_.take_over(before_A + pulse_d_A, injection_current_limit_A_);
+  const double moved_A = field_weakening_.id_A() - before_A;
+  if (moved_A < 0.0) {
+    motoring_A.d += moved_A;
+    const double limit_A = derating_.current_limit_A;
+    const double q_room_A = std::sqrt(std::max(limit_A * limit_A - motoring_A.d * motoring_A.d, 0.0));
+    motoring_A.q = std::clamp(motoring_A.q, -q_room_A, q_room_A);
+  }
 }
 
 Dq DriveController::motoring_reference(const DriveCommand& command) {
@@ -1238,6 +1277,17 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
       check_.start(config_.angle_check, angle_check_motor(), config_.period_s);
     }
   }
+  // The check's and the sweep's levels run on top of the held motoring point. In field
+  // weakening a positive level takes back part of the weakening the held d current does, and
+  // above the id = 0 speed the current loop loses the machine to its EMF: a newcomer's servo
+  // calibrating at 600 rad/s tripped 5 ms into the angle check's first level
+  // (docs/estimator.md section 6.1). There each ends before its first level as voltage-limited,
+  // as it would have at it; the calibration's events then wait for headroom, as at the voltage
+  // limit, and its timeout says so.
+  if (check_.starting() && field_weakened()) {
+    check_.refuse(AngleCheckOutcome::kVoltageLimited);
+    finish_angle_check();
+  }
   if (check_.active() &&
       check_.step(enabled, command.mode == DriveMode::kSpeed, i.d, i.q, angle_.mechanical_speed_rad_s(), omega_e,
                   limited_now_)) {
@@ -1259,6 +1309,10 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     } else if (sweep_restart_.due(enabled, config_.period_s, kSweepHoldoff_s)) {
       sweep_.start(config_.inverter_sweep, config_.period_s);
     }
+  }
+  if (sweep_.starting() && field_weakened()) {  // (as the check's, above)
+    sweep_.refuse(InverterSweepOutcome::kVoltageLimited);
+    finish_inverter_sweep(now);
   }
 
   // The measured bus's distance from the one Vx is referred to (0 without one).
@@ -1364,7 +1418,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     // its limit reads 0 until the first period), held while a pair records or the sweep and
     // the angle check run: their separations take the motoring point as still.
     if (field_weakening_.enabled()) {
-      motoring_settling = weaken_field(sweeping, omega_e, release_motoring);
+      motoring_settling = weaken_field(sweep_.active() || check_.active(), omega_e, release_motoring);
     }
     if (sweeping) {
       motoring_voltage_periods_ = 0;  // the sweep's and the check's levels are not motoring
@@ -1401,6 +1455,9 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   }
   si.request_now = command.request_injection || (calibrating_ && enabled);
   const SchedulerOutput& so = scheduler_.step(si, sample);
+  if (so.completed && so.completed->outcome == PairOutcome::kAborted && enabled && field_weakening_.enabled()) {
+    hand_pulse_over(motoring);
+  }
   if (so.completed) {
     handle_pair(*so.completed);
   }

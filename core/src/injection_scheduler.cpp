@@ -1397,6 +1397,32 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
   out.phase = phase_;
   out.active = phase_ != SchedulerPhase::kIdle;
   out.injection_A = injection_current(in);
+  if (out.active) {
+    // The budget sized the pulse at the pair's start; the motoring current moves on (the speed
+    // loop's answer to a set-point or a load, up to the drive's limit), and the pulse on top of
+    // it took a 48 V servo, a hoist and the 30 mOhm IPM past their current limits into the
+    // over-current trip (docs/estimator.md section 2, "Guards"). The sum never leaves the
+    // limit: a pulse the motoring current has crowded by a little (its ripple, on a pair sized
+    // to the limit) is cut to fit, by at most kMaxCut of itself; beyond that the motor's need
+    // comes first and the pair ends now.
+    const Dq& m = in.motoring_ref_A;
+    const Dq p = out.injection_A;
+    const double limit = std::min(in.current_limit_A, config_.current_limit_A);  // as budget()'s
+    const double total_sq = (m.d + p.d) * (m.d + p.d) + (m.q + p.q) * (m.q + p.q);
+    if (!(total_sq <= limit * limit)) {
+      // |m + s p| = limit for s in [0, 1]: a s^2 + 2 b s + c = 0.
+      const double a = p.d * p.d + p.q * p.q;
+      const double b = m.d * p.d + m.q * p.q;
+      const double c = m.d * m.d + m.q * m.q - limit * limit;
+      const double disc = b * b - a * c;
+      const double s_fit = a > 0.0 && c < 0.0 && disc >= 0.0 ? (std::sqrt(disc) - b) / a : 0.0;
+      if (s_fit >= 1.0 - kMaxCut) {
+        out.injection_A = {s_fit * p.d, s_fit * p.q};
+      } else {
+        abort(out, in);
+      }
+    }
+  }
   return out;
 }
 

@@ -42,6 +42,12 @@ void InverterSweep::start(const InverterSweepConfig& config, double period_s) {
   }
 }
 
+void InverterSweep::refuse(InverterSweepOutcome outcome) {
+  stage_ = Stage::kIdle;
+  result_ = {};
+  result_.outcome = outcome;
+}
+
 void InverterSweep::abort() {
   if (active()) {
     stage_ = Stage::kIdle;

@@ -227,6 +227,38 @@ TEST(EstimatorRobustness, APairEndsBeforeTheHeldFieldWeakeningFallsShortOfTheSpe
   EXPECT_GT(aborted, 0U);
 }
 
+// A pulse is sized at its pair's start for the motoring current then; the speed loop may take
+// the motoring current to the drive's limit during the pair (a set-point step, a load). On the
+// 48 V servo stepping 150 <-> 250 rad/s under 3.5 N m the sum reached 54.07 A against the
+// sensors' 54 A trip, 10.58 s into seeds 7, 8 and 9 (over-current, then the shaft ran away:
+// overspeed). The scheduler now keeps the sum within the limit: a pulse crowded a little is cut,
+// one crowded more ends its pair.
+TEST(EstimatorRobustness, APulseNeverTakesTheCurrentPastTheLimit) {
+  std::uint32_t aborted = 0;
+  for (const SimulationResult& r : run_data_seeds("servo48-steps-at-the-current-limit.toml", {7U, 8U, 9U})) {
+    ASSERT_TRUE(r.calibrated);
+    const SimulationResult::FaultSeen* first = r.first_fault();
+    EXPECT_EQ(first, nullptr) << core::to_string(r.fault_code(*first)) << " at " << first->first_s << " s";
+    aborted += r.pairs[static_cast<std::size_t>(core::PairOutcome::kAborted)];
+  }
+  EXPECT_GT(aborted, 0U);
+}
+
+// The angle check's and the bridge sweep's levels run on top of the held motoring point. Asked to
+// calibrate at 600 rad/s in field weakening, a servo's check put +3.7 A of d current on top of
+// the held -12.5 A, the current loop lost the machine to its EMF and the bridge tripped 5 ms later
+// (8.005 s, three seeds). Now both end as voltage-limited before their first level and nothing
+// trips; the calibration's events wait for headroom.
+TEST(EstimatorRobustness, NoCommissioningLevelRunsInFieldWeakening) {
+  for (const SimulationResult& r : run_data_seeds("servo-calibration-in-field-weakening.toml", {0U, 2U, 3U})) {
+    const SimulationResult::FaultSeen* first = r.first_fault();
+    EXPECT_EQ(first, nullptr) << core::to_string(r.fault_code(*first)) << " at " << first->first_s << " s";
+    EXPECT_EQ(r.angle_check.outcome, core::AngleCheckOutcome::kVoltageLimited);
+    EXPECT_NEAR(r.angle_check_time_s, 8.0, 0.01);
+    EXPECT_EQ(r.inverter_sweep.outcome, core::InverterSweepOutcome::kVoltageLimited);
+  }
+}
+
 // A field-weakening event dates its Rs some 3 recordings' spacings after its second recording.
 // The drive holds it until the filter's clock reaches that time, and the filter compares it
 // with the line through its own trajectory that the pairs extrapolate along

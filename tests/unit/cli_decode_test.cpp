@@ -290,9 +290,10 @@ TEST(cli_decode, AnotherNodesFramesAreNamedInTheSummary) {
 }
 
 // `pmsm-thermal dbc`: node 0's is the committed (and packaged) file byte for byte, on standard
-// output or written; another node's differs from it in the IDs alone; a node outside 0..15, a
-// directory and an unwritable path are refused with their reason, an existing file is
-// replaced whole.
+// output or written over an existing file; another node's has the same messages and signals and
+// says which node it is; a node outside 0..15 is a bad command line (2); a directory, an
+// unwritable path and a full standard output are named with their reason (3, as simulate's
+// outputs).
 TEST(cli_dbc, GivesEachNodesDbc) {
   const std::string committed = read_file(kDbc);
   ProcessResult r = run_process(kExe + " dbc");
@@ -312,15 +313,21 @@ TEST(cli_dbc, GivesEachNodesDbc) {
   };
   EXPECT_EQ(count(r.out, "\nBO_ "), count(committed, "\nBO_ ")) << "the same messages, other IDs";
   EXPECT_EQ(count(r.out, "\n SG_ "), count(committed, "\n SG_ ")) << "the same signals";
+  EXPECT_GT(count(committed, "\nBO_ "), 10U);
+  EXPECT_TRUE(contains(r.out, "\nBA_ \"ProtocolNodeId\" 15;")) << "node 15's DBC says so";
+  EXPECT_TRUE(contains(committed, "\nBA_ \"ProtocolNodeId\" 0;"));
   r = run_process(kExe + " dbc --node 16");
   EXPECT_EQ(r.exit_code, 2) << "a bad command line";
   EXPECT_TRUE(contains(r.err, "--node")) << r.err;
   r = run_process(kExe + " dbc -o /tmp");
-  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_EQ(r.exit_code, 3);
   EXPECT_TRUE(contains(r.err, "dbc: '/tmp' is a directory")) << r.err;
   r = run_process(kExe + " dbc -o /nonexistent/axis2.dbc");
-  EXPECT_EQ(r.exit_code, 1);
-  EXPECT_TRUE(contains(r.err, "dbc: cannot create /nonexistent/axis2.dbc.tmp (No such file or directory)")) << r.err;
+  EXPECT_EQ(r.exit_code, 3);
+  EXPECT_TRUE(contains(r.err, "dbc: cannot create '/nonexistent/axis2.dbc' (No such file or directory)")) << r.err;
+  r = run_process(kExe + " dbc > /dev/full");
+  EXPECT_EQ(r.exit_code, 3);
+  EXPECT_TRUE(contains(r.err, "dbc: cannot write standard output (No space left on device)")) << r.err;
 }
 
 TEST(cli_decode, AMissingInputFileIsNamed) {

@@ -181,8 +181,12 @@ TEST(FieldWeakening, TakesAPulsesCurrentOverOnlyWhereItWeakensMore) {
   EXPECT_EQ(reg.id_A(), -6.0);
   reg.take_over(-25.0, 80.0);  // the configured bound
   EXPECT_EQ(reg.id_A(), -10.0);
-  reg.take_over(-25.0, 8.0);   // (the drive's current limit, tighter, would be the bound)
+  reg.take_over(-25.0, 8.0);   // never back: a tighter bound is step()'s to apply
   EXPECT_EQ(reg.id_A(), -10.0);
+  FieldWeakening fresh(fw);
+  fresh.set_machine(5.5e-3, 0.3239, 1e-4);
+  fresh.take_over(-25.0, 8.0);  // the drive's current limit, tighter than the configured bound
+  EXPECT_EQ(fresh.id_A(), -8.0);
   const double after = reg.step(200.0, 356.0, 1400.0, 80.0);  // far below the held voltage
   EXPECT_GT(after, -10.0);
   EXPECT_LE(after, 0.0);

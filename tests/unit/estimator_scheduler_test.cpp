@@ -1576,6 +1576,34 @@ TEST(InjectionScheduler, ReleasingTheMotoringPointAbortsThePair) {
   for (const PairResult& p : idle.pairs) EXPECT_NE(p.outcome, PairOutcome::kAborted);
 }
 
+// The motoring current that grows during a pair (the speed loop's answer to a step) never takes
+// the sum with the pulse past the current limit: crowded a little (here |i| would reach 80.6 A
+// of 80), the pulse is cut to fit and the pair goes on; crowded more, the pair ends at once.
+TEST(InjectionScheduler, APulseIsCutOrEndedToKeepTheCurrentLimit) {
+  const InjectionConfig c = test_config();  // F = 25 A, 80 A limit
+  auto run = [&](double iq_during_A) {
+    Harness h(c);
+    h.motoring_A = {0.0, 40.0};
+    std::vector<double> motoring_iq;  // each step's, as the hook leaves it
+    h.hook = [&](Harness& x) {
+      if (!x.records.empty() && x.records.back().out.phase == P::kRecord1) x.motoring_A.q = iq_during_A;
+      motoring_iq.push_back(x.motoring_A.q);
+    };
+    h.run_until(0.45);
+    double worst_A = 0.0;
+    for (std::size_t k = 0; k < h.records.size(); ++k) {
+      const Dq& inj = h.records[k].out.injection_A;
+      worst_A = std::max(worst_A, std::hypot(inj.d, motoring_iq[k] + inj.q));
+    }
+    EXPECT_LE(worst_A, c.current_limit_A + 1e-9) << "motoring iq " << iq_during_A << " A";
+    return h.pairs.empty() ? PairOutcome::kCount : h.pairs[0].outcome;
+  };
+  // sqrt(80^2 - 76^2) = 25.0 A of room: the full pulse fits; at 76.2 A it is cut by 5 %.
+  EXPECT_NE(run(76.2), PairOutcome::kAborted);
+  // At 79 A only 12.6 A of room: half the pulse, the pair ends.
+  EXPECT_EQ(run(79.0), PairOutcome::kAborted);
+}
+
 TEST(InjectionScheduler, LosingSpeedAbortsAnAngleBasedPair) {
   InjectionConfig c = test_config();
   Harness h(c);

@@ -6,13 +6,14 @@
 //   pmsm-thermal dbc --node 2 -o axis2.dbc
 //   candump can0 | pmsm-thermal decode --dbc axis2.dbc
 //
-// Exit status: 0; 1 when the file cannot be written (named, with the reason; an existing file
-// is replaced whole or left as it was); 2 for a bad command line (CLI11).
+// Exit status: 0; 2 for a bad command line (CLI11: a node outside 0..15, an empty file name);
+// 3 when the DBC could not be written (the file or standard output, named with the reason), as
+// `simulate` says of its outputs. The file is written in place, as a shell's `>` would: a
+// symbolic link is followed, a directory is refused.
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
-#include <fstream>
 #include <memory>
 #include <string>
 #include <system_error>
@@ -30,47 +31,36 @@ struct DbcOptions {
   std::string output;  // empty or "-": standard output
 };
 
-// Written beside the target and renamed over it: a reader never sees half a file, and a failed
-// write leaves the old one.
-std::string write_replacing(const std::filesystem::path& path, const std::string& text) {
-  std::filesystem::path temporary = path;
-  temporary += ".tmp";
-  {
-    std::ofstream out(temporary, std::ios::binary | std::ios::trunc);
-    if (!out) {
-      return std::string("cannot create ") + temporary.string() + " (" + std::strerror(errno) + ")";
-    }
-    out << text;
-    if (!out.flush()) {
-      std::error_code ignored;
-      std::filesystem::remove(temporary, ignored);
-      return std::string("cannot write ") + temporary.string() + " (" + std::strerror(errno) + ")";
-    }
-  }
-  std::error_code ec;
-  std::filesystem::rename(temporary, path, ec);
-  if (ec) {
-    std::error_code ignored;
-    std::filesystem::remove(temporary, ignored);
-    return "cannot replace " + path.string() + " (" + ec.message() + ")";
-  }
-  return {};
-}
+constexpr int kExitOutput = 3;
 
 int run_dbc(const DbcOptions& o) {
   const std::string text = hal::protocol::generate_dbc(static_cast<hal::protocol::NodeId>(o.node));
   if (o.output.empty() || o.output == "-") {
-    std::fputs(text.c_str(), stdout);
-    return std::fflush(stdout) == 0 ? 0 : 1;
+    errno = 0;
+    if (std::fputs(text.c_str(), stdout) < 0 || std::fflush(stdout) != 0 || std::ferror(stdout) != 0) {
+      std::fprintf(stderr, "dbc: cannot write standard output (%s)\n", std::strerror(errno != 0 ? errno : EIO));
+      return kExitOutput;
+    }
+    return 0;
   }
   std::error_code ec;
   if (std::filesystem::is_directory(o.output, ec)) {
     std::fprintf(stderr, "dbc: '%s' is a directory; name the file to write\n", o.output.c_str());
-    return 1;
+    return kExitOutput;
   }
-  if (const std::string problem = write_replacing(o.output, text); !problem.empty()) {
-    std::fprintf(stderr, "dbc: %s\n", problem.c_str());
-    return 1;
+  std::FILE* file = std::fopen(o.output.c_str(), "wb");
+  if (file == nullptr) {
+    std::fprintf(stderr, "dbc: cannot create '%s' (%s)\n", o.output.c_str(), std::strerror(errno));
+    return kExitOutput;
+  }
+  errno = 0;
+  const bool written = std::fputs(text.c_str(), file) >= 0 && std::fflush(file) == 0 && std::ferror(file) == 0;
+  const int write_errno = errno;
+  const bool closed = std::fclose(file) == 0;
+  if (!written || !closed) {
+    std::fprintf(stderr, "dbc: cannot write '%s' (%s)\n", o.output.c_str(),
+                 std::strerror(write_errno != 0 ? write_errno : (errno != 0 ? errno : EIO)));
+    return kExitOutput;
   }
   return 0;
 }
@@ -84,7 +74,7 @@ void register_dbc_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--node", options->node, "node id of the axis (the daemon's can.node)")
       ->check(CLI::Range(0, static_cast<int>(hal::protocol::kMaxNodeId)))
       ->capture_default_str();
-  cmd->add_option("-o,--output", options->output, "file to write (replaced whole); '-' or none: standard output")
+  cmd->add_option("-o,--output", options->output, "file to write; '-' or none: standard output")
       ->check(pmsm::cli::file_name());
   cmd->callback([options, &exit_code] { exit_code = run_dbc(*options); });
 }

@@ -470,7 +470,10 @@ class DriveController {
   void update_thermal(double ambient_C, bool speed_mode);
   [[nodiscard]] Dq motoring_reference(const DriveCommand& command);
   // One period of field weakening (when it is on); true while its d current is still moving.
-  bool weaken_field(bool sweeping, double omega_e_rad_s, bool& release_motoring);
+  bool weaken_field(bool levels_active, double omega_e_rad_s, bool& release_motoring);
+  void hand_pulse_over(Dq& motoring_A);
+  [[nodiscard]] bool field_weakened() const;  // the regulator is weakening the field now
+
 
   DriveConfig config_;
   double kt_dq_Nm_per_A_;

@@ -252,7 +252,9 @@ struct SchedulerInput {
   bool motoring_settling = false;
   // The field weakening a pair holds no longer keeps the motoring point's voltage inside the
   // current loop's reserve (the speed moved the EMF while the regulator was held): the pair
-  // ends now, aborted, its pulse handed to the regulator (DriveController::weaken_field).
+  // ends now, aborted, its pulse handed to the regulator (DriveController::weaken_field,
+  // hand_pulse_over). A pair also ends, by itself, where the motoring current and the pulse
+  // together would leave current_limit_A.
   bool release_motoring = false;
   // How fast the winding's resistance changes now, as the thermal model predicts it (ohm per
   // controller second): an event's pairs lie at different times, and their joint fit refers
@@ -536,6 +538,9 @@ class InjectionScheduler {
   // The q-current that keeps a salient machine's torque through a d-axis pulse, added to it
   // (where torque_neutral_pulses()).
   [[nodiscard]] Dq torque_neutral(Dq injection_A, const Dq& motoring_A) const;
+  // The largest share of a pulse cut to keep it and the motoring current within the current
+  // limit before the pair ends instead (step()).
+  static constexpr double kMaxCut = 0.1;
   // A machine configured as salient (a torque budget) with injection.torque_neutral.
   [[nodiscard]] bool torque_neutral_pulses() const {
     return config_.torque_neutral && config_.max_torque_disturbance_Nm > 0.0;

@@ -76,6 +76,11 @@ class InverterSweep {
 
   void start(const InverterSweepConfig& config, double period_s);
   void abort();
+  // Started, before its first step (its first level not yet applied).
+  [[nodiscard]] bool starting() const { return stage_ == Stage::kSettle && level_ == 0 && elapsed_s_ == 0.0; }
+  // A sweep that is not to run: its outcome without levels (kVoltageLimited: the drive in
+  // field weakening).
+  void refuse(InverterSweepOutcome outcome);
   [[nodiscard]] bool active() const { return stage_ != Stage::kIdle; }
   // The d-axis current to add to the motoring reference this period (0 when not active).
   [[nodiscard]] double id_ref_A() const;
