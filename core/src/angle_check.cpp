@@ -41,7 +41,7 @@ void AngleCheck::abort() {
   }
 }
 
-void AngleCheck::refuse(AngleCheckOutcome outcome) {
+void AngleCheck::stop(AngleCheckOutcome outcome) {
   result_ = {};
   finish(outcome);
 }

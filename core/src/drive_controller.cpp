@@ -306,6 +306,19 @@ bool DriveController::field_weakened() const {
   return field_weakening_.enabled() && field_weakening_.id_A() < 0.0;
 }
 
+bool DriveController::held_on_voltage_limit() const {
+  // The current loop's command has been on the voltage limit for kHeldOnLimit_s in a row. A
+  // positive d level (a pair's +F, the angle check's +L, a sweep's level) raises the machine's
+  // voltage by w Ld F: held there, the loop keeps its d current (the d axis has the voltage
+  // first) and loses the q current. On round 5's 15 mH fan at 175 rad/s, below its
+  // field-weakening speed, the bus sagging from 540 to 400 V in 20 ms while a +14.5 A level was
+  // on, iq went from +2.7 to -33 A in 20 ms and the bridge tripped at 45 A (docs/estimator.md
+  // section 2). A level's own step puts the loop on the limit for a few periods (the angle
+  // check's at 60 rad/s on the reference); 2 ms of it is no step's, and a tenth of the time that
+  // fan took from the limit to the trip.
+  return static_cast<double>(limited_periods_) * config_.period_s >= kHeldOnLimit_s;
+}
+
 void DriveController::start_calibration_sweep(double now_s) {
   sweep_restart_.reset();
   if (config_.inverter_sweep.enabled) {
@@ -1283,9 +1296,10 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   // calibrating at 600 rad/s tripped 5 ms into the angle check's first level
   // (docs/estimator.md section 6.1). There each ends before its first level as voltage-limited,
   // as it would have at it; the calibration's events then wait for headroom, as at the voltage
-  // limit, and its timeout says so.
-  if (check_.starting() && field_weakened()) {
-    check_.refuse(AngleCheckOutcome::kVoltageLimited);
+  // limit, and its timeout says so. A positive level held on the voltage limit ends too, at any
+  // speed (held_on_voltage_limit).
+  if ((check_.starting() && field_weakened()) || (check_.id_ref_A() > 0.0 && held_on_voltage_limit())) {
+    check_.stop(AngleCheckOutcome::kVoltageLimited);
     finish_angle_check();
   }
   if (check_.active() &&
@@ -1310,8 +1324,8 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
       sweep_.start(config_.inverter_sweep, config_.period_s);
     }
   }
-  if (sweep_.starting() && field_weakened()) {  // (as the check's, above)
-    sweep_.refuse(InverterSweepOutcome::kVoltageLimited);
+  if ((sweep_.starting() && field_weakened()) || (sweep_.id_ref_A() > 0.0 && held_on_voltage_limit())) {  // (as the check's)
+    sweep_.stop(InverterSweepOutcome::kVoltageLimited);
     finish_inverter_sweep(now);
   }
 
@@ -1444,7 +1458,8 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   si.voltage_limit_V = current_.voltage_limit_V(in.vdc_V);
   si.current_limit_A = injection_current_limit_A_;
   si.motoring_settling = motoring_settling;
-  si.release_motoring = release_motoring;
+  // A positive pulse held on the voltage limit ends too, field weakening or not.
+  si.release_motoring = release_motoring || (telemetry_.injection_A.d > 0.0 && held_on_voltage_limit());
   si.rs_rate_ohm_per_s = rs_rate_ohm_per_s_;  // finite (update_thermal)
   si.bus_offset_V = bus_offset_V;
   si.enabled = enabled && config_.estimator == EstimatorKind::kInjection && !sweeping && !after_lost;
@@ -1518,6 +1533,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   // Shift the command history: what was "next" is applied during the coming period.
   v_applied_now_ab_ = v_applied_next_ab_;
   limited_now_ = limited_next_;
+  limited_periods_ = limited_now_ ? limited_periods_ + 1 : 0;
   v_applied_next_ab_ = v_total;
   limited_next_ = limited;
   voltage_limited_since_speed_step_ = voltage_limited_since_speed_step_ || limited;

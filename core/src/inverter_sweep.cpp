@@ -42,7 +42,7 @@ void InverterSweep::start(const InverterSweepConfig& config, double period_s) {
   }
 }
 
-void InverterSweep::refuse(InverterSweepOutcome outcome) {
+void InverterSweep::stop(InverterSweepOutcome outcome) {
   stage_ = Stage::kIdle;
   result_ = {};
   result_.outcome = outcome;

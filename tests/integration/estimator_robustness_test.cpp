@@ -259,6 +259,25 @@ TEST(EstimatorRobustness, NoCommissioningLevelRunsInFieldWeakening) {
   }
 }
 
+// A positive d level (a pair's +F, the angle check's +L) raises the machine's voltage; a bus that
+// sags while it is on can leave the loop unable to hold it, below the field-weakening speed too.
+// Held there, the loop keeps its d current and loses the q current: on round 5's fan the bridge
+// tripped 37-40 ms after the sag began (seeds 1-3, in a pair and in the calibration's check). A
+// positive level held on the voltage limit for 2 ms now ends: the pair aborted, the check
+// voltage-limited.
+TEST(EstimatorRobustness, APositiveLevelHeldOnTheVoltageLimitEnds) {
+  for (const SimulationResult& r : run_data_seeds("fan-bus-sag-during-a-pulse.toml", {1U, 2U, 3U})) {
+    const SimulationResult::FaultSeen* first = r.first_fault();
+    EXPECT_EQ(first, nullptr) << core::to_string(r.fault_code(*first)) << " at " << first->first_s << " s";
+    EXPECT_GT(r.pairs[static_cast<std::size_t>(core::PairOutcome::kAccepted)], 5U);
+  }
+  for (const SimulationResult& r : run_data_seeds("fan-bus-sag-during-the-angle-check.toml", {1U, 2U, 3U})) {
+    const SimulationResult::FaultSeen* first = r.first_fault();
+    EXPECT_EQ(first, nullptr) << core::to_string(r.fault_code(*first)) << " at " << first->first_s << " s";
+    EXPECT_EQ(r.angle_check.outcome, core::AngleCheckOutcome::kVoltageLimited);
+  }
+}
+
 // A field-weakening event dates its Rs some 3 recordings' spacings after its second recording.
 // The drive holds it until the filter's clock reaches that time, and the filter compares it
 // with the line through its own trajectory that the pairs extrapolate along

@@ -98,10 +98,10 @@ class AngleCheck {
   void abort();
   // Started, before its first step (its first level not yet applied).
   [[nodiscard]] bool starting() const { return stage_ == Stage::kSettle && level_ == 0 && elapsed_s_ == 0.0; }
-  // A check that is not to run: its outcome without levels (kVoltageLimited: the drive in
-  // field weakening, where a level on top of the held d current would hand the machine to its
-  // EMF).
-  void refuse(AngleCheckOutcome outcome);
+  // Ends the check now with this outcome, before or during its levels (kVoltageLimited: the
+  // drive in field weakening, where a level on top of the held d current would hand the machine
+  // to its EMF, or a level's command held on the voltage limit).
+  void stop(AngleCheckOutcome outcome);
   // Running: its levels, its solves, or the wait at zero d current after its outcome.
   [[nodiscard]] bool active() const { return stage_ != Stage::kIdle; }
   // Its outcome is decided (result() holds it) and it only waits for the drive to settle.

@@ -473,6 +473,8 @@ class DriveController {
   bool weaken_field(bool levels_active, double omega_e_rad_s, bool& release_motoring);
   void hand_pulse_over(Dq& motoring_A);
   [[nodiscard]] bool field_weakened() const;  // the regulator is weakening the field now
+  [[nodiscard]] bool held_on_voltage_limit() const;
+  static constexpr double kHeldOnLimit_s = 2e-3;
 
 
   DriveConfig config_;
@@ -612,6 +614,7 @@ class DriveController {
   AlphaBeta v_applied_now_ab_{};    // command of step k-2 (applied during period k-1 -> k)
   bool limited_next_ = false;
   bool limited_now_ = false;
+  std::uint32_t limited_periods_ = 0;  // periods in a row whose command was limited
   // Thermal accumulation.
   double i_sq_sum_ = 0.0;
   double speed_sum_ = 0.0;

@@ -78,9 +78,9 @@ class InverterSweep {
   void abort();
   // Started, before its first step (its first level not yet applied).
   [[nodiscard]] bool starting() const { return stage_ == Stage::kSettle && level_ == 0 && elapsed_s_ == 0.0; }
-  // A sweep that is not to run: its outcome without levels (kVoltageLimited: the drive in
-  // field weakening).
-  void refuse(InverterSweepOutcome outcome);
+  // Ends the sweep now with this outcome, before or during its levels (kVoltageLimited: the
+  // drive in field weakening, or a level's command held on the voltage limit).
+  void stop(InverterSweepOutcome outcome);
   [[nodiscard]] bool active() const { return stage_ != Stage::kIdle; }
   // The d-axis current to add to the motoring reference this period (0 when not active).
   [[nodiscard]] double id_ref_A() const;
