@@ -98,6 +98,7 @@ DriveController::DriveController(const DriveConfig& config)
   constexpr double kMotoringVoltageFilter_s = 0.02;
   motoring_voltage_gain_ = std::min(config_.period_s / kMotoringVoltageFilter_s, 1.0);
   motoring_voltage_settle_periods_ = static_cast<std::uint32_t>(std::ceil(3.0 / motoring_voltage_gain_));
+  held_on_limit_periods_ = static_cast<std::uint32_t>(std::max(1.0, std::ceil(kHeldOnLimit_s / config_.period_s - 1e-9)));
   if (config_.vx_reference_bus_V > 0.0 && std::isfinite(config_.vx_reference_bus_V)) {
     vx_bus_slope_ = config_.dead_time.dead_time_s / config_.period_s;
     vx_referred_to_bus_ = true;
@@ -306,18 +307,6 @@ bool DriveController::field_weakened() const {
   return field_weakening_.enabled() && field_weakening_.id_A() < 0.0;
 }
 
-bool DriveController::held_on_voltage_limit() const {
-  // The current loop's command has been on the voltage limit for kHeldOnLimit_s in a row. A
-  // positive d level (a pair's +F, the angle check's +L, a sweep's level) raises the machine's
-  // voltage by w Ld F: held there, the loop keeps its d current (the d axis has the voltage
-  // first) and loses the q current. On round 5's 15 mH fan at 175 rad/s, below its
-  // field-weakening speed, the bus sagging from 540 to 400 V in 20 ms while a +14.5 A level was
-  // on, iq went from +2.7 to -33 A in 20 ms and the bridge tripped at 45 A (docs/estimator.md
-  // section 2). A level's own step puts the loop on the limit for a few periods (the angle
-  // check's at 60 rad/s on the reference); 2 ms of it is no step's, and a tenth of the time that
-  // fan took from the limit to the trip.
-  return static_cast<double>(limited_periods_) * config_.period_s >= kHeldOnLimit_s;
-}
 
 void DriveController::start_calibration_sweep(double now_s) {
   sweep_restart_.reset();
@@ -1298,7 +1287,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   // as it would have at it; the calibration's events then wait for headroom, as at the voltage
   // limit, and its timeout says so. A positive level held on the voltage limit ends too, at any
   // speed (held_on_voltage_limit).
-  if ((check_.starting() && field_weakened()) || (check_.id_ref_A() > 0.0 && held_on_voltage_limit())) {
+  if ((check_.starting() && field_weakened()) || (held_on_voltage_limit() && check_.id_ref_A() > 0.0)) {
     check_.stop(AngleCheckOutcome::kVoltageLimited);
     finish_angle_check();
   }
@@ -1324,7 +1313,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
       sweep_.start(config_.inverter_sweep, config_.period_s);
     }
   }
-  if ((sweep_.starting() && field_weakened()) || (sweep_.id_ref_A() > 0.0 && held_on_voltage_limit())) {  // (as the check's)
+  if ((sweep_.starting() && field_weakened()) || (held_on_voltage_limit() && sweep_.id_ref_A() > 0.0)) {  // (as the check's)
     sweep_.stop(InverterSweepOutcome::kVoltageLimited);
     finish_inverter_sweep(now);
   }
@@ -1459,7 +1448,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   si.current_limit_A = injection_current_limit_A_;
   si.motoring_settling = motoring_settling;
   // A positive pulse held on the voltage limit ends too, field weakening or not.
-  si.release_motoring = release_motoring || (telemetry_.injection_A.d > 0.0 && held_on_voltage_limit());
+  si.release_motoring = release_motoring || (held_on_voltage_limit() && telemetry_.injection_A.d > 0.0);
   si.rs_rate_ohm_per_s = rs_rate_ohm_per_s_;  // finite (update_thermal)
   si.bus_offset_V = bus_offset_V;
   si.enabled = enabled && config_.estimator == EstimatorKind::kInjection && !sweeping && !after_lost;

@@ -473,7 +473,7 @@ class DriveController {
   bool weaken_field(bool levels_active, double omega_e_rad_s, bool& release_motoring);
   void hand_pulse_over(Dq& motoring_A);
   [[nodiscard]] bool field_weakened() const;  // the regulator is weakening the field now
-  [[nodiscard]] bool held_on_voltage_limit() const;
+  [[nodiscard]] bool held_on_voltage_limit() const { return limited_periods_ >= held_on_limit_periods_; }
   static constexpr double kHeldOnLimit_s = 2e-3;
 
 
@@ -614,7 +614,18 @@ class DriveController {
   AlphaBeta v_applied_now_ab_{};    // command of step k-2 (applied during period k-1 -> k)
   bool limited_next_ = false;
   bool limited_now_ = false;
-  std::uint32_t limited_periods_ = 0;  // periods in a row whose command was limited
+  // Periods in a row whose command was limited, and how many make kHeldOnLimit_s
+  // (held_on_voltage_limit: the current loop's command on the voltage limit that long). A
+  // positive d level (a pair's +F, the angle check's +L, a sweep's level) raises the machine's
+  // voltage by w Ld F: held there, the loop keeps its d current (the d axis has the voltage
+  // first) and loses the q current. On round 5's 15 mH fan at 175 rad/s, below its
+  // field-weakening speed, the bus sagging from 540 to 400 V in 20 ms while a +14.5 A level was
+  // on, iq went from +2.7 to -33 A in 20 ms and the bridge tripped at 45 A (docs/estimator.md
+  // section 2). A level's own step puts the loop on the limit for a few periods (the angle
+  // check's at 60 rad/s on the reference); 2 ms of it is no step's, and a tenth of the time that
+  // fan took from the limit to the trip.
+  std::uint32_t limited_periods_ = 0;
+  std::uint32_t held_on_limit_periods_ = 1;
   // Thermal accumulation.
   double i_sq_sum_ = 0.0;
   double speed_sum_ = 0.0;
