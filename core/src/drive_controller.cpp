@@ -307,7 +307,6 @@ bool DriveController::field_weakened() const {
   return field_weakening_.enabled() && field_weakening_.id_A() < 0.0;
 }
 
-
 void DriveController::start_calibration_sweep(double now_s) {
   sweep_restart_.reset();
   if (config_.inverter_sweep.enabled) {
@@ -558,8 +557,9 @@ bool DriveController::configure_injection(InjectionMethod method, Separation sep
   // voltage lags its speed, and field weakening's d current, by the filter's 20 ms:
   // weaken_field's watch takes the change from these).
   motoring_omega_mean_rad_s_ += gain * (omega_e_rad_s - motoring_omega_mean_rad_s_);
-  motoring_current_mean_A_.d += gain * (telemetry_.i_ref_A.d - telemetry_.injection_A.d - motoring_current_mean_A_.d);
-  motoring_current_mean_A_.q += gain * (telemetry_.i_ref_A.q - telemetry_.injection_A.q - motoring_current_mean_A_.q);
+  const Dq motoring_A = last_motoring_current_A();
+  motoring_current_mean_A_.d += gain * (motoring_A.d - motoring_current_mean_A_.d);
+  motoring_current_mean_A_.q += gain * (motoring_A.q - motoring_current_mean_A_.q);
   // Known once the filter has seen three of its time constants.
   if (motoring_voltage_periods_ >= motoring_voltage_settle_periods_) {
     scheduler_.set_motoring_voltage(now_s, m, motoring_voltage_mean_sq_V2_);
@@ -571,8 +571,6 @@ bool DriveController::configure_injection(InjectionMethod method, Separation sep
 [[gnu::noinline]] bool DriveController::weaken_field(bool levels_active, double omega_e_rad_s,
                                                      bool& release_motoring) {
   const double limit_V = current_.status().voltage_limit_V;
-  // Last period's motoring current: its reference less the pulse (both zero while disabled).
-  const Dq motoring_A{telemetry_.i_ref_A.d - telemetry_.injection_A.d, telemetry_.i_ref_A.q - telemetry_.injection_A.q};
   if (scheduler_.phase() == SchedulerPhase::kIdle) {
     // Held while the sweep's or the angle check's levels run (their separations take the
     // motoring point as still; neither runs in field weakening: step() refuses them), not
@@ -608,6 +606,7 @@ bool DriveController::configure_injection(InjectionMethod method, Separation sep
       const double rs = config_.current.rs_ohm;
       const double psi = config_.current.flux_linkage_Wb;
       const double id = field_weakening_.id_A();
+      const Dq motoring_A = last_motoring_current_A();
       const double vd = w0.v_V.d + rs * (id - w0.i_A.d) - lq * (omega_e_rad_s * motoring_A.q - w0.omega_e_rad_s * w0.i_A.q);
       const double vq = w0.v_V.q + omega_e_rad_s * (psi + ld * id) - w0.omega_e_rad_s * (psi + ld * w0.i_A.d) +
                         rs * (motoring_A.q - w0.i_A.q);
@@ -620,8 +619,7 @@ bool DriveController::configure_injection(InjectionMethod method, Separation sep
   }
   // In field weakening no pair starts before the watch can arm (the motoring voltage tracked for
   // three of its filter's time constants since the drive was enabled or a sweep ended).
-  return !field_weakening_.settled() ||
-         (field_weakening_.id_A() < 0.0 && motoring_voltage_periods_ < motoring_voltage_settle_periods_);
+  return !field_weakening_.settled() || (field_weakened() && motoring_voltage_periods_ < motoring_voltage_settle_periods_);
 }
 
 [[gnu::noinline]] void DriveController::hand_pulse_over(Dq& motoring_A) {

@@ -50,9 +50,7 @@ void InverterSweep::stop(InverterSweepOutcome outcome) {
 
 void InverterSweep::abort() {
   if (active()) {
-    stage_ = Stage::kIdle;
-    result_ = {};
-    result_.outcome = InverterSweepOutcome::kAborted;
+    stop(InverterSweepOutcome::kAborted);
   }
 }
 

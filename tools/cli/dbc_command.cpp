@@ -35,31 +35,27 @@ constexpr int kExitOutput = 3;
 
 int run_dbc(const DbcOptions& o) {
   const std::string text = hal::protocol::generate_dbc(static_cast<hal::protocol::NodeId>(o.node));
-  if (o.output.empty() || o.output == "-") {
-    errno = 0;
-    if (std::fputs(text.c_str(), stdout) < 0 || std::fflush(stdout) != 0 || std::ferror(stdout) != 0) {
-      std::fprintf(stderr, "dbc: cannot write standard output (%s)\n", std::strerror(errno != 0 ? errno : EIO));
-      return kExitOutput;
-    }
-    return 0;
-  }
+  const bool to_stdout = o.output.empty() || o.output == "-";
+  const std::string name = to_stdout ? std::string("standard output") : "'" + o.output + "'";
   std::error_code ec;
-  if (std::filesystem::is_directory(o.output, ec)) {
-    std::fprintf(stderr, "dbc: '%s' is a directory; name the file to write\n", o.output.c_str());
+  if (!to_stdout && std::filesystem::is_directory(o.output, ec)) {
+    std::fprintf(stderr, "dbc: %s is a directory; name the file to write\n", name.c_str());
     return kExitOutput;
   }
-  std::FILE* file = std::fopen(o.output.c_str(), "wb");
+  std::FILE* file = to_stdout ? stdout : std::fopen(o.output.c_str(), "wb");
   if (file == nullptr) {
-    std::fprintf(stderr, "dbc: cannot create '%s' (%s)\n", o.output.c_str(), std::strerror(errno));
+    std::fprintf(stderr, "dbc: cannot create %s (%s)\n", name.c_str(), std::strerror(errno));
     return kExitOutput;
   }
   errno = 0;
-  const bool written = std::fputs(text.c_str(), file) >= 0 && std::fflush(file) == 0 && std::ferror(file) == 0;
-  const int write_errno = errno;
-  const bool closed = std::fclose(file) == 0;
-  if (!written || !closed) {
-    std::fprintf(stderr, "dbc: cannot write '%s' (%s)\n", o.output.c_str(),
-                 std::strerror(write_errno != 0 ? write_errno : (errno != 0 ? errno : EIO)));
+  bool ok = std::fputs(text.c_str(), file) >= 0 && std::fflush(file) == 0 && std::ferror(file) == 0;
+  int error = errno;
+  if (!to_stdout && std::fclose(file) != 0) {
+    ok = false;
+    error = error != 0 ? error : errno;
+  }
+  if (!ok) {
+    std::fprintf(stderr, "dbc: cannot write %s (%s)\n", name.c_str(), std::strerror(error != 0 ? error : EIO));
     return kExitOutput;
   }
   return 0;

@@ -475,7 +475,10 @@ class DriveController {
   [[nodiscard]] bool field_weakened() const;  // the regulator is weakening the field now
   [[nodiscard]] bool held_on_voltage_limit() const { return limited_periods_ >= held_on_limit_periods_; }
   static constexpr double kHeldOnLimit_s = 2e-3;
-
+  // Last period's motoring current: its reference less the pulse (both zero while disabled).
+  [[nodiscard]] Dq last_motoring_current_A() const {
+    return {telemetry_.i_ref_A.d - telemetry_.injection_A.d, telemetry_.i_ref_A.q - telemetry_.injection_A.q};
+  }
 
   DriveConfig config_;
   double kt_dq_Nm_per_A_;
