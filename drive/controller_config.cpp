@@ -352,6 +352,11 @@ ConfigSchema<C> build() {
   s.real("calibration.rs0_ohm", [](C& c) -> double& { return c.drive.calibration.rs0_ohm; }, positive(common::kMaxStatorResistance_ohm), "ohm",
          "Rs0 of a stored calibration (defaults to motor.rs_ohm).");
   s.real("calibration.t0_C", [](C& c) -> double& { return c.drive.calibration.t0_C; }, between(-50, 200), "C", "T0 of that calibration.");
+  s.real("calibration.rs0_std_fraction", [](C& c) -> double& { return c.drive.calibration.rs0_std_fraction; }, between(0, 0.5), "",
+         "The relative standard uncertainty of that Rs0 while no calibration run has measured it (a data sheet's +-10 % "
+         "tolerance is about 0.05; a four-wire measurement at a known temperature about 0.005): every estimate shares its "
+         "error, so it widens the band, and the derating's T + k sigma, by (234.5 + T) times it for copper, until a "
+         "calibration replaces it (docs/estimator.md section 6).");
   s.real("calibration.ke0_V_s_per_rad", [](C& c) -> double& { return c.drive.calibration.ke0_V_s_per_rad; }, at_least(0, 100), "V s/rad",
          "Eq. 3's Ke at T0 (0: not calibrated; no magnet temperature): phase-peak volts per mechanical rad/s, psi p, "
          "which is motor.ke_V_s_per_rad (line-to-line RMS) x sqrt(2/3) for the same machine.");

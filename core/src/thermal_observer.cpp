@@ -71,6 +71,8 @@ ThermalState ThermalObserver::state() const {
 }
 
 void ThermalObserver::restore(const ThermalState& state, double downtime_thermal_s, double ambient_C) {
+  // A stored state holds what the run before learned through the same Rs0.
+  holds_uncalibrated_ = !calibration_.calibrated;
   // The two-node network without losses relaxes towards the ambient: x(t) = Ta + e^{A t} (x0 - Ta),
   // e^{A t} by scaling and squaring of a Taylor step (A's time constants are far above t / 2^n).
   Eigen::Matrix2d a;
@@ -373,6 +375,7 @@ bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm, double
   shared_error_C_ = k(0) * (std::isfinite(systematic_C) ? systematic_C : 0.0) + (1.0 - k(0)) * shared_error_C_;
   since_measurement_s_ = 0.0;
   anchor_C_ = x_(0);
+  holds_uncalibrated_ = holds_uncalibrated_ || !calibration_.calibrated;
   // The state jumped: the kept trajectory moves with it, so that a later measurement whose
   // time lies before the jump (a held one's recordings, DriveController::hold_estimate) is
   // carried to now by the change the model predicted since then, not by the change since the
@@ -400,9 +403,20 @@ bool ThermalObserver::reanchor_consistent(double z, double r) const {
   return var <= 9.0 * own && std::abs(z - mean) <= 3.0 * std::sqrt(own + r);
 }
 
+double ThermalObserver::uncalibrated_rs0_std_C() const {
+  // Eq. 1 referred to T0: T = (K + T0) Rs / Rs0 - K, so dT/dRs0 = -(K + T) / Rs0.
+  if (calibration_.calibrated || !holds_uncalibrated_) {
+    return 0.0;
+  }
+  const double s = (config_.conductor_inferred_zero_C + x_(0)) * calibration_.rs0_std_fraction;
+  return std::isfinite(s) ? std::abs(s) : 0.0;
+}
+
 ThermalEstimate ThermalObserver::estimate() const {
+  const double rs0_C = uncalibrated_rs0_std_C();
   return {x_(0),
-          std::sqrt(std::max(p_(0, 0), 0.0) + drift_std_C_ * drift_std_C_ + shared_error_C_ * shared_error_C_),
+          std::sqrt(std::max(p_(0, 0), 0.0) + drift_std_C_ * drift_std_C_ + shared_error_C_ * shared_error_C_ +
+                    rs0_C * rs0_C),
           x_(1), x_(2) + x_(3) * last_copper_loss_W_, x_(2), x_(3), std::sqrt(std::max(p_(3, 3), 0.0)),
           since_measurement_s_};
 }

@@ -170,6 +170,46 @@ TEST(ThermalObserver, ASharedErrorWidensTheBandButNotTheGain) {
   EXPECT_LT(excess(), 0.7 * before);
 }
 
+// An Rs0 no calibration measured (the nameplate's) puts the same error into every measurement
+// through Eq. 1, so averaging cannot take it out of the band: its share, dT/dRs0 times its
+// uncertainty, (K + T) rs0_std_fraction for copper, stays in the band from the first fused
+// measurement until a calibration replaces the Rs0. Before any measurement the model's
+// temperatures do not rest on Rs0. Without it, a drive whose calibration timed out under load
+// read 6 C low on a nameplate Rs0 3 % high with the truth outside its band half of the time
+// (docs/estimator.md section 6, "An uncalibrated Rs0").
+TEST(ThermalObserver, AnUncalibratedRs0StaysInTheBand) {
+  ThermalModelConfig c;
+  Calibration nameplate;  // 0.133 ohm at 25 C, not calibrated
+  nameplate.rs0_std_fraction = kNameplateRs0StdFraction;
+  Calibration exact = nameplate;
+  exact.rs0_std_fraction = 0.0;
+  ThermalObserver obs(c, nameplate, 40.0);
+  ThermalObserver plain(c, exact, 40.0);
+  EXPECT_EQ(obs.uncalibrated_rs0_std_C(), 0.0);
+  EXPECT_NEAR(obs.estimate().winding_std_C, plain.estimate().winding_std_C, 1e-12);
+  const double rs = obs.resistance_at_C(45.0);
+  for (int k = 0; k < 400; ++k) {
+    ASSERT_TRUE(obs.update_resistance(rs, 0.0005));
+    ASSERT_TRUE(plain.update_resistance(rs, 0.0005));
+  }
+  // The same gain: the estimates agree; only the band differs, by the Rs0 term in quadrature.
+  const ThermalEstimate e = obs.estimate();
+  const ThermalEstimate p = plain.estimate();
+  EXPECT_NEAR(e.winding_C, p.winding_C, 1e-12);
+  const double term = (c.conductor_inferred_zero_C + e.winding_C) * kNameplateRs0StdFraction;
+  EXPECT_NEAR(obs.uncalibrated_rs0_std_C(), term, 1e-9);
+  EXPECT_NEAR(term, 14.0, 0.1);  // at 45 C: (234.5 + 45) x 5 %
+  EXPECT_NEAR(e.winding_std_C, std::hypot(p.winding_std_C, term), 1e-9);
+  EXPECT_LT(p.winding_std_C, 1.0);  // the measurements alone were averaged down
+  // A calibration replaces it.
+  Calibration measured = exact;
+  measured.calibrated = true;
+  measured.rs0_std_fraction = kNameplateRs0StdFraction;  // ignored once calibrated
+  obs.set_calibration(measured);
+  EXPECT_EQ(obs.uncalibrated_rs0_std_C(), 0.0);
+  EXPECT_NEAR(obs.estimate().winding_std_C, p.winding_std_C, 1e-9);
+}
+
 TEST(ThermalObserver, AfterPredictionAMeasurementAlsoMovesTheCorrelatedStates) {
   ThermalModelConfig c;
   ThermalObserver obs(c, Calibration{}, 40.0);

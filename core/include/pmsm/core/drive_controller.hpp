@@ -86,7 +86,7 @@ struct DriveConfig {
   BaselineConfig baseline{};
   double baseline_publish_s = 1.0;   // how often the no-injection estimate is fused
   ThermalModelConfig thermal{};
-  Calibration calibration{};
+  Calibration calibration{.rs0_std_fraction = kNameplateRs0StdFraction};
   DeratingConfig derating{};
   double thermal_update_s = 0.01;    // thermal model / filter period
   double magnet_coefficient_per_C = -0.0012;  // NdFeB remanence (flux) temperature coefficient

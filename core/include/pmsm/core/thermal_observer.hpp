@@ -84,6 +84,9 @@ struct ThermalState {
   double loss_correlation = 0.0;  // of dP and k (at one load the filter learns a combination of dP and k Pcu)
 };
 
+// A data sheet's resistance, +-10 % read as two standard deviations.
+inline constexpr double kNameplateRs0StdFraction = 0.05;
+
 struct Calibration {
   double rs0_ohm = 0.133;       // winding resistance at t0_C
   double t0_C = 25.0;
@@ -93,6 +96,13 @@ struct Calibration {
   // kUnknownKe0StdFraction of Ke0.
   double ke0_std_V_s_per_rad = 0.0;
   bool calibrated = false;      // from a calibration run rather than the nameplate
+  // The relative standard uncertainty of an Rs0 no calibration run measured (calibrated false:
+  // the nameplate's, or one entered by hand): every measurement through Eq. 1 shares its error,
+  // so no number of them averages it away. It widens the reported band, (K + T) times it
+  // (dT/dRs0 of Eq. 1 referred to T0), once the filter holds a measurement made with it; a
+  // calibration run replaces it (0: a calibrated Rs0's own error is shared by the running
+  // estimates, which the ratio of Eq. 1 cancels in part, docs/accuracy.md).
+  double rs0_std_fraction = 0.0;
   // The bridge's zero-current band from the calibration's sweep (inverter_sweep.hpp); 0 when
   // the calibration did not measure it (control.dead_time_band_A then holds).
   double dead_time_band_A = 0.0;
@@ -198,6 +208,8 @@ class ThermalObserver {
   [[nodiscard]] const Calibration& calibration() const { return calibration_; }
 
   [[nodiscard]] ThermalEstimate estimate() const;
+  // The band's share from an uncalibrated Rs0 (Calibration::rs0_std_fraction), 1 sigma, C.
+  [[nodiscard]] double uncalibrated_rs0_std_C() const;
   // The winding's rate of change over the last predict() (C per controller second).
   [[nodiscard]] double winding_rate_C_per_s() const { return winding_rate_C_per_s_; }
   [[nodiscard]] double temperature_from_resistance_C(double rs_ohm) const;
@@ -232,6 +244,7 @@ class ThermalObserver {
   double drift_std_C_ = 0.0;  // the model's error since then (model_error_fraction, at rest)
   double rest_drift_C_ = 0.0; // its part from the spells at rest (downtime_error_fraction)
   bool anchored_ = true;      // a measurement or a known temperature holds the state
+  bool holds_uncalibrated_ = false;  // a measurement through an uncalibrated Rs0 is in the state
   int gated_in_row_ = 0;      // measurements gated out since the last fused one
   double gated_sum_C_ = 0.0, gated_sq_sum_C2_ = 0.0, gated_r_sum_C2_ = 0.0;  // of those
   static constexpr int kReanchorAfterGated = 5;
