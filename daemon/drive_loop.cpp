@@ -226,6 +226,17 @@ void DriveLoop::on_frame(const hal::CanFrame& frame, std::int64_t now_ns) noexce
       send_answer(frame_, now_ns);
       return;
     }
+    if (last_sequence_ && !sample_missed_ && sample->sequence >= missing_periods_ &&
+        sample->sequence - *last_sequence_ >= 0x80000000U) {
+      // Older than the last sample used (the difference wraps to the upper half of the count)
+      // and not a count that restarted from zero: a second power stage on this node's
+      // identifiers, a replaying gateway, a frame held up somewhere. Stepping it would move
+      // the drive's clocks by a wrapped gap (before: an outage of a sample timeout per frame,
+      // the speed read as 0 while the shaft turned) and answering it would command a period
+      // that is gone: dropped, counted, logged once a second (Publisher::report).
+      counters_.stale_samples.bump();
+      return;
+    }
     counters_.samples.bump();
     // Sequence numbers skipped since the last sample (lost on the bus, the power stage running on
     // at its own pace) while no sample timeout fired: this sample stands for the periods since
@@ -468,6 +479,7 @@ LoopStats DriveLoop::stats() const noexcept {
   s.resent_samples = c.resent_samples.get();
   s.missing_samples = c.missing_samples.get();
   s.skipped_samples = c.skipped_samples.get();
+  s.stale_samples = c.stale_samples.get();
   s.commands_sent = c.commands_sent.get();
   for (std::size_t k = 0; k < s.commands_accepted.size(); ++k) {
     s.commands_accepted[k] = c.commands_accepted[k].get();

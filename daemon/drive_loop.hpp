@@ -80,6 +80,7 @@ struct LoopStats {
   std::uint64_t resent_samples = 0;      // the same sequence again: answered, not stepped
   std::uint64_t missing_samples = 0;     // deadlines without a sample
   std::uint64_t skipped_samples = 0;     // sequence numbers skipped (lost on the bus) within a sample timeout
+  std::uint64_t stale_samples = 0;       // older than the last sample used (not a restarted count): dropped
   std::uint64_t commands_sent = 0;       // INVERTER_COMMAND frames
   std::array<std::uint64_t, 3> commands_accepted{};  // drive, injection, calibration
   std::array<std::uint64_t, hal::protocol::kDecodeStatusCount> rejected{};  // by DecodeStatus
@@ -214,7 +215,7 @@ class DriveLoop {
   std::atomic<bool> gates_enabled_{false};
 
   struct Counters {
-    hal::SingleWriterCounter periods, samples, resent_samples, missing_samples, skipped_samples, commands_sent;
+    hal::SingleWriterCounter periods, samples, resent_samples, missing_samples, skipped_samples, stale_samples, commands_sent;
     std::array<hal::SingleWriterCounter, 3> commands_accepted;
     std::array<hal::SingleWriterCounter, hal::protocol::kDecodeStatusCount> rejected;
     hal::SingleWriterCounter tx_dropped, tx_failures, rx_errors, publications_dropped, deadline_misses;

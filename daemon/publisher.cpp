@@ -434,6 +434,11 @@ void Publisher::report() {
   if (const std::string text = rejected_text(s, p); !text.empty()) {
     spdlog::warn("rejected frames since the last report: {}", text);
   }
+  if (s.stale_samples != p.stale_samples) {
+    spdlog::warn("{} SENSOR_SAMPLE frame(s) older than the last one used dropped since the last report (a second power stage "
+                 "or plant on node {}'s identifiers? a replaying gateway?)",
+                 s.stale_samples - p.stale_samples, config_.can.node);
+  }
   if (s.deadline_misses != p.deadline_misses) {
     spdlog::warn("{} deadline miss(es) since the last report (sample->command longer than one period); {}",
                  s.deadline_misses - p.deadline_misses, timing_text(s));
@@ -459,11 +464,11 @@ std::string Publisher::summary() const {
   const LoopStats s = loop_.stats();
   const std::uint64_t rejected = total_rejected(s);
   return fmt::format(
-      "periods {}, samples {} (re-sent {}, missing {}, skipped {}), commands sent {}, accepted drive/injection/calibration commands "
+      "periods {}, samples {} (re-sent {}, missing {}, skipped {}, stale {}), commands sent {}, accepted drive/injection/calibration commands "
       "{}/{}/{}, rejected frames {} ({}), deadline misses {}, {}, frames published {} (failed {}), calibrations stored {}, "
       "interface losses {} (publishing socket reopened {}), CAN I/O: commands dropped {} (queue full), failed sends {}, "
       "failed reads {}, frames dropped on receive {}",
-      s.periods, s.samples, s.resent_samples, s.missing_samples, s.skipped_samples, s.commands_sent, s.commands_accepted[0], s.commands_accepted[1],
+      s.periods, s.samples, s.resent_samples, s.missing_samples, s.skipped_samples, s.stale_samples, s.commands_sent, s.commands_accepted[0], s.commands_accepted[1],
       s.commands_accepted[2], rejected, rejected == 0U ? std::string("none") : rejected_text(s, LoopStats{}), s.deadline_misses,
       timing_text(s), stats_.frames_sent, stats_.frames_failed, stats_.calibrations_stored, s.interface_losses,
       stats_.reopens, s.tx_dropped, s.tx_failures, s.rx_errors, s.rx_overflow);

@@ -619,6 +619,49 @@ TEST(DaemonLoop, SkippedSequenceNumbersAreCountedAsLostSamples) {
   EXPECT_EQ(after.resent_samples, before.resent_samples);
 }
 
+// A sample older than the last one used (a second power stage or plant on this node's
+// identifiers, a replaying gateway) is dropped and counted, not stepped: before, its wrapped
+// difference read as a restarted count, an outage of a sample timeout per frame, and 50 of them
+// moved the drive's clocks by 4 s in 56 ms while DRIVE_STATUS said 0 rad/s of a turning shaft (a
+// hostile-bus probe). A count restarted from zero is still one.
+TEST(DaemonLoop, ASampleOlderThanTheLastOneUsedIsDroppedAndCounted) {
+  Bench bench;
+  Axis axis(bench.bus, 4, 60.0, 25.0, 5.0, {}, 500.0);  // 5,000 periods in a sample timeout
+  std::vector<protocol::AnyDecoded> seen;
+  std::optional<hal::SensorSample> last;
+  ASSERT_NO_FATAL_FAILURE(run_then_silence_the_plant(bench, axis, seen, last));
+  std::unique_ptr<hal::CanBus> stage = bench.power_stage();
+  const LoopStats before = axis.loop().stats();
+  // A jump to a count well beyond the timeout's periods (an outage, then stepped), the next one,
+  // 50 copies of one ten periods older, the next fresh one, and a count restarted from 3.
+  const std::uint32_t base = last->sequence + 100000U;
+  std::vector<std::uint32_t> sequence{base, base + 1U};
+  for (int k = 0; k < 50; ++k) {
+    sequence.push_back(base - 9U);
+  }
+  sequence.push_back(base + 2U);
+  sequence.push_back(3U);
+  for (const std::uint32_t n : sequence) {
+    hal::SensorSample s = *last;
+    s.sequence = n;
+    ASSERT_NO_FATAL_FAILURE(send_sample(*stage, s, 4, 10ms));
+    std::this_thread::sleep_for(1ms);
+  }
+  const auto deadline = std::chrono::steady_clock::now() + 10s;
+  auto read = [&] {
+    const LoopStats s = axis.loop().stats();
+    return (s.samples - before.samples) + (s.stale_samples - before.stale_samples);
+  };
+  while (read() < sequence.size() && std::chrono::steady_clock::now() < deadline) {
+    std::this_thread::sleep_for(1ms);
+  }
+  const LoopStats after = axis.loop().stats();
+  EXPECT_EQ(after.stale_samples - before.stale_samples, 50U);
+  EXPECT_EQ(after.samples - before.samples, 4U) << "the jump, the next two and the restarted count";
+  EXPECT_EQ(after.skipped_samples, before.skipped_samples) << "the fresh sample after the stale ones follows its predecessor";
+  EXPECT_EQ(after.missing_samples - before.missing_samples, 2U) << "the jump and the restarted count are outages, the stale ones none";
+}
+
 // Frames the kernel drops for the control loop's socket (its receive buffer full: a loop that
 // stalled) are counted and named in the daemon's summary, not only seen as missing samples.
 TEST(DaemonLoop, FramesDroppedOnReceiveAreCountedAndReported) {

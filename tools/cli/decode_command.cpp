@@ -198,7 +198,10 @@ class Decoder {
       hal::protocol::AnyDecoded any;
       const hal::protocol::DecodeStatus status = hal::protocol::decode_any(record.frame, any);
       crc_mismatch = status == hal::protocol::DecodeStatus::kBadCrc;
-      if (status == hal::protocol::DecodeStatus::kOk && hal::protocol::message_def(any.type).e2e) {
+      // (A command whose CRC held but whose value is out of range advances its stream too, as
+      // the daemon's; its range is reported below.)
+      const bool identified = status == hal::protocol::DecodeStatus::kOk || status == hal::protocol::DecodeStatus::kOutOfRange;
+      if (identified && hal::protocol::message_def(any.type).e2e) {
         counter = counters_[record.frame.id].check(any.alive_counter);
       }
     }

@@ -198,11 +198,18 @@ class Monitor {
     const std::optional<double> frame_time_s = times_usable_ ? time_s : std::nullopt;
     protocol::AnyDecoded d;
     protocol::DecodeStatus status = protocol::decode_any(frame, d);
-    if (status == protocol::DecodeStatus::kOk && o_.node && d.node != *o_.node) {
+    // A command whose CRC held but whose value is out of range is genuine: it advances its
+    // stream's alive counter, as it does the daemon's (decode_any).
+    const bool identified = status == protocol::DecodeStatus::kOk ||
+                            (status == protocol::DecodeStatus::kOutOfRange && protocol::message_def(d.type).e2e);
+    if (identified && o_.node && d.node != *o_.node) {
       return;  // another axis: not even its alive counters (the summary covers this node alone)
     }
-    if (status == protocol::DecodeStatus::kOk && protocol::message_def(d.type).e2e) {
-      status = axes_[d.node].counters[static_cast<std::size_t>(d.type)].check(d.alive_counter);
+    if (identified && protocol::message_def(d.type).e2e) {
+      const protocol::DecodeStatus counter = axes_[d.node].counters[static_cast<std::size_t>(d.type)].check(d.alive_counter);
+      if (counter != protocol::DecodeStatus::kOk) {
+        status = counter;  // the daemon checks the counter first, the range after it
+      }
     }
     if (status != protocol::DecodeStatus::kOk) {
       ++rejected_[static_cast<std::size_t>(status)];

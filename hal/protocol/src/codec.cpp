@@ -843,7 +843,7 @@ DecodeStatus decode_any_as(const CanFrame& frame, AnyDecoded& out) noexcept {
   } else {
     status = decode_message(frame, std::nullopt, message);
   }
-  if (status == DecodeStatus::kOk) {
+  if (status == DecodeStatus::kOk || (def_of<T>().e2e && status == DecodeStatus::kOutOfRange)) {
     out.type = kTypeOf<T>;
     out.node = node_of(frame.id);
     out.message = message;

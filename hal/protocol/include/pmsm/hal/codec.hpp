@@ -187,7 +187,10 @@ struct AnyDecoded {
 };
 
 // Decodes a frame of any message and any node (no alive-counter state: a monitor cannot
-// know which stream it joined). Same checks as decode(), minus the node.
+// know which stream it joined). Same checks as decode(), minus the node. `out`'s type, node and
+// alive counter are set on kOk, and on kOutOfRange of a command whose CRC held: a genuine frame
+// with a bad value still advances its stream (docs/protocol.md), so a monitor that keeps the
+// counters must count it as the daemon does; `out.message` is then not to be read.
 [[nodiscard]] DecodeStatus decode_any(const CanFrame& frame, AnyDecoded& out) noexcept;
 
 // ---------------------------------------------------------------------------------------
