@@ -332,9 +332,9 @@ void Publisher::handle(const PublicationRecord& r) {
                    "unloaded, below injection.vx_learning_max_speed_rad_s); the previous calibration stays in use",
                    r.calibration_rs0_ohm, r.calibration_rs0_std_ohm);
     } else {
-      spdlog::warn("calibration gave up (calibration.timeout_s, {:.0f} s, without enough published events); the previous "
-                 "calibration stays in use",
-                 config_.controller.drive.calibration_timeout_s);
+      spdlog::warn("calibration gave up (calibration.timeout_s, {:.0f} s, without enough published events; its pairs: {}: "
+                 "calibrate unloaded at a steady speed); the previous calibration stays in use",
+                 config_.controller.drive.calibration_timeout_s, core::calibration_outcomes_text(r.calibration_pairs));
     }
   }
   if (r.calibration_to_store) {

@@ -167,6 +167,21 @@ void DriveController::record_calibration_failure(CalibrationFailure why) {
   publish_calibration_state();
 }
 
+std::string calibration_outcomes_text(const OutcomeCounts& counts) {
+  std::array<std::size_t, std::tuple_size_v<OutcomeCounts>> order{};
+  for (std::size_t k = 0; k < order.size(); ++k) {
+    order[k] = k;
+  }
+  std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return counts[a] > counts[b]; });
+  std::string text;
+  for (const std::size_t k : order) {
+    if (counts[k] > 0U) {
+      text += (text.empty() ? "" : ", ") + std::to_string(counts[k]) + " " + std::string(to_string(static_cast<PairOutcome>(k)));
+    }
+  }
+  return text.empty() ? "no pair" : text;
+}
+
 const char* calibration_failure_name(CalibrationFailure f) {
   switch (f) {
     case CalibrationFailure::kNone: return "none";
@@ -398,6 +413,7 @@ void DriveController::start_calibration(double known_temp_C, bool from_ambient_s
     }
   }
   scheduler_.set_config(config_.calibration_injection);
+  telemetry_.calibration_outcomes = {};
   // The winding is at the known temperature now; the thermal model carries it through the
   // calibration, whose own injections warm the winding a little.
   // The time scale set by set_thermal_time_scale() holds whatever the order of the calls.
@@ -734,6 +750,9 @@ void DriveController::clear_motoring_telemetry() {
 
 void DriveController::handle_pair(const PairResult& r) {
   ++telemetry_.outcomes[static_cast<std::size_t>(r.outcome)];
+  if (calibrating_) {
+    ++telemetry_.calibration_outcomes[static_cast<std::size_t>(r.outcome)];
+  }
   telemetry_.lq_saturation_resolved = scheduler_.lq_saturation_resolved();  // a pair may have resolved it
   report(last_pair_, r);
 }

@@ -1081,6 +1081,17 @@ TEST(DriveNode, TheLearnedTelemetryFollowsWhatTheDriveLearnsInTheSamePeriod) {
   EXPECT_EQ(mismatches, 0);
 }
 
+// A timed-out calibration says why through its pairs' outcomes, most frequent first (a newcomer's
+// mixer, loaded before its calibration ended, was told only "timeout").
+TEST(DriveNode, ACalibrationsPairsAreNamedByOutcome) {
+  core::OutcomeCounts counts{};
+  counts[static_cast<std::size_t>(core::PairOutcome::kAccepted)] = 8;
+  counts[static_cast<std::size_t>(core::PairOutcome::kAborted)] = 16;
+  counts[static_cast<std::size_t>(core::PairOutcome::kRejectedSpeedChange)] = 2;
+  EXPECT_EQ(core::calibration_outcomes_text(counts), "16 aborted, 8 accepted, 2 rejected_speed_change");
+  EXPECT_EQ(core::calibration_outcomes_text(core::OutcomeCounts{}), "no pair");
+}
+
 // A calibration that gives up says so on the bus, and the one in use (here the configured
 // default) stays: a supervisor that asked for it sees TIMED_OUT with Calibrated 0.
 TEST(DriveNode, ACalibrationThatTimesOutIsPublishedAsSuch) {
@@ -1090,6 +1101,8 @@ TEST(DriveNode, ACalibrationThatTimesOutIsPublishedAsSuch) {
   rig.run(2000);
   EXPECT_EQ(next_thermal(rig).calibration_result, protocol::CalibrationResult::kNone);
   expect_failed_calibration(rig, core::CalibrationFailure::kTimeout, protocol::CalibrationResult::kTimedOut);
+  // Why: its pairs by outcome (none here: it timed out before its first event).
+  EXPECT_EQ(core::calibration_outcomes_text(rig.node->controller().telemetry().calibration_outcomes), "no pair");
   // Its sweep measured the bridge before the events timed out; the calibration in use (the
   // configured default) was learned with no measured band, so the measured one replaces the
   // configured guess.

@@ -116,7 +116,13 @@ Report run_one(const std::string& path, const Scenario& scenario, const Simulate
                          "a calibration that is not there (run longer, or start it earlier)\n",
                          path);
   }
-  if (result.calibration_failure != core::CalibrationFailure::kNone) {
+  if (result.calibration_failure == core::CalibrationFailure::kTimeout) {
+    // Why it timed out: its pairs' outcomes (a load, a speed ramp, the voltage limit).
+    r.err += fmt::format("simulate: {}: the calibration failed (timeout at {:.2f} s; its pairs: {}: calibrate unloaded at "
+                         "a steady speed); the figures are those of the calibration in use before it\n",
+                         path, result.calibration_failure_time_s,
+                         core::calibration_outcomes_text(result.calibration_failure_pairs));
+  } else if (result.calibration_failure != core::CalibrationFailure::kNone) {
     r.err += fmt::format("simulate: {}: the calibration failed ({} at {:.2f} s); the figures are those of the "
                          "calibration in use before it\n",
                          path, core::calibration_failure_name(result.calibration_failure), result.calibration_failure_time_s);

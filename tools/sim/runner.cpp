@@ -763,6 +763,9 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
           tel.calibration_failure == core::CalibrationFailure::kUncertain ? tel.calibration_rs0_std_ohm : 0.0;
       result.calibration_failure_winding_rise_C =
           tel.calibration_failure == core::CalibrationFailure::kWindingWarm ? tel.calibration_winding_rise_C : 0.0;
+      result.calibration_failure_pairs = tel.calibration_failure == core::CalibrationFailure::kWindingWarm
+                                             ? core::OutcomeCounts{}  // refused before it ran: another run's
+                                             : tel.calibration_outcomes;
     }
     if (step.calibration_to_store) {
       result.calibrated = true;
@@ -1090,7 +1093,12 @@ std::string result_json(const SimulationResult& r) {
         .field("winding_rise_C", r.calibration_failure == core::CalibrationFailure::kWindingWarm
                                      ? r.calibration_failure_winding_rise_C
                                      : kNan)
-        .end_object();
+        .key("pairs")
+        .begin_object();
+    for (std::size_t k = 0; k < r.calibration_failure_pairs.size(); ++k) {
+      j.field(core::to_string(static_cast<core::PairOutcome>(k)), static_cast<std::uint64_t>(r.calibration_failure_pairs[k]));
+    }
+    j.end_object().end_object();
   }
   // Every fault the drive latched, by name (an empty object: none).
   j.key("faults").begin_object();
@@ -1237,9 +1245,9 @@ std::string result_text(const SimulationResult& r) {
                        r.calibration.ke0_V_s_per_rad);
   }
   if (r.calibration_failure == core::CalibrationFailure::kTimeout) {
-    out += fmt::format("  calibration failed at {:.2f} s    timeout: not enough published events in calibration.timeout_s; the "
-                       "calibration in use stays\n",
-                       r.calibration_failure_time_s);
+    out += fmt::format("  calibration failed at {:.2f} s    timeout: not enough published events in calibration.timeout_s "
+                       "(its pairs: {}); the calibration in use stays\n",
+                       r.calibration_failure_time_s, core::calibration_outcomes_text(r.calibration_failure_pairs));
   } else if (r.calibration_failure == core::CalibrationFailure::kWindingWarm) {
     out += fmt::format("  calibration failed at {:.2f} s    winding_warm: the thermal filter held the winding {:.1f} C above "
                        "the ambient sensor (calibration.max_winding_rise_C); the calibration in use stays\n",

@@ -18,6 +18,7 @@
 #include <cstdint>
 #include <limits>
 #include <optional>
+#include <string>
 #include <utility>
 
 #include "pmsm/core/angle_check.hpp"
@@ -185,6 +186,9 @@ enum class CalibrationFailure : std::uint8_t {
   kWindingWarm = 4,  // the filter holds the winding above the ambient it would be referred to
 };
 [[nodiscard]] const char* calibration_failure_name(CalibrationFailure f);
+// A calibration's pairs by outcome, most frequent first, e.g. "34 rejected_load_change, 4
+// accepted"; "no pair" when there were none. Not for the control period (it allocates).
+[[nodiscard]] std::string calibration_outcomes_text(const OutcomeCounts& counts);
 
 // How the last calibration run ended (published on the bus: THERMAL_ESTIMATE.CalibrationResult).
 enum class CalibrationOutcome : std::uint8_t {
@@ -260,6 +264,9 @@ struct DriveTelemetry {
   std::uint32_t magnet_rejected = 0;  // EMF measurements refused as implausible
   MagnetRefusalReport magnet_last_refusal{};  // the last refused one
   OutcomeCounts outcomes{};
+  // The pairs of the calibration run in progress, or of the last one that ended, by outcome: why
+  // a calibration timed out (calibration_outcomes_text).
+  OutcomeCounts calibration_outcomes{};
   std::uint32_t estimates_published = 0;
   std::uint32_t estimates_gated = 0;  // implausible against the thermal filter's prediction
   // Held estimates (dated after their publication) dropped because the filter restarted before
