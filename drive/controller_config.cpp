@@ -353,10 +353,11 @@ ConfigSchema<C> build() {
          "Rs0 of a stored calibration (defaults to motor.rs_ohm).");
   s.real("calibration.t0_C", [](C& c) -> double& { return c.drive.calibration.t0_C; }, between(-50, 200), "C", "T0 of that calibration.");
   s.real("calibration.rs0_std_fraction", [](C& c) -> double& { return c.drive.calibration.rs0_std_fraction; }, between(0, 0.5), "",
-         "The relative standard uncertainty of that Rs0 while no calibration run has measured it (a data sheet's +-10 % "
-         "tolerance is about 0.05; a four-wire measurement at a known temperature about 0.005): every estimate shares its "
-         "error, so it widens the band, and the derating's T + k sigma, by (234.5 + T) times it for copper, until a "
-         "calibration replaces it (docs/estimator.md section 6).");
+         "The relative standard uncertainty of Rs0 while no calibration run of this drive has measured it (a data "
+         "sheet's +-10 % tolerance is about 0.05; a four-wire measurement at a known temperature about 0.005): every "
+         "estimate shares its error, so it widens the band, and the derating's T + k sigma, by (234.5 + T) times it for "
+         "copper, until a calibration replaces it (docs/estimator.md section 6). Default 0.05 for the nameplate's "
+         "motor.rs_ohm, 0 where calibration.rs0_ohm is given (a stored calibration's).");
   s.real("calibration.ke0_V_s_per_rad", [](C& c) -> double& { return c.drive.calibration.ke0_V_s_per_rad; }, at_least(0, 100), "V s/rad",
          "Eq. 3's Ke at T0 (0: not calibrated; no magnet temperature): phase-peak volts per mechanical rad/s, psi p, "
          "which is motor.ke_V_s_per_rad (line-to-line RMS) x sqrt(2/3) for the same machine.");
@@ -913,10 +914,14 @@ ControllerConfig parse_controller_config(const toml::table& table, std::string_v
   // A stored calibration defaults to the nameplate unless the file says otherwise.
   const bool rs0_given = static_cast<bool>(table.at_path("calibration.rs0_ohm"));
   const bool t0_given = static_cast<bool>(table.at_path("calibration.t0_C"));
+  const bool rs0_std_given = static_cast<bool>(table.at_path("calibration.rs0_std_fraction"));
   c.vx_initial_from_compensation = !table.at_path("injection.vx_initial_V");
   controller_schema().apply(table, c, source, foreign, key_prefix);
   if (!rs0_given) {
     c.drive.calibration.rs0_ohm = c.drive.motor.rs_ohm;
+  } else if (!rs0_std_given) {
+    // A stored calibration's Rs0 (the key's meaning) was measured: no nameplate share.
+    c.drive.calibration.rs0_std_fraction = 0.0;
   }
   if (!t0_given) {
     c.drive.calibration.t0_C = c.drive.motor.rs_reference_temp_C;

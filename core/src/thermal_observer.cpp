@@ -59,7 +59,11 @@ ThermalState ThermalObserver::state() const {
   ThermalState s;
   s.winding_C = x_(0);
   s.housing_C = x_(1);
-  s.winding_std_C = estimate().winding_std_C;
+  // The band without an uncalibrated Rs0's share: restore() adds that again (uncalibrated_rs0_std_C),
+  // and a share stored in P would count twice and raise the gain.
+  const double rs0_C = uncalibrated_rs0_std_C();
+  const double std_C = estimate().winding_std_C;
+  s.winding_std_C = std::sqrt(std::max(std_C * std_C - rs0_C * rs0_C, 0.0));
   s.has_loss_errors = true;
   s.missing_loss_W = x_(2);
   s.missing_loss_std_W = std::sqrt(std::max(p_(2, 2), 0.0));

@@ -498,6 +498,13 @@ TEST(EstimatorRobustness, AnEncoderOffsetIsCheckedAndCorrectedByTheCalibration) 
   s.controller.drive.angle_check.enabled = false;
   const SimulationResult unchecked = run_scenario(s, o);
   EXPECT_FALSE(unchecked.calibrated) << "without the check the offset fails the calibration (what the check is for)";
+  // And says why: its pairs, rejected for the speed loop's answer to the offset's torque.
+  ASSERT_EQ(unchecked.calibration_failure, core::CalibrationFailure::kTimeout);
+  const auto& pairs = unchecked.calibration_failure_pairs;
+  const auto speed_change = pairs[static_cast<std::size_t>(core::PairOutcome::kRejectedSpeedChange)];
+  EXPECT_GT(speed_change, 0U);
+  EXPECT_EQ(core::calibration_outcomes_text(pairs).rfind(std::to_string(speed_change) + " rejected_speed_change", 0), 0U)
+      << core::calibration_outcomes_text(pairs);
 }
 
 // The 48 V servo's rotor is light (1.5e-4 kg m^2) and slightly salient (Lq - Ld = 0.02 mH): a

@@ -201,6 +201,16 @@ TEST(ThermalObserver, AnUncalibratedRs0StaysInTheBand) {
   EXPECT_NEAR(term, 14.0, 0.1);  // at 45 C: (234.5 + 45) x 5 %
   EXPECT_NEAR(e.winding_std_C, std::hypot(p.winding_std_C, term), 1e-9);
   EXPECT_LT(p.winding_std_C, 1.0);  // the measurements alone were averaged down
+  // A stored state keeps the measurements' band and gets the share once more on restore, not
+  // twice: the state holds the band without it.
+  EXPECT_NEAR(obs.state().winding_std_C, p.winding_std_C, 1e-9);
+  ThermalObserver restored(c, nameplate, 25.0);
+  restored.restore(obs.state(), 0.0, 25.0);
+  ThermalObserver restored_plain(c, exact, 25.0);
+  restored_plain.restore(plain.state(), 0.0, 25.0);
+  EXPECT_NEAR(restored.estimate().winding_std_C,
+              std::hypot(restored_plain.estimate().winding_std_C, restored.uncalibrated_rs0_std_C()), 1e-9);
+  EXPECT_NEAR(restored.uncalibrated_rs0_std_C(), term, 1e-6);
   // A calibration replaces it.
   Calibration measured = exact;
   measured.calibrated = true;
