@@ -326,6 +326,12 @@ void Publisher::handle(const PublicationRecord& r) {
                    "not at; let the motor cool to the ambient, or give the winding's temperature with the request. The "
                    "previous calibration stays in use",
                    r.calibration_winding_rise_C);
+    } else if (r.calibration_failure == core::CalibrationFailure::kTemperatureImplausible) {
+      spdlog::warn("calibration refused: the temperature given with the request lies {:.1f} K {} the winding the drive "
+                   "measured within the last minute (more than 4 sigma + calibration.max_winding_rise_C): Rs0 referred to "
+                   "it would put every later estimate off by about as much. Check the reading (the winding's, at rest), or "
+                   "calibrate on the ambient sensor after a cool-down. The previous calibration stays in use",
+                   std::abs(r.calibration_winding_rise_C), r.calibration_winding_rise_C > 0.0 ? "below" : "above");
     } else if (r.calibration_failure == core::CalibrationFailure::kUncertain) {
       spdlog::warn("calibration refused: Rs0 {:.5f} +- {:.5f} ohm is less certain than "
                    "calibration.max_rs0_std_fraction allows (the bridge's voltage was not learned: calibrate "

@@ -390,7 +390,8 @@ ConfigSchema<C> build() {
          "A calibration on the ambient sensor's temperature is refused while the thermal filter holds the winding more "
          "than this above the ambient it runs on (the drive's own losses since it started, a stored warm state): Rs0 "
          "would be referred to a temperature the winding is not at. 0: no check. An operator's temperature "
-         "(CALIBRATION_REQUEST) is not checked.");
+         "(CALIBRATION_REQUEST) is checked only against a resistance measurement of the last 60 s: refused more than "
+         "4 sigma + this from it.");
   s.real("calibration.max_rs0_std_fraction", [](C& c) -> double& { return c.drive.calibration_max_rs0_std_fraction; },
          between(1e-4, 1.0), "",
          "A calibration run whose Rs0 standard error exceeds this fraction of Rs0 is refused and the calibration in use "

@@ -160,7 +160,8 @@ void DriveController::record_calibration_failure(CalibrationFailure why) {
   switch (why) {
     case CalibrationFailure::kUncertain:
     case CalibrationFailure::kAngleOffset:
-    case CalibrationFailure::kWindingWarm: calibration_outcome_ = CalibrationOutcome::kRefused; break;
+    case CalibrationFailure::kWindingWarm:
+    case CalibrationFailure::kTemperatureImplausible: calibration_outcome_ = CalibrationOutcome::kRefused; break;
     case CalibrationFailure::kTimeout: calibration_outcome_ = CalibrationOutcome::kTimedOut; break;
     case CalibrationFailure::kNone: calibration_outcome_ = CalibrationOutcome::kNone; break;
   }
@@ -189,6 +190,7 @@ const char* calibration_failure_name(CalibrationFailure f) {
     case CalibrationFailure::kUncertain: return "uncertain";
     case CalibrationFailure::kAngleOffset: return "angle_offset";
     case CalibrationFailure::kWindingWarm: return "winding_warm";
+    case CalibrationFailure::kTemperatureImplausible: return "temperature_implausible";
   }
   return "unknown";
 }
@@ -409,6 +411,24 @@ void DriveController::start_calibration(double known_temp_C, bool from_ambient_s
       calibration_refused_on_request_ = true;
       telemetry_.calibration_winding_rise_C = rise;
       record_calibration_failure(CalibrationFailure::kWindingWarm);
+      return;
+    }
+  }
+  // An operator's reading is not second-guessed against the model alone, which may start from
+  // a guess (a warm motor powered up without a stored state); but where the drive measured the
+  // winding moments ago, a reading far outside that measurement's band is a mistake (a wrong
+  // unit, a thermometer on the wrong part, a corrupted request): referred to it, Rs0 would put
+  // every later estimate off by the difference, and it would be stored (a hostile-bus probe's
+  // 150 C, with the filter at 33.5 C measured and the ambient at 25 C, was accepted and stored;
+  // the drive then published 149 C and derated). Refused; the calibration in use stays.
+  if (!from_ambient_sensor && !was_calibrating && !thermal_guess_pending_) {
+    const ThermalEstimate e = observer_.estimate();
+    const double rise = e.winding_C - known_temp_C;
+    if (e.time_since_measurement_s <= kRecentMeasurement_s && telemetry_.estimates_published > 0U &&
+        !(std::abs(rise) <= 4.0 * e.winding_std_C + std::max(config_.calibration_max_winding_rise_C, 0.0))) {
+      calibration_refused_on_request_ = true;
+      telemetry_.calibration_winding_rise_C = rise;
+      record_calibration_failure(CalibrationFailure::kTemperatureImplausible);
       return;
     }
   }

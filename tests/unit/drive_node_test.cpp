@@ -789,6 +789,48 @@ TEST(DriveNode, ACalibrationOnTheAmbientOfAWarmWindingIsRefused) {
   EXPECT_TRUE(tel.calibrating);
 }
 
+// An operator's temperature far outside what the drive measured of the winding moments ago is
+// refused (a hostile-bus probe's 150 C against a winding measured at 33.5 C was accepted and
+// stored, and the drive published 149 C); one within the measurement's band runs; and against
+// the model alone (no measurement yet: it may start from a guess) the operator is not
+// second-guessed.
+TEST(DriveNode, AnOperatorsTemperatureFarFromTheMeasuredWindingIsRefused) {
+  Rig model_only;
+  model_only.config.drive.estimator = core::EstimatorKind::kNone;
+  model_only.node = std::make_unique<DriveNode>(model_only.config, model_only.supervisor, PublishRates{});
+  model_only.run(2000);
+  model_only.in.start_calibration = true;
+  model_only.in.calibration_known_C = 150.0;
+  model_only.run(1);
+  EXPECT_TRUE(model_only.node->controller().telemetry().calibrating) << "no measurement to check it against";
+
+  Rig rig;
+  const core::DriveTelemetry& tel = rig.node->controller().telemetry();
+  for (int k = 0; k < 400000 && tel.estimates_published < 2U; ++k) {
+    rig.run(1);
+  }
+  ASSERT_GE(tel.estimates_published, 2U);
+  const double measured_C = tel.thermal.winding_C;
+  const double rs0_before = rig.node->controller().calibration().rs0_ohm;
+  rig.in.start_calibration = true;
+  rig.in.calibration_known_C = 150.0;
+  const NodeStep& asked = rig.run(1);
+  rig.in.start_calibration = false;
+  EXPECT_TRUE(asked.calibration_failed);
+  EXPECT_FALSE(tel.calibrating);
+  EXPECT_EQ(tel.calibration_failure, core::CalibrationFailure::kTemperatureImplausible);
+  EXPECT_EQ(tel.calibration_outcome, core::CalibrationOutcome::kRefused);
+  EXPECT_NEAR(tel.calibration_winding_rise_C, measured_C - 150.0, 1.0);
+  EXPECT_EQ(rig.node->controller().calibration().rs0_ohm, rs0_before);
+  EXPECT_NEAR(tel.thermal.winding_C, measured_C, 1.0) << "the filter keeps what it held";
+  // A reading within the measurement's band runs.
+  rig.in.start_calibration = true;
+  rig.in.calibration_known_C = tel.thermal.winding_C + 2.0;
+  rig.run(1);
+  rig.in.start_calibration = false;
+  EXPECT_TRUE(tel.calibrating);
+}
+
 // The calibration's bridge sweep (docs/estimator.md section 4.1) against the plant's bridge
 // (zero-current band 0.75 A; the controller's key says 1 A): its band is used at once; if the
 // calibration does not complete, it stays in place of the configured guess but a stored

@@ -761,9 +761,10 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
           tel.calibration_failure == core::CalibrationFailure::kUncertain ? tel.calibration_rs0_ohm : 0.0;
       result.calibration_failure_rs0_std_ohm =
           tel.calibration_failure == core::CalibrationFailure::kUncertain ? tel.calibration_rs0_std_ohm : 0.0;
-      result.calibration_failure_winding_rise_C =
-          tel.calibration_failure == core::CalibrationFailure::kWindingWarm ? tel.calibration_winding_rise_C : 0.0;
-      result.calibration_failure_pairs = tel.calibration_failure == core::CalibrationFailure::kWindingWarm
+      const bool refused_before_it_ran = tel.calibration_failure == core::CalibrationFailure::kWindingWarm ||
+                                         tel.calibration_failure == core::CalibrationFailure::kTemperatureImplausible;
+      result.calibration_failure_winding_rise_C = refused_before_it_ran ? tel.calibration_winding_rise_C : 0.0;
+      result.calibration_failure_pairs = refused_before_it_ran
                                              ? core::OutcomeCounts{}  // refused before it ran: another run's
                                              : tel.calibration_outcomes;
     }
@@ -1090,7 +1091,8 @@ std::string result_json(const SimulationResult& r) {
         .field("rs0_ohm", r.calibration_failure == core::CalibrationFailure::kUncertain ? r.calibration_failure_rs0_ohm : kNan)
         .field("rs0_std_ohm",
                r.calibration_failure == core::CalibrationFailure::kUncertain ? r.calibration_failure_rs0_std_ohm : kNan)
-        .field("winding_rise_C", r.calibration_failure == core::CalibrationFailure::kWindingWarm
+        .field("winding_rise_C", r.calibration_failure == core::CalibrationFailure::kWindingWarm ||
+                                         r.calibration_failure == core::CalibrationFailure::kTemperatureImplausible
                                      ? r.calibration_failure_winding_rise_C
                                      : kNan)
         .key("pairs")
@@ -1252,6 +1254,11 @@ std::string result_text(const SimulationResult& r) {
     out += fmt::format("  calibration failed at {:.2f} s    winding_warm: the thermal filter held the winding {:.1f} C above "
                        "the ambient sensor (calibration.max_winding_rise_C); the calibration in use stays\n",
                        r.calibration_failure_time_s, r.calibration_failure_winding_rise_C);
+  } else if (r.calibration_failure == core::CalibrationFailure::kTemperatureImplausible) {
+    out += fmt::format("  calibration failed at {:.2f} s    temperature_implausible: the temperature given lies {:.1f} K from "
+                       "the winding the drive had just measured (more than 4 sigma + calibration.max_winding_rise_C); the "
+                       "calibration in use stays\n",
+                       r.calibration_failure_time_s, std::abs(r.calibration_failure_winding_rise_C));
   } else if (r.calibration_failure == core::CalibrationFailure::kUncertain) {
     out += fmt::format("  calibration failed at {:.2f} s    uncertain: Rs0 {:.5f} +- {:.5f} ohm ({:.2f} %, above "
                        "calibration.max_rs0_std_fraction); the calibration in use stays\n",

@@ -184,6 +184,9 @@ enum class CalibrationFailure : std::uint8_t {
   kUncertain = 2,  // Rs0's standard error above calibration_max_rs0_std_fraction
   kAngleOffset = 3,  // the angle check found the rotor angle further off than it corrects
   kWindingWarm = 4,  // the filter holds the winding above the ambient it would be referred to
+  // An operator's temperature far outside what the drive measured of the winding moments ago
+  // (more than 4 sigma + calibration_max_winding_rise_C from the filter's winding)
+  kTemperatureImplausible = 5,
 };
 [[nodiscard]] const char* calibration_failure_name(CalibrationFailure f);
 // A calibration's pairs by outcome, most frequent first, e.g. "34 rejected_load_change, 4
@@ -295,8 +298,8 @@ struct DriveTelemetry {
   // calibration run, and after one that timed out.
   double calibration_rs0_ohm = 0.0;
   double calibration_rs0_std_ohm = 0.0;
-  // A calibration refused as kWindingWarm: how far above the ambient it runs on the filter held
-  // the winding.
+  // A calibration refused as kWindingWarm or kTemperatureImplausible: how far above the
+  // temperature it would be referred to (the ambient, the operator's) the filter held the winding.
   double calibration_winding_rise_C = 0.0;
 };
 
@@ -355,7 +358,10 @@ class DriveController {
   // accepted pairs are averaged into Rs0 (and Ke0), and the thermal filter restarts there.
   // `from_ambient_sensor`: the temperature is the ambient / coolant sensor's (not an operator's
   // reading of the winding): refused with kWindingWarm while the filter holds the winding more
-  // than calibration_max_winding_rise_C above it.
+  // than calibration_max_winding_rise_C above it. An operator's reading is refused with
+  // kTemperatureImplausible when the filter measured the winding within
+  // kRecentMeasurement_s and the reading lies more than 4 sigma + calibration_max_winding_rise_C
+  // from it.
   void start_calibration(double known_temp_C, bool from_ambient_sensor = false);
   // Stops a calibration in progress and keeps the calibration in use (nothing is stored).
   void abort_calibration();
@@ -482,6 +488,9 @@ class DriveController {
   [[nodiscard]] bool field_weakened() const;  // the regulator is weakening the field now
   [[nodiscard]] bool held_on_voltage_limit() const { return limited_periods_ >= held_on_limit_periods_; }
   static constexpr double kHeldOnLimit_s = 2e-3;
+  // How recent a fused resistance measurement must be for an operator's calibration temperature
+  // to be checked against it (start_calibration), controller seconds.
+  static constexpr double kRecentMeasurement_s = 60.0;
   // Last period's motoring current: its reference less the pulse (both zero while disabled).
   [[nodiscard]] Dq last_motoring_current_A() const {
     return {telemetry_.i_ref_A.d - telemetry_.injection_A.d, telemetry_.i_ref_A.q - telemetry_.injection_A.q};
