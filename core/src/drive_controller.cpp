@@ -1136,9 +1136,8 @@ void DriveController::update_thermal(double ambient_C, bool speed_mode) {
   // a calibration runs, whose filter carries the old Rs0 that the calibration is replacing.
   // (Its variance without an uncalibrated Rs0's share: the resistance goes back through the
   // same Rs0, which cancels that error.)
-  const double rs0_C = observer_.uncalibrated_rs0_std_C();
   scheduler_.set_winding_resistance(calibrating_ ? std::numeric_limits<double>::quiet_NaN() : 0.5 * (rs_above + rs_below),
-                                    std::max(e.winding_std_C * e.winding_std_C - rs0_C * rs0_C, 0.0) * rs_per_C * rs_per_C);
+                                    observer_.measured_winding_variance_C2() * rs_per_C * rs_per_C);
   derating_ = derate(config_.derating, e);
   telemetry_.derating = derating_.derating;
   // The magnets' limit, on the last magnet estimate even after it aged out (no longer

@@ -61,9 +61,7 @@ ThermalState ThermalObserver::state() const {
   s.housing_C = x_(1);
   // The band without an uncalibrated Rs0's share: restore() adds that again (uncalibrated_rs0_std_C),
   // and a share stored in P would count twice and raise the gain.
-  const double rs0_C = uncalibrated_rs0_std_C();
-  const double std_C = estimate().winding_std_C;
-  s.winding_std_C = std::sqrt(std::max(std_C * std_C - rs0_C * rs0_C, 0.0));
+  s.winding_std_C = std::sqrt(measured_winding_variance_C2());
   s.has_loss_errors = true;
   s.missing_loss_W = x_(2);
   s.missing_loss_std_W = std::sqrt(std::max(p_(2, 2), 0.0));
@@ -416,11 +414,13 @@ double ThermalObserver::uncalibrated_rs0_std_C() const {
   return std::isfinite(s) ? std::abs(s) : 0.0;
 }
 
+double ThermalObserver::measured_winding_variance_C2() const {
+  return std::max(p_(0, 0), 0.0) + drift_std_C_ * drift_std_C_ + shared_error_C_ * shared_error_C_;
+}
+
 ThermalEstimate ThermalObserver::estimate() const {
   const double rs0_C = uncalibrated_rs0_std_C();
-  return {x_(0),
-          std::sqrt(std::max(p_(0, 0), 0.0) + drift_std_C_ * drift_std_C_ + shared_error_C_ * shared_error_C_ +
-                    rs0_C * rs0_C),
+  return {x_(0), std::sqrt(measured_winding_variance_C2() + rs0_C * rs0_C),
           x_(1), x_(2) + x_(3) * last_copper_loss_W_, x_(2), x_(3), std::sqrt(std::max(p_(3, 3), 0.0)),
           since_measurement_s_};
 }

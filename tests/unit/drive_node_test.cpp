@@ -757,6 +757,21 @@ TEST(DriveNode, CalibrationUsesTheOperatorsTemperatureOrTheAmbientSensor) {
 // A calibration on the ambient sensor's temperature while the filter holds the winding warm
 // (the drive's own losses since it started) is refused, said on the step it was asked in, and
 // the calibration in use stays; with the operator's temperature of the winding it runs.
+// Asks for a calibration (at rig.in.calibration_known_C, or the ambient) and expects it refused
+// as it was asked for, for `why`, with the calibration in use kept.
+void expect_refused_on_request(Rig& rig, core::CalibrationFailure why) {
+  const core::DriveTelemetry& tel = rig.node->controller().telemetry();
+  const double rs0_before = rig.node->controller().calibration().rs0_ohm;
+  rig.in.start_calibration = true;
+  const NodeStep& asked = rig.run(1);
+  rig.in.start_calibration = false;
+  EXPECT_TRUE(asked.calibration_failed);
+  EXPECT_FALSE(tel.calibrating);
+  EXPECT_EQ(tel.calibration_failure, why);
+  EXPECT_EQ(tel.calibration_outcome, core::CalibrationOutcome::kRefused);
+  EXPECT_EQ(rig.node->controller().calibration().rs0_ohm, rs0_before);
+}
+
 TEST(DriveNode, ACalibrationOnTheAmbientOfAWarmWindingIsRefused) {
   Rig rig;
   rig.plant_config.load.torque_Nm = 30.0;
@@ -770,17 +785,9 @@ TEST(DriveNode, ACalibrationOnTheAmbientOfAWarmWindingIsRefused) {
     rig.run(1);
   }
   ASSERT_GT(tel.thermal.winding_C, ambient_C + 10.0);
-  const double rs0_before = rig.node->controller().calibration().rs0_ohm;
-  rig.in.start_calibration = true;
-  const NodeStep& asked = rig.run(1);
-  rig.in.start_calibration = false;
-  EXPECT_TRUE(asked.calibration_failed);
-  EXPECT_FALSE(tel.calibrating);
-  EXPECT_EQ(tel.calibration_failure, core::CalibrationFailure::kWindingWarm);
-  EXPECT_EQ(tel.calibration_outcome, core::CalibrationOutcome::kRefused);
+  expect_refused_on_request(rig, core::CalibrationFailure::kWindingWarm);
   EXPECT_GT(tel.calibration_winding_rise_C, 10.0);
   EXPECT_GT(tel.thermal.winding_C, ambient_C + 10.0) << "the filter keeps what it held";
-  EXPECT_EQ(rig.node->controller().calibration().rs0_ohm, rs0_before);
   // The operator's reading of the winding: no check, the calibration runs.
   rig.in.start_calibration = true;
   rig.in.calibration_known_C = tel.thermal.winding_C;
@@ -811,17 +818,9 @@ TEST(DriveNode, AnOperatorsTemperatureFarFromTheMeasuredWindingIsRefused) {
   }
   ASSERT_GE(tel.estimates_published, 2U);
   const double measured_C = tel.thermal.winding_C;
-  const double rs0_before = rig.node->controller().calibration().rs0_ohm;
-  rig.in.start_calibration = true;
   rig.in.calibration_known_C = 150.0;
-  const NodeStep& asked = rig.run(1);
-  rig.in.start_calibration = false;
-  EXPECT_TRUE(asked.calibration_failed);
-  EXPECT_FALSE(tel.calibrating);
-  EXPECT_EQ(tel.calibration_failure, core::CalibrationFailure::kTemperatureImplausible);
-  EXPECT_EQ(tel.calibration_outcome, core::CalibrationOutcome::kRefused);
+  expect_refused_on_request(rig, core::CalibrationFailure::kTemperatureImplausible);
   EXPECT_NEAR(tel.calibration_winding_rise_C, measured_C - 150.0, 1.0);
-  EXPECT_EQ(rig.node->controller().calibration().rs0_ohm, rs0_before);
   EXPECT_NEAR(tel.thermal.winding_C, measured_C, 1.0) << "the filter keeps what it held";
   // A reading within the measurement's band runs.
   rig.in.start_calibration = true;

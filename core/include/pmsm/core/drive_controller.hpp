@@ -189,6 +189,10 @@ enum class CalibrationFailure : std::uint8_t {
   kTemperatureImplausible = 5,
 };
 [[nodiscard]] const char* calibration_failure_name(CalibrationFailure f);
+// Refused as it was asked for, before any of it ran (calibration_winding_rise_C says by how much).
+[[nodiscard]] constexpr bool refused_on_request(CalibrationFailure f) {
+  return f == CalibrationFailure::kWindingWarm || f == CalibrationFailure::kTemperatureImplausible;
+}
 // A calibration's pairs by outcome, most frequent first, e.g. "34 rejected_load_change, 4
 // accepted"; "no pair" when there were none. Not for the control period (it allocates).
 [[nodiscard]] std::string calibration_outcomes_text(const OutcomeCounts& counts);

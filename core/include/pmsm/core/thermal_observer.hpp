@@ -210,6 +210,9 @@ class ThermalObserver {
   [[nodiscard]] ThermalEstimate estimate() const;
   // The band's share from an uncalibrated Rs0 (Calibration::rs0_std_fraction), 1 sigma, C.
   [[nodiscard]] double uncalibrated_rs0_std_C() const;
+  // The band's variance without that share (C^2): what the filter itself holds, which a stored
+  // state keeps and a resistance taken back through the same Rs0 carries.
+  [[nodiscard]] double measured_winding_variance_C2() const;
   // The winding's rate of change over the last predict() (C per controller second).
   [[nodiscard]] double winding_rate_C_per_s() const { return winding_rate_C_per_s_; }
   [[nodiscard]] double temperature_from_resistance_C(double rs_ohm) const;
