@@ -11,7 +11,9 @@ die() {
 }
 
 # hil_cleanup_on_exit WORK KEEP: on exit, pass or fail, TERM and reap every process in pids;
-# remove WORK after a pass unless KEEP is 1, otherwise keep it and say where it is.
+# remove WORK after a pass unless KEEP is 1, otherwise keep it and say where it is. Under
+# User-Mode Linux the guest's /tmp is an overlay that vanishes with the guest, so a kept WORK
+# is copied into the working directory (ctest's: build/<preset>/tests), which the host sees.
 hil_cleanup_on_exit() {
   hil_work=$1
   hil_keep=$2
@@ -27,6 +29,8 @@ hil_cleanup() {
   done
   if [ "$ok" = 1 ] && [ "$hil_keep" != 1 ]; then
     rm -rf "$hil_work"
+  elif [ "${PMSM_VCAN_MODE:-}" = uml ] && cp -a "$hil_work" "$PWD/" 2>/dev/null; then
+    echo "$prog: work directory kept: $PWD/$(basename "$hil_work") (copied out of the guest's /tmp)" >&2
   else
     echo "$prog: work directory kept: $hil_work" >&2
   fi
