@@ -81,6 +81,7 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns, 
   const bool pulse = gpio_fault_seen_.exchange(false, std::memory_order_relaxed);
   node_.report(core::FaultCode::kGpioFault, pulse || gpio_fault_.load(std::memory_order_relaxed));
   node_.report(core::FaultCode::kInterfaceDown, counters_.interface_down.load(std::memory_order_relaxed));
+  node_.report(core::FaultCode::kDuplicateNode, duplicate_node_.load(std::memory_order_relaxed));
   // The controller's state as its error frames left it (kErrorClasses), an atomic the backend
   // keeps: bus-off until it restarts, or until the socket is reopened (it starts error-active).
   node_.report(core::FaultCode::kBusOff, bus_.state() == hal::CanBusState::kBusOff);

@@ -134,6 +134,9 @@ class DriveLoop {
     }
     gpio_fault_.store(active, std::memory_order_relaxed);
   }
+  // Another sender of this node's frames (the publisher watches for them): handed to the
+  // supervisor as DUPLICATE_NODE while `active`.
+  void set_duplicate_node(bool active) noexcept { duplicate_node_.store(active, std::memory_order_relaxed); }
   // The power stage's gate enable as the loop last commanded it (for the GPIO output).
   [[nodiscard]] bool gates_enabled() const noexcept { return gates_enabled_.load(std::memory_order_relaxed); }
 
@@ -213,6 +216,7 @@ class DriveLoop {
   std::uint32_t window_misses_ = 0;
   std::atomic<bool> gpio_fault_{false};       // the line's level as last read
   std::atomic<bool> gpio_fault_seen_{false};  // active since the last step (sticky)
+  std::atomic<bool> duplicate_node_{false};   // another sender of this node's frames, as last heard
   std::atomic<bool> gates_enabled_{false};
 
   struct Counters {

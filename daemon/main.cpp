@@ -264,7 +264,8 @@ int run(const Options& o) {
                    : std::string{});
 
   // CAN: the RT socket receives exactly this node's samples and commands; the publishing
-  // socket receives nothing.
+  // socket nothing until the publisher installs its filters (this node's published
+  // identifiers: another sender of them is a second daemon on this node).
   const protocol::FilterSet filters = protocol::receive_filters(protocol::Role::kDaemon, static_cast<protocol::NodeId>(config.can.node));
   pmsm::hal::SocketCanConfig rt_bus_config;
   rt_bus_config.interface = config.can.interface;

@@ -8,6 +8,7 @@
 
 #include "calibration_file.hpp"
 #include "pmsm/hal/codec.hpp"
+#include "pmsm/hal/protocol_filters.hpp"
 
 namespace pmsm::daemon {
 namespace {
@@ -67,12 +68,19 @@ std::string timing_text(const LoopStats& s) {
 
 }  // namespace
 
-Publisher::Publisher(const DaemonConfig& config, hal::CanBus& bus, const DriveLoop& loop)
+Publisher::Publisher(const DaemonConfig& config, hal::CanBus& bus, DriveLoop& loop)
     : config_(config),
       bus_(bus),
       loop_(loop),
       node_(static_cast<protocol::NodeId>(config.can.node)),
-      last_report_(std::chrono::steady_clock::now()) {}
+      last_report_(std::chrono::steady_clock::now()) {
+  const protocol::FilterSet own = protocol::published_filters(protocol::Role::kDaemon, node_);
+  if (const hal::Status s = bus_.set_filters(own.view()); !s.ok()) {
+    spdlog::warn("CAN interface '{}': cannot listen for another sender of node {}'s frames ({}): a second daemon "
+                 "configured as node {} would go unnoticed",
+                 config_.can.interface, config_.can.node, s.message(), config_.can.node);
+  }
+}
 
 template <typename Message>
 void Publisher::send(const Message& m) {
@@ -162,6 +170,18 @@ std::string Publisher::fault_cause(protocol::FaultCode code, double value) const
       return fmt::format("the shaft at {:.1f} rad/s, above supervisor.overspeed_rad_s ({:g} rad/s): ", value, c.overspeed_rad_s);
     case protocol::FaultCode::kSensorTimeout:
       return fmt::format("no sample for {:.0f} periods (supervisor.sensor_timeout_periods): ", value);
+    case protocol::FaultCode::kDuplicateNode:
+      return fmt::format("another device sends node {}'s frames (0x{:03X} last; can.node = {} on two daemons?): ",
+                         config_.can.node, foreign_id_, config_.can.node);
+    case protocol::FaultCode::kHardwareOvercurrent:
+      return "the power stage's own over-current comparator tripped (SENSOR_SAMPLE's HardwareOvercurrent flag: a "
+             "short circuit, a phase to earth, or a current regulator far out of tune): ";
+    case protocol::FaultCode::kBusOff:
+      return fmt::format("the CAN controller of '{}' went bus-off (too many transmit errors: wiring, termination, bit "
+                         "rate, or another node answering on the same identifiers); it returns once the controller "
+                         "restarts after the interface's restart-ms (ip link set {} type can restart-ms 100) or by hand "
+                         "(ip link set {} type can restart): ",
+                         config_.can.interface, config_.can.interface, config_.can.interface);
     case protocol::FaultCode::kCommandTimeout:
       return fmt::format("no valid DRIVE_COMMAND for {:.3f} s, above supervisor.command_timeout_s ({:g} s): ", value,
                          c.command_timeout_s);
@@ -415,6 +435,7 @@ void Publisher::store_thermal_state(const core::ThermalState& state, double ambi
 
 void Publisher::after_batch() {
   const auto now = std::chrono::steady_clock::now();
+  watch_for_duplicates(now);
   // Rejections are on the bus within 100 ms, not only with the next heartbeat.
   if (now - receive_status_sent_ >= std::chrono::milliseconds{100}) {
     if (const LoopStats s = loop_.stats(); total_rejected(s) != rejected_sent_) {
@@ -426,6 +447,46 @@ void Publisher::after_batch() {
   }
   last_report_ = now;
   report();
+}
+
+// Every 20 ms at most (a read that finds nothing is a system call): whatever arrived on the
+// publishing endpoint is a frame another device sent on this node's published identifiers.
+void Publisher::watch_for_duplicates(std::chrono::steady_clock::time_point now) {
+  if (now - duplicates_watched_ < std::chrono::milliseconds{20}) {
+    return;
+  }
+  duplicates_watched_ = now;
+  bool heard = false;
+  hal::ReceivedFrame f;
+  // Bounded: a flood on these identifiers cannot hold the drain thread.
+  for (int k = 0; k < 256 && bus_.receive(f, std::chrono::nanoseconds{0}) == hal::ReceiveStatus::kFrame; ++k) {
+    if (f.frame.error) {
+      continue;
+    }
+    ++stats_.foreign_frames;
+    foreign_id_ = f.frame.id;
+    heard = true;
+  }
+  if (heard) {
+    foreign_heard_ = now;
+    if (!duplicate_) {
+      duplicate_ = true;
+      loop_.set_duplicate_node(true);
+      const protocol::MessageDef* m = protocol::find_message(foreign_id_);
+      spdlog::error("another device sends node {}'s {} (0x{:03X}) on '{}': a second pmsm-thermald configured as node {}? "
+                    "Two drives would answer one power stage: fault DUPLICATE_NODE, gates off, until no other sender has "
+                    "been heard for {:g} s and a stop command clears it. Give every axis its own can.node",
+                    config_.can.node, m != nullptr ? m->name : std::string_view{"frame"}, foreign_id_,
+                    config_.can.interface, config_.can.node,
+                    std::chrono::duration<double>(kDuplicateHold).count());
+    }
+  } else if (duplicate_ && now - foreign_heard_ >= kDuplicateHold) {
+    duplicate_ = false;
+    loop_.set_duplicate_node(false);
+    spdlog::info("no other sender of node {}'s frames for {:g} s ({} frame(s) heard in all): DUPLICATE_NODE clears "
+                 "with a stop command",
+                 config_.can.node, std::chrono::duration<double>(kDuplicateHold).count(), stats_.foreign_frames);
+  }
 }
 
 void Publisher::report() {
@@ -473,11 +534,11 @@ std::string Publisher::summary() const {
       "periods {}, samples {} (re-sent {}, missing {}, skipped {}, stale {}), commands sent {}, accepted drive/injection/calibration commands "
       "{}/{}/{}, rejected frames {} ({}), deadline misses {}, {}, frames published {} (failed {}), calibrations stored {}, "
       "interface losses {} (publishing socket reopened {}), CAN I/O: commands dropped {} (queue full), failed sends {}, "
-      "failed reads {}, frames dropped on receive {}",
+      "failed reads {}, frames dropped on receive {}, frames of this node sent by another device {}",
       s.periods, s.samples, s.resent_samples, s.missing_samples, s.skipped_samples, s.stale_samples, s.commands_sent, s.commands_accepted[0], s.commands_accepted[1],
       s.commands_accepted[2], rejected, rejected == 0U ? std::string("none") : rejected_text(s, LoopStats{}), s.deadline_misses,
       timing_text(s), stats_.frames_sent, stats_.frames_failed, stats_.calibrations_stored, s.interface_losses,
-      stats_.reopens, s.tx_dropped, s.tx_failures, s.rx_errors, s.rx_overflow);
+      stats_.reopens, s.tx_dropped, s.tx_failures, s.rx_errors, s.rx_overflow, stats_.foreign_frames);
 }
 
 }  // namespace pmsm::daemon

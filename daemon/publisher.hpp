@@ -3,7 +3,9 @@
 // frames: THERMAL_ESTIMATE, RESISTANCE_ESTIMATE, INJECTION_REPORT, DRIVE_STATUS, HEARTBEAT,
 // FAULT, RECEIVE_STATUS, LOOP_TIMING), stores a completed calibration atomically, logs every fault change once, and
 // reports the loop's counters (rejections by reason, deadline misses, timing) at most once a
-// second and only when something changed.
+// second and only when something changed. It also listens on its endpoint for this node's
+// published identifiers: a frame there was sent by another device as this node (a second
+// daemon configured with the same node id), which the drive answers with DUPLICATE_NODE.
 #pragma once
 
 #include <array>
@@ -25,15 +27,24 @@ struct PublisherStats {
   std::uint64_t thermal_states_stored = 0;
   std::uint64_t thermal_state_store_failures = 0;
   std::uint64_t reopens = 0;             // the publishing socket reopened after an interface loss
+  std::uint64_t foreign_frames = 0;      // this node's published identifiers sent by another device
 };
 
 class Publisher {
  public:
-  Publisher(const DaemonConfig& config, hal::CanBus& bus, const DriveLoop& loop);
+  // How long DUPLICATE_NODE's cause outlives the other sender's last frame on this node's
+  // identifiers: over two of its heartbeats (1 s), so that a daemon that publishes nothing
+  // else keeps it.
+  static constexpr std::chrono::milliseconds kDuplicateHold{2500};
+
+  // Installs the receive filters of this node's published identifiers on `bus` (the
+  // publishing endpoint, which receives nothing else).
+  Publisher(const DaemonConfig& config, hal::CanBus& bus, DriveLoop& loop);
 
   // One record from the ring (the drain thread).
   void handle(const PublicationRecord& record);
-  // After each batch: the periodic report (the drain thread).
+  // After each batch: another sender of this node's frames, the periodic report (the drain
+  // thread).
   void after_batch();
 
   [[nodiscard]] const PublisherStats& stats() const noexcept { return stats_; }
@@ -52,10 +63,11 @@ class Publisher {
   void report();
   void send_receive_status(const LoopStats& s);
   void reopen_if_due();
+  void watch_for_duplicates(std::chrono::steady_clock::time_point now);
 
   const DaemonConfig& config_;
   hal::CanBus& bus_;
-  const DriveLoop& loop_;
+  DriveLoop& loop_;
   hal::protocol::NodeId node_;
   PublisherStats stats_{};
   std::uint32_t active_faults_ = 0;  // as last logged
@@ -71,6 +83,11 @@ class Publisher {
   std::chrono::steady_clock::time_point last_reopen_try_{};
   bool reopen_failure_logged_ = false;
   bool not_durable_logged_ = false;
+  // Another sender of this node's published identifiers.
+  bool duplicate_ = false;  // its cause as handed to the loop
+  std::uint32_t foreign_id_ = 0;  // the identifier it was last heard on
+  std::chrono::steady_clock::time_point foreign_heard_{};
+  std::chrono::steady_clock::time_point duplicates_watched_{};
 };
 
 }  // namespace pmsm::daemon

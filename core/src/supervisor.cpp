@@ -43,6 +43,7 @@ const char* to_string(FaultCode code) noexcept {
     case FaultCode::kPeriodMismatch: return "period-mismatch";
     case FaultCode::kCurrentOffset: return "current-offset";
     case FaultCode::kOutputFeedback: return "output-feedback";
+    case FaultCode::kDuplicateNode: return "duplicate-node";
     case FaultCode::kCount: break;
   }
   return "?";

@@ -139,7 +139,7 @@ class Axis {
 
   void start_daemon() {
     drain_ = std::make_unique<hal::RecordDrain<PublicationRecord, PublicationRing::capacity()>>(
-        ring_, [this](const PublicationRecord& r) { publisher_->handle(r); }, 2ms);
+        ring_, [this](const PublicationRecord& r) { publisher_->handle(r); }, 2ms, [this] { publisher_->after_batch(); });
     daemon_thread_ = std::thread([this] { loop_->run(daemon_stop_); });
   }
   // A passive load (a fan, 10 Nm at 60 rad/s) in place of the scenario's active one: with the
@@ -882,6 +882,46 @@ TEST(DaemonLoop, AStoppedDaemonLeavesThePowerStageOff) {
 
 // (A command timeout of 2 s: the thread that sends the commands every 50 ms may stall for
 // hundreds of milliseconds on a loaded machine, and must not trip it before the test stops.)
+// A second daemon configured as the same node (a unit's configuration copied without changing
+// can.node): each hears the other's published frames on its publishing endpoint, which does
+// not receive its own, and both trip DUPLICATE_NODE with the gates off, saying why; once the
+// second is gone for Publisher::kDuplicateHold, a stop command lets the first run again.
+TEST(DaemonLoop, TwoDaemonsOnOneNodeTripOnDuplicateNodeAndSayWhy) {
+  LogCapture log;
+  Bench bench;
+  Axis first(bench.bus, 4, 1e6);
+  std::vector<protocol::AnyDecoded> seen;
+  ASSERT_NO_FATAL_FAILURE(start_running(bench, first, seen));
+  ASSERT_TRUE(log.lines_with("DUPLICATE_NODE").empty()) << "one daemon alone heard a duplicate";
+  Axis second(bench.bus, 4, 1e6);  // its plant is never started: the first's plant feeds both
+  const std::size_t doubled = seen.size();
+  second.start_daemon();
+  supervise(bench, {4}, 50.0, 20s, seen, [&] {
+    return has_fault(seen, 4, protocol::FaultCode::kDuplicateNode, true, doubled) &&
+           has_state(seen, 4, protocol::DriveState::kFault, doubled) && !first.loop().gates_enabled() &&
+           log.lines_with("a second pmsm-thermald configured as node 4?").size() >= 2U;
+  });
+  ASSERT_TRUE(has_fault(seen, 4, protocol::FaultCode::kDuplicateNode, true, doubled));
+  EXPECT_FALSE(first.loop().gates_enabled());
+  EXPECT_FALSE(second.loop().gates_enabled());
+  const std::vector<std::string> said = log.lines_with("a second pmsm-thermald configured as node 4?");
+  ASSERT_EQ(said.size(), 2U) << "each daemon says it once";
+  EXPECT_NE(said.front().find("can.node"), std::string::npos) << said.front();
+  EXPECT_GT(first.publisher().stats().foreign_frames, 0U);
+
+  // The second goes; a stop command clears the fault once nothing has been heard for the hold.
+  second.stop();
+  const std::size_t alone = seen.size();
+  const auto until = std::chrono::steady_clock::now() + Publisher::kDuplicateHold + 20s;
+  while (!has_state(seen, 4, protocol::DriveState::kRunning, alone) && std::chrono::steady_clock::now() < until) {
+    bench.stop_drive(4);
+    supervise(bench, {4}, 50.0, 1s, seen, [&] { return has_state(seen, 4, protocol::DriveState::kRunning, alone); });
+  }
+  EXPECT_TRUE(has_fault(seen, 4, protocol::FaultCode::kDuplicateNode, false, alone));
+  EXPECT_TRUE(has_state(seen, 4, protocol::DriveState::kRunning, alone));
+  EXPECT_EQ(log.lines_with("no other sender of node 4's frames").size(), 1U);
+}
+
 TEST(DaemonLoop, CommandTimeoutSafeStateAndAStopCommandClearsIt) {
   Bench bench;
   Axis axis(bench.bus, 3, 1e6, 25.0, 2.0);

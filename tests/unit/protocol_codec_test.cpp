@@ -140,12 +140,12 @@ TEST(protocol_table, ValueTablesMatchEnums) {
   check(kCalibrationActionLabels, static_cast<std::size_t>(CalibrationAction::kAbort) + 1);
   check(kDriveStateLabels, static_cast<std::size_t>(DriveState::kFault) + 1);
   check(kInjectionResultLabels, static_cast<std::size_t>(InjectionResult::kSkippedTorqueDisturbance) + 1);
-  check(kFaultCodeLabels, static_cast<std::size_t>(FaultCode::kOutputFeedback) + 1);
+  check(kFaultCodeLabels, static_cast<std::size_t>(FaultCode::kDuplicateNode) + 1);
   check(kPlantModeLabels, 2);
   check(kCalibrationResultLabels, static_cast<std::size_t>(CalibrationResult::kRefused) + 1);
   EXPECT_EQ(thermal_estimate::kCalibrationResult.raw_max(), static_cast<std::int64_t>(CalibrationResult::kRefused));
   EXPECT_EQ(drive_command::kMode.raw_max(), 2);
-  EXPECT_EQ(fault::kCode.raw_max(), static_cast<std::int64_t>(FaultCode::kOutputFeedback));
+  EXPECT_EQ(fault::kCode.raw_max(), static_cast<std::int64_t>(FaultCode::kDuplicateNode));
   EXPECT_EQ(injection_report::kResult.raw_max(), static_cast<std::int64_t>(InjectionResult::kSkippedTorqueDisturbance));
 }
 
@@ -891,6 +891,22 @@ TEST(protocol_filters, AdmitExactlyTheRolesFramesForItsNode) {
   EXPECT_EQ(daemon.filters[0].kind, CanIdKind::kStandard);
   EXPECT_EQ(receive_filters(Role::kPlant, 3).count, 1U);
   EXPECT_EQ(receive_filters(Role::kDaemon, 16).count, 0U);
+}
+
+// The daemon's publishing endpoint watches its own node's published identifiers: every
+// watcher message it sends, not the fast loop's INVERTER_COMMAND (its control socket sends
+// that, and the publishing socket hears its sibling's frames), nor another node's.
+TEST(protocol_filters, PublishedFiltersAreTheRolesWatcherFramesOfItsNode) {
+  const FilterSet set = published_filters(Role::kDaemon, 5);
+  for (std::uint32_t id = 0; id <= 0x7FF; ++id) {
+    const MessageDef* m = find_message(id);
+    const bool wanted = m != nullptr && m->sender == Role::kDaemon && !m->received_by(Role::kPlant) && node_of(id) == 5;
+    ASSERT_EQ(admitted(set.view(), id), wanted) << id;
+  }
+  EXPECT_TRUE(admitted(set.view(), 0x145U)) << "HEARTBEAT of node 5";
+  EXPECT_FALSE(admitted(set.view(), 0x015U)) << "INVERTER_COMMAND of node 5";
+  EXPECT_FALSE(admitted(set.view(), 0x146U)) << "HEARTBEAT of node 6";
+  EXPECT_EQ(published_filters(Role::kDaemon, 16).count, 0U);
 }
 
 TEST(protocol_filters, AllNodesVariant) {

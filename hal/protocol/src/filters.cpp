@@ -26,4 +26,17 @@ FilterSet receive_filters_all_nodes(Role role) noexcept {
   return make_filters(role, 0, kIdBaseMask);
 }
 
+FilterSet published_filters(Role role, NodeId node) noexcept {
+  FilterSet set;
+  if (node > kMaxNodeId) {
+    return set;
+  }
+  for (const MessageDef& def : kMessages) {
+    if (def.sender == role && !def.received_by(Role::kPlant)) {
+      set.filters[set.count++] = CanFilter{def.can_id(node), kMaxStandardId, CanIdKind::kStandard};
+    }
+  }
+  return set;
+}
+
 }  // namespace pmsm::hal::protocol

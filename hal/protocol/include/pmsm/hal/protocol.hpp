@@ -38,7 +38,7 @@ inline constexpr std::uint32_t kNodeIdMask = 0x00F;  // the node-id bits of a CA
 inline constexpr std::uint32_t kIdBaseMask = 0x7F0;  // the message bits of a CAN ID
 
 // Protocol version, written into the DBC's VERSION line. Bump it on any layout change.
-inline constexpr std::string_view kProtocolVersion = "pmsm-thermal-can 1.4";
+inline constexpr std::string_view kProtocolVersion = "pmsm-thermal-can 1.5";
 
 // The parties on the bus (DBC "BU_" nodes). A receive-filter role is one of these.
 enum class Role : std::uint8_t {
@@ -269,8 +269,9 @@ enum class FaultCode : std::uint8_t {
   kPeriodMismatch = 21,      // the power stage samples at another period than the drive's
   kCurrentOffset = 22,       // a current sensor read far from zero with the gates off at power-up
   kOutputFeedback = 23,      // the power stage kept its gates off while the drive enabled them
+  kDuplicateNode = 24,       // another sender transmits this node's daemon frames
 };
-inline constexpr std::size_t kFaultCodeCount = 24;
+inline constexpr std::size_t kFaultCodeCount = 25;
 inline constexpr std::array<ValueLabel, kFaultCodeCount> kFaultCodeLabels{{
     {0, "NONE"},
     {1, "SENSOR_TIMEOUT"},
@@ -295,7 +296,8 @@ inline constexpr std::array<ValueLabel, kFaultCodeCount> kFaultCodeLabels{{
     {20, "OVERSPEED"},
     {21, "PERIOD_MISMATCH"},
     {22, "CURRENT_OFFSET"},
-    {23, "OUTPUT_FEEDBACK"}}};
+    {23, "OUTPUT_FEEDBACK"},
+    {24, "DUPLICATE_NODE"}}};
 
 enum class PlantMode : std::uint8_t { kRealtime = 0, kLockstep = 1 };
 inline constexpr std::array<ValueLabel, 2> kPlantModeLabels{{{0, "REALTIME"}, {1, "LOCKSTEP"}}};
@@ -538,7 +540,7 @@ inline constexpr std::array<SignalDef, 4> kSignals{e2e::kCrc, e2e::kAliveCounter
 }  // namespace calibration_command
 
 namespace fault {
-inline constexpr SignalDef kCode{"Code", 0, 8, false, 1, 0, 0, 23, "", kFaultCodeLabels, "Fault code."};
+inline constexpr SignalDef kCode{"Code", 0, 8, false, 1, 0, 0, 24, "", kFaultCodeLabels, "Fault code."};
 inline constexpr SignalDef kActive{"Active", 8, 1, false, 1, 0, 0, 1, "", detail::kNoValues,
     "1: the fault is active; 0: it has cleared."};
 inline constexpr SignalDef kOccurrenceCount{"OccurrenceCount", 16, 16, false, 1, 0, 0, 65535, "", detail::kNoValues,
