@@ -57,6 +57,7 @@ struct PublicationRecord {
   double calibration_rs0_std_ohm = 0.0;
   double calibration_winding_rise_C = 0.0;  // kWindingWarm: the filter's winding above the ambient
   core::OutcomeCounts calibration_pairs{};   // the failed calibration's pairs, by outcome (a timeout's why)
+  core::AbortCounts calibration_aborts{};    // its aborted pairs, by cause
   double uptime_s = 0.0;
   double current_noise_A = 0.0;  // the current sensors' noise the front end measured (or was given)
   double reported_period_s = 0.0;  // the power stage's sampling period, as it reports it (0: never)

@@ -360,7 +360,7 @@ void Publisher::handle(const PublicationRecord& r) {
     } else {
       spdlog::warn("calibration gave up (calibration.timeout_s, {:.0f} s, without enough published events; its pairs: {}: "
                  "calibrate unloaded at a steady speed); the previous calibration stays in use",
-                 config_.controller.drive.calibration_timeout_s, core::calibration_outcomes_text(r.calibration_pairs));
+                 config_.controller.drive.calibration_timeout_s, core::pair_outcomes_text(r.calibration_pairs, r.calibration_aborts));
     }
   }
   if (r.calibration_to_store) {

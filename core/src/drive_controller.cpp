@@ -168,18 +168,32 @@ void DriveController::record_calibration_failure(CalibrationFailure why) {
   publish_calibration_state();
 }
 
-std::string calibration_outcomes_text(const OutcomeCounts& counts) {
-  std::array<std::size_t, std::tuple_size_v<OutcomeCounts>> order{};
-  for (std::size_t k = 0; k < order.size(); ++k) {
+namespace {
+
+// "N name, M name" for the non-zero counts, most frequent first (ties in index order), with
+// `note` after the entry of `noted`.
+template <typename Enum, std::size_t N>
+std::string counts_text(const std::array<std::uint32_t, N>& counts, Enum noted = Enum{}, const std::string& note = {}) {
+  std::array<std::size_t, N> order{};
+  for (std::size_t k = 0; k < N; ++k) {
     order[k] = k;
   }
   std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return counts[a] > counts[b]; });
   std::string text;
   for (const std::size_t k : order) {
     if (counts[k] > 0U) {
-      text += (text.empty() ? "" : ", ") + std::to_string(counts[k]) + " " + std::string(to_string(static_cast<PairOutcome>(k)));
+      const auto e = static_cast<Enum>(k);
+      text += (text.empty() ? "" : ", ") + std::to_string(counts[k]) + " " + std::string(to_string(e)) +
+              (e == noted && !note.empty() ? " (" + note + ")" : std::string{});
     }
   }
+  return text;
+}
+
+}  // namespace
+
+std::string pair_outcomes_text(const OutcomeCounts& counts, const AbortCounts& aborts) {
+  const std::string text = counts_text(counts, PairOutcome::kAborted, counts_text<AbortCause>(aborts));
   return text.empty() ? "no pair" : text;
 }
 
@@ -434,6 +448,7 @@ void DriveController::start_calibration(double known_temp_C, bool from_ambient_s
   }
   scheduler_.set_config(config_.calibration_injection);
   telemetry_.calibration_outcomes = {};
+  telemetry_.calibration_aborts = {};
   // The winding is at the known temperature now; the thermal model carries it through the
   // calibration, whose own injections warm the winding a little.
   // The time scale set by set_thermal_time_scale() holds whatever the order of the calls.
@@ -772,6 +787,9 @@ void DriveController::handle_pair(const PairResult& r) {
   ++telemetry_.outcomes[static_cast<std::size_t>(r.outcome)];
   if (calibrating_) {
     ++telemetry_.calibration_outcomes[static_cast<std::size_t>(r.outcome)];
+    if (r.outcome == PairOutcome::kAborted) {
+      ++telemetry_.calibration_aborts[static_cast<std::size_t>(r.abort_cause)];
+    }
   }
   telemetry_.lq_saturation_resolved = scheduler_.lq_saturation_resolved();  // a pair may have resolved it
   report(last_pair_, r);

@@ -52,6 +52,18 @@ std::string_view to_string(PairOutcome o) {
   return "?";
 }
 
+std::string_view to_string(AbortCause c) {
+  switch (c) {
+    case AbortCause::kNone: return "none";
+    case AbortCause::kDisabled: return "disabled";
+    case AbortCause::kMotoringNeedsVoltage: return "motoring_needs_voltage";
+    case AbortCause::kSpeedLost: return "speed_lost";
+    case AbortCause::kCurrentLimit: return "current_limit";
+    case AbortCause::kCount: break;
+  }
+  return "?";
+}
+
 namespace {
 // u = (iq / current limit)^2, the saturation model's variable.
 double saturation_variable(double iq_A, double limit_A) {
@@ -499,10 +511,11 @@ Dq InjectionScheduler::injection_current(const SchedulerInput& in) const {
   return {};
 }
 
-void InjectionScheduler::abort(SchedulerOutput& out, const SchedulerInput& in) {
+void InjectionScheduler::abort(SchedulerOutput& out, const SchedulerInput& in, AbortCause cause) {
   if (phase_ != SchedulerPhase::kIdle) {
     PairResult r;
     r.outcome = PairOutcome::kAborted;
+    r.abort_cause = cause;
     r.method = config_.method;
     r.separation = config_.separation;
     r.time_s = in.time_s;
@@ -1147,14 +1160,17 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
   }
   const bool busy = phase_ != SchedulerPhase::kIdle;
   if (!in.enabled) {
-    abort(out, in);
+    abort(out, in, AbortCause::kDisabled);
     return out;
   }
-  // An angle-based pair cannot survive the rotor stopping or reversing, and no pair may keep
-  // the field weakening held where the motoring point needs it to move.
-  if (busy && (in.release_motoring || (!time_based_ &&
-                                      direction_ * in.omega_e_rad_s < 0.5 * config_.min_speed_for_angle_rad_s))) {
-    abort(out, in);
+  // No pair may keep the field weakening held where the motoring point needs it to move, and
+  // an angle-based pair cannot survive the rotor stopping or reversing.
+  if (busy && in.release_motoring) {
+    abort(out, in, AbortCause::kMotoringNeedsVoltage);
+    return out;
+  }
+  if (busy && !time_based_ && direction_ * in.omega_e_rad_s < 0.5 * config_.min_speed_for_angle_rad_s) {
+    abort(out, in, AbortCause::kSpeedLost);
     return out;
   }
 
@@ -1419,7 +1435,7 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
       if (s_fit >= 1.0 - kMaxCut) {
         out.injection_A = {s_fit * p.d, s_fit * p.q};
       } else {
-        abort(out, in);
+        abort(out, in, AbortCause::kCurrentLimit);
       }
     }
   }

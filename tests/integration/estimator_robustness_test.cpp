@@ -503,8 +503,8 @@ TEST(EstimatorRobustness, AnEncoderOffsetIsCheckedAndCorrectedByTheCalibration) 
   const auto& pairs = unchecked.calibration_failure_pairs;
   const auto speed_change = pairs[static_cast<std::size_t>(core::PairOutcome::kRejectedSpeedChange)];
   EXPECT_GT(speed_change, 0U);
-  EXPECT_EQ(core::calibration_outcomes_text(pairs).rfind(std::to_string(speed_change) + " rejected_speed_change", 0), 0U)
-      << core::calibration_outcomes_text(pairs);
+  EXPECT_EQ(core::pair_outcomes_text(pairs).rfind(std::to_string(speed_change) + " rejected_speed_change", 0), 0U)
+      << core::pair_outcomes_text(pairs);
 }
 
 // The 48 V servo's rotor is light (1.5e-4 kg m^2) and slightly salient (Lq - Ld = 0.02 mH): a

@@ -1129,8 +1129,14 @@ TEST(DriveNode, ACalibrationsPairsAreNamedByOutcome) {
   counts[static_cast<std::size_t>(core::PairOutcome::kAccepted)] = 8;
   counts[static_cast<std::size_t>(core::PairOutcome::kAborted)] = 16;
   counts[static_cast<std::size_t>(core::PairOutcome::kRejectedSpeedChange)] = 2;
-  EXPECT_EQ(core::calibration_outcomes_text(counts), "16 aborted, 8 accepted, 2 rejected_speed_change");
-  EXPECT_EQ(core::calibration_outcomes_text(core::OutcomeCounts{}), "no pair");
+  EXPECT_EQ(core::pair_outcomes_text(counts), "16 aborted, 8 accepted, 2 rejected_speed_change");
+  EXPECT_EQ(core::pair_outcomes_text(core::OutcomeCounts{}), "no pair");
+  // With the aborted pairs' causes, most frequent first.
+  core::AbortCounts aborts{};
+  aborts[static_cast<std::size_t>(core::AbortCause::kCurrentLimit)] = 4;
+  aborts[static_cast<std::size_t>(core::AbortCause::kMotoringNeedsVoltage)] = 12;
+  EXPECT_EQ(core::pair_outcomes_text(counts, aborts),
+            "16 aborted (12 motoring_needs_voltage, 4 current_limit), 8 accepted, 2 rejected_speed_change");
 }
 
 // A calibration that gives up says so on the bus, and the one in use (here the configured
@@ -1143,7 +1149,7 @@ TEST(DriveNode, ACalibrationThatTimesOutIsPublishedAsSuch) {
   EXPECT_EQ(next_thermal(rig).calibration_result, protocol::CalibrationResult::kNone);
   expect_failed_calibration(rig, core::CalibrationFailure::kTimeout, protocol::CalibrationResult::kTimedOut);
   // Why: its pairs by outcome (none here: it timed out before its first event).
-  EXPECT_EQ(core::calibration_outcomes_text(rig.node->controller().telemetry().calibration_outcomes), "no pair");
+  EXPECT_EQ(core::pair_outcomes_text(rig.node->controller().telemetry().calibration_outcomes), "no pair");
   // Its sweep measured the bridge before the events timed out; the calibration in use (the
   // configured default) was learned with no measured band, so the measured one replaces the
   // configured guess.

@@ -1558,6 +1558,7 @@ TEST(InjectionScheduler, ReleasingTheMotoringPointAbortsThePair) {
   h.run_until(0.45);
   ASSERT_GE(h.pairs.size(), 1U);
   EXPECT_EQ(h.pairs[0].outcome, PairOutcome::kAborted);
+  EXPECT_EQ(h.pairs[0].abort_cause, AbortCause::kMotoringNeedsVoltage);
   ASSERT_GE(h.estimates.size(), 1U);
   EXPECT_EQ(h.estimates[0].outcome, EventOutcome::kAborted);
   for (const StepRecord& r : h.records) {
@@ -1596,12 +1597,13 @@ TEST(InjectionScheduler, APulseIsCutOrEndedToKeepTheCurrentLimit) {
       worst_A = std::max(worst_A, std::hypot(inj.d, motoring_iq[k] + inj.q));
     }
     EXPECT_LE(worst_A, c.current_limit_A + 1e-9) << "motoring iq " << iq_during_A << " A";
-    return h.pairs.empty() ? PairOutcome::kCount : h.pairs[0].outcome;
+    return h.pairs.empty() ? std::pair{PairOutcome::kCount, AbortCause::kCount}
+                           : std::pair{h.pairs[0].outcome, h.pairs[0].abort_cause};
   };
   // sqrt(80^2 - 76^2) = 25.0 A of room: the full pulse fits; at 76.2 A it is cut by 5 %.
-  EXPECT_NE(run(76.2), PairOutcome::kAborted);
+  EXPECT_NE(run(76.2).first, PairOutcome::kAborted);
   // At 79 A only 12.6 A of room: half the pulse, the pair ends.
-  EXPECT_EQ(run(79.0), PairOutcome::kAborted);
+  EXPECT_EQ(run(79.0), std::pair(PairOutcome::kAborted, AbortCause::kCurrentLimit));
 }
 
 TEST(InjectionScheduler, LosingSpeedAbortsAnAngleBasedPair) {
@@ -1613,6 +1615,7 @@ TEST(InjectionScheduler, LosingSpeedAbortsAnAngleBasedPair) {
   h.run_until(0.2);
   ASSERT_FALSE(h.pairs.empty());
   EXPECT_EQ(h.pairs[0].outcome, PairOutcome::kAborted);
+  EXPECT_EQ(h.pairs[0].abort_cause, AbortCause::kSpeedLost);
   for (const EventEstimate& e : h.estimates) EXPECT_NE(e.outcome, EventOutcome::kPublished);
 }
 

@@ -121,7 +121,7 @@ Report run_one(const std::string& path, const Scenario& scenario, const Simulate
     r.err += fmt::format("simulate: {}: the calibration failed (timeout at {:.2f} s; its pairs: {}: calibrate unloaded at "
                          "a steady speed); the figures are those of the calibration in use before it\n",
                          path, result.calibration_failure_time_s,
-                         core::calibration_outcomes_text(result.calibration_failure_pairs));
+                         core::pair_outcomes_text(result.calibration_failure_pairs, result.calibration_failure_aborts));
   } else if (result.calibration_failure != core::CalibrationFailure::kNone) {
     r.err += fmt::format("simulate: {}: the calibration failed ({} at {:.2f} s); the figures are those of the "
                          "calibration in use before it\n",

@@ -695,6 +695,8 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
 
   std::uint32_t latched_before = 0;  // the supervisor's latched faults after the previous period
   double metrics_from_s = -1.0;  // -1: not yet (calibration, or the first estimate, pending)
+  core::OutcomeCounts event_pairs{};  // pairs since the last event or calibration ended: the next one's
+  core::AbortCounts event_aborts{};   // those aborted, by cause
   std::size_t covered = 0;        // counted samples with the truth inside +-2 sigma
   double injection_energy_J = 0.0;
   std::uint64_t injection_periods = 0;
@@ -766,8 +768,26 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
       result.calibration_failure_pairs = refused_before_it_ran
                                              ? core::OutcomeCounts{}  // refused before it ran: another run's
                                              : tel.calibration_outcomes;
+      result.calibration_failure_aborts = refused_before_it_ran ? core::AbortCounts{} : tel.calibration_aborts;
+      if (options.log_events) {
+        result.event_log.push_back(
+            refused_before_it_ran
+                ? fmt::format("{:10.3f}  calibration refused: {}", t, core::calibration_failure_name(tel.calibration_failure))
+                : fmt::format("{:10.3f}  calibration failed: {}; its pairs: {}", t,
+                              core::calibration_failure_name(tel.calibration_failure),
+                              core::pair_outcomes_text(tel.calibration_outcomes, tel.calibration_aborts)));
+      }
+      event_pairs = {};
+      event_aborts = {};
     }
     if (step.calibration_to_store) {
+      if (options.log_events) {
+        result.event_log.push_back(fmt::format("{:10.3f}  calibration: Rs0 {:.5f} ohm at {:.1f} C; its pairs: {}", t,
+                                               step.calibration_to_store->rs0_ohm, step.calibration_to_store->t0_C,
+                                               core::pair_outcomes_text(tel.calibration_outcomes, tel.calibration_aborts)));
+      }
+      event_pairs = {};
+      event_aborts = {};
       result.calibrated = true;
       result.calibration = *step.calibration_to_store;
       result.calibration_rs0_std_ohm = tel.calibration_rs0_std_ohm;
@@ -790,6 +810,10 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
     if (drive.last_pair()) {
       const core::PairResult& p = *drive.last_pair();
       ++result.pairs[static_cast<std::size_t>(p.outcome)];
+      ++event_pairs[static_cast<std::size_t>(p.outcome)];
+      if (p.outcome == core::PairOutcome::kAborted) {
+        ++event_aborts[static_cast<std::size_t>(p.abort_cause)];
+      }
       if (p.outcome == core::PairOutcome::kAccepted && p.field_weakening) {
         ++result.field_weakening_pairs_accepted;
       }
@@ -797,10 +821,21 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
     if (drive.last_event() && drive.last_event()->outcome != core::EventOutcome::kPublished) {
       ++result.events_without_estimate[static_cast<std::size_t>(drive.last_event()->outcome)];
       if (options.log_events) {
+        // The event's own pairs by outcome (what ended each: the guard that rejected it, the
+        // hold that aborted it); the joint fit's figures where it had pairs to fit.
         const core::EventEstimate& e = *drive.last_event();
-        result.event_log.push_back(fmt::format("{:10.3f}  event without estimate: {} (pairs {}, joint rs {:.2f} mOhm, vx {:.3f} V, ident {:.3f})",
-                                               t, core::to_string(e.outcome), e.pairs, 1e3 * e.rs_ohm, e.joint_vx_V, e.joint_condition));
+        result.event_log.push_back(
+            e.pairs > 0
+                ? fmt::format("{:10.3f}  event without estimate: {}; its pairs: {} (joint rs {:.2f} mOhm, vx {:.3f} V, ident {:.3f})",
+                              t, core::to_string(e.outcome), core::pair_outcomes_text(event_pairs, event_aborts), 1e3 * e.rs_ohm,
+                              e.joint_vx_V, e.joint_condition)
+                : fmt::format("{:10.3f}  event without estimate: {}; its pairs: {}", t, core::to_string(e.outcome),
+                              core::pair_outcomes_text(event_pairs, event_aborts)));
       }
+    }
+    if (drive.last_event()) {
+      event_pairs = {};
+      event_aborts = {};
     }
     if (drive.last_estimate()) {
       const core::ResistanceEstimate& e = *drive.last_estimate();
@@ -1096,6 +1131,10 @@ std::string result_json(const SimulationResult& r) {
     for (std::size_t k = 0; k < r.calibration_failure_pairs.size(); ++k) {
       j.field(core::to_string(static_cast<core::PairOutcome>(k)), static_cast<std::uint64_t>(r.calibration_failure_pairs[k]));
     }
+    j.end_object().key("aborted_by").begin_object();
+    for (std::size_t k = 1; k < r.calibration_failure_aborts.size(); ++k) {
+      j.field(core::to_string(static_cast<core::AbortCause>(k)), static_cast<std::uint64_t>(r.calibration_failure_aborts[k]));
+    }
     j.end_object().end_object();
   }
   // Every fault the drive latched, by name (an empty object: none).
@@ -1245,7 +1284,7 @@ std::string result_text(const SimulationResult& r) {
   if (r.calibration_failure == core::CalibrationFailure::kTimeout) {
     out += fmt::format("  calibration failed at {:.2f} s    timeout: not enough published events in calibration.timeout_s "
                        "(its pairs: {}); the calibration in use stays\n",
-                       r.calibration_failure_time_s, core::calibration_outcomes_text(r.calibration_failure_pairs));
+                       r.calibration_failure_time_s, core::pair_outcomes_text(r.calibration_failure_pairs, r.calibration_failure_aborts));
   } else if (r.calibration_failure == core::CalibrationFailure::kWindingWarm) {
     out += fmt::format("  calibration failed at {:.2f} s    winding_warm: the thermal filter held the winding {:.1f} C above "
                        "the ambient sensor (calibration.max_winding_rise_C); the calibration in use stays\n",

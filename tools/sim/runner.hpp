@@ -166,6 +166,7 @@ struct SimulationResult {
   double calibration_failure_rs0_std_ohm = 0.0;
   double calibration_failure_winding_rise_C = 0.0;  // kWindingWarm: the filter's winding above the ambient
   core::OutcomeCounts calibration_failure_pairs{};  // the failed calibration's pairs, by outcome
+  core::AbortCounts calibration_failure_aborts{};   // its aborted pairs, by cause
   core::InverterSweepResult inverter_sweep{};  // the calibration's bridge sweep (outcome kNone: not run)
   double inverter_sweep_time_s = 0.0;
   core::AngleCheckResult angle_check{};  // the calibration's last rotor-angle check (outcome kNone: not run)

@@ -176,6 +176,8 @@ struct DriveOutput {
 
 // Counters of pair outcomes, indexed by PairOutcome.
 using OutcomeCounts = std::array<std::uint32_t, static_cast<std::size_t>(PairOutcome::kCount)>;
+// Counters of aborted pairs by cause, indexed by AbortCause.
+using AbortCounts = std::array<std::uint32_t, static_cast<std::size_t>(AbortCause::kCount)>;
 
 // Why the last calibration run failed.
 enum class CalibrationFailure : std::uint8_t {
@@ -193,9 +195,11 @@ enum class CalibrationFailure : std::uint8_t {
 [[nodiscard]] constexpr bool refused_on_request(CalibrationFailure f) {
   return f == CalibrationFailure::kWindingWarm || f == CalibrationFailure::kTemperatureImplausible;
 }
-// A calibration's pairs by outcome, most frequent first, e.g. "34 rejected_load_change, 4
-// accepted"; "no pair" when there were none. Not for the control period (it allocates).
-[[nodiscard]] std::string calibration_outcomes_text(const OutcomeCounts& counts);
+// Pairs by outcome (a calibration's, an event's), most frequent first, e.g. "34
+// rejected_load_change, 4 accepted"; "no pair" when there were none. With the aborted pairs'
+// causes, "16 aborted (12 motoring_needs_voltage, 4 current_limit), 8 accepted". Not for the
+// control period (it allocates).
+[[nodiscard]] std::string pair_outcomes_text(const OutcomeCounts& counts, const AbortCounts& aborts = {});
 
 // How the last calibration run ended (published on the bus: THERMAL_ESTIMATE.CalibrationResult).
 enum class CalibrationOutcome : std::uint8_t {
@@ -272,8 +276,9 @@ struct DriveTelemetry {
   MagnetRefusalReport magnet_last_refusal{};  // the last refused one
   OutcomeCounts outcomes{};
   // The pairs of the calibration run in progress, or of the last one that ended, by outcome: why
-  // a calibration timed out (calibration_outcomes_text).
+  // a calibration timed out (pair_outcomes_text).
   OutcomeCounts calibration_outcomes{};
+  AbortCounts calibration_aborts{};  // its aborted pairs by cause
   std::uint32_t estimates_published = 0;
   std::uint32_t estimates_gated = 0;  // implausible against the thermal filter's prediction
   // Held estimates (dated after their publication) dropped because the filter restarted before

@@ -70,6 +70,17 @@ enum class PairOutcome : std::uint8_t {
 };
 [[nodiscard]] std::string_view to_string(PairOutcome o);
 
+// Why a pair was aborted (PairOutcome::kAborted), for the logs and `simulate --events`.
+enum class AbortCause : std::uint8_t {
+  kNone = 0,
+  kDisabled = 1,            // the drive disabled or faulted: the scheduler stepped not enabled
+  kMotoringNeedsVoltage = 2, // held on the voltage limit, or the field weakening short of the speed
+  kSpeedLost = 3,           // an angle-based pair with the rotor stopping or reversing
+  kCurrentLimit = 4,        // the motoring current crowded the pulse past what a cut may take
+  kCount = 5,
+};
+[[nodiscard]] std::string_view to_string(AbortCause c);
+
 struct InjectionConfig {
   InjectionMethod method = InjectionMethod::kFixedMagnitude;
   Separation separation = Separation::kBipolar;
@@ -272,6 +283,7 @@ enum class SchedulerPhase : std::uint8_t {
 // finished (the published estimate is the event's, below).
 struct PairResult {
   PairOutcome outcome = PairOutcome::kAborted;
+  AbortCause abort_cause = AbortCause::kNone;  // set when outcome is kAborted
   InjectionMethod method = InjectionMethod::kNone;
   Separation separation = Separation::kBipolar;
   double time_s = 0.0;
@@ -562,7 +574,7 @@ class InjectionScheduler {
   // Fixed-angle: how far past the pulse's start an angle is, in the direction of rotation.
   [[nodiscard]] double pulse_phase(double theta_e_rad) const { return direction_ * (theta_e_rad - pulse_start_theta_); }
   void begin_pair(const SchedulerInput& in);
-  void abort(SchedulerOutput& out, const SchedulerInput& in);
+  void abort(SchedulerOutput& out, const SchedulerInput& in, AbortCause cause);
   PairResult finish_pair(const SchedulerInput& in);
   EventEstimate finish_event(const SchedulerInput& in);
   // Whether the event's estimate comes from the pairs' means (event_means_): the joint fit
