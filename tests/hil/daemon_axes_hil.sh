@@ -25,7 +25,9 @@
 #   - no lockstep period lost: every plant applied a command in every period (commands
 #     applied = periods, no command timeout), no daemon raised a fault after its plant came
 #     (SENSOR_TIMEOUT occurred once, before the plant started), every drive still RUNNING;
-#   - every process is still alive when its plant finishes.
+#   - every process is still alive when its plant finishes;
+#   - then a copy of axis 1's daemon started with the same node: both name the duplicate
+#     (DUPLICATE_NODE), axis 2 does not.
 # Everything started is stopped on exit, pass or fail.
 #
 # Natively (a host with vcan) it makes a scratch vcan of its own, or is skipped (exit 77)
@@ -294,5 +296,21 @@ for n in $(seq "$axes"); do
   [ "$periods" = "$applied" ] && [ "$timeouts" = 0 ] || check "$n" "lockstep periods lost: $summary"
 done
 [ "$fails" = 0 ] || die "$fails check(s) failed (work directory kept)"
+
+# A copy of axis 1's configuration started as it is (can.node unchanged, as a unit copied for a
+# new axis would be): each node-1 daemon hears the other's published frames, which the kernel
+# never loops back to their own sender, and names the duplicate (DUPLICATE_NODE); axis 2 hears
+# nothing of it.
+dup=$work/axis1-copy
+mkdir -p "$dup"
+cp "$work/axis1/daemon.toml" "$dup/"
+(cd "$dup" && exec "$thermald" --config daemon.toml >daemon.log 2>&1) &
+dup_pid=$!
+pids+=("$dup_pid")
+said="a second pmsm-thermald configured as node 1?"
+hil_wait_for "$dup/daemon.log" "$said" "$dup_pid" 20 "the copy of axis 1's pmsm-thermald"
+hil_wait_for "$work/axis1/daemon.log" "$said" "${daemon_pid[1]}" 20 "pmsm-thermald of axis 1"
+! grep -q "a second pmsm-thermald" "$work/axis2/daemon.log" || die "axis 2 named a duplicate of itself"
+echo "$prog: a copy of axis 1's configuration started: both node-1 daemons name the duplicate ($(grep -m1 -o "sends node 1's [A-Z_]* (0x[0-9A-F]*)" "$work/axis1/daemon.log")), axis 2 does not"
 ok=1
 echo "$prog: PASS"
