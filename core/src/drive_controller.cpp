@@ -193,7 +193,9 @@ std::string counts_text(const std::array<std::uint32_t, N>& counts, Enum noted =
 }  // namespace
 
 std::string pair_outcomes_text(const OutcomeCounts& counts, const AbortCounts& aborts) {
-  const std::string text = counts_text(counts, PairOutcome::kAborted, counts_text<AbortCause>(aborts));
+  AbortCounts causes = aborts;
+  causes[static_cast<std::size_t>(AbortCause::kNone)] = 0U;  // the pairs not aborted
+  const std::string text = counts_text(counts, PairOutcome::kAborted, counts_text<AbortCause>(causes));
   return text.empty() ? "no pair" : text;
 }
 
@@ -787,9 +789,7 @@ void DriveController::handle_pair(const PairResult& r) {
   ++telemetry_.outcomes[static_cast<std::size_t>(r.outcome)];
   if (calibrating_) {
     ++telemetry_.calibration_outcomes[static_cast<std::size_t>(r.outcome)];
-    if (r.outcome == PairOutcome::kAborted) {
-      ++telemetry_.calibration_aborts[static_cast<std::size_t>(r.abort_cause)];
-    }
+    ++telemetry_.calibration_aborts[static_cast<std::size_t>(r.abort_cause)];  // (kNone: not aborted)
   }
   telemetry_.lq_saturation_resolved = scheduler_.lq_saturation_resolved();  // a pair may have resolved it
   report(last_pair_, r);

@@ -1135,6 +1135,7 @@ TEST(DriveNode, ACalibrationsPairsAreNamedByOutcome) {
   core::AbortCounts aborts{};
   aborts[static_cast<std::size_t>(core::AbortCause::kCurrentLimit)] = 4;
   aborts[static_cast<std::size_t>(core::AbortCause::kMotoringNeedsVoltage)] = 12;
+  aborts[static_cast<std::size_t>(core::AbortCause::kNone)] = 10;  // the pairs not aborted: not shown
   EXPECT_EQ(core::pair_outcomes_text(counts, aborts),
             "16 aborted (12 motoring_needs_voltage, 4 current_limit), 8 accepted, 2 rejected_speed_change");
 }

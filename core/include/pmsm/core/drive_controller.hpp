@@ -197,8 +197,8 @@ enum class CalibrationFailure : std::uint8_t {
 }
 // Pairs by outcome (a calibration's, an event's), most frequent first, e.g. "34
 // rejected_load_change, 4 accepted"; "no pair" when there were none. With the aborted pairs'
-// causes, "16 aborted (12 motoring_needs_voltage, 4 current_limit), 8 accepted". Not for the
-// control period (it allocates).
+// causes (`aborts`; its kNone count is not shown), "16 aborted (12 motoring_needs_voltage, 4
+// current_limit), 8 accepted". Not for the control period (it allocates).
 [[nodiscard]] std::string pair_outcomes_text(const OutcomeCounts& counts, const AbortCounts& aborts = {});
 
 // How the last calibration run ended (published on the bus: THERMAL_ESTIMATE.CalibrationResult).
@@ -278,7 +278,9 @@ struct DriveTelemetry {
   // The pairs of the calibration run in progress, or of the last one that ended, by outcome: why
   // a calibration timed out (pair_outcomes_text).
   OutcomeCounts calibration_outcomes{};
-  AbortCounts calibration_aborts{};  // its aborted pairs by cause
+  // Its pairs by abort cause (kNone: the pairs not aborted; counted so, without a test, since the
+  // test cost the control step 15 instructions through the inliner's choices).
+  AbortCounts calibration_aborts{};
   std::uint32_t estimates_published = 0;
   std::uint32_t estimates_gated = 0;  // implausible against the thermal filter's prediction
   // Held estimates (dated after their publication) dropped because the filter restarted before
