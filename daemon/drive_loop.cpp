@@ -165,6 +165,7 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns, 
     }
     r.ambient_C = node_.ambient_C();
     r.ambient_held = node_.ambient_held();
+    r.ambient_dropouts = node_.ambient_dropouts();
     r.ambient_sensed = node_.ambient_sensed();
     if (!ring_.try_push(r)) {
       counters_.publications_dropped.bump();

@@ -50,6 +50,7 @@ struct PublicationRecord {
   std::optional<core::ThermalState> thermal_state;
   double ambient_C = 25.0;      // the ambient / coolant temperature in use (DriveNode::ambient_C)
   bool ambient_held = false;    // ... a sensor that stopped reporting, held (DriveNode::ambient_held)
+  std::uint32_t ambient_dropouts = 0;  // DriveNode::ambient_dropouts: brief ones between two records too
   bool ambient_sensed = false;  // ... a sensor's reading, not the configured value (DriveNode::ambient_sensed)
   bool calibration_failed = false;
   core::CalibrationFailure calibration_failure = core::CalibrationFailure::kNone;

@@ -283,6 +283,16 @@ void Publisher::handle(const PublicationRecord& r) {
   if (r.thermal_state) {
     store_thermal_state(*r.thermal_state, r.ambient_C);
   }
+  // Dropouts that began and ended between two records: the held flag never showed them.
+  const std::uint32_t dropouts = r.ambient_dropouts - ambient_dropouts_;
+  ambient_dropouts_ = r.ambient_dropouts;
+  const std::uint32_t shown = r.ambient_held && !ambient_held_ ? 1U : 0U;
+  if (dropouts > shown) {
+    spdlog::warn("the ambient sensor stopped reporting briefly {} time(s) since the last report (SENSOR_SAMPLE "
+                 "AmbientValid = 0; the drive held its last reading meanwhile): a loose connector or a sensor at "
+                 "the edge of its range? {} dropout(s) since start",
+                 dropouts - shown, r.ambient_dropouts);
+  }
   if (r.ambient_held != ambient_held_) {
     ambient_held_ = r.ambient_held;
     if (r.ambient_held) {

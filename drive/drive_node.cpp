@@ -142,7 +142,9 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
   // that reported and then stops (its stage's own sensor check, a loose connector) is held at
   // its last reading: the boundary of the thermal model does not jump to the caller's 25 C.
   if (status.sample_usable && si.sample) {
-    ambient_held_ = !si.sample->ambient_C && sensed_ambient_C_.has_value();
+    const bool held = !si.sample->ambient_C && sensed_ambient_C_.has_value();
+    ambient_dropouts_ += held && !ambient_held_ ? 1U : 0U;
+    ambient_held_ = held;
     if (si.sample->ambient_C) {
       sensed_ambient_C_ = si.sample->ambient_C;
     }

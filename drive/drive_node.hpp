@@ -119,6 +119,9 @@ class DriveNode {
   // The sensor reported and then stopped (AmbientValid cleared): ambient_C() holds its last
   // reading rather than falling back to the input (25 C by default). Cleared when it reports again.
   [[nodiscard]] bool ambient_held() const noexcept { return ambient_held_; }
+  // How many times a reporting ambient sensor stopped (each a start of ambient_held()): a
+  // dropout shorter than the publications' interval is counted too.
+  [[nodiscard]] std::uint32_t ambient_dropouts() const noexcept { return ambient_dropouts_; }
   // A reading of the sample's sensor is in use (held or fresh), not the input.
   [[nodiscard]] bool ambient_sensed() const noexcept { return sensed_ambient_C_.has_value(); }
   [[nodiscard]] const core::Supervisor& supervisor() const noexcept { return supervisor_; }
@@ -163,6 +166,7 @@ class DriveNode {
   bool calibrating_published_ = false;  // THERMAL_ESTIMATE's Calibrating bit as last published
   std::optional<double> sensed_ambient_C_;  // the sample's ambient sensor, last plausible reading
   bool ambient_held_ = false;
+  std::uint32_t ambient_dropouts_ = 0;
   double ambient_used_C_ = 25.0;
   std::uint8_t heartbeat_counter_ = 0;
   std::uint8_t injection_count_ = 0;

@@ -1543,9 +1543,11 @@ TEST(DriveNode, AnAmbientSensorThatStopsReportingIsHeldAtItsLastReading) {
   rig.run(1000);
   EXPECT_DOUBLE_EQ(rig.node->ambient_C(), 31.0);
   auto no_sensor = [](hal::SensorSample& s) { s.flags = static_cast<std::uint8_t>(s.flags & ~hal::kSensorAmbientValid); };
+  EXPECT_EQ(rig.node->ambient_dropouts(), 0U);
   rig.run(100, no_sensor);
   EXPECT_DOUBLE_EQ(rig.node->ambient_C(), 31.0);
   EXPECT_TRUE(rig.node->ambient_held());
+  EXPECT_EQ(rig.node->ambient_dropouts(), 1U) << "one dropout, however many samples it lasts";
   rig.in.start_calibration = true;  // "at the ambient": the held reading
   rig.run(1, no_sensor);
   rig.in.start_calibration = false;
@@ -1555,6 +1557,13 @@ TEST(DriveNode, AnAmbientSensorThatStopsReportingIsHeldAtItsLastReading) {
   rig.run(10);
   EXPECT_DOUBLE_EQ(rig.node->ambient_C(), 33.0);
   EXPECT_FALSE(rig.node->ambient_held());
+  // Brief dropouts (one sample each, far shorter than a publication's interval) are counted.
+  for (int k = 0; k < 3; ++k) {
+    rig.run(1, no_sensor);
+    rig.run(5);
+  }
+  EXPECT_FALSE(rig.node->ambient_held());
+  EXPECT_EQ(rig.node->ambient_dropouts(), 4U);
   // Held again, then another power stage (its PWM period reported anew) without the sensor: the
   // old stage's reading is not carried over.
   rig.run(10, no_sensor);
