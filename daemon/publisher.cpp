@@ -178,8 +178,8 @@ std::string Publisher::fault_cause(protocol::FaultCode code, double value) const
              "short circuit, a phase to earth, or a current regulator far out of tune): ";
     case protocol::FaultCode::kBusOff:
       return fmt::format("the CAN controller of '{}' went bus-off (too many transmit errors: wiring, termination, bit "
-                         "rate, or another node answering on the same identifiers); it returns once the controller "
-                         "restarts after the interface's restart-ms (ip link set {} type can restart-ms 100) or by hand "
+                         "rate, or another node answering on the same identifiers); a stop command clears the fault once "
+                         "the controller has restarted, after the interface's restart-ms (ip link set {} type can restart-ms 100) or by hand "
                          "(ip link set {} type can restart): ",
                          config_.can.interface, config_.can.interface, config_.can.interface);
     case protocol::FaultCode::kCommandTimeout:

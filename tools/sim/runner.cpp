@@ -697,6 +697,9 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
   double metrics_from_s = -1.0;  // -1: not yet (calibration, or the first estimate, pending)
   core::OutcomeCounts event_pairs{};  // pairs since the last event or calibration ended: the next one's
   core::AbortCounts event_aborts{};   // those aborted, by cause
+  std::string calibration_line;       // --events: a calibration's end, after the step's own event
+  bool calibration_ended = false;     // in this step (a refusal is not an end)
+  bool was_calibrating = false;
   std::size_t covered = 0;        // counted samples with the truth inside +-2 sigma
   double injection_energy_J = 0.0;
   std::uint64_t injection_periods = 0;
@@ -770,24 +773,22 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
                                              : tel.calibration_outcomes;
       result.calibration_failure_aborts = refused_before_it_ran ? core::AbortCounts{} : tel.calibration_aborts;
       if (options.log_events) {
-        result.event_log.push_back(
+        calibration_line =
             refused_before_it_ran
                 ? fmt::format("{:10.3f}  calibration refused: {}", t, core::calibration_failure_name(tel.calibration_failure))
                 : fmt::format("{:10.3f}  calibration failed: {}; its pairs: {}", t,
                               core::calibration_failure_name(tel.calibration_failure),
-                              core::pair_outcomes_text(tel.calibration_outcomes, tel.calibration_aborts)));
+                              core::pair_outcomes_text(tel.calibration_outcomes, tel.calibration_aborts));
       }
-      event_pairs = {};
-      event_aborts = {};
+      calibration_ended = !refused_before_it_ran;  // a refusal leaves the event under way alone
     }
     if (step.calibration_to_store) {
       if (options.log_events) {
-        result.event_log.push_back(fmt::format("{:10.3f}  calibration: Rs0 {:.5f} ohm at {:.1f} C; its pairs: {}", t,
-                                               step.calibration_to_store->rs0_ohm, step.calibration_to_store->t0_C,
-                                               core::pair_outcomes_text(tel.calibration_outcomes, tel.calibration_aborts)));
+        calibration_line = fmt::format("{:10.3f}  calibration: Rs0 {:.5f} ohm at {:.1f} C; its pairs: {}", t,
+                                       step.calibration_to_store->rs0_ohm, step.calibration_to_store->t0_C,
+                                       core::pair_outcomes_text(tel.calibration_outcomes, tel.calibration_aborts));
       }
-      event_pairs = {};
-      event_aborts = {};
+      calibration_ended = true;
       result.calibrated = true;
       result.calibration = *step.calibration_to_store;
       result.calibration_rs0_std_ohm = tel.calibration_rs0_std_ohm;
@@ -833,10 +834,20 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
                               core::pair_outcomes_text(event_pairs, event_aborts)));
       }
     }
-    if (drive.last_event()) {
+    // After this step's pair and event: the calibration's line, and a fresh tally where an event
+    // may have been dropped without an estimate (a calibration's start or end sets the
+    // scheduler's configuration, which drops the event under way).
+    if (!calibration_line.empty()) {
+      result.event_log.push_back(std::move(calibration_line));
+      calibration_line.clear();
+    }
+    const bool calibration_started = tel.calibrating && !was_calibrating;
+    was_calibrating = tel.calibrating;
+    if (drive.last_event() || calibration_ended || calibration_started) {
       event_pairs = {};
       event_aborts = {};
     }
+    calibration_ended = false;
     if (drive.last_estimate()) {
       const core::ResistanceEstimate& e = *drive.last_estimate();
       EstimateRow row;

@@ -32,7 +32,7 @@ FilterSet published_filters(Role role, NodeId node) noexcept {
     return set;
   }
   for (const MessageDef& def : kMessages) {
-    if (def.sender == role && !def.received_by(Role::kPlant)) {
+    if (def.sender == role && !def.received_by(Role::kPlant) && !def.received_by(Role::kDaemon)) {
       set.filters[set.count++] = CanFilter{def.can_id(node), kMaxStandardId, CanIdKind::kStandard};
     }
   }

@@ -32,7 +32,7 @@ struct FilterSet {
 [[nodiscard]] FilterSet receive_filters_all_nodes(Role role) noexcept;
 
 // One exact filter per message `role` publishes to the watchers for one node (its frames
-// other than the fast loop's): installed on the endpoint that sends them, which does not
+// other than the fast loop's, which the plant and the daemon exchange): installed on the endpoint that sends them, which does not
 // receive its own frames, it passes only those another sender transmits as this node (a
 // second daemon configured with the same node id). An invalid node gives an empty set.
 [[nodiscard]] FilterSet published_filters(Role role, NodeId node) noexcept;
