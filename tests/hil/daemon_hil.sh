@@ -49,7 +49,13 @@ done
 command -v candump >/dev/null || die "candump is missing (apt-get install can-utils)"
 
 work=$(mktemp -d "${TMPDIR:-/tmp}/daemon-hil.XXXXXXXX")
-sed -e "s/^interface = .*/interface = \"$iface\"/" "$src/tests/hil/data/hil-daemon.toml" > "$work/daemon.toml"
+# A 5 s command timeout, as daemon_axes_hil gives its daemons: a command's age is judged at each
+# sample's arrival, so a guest the host holds still for more than 1 s would trip COMMAND_TIMEOUT
+# although the supervisor sent on time (it did once in ten CI runs of daemon_axes_hil, on a guest
+# running 6.5 times slower than usual: docs/hil.md).
+sed -e "s/^interface = .*/interface = \"$iface\"/" -e "s/^command_timeout_s = .*/command_timeout_s = 5.0/" \
+  "$src/tests/hil/data/hil-daemon.toml" > "$work/daemon.toml"
+grep -q "^command_timeout_s = 5.0\$" "$work/daemon.toml" || die "could not set the command timeout"
 hil_cleanup_on_exit "$work" "${DAEMON_HIL_KEEP:-0}"
 
 # A lockstep pmsm-plant in the foreground: plant_run CONFIG SECONDS LOG; or in the background
