@@ -696,7 +696,7 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
   std::uint32_t latched_before = 0;  // the supervisor's latched faults after the previous period
   double metrics_from_s = -1.0;  // -1: not yet (calibration, or the first estimate, pending)
   core::OutcomeCounts event_pairs{};  // pairs since the last event or calibration ended: the next one's
-  core::AbortCounts event_aborts{};   // those aborted, by cause
+  core::AbortCounts event_aborts{};   // the same by abort cause
   std::string calibration_line;       // --events: a calibration's end, after the step's own event
   bool calibration_ended = false;     // in this step (a refusal is not an end)
   bool was_calibrating = false;
@@ -812,9 +812,7 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
       const core::PairResult& p = *drive.last_pair();
       ++result.pairs[static_cast<std::size_t>(p.outcome)];
       ++event_pairs[static_cast<std::size_t>(p.outcome)];
-      if (p.outcome == core::PairOutcome::kAborted) {
-        ++event_aborts[static_cast<std::size_t>(p.abort_cause)];
-      }
+      ++event_aborts[static_cast<std::size_t>(p.abort_cause)];  // (kNone: not aborted; as the drive's tally)
       if (p.outcome == core::PairOutcome::kAccepted && p.field_weakening) {
         ++result.field_weakening_pairs_accepted;
       }
