@@ -411,7 +411,7 @@ void Publisher::send_receive_status(const LoopStats& s) {
   m.rejected_counter = n(DecodeStatus::kRepeatedCounter) + n(DecodeStatus::kCounterJump);
   m.rejected_range = n(DecodeStatus::kOutOfRange);
   m.rejected_format = n(DecodeStatus::kWrongLength) + n(DecodeStatus::kWrongFrameFormat);
-  m.rejected_other = n(DecodeStatus::kUnknownId) + n(DecodeStatus::kWrongNode);
+  m.rejected_other = n(DecodeStatus::kUnknownId) + n(DecodeStatus::kWrongNode) + n(DecodeStatus::kStreamDisturbed);
   send(m);
   rejected_sent_ = total_rejected(s);
   receive_status_sent_ = std::chrono::steady_clock::now();
@@ -510,6 +510,16 @@ void Publisher::report() {
   }
   if (const std::string text = rejected_text(s, p); !text.empty()) {
     spdlog::warn("rejected frames since the last report: {}", text);
+  }
+  if (const auto held = s.rejected[static_cast<std::size_t>(protocol::DecodeStatus::kStreamDisturbed)] -
+                        p.rejected[static_cast<std::size_t>(protocol::DecodeStatus::kStreamDisturbed)];
+      held != 0U) {
+    spdlog::warn("{} command(s) for node {} passed their CRC and alive counter but were not acted on: frames with a bad CRC, "
+                 "length or format came on the same command ID just before (two within {} s), so these may be garbage "
+                 "that passed by chance (a device babbling on this node's command IDs?). A supervisor's commands are "
+                 "heard again once its stream has been clean for {} s",
+                 held, config_.can.node, std::chrono::duration<double>(protocol::kDisturbedWindow).count(),
+                 std::chrono::duration<double>(protocol::kDisturbedWindow).count());
   }
   if (s.stale_samples != p.stale_samples) {
     spdlog::warn("{} SENSOR_SAMPLE frame(s) older than the last one used dropped since the last report (a second power stage "

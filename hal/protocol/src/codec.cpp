@@ -671,6 +671,7 @@ std::string_view to_string(DecodeStatus status) noexcept {
     case DecodeStatus::kRepeatedCounter: return "repeated_counter";
     case DecodeStatus::kCounterJump: return "counter_jump";
     case DecodeStatus::kOutOfRange: return "out_of_range";
+    case DecodeStatus::kStreamDisturbed: return "stream_disturbed";
   }
   return "unknown";
 }
@@ -688,6 +689,8 @@ std::string_view describe(DecodeStatus status) noexcept {
     case DecodeStatus::kCounterJump:
       return "Alive counter advanced by more than the allowed delta (frames lost, or a stale frame); the stream re-synchronises on it.";
     case DecodeStatus::kOutOfRange: return "A signal lies outside its [min, max].";
+    case DecodeStatus::kStreamDisturbed:
+      return "A command that passed its checks, not acted on: two or more frames of its stream failed their CRC, length or format within the last 1 s.";
   }
   return "";
 }
@@ -920,6 +923,12 @@ void DaemonReceiver::resync(CommandStream stream) noexcept {
   streams_[static_cast<std::size_t>(stream)].reset();
 }
 
+bool DaemonReceiver::disturbed(CommandStream stream, std::chrono::nanoseconds now) const noexcept {
+  const IntegrityErrors& e = integrity_errors_[static_cast<std::size_t>(stream)];
+  // The ring's next slot holds the oldest of the last kDisturbedErrors failures.
+  return e.count >= kDisturbedErrors && now - e.at[e.count % kDisturbedErrors] < kDisturbedWindow;
+}
+
 DaemonInput DaemonReceiver::reject(const CanFrame& frame, const MessageDef* def, DecodeStatus reason) noexcept {
   total_.count(reason);
   if (def != nullptr) {
@@ -934,11 +943,25 @@ void DaemonReceiver::accept(MessageType type, std::chrono::nanoseconds now) noex
   last_accepted_[static_cast<std::size_t>(type)] = now;
 }
 
+namespace {
+// A command that can only take the drive towards its safe state: acted on even from a disturbed
+// stream (a garbage frame that passes as one costs a stop, never a start).
+bool towards_safe_state(const DriveCommand& c) noexcept { return !c.enable || c.mode == DriveMode::kDisabled; }
+bool towards_safe_state(const InjectionCommand&) noexcept { return false; }
+bool towards_safe_state(const CalibrationCommand& c) noexcept { return c.action != CalibrationAction::kStart; }
+}  // namespace
+
 template <class Command>
 DaemonInput DaemonReceiver::receive_command(const CanFrame& frame, CommandStream stream,
                                             std::chrono::nanoseconds now) noexcept {
   const MessageDef& def = def_of<Command>();
   DecodeStatus status = check_frame(frame, def, node_);
+  if (status == DecodeStatus::kBadCrc || status == DecodeStatus::kWrongLength ||
+      status == DecodeStatus::kWrongFrameFormat) {
+    IntegrityErrors& e = integrity_errors_[static_cast<std::size_t>(stream)];
+    e.at[e.count % kDisturbedErrors] = now;
+    ++e.count;
+  }
   if (status != DecodeStatus::kOk) {
     return reject(frame, &def, status);
   }
@@ -952,6 +975,9 @@ DaemonInput DaemonReceiver::receive_command(const CanFrame& frame, CommandStream
   status = decode_body(frame, command);
   if (status != DecodeStatus::kOk) {
     return reject(frame, &def, status);
+  }
+  if (disturbed(stream, now) && !towards_safe_state(command)) {
+    return reject(frame, &def, DecodeStatus::kStreamDisturbed);
   }
   accept(def.type, now);
   return command;

@@ -38,7 +38,7 @@ inline constexpr std::uint32_t kNodeIdMask = 0x00F;  // the node-id bits of a CA
 inline constexpr std::uint32_t kIdBaseMask = 0x7F0;  // the message bits of a CAN ID
 
 // Protocol version, written into the DBC's VERSION line. Bump it on any layout change.
-inline constexpr std::string_view kProtocolVersion = "pmsm-thermal-can 1.5";
+inline constexpr std::string_view kProtocolVersion = "pmsm-thermal-can 1.6";
 
 // The parties on the bus (DBC "BU_" nodes). A receive-filter role is one of these.
 enum class Role : std::uint8_t {
@@ -650,12 +650,12 @@ inline constexpr std::array<SignalDef, 4> kSignals{kUptime, kState, kCounter, kD
 }  // namespace heartbeat
 
 // The codec's DecodeStatus numbering (codec.hpp; a test checks the two agree).
-inline constexpr std::array<ValueLabel, 9> kDecodeStatusLabels{{
+inline constexpr std::array<ValueLabel, 10> kDecodeStatusLabels{{
     {0, "NONE"}, {1, "UNKNOWN_ID"}, {2, "WRONG_NODE"}, {3, "WRONG_FRAME_FORMAT"}, {4, "WRONG_LENGTH"},
-    {5, "BAD_CRC"}, {6, "REPEATED_COUNTER"}, {7, "COUNTER_JUMP"}, {8, "OUT_OF_RANGE"}}};
+    {5, "BAD_CRC"}, {6, "REPEATED_COUNTER"}, {7, "COUNTER_JUMP"}, {8, "OUT_OF_RANGE"}, {9, "STREAM_DISTURBED"}}};
 
 namespace receive_status {
-inline constexpr SignalDef kLastRejection{"LastRejection", 0, 4, false, 1, 0, 0, 8, "", kDecodeStatusLabels,
+inline constexpr SignalDef kLastRejection{"LastRejection", 0, 4, false, 1, 0, 0, 9, "", kDecodeStatusLabels,
     "Why the last rejected frame was rejected (NONE: nothing rejected since start)."};
 inline constexpr SignalDef kLastRejectedId{"LastRejectedId", 4, 11, false, 1, 0, 0, 2047, "", detail::kNoValues,
     "CAN ID of the last rejected frame."};
@@ -670,7 +670,7 @@ inline constexpr SignalDef kRejectedRange{"RejectedRange", 40, 8, false, 1, 0, 0
 inline constexpr SignalDef kRejectedFormat{"RejectedFormat", 48, 8, false, 1, 0, 0, 255, "", detail::kNoValues,
     "Frames rejected for a wrong length or frame format since start (modulo 256)."};
 inline constexpr SignalDef kRejectedOther{"RejectedOther", 56, 8, false, 1, 0, 0, 255, "", detail::kNoValues,
-    "Frames rejected as unknown or another node's since start (modulo 256)."};
+    "Frames rejected as unknown or another node's, and commands held back while their stream was disturbed, since start (modulo 256)."};
 inline constexpr std::array<SignalDef, 8> kSignals{kLastRejection, kLastRejectedId, kCommandsAccepted, kRejectedCrc,
                                                    kRejectedCounter, kRejectedRange, kRejectedFormat, kRejectedOther};
 }  // namespace receive_status
