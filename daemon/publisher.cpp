@@ -171,6 +171,10 @@ std::string Publisher::fault_cause(protocol::FaultCode code, double value) const
     case protocol::FaultCode::kSensorTimeout:
       return fmt::format("no sample for {:.0f} periods (supervisor.sensor_timeout_periods): ", value);
     case protocol::FaultCode::kDuplicateNode:
+      if (second_source_ && !foreign_) {
+        return fmt::format("SENSOR_SAMPLE frames from two sources on node {} (a second power stage or plant as node {}?): ",
+                           config_.can.node, config_.can.node);
+      }
       return fmt::format("another device sends node {}'s frames (0x{:03X} last; can.node = {} on two daemons?): ",
                          config_.can.node, foreign_id_, config_.can.node);
     case protocol::FaultCode::kHardwareOvercurrent:
@@ -479,9 +483,8 @@ void Publisher::watch_for_duplicates(std::chrono::steady_clock::time_point now) 
   }
   if (heard) {
     foreign_heard_ = now;
-    if (!duplicate_) {
-      duplicate_ = true;
-      loop_.set_duplicate_node(true);
+    if (!foreign_) {
+      foreign_ = true;
       const protocol::MessageDef* m = protocol::find_message(foreign_id_);
       spdlog::error("another device sends node {}'s {} (0x{:03X}) on '{}': a second pmsm-thermald configured as node {}? "
                     "Two drives would answer one power stage: fault DUPLICATE_NODE, gates off, until no other sender has "
@@ -490,12 +493,50 @@ void Publisher::watch_for_duplicates(std::chrono::steady_clock::time_point now) 
                     config_.can.interface, config_.can.node,
                     std::chrono::duration<double>(kDuplicateHold).count());
     }
-  } else if (duplicate_ && now - foreign_heard_ >= kDuplicateHold) {
-    duplicate_ = false;
-    loop_.set_duplicate_node(false);
+  } else if (foreign_ && now - foreign_heard_ >= kDuplicateHold) {
+    foreign_ = false;
     spdlog::info("no other sender of node {}'s frames for {:g} s ({} frame(s) heard in all): DUPLICATE_NODE clears "
                  "with a stop command",
                  config_.can.node, std::chrono::duration<double>(kDuplicateHold).count(), stats_.foreign_frames);
+  }
+  watch_sample_sources(now);
+  if (const bool duplicate = foreign_ || second_source_; duplicate != duplicate_) {
+    duplicate_ = duplicate;
+    loop_.set_duplicate_node(duplicate);
+  }
+}
+
+// A second power stage (or plant) configured as this node sends SENSOR_SAMPLE frames with its
+// own count: the loop uses whichever count is ahead and drops the other's as older than the
+// last one used (DriveLoop::on_frame), so the drive would control one stage from the other's
+// sensors while both apply its commands. Dropped samples at a sustained rate say so.
+void Publisher::watch_sample_sources(std::chrono::steady_clock::time_point now) {
+  if (now - sample_window_start_ >= kSampleSourceWindow) {
+    const LoopStats s = loop_.stats();
+    stale_in_window_ = s.stale_samples - stale_at_window_start_;
+    const std::uint64_t used = s.samples - samples_at_window_start_;
+    sample_window_start_ = now;
+    stale_at_window_start_ = s.stale_samples;
+    samples_at_window_start_ = s.samples;
+    if (stale_in_window_ >= kSecondSourceMinStale) {
+      second_source_heard_ = now;
+      if (!second_source_) {
+        second_source_ = true;
+        spdlog::error("SENSOR_SAMPLE frames from two sources on node {} on '{}': {} in the last {} ms were older than the "
+                      "samples the drive used ({} used): a second power stage or plant configured as node {}, or a "
+                      "gateway repeating its frames? The drive cannot tell which stage it controls: fault DUPLICATE_NODE, "
+                      "gates off, until no stale sample has come for {:g} s and a stop command clears it",
+                      config_.can.node, config_.can.interface, stale_in_window_, kSampleSourceWindow.count(), used,
+                      config_.can.node, std::chrono::duration<double>(kDuplicateHold).count());
+      }
+      return;
+    }
+  }
+  if (second_source_ && now - second_source_heard_ >= kDuplicateHold) {
+    second_source_ = false;
+    spdlog::info("no second source of node {}'s SENSOR_SAMPLE frames for {:g} s: DUPLICATE_NODE clears with a stop "
+                 "command",
+                 config_.can.node, std::chrono::duration<double>(kDuplicateHold).count());
   }
 }
 

@@ -36,6 +36,12 @@ class Publisher {
   // identifiers: over two of its heartbeats (1 s), so that a daemon that publishes nothing
   // else keeps it.
   static constexpr std::chrono::milliseconds kDuplicateHold{2500};
+  // A second source of this node's SENSOR_SAMPLE frames (a second power stage or plant configured
+  // as this node): judged over windows of kSampleSourceWindow, heard when at least
+  // kSecondSourceMinStale samples older than the last one used came in one (100 a second, where a
+  // second stage sends thousands). A few stale frames (held up somewhere) are not.
+  static constexpr std::chrono::milliseconds kSampleSourceWindow{100};
+  static constexpr std::uint64_t kSecondSourceMinStale = 10;
 
   // Installs the receive filters of this node's published identifiers on `bus` (the
   // publishing endpoint, which receives nothing else).
@@ -64,6 +70,7 @@ class Publisher {
   void send_receive_status(const LoopStats& s);
   void reopen_if_due();
   void watch_for_duplicates(std::chrono::steady_clock::time_point now);
+  void watch_sample_sources(std::chrono::steady_clock::time_point now);
 
   const DaemonConfig& config_;
   hal::CanBus& bus_;
@@ -84,11 +91,19 @@ class Publisher {
   std::chrono::steady_clock::time_point last_reopen_try_{};
   bool reopen_failure_logged_ = false;
   bool not_durable_logged_ = false;
-  // Another sender of this node's published identifiers.
-  bool duplicate_ = false;  // its cause as handed to the loop
+  // DUPLICATE_NODE's causes: another sender of this node's published identifiers, or of its
+  // SENSOR_SAMPLE frames.
+  bool duplicate_ = false;  // the cause as handed to the loop: either
+  bool foreign_ = false;
   std::uint32_t foreign_id_ = 0;  // the identifier it was last heard on
   std::chrono::steady_clock::time_point foreign_heard_{};
   std::chrono::steady_clock::time_point duplicates_watched_{};
+  bool second_source_ = false;
+  std::chrono::steady_clock::time_point second_source_heard_{};
+  std::chrono::steady_clock::time_point sample_window_start_{};
+  std::uint64_t stale_at_window_start_ = 0;
+  std::uint64_t samples_at_window_start_ = 0;
+  std::uint64_t stale_in_window_ = 0;  // in the last window judged
 };
 
 }  // namespace pmsm::daemon

@@ -921,6 +921,60 @@ TEST(DaemonLoop, TwoDaemonsOnOneNodeTripOnDuplicateNodeAndSayWhy) {
   EXPECT_GT(first.publisher().stats().foreign_frames, 0U);
 }
 
+// A second power stage configured as the same node: its SENSOR_SAMPLE frames carry its own
+// count, behind the plant's, and the loop drops them as older than the last sample used. At a
+// sustained rate that is a second source, not a frame held up somewhere: DUPLICATE_NODE, gates
+// off, and the log names it; a stop clears it once the second stage has gone quiet.
+TEST(DaemonLoop, ASecondPowerStageOnOneNodeTripsDuplicateNodeAndSaysWhy) {
+  LogCapture log;
+  Bench bench;
+  Axis axis(bench.bus, 4, 1e6);
+  std::vector<protocol::AnyDecoded> seen;
+  ASSERT_NO_FATAL_FAILURE(start_running(bench, axis, seen));
+  // Past the sample timeout's periods (200), so that a count behind is no restarted one.
+  supervise(bench, {4}, 50.0, 20s, seen, [&] { return axis.loop().stats().samples > 1000U; });
+  ASSERT_GT(axis.loop().stats().samples, 1000U);
+  ASSERT_TRUE(log.lines_with("two sources").empty()) << "one power stage alone read as two";
+  std::atomic<bool> quiet{false};
+  std::thread second([&] {
+    std::unique_ptr<hal::CanBus> stage = bench.power_stage();
+    hal::SensorSample s{};
+    s.sequence = static_cast<std::uint32_t>(axis.loop().stats().samples / 2U);  // its own count, behind
+    while (!quiet.load()) {
+      ++s.sequence;
+      hal::CanFrame frame{};
+      if (protocol::encode(s, 4, frame) == protocol::EncodeStatus::kOk) {
+        (void)stage->send(frame, std::chrono::milliseconds{10});
+      }
+      std::this_thread::sleep_for(std::chrono::milliseconds{1});
+    }
+  });
+  const std::size_t doubled = seen.size();
+  supervise(bench, {4}, 50.0, 20s, seen, [&] {
+    return has_fault(seen, 4, protocol::FaultCode::kDuplicateNode, true, doubled) && !axis.loop().gates_enabled() &&
+           !log.lines_with("were older than the samples the drive used").empty();
+  });
+  EXPECT_TRUE(has_fault(seen, 4, protocol::FaultCode::kDuplicateNode, true, doubled));
+  EXPECT_FALSE(axis.loop().gates_enabled());
+  const std::vector<std::string> said = log.lines_with("were older than the samples the drive used");
+  ASSERT_EQ(said.size(), 1U) << "said once";
+  EXPECT_NE(said.front().find("a second power stage or plant configured as node 4"), std::string::npos) << said.front();
+  EXPECT_FALSE(log.lines_with("fault DUPLICATE_NODE: SENSOR_SAMPLE frames from two sources").empty());
+  EXPECT_TRUE(log.lines_with("a second pmsm-thermald").empty()) << "no other daemon here";
+
+  quiet = true;
+  second.join();
+  const std::size_t alone = seen.size();
+  const auto until = std::chrono::steady_clock::now() + Publisher::kDuplicateHold + 20s;
+  while (!has_state(seen, 4, protocol::DriveState::kRunning, alone) && std::chrono::steady_clock::now() < until) {
+    bench.stop_drive(4);
+    supervise(bench, {4}, 50.0, 1s, seen, [&] { return has_state(seen, 4, protocol::DriveState::kRunning, alone); });
+  }
+  EXPECT_TRUE(has_fault(seen, 4, protocol::FaultCode::kDuplicateNode, false, alone));
+  EXPECT_TRUE(has_state(seen, 4, protocol::DriveState::kRunning, alone));
+  EXPECT_EQ(log.lines_with("no second source of node 4's SENSOR_SAMPLE frames").size(), 1U);
+}
+
 // (A command timeout of 2 s: the thread that sends the commands every 50 ms may stall for
 // hundreds of milliseconds on a loaded machine, and must not trip it before the test stops.)
 TEST(DaemonLoop, CommandTimeoutSafeStateAndAStopCommandClearsIt) {

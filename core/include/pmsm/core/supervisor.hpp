@@ -65,7 +65,7 @@ enum class FaultCode : std::uint8_t {
   kPeriodMismatch = 21,      // the power stage reports another sampling period than the drive's
   kCurrentOffset = 22,       // a current sensor read far from zero with the gates off at power-up
   kOutputFeedback = 23,      // the power stage kept its gates off while the drive enabled them
-  kDuplicateNode = 24,       // another sender transmits this node's frames (reported by the caller)
+  kDuplicateNode = 24,       // another sender transmits this node's frames, published or samples (reported by the caller)
   kCount = 25,
 };
 

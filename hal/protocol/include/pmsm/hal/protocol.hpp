@@ -269,7 +269,7 @@ enum class FaultCode : std::uint8_t {
   kPeriodMismatch = 21,      // the power stage samples at another period than the drive's
   kCurrentOffset = 22,       // a current sensor read far from zero with the gates off at power-up
   kOutputFeedback = 23,      // the power stage kept its gates off while the drive enabled them
-  kDuplicateNode = 24,       // another sender transmits this node's daemon frames
+  kDuplicateNode = 24,       // another sender transmits this node's daemon frames, or its samples
 };
 inline constexpr std::size_t kFaultCodeCount = 25;
 inline constexpr std::array<ValueLabel, kFaultCodeCount> kFaultCodeLabels{{
