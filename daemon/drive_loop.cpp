@@ -266,8 +266,11 @@ void DriveLoop::on_frame(const hal::CanFrame& frame, std::int64_t now_ns) noexce
     inputs_.mode = drive_mode(*drive);
     inputs_.speed_ref_rad_s = drive->speed_setpoint_rad_s;
     inputs_.torque_ref_Nm = drive->torque_setpoint_Nm;
-    // A command to stop clears the faults whose cause is gone (as moteus's stop does).
-    if (!drive->enable || drive->mode == protocol::DriveMode::kDisabled) {
+    // A command to stop clears the faults whose cause is gone (as moteus's stop does), unless it
+    // came through a disturbed stream: acted on there because it can only stop (a garbage frame
+    // may pass as one), it must not acknowledge the faults too.
+    if ((!drive->enable || drive->mode == protocol::DriveMode::kDisabled) &&
+        !receiver_.disturbed(protocol::CommandStream::kDrive, nanoseconds{now_ns})) {
       inputs_.clear_faults = true;
     }
   } else if (const auto* injection = std::get_if<protocol::InjectionCommand>(&input)) {

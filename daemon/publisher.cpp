@@ -170,13 +170,18 @@ std::string Publisher::fault_cause(protocol::FaultCode code, double value) const
       return fmt::format("the shaft at {:.1f} rad/s, above supervisor.overspeed_rad_s ({:g} rad/s): ", value, c.overspeed_rad_s);
     case protocol::FaultCode::kSensorTimeout:
       return fmt::format("no sample for {:.0f} periods (supervisor.sensor_timeout_periods): ", value);
-    case protocol::FaultCode::kDuplicateNode:
-      if (second_source_ && !foreign_) {
-        return fmt::format("SENSOR_SAMPLE frames from two sources on node {} (a second power stage or plant as node {}?): ",
-                           config_.can.node, config_.can.node);
+    case protocol::FaultCode::kDuplicateNode: {
+      std::string cause;
+      if (foreign_ || !second_source_) {
+        cause = fmt::format("another device sends node {}'s frames (0x{:03X} last; can.node = {} on two daemons?)",
+                            config_.can.node, foreign_id_, config_.can.node);
       }
-      return fmt::format("another device sends node {}'s frames (0x{:03X} last; can.node = {} on two daemons?): ",
-                         config_.can.node, foreign_id_, config_.can.node);
+      if (second_source_) {
+        cause += fmt::format("{}SENSOR_SAMPLE frames from two sources on node {} (a second power stage as node {}?)",
+                             cause.empty() ? "" : "; and ", config_.can.node, config_.can.node);
+      }
+      return cause + ": ";
+    }
     case protocol::FaultCode::kHardwareOvercurrent:
       return "the power stage's own over-current comparator tripped (SENSOR_SAMPLE's HardwareOvercurrent flag: a "
              "short circuit, a phase to earth, or a current regulator far out of tune): ";
@@ -495,14 +500,16 @@ void Publisher::watch_for_duplicates(std::chrono::steady_clock::time_point now) 
     }
   } else if (foreign_ && now - foreign_heard_ >= kDuplicateHold) {
     foreign_ = false;
-    spdlog::info("no other sender of node {}'s frames for {:g} s ({} frame(s) heard in all): DUPLICATE_NODE clears "
-                 "with a stop command",
-                 config_.can.node, std::chrono::duration<double>(kDuplicateHold).count(), stats_.foreign_frames);
+    spdlog::info("no other sender of node {}'s frames for {:g} s ({} frame(s) heard in all)", config_.can.node,
+                 std::chrono::duration<double>(kDuplicateHold).count(), stats_.foreign_frames);
   }
   watch_sample_sources(now);
   if (const bool duplicate = foreign_ || second_source_; duplicate != duplicate_) {
     duplicate_ = duplicate;
     loop_.set_duplicate_node(duplicate);
+    if (!duplicate) {
+      spdlog::info("DUPLICATE_NODE's cause is gone: a stop command clears the fault");
+    }
   }
 }
 
@@ -511,32 +518,34 @@ void Publisher::watch_for_duplicates(std::chrono::steady_clock::time_point now) 
 // last one used (DriveLoop::on_frame), so the drive would control one stage from the other's
 // sensors while both apply its commands. Dropped samples at a sustained rate say so.
 void Publisher::watch_sample_sources(std::chrono::steady_clock::time_point now) {
-  if (now - sample_window_start_ >= kSampleSourceWindow) {
+  if (const auto elapsed = now - sample_window_start_; elapsed >= kSampleSourceWindow) {
     const LoopStats s = loop_.stats();
     stale_in_window_ = s.stale_samples - stale_at_window_start_;
     const std::uint64_t used = s.samples - samples_at_window_start_;
     sample_window_start_ = now;
     stale_at_window_start_ = s.stale_samples;
     samples_at_window_start_ = s.samples;
-    if (stale_in_window_ >= kSecondSourceMinStale) {
+    // A window the drain thread stretched (a file's fsync, a slow journal) is not judged: a
+    // trickle of stale samples over it is no second source.
+    if (elapsed <= 2 * kSampleSourceWindow && stale_in_window_ >= kSecondSourceMinStale) {
       second_source_heard_ = now;
       if (!second_source_) {
         second_source_ = true;
-        spdlog::error("SENSOR_SAMPLE frames from two sources on node {} on '{}': {} in the last {} ms were older than the "
-                      "samples the drive used ({} used): a second power stage or plant configured as node {}, or a "
-                      "gateway repeating its frames? The drive cannot tell which stage it controls: fault DUPLICATE_NODE, "
-                      "gates off, until no stale sample has come for {:g} s and a stop command clears it",
-                      config_.can.node, config_.can.interface, stale_in_window_, kSampleSourceWindow.count(), used,
-                      config_.can.node, std::chrono::duration<double>(kDuplicateHold).count());
+        spdlog::error("SENSOR_SAMPLE frames from two sources on node {} on '{}': {} in the last {:.0f} ms were older than "
+                      "the samples the drive used ({} used): a second power stage configured as node {}, or a gateway "
+                      "repeating its frames? The drive cannot tell which stage it controls: fault DUPLICATE_NODE, gates "
+                      "off, until the second source has been quiet for {:g} s and a stop command clears it",
+                      config_.can.node, config_.can.interface, stale_in_window_,
+                      std::chrono::duration<double, std::milli>(elapsed).count(), used, config_.can.node,
+                      std::chrono::duration<double>(kDuplicateHold).count());
       }
       return;
     }
   }
   if (second_source_ && now - second_source_heard_ >= kDuplicateHold) {
     second_source_ = false;
-    spdlog::info("no second source of node {}'s SENSOR_SAMPLE frames for {:g} s: DUPLICATE_NODE clears with a stop "
-                 "command",
-                 config_.can.node, std::chrono::duration<double>(kDuplicateHold).count());
+    spdlog::info("no second source of node {}'s SENSOR_SAMPLE frames for {:g} s", config_.can.node,
+                 std::chrono::duration<double>(kDuplicateHold).count());
   }
 }
 
@@ -556,11 +565,11 @@ void Publisher::report() {
                         p.rejected[static_cast<std::size_t>(protocol::DecodeStatus::kStreamDisturbed)];
       held != 0U) {
     spdlog::warn("{} command(s) for node {} passed their CRC and alive counter but were not acted on: frames with a bad CRC, "
-                 "length or format came on the same command ID just before (two within {} s), so these may be garbage "
+                 "length or format came on the same command ID just before (two within {:g} s), so these may be garbage "
                  "that passed by chance (a device babbling on this node's command IDs?). A supervisor's commands are "
-                 "heard again once its stream has been clean for {} s",
+                 "heard again after {} good frames in a row, or {:g} s after the failures; a stop is always heard",
                  held, config_.can.node, std::chrono::duration<double>(protocol::kDisturbedWindow).count(),
-                 std::chrono::duration<double>(protocol::kDisturbedWindow).count());
+                 protocol::kRequalifyFrames, std::chrono::duration<double>(protocol::kDisturbedWindow).count());
   }
   if (s.stale_samples != p.stale_samples) {
     spdlog::warn("{} SENSOR_SAMPLE frame(s) older than the last one used dropped since the last report (a second power stage "

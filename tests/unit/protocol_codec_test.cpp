@@ -829,13 +829,31 @@ TEST(protocol_reject, ACommandAmongCorruptFramesOfItsStreamIsNotActedOn) {
   CanFrame injection;
   EXPECT_EQ(tx.encode(InjectionCommand{}, injection), EncodeStatus::kOk);
   EXPECT_TRUE(std::holds_alternative<InjectionCommand>(rx.receive(injection, now)));
-  // Heard again once fewer than kDisturbedErrors failures lie within the window: 2 s after
+  // Heard again once fewer than kDisturbedErrors failures lie within the window: 1 s after
   // the older of the last two (the second CRC failure, at 540 ms; the wrong length at 541).
   EXPECT_EQ(genuine(std::chrono::duration_cast<milliseconds>(kDisturbedWindow) - milliseconds(22), run),
             DecodeStatus::kStreamDisturbed);
   EXPECT_EQ(genuine(milliseconds(2), run), DecodeStatus::kOk);
   EXPECT_FALSE(rx.disturbed(CommandStream::kDrive, now));
-  EXPECT_EQ(rx.counters(MessageType::kDriveCommand)[DecodeStatus::kStreamDisturbed], 2U);
+  // Or sooner, by a run of kRequalifyFrames frames that pass their CRC and alive counter with no
+  // failure between: the supervisor's commands once a burst ended, every 20 ms here.
+  EXPECT_EQ(corrupt(milliseconds(100)), DecodeStatus::kBadCrc);
+  EXPECT_EQ(corrupt(milliseconds(1)), DecodeStatus::kBadCrc);
+  for (std::uint32_t k = 1; k < kRequalifyFrames; ++k) {
+    EXPECT_EQ(genuine(milliseconds(20), run), DecodeStatus::kStreamDisturbed) << k;
+  }
+  EXPECT_EQ(genuine(milliseconds(20), run), DecodeStatus::kOk);
+  EXPECT_FALSE(rx.disturbed(CommandStream::kDrive, now));
+  // A failure in the run starts it again.
+  EXPECT_EQ(corrupt(milliseconds(1)), DecodeStatus::kBadCrc);
+  EXPECT_EQ(corrupt(milliseconds(1)), DecodeStatus::kBadCrc);
+  EXPECT_EQ(genuine(milliseconds(20), run), DecodeStatus::kStreamDisturbed);
+  EXPECT_EQ(corrupt(milliseconds(1)), DecodeStatus::kBadCrc);
+  for (std::uint32_t k = 1; k < kRequalifyFrames; ++k) {
+    EXPECT_EQ(genuine(milliseconds(20), run), DecodeStatus::kStreamDisturbed) << k;
+  }
+  EXPECT_EQ(genuine(milliseconds(20), run), DecodeStatus::kOk);
+  EXPECT_EQ(rx.counters(MessageType::kDriveCommand)[DecodeStatus::kStreamDisturbed], 2U + 2U * (kRequalifyFrames - 1U) + 1U);
   EXPECT_EQ(rx.counters(MessageType::kDriveCommand)[DecodeStatus::kCounterJump], 0U);
 }
 

@@ -690,7 +690,7 @@ std::string_view describe(DecodeStatus status) noexcept {
       return "Alive counter advanced by more than the allowed delta (frames lost, or a stale frame); the stream re-synchronises on it.";
     case DecodeStatus::kOutOfRange: return "A signal lies outside its [min, max].";
     case DecodeStatus::kStreamDisturbed:
-      return "A command that passed its checks, not acted on: two or more frames of its stream failed their CRC, length or format within the last 1 s.";
+      return "A command that passed its checks, not acted on: two frames of its stream failed their CRC, length or format within the last 1 s, and fewer than 5 good frames have followed.";
   }
   return "";
 }
@@ -926,7 +926,8 @@ void DaemonReceiver::resync(CommandStream stream) noexcept {
 bool DaemonReceiver::disturbed(CommandStream stream, std::chrono::nanoseconds now) const noexcept {
   const IntegrityErrors& e = integrity_errors_[static_cast<std::size_t>(stream)];
   // The ring's next slot holds the oldest of the last kDisturbedErrors failures.
-  return e.count >= kDisturbedErrors && now - e.at[e.count % kDisturbedErrors] < kDisturbedWindow;
+  return e.count >= kDisturbedErrors && now - e.at[e.count % kDisturbedErrors] < kDisturbedWindow &&
+         e.good_run < kRequalifyFrames;
 }
 
 DaemonInput DaemonReceiver::reject(const CanFrame& frame, const MessageDef* def, DecodeStatus reason) noexcept {
@@ -961,6 +962,7 @@ DaemonInput DaemonReceiver::receive_command(const CanFrame& frame, CommandStream
     IntegrityErrors& e = integrity_errors_[static_cast<std::size_t>(stream)];
     e.at[e.count % kDisturbedErrors] = now;
     ++e.count;
+    e.good_run = 0;
   }
   if (status != DecodeStatus::kOk) {
     return reject(frame, &def, status);
@@ -971,6 +973,7 @@ DaemonInput DaemonReceiver::receive_command(const CanFrame& frame, CommandStream
   if (status != DecodeStatus::kOk) {
     return reject(frame, &def, status);
   }
+  ++integrity_errors_[static_cast<std::size_t>(stream)].good_run;
   Command command{};
   status = decode_body(frame, command);
   if (status != DecodeStatus::kOk) {

@@ -209,23 +209,26 @@ inline constexpr std::size_t kCommandStreamCount = 3;
 
 using DaemonInput = std::variant<Rejected, SensorSample, DriveCommand, InjectionCommand, CalibrationCommand>;
 
-// A command stream is *disturbed* while kDisturbedErrors of its frames failed an integrity
-// check (CRC, length, frame format) within kDisturbedWindow: a frame of it that passes every
-// check is then not acted on (kStreamDisturbed), though its alive counter is followed, unless it
-// can only take the drive towards its safe state (a DRIVE_COMMAND that disables, a
-// CALIBRATION_COMMAND that does not start one: a garbage frame passing as one costs a stop,
-// never a start, and a supervisor's stop is heard through any disturbance). A genuine
-// supervisor on a healthy bus sends no such frame (CAN's own CRC drops what the wire corrupts),
-// so two of them mean a device sending garbage on this node's command ID, among which one frame
-// in 256 passes the CRC-8 and about one in 2,000 the alive counter too: by chance, not by
-// intent. One corrupt frame alone (a supervisor's slip) holds nothing back. (AUTOSAR's E2E state
-// machine judges a window of check results the same way before data are used.) A device that
-// keeps babbling keeps the stream disturbed, and the drive then trips COMMAND_TIMEOUT as for a
-// silent supervisor; one slower than two frames a second is not caught (measured in
-// protocol_reject.RandomFramesOnTheCommandIdsAreNeverActedOn: about one random frame in 150,000
-// would have started something).
+// A command stream is *disturbed* once kDisturbedErrors of its frames failed an integrity check
+// (CRC, length, frame format) within kDisturbedWindow: a frame of it that passes every check is
+// then not acted on (kStreamDisturbed), though its alive counter is followed, unless it can only
+// take the drive towards its safe state (a DRIVE_COMMAND that disables, a CALIBRATION_COMMAND
+// that starts nothing: a garbage frame passing as one costs a stop, never a start, and a
+// supervisor's stop is heard through any disturbance). A genuine supervisor on a healthy bus
+// sends no such frame (CAN's own CRC drops what the wire corrupts), so two of them mean a device
+// sending garbage on this node's command ID, among which one frame in 256 passes the CRC-8 and
+// one in 2,000 the alive counter too: by chance, not by intent. One corrupt frame alone (a
+// supervisor's slip) holds nothing back. The stream is heard again once fewer than
+// kDisturbedErrors failures lie within the window, or from the kRequalifyFrames-th frame in a row
+// that passed its CRC and alive counter with no failure between (AUTOSAR's E2E state machine
+// likewise judges a window of check results, and qualifies a stream again by a run of good
+// ones): a supervisor sending every 20-50 ms is heard again within 100-250 ms of a burst's end,
+// inside the default command timeout (0.5 s), and among a device babbling faster than that no
+// such run passes. A babbler slower than one frame per kRequalifyFrames of the supervisor's (a
+// few a second) is not caught: about one of its random frames in 80,000 could start something.
 inline constexpr std::chrono::nanoseconds kDisturbedWindow = std::chrono::seconds(1);
 inline constexpr std::size_t kDisturbedErrors = 2;
+inline constexpr std::uint32_t kRequalifyFrames = 5;
 
 // The daemon's receive side for one node: sensor samples and the three command streams.
 // Tracks when each message type was last accepted, so that the daemon's timeouts (sensor
@@ -248,7 +251,8 @@ class DaemonReceiver {
   void resync(CommandStream stream) noexcept;
 
   // Whether `stream` is disturbed at `now` (kDisturbedErrors integrity failures within
-  // kDisturbedWindow before it).
+  // kDisturbedWindow before it, and not kRequalifyFrames good frames in a row since). resync()
+  // leaves this history alone.
   [[nodiscard]] bool disturbed(CommandStream stream, std::chrono::nanoseconds now) const noexcept;
 
   [[nodiscard]] NodeId node() const noexcept { return node_; }
@@ -262,10 +266,12 @@ class DaemonReceiver {
   DaemonInput reject(const CanFrame& frame, const MessageDef* def, DecodeStatus reason) noexcept;
   void accept(MessageType type, std::chrono::nanoseconds now) noexcept;
 
-  // The times of a command stream's last kDisturbedErrors integrity failures (a ring).
+  // The times of a command stream's last kDisturbedErrors integrity failures (a ring), and the
+  // frames that passed their CRC and alive counter since the last failure.
   struct IntegrityErrors {
     std::array<std::chrono::nanoseconds, kDisturbedErrors> at{};
     std::uint64_t count = 0;
+    std::uint32_t good_run = 0;
   };
 
   NodeId node_;
