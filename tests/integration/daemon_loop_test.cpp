@@ -884,6 +884,19 @@ TEST(DaemonLoop, AStoppedDaemonLeavesThePowerStageOff) {
 // can.node): each hears the other's published frames on its publishing endpoint, which does
 // not receive its own, and both trip DUPLICATE_NODE with the gates off, saying why; once the
 // second is gone for Publisher::kDuplicateHold, a stop command lets the first run again.
+// Sends stop commands, and commands to run between them, until DUPLICATE_NODE clears (its
+// cause held for Publisher::kDuplicateHold, then a stop) and the drive runs again.
+void stop_until_duplicate_node_clears(Bench& bench, protocol::NodeId node, std::vector<protocol::AnyDecoded>& seen) {
+  const std::size_t alone = seen.size();
+  const auto until = std::chrono::steady_clock::now() + Publisher::kDuplicateHold + 20s;
+  while (!has_state(seen, node, protocol::DriveState::kRunning, alone) && std::chrono::steady_clock::now() < until) {
+    bench.stop_drive(node);
+    supervise(bench, {node}, 50.0, 1s, seen, [&] { return has_state(seen, node, protocol::DriveState::kRunning, alone); });
+  }
+  EXPECT_TRUE(has_fault(seen, node, protocol::FaultCode::kDuplicateNode, false, alone));
+  EXPECT_TRUE(has_state(seen, node, protocol::DriveState::kRunning, alone));
+}
+
 TEST(DaemonLoop, TwoDaemonsOnOneNodeTripOnDuplicateNodeAndSayWhy) {
   LogCapture log;
   Bench bench;
@@ -908,14 +921,7 @@ TEST(DaemonLoop, TwoDaemonsOnOneNodeTripOnDuplicateNodeAndSayWhy) {
 
   // The second goes; a stop command clears the fault once nothing has been heard for the hold.
   second.stop();
-  const std::size_t alone = seen.size();
-  const auto until = std::chrono::steady_clock::now() + Publisher::kDuplicateHold + 20s;
-  while (!has_state(seen, 4, protocol::DriveState::kRunning, alone) && std::chrono::steady_clock::now() < until) {
-    bench.stop_drive(4);
-    supervise(bench, {4}, 50.0, 1s, seen, [&] { return has_state(seen, 4, protocol::DriveState::kRunning, alone); });
-  }
-  EXPECT_TRUE(has_fault(seen, 4, protocol::FaultCode::kDuplicateNode, false, alone));
-  EXPECT_TRUE(has_state(seen, 4, protocol::DriveState::kRunning, alone));
+  ASSERT_NO_FATAL_FAILURE(stop_until_duplicate_node_clears(bench, 4, seen));
   EXPECT_EQ(log.lines_with("no other sender of node 4's frames").size(), 1U);
   first.stop();  // (its drain thread writes the publisher's counters)
   EXPECT_GT(first.publisher().stats().foreign_frames, 0U);
@@ -964,14 +970,7 @@ TEST(DaemonLoop, ASecondPowerStageOnOneNodeTripsDuplicateNodeAndSaysWhy) {
 
   quiet = true;
   second.join();
-  const std::size_t alone = seen.size();
-  const auto until = std::chrono::steady_clock::now() + Publisher::kDuplicateHold + 20s;
-  while (!has_state(seen, 4, protocol::DriveState::kRunning, alone) && std::chrono::steady_clock::now() < until) {
-    bench.stop_drive(4);
-    supervise(bench, {4}, 50.0, 1s, seen, [&] { return has_state(seen, 4, protocol::DriveState::kRunning, alone); });
-  }
-  EXPECT_TRUE(has_fault(seen, 4, protocol::FaultCode::kDuplicateNode, false, alone));
-  EXPECT_TRUE(has_state(seen, 4, protocol::DriveState::kRunning, alone));
+  ASSERT_NO_FATAL_FAILURE(stop_until_duplicate_node_clears(bench, 4, seen));
   EXPECT_EQ(log.lines_with("no second source of node 4's SENSOR_SAMPLE frames").size(), 1U);
   EXPECT_EQ(log.lines_with("DUPLICATE_NODE's cause is gone").size(), 1U);
 }
