@@ -513,7 +513,7 @@ void Publisher::watch_for_duplicates(std::chrono::steady_clock::time_point now) 
   }
 }
 
-// A second power stage (or plant) configured as this node sends SENSOR_SAMPLE frames with its
+// A second (free-running) power stage configured as this node sends SENSOR_SAMPLE frames with its
 // own count: the loop uses whichever count is ahead and drops the other's as older than the
 // last one used (DriveLoop::on_frame), so the drive would control one stage from the other's
 // sensors while both apply its commands. Dropped samples at a sustained rate say so.
@@ -525,9 +525,11 @@ void Publisher::watch_sample_sources(std::chrono::steady_clock::time_point now) 
     sample_window_start_ = now;
     stale_at_window_start_ = s.stale_samples;
     samples_at_window_start_ = s.samples;
-    // A window the drain thread stretched (a file's fsync, a slow journal) is not judged: a
-    // trickle of stale samples over it is no second source.
-    if (elapsed <= 2 * kSampleSourceWindow && stale_in_window_ >= kSecondSourceMinStale) {
+    // Judged as a rate (kSecondSourceMinStale per kSampleSourceWindow), so that a window the
+    // drain thread stretched (a file's fsync, a slow journal) makes no trickle a second source.
+    if (stale_in_window_ >= kSecondSourceMinStale &&
+        static_cast<double>(stale_in_window_) * std::chrono::duration<double>(kSampleSourceWindow).count() >=
+            static_cast<double>(kSecondSourceMinStale) * std::chrono::duration<double>(elapsed).count()) {
       second_source_heard_ = now;
       if (!second_source_) {
         second_source_ = true;
@@ -566,10 +568,10 @@ void Publisher::report() {
       held != 0U) {
     spdlog::warn("{} command(s) for node {} passed their CRC and alive counter but were not acted on: frames with a bad CRC, "
                  "length or format came on the same command ID just before (two within {:g} s), so these may be garbage "
-                 "that passed by chance (a device babbling on this node's command IDs?). A supervisor's commands are "
-                 "heard again after {} good frames in a row, or {:g} s after the failures; a stop is always heard",
+                 "that passed by chance (a device babbling on this node's command IDs?). A stop, or a repeat of the last "
+                 "drive command acted on, is heard meanwhile; the rest again {:g} s after the failures",
                  held, config_.can.node, std::chrono::duration<double>(protocol::kDisturbedWindow).count(),
-                 protocol::kRequalifyFrames, std::chrono::duration<double>(protocol::kDisturbedWindow).count());
+                 std::chrono::duration<double>(protocol::kDisturbedWindow).count());
   }
   if (s.stale_samples != p.stale_samples) {
     spdlog::warn("{} SENSOR_SAMPLE frame(s) older than the last one used dropped since the last report (a second power stage "

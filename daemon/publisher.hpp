@@ -36,10 +36,11 @@ class Publisher {
   // identifiers: over two of its heartbeats (1 s), so that a daemon that publishes nothing
   // else keeps it.
   static constexpr std::chrono::milliseconds kDuplicateHold{2500};
-  // A second source of this node's SENSOR_SAMPLE frames (a second power stage or plant configured
-  // as this node): judged over windows of kSampleSourceWindow, heard when at least
-  // kSecondSourceMinStale samples older than the last one used came in one (100 a second, where a
-  // second stage sends thousands). A few stale frames (held up somewhere) are not.
+  // A second source of this node's SENSOR_SAMPLE frames (a second free-running power stage
+  // configured as this node): judged over windows of at least kSampleSourceWindow, heard when
+  // samples older than the last one used came at kSecondSourceMinStale per kSampleSourceWindow or
+  // more (100 a second, where a second stage sends thousands). A few stale frames (held up
+  // somewhere) are not.
   static constexpr std::chrono::milliseconds kSampleSourceWindow{100};
   static constexpr std::uint64_t kSecondSourceMinStale = 10;
 

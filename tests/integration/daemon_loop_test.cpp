@@ -1153,7 +1153,7 @@ TEST(DaemonLoop, BadCommandsAreRejectedByReasonAndValidOnesActedOn) {
   protocol::DriveCommand run;
   run.enable = true;
   run.mode = protocol::DriveMode::kSpeed;
-  run.speed_setpoint_rad_s = 50.0;
+  run.speed_setpoint_rad_s = 55.0;  // a new set-point (a repeat of the last, 50 rad/s, would be heard)
   hal::CanFrame last{};
   ASSERT_EQ(bench.sender(4).encode(run, last), protocol::EncodeStatus::kOk);
   ASSERT_EQ(bench.supervisor->send(last, 10ms), hal::SendResult::kOk);
@@ -1211,9 +1211,10 @@ TEST(DaemonLoop, BadCommandsAreRejectedByReasonAndValidOnesActedOn) {
   EXPECT_GE(status->rejected_crc, 1U);
   EXPECT_GE(status->rejected_format, 1U);
   EXPECT_GE(status->rejected_counter, 1U);
-  // Two corrupt frames in a row made the stream disturbed: the valid command right after them
-  // passed its checks but was held back (and, if they came within the disturbance, the
-  // supervisor's first few: docs/protocol.md, "A disturbed stream").
+  // Two corrupt frames in a row made the stream disturbed: the valid command right after them, a
+  // new set-point, passed its checks but was held back (docs/protocol.md, "A disturbed stream");
+  // the supervisor's 50 rad/s after it, were they within the second, may read as repeats of the
+  // last command acted on or as new orders.
   EXPECT_GE(rejected(protocol::DecodeStatus::kStreamDisturbed), 1U);
   EXPECT_TRUE(status->last_rejection == static_cast<std::uint8_t>(protocol::DecodeStatus::kStreamDisturbed) ||
               status->last_rejection == static_cast<std::uint8_t>(protocol::DecodeStatus::kRepeatedCounter))

@@ -781,6 +781,9 @@ TEST(protocol_reject, ACommandAmongCorruptFramesOfItsStreamIsNotActedOn) {
   DriveCommand run;
   run.enable = true;
   run.mode = DriveMode::kSpeed;
+  run.speed_setpoint_rad_s = 50.0;
+  DriveCommand faster = run;
+  faster.speed_setpoint_rad_s = 60.0;
   const auto genuine = [&](milliseconds after, const DriveCommand& c) {
     now += after;
     CanFrame f;
@@ -793,24 +796,27 @@ TEST(protocol_reject, ACommandAmongCorruptFramesOfItsStreamIsNotActedOn) {
     f.data[5] ^= 0x01U;
     return reason(rx.receive(f, now));
   };
-  EXPECT_EQ(genuine(milliseconds(20), run), DecodeStatus::kOk);
+  EXPECT_EQ(genuine(milliseconds(20), run), DecodeStatus::kOk);  // at 20 ms
   // One corrupt frame (a supervisor's slip) holds nothing back.
-  EXPECT_EQ(corrupt(milliseconds(5)), DecodeStatus::kBadCrc);
-  EXPECT_EQ(genuine(milliseconds(15), run), DecodeStatus::kOk);
+  EXPECT_EQ(corrupt(milliseconds(5)), DecodeStatus::kBadCrc);  // 25 ms
+  EXPECT_EQ(genuine(milliseconds(15), faster), DecodeStatus::kOk);
   EXPECT_FALSE(rx.disturbed(CommandStream::kDrive, now));
-  // A second within kDisturbedWindow: what passes its checks now is held back, though its
-  // alive counter is followed (the genuine frames after it are no jump).
-  EXPECT_EQ(corrupt(milliseconds(500)), DecodeStatus::kBadCrc);
+  // A second within kDisturbedWindow: a new order that passes its checks now is held back,
+  // though its alive counter is followed (the frames after it are no jump).
+  EXPECT_EQ(corrupt(milliseconds(500)), DecodeStatus::kBadCrc);  // 540 ms
   EXPECT_TRUE(rx.disturbed(CommandStream::kDrive, now));
   CanFrame wrong_length;
-  EXPECT_EQ(tx.encode(DriveCommand{}, wrong_length), EncodeStatus::kOk);
+  EXPECT_EQ(tx.encode(run, wrong_length), EncodeStatus::kOk);
   wrong_length.length = 7;
   now += milliseconds(1);
-  EXPECT_EQ(reason(rx.receive(wrong_length, now)), DecodeStatus::kWrongLength);  // a third failure
-  EXPECT_EQ(genuine(milliseconds(19), run), DecodeStatus::kStreamDisturbed);
+  EXPECT_EQ(reason(rx.receive(wrong_length, now)), DecodeStatus::kWrongLength);  // 541 ms: a third failure
+  EXPECT_EQ(genuine(milliseconds(19), run), DecodeStatus::kStreamDisturbed);  // a new set-point
+  // A repeat of the last command acted on changes nothing and keeps the supervisor heard.
+  EXPECT_EQ(genuine(milliseconds(20), faster), DecodeStatus::kOk);
   // A stop is acted on through any disturbance (it can only take the drive to its safe state),
   // and so is a calibration's abort; a calibration's start is not.
-  EXPECT_EQ(genuine(milliseconds(1), DriveCommand{}), DecodeStatus::kOk);  // disabled
+  EXPECT_EQ(genuine(milliseconds(1), DriveCommand{}), DecodeStatus::kOk);  // 581 ms, disabled
+  EXPECT_EQ(genuine(milliseconds(1), faster), DecodeStatus::kStreamDisturbed);  // after the stop: a start
   for (const CalibrationAction action : {CalibrationAction::kStart, CalibrationAction::kAbort}) {
     CanFrame bad_calibration;
     EXPECT_EQ(CommandSender(4).encode(CalibrationCommand{}, bad_calibration), EncodeStatus::kOk);
@@ -831,29 +837,11 @@ TEST(protocol_reject, ACommandAmongCorruptFramesOfItsStreamIsNotActedOn) {
   EXPECT_TRUE(std::holds_alternative<InjectionCommand>(rx.receive(injection, now)));
   // Heard again once fewer than kDisturbedErrors failures lie within the window: 1 s after
   // the older of the last two (the second CRC failure, at 540 ms; the wrong length at 541).
-  EXPECT_EQ(genuine(std::chrono::duration_cast<milliseconds>(kDisturbedWindow) - milliseconds(22), run),
-            DecodeStatus::kStreamDisturbed);
-  EXPECT_EQ(genuine(milliseconds(2), run), DecodeStatus::kOk);
+  EXPECT_EQ(genuine(std::chrono::duration_cast<milliseconds>(kDisturbedWindow) - milliseconds(44), run),
+            DecodeStatus::kStreamDisturbed);  // 1538 ms
+  EXPECT_EQ(genuine(milliseconds(2), run), DecodeStatus::kOk);  // 1540 ms
   EXPECT_FALSE(rx.disturbed(CommandStream::kDrive, now));
-  // Or sooner, by a run of kRequalifyFrames frames that pass their CRC and alive counter with no
-  // failure between: the supervisor's commands once a burst ended, every 20 ms here.
-  EXPECT_EQ(corrupt(milliseconds(100)), DecodeStatus::kBadCrc);
-  EXPECT_EQ(corrupt(milliseconds(1)), DecodeStatus::kBadCrc);
-  for (std::uint32_t k = 1; k < kRequalifyFrames; ++k) {
-    EXPECT_EQ(genuine(milliseconds(20), run), DecodeStatus::kStreamDisturbed) << k;
-  }
-  EXPECT_EQ(genuine(milliseconds(20), run), DecodeStatus::kOk);
-  EXPECT_FALSE(rx.disturbed(CommandStream::kDrive, now));
-  // A failure in the run starts it again.
-  EXPECT_EQ(corrupt(milliseconds(1)), DecodeStatus::kBadCrc);
-  EXPECT_EQ(corrupt(milliseconds(1)), DecodeStatus::kBadCrc);
-  EXPECT_EQ(genuine(milliseconds(20), run), DecodeStatus::kStreamDisturbed);
-  EXPECT_EQ(corrupt(milliseconds(1)), DecodeStatus::kBadCrc);
-  for (std::uint32_t k = 1; k < kRequalifyFrames; ++k) {
-    EXPECT_EQ(genuine(milliseconds(20), run), DecodeStatus::kStreamDisturbed) << k;
-  }
-  EXPECT_EQ(genuine(milliseconds(20), run), DecodeStatus::kOk);
-  EXPECT_EQ(rx.counters(MessageType::kDriveCommand)[DecodeStatus::kStreamDisturbed], 2U + 2U * (kRequalifyFrames - 1U) + 1U);
+  EXPECT_EQ(rx.counters(MessageType::kDriveCommand)[DecodeStatus::kStreamDisturbed], 3U);
   EXPECT_EQ(rx.counters(MessageType::kDriveCommand)[DecodeStatus::kCounterJump], 0U);
 }
 
@@ -1086,7 +1074,7 @@ TEST(protocol_fuzz, RandomFramesAreCountedNeverCrash) {
   for (std::size_t r = 1; r < kDecodeStatusCount; ++r) {
     if (static_cast<DecodeStatus>(r) == DecodeStatus::kStreamDisturbed) {
       continue;  // needs a command that passes by chance and starts something: about one frame in
-                 // 150,000 on the command IDs alone (RandomFramesOnTheCommandIdsAreNeverActedOn)
+                 // 80,000 on the command IDs alone (RandomFramesOnTheCommandIdsAreNeverActedOn)
     }
     EXPECT_GT(daemon.counters().by_status[r], 0U) << to_string(static_cast<DecodeStatus>(r));
   }

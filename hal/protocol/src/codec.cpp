@@ -690,7 +690,7 @@ std::string_view describe(DecodeStatus status) noexcept {
       return "Alive counter advanced by more than the allowed delta (frames lost, or a stale frame); the stream re-synchronises on it.";
     case DecodeStatus::kOutOfRange: return "A signal lies outside its [min, max].";
     case DecodeStatus::kStreamDisturbed:
-      return "A command that passed its checks, not acted on: two frames of its stream failed their CRC, length or format within the last 1 s, and fewer than 5 good frames have followed.";
+      return "A command that passed its checks, not acted on: two frames of its stream failed their CRC, length or format within the last 1 s (a stop, or a repeat of the last drive command, is acted on).";
   }
   return "";
 }
@@ -923,11 +923,21 @@ void DaemonReceiver::resync(CommandStream stream) noexcept {
   streams_[static_cast<std::size_t>(stream)].reset();
 }
 
+bool DaemonReceiver::repeats_last_drive_command(const CanFrame& frame) const noexcept {
+  if (!last_drive_command_) {
+    return false;
+  }
+  const std::array<std::uint8_t, 7>& last = *last_drive_command_;
+  if (static_cast<std::uint8_t>(frame.data[1] & ~e2e::kCounterMask) != last[0]) {
+    return false;
+  }
+  return std::equal(last.begin() + 1, last.end(), frame.data.begin() + 2);
+}
+
 bool DaemonReceiver::disturbed(CommandStream stream, std::chrono::nanoseconds now) const noexcept {
   const IntegrityErrors& e = integrity_errors_[static_cast<std::size_t>(stream)];
   // The ring's next slot holds the oldest of the last kDisturbedErrors failures.
-  return e.count >= kDisturbedErrors && now - e.at[e.count % kDisturbedErrors] < kDisturbedWindow &&
-         e.good_run < kRequalifyFrames;
+  return e.count >= kDisturbedErrors && now - e.at[e.count % kDisturbedErrors] < kDisturbedWindow;
 }
 
 DaemonInput DaemonReceiver::reject(const CanFrame& frame, const MessageDef* def, DecodeStatus reason) noexcept {
@@ -962,7 +972,6 @@ DaemonInput DaemonReceiver::receive_command(const CanFrame& frame, CommandStream
     IntegrityErrors& e = integrity_errors_[static_cast<std::size_t>(stream)];
     e.at[e.count % kDisturbedErrors] = now;
     ++e.count;
-    e.good_run = 0;
   }
   if (status != DecodeStatus::kOk) {
     return reject(frame, &def, status);
@@ -973,13 +982,20 @@ DaemonInput DaemonReceiver::receive_command(const CanFrame& frame, CommandStream
   if (status != DecodeStatus::kOk) {
     return reject(frame, &def, status);
   }
-  ++integrity_errors_[static_cast<std::size_t>(stream)].good_run;
   Command command{};
   status = decode_body(frame, command);
   if (status != DecodeStatus::kOk) {
     return reject(frame, &def, status);
   }
-  if (disturbed(stream, now) && !towards_safe_state(command)) {
+  if constexpr (std::is_same_v<Command, DriveCommand>) {
+    if (disturbed(stream, now) && !towards_safe_state(command) && !repeats_last_drive_command(frame)) {
+      return reject(frame, &def, DecodeStatus::kStreamDisturbed);
+    }
+    std::array<std::uint8_t, 7> payload{};
+    std::copy_n(frame.data.begin() + 1, payload.size(), payload.begin());
+    payload[0] = static_cast<std::uint8_t>(payload[0] & ~e2e::kCounterMask);
+    last_drive_command_ = payload;
+  } else if (disturbed(stream, now) && !towards_safe_state(command)) {
     return reject(frame, &def, DecodeStatus::kStreamDisturbed);
   }
   accept(def.type, now);

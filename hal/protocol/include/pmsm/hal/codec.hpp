@@ -209,26 +209,25 @@ inline constexpr std::size_t kCommandStreamCount = 3;
 
 using DaemonInput = std::variant<Rejected, SensorSample, DriveCommand, InjectionCommand, CalibrationCommand>;
 
-// A command stream is *disturbed* once kDisturbedErrors of its frames failed an integrity check
+// A command stream is *disturbed* while kDisturbedErrors of its frames failed an integrity check
 // (CRC, length, frame format) within kDisturbedWindow: a frame of it that passes every check is
-// then not acted on (kStreamDisturbed), though its alive counter is followed, unless it can only
-// take the drive towards its safe state (a DRIVE_COMMAND that disables, a CALIBRATION_COMMAND
-// that starts nothing: a garbage frame passing as one costs a stop, never a start, and a
-// supervisor's stop is heard through any disturbance). A genuine supervisor on a healthy bus
-// sends no such frame (CAN's own CRC drops what the wire corrupts), so two of them mean a device
-// sending garbage on this node's command ID, among which one frame in 256 passes the CRC-8 and
-// one in 2,000 the alive counter too: by chance, not by intent. One corrupt frame alone (a
-// supervisor's slip) holds nothing back. The stream is heard again once fewer than
-// kDisturbedErrors failures lie within the window, or from the kRequalifyFrames-th frame in a row
-// that passed its CRC and alive counter with no failure between (AUTOSAR's E2E state machine
-// likewise judges a window of check results, and qualifies a stream again by a run of good
-// ones): a supervisor sending every 20-50 ms is heard again within 100-250 ms of a burst's end,
-// inside the default command timeout (0.5 s), and among a device babbling faster than that no
-// such run passes. A babbler slower than one frame per kRequalifyFrames of the supervisor's (a
-// few a second) is not caught: about one of its random frames in 80,000 could start something.
+// then not acted on (kStreamDisturbed), though its alive counter is followed, unless it carries
+// no new order: a command that can only take the drive towards its safe state (a DRIVE_COMMAND
+// that disables, a CALIBRATION_COMMAND that starts nothing: a garbage frame passing as one costs
+// a stop, never a start, and a supervisor's stop is heard through any disturbance), or a
+// DRIVE_COMMAND that repeats the last one acted on (enable, mode and set-points alike: it
+// changes nothing but keeps the command timeout from tripping while a supervisor holds its
+// set-point). A genuine supervisor on a healthy bus sends no corrupt frame (CAN's own CRC drops
+// what the wire corrupts), so two of them mean a device sending garbage on this node's command
+// ID, among which one frame in 256 passes the CRC-8 and one in 2,000 the alive counter too: by
+// chance, not by intent. One corrupt frame alone (a supervisor's slip) holds nothing back.
+// (AUTOSAR's E2E state machine likewise judges a window of check results before the data are
+// used, and the application then keeps the last valid value for a tolerance time.) A babbler
+// that keeps on holds a changing set-point back until the command timeout trips; one slower than
+// two frames a second is not caught: about one of its random frames in 80,000 could start
+// something.
 inline constexpr std::chrono::nanoseconds kDisturbedWindow = std::chrono::seconds(1);
 inline constexpr std::size_t kDisturbedErrors = 2;
-inline constexpr std::uint32_t kRequalifyFrames = 5;
 
 // The daemon's receive side for one node: sensor samples and the three command streams.
 // Tracks when each message type was last accepted, so that the daemon's timeouts (sensor
@@ -251,8 +250,7 @@ class DaemonReceiver {
   void resync(CommandStream stream) noexcept;
 
   // Whether `stream` is disturbed at `now` (kDisturbedErrors integrity failures within
-  // kDisturbedWindow before it, and not kRequalifyFrames good frames in a row since). resync()
-  // leaves this history alone.
+  // kDisturbedWindow before it). resync() leaves this history alone.
   [[nodiscard]] bool disturbed(CommandStream stream, std::chrono::nanoseconds now) const noexcept;
 
   [[nodiscard]] NodeId node() const noexcept { return node_; }
@@ -266,17 +264,19 @@ class DaemonReceiver {
   DaemonInput reject(const CanFrame& frame, const MessageDef* def, DecodeStatus reason) noexcept;
   void accept(MessageType type, std::chrono::nanoseconds now) noexcept;
 
-  // The times of a command stream's last kDisturbedErrors integrity failures (a ring), and the
-  // frames that passed their CRC and alive counter since the last failure.
+  // The times of a command stream's last kDisturbedErrors integrity failures (a ring).
   struct IntegrityErrors {
     std::array<std::chrono::nanoseconds, kDisturbedErrors> at{};
     std::uint64_t count = 0;
-    std::uint32_t good_run = 0;
   };
+  // Whether a DRIVE_COMMAND frame repeats the last one acted on (its payload but the CRC and the
+  // alive counter).
+  [[nodiscard]] bool repeats_last_drive_command(const CanFrame& frame) const noexcept;
 
   NodeId node_;
   std::array<AliveCounterCheck, kCommandStreamCount> streams_;
   std::array<IntegrityErrors, kCommandStreamCount> integrity_errors_{};
+  std::optional<std::array<std::uint8_t, 7>> last_drive_command_;  // bytes 1-7, the counter cleared
   std::array<DecodeCounters, kMessageCount> per_type_{};
   std::array<std::optional<std::chrono::nanoseconds>, kMessageCount> last_accepted_{};
   DecodeCounters total_{};
