@@ -97,6 +97,10 @@ if ! "$tool" monitor --log "$work/heatup.log" --node $node --every 1 --check-rms
   die "the estimates on the bus are not within the bounds (daemon log: $(grep -c . "$work/daemon.log") lines)"
 fi
 tail -4 "$work/heatup-monitor.txt"
+# The supervisor tool reports what the daemon said of its calibration request (THERMAL_ESTIMATE).
+grep -q "node $node: calibration running" "$work/command.log" && grep -q "node $node: calibration ended: DONE" "$work/command.log" ||
+  die "pmsm-thermal command did not report the calibration's run and outcome: $(tail -3 "$work/command.log")"
+echo "$prog: the supervisor tool reported: $(grep -h 'calibration' "$work/command.log" | sed 's/^pmsm-thermal command: //' | paste -sd';')"
 
 # Plant outage: the pmsm-plant above has exited (duration reached). The daemon must publish
 # the SENSOR_TIMEOUT fault, due after sensor_timeout_periods x sample_timeout_ms (5 x 50 ms);

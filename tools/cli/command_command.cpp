@@ -25,6 +25,7 @@
 #include "cli_validators.hpp"
 #include "commands.hpp"
 #include "pmsm/hal/codec.hpp"
+#include "pmsm/hal/protocol_filters.hpp"
 #include "pmsm/hal/rt.hpp"
 #include "pmsm/hal/signals.hpp"
 #include "pmsm/hal/socketcan.hpp"
@@ -81,11 +82,84 @@ CLI::Validator signal_range(const protocol::SignalDef& signal) {
   return pmsm::cli::number_in_range(signal.minimum, signal.maximum);
 }
 
+// What the daemon says back, printed as it comes: a calibration's run and outcome (THERMAL_ESTIMATE's
+// Calibrating and CalibrationResult) and the rejections of this node's commands that are not the
+// synchronising frames' expected counter refusals (RECEIVE_STATUS: a bad CRC, a value out of
+// range, a command held back while its stream was disturbed). Without it a refused or held-back
+// request went unnoticed unless someone watched the bus.
+class DaemonAnswers {
+ public:
+  DaemonAnswers(int node, bool calibration_asked) : node_(node), calibration_asked_(calibration_asked) {}
+
+  void read(const hal::CanFrame& frame) {
+    protocol::AnyDecoded d;
+    if (protocol::decode_any(frame, d) != protocol::DecodeStatus::kOk || d.node != node_) {
+      return;
+    }
+    if (const auto* t = std::get_if<protocol::ThermalEstimate>(&d.message)) {
+      if (t->calibrating && !calibrating_) {
+        calibration_seen_ = true;
+        std::fprintf(stderr, "pmsm-thermal command: node %d: calibration running\n", node_);
+      } else if (!t->calibrating && calibrating_) {
+        std::fprintf(stderr, "pmsm-thermal command: node %d: calibration ended: %s\n", node_,
+                     label(protocol::kCalibrationResultLabels, t->calibration_result));
+      } else if (heard_estimate_ && t->calibration_result != result_ && !t->calibrating) {
+        calibration_seen_ = true;  // refused at once: it never ran
+        std::fprintf(stderr, "pmsm-thermal command: node %d: calibration %s\n", node_,
+                     label(protocol::kCalibrationResultLabels, t->calibration_result));
+      }
+      calibrating_ = t->calibrating;
+      result_ = t->calibration_result;
+      heard_estimate_ = true;
+    } else if (const auto* r = std::get_if<protocol::ReceiveStatus>(&d.message)) {
+      const std::uint64_t total = std::uint64_t{r->rejected_crc} + r->rejected_counter + r->rejected_range +
+                                  r->rejected_format + r->rejected_other;
+      const auto reason = static_cast<protocol::DecodeStatus>(r->last_rejection);
+      const protocol::MessageDef* m = protocol::find_message(r->last_rejected_id);
+      if (heard_status_ && total != total_ && m != nullptr && m->sender == protocol::Role::kSupervisor &&
+          reason != protocol::DecodeStatus::kRepeatedCounter && reason != protocol::DecodeStatus::kCounterJump) {
+        std::fprintf(stderr, "pmsm-thermal command: node %d: the daemon rejected a %.*s (0x%03X): %s\n", node_,
+                     static_cast<int>(m->name.size()), m->name.data(), r->last_rejected_id,
+                     label(protocol::kDecodeStatusLabels, r->last_rejection));
+      }
+      total_ = total;
+      heard_status_ = true;
+    }
+  }
+
+  void finish() const {
+    if (calibration_asked_ && !calibration_seen_) {
+      std::fprintf(stderr,
+                   "pmsm-thermal command: node %d: no THERMAL_ESTIMATE showed the calibration asked for (the daemon's "
+                   "log says why: a drive not running, a warm winding, a request lost)\n",
+                   node_);
+    }
+  }
+
+ private:
+  template <class Table>
+  static const char* label(const Table& table, auto value) {
+    return protocol::label_of(table, static_cast<std::int64_t>(value)).data();  // string literals
+  }
+
+  int node_;
+  bool calibration_asked_;
+  bool calibrating_ = false;
+  bool calibration_seen_ = false;
+  bool heard_estimate_ = false;
+  protocol::CalibrationResult result_ = protocol::CalibrationResult::kNone;
+  bool heard_status_ = false;
+  std::uint64_t total_ = 0;  // RECEIVE_STATUS's rejection counts (each modulo 256), summed
+};
+
 int run_command(const CommandOptions& o) {
   hal::SocketCanConfig config;
   config.interface = o.iface;
   config.fd = false;  // the command frames are classic CAN
-  config.filters = std::vector<hal::CanFilter>{};
+  // What the daemon says back about this node (THERMAL_ESTIMATE's calibration, RECEIVE_STATUS's
+  // rejections), reported as it comes.
+  const protocol::FilterSet heard = protocol::receive_filters(protocol::Role::kSupervisor, static_cast<protocol::NodeId>(o.node));
+  config.filters = std::vector<hal::CanFilter>(heard.view().begin(), heard.view().end());
   hal::Status error;
   std::unique_ptr<hal::SocketCanBus> bus = hal::SocketCanBus::open(config, error);
   if (!bus) {
@@ -144,18 +218,26 @@ int run_command(const CommandOptions& o) {
   const std::int64_t start = hal::monotonic_ns();
   std::uint64_t sent = 0;
   std::uint64_t failed = 0;
+  DaemonAnswers answers(o.node, o.calibrate_at_C.has_value());
+  hal::ReceivedFrame received;
   while (!hal::stop_requested().load()) {
     if (o.duration_s && static_cast<double>(hal::monotonic_ns() - start) * 1e-9 >= *o.duration_s) {
       break;
     }
     (send(drive) ? sent : failed) += 1;
-    // The period in slices of at most 10 ms: Ctrl-C sends the disabling frame at once, not
-    // after the rest of a long period.
+    // The period in slices of at most 10 ms, reading what the daemon says meanwhile: Ctrl-C
+    // sends the disabling frame at once, not after the rest of a long period.
     const std::int64_t next = hal::monotonic_ns() + static_cast<std::int64_t>(o.period_ms * 1e6);
     for (std::int64_t now = hal::monotonic_ns(); now < next && !hal::stop_requested().load(); now = hal::monotonic_ns()) {
-      std::this_thread::sleep_for(std::chrono::nanoseconds{std::min<std::int64_t>(next - now, 10'000'000)});
+      const auto slice = std::chrono::nanoseconds{std::min<std::int64_t>(next - now, 10'000'000)};
+      if (bus->receive(received, slice) == hal::ReceiveStatus::kFrame) {
+        answers.read(received.frame);
+      } else {
+        std::this_thread::sleep_for(std::chrono::nanoseconds{std::min<std::int64_t>(next - hal::monotonic_ns(), 1'000'000)});
+      }
     }
   }
+  answers.finish();
   drive.enable = false;
   drive.mode = protocol::DriveMode::kDisabled;
   const bool disabled = send(drive);

@@ -57,12 +57,7 @@ struct MonitorOptions {
 };
 
 const char* label(std::span<const protocol::ValueLabel> labels, std::int64_t value) {
-  for (const protocol::ValueLabel& l : labels) {
-    if (l.value == value) {
-      return l.label.data();
-    }
-  }
-  return "?";
+  return protocol::label_of(labels, value).data();  // the tables' labels are string literals
 }
 
 struct Axis {

@@ -97,6 +97,16 @@ struct ValueLabel {
   std::string_view label;
 };
 
+// The label of `value` in a value table ("?" if it has none).
+[[nodiscard]] constexpr std::string_view label_of(std::span<const ValueLabel> labels, std::int64_t value) noexcept {
+  for (const ValueLabel& l : labels) {
+    if (l.value == value) {
+      return l.label;
+    }
+  }
+  return "?";
+}
+
 struct SignalDef {
   std::string_view name;       // DBC signal name (CamelCase)
   std::uint16_t start_bit;     // LSB position, little-endian bit numbering
