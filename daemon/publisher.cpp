@@ -172,11 +172,11 @@ std::string Publisher::fault_cause(protocol::FaultCode code, double value) const
       return fmt::format("no sample for {:.0f} periods (supervisor.sensor_timeout_periods): ", value);
     case protocol::FaultCode::kDuplicateNode: {
       std::string cause;
-      if (foreign_ || !second_source_) {
+      if (foreign_.active || !second_source_.active) {
         cause = fmt::format("another device sends node {}'s frames (0x{:03X} last; can.node = {} on two daemons?)",
                             config_.can.node, foreign_id_, config_.can.node);
       }
-      if (second_source_) {
+      if (second_source_.active) {
         cause += fmt::format("{}SENSOR_SAMPLE frames from two sources on node {} (a second power stage as node {}?)",
                              cause.empty() ? "" : "; and ", config_.can.node, config_.can.node);
       }
@@ -487,9 +487,7 @@ void Publisher::watch_for_duplicates(std::chrono::steady_clock::time_point now) 
     heard = true;
   }
   if (heard) {
-    foreign_heard_ = now;
-    if (!foreign_) {
-      foreign_ = true;
+    if (foreign_.hear(now)) {
       const protocol::MessageDef* m = protocol::find_message(foreign_id_);
       spdlog::error("another device sends node {}'s {} (0x{:03X}) on '{}': a second pmsm-thermald configured as node {}? "
                     "Two drives would answer one power stage: fault DUPLICATE_NODE, gates off, until no other sender has "
@@ -498,13 +496,12 @@ void Publisher::watch_for_duplicates(std::chrono::steady_clock::time_point now) 
                     config_.can.interface, config_.can.node,
                     std::chrono::duration<double>(kDuplicateHold).count());
     }
-  } else if (foreign_ && now - foreign_heard_ >= kDuplicateHold) {
-    foreign_ = false;
+  } else if (foreign_.expire(now)) {
     spdlog::info("no other sender of node {}'s frames for {:g} s ({} frame(s) heard in all)", config_.can.node,
                  std::chrono::duration<double>(kDuplicateHold).count(), stats_.foreign_frames);
   }
   watch_sample_sources(now);
-  if (const bool duplicate = foreign_ || second_source_; duplicate != duplicate_) {
+  if (const bool duplicate = foreign_.active || second_source_.active; duplicate != duplicate_) {
     duplicate_ = duplicate;
     loop_.set_duplicate_node(duplicate);
     if (!duplicate) {
@@ -520,32 +517,28 @@ void Publisher::watch_for_duplicates(std::chrono::steady_clock::time_point now) 
 void Publisher::watch_sample_sources(std::chrono::steady_clock::time_point now) {
   if (const auto elapsed = now - sample_window_start_; elapsed >= kSampleSourceWindow) {
     const LoopStats s = loop_.stats();
-    stale_in_window_ = s.stale_samples - stale_at_window_start_;
+    const std::uint64_t stale = s.stale_samples - stale_at_window_start_;
     const std::uint64_t used = s.samples - samples_at_window_start_;
     sample_window_start_ = now;
     stale_at_window_start_ = s.stale_samples;
     samples_at_window_start_ = s.samples;
     // Judged as a rate (kSecondSourceMinStale per kSampleSourceWindow), so that a window the
     // drain thread stretched (a file's fsync, a slow journal) makes no trickle a second source.
-    if (stale_in_window_ >= kSecondSourceMinStale &&
-        static_cast<double>(stale_in_window_) * std::chrono::duration<double>(kSampleSourceWindow).count() >=
-            static_cast<double>(kSecondSourceMinStale) * std::chrono::duration<double>(elapsed).count()) {
-      second_source_heard_ = now;
-      if (!second_source_) {
-        second_source_ = true;
+    if (static_cast<double>(stale) * std::chrono::duration<double>(kSampleSourceWindow).count() >=
+        static_cast<double>(kSecondSourceMinStale) * std::chrono::duration<double>(elapsed).count()) {
+      if (second_source_.hear(now)) {
         spdlog::error("SENSOR_SAMPLE frames from two sources on node {} on '{}': {} in the last {:.0f} ms were older than "
                       "the samples the drive used ({} used): a second power stage configured as node {}, or a gateway "
                       "repeating its frames? The drive cannot tell which stage it controls: fault DUPLICATE_NODE, gates "
                       "off, until the second source has been quiet for {:g} s and a stop command clears it",
-                      config_.can.node, config_.can.interface, stale_in_window_,
+                      config_.can.node, config_.can.interface, stale,
                       std::chrono::duration<double, std::milli>(elapsed).count(), used, config_.can.node,
                       std::chrono::duration<double>(kDuplicateHold).count());
       }
       return;
     }
   }
-  if (second_source_ && now - second_source_heard_ >= kDuplicateHold) {
-    second_source_ = false;
+  if (second_source_.expire(now)) {
     spdlog::info("no second source of node {}'s SENSOR_SAMPLE frames for {:g} s", config_.can.node,
                  std::chrono::duration<double>(kDuplicateHold).count());
   }

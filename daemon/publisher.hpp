@@ -9,6 +9,7 @@
 #pragma once
 
 #include <array>
+#include <utility>
 #include <chrono>
 #include <cstdint>
 #include <string>
@@ -92,19 +93,34 @@ class Publisher {
   std::chrono::steady_clock::time_point last_reopen_try_{};
   bool reopen_failure_logged_ = false;
   bool not_durable_logged_ = false;
+  // One of DUPLICATE_NODE's causes: active from when it is heard until kDuplicateHold without.
+  struct HeldCause {
+    bool active = false;
+    std::chrono::steady_clock::time_point heard{};
+    // Heard at `now`; whether it became active.
+    bool hear(std::chrono::steady_clock::time_point now) noexcept {
+      heard = now;
+      return !std::exchange(active, true);
+    }
+    // Whether it ends at `now`, quiet for kDuplicateHold.
+    bool expire(std::chrono::steady_clock::time_point now) noexcept {
+      if (active && now - heard >= kDuplicateHold) {
+        active = false;
+        return true;
+      }
+      return false;
+    }
+  };
   // DUPLICATE_NODE's causes: another sender of this node's published identifiers, or of its
   // SENSOR_SAMPLE frames.
   bool duplicate_ = false;  // the cause as handed to the loop: either
-  bool foreign_ = false;
+  HeldCause foreign_;
   std::uint32_t foreign_id_ = 0;  // the identifier it was last heard on
-  std::chrono::steady_clock::time_point foreign_heard_{};
   std::chrono::steady_clock::time_point duplicates_watched_{};
-  bool second_source_ = false;
-  std::chrono::steady_clock::time_point second_source_heard_{};
+  HeldCause second_source_;
   std::chrono::steady_clock::time_point sample_window_start_{};
   std::uint64_t stale_at_window_start_ = 0;
   std::uint64_t samples_at_window_start_ = 0;
-  std::uint64_t stale_in_window_ = 0;  // in the last window judged
 };
 
 }  // namespace pmsm::daemon

@@ -923,15 +923,11 @@ void DaemonReceiver::resync(CommandStream stream) noexcept {
   streams_[static_cast<std::size_t>(stream)].reset();
 }
 
-bool DaemonReceiver::repeats_last_drive_command(const CanFrame& frame) const noexcept {
-  if (!last_drive_command_) {
-    return false;
-  }
-  const std::array<std::uint8_t, 7>& last = *last_drive_command_;
-  if (static_cast<std::uint8_t>(frame.data[1] & ~e2e::kCounterMask) != last[0]) {
-    return false;
-  }
-  return std::equal(last.begin() + 1, last.end(), frame.data.begin() + 2);
+std::array<std::uint8_t, 7> DaemonReceiver::drive_command_payload(const CanFrame& frame) noexcept {
+  std::array<std::uint8_t, 7> payload{};
+  std::copy_n(frame.data.begin() + 1, payload.size(), payload.begin());
+  payload[0] = static_cast<std::uint8_t>(payload[0] & ~e2e::kCounterMask);
+  return payload;
 }
 
 bool DaemonReceiver::disturbed(CommandStream stream, std::chrono::nanoseconds now) const noexcept {
@@ -987,16 +983,16 @@ DaemonInput DaemonReceiver::receive_command(const CanFrame& frame, CommandStream
   if (status != DecodeStatus::kOk) {
     return reject(frame, &def, status);
   }
+  // No new order: a stop, or a DRIVE_COMMAND that repeats the last one acted on.
+  bool no_new_order = towards_safe_state(command);
   if constexpr (std::is_same_v<Command, DriveCommand>) {
-    if (disturbed(stream, now) && !towards_safe_state(command) && !repeats_last_drive_command(frame)) {
-      return reject(frame, &def, DecodeStatus::kStreamDisturbed);
-    }
-    std::array<std::uint8_t, 7> payload{};
-    std::copy_n(frame.data.begin() + 1, payload.size(), payload.begin());
-    payload[0] = static_cast<std::uint8_t>(payload[0] & ~e2e::kCounterMask);
-    last_drive_command_ = payload;
-  } else if (disturbed(stream, now) && !towards_safe_state(command)) {
+    no_new_order = no_new_order || drive_command_payload(frame) == last_drive_command_;
+  }
+  if (!no_new_order && disturbed(stream, now)) {
     return reject(frame, &def, DecodeStatus::kStreamDisturbed);
+  }
+  if constexpr (std::is_same_v<Command, DriveCommand>) {
+    last_drive_command_ = drive_command_payload(frame);
   }
   accept(def.type, now);
   return command;

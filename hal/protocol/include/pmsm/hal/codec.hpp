@@ -269,14 +269,13 @@ class DaemonReceiver {
     std::array<std::chrono::nanoseconds, kDisturbedErrors> at{};
     std::uint64_t count = 0;
   };
-  // Whether a DRIVE_COMMAND frame repeats the last one acted on (its payload but the CRC and the
-  // alive counter).
-  [[nodiscard]] bool repeats_last_drive_command(const CanFrame& frame) const noexcept;
+  // A DRIVE_COMMAND frame's order: its payload but the CRC and the alive counter.
+  [[nodiscard]] static std::array<std::uint8_t, 7> drive_command_payload(const CanFrame& frame) noexcept;
 
   NodeId node_;
   std::array<AliveCounterCheck, kCommandStreamCount> streams_;
   std::array<IntegrityErrors, kCommandStreamCount> integrity_errors_{};
-  std::optional<std::array<std::uint8_t, 7>> last_drive_command_;  // bytes 1-7, the counter cleared
+  std::optional<std::array<std::uint8_t, 7>> last_drive_command_;  // the last acted on (drive_command_payload)
   std::array<DecodeCounters, kMessageCount> per_type_{};
   std::array<std::optional<std::chrono::nanoseconds>, kMessageCount> last_accepted_{};
   DecodeCounters total_{};
