@@ -210,6 +210,9 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
     real_time_calibration_ = false;
   }
 
+  if (controller_.motion_known()) {
+    motion_known_until_ = period_ + advance_;
+  }
   publish(in);
   period_ += advance_;
   return out_;
@@ -283,8 +286,15 @@ void DriveNode::publish(const NodeInputs& in) noexcept {
     s.current_limit_A = tel.current_limit_A;
     s.time_to_limit_valid = tel.time_to_limit_valid;
     s.time_to_limit_s = tel.time_to_limit_valid ? tel.time_to_limit_s : 0.0;
-    s.speed_rad_s = tel.speed_m_rad_s;
-    s.torque_Nm = controller_.torque_estimate_Nm();
+    // The shaft as the drive last tracked it, while that is the present: a gap shorter than the
+    // supervisor's sensor timeout (a lost sample, which the drive itself bridges) keeps the
+    // reading; a longer one, or a latched fault (the controller sees no sample then), leaves
+    // no value rather than the last speed of a shaft that may have stopped or been carried on.
+    s.motion_valid = motion_known_until_ != 0U &&
+                     period_ + advance_ - motion_known_until_ <
+                         static_cast<std::uint64_t>(std::max(supervisor_.config().sensor_timeout_periods, 1));
+    s.speed_rad_s = s.motion_valid ? tel.speed_m_rad_s : 0.0;
+    s.torque_Nm = s.motion_valid ? controller_.torque_estimate_Nm() : 0.0;
     p.status = s;
   }
   if (due(heartbeat_every_)) {

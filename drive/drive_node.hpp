@@ -155,6 +155,9 @@ class DriveNode {
   std::uint64_t fault_every_;
   std::uint64_t period_ = 0;
   std::uint64_t advance_ = 1;  // periods this step stands for
+  // The end of the last step whose speed and torque were the tracker's present reading
+  // (DriveController::motion_known), 0 before any: DRIVE_STATUS's MotionValid.
+  std::uint64_t motion_known_until_ = 0;
   NodeStep out_{};
   std::uint32_t published_latched_ = 0;   // the latched mask as last published
   std::array<double, core::kFaultCodeCount> fault_changed_s_{};

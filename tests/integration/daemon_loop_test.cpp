@@ -539,6 +539,28 @@ TEST(DaemonLoop, PlantOutageSafeStateThenRecovery) {
   supervise(bench, {2}, 50.0, 30s, seen, [&] { return has_state(seen, 2, protocol::DriveState::kRunning, back); });
   EXPECT_TRUE(has_fault(seen, 2, protocol::FaultCode::kSensorTimeout, false, back)) << "the fault clears itself";
   EXPECT_TRUE(has_state(seen, 2, protocol::DriveState::kRunning, back)) << "recovered without a restart";
+  // DRIVE_STATUS says the shaft's speed while the drive tracks it, and no speed while it cannot:
+  // never the last speed of a shaft that has meanwhile coasted to rest.
+  std::size_t running_read = 0;
+  std::size_t fault_read = 0;
+  std::size_t fault_blank = 0;
+  for (std::size_t k = 0; k < seen.size(); ++k) {
+    const auto* st = as<protocol::DriveStatus>(seen[k]);
+    if (st == nullptr || seen[k].node != 2) {
+      continue;
+    }
+    if (st->state == protocol::DriveState::kRunning && st->motion_valid && std::abs(st->speed_rad_s - 50.0) < 10.0) {
+      ++running_read;
+    }
+    if (k >= outage && k < back && st->state == protocol::DriveState::kFault) {
+      ++(st->motion_valid ? fault_read : fault_blank);
+      EXPECT_EQ(std::isnan(st->speed_rad_s), !st->motion_valid);
+      EXPECT_EQ(std::isnan(st->torque_Nm), !st->motion_valid);
+    }
+  }
+  EXPECT_GT(running_read, 0U) << "running at 50 rad/s, DRIVE_STATUS read it";
+  EXPECT_GT(fault_blank, 0U) << "without samples DRIVE_STATUS gave no speed";
+  EXPECT_EQ(fault_read, 0U) << "without samples DRIVE_STATUS gave a speed";
 }
 
 // A power stage that repeats one sample (a frozen sequence counter, a replaying gateway) is as

@@ -333,7 +333,8 @@ TEST(protocol_codec, TelemetryRoundTrip) {
   status.limiting_reasons = kLimitReasonWindingTemp | kLimitReasonSpeed;
   status.current_limit_A = 400.0;
   status.time_to_limit_valid = true;
-  status.time_to_limit_s = 16383.0;
+  status.time_to_limit_s = 8191.0;
+  status.motion_valid = true;
   status.speed_rad_s = -3200.0;
   status.torque_Nm = 400.0;
   const DriveStatus sr = round_trip(status);
@@ -341,12 +342,28 @@ TEST(protocol_codec, TelemetryRoundTrip) {
   EXPECT_EQ(sr.limiting_reasons, status.limiting_reasons);
   EXPECT_NEAR(sr.current_limit_A, 400.0, 0.05);
   EXPECT_TRUE(sr.time_to_limit_valid);
-  EXPECT_NEAR(sr.time_to_limit_s, 16383.0, 0.5);
+  EXPECT_NEAR(sr.time_to_limit_s, 8191.0, 0.5);
+  EXPECT_TRUE(sr.motion_valid);
   EXPECT_NEAR(sr.speed_rad_s, -3200.0, 0.1);
   // A field-weakening spindle's 1885 rad/s, which the 1.2 layout's +-1600 clamped.
   status.speed_rad_s = 1885.0;
   EXPECT_NEAR(round_trip(status).speed_rad_s, 1885.0, 0.1);
   EXPECT_NEAR(sr.torque_Nm, 400.0, 0.025);
+  // A drive that tracks no shaft (no usable sample) says so: no speed and no torque, whatever
+  // the struct held, rather than the last reading of a shaft that may have stopped.
+  status.motion_valid = false;
+  CanFrame still;
+  ASSERT_EQ(encode(status, 3, still), EncodeStatus::kOk);
+  const DriveStatus none = round_trip(status);
+  EXPECT_FALSE(none.motion_valid);
+  EXPECT_TRUE(std::isnan(none.speed_rad_s));
+  EXPECT_TRUE(std::isnan(none.torque_Nm));
+  std::uint64_t word = 0;
+  for (std::size_t k = 0; k < 8; ++k) {
+    word |= std::uint64_t{still.data[k]} << (8U * k);
+  }
+  static_assert(drive_status::kSpeed.start_bit == 35 && drive_status::kTorque.start_bit + drive_status::kTorque.length == 64);
+  EXPECT_EQ(word >> 35U, 0U) << "Speed and Torque go out as raw 0 without a reading";
 
   ThermalEstimate thermal;
   thermal.valid = true;

@@ -376,6 +376,7 @@ TEST(protocol_agreement, DriveStatus) {
         m.current_limit_A = p.value("CurrentLimit");
         m.time_to_limit_valid = p.coin();
         m.time_to_limit_s = p.value("TimeToLimit");
+        m.motion_valid = p.coin();
         m.speed_rad_s = p.value("Speed");
         m.torque_Nm = p.value("Torque");
         return m;
@@ -389,9 +390,10 @@ TEST(protocol_agreement, DriveStatus) {
                         {"LimitSpeed", b((m.limiting_reasons & kLimitReasonSpeed) != 0)},
                         {"CurrentLimit", m.current_limit_A},
                         {"TimeToLimit", m.time_to_limit_valid ? m.time_to_limit_s : 0.0},
+                        {"MotionValid", b(m.motion_valid)},
                         {"TimeToLimitValid", b(m.time_to_limit_valid)},
-                        {"Speed", m.speed_rad_s},
-                        {"Torque", m.torque_Nm}};
+                        {"Speed", m.motion_valid ? m.speed_rad_s : 0.0},
+                        {"Torque", m.motion_valid ? m.torque_Nm : 0.0}};
       }});
 }
 

@@ -465,6 +465,9 @@ class Monitor {
     if (a.status) {
       out += fmt::format("  {}  limit {:.0f} A", label(protocol::kDriveStateLabels, static_cast<std::int64_t>(a.status->state)),
                          a.status->current_limit_A);
+      // MotionValid clear: the drive tracks no shaft (no usable sample), not a shaft at rest.
+      out += a.status->motion_valid ? fmt::format("  {:.1f} rad/s {:.1f} Nm", a.status->speed_rad_s, a.status->torque_Nm)
+                                    : "  speed -";
       // TimeToLimit: until the drive starts to derate (0: it derates now, which the limit shows).
       out += a.status->time_to_limit_valid && a.status->time_to_limit_s > 0.0
                  ? fmt::format("  derates in {:.0f} s", a.status->time_to_limit_s)

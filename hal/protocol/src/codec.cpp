@@ -306,9 +306,10 @@ void write_body(Writer& w, const DriveStatus& m) noexcept {
   w.boolean(kLimitSpeed, (m.limiting_reasons & kLimitReasonSpeed) != 0U);
   w.physical(kCurrentLimit, m.current_limit_A);
   w.guarded(kTimeToLimit, m.time_to_limit_valid, m.time_to_limit_s);
+  w.boolean(kMotionValid, m.motion_valid);
   w.boolean(kTimeToLimitValid, m.time_to_limit_valid);
-  w.physical(kSpeed, m.speed_rad_s);
-  w.physical(kTorque, m.torque_Nm);
+  w.guarded(kSpeed, m.motion_valid, m.speed_rad_s);
+  w.guarded(kTorque, m.motion_valid, m.torque_Nm);
 }
 void read_body(const Reader& r, DriveStatus& m) noexcept {
   using namespace drive_status;
@@ -333,8 +334,9 @@ void read_body(const Reader& r, DriveStatus& m) noexcept {
   m.current_limit_A = r.physical(kCurrentLimit);
   m.time_to_limit_valid = r.boolean(kTimeToLimitValid);
   m.time_to_limit_s = r.guarded(kTimeToLimit, m.time_to_limit_valid);
-  m.speed_rad_s = r.physical(kSpeed);
-  m.torque_Nm = r.physical(kTorque);
+  m.motion_valid = r.boolean(kMotionValid);
+  m.speed_rad_s = r.guarded(kSpeed, m.motion_valid);
+  m.torque_Nm = r.guarded(kTorque, m.motion_valid);
 }
 
 void write_body(Writer& w, const ThermalEstimate& m) noexcept {

@@ -420,6 +420,10 @@ class DriveController {
     return electromagnetic_torque_Nm(config_.current.flux_linkage_Wb, config_.current.ld_H, config_.current.lq_H,
                                      config_.motor.pole_pairs, telemetry_.i_A);
   }
+  // The tracker follows the shaft: telemetry().speed_m_rad_s and torque_estimate_Nm() are this
+  // step's. False from the first step without a usable sample (a lost sample, a latched fault)
+  // until a usable one has given the tracker its speed again: they then hold the last reading.
+  [[nodiscard]] bool motion_known() const noexcept { return !angle_gap_ && angle_.speed_known(); }
   // Set for the one period in which a pair finished (accepted, rejected or skipped).
   [[nodiscard]] const std::optional<PairResult>& last_pair() const { return last_pair_; }
   // Set for the one period in which an estimate was published.

@@ -38,7 +38,7 @@ inline constexpr std::uint32_t kNodeIdMask = 0x00F;  // the node-id bits of a CA
 inline constexpr std::uint32_t kIdBaseMask = 0x7F0;  // the message bits of a CAN ID
 
 // Protocol version, written into the DBC's VERSION line. Bump it on any layout change.
-inline constexpr std::string_view kProtocolVersion = "pmsm-thermal-can 1.6";
+inline constexpr std::string_view kProtocolVersion = "pmsm-thermal-can 1.7";
 
 // The parties on the bus (DBC "BU_" nodes). A receive-filter role is one of these.
 enum class Role : std::uint8_t {
@@ -351,6 +351,7 @@ struct DriveStatus {
   double current_limit_A = 0.0;        // present (derated) current-amplitude limit
   bool time_to_limit_valid = false;
   double time_to_limit_s = 0.0;        // until the winding reaches its derating threshold
+  bool motion_valid = false;           // guards speed_rad_s and torque_Nm: the drive tracks the shaft
   double speed_rad_s = 0.0;            // mechanical
   double torque_Nm = 0.0;              // estimated electromagnetic torque incl. reluctance
 };
@@ -574,17 +575,19 @@ inline constexpr SignalDef kLimitSpeed{"LimitSpeed", 7, 1, false, 1, 0, 0, 1, ""
     "Limiting: speed limit reached."};
 inline constexpr SignalDef kCurrentLimit{"CurrentLimit", 8, 12, false, 0.1, 0, 0, 400, "A", detail::kNoValues,
     "Present (derated) current-amplitude limit."};
-inline constexpr SignalDef kTimeToLimit{"TimeToLimit", 20, 14, false, 1, 0, 0, 16383, "s", detail::kNoValues,
-    "Time until the winding reaches its derating threshold if the present load continues (saturates); see TimeToLimitValid."};
+inline constexpr SignalDef kTimeToLimit{"TimeToLimit", 20, 13, false, 1, 0, 0, 8191, "s", detail::kNoValues,
+    "Time until the winding reaches its derating threshold if the present load continues (saturates at 8191 s); see TimeToLimitValid."};
+inline constexpr SignalDef kMotionValid{"MotionValid", 33, 1, false, 1, 0, 0, 1, "", detail::kNoValues,
+    "1: Speed and Torque are the drive's present reading; 0: none (no usable sensor sample: the power stage silent, a latched fault, the shaft's tracker restarting)."};
 inline constexpr SignalDef kTimeToLimitValid{"TimeToLimitValid", 34, 1, false, 1, 0, 0, 1, "", detail::kNoValues,
     "1: TimeToLimit holds a prediction; 0: none (not heating, or no estimate)."};
 inline constexpr SignalDef kSpeed{"Speed", 35, 15, true, 0.2, 0, -3200, 3200, "rad/s", detail::kNoValues,
     "Mechanical speed (0.2 rad/s steps; beyond the set-point range, so that a shaft carried past it reads true)."};
 inline constexpr SignalDef kTorque{"Torque", 50, 14, true, 0.05, 0, -400, 400, "Nm", detail::kNoValues,
     "Estimated electromagnetic torque, including reluctance torque."};
-inline constexpr std::array<SignalDef, 11> kSignals{
+inline constexpr std::array<SignalDef, 12> kSignals{
     kState, kLimitWindingTemp, kLimitMagnetTemp, kLimitVoltage, kLimitCurrent, kLimitSpeed,
-    kCurrentLimit, kTimeToLimit, kTimeToLimitValid, kSpeed, kTorque};
+    kCurrentLimit, kTimeToLimit, kMotionValid, kTimeToLimitValid, kSpeed, kTorque};
 }  // namespace drive_status
 
 namespace thermal_estimate {
