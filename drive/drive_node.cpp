@@ -237,13 +237,14 @@ void DriveNode::publish(const NodeInputs& in) noexcept {
     rep.speed_change_rad_s = r.delta_omega_e_rad_s / controller_.config().motor.pole_pairs;
     p.injection = rep;
   }
-  const bool new_estimate = controller_.last_estimate().has_value();
+  // Only an estimate the thermal filter took: one its gate refused (an innovation beyond 6 sigma)
+  // is a measurement the drive judged implausible, counted (estimates_gated) and not published
+  // as the winding's resistance, at once or in the repeats after it.
+  const bool new_estimate = controller_.last_estimate().has_value() && controller_.last_estimate()->fused;
   if (new_estimate) {
     last_estimate_ = *controller_.last_estimate();
-    if (last_estimate_->fused) {
-      last_estimate_s_ = now_s;
-      ++estimate_count_;
-    }
+    last_estimate_s_ = now_s;
+    ++estimate_count_;
   }
   if ((new_estimate || due(resistance_every_)) && last_estimate_) {
     protocol::ResistanceEstimate r;

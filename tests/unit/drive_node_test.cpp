@@ -1393,6 +1393,46 @@ TEST(DriveNode, ADriveDeratingOnItsWindingStillMeasures) {
   EXPECT_LE(tel.motoring_iq_limit_A, d.min_current_A);
 }
 
+// An estimate the thermal filter's gate refused (an innovation beyond 6 sigma: here the winding
+// made 80 C hotter at a stroke, which no loss explains) is counted, not published as the
+// winding's resistance: RESISTANCE_ESTIMATE, at once and in its repeats every second, carries
+// the last estimate the filter took.
+TEST(DriveNode, AnEstimateTheFilterRefusedIsNotPublishedAsTheResistance) {
+  Rig rig;
+  rig.config.drive.injection.interval_s = 0.5;
+  rig.node = std::make_unique<DriveNode>(rig.config, rig.supervisor, PublishRates{});
+  std::vector<double> taken;  // the Rs of every estimate the filter took
+  std::vector<double> refused;
+  std::vector<double> sent;   // RESISTANCE_ESTIMATE's Rs from the jump on
+  const auto run_and_record = [&](int periods, bool after_jump) {
+    for (int k = 0; k < periods; ++k) {
+      const NodeStep& step = rig.run(1);
+      if (const auto& e = rig.node->controller().last_estimate()) {
+        (e->fused ? taken : refused).push_back(e->rs_ohm);
+      }
+      if (after_jump && step.publications.resistance) {
+        sent.push_back(step.publications.resistance->rs_ohm);
+      }
+    }
+  };
+  run_and_record(80000, false);  // 8 s
+  const auto& tel = rig.node->controller().telemetry();
+  ASSERT_GE(tel.estimates_published, 4U);
+  ASSERT_TRUE(refused.empty());
+  const hal::TruthSample t = rig.plant->truth();
+  rig.plant->set_temperatures_C(double{t.winding_temp_C} + 80.0, t.housing_temp_C, t.magnet_temp_C);
+  for (int k = 0; k < 400 && (refused.size() < 2U || sent.size() < 3U); ++k) {  // at most 4 s
+    run_and_record(100, true);
+  }
+  ASSERT_GE(refused.size(), 2U) << "the jump should have been gated";
+  EXPECT_EQ(tel.estimates_gated, refused.size());
+  ASSERT_GE(sent.size(), 3U) << "RESISTANCE_ESTIMATE repeats every second";
+  for (const double rs : sent) {
+    EXPECT_EQ(std::count(refused.begin(), refused.end(), rs), 0) << rs << " ohm, refused by the filter, went out";
+    EXPECT_GT(std::count(taken.begin(), taken.end(), rs), 0) << rs << " ohm went out, not an estimate the filter took";
+  }
+}
+
 // A fault suspends a calibration (the result stays NONE, the calibration's state reaches the
 // telemetry in the safe state too) and it completes after the fault is cleared: a passing
 // sensor timeout must not cost the commissioning. An ABORT shows at once, even in a fault; a

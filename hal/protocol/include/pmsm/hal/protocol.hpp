@@ -620,7 +620,7 @@ inline constexpr std::array<SignalDef, 11> kSignals{
 
 namespace resistance_estimate {
 inline constexpr SignalDef kRs{"Rs", 0, 20, false, 0.00001, 0, 0, 10, "Ohm", detail::kNoValues,
-    "Estimated phase-to-neutral stator resistance (0 when Valid is 0)."};
+    "Phase-to-neutral stator resistance of the last estimate the thermal filter accepted (one its plausibility gate refused is not sent; 0 when Valid is 0)."};
 inline constexpr SignalDef kRsSigma{"RsSigma", 20, 13, false, 0.00001, 0, 0, 0.08191, "Ohm", detail::kNoValues,
     "1-sigma uncertainty of Rs (saturates; 0 when Valid is 0)."};
 inline constexpr SignalDef kRs0{"Rs0", 33, 20, false, 0.00001, 0, 0, 10, "Ohm", detail::kNoValues,
