@@ -268,7 +268,7 @@ void DriveNode::publish(const NodeInputs& in) noexcept {
     t.magnet_temp_C = t.magnet_valid ? tel.magnet_C : 0.0;
     t.magnet_temp_sigma_C = t.magnet_valid ? tel.magnet_std_C : 0.0;
     t.calibrated = tel.calibrated;
-    t.derating_active = tel.derating;
+    t.derating_active = tel.derating || tel.magnet_derating;  // either temperature (DRIVE_STATUS says which)
     t.stale = !last_estimate_s_ || now_s - *last_estimate_s_ > rates_.stale_after_s;
     t.calibration_result = to_protocol(tel.calibration_outcome);
     t.calibrating = tel.calibrating;

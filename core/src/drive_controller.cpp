@@ -1265,6 +1265,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     telemetry_.inverter_sweep_active = false;
     telemetry_.angle_check_active = false;
     clear_motoring_telemetry();
+    telemetry_.voltage_limited = false;  // the bridge is off: nothing limits its voltage
     SchedulerInput s;
     s.time_s = now;
     const SchedulerOutput& so = scheduler_.step(s, nullptr);

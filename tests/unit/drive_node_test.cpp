@@ -501,6 +501,21 @@ TEST(DriveNode, TheVoltageLimitDoesNotWindTheSpeedLoopUp) {
   ASSERT_GT(rig.node->controller().telemetry().outcomes[static_cast<std::size_t>(core::PairOutcome::kAccepted)], 0U)
       << "no injection events ran";
   EXPECT_LT(highest, limit + 0.005 * limit);
+  // The samples stop on the voltage limit: the drive switches off, and neither its telemetry nor
+  // DRIVE_STATUS says the voltage limits it through the fault that follows (it did until the
+  // samples came back: LimitVoltage beside FAULT misleads whoever diagnoses the trip).
+  ASSERT_TRUE(rig.node->controller().telemetry().voltage_limited);
+  std::optional<protocol::DriveStatus> status;
+  for (int k = 0; k < 2000; ++k) {  // 0.2 s
+    if (const NodeStep& s = rig.node->step(nullptr, rig.in); s.publications.status) {
+      status = s.publications.status;
+    }
+  }
+  EXPECT_FALSE(rig.node->controller().telemetry().voltage_limited);
+  ASSERT_TRUE(status.has_value());
+  EXPECT_EQ(status->state, protocol::DriveState::kFault);
+  EXPECT_EQ(status->limiting_reasons & protocol::kLimitReasonVoltage, 0U);
+  EXPECT_FALSE(status->motion_valid);
 }
 
 // The rig's machine with control.field_weakening, a speed limit of 450 rad/s and events every
@@ -1349,6 +1364,9 @@ TEST(DriveNode, TheMagnetEstimateDeratesTheCurrentLimitAndSaysSo) {
   const unsigned reasons = status_reasons(rig, 1000);  // 0.1 s: one DRIVE_STATUS at least
   EXPECT_NE(reasons & protocol::kLimitReasonMagnetTemp, 0U);
   EXPECT_EQ(reasons & protocol::kLimitReasonWindingTemp, 0U);
+  // THERMAL_ESTIMATE's DeratingActive ("derated for temperature") says so too: a supervisor that
+  // reads that frame alone learns that the limit is down.
+  EXPECT_TRUE(next_thermal(rig).derating_active);
   // Aged out (0.5 s after its measurement, the next event 2 s on): still derated on it.
   const double held_A = tel.current_limit_A;
   run_until_magnet(rig, false, 10000);

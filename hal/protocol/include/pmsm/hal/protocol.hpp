@@ -602,7 +602,7 @@ inline constexpr SignalDef kValid{"Valid", 48, 1, false, 1, 0, 0, 1, "", detail:
 inline constexpr SignalDef kCalibrated{"Calibrated", 49, 1, false, 1, 0, 0, 1, "", detail::kNoValues,
     "1: Rs0 comes from a calibration; 0: from the configured default."};
 inline constexpr SignalDef kDeratingActive{"DeratingActive", 50, 1, false, 1, 0, 0, 1, "", detail::kNoValues,
-    "1: the current limit is derated for temperature."};
+    "1: the current limit is derated for temperature, the winding's or the magnets' (DRIVE_STATUS's LimitWindingTemp and LimitMagnetTemp say which)."};
 inline constexpr SignalDef kStale{"Stale", 51, 1, false, 1, 0, 0, 1, "", detail::kNoValues,
     "1: no resistance measurement accepted recently; the estimate runs on the thermal model alone."};
 inline constexpr SignalDef kMagnetValid{"MagnetValid", 52, 1, false, 1, 0, 0, 1, "", detail::kNoValues,
