@@ -365,6 +365,12 @@ void Publisher::handle(const PublicationRecord& r) {
                    "not at; let the motor cool to the ambient, or give the winding's temperature with the request. The "
                    "previous calibration stays in use",
                    r.calibration_winding_rise_C);
+    } else if (r.calibration_failure == core::CalibrationFailure::kAmbientHeld) {
+      spdlog::warn("calibration refused: the ambient sensor (SENSOR_SAMPLE AmbientTemp) stopped reporting and its last "
+                   "reading, {:.1f} C, of unknown age, stands for it: Rs0 referred to it would carry its error into every "
+                   "later estimate. Mend the sensor, or give the winding's temperature with the request. The previous "
+                   "calibration stays in use",
+                   r.ambient_C);
     } else if (r.calibration_failure == core::CalibrationFailure::kTemperatureImplausible) {
       spdlog::warn("calibration refused: the temperature given with the request lies {:.1f} K {} the winding the drive "
                    "measured within the last minute (more than 4 sigma + calibration.max_winding_rise_C): Rs0 referred to "

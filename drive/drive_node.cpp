@@ -160,7 +160,8 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
   if (in.start_calibration) {
     // The drive's own knowledge of the winding's temperature: the operator's value, or the
     // ambient / coolant sensor of a motor at rest (soaked).
-    controller_.start_calibration(in.calibration_known_C.value_or(ambient_C), !in.calibration_known_C.has_value());
+    controller_.start_calibration(in.calibration_known_C.value_or(ambient_C), !in.calibration_known_C.has_value(),
+                                  ambient_held_);
     // In an accelerated test the calibration runs at real thermal time, as on a machine: at
     // 400x the winding's own time constant shrinks to tens of milliseconds and its temperature
     // swings within an event (docs/hil.md).

@@ -161,7 +161,8 @@ void DriveController::record_calibration_failure(CalibrationFailure why) {
     case CalibrationFailure::kUncertain:
     case CalibrationFailure::kAngleOffset:
     case CalibrationFailure::kWindingWarm:
-    case CalibrationFailure::kTemperatureImplausible: calibration_outcome_ = CalibrationOutcome::kRefused; break;
+    case CalibrationFailure::kTemperatureImplausible:
+    case CalibrationFailure::kAmbientHeld: calibration_outcome_ = CalibrationOutcome::kRefused; break;
     case CalibrationFailure::kTimeout: calibration_outcome_ = CalibrationOutcome::kTimedOut; break;
     case CalibrationFailure::kNone: calibration_outcome_ = CalibrationOutcome::kNone; break;
   }
@@ -207,6 +208,7 @@ const char* calibration_failure_name(CalibrationFailure f) {
     case CalibrationFailure::kAngleOffset: return "angle_offset";
     case CalibrationFailure::kWindingWarm: return "winding_warm";
     case CalibrationFailure::kTemperatureImplausible: return "temperature_implausible";
+    case CalibrationFailure::kAmbientHeld: return "ambient_held";
   }
   return "unknown";
 }
@@ -409,8 +411,16 @@ void DriveController::finish_inverter_sweep(double now_s) {
   calibration_started_s_ = now_s;
 }
 
-void DriveController::start_calibration(double known_temp_C, bool from_ambient_sensor) {
+void DriveController::start_calibration(double known_temp_C, bool from_ambient_sensor, bool ambient_held) {
   const bool was_calibrating = calibrating_;
+  // The ambient sensor stopped reporting and its last reading stands for it (a loose connector,
+  // the stage's own sensor check): a model's boundary may run on it a while, but Rs0 referred
+  // to a reading of unknown age would carry its error into every later estimate, and be stored.
+  if (from_ambient_sensor && ambient_held && !was_calibrating) {
+    calibration_refused_on_request_ = true;
+    record_calibration_failure(CalibrationFailure::kAmbientHeld);
+    return;
+  }
   // A winding the filter holds well above the ambient sensor's reading (the drive's own losses
   // since it started, a stored warm state cooled through the downtime) is not at that
   // temperature: Rs0 referred to it would put every later estimate low by the difference (a

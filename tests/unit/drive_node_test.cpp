@@ -1606,11 +1606,25 @@ TEST(DriveNode, AnAmbientSensorThatStopsReportingIsHeldAtItsLastReading) {
   EXPECT_DOUBLE_EQ(rig.node->ambient_C(), 31.0);
   EXPECT_TRUE(rig.node->ambient_held());
   EXPECT_EQ(rig.node->ambient_dropouts(), 1U) << "one dropout, however many samples it lasts";
-  rig.in.start_calibration = true;  // "at the ambient": the held reading
+  // A calibration "at the ambient" would be referred to a reading of unknown age: refused, and
+  // said why; with the winding's temperature given it starts.
+  const core::DriveTelemetry& tel = rig.node->controller().telemetry();
+  rig.in.start_calibration = true;
+  const NodeStep& asked = rig.run(1, no_sensor);
+  EXPECT_TRUE(asked.calibration_failed);
+  EXPECT_EQ(tel.calibration_failure, core::CalibrationFailure::kAmbientHeld);
+  EXPECT_EQ(tel.calibration_outcome, core::CalibrationOutcome::kRefused);
+  EXPECT_FALSE(tel.calibrating);
+  rig.in.calibration_known_C = 31.0;
   rig.run(1, no_sensor);
+  EXPECT_TRUE(tel.calibrating) << "an operator's temperature does not need the sensor";
   rig.in.start_calibration = false;
+  rig.in.abort_calibration = true;
+  rig.run(1, no_sensor);
+  rig.in.abort_calibration = false;
+  rig.in.calibration_known_C.reset();
   rig.run(200, no_sensor);
-  EXPECT_NEAR(rig.node->controller().telemetry().thermal.winding_C, 31.0, 0.2);
+  EXPECT_NEAR(tel.thermal.winding_C, 31.0, 0.2);
   rig.plant->set_ambient_C(33.0);
   rig.run(10);
   EXPECT_DOUBLE_EQ(rig.node->ambient_C(), 33.0);

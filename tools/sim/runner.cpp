@@ -1298,6 +1298,10 @@ std::string result_text(const SimulationResult& r) {
     out += fmt::format("  calibration failed at {:.2f} s    winding_warm: the thermal filter held the winding {:.1f} C above "
                        "the ambient sensor (calibration.max_winding_rise_C); the calibration in use stays\n",
                        r.calibration_failure_time_s, r.calibration_failure_winding_rise_C);
+  } else if (r.calibration_failure == core::CalibrationFailure::kAmbientHeld) {
+    out += fmt::format("  calibration failed at {:.2f} s    ambient_held: the ambient sensor had stopped reporting, its last "
+                       "reading held; the calibration in use stays\n",
+                       r.calibration_failure_time_s);
   } else if (r.calibration_failure == core::CalibrationFailure::kTemperatureImplausible) {
     out += fmt::format("  calibration failed at {:.2f} s    temperature_implausible: the temperature given lies {:.1f} K from "
                        "the winding the drive had just measured (more than 4 sigma + calibration.max_winding_rise_C); the "

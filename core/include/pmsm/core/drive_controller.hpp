@@ -189,11 +189,15 @@ enum class CalibrationFailure : std::uint8_t {
   // An operator's temperature far outside what the drive measured of the winding moments ago
   // (more than 4 sigma + calibration_max_winding_rise_C from the filter's winding)
   kTemperatureImplausible = 5,
+  // The ambient / coolant sensor the calibration would be referred to stopped reporting: its
+  // last reading is held, of unknown age (DriveNode::ambient_held)
+  kAmbientHeld = 6,
 };
 [[nodiscard]] const char* calibration_failure_name(CalibrationFailure f);
 // Refused as it was asked for, before any of it ran (calibration_winding_rise_C says by how much).
 [[nodiscard]] constexpr bool refused_on_request(CalibrationFailure f) {
-  return f == CalibrationFailure::kWindingWarm || f == CalibrationFailure::kTemperatureImplausible;
+  return f == CalibrationFailure::kWindingWarm || f == CalibrationFailure::kTemperatureImplausible ||
+         f == CalibrationFailure::kAmbientHeld;
 }
 // Pairs by outcome (a calibration's, an event's), most frequent first, e.g. "34
 // rejected_load_change, 4 accepted"; "no pair" when there were none. With the aborted pairs'
@@ -372,8 +376,9 @@ class DriveController {
   // than calibration_max_winding_rise_C above it. An operator's reading is refused with
   // kTemperatureImplausible when the filter measured the winding within
   // kRecentMeasurement_s and the reading lies more than 4 sigma + calibration_max_winding_rise_C
-  // from it.
-  void start_calibration(double known_temp_C, bool from_ambient_sensor = false);
+  // from it. `ambient_held`: the ambient sensor's temperature is its last reading, held since it
+  // stopped reporting: a calibration on it is refused with kAmbientHeld.
+  void start_calibration(double known_temp_C, bool from_ambient_sensor = false, bool ambient_held = false);
   // Stops a calibration in progress and keeps the calibration in use (nothing is stored).
   void abort_calibration();
 
