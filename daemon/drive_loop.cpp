@@ -167,6 +167,7 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns, 
     r.ambient_held = node_.ambient_held();
     r.ambient_dropouts = node_.ambient_dropouts();
     r.ambient_sensed = node_.ambient_sensed();
+    r.restore_ambient_shift_C = node_.restore_ambient_shift_C();
     if (!ring_.try_push(r)) {
       counters_.publications_dropped.bump();
     }

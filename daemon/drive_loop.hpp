@@ -52,6 +52,7 @@ struct PublicationRecord {
   bool ambient_held = false;    // ... a sensor that stopped reporting, held (DriveNode::ambient_held)
   std::uint32_t ambient_dropouts = 0;  // DriveNode::ambient_dropouts: brief ones between two records too
   bool ambient_sensed = false;  // ... a sensor's reading, not the configured value (DriveNode::ambient_sensed)
+  double restore_ambient_shift_C = 0.0;  // DriveNode::restore_ambient_shift_C
   bool calibration_failed = false;
   core::CalibrationFailure calibration_failure = core::CalibrationFailure::kNone;
   double calibration_rs0_ohm = 0.0;      // a refused calibration's Rs0 and its standard error

@@ -128,8 +128,9 @@ void restore_thermal_state(const DaemonConfig& config, pmsm::daemon::DriveLoop& 
       return;
     }
     loop.restore_thermal_state(s.state, downtime_s, s.ambient_C);
-    spdlog::info("thermal state restored from {}: winding {:.1f} +- {:.1f} C {:.0f} s ago, cooled to {:.1f} +- {:.1f} C",
-                 path, s.state.winding_C, s.state.winding_std_C, downtime_s,
+    spdlog::info("thermal state restored from {}: winding {:.1f} +- {:.1f} C {:.0f} s ago, cooled towards the stored "
+                 "ambient {:.1f} C to {:.1f} +- {:.1f} C",
+                 path, s.state.winding_C, s.state.winding_std_C, downtime_s, s.ambient_C,
                  loop.node().controller().thermal_state().winding_C, loop.node().controller().thermal_state().winding_std_C);
     if (s.state.has_loss_errors) {
       const pmsm::core::ThermalState kept = loop.node().controller().thermal_state();

@@ -292,6 +292,13 @@ void Publisher::handle(const PublicationRecord& r) {
   if (r.thermal_state) {
     store_thermal_state(*r.thermal_state, r.ambient_C);
   }
+  if (r.restore_ambient_shift_C != 0.0 && !restore_shift_logged_) {
+    restore_shift_logged_ = true;
+    spdlog::info("thermal state: the ambient reads {:.1f} C at this start, not the stored ambient its cooling assumed "
+                 "(above): the restored winding moved {:+.1f} K to the middle of the coolings towards the two, its band "
+                 "widened to cover either",
+                 r.ambient_C, r.restore_ambient_shift_C);
+  }
   // Dropouts that began and ended between two records: the held flag never showed them.
   const std::uint32_t dropouts = r.ambient_dropouts - ambient_dropouts_;
   ambient_dropouts_ = r.ambient_dropouts;
@@ -306,7 +313,7 @@ void Publisher::handle(const PublicationRecord& r) {
     ambient_held_ = r.ambient_held;
     if (r.ambient_held) {
       spdlog::warn("the ambient sensor stopped reporting (SENSOR_SAMPLE AmbientValid = 0): the drive holds its last "
-                   "reading, {:.1f} C, for the thermal model and a calibration at the ambient",
+                   "reading, {:.1f} C, for the thermal model (a calibration at the ambient is refused meanwhile)",
                    r.ambient_C);
     } else if (r.ambient_sensed) {
       spdlog::info("the ambient sensor reports again: {:.1f} C", r.ambient_C);

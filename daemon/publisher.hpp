@@ -85,6 +85,7 @@ class Publisher {
   bool first_thermal_logged_ = false;
   bool ambient_held_ = false;  // as last logged
   std::uint32_t ambient_dropouts_ = 0;  // as last logged
+  bool restore_shift_logged_ = false;
   std::uint32_t estimates_gated_logged_ = 0;  // the estimator's refusals as last logged
   std::uint32_t estimates_dropped_logged_ = 0;
   std::uint32_t magnet_rejected_logged_ = 0;

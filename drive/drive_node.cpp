@@ -151,6 +151,12 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
   }
   const double ambient_C = sensed_ambient_C_.value_or(in.ambient_C);
   ambient_used_C_ = ambient_C;
+  if (status.sample_usable && !restore_referred_) {
+    // The first plausible sample after the start: the ambient of the restart, against the one a
+    // restored thermal state was cooled towards (a restore comes before the first sample).
+    restore_referred_ = true;
+    restore_ambient_shift_C_ = controller_.refer_restored_state_to_ambient(ambient_C);
+  }
 
   // A fault suspends a calibration (no pair runs in the safe state); it resumes once the fault
   // is cleared, within its timeout: a passing sensor timeout must not cost the commissioning.

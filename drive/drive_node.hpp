@@ -124,6 +124,9 @@ class DriveNode {
   [[nodiscard]] std::uint32_t ambient_dropouts() const noexcept { return ambient_dropouts_; }
   // A reading of the sample's sensor is in use (held or fresh), not the input.
   [[nodiscard]] bool ambient_sensed() const noexcept { return sensed_ambient_C_.has_value(); }
+  // How far a restored thermal state's winding moved because the ambient at the first sample
+  // was not the stored one (DriveController::refer_restored_state_to_ambient); 0 if it was.
+  [[nodiscard]] double restore_ambient_shift_C() const noexcept { return restore_ambient_shift_C_; }
   [[nodiscard]] const core::Supervisor& supervisor() const noexcept { return supervisor_; }
   [[nodiscard]] const SensorFrontend& frontend() const noexcept { return frontend_; }
   [[nodiscard]] std::uint64_t periods() const noexcept { return period_; }
@@ -170,6 +173,8 @@ class DriveNode {
   std::optional<double> sensed_ambient_C_;  // the sample's ambient sensor, last plausible reading
   bool ambient_held_ = false;
   std::uint32_t ambient_dropouts_ = 0;
+  bool restore_referred_ = false;  // the first plausible sample's ambient went to a restored state
+  double restore_ambient_shift_C_ = 0.0;
   double ambient_used_C_ = 25.0;
   std::uint8_t heartbeat_counter_ = 0;
   std::uint8_t injection_count_ = 0;

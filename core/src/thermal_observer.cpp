@@ -126,6 +126,29 @@ void ThermalObserver::restore(const ThermalState& state, double downtime_thermal
   since_measurement_s_ = 0.0;
   restart_history();  // a state from before the restart: nothing of this run to look back on
   anchored_ = false;
+  restore_referable_ = true;
+  restore_relaxation_ = e;
+  restore_ambient_C_ = ambient_C;
+}
+
+double ThermalObserver::refer_restored_to_ambient(double ambient_C) {
+  if (!restore_referable_) {
+    return 0.0;
+  }
+  restore_referable_ = false;
+  const double moved = ambient_C - restore_ambient_C_;
+  if (!std::isfinite(moved) || moved == 0.0) {
+    return 0.0;
+  }
+  // Each node's end temperature under the two ambients differs by the part of the ambient's
+  // step the network took up over the downtime: moved (1 - row sum of e^{A t}).
+  const Eigen::Vector2d span = moved * (Eigen::Vector2d::Ones() - restore_relaxation_ * Eigen::Vector2d::Ones());
+  x_(0) += 0.5 * span(0);
+  x_(1) += 0.5 * span(1);
+  anchor_C_ = x_(0);
+  const Eigen::Vector2d s = 0.25 * span;
+  p_.topLeftCorner<2, 2>() += s * s.transpose();
+  return 0.5 * span(0);
 }
 
 void ThermalObserver::set_loss_errors(double dp_W, double dp_std_W, double k, double k_std, double correlation,
@@ -198,6 +221,7 @@ double ThermalObserver::iron_loss_W(double omega_m_rad_s) const {
 
 void ThermalObserver::predict(double dt_s, double copper_current_sq_A2, double omega_m_rad_s,
                               double ambient_C, bool at_rest) {
+  restore_referable_ = false;  // the state has moved on under the ambient it was given
   const double dt = dt_s * config_.time_scale;  // thermal seconds
   const double pcu = copper_loss_W(copper_current_sq_A2);
   last_copper_loss_W_ = pcu;

@@ -164,7 +164,7 @@ grep -q "the loss model's learned errors kept" "$work/daemon-2.log" ||
 # a file without it holds a dP learned on the winding, which a restart refuses.
 grep -qx 'missing_loss_node = "housing"' "$work/thermal-state.toml" ||
   die "the stored thermal state does not name its missing loss's node: $(grep -m2 'missing_loss' "$work/thermal-state.toml")"
-echo "$prog: daemon killed: the plant waited; the restarted daemon loaded the stored calibration and thermal state ($(grep -o 'winding [0-9.]* +- [0-9.]* C [0-9]* s ago, cooled to [0-9.]* +- [0-9.]* C' "$work/daemon-2.log")), locked on, and the plant finished"
+echo "$prog: daemon killed: the plant waited; the restarted daemon loaded the stored calibration and thermal state ($(grep -o 'winding [0-9.]* +- [0-9.]* C [0-9]* s ago, cooled towards the stored ambient [0-9.-]* C to [0-9.]* +- [0-9.]* C' "$work/daemon-2.log")), locked on, and the plant finished"
 
 # Every frame decodes with the DBC (can/pmsm-thermal.dbc describes node 0; the DBC of node
 # NODE comes from the same generator: pmsm-dbc-gen --node NODE).

@@ -1594,6 +1594,32 @@ TEST(DriveNode, ANonFiniteWindingEstimateTripsTheDrive) {
 // A sensor that reported and then stops is held at its last reading, not replaced by the
 // configured ambient (before: the thermal model's boundary jumped from 31 to 12 C here without a
 // word); it is followed again when it reports.
+// A state stored at a 5 C night's stop, restored into a 30 C day: the first sample's ambient sensor
+// moves it between the coolings towards the two (ThermalObserver::refer_restored_to_ambient),
+// once; a restore into the ambient it was stored with stays as it was.
+TEST(DriveNode, ARestoredStateMeetsTheAmbientOfTheRestart) {
+  for (const double present_C : {30.0, 5.0}) {
+    Rig rig;
+    rig.plant_config.thermal.ambient_C = present_C;  // (the plant's first sample is made as it is built)
+    rig.plant = std::make_unique<plant::Plant>(rig.plant_config);
+    rig.node->controller().restore_thermal_state(core::ThermalState{60.0, 50.0, 1.0}, 3000.0, 5.0);
+    const double cooled_C = rig.node->controller().thermal_state().winding_C;
+    ASSERT_LT(cooled_C, 30.0);
+    rig.run(1);
+    const double shift = rig.node->restore_ambient_shift_C();
+    const core::ThermalState now = rig.node->controller().thermal_state();
+    if (present_C == 5.0) {
+      EXPECT_EQ(shift, 0.0);
+      EXPECT_EQ(now.winding_C, cooled_C);
+      continue;
+    }
+    EXPECT_GT(shift, 1.0);
+    EXPECT_NEAR(now.winding_C, cooled_C + shift, 1e-9);
+    rig.run(2000);  // the filter runs on from there; nothing is referred again
+    EXPECT_EQ(rig.node->restore_ambient_shift_C(), shift);
+  }
+}
+
 TEST(DriveNode, AnAmbientSensorThatStopsReportingIsHeldAtItsLastReading) {
   Rig rig;
   rig.in.ambient_C = 12.0;

@@ -942,6 +942,47 @@ TEST(ThermalObserver, AStoredStateIsCooledThroughTheDowntime) {
   EXPECT_NEAR(obs.estimate().winding_C, 20.0, 1.0) << "long enough: at the ambient";
 }
 
+// The ambient moved in the downtime (stored at 5 C at night, 30 C at the restart): the truth lies
+// between the network's relaxations towards the two ambients, whatever the ambient did between
+// (it moved monotonically). The restored state takes their middle, and its 2 sigma reaches
+// either end; before, it stayed on the stored ambient's cooling, 25 K low after a long night.
+TEST(ThermalObserver, ARestoreReferredToAnotherAmbientLiesBetweenTheTwoCoolings) {
+  ThermalModelConfig c;
+  Calibration cal;
+  const ThermalState stored{60.0, 50.0, 1.0};
+  for (const double downtime : {300.0, 3000.0, 30000.0}) {
+    Eigen::Matrix2d a;
+    Eigen::Vector2d b;
+    linear_system(network_of(c, cal), 0.0, 0.0, 5.0, a, b);
+    const Eigen::Vector2d cold = analytic(a, b, Eigen::Vector2d(60.0, 50.0), downtime);
+    linear_system(network_of(c, cal), 0.0, 0.0, 30.0, a, b);
+    const Eigen::Vector2d warm = analytic(a, b, Eigen::Vector2d(60.0, 50.0), downtime);
+    ThermalObserver obs(c, cal, 25.0);
+    obs.restore(stored, downtime, 5.0);
+    const double sigma_before = obs.estimate().winding_std_C;
+    ASSERT_NEAR(obs.estimate().winding_C, cold(0), 0.05);
+    const double shift = obs.refer_restored_to_ambient(30.0);
+    EXPECT_NEAR(shift, 0.5 * (warm(0) - cold(0)), 0.05) << downtime;
+    EXPECT_NEAR(obs.estimate().winding_C, 0.5 * (cold(0) + warm(0)), 0.05) << downtime;
+    EXPECT_NEAR(obs.estimate().housing_C, 0.5 * (cold(1) + warm(1)), 0.05) << downtime;
+    // 2 sigma reaches both ends: the stored state's band and half the span, in quadrature.
+    const double half_span = 0.5 * (warm(0) - cold(0));
+    EXPECT_NEAR(obs.estimate().winding_std_C, std::hypot(sigma_before, 0.5 * half_span), 0.02) << downtime;
+    EXPECT_GE(2.0 * obs.estimate().winding_std_C, half_span) << downtime;
+    EXPECT_EQ(obs.refer_restored_to_ambient(40.0), 0.0) << "once";
+  }
+  // Nothing to refer: the same ambient, or the filter ran on since the restore.
+  ThermalObserver same(c, cal, 25.0);
+  same.restore(stored, 3000.0, 20.0);
+  const double w = same.estimate().winding_C;
+  EXPECT_EQ(same.refer_restored_to_ambient(20.0), 0.0);
+  EXPECT_EQ(same.estimate().winding_C, w);
+  ThermalObserver ran(c, cal, 25.0);
+  ran.restore(stored, 3000.0, 5.0);
+  ran.predict(0.01, 0.0, 0.0, 5.0, true);
+  EXPECT_EQ(ran.refer_restored_to_ambient(30.0), 0.0);
+}
+
 // A machine makes no cold. A missing loss learned negative (a cooling path better than the
 // model's while the housing was warm, or estimates that read low) must not cool a motor below
 // its coolant: it may take out at most the iron loss and once more what the modelled path to

@@ -414,6 +414,11 @@ class DriveController {
   // filter starts from the ambient sensor with a wide uncertainty and takes its first
   // measurement ungated, never from the calibration's T0 as if the motor were soaked there.
   void restore_thermal_state(const ThermalState& state, double downtime_s, double ambient_C);
+  // The restart's own ambient, read before the first thermal update after a restore: a move
+  // from the stored ambient widens the restored state towards it
+  // (ThermalObserver::refer_restored_to_ambient). Returns the winding's shift; 0 when there is
+  // nothing to refer (no restore pending, the same ambient, the filter already ran).
+  double refer_restored_state_to_ambient(double ambient_C) { return observer_.refer_restored_to_ambient(ambient_C); }
   [[nodiscard]] ThermalState thermal_state() const { return observer_.state(); }
   // Estimates dated after their publication, waiting for their time (hold_estimate()).
   [[nodiscard]] std::size_t held_estimates() const noexcept { return held_count_; }

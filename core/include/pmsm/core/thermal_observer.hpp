@@ -165,6 +165,14 @@ class ThermalObserver {
   // The first measurement afterwards passes without the gate: the stored state is a
   // prediction, not a measurement.
   void restore(const ThermalState& state, double downtime_thermal_s, double ambient_C);
+  // The ambient of the restart, first read after restore() and before the first predict(),
+  // differs from the stored one that the downtime's cooling assumed: the ambient moved some time
+  // in the downtime, to an unknown schedule. The network relaxed towards the stored ambient and
+  // towards this one bound the state: span = (ambient_C - stored) (I - e^{A t}) [1 1]'. The state
+  // takes the middle of the two and its variance (span / 4)^2 more, fully shared by the nodes, so
+  // that its 2 sigma reaches either end. Returns the winding's shift (0 when nothing was done:
+  // no restore pending, the same ambient, or a predict() since).
+  double refer_restored_to_ambient(double ambient_C);
   // Restarts from a guess (see the constructor), e.g. the ambient sensor's temperature.
   void restart_unknown(double guess_C);
   // Takes over what `other` has learned of the loss model (dP, k and their covariance), as
@@ -247,6 +255,11 @@ class ThermalObserver {
   double drift_std_C_ = 0.0;  // the model's error since then (model_error_fraction, at rest)
   double rest_drift_C_ = 0.0; // its part from the spells at rest (downtime_error_fraction)
   bool anchored_ = true;      // a measurement or a known temperature holds the state
+  // From restore() to the first predict(): the downtime's relaxation e^{A t} and the ambient
+  // it assumed (refer_restored_to_ambient).
+  bool restore_referable_ = false;
+  Eigen::Matrix2d restore_relaxation_ = Eigen::Matrix2d::Identity();
+  double restore_ambient_C_ = 0.0;
   bool holds_uncalibrated_ = false;  // a measurement through an uncalibrated Rs0 is in the state
   int gated_in_row_ = 0;      // measurements gated out since the last fused one
   double gated_sum_C_ = 0.0, gated_sq_sum_C2_ = 0.0, gated_r_sum_C2_ = 0.0;  // of those
