@@ -137,11 +137,14 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
     supervisor_.request_clear();
   }
   const core::SupervisorStatus& status = supervisor_.step(si);
-  // The ambient / coolant sensor of the sample, once the supervisor found the sample
-  // plausible; without one (a power stage without the sensor) the caller's value. A sensor
-  // that reported and then stops (its stage's own sensor check, a loose connector) is held at
-  // its last reading: the boundary of the thermal model does not jump to the caller's 25 C.
-  if (status.sample_usable && si.sample) {
+  // The ambient / coolant sensor of the sample, unless the supervisor found its reading out of
+  // range; without one (a power stage without the sensor) the caller's value. A sensor that
+  // reported and then stops (its stage's own sensor check, a loose connector) is held at its
+  // last reading: the boundary of the thermal model does not jump to the caller's 25 C. Read
+  // through a latched fault too: the controller sees no sample then, but its thermal model runs
+  // on, and a latched OVERTEMPERATURE clears only as the winding cools towards this boundary.
+  const bool ambient_read = si.sample && !supervisor_.cause_present(core::FaultCode::kAmbientImplausible);
+  if (ambient_read) {
     const bool held = !si.sample->ambient_C && sensed_ambient_C_.has_value();
     ambient_dropouts_ += held && !ambient_held_ ? 1U : 0U;
     ambient_held_ = held;
@@ -151,7 +154,7 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
   }
   const double ambient_C = sensed_ambient_C_.value_or(in.ambient_C);
   ambient_used_C_ = ambient_C;
-  if (status.sample_usable && !restore_referred_) {
+  if (ambient_read && !restore_referred_) {
     // The first plausible sample after the start: the ambient of the restart, against the one a
     // restored thermal state was cooled towards (a restore comes before the first sample).
     restore_referred_ = true;

@@ -1620,6 +1620,23 @@ TEST(DriveNode, ARestoredStateMeetsTheAmbientOfTheRestart) {
   }
 }
 
+// A latched fault (the controller sees no sample) does not freeze the thermal model's boundary:
+// the ambient sensor is read on, and the model cools towards the coolant as it is. An
+// out-of-range reading is not taken, in a fault as out of one.
+TEST(DriveNode, TheAmbientSensorIsReadThroughAFault) {
+  Rig rig;
+  rig.run(2000);
+  EXPECT_DOUBLE_EQ(rig.node->ambient_C(), 25.0);
+  rig.node->report(core::FaultCode::kInterfaceDown, true);
+  rig.run(10);
+  ASSERT_EQ(rig.node->supervisor().status().state, core::DriveState::kFault);
+  rig.plant->set_ambient_C(40.0);
+  rig.run(10);
+  EXPECT_DOUBLE_EQ(rig.node->ambient_C(), 40.0);
+  rig.run(10, [](hal::SensorSample& s) { s.ambient_centi_C = 32000; });  // 320 C: out of range
+  EXPECT_DOUBLE_EQ(rig.node->ambient_C(), 40.0);
+}
+
 TEST(DriveNode, AnAmbientSensorThatStopsReportingIsHeldAtItsLastReading) {
   Rig rig;
   rig.in.ambient_C = 12.0;
