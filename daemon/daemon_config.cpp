@@ -245,6 +245,18 @@ std::string check_cross_keys(const DaemonConfig& c, const toml::table& root, con
   return errors;
 }
 
+// A configured value beyond a signal's range, as a warning naming both.
+std::optional<std::string> beyond_signal(std::string_view key, double value, std::string_view unit,
+                                         const hal::protocol::SignalDef& signal, std::string_view what) {
+  if (!(value > signal.maximum)) {
+    return std::nullopt;
+  }
+  return fmt::format("{} ({} {}) lies beyond DRIVE_STATUS {}'s range (up to {} {}): {}, the frame reads {} {}, not the "
+                     "drive's value (docs/protocol.md)",
+                     key, common::format_number(value), unit, signal.name, common::format_number(signal.maximum), unit, what,
+                     common::format_number(signal.maximum), unit);
+}
+
 // The supervisor's defaults for a drive: relative to its motor, ADCs and bus
 // (app::default_supervisor_config), and a command timeout: a daemon that is enabled expects a
 // supervisor that keeps talking.
@@ -317,6 +329,24 @@ std::string daemon_keys_markdown() {
   DaemonConfig c;
   c.supervisor = daemon_supervisor_defaults(c.controller);
   return schema().markdown(c);
+}
+
+std::vector<std::string> bus_range_warnings(const DaemonConfig& config) {
+  namespace ds = hal::protocol::drive_status;
+  const core::DriveConfig& d = config.controller.drive;
+  std::vector<std::string> out;
+  for (const std::optional<std::string>& w :
+       {beyond_signal("controller.derating.max_current_A", d.derating.max_current_A, "A", ds::kCurrentLimit,
+                      "while the limit is above it"),
+        beyond_signal("controller.control.max_torque_Nm", d.speed.max_torque_Nm, "Nm", ds::kTorque,
+                      "at a torque above it"),
+        beyond_signal("supervisor.overspeed_rad_s", config.supervisor.overspeed_rad_s, "rad/s", ds::kSpeed,
+                      "at a speed above it (short of the trip)")}) {
+    if (w) {
+      out.push_back(*w);
+    }
+  }
+  return out;
 }
 
 BusLoad bus_load(const DaemonConfig& c) {

@@ -64,6 +64,12 @@ struct DaemonConfig {
 // Markdown tables of the daemon's own keys (docs/daemon.md).
 [[nodiscard]] std::string daemon_keys_markdown();
 
+// Limits a configuration lets the drive reach beyond what a published signal can carry: the
+// frame then reads the signal's end (DRIVE_STATUS CurrentLimit, Torque, Speed), a plausible
+// number that is not the drive's. One warning each, naming the key and the signal; empty when
+// everything fits.
+[[nodiscard]] std::vector<std::string> bus_range_warnings(const DaemonConfig& config);
+
 // The load the fast loop and the publications put on the configured real bus.
 struct BusLoad {
   double fast_loop_fraction = 0.0;    // SENSOR_SAMPLE + INVERTER_COMMAND every period

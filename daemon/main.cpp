@@ -217,6 +217,9 @@ int run(const Options& o) {
   for (const std::string& w : pmsm::app::reference_default_warnings(config.controller)) {
     spdlog::warn("{}", w);
   }
+  for (const std::string& w : pmsm::daemon::bus_range_warnings(config)) {
+    spdlog::warn("{}", w);
+  }
   {
     // A stored calibration without the bridge's voltage: the estimates rest on the configured
     // guess, whose error every estimate shares and the band carries (docs/estimator.md section

@@ -133,6 +133,9 @@ check_warns() {
 check_warns "[controller.calibration]\nfile = \"$dir/no-such-dir/cal.toml\"\n[controller.thermal]\nstate_file = \"$dir\"\n" \
   "controller.calibration.file = $dir/no-such-dir/cal.toml: its directory $dir/no-such-dir does not exist: nothing this run learns can be stored there" \
   "controller.thermal.state_file = $dir: it is a directory"
+# A drive whose current limit the bus's DRIVE_STATUS cannot carry (0..400 A): warned, naming both.
+check_warns '[controller.derating]\nmax_current_A = 600\n[controller.sensors]\ncurrent_range_A = 1000\n[supervisor]\novercurrent_A = 800\n' \
+  "controller.derating.max_current_A (600 A) lies beyond DRIVE_STATUS CurrentLimit's range (up to 400 A): while the limit is above it, the frame reads 400 A"
 # Another motor on the reference machine's thermal model and derating floor: warned, not refused.
 check_warns '[controller.motor]\ncontinuous_current_A_rms = 4.5\n[controller.sensors]\ncurrent_range_A = 25.0\n[controller.derating]\nmax_current_A = 19.0\n' \
   "controller.thermal: the thermal model has the reference machine's values (11.9 kW" \
