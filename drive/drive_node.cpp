@@ -48,12 +48,9 @@ core::SupervisorConfig default_supervisor_config(const ControllerConfig& config)
   return s;
 }
 
-protocol::InjectionMethod protocol_method(const core::DriveConfig& drive) noexcept {
-  const bool bipolar = drive.injection.separation == core::Separation::kBipolar;
-  if (drive.estimator != core::EstimatorKind::kInjection) {
-    return protocol::InjectionMethod::kOff;
-  }
-  switch (drive.injection.method) {
+protocol::InjectionMethod protocol_method(core::InjectionMethod method, core::Separation separation) noexcept {
+  const bool bipolar = separation == core::Separation::kBipolar;
+  switch (method) {
     case core::InjectionMethod::kFixedMagnitude:
       return bipolar ? protocol::InjectionMethod::kFixedMagnitudeBipolar : protocol::InjectionMethod::kFixedMagnitudeUnipolar;
     case core::InjectionMethod::kFixedAngle:
@@ -72,7 +69,6 @@ DriveNode::DriveNode(const ControllerConfig& config, const core::SupervisorConfi
       frontend_(config.sensors, config.drive.period_s),
       period_s_(config.drive.period_s),
       rates_(rates),
-      method_(protocol_method(config.drive)),
       thermal_every_(every(rates.thermal_estimate_s)),
       resistance_every_(every(rates.resistance_estimate_s)),
       status_every_(every(rates.drive_status_s)),
@@ -238,7 +234,7 @@ void DriveNode::publish(const NodeInputs& in) noexcept {
     const core::PairResult& r = *controller_.last_pair();
     protocol::InjectionReport rep;
     rep.injection_count = injection_count_++;
-    rep.method = method_;
+    rep.method = protocol_method(r.method, r.separation);  // the pair's own: a calibration's are its procedure's
     rep.result = static_cast<protocol::InjectionResult>(static_cast<std::uint8_t>(r.outcome));
     rep.amplitude_A = r.f_A;
     rep.rs_valid = r.outcome == core::PairOutcome::kAccepted && std::isfinite(r.rs_ohm);

@@ -92,8 +92,8 @@ struct NodeStep {
   bool calibration_failed = false;                        // a calibration just failed (timed out or refused)
 };
 
-// The protocol's method code for the controller's injection configuration.
-[[nodiscard]] hal::protocol::InjectionMethod protocol_method(const core::DriveConfig& drive) noexcept;
+// The protocol's method code for a pair's method and separation (INJECTION_REPORT Method).
+[[nodiscard]] hal::protocol::InjectionMethod protocol_method(core::InjectionMethod method, core::Separation separation) noexcept;
 
 class DriveNode {
  public:
@@ -104,9 +104,7 @@ class DriveNode {
 
   // The operator's injection settings (see DriveController::configure_injection).
   void configure_injection(core::InjectionMethod method, core::Separation separation, double f_A, double interval_s) noexcept {
-    if (controller_.configure_injection(method, separation, f_A, interval_s)) {
-      method_ = protocol_method(controller_.config());
-    }
+    static_cast<void>(controller_.configure_injection(method, separation, f_A, interval_s));
   }
 
   // A condition the caller watches (interface down, GPIO fault input, deadline overruns).
@@ -150,7 +148,6 @@ class DriveNode {
   std::optional<std::uint32_t> last_used_sequence_;
   double period_s_;
   PublishRates rates_;
-  hal::protocol::InjectionMethod method_;
   std::uint64_t thermal_every_;
   std::uint64_t resistance_every_;
   std::uint64_t status_every_;

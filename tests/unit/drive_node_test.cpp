@@ -1155,6 +1155,43 @@ TEST(DriveNode, ACalibrationsPairsAreNamedByOutcome) {
             "16 aborted (12 motoring_needs_voltage, 4 current_limit), 8 accepted, 2 rejected_speed_change");
 }
 
+// INJECTION_REPORT names the method of the pair it reports: a calibration runs its own procedure
+// (fixed-magnitude bipolar) whatever the run-time method, here fixed-angle unipolar, and the
+// run's pairs after it are the run-time method's. (It named the configured method for both.)
+TEST(DriveNode, AnInjectionReportNamesThePairsOwnMethod) {
+  Rig rig;
+  rig.plant_config.load.torque_Nm = 0.0;  // a calibration runs unloaded
+  rig.plant = std::make_unique<plant::Plant>(rig.plant_config);
+  rig.config.drive.injection.method = core::InjectionMethod::kFixedAngle;
+  rig.config.drive.injection.separation = core::Separation::kUnipolar;
+  rig.config.drive.injection.interval_s = 0.5;
+  rig.config.drive.calibration_injection.interval_s = 0.5;
+  rig.node = std::make_unique<DriveNode>(rig.config, rig.supervisor, PublishRates{});
+  rig.run(2000);
+  rig.in.start_calibration = true;
+  rig.run(1);
+  rig.in.start_calibration = false;
+  std::vector<protocol::InjectionMethod> during;
+  std::vector<protocol::InjectionMethod> after;
+  bool stored = false;
+  for (int k = 0; k < 400000 && (!stored || after.size() < 2U); ++k) {
+    const NodeStep& step = rig.run(1);
+    stored = stored || step.calibration_to_store.has_value();
+    if (step.publications.injection) {
+      (stored ? after : during).push_back(step.publications.injection->method);
+    }
+  }
+  ASSERT_TRUE(stored) << "the calibration did not complete";
+  ASSERT_FALSE(during.empty());
+  ASSERT_GE(after.size(), 2U);
+  for (const protocol::InjectionMethod m : during) {
+    EXPECT_EQ(m, protocol::InjectionMethod::kFixedMagnitudeBipolar);
+  }
+  for (const protocol::InjectionMethod m : after) {
+    EXPECT_EQ(m, protocol::InjectionMethod::kFixedAngleUnipolar);
+  }
+}
+
 // A calibration that gives up says so on the bus, and the one in use (here the configured
 // default) stays: a supervisor that asked for it sees TIMED_OUT with Calibrated 0.
 TEST(DriveNode, ACalibrationThatTimesOutIsPublishedAsSuch) {

@@ -636,7 +636,7 @@ namespace injection_report {
 inline constexpr SignalDef kInjectionCount{"InjectionCount", 0, 8, false, 1, 0, 0, 255, "", detail::kNoValues,
     "Injections attempted (wraps at 256)."};
 inline constexpr SignalDef kMethod{"Method", 8, 3, false, 1, 0, 0, 5, "", kInjectionMethodLabels,
-    "Method used."};
+    "Method and separation of this pair: a calibration's pairs are its own procedure's (fixed-magnitude bipolar), whatever the run-time method."};
 inline constexpr SignalDef kResult{"Result", 11, 4, false, 1, 0, 0, 10, "", kInjectionResultLabels,
     "Outcome of the injection."};
 inline constexpr SignalDef kRsValid{"RsValid", 15, 1, false, 1, 0, 0, 1, "", detail::kNoValues,
