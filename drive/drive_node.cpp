@@ -240,7 +240,11 @@ void DriveNode::publish(const NodeInputs& in) noexcept {
     rep.rs_valid = r.outcome == core::PairOutcome::kAccepted && std::isfinite(r.rs_ohm);
     rep.measured_rs_ohm = rep.rs_valid ? r.rs_ohm : 0.0;
     // Electrical to mechanical.
-    rep.speed_change_rad_s = r.delta_omega_e_rad_s / controller_.config().motor.pole_pairs;
+    // Both recordings' means exist only when the second matched samples of the first: an aborted
+    // or skipped pair has none (its 0 is no measured "no change"), and a second recording that
+    // matched nothing would read the whole speed as the change.
+    rep.speed_change_valid = r.samples > 0U;
+    rep.speed_change_rad_s = rep.speed_change_valid ? r.delta_omega_e_rad_s / controller_.config().motor.pole_pairs : 0.0;
     p.injection = rep;
   }
   // Only an estimate the thermal filter took: one its gate refused (an innovation beyond 6 sigma)

@@ -1158,7 +1158,7 @@ TEST(DriveNode, ACalibrationsPairsAreNamedByOutcome) {
 // INJECTION_REPORT names the method of the pair it reports: a calibration runs its own procedure
 // (fixed-magnitude bipolar) whatever the run-time method, here fixed-angle unipolar, and the
 // run's pairs after it are the run-time method's. (It named the configured method for both.)
-TEST(DriveNode, AnInjectionReportNamesThePairsOwnMethod) {
+TEST(DriveNode, AnInjectionReportNamesThePairsOwnMethodAndOnlyAMeasuredSpeedChange) {
   Rig rig;
   rig.plant_config.load.torque_Nm = 0.0;  // a calibration runs unloaded
   rig.plant = std::make_unique<plant::Plant>(rig.plant_config);
@@ -1177,10 +1177,26 @@ TEST(DriveNode, AnInjectionReportNamesThePairsOwnMethod) {
   for (int k = 0; k < 400000 && (!stored || after.size() < 2U); ++k) {
     const NodeStep& step = rig.run(1);
     stored = stored || step.calibration_to_store.has_value();
-    if (step.publications.injection) {
-      (stored ? after : during).push_back(step.publications.injection->method);
+    if (const auto& rep = step.publications.injection) {
+      (stored ? after : during).push_back(rep->method);
+      if (rep->result == protocol::InjectionResult::kAccepted) {
+        EXPECT_TRUE(rep->speed_change_valid) << "an accepted pair measured its speed change";
+      }
     }
   }
+  // A pair aborted by a stop says it has no speed change rather than a change of 0.
+  for (int k = 0; k < 100000 && !rig.node->controller().telemetry().injection_active; ++k) {
+    rig.run(1);
+  }
+  ASSERT_TRUE(rig.node->controller().telemetry().injection_active);
+  rig.in.mode = core::DriveMode::kDisabled;
+  std::optional<protocol::InjectionReport> aborted;
+  for (int k = 0; k < 10 && !aborted; ++k) {
+    aborted = rig.run(1).publications.injection;
+  }
+  ASSERT_TRUE(aborted.has_value());
+  EXPECT_EQ(aborted->result, protocol::InjectionResult::kAborted);
+  EXPECT_FALSE(aborted->speed_change_valid);
   ASSERT_TRUE(stored) << "the calibration did not complete";
   ASSERT_FALSE(during.empty());
   ASSERT_GE(after.size(), 2U);

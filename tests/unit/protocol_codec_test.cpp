@@ -424,6 +424,7 @@ TEST(protocol_codec, TelemetryRoundTrip) {
   report.amplitude_A = 75.0;
   report.rs_valid = true;
   report.measured_rs_ohm = 0.18321;
+  report.speed_change_valid = true;
   report.speed_change_rad_s = -32.768;
   const InjectionReport ir = round_trip(report);
   EXPECT_EQ(ir.injection_count, 255);
@@ -432,7 +433,10 @@ TEST(protocol_codec, TelemetryRoundTrip) {
   EXPECT_NEAR(ir.amplitude_A, 75.0, 0.05);
   EXPECT_TRUE(ir.rs_valid);
   EXPECT_NEAR(ir.measured_rs_ohm, 0.18321, 5e-6);
-  EXPECT_NEAR(ir.speed_change_rad_s, -32.768, 5e-4);
+  EXPECT_TRUE(ir.speed_change_valid);
+  EXPECT_NEAR(ir.speed_change_rad_s, -32.768, 1e-3);
+  report.speed_change_valid = false;  // an aborted pair: no speed change, not a change of 0
+  EXPECT_TRUE(std::isnan(round_trip(report).speed_change_rad_s));
 
   Heartbeat hb;
   hb.uptime_s = 3600.25;

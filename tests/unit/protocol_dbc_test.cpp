@@ -459,6 +459,7 @@ TEST(protocol_agreement, InjectionReport) {
         m.amplitude_A = p.value("Amplitude");
         m.rs_valid = p.coin();
         m.measured_rs_ohm = p.value("MeasuredRs");
+        m.speed_change_valid = p.coin();
         m.speed_change_rad_s = p.value("SpeedChange");
         return m;
       },
@@ -469,7 +470,8 @@ TEST(protocol_agreement, InjectionReport) {
                         {"RsValid", b(m.rs_valid)},
                         {"Amplitude", m.amplitude_A},
                         {"MeasuredRs", m.rs_valid ? m.measured_rs_ohm : 0.0},
-                        {"SpeedChange", m.speed_change_rad_s}};
+                        {"SpeedChangeValid", b(m.speed_change_valid)},
+                        {"SpeedChange", m.speed_change_valid ? m.speed_change_rad_s : 0.0}};
       }});
 }
 

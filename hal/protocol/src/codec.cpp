@@ -393,7 +393,8 @@ void write_body(Writer& w, const InjectionReport& m) noexcept {
   w.boolean(kRsValid, m.rs_valid);
   w.physical(kAmplitude, m.amplitude_A);
   w.guarded(kMeasuredRs, m.rs_valid, m.measured_rs_ohm);
-  w.physical(kSpeedChange, m.speed_change_rad_s);
+  w.boolean(kSpeedChangeValid, m.speed_change_valid);
+  w.guarded(kSpeedChange, m.speed_change_valid, m.speed_change_rad_s);
 }
 void read_body(const Reader& r, InjectionReport& m) noexcept {
   using namespace injection_report;
@@ -403,7 +404,8 @@ void read_body(const Reader& r, InjectionReport& m) noexcept {
   m.rs_valid = r.boolean(kRsValid);
   m.amplitude_A = r.physical(kAmplitude);
   m.measured_rs_ohm = r.guarded(kMeasuredRs, m.rs_valid);
-  m.speed_change_rad_s = r.physical(kSpeedChange);
+  m.speed_change_valid = r.boolean(kSpeedChangeValid);
+  m.speed_change_rad_s = r.guarded(kSpeedChange, m.speed_change_valid);
 }
 
 void write_body(Writer& w, const Heartbeat& m) noexcept {

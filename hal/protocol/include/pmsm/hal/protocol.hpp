@@ -384,9 +384,10 @@ struct InjectionReport {
   std::uint8_t injection_count = 0;    // wraps at 256
   InjectionMethod method = InjectionMethod::kOff;
   InjectionResult result = InjectionResult::kAborted;
-  double amplitude_A = 0.0;            // F used
+  double amplitude_A = 0.0;            // F used (a skipped pair: the largest the budget allowed)
   bool rs_valid = false;               // guards measured_rs_ohm
   double measured_rs_ohm = 0.0;
+  bool speed_change_valid = false;     // guards speed_change_rad_s: both recordings have samples
   double speed_change_rad_s = 0.0;     // mechanical speed change between the recordings
 };
 
@@ -642,13 +643,15 @@ inline constexpr SignalDef kResult{"Result", 11, 4, false, 1, 0, 0, 10, "", kInj
 inline constexpr SignalDef kRsValid{"RsValid", 15, 1, false, 1, 0, 0, 1, "", detail::kNoValues,
     "1: MeasuredRs holds a measurement."};
 inline constexpr SignalDef kAmplitude{"Amplitude", 16, 12, false, 0.1, 0, 0, 400, "A", detail::kNoValues,
-    "Injection amplitude F used."};
+    "Injection amplitude F used; for a pair skipped by its budget, the largest the budget allowed (below the minimum)."};
 inline constexpr SignalDef kMeasuredRs{"MeasuredRs", 28, 20, false, 0.00001, 0, 0, 10, "Ohm", detail::kNoValues,
     "Resistance measured by this injection (0 when RsValid is 0)."};
-inline constexpr SignalDef kSpeedChange{"SpeedChange", 48, 16, true, 0.001, 0, -32.768, 32.767, "rad/s", detail::kNoValues,
-    "Mechanical speed change between the two recordings (saturates)."};
-inline constexpr std::array<SignalDef, 7> kSignals{
-    kInjectionCount, kMethod, kResult, kRsValid, kAmplitude, kMeasuredRs, kSpeedChange};
+inline constexpr SignalDef kSpeedChangeValid{"SpeedChangeValid", 48, 1, false, 1, 0, 0, 1, "", detail::kNoValues,
+    "1: SpeedChange holds a measurement; 0: none (the pair was aborted or skipped before both recordings had samples)."};
+inline constexpr SignalDef kSpeedChange{"SpeedChange", 49, 15, true, 0.002, 0, -32.768, 32.766, "rad/s", detail::kNoValues,
+    "Mechanical speed change between the two recordings (saturates; 0 when SpeedChangeValid is 0)."};
+inline constexpr std::array<SignalDef, 8> kSignals{
+    kInjectionCount, kMethod, kResult, kRsValid, kAmplitude, kMeasuredRs, kSpeedChangeValid, kSpeedChange};
 }  // namespace injection_report
 
 namespace heartbeat {
