@@ -24,6 +24,7 @@
 
 #include "cli_validators.hpp"
 #include "commands.hpp"
+#include "daemon_answers.hpp"
 #include "pmsm/hal/codec.hpp"
 #include "pmsm/hal/protocol_filters.hpp"
 #include "pmsm/hal/rt.hpp"
@@ -81,76 +82,6 @@ protocol::InjectionMethod injection_method(const std::string& name) {
 CLI::Validator signal_range(const protocol::SignalDef& signal) {
   return pmsm::cli::number_in_range(signal.minimum, signal.maximum);
 }
-
-// What the daemon says back, printed as it comes: a calibration's run and outcome (THERMAL_ESTIMATE's
-// Calibrating and CalibrationResult) and the rejections of this node's commands that are not the
-// synchronising frames' expected counter refusals (RECEIVE_STATUS: a bad CRC, a value out of
-// range, a command held back while its stream was disturbed). Without it a refused or held-back
-// request went unnoticed unless someone watched the bus.
-class DaemonAnswers {
- public:
-  DaemonAnswers(int node, bool calibration_asked) : node_(node), calibration_asked_(calibration_asked) {}
-
-  void read(const hal::CanFrame& frame) {
-    protocol::AnyDecoded d;
-    if (protocol::decode_any(frame, d) != protocol::DecodeStatus::kOk || d.node != node_) {
-      return;
-    }
-    if (const auto* t = std::get_if<protocol::ThermalEstimate>(&d.message)) {
-      if (t->calibrating && !calibrating_) {
-        calibration_seen_ = true;
-        std::fprintf(stderr, "pmsm-thermal command: node %d: calibration running\n", node_);
-      } else if (!t->calibrating && calibrating_) {
-        std::fprintf(stderr, "pmsm-thermal command: node %d: calibration ended: %s\n", node_,
-                     label(protocol::kCalibrationResultLabels, t->calibration_result));
-      } else if (heard_estimate_ && t->calibration_result != result_ && !t->calibrating) {
-        calibration_seen_ = true;  // refused at once: it never ran
-        std::fprintf(stderr, "pmsm-thermal command: node %d: calibration %s\n", node_,
-                     label(protocol::kCalibrationResultLabels, t->calibration_result));
-      }
-      calibrating_ = t->calibrating;
-      result_ = t->calibration_result;
-      heard_estimate_ = true;
-    } else if (const auto* r = std::get_if<protocol::ReceiveStatus>(&d.message)) {
-      const std::uint64_t total = std::uint64_t{r->rejected_crc} + r->rejected_counter + r->rejected_range +
-                                  r->rejected_format + r->rejected_other;
-      const auto reason = static_cast<protocol::DecodeStatus>(r->last_rejection);
-      const protocol::MessageDef* m = protocol::find_message(r->last_rejected_id);
-      if (heard_status_ && total != total_ && m != nullptr && m->sender == protocol::Role::kSupervisor &&
-          reason != protocol::DecodeStatus::kRepeatedCounter && reason != protocol::DecodeStatus::kCounterJump) {
-        std::fprintf(stderr, "pmsm-thermal command: node %d: the daemon rejected a %.*s (0x%03X): %s\n", node_,
-                     static_cast<int>(m->name.size()), m->name.data(), r->last_rejected_id,
-                     label(protocol::kDecodeStatusLabels, r->last_rejection));
-      }
-      total_ = total;
-      heard_status_ = true;
-    }
-  }
-
-  void finish() const {
-    if (calibration_asked_ && !calibration_seen_) {
-      std::fprintf(stderr,
-                   "pmsm-thermal command: node %d: no THERMAL_ESTIMATE showed the calibration asked for (the daemon's "
-                   "log says why: a drive not running, a warm winding, a request lost)\n",
-                   node_);
-    }
-  }
-
- private:
-  template <class Table>
-  static const char* label(const Table& table, auto value) {
-    return protocol::label_of(table, static_cast<std::int64_t>(value)).data();  // string literals
-  }
-
-  int node_;
-  bool calibration_asked_;
-  bool calibrating_ = false;
-  bool calibration_seen_ = false;
-  bool heard_estimate_ = false;
-  protocol::CalibrationResult result_ = protocol::CalibrationResult::kNone;
-  bool heard_status_ = false;
-  std::uint64_t total_ = 0;  // RECEIVE_STATUS's rejection counts (each modulo 256), summed
-};
 
 int run_command(const CommandOptions& o) {
   hal::SocketCanConfig config;
@@ -237,7 +168,7 @@ int run_command(const CommandOptions& o) {
       }
     }
   }
-  answers.finish();
+  const bool refused = answers.finish();
   drive.enable = false;
   drive.mode = protocol::DriveMode::kDisabled;
   const bool disabled = send(drive);
@@ -250,7 +181,11 @@ int run_command(const CommandOptions& o) {
     std::fprintf(stderr, "pmsm-thermal command: %llu one-off request(s) not sent (the transmit queue stayed full)\n",
                  static_cast<unsigned long long>(failed_requests));
   }
-  return failed == 0 && failed_requests == 0 && disabled ? 0 : 1;
+  if (refused) {
+    std::fprintf(stderr, "pmsm-thermal command: the daemon refused what was asked (above): exit status 3\n");
+  }
+  // 1: a frame was not sent; 3: all sent, and the daemon refused some (scripts tell the two apart).
+  return failed == 0 && failed_requests == 0 && disabled ? (refused ? 3 : 0) : 1;
 }
 
 }  // namespace

@@ -1,0 +1,120 @@
+// pmsm-thermal command's reading of the daemon's answers (tools/cli/daemon_answers.hpp), on
+// frames built with the codec: what makes the command's exit status 3 (the daemon refused what
+// was asked) and what does not.
+#include <gtest/gtest.h>
+
+#include <cstdio>
+
+#include "daemon_answers.hpp"
+#include "pmsm/hal/codec.hpp"
+#include "pmsm/hal/protocol.hpp"
+
+namespace pmsm::app {
+namespace {
+
+constexpr int kNode = 2;
+
+hal::CanFrame estimate(bool calibrating, protocol::CalibrationResult result, int node = kNode) {
+  protocol::ThermalEstimate t;
+  t.valid = true;
+  t.winding_temp_C = 40.0;
+  t.winding_temp_sigma_C = 1.0;
+  t.calibrating = calibrating;
+  t.calibration_result = result;
+  hal::CanFrame f;
+  EXPECT_EQ(protocol::encode(t, static_cast<protocol::NodeId>(node), f), protocol::EncodeStatus::kOk);
+  return f;
+}
+
+hal::CanFrame receive_status(std::uint64_t counter_rejections, std::uint64_t other_rejections, protocol::DecodeStatus last,
+                             std::uint16_t id) {
+  protocol::ReceiveStatus r;
+  r.rejected_counter = counter_rejections;
+  r.rejected_other = other_rejections;
+  r.last_rejection = static_cast<std::uint8_t>(last);
+  r.last_rejected_id = id;
+  hal::CanFrame f;
+  EXPECT_EQ(protocol::encode(r, kNode, f), protocol::EncodeStatus::kOk);
+  return f;
+}
+
+struct Quiet {
+  std::FILE* out = std::tmpfile();
+  ~Quiet() { std::fclose(out); }
+  Quiet() = default;
+  Quiet(const Quiet&) = delete;
+  Quiet& operator=(const Quiet&) = delete;
+};
+
+TEST(DaemonAnswers, ACalibrationThatEndsDoneIsNoRefusal) {
+  Quiet q;
+  DaemonAnswers a(kNode, true, q.out);
+  a.read(estimate(false, protocol::CalibrationResult::kNone));
+  a.read(estimate(true, protocol::CalibrationResult::kNone));
+  a.read(estimate(false, protocol::CalibrationResult::kDone));
+  EXPECT_FALSE(a.finish());
+}
+
+TEST(DaemonAnswers, ACalibrationStillRunningAtTheEndIsNoRefusal) {
+  Quiet q;
+  DaemonAnswers a(kNode, true, q.out);
+  a.read(estimate(false, protocol::CalibrationResult::kNone));
+  a.read(estimate(true, protocol::CalibrationResult::kNone));
+  EXPECT_FALSE(a.finish());
+}
+
+TEST(DaemonAnswers, ACalibrationThatEndsOtherwiseIsARefusal) {
+  for (const auto result : {protocol::CalibrationResult::kRefused, protocol::CalibrationResult::kTimedOut,
+                            protocol::CalibrationResult::kAborted}) {
+    Quiet q;
+    DaemonAnswers a(kNode, true, q.out);
+    a.read(estimate(false, protocol::CalibrationResult::kNone));
+    a.read(estimate(true, protocol::CalibrationResult::kNone));
+    a.read(estimate(false, result));
+    EXPECT_TRUE(a.finish()) << static_cast<int>(result);
+  }
+}
+
+TEST(DaemonAnswers, ACalibrationRefusedAtOnceOrNeverSeenIsARefusal) {
+  {
+    Quiet q;
+    DaemonAnswers a(kNode, true, q.out);
+    a.read(estimate(false, protocol::CalibrationResult::kDone));  // an earlier calibration's result
+    a.read(estimate(false, protocol::CalibrationResult::kRefused));
+    EXPECT_TRUE(a.finish());
+  }
+  {
+    Quiet q;
+    DaemonAnswers a(kNode, true, q.out);
+    a.read(estimate(false, protocol::CalibrationResult::kNone));
+    a.read(estimate(true, protocol::CalibrationResult::kNone, kNode + 1));  // another node's
+    EXPECT_TRUE(a.finish()) << "asked for and never seen";
+  }
+  {
+    Quiet q;
+    DaemonAnswers a(kNode, false, q.out);  // none asked for: nothing to see
+    a.read(estimate(false, protocol::CalibrationResult::kNone));
+    EXPECT_FALSE(a.finish());
+  }
+}
+
+TEST(DaemonAnswers, ARejectedCommandIsARefusalButACounterResynchronisationIsNot) {
+  const auto drive_id = static_cast<std::uint16_t>(0x040 + kNode);
+  {
+    Quiet q;
+    DaemonAnswers a(kNode, false, q.out);
+    a.read(receive_status(0, 0, protocol::DecodeStatus::kOk, 0));
+    a.read(receive_status(1, 0, protocol::DecodeStatus::kRepeatedCounter, drive_id));  // the synchronising frame
+    EXPECT_FALSE(a.finish());
+  }
+  {
+    Quiet q;
+    DaemonAnswers a(kNode, false, q.out);
+    a.read(receive_status(0, 0, protocol::DecodeStatus::kOk, 0));
+    a.read(receive_status(0, 1, protocol::DecodeStatus::kStreamDisturbed, drive_id));
+    EXPECT_TRUE(a.finish());
+  }
+}
+
+}  // namespace
+}  // namespace pmsm::app
