@@ -109,7 +109,8 @@ const ConfigSchema<D>& schema() {
     // [startup]
     c.boolean("startup.calibrate_if_missing", [](D& d) -> bool& { return d.startup.calibrate_if_missing; },
               "With controller.calibration.file set but absent, calibrate at the ambient sensor's temperature the first time the "
-              "drive runs.");
+              "drive runs (not while the sensor is held at its last reading: then the first time it runs with the sensor "
+              "reporting).");
     return c;
   }();
   return s;

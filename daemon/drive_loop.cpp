@@ -85,7 +85,10 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns, 
   // The controller's state as its error frames left it (kErrorClasses), an atomic the backend
   // keeps: bus-off until it restarts, or until the socket is reopened (it starts error-active).
   node_.report(core::FaultCode::kBusOff, bus_.state() == hal::CanBusState::kBusOff);
-  if (calibrate_at_first_run_ && node_.supervisor().status().state == core::DriveState::kRunning) {
+  // (Not while the ambient sensor is held at an old reading: it would be refused; the first run
+  // with the sensor reporting again calibrates.)
+  if (calibrate_at_first_run_ && node_.supervisor().status().state == core::DriveState::kRunning &&
+      !node_.ambient_held()) {
     inputs_.start_calibration = true;  // at the ambient sensor's temperature
     calibrate_at_first_run_ = false;
   }

@@ -133,13 +133,17 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
     supervisor_.request_clear();
   }
   const core::SupervisorStatus& status = supervisor_.step(si);
-  // The ambient / coolant sensor of the sample, unless the supervisor found its reading out of
-  // range; without one (a power stage without the sensor) the caller's value. A sensor that
-  // reported and then stops (its stage's own sensor check, a loose connector) is held at its
-  // last reading: the boundary of the thermal model does not jump to the caller's 25 C. Read
-  // through a latched fault too: the controller sees no sample then, but its thermal model runs
-  // on, and a latched OVERTEMPERATURE clears only as the winding cools towards this boundary.
-  const bool ambient_read = si.sample && !supervisor_.cause_present(core::FaultCode::kAmbientImplausible);
+  // The ambient / coolant sensor of the sample, when its checks found nothing (an ambient out of
+  // range, but also currents, bus or encoder a sample cannot have: its other readings are then
+  // suspect too) and it is this stage's own (no second source, no other PWM period); without a
+  // sensor (a power stage without one) the caller's value. A sensor that reported and then stops
+  // (its stage's own sensor check, a loose connector) is held at its last reading: the boundary
+  // of the thermal model does not jump to the caller's 25 C. Read through a latched fault too:
+  // the controller sees no sample then, but its thermal model runs on, and a latched
+  // OVERTEMPERATURE clears only as the winding cools towards this boundary.
+  const bool ambient_read = si.sample && supervisor_.sample_clean() &&
+                            !supervisor_.cause_present(core::FaultCode::kPeriodMismatch) &&
+                            !supervisor_.cause_present(core::FaultCode::kDuplicateNode);
   if (ambient_read) {
     const bool held = !si.sample->ambient_C && sensed_ambient_C_.has_value();
     ambient_dropouts_ += held && !ambient_held_ ? 1U : 0U;
@@ -150,9 +154,12 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
   }
   const double ambient_C = sensed_ambient_C_.value_or(in.ambient_C);
   ambient_used_C_ = ambient_C;
-  if (ambient_read && !restore_referred_) {
-    // The first plausible sample after the start: the ambient of the restart, against the one a
-    // restored thermal state was cooled towards (a restore comes before the first sample).
+  if (ambient_read && si.sample->ambient_C && !restore_referred_) {
+    // The sensor's first plausible reading after the start: the ambient of the restart, against
+    // the one a restored thermal state was cooled towards (a restore comes before the first
+    // sample). Only a reading: a sensor that reports a few samples late would otherwise refer the
+    // state to the configured ambient. The filter's first update ends the chance (a stage without
+    // the sensor keeps the restore as cooled towards the stored ambient).
     restore_referred_ = true;
     restore_ambient_shift_C_ = controller_.refer_restored_state_to_ambient(ambient_C);
   }

@@ -416,9 +416,13 @@ void DriveController::start_calibration(double known_temp_C, bool from_ambient_s
   // The ambient sensor stopped reporting and its last reading stands for it (a loose connector,
   // the stage's own sensor check): a model's boundary may run on it a while, but Rs0 referred
   // to a reading of unknown age would carry its error into every later estimate, and be stored.
-  if (from_ambient_sensor && ambient_held && !was_calibrating) {
-    calibration_refused_on_request_ = true;
-    record_calibration_failure(CalibrationFailure::kAmbientHeld);
+  // A calibration already running keeps the reference it started with (a fresh reading then);
+  // a repeated request does not restart it on the held one.
+  if (from_ambient_sensor && ambient_held) {
+    if (!was_calibrating) {
+      calibration_refused_on_request_ = true;
+      record_calibration_failure(CalibrationFailure::kAmbientHeld);
+    }
     return;
   }
   // A winding the filter holds well above the ambient sensor's reading (the drive's own losses

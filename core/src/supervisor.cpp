@@ -194,7 +194,9 @@ const SupervisorStatus& Supervisor::step(const SupervisorInput& in) noexcept {
     }
     // A sample that follows samples lost on the bus (SupervisorInput::periods > 1) spans them.
     periods_without_sample_ += std::max<std::uint32_t>(in.periods, 1U) - 1U;
+    const std::uint32_t before = cause_mask_;
     check_sample(*in.sample);
+    sample_clean_ = cause_mask_ == before;
     periods_without_sample_ = 0;
     ++present_samples_;
     if (present_samples_ >= static_cast<std::uint32_t>(config_.sensor_recovery_periods)) {
@@ -207,6 +209,7 @@ const SupervisorStatus& Supervisor::step(const SupervisorInput& in) noexcept {
     }
     status_.missing_samples = 0;
   } else {
+    sample_clean_ = false;
     present_samples_ = 0;
     ++status_.missing_samples;
     periods_without_sample_ += std::max<std::uint32_t>(in.periods, 1U);

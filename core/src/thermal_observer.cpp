@@ -322,6 +322,7 @@ double ThermalObserver::winding_at_age_C(double age_s) const {
 
 bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm, double systematic_std_ohm,
                                         double age_s, double from_age_s, double to_age_s) {
+  restore_referable_ = false;  // a measurement holds the state from here on, not the downtime's cooling
   // Measurement of the winding temperature through Eq. 1; its variance from the resistance's.
   // It belongs to a moment age_s ago: carried to now by the change the filter predicted since
   // then (the measurement's innovation is against the estimate of its own time). Under a

@@ -75,6 +75,18 @@ TEST(DaemonAnswers, ACalibrationThatEndsOtherwiseIsARefusal) {
   }
 }
 
+// The daemon's own calibration (calibrate_if_missing) ending TIMED_OUT during a run that asked
+// for none is not this run's refusal.
+TEST(DaemonAnswers, ACalibrationNotAskedForIsNotThisRunsRefusal) {
+  Quiet q;
+  DaemonAnswers a(kNode, false, q.out);
+  a.read(estimate(false, protocol::CalibrationResult::kNone));
+  a.read(estimate(true, protocol::CalibrationResult::kNone));
+  a.read(estimate(false, protocol::CalibrationResult::kTimedOut));
+  a.read(estimate(false, protocol::CalibrationResult::kRefused));
+  EXPECT_FALSE(a.finish());
+}
+
 TEST(DaemonAnswers, ACalibrationRefusedAtOnceOrNeverSeenIsARefusal) {
   {
     Quiet q;

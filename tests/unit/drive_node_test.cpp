@@ -1644,12 +1644,9 @@ TEST(DriveNode, ANonFiniteWindingEstimateTripsTheDrive) {
   EXPECT_FALSE(rig.node->supervisor().status().power_stage_enabled);
 }
 
-// A sensor that reported and then stops is held at its last reading, not replaced by the
-// configured ambient (before: the thermal model's boundary jumped from 31 to 12 C here without a
-// word); it is followed again when it reports.
-// A state stored at a 5 C night's stop, restored into a 30 C day: the first sample's ambient sensor
-// moves it between the coolings towards the two (ThermalObserver::refer_restored_to_ambient),
-// once; a restore into the ambient it was stored with stays as it was.
+// A state stored at a 5 C night's stop, restored into a 30 C day: the ambient sensor's first
+// reading moves it between the coolings towards the two (ThermalObserver::refer_restored_to_ambient);
+// a restore into the ambient it was stored with stays as it was.
 TEST(DriveNode, ARestoredStateMeetsTheAmbientOfTheRestart) {
   for (const double present_C : {30.0, 5.0}) {
     Rig rig;
@@ -1668,9 +1665,21 @@ TEST(DriveNode, ARestoredStateMeetsTheAmbientOfTheRestart) {
     }
     EXPECT_GT(shift, 1.0);
     EXPECT_NEAR(now.winding_C, cooled_C + shift, 1e-9);
-    rig.run(2000);  // the filter runs on from there; nothing is referred again
-    EXPECT_EQ(rig.node->restore_ambient_shift_C(), shift);
   }
+  // A sensor that reports only from the third sample on: the state is referred to its reading,
+  // not to the configured ambient the first samples fall back on (12 C here, which would have
+  // moved it the other way).
+  Rig late;
+  late.in.ambient_C = 12.0;
+  late.plant_config.thermal.ambient_C = 30.0;
+  late.plant = std::make_unique<plant::Plant>(late.plant_config);
+  late.node->controller().restore_thermal_state(core::ThermalState{60.0, 50.0, 1.0}, 3000.0, 5.0);
+  const double cooled_C = late.node->controller().thermal_state().winding_C;
+  late.run(2, [](hal::SensorSample& s) { s.flags = static_cast<std::uint8_t>(s.flags & ~hal::kSensorAmbientValid); });
+  EXPECT_EQ(late.node->restore_ambient_shift_C(), 0.0);
+  late.run(1);
+  EXPECT_GT(late.node->restore_ambient_shift_C(), 1.0) << "referred to the sensor's 30 C";
+  EXPECT_NEAR(late.node->controller().thermal_state().winding_C, cooled_C + late.node->restore_ambient_shift_C(), 1e-9);
 }
 
 // A latched fault (the controller sees no sample) does not freeze the thermal model's boundary:
@@ -1688,8 +1697,18 @@ TEST(DriveNode, TheAmbientSensorIsReadThroughAFault) {
   EXPECT_DOUBLE_EQ(rig.node->ambient_C(), 40.0);
   rig.run(10, [](hal::SensorSample& s) { s.ambient_centi_C = 32000; });  // 320 C: out of range
   EXPECT_DOUBLE_EQ(rig.node->ambient_C(), 40.0);
+  // Nor from a sample whose other readings are impossible (an encoder count beyond its
+  // resolution): the frame is suspect as a whole.
+  rig.run(10, [&](hal::SensorSample& s) {
+    s.ambient_centi_C = 5000;
+    s.encoder_count = static_cast<std::uint16_t>(rig.supervisor.encoder_counts + 1);
+  });
+  EXPECT_DOUBLE_EQ(rig.node->ambient_C(), 40.0);
 }
 
+// A sensor that reported and then stops is held at its last reading, not replaced by the
+// configured ambient (before: the thermal model's boundary jumped from 31 to 12 C here without a
+// word); it is followed again when it reports.
 TEST(DriveNode, AnAmbientSensorThatStopsReportingIsHeldAtItsLastReading) {
   Rig rig;
   rig.in.ambient_C = 12.0;
@@ -1711,16 +1730,24 @@ TEST(DriveNode, AnAmbientSensorThatStopsReportingIsHeldAtItsLastReading) {
   EXPECT_EQ(tel.calibration_failure, core::CalibrationFailure::kAmbientHeld);
   EXPECT_EQ(tel.calibration_outcome, core::CalibrationOutcome::kRefused);
   EXPECT_FALSE(tel.calibrating);
-  rig.in.calibration_known_C = 31.0;
+  rig.in.calibration_known_C = 28.0;
   rig.run(1, no_sensor);
   EXPECT_TRUE(tel.calibrating) << "an operator's temperature does not need the sensor";
   rig.in.start_calibration = false;
+  rig.run(200, no_sensor);  // (the telemetry follows at the next thermal update)
+  EXPECT_NEAR(tel.thermal.winding_C, 28.0, 0.2) << "the filter restarts at the calibration's temperature";
+  // Asked again "at the ambient" while it runs: it keeps its reference, not the held reading.
+  rig.in.calibration_known_C.reset();
+  rig.in.start_calibration = true;
+  rig.run(1, no_sensor);
+  rig.in.start_calibration = false;
+  EXPECT_TRUE(tel.calibrating);
+  rig.run(100, no_sensor);
+  EXPECT_NEAR(tel.thermal.winding_C, 28.0, 0.3) << "restarted on the held 31 C";
   rig.in.abort_calibration = true;
   rig.run(1, no_sensor);
   rig.in.abort_calibration = false;
-  rig.in.calibration_known_C.reset();
   rig.run(200, no_sensor);
-  EXPECT_NEAR(tel.thermal.winding_C, 31.0, 0.2);
   rig.plant->set_ambient_C(33.0);
   rig.run(10);
   EXPECT_DOUBLE_EQ(rig.node->ambient_C(), 33.0);

@@ -35,12 +35,12 @@ class DaemonAnswers {
       } else if (!t->calibrating && calibrating_) {
         std::fprintf(out_, "pmsm-thermal command: node %d: calibration ended: %s\n", node_,
                      label(protocol::kCalibrationResultLabels, t->calibration_result));
-        refused_ = refused_ || t->calibration_result != protocol::CalibrationResult::kDone;
+        refused_ = refused_ || (calibration_asked_ && t->calibration_result != protocol::CalibrationResult::kDone);
       } else if (heard_estimate_ && t->calibration_result != result_ && !t->calibrating) {
         calibration_seen_ = true;  // refused at once: it never ran
         std::fprintf(out_, "pmsm-thermal command: node %d: calibration %s\n", node_,
                      label(protocol::kCalibrationResultLabels, t->calibration_result));
-        refused_ = refused_ || t->calibration_result != protocol::CalibrationResult::kDone;
+        refused_ = refused_ || (calibration_asked_ && t->calibration_result != protocol::CalibrationResult::kDone);
       }
       calibrating_ = t->calibrating;
       result_ = t->calibration_result;

@@ -767,7 +767,8 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
       result.calibration_failure_rs0_std_ohm =
           tel.calibration_failure == core::CalibrationFailure::kUncertain ? tel.calibration_rs0_std_ohm : 0.0;
       const bool refused_before_it_ran = core::refused_on_request(tel.calibration_failure);
-      result.calibration_failure_winding_rise_C = refused_before_it_ran ? tel.calibration_winding_rise_C : 0.0;
+      result.calibration_failure_winding_rise_C =
+          core::refused_on_winding_rise(tel.calibration_failure) ? tel.calibration_winding_rise_C : 0.0;
       result.calibration_failure_pairs = refused_before_it_ran
                                              ? core::OutcomeCounts{}  // refused before it ran: another run's
                                              : tel.calibration_outcomes;
@@ -1134,7 +1135,7 @@ std::string result_json(const SimulationResult& r) {
         .field("rs0_ohm", r.calibration_failure == core::CalibrationFailure::kUncertain ? r.calibration_failure_rs0_ohm : kNan)
         .field("rs0_std_ohm",
                r.calibration_failure == core::CalibrationFailure::kUncertain ? r.calibration_failure_rs0_std_ohm : kNan)
-        .field("winding_rise_C", core::refused_on_request(r.calibration_failure) ? r.calibration_failure_winding_rise_C : kNan)
+        .field("winding_rise_C", core::refused_on_winding_rise(r.calibration_failure) ? r.calibration_failure_winding_rise_C : kNan)
         .key("pairs")
         .begin_object();
     for (std::size_t k = 0; k < r.calibration_failure_pairs.size(); ++k) {

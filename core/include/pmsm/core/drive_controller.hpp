@@ -194,10 +194,14 @@ enum class CalibrationFailure : std::uint8_t {
   kAmbientHeld = 6,
 };
 [[nodiscard]] const char* calibration_failure_name(CalibrationFailure f);
-// Refused as it was asked for, before any of it ran (calibration_winding_rise_C says by how much).
+// Refused as it was asked for, before any of it ran.
 [[nodiscard]] constexpr bool refused_on_request(CalibrationFailure f) {
   return f == CalibrationFailure::kWindingWarm || f == CalibrationFailure::kTemperatureImplausible ||
          f == CalibrationFailure::kAmbientHeld;
+}
+// A refusal that measured the winding against the temperature asked for (calibration_winding_rise_C).
+[[nodiscard]] constexpr bool refused_on_winding_rise(CalibrationFailure f) {
+  return f == CalibrationFailure::kWindingWarm || f == CalibrationFailure::kTemperatureImplausible;
 }
 // Pairs by outcome (a calibration's, an event's), most frequent first, e.g. "34
 // rejected_load_change, 4 accepted"; "no pair" when there were none. With the aborted pairs'

@@ -171,7 +171,7 @@ class ThermalObserver {
   // towards this one bound the state: span = (ambient_C - stored) (I - e^{A t}) [1 1]'. The state
   // takes the middle of the two and its variance (span / 4)^2 more, fully shared by the nodes, so
   // that its 2 sigma reaches either end. Returns the winding's shift (0 when nothing was done:
-  // no restore pending, the same ambient, or a predict() since).
+  // no restore pending, the same ambient, or a predict() or a measurement since).
   double refer_restored_to_ambient(double ambient_C);
   // Restarts from a guess (see the constructor), e.g. the ambient sensor's temperature.
   void restart_unknown(double guess_C);
