@@ -321,6 +321,9 @@ void DriveNode::publish(const NodeInputs& in) noexcept {
     h.state = to_protocol(st.state);
     h.counter = heartbeat_counter_++;
     h.deadline_misses = in.deadline_misses;
+    h.ambient_source = ambient_held_                   ? protocol::AmbientSource::kHeld
+                       : sensed_ambient_C_.has_value() ? protocol::AmbientSource::kSensor
+                                                       : protocol::AmbientSource::kConfigured;
     p.heartbeat = h;
   }
   publish_fault_changes(due(fault_every_));

@@ -1623,6 +1623,13 @@ TEST(DriveNode, WithoutAnAmbientSensorTheConfiguredAmbientIsUsed) {
   rig.run(200, no_sensor);
   EXPECT_NEAR(rig.node->controller().telemetry().thermal.winding_C, 12.0, 0.2);
   EXPECT_FALSE(rig.node->ambient_held()) << "no sensor ever reported: nothing to hold";
+  std::optional<protocol::AmbientSource> source;
+  for (int k = 0; k < 20000 && !source; ++k) {
+    if (const NodeStep& s = rig.run(1, no_sensor); s.publications.heartbeat) {
+      source = s.publications.heartbeat->ambient_source;
+    }
+  }
+  EXPECT_EQ(source, protocol::AmbientSource::kConfigured) << "HEARTBEAT says the boundary is the configured value";
 }
 
 // A winding estimate the filter calls valid but that is no number trips INTERNAL (the last line
@@ -1721,6 +1728,17 @@ TEST(DriveNode, AnAmbientSensorThatStopsReportingIsHeldAtItsLastReading) {
   EXPECT_DOUBLE_EQ(rig.node->ambient_C(), 31.0);
   EXPECT_TRUE(rig.node->ambient_held());
   EXPECT_EQ(rig.node->ambient_dropouts(), 1U) << "one dropout, however many samples it lasts";
+  // HEARTBEAT says where the model's boundary comes from: the sensor's last reading, held.
+  const auto next_heartbeat = [&](const std::function<void(hal::SensorSample&)>& alter) {
+    for (int k = 0; k < 20000; ++k) {
+      if (const NodeStep& s = rig.run(1, alter); s.publications.heartbeat) {
+        return s.publications.heartbeat->ambient_source;
+      }
+    }
+    ADD_FAILURE() << "no HEARTBEAT within 2 s";
+    return protocol::AmbientSource::kConfigured;
+  };
+  EXPECT_EQ(next_heartbeat(no_sensor), protocol::AmbientSource::kHeld);
   // A calibration "at the ambient" would be referred to a reading of unknown age: refused, and
   // said why; with the winding's temperature given it starts.
   const core::DriveTelemetry& tel = rig.node->controller().telemetry();

@@ -443,11 +443,13 @@ TEST(protocol_codec, TelemetryRoundTrip) {
   hb.state = DriveState::kRunning;
   hb.counter = 200;
   hb.deadline_misses = 3;
+  hb.ambient_source = AmbientSource::kHeld;
   const Heartbeat hr = round_trip(hb);
   EXPECT_NEAR(hr.uptime_s, 3600.25, 0.005);
   EXPECT_EQ(hr.state, DriveState::kRunning);
   EXPECT_EQ(hr.counter, 200);
   EXPECT_EQ(hr.deadline_misses, 3U);
+  EXPECT_EQ(hr.ambient_source, AmbientSource::kHeld);
 
   ReceiveStatus rcv;
   rcv.last_rejection = static_cast<std::uint8_t>(DecodeStatus::kBadCrc);

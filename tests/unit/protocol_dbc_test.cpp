@@ -481,13 +481,14 @@ TEST(protocol_agreement, Heartbeat) {
         Heartbeat m;
         m.uptime_s = p.value("Uptime");
         m.state = static_cast<DriveState>(p.integer("State"));
+        m.ambient_source = static_cast<AmbientSource>(p.integer("AmbientSource"));
         m.counter = static_cast<std::uint8_t>(p.integer("Counter"));
         m.deadline_misses = static_cast<std::uint32_t>(p.integer("DeadlineMisses"));
         return m;
       },
       [](const Heartbeat& m) {
-        return Expected{{"Uptime", m.uptime_s}, {"State", e(m.state)}, {"Counter", m.counter},
-                        {"DeadlineMisses", m.deadline_misses}};
+        return Expected{{"Uptime", m.uptime_s}, {"State", e(m.state)}, {"AmbientSource", e(m.ambient_source)},
+                        {"Counter", m.counter}, {"DeadlineMisses", m.deadline_misses}};
       }});
 }
 

@@ -89,6 +89,8 @@ struct Axis {
   // The daemon's uptime in its last HEARTBEAT: when it falls, the daemon started again, and its
   // counts with it (the next RECEIVE_STATUS counts from zero, not from the last one).
   std::optional<double> daemon_uptime_s;
+  // HEARTBEAT's AmbientSource: shown when the thermal model's boundary is not a sensor's reading.
+  std::optional<protocol::AmbientSource> ambient_source;
   // The RECEIVE_STATUS frames since the last HEARTBEAT, with their time (when the frames have
   // one) and the totals before each: a restarted daemon may report before its first HEARTBEAT
   // tells the restart, and those reports, read as a wrap of the old daemon's counts, are undone
@@ -310,6 +312,7 @@ class Monitor {
         a.window_misses_saturated = false;
       }
       a.daemon_uptime_s = h->uptime_s;
+      a.ambient_source = h->ambient_source;
       ++a.heartbeats_since_truth;
       a.heartbeat_misses = h->deadline_misses;
       a.report_count = 0;  // the reports before a HEARTBEAT are its daemon's
@@ -468,6 +471,9 @@ class Monitor {
       // MotionValid clear: the drive tracks no shaft (no usable sample), not a shaft at rest.
       out += a.status->motion_valid ? fmt::format("  {:.1f} rad/s {:.1f} Nm", a.status->speed_rad_s, a.status->torque_Nm)
                                     : "  speed -";
+      if (a.ambient_source && *a.ambient_source != protocol::AmbientSource::kSensor) {
+        out += *a.ambient_source == protocol::AmbientSource::kHeld ? "  ambient HELD" : "  ambient configured";
+      }
       // TimeToLimit: until the drive starts to derate (0: it derates now, which the limit shows).
       out += a.status->time_to_limit_valid && a.status->time_to_limit_s > 0.0
                  ? fmt::format("  derates in {:.0f} s", a.status->time_to_limit_s)

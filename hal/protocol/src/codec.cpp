@@ -412,6 +412,7 @@ void write_body(Writer& w, const Heartbeat& m) noexcept {
   using namespace heartbeat;
   w.physical(kUptime, m.uptime_s);
   w.enumeration(kState, m.state);
+  w.enumeration(kAmbientSource, m.ambient_source);
   w.wrapping(kCounter, m.counter);
   w.saturating(kDeadlineMisses, m.deadline_misses);
 }
@@ -419,6 +420,7 @@ void read_body(const Reader& r, Heartbeat& m) noexcept {
   using namespace heartbeat;
   m.uptime_s = r.physical(kUptime);
   m.state = r.enumeration<DriveState>(kState);
+  m.ambient_source = r.enumeration<AmbientSource>(kAmbientSource);
   m.counter = r.integer<std::uint8_t>(kCounter);
   m.deadline_misses = r.integer<std::uint32_t>(kDeadlineMisses);
 }

@@ -207,6 +207,14 @@ enum class CalibrationResult : std::uint8_t {
 inline constexpr std::array<ValueLabel, 5> kCalibrationResultLabels{{
     {0, "NONE"}, {1, "DONE"}, {2, "ABORTED"}, {3, "TIMED_OUT"}, {4, "REFUSED"}}};
 
+// Where the thermal model's ambient / coolant boundary comes from (HEARTBEAT AmbientSource).
+enum class AmbientSource : std::uint8_t {
+  kConfigured = 0,  // no sensor reading: the configured ambient
+  kSensor = 1,      // the power stage's sensor (SENSOR_SAMPLE AmbientTemp)
+  kHeld = 2,        // the sensor stopped reporting: its last reading, held
+};
+inline constexpr std::array<ValueLabel, 3> kAmbientSourceLabels{{{0, "CONFIGURED"}, {1, "SENSOR"}, {2, "HELD"}}};
+
 enum class DriveState : std::uint8_t {
   kInit = 0,         // starting up, checks not yet passed; gates off
   kStandby = 1,      // ready, gates off (not enabled, or mode DISABLED)
@@ -396,6 +404,7 @@ struct Heartbeat {
   DriveState state = DriveState::kInit;
   std::uint8_t counter = 0;            // +1 per heartbeat, wraps
   std::uint32_t deadline_misses = 0;   // since start; saturates at 65535 on the bus
+  AmbientSource ambient_source = AmbientSource::kConfigured;
 };
 
 // What the daemon did with the frames addressed to it (commands and sensor samples): counts
@@ -662,7 +671,9 @@ inline constexpr SignalDef kCounter{"Counter", 40, 8, false, 1, 0, 0, 255, "", d
     "+1 per heartbeat (wraps)."};
 inline constexpr SignalDef kDeadlineMisses{"DeadlineMisses", 48, 16, false, 1, 0, 0, 65535, "", detail::kNoValues,
     "Control-loop deadline misses since start (saturates)."};
-inline constexpr std::array<SignalDef, 4> kSignals{kUptime, kState, kCounter, kDeadlineMisses};
+inline constexpr SignalDef kAmbientSource{"AmbientSource", 35, 2, false, 1, 0, 0, 2, "", kAmbientSourceLabels,
+    "Where the thermal model's ambient / coolant temperature comes from: the power stage's sensor, the configured value (no sensor reading), or the sensor's last reading held since it stopped reporting (a calibration at the ambient is then refused)."};
+inline constexpr std::array<SignalDef, 5> kSignals{kUptime, kState, kAmbientSource, kCounter, kDeadlineMisses};
 }  // namespace heartbeat
 
 // The codec's DecodeStatus numbering (codec.hpp; a test checks the two agree).
