@@ -225,6 +225,12 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
 
   if (controller_.motion_known()) {
     motion_known_until_ = period_ + advance_;
+    // DRIVE_STATUS's torque is the interval's mean (one sample's current noise and the pulses'
+    // reluctance torque made it jump by several N m at no load).
+    const core::Dq& i = controller_.telemetry().i_A;
+    torque_iq_sum_A_ += i.q;
+    torque_idiq_sum_A2_ += i.d * i.q;
+    ++torque_samples_;
   }
   publish(in);
   period_ += advance_;
@@ -312,7 +318,15 @@ void DriveNode::publish(const NodeInputs& in) noexcept {
                      period_ + advance_ - motion_known_until_ <
                          static_cast<std::uint64_t>(std::max(supervisor_.config().sensor_timeout_periods, 1));
     s.speed_rad_s = s.motion_valid ? tel.speed_m_rad_s : 0.0;
-    s.torque_Nm = s.motion_valid ? controller_.torque_estimate_Nm() : 0.0;
+    if (s.motion_valid && torque_samples_ > 0U) {
+      const double n = static_cast<double>(torque_samples_);
+      s.torque_Nm = controller_.torque_estimate_Nm(torque_iq_sum_A_ / n, torque_idiq_sum_A2_ / n);
+    } else {
+      s.torque_Nm = s.motion_valid ? controller_.torque_estimate_Nm() : 0.0;
+    }
+    torque_iq_sum_A_ = 0.0;
+    torque_idiq_sum_A2_ = 0.0;
+    torque_samples_ = 0U;
     p.status = s;
   }
   if (due(heartbeat_every_)) {

@@ -158,6 +158,11 @@ class DriveNode {
   // The end of the last step whose speed and torque were the tracker's present reading
   // (DriveController::motion_known), 0 before any: DRIVE_STATUS's MotionValid.
   std::uint64_t motion_known_until_ = 0;
+  // DRIVE_STATUS's torque over its interval: the sums of iq and id iq of the periods the tracker
+  // followed the shaft, and their count.
+  double torque_iq_sum_A_ = 0.0;
+  double torque_idiq_sum_A2_ = 0.0;
+  std::uint32_t torque_samples_ = 0;
   NodeStep out_{};
   std::uint32_t published_latched_ = 0;   // the latched mask as last published
   std::array<double, core::kFaultCodeCount> fault_changed_s_{};

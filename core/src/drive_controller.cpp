@@ -1225,6 +1225,16 @@ void DriveController::update_thermal(double ambient_C, bool speed_mode) {
   }
 }
 
+double DriveController::present_flux_linkage_Wb() const noexcept {
+  const Calibration& cal = observer_.calibration();
+  const double psi0 = cal.ke0_V_s_per_rad > 0.0 ? cal.ke0_V_s_per_rad / config_.motor.pole_pairs
+                                                : config_.current.flux_linkage_Wb;
+  const double magnet_C = magnet_measured_                                  ? magnet_filtered_C_
+                          : telemetry_.thermal_valid && std::isfinite(telemetry_.thermal.housing_C) ? telemetry_.thermal.housing_C
+                                                                                                    : cal.t0_C;
+  return psi0 * std::max(1.0 + config_.magnet_coefficient_per_C * (magnet_C - cal.t0_C), 0.1);
+}
+
 const DriveOutput& DriveController::step(const DriveInput& in, const DriveCommand& command) {
   if (reported_) {  // (six optionals asked one by one cost a dozen instructions a step)
     last_pair_.reset();

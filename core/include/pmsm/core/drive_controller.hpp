@@ -428,11 +428,20 @@ class DriveController {
   [[nodiscard]] std::size_t held_estimates() const noexcept { return held_count_; }
 
   [[nodiscard]] const DriveTelemetry& telemetry() const { return telemetry_; }
-  // The torque of the last sample's currents (Eq. 10 with the reluctance torque), computed when
-  // asked: the drive publishes it a few times a second, not every period.
+  // The magnets' flux linkage as the drive knows it now: the calibration's Ke0 / p (else the
+  // commissioned flux) at the magnets' temperature (their estimate, else the thermal filter's
+  // housing: the rotor follows the housing), falling by the magnet coefficient per kelvin above
+  // the calibration's T0. Computed when asked (the published torque), not every period.
+  [[nodiscard]] double present_flux_linkage_Wb() const noexcept;
+  // The torque of a q current and an id iq product (means over an interval, or one sample's):
+  // Eq. 10 with the reluctance torque (the commissioned Ld and Lq) at the present flux linkage.
+  // Without arguments, the last sample's.
+  [[nodiscard]] double torque_estimate_Nm(double iq_A, double id_iq_A2) const noexcept {
+    return 1.5 * config_.motor.pole_pairs *
+           (present_flux_linkage_Wb() * iq_A + (config_.current.ld_H - config_.current.lq_H) * id_iq_A2);
+  }
   [[nodiscard]] double torque_estimate_Nm() const noexcept {
-    return electromagnetic_torque_Nm(config_.current.flux_linkage_Wb, config_.current.ld_H, config_.current.lq_H,
-                                     config_.motor.pole_pairs, telemetry_.i_A);
+    return torque_estimate_Nm(telemetry_.i_A.q, telemetry_.i_A.d * telemetry_.i_A.q);
   }
   // The tracker follows the shaft: telemetry().speed_m_rad_s and torque_estimate_Nm() are this
   // step's. False from the first step without a usable sample (a lost sample, a latched fault)

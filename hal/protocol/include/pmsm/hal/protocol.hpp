@@ -594,7 +594,7 @@ inline constexpr SignalDef kTimeToLimitValid{"TimeToLimitValid", 34, 1, false, 1
 inline constexpr SignalDef kSpeed{"Speed", 35, 15, true, 0.2, 0, -3200, 3200, "rad/s", detail::kNoValues,
     "Mechanical speed (0.2 rad/s steps; beyond the set-point range, so that a shaft carried past it reads true)."};
 inline constexpr SignalDef kTorque{"Torque", 50, 14, true, 0.05, 0, -400, 400, "Nm", detail::kNoValues,
-    "Estimated electromagnetic torque, including reluctance torque."};
+    "Estimated electromagnetic torque, including reluctance torque: the mean over the frame's interval, at the magnets' flux as the drive knows it (the calibrated Ke0 at their estimated temperature)."};
 inline constexpr std::array<SignalDef, 12> kSignals{
     kState, kLimitWindingTemp, kLimitMagnetTemp, kLimitVoltage, kLimitCurrent, kLimitSpeed,
     kCurrentLimit, kTimeToLimit, kMotionValid, kTimeToLimitValid, kSpeed, kTorque};
