@@ -193,6 +193,9 @@ int run_command(const CommandOptions& o) {
 void register_command_command(CLI::App& app, int& exit_code) {
   auto options = std::make_shared<CommandOptions>();
   CLI::App* cmd = app.add_subcommand("command", "Send E2E-protected drive commands to pmsm-thermald (the supervisor's role)");
+  cmd->footer("Exit status: 0 every frame sent and nothing refused; 1 a frame could not be sent (the bus, a full transmit "
+              "queue); 2 a bad command line; 3 every frame sent, but the daemon refused something asked of it (a "
+              "calibration that ended other than DONE or was never seen, a command rejected).");
   cmd->add_option("--iface", options->iface, "CAN interface")
       ->capture_default_str()
       ->check(pmsm::cli::text_rule(pmsm::hal::can_interface_name_problem, "NAME"));
