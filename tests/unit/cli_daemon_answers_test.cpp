@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <cstdio>
+#include <string>
 
 #include "daemon_answers.hpp"
 #include "pmsm/hal/codec.hpp"
@@ -53,6 +54,39 @@ TEST(DaemonAnswers, ACalibrationThatEndsDoneIsNoRefusal) {
   a.read(estimate(true, protocol::CalibrationResult::kNone));
   a.read(estimate(false, protocol::CalibrationResult::kDone));
   EXPECT_FALSE(a.finish());
+}
+
+hal::CanFrame status(protocol::DriveState state) {
+  protocol::DriveStatus s;
+  s.state = state;
+  hal::CanFrame f;
+  EXPECT_EQ(protocol::encode(s, kNode, f), protocol::EncodeStatus::kOk);
+  return f;
+}
+
+std::string text_of(std::FILE* f) {
+  std::rewind(f);
+  std::string s;
+  for (int c = std::fgetc(f); c != EOF; c = std::fgetc(f)) {
+    s.push_back(static_cast<char>(c));
+  }
+  return s;
+}
+
+// A calibration a fault suspends is said to be suspended, once, not only "running".
+TEST(DaemonAnswers, ACalibrationAFaultSuspendsIsSaidToBeSuspended) {
+  Quiet q;
+  DaemonAnswers a(kNode, true, q.out);
+  a.read(estimate(false, protocol::CalibrationResult::kNone));
+  a.read(estimate(true, protocol::CalibrationResult::kNone));
+  a.read(status(protocol::DriveState::kFault));
+  a.read(status(protocol::DriveState::kFault));
+  const std::string text = text_of(q.out);
+  EXPECT_NE(text.find("node 2: calibration running"), std::string::npos) << text;
+  const auto at = text.find("node 2: calibration suspended: the drive is in FAULT");
+  ASSERT_NE(at, std::string::npos) << text;
+  EXPECT_EQ(text.find("calibration suspended", at + 30), std::string::npos) << "said once: " << text;
+  EXPECT_FALSE(a.finish()) << "suspended is not refused";
 }
 
 TEST(DaemonAnswers, ACalibrationStillRunningAtTheEndIsNoRefusal) {

@@ -45,6 +45,17 @@ class DaemonAnswers {
       calibrating_ = t->calibrating;
       result_ = t->calibration_result;
       heard_estimate_ = true;
+    } else if (const auto* s = std::get_if<protocol::DriveStatus>(&d.message)) {
+      // A fault suspends a calibration (no pair runs in the safe state): "running" alone would
+      // say it measures. Said once per suspension.
+      const bool suspended = calibrating_ && s->state == protocol::DriveState::kFault;
+      if (suspended && !suspended_) {
+        std::fprintf(out_,
+                     "pmsm-thermal command: node %d: calibration suspended: the drive is in FAULT (it resumes once the "
+                     "fault is cleared, within calibration.timeout_s)\n",
+                     node_);
+      }
+      suspended_ = suspended;
     } else if (const auto* r = std::get_if<protocol::ReceiveStatus>(&d.message)) {
       const std::uint64_t total = std::uint64_t{r->rejected_crc} + r->rejected_counter + r->rejected_range +
                                   r->rejected_format + r->rejected_other;
@@ -91,6 +102,7 @@ class DaemonAnswers {
   bool heard_status_ = false;
   std::uint64_t total_ = 0;  // RECEIVE_STATUS's rejection counts (each modulo 256), summed
   bool refused_ = false;
+  bool suspended_ = false;
 };
 
 }  // namespace pmsm::app

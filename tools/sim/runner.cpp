@@ -667,6 +667,7 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
   const ScenarioConfig& sc = scenario.scenario;
   SimulationResult result;
   result.scenario = sc.name;
+  result.error_threshold_C = sc.error_threshold_C;
   result.method = method_name(scenario.controller);
 
   // The drive's whole per-sample path, as pmsm-thermald runs it; the runner only feeds it
@@ -1221,23 +1222,25 @@ std::string result_json(const SimulationResult& r) {
 }
 
 std::string result_text(const SimulationResult& r) {
-  std::uint64_t rejected = 0;
-  std::string reasons;
-  for (std::size_t k = 1; k < r.pairs.size(); ++k) {
-    rejected += r.pairs[k];
-    if (r.pairs[k] > 0) {
-      reasons += fmt::format(" {}={}", core::to_string(static_cast<core::PairOutcome>(k)), r.pairs[k]);
-    }
+  // The pairs that did not give a measurement, by what ended them ("18 rejected_speed_change, 1
+  // aborted"): not all of them were rejected by a guard.
+  core::OutcomeCounts others = r.pairs;
+  others[static_cast<std::size_t>(core::PairOutcome::kAccepted)] = 0U;
+  std::uint64_t not_accepted = 0;
+  for (const std::uint32_t n : others) {
+    not_accepted += n;
   }
   std::string out = fmt::format("{} — {}\n", r.scenario, r.method);
   if (r.winding_error_samples > 0) {
-    out += fmt::format("  winding error above threshold   RMS {:.2f} C, max {:.2f} C, mean {:+.2f} C ({} samples)\n",
-                       r.winding_error_rms_C, r.winding_error_max_C, r.winding_error_mean_C, r.winding_error_samples);
+    out += fmt::format("  winding error (truth > {:.0f} C)    RMS {:.2f} C, max {:.2f} C, mean {:+.2f} C ({} samples)\n",
+                       r.error_threshold_C, r.winding_error_rms_C, r.winding_error_max_C, r.winding_error_mean_C,
+                       r.winding_error_samples);
     out += fmt::format("  truth inside the +-2 sigma band {:.1f} % of those samples\n", 100.0 * r.coverage_2sigma);
   } else if (r.calibration_running_at_end) {
     out += "  winding error                   none counted: the calibration had not finished when the run ended\n";
   } else {
-    out += "  winding error                   no samples above the threshold after calibration\n";
+    out += fmt::format("  winding error                   no samples with the truth above {:.0f} C after calibration\n",
+                       r.error_threshold_C);
   }
   out += fmt::format("  true winding reached            {:.1f} C\n", r.max_winding_true_C);
   if (r.estimates_published() > 0) {
@@ -1256,8 +1259,9 @@ std::string result_text(const SimulationResult& r) {
   const std::string fw = r.field_weakening_pairs_accepted > 0
                              ? fmt::format(" ({} field-weakening)", r.field_weakening_pairs_accepted)
                              : std::string{};
-  out += fmt::format("  estimates                       {} fused, {} gated; pairs {} accepted{}, {} rejected{}\n",
-                     r.estimates_accepted, r.estimates_gated, r.pairs[0], fw, rejected, reasons);
+  out += fmt::format("  estimates                       {} fused, {} gated; pairs {} accepted{}, {} not{}\n",
+                     r.estimates_accepted, r.estimates_gated, r.pairs[0], fw, not_accepted,
+                     not_accepted > 0 ? " (" + core::pair_outcomes_text(others) + ")" : std::string{});
   if (r.disturbance_measured) {
     if (std::isfinite(r.speed_disturbance_pct)) {
       out += fmt::format("  disturbance by injection        speed {:.3f} % (at {:.2f} s), torque {:.2f} % of rated (at {:.2f} s), vs. the run without injection\n",
@@ -1325,8 +1329,8 @@ std::string result_text(const SimulationResult& r) {
                        r.calibration_stored ? ", replaced by this run's calibration" : "");
   }
   out += fmt::format("  inverter voltage error Vx       {:.3f} +- {:.3f} V\n", r.vx_V, r.vx_std_V);
-  out += fmt::format("  learned Lq                      {:.3f} +- {:.3f} mH at zero current, {:.3f} mH less at the current limit{}\n",
-                     1e3 * r.lq_H, 1e3 * r.lq_std_H, 1e3 * r.lq_saturation_H,
+  out += fmt::format("  learned Lq                      {:.3f} +- {:.3f} mH at zero current, {:.3f} mH at the current limit{}\n",
+                     1e3 * r.lq_H, 1e3 * r.lq_std_H, 1e3 * (r.lq_H - r.lq_saturation_H),
                      r.lq_saturation_resolved ? std::string()
                      : r.lq_commissioned_saturation_H > 0.0
                          ? fmt::format(" (not resolved: incremental = secant less the commissioned gap, b0 {:.3f} mH)",

@@ -112,6 +112,7 @@ struct SimulationResult {
   double winding_error_max_C = 0.0;
   double winding_error_mean_C = 0.0;
   std::size_t winding_error_samples = 0;
+  double error_threshold_C = 40.0;  // the scenario's error_threshold_C (the text says it)
   // Share of the counted samples whose truth lies inside the estimate's +-2 sigma band (an
   // honest band holds about 95 %).
   double coverage_2sigma = 0.0;
