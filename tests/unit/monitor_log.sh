@@ -22,6 +22,13 @@ grep -q "^node  0  uptime " "$work/out" || fail "the daemon's uptime not labelle
 grep -q "node 0: a plant emulator is on the bus" "$work/out" || fail "the switch to the plant's time not told"
 grep -q "^node  0  plant    3600.5 s" "$work/out" || fail "the plant's time not labelled"
 
+# A node the capture never speaks for is told, not summarised as nothing.
+"$exe" monitor --log "$log" --node 2 > "$work/out"
+grep -q "no frame of node 2 (--node) was seen" "$work/out" || fail "a node without frames not told"
+# The status line shows the shaft's speed and torque from DRIVE_STATUS (MotionValid set).
+"$exe" monitor --log "$log" > "$work/out"
+grep -q "RUNNING  limit 45 A  314.2 rad/s 20.8 Nm" "$work/out" || fail "DRIVE_STATUS's speed and torque not shown"
+
 # The capture with LINES appended, through the monitor into $work/out.
 #   monitor_with LINE...
 monitor_with() {

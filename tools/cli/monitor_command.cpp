@@ -578,6 +578,10 @@ class Monitor {
         ok = false;
       }
     }
+    if (axes_.empty() && o_.node) {
+      // A node the bus never spoke for: a wrong --node is told, not a silent empty summary.
+      std::printf("no frame of node %d (--node) was seen\n", *o_.node);
+    }
     if (axes_.empty() && (o_.min_estimates > 0U || o_.check_rms_C || o_.check_max_C)) {
       std::printf("CHECK FAILED: no axis seen\n");
       ok = false;
