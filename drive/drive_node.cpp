@@ -133,15 +133,16 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
     supervisor_.request_clear();
   }
   const core::SupervisorStatus& status = supervisor_.step(si);
-  // The ambient / coolant sensor of the sample, when its checks found nothing (an ambient out of
-  // range, but also currents, bus or encoder a sample cannot have: its other readings are then
-  // suspect too) and it is this stage's own (no second source, no other PWM period); without a
+  // The ambient / coolant sensor of the sample, when the frame is plausible (an ambient out of
+  // range, but also a reading not a number, an encoder or currents a sample cannot have: its
+  // other readings are then suspect too; a bus switched off is a condition, not a bad frame) and
+  // it is this stage's own (no second source, no other PWM period); without a
   // sensor (a power stage without one) the caller's value. A sensor that reported and then stops
   // (its stage's own sensor check, a loose connector) is held at its last reading: the boundary
   // of the thermal model does not jump to the caller's 25 C. Read through a latched fault too:
   // the controller sees no sample then, but its thermal model runs on, and a latched
   // OVERTEMPERATURE clears only as the winding cools towards this boundary.
-  const bool ambient_read = si.sample && supervisor_.sample_clean() &&
+  const bool ambient_read = si.sample && supervisor_.sample_plausible() &&
                             !supervisor_.cause_present(core::FaultCode::kPeriodMismatch) &&
                             !supervisor_.cause_present(core::FaultCode::kDuplicateNode);
   if (ambient_read) {
@@ -225,6 +226,8 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
 
   if (controller_.motion_known()) {
     motion_known_until_ = period_ + advance_;
+  }
+  if (controller_.motion_known() && status_every_ != 0U) {
     // DRIVE_STATUS's torque is the interval's mean (one sample's current noise and the pulses'
     // reluctance torque made it jump by several N m at no load).
     const core::Dq& i = controller_.telemetry().i_A;

@@ -9,7 +9,7 @@
 // Exit status: 0 after a clean stop (duration reached, SIGINT, SIGTERM or SIGHUP) or a passing
 // --check; 1 when the bus cannot be opened (no CAN in the kernel, no such interface, no CAN
 // FD); 2 for a bad configuration (also a model that diverged while running: its state stopped
-// being a number); CLI11's codes for a bad command line.
+// being a number) and for a bad command line (the message names the flag).
 #include <signal.h>
 
 #include <algorithm>

@@ -1226,13 +1226,17 @@ void DriveController::update_thermal(double ambient_C, bool speed_mode) {
 }
 
 double DriveController::present_flux_linkage_Wb() const noexcept {
+  // Ke0 (Eq. 3's, per mechanical rad/s: p psi) at the calibration's T0, else the commissioned
+  // flux at the motor's reference temperature. A magnet estimate only while it is valid: one
+  // aged out is held for the derating's safety, not for a reading (the housing's is fresher).
   const Calibration& cal = observer_.calibration();
-  const double psi0 = cal.ke0_V_s_per_rad > 0.0 ? cal.ke0_V_s_per_rad / config_.motor.pole_pairs
-                                                : config_.current.flux_linkage_Wb;
-  const double magnet_C = magnet_measured_                                  ? magnet_filtered_C_
+  const bool calibrated = cal.ke0_V_s_per_rad > 0.0;
+  const double psi0 = calibrated ? cal.ke0_V_s_per_rad / config_.motor.pole_pairs : config_.current.flux_linkage_Wb;
+  const double psi0_at_C = calibrated ? cal.t0_C : config_.motor.rs_reference_temp_C;
+  const double magnet_C = magnet_valid_ ? magnet_filtered_C_
                           : telemetry_.thermal_valid && std::isfinite(telemetry_.thermal.housing_C) ? telemetry_.thermal.housing_C
-                                                                                                    : cal.t0_C;
-  return psi0 * std::max(1.0 + config_.magnet_coefficient_per_C * (magnet_C - cal.t0_C), 0.1);
+                                                                                                    : psi0_at_C;
+  return psi0 * std::max(1.0 + config_.magnet_coefficient_per_C * (magnet_C - psi0_at_C), 0.1);
 }
 
 const DriveOutput& DriveController::step(const DriveInput& in, const DriveCommand& command) {

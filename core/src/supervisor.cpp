@@ -196,7 +196,9 @@ const SupervisorStatus& Supervisor::step(const SupervisorInput& in) noexcept {
     periods_without_sample_ += std::max<std::uint32_t>(in.periods, 1U) - 1U;
     const std::uint32_t before = cause_mask_;
     check_sample(*in.sample);
-    sample_clean_ = cause_mask_ == before;
+    constexpr std::uint32_t kImplausibleFrame = bit(FaultCode::kInputNotFinite) | bit(FaultCode::kEncoderJump) |
+                                                bit(FaultCode::kCurrentSum) | bit(FaultCode::kAmbientImplausible);
+    sample_plausible_ = (cause_mask_ & ~before & kImplausibleFrame) == 0U;
     periods_without_sample_ = 0;
     ++present_samples_;
     if (present_samples_ >= static_cast<std::uint32_t>(config_.sensor_recovery_periods)) {
@@ -209,7 +211,7 @@ const SupervisorStatus& Supervisor::step(const SupervisorInput& in) noexcept {
     }
     status_.missing_samples = 0;
   } else {
-    sample_clean_ = false;
+    sample_plausible_ = false;
     present_samples_ = 0;
     ++status_.missing_samples;
     periods_without_sample_ += std::max<std::uint32_t>(in.periods, 1U);

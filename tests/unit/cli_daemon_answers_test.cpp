@@ -87,6 +87,8 @@ TEST(DaemonAnswers, ACalibrationAFaultSuspendsIsSaidToBeSuspended) {
   ASSERT_NE(at, std::string::npos) << text;
   EXPECT_EQ(text.find("calibration suspended", at + 30), std::string::npos) << "said once: " << text;
   EXPECT_FALSE(a.finish()) << "suspended is not refused";
+  a.read(status(protocol::DriveState::kStandby));
+  EXPECT_NE(text_of(q.out).find("calibration suspended: the drive is not enabled"), std::string::npos) << text_of(q.out);
 }
 
 TEST(DaemonAnswers, ACalibrationStillRunningAtTheEndIsNoRefusal) {

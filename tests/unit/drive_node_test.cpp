@@ -1705,8 +1705,8 @@ TEST(DriveNode, ARestoredStateMeetsTheAmbientOfTheRestart) {
     EXPECT_NEAR(now.winding_C, cooled_C + shift, 1e-9);
   }
   // A sensor that reports only from the third sample on: the state is referred to its reading,
-  // not to the configured ambient the first samples fall back on (12 C here, which would have
-  // moved it the other way).
+  // not to the configured ambient the first samples fall back on (12 C here: a referral to it
+  // would have come at the first sample, and moved the state by a third as much).
   Rig late;
   late.in.ambient_C = 12.0;
   late.plant_config.thermal.ambient_C = 30.0;
@@ -1735,13 +1735,19 @@ TEST(DriveNode, TheAmbientSensorIsReadThroughAFault) {
   EXPECT_DOUBLE_EQ(rig.node->ambient_C(), 40.0);
   rig.run(10, [](hal::SensorSample& s) { s.ambient_centi_C = 32000; });  // 320 C: out of range
   EXPECT_DOUBLE_EQ(rig.node->ambient_C(), 40.0);
+  // A bus switched off (DC_BUS_UNDERVOLTAGE: a condition, not a bad frame) leaves the sensor read:
+  // a machine parked with its contactor open still tracks its coolant.
+  rig.plant->set_ambient_C(45.0);
+  rig.run(10, [](hal::SensorSample& s) { s.dc_bus_adc = 0; });
+  EXPECT_TRUE(rig.node->supervisor().latched(core::FaultCode::kDcBusUndervoltage));
+  EXPECT_DOUBLE_EQ(rig.node->ambient_C(), 45.0);
   // Nor from a sample whose other readings are impossible (an encoder count beyond its
   // resolution): the frame is suspect as a whole.
   rig.run(10, [&](hal::SensorSample& s) {
     s.ambient_centi_C = 5000;
     s.encoder_count = static_cast<std::uint16_t>(rig.supervisor.encoder_counts + 1);
   });
-  EXPECT_DOUBLE_EQ(rig.node->ambient_C(), 40.0);
+  EXPECT_DOUBLE_EQ(rig.node->ambient_C(), 45.0);
 }
 
 // A sensor that reported and then stops is held at its last reading, not replaced by the
@@ -1755,6 +1761,13 @@ TEST(DriveNode, AnAmbientSensorThatStopsReportingIsHeldAtItsLastReading) {
   EXPECT_DOUBLE_EQ(rig.node->ambient_C(), 31.0);
   auto no_sensor = [](hal::SensorSample& s) { s.flags = static_cast<std::uint8_t>(s.flags & ~hal::kSensorAmbientValid); };
   EXPECT_EQ(rig.node->ambient_dropouts(), 0U);
+  std::optional<protocol::AmbientSource> reporting;
+  for (int k = 0; k < 20000 && !reporting; ++k) {
+    if (const NodeStep& s = rig.run(1); s.publications.heartbeat) {
+      reporting = s.publications.heartbeat->ambient_source;
+    }
+  }
+  EXPECT_EQ(reporting, protocol::AmbientSource::kSensor);
   rig.run(100, no_sensor);
   EXPECT_DOUBLE_EQ(rig.node->ambient_C(), 31.0);
   EXPECT_TRUE(rig.node->ambient_held());

@@ -46,16 +46,17 @@ class DaemonAnswers {
       result_ = t->calibration_result;
       heard_estimate_ = true;
     } else if (const auto* s = std::get_if<protocol::DriveStatus>(&d.message)) {
-      // A fault suspends a calibration (no pair runs in the safe state): "running" alone would
-      // say it measures. Said once per suspension.
-      const bool suspended = calibrating_ && s->state == protocol::DriveState::kFault;
-      if (suspended && !suspended_) {
-        std::fprintf(out_,
-                     "pmsm-thermal command: node %d: calibration suspended: the drive is in FAULT (it resumes once the "
-                     "fault is cleared, within calibration.timeout_s)\n",
-                     node_);
+      // A fault or a disabled drive suspends a calibration (no pair runs with the gates off):
+      // "running" alone would say it measures. Said once per suspension and cause.
+      const char* why = !calibrating_                                 ? nullptr
+                        : s->state == protocol::DriveState::kFault   ? "the drive is in FAULT (it resumes once the fault is cleared"
+                        : s->state == protocol::DriveState::kStandby ? "the drive is not enabled (it resumes once it is"
+                                                                     : nullptr;
+      if (why != nullptr && why != suspended_why_) {
+        std::fprintf(out_, "pmsm-thermal command: node %d: calibration suspended: %s, within calibration.timeout_s)\n", node_,
+                     why);
       }
-      suspended_ = suspended;
+      suspended_why_ = why;
     } else if (const auto* r = std::get_if<protocol::ReceiveStatus>(&d.message)) {
       const std::uint64_t total = std::uint64_t{r->rejected_crc} + r->rejected_counter + r->rejected_range +
                                   r->rejected_format + r->rejected_other;
@@ -102,7 +103,7 @@ class DaemonAnswers {
   bool heard_status_ = false;
   std::uint64_t total_ = 0;  // RECEIVE_STATUS's rejection counts (each modulo 256), summed
   bool refused_ = false;
-  bool suspended_ = false;
+  const char* suspended_why_ = nullptr;  // the cause last said (a string literal), or none
 };
 
 }  // namespace pmsm::app

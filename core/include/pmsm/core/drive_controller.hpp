@@ -428,10 +428,10 @@ class DriveController {
   [[nodiscard]] std::size_t held_estimates() const noexcept { return held_count_; }
 
   [[nodiscard]] const DriveTelemetry& telemetry() const { return telemetry_; }
-  // The magnets' flux linkage as the drive knows it now: the calibration's Ke0 / p (else the
-  // commissioned flux) at the magnets' temperature (their estimate, else the thermal filter's
-  // housing: the rotor follows the housing), falling by the magnet coefficient per kelvin above
-  // the calibration's T0. Computed when asked (the published torque), not every period.
+  // The magnets' flux linkage as the drive knows it now: the calibration's Ke0 / p at its T0
+  // (else the commissioned flux at motor.rs_reference_temp_C), at the magnets' temperature (their
+  // valid estimate, else the thermal filter's housing: the rotor follows the housing), falling by
+  // the magnet coefficient per kelvin. Computed when asked (the published torque), not every period.
   [[nodiscard]] double present_flux_linkage_Wb() const noexcept;
   // The torque of a q current and an id iq product (means over an interval, or one sample's):
   // Eq. 10 with the reluctance torque (the commissioned Ld and Lq) at the present flux linkage.

@@ -170,9 +170,11 @@ class Supervisor {
   [[nodiscard]] bool cause_present(FaultCode code) const noexcept {
     return (cause_mask_ & bit(code)) != 0U;
   }
-  // The last step had a sample and its checks found nothing (whatever was latched before):
-  // its readings are plausible on their own.
-  [[nodiscard]] bool sample_clean() const noexcept { return sample_clean_; }
+  // The last step had a sample whose readings are plausible as a frame: none a sensor cannot give
+  // (a reading not a number, an encoder count or an angle step the encoder cannot make, phase
+  // currents that do not sum to zero, an ambient out of range). A real condition it reports (a
+  // bus switched off, an overcurrent) leaves its other readings good.
+  [[nodiscard]] bool sample_plausible() const noexcept { return sample_plausible_; }
   // Times each fault was latched (indexed by FaultCode).
   [[nodiscard]] const std::array<std::uint32_t, kFaultCodeCount>& counts() const noexcept { return counts_; }
   // What each fault's cause measured when it last latched (indexed by FaultCode), for the log:
@@ -202,7 +204,7 @@ class Supervisor {
   std::array<double, kFaultCodeCount> cause_value_{};    // what each cause measured when last seen
   std::array<double, kFaultCodeCount> latched_value_{};  // ... when its fault last latched
   std::uint32_t cause_mask_ = 0;   // causes present this period
-  bool sample_clean_ = false;      // sample_clean()
+  bool sample_plausible_ = false;  // sample_plausible()
   std::uint32_t external_mask_ = 0;  // caller-reported causes (cleared by request_clear when gone)
   bool clear_requested_ = false;
   bool have_encoder_ = false;
