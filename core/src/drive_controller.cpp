@@ -1239,6 +1239,58 @@ double DriveController::present_flux_linkage_Wb() const noexcept {
   return psi0 * std::max(1.0 + config_.magnet_coefficient_per_C * (magnet_C - psi0_at_C), 0.1);
 }
 
+// A period without a usable sample (lost, implausible, a latched fault): the safe output.
+const DriveOutput& DriveController::step_without_sample(double now, std::uint32_t periods, const DriveCommand& command) {
+  // No fresh sample: the safe output for this period, and the pair in progress is lost.
+  output_ = {};
+  was_enabled_ = false;
+  have_previous_ = false;
+  // The shaft may turn on meanwhile (a coasting load): unless the next usable sample follows
+  // the tracker's last one (DriveInput::continuous), its angle and speed are no longer the
+  // rotor's (below). (The power-up's samples, unusable until the sensors' offsets are known,
+  // find the tracker not yet started.)
+  angle_gap_ = angle_gap_ || angle_.initialised();
+  // Nothing drives the winding now, but it keeps cooling, and a latched OVERTEMPERATURE must
+  // see it cool to clear: the thermal model runs on at rest (no current, no speed), at the
+  // real time the step stands for (advance_thermal). Not before
+  // the drive has run: the power-up's first samples are not an outage, and before the model
+  // ever ran there is nothing to carry on.
+  // A fault or a lost sample does not stop the clock of the magnet's estimate: the thermal
+  // updates age it, or else it is aged here.
+  if (angle_gap_ && telemetry_.thermal_valid) {
+    advance_thermal(periods, command);
+  } else {
+    age_magnet(static_cast<double>(periods) * config_.period_s);
+  }
+  if (sweep_.active()) {
+    sweep_.abort();
+    finish_inverter_sweep(now);
+  }
+  if (check_.active()) {
+    const bool measuring = !check_.decided();
+    check_.abort();
+    if (measuring) {
+      finish_angle_check();
+    }
+  }
+  pending_angle_jump_rad_ = 0.0;  // the history starts afresh (have_previous_)
+  telemetry_.inverter_sweep_active = false;
+  telemetry_.angle_check_active = false;
+  clear_motoring_telemetry();
+  telemetry_.voltage_limited = false;  // the bridge is off: nothing limits its voltage
+  SchedulerInput s;
+  s.time_s = now;
+  const SchedulerOutput& so = scheduler_.step(s, nullptr);
+  if (so.completed) {
+    handle_pair(*so.completed);
+  }
+  if (so.estimate) {
+    handle_estimate(*so.estimate);  // an event the loss ended: reported and counted like any
+  }
+  publish_learned_if_moved();  // (an event's Vx carried, a failed calibration's restored)
+  return output_;
+}
+
 const DriveOutput& DriveController::step(const DriveInput& in, const DriveCommand& command) {
   if (reported_) {  // (six optionals asked one by one cost a dozen instructions a step)
     last_pair_.reset();
@@ -1257,54 +1309,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
 
   const bool usable = controllable(in);
   if (!usable) {
-    // No fresh sample: the safe output for this period, and the pair in progress is lost.
-    output_ = {};
-    was_enabled_ = false;
-    have_previous_ = false;
-    // The shaft may turn on meanwhile (a coasting load): unless the next usable sample follows
-    // the tracker's last one (DriveInput::continuous), its angle and speed are no longer the
-    // rotor's (below). (The power-up's samples, unusable until the sensors' offsets are known,
-    // find the tracker not yet started.)
-    angle_gap_ = angle_gap_ || angle_.initialised();
-    // Nothing drives the winding now, but it keeps cooling, and a latched OVERTEMPERATURE must
-    // see it cool to clear: the thermal model runs on at rest (no current, no speed), at the
-    // real time the step stands for (advance_thermal). Not before
-    // the drive has run: the power-up's first samples are not an outage, and before the model
-    // ever ran there is nothing to carry on.
-    // A fault or a lost sample does not stop the clock of the magnet's estimate: the thermal
-    // updates age it, or else it is aged here.
-    if (angle_gap_ && telemetry_.thermal_valid) {
-      advance_thermal(periods, command);
-    } else {
-      age_magnet(static_cast<double>(periods) * config_.period_s);
-    }
-    if (sweep_.active()) {
-      sweep_.abort();
-      finish_inverter_sweep(now);
-    }
-    if (check_.active()) {
-      const bool measuring = !check_.decided();
-      check_.abort();
-      if (measuring) {
-        finish_angle_check();
-      }
-    }
-    pending_angle_jump_rad_ = 0.0;  // the history starts afresh (have_previous_)
-    telemetry_.inverter_sweep_active = false;
-    telemetry_.angle_check_active = false;
-    clear_motoring_telemetry();
-    telemetry_.voltage_limited = false;  // the bridge is off: nothing limits its voltage
-    SchedulerInput s;
-    s.time_s = now;
-    const SchedulerOutput& so = scheduler_.step(s, nullptr);
-    if (so.completed) {
-      handle_pair(*so.completed);
-    }
-    if (so.estimate) {
-      handle_estimate(*so.estimate);  // an event the loss ended: reported and counted like any
-    }
-    publish_learned_if_moved();  // (an event's Vx carried, a failed calibration's restored)
-    return output_;
+    return step_without_sample(now, periods, command);  // (out of line: the common period's registers)
   }
 
   const bool after_lost = periods > 1U;

@@ -490,7 +490,8 @@ class DriveController {
   [[nodiscard]] const DriveConfig& config() const { return config_; }
 
  private:
-  void handle_pair(const PairResult& r);
+  [[gnu::noinline]] void handle_pair(const PairResult& r);  // (rare: out of step()'s registers)
+  [[gnu::noinline]] const DriveOutput& step_without_sample(double now, std::uint32_t periods, const DriveCommand& command);
   [[nodiscard]] double measurement_age_s(const EventEstimate& e) const;
   void handle_estimate(const EventEstimate& e);
   // The filter's part of an estimate: fused `age_s` controller seconds after the time it
