@@ -1522,7 +1522,8 @@ TEST(DriveNode, AnEstimateTheFilterRefusedIsNotPublishedAsTheResistance) {
   ASSERT_GE(tel.estimates_published, 4U);
   ASSERT_TRUE(refused.empty());
   const hal::TruthSample t = rig.plant->truth();
-  rig.plant->set_temperatures_C(double{t.winding_temp_C} + 80.0, t.housing_temp_C, t.magnet_temp_C);
+  rig.plant->set_temperatures_C(static_cast<double>(t.winding_temp_C) + 80.0, static_cast<double>(t.housing_temp_C),
+                                static_cast<double>(t.magnet_temp_C));
   for (int k = 0; k < 400 && (refused.size() < 2U || sent.size() < 3U); ++k) {  // at most 4 s
     run_and_record(100, true);
   }
