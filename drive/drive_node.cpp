@@ -226,14 +226,14 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
 
   if (controller_.motion_known()) {
     motion_known_until_ = period_ + advance_;
-  }
-  if (controller_.motion_known() && status_every_ != 0U) {
-    // DRIVE_STATUS's torque is the interval's mean (one sample's current noise and the pulses'
-    // reluctance torque made it jump by several N m at no load).
-    const core::Dq& i = controller_.telemetry().i_A;
-    torque_iq_sum_A_ += i.q;
-    torque_idiq_sum_A2_ += i.d * i.q;
-    ++torque_samples_;
+    if (status_every_ != 0U) {
+      // DRIVE_STATUS's torque is the interval's mean (one sample's current noise and the pulses'
+      // reluctance torque made it jump by several N m at no load).
+      const core::Dq& i = controller_.telemetry().i_A;
+      torque_iq_sum_A_ += i.q;
+      torque_idiq_sum_A2_ += i.d * i.q;
+      ++torque_samples_;
+    }
   }
   publish(in);
   period_ += advance_;

@@ -15,6 +15,14 @@ namespace {
 
 constexpr int kNode = 2;
 
+// A message as the daemon of `node` sends it.
+template <class Message>
+hal::CanFrame encoded(const Message& m, int node = kNode) {
+  hal::CanFrame f;
+  EXPECT_EQ(protocol::encode(m, static_cast<protocol::NodeId>(node), f), protocol::EncodeStatus::kOk);
+  return f;
+}
+
 hal::CanFrame estimate(bool calibrating, protocol::CalibrationResult result, int node = kNode) {
   protocol::ThermalEstimate t;
   t.valid = true;
@@ -22,9 +30,7 @@ hal::CanFrame estimate(bool calibrating, protocol::CalibrationResult result, int
   t.winding_temp_sigma_C = 1.0;
   t.calibrating = calibrating;
   t.calibration_result = result;
-  hal::CanFrame f;
-  EXPECT_EQ(protocol::encode(t, static_cast<protocol::NodeId>(node), f), protocol::EncodeStatus::kOk);
-  return f;
+  return encoded(t, node);
 }
 
 hal::CanFrame receive_status(std::uint64_t counter_rejections, std::uint64_t other_rejections, protocol::DecodeStatus last,
@@ -34,9 +40,7 @@ hal::CanFrame receive_status(std::uint64_t counter_rejections, std::uint64_t oth
   r.rejected_other = other_rejections;
   r.last_rejection = static_cast<std::uint8_t>(last);
   r.last_rejected_id = id;
-  hal::CanFrame f;
-  EXPECT_EQ(protocol::encode(r, kNode, f), protocol::EncodeStatus::kOk);
-  return f;
+  return encoded(r);
 }
 
 struct Quiet {
@@ -59,9 +63,7 @@ TEST(DaemonAnswers, ACalibrationThatEndsDoneIsNoRefusal) {
 hal::CanFrame status(protocol::DriveState state) {
   protocol::DriveStatus s;
   s.state = state;
-  hal::CanFrame f;
-  EXPECT_EQ(protocol::encode(s, kNode, f), protocol::EncodeStatus::kOk);
-  return f;
+  return encoded(s);
 }
 
 std::string text_of(std::FILE* f) {
