@@ -9,10 +9,12 @@
 
 #include <cerrno>
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <string>
 #include <string_view>
 #include <utility>
+#include <vector>
 
 namespace pmsm::cli {
 
@@ -77,6 +79,18 @@ CLI::Validator text_rule(Rule rule, std::string type_name) {
 inline CLI::Validator file_name() {
   return text_rule([](std::string_view text) { return text.empty() ? "expected a file name, got an empty one" : ""; },
                    "FILE");
+}
+
+// The exit code of a command line CLI11 refused, with its message printed: 0 for --help and
+// --version, else `usage_exit_code`. CLI11 checks the required options before the words it did
+// not know, so `--bogus` alone, or a misspelt flag beside a required one, read "A subcommand is
+// required" or "--voltage is required" and never named the word: it is named first here.
+inline int exit_on_parse_error(const CLI::App& app, const CLI::ParseError& e, int usage_exit_code) {
+  const std::vector<std::string> unknown = app.remaining(true);
+  if (e.get_exit_code() != 0 && !unknown.empty() && dynamic_cast<const CLI::ExtrasError*>(&e) == nullptr) {
+    std::fprintf(stderr, "%s\n", CLI::ExtrasError(unknown).what());
+  }
+  return app.exit(e) == 0 ? 0 : usage_exit_code;
 }
 
 }  // namespace pmsm::cli

@@ -40,6 +40,7 @@
 #include <spdlog/spdlog.h>
 
 #include "calibration_file.hpp"
+#include "cli_validators.hpp"
 #include "daemon_config.hpp"
 #include "drive_loop.hpp"
 #include "fault_watch.hpp"
@@ -457,7 +458,7 @@ int main(int argc, char** argv) {
   } catch (const CLI::ParseError& e) {
     // --help and --version exit 0; a bad command line is a configuration error like a bad
     // file (exit 2, which the unit does not restart on), not one of CLI11's own codes.
-    return app.exit(e) == 0 ? 0 : kExitConfig;
+    return pmsm::cli::exit_on_parse_error(app, e, kExitConfig);
   }
   if (o.keys) {
     std::fputs(pmsm::daemon::daemon_keys_markdown().c_str(), stdout);

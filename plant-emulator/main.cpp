@@ -354,7 +354,7 @@ int main(int argc, char** argv) {
   } catch (const CLI::ParseError& e) {
     // --help and --version exit 0; a bad command line is a configuration error (2), not one
     // of CLI11's own codes.
-    return app.exit(e) == 0 ? 0 : kExitConfig;
+    return pmsm::cli::exit_on_parse_error(app, e, kExitConfig);
   }
   try {
     return run(o);

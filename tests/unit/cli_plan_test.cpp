@@ -22,6 +22,18 @@ TEST(PlanCli, AFirstWordThatIsNoCommandIsNamedWithTheCommands) {
       << r.err;
 }
 
+// CLI11 checks what is required before the words it does not know: an unknown flag came out as
+// "A subcommand is required" or "... is required", never named.
+TEST(PlanCli, AnUnknownFlagIsNamedBeforeWhatIsMissing) {
+  for (const char* args : {" --bogus", " budget --bogus", " simulate --bogus", " budget --speed 100 --bogus"}) {
+    const ProcessResult r = run_process(kExe + args);
+    EXPECT_EQ(r.exit_code, 2) << args;
+    EXPECT_NE(r.err.find("The following argument was not expected: --bogus"), std::string::npos) << args << ": " << r.err;
+    const std::size_t first = r.err.find("not expected");
+    EXPECT_EQ(r.err.find("not expected", first + 1), std::string::npos) << "named once: " << r.err;
+  }
+}
+
 TEST(PlanCli, BudgetGivenVoltageMatchesEq29) {
   const ProcessResult r =
       run_process(kExe + " budget --Ld 0.009 --Rs 0.133 --Tw 0.01 --window blackman --voltage 40 --json");
