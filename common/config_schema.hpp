@@ -15,6 +15,7 @@
 
 #include "config_types.hpp"
 #include "text_file.hpp"
+#include "toml_depth.hpp"
 
 #include <algorithm>
 #include <array>
@@ -82,6 +83,9 @@ inline std::string read_config_file(const std::filesystem::path& path, std::stri
 
 // Parses a configuration's text: a syntax error becomes a ConfigError naming file and line.
 [[nodiscard]] inline toml::table parse_toml(std::string_view text, std::string_view source) {
+  if (const auto deep = toml_key_depth_problem(text)) {
+    throw ConfigError(toml_depth_message(*deep, source));  // (toml++ would overflow the stack)
+  }
   try {
     return toml::parse(text, source);
   } catch (const toml::parse_error& e) {

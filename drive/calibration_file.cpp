@@ -2,6 +2,7 @@
 
 #include "config_types.hpp"
 #include "text_file.hpp"
+#include "toml_depth.hpp"
 
 #include <fcntl.h>
 #include <sys/stat.h>
@@ -257,6 +258,9 @@ toml::table read_stored(const std::filesystem::path& path, const std::set<std::s
   std::string text;
   if (const std::string problem = common::read_text_file(path, text); !problem.empty()) {
     throw CalibrationFileError(fmt::format("{}: {}", file, problem));
+  }
+  if (const auto deep = common::toml_key_depth_problem(text)) {
+    throw CalibrationFileError(common::toml_depth_message(*deep, file));
   }
   toml::table t;
   try {

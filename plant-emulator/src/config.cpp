@@ -573,6 +573,9 @@ void validate_plant_config(const PlantConfig& c) {
 
 PlantConfig parse_plant_config(std::string_view toml_text, std::string_view source_name,
                                const std::filesystem::path& base_dir) {
+  if (const auto deep = common::toml_key_depth_problem(toml_text)) {
+    throw ConfigError(common::toml_depth_message(*deep, source_name));
+  }
   toml::table root;
   try {
     root = toml::parse(toml_text, source_name);

@@ -75,6 +75,17 @@ core::Calibration sample() {
   return c;
 }
 
+// A stored file is read at every start: a corrupt one of 50,000 key segments made toml++
+// overflow the stack and the daemon died at start-up; now it is an error like any other.
+TEST_F(CalibrationFile, ADeeplyNestedFileIsAnErrorNotACrash) {
+  std::string key = "x";
+  for (int k = 0; k < 50000; ++k) {
+    key += ".x";
+  }
+  EXPECT_NE(error_of("format = 1\n" + key + " = 1\n").find(":2: a key or table header nested more than 64 levels deep"),
+            std::string::npos);
+}
+
 TEST_F(CalibrationFile, RoundTripKeepsTheValues) {
   const fs::path p = dir_ / "calibration.toml";
   write_calibration_file(p, sample(), "bench \"A\"\\1");

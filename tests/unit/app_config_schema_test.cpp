@@ -302,3 +302,60 @@ TEST(ValueRange, Describe) {
 
 }  // namespace
 }  // namespace pmsm::common
+
+namespace pmsm::common {
+namespace {
+
+std::string dotted(std::size_t segments, std::string_view sep = ".") {
+  std::string key = "x";
+  for (std::size_t k = 1; k < segments; ++k) {
+    key += sep;
+    key += "x";
+  }
+  return key;
+}
+
+// toml++ builds a dotted key's tables by recursion: a header of 50,000 segments (100 KB)
+// overflowed the stack in every reader (SIGSEGV, no message). It is refused before parsing,
+// named by file and line.
+TEST(TomlDepth, ADeepKeyIsRefusedBeforeTheParserRecursesIntoIt) {
+  for (const std::string& text : {"a = 1\n[" + dotted(50000) + "]\n", "a = 1\n" + dotted(50000) + " = 1\n",
+                                  "a = 1\n[[" + dotted(50000) + "]]\n", "a = 1\nt = { " + dotted(50000, " . ") + " = 1 }\n",
+                                  "a = 1\n[" + dotted(50000, ".\"q.r\".") + "]\n"}) {
+    try {
+      (void)parse_toml(text, "deep.toml");
+      ADD_FAILURE() << "accepted: " << text.substr(0, 40);
+    } catch (const ConfigError& e) {
+      EXPECT_NE(std::string(e.what()).find("deep.toml:2: a key or table header nested more than 64 levels deep"),
+                std::string::npos)
+          << e.what();
+    }
+  }
+  EXPECT_TRUE(toml_key_depth_problem("[" + dotted(kMaxTomlKeyDepth) + "]\n") == std::nullopt) << "the limit itself";
+  EXPECT_TRUE(toml_key_depth_problem("[" + dotted(kMaxTomlKeyDepth + 1) + "]\n").has_value());
+}
+
+// What is no key is not counted: strings (one line or many, with escapes), comments, arrays of
+// floats, dates.
+TEST(TomlDepth, StringsCommentsNumbersAndDatesAreNoKeys) {
+  const std::string dots(5000, '.');
+  std::string floats = "v = [";
+  for (int k = 0; k < 5000; ++k) {
+    floats += "1.5e-3, ";
+  }
+  floats += "2.0]\n";
+  for (const std::string& text :
+       {"s = \"" + dots + "\"\n", "s = '" + dots + "'\n", "s = \"\"\"\n" + dots + "\n" + dots + "\n\"\"\"\n",
+        "s = '''\n" + dots + "\n'''\n", "s = \"a\\\"" + dots + "\"\n", "# " + dots + "\n", floats,
+        std::string("d = 1979-05-27T07:32:00.999Z\n"), "[a.\"" + dots + "\".b]\nx = 1\n"}) {
+    EXPECT_TRUE(toml_key_depth_problem(text) == std::nullopt) << text.substr(0, 60);
+    EXPECT_NO_THROW((void)parse_toml(text, "ok.toml")) << text.substr(0, 60);
+  }
+  // Lines are counted through multi-line strings.
+  const auto p = toml_key_depth_problem("s = \"\"\"\n\n\n\"\"\"\n" + dotted(100) + " = 1\n");
+  ASSERT_TRUE(p.has_value());
+  EXPECT_EQ(p->line, 5U);
+}
+
+}  // namespace
+}  // namespace pmsm::common

@@ -54,6 +54,17 @@ TEST(plant_config, TheWindingsTimeConstantMustSpanTwoIntegrationSteps) {
   EXPECT_NE(saturated.find("is shorter than two integration steps"), std::string::npos) << saturated;
 }
 
+// A header of 50,000 segments made toml++ overflow the stack (SIGSEGV): refused first
+// (common/toml_depth.hpp).
+TEST(plant_config, ADeepKeyIsRefusedNotACrash) {
+  std::string key = "x";
+  for (int k = 0; k < 50000; ++k) {
+    key += ".x";
+  }
+  EXPECT_NE(error_of("[" + key + "]\n").find("test.toml:1: a key or table header nested more than 64 levels deep"),
+            std::string::npos);
+}
+
 TEST(plant_config, ShippedProfilesParse) {
   for (const char* name : {"reference.toml", "voltage-sensed.toml", "ideal.toml"}) {
     SCOPED_TRACE(name);
