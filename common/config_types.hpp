@@ -49,6 +49,18 @@ struct ValueRange {
 // accepts: one bound, so that a motor the drive's configuration takes can reload the
 // calibration it stored (the file's was 10 ohm, the keys' 100) and the plant takes it too.
 inline constexpr double kMaxStatorResistance_ohm = 100.0;
+// ... and the smallest value of a physical quantity the configurations accept, far below every
+// real machine: `> 0` let 5e-324 through (motor.ld_H = 5e-324 passed --check, and the drive's
+// first step divided it into a non-finite voltage and tripped INTERNAL). The planning options
+// take the same floors.
+inline constexpr double kMinStatorResistance_ohm = 1e-6;
+inline constexpr double kMinInductance_H = 1e-9;
+inline constexpr double kMinEmfConstant_V_s_per_rad = 1e-6;
+inline constexpr double kMinInertia_kg_m2 = 1e-9;
+inline constexpr double kMinMotorCurrent_A = 1e-3;
+inline constexpr double kMinMotorSpeed_rad_s = 1e-3;
+inline constexpr double kMinHeatCapacity_J_K = 1e-3;
+inline constexpr double kMinThermalResistance_K_W = 1e-6;
 
 // "%g" of a number, as every message and table prints it.
 [[nodiscard]] inline std::string format_number(double v) {

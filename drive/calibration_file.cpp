@@ -295,7 +295,7 @@ core::Calibration read_calibration_file(const std::filesystem::path& path) {
     }
   }
   core::Calibration c;
-  c.rs0_ohm = number(t, "rs0_ohm", file, 0.0, common::kMaxStatorResistance_ohm, true);
+  c.rs0_ohm = number(t, "rs0_ohm", file, common::kMinStatorResistance_ohm, common::kMaxStatorResistance_ohm, false);
   c.t0_C = number(t, "t0_C", file, -50.0, 200.0, false);
   c.ke0_V_s_per_rad = t.get("ke0_V_s_per_rad") != nullptr ? number(t, "ke0_V_s_per_rad", file, 0.0, 100.0, false) : 0.0;
   c.ke0_std_V_s_per_rad =

@@ -28,7 +28,7 @@ using C = ControllerConfig;
 ConfigSchema<C> build() {
   ConfigSchema<C> s;
   // [motor] — the controller's commissioned model of the machine.
-  s.real("motor.rs_ohm", [](C& c) -> double& { return c.drive.motor.rs_ohm; }, positive(common::kMaxStatorResistance_ohm), "ohm",
+  s.real("motor.rs_ohm", [](C& c) -> double& { return c.drive.motor.rs_ohm; }, between(common::kMinStatorResistance_ohm, common::kMaxStatorResistance_ohm), "ohm",
          "Nameplate phase-to-neutral resistance at motor.rs_reference_temp_C; the temperature scale until a calibration replaces it.");
   s.real("motor.rs_reference_temp_C", [](C& c) -> double& { return c.drive.motor.rs_reference_temp_C; }, between(-50, 200), "C",
          "Temperature at which motor.rs_ohm holds (T0 of Eq. 1).");
@@ -39,8 +39,8 @@ ConfigSchema<C> build() {
            },
            "Winding conductor for Eq. 1 referred to any T0: resistance proportional to K + T, K = 234.5 C (copper: alpha "
            "3.93e-3 /C at 20 C, 3.85e-3 at 25 C) or 225 C (aluminium).");
-  s.real("motor.ld_H", [](C& c) -> double& { return c.drive.motor.ld_H; }, positive(1.0), "H", "d-axis inductance as commissioned.");
-  s.real("motor.lq_H", [](C& c) -> double& { return c.drive.motor.lq_H; }, positive(1.0), "H", "q-axis inductance as commissioned.");
+  s.real("motor.ld_H", [](C& c) -> double& { return c.drive.motor.ld_H; }, between(common::kMinInductance_H, 1.0), "H", "d-axis inductance as commissioned.");
+  s.real("motor.lq_H", [](C& c) -> double& { return c.drive.motor.lq_H; }, between(common::kMinInductance_H, 1.0), "H", "q-axis inductance as commissioned.");
   s.real("motor.lq_rated_H", [](C& c) -> double& { return c.drive.motor.lq_rated_H; }, at_least(0, 1.0), "H",
          "Secant q-axis inductance (psi_q / iq) at the rated current, from the motor's flux map or datasheet; 0: not known. "
          "On a saturating machine it gives the estimator the gap between the secant Lq that pairs at one load measure "
@@ -50,22 +50,22 @@ ConfigSchema<C> build() {
          [](const C& c) { return c.lq_map_current_A; }, [](C& c, const std::vector<double>& v) { c.lq_map_current_A = v; },
          "A", "q-axis currents (peak A, ascending, above 0: motor.lq_H is the map at 0 A) of the flux map's points in "
          "motor.lq_map_H, in place of motor.lq_rated_H. Let them reach past the loads the drive runs at.");
-  s.list("motor.lq_map_H", 0, core::LqMap::kMaxPoints, positive(1.0),
+  s.list("motor.lq_map_H", 0, core::LqMap::kMaxPoints, between(common::kMinInductance_H, 1.0),
          [](const C& c) { return c.lq_map_H; }, [](C& c, const std::vector<double>& v) { c.lq_map_H = v; }, "H",
          "Secant q-axis inductance (psi_q / iq, not the incremental d psi_q / d iq) of the flux map at each of "
          "motor.lq_map_current_A, at id = 0, from the same map as motor.lq_H (its no-load value), non-increasing: the "
          "saturation curve's shape between the points, which one point at the rated current can only draw as a "
          "parabola (docs/estimator.md section 5.1).");
-  s.real("motor.ke_V_s_per_rad", [](C& c) -> double& { return c.drive.motor.ke_V_s_per_rad; }, positive(100.0), "V s/rad",
+  s.real("motor.ke_V_s_per_rad", [](C& c) -> double& { return c.drive.motor.ke_V_s_per_rad; }, between(common::kMinEmfConstant_V_s_per_rad, 100.0), "V s/rad",
          "EMF constant, line-to-line RMS volts per mechanical rad/s (Table I: 1.19).");
   s.integer("motor.pole_pairs", [](C& c) -> int& { return c.drive.motor.pole_pairs; }, between(1, 64), "Pole pairs.");
-  s.real("motor.continuous_current_A_rms", [](C& c) -> double& { return c.drive.motor.continuous_current_A_rms; }, positive(10000), "A",
+  s.real("motor.continuous_current_A_rms", [](C& c) -> double& { return c.drive.motor.continuous_current_A_rms; }, between(common::kMinMotorCurrent_A, 10000), "A",
          "Rated (continuous) phase current, RMS (Table I Icont: 31.9 A). The injection, calibration and load-change defaults scale with "
          "its peak, the rated current I_rated = sqrt(2) times this.");
-  s.real("motor.rated_speed_rad_s", [](C& c) -> double& { return c.drive.motor.rated_speed_rad_s; }, positive(100000), "rad/s",
+  s.real("motor.rated_speed_rad_s", [](C& c) -> double& { return c.drive.motor.rated_speed_rad_s; }, between(common::kMinMotorSpeed_rad_s, 100000), "rad/s",
          "Rated mechanical speed (Table I: 314 rad/s). control.speed_limit_rad_s, supervisor.overspeed_rad_s and "
          "supervisor.max_speed_rad_s default to 1.2, 1.5 and 3 times it.");
-  s.real("motor.inertia_kg_m2", [](C& c) -> double& { return c.drive.motor.inertia_kg_m2; }, positive(100.0), "kg m^2",
+  s.real("motor.inertia_kg_m2", [](C& c) -> double& { return c.drive.motor.inertia_kg_m2; }, between(common::kMinInertia_kg_m2, 100.0), "kg m^2",
          "Total inertia the speed loop is designed for.");
   // [sensors]
   s.integer("sensors.current_adc_bits", [](C& c) -> int& { return c.sensors.current_adc_bits; }, between(8, 16), "Phase-current ADC resolution.");
@@ -299,13 +299,13 @@ ConfigSchema<C> build() {
   s.real("estimator.baseline_publish_s", [](C& c) -> double& { return c.drive.baseline_publish_s; }, positive(1e6), "s",
          "No-injection baseline: how often its estimate is fused.");
   // [thermal]
-  s.real("thermal.winding_capacity_J_K", [](C& c) -> double& { return c.drive.thermal.winding_capacity_J_K; }, positive(1e9), "J/K",
+  s.real("thermal.winding_capacity_J_K", [](C& c) -> double& { return c.drive.thermal.winding_capacity_J_K; }, between(common::kMinHeatCapacity_J_K, 1e9), "J/K",
          "Controller's model: winding heat capacity.");
-  s.real("thermal.housing_capacity_J_K", [](C& c) -> double& { return c.drive.thermal.housing_capacity_J_K; }, positive(1e9), "J/K",
+  s.real("thermal.housing_capacity_J_K", [](C& c) -> double& { return c.drive.thermal.housing_capacity_J_K; }, between(common::kMinHeatCapacity_J_K, 1e9), "J/K",
          "Controller's model: stator/housing heat capacity.");
-  s.real("thermal.winding_to_housing_K_W", [](C& c) -> double& { return c.drive.thermal.winding_to_housing_K_W; }, positive(100), "K/W",
+  s.real("thermal.winding_to_housing_K_W", [](C& c) -> double& { return c.drive.thermal.winding_to_housing_K_W; }, between(common::kMinThermalResistance_K_W, 100), "K/W",
          "Controller's model: winding to housing.");
-  s.real("thermal.housing_to_ambient_K_W", [](C& c) -> double& { return c.drive.thermal.housing_to_ambient_K_W; }, positive(100), "K/W",
+  s.real("thermal.housing_to_ambient_K_W", [](C& c) -> double& { return c.drive.thermal.housing_to_ambient_K_W; }, between(common::kMinThermalResistance_K_W, 100), "K/W",
          "Controller's model: housing to ambient.");
   s.real("thermal.iron_loss_k1_W_s_rad", [](C& c) -> double& { return c.drive.thermal.iron_loss_k1_W_s_rad; }, at_least(0), "W s/rad",
          "Iron loss per mechanical rad/s.");
@@ -349,7 +349,7 @@ ConfigSchema<C> build() {
   s.real("thermal.gate_sigma", [](C& c) -> double& { return c.drive.thermal.gate_sigma; }, positive(1000), "",
          "A measurement further than this many sigma from the prediction is gated out.");
   // [calibration]
-  s.real("calibration.rs0_ohm", [](C& c) -> double& { return c.drive.calibration.rs0_ohm; }, positive(common::kMaxStatorResistance_ohm), "ohm",
+  s.real("calibration.rs0_ohm", [](C& c) -> double& { return c.drive.calibration.rs0_ohm; }, between(common::kMinStatorResistance_ohm, common::kMaxStatorResistance_ohm), "ohm",
          "Rs0 of a stored calibration (defaults to motor.rs_ohm).");
   s.real("calibration.t0_C", [](C& c) -> double& { return c.drive.calibration.t0_C; }, between(-50, 200), "C", "T0 of that calibration.");
   s.real("calibration.rs0_std_fraction", [](C& c) -> double& { return c.drive.calibration.rs0_std_fraction; }, between(0, 0.5), "",

@@ -62,7 +62,7 @@ common::ConfigSchema<PlantConfig> build_schema() {
     integer("motor.pole_pairs", PMSM_MEMBER(motor.pole_pairs), closed(1, 64),
                         "Pole pairs p (Table I: 3).");
     // The drive's configuration takes the same ranges (drive/controller_config.cpp).
-    real("motor.rs_ohm", PMSM_MEMBER(motor.rs_ohm), positive(common::kMaxStatorResistance_ohm),
+    real("motor.rs_ohm", PMSM_MEMBER(motor.rs_ohm), closed(common::kMinStatorResistance_ohm, common::kMaxStatorResistance_ohm),
                      "Phase-to-neutral stator resistance Rs0 at rs_reference_temp_C (Table I: "
                      "0.133 Ω at 25 °C).");
     real("motor.rs_reference_temp_C", PMSM_MEMBER(motor.rs_reference_temp_C), closed(-50, 250),
@@ -76,12 +76,12 @@ common::ConfigSchema<PlantConfig> build_schema() {
              [](const PlantConfig& c) { return c.motor.conductor_inferred_zero_C == 225.0 ? 1 : 0; },
              [](PlantConfig& c, int v) { c.motor.conductor_inferred_zero_C = v == 1 ? 225.0 : 234.5; },
              "Winding conductor: resistance proportional to K + T, K = 234.5 °C for copper, 225 °C for aluminium.");
-    real("motor.ke_V_s_per_rad", PMSM_MEMBER(motor.ke_V_s_per_rad), positive(100.0),
+    real("motor.ke_V_s_per_rad", PMSM_MEMBER(motor.ke_V_s_per_rad), closed(common::kMinEmfConstant_V_s_per_rad, 100.0),
                      "EMF constant of Table I: line-to-line RMS volts per mechanical rad/s, "
                      "at magnet_ref_temp_C. psi_m = Ke·sqrt(2/3)/p.");
-    real("motor.ld_H", PMSM_MEMBER(motor.ld_H), positive(1.0),
+    real("motor.ld_H", PMSM_MEMBER(motor.ld_H), closed(common::kMinInductance_H, 1.0),
                      "d-axis inductance (default L_ll/2 of Table I).");
-    real("motor.lq_H", PMSM_MEMBER(motor.lq_H), positive(1.0),
+    real("motor.lq_H", PMSM_MEMBER(motor.lq_H), closed(common::kMinInductance_H, 1.0),
                      "q-axis inductance; Lq != Ld gives reluctance torque.");
     real("motor.magnet_temp_coefficient_per_C", PMSM_MEMBER(motor.magnet_temp_coefficient_per_C),
                      closed(-0.01, 0.0),
@@ -91,9 +91,9 @@ common::ConfigSchema<PlantConfig> build_schema() {
     // [saturation]
     boolean("saturation.enabled", PMSM_MEMBER(saturation.enabled),
                         "Magnetic saturation of both axes (no cross-saturation).");
-    real("saturation.ld_sat_H", PMSM_MEMBER(saturation.ld_sat_H), positive(1.0),
+    real("saturation.ld_sat_H", PMSM_MEMBER(saturation.ld_sat_H), closed(common::kMinInductance_H, 1.0),
                      "Incremental d-axis inductance far beyond the knee (<= motor.ld_H).");
-    real("saturation.lq_sat_H", PMSM_MEMBER(saturation.lq_sat_H), positive(1.0),
+    real("saturation.lq_sat_H", PMSM_MEMBER(saturation.lq_sat_H), closed(common::kMinInductance_H, 1.0),
                      "Incremental q-axis inductance far beyond the knee (<= motor.lq_H).");
     real("saturation.id_knee_A", PMSM_MEMBER(saturation.id_knee_A), positive(1e4),
                      "d-axis current at the knee of the saturation curve.");
@@ -126,7 +126,7 @@ common::ConfigSchema<PlantConfig> build_schema() {
     real("cogging.phase_rad", PMSM_MEMBER(cogging.phase_rad), angle(),
                      "Cogging phase.");
     // [mechanics]
-    real("mechanics.inertia_kg_m2", PMSM_MEMBER(mechanics.inertia_kg_m2), positive(1e3),
+    real("mechanics.inertia_kg_m2", PMSM_MEMBER(mechanics.inertia_kg_m2), closed(common::kMinInertia_kg_m2, 1e3),
                      "Total inertia on the shaft (Table I rotor: 0.00841).");
     real("mechanics.coulomb_Nm", PMSM_MEMBER(mechanics.coulomb_Nm),
                      non_negative(1e3), "Kinetic Coulomb friction (Table I: 0.908).");
@@ -295,20 +295,20 @@ common::ConfigSchema<PlantConfig> build_schema() {
                     "ambient_C", "Initial temperature of every node (default: ambient_C).");
     real("thermal.acceleration", PMSM_MEMBER(thermal.acceleration), closed(1e-3, 1e6),
                      "Thermal time runs this many times faster than electrical time.");
-    real("thermal.winding_capacity_J_K", PMSM_MEMBER(thermal.winding_capacity_J_K), positive(1e7),
+    real("thermal.winding_capacity_J_K", PMSM_MEMBER(thermal.winding_capacity_J_K), closed(common::kMinHeatCapacity_J_K, 1e7),
                      "Heat capacity of the winding node (copper and insulation).");
-    real("thermal.housing_capacity_J_K", PMSM_MEMBER(thermal.housing_capacity_J_K), positive(1e7),
+    real("thermal.housing_capacity_J_K", PMSM_MEMBER(thermal.housing_capacity_J_K), closed(common::kMinHeatCapacity_J_K, 1e7),
                      "Heat capacity of the stator iron and housing node.");
-    real("thermal.rotor_capacity_J_K", PMSM_MEMBER(thermal.rotor_capacity_J_K), positive(1e7),
+    real("thermal.rotor_capacity_J_K", PMSM_MEMBER(thermal.rotor_capacity_J_K), closed(common::kMinHeatCapacity_J_K, 1e7),
                      "Heat capacity of the rotor (magnets, rotor iron, shaft) node.");
     real("thermal.winding_to_housing_K_W", PMSM_MEMBER(thermal.winding_to_housing_K_W),
-                     positive(1e3), "Thermal resistance winding to housing.");
+                     closed(common::kMinThermalResistance_K_W, 1e3), "Thermal resistance winding to housing.");
     real("thermal.housing_to_ambient_K_W", PMSM_MEMBER(thermal.housing_to_ambient_K_W),
-                     positive(1e3), "Thermal resistance housing to ambient.");
+                     closed(common::kMinThermalResistance_K_W, 1e3), "Thermal resistance housing to ambient.");
     real("thermal.rotor_to_housing_K_W", PMSM_MEMBER(thermal.rotor_to_housing_K_W),
-                     positive(1e3), "Thermal resistance rotor to housing (air gap, bearings).");
+                     closed(common::kMinThermalResistance_K_W, 1e3), "Thermal resistance rotor to housing (air gap, bearings).");
     real("thermal.rotor_to_ambient_K_W", PMSM_MEMBER(thermal.rotor_to_ambient_K_W),
-                     positive(1e6), "Thermal resistance rotor to ambient (shaft).");
+                     closed(common::kMinThermalResistance_K_W, 1e6), "Thermal resistance rotor to ambient (shaft).");
     real("thermal.friction_heat_fraction",
                      PMSM_MEMBER(thermal.friction_heat_fraction), closed(0, 1),
                      "Share of the friction loss heating the housing node.");

@@ -103,6 +103,21 @@ TEST(ControllerConfig, FinalizeDerivesTheDependentFields) {
   EXPECT_FALSE(d.calibration_injection.field_weakening_pairs);
 }
 
+// `> 0` let a denormal through: motor.ld_H = 5e-324 passed the check, and the drive's first
+// step divided it into a non-finite voltage (INTERNAL). Every physical quantity has a floor far
+// below any machine; the file is refused, naming the key.
+TEST(ControllerConfig, ANumberTooSmallForAnyMachineIsRefused) {
+  for (const char* key : {"motor.rs_ohm", "motor.ld_H", "motor.lq_H", "motor.ke_V_s_per_rad", "motor.continuous_current_A_rms",
+                          "motor.rated_speed_rad_s", "motor.inertia_kg_m2", "thermal.winding_capacity_J_K",
+                          "thermal.housing_capacity_J_K", "thermal.winding_to_housing_K_W", "thermal.housing_to_ambient_K_W",
+                          "calibration.rs0_ohm"}) {
+    const std::string k(key);
+    const std::string section = k.substr(0, k.find('.'));
+    const std::string text = "[" + section + "]\n" + k.substr(k.find('.') + 1) + " = 5e-324\n";
+    EXPECT_NE(error_of(text).find(k + ": must be in ["), std::string::npos) << key << ": " << error_of(text);
+  }
+}
+
 TEST(ControllerConfig, AnEmptyFileGivesTheDefaults) {
   const ControllerConfig parsed = parse("");
   const ControllerConfig defaults = default_controller_config();

@@ -183,7 +183,7 @@ TEST(PlanCli, BudgetTakesADrivesConfiguration) {
   std::ofstream(dir.path / "bad.toml") << "[controller.motor]\nld_H = -1\n";
   const ProcessResult bad = run_process(kExe + " budget --config " + (dir.path / "bad.toml").string() + " --speed 3");
   EXPECT_EQ(bad.exit_code, 2);
-  EXPECT_NE(bad.err.find("bad.toml:2: controller.motor.ld_H: must be in (0, 1], got -1"), std::string::npos) << bad.err;
+  EXPECT_NE(bad.err.find("bad.toml:2: controller.motor.ld_H: must be in [1e-09, 1], got -1"), std::string::npos) << bad.err;
   std::ofstream(dir.path / "typo.toml") << "[controler.motor]\nld_H = 1e-3\n";
   const ProcessResult typo = run_process(kExe + " budget --config " + (dir.path / "typo.toml").string() + " --speed 3");
   EXPECT_EQ(typo.exit_code, 2);

@@ -34,11 +34,11 @@ TEST(plant_config, TheWindingsTimeConstantMustSpanTwoIntegrationSteps) {
   EXPECT_NE(runaway.find("motor.rs_ohm: the winding's electrical time constant"), std::string::npos) << runaway;
   EXPECT_NE(runaway.find("2.75e-05 s, is shorter than two integration steps"), std::string::npos) << runaway;
   EXPECT_NE(runaway.find("raise simulation.substeps to 8"), std::string::npos) << runaway;
-  const std::string tiny = error_of("[motor]\nld_H = 1e-10\n[saturation]\nenabled = false\n");
+  const std::string tiny = error_of("[motor]\nld_H = 1e-9\n[saturation]\nenabled = false\n");
   EXPECT_NE(tiny.find("raise simulation.substeps to its 64 and lower the PWM period"), std::string::npos) << tiny;
   // At the inductance's line, the resistance being its default, and naming the inductance.
   EXPECT_EQ(tiny.rfind("test.toml:2: motor.ld_H: the winding's electrical time constant, the smallest inductance "
-                       "(motor.ld_H = 1e-10 H) over twice motor.rs_ohm (0.133 ohm)",
+                       "(motor.ld_H = 1e-09 H) over twice motor.rs_ohm (0.133 ohm)",
                        0),
             0U)
       << tiny;
@@ -63,6 +63,15 @@ TEST(plant_config, ADeepKeyIsRefusedNotACrash) {
   }
   EXPECT_NE(error_of("[" + key + "]\n").find("test.toml:1: a key or table header nested more than 64 levels deep"),
             std::string::npos);
+}
+
+TEST(plant_config, ANumberTooSmallForAnyMachineIsRefused) {
+  for (const char* key : {"motor.rs_ohm", "motor.ld_H", "motor.lq_H", "motor.ke_V_s_per_rad", "mechanics.inertia_kg_m2",
+                          "thermal.winding_capacity_J_K", "thermal.winding_to_housing_K_W", "thermal.rotor_to_ambient_K_W"}) {
+    const std::string k(key);
+    const std::string text = "[" + k.substr(0, k.find('.')) + "]\n" + k.substr(k.find('.') + 1) + " = 5e-324\n";
+    EXPECT_NE(error_of(text).find(k + ": must be in ["), std::string::npos) << key << ": " << error_of(text);
+  }
 }
 
 TEST(plant_config, ShippedProfilesParse) {
@@ -162,13 +171,13 @@ TEST(plant_config, OutOfRangeNamesKeyAndRange) {
   const std::string e = error_of("[motor]\nld_H = -1\n");
   EXPECT_NE(e.find("motor.ld_H"), std::string::npos) << e;
   EXPECT_NE(e.find("must be"), std::string::npos) << e;
-  EXPECT_NE(e.find("(0, 1]"), std::string::npos) << e;
+  EXPECT_NE(e.find("[1e-09, 1]"), std::string::npos) << e;
   EXPECT_NE(e.find("-1"), std::string::npos) << e;
   EXPECT_NE(e.find("test.toml:2"), std::string::npos) << e;  // file and line
   // Finite but beyond any machine: the motor's keys take the drive's ranges, an angle a
   // thousand radians (1e300 rad left the shaft's angle without a digit to turn by).
-  EXPECT_EQ(error_of("[motor]\nld_H = 1e300\n"), "test.toml:2: motor.ld_H: must be in (0, 1], got 1e+300");
-  EXPECT_EQ(error_of("[motor]\nrs_ohm = 101\n"), "test.toml:2: motor.rs_ohm: must be in (0, 100], got 101");
+  EXPECT_EQ(error_of("[motor]\nld_H = 1e300\n"), "test.toml:2: motor.ld_H: must be in [1e-09, 1], got 1e+300");
+  EXPECT_EQ(error_of("[motor]\nrs_ohm = 101\n"), "test.toml:2: motor.rs_ohm: must be in [1e-06, 100], got 101");
   EXPECT_EQ(error_of("[mechanics]\ninitial_angle_rad = 1e300\n"),
             "test.toml:2: mechanics.initial_angle_rad: must be in [-1000, 1000], got 1e+300");
   EXPECT_EQ(error_of("[mechanics]\ninitial_angle_rad = -7.5\n"), "");

@@ -29,8 +29,8 @@ namespace {
 constexpr double kMaxInductance_H = 10.0;
 // ... and lower bounds below every real machine, for the same reason: with --Ld and --Rs of
 // 1e-200 the largest F was printed as "inf A".
-constexpr double kMinInductance_H = 1e-9;
-constexpr double kMinResistance_ohm = 1e-6;
+constexpr double kMinInductance_H = common::kMinInductance_H;
+constexpr double kMinResistance_ohm = common::kMinStatorResistance_ohm;
 constexpr double kMaxWindow_s = 10.0;
 constexpr double kMaxVoltage_V = 100e3;
 constexpr double kMaxCurrent_A = 100e3;
