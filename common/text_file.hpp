@@ -2,7 +2,7 @@
 // a DBC): what is wrong with the path is said in words, not read as an empty file. A directory
 // (an ifstream opens one and reads nothing), a device (/dev/zero would be read forever), a
 // file beyond any such file's size, and a read that fails part way are each refused.
-// Header only, standard library only.
+// Header only, standard library and POSIX only.
 #pragma once
 
 #include <cerrno>
@@ -12,6 +12,8 @@
 #include <fstream>
 #include <string>
 #include <system_error>
+
+#include <unistd.h>
 
 namespace pmsm::common {
 
@@ -50,6 +52,29 @@ inline constexpr std::uintmax_t kMaxTextFileBytes = 256U << 20U;
   }
   if (in.bad()) {
     return std::string("cannot read (") + std::strerror(errno) + ")";
+  }
+  return {};
+}
+
+// What stands in the way of writing `path` (creating or replacing a file there), in words; ""
+// when nothing visible does. Checked before a long run, so that an output that cannot be written
+// is said at once rather than after the run (a directory in the file's place, a directory that
+// does not exist, a read-only one). A full disk shows only as the write fails.
+[[nodiscard]] inline std::string writable_file_problem(const std::filesystem::path& path) {
+  std::error_code ec;
+  if (std::filesystem::is_directory(path, ec)) {
+    return "is a directory";
+  }
+  const std::filesystem::path parent = path.has_parent_path() ? path.parent_path() : std::filesystem::path(".");
+  if (!std::filesystem::exists(parent, ec)) {
+    return "no such directory: " + parent.string();
+  }
+  if (!std::filesystem::is_directory(parent, ec)) {
+    return parent.string() + " is not a directory";
+  }
+  const bool exists = std::filesystem::exists(path, ec);
+  if (::access((exists ? path : parent).c_str(), W_OK) != 0) {
+    return std::string(exists ? "" : "its directory: ") + std::strerror(errno);
   }
   return {};
 }

@@ -339,6 +339,17 @@ TEST(SimulateCli, TheScenariosNameIsTextInThePlotNotCommands) {
   const ProcessResult full = run_process(kExe + " simulate --quiet --csv /dev/full " + (dir / "q.toml").string());
   EXPECT_EQ(full.exit_code, 3);
   EXPECT_NE(full.err.find("cannot write /dev/full"), std::string::npos) << full.err;
+  // One that cannot be written at all is said before the run (it ran the whole scenario first,
+  // then said only "cannot write adir"): no output on standard output, no figures.
+  std::filesystem::create_directories(dir / "adir");
+  for (const std::string& args : {" --csv " + (dir / "adir").string(), " --plot " + (dir / "adir").string(),
+                                  " --csv " + (dir / "missing" / "x.csv").string()}) {
+    const ProcessResult early = run_process(kExe + " simulate" + args + " " + (dir / "q.toml").string());
+    EXPECT_EQ(early.exit_code, 3) << args;
+    EXPECT_NE(early.err.find(": cannot write it ("), std::string::npos) << early.err;
+    EXPECT_NE(early.err.find("nothing was run"), std::string::npos) << early.err;
+    EXPECT_EQ(early.out, "") << "not run";
+  }
   std::filesystem::remove_all(dir);
 }
 

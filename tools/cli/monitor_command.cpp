@@ -9,6 +9,8 @@
 // (faults, rejections) are printed above the block. A summary ends it, with the loop timing
 // of LOOP_TIMING. With --check-* it is the HIL
 // tests' judge: exit 1 when the estimates stray further from the truth than allowed.
+#include <cerrno>
+#include <cstring>
 #include <unistd.h>
 
 #include <array>
@@ -148,9 +150,10 @@ class Monitor {
  public:
   explicit Monitor(const MonitorOptions& o) : o_(o) {
     if (!o.csv.empty()) {
+      errno = 0;
       csv_.open(o.csv);
       if (!csv_) {
-        throw std::runtime_error("cannot write " + o.csv);
+        throw std::runtime_error("cannot write " + o.csv + (errno != 0 ? std::string(" (") + std::strerror(errno) + ")" : ""));
       }
       csv_ << "time_s,node,winding_est_C,winding_sigma_C,winding_true_C,calibrated\n";
     }

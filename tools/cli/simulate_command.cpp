@@ -202,6 +202,17 @@ int run_simulate(const SimulateOptions& o) {
                  o.csv_path.c_str());
     return 2;
   }
+  // An output that cannot be written is said before the run, not after it (a long scenario ran
+  // to its end and then said "cannot write adir"): 3, as an output that fails after the run.
+  if (!o.plot_dir.empty()) {
+    std::error_code ec;
+    std::filesystem::create_directories(o.plot_dir, ec);
+    if (ec) {
+      std::fprintf(stderr, "simulate: --plot-dir %s: cannot create the directory (%s)\n", o.plot_dir.c_str(),
+                   ec.message().c_str());
+      return 3;
+    }
+  }
   for (std::size_t k = 0; k < n; ++k) {
     const std::string plot_in_dir =
         o.plot_dir.empty() ? std::string()
@@ -222,6 +233,11 @@ int run_simulate(const SimulateOptions& o) {
                                                                 " reads or keeps its state in").c_str());
           return 2;
         }
+      }
+      if (const std::string problem = common::writable_file_problem(output); !problem.empty()) {
+        std::fprintf(stderr, "simulate: %s %s: cannot write it (%s); nothing was run\n", option, output.c_str(),
+                     problem.c_str());
+        return 3;
       }
     }
   }

@@ -2,6 +2,8 @@
 
 #include "calibration_file.hpp"
 
+#include <cerrno>
+#include <cstring>
 #include <unistd.h>
 
 #include <algorithm>
@@ -1360,9 +1362,10 @@ std::string estimates_text(const SimulationResult& r) {
 }
 
 void write_series_csv(const SimulationResult& r, const std::string& path) {
+  errno = 0;
   std::ofstream out(path);
   if (!out) {
-    throw std::runtime_error("cannot write " + path);
+    throw std::runtime_error("cannot write " + path + (errno != 0 ? std::string(" (") + std::strerror(errno) + ")" : ""));
   }
   out << "time_s,winding_true_C,winding_est_C,winding_std_C,magnet_true_C,magnet_est_C,magnet_valid,housing_true_C,"
          "rs_true_ohm,speed_ref_rad_s,speed_rad_s,torque_Nm,load_torque_Nm,id_A,iq_A,current_limit_A,derating,"

@@ -4,6 +4,8 @@
 //   pmsm-dbc-gen --node 3 --dbc axis3.dbc         the DBC of another node
 //   pmsm-dbc-gen --dbc can/pmsm-thermal.dbc --docs docs/protocol.md
 //   pmsm-dbc-gen --check --dbc ... --docs ...     exit 1 if a file is out of date
+#include <cerrno>
+#include <cstring>
 #include <cstdio>
 #include <cstdlib>
 #include <fstream>
@@ -44,8 +46,10 @@ bool emit(const std::string& path, const std::string& wanted, bool check) {
     }
     return true;
   }
+  errno = 0;
   if (!write_file(path, wanted)) {
-    std::cerr << "pmsm-dbc-gen: cannot write " << path << "\n";
+    std::cerr << "pmsm-dbc-gen: cannot write " << path << (errno != 0 ? std::string(" (") + std::strerror(errno) + ")" : "")
+              << "\n";
     return false;
   }
   return true;
