@@ -113,6 +113,8 @@ inline std::string read_config_file(const std::filesystem::path& path, std::stri
 template <typename Config>
 class ConfigSchema {
  public:
+  static constexpr std::size_t kMaxListedErrors = 20;
+  static constexpr std::size_t kMaxStringBytes = 4096;
   using RealAccess = std::function<double&(Config&)>;
   using OptionalRealAccess = std::function<std::optional<double>&(Config&)>;
   using IntAccess = std::function<int&(Config&)>;
@@ -250,9 +252,13 @@ class ConfigSchema {
       // In the file's order, unknown keys and bad values alike, as a compiler lists its errors.
       std::stable_sort(errors.begin(), errors.end(),
                        [](const LocatedError& a, const LocatedError& b) { return a.order < b.order; });
+      // At most kMaxListedErrors: a file of 200,000 unknown keys printed 200,000 lines.
       std::string all = errors.front().message;
-      for (std::size_t k = 1; k < errors.size(); ++k) {
+      for (std::size_t k = 1; k < errors.size() && k < kMaxListedErrors; ++k) {
         all += "\n" + errors[k].message;
+      }
+      if (errors.size() > kMaxListedErrors) {
+        all += "\n" + std::string(source) + ": " + std::to_string(errors.size() - kMaxListedErrors) + " more errors not listed";
       }
       throw ConfigError(all);
     }
@@ -440,6 +446,12 @@ class ConfigSchema {
         // text where the system read it (another file, a message's reason lost), a newline
         // split a report's line or a plot's command.
         const std::string& text = s->get();
+        // Longer than any path the system takes (PATH_MAX): refused without echoing it (a 10 MB
+        // interface name was repeated whole in the message, into the journal).
+        if (text.size() > kMaxStringBytes) {
+          throw ConfigError(at + "a text of " + std::to_string(text.size()) + " bytes, at most " +
+                            std::to_string(kMaxStringBytes));
+        }
         for (std::size_t k = 0; k < text.size(); ++k) {
           const auto ch = static_cast<unsigned char>(text[k]);
           if (ch < 0x20U || ch == 0x7fU) {
@@ -459,6 +471,10 @@ class ConfigSchema {
         const auto* s = node.as_string();
         if (s == nullptr) {
           throw ConfigError(at + "expected one of " + choice_list(e) + ", got " + type_name(node));
+        }
+        if (s->get().size() > 64) {
+          throw ConfigError(at + "expected one of " + choice_list(e) + ", got a text of " + std::to_string(s->get().size()) +
+                            " bytes");
         }
         for (const auto& [name, value] : e.choices) {
           if (name == s->get()) {
@@ -600,8 +616,35 @@ class ConfigSchema {
         errors.push_back({order_of(node, source), where(source, node, key, key_prefix) + "expected a table (section)"});
         continue;
       }
-      errors.push_back({order_of(node, source), where(source, node, key, key_prefix) + "unknown key" + suggestion(key, key_prefix)});
+      std::string hint = suggestion(key, key_prefix);
+      if (hint.empty() && node.is_table()) {
+        hint = section_suggestion(key, key_prefix, foreign_tables);
+      }
+      errors.push_back({order_of(node, source), where(source, node, key, key_prefix) + "unknown key" + hint});
     }
+  }
+
+  // An unknown table whose name is close to a section's ([cann], [controler.motor]): that
+  // section, where suggestion() finds no key close to the table's name.
+  [[nodiscard]] std::string section_suggestion(const std::string& key, std::string_view prefix,
+                                               const std::vector<std::string>& foreign_tables) const {
+    std::size_t best = 3;  // at most two edits
+    std::string best_section;
+    auto consider = [&](const std::string& section) {
+      if (const std::size_t d = edit_distance(key, section); d < best) {
+        best = d;
+        best_section = section;
+      }
+    };
+    for (const Entry& e : entries_) {
+      for (std::size_t dot = e.key.find('.'); dot != std::string::npos; dot = e.key.find('.', dot + 1)) {
+        consider(e.key.substr(0, dot));
+      }
+    }
+    for (const std::string& f : foreign_tables) {
+      consider(f);
+    }
+    return best_section.empty() ? std::string() : " (did you mean [" + std::string(prefix) + best_section + "]?)";
   }
 
   [[nodiscard]] std::string suggestion(const std::string& key, std::string_view prefix) const {

@@ -208,7 +208,7 @@ TEST(ControllerConfig, ErrorsNameFileLineAndKey) {
   EXPECT_EQ(error_of("[thermal]\ngate_sigma = 0\n"), "drive.toml:2: thermal.gate_sigma: must be in (0, 1000], got 0");
   // A pair whose budget leaves no current would run without injection: F_min_A is no zero.
   EXPECT_EQ(error_of("[injection]\nF_min_A = 0\n"), "drive.toml:2: injection.F_min_A: must be in (0, 1000], got 0");
-  EXPECT_EQ(error_of("[motr]\nrs_ohm = 0.1\n"), "drive.toml:1: motr: unknown key");
+  EXPECT_EQ(error_of("[motr]\nrs_ohm = 0.1\n"), "drive.toml:1: motr: unknown key (did you mean [motor]?)");
 }
 
 TEST(ControllerConfig, CrossKeyRulesNameBothKeys) {

@@ -111,7 +111,7 @@ TEST(ConfigSchema, UnknownKeyNamesFileLineKeyAndSuggests) {
   // Nothing close: no suggestion.
   EXPECT_EQ(error_of("[motor]\nzzzzzzzzzz = 1\n"), "demo.toml:2: motor.zzzzzzzzzz: unknown key");
   // An unknown section is an unknown key at its header.
-  EXPECT_EQ(error_of("\n[motr]\ngain = 1\n"), "demo.toml:2: motr: unknown key");
+  EXPECT_EQ(error_of("\n[motr]\ngain = 1\n"), "demo.toml:2: motr: unknown key (did you mean [motor]?)");
   EXPECT_EQ(error_of("rato = 0.3\n"), "demo.toml:1: rato: unknown key (did you mean ratio?)");
 }
 
@@ -231,6 +231,30 @@ std::string plantish_error(std::string_view text) {
     return e.what();
   }
   return "";
+}
+
+// A table whose name is close to a section's is named with it ([cann] for [can]); a file of
+// thousands of errors lists twenty and counts the rest; a text longer than any path is refused
+// without being repeated (a 10 MB value went whole into the message).
+TEST(ConfigSchema, ErrorsStayReadable) {
+  EXPECT_NE(error_of("[motr]\ngain = 1.0\n").find("demo.toml:1: motr: unknown key (did you mean [motor]?)"), std::string::npos)
+      << error_of("[motr]\ngain = 1.0\n");
+  EXPECT_EQ(error_of("[zzzzzz]\ngain = 1.0\n").find("did you mean"), std::string::npos) << "nothing close";
+  std::string many;
+  for (int k = 0; k < 30; ++k) {
+    many += "unknown_" + std::to_string(k) + " = 1\n";
+  }
+  const std::string listed = error_of(many);
+  std::size_t lines = 0;
+  for (std::size_t at = listed.find("unknown key"); at != std::string::npos; at = listed.find("unknown key", at + 1)) {
+    ++lines;
+  }
+  EXPECT_EQ(lines, 20U) << listed;
+  EXPECT_NE(listed.find("10 more errors not listed"), std::string::npos) << listed;
+  const std::string long_name = error_of("[motor]\nname = \"" + std::string(5000, 'a') + "\"\n");
+  EXPECT_NE(long_name.find("motor.name: a text of 5000 bytes, at most 4096"), std::string::npos) << long_name.substr(0, 200);
+  EXPECT_LT(long_name.size(), 200U);
+  EXPECT_LT(error_of("[control]\nmode = \"" + std::string(5000, 'a') + "\"\n").size(), 300U);
 }
 
 TEST(ConfigSchema, PlantKindsParse) {

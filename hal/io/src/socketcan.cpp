@@ -146,7 +146,10 @@ std::string can_interface_name_problem(std::string_view name) {
     return "an interface name is 1 to 15 characters, got an empty one";
   }
   if (name.size() > 15) {
-    return "an interface name is 1 to 15 characters, got " + std::to_string(name.size()) + " in '" + std::string(name) + "'";
+    // (Its first characters only: a 10 MB value was echoed whole into the journal.)
+    const bool cut = name.size() > 40;
+    return "an interface name is 1 to 15 characters, got " + std::to_string(name.size()) + " in '" +
+           std::string(name.substr(0, cut ? 32 : name.size())) + (cut ? "...'" : "'");
   }
   if (name == "." || name == "..") {
     std::string problem{"'"};  // (appended: GCC 12's false -Wrestrict on "literal" + string&&)
