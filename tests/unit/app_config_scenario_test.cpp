@@ -61,6 +61,14 @@ TEST(Scenario, ControlPeriodMustBeThePlantsPwmPeriod) {
   const Scenario s = parse("[operation]\nspeed_rad_s = [[0, 1]]\n[plant.inverter]\npwm_frequency_Hz = 20000.0\n"
                            "[controller.control]\nperiod_s = 5.0e-5\n");
   EXPECT_EQ(s.controller.drive.period_s, 5.0e-5);
+  // A period that is no exact decimal: seven digits are enough, and a refused one is printed
+  // with the digits that tell it from the plant's (six made both read 8.33333e-05).
+  EXPECT_NO_THROW((void)parse("[operation]\nspeed_rad_s = [[0, 1]]\n[plant.inverter]\npwm_frequency_Hz = 12000.0\n"
+                              "[controller.control]\nperiod_s = 8.333333e-5\n"));
+  EXPECT_NE(inline_error("[operation]\nspeed_rad_s = [[0, 1]]\n[plant.inverter]\npwm_frequency_Hz = 12000.0\n"
+                         "[controller.control]\nperiod_s = 8.33e-5\n")
+                .find("= 8.333333333e-05 s (the drive steps once per plant sample), got 8.33e-05 s"),
+            std::string::npos);
 }
 
 TEST(Scenario, BaseInheritanceOverrideWinsAndBaseKeysStay) {
