@@ -20,15 +20,18 @@ namespace pmsm::cli {
 
 // A number within [lo, hi]; `strict_lo` excludes lo itself.
 inline CLI::Validator number_in_range(double lo, double hi, bool strict_lo = false) {
-  std::string description = strict_lo ? "number > " + CLI::detail::to_string(lo)
-                                      : "number in [" + CLI::detail::to_string(lo) + ", " +
-                                            CLI::detail::to_string(hi) + "]";
+  // (The upper bound shown too where there is one: "number > 0" was refused above 100000.)
+  std::string description = strict_lo && !std::isfinite(hi) ? "number > " + CLI::detail::to_string(lo)
+                            : (strict_lo ? "number in (" : "number in [") + CLI::detail::to_string(lo) + ", " +
+                                  CLI::detail::to_string(hi) + "]";
   return CLI::Validator(
       [lo, hi, strict_lo](std::string& input) -> std::string {
         errno = 0;
         char* end = nullptr;
         const double value = std::strtod(input.c_str(), &end);
-        if (end == input.c_str() || *end != '\0' || errno == ERANGE || !std::isfinite(value)) {
+        // Decimal only, as the files read numbers (strtod took 0x10 as 16).
+        if (end == input.c_str() || *end != '\0' || errno == ERANGE || !std::isfinite(value) ||
+            input.find_first_of("xX") != std::string::npos) {
           return "expected a number, got '" + input + "'";
         }
         if (strict_lo ? value <= lo : value < lo) {

@@ -369,6 +369,11 @@ TEST_P(PlanCliBadInput, NamesTheFlagAndFails) {
 INSTANTIATE_TEST_SUITE_P(
     Flags, PlanCliBadInput,
     ::testing::Values(BadInput{"budget --Ld -1 --voltage 3", "--Ld"},
+                      // decimal numbers only, as the files read them (0x10 was 16 V); whole numbers
+                      // said so (--pulses 1e6 was "Could not convert", --node x "Value x not in range")
+                      BadInput{"budget --voltage 0x10", "--voltage: expected a number, got '0x10'"},
+                      BadInput{"losses --F 1 --pulses 1e6", "--pulses: expected a whole number, got '1e6'"},
+                      BadInput{"dbc --node x", "--node: expected a whole number, got 'x'"},
                       BadInput{"budget --voltage 1e5 --Ld 1e-200 --Rs 1e-6", "--Ld"},  // printed "inf A"
                       // command: a setting that would not be sent is refused, not ignored; a period the
                       // daemon's command timeout (0.5 s as shipped) would trip between frames is refused

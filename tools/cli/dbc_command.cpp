@@ -68,7 +68,7 @@ void register_dbc_command(CLI::App& app, int& exit_code) {
   CLI::App* cmd = app.add_subcommand(
       "dbc", "Print (or write) the DBC of one node's frames, CAN ID = base + node; the package ships node 0's");
   cmd->add_option("--node", options->node, "node id of the axis (the daemon's can.node)")
-      ->check(CLI::Range(0, static_cast<int>(hal::protocol::kMaxNodeId)))
+      ->check(pmsm::cli::integer_in_range(0, static_cast<long long>(hal::protocol::kMaxNodeId)))
       ->capture_default_str();
   cmd->add_option("-o,--output", options->output, "file to write; '-' or none: standard output")
       ->check(pmsm::cli::file_name());

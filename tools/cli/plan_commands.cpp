@@ -395,7 +395,7 @@ void register_losses_command(CLI::App& app, int& exit_code) {
   core::InjectionSchedule& s = options->schedule;
   cmd->add_option("--F", s.f_A, "injection current magnitude, A")->check(cli::positive(kMaxCurrent_A))->required();
   cmd->add_option("--Rs", s.rs_ohm, "stator resistance, ohm")->check(cli::number_in_range(kMinResistance_ohm, common::kMaxStatorResistance_ohm))->capture_default_str();
-  cmd->add_option("--pulses", s.pulses, "injection pulses in the elapsed time (Ninj)")->check(cli::number_in_range(1, 1000000))->capture_default_str();
+  cmd->add_option("--pulses", s.pulses, "injection pulses in the elapsed time (Ninj)")->check(cli::integer_in_range(1, 1000000))->capture_default_str();
   cmd->add_option("--elapsed", s.elapsed_s, "elapsed time Tel, s")->check(cli::positive(kMaxTime_s))->capture_default_str();
   cmd->add_option("--Ti", s.ti_s, "duration of the flat top of one pulse, s")->check(cli::non_negative(kMaxTime_s))->capture_default_str();
   cmd->add_option("--Tw", s.tw_s, "window period, s")->check(cli::number_in_range(kMinWindow_s, kMaxWindow_s))->capture_default_str();
