@@ -331,3 +331,22 @@ TEST(protocol_fuzz, RandomCandumpLines) {
 
 }  // namespace
 }  // namespace pmsm::hal::candump
+
+namespace pmsm::hal::candump {
+namespace {
+
+// An error quotes the bad piece with its control characters escaped (a log's terminal escapes
+// went raw to the reader's terminal through decode's message) and at most 64 characters long.
+TEST(protocol_candump, AnErrorQuotesThePieceEscapedAndShort) {
+  const ParseResult escape = parse_line("(1.0) vcan0 123#11\x1b]0;title\x07");
+  ASSERT_FALSE(escape.ok());
+  EXPECT_NE(escape.error.find("'123#11\\x1b]0;title\\x07'"), std::string::npos) << escape.error;
+  EXPECT_EQ(escape.error.find('\x1b'), std::string::npos);
+  const ParseResult longer = parse_line("(1.0) vcan0 123#" + std::string(1000, 'Z'));
+  ASSERT_FALSE(longer.ok());
+  EXPECT_LT(longer.error.size(), 120U) << longer.error;
+  EXPECT_NE(longer.error.find("...'"), std::string::npos) << longer.error;
+}
+
+}  // namespace
+}  // namespace pmsm::hal::candump

@@ -8,6 +8,25 @@
 namespace pmsm::hal::candump {
 namespace {
 
+// A piece of the line as an error message quotes it: control characters as \xNN (a log's
+// terminal escapes went raw to the reader's terminal through the message), at most 64
+// characters.
+std::string shown(std::string_view text) {
+  constexpr std::size_t kMax = 64;
+  std::string out;
+  for (const char ch : text.substr(0, kMax)) {
+    const auto u = static_cast<unsigned char>(ch);
+    if (u < 0x20U || u == 0x7fU) {
+      char code[8];
+      std::snprintf(code, sizeof code, "\\x%02x", static_cast<unsigned>(u));
+      out += code;
+    } else {
+      out += ch;
+    }
+  }
+  return text.size() > kMax ? out + "..." : out;
+}
+
 constexpr std::uint32_t kErrFlag = 0x2000'0000U;   // CAN_ERR_FLAG as candump prints it
 constexpr std::uint32_t kEffMask = 0x1FFF'FFFFU;
 constexpr std::uint32_t kSffMask = 0x7FFU;
@@ -146,7 +165,7 @@ std::optional<std::chrono::nanoseconds> parse_date_time(std::string_view s) {
 std::string parse_identifier(std::string_view text, CanFrame& frame) {
   std::uint32_t id = 0;
   if ((text.size() != 3 && text.size() != 8) || !parse_hex(text, id)) {
-    return "bad CAN identifier '" + std::string(text) + "' (3 or 8 hex digits expected)";
+    return "bad CAN identifier '" + shown(text) + "' (3 or 8 hex digits expected)";
   }
   if (text.size() == 3) {
     if (id > kSffMask) {
@@ -179,14 +198,14 @@ std::string parse_compact(std::string_view text, Record& record) {
   std::size_t max_length = CanFrame::kMaxClassicLength;
   if (!data.empty() && (data[0] == 'R' || data[0] == 'r')) {
     if (data.size() > 2 || (data.size() == 2 && (hex_digit(data[1]) < 0 || hex_digit(data[1]) > 8))) {
-      return "bad remote request '" + std::string(text) + "'";
+      return "bad remote request '" + shown(text) + "'";
     }
     record.remote_request = true;
     return {};
   }
   if (!data.empty() && data[0] == '#') {
     if (data.size() < 2 || hex_digit(data[1]) < 0) {
-      return "missing CAN FD flags after '##' in '" + std::string(text) + "'";
+      return "missing CAN FD flags after '##' in '" + shown(text) + "'";
     }
     frame.fd = true;
     frame.bitrate_switch = (static_cast<unsigned>(hex_digit(data[1])) & kFdFlagBrs) != 0U;
@@ -196,7 +215,7 @@ std::string parse_compact(std::string_view text, Record& record) {
     // Classic frame with a raw DLC 9..F beyond its 8 bytes: the DLC is not kept.
     const std::string_view dlc = data.substr(underscore + 1);
     if (dlc.size() != 1 || hex_digit(dlc[0]) < 9) {
-      return "bad DLC suffix in '" + std::string(text) + "'";
+      return "bad DLC suffix in '" + shown(text) + "'";
     }
     data = data.substr(0, underscore);
   }
@@ -208,10 +227,10 @@ std::string parse_compact(std::string_view text, Record& record) {
       continue;
     }
     if (length == max_length) {
-      return "too many data bytes in '" + std::string(text) + "'";
+      return "too many data bytes in '" + shown(text) + "'";
     }
     if (i + 1 >= data.size() || !parse_byte(data.substr(i, 2), frame.data[length])) {
-      return "bad data bytes in '" + std::string(text) + "'";
+      return "bad data bytes in '" + shown(text) + "'";
     }
     ++length;
     i += 2;
@@ -249,7 +268,7 @@ std::string parse_columns(const std::vector<std::string_view>& tokens, std::size
   std::int64_t length = 0;
   if (len.size() < 3 || len.front() != '[' || len.back() != ']' || len.size() > 4 ||
       !parse_decimal(len.substr(1, len.size() - 2), length)) {
-    return "bad length field '" + std::string(len) + "'";
+    return "bad length field '" + shown(len) + "'";
   }
   frame.fd = len.size() == 4;  // "[12]": CAN FD prints two digits, classic one
   if (frame.fd ? !is_valid_fd_length(static_cast<std::size_t>(length))
@@ -276,7 +295,7 @@ std::string parse_columns(const std::vector<std::string_view>& tokens, std::size
       return "expected " + std::to_string(length) + " data bytes, found " + std::to_string(i);
     }
     if (!parse_byte(tokens[index], frame.data[static_cast<std::size_t>(i)])) {
-      return "bad data byte '" + std::string(tokens[index]) + "'";
+      return "bad data byte '" + shown(tokens[index]) + "'";
     }
   }
   frame.length = static_cast<std::uint8_t>(length);
@@ -285,7 +304,7 @@ std::string parse_columns(const std::vector<std::string_view>& tokens, std::size
     const bool ascii = extra.front() == '\'' || extra.front() == '`';  // candump -a
     const bool error_tag = frame.error && extra == "ERRORFRAME";
     if (!ascii && !error_tag) {
-      return "unexpected text '" + std::string(extra) + "' after the data";
+      return "unexpected text '" + shown(extra) + "' after the data";
     }
   }
   return {};
