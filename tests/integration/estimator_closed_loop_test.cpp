@@ -145,11 +145,27 @@ TEST(EstimatorClosedLoop, TimeToLimitPredictsTheDerating) {
   EXPECT_GE(static_cast<double>(valid), 0.95 * static_cast<double>(rows)) << valid << " of " << rows;
   EXPECT_LT(last_predicted, 3.0) << "a second before derating";
   // Once it derates the prediction is 0 (the drive takes current away now), at its next
-  // refresh (every 0.1 s).
-  const bool zero_soon = std::any_of(derates, r.series.end(), [&](const SeriesRow& row) {
-    return row.time_s <= t_derate + 0.2 && row.time_to_limit_valid && row.time_to_limit_s == 0.0;
+  // refresh (every 0.1 s). The pulses' heat makes T + 2 sigma cross the threshold and fall back
+  // at first: a derating shorter than a refresh may pass between two; the first that lasts one
+  // is the one to judge (the first here lasted 40 ms on the build that refers a nameplate
+  // calibration to the model's rise).
+  auto lasting = derates;
+  for (; lasting != r.series.end(); ++lasting) {
+    const double start = lasting->time_s;
+    const bool lasts = lasting->derating && std::all_of(lasting, r.series.end(), [&](const SeriesRow& row) {
+                         return row.time_s > start + 0.1 || row.derating;
+                       });
+    if (lasts) {
+      break;
+    }
+  }
+  ASSERT_NE(lasting, r.series.end()) << "no derating lasted 0.1 s";
+  const double t_lasting = lasting->time_s;
+  EXPECT_LT(t_lasting, t_derate + 1.0);
+  const bool zero_soon = std::any_of(lasting, r.series.end(), [&](const SeriesRow& row) {
+    return row.time_s <= t_lasting + 0.2 && row.time_to_limit_valid && row.time_to_limit_s == 0.0;
   });
-  EXPECT_TRUE(zero_soon) << "TimeToLimit still above 0 0.2 s after derating began";
+  EXPECT_TRUE(zero_soon) << "TimeToLimit still above 0 0.2 s after a derating of 0.1 s began at " << t_lasting;
 }
 
 TEST(EstimatorClosedLoop, EveryPublishedEstimateIsCloseToTheTruth) {

@@ -842,6 +842,62 @@ TEST(DriveNode, ACalibrationOnTheAmbientOfAWarmWindingIsRefused) {
   EXPECT_TRUE(tel.calibrating);
 }
 
+// Before the first calibration the filter's measurements go through the nameplate's Rs0: one
+// 5 % high reads the winding about 13 K low, which hid a rise of a few kelvin from the guard
+// above, and the calibration referred Rs0 to the ambient with the winding warmer (a newcomer's
+// fan, calibrated after its run-up at 60x thermal time 2.6 K warm, read 3.4 C low for the
+// whole run). The model alone from the soaked start says what the drive's own losses did: the
+// calibration starts at the ambient plus that rise, and beyond the limit it is refused.
+struct NameplateRig : Rig {
+  NameplateRig() {
+    plant_config.thermal.acceleration = 100.0;
+    plant = std::make_unique<plant::Plant>(plant_config);
+    config.drive.thermal.time_scale = 100.0;
+    config.drive.calibration.rs0_ohm = 1.05 * plant_config.motor.rs_ohm;  // a data sheet's 5 % high
+    config.drive.calibration.rs0_std_fraction = 0.05;
+    node = std::make_unique<DriveNode>(config, supervisor, PublishRates{});
+  }
+  // Runs at the light load until the filter has fused a measurement, then under 30 N m until the
+  // plant's winding is `rise_K` above its ambient (at most 60 s each).
+  void warm_by(double rise_K) {
+    for (int k = 0; k < 600000 && node->controller().telemetry().estimates_published == 0U; ++k) {
+      run(1);
+    }
+    plant->set_load_torque_Nm(30.0);
+    const double ambient_C = plant_config.thermal.ambient_C;
+    for (int k = 0; k < 600000 && !(static_cast<double>(plant->truth().winding_temp_C) > ambient_C + rise_K); ++k) {
+      run(1);
+    }
+  }
+};
+
+TEST(DriveNode, ANameplateCalibrationAtTheAmbientCountsTheModelsRise) {
+  NameplateRig rig;
+  ASSERT_FALSE(rig.node->controller().calibration().calibrated);
+  const double ambient_C = rig.plant_config.thermal.ambient_C;
+  const core::DriveTelemetry& tel = rig.node->controller().telemetry();
+  rig.warm_by(3.0);
+  const auto truth_C = static_cast<double>(rig.plant->truth().winding_temp_C);
+  ASSERT_GT(truth_C, ambient_C + 3.0);
+  ASSERT_GE(tel.estimates_published, 1U) << "the premise: measurements through the nameplate's Rs0";
+  ASSERT_LT(tel.thermal.winding_C, ambient_C + 1.0) << "the premise: the filter reads the winding low";
+  rig.in.start_calibration = true;
+  rig.run(1);
+  rig.in.start_calibration = false;
+  ASSERT_TRUE(tel.calibrating) << static_cast<int>(tel.calibration_failure) << " rise " << tel.calibration_winding_rise_C
+                               << " truth " << truth_C << " filter " << tel.thermal.winding_C;
+  rig.run(200);  // the thermal estimate is refreshed every 10 ms
+  // The calibration's reference: the filter restarts at it. The ambient alone was 3 K low.
+  EXPECT_NEAR(tel.thermal.winding_C, truth_C, 0.6) << "the ambient is " << ambient_C;
+
+  NameplateRig warm;
+  warm.warm_by(8.0);
+  const double rise_K = static_cast<double>(warm.plant->truth().winding_temp_C) - ambient_C;
+  ASSERT_LT(warm.node->controller().telemetry().thermal.winding_C, ambient_C + 5.0) << "the filter's guard is blind";
+  expect_refused_on_request(warm, core::CalibrationFailure::kWindingWarm);
+  EXPECT_NEAR(warm.node->controller().telemetry().calibration_winding_rise_C, rise_K, 0.25 * rise_K);
+}
+
 // An operator's temperature far outside what the drive measured of the winding moments ago is
 // refused (a hostile-bus probe's 150 C against a winding measured at 33.5 C was accepted and
 // stored, and the drive published 149 C); one within the measurement's band runs; and against

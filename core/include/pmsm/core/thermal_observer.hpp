@@ -173,6 +173,12 @@ class ThermalObserver {
   // that its 2 sigma reaches either end. Returns the winding's shift (0 when nothing was done:
   // no restore pending, the same ambient, or a predict() or a measurement since).
   double refer_restored_to_ambient(double ambient_C);
+  // The winding as the model alone carries it from where this observer started (a guess, a known
+  // temperature, a restored state), driven by the same losses and ambient but without the
+  // measurements and without the learned loss errors. Before a calibration the measurements go
+  // through the nameplate's Rs0, whose error (a few per cent: over ten kelvin) hides a rise of a
+  // few kelvin; the model's rise from a soaked start is what the drive's own losses did.
+  [[nodiscard]] double model_winding_C() const { return model_x_(0); }
   // Restarts from a guess (see the constructor), e.g. the ambient sensor's temperature.
   void restart_unknown(double guess_C);
   // Takes over what `other` has learned of the loss model (dP, k and their covariance), as
@@ -246,6 +252,9 @@ class ThermalObserver {
   ThermalModelConfig config_;
   Calibration calibration_;
   Vector x_;   // winding C, housing C, the missing loss dP W, the copper loss's relative error k
+  // The model alone from the start (the guess, the known temperature, the restored state):
+  // winding and housing C without the measurements and the loss errors (model_winding_C).
+  Eigen::Vector2d model_x_ = Eigen::Vector2d::Zero();
   double last_copper_loss_W_ = 0.0;
   double winding_rate_C_per_s_ = 0.0;
   Matrix p_;
