@@ -19,6 +19,7 @@
 #include <condition_variable>
 #include <cstdint>
 #include <cstdio>
+#include <utility>
 #include <exception>
 #include <mutex>
 #include <optional>
@@ -355,6 +356,16 @@ int main(int argc, char** argv) {
     // --help and --version exit 0; a bad command line is a configuration error (2), not one
     // of CLI11's own codes.
     return pmsm::cli::exit_on_parse_error(app, e, kExitConfig);
+  }
+  // A flag of the other mode would do nothing: said, not ignored.
+  for (const auto& [flag, mode] : {std::pair<const char*, const char*>{"--command-timeout-ms", "realtime"},
+                                   {"--rt-priority", "realtime"},
+                                   {"--resend-interval-ms", "lockstep"}}) {
+    if (app.count(flag) > 0U && o.mode != mode) {
+      std::fprintf(stderr, "pmsm-plant: %s applies to --mode %s only (this run is --mode %s)\n", flag, mode,
+                   o.mode.c_str());
+      return kExitConfig;
+    }
   }
   try {
     return run(o);

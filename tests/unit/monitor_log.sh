@@ -111,6 +111,8 @@ grep -q "^node  0 " "$work/out" && grep -q "^node  3 " "$work/out" || fail "with
 { cat "$log"; head -c 1000000 /dev/zero | tr '\0' 'A'; echo; cat "$log"; } > "$work/long.log"
 "$exe" monitor --log "$work/long.log" > "$work/out"
 grep -q "^1 line(s) were not candump frames" "$work/out" || fail "an overlong line not counted as one"
+"$exe" monitor --log "$work/long.log" 2>&1 >/dev/null | grep -q "^monitor: line 18 is not a candump frame: " ||
+  fail "the line that is no frame not named on standard error"
 grep -q "^34 frame(s)" "$work/out" || fail "the capture after an overlong line not read (17 frames each side)"
 # What is no capture, or no bound, is refused by name, not read as an empty log or a check that
 # every run passes (exit 2).

@@ -104,6 +104,18 @@ TEST(plant_cli, BadOptionsNameTheFlag) {
   }
 }
 
+// A flag of the other mode did nothing and passed --check: refused, naming the mode it is for.
+TEST(plant_cli, AFlagOfTheOtherModeIsRefused) {
+  for (const std::string args : {"--mode lockstep --command-timeout-ms 10", "--rt-priority 50",
+                                 "--mode realtime --resend-interval-ms 10"}) {
+    const ProcessResult r = run_process(kPlant + " --config " + kProfiles + "reference.toml --check " + args);
+    EXPECT_EQ(r.exit_code, 2) << args;
+    EXPECT_TRUE(contains(r.err, "applies to --mode")) << args << ": " << r.err;
+  }
+  EXPECT_EQ(run_process(kPlant + " --config " + kProfiles + "reference.toml --check --mode realtime --rt-priority 50").exit_code,
+            0);
+}
+
 // Without CAN in the kernel (this build machine) the message says so; on a host with CAN it
 // names the missing interface. Either way: exit 1, nothing else.
 TEST(plant_cli, AnUnopenableBusIsAClearError) {

@@ -146,6 +146,8 @@ struct Axis {
   std::uint64_t not_compared = 0;  // estimates no truth frame followed (the end of the log, a plant gone)
 };
 
+constexpr std::uint64_t kMaxListedBadLines = 10;
+
 class Monitor {
  public:
   explicit Monitor(const MonitorOptions& o) : o_(o) {
@@ -625,8 +627,10 @@ int run_monitor(MonitorOptions o) {
     }
     std::uint64_t malformed = 0;
     std::uint64_t frames = 0;
+    std::uint64_t line_number = 0;
     std::string line;
     for (bool too_long = false; input.next_line(line, too_long);) {
+      ++line_number;
       const candump::ParseResult parsed = TextInput::parse_candump(line, too_long);
       if (parsed.ok()) {
         ++frames;
@@ -634,7 +638,15 @@ int run_monitor(MonitorOptions o) {
         m.on_frame(parsed.record->frame,
                    stamp ? std::optional<double>(std::chrono::duration<double>(*stamp).count()) : std::nullopt);
       } else if (!line.empty()) {
+        // Which lines and why, as decode says it (the count alone named neither), the first ten.
         ++malformed;
+        if (malformed <= kMaxListedBadLines) {
+          std::fprintf(stderr, "monitor: line %llu is not a candump frame: %s\n", static_cast<unsigned long long>(line_number),
+                       parsed.error.c_str());
+        } else if (malformed == kMaxListedBadLines + 1U) {
+          std::fprintf(stderr, "monitor: more lines are not candump frames; the first %llu are listed, the count has them all\n",
+                       static_cast<unsigned long long>(kMaxListedBadLines));
+        }
       }
     }
     if (input.failed()) {
