@@ -443,7 +443,8 @@ int main(int argc, char** argv) {
   CLI::App app{"pmsm-thermald: PMSM drive controller with winding-temperature estimation, on CAN (one axis per process)"};
   Options o;
   app.add_option("--config", o.config_path,
-                 "configuration file (TOML), e.g. /etc/pmsm-thermal/axis1.toml; required except with --keys and --version");
+                 "configuration file (TOML), e.g. /etc/pmsm-thermal/axis1.toml; required except with --keys and --version")
+      ->check(pmsm::cli::file_name());
   CLI::Option* check =
       app.add_flag("--check", o.check, "validate the configuration (and the stored calibration) and exit: 0 valid, 1 not");
   // (--keys prints and exits: with --check it would answer 0 having validated nothing.)

@@ -323,7 +323,8 @@ int main(int argc, char** argv) {
   Options o;
   app.set_version_flag("--version", std::string("pmsm-plant ") + PMSM_VERSION);
   app.add_option("--config", o.config_path, "plant configuration (TOML), e.g. plant-emulator/profiles/reference.toml")
-      ->required();
+      ->required()
+      ->check(pmsm::cli::file_name());
   app.add_option("--iface", o.iface, "CAN interface (CAN FD, MTU 72)")
       ->capture_default_str()
       ->check(pmsm::cli::text_rule(pmsm::hal::can_interface_name_problem, "NAME"));

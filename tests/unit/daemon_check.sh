@@ -173,6 +173,14 @@ for args in "--bogus" "--log-level loud --config $dir/bad.toml" "--check --keys 
     echo "ok (rejected): $args: $out"
   fi
 done
+# An empty --config is named as one, not as a missing flag.
+out=$("$exe" --config "" --check 2>&1)
+rc=$?
+if [ "$rc" -ne 2 ] || [[ "$out" != *"--config: expected a file name, got an empty one"* ]]; then
+  echo "FAIL: --config '' should exit 2 saying the name is empty, got exit $rc: $out"; fail=1
+else
+  echo "ok (rejected): --config '': $out"
+fi
 for args in --help --version; do
   "$exe" "$args" >/dev/null 2>&1 || { echo "FAIL: $args did not exit 0"; fail=1; }
 done
