@@ -355,7 +355,10 @@ class ConfigSchema {
 
   [[nodiscard]] static std::string where(std::string_view source, const toml::node& node, std::string_view key,
                                          std::string_view prefix) {
-    return node_location(node, source) + std::string(prefix) + std::string(key) + ": ";
+    // A key from the file is cut at 80 characters (a 1 MB quoted key was repeated whole).
+    const bool cut = key.size() > 80;
+    return node_location(node, source) + std::string(prefix) + std::string(key.substr(0, cut ? 72 : key.size())) +
+           (cut ? "...: " : ": ");
   }
 
   // A finite number (integers are accepted where a number is expected).
@@ -628,17 +631,26 @@ class ConfigSchema {
   // section, where suggestion() finds no key close to the table's name.
   [[nodiscard]] std::string section_suggestion(const std::string& key, std::string_view prefix,
                                                const std::vector<std::string>& foreign_tables) const {
-    std::size_t best = 3;  // at most two edits
+    // A section of the same parent (a table under [startup] is not [startup] misspelt), within a
+    // third of the name's length in edits (two letters of "io" made it "rt").
+    const std::size_t dot = key.rfind('.');
+    const std::string parent = dot == std::string::npos ? std::string() : key.substr(0, dot + 1);
+    std::size_t best = std::max<std::size_t>(1, (key.size() - parent.size()) / 3) + 1;
     std::string best_section;
     auto consider = [&](const std::string& section) {
+      const std::size_t sdot = section.rfind('.');
+      const std::string sparent = sdot == std::string::npos ? std::string() : section.substr(0, sdot + 1);
+      if (sparent != parent) {
+        return;
+      }
       if (const std::size_t d = edit_distance(key, section); d < best) {
         best = d;
         best_section = section;
       }
     };
     for (const Entry& e : entries_) {
-      for (std::size_t dot = e.key.find('.'); dot != std::string::npos; dot = e.key.find('.', dot + 1)) {
-        consider(e.key.substr(0, dot));
+      for (std::size_t at = e.key.find('.'); at != std::string::npos; at = e.key.find('.', at + 1)) {
+        consider(e.key.substr(0, at));
       }
     }
     for (const std::string& f : foreign_tables) {

@@ -389,7 +389,9 @@ ConfigSchema<C> build() {
          between(0, 200), "C",
          "A calibration on the ambient sensor's temperature is refused while the thermal filter holds the winding more "
          "than this above the ambient it runs on (the drive's own losses since it started, a stored warm state): Rs0 "
-         "would be referred to a temperature the winding is not at. 0: no check. An operator's temperature "
+         "would be referred to a temperature the winding is not at. On the nameplate's Rs0 (no calibration yet) the model "
+         "alone judges it instead, and a calibration within the limit starts at the ambient plus the model's rise "
+         "(docs/estimator.md section 6). 0: no check (that reference still counts the rise). An operator's temperature "
          "(CALIBRATION_REQUEST) is checked only against a resistance measurement of the last 60 s: refused more than "
          "4 sigma + this from it.");
   s.real("calibration.max_rs0_std_fraction", [](C& c) -> double& { return c.drive.calibration_max_rs0_std_fraction; },

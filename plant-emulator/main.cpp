@@ -19,6 +19,7 @@
 #include <condition_variable>
 #include <cstdint>
 #include <cstdio>
+#include <string_view>
 #include <utility>
 #include <exception>
 #include <mutex>
@@ -362,7 +363,8 @@ int main(int argc, char** argv) {
   for (const auto& [flag, mode] : {std::pair<const char*, const char*>{"--command-timeout-ms", "realtime"},
                                    {"--rt-priority", "realtime"},
                                    {"--resend-interval-ms", "lockstep"}}) {
-    if (app.count(flag) > 0U && o.mode != mode) {
+    const bool left_alone = std::string_view(flag) == "--rt-priority" && o.rt_priority == 0;  // 0: "leave it"
+    if (app.count(flag) > 0U && o.mode != mode && !left_alone) {
       std::fprintf(stderr, "pmsm-plant: %s applies to --mode %s only (this run is --mode %s)\n", flag, mode,
                    o.mode.c_str());
       return kExitConfig;

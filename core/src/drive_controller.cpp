@@ -451,9 +451,12 @@ void DriveController::start_calibration(double known_temp_C, bool from_ambient_s
   // alone, from the soaked start a calibration at the ambient assumes, says what the drive's own
   // losses did since: beyond the limit the calibration is refused, within it Rs0 is referred to
   // the ambient plus that rise (docs/estimator.md section 6).
-  if (from_ambient_sensor && !was_calibrating && !thermal_guess_pending_ && !observer_.calibration().calibrated) {
-    const double model_rise = observer_.model_winding_C() - thermal_ambient_C_;
-    if (config_.calibration_max_winding_rise_C > 0.0 && model_rise > config_.calibration_max_winding_rise_C) {
+  // (A repeated request while one runs takes the same reference: the restarted observer carries
+  // the rise on.)
+  if (from_ambient_sensor && !thermal_guess_pending_ && !observer_.calibration().calibrated) {
+    const double model_rise = std::max(observer_.model_rise_C(), 0.0);
+    if (!was_calibrating && config_.calibration_max_winding_rise_C > 0.0 &&
+        model_rise > config_.calibration_max_winding_rise_C) {
       calibration_refused_on_request_ = true;
       telemetry_.calibration_winding_rise_C = model_rise;
       record_calibration_failure(CalibrationFailure::kWindingWarm);
@@ -494,6 +497,7 @@ void DriveController::start_calibration(double known_temp_C, bool from_ambient_s
   const ThermalObserver before = observer_;
   observer_ = ThermalObserver(config_.thermal, observer_.calibration(), known_temp_C);
   observer_.keep_loss_errors(before);
+  observer_.set_model_rise_C(before.model_rise_C(), before.model_housing_rise_C());  // the drive's own warmth, still
   observer_.set_time_scale(time_scale);
   thermal_guess_pending_ = false;
   calibrating_ = true;

@@ -38,7 +38,6 @@ ThermalObserver::ThermalObserver(const ThermalModelConfig& config, const Calibra
     : config_(config), calibration_(calibration), anchor_C_(initial_temp_C), anchored_(known) {
   const double std_C = known ? config.initial_std_C : config.unknown_initial_std_C;
   x_ << initial_temp_C, initial_temp_C, 0.0, 0.0;
-  model_x_ << initial_temp_C, initial_temp_C;
   p_.setZero();
   p_(0, 0) = std_C * std_C;
   p_(1, 1) = std_C * std_C;
@@ -98,7 +97,7 @@ void ThermalObserver::restore(const ThermalState& state, double downtime_thermal
   const Eigen::Vector2d x1 = e * x0;
   const double cooled_by = std::abs(x1(0) - x0(0));
   x_ << ambient_C + x1(0), ambient_C + x1(1), 0.0, 0.0;
-  model_x_ = x_.head<2>();
+  model_rise_K_ = x1.cwiseMax(0.0);  // (a state stored below the ambient is no warmth of the drive's)
   anchor_C_ = x_(0);
   // The stored uncertainty, the model error of the cooling, and the process noise of the
   // downtime.
@@ -147,7 +146,7 @@ double ThermalObserver::refer_restored_to_ambient(double ambient_C) {
   const Eigen::Vector2d span = moved * (Eigen::Vector2d::Ones() - restore_relaxation_ * Eigen::Vector2d::Ones());
   x_(0) += 0.5 * span(0);
   x_(1) += 0.5 * span(1);
-  model_x_ = x_.head<2>();
+  model_rise_K_ = (x_.head<2>() - Eigen::Vector2d::Constant(ambient_C)).cwiseMax(0.0);
   anchor_C_ = x_(0);
   const Eigen::Vector2d s = 0.25 * span;
   p_.topLeftCorner<2, 2>() += s * s.transpose();
@@ -234,11 +233,13 @@ void ThermalObserver::predict(double dt_s, double copper_current_sq_A2, double o
   Vector u;
   u << pcu / config_.winding_capacity_J_K, pfe / config_.housing_capacity_J_K + ambient_C * gha_ch, 0.0, 0.0;
   {
-    // The model alone (model_winding_C): the network's block, the computed losses (no dP, no k,
-    // so the floor below never binds for it), the same step as the filter's.
+    // The model's rise by the drive's own losses (model_rise_C): the network's block, the computed
+    // losses without the ambient's term (no dP, no k, so the floor below never binds for it), the
+    // same step as the filter's.
     const Eigen::Matrix2d a2 = a.topLeftCorner<2, 2>();
     const Eigen::Matrix2d b2 = Eigen::Matrix2d::Identity() * dt + 0.5 * a2 * dt * dt;
-    model_x_ = (Eigen::Matrix2d::Identity() + a2 * dt + 0.5 * a2 * a2 * dt * dt) * model_x_ + b2 * u.head<2>();
+    const Eigen::Vector2d losses(pcu / config_.winding_capacity_J_K, pfe / config_.housing_capacity_J_K);
+    model_rise_K_ = (Eigen::Matrix2d::Identity() + a2 * dt + 0.5 * a2 * a2 * dt * dt) * model_rise_K_ + b2 * losses;
   }
   if (housing_loss_floor_W(pfe, ambient_C) > 0.0) {
     // The floor binds (housing_loss_floor_W): the housing gets -max(Th - Ta, 0) / Rha in place

@@ -240,6 +240,11 @@ TEST(ConfigSchema, ErrorsStayReadable) {
   EXPECT_NE(error_of("[motr]\ngain = 1.0\n").find("demo.toml:1: motr: unknown key (did you mean [motor]?)"), std::string::npos)
       << error_of("[motr]\ngain = 1.0\n");
   EXPECT_EQ(error_of("[zzzzzz]\ngain = 1.0\n").find("did you mean"), std::string::npos) << "nothing close";
+  // Not the parent of a table under it, nor a short name two edits away.
+  EXPECT_EQ(error_of("[motor.x]\ngain = 1.0\n").find("did you mean ["), std::string::npos) << error_of("[motor.x]\ngain = 1.0\n");
+  EXPECT_EQ(error_of("[mo]\ngain = 1.0\n").find("did you mean ["), std::string::npos) << error_of("[mo]\ngain = 1.0\n");
+  // A key from the file is cut in the message.
+  EXPECT_LT(error_of("\"" + std::string(100000, 'k') + "\" = 1\n").size(), 200U);
   std::string many;
   for (int k = 0; k < 30; ++k) {
     many += "unknown_" + std::to_string(k) + " = 1\n";

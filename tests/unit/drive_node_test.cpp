@@ -889,6 +889,13 @@ TEST(DriveNode, ANameplateCalibrationAtTheAmbientCountsTheModelsRise) {
   rig.run(200);  // the thermal estimate is refreshed every 10 ms
   // The calibration's reference: the filter restarts at it. The ambient alone was 3 K low.
   EXPECT_NEAR(tel.thermal.winding_C, truth_C, 0.6) << "the ambient is " << ambient_C;
+  // Asked again while it runs (a retransmitted request): the same reference, carried on.
+  rig.in.start_calibration = true;
+  rig.run(1);
+  rig.in.start_calibration = false;
+  rig.run(200);
+  ASSERT_TRUE(tel.calibrating);
+  EXPECT_NEAR(tel.thermal.winding_C, static_cast<double>(rig.plant->truth().winding_temp_C), 0.6) << "asked twice";
 
   NameplateRig warm;
   warm.warm_by(8.0);
@@ -896,6 +903,28 @@ TEST(DriveNode, ANameplateCalibrationAtTheAmbientCountsTheModelsRise) {
   ASSERT_LT(warm.node->controller().telemetry().thermal.winding_C, ambient_C + 5.0) << "the filter's guard is blind";
   expect_refused_on_request(warm, core::CalibrationFailure::kWindingWarm);
   EXPECT_NEAR(warm.node->controller().telemetry().calibration_winding_rise_C, rise_K, 0.25 * rise_K);
+}
+
+// The model's rise is the drive's own losses' alone: an ambient sensor whose first reading comes
+// after the model started on the configured 25 C (a sensor's conversion time), and reads 40 C,
+// is no 15 K of cold in the winding (nor, reading 10 C, 15 K of warmth): the calibration starts
+// at the sensor's reading.
+TEST(DriveNode, ALateAmbientReadingIsNoRiseOfTheWinding) {
+  for (const double sensed_C : {40.0, 10.0}) {
+    Rig rig;
+    ASSERT_FALSE(rig.node->controller().calibration().calibrated);
+    rig.in.ambient_C = 25.0;
+    rig.run(1000, [](hal::SensorSample& s) { s.flags = static_cast<std::uint8_t>(s.flags & ~hal::kSensorAmbientValid); });
+    rig.plant->set_ambient_C(sensed_C);
+    rig.run(2);
+    rig.in.start_calibration = true;
+    rig.run(1);
+    rig.in.start_calibration = false;
+    const core::DriveTelemetry& tel = rig.node->controller().telemetry();
+    ASSERT_TRUE(tel.calibrating) << sensed_C << ": " << static_cast<int>(tel.calibration_failure);
+    rig.run(200);
+    EXPECT_NEAR(tel.thermal.winding_C, sensed_C, 0.3) << "the sensor's reading";
+  }
 }
 
 // An operator's temperature far outside what the drive measured of the winding moments ago is

@@ -1026,5 +1026,38 @@ TEST(ThermalObserver, ALearnedNegativeLossNeverCoolsTheMachineBelowItsAmbient) {
   EXPECT_NEAR(obs.estimate().housing_C - 29.0, rate_C_per_s, 0.01 * std::abs(rate_C_per_s));
 }
 
+// The model's rise (what the drive's own losses did, for a calibration on the ambient): from 0
+// at a guess, driven by the losses alone (an ambient that moves is none of it), from a restored
+// state's rise over the ambient, and never below 0 (a state stored colder than the ambient of the
+// restart, or read low through a nameplate's Rs0, is no warmth the drive made).
+TEST(ThermalObserver, TheModelsRiseIsTheDrivesOwnLosses) {
+  ThermalModelConfig c;
+  Calibration cal;
+  ThermalObserver obs(c, cal, 25.0, false);
+  EXPECT_EQ(obs.model_rise_C(), 0.0);
+  for (int k = 0; k < 100; ++k) {
+    obs.predict(0.01, 0.0, 0.0, 40.0);  // no loss, the ambient at 40 C
+  }
+  EXPECT_EQ(obs.model_rise_C(), 0.0) << "the ambient is no rise";
+  for (int k = 0; k < 1000; ++k) {
+    obs.predict(0.01, 30.0 * 30.0, 0.0, 40.0);  // 10 s at 30 A
+  }
+  // 10 s of 1.5 Rs i^2 into the winding's capacity, less what leaves it meanwhile.
+  const double heating_K = 1.5 * cal.rs0_ohm * 900.0 * 10.0 / c.winding_capacity_J_K;
+  EXPECT_GT(obs.model_rise_C(), 0.8 * heating_K);
+  EXPECT_LT(obs.model_rise_C(), 1.2 * heating_K);
+  ThermalState warm;
+  warm.winding_C = 60.0;
+  warm.housing_C = 50.0;
+  warm.winding_std_C = 1.0;
+  obs.restore(warm, 0.0, 25.0);
+  EXPECT_NEAR(obs.model_rise_C(), 35.0, 1e-9);
+  ThermalState cold = warm;
+  cold.winding_C = 20.0;
+  cold.housing_C = 20.0;
+  obs.restore(cold, 0.0, 25.0);
+  EXPECT_EQ(obs.model_rise_C(), 0.0);
+}
+
 }  // namespace
 }  // namespace pmsm::core

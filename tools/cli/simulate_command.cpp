@@ -202,6 +202,22 @@ int run_simulate(const SimulateOptions& o) {
                  o.csv_path.c_str());
     return 2;
   }
+  // A time series is kept whole for --csv and --plot (SeriesRow, about 200 bytes a row): one
+  // beyond ten million rows (2 GB) is refused before it runs, not as std::bad_alloc after.
+  if (!o.csv_path.empty() || !o.plot_path.empty() || !o.plot_dir.empty()) {
+    constexpr double kMaxSeriesRows = 1e7;
+    for (std::size_t k = 0; k < n; ++k) {
+      const ScenarioConfig& sc = scenarios[k].scenario;
+      const double rows = sc.duration_s / std::max(sc.log_period_s, scenarios[k].controller.drive.period_s);
+      if (rows > kMaxSeriesRows) {
+        std::fprintf(stderr,
+                     "simulate: %s: scenario.duration_s / metrics.log_period_s = %.3g rows of time series for --csv or "
+                     "--plot, more than %.0f (about 2 GB): raise metrics.log_period_s or leave the series out\n",
+                     o.scenario_paths[k].c_str(), rows, kMaxSeriesRows);
+        return 2;
+      }
+    }
+  }
   // An output that cannot be written is said before the run, not after it (a long scenario ran
   // to its end and then said "cannot write adir"): 3, as an output that fails after the run.
   if (!o.plot_dir.empty()) {
@@ -238,22 +254,6 @@ int run_simulate(const SimulateOptions& o) {
         std::fprintf(stderr, "simulate: %s %s: cannot write it (%s); nothing was run\n", option, output.c_str(),
                      problem.c_str());
         return 3;
-      }
-    }
-  }
-  // A time series is kept whole for --csv and --plot (SeriesRow, about 200 bytes a row): one
-  // beyond ten million rows (2 GB) is refused before it runs, not as std::bad_alloc after.
-  if (!o.csv_path.empty() || !o.plot_path.empty() || !o.plot_dir.empty()) {
-    constexpr double kMaxSeriesRows = 1e7;
-    for (std::size_t k = 0; k < n; ++k) {
-      const ScenarioConfig& sc = scenarios[k].scenario;
-      const double rows = sc.duration_s / std::max(sc.log_period_s, scenarios[k].controller.drive.period_s);
-      if (rows > kMaxSeriesRows) {
-        std::fprintf(stderr,
-                     "simulate: %s: scenario.duration_s / metrics.log_period_s = %.3g rows of time series for --csv or "
-                     "--plot, more than %.0f (about 2 GB): raise metrics.log_period_s or leave the series out\n",
-                     o.scenario_paths[k].c_str(), rows, kMaxSeriesRows);
-        return 2;
       }
     }
   }

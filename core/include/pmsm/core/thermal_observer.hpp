@@ -173,12 +173,16 @@ class ThermalObserver {
   // that its 2 sigma reaches either end. Returns the winding's shift (0 when nothing was done:
   // no restore pending, the same ambient, or a predict() or a measurement since).
   double refer_restored_to_ambient(double ambient_C);
-  // The winding as the model alone carries it from where this observer started (a guess, a known
-  // temperature, a restored state), driven by the same losses and ambient but without the
-  // measurements and without the learned loss errors. Before a calibration the measurements go
-  // through the nameplate's Rs0, whose error (a few per cent: over ten kelvin) hides a rise of a
-  // few kelvin; the model's rise from a soaked start is what the drive's own losses did.
-  [[nodiscard]] double model_winding_C() const { return model_x_(0); }
+  // The winding's rise over the ambient by the drive's own losses as the model alone carries it:
+  // driven by the computed losses only (no measurement, no learned loss error, and no ambient, so
+  // that an ambient reading that arrives late or moves does not count as warmth), from 0 at a
+  // guess, from a restored state's rise (not below 0), carried over a calibration's restart
+  // (set_model_rise_C). Before a calibration the measurements go through the nameplate's Rs0,
+  // whose error (a few per cent: over ten kelvin) hides a rise of a few kelvin; this is what the
+  // drive's own losses did since the soaked start a calibration on the ambient assumes.
+  [[nodiscard]] double model_rise_C() const { return model_rise_K_(0); }
+  void set_model_rise_C(double winding_K, double housing_K) { model_rise_K_ << winding_K, housing_K; }
+  [[nodiscard]] double model_housing_rise_C() const { return model_rise_K_(1); }
   // Restarts from a guess (see the constructor), e.g. the ambient sensor's temperature.
   void restart_unknown(double guess_C);
   // Takes over what `other` has learned of the loss model (dP, k and their covariance), as
@@ -252,9 +256,8 @@ class ThermalObserver {
   ThermalModelConfig config_;
   Calibration calibration_;
   Vector x_;   // winding C, housing C, the missing loss dP W, the copper loss's relative error k
-  // The model alone from the start (the guess, the known temperature, the restored state):
-  // winding and housing C without the measurements and the loss errors (model_winding_C).
-  Eigen::Vector2d model_x_ = Eigen::Vector2d::Zero();
+  // The model's rise of winding and housing by the drive's own losses (model_rise_C), K.
+  Eigen::Vector2d model_rise_K_ = Eigen::Vector2d::Zero();
   double last_copper_loss_W_ = 0.0;
   double winding_rate_C_per_s_ = 0.0;
   Matrix p_;
