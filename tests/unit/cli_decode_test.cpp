@@ -139,6 +139,22 @@ TEST(cli_decode, StrictFailsOnMismatchOutOfRangeAndMalformedLines) {
   EXPECT_EQ(run_process(kDecode + bad.path()).exit_code, 0);
 }
 
+// A log's terminal escapes do not reach the reader's terminal: a line that is no frame is passed
+// through with its control characters as \xNN, and an interface name with one is no frame (the
+// kernel's names have none); its message quotes it escaped. Before, both went out raw.
+TEST(cli_decode, ControlCharactersInALogAreShownEscaped) {
+  const TempFile log("(1.000000) vcan0\x1b[31m 100#0200000000000000\nhello\x1b]0;title\x07\n(1.000100) vcan0 100#0200000000000000\n");
+  const ProcessResult r = run_process(kDecode + log.path());
+  EXPECT_EQ(r.exit_code, 0);
+  EXPECT_EQ(r.out.find('\x1b'), std::string::npos) << r.out;
+  EXPECT_EQ(r.err.find('\x1b'), std::string::npos) << r.err;
+  EXPECT_TRUE(contains(r.out, "(1.000000) vcan0\\x1b[31m 100#0200000000000000\nhello\\x1b]0;title\\x07\n")) << r.out;
+  EXPECT_TRUE(contains(r.err, "line 1 is not a candump frame: bad interface: an interface name has no control characters "
+                              "(a NUL would end it early), got 'vcan0\\x1b[31m'")) << r.err;
+  EXPECT_TRUE(contains(r.out, ":: DRIVE_STATUS(")) << r.out;
+  EXPECT_TRUE(contains(r.err, "1 decoded")) << r.err;
+}
+
 // A line without an end (a binary file, a capture cut mid-write) is read up to 4096 characters
 // and the rest of it skipped, not into memory whole: named, counted, and the frames around it
 // decoded. (Before, decode read a line of any length: /dev/zero grew it by gigabytes a second

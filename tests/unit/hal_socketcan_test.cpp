@@ -33,11 +33,15 @@ TEST(SocketCan, InterfaceNamesFollowTheKernelsRule) {
   }
   EXPECT_TRUE(contains(can_interface_name_problem(""), "got an empty one"));
   EXPECT_TRUE(contains(can_interface_name_problem("abcdefghijklmnop"), "got 16 in 'abcdefghijklmnop'"));
-  EXPECT_TRUE(contains(can_interface_name_problem(std::string_view("vcan0\0x", 7)), "no control characters"));
+  EXPECT_TRUE(contains(can_interface_name_problem(std::string_view("vcan0\0x", 7)), "no control characters (a NUL would end it early), got 'vcan0\\x00x'"));
   EXPECT_TRUE(contains(can_interface_name_problem(".."), "is not an interface name"));
   for (const char* bad : {"can/0", "can:0", "can 0", "can\t0"}) {
     EXPECT_TRUE(contains(can_interface_name_problem(bad), "no '/', ':' or white space")) << bad;
   }
+  // The name is quoted with its control characters escaped (a terminal escape in a configured
+  // name went raw into the message), whichever rule refused it.
+  EXPECT_TRUE(contains(can_interface_name_problem("a/\x1b[2J"), "got 'a/\\x1b[2J'"));
+  EXPECT_TRUE(contains(can_interface_name_problem("abcdefghijklmno\x1b"), "got 16 in 'abcdefghijklmno\\x1b'"));
 }
 
 TEST(SocketCan, OpeningAMissingInterfaceIsAClearError) {

@@ -342,6 +342,18 @@ TEST(protocol_candump, AnErrorQuotesThePieceEscapedAndShort) {
   ASSERT_FALSE(escape.ok());
   EXPECT_NE(escape.error.find("'123#11\\x1b]0;title\\x07'"), std::string::npos) << escape.error;
   EXPECT_EQ(escape.error.find('\x1b'), std::string::npos);
+  // A timestamp's and an interface's too; an interface the kernel could not have named (a
+  // control character, 16 characters) is no candump line: decode printed it back raw.
+  for (const std::string& line : {std::string("(17\x1b[31m0.0) vcan0 123#11"), std::string("(1.0) vcan0\x1b[31m 123#11"),
+                                 std::string("(1.0) vc\x1b]0;t\x07an0 123#11"), std::string("vcan0\x1b[2J 123 [1] 11")}) {
+    const ParseResult refused = parse_line(line);
+    ASSERT_FALSE(refused.ok()) << refused.error;
+    EXPECT_NE(refused.error.find("\\x1b"), std::string::npos) << refused.error;
+    EXPECT_EQ(refused.error.find('\x1b'), std::string::npos) << refused.error;
+  }
+  EXPECT_NE(parse_line("(1.0) vcan0123456789ab 123#11").error.find("bad interface: an interface name is 1 to 15 characters, got 16"),
+            std::string::npos);
+  EXPECT_TRUE(parse_line("(1.0) can-axis_1.a 123#11").ok()) << "any name the kernel takes";
   const ParseResult longer = parse_line("(1.0) vcan0 123#" + std::string(1000, 'Z'));
   ASSERT_FALSE(longer.ok());
   EXPECT_LT(longer.error.size(), 120U) << longer.error;

@@ -36,6 +36,7 @@
 #include <fmt/core.h>
 
 #include "cli_validators.hpp"
+#include "printable.hpp"
 #include "json_writer.hpp"
 #include "commands.hpp"
 #include "text_input.hpp"
@@ -297,7 +298,11 @@ class Decoder {
     std::string text(raw_line);
     switch (kind) {
       case LineKind::kBlank:
+        break;
       case LineKind::kMalformed:
+        // Passed through, but not a log's terminal escapes to the reader's terminal (a parsed
+        // frame's line has none: the parser takes no control character).
+        text = common::printable_excerpt(raw_line, raw_line.size());
         break;
       case LineKind::kErrorFrame:
       case LineKind::kUnknown:

@@ -18,6 +18,7 @@
 #include <utility>
 
 #include "filter_rule.hpp"
+#include "printable.hpp"
 #include "pmsm/hal/rt.hpp"
 
 namespace pmsm::hal {
@@ -147,9 +148,8 @@ std::string can_interface_name_problem(std::string_view name) {
   }
   if (name.size() > 15) {
     // (Its first characters only: a 10 MB value was echoed whole into the journal.)
-    const bool cut = name.size() > 40;
     return "an interface name is 1 to 15 characters, got " + std::to_string(name.size()) + " in '" +
-           std::string(name.substr(0, cut ? 32 : name.size())) + (cut ? "...'" : "'");
+           common::printable_excerpt(name, name.size() > 40 ? 32 : 40) + "'";
   }
   if (name == "." || name == "..") {
     std::string problem{"'"};  // (appended: GCC 12's false -Wrestrict on "literal" + string&&)
@@ -159,11 +159,11 @@ std::string can_interface_name_problem(std::string_view name) {
   }
   for (const char ch : name) {
     if (ch == '/' || ch == ':' || std::isspace(static_cast<unsigned char>(ch)) != 0) {
-      return "an interface name has no '/', ':' or white space, got '" + std::string(name) + "'";
+      return "an interface name has no '/', ':' or white space, got '" + common::printable_excerpt(name) + "'";
     }
     if (std::iscntrl(static_cast<unsigned char>(ch)) != 0) {
-      return "an interface name has no control characters (a NUL would end it early), got one in a name of " +
-             std::to_string(name.size()) + " characters";
+      return "an interface name has no control characters (a NUL would end it early), got '" +
+             common::printable_excerpt(name) + "'";
     }
   }
   return {};

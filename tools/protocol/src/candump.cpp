@@ -1,5 +1,8 @@
 #include "pmsm/tools/candump.hpp"
 
+#include "pmsm/hal/socketcan.hpp"
+#include "printable.hpp"
+
 #include <charconv>
 #include <cinttypes>
 #include <cstdio>
@@ -11,21 +14,7 @@ namespace {
 // A piece of the line as an error message quotes it: control characters as \xNN (a log's
 // terminal escapes went raw to the reader's terminal through the message), at most 64
 // characters.
-std::string shown(std::string_view text) {
-  constexpr std::size_t kMax = 64;
-  std::string out;
-  for (const char ch : text.substr(0, kMax)) {
-    const auto u = static_cast<unsigned char>(ch);
-    if (u < 0x20U || u == 0x7fU) {
-      char code[8];
-      std::snprintf(code, sizeof code, "\\x%02x", static_cast<unsigned>(u));
-      out += code;
-    } else {
-      out += ch;
-    }
-  }
-  return text.size() > kMax ? out + "..." : out;
-}
+std::string shown(std::string_view text) { return common::printable_excerpt(text); }
 
 constexpr std::uint32_t kErrFlag = 0x2000'0000U;   // CAN_ERR_FLAG as candump prints it
 constexpr std::uint32_t kEffMask = 0x1FFF'FFFFU;
@@ -329,7 +318,7 @@ ParseResult parse_line(std::string_view line) {
     const std::string_view stamp = rest.substr(1, close - 1);
     record.timestamp = stamp.find('-') != std::string_view::npos ? parse_date_time(stamp) : parse_seconds(stamp);
     if (!record.timestamp) {
-      result.error = "bad timestamp '(" + std::string(stamp) + ")'";
+      result.error = "bad timestamp '(" + shown(stamp) + ")'";
       return result;
     }
     record.format = Format::kTimestamped;
@@ -338,6 +327,12 @@ ParseResult parse_line(std::string_view line) {
   const std::vector<std::string_view> tokens = split(rest);
   if (tokens.size() < 2) {
     result.error = "expected an interface and a frame";
+    return result;
+  }
+  // decode and monitor print the interface back: a name the kernel could not have given (a
+  // control character, 16 characters or more) is no candump line.
+  if (const std::string problem = can_interface_name_problem(tokens[0]); !problem.empty()) {
+    result.error = "bad interface: " + problem;
     return result;
   }
   record.interface = std::string(tokens[0]);
