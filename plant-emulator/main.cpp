@@ -245,6 +245,13 @@ int run(const Options& o) {
   node_options.command_timeout = std::chrono::nanoseconds{static_cast<std::int64_t>(o.command_timeout_ms * 1e6)};
   node_options.resend_interval = std::chrono::nanoseconds{static_cast<std::int64_t>(o.resend_interval_ms * 1e6)};
   node_options.duration_s = o.duration_s;
+  if (o.accelerated_calibration && config.thermal.acceleration == 1.0) {
+    // The flag keeps an acceleration through a calibration; at 1 there is none to keep.
+    spdlog::error("--accelerated-calibration does nothing with thermal.acceleration = 1 ({}): leave it out, or set "
+                  "thermal.acceleration",
+                  o.config_path);
+    return kExitConfig;
+  }
   node_options.follow_calibration = config.thermal.acceleration != 1.0 && !o.accelerated_calibration;
   if (o.check) {
     // The node publishes truth every whole number of PWM periods, at least one: what it will

@@ -116,6 +116,16 @@ TEST(plant_cli, AFlagOfTheOtherModeIsRefused) {
             0);
 }
 
+// --accelerated-calibration keeps thermal.acceleration through a calibration; at 1 it did
+// nothing and passed --check: refused, naming the key.
+TEST(plant_cli, AcceleratedCalibrationWithoutAnAccelerationIsRefused) {
+  const ProcessResult r = run_process(kPlant + " --config " + kProfiles + "reference.toml --check --accelerated-calibration");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_TRUE(contains(r.err, "--accelerated-calibration does nothing with thermal.acceleration = 1")) << r.err;
+  const std::string accelerated = std::string(PMSM_SOURCE_DIR) + "/tests/hil/data/hil-plant.toml";
+  EXPECT_EQ(run_process(kPlant + " --config " + accelerated + " --check --accelerated-calibration").exit_code, 0);
+}
+
 // Without CAN in the kernel (this build machine) the message says so; on a host with CAN it
 // names the missing interface. Either way: exit 1, nothing else.
 TEST(plant_cli, AnUnopenableBusIsAClearError) {
