@@ -109,6 +109,20 @@ TEST(PlanCli, BudgetAtSpeedKeepsTheCurrentLimit) {
   EXPECT_NE(run_process(base + " --current-limit -1").exit_code, 0);
 }
 
+// A speed whose EMF alone passes the voltage limit (Eq. 3 at id = 0: 1.19 V s/rad line RMS
+// at 10,000 rad/s) is said to need field weakening, not answered with a bare F = 0.
+TEST(PlanCli, BudgetBeyondTheVoltageLimitSaysSo) {
+  const ProcessResult beyond = run_process(kExe + " budget --speed 10000 --json");
+  ASSERT_EQ(beyond.exit_code, 0) << beyond.err;
+  EXPECT_NE(beyond.out.find("\"motoring_beyond_voltage_limit\": true"), std::string::npos) << beyond.out;
+  EXPECT_EQ(json_number(beyond.out, "max_injection_current_A").value_or(-1), 0.0);
+  EXPECT_NE(run_process(kExe + " budget --speed 10000").out.find("only in field weakening"), std::string::npos);
+  const ProcessResult within = run_process(kExe + " budget --speed 200");
+  EXPECT_EQ(within.out.find("field weakening"), std::string::npos) << within.out;
+  EXPECT_NE(run_process(kExe + " budget --speed 200 --json").out.find("\"motoring_beyond_voltage_limit\": false"),
+            std::string::npos);
+}
+
 // A scratch directory removed however the test ends.
 struct ScratchDir {
   std::filesystem::path path =

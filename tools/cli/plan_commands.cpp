@@ -225,7 +225,10 @@ int run_budget(const BudgetOptions& o, const CLI::App& cmd) {
       json.field("current_limit_A", o.current_limit_A).field("max_current_injection_current_A", f_current)
           .field("iq_beyond_current_limit", iq_beyond_limit);
     }
-    json.field("max_injection_current_A", f_bipolar);
+    // A speed whose EMF alone passes the voltage limit at id = 0 is reached only in field
+    // weakening, which this plan does not model: said, not a bare F = 0.
+    const bool beyond_voltage = motoring > in.voltage_limit_V;
+    json.field("max_injection_current_A", f_bipolar).field("motoring_beyond_voltage_limit", beyond_voltage);
     const std::string torque_line =
         std::isfinite(f_torque)
             ? fmt::format("  largest F for torque   {:.2f} A   (1.5 p |Ld - Lq| F |iq| within {:g} Nm)\n", f_torque,
@@ -241,6 +244,13 @@ int run_budget(const BudgetOptions& o, const CLI::App& cmd) {
                                       "limits its motoring iq to it, and no injection fits\n",
                                       std::abs(o.iq_A), o.current_limit_A)
                         : std::string{};
+    const std::string voltage_line =
+        beyond_voltage
+            ? fmt::format("  note                   the motoring voltage at id = 0 is {:.1f} V, beyond the {:.1f} V limit: "
+                          "the drive reaches this speed only in field weakening (controller.field_weakening), which "
+                          "this plan does not model, and no pulse fits at id = 0\n",
+                          motoring, in.voltage_limit_V)
+            : std::string{};
     std::string within = std::isfinite(f_torque) ? ", within the torque budget" : "";
     if (current_limited) {
       within += std::isfinite(f_torque) ? " and the current limit" : ", within the current limit";
@@ -253,9 +263,9 @@ int run_budget(const BudgetOptions& o, const CLI::App& cmd) {
         "  largest -F             {:.2f} A\n"
         "{}{}"
         "  largest bipolar F      {:.2f} A   (+F and -F both fit{})\n"
-        "{}",
+        "{}{}",
         o.speed_rad_s, o.iq_A, o.vdc_V, in.lq_H * 1e3, o.pole_pairs, in.voltage_limit_V, o.voltage_fraction * 100.0, margin_V, motoring,
-        f_pos, f_neg, torque_line, current_line, f_bipolar, within, beyond_line);
+        f_pos, f_neg, torque_line, current_line, f_bipolar, within, beyond_line, voltage_line);
   }
   json.end_object();
   std::printf("%s\n", o.json ? json.str().c_str() : text.c_str());
