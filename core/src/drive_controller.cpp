@@ -497,7 +497,7 @@ void DriveController::start_calibration(double known_temp_C, bool from_ambient_s
   const ThermalObserver before = observer_;
   observer_ = ThermalObserver(config_.thermal, observer_.calibration(), known_temp_C);
   observer_.keep_loss_errors(before);
-  observer_.set_model_rise_C(before.model_rise_C(), before.model_housing_rise_C());  // the drive's own warmth, still
+  observer_.keep_model_rise(before);  // the drive's own warmth, still
   observer_.set_time_scale(time_scale);
   thermal_guess_pending_ = false;
   calibrating_ = true;

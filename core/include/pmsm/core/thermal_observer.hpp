@@ -177,17 +177,18 @@ class ThermalObserver {
   // driven by the computed losses only (no measurement, no learned loss error, and no ambient, so
   // that an ambient reading that arrives late or moves does not count as warmth), from 0 at a
   // guess, from a restored state's rise (not below 0), carried over a calibration's restart
-  // (set_model_rise_C). Before a calibration the measurements go through the nameplate's Rs0,
+  // (keep_model_rise). Before a calibration the measurements go through the nameplate's Rs0,
   // whose error (a few per cent: over ten kelvin) hides a rise of a few kelvin; this is what the
   // drive's own losses did since the soaked start a calibration on the ambient assumes.
   [[nodiscard]] double model_rise_C() const { return model_rise_K_(0); }
-  void set_model_rise_C(double winding_K, double housing_K) { model_rise_K_ << winding_K, housing_K; }
-  [[nodiscard]] double model_housing_rise_C() const { return model_rise_K_(1); }
   // Restarts from a guess (see the constructor), e.g. the ambient sensor's temperature.
   void restart_unknown(double guess_C);
   // Takes over what `other` has learned of the loss model (dP, k and their covariance), as
   // when the temperatures restart (a calibration) but the machine is the same.
   void keep_loss_errors(const ThermalObserver& other);
+  // Takes over `other`'s model-only rise (model_rise_C), winding and housing: the drive's own
+  // warmth survives a calibration's restart of the temperatures.
+  void keep_model_rise(const ThermalObserver& other) { model_rise_K_ = other.model_rise_K_; }
   [[nodiscard]] bool anchored() const { return anchored_; }
   [[nodiscard]] ThermalState state() const;
 
