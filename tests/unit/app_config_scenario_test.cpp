@@ -71,6 +71,19 @@ TEST(Scenario, ControlPeriodMustBeThePlantsPwmPeriod) {
             std::string::npos);
 }
 
+// simulate's supervisor trips OVERSPEED at 1.5 x the rated speed (the daemon's default): a
+// speed limit at or above it was accepted, and a washer's spin tripped on its way to 550 rad/s.
+TEST(Scenario, ASpeedLimitAtTheOverspeedTripIsRefused) {
+  EXPECT_EQ(inline_error("[operation]\nspeed_rad_s = [[0, 1]]\n[controller.motor]\nrated_speed_rad_s = 314.0\n"
+                         "[controller.control]\nspeed_limit_rad_s = 600.0\n"),
+            path_of("inline.toml") +
+                ":6: controller.control.speed_limit_rad_s: 600 rad/s must be below the overspeed trip, 471 rad/s (1.5 x "
+                "controller.motor.rated_speed_rad_s, the supervisor simulate runs with, as pmsm-thermald's default): the "
+                "shaft would trip OVERSPEED before the drive limits its speed; lower it or raise the rated speed");
+  EXPECT_NO_THROW((void)parse("[operation]\nspeed_rad_s = [[0, 1]]\n[controller.motor]\nrated_speed_rad_s = 420.0\n"
+                              "[controller.control]\nspeed_limit_rad_s = 600.0\n"));
+}
+
 TEST(Scenario, BaseInheritanceOverrideWinsAndBaseKeysStay) {
   const Scenario s = load_scenario(kDir / "scenario_child.toml");
   EXPECT_EQ(s.scenario.name, "child");                // overridden
