@@ -1195,6 +1195,7 @@ void DriveController::update_thermal(double ambient_C, bool speed_mode) {
                                     observer_.measured_winding_variance_C2() * rs_per_C * rs_per_C);
   derating_ = derate(config_.derating, e);
   telemetry_.derating = derating_.derating;
+  scheduler_.set_motoring_derated(derating_.derating);
   // The magnets' limit, on the last magnet estimate even after it aged out (no longer
   // published as valid): a derated drive may inject too little to measure again (the current
   // limit leaves no room, or it turns too slowly for the EMF), and nothing models the magnets'

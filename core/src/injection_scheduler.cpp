@@ -525,6 +525,10 @@ void InjectionScheduler::abort(SchedulerOutput& out, const SchedulerInput& in, A
     r.level_index = level_index_;
     out.completed = r;
     next_event_s_ = std::max(next_event_s_, in.time_s + config_.retry_s);
+    if (cause == AbortCause::kSpeedLost) {
+      retry_at_rest_ = true;
+      rest_since_s_ = -1.0;
+    }
   }
   if (in_event_) {
     // An aborted event yields nothing: a request (a calibration's, an operator's) waits the
@@ -1190,9 +1194,28 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
         // A request starts an event early, but not before the retry delay that follows an
         // event which yielded nothing (a calibration must not hammer a motor it cannot inject).
         const bool requested = in.request_now && in.time_s >= retry_after_s_;
-        if (held_ || (in.time_s < next_event_s_ && !requested)) {
+        bool rested = false;
+        if (retry_at_rest_) {
+          // At rest, not passing through zero: a tenth of the angle-based speed (3 rad/s at the
+          // defaults), which a ramp through zero crosses in milliseconds.
+          // And the motoring current holding (within half the load-change guard's tolerance):
+          // the speed loop still settling from the stop moved iq between a pair's recordings,
+          // and the bridge's error with it (a hoist's pair 0.06 s after it stopped read +1.7 %).
+          if (std::abs(in.omega_e_rad_s) >= 0.1 * config_.min_speed_for_angle_rad_s) {
+            rest_since_s_ = -1.0;
+          } else if (rest_since_s_ < 0.0 || std::abs(in.motoring_ref_A.q - rest_iq_A_) > 0.5 * config_.max_load_change_A) {
+            rest_since_s_ = in.time_s;
+            rest_iq_A_ = in.motoring_ref_A.q;
+          }
+          // Not a shaft the derating stalled: its load wants all the current a derated limit
+          // leaves, and a pulse's loss heats a winding already at its limit.
+          rested = rest_since_s_ >= 0.0 && in.time_s - rest_since_s_ >= config_.record_time_s &&
+                   !motoring_derated_;
+        }
+        if (held_ || (in.time_s < next_event_s_ && !requested && !rested)) {
           break;
         }
+        retry_at_rest_ = false;
         in_event_ = true;
         level_index_ = 0;
         event_sums_ = {};

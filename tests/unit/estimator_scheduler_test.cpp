@@ -1619,6 +1619,65 @@ TEST(InjectionScheduler, LosingSpeedAbortsAnAngleBasedPair) {
   for (const EventEstimate& e : h.estimates) EXPECT_NE(e.outcome, EventOutcome::kPublished);
 }
 
+// A shaft that stopped under an angle-based pair (a press between its strokes) is measured at
+// rest: the event starts again once the shaft has rested a time-based recording's length with
+// its current holding, not after retry_s (a 0.7 s dwell had every retry fall in the next
+// stroke). Not while the current still moves, nor on a shaft the winding's derating stalled.
+TEST(InjectionScheduler, AShaftThatStoppedIsMeasuredOnceItRests) {
+  InjectionConfig c = test_config();
+  c.interval_s = 10.0;  // only the retry can start the next event in this test
+  struct Run {
+    double abort_s = -1.0;
+    double next_start_s = -1.0;
+    bool next_time_based = false;
+    bool published = false;
+  };
+  // `iq_ramp_A_per_s`: the motoring iq keeps moving that fast after the stop, for 0.3 s.
+  const auto run = [&](bool derated, double iq_ramp_A_per_s) {
+    Harness h(c);
+    h.motoring_A = {0.0, 10.0};
+    h.scheduler.set_motoring_derated(derated);
+    Run r;
+    h.hook = [&](Harness& x) {
+      if (r.abort_s < 0.0 && !x.records.empty() && x.records.back().out.phase == P::kWaitArc) {
+        x.omega_e_rad_s = 0.0;  // the shaft stops under the pair
+      }
+      if (r.abort_s >= 0.0 && x.time_s - r.abort_s < 0.3) {
+        x.motoring_A.q += iq_ramp_A_per_s * kPeriod;
+      }
+    };
+    while (h.time_s < 0.9) {
+      const std::size_t pairs_before = h.pairs.size();
+      h.step();
+      if (r.abort_s < 0.0 && h.pairs.size() > pairs_before && h.pairs.back().outcome == PairOutcome::kAborted) {
+        EXPECT_EQ(h.pairs.back().abort_cause, AbortCause::kSpeedLost);
+        r.abort_s = h.time_s;
+      } else if (r.abort_s >= 0.0 && r.next_start_s < 0.0 && h.records.back().out.phase != P::kIdle) {
+        r.next_start_s = h.time_s;
+      }
+      if (r.abort_s >= 0.0 && h.pairs.size() > pairs_before && h.pairs.back().outcome == PairOutcome::kAccepted) {
+        r.next_time_based = h.pairs.back().time_based;
+      }
+    }
+    for (const EventEstimate& e : h.estimates) r.published = r.published || e.outcome == EventOutcome::kPublished;
+    return r;
+  };
+  const Run rests = run(false, 0.0);
+  ASSERT_GE(rests.abort_s, 0.0);
+  ASSERT_GE(rests.next_start_s, 0.0) << "no event at rest before retry_s";
+  EXPECT_GE(rests.next_start_s - rests.abort_s, c.record_time_s);
+  EXPECT_LT(rests.next_start_s - rests.abort_s, c.record_time_s + 0.01);
+  EXPECT_TRUE(rests.next_time_based);
+  EXPECT_TRUE(rests.published);
+  // The current moving 20 A/s (0.4 A a recording, the guard's 1.5 A in 75 ms): the rest counts
+  // from when it holds.
+  const Run settling = run(false, 20.0);
+  ASSERT_GE(settling.next_start_s, 0.0);
+  EXPECT_GE(settling.next_start_s - settling.abort_s, 0.3 + c.record_time_s - 0.04);
+  // Derated: the retry delay, as before.
+  EXPECT_LT(run(true, 0.0).next_start_s, 0.0) << "an event started within retry_s on a derated drive";
+}
+
 // After recording 1 of every pair, `change` alters the operating point for the rest of it.
 void run_with_change_after_record1(Harness& h, const std::function<void(Harness&)>& change,
                                    const std::function<void(Harness&)>& restore, double until) {

@@ -534,6 +534,10 @@ class InjectionScheduler {
     vx_cov_ = 0.0;  // a new prior, independent of the bus slope learned so far
     ++learned_version_;
   }
+  // The winding's derating takes current from the motoring (the drive's thermal update says
+  // so when it changes): a shaft at rest then may be one the derating stalled, not one that
+  // rests, and no event is started early for it (retry_at_rest_).
+  void set_motoring_derated(bool derated) { motoring_derated_ = derated; }
   [[nodiscard]] double lq_H() const { return lq_H_; }   // the secant Lq at zero current
   [[nodiscard]] double lq_std_H() const { return std::sqrt(lq_var_); }
   // The saturation model's b: the secant Lq lost where s = 1, the current limit without a map (LqShape).
@@ -635,6 +639,14 @@ class InjectionScheduler {
   SchedulerOutput out_;  // what step() returns (see there)
   double next_event_s_ = 0.0;
   double retry_after_s_ = 0.0;      // a request waits until then after an event that yielded nothing
+  // After an angle-based pair lost its speed (the rotor stopped under it), the event is tried
+  // again once the shaft has rested a time-based recording's length (record_time_s), not only
+  // after retry_s: a press that dwells 0.7 s between its strokes had every retry fall in the
+  // next stroke, and was never measured. -1: not at rest.
+  bool retry_at_rest_ = false;
+  double rest_since_s_ = -1.0;
+  double rest_iq_A_ = 0.0;         // the motoring iq when the rest began
+  bool motoring_derated_ = false;  // set_motoring_derated
   int level_index_ = 0;             // next level of the event in progress
   bool in_event_ = false;
   bool held_ = false;               // hold_events()
