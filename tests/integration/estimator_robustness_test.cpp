@@ -76,6 +76,9 @@ TEST(EstimatorRobustness, CalibrationAtMinus20CReadsTheRiseRight) {
   EXPECT_LT(r.winding_error_rms_C, 2.5);
   EXPECT_LT(std::abs(r.winding_error_mean_C), 1.5);
   EXPECT_GE(r.coverage_2sigma, 0.9);
+  // The report says how wide the band was (a coverage of 100 % says little of a wide one).
+  EXPECT_GT(r.band_2sigma_mean_C, 0.0);
+  EXPECT_LE(r.band_2sigma_mean_C, r.band_2sigma_max_C);
 }
 
 TEST(EstimatorRobustness, AWarmRestartIsReadWarmFromTheFirstMeasurement) {

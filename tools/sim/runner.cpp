@@ -704,6 +704,7 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
   bool calibration_ended = false;     // in this step (a refusal is not an end)
   bool was_calibrating = false;
   std::size_t covered = 0;        // counted samples with the truth inside +-2 sigma
+  double band_sum_C = 0.0;        // their 2 sigma, summed
   double injection_energy_J = 0.0;
   std::uint64_t injection_periods = 0;
   TruthHistory history;
@@ -939,6 +940,8 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
         sq_err += err * err;
         sum_err += err;
         covered += std::abs(err) <= 2.0 * row.winding_std_C ? 1U : 0U;
+        band_sum_C += 2.0 * row.winding_std_C;
+        result.band_2sigma_max_C = std::max(result.band_2sigma_max_C, 2.0 * row.winding_std_C);
         result.winding_error_max_C = std::max(result.winding_error_max_C, std::abs(err));
         ++result.winding_error_samples;
         if (row.magnet_valid) {
@@ -989,6 +992,7 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
     result.winding_error_rms_C = std::sqrt(sq_err / n);
     result.winding_error_mean_C = sum_err / n;
     result.coverage_2sigma = static_cast<double>(covered) / n;
+    result.band_2sigma_mean_C = band_sum_C / n;
   }
   if (result.magnet_error_samples > 0) {
     result.magnet_error_rms_C = std::sqrt(sq_magnet / static_cast<double>(result.magnet_error_samples));
@@ -1080,6 +1084,8 @@ std::string result_json(const SimulationResult& r) {
       .field("winding_error_mean_C", r.winding_error_samples > 0 ? r.winding_error_mean_C : kNan)
       .field("winding_error_samples", static_cast<std::uint64_t>(r.winding_error_samples))
       .field("coverage_2sigma", r.winding_error_samples > 0 ? r.coverage_2sigma : kNan)
+      .field("band_2sigma_mean_C", r.winding_error_samples > 0 ? r.band_2sigma_mean_C : kNan)
+      .field("band_2sigma_max_C", r.winding_error_samples > 0 ? r.band_2sigma_max_C : kNan)
       .field("rs_error_rms_mohm", r.estimates_published() == 0 ? kNan : r.rs_error_rms_mohm)
       .field("rs_error_mean_pct", r.rs_error_mean_pct)
       .field("magnet_error_rms_C", r.magnet_error_samples > 0 ? r.magnet_error_rms_C : kNan)
@@ -1237,7 +1243,8 @@ std::string result_text(const SimulationResult& r) {
     out += fmt::format("  winding error (truth > {:.0f} C)    RMS {:.2f} C, max {:.2f} C, mean {:+.2f} C ({} samples)\n",
                        r.error_threshold_C, r.winding_error_rms_C, r.winding_error_max_C, r.winding_error_mean_C,
                        r.winding_error_samples);
-    out += fmt::format("  truth inside the +-2 sigma band {:.1f} % of those samples\n", 100.0 * r.coverage_2sigma);
+    out += fmt::format("  truth inside the +-2 sigma band {:.1f} % of those samples (2 sigma: mean {:.2f} C, largest {:.2f} C)\n",
+                       100.0 * r.coverage_2sigma, r.band_2sigma_mean_C, r.band_2sigma_max_C);
   } else if (r.calibration_running_at_end) {
     out += "  winding error                   none counted: the calibration had not finished when the run ended\n";
   } else {

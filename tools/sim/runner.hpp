@@ -125,6 +125,10 @@ struct SimulationResult {
   double magnet_error_rms_C = 0.0;
   double magnet_error_max_C = 0.0;
   std::size_t magnet_error_samples = 0;
+  // The band's half-width 2 sigma over the counted winding samples: a coverage of 100 % says
+  // little of a band of +-20 C (a drive that measures nothing carries its model's widening band).
+  double band_2sigma_mean_C = 0.0;
+  double band_2sigma_max_C = 0.0;
   double magnet_coverage_2sigma = 0.0;  // of those samples, the truth inside the magnet's +-2 sigma
   std::size_t magnet_rejected = 0;      // EMF measurements the drive refused as implausible
   core::MagnetRefusal magnet_last_refusal = core::MagnetRefusal::kNone;  // why the last one was
