@@ -1195,7 +1195,6 @@ void DriveController::update_thermal(double ambient_C, bool speed_mode) {
                                     observer_.measured_winding_variance_C2() * rs_per_C * rs_per_C);
   derating_ = derate(config_.derating, e);
   telemetry_.derating = derating_.derating;
-  scheduler_.set_motoring_derated(derating_.derating);
   // The magnets' limit, on the last magnet estimate even after it aged out (no longer
   // published as valid): a derated drive may inject too little to measure again (the current
   // limit leaves no room, or it turns too slowly for the EMF), and nothing models the magnets'
@@ -1209,6 +1208,7 @@ void DriveController::update_thermal(double ambient_C, bool speed_mode) {
   telemetry_.magnet_derating = magnet.derating;
   publish_magnet_std();
   derating_.current_limit_A = std::min(derating_.current_limit_A, magnet.current_limit_A);
+  scheduler_.set_motoring_current_limit(derating_.current_limit_A);
   // The winding's derating limits the motoring current, for its heat. A pair's pulses may reach
   // past it, up to the drive's current limit: their heat is a small, modelled share (the
   // injection loss, Eqs. 30-32), and a derated drive is the one that most needs to measure.

@@ -215,6 +215,8 @@ void InjectionScheduler::set_config(const InjectionConfig& config) {
   phase_ = SchedulerPhase::kIdle;
   in_event_ = false;
   recording_ = 0;
+  retry_at_rest_ = false;  // (a calibration's start or end: its own timing)
+  rest_since_s_ = -1.0;
 }
 
 double InjectionScheduler::edge_value(double elapsed_s) const {
@@ -1164,6 +1166,10 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
   }
   const bool busy = phase_ != SchedulerPhase::kIdle;
   if (!in.enabled) {
+    // A rest counts only while the drive watches the shaft (a disable or a lost sample may
+    // hide any motion); and a pair that lost its speed before is no reason to hurry after.
+    retry_at_rest_ = false;
+    rest_since_s_ = -1.0;
     abort(out, in, AbortCause::kDisabled);
     return out;
   }
@@ -1207,10 +1213,12 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
             rest_since_s_ = in.time_s;
             rest_iq_A_ = in.motoring_ref_A.q;
           }
-          // Not a shaft the derating stalled: its load wants all the current a derated limit
-          // leaves, and a pulse's loss heats a winding already at its limit.
+          // Not a shaft the winding's derating stalled: its load wants all the current the
+          // derated limit leaves (9/10 of it or more), and a pulse's loss heats a winding
+          // already at its limit. (With min_speed_for_angle_rad_s = 0 every recording is
+          // angle-based, which a shaft at rest cannot give: no rest counts.)
           rested = rest_since_s_ >= 0.0 && in.time_s - rest_since_s_ >= config_.record_time_s &&
-                   !motoring_derated_;
+                   std::hypot(in.motoring_ref_A.d, in.motoring_ref_A.q) < 0.9 * motoring_limit_A_;
         }
         if (held_ || (in.time_s < next_event_s_ && !requested && !rested)) {
           break;

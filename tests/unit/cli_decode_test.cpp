@@ -153,6 +153,18 @@ TEST(cli_decode, ControlCharactersInALogAreShownEscaped) {
                               "(a NUL would end it early), got 'vcan0\\x1b[31m'")) << r.err;
   EXPECT_TRUE(contains(r.out, ":: DRIVE_STATUS(")) << r.out;
   EXPECT_TRUE(contains(r.err, "1 decoded")) << r.err;
+  // A line that parses carries them too: candump -a's ASCII column, a carriage return inside
+  // the line, an unknown frame's, and an 8-bit CSI (0x9b).
+  const TempFile parsed("(1.000000) vcan0 100#0200000000000000\r\n"
+                        "  vcan0  100   [8]  02 00 00 00 00 00 00 00   '.\x1b]0;t\x07.'\n"
+                        "(1.000100) vcan0\r7FF#11\n"
+                        "(1.000200) vcan0 100#0200000000000000\n\x9b" "2J\n");
+  const ProcessResult p = run_process(kDecode + parsed.path());
+  EXPECT_EQ(p.out.find('\x1b'), std::string::npos) << p.out;
+  EXPECT_EQ(p.out.find('\x07'), std::string::npos) << p.out;
+  EXPECT_EQ(p.out.find('\r'), std::string::npos) << p.out;
+  EXPECT_EQ(p.out.find('\x9b'), std::string::npos) << p.out;
+  EXPECT_TRUE(contains(p.out, "\\x9b2J")) << p.out;
 }
 
 // A line without an end (a binary file, a capture cut mid-write) is read up to 4096 characters

@@ -1632,11 +1632,13 @@ TEST(InjectionScheduler, AShaftThatStoppedIsMeasuredOnceItRests) {
     bool next_time_based = false;
     bool published = false;
   };
-  // `iq_ramp_A_per_s`: the motoring iq keeps moving that fast after the stop, for 0.3 s.
-  const auto run = [&](bool derated, double iq_ramp_A_per_s) {
+  // `iq_ramp_A_per_s`: the motoring iq keeps moving that fast after the stop, for 0.3 s;
+  // `motoring_limit_A`: the winding's derating leaves the motoring that much; `disable_s`: the
+  // drive is disabled that long right after the stop.
+  const auto run = [&](double motoring_limit_A, double iq_ramp_A_per_s, double disable_s = 0.0) {
     Harness h(c);
     h.motoring_A = {0.0, 10.0};
-    h.scheduler.set_motoring_derated(derated);
+    h.scheduler.set_motoring_current_limit(motoring_limit_A);
     Run r;
     h.hook = [&](Harness& x) {
       if (r.abort_s < 0.0 && !x.records.empty() && x.records.back().out.phase == P::kWaitArc) {
@@ -1645,6 +1647,7 @@ TEST(InjectionScheduler, AShaftThatStoppedIsMeasuredOnceItRests) {
       if (r.abort_s >= 0.0 && x.time_s - r.abort_s < 0.3) {
         x.motoring_A.q += iq_ramp_A_per_s * kPeriod;
       }
+      x.enabled = !(r.abort_s >= 0.0 && x.time_s - r.abort_s < disable_s);
     };
     while (h.time_s < 0.9) {
       const std::size_t pairs_before = h.pairs.size();
@@ -1662,7 +1665,8 @@ TEST(InjectionScheduler, AShaftThatStoppedIsMeasuredOnceItRests) {
     for (const EventEstimate& e : h.estimates) r.published = r.published || e.outcome == EventOutcome::kPublished;
     return r;
   };
-  const Run rests = run(false, 0.0);
+  constexpr double kNoLimit = std::numeric_limits<double>::infinity();
+  const Run rests = run(kNoLimit, 0.0);
   ASSERT_GE(rests.abort_s, 0.0);
   ASSERT_GE(rests.next_start_s, 0.0) << "no event at rest before retry_s";
   EXPECT_GE(rests.next_start_s - rests.abort_s, c.record_time_s);
@@ -1671,11 +1675,19 @@ TEST(InjectionScheduler, AShaftThatStoppedIsMeasuredOnceItRests) {
   EXPECT_TRUE(rests.published);
   // The current moving 20 A/s (0.4 A a recording, the guard's 1.5 A in 75 ms): the rest counts
   // from when it holds.
-  const Run settling = run(false, 20.0);
+  const Run settling = run(kNoLimit, 20.0);
   ASSERT_GE(settling.next_start_s, 0.0);
   EXPECT_GE(settling.next_start_s - settling.abort_s, 0.3 + c.record_time_s - 0.04);
-  // Derated: the retry delay, as before.
-  EXPECT_LT(run(true, 0.0).next_start_s, 0.0) << "an event started within retry_s on a derated drive";
+  // A derating that leaves the 10 A at rest room (20 A): as without one. One that leaves 10.5 A
+  // (a shaft it may have stalled): the retry delay, as before.
+  EXPECT_GE(run(20.0, 0.0).next_start_s, 0.0);
+  const Run stalled = run(10.5, 0.0);
+  ASSERT_GE(stalled.abort_s, 0.0);
+  EXPECT_LT(stalled.next_start_s, 0.0) << "an event started within retry_s on a shaft the derating may hold";
+  // Disabled for 0.1 s after the stop: the rest before is no rest, and the retry delay holds.
+  const Run disabled = run(kNoLimit, 0.0, 0.1);
+  ASSERT_GE(disabled.abort_s, 0.0);
+  EXPECT_LT(disabled.next_start_s, 0.0) << "an event started within retry_s after a disable";
 }
 
 // After recording 1 of every pair, `change` alters the operating point for the rest of it.

@@ -353,7 +353,7 @@ TEST(protocol_candump, AnErrorQuotesThePieceEscapedAndShort) {
   }
   EXPECT_NE(parse_line("(1.0) vcan0123456789ab 123#11").error.find("bad interface: an interface name is 1 to 15 characters, got 16"),
             std::string::npos);
-  EXPECT_TRUE(parse_line("(1.0) can-axis_1.a 123#11").ok()) << "any name the kernel takes";
+  EXPECT_TRUE(parse_line("(1.0) can-axis_1.a 123#11").ok()) << "any name the daemon takes";
   const ParseResult longer = parse_line("(1.0) vcan0 123#" + std::string(1000, 'Z'));
   ASSERT_FALSE(longer.ok());
   EXPECT_LT(longer.error.size(), 120U) << longer.error;

@@ -764,6 +764,10 @@ TEST(protocol_dbc_reader, ErrorsNameTheLine) {
   expect_error_at(head + "BO_ 1 N: 8 A\n", 4, "duplicate message id");
   expect_error_at("VERSION \"\"\n\n SG_ S : 0|8@1+ (1,0) [0|1] \"\" A\n", 3, "outside a message");
   expect_error_at(head + "CM_ BO_ 1 \"unterminated;\n\n", 4, "unterminated string");
+  // A label printed to a terminal carries no escape (a DBC's "\x1b[31mRUNNING" coloured decode's
+  // output); a comment's line breaks and tabs stay.
+  expect_error_at(head + " SG_ S : 0|8@1+ (1,0) [0|1] \"\x1b[31mV\" A\n", 4, "a control character (0x1b) in a quoted string");
+  expect_error_at(head + "VAL_ 1 S 1 \"RUN\xc2\x9bNING\" ;\n", 4, "a control character (0x9b) in a quoted string");
   expect_error_at(head + "VAL_ 99 S 1 \"x\" ;\n", 4, "unknown message");
   expect_error_at(head + "WHATEVER_ 1;\n", 4, "unknown keyword");
   expect_error_at(head + "BO_ 4096 BIG: 8 A\n", 4, "exceeds 0x7FF");

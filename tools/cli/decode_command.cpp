@@ -300,9 +300,6 @@ class Decoder {
       case LineKind::kBlank:
         break;
       case LineKind::kMalformed:
-        // Passed through, but not a log's terminal escapes to the reader's terminal (a parsed
-        // frame's line has none: the parser takes no control character).
-        text = common::printable_excerpt(raw_line, raw_line.size());
         break;
       case LineKind::kErrorFrame:
       case LineKind::kUnknown:
@@ -319,6 +316,9 @@ class Decoder {
         }
         break;
     }
+    // Every line as it came, but not a log's terminal escapes to the reader's terminal: its
+    // control characters (an ASCII column's, a carriage return's, a malformed line's) as \xNN.
+    text = common::printable_excerpt(text, text.size(), /*keep_tabs=*/true);
     text += '\n';
     std::fwrite(text.data(), 1, text.size(), stdout);
   }
@@ -380,6 +380,9 @@ class Decoder {
     }
     json.end_object();
     std::string text = json.str();
+    // Every line as it came, but not a log's terminal escapes to the reader's terminal: its
+    // control characters (an ASCII column's, a carriage return's, a malformed line's) as \xNN.
+    text = common::printable_excerpt(text, text.size(), /*keep_tabs=*/true);
     text += '\n';
     std::fwrite(text.data(), 1, text.size(), stdout);
   }

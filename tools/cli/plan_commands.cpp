@@ -262,10 +262,11 @@ int run_budget(const BudgetOptions& o, const CLI::App& cmd) {
         "  largest +F             {:.2f} A\n"
         "  largest -F             {:.2f} A\n"
         "{}{}"
-        "  largest bipolar F      {:.2f} A   (+F and -F both fit{})\n"
+        "  largest bipolar F      {:.2f} A   ({})\n"
         "{}{}",
         o.speed_rad_s, o.iq_A, o.vdc_V, in.lq_H * 1e3, o.pole_pairs, in.voltage_limit_V, o.voltage_fraction * 100.0, margin_V, motoring,
-        f_pos, f_neg, torque_line, current_line, f_bipolar, within, beyond_line, voltage_line);
+        f_pos, f_neg, torque_line, current_line, f_bipolar,
+        f_bipolar > 0.0 ? "+F and -F both fit" + within : std::string("no pulse fits"), beyond_line, voltage_line);
   }
   json.end_object();
   std::printf("%s\n", o.json ? json.str().c_str() : text.c_str());

@@ -18,7 +18,7 @@
 #include <utility>
 
 #include "filter_rule.hpp"
-#include "printable.hpp"
+#include "can_interface_name.hpp"
 #include "pmsm/hal/rt.hpp"
 
 namespace pmsm::hal {
@@ -142,32 +142,7 @@ std::unique_ptr<SocketCanBus> SocketCanBus::open(SocketCanConfig config, Status&
   }
 }
 
-std::string can_interface_name_problem(std::string_view name) {
-  if (name.empty()) {
-    return "an interface name is 1 to 15 characters, got an empty one";
-  }
-  if (name.size() > 15) {
-    // (Its first characters only: a 10 MB value was echoed whole into the journal.)
-    return "an interface name is 1 to 15 characters, got " + std::to_string(name.size()) + " in '" +
-           common::printable_excerpt(name, name.size() > 40 ? 32 : 40) + "'";
-  }
-  if (name == "." || name == "..") {
-    std::string problem{"'"};  // (appended: GCC 12's false -Wrestrict on "literal" + string&&)
-    problem += name;
-    problem += "' is not an interface name";
-    return problem;
-  }
-  for (const char ch : name) {
-    if (ch == '/' || ch == ':' || std::isspace(static_cast<unsigned char>(ch)) != 0) {
-      return "an interface name has no '/', ':' or white space, got '" + common::printable_excerpt(name) + "'";
-    }
-    if (std::iscntrl(static_cast<unsigned char>(ch)) != 0) {
-      return "an interface name has no control characters (a NUL would end it early), got '" +
-             common::printable_excerpt(name) + "'";
-    }
-  }
-  return {};
-}
+std::string can_interface_name_problem(std::string_view name) { return common::can_interface_name_problem(name); }
 
 Status SocketCanBus::open_socket() {
   const std::string& name = config_.interface;

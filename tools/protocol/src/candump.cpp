@@ -1,6 +1,6 @@
 #include "pmsm/tools/candump.hpp"
 
-#include "pmsm/hal/socketcan.hpp"
+#include "can_interface_name.hpp"
 #include "printable.hpp"
 
 #include <charconv>
@@ -329,9 +329,9 @@ ParseResult parse_line(std::string_view line) {
     result.error = "expected an interface and a frame";
     return result;
   }
-  // decode and monitor print the interface back: a name the kernel could not have given (a
-  // control character, 16 characters or more) is no candump line.
-  if (const std::string problem = can_interface_name_problem(tokens[0]); !problem.empty()) {
+  // decode and monitor print the interface back: a name can.interface would refuse (the
+  // kernel's rule, and no control character) is no candump line.
+  if (const std::string problem = common::can_interface_name_problem(tokens[0]); !problem.empty()) {
     result.error = "bad interface: " + problem;
     return result;
   }

@@ -534,10 +534,11 @@ class InjectionScheduler {
     vx_cov_ = 0.0;  // a new prior, independent of the bus slope learned so far
     ++learned_version_;
   }
-  // The winding's derating takes current from the motoring (the drive's thermal update says
-  // so when it changes): a shaft at rest then may be one the derating stalled, not one that
-  // rests, and no event is started early for it (retry_at_rest_).
-  void set_motoring_derated(bool derated) { motoring_derated_ = derated; }
+  // The motoring's current limit as the winding's derating leaves it (the drive's thermal
+  // update gives it; the pulses' own limit is current_limit_A): a shaft at rest drawing 9/10 of
+  // it or more may be one the derating stalled, not one that rests, and no event is started
+  // early for it (retry_at_rest_).
+  void set_motoring_current_limit(double limit_A) { motoring_limit_A_ = limit_A; }
   [[nodiscard]] double lq_H() const { return lq_H_; }   // the secant Lq at zero current
   [[nodiscard]] double lq_std_H() const { return std::sqrt(lq_var_); }
   // The saturation model's b: the secant Lq lost where s = 1, the current limit without a map (LqShape).
@@ -646,7 +647,7 @@ class InjectionScheduler {
   bool retry_at_rest_ = false;
   double rest_since_s_ = -1.0;
   double rest_iq_A_ = 0.0;         // the motoring iq when the rest began
-  bool motoring_derated_ = false;  // set_motoring_derated
+  double motoring_limit_A_ = std::numeric_limits<double>::infinity();  // set_motoring_current_limit
   int level_index_ = 0;             // next level of the event in progress
   bool in_event_ = false;
   bool held_ = false;               // hold_events()

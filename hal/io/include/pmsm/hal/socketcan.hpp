@@ -104,9 +104,9 @@ class SocketCanBus final : public CanBus {
 };
 
 // Why `name` cannot name a network interface, or "" when it can: the kernel's rule
-// (dev_valid_name: 1 to 15 characters, not "." or "..", no '/', ':' or white space). For
-// configuration checks, so that a bad name is refused with the key that gave it before any
-// socket is opened.
+// (dev_valid_name: 1 to 15 characters, not "." or "..", no '/', ':' or white space) and no
+// control character (common/can_interface_name.hpp). For configuration checks, so that a bad
+// name is refused with the key that gave it before any socket is opened.
 [[nodiscard]] std::string can_interface_name_problem(std::string_view name);
 
 // Converts between CanFrame and the kernel's frame layout; exposed for unit tests.
