@@ -10,6 +10,13 @@
 
 namespace pmsm::common {
 
+// Whether text[i] begins a C1 control in UTF-8 (U+0080-U+009F: C2 80 to C2 9F), which a
+// terminal may take as an escape.
+[[nodiscard]] inline bool c1_control_at(std::string_view text, std::size_t i) {
+  return i + 1 < text.size() && static_cast<unsigned char>(text[i]) == 0xC2U &&
+         static_cast<unsigned char>(text[i + 1]) < 0xA0U && static_cast<unsigned char>(text[i + 1]) >= 0x80U;
+}
+
 // `text` with its control characters as \xNN (C0, DEL, and the C1 controls U+0080-U+009F,
 // which a terminal may take as an escape; tabs too unless `keep_tabs`) and at most `max_chars`
 // bytes of it, followed by "..." when cut. A well-formed UTF-8 sequence passes whole; any other
@@ -47,8 +54,8 @@ namespace pmsm::common {
     for (std::size_t k = 1; whole && k < length; ++k) {
       whole = (static_cast<unsigned char>(cut[i + k]) & 0xC0U) == 0x80U;
     }
-    if (whole && u == 0xC2U && static_cast<unsigned char>(cut[i + 1]) < 0xA0U) {
-      whole = false;  // a C1 control, U+0080-U+009F
+    if (whole && c1_control_at(cut, i)) {
+      whole = false;
     }
     if (whole) {
       out.append(cut.substr(i, length));

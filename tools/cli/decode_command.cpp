@@ -298,7 +298,6 @@ class Decoder {
     std::string text(raw_line);
     switch (kind) {
       case LineKind::kBlank:
-        break;
       case LineKind::kMalformed:
         break;
       case LineKind::kErrorFrame:
@@ -380,9 +379,6 @@ class Decoder {
     }
     json.end_object();
     std::string text = json.str();
-    // Every line as it came, but not a log's terminal escapes to the reader's terminal: its
-    // control characters (an ASCII column's, a carriage return's, a malformed line's) as \xNN.
-    text = common::printable_excerpt(text, text.size(), /*keep_tabs=*/true);
     text += '\n';
     std::fwrite(text.data(), 1, text.size(), stdout);
   }

@@ -2,6 +2,7 @@
 // DBC format, not our messages (see dbc.hpp).
 #include "pmsm/tools/dbc.hpp"
 
+#include "printable.hpp"
 #include "text_file.hpp"
 
 #include <algorithm>
@@ -119,8 +120,7 @@ std::vector<Token> tokenize(std::string_view text) {
         // A name, unit or value label is printed to a terminal (decode, monitor): no control
         // character but a comment's line breaks and tabs (an escape coloured decode's output).
         const auto u = static_cast<unsigned char>(d);
-        const bool c1 = u == 0xC2U && i + 1 < n && static_cast<unsigned char>(text[i + 1]) >= 0x80U &&
-                        static_cast<unsigned char>(text[i + 1]) < 0xA0U;
+        const bool c1 = common::c1_control_at(text, i);
         if (((u < 0x20U && d != '\n' && d != '\r' && d != '\t') || u == 0x7fU || c1)) {
           char code[8];
           std::snprintf(code, sizeof code, "0x%02x", c1 ? static_cast<unsigned>(static_cast<unsigned char>(text[i + 1])) : u);
