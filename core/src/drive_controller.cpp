@@ -1497,6 +1497,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
                                   pattern.moment, vx, smooth_advance, config_.period_s,
                                   {config_.current.rs_ohm, config_.current.ld_H, config_.current.lq_H});
       s.voltage_limited = limited_now_;
+      s.modulation_clipped = clipped_now_;
       if (baseline_reads) {
         baseline_.add(s);  // not on the sweep's d-axis levels: they are not motoring
       }
@@ -1587,6 +1588,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   Dq v{};
   AlphaBeta v_total{};  // in the stator's frame
   bool limited = false;
+  bool clipped = false;
   if (enabled) {
     const Dq i_ref{motoring.d + so.injection_A.d, motoring.q + so.injection_A.q};
     const CurrentControllerStatus& cs = current_.step(i_ref, i, omega_e, in.vdc_V);
@@ -1625,7 +1627,8 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     // pair_estimator.hpp), so it must see the compensation actually applied.
     const AlphaBeta comp = clarke(correction);
     v_total = {v_ab.alpha + comp.alpha, v_ab.beta + comp.beta};
-    limited = limited || d.clipped;
+    clipped = d.clipped;
+    limited = limited || clipped;
     telemetry_.i_ref_A = i_ref;
     telemetry_.injection_A = so.injection_A;
   } else {
@@ -1637,9 +1640,11 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   // Shift the command history: what was "next" is applied during the coming period.
   v_applied_now_ab_ = v_applied_next_ab_;
   limited_now_ = limited_next_;
+  clipped_now_ = clipped_next_;
   limited_periods_ = limited_now_ ? limited_periods_ + 1 : 0;
   v_applied_next_ab_ = v_total;
   limited_next_ = limited;
+  clipped_next_ = clipped;
   voltage_limited_since_speed_step_ = voltage_limited_since_speed_step_ || limited;
   previous_i_A_ = i;
   previous_i_abc_A_ = in.i_A;

@@ -594,7 +594,7 @@ PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
                                       config_.max_speed_change_fraction * omega);
   if (!fit.valid || fit.condition < config_.min_condition) {
     r.outcome = PairOutcome::kRejectedIllConditioned;
-  } else if (c.any_voltage_limited) {
+  } else if (c.any_modulation_clipped) {
     r.outcome = PairOutcome::kRejectedVoltageSaturation;
   } else if (!time_based_ && std::abs(r.delta_omega_e_rad_s) > speed_limit) {
     r.outcome = PairOutcome::kRejectedSpeedChange;

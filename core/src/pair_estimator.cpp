@@ -425,7 +425,8 @@ void PairRecorder::start(const PairFitConfig& config, MatchBy match_by, double d
   sum_vq2_ = sum_wid2_ = sum_wm2_ = sum_gq2_ = 0.0;
   sum_vd_ = sum_id_ = sum_didt_ = sum_wiq_ = sum_gd_ = 0.0;
   sum_lq_sec_ = sum_lq_inc_ = sum_x_lq_sec_ = sum_x_lq_inc_ = sum_xx_ = 0.0;
-  any_limited_ = false;
+  any_clipped_ = false;
+  limited_samples_ = 0;
 }
 
 bool PairRecorder::add_first(const PeriodSample& s) {
@@ -438,13 +439,14 @@ bool PairRecorder::add_first(const PeriodSample& s) {
   first_.coord[first_.size] = coordinate(s) - origin1_;
   first_.row[first_.size] = {s.i_A.d, s.i_A.q, s.di_dt_A_s.d, s.v_V.d, s.v_V.q, s.dead_time_pattern.d,
                    s.dead_time_pattern.q, s.omega_e_rad_s, s.omega_m_rad_s, 0.0};
-  first_.limited[first_.size] = s.voltage_limited ? 1U : 0U;
+  first_.clipped[first_.size] = s.modulation_clipped ? 1U : 0U;
   ++first_.size;
   sum_time1_ += s.time_s;
   sum_omega1_ += s.omega_e_rad_s;
   sum_iq1_ += s.i_A.q;
   sum_id1_ += s.i_A.d;
-  any_limited_ = any_limited_ || s.voltage_limited;
+  any_clipped_ = any_clipped_ || s.modulation_clipped;
+  limited_samples_ += s.voltage_limited ? 1U : 0U;
   return true;
 }
 
@@ -488,7 +490,7 @@ double PairRecorder::add_second(const PeriodSample& s) {
   for (std::size_t k = 0; k < kChannels; ++k) {
     r[k] = 0.0 + w.w[0] * r0[k] + w.w[1] * r1[k] + w.w[2] * r2[k] + w.w[3] * r3[k];
   }
-  const bool r1_limited = first_.limited[first + 1] != 0U || first_.limited[first + 2] != 0U;
+  const bool r1_clipped = first_.clipped[first + 1] != 0U || first_.clipped[first + 2] != 0U;
 
   // Eqs. 37 / 43, recording 1 minus recording 2 at the same angle:
   // dVd + d(w psi_q) = Rs dId + Vx dGd + Ld d(dId/dt), with d(w psi_q) = Lq iq dw +
@@ -527,7 +529,8 @@ double PairRecorder::add_second(const PeriodSample& s) {
   sum_omega2_ += s.omega_e_rad_s;
   sum_iq2_ += s.i_A.q;
   sum_id2_ += s.i_A.d;
-  any_limited_ = any_limited_ || s.voltage_limited || r1_limited;
+  any_clipped_ = any_clipped_ || s.modulation_clipped || r1_clipped;
+  limited_samples_ += s.voltage_limited ? 1U : 0U;
   const double wid2 = s.omega_e_rad_s * s.i_A.d;
   sum_vq_ += 0.5 * (r[kVq] + s.v_V.q);
   sum_iq_ += 0.5 * (r[kIq] + s.i_A.q);
@@ -558,7 +561,8 @@ double PairRecorder::add_second(const PeriodSample& s) {
 PairConditions PairRecorder::conditions() const {
   PairConditions c;
   c.samples = matched_;
-  c.any_voltage_limited = any_limited_;
+  c.any_modulation_clipped = any_clipped_;
+  c.voltage_limited_samples = limited_samples_;
   if (first_.size > 0) {
     const auto n1 = static_cast<double>(first_.size);
     c.omega_e_mean_1_rad_s = sum_omega1_ / n1;

@@ -174,7 +174,9 @@ TEST(EstimatorRobustness, TheBridgeVoltagesShareOfTheBusIsLearned) {
 // On a 15 mH blower the machine's motoring voltage is 10-20 V above the commissioned model's
 // (the bridge's error, Ke 2 % low, the EMF harmonics' ripple), more than the margin the budget
 // keeps free: sized on the model, 65 of 84 pairs in these 40 s hit the voltage limit and 2
-// estimates came out. Sized on the current loop's own command, most pulses fit.
+// estimates came out. Sized on the current loop's own command, most pulses fit. (A pair that
+// meets the loop's limit is no longer rejected for it, docs/estimator.md section 2: what is
+// counted is the pairs that met it, whatever their outcome.)
 TEST(EstimatorRobustness, PulsesAreSizedOnTheVoltageTheMachineNeeds) {
   const SimulationResult r = run_data("blower-15mh-short.toml");
   ASSERT_TRUE(r.calibrated);
@@ -182,9 +184,8 @@ TEST(EstimatorRobustness, PulsesAreSizedOnTheVoltageTheMachineNeeds) {
   for (const std::uint32_t n : r.pairs) {
     pairs += n;
   }
-  const std::uint32_t saturated = r.pairs[static_cast<std::size_t>(core::PairOutcome::kRejectedVoltageSaturation)];
   ASSERT_GT(pairs, 40U);
-  EXPECT_LT(saturated, 0.4 * pairs);
+  EXPECT_LT(static_cast<double>(r.pairs_on_voltage_limit), 0.4 * pairs);
   EXPECT_GE(r.estimates_accepted, 10U);
 }
 

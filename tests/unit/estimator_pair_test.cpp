@@ -367,7 +367,8 @@ TEST(PairFit, ConditionsReportTheMeansOfEachRecording) {
   EXPECT_NEAR(c.iq_mean_1_A, 10.0, 1e-9);
   EXPECT_NEAR(c.iq_mean_2_A, 11.5, 1e-9);
   EXPECT_NEAR(c.id_mean_1_A, 25.0 * (1.0 + 0.3 * 0.0), 0.3 * 25.0 * 0.1);  // mean of 1 + m sin over one turn
-  EXPECT_FALSE(c.any_voltage_limited);
+  EXPECT_FALSE(c.any_modulation_clipped);
+  EXPECT_EQ(c.voltage_limited_samples, 0U);
   // Matched samples: those of recording 2 inside [0, extent] of recording 1.
   std::size_t inside = 0;
   const double origin2 = run.recorder.first_origin() + p.dtheta_rad;
@@ -400,20 +401,30 @@ TEST(PairFit, ConditionsReportTheMeansOfEachRecording) {
   EXPECT_NEAR(c.omega_m_mean_rad_s, wm / n, 1e-9);
 }
 
-TEST(PairFit, VoltageLimitedSampleIsReported) {
+// A sample on the loop's voltage limit is counted; one the bridge clipped marks the pair.
+TEST(PairFit, LimitedAndClippedSamplesAreReported) {
   PairSpec p;
-  PairRecorder rec(512);
   PairFitConfig cfg;
-  rec.start(cfg, MatchBy::kAngle, 1.0);
   RecordingSpec r;
   r.theta0_rad = 0.0;
   r.omega_e_rad_s = 300.0;
-  for (int k = 0; k < 220; ++k) {
-    PeriodSample s = make_sample(p.truth, p.shape, r, k, nullptr);
-    s.voltage_limited = (k == 100);
-    rec.add_first(s);
-  }
-  EXPECT_TRUE(rec.conditions().any_voltage_limited);
+  auto record = [&](bool clip) {
+    PairRecorder rec(512);
+    rec.start(cfg, MatchBy::kAngle, 1.0);
+    for (int k = 0; k < 220; ++k) {
+      PeriodSample s = make_sample(p.truth, p.shape, r, k, nullptr);
+      s.voltage_limited = (k == 100 || k == 101);
+      s.modulation_clipped = clip && k == 101;
+      rec.add_first(s);
+    }
+    return rec.conditions();
+  };
+  const PairConditions limited = record(false);
+  EXPECT_EQ(limited.voltage_limited_samples, 2U);
+  EXPECT_FALSE(limited.any_modulation_clipped);
+  const PairConditions clipped = record(true);
+  EXPECT_EQ(clipped.voltage_limited_samples, 2U);
+  EXPECT_TRUE(clipped.any_modulation_clipped);
 }
 
 TEST(PairFit, CollinearRegressorsMakeVxUnidentifiable) {

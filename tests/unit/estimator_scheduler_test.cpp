@@ -178,6 +178,7 @@ class Harness {
               plant.ke_V_s_per_rad * wm + plant.vx_V * s.dead_time_pattern.q +
               plant.kq6 * std::cos(6.0 * th + 1.1) * wm;
     s.voltage_limited = flag_voltage_limited;
+    s.modulation_clipped = flag_modulation_clipped;
     previous = s;
     current_A = i_end;
     theta_e_rad += omega_e_rad_s * kPeriod;
@@ -207,6 +208,7 @@ class Harness {
   bool release_motoring = false;
   bool request_now = false;
   bool flag_voltage_limited = false;
+  bool flag_modulation_clipped = false;
   bool tell_rs_rate = true;  // pass the plant's dRs/dt as the thermal model's prediction
   bool sample_only_when_recording = false;  // as DriveController::step: InjectionScheduler::records
   std::function<void(Harness&)> hook;
@@ -1830,17 +1832,38 @@ TEST(InjectionScheduler, TheSpeedLoopsAnswerToTheReluctanceTorqueIsNoLoadChange)
   EXPECT_GE(load_changes_rejected(5.5e-3, 1.0, true, &unused), 8) << "Ld = Lq: no reluctance torque to answer";
 }
 
-TEST(InjectionScheduler, VoltageLimitWhileRecordingRejectsThePair) {
-  Harness h(test_config());
-  h.hook = [](Harness& x) {
-    x.flag_voltage_limited = !x.records.empty() && x.records.back().out.phase == P::kRecord2;
-  };
+// Runs the first event with one of the harness's sample flags raised in every second recording.
+void run_flagged_in_recording_2(Harness& h, bool Harness::*flag) {
+  h.hook = [flag](Harness& x) { x.*flag = !x.records.empty() && x.records.back().out.phase == P::kRecord2; };
   h.run_until(0.45);
+}
+
+// A command the bridge clipped was not applied as recorded: the pair is rejected.
+TEST(InjectionScheduler, BridgeClippingWhileRecordingRejectsThePair) {
+  Harness h(test_config());
+  run_flagged_in_recording_2(h, &Harness::flag_modulation_clipped);
   ASSERT_EQ(h.pairs.size(), 2U);
   for (const PairResult& p : h.pairs) {
     EXPECT_EQ(p.outcome, PairOutcome::kRejectedVoltageSaturation) << to_string(p.outcome);
   }
   EXPECT_EQ(h.estimates.at(0).outcome, EventOutcome::kNoAcceptedPairs);
+}
+
+// On the current loop's voltage limit alone the command is applied as recorded (it stays in the
+// linear modulation range) and the fit takes the measured currents: the data hold, the pair is
+// kept and counts its periods there. The harness's voltages are the plant's own, as a drive's
+// applied command is.
+TEST(InjectionScheduler, TheLoopsVoltageLimitAloneKeepsThePair) {
+  Harness h(test_config());
+  run_flagged_in_recording_2(h, &Harness::flag_voltage_limited);
+  ASSERT_EQ(h.pairs.size(), 2U);
+  for (const PairResult& p : h.pairs) {
+    EXPECT_EQ(p.outcome, PairOutcome::kAccepted) << to_string(p.outcome);
+    EXPECT_GT(p.conditions.voltage_limited_samples, 0U);
+    EXPECT_FALSE(p.conditions.any_modulation_clipped);
+  }
+  ASSERT_EQ(h.estimates.at(0).outcome, EventOutcome::kPublished);
+  EXPECT_NEAR(h.estimates.at(0).rs_ohm, h.plant.rs_ohm, 2e-4);
 }
 
 TEST(InjectionScheduler, ImplausiblePairsAreRejected) {

@@ -821,6 +821,9 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
       if (p.outcome == core::PairOutcome::kAccepted && p.field_weakening) {
         ++result.field_weakening_pairs_accepted;
       }
+      if (p.conditions.voltage_limited_samples > 0) {
+        ++result.pairs_on_voltage_limit;
+      }
     }
     if (drive.last_event() && drive.last_event()->outcome != core::EventOutcome::kPublished) {
       ++result.events_without_estimate[static_cast<std::size_t>(drive.last_event()->outcome)];
@@ -1107,6 +1110,7 @@ std::string result_json(const SimulationResult& r) {
   }
   j.end_object();
   j.field("field_weakening_pairs", static_cast<std::uint64_t>(r.field_weakening_pairs_accepted));
+  j.field("pairs_on_voltage_limit", static_cast<std::uint64_t>(r.pairs_on_voltage_limit));
   j.field("speed_disturbance_pct", r.disturbance_measured ? r.speed_disturbance_pct : kNan)
       .field("torque_disturbance_pct", r.disturbance_measured ? r.torque_disturbance_pct : kNan)
       .field("speed_disturbance_mean_pct", r.disturbance_measured ? r.speed_disturbance_mean_pct : kNan)
@@ -1268,9 +1272,12 @@ std::string result_text(const SimulationResult& r) {
   const std::string fw = r.field_weakening_pairs_accepted > 0
                              ? fmt::format(" ({} field-weakening)", r.field_weakening_pairs_accepted)
                              : std::string{};
-  out += fmt::format("  estimates                       {} fused, {} gated; pairs {} accepted{}, {} not{}\n",
+  const std::string on_limit = r.pairs_on_voltage_limit > 0
+                                   ? fmt::format("; {} met the voltage limit", r.pairs_on_voltage_limit)
+                                   : std::string{};
+  out += fmt::format("  estimates                       {} fused, {} gated; pairs {} accepted{}, {} not{}{}\n",
                      r.estimates_accepted, r.estimates_gated, r.pairs[0], fw, not_accepted,
-                     not_accepted > 0 ? " (" + core::pair_outcomes_text(others) + ")" : std::string{});
+                     not_accepted > 0 ? " (" + core::pair_outcomes_text(others) + ")" : std::string{}, on_limit);
   if (r.disturbance_measured) {
     if (std::isfinite(r.speed_disturbance_pct)) {
       out += fmt::format("  disturbance by injection        speed {:.3f} % (at {:.2f} s), torque {:.2f} % of rated (at {:.2f} s), vs. the run without injection\n",

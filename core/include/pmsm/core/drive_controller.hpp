@@ -672,6 +672,10 @@ class DriveController {
   AlphaBeta v_applied_now_ab_{};    // command of step k-2 (applied during period k-1 -> k)
   bool limited_next_ = false;
   bool limited_now_ = false;
+  // Whether the bridge could not apply that command (a phase's duty clipped), likewise: the
+  // pairs reject such samples; the loop's limit alone leaves the command applied as recorded.
+  bool clipped_next_ = false;
+  bool clipped_now_ = false;
   // Periods in a row whose command was limited, and how many make kHeldOnLimit_s
   // (held_on_voltage_limit: the current loop's command on the voltage limit that long). A
   // positive d level (a pair's +F, the angle check's +L, a sweep's level) raises the machine's

@@ -59,7 +59,11 @@ struct PeriodSample {
   Dq di_dt_A_s{};               // its rate of change over the period
   Dq v_V{};                     // voltage command applied during the period, in the rotor's frame
   Dq dead_time_pattern{};       // dq projection of the phase-current sign pattern (see above)
-  bool voltage_limited = false; // the applied command had been limited
+  bool voltage_limited = false; // the applied command had been on the current loop's voltage limit
+  // The bridge could not apply the command: a phase's duty clipped at 0 or 1, so the voltage
+  // the machine saw is not the recorded one. On the loop's limit alone (voltage_limited) the
+  // command stays inside the linear modulation range and is applied as recorded.
+  bool modulation_clipped = false;
 };
 
 enum class MatchBy : std::uint8_t { kAngle, kTime };
@@ -200,7 +204,13 @@ struct PairConditions {
   double rs_time_s = 0.0;
   double time_1_s = 0.0;  // the recordings' mean times (t1, t2 above)
   double time_2_s = 0.0;
-  bool any_voltage_limited = false;
+  // A sample whose command the bridge could not apply (PeriodSample::modulation_clipped): the
+  // pair is rejected (PairOutcome::kRejectedVoltageSaturation).
+  bool any_modulation_clipped = false;
+  // Samples whose command was on the current loop's voltage limit. They are good data (the
+  // command was applied, and the fit takes the measured currents), so they only count: how
+  // often the budget's pulses meet the limit (docs/estimator.md section 2).
+  std::size_t voltage_limited_samples = 0;
   // q-axis means over both recordings at the same angles.
   double vq_mean_V = 0.0;
   double iq_mean_A = 0.0;
@@ -274,7 +284,7 @@ class PairRecorder {
   // sample's coordinate from recording 1's origin, the channels the match needs in one
   // contiguous row (the four-point interpolation combines whole rows, which the compiler
   // vectorises; the last channel is padding so that a row splits into pairs of doubles), and
-  // whether its command was limited.
+  // whether the bridge clipped its command.
   enum Channel : std::size_t { kId, kIq, kDidDt, kVd, kVq, kGd, kGq, kOmegaE, kOmegaM, kPad, kChannels };
   using Row = std::array<double, kChannels>;
   // A copy-assignment carries only the samples recorded, not the whole capacity: the simulator
@@ -283,13 +293,13 @@ class PairRecorder {
   struct Recording {
     std::vector<double> coord;
     std::vector<Row> row;
-    std::vector<std::uint8_t> limited;
+    std::vector<std::uint8_t> clipped;
     std::size_t size = 0;
 
-    explicit Recording(std::size_t capacity) : coord(capacity), row(capacity), limited(capacity) {}
+    explicit Recording(std::size_t capacity) : coord(capacity), row(capacity), clipped(capacity) {}
     ~Recording() = default;
     Recording(const Recording& other)
-        : coord(other.coord.size()), row(other.row.size()), limited(other.limited.size()) {
+        : coord(other.coord.size()), row(other.row.size()), clipped(other.clipped.size()) {
       copy_recorded(other);
     }
     Recording& operator=(const Recording& other) {
@@ -297,7 +307,7 @@ class PairRecorder {
         if (row.size() != other.row.size()) {
           coord.resize(other.coord.size());
           row.resize(other.row.size());
-          limited.resize(other.limited.size());
+          clipped.resize(other.clipped.size());
         }
         copy_recorded(other);
       }
@@ -307,12 +317,12 @@ class PairRecorder {
     Recording(Recording&& other) noexcept
         : coord(std::move(other.coord)),
           row(std::move(other.row)),
-          limited(std::move(other.limited)),
+          clipped(std::move(other.clipped)),
           size(std::exchange(other.size, 0)) {}
     Recording& operator=(Recording&& other) noexcept {
       coord = std::move(other.coord);
       row = std::move(other.row);
-      limited = std::move(other.limited);
+      clipped = std::move(other.clipped);
       size = std::exchange(other.size, 0);
       return *this;
     }
@@ -321,7 +331,7 @@ class PairRecorder {
     void copy_recorded(const Recording& other) {
       std::copy_n(other.coord.begin(), other.size, coord.begin());
       std::copy_n(other.row.begin(), other.size, row.begin());
-      std::copy_n(other.limited.begin(), other.size, limited.begin());
+      std::copy_n(other.clipped.begin(), other.size, clipped.begin());
       size = other.size;
     }
   };
@@ -347,7 +357,8 @@ class PairRecorder {
   double sum_vq2_ = 0.0, sum_wid2_ = 0.0, sum_wm2_ = 0.0, sum_gq2_ = 0.0;
   double sum_vd_ = 0.0, sum_id_ = 0.0, sum_didt_ = 0.0, sum_wiq_ = 0.0, sum_gd_ = 0.0;
   double sum_lq_sec_ = 0.0, sum_lq_inc_ = 0.0, sum_x_lq_sec_ = 0.0, sum_x_lq_inc_ = 0.0, sum_xx_ = 0.0;
-  bool any_limited_ = false;
+  bool any_clipped_ = false;
+  std::size_t limited_samples_ = 0;
 };
 
 }  // namespace pmsm::core
