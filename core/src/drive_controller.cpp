@@ -99,6 +99,15 @@ DriveController::DriveController(const DriveConfig& config)
   motoring_voltage_gain_ = std::min(config_.period_s / kMotoringVoltageFilter_s, 1.0);
   motoring_voltage_settle_periods_ = static_cast<std::uint32_t>(std::ceil(3.0 / motoring_voltage_gain_));
   held_on_limit_periods_ = static_cast<std::uint32_t>(std::max(1.0, std::ceil(kHeldOnLimit_s / config_.period_s - 1e-9)));
+  // A command on the voltage limit, fraction f of Vdc / sqrt(3), can lose a pulse only where
+  // 4 e > (1 - f) Vdc, e = dead_time_error_V = (dead time / period) Vdc + drop (pulse_lost):
+  // a Vdc (4 drop) / ((1 - f) - 4 dead time / period) and below, or any bus when that
+  // denominator is not positive (the dead time, the drop and the period do not change).
+  {
+    const double room = (1.0 - config_.current.voltage_limit_fraction) - 4.0 * config_.dead_time.dead_time_s / config_.period_s;
+    pulse_check_below_V_ = room > 0.0 ? 4.0 * std::max(config_.dead_time.device_drop_V, 0.0) / room
+                                      : std::numeric_limits<double>::infinity();
+  }
   if (config_.vx_reference_bus_V > 0.0 && std::isfinite(config_.vx_reference_bus_V)) {
     vx_bus_slope_ = config_.dead_time.dead_time_s / config_.period_s;
     vx_referred_to_bus_ = true;
@@ -1408,7 +1417,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   }
   if (check_.active() &&
       check_.step(enabled, command.mode == DriveMode::kSpeed, i.d, i.q, angle_.mechanical_speed_rad_s(), omega_e,
-                  limited_now_)) {
+                  flags_now_.limited)) {
     finish_angle_check();
   }
   if (sweep_after_check_ && !check_.active()) {
@@ -1496,8 +1505,8 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
                                   {s.v_V.d - vx * s.dead_time_pattern.d, s.v_V.q - vx * s.dead_time_pattern.q},
                                   pattern.moment, vx, smooth_advance, config_.period_s,
                                   {config_.current.rs_ohm, config_.current.ld_H, config_.current.lq_H});
-      s.voltage_limited = limited_now_;
-      s.modulation_clipped = clipped_now_;
+      s.voltage_limited = flags_now_.limited;
+      s.modulation_clipped = flags_now_.clipped;
       if (baseline_reads) {
         baseline_.add(s);  // not on the sweep's d-axis levels: they are not motoring
       }
@@ -1512,7 +1521,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     // frame its command is taken in draws each reference seed's calibration anew
     // (docs/accuracy.md, thirteenth session).
     if (sweep_.active() &&
-        sweep_.step(enabled, in.i_A, at_mid, v_mid.d, ends_mean.d, omega_e, limited_now_)) {
+        sweep_.step(enabled, in.i_A, at_mid, v_mid.d, ends_mean.d, omega_e, flags_now_.limited)) {
       finish_inverter_sweep(now);
     }
   }
@@ -1627,8 +1636,12 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     // pair_estimator.hpp), so it must see the compensation actually applied.
     const AlphaBeta comp = clarke(correction);
     v_total = {v_ab.alpha + comp.alpha, v_ab.beta + comp.beta};
+    limited = limited || d.clipped;
     clipped = d.clipped;
-    limited = limited || clipped;
+    // A lost pulse needs sqrt(3) |v| + 4 e > vdc (pulse_lost), and |v| is at most the limit.
+    if (!clipped && in.vdc_V < pulse_check_below_V_) {
+      clipped = pulse_lost(d, correction, in.vdc_V);
+    }
     telemetry_.i_ref_A = i_ref;
     telemetry_.injection_A = so.injection_A;
   } else {
@@ -1639,12 +1652,10 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
 
   // Shift the command history: what was "next" is applied during the coming period.
   v_applied_now_ab_ = v_applied_next_ab_;
-  limited_now_ = limited_next_;
-  clipped_now_ = clipped_next_;
-  limited_periods_ = limited_now_ ? limited_periods_ + 1 : 0;
+  flags_now_ = flags_next_;
+  limited_periods_ = flags_now_.limited ? limited_periods_ + 1 : 0;
   v_applied_next_ab_ = v_total;
-  limited_next_ = limited;
-  clipped_next_ = clipped;
+  flags_next_ = {limited, clipped};
   voltage_limited_since_speed_step_ = voltage_limited_since_speed_step_ || limited;
   previous_i_A_ = i;
   previous_i_abc_A_ = in.i_A;

@@ -99,7 +99,7 @@ Abc dead_time_compensation_V(const Abc& i0_A, const Abc& i1_A, const DeadTimeCom
                              double vdc_V, double period_s) {
   // The bridge loses dead_time/period of the bus voltage, plus the device drop, against the
   // current in each phase.
-  const double error_V = comp.dead_time_s / period_s * vdc_V + comp.device_drop_V;
+  const double error_V = dead_time_error_V(comp, vdc_V, period_s);
   const double b = comp.current_band_A;
   return {error_V * mean_soft_sign(i0_A.a, i1_A.a, b), error_V * mean_soft_sign(i0_A.b, i1_A.b, b),
           error_V * mean_soft_sign(i0_A.c, i1_A.c, b)};
@@ -114,6 +114,16 @@ Duties svpwm_compensated(const AlphaBeta& v_V, double vdc_V, const Abc& i0_A, co
 Duties svpwm_corrected(const AlphaBeta& v_V, double vdc_V, const Abc& correction_V) {
   const Abc v = inverse_clarke(v_V);
   return duties_from_phase_voltages({v.a + correction_V.a, v.b + correction_V.b, v.c + correction_V.c}, vdc_V);
+}
+
+bool pulse_lost(const Duties& duties, const Abc& correction_V, double vdc_V) {
+  const std::array<double, 3> correction{correction_V.a, correction_V.b, correction_V.c};
+  bool lost = false;
+  for (std::size_t n = 0; n < 3; ++n) {
+    const double left_V = duties.value[n] * vdc_V - correction[n];  // (duty - correction / vdc) vdc
+    lost = lost || !(left_V >= 0.0 && left_V <= vdc_V);
+  }
+  return lost;
 }
 
 }  // namespace pmsm::core

@@ -426,7 +426,6 @@ void PairRecorder::start(const PairFitConfig& config, MatchBy match_by, double d
   sum_vd_ = sum_id_ = sum_didt_ = sum_wiq_ = sum_gd_ = 0.0;
   sum_lq_sec_ = sum_lq_inc_ = sum_x_lq_sec_ = sum_x_lq_inc_ = sum_xx_ = 0.0;
   any_clipped_ = false;
-  limited_samples_ = 0;
 }
 
 bool PairRecorder::add_first(const PeriodSample& s) {
@@ -439,14 +438,12 @@ bool PairRecorder::add_first(const PeriodSample& s) {
   first_.coord[first_.size] = coordinate(s) - origin1_;
   first_.row[first_.size] = {s.i_A.d, s.i_A.q, s.di_dt_A_s.d, s.v_V.d, s.v_V.q, s.dead_time_pattern.d,
                    s.dead_time_pattern.q, s.omega_e_rad_s, s.omega_m_rad_s, 0.0};
-  first_.clipped[first_.size] = s.modulation_clipped ? 1U : 0U;
   ++first_.size;
   sum_time1_ += s.time_s;
   sum_omega1_ += s.omega_e_rad_s;
   sum_iq1_ += s.i_A.q;
   sum_id1_ += s.i_A.d;
   any_clipped_ = any_clipped_ || s.modulation_clipped;
-  limited_samples_ += s.voltage_limited ? 1U : 0U;
   return true;
 }
 
@@ -459,6 +456,8 @@ void PairRecorder::begin_second(double origin) {
 }
 
 double PairRecorder::add_second(const PeriodSample& s) {
+  // Every sample of either recording marks the pair, matched or not (as add_first).
+  any_clipped_ = any_clipped_ || s.modulation_clipped;
   const double phi = coordinate(s) - origin2_;
   const double extent = first_extent();
   if (first_.size < 4 || phi < 0.0 || phi > extent) {
@@ -490,7 +489,6 @@ double PairRecorder::add_second(const PeriodSample& s) {
   for (std::size_t k = 0; k < kChannels; ++k) {
     r[k] = 0.0 + w.w[0] * r0[k] + w.w[1] * r1[k] + w.w[2] * r2[k] + w.w[3] * r3[k];
   }
-  const bool r1_clipped = first_.clipped[first + 1] != 0U || first_.clipped[first + 2] != 0U;
 
   // Eqs. 37 / 43, recording 1 minus recording 2 at the same angle:
   // dVd + d(w psi_q) = Rs dId + Vx dGd + Ld d(dId/dt), with d(w psi_q) = Lq iq dw +
@@ -529,8 +527,6 @@ double PairRecorder::add_second(const PeriodSample& s) {
   sum_omega2_ += s.omega_e_rad_s;
   sum_iq2_ += s.i_A.q;
   sum_id2_ += s.i_A.d;
-  any_clipped_ = any_clipped_ || s.modulation_clipped || r1_clipped;
-  limited_samples_ += s.voltage_limited ? 1U : 0U;
   const double wid2 = s.omega_e_rad_s * s.i_A.d;
   sum_vq_ += 0.5 * (r[kVq] + s.v_V.q);
   sum_iq_ += 0.5 * (r[kIq] + s.i_A.q);
@@ -562,7 +558,6 @@ PairConditions PairRecorder::conditions() const {
   PairConditions c;
   c.samples = matched_;
   c.any_modulation_clipped = any_clipped_;
-  c.voltage_limited_samples = limited_samples_;
   if (first_.size > 0) {
     const auto n1 = static_cast<double>(first_.size);
     c.omega_e_mean_1_rad_s = sum_omega1_ / n1;

@@ -48,6 +48,32 @@ TEST(Svpwm, ClipsBeyondTheHexagon) {
   EXPECT_TRUE(svpwm({0.59 * vdc * std::cos(a), 0.59 * vdc * std::sin(a)}, vdc).clipped);
 }
 
+// On the drive's voltage limit (0.95 of the linear limit) the extreme duties are 0.025 from the
+// rails. A phase there whose compensation raised it (its current positive) must lose the dead
+// time from that 0.025: with 3 us at 10 kHz (0.03) the bridge cannot, and the period is not
+// applied as commanded although no duty clipped; with 2 us it can.
+TEST(DeadTimeCompensation, APulseTooShortForTheDeadTimeItCompensatesIsLost) {
+  const double vdc = 600.0, period = 1e-4;
+  const AlphaBeta v = clarke(Abc{-0.475 * vdc, 0.475 * vdc, 0.0});  // 0.95 vdc / sqrt(3)
+  const Abc i{10.0, 5.0, -15.0};
+  auto duties = [&](double dead_time_s, Abc& correction) {
+    const DeadTimeCompensation comp{dead_time_s, 0.0, 1.0};
+    correction = dead_time_compensation_V(i, i, comp, vdc, period);
+    // Only where the drive's gate lets it ask (DriveController::step).
+    EXPECT_GT(4.0 * dead_time_error_V(comp, vdc, period), vdc - kSqrt3 * 0.95 * vdc / kSqrt3);
+    return svpwm_corrected(v, vdc, correction);
+  };
+  Abc correction{};
+  const Duties lost = duties(3e-6, correction);
+  EXPECT_FALSE(lost.clipped);
+  EXPECT_NEAR(lost.value[0], 0.025, 1e-12);  // phase a: 0.025 left, less 0.03 of dead time
+  EXPECT_TRUE(pulse_lost(lost, correction, vdc));
+  const Duties kept = duties(2e-6, correction);
+  EXPECT_FALSE(kept.clipped);
+  EXPECT_FALSE(pulse_lost(kept, correction, vdc));
+  EXPECT_FALSE(pulse_lost(svpwm(v, vdc), Abc{}, vdc));
+}
+
 TEST(DeadTimeCompensation, AddsTheExpectedVoltageAgainstTheCurrent) {
   const double vdc = 650.0, period = 1e-4;
   const DeadTimeCompensation comp{0.9e-6, 0.0, 1.0};

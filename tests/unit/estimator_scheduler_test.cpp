@@ -1851,7 +1851,7 @@ TEST(InjectionScheduler, BridgeClippingWhileRecordingRejectsThePair) {
 
 // On the current loop's voltage limit alone the command is applied as recorded (it stays in the
 // linear modulation range) and the fit takes the measured currents: the data hold, the pair is
-// kept and counts its periods there. The harness's voltages are the plant's own, as a drive's
+// kept. The harness's voltages are the plant's own, as a drive's
 // applied command is.
 TEST(InjectionScheduler, TheLoopsVoltageLimitAloneKeepsThePair) {
   Harness h(test_config());
@@ -1859,7 +1859,6 @@ TEST(InjectionScheduler, TheLoopsVoltageLimitAloneKeepsThePair) {
   ASSERT_EQ(h.pairs.size(), 2U);
   for (const PairResult& p : h.pairs) {
     EXPECT_EQ(p.outcome, PairOutcome::kAccepted) << to_string(p.outcome);
-    EXPECT_GT(p.conditions.voltage_limited_samples, 0U);
     EXPECT_FALSE(p.conditions.any_modulation_clipped);
   }
   ASSERT_EQ(h.estimates.at(0).outcome, EventOutcome::kPublished);

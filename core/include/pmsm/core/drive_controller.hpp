@@ -670,12 +670,18 @@ class DriveController {
   // The commands in the stator's frame (alpha, beta), as the bridge was asked for them.
   AlphaBeta v_applied_next_ab_{};   // command of step k-1 (applies during period k)
   AlphaBeta v_applied_now_ab_{};    // command of step k-2 (applied during period k-1 -> k)
-  bool limited_next_ = false;
-  bool limited_now_ = false;
-  // Whether the bridge could not apply that command (a phase's duty clipped), likewise: the
-  // pairs reject such samples; the loop's limit alone leaves the command applied as recorded.
-  bool clipped_next_ = false;
-  bool clipped_now_ = false;
+  // Whether each command was on the voltage limit, and whether the bridge could not apply it
+  // (a duty clipped, or a pulse lost: the pairs reject such samples; the loop's limit alone
+  // leaves the command applied as recorded). One object, shifted with the commands.
+  struct CommandFlags {
+    bool limited = false;
+    bool clipped = false;
+  };
+  CommandFlags flags_next_{};
+  CommandFlags flags_now_{};
+  // A command on the voltage limit can lose a pulse on a bus below this (the constructor;
+  // pulse_lost() in modulation.hpp).
+  double pulse_check_below_V_ = 0.0;
   // Periods in a row whose command was limited, and how many make kHeldOnLimit_s
   // (held_on_voltage_limit: the current loop's command on the voltage limit that long). A
   // positive d level (a pair's +F, the angle check's +L, a sweep's level) raises the machine's

@@ -35,6 +35,22 @@ struct Duties {
 // once by a caller that also needs it) added before the common mode is chosen.
 [[nodiscard]] Duties svpwm_corrected(const AlphaBeta& v_V, double vdc_V, const Abc& correction_V);
 
+// The bridge's voltage error per phase the compensation cancels for a current well outside
+// its band: the dead time's share of the bus, plus the device drop.
+[[nodiscard]] inline double dead_time_error_V(const DeadTimeCompensation& comp, double vdc_V, double period_s) {
+  return comp.dead_time_s / period_s * vdc_V + comp.device_drop_V;
+}
+
+// Whether the bridge cannot apply duties that svpwm_corrected() made with this correction: a
+// phase's duty less the correction it carries for the bridge's own loss leaves [0, 1], so the
+// loss cannot come off the pulse (a pulse shorter than the dead time vanishes) although no duty
+// clipped. Centred duties lie (vdc - spread) / 2 from the rails, so a command of magnitude v
+// with corrections of at most e per phase can lose a pulse only where sqrt(3) v + 4 e > vdc:
+// on a voltage limit of 0.95 Vdc / sqrt(3), only where 4 e exceeds 5 % of the bus (a dead time
+// of 1.25 us or more at 10 kHz). The drive asks only then (DriveController::step), and the
+// estimator does not use such a period (PeriodSample::modulation_clipped).
+[[nodiscard]] bool pulse_lost(const Duties& duties, const Abc& correction_V, double vdc_V);
+
 // The phase-voltage error per phase the compensation assumes, as a fraction of one unit of
 // "sign(i)": a linear ramp through zero inside +-current_band and +-1 outside.
 // Inline, as mean_soft_sign: the control step calls them six times a period.

@@ -60,9 +60,10 @@ struct PeriodSample {
   Dq v_V{};                     // voltage command applied during the period, in the rotor's frame
   Dq dead_time_pattern{};       // dq projection of the phase-current sign pattern (see above)
   bool voltage_limited = false; // the applied command had been on the current loop's voltage limit
-  // The bridge could not apply the command: a phase's duty clipped at 0 or 1, so the voltage
-  // the machine saw is not the recorded one. On the loop's limit alone (voltage_limited) the
-  // command stays inside the linear modulation range and is applied as recorded.
+  // The bridge could not apply the command: a phase's duty clipped at 0 or 1, or too close to a
+  // rail to lose the dead time it compensates (pulse_lost(), modulation.hpp), so the voltage the machine
+  // saw is not the recorded one. On the loop's limit alone (voltage_limited) the command stays
+  // inside the linear modulation range and is applied as recorded.
   bool modulation_clipped = false;
 };
 
@@ -206,11 +207,9 @@ struct PairConditions {
   double time_2_s = 0.0;
   // A sample whose command the bridge could not apply (PeriodSample::modulation_clipped): the
   // pair is rejected (PairOutcome::kRejectedVoltageSaturation).
+  // (A sample on the current loop's voltage limit alone does not mark the pair: the command was
+  // applied, and the fit takes the measured currents; docs/estimator.md section 2.)
   bool any_modulation_clipped = false;
-  // Samples whose command was on the current loop's voltage limit. They are good data (the
-  // command was applied, and the fit takes the measured currents), so they only count: how
-  // often the budget's pulses meet the limit (docs/estimator.md section 2).
-  std::size_t voltage_limited_samples = 0;
   // q-axis means over both recordings at the same angles.
   double vq_mean_V = 0.0;
   double iq_mean_A = 0.0;
@@ -283,8 +282,7 @@ class PairRecorder {
   // Recording 1 as the matching reads it, preallocated at construction (never grows): each
   // sample's coordinate from recording 1's origin, the channels the match needs in one
   // contiguous row (the four-point interpolation combines whole rows, which the compiler
-  // vectorises; the last channel is padding so that a row splits into pairs of doubles), and
-  // whether the bridge clipped its command.
+  // vectorises; the last channel is padding so that a row splits into pairs of doubles).
   enum Channel : std::size_t { kId, kIq, kDidDt, kVd, kVq, kGd, kGq, kOmegaE, kOmegaM, kPad, kChannels };
   using Row = std::array<double, kChannels>;
   // A copy-assignment carries only the samples recorded, not the whole capacity: the simulator
@@ -293,13 +291,11 @@ class PairRecorder {
   struct Recording {
     std::vector<double> coord;
     std::vector<Row> row;
-    std::vector<std::uint8_t> clipped;
     std::size_t size = 0;
 
-    explicit Recording(std::size_t capacity) : coord(capacity), row(capacity), clipped(capacity) {}
+    explicit Recording(std::size_t capacity) : coord(capacity), row(capacity) {}
     ~Recording() = default;
-    Recording(const Recording& other)
-        : coord(other.coord.size()), row(other.row.size()), clipped(other.clipped.size()) {
+    Recording(const Recording& other) : coord(other.coord.size()), row(other.row.size()) {
       copy_recorded(other);
     }
     Recording& operator=(const Recording& other) {
@@ -307,7 +303,6 @@ class PairRecorder {
         if (row.size() != other.row.size()) {
           coord.resize(other.coord.size());
           row.resize(other.row.size());
-          clipped.resize(other.clipped.size());
         }
         copy_recorded(other);
       }
@@ -317,12 +312,10 @@ class PairRecorder {
     Recording(Recording&& other) noexcept
         : coord(std::move(other.coord)),
           row(std::move(other.row)),
-          clipped(std::move(other.clipped)),
           size(std::exchange(other.size, 0)) {}
     Recording& operator=(Recording&& other) noexcept {
       coord = std::move(other.coord);
       row = std::move(other.row);
-      clipped = std::move(other.clipped);
       size = std::exchange(other.size, 0);
       return *this;
     }
@@ -331,7 +324,6 @@ class PairRecorder {
     void copy_recorded(const Recording& other) {
       std::copy_n(other.coord.begin(), other.size, coord.begin());
       std::copy_n(other.row.begin(), other.size, row.begin());
-      std::copy_n(other.clipped.begin(), other.size, clipped.begin());
       size = other.size;
     }
   };
@@ -358,7 +350,6 @@ class PairRecorder {
   double sum_vd_ = 0.0, sum_id_ = 0.0, sum_didt_ = 0.0, sum_wiq_ = 0.0, sum_gd_ = 0.0;
   double sum_lq_sec_ = 0.0, sum_lq_inc_ = 0.0, sum_x_lq_sec_ = 0.0, sum_x_lq_inc_ = 0.0, sum_xx_ = 0.0;
   bool any_clipped_ = false;
-  std::size_t limited_samples_ = 0;
 };
 
 }  // namespace pmsm::core
