@@ -99,13 +99,14 @@ DriveController::DriveController(const DriveConfig& config)
   motoring_voltage_gain_ = std::min(config_.period_s / kMotoringVoltageFilter_s, 1.0);
   motoring_voltage_settle_periods_ = static_cast<std::uint32_t>(std::ceil(3.0 / motoring_voltage_gain_));
   held_on_limit_periods_ = static_cast<std::uint32_t>(std::max(1.0, std::ceil(kHeldOnLimit_s / config_.period_s - 1e-9)));
-  // A command on the voltage limit, fraction f of Vdc / sqrt(3), can lose a pulse only where
-  // 4 e > (1 - f) Vdc, e = dead_time_error_V = (dead time / period) Vdc + drop (pulse_lost):
-  // a Vdc (4 drop) / ((1 - f) - 4 dead time / period) and below, or any bus when that
-  // denominator is not positive (the dead time, the drop and the period do not change).
+  // A command on the voltage limit can put a duty near a rail (pulse_lost) only on a bus with
+  // Vdc (1 - f - 2 (1 + kPulseDeadTimeMargin) fraction) < 2 drop: below 2 drop / room, or on any bus when room
+  // is not positive (the dead time, the drop and the period do not change).
   {
-    const double room = (1.0 - config_.current.voltage_limit_fraction) - 4.0 * config_.dead_time.dead_time_s / config_.period_s;
-    pulse_check_below_V_ = room > 0.0 ? 4.0 * std::max(config_.dead_time.device_drop_V, 0.0) / room
+    dead_time_fraction_ = std::abs(config_.dead_time.dead_time_s / config_.period_s);
+    const double room = (1.0 - config_.current.voltage_limit_fraction) -
+                        2.0 * (1.0 + kPulseDeadTimeMargin) * dead_time_fraction_;
+    pulse_check_below_V_ = room > 0.0 ? 2.0 * std::abs(config_.dead_time.device_drop_V) / room
                                       : std::numeric_limits<double>::infinity();
   }
   if (config_.vx_reference_bus_V > 0.0 && std::isfinite(config_.vx_reference_bus_V)) {
@@ -1638,9 +1639,10 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     v_total = {v_ab.alpha + comp.alpha, v_ab.beta + comp.beta};
     limited = limited || d.clipped;
     clipped = d.clipped;
-    // A lost pulse needs sqrt(3) |v| + 4 e > vdc (pulse_lost), and |v| is at most the limit.
+    // Near a rail only on a low bus (pulse_lost; the constructor).
     if (!clipped && in.vdc_V < pulse_check_below_V_) {
-      clipped = pulse_lost(d, correction, in.vdc_V);
+      clipped = pulse_lost(d, correction, dead_time_error_V(config_.dead_time, in.vdc_V, config_.period_s),
+                           dead_time_fraction_);
     }
     telemetry_.i_ref_A = i_ref;
     telemetry_.injection_A = so.injection_A;

@@ -116,14 +116,19 @@ Duties svpwm_corrected(const AlphaBeta& v_V, double vdc_V, const Abc& correction
   return duties_from_phase_voltages({v.a + correction_V.a, v.b + correction_V.b, v.c + correction_V.c}, vdc_V);
 }
 
-bool pulse_lost(const Duties& duties, const Abc& correction_V, double vdc_V) {
+bool pulse_lost(const Duties& duties, const Abc& correction_V, double error_V, double dead_time_fraction) {
+  const double edge = kPulseDeadTimeMargin * std::abs(dead_time_fraction);
   const std::array<double, 3> correction{correction_V.a, correction_V.b, correction_V.c};
-  bool lost = false;
+  const double e = std::abs(error_V);
   for (std::size_t n = 0; n < 3; ++n) {
-    const double left_V = duties.value[n] * vdc_V - correction[n];  // (duty - correction / vdc) vdc
-    lost = lost || !(left_V >= 0.0 && left_V <= vdc_V);
+    // The current's sign as the compensation has it: surely negative, surely positive, or either.
+    const bool may_be_positive = !(correction[n] <= -e);
+    const bool may_be_negative = !(correction[n] >= e);
+    if ((may_be_positive && !(duties.value[n] >= edge)) || (may_be_negative && !(duties.value[n] <= 1.0 - edge))) {
+      return true;
+    }
   }
-  return lost;
+  return false;
 }
 
 }  // namespace pmsm::core

@@ -426,6 +426,7 @@ void PairRecorder::start(const PairFitConfig& config, MatchBy match_by, double d
   sum_vd_ = sum_id_ = sum_didt_ = sum_wiq_ = sum_gd_ = 0.0;
   sum_lq_sec_ = sum_lq_inc_ = sum_x_lq_sec_ = sum_x_lq_inc_ = sum_xx_ = 0.0;
   any_clipped_ = false;
+  any_limited_ = false;
 }
 
 bool PairRecorder::add_first(const PeriodSample& s) {
@@ -444,6 +445,7 @@ bool PairRecorder::add_first(const PeriodSample& s) {
   sum_iq1_ += s.i_A.q;
   sum_id1_ += s.i_A.d;
   any_clipped_ = any_clipped_ || s.modulation_clipped;
+  any_limited_ = any_limited_ || s.voltage_limited;
   return true;
 }
 
@@ -458,6 +460,7 @@ void PairRecorder::begin_second(double origin) {
 double PairRecorder::add_second(const PeriodSample& s) {
   // Every sample of either recording marks the pair, matched or not (as add_first).
   any_clipped_ = any_clipped_ || s.modulation_clipped;
+  any_limited_ = any_limited_ || s.voltage_limited;
   const double phi = coordinate(s) - origin2_;
   const double extent = first_extent();
   if (first_.size < 4 || phi < 0.0 || phi > extent) {
@@ -558,6 +561,7 @@ PairConditions PairRecorder::conditions() const {
   PairConditions c;
   c.samples = matched_;
   c.any_modulation_clipped = any_clipped_;
+  c.any_voltage_limited = any_limited_;
   if (first_.size > 0) {
     const auto n1 = static_cast<double>(first_.size);
     c.omega_e_mean_1_rad_s = sum_omega1_ / n1;

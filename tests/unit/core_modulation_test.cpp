@@ -1,5 +1,6 @@
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <numbers>
 #include <random>
@@ -49,29 +50,28 @@ TEST(Svpwm, ClipsBeyondTheHexagon) {
 }
 
 // On the drive's voltage limit (0.95 of the linear limit) the extreme duties are 0.025 from the
-// rails. A phase there whose compensation raised it (its current positive) must lose the dead
-// time from that 0.025: with 3 us at 10 kHz (0.03) the bridge cannot, and the period is not
-// applied as commanded although no duty clipped; with 2 us it can.
-TEST(DeadTimeCompensation, APulseTooShortForTheDeadTimeItCompensatesIsLost) {
+// rails. A phase there whose current takes the dead time from its pulse (positive at the low
+// rail) is closer than 1.5 times a dead time of 2 us at 10 kHz (0.03): the bridge may not apply
+// the command as it stands, although no duty clipped; with 1 us (0.015) it does. With the
+// current the other way the dead time lengthens that pulse; near a zero crossing (inside the
+// compensation's band) either sign counts.
+TEST(DeadTimeCompensation, ADutyNearARailForItsDeadTimeIsFlagged) {
   const double vdc = 600.0, period = 1e-4;
   const AlphaBeta v = clarke(Abc{-0.475 * vdc, 0.475 * vdc, 0.0});  // 0.95 vdc / sqrt(3)
-  const Abc i{10.0, 5.0, -15.0};
-  auto duties = [&](double dead_time_s, Abc& correction) {
+  auto flagged = [&](double dead_time_s, const Abc& i) {
     const DeadTimeCompensation comp{dead_time_s, 0.0, 1.0};
-    correction = dead_time_compensation_V(i, i, comp, vdc, period);
-    // Only where the drive's gate lets it ask (DriveController::step).
-    EXPECT_GT(4.0 * dead_time_error_V(comp, vdc, period), vdc - kSqrt3 * 0.95 * vdc / kSqrt3);
-    return svpwm_corrected(v, vdc, correction);
+    const Abc correction = dead_time_compensation_V(i, i, comp, vdc, period);
+    const Duties d = svpwm_corrected(v, vdc, correction);
+    EXPECT_FALSE(d.clipped);
+    return pulse_lost(d, correction, dead_time_error_V(comp, vdc, period), dead_time_s / period);
   };
-  Abc correction{};
-  const Duties lost = duties(3e-6, correction);
-  EXPECT_FALSE(lost.clipped);
-  EXPECT_NEAR(lost.value[0], 0.025, 1e-12);  // phase a: 0.025 left, less 0.03 of dead time
-  EXPECT_TRUE(pulse_lost(lost, correction, vdc));
-  const Duties kept = duties(2e-6, correction);
-  EXPECT_FALSE(kept.clipped);
-  EXPECT_FALSE(pulse_lost(kept, correction, vdc));
-  EXPECT_FALSE(pulse_lost(svpwm(v, vdc), Abc{}, vdc));
+  const Abc takes{10.0, 5.0, -15.0};     // phase a, at the low rail, positive
+  const Abc lengthens{-10.0, 15.0, -5.0};  // phase a negative, phase b (the high rail) positive
+  const Abc crossing{0.5, 5.0, -5.5};    // phase a inside the 1 A band
+  EXPECT_TRUE(flagged(2e-6, takes));
+  EXPECT_FALSE(flagged(1e-6, takes));
+  EXPECT_FALSE(flagged(2e-6, lengthens));
+  EXPECT_TRUE(flagged(2e-6, crossing));
 }
 
 TEST(DeadTimeCompensation, AddsTheExpectedVoltageAgainstTheCurrent) {

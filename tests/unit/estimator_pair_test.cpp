@@ -368,6 +368,7 @@ TEST(PairFit, ConditionsReportTheMeansOfEachRecording) {
   EXPECT_NEAR(c.iq_mean_2_A, 11.5, 1e-9);
   EXPECT_NEAR(c.id_mean_1_A, 25.0 * (1.0 + 0.3 * 0.0), 0.3 * 25.0 * 0.1);  // mean of 1 + m sin over one turn
   EXPECT_FALSE(c.any_modulation_clipped);
+  EXPECT_FALSE(c.any_voltage_limited);
   // Matched samples: those of recording 2 inside [0, extent] of recording 1.
   std::size_t inside = 0;
   const double origin2 = run.recorder.first_origin() + p.dtheta_rad;
@@ -400,7 +401,7 @@ TEST(PairFit, ConditionsReportTheMeansOfEachRecording) {
   EXPECT_NEAR(c.omega_m_mean_rad_s, wm / n, 1e-9);
 }
 
-// A sample on the loop's voltage limit alone leaves the pair unmarked; one the bridge clipped marks it.
+// A sample on the loop's voltage limit is reported; one the bridge clipped marks the pair for rejection.
 TEST(PairFit, LimitedAndClippedSamplesAreReported) {
   PairSpec p;
   PairFitConfig cfg;
@@ -418,8 +419,12 @@ TEST(PairFit, LimitedAndClippedSamplesAreReported) {
     }
     return rec.conditions();
   };
-  EXPECT_FALSE(record(false).any_modulation_clipped);
-  EXPECT_TRUE(record(true).any_modulation_clipped);
+  const PairConditions limited = record(false);
+  EXPECT_TRUE(limited.any_voltage_limited);
+  EXPECT_FALSE(limited.any_modulation_clipped);
+  const PairConditions clipped = record(true);
+  EXPECT_TRUE(clipped.any_voltage_limited);
+  EXPECT_TRUE(clipped.any_modulation_clipped);
 }
 
 TEST(PairFit, CollinearRegressorsMakeVxUnidentifiable) {

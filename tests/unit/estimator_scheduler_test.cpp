@@ -1859,6 +1859,7 @@ TEST(InjectionScheduler, TheLoopsVoltageLimitAloneKeepsThePair) {
   ASSERT_EQ(h.pairs.size(), 2U);
   for (const PairResult& p : h.pairs) {
     EXPECT_EQ(p.outcome, PairOutcome::kAccepted) << to_string(p.outcome);
+    EXPECT_TRUE(p.conditions.any_voltage_limited);
     EXPECT_FALSE(p.conditions.any_modulation_clipped);
   }
   ASSERT_EQ(h.estimates.at(0).outcome, EventOutcome::kPublished);

@@ -722,7 +722,6 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
   auto last_progress = wall_start;
   const bool tty = options.progress && isatty(STDERR_FILENO) != 0;
 
-  bool pair_met_voltage_limit = false;
   for (std::uint64_t k = 0; k < periods; ++k) {
     const double t = plant.time_s();
     if (twin) {
@@ -734,10 +733,6 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
       twin_link->fork(twin->snapshot(), twin->snapshot_k(), k);
     }
     const core::DriveTelemetry& tel = drive.telemetry();
-    // A pair's recordings on the voltage limit (counted here, off the drive's step).
-    pair_met_voltage_limit = pair_met_voltage_limit ||
-                             (tel.voltage_limited && (tel.injection_phase == core::SchedulerPhase::kRecord1 ||
-                                                      tel.injection_phase == core::SchedulerPhase::kRecord2));
     if (const std::uint32_t latched = node.supervisor().status().latched_mask; latched != latched_before) {
       // A code latched for the first time: when (the supervisor counts the latches).
       for (std::size_t c = 1; c < core::kFaultCodeCount; ++c) {
@@ -826,10 +821,9 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
       if (p.outcome == core::PairOutcome::kAccepted && p.field_weakening) {
         ++result.field_weakening_pairs_accepted;
       }
-      if (pair_met_voltage_limit) {
+      if (p.conditions.any_voltage_limited) {
         ++result.pairs_on_voltage_limit;
       }
-      pair_met_voltage_limit = false;
     }
     if (drive.last_event() && drive.last_event()->outcome != core::EventOutcome::kPublished) {
       ++result.events_without_estimate[static_cast<std::size_t>(drive.last_event()->outcome)];

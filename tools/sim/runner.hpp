@@ -139,10 +139,10 @@ struct SimulationResult {
   [[nodiscard]] std::size_t estimates_published() const noexcept { return estimates_accepted + estimates_gated; }
   core::OutcomeCounts pairs{};          // every pair's outcome
   std::size_t field_weakening_pairs_accepted = 0;  // of the accepted: at the voltage limit (-lo, -F)
-  // Pairs of any outcome (aborted ones too) whose recordings had the drive's command on the
-  // voltage limit (DriveTelemetry::voltage_limited: the current loop's, or the bridge
-  // clipping): how often the budget's pulses meet it. On the loop's limit alone such periods
-  // are good data; only a command the bridge could not apply rejects a pair.
+  // Pairs that finished recording (whatever their outcome; aborted ones are not counted) with a
+  // recorded command on the voltage limit (PairConditions::any_voltage_limited: the current
+  // loop's, or a clipped duty): how often the budget's pulses meet it. On the loop's limit alone
+  // such periods are good data; only a command the bridge could not apply rejects a pair.
   std::size_t pairs_on_voltage_limit = 0;
   // Disturbance: the largest difference from the twin without injection (forked from the run
   // where each event begins, RunOptions::twin_for_disturbance), during an injection event and

@@ -682,6 +682,7 @@ class DriveController {
   // A command on the voltage limit can lose a pulse on a bus below this (the constructor;
   // pulse_lost() in modulation.hpp).
   double pulse_check_below_V_ = 0.0;
+  double dead_time_fraction_ = 0.0;  // |control.dead_time_s| / period
   // Periods in a row whose command was limited, and how many make kHeldOnLimit_s
   // (held_on_voltage_limit: the current loop's command on the voltage limit that long). A
   // positive d level (a pair's +F, the angle check's +L, a sweep's level) raises the machine's

@@ -41,15 +41,21 @@ struct Duties {
   return comp.dead_time_s / period_s * vdc_V + comp.device_drop_V;
 }
 
-// Whether the bridge cannot apply duties that svpwm_corrected() made with this correction: a
-// phase's duty less the correction it carries for the bridge's own loss leaves [0, 1], so the
-// loss cannot come off the pulse (a pulse shorter than the dead time vanishes) although no duty
-// clipped. Centred duties lie (vdc - spread) / 2 from the rails, so a command of magnitude v
-// with corrections of at most e per phase can lose a pulse only where sqrt(3) v + 4 e > vdc:
-// on a voltage limit of 0.95 Vdc / sqrt(3), only where 4 e exceeds 5 % of the bus (a dead time
-// of 1.25 us or more at 10 kHz). The drive asks only then (DriveController::step), and the
-// estimator does not use such a period (PeriodSample::modulation_clipped).
-[[nodiscard]] bool pulse_lost(const Duties& duties, const Abc& correction_V, double vdc_V);
+// Whether the bridge may not apply these duties as commanded although none clipped: a duty
+// closer to a rail than kPulseDeadTimeMargin (1.5) times the dead time's fraction of the period,
+// on the side where the phase's current takes the dead time from its pulse (the plant: clamp(duty
+// - fraction sgn(i), 0, 1): a positive current at the low rail, a negative one at the high).
+// The current's sign is the compensation's (`correction_V` over `error_V`, dead_time_error_V:
+// +-1 outside its band, in between near a zero crossing, where either sign counts); the margin
+// is for a dead time the drive underestimates (the scenarios commission it 5-33 % low). Centred
+// duties lie (1 - spread / vdc) / 2 from the rails, and the spread is at most sqrt(3) |v| plus
+// twice the largest correction e: on a voltage limit of a fraction f of Vdc / sqrt(3), only a
+// bus with Vdc (1 - f - 2 (1 + kPulseDeadTimeMargin) fraction) < 2 drop can meet it (the
+// reference's 0.9 us at 10 kHz and no drop: none). The drive asks only there
+// (DriveController::step), and a pair whose recording holds such a period is rejected
+// (PeriodSample::modulation_clipped).
+inline constexpr double kPulseDeadTimeMargin = 1.5;
+[[nodiscard]] bool pulse_lost(const Duties& duties, const Abc& correction_V, double error_V, double dead_time_fraction);
 
 // The phase-voltage error per phase the compensation assumes, as a fraction of one unit of
 // "sign(i)": a linear ramp through zero inside +-current_band and +-1 outside.

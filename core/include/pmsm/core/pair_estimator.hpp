@@ -60,9 +60,9 @@ struct PeriodSample {
   Dq v_V{};                     // voltage command applied during the period, in the rotor's frame
   Dq dead_time_pattern{};       // dq projection of the phase-current sign pattern (see above)
   bool voltage_limited = false; // the applied command had been on the current loop's voltage limit
-  // The bridge could not apply the command: a phase's duty clipped at 0 or 1, or too close to a
-  // rail to lose the dead time it compensates (pulse_lost(), modulation.hpp), so the voltage the machine
-  // saw is not the recorded one. On the loop's limit alone (voltage_limited) the command stays
+  // The bridge may not have applied the command: a phase's duty clipped at 0 or 1, or closer to
+  // a rail than 1.5 dead times (pulse_lost(), modulation.hpp), so the voltage the machine saw
+  // may not be the recorded one. On the loop's limit alone (voltage_limited) the command stays
   // inside the linear modulation range and is applied as recorded.
   bool modulation_clipped = false;
 };
@@ -207,9 +207,11 @@ struct PairConditions {
   double time_2_s = 0.0;
   // A sample whose command the bridge could not apply (PeriodSample::modulation_clipped): the
   // pair is rejected (PairOutcome::kRejectedVoltageSaturation).
-  // (A sample on the current loop's voltage limit alone does not mark the pair: the command was
-  // applied, and the fit takes the measured currents; docs/estimator.md section 2.)
   bool any_modulation_clipped = false;
+  // A sample of either recording on the voltage limit (PeriodSample::voltage_limited). It does
+  // not reject the pair (the command was applied, and the fit takes the measured currents;
+  // docs/estimator.md section 2): only reported, how often the budget's pulses meet the limit.
+  bool any_voltage_limited = false;
   // q-axis means over both recordings at the same angles.
   double vq_mean_V = 0.0;
   double iq_mean_A = 0.0;
@@ -350,6 +352,7 @@ class PairRecorder {
   double sum_vd_ = 0.0, sum_id_ = 0.0, sum_didt_ = 0.0, sum_wiq_ = 0.0, sum_gd_ = 0.0;
   double sum_lq_sec_ = 0.0, sum_lq_inc_ = 0.0, sum_x_lq_sec_ = 0.0, sum_x_lq_inc_ = 0.0, sum_xx_ = 0.0;
   bool any_clipped_ = false;
+  bool any_limited_ = false;
 };
 
 }  // namespace pmsm::core
