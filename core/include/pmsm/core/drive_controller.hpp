@@ -670,8 +670,9 @@ class DriveController {
   // The commands in the stator's frame (alpha, beta), as the bridge was asked for them.
   AlphaBeta v_applied_next_ab_{};   // command of step k-1 (applies during period k)
   AlphaBeta v_applied_now_ab_{};    // command of step k-2 (applied during period k-1 -> k)
-  // Whether each command was on the voltage limit, and whether the bridge could not apply it
-  // (a duty clipped, or a pulse lost: the pairs reject such samples; the loop's limit alone
+  // Whether each command was on the voltage limit, and whether the bridge may not have applied
+  // it (a duty clipped, or one near a rail for its dead time, pulse_lost(): the pairs reject
+  // such samples; the loop's limit alone
   // leaves the command applied as recorded). One object, shifted with the commands.
   struct CommandFlags {
     bool limited = false;
@@ -679,8 +680,8 @@ class DriveController {
   };
   CommandFlags flags_next_{};
   CommandFlags flags_now_{};
-  // A command on the voltage limit can lose a pulse on a bus below this (the constructor;
-  // pulse_lost() in modulation.hpp).
+  // Only on a bus below this can a command on the voltage limit put a duty near a rail for the
+  // dead time (the constructor; pulse_lost() in modulation.hpp).
   double pulse_check_below_V_ = 0.0;
   double dead_time_fraction_ = 0.0;  // |control.dead_time_s| / period
   // Periods in a row whose command was limited, and how many make kHeldOnLimit_s

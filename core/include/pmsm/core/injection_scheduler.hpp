@@ -62,7 +62,7 @@ enum class PairOutcome : std::uint8_t {
   kRejectedVoltageHeadroom = 4,   // skipped before starting: not enough voltage
   kRejectedCurrentLimit = 5,      // skipped before starting: not enough current budget
   kRejectedImplausible = 6,       // Rs outside the plausibility window
-  kRejectedVoltageSaturation = 7, // the bridge clipped a recorded command (PeriodSample::modulation_clipped)
+  kRejectedVoltageSaturation = 7, // the bridge may not have applied a recorded command (PeriodSample::modulation_clipped)
   kRejectedIllConditioned = 8,    // too few samples or collinear regressors
   kAborted = 9,                   // disabled, fault or lost speed in the middle of a pair
   kSkippedTorqueDisturbance = 10, // the reluctance torque of the injection would exceed its budget

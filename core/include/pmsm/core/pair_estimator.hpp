@@ -205,8 +205,8 @@ struct PairConditions {
   double rs_time_s = 0.0;
   double time_1_s = 0.0;  // the recordings' mean times (t1, t2 above)
   double time_2_s = 0.0;
-  // A sample whose command the bridge could not apply (PeriodSample::modulation_clipped): the
-  // pair is rejected (PairOutcome::kRejectedVoltageSaturation).
+  // A sample whose command the bridge may not have applied (PeriodSample::modulation_clipped):
+  // the pair is rejected (PairOutcome::kRejectedVoltageSaturation).
   bool any_modulation_clipped = false;
   // A sample of either recording on the voltage limit (PeriodSample::voltage_limited). It does
   // not reject the pair (the command was applied, and the fit takes the measured currents;

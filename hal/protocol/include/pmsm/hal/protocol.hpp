@@ -243,7 +243,7 @@ enum class InjectionResult : std::uint8_t {
   kRejectedVoltageHeadroom = 4, // not enough voltage for the injection (Eq. 29)
   kRejectedCurrentLimit = 5,    // injection would exceed the (derated) current limit
   kRejectedImplausible = 6,     // resistance outside its plausibility window
-  kRejectedVoltageSaturation = 7,  // the bridge clipped a recorded command (not the loop's voltage limit alone)
+  kRejectedVoltageSaturation = 7,  // the bridge may not have applied a recorded command (not the loop's voltage limit alone)
   kRejectedIllConditioned = 8,  // too few samples or collinear regressors
   kAborted = 9,                 // interrupted (disable, fault, mode change)
   kSkippedTorqueDisturbance = 10,  // the injection would move the torque too much (saliency)
