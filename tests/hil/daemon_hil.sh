@@ -174,12 +174,13 @@ kill -INT "$candump_pid" 2>/dev/null || true
 echo "$prog: $(wc -l < "$work/candump.log") captured frames, all decoded with the DBC"
 
 # The interface goes down and comes back while plant and daemon run in lockstep: both must
-# notice, reopen their sockets and go on (the plant finishes its run with the same daemon).
-# The interface goes down as soon as the plant runs, and its run is long enough in simulated
-# time to outlast that at any speed: a fixed three-second wait raced the plant's speed (1.5 s
-# simulated came to an end in 1.1 s of wall time in User-Mode Linux once the plant integrated a
-# period in one step).
-plant_start "$hil_plant" 5 plant-4.log
+# notice, reopen their sockets and go on in lockstep with each other. The interface goes down as
+# soon as the plant runs; the plant's run is bounded only (600 s simulated), so that it outlasts
+# the outage at any speed (a fixed wait raced the plant's speed: 1.5 s simulated came to an end
+# in 1.1 s of wall time in User-Mode Linux once the plant integrated a period in one step), and
+# it is stopped, as an operator would stop it, once the lockstep is seen to run again. (Its run
+# of 5 s simulated to the end took 51 of daemon_hil's 187 s in User-Mode Linux.)
+plant_start "$hil_plant" 600 plant-4.log
 plant4=$plant_pid
 for _ in $(seq 100); do
   grep -q "lockstep mode on" "$work/plant-4.log" && break
@@ -202,7 +203,24 @@ ip link set dev "$iface" down 2>"$work/ip.err" ||
   die "cannot take $iface down ($(cat "$work/ip.err")): this phase needs CAP_NET_ADMIN (root, or User-Mode Linux through scripts/vcan-env)"
 sleep 1
 ip link set dev "$iface" up 2>"$work/ip.err" || die "cannot bring $iface up again: $(cat "$work/ip.err")"
-wait "$plant4" || die "the plant did not finish after the interface came back: $(tail -3 "$work/plant-4.log")"
+# Lockstep again: the live monitor prints a status line for each second of the plant's simulated
+# time, which stands still without the daemon's commands; two such lines after it saw the
+# interface back mean at least a second of it simulated in lockstep after the outage. Then the
+# plant must stop cleanly on SIGTERM.
+lockstep_again() {
+  awk '/is back up: socket reopened/ { back = 1; next } back && /^node +[0-9]+ +plant / { n++ } END { exit !(n >= 2) }' \
+    "$work/live-monitor.txt"
+}
+for _ in $(seq 1200); do
+  lockstep_again && break
+  kill -0 "$plant4" 2>/dev/null || die "the plant ended before it ran in lockstep again: $(tail -3 "$work/plant-4.log")"
+  sleep 0.1
+done
+lockstep_again ||
+  die "no lockstep within 120 s after $iface came back (live monitor: $(tail -3 "$work/live-monitor.txt" | paste -sd'|'))"
+kill -TERM "$plant4"
+wait "$plant4" || die "the plant did not stop cleanly on SIGTERM after the interface came back: $(tail -3 "$work/plant-4.log")"
+grep -q "stopped (signal)" "$work/plant-4.log" || die "the plant's log has no clean stop: $(tail -2 "$work/plant-4.log")"
 grep -q "is down or gone" "$work/daemon-2.log" || die "the daemon did not notice $iface going down: $(tail -3 "$work/daemon-2.log")"
 grep -q "is back: socket reopened" "$work/daemon-2.log" || die "the daemon did not reopen its socket: $(tail -3 "$work/daemon-2.log")"
 grep -qi "down or gone" "$work/plant-4.log" || die "the plant did not notice $iface going down: $(tail -3 "$work/plant-4.log")"
@@ -218,7 +236,7 @@ grep -q "is back up: socket reopened" "$work/live-monitor.txt" ||
   die "the live monitor did not report $iface coming back: $(tail -5 "$work/live-monitor.txt")"
 grep -q "the interface went down 1 time(s) while watching" "$work/live-monitor.txt" ||
   die "the live monitor's summary does not count the outage: $(tail -5 "$work/live-monitor.txt")"
-echo "$prog: $iface down for 1 s and up again: daemon and plant reopened their sockets, the plant finished its run, and a live monitor reported the outage"
+echo "$prog: $iface down for 1 s and up again: daemon and plant reopened their sockets and ran on in lockstep, and a live monitor reported the outage"
 
 # A plant whose PWM runs at 20 kHz against the daemon's 100 us period: every clock of the drive
 # would run at half its rate. Its samples say so (SENSOR_SAMPLE PwmPeriod): the daemon must
