@@ -29,7 +29,8 @@ ConfigSchema<C> build() {
   ConfigSchema<C> s;
   // [motor] — the controller's commissioned model of the machine.
   s.real("motor.rs_ohm", [](C& c) -> double& { return c.drive.motor.rs_ohm; }, between(common::kMinStatorResistance_ohm, common::kMaxStatorResistance_ohm), "ohm",
-         "Nameplate phase-to-neutral resistance at motor.rs_reference_temp_C; the temperature scale until a calibration replaces it.");
+         "Phase-to-neutral resistance the drive sees at motor.rs_reference_temp_C: the nameplate's, plus the motor cable's "
+         "(motor.cable_resistance_ohm) where there is one; the temperature scale until a calibration replaces it.");
   s.real("motor.rs_reference_temp_C", [](C& c) -> double& { return c.drive.motor.rs_reference_temp_C; }, between(-50, 200), "C",
          "Temperature at which motor.rs_ohm holds (T0 of Eq. 1).");
   s.choice("motor.conductor", {{"copper", 0}, {"aluminium", 1}},
@@ -39,6 +40,11 @@ ConfigSchema<C> build() {
            },
            "Winding conductor for Eq. 1 referred to any T0: resistance proportional to K + T, K = 234.5 C (copper: alpha "
            "3.93e-3 /C at 20 C, 3.85e-3 at 25 C) or 225 C (aluminium).");
+  s.real("motor.cable_resistance_ohm", [](C& c) -> double& { return c.drive.thermal.cable_resistance_20C_ohm; },
+         at_least(0, common::kMaxStatorResistance_ohm), "ohm",
+         "The motor cable's share of motor.rs_ohm and of every resistance the drive measures, per phase (half the "
+         "line-to-line value) at 20 C, copper at the ambient sensor's temperature: Eq. 1 and the copper loss take the "
+         "winding's share alone. 0: none (a cable of 19 % of the total read 81 % of the winding's rise).");
   s.real("motor.ld_H", [](C& c) -> double& { return c.drive.motor.ld_H; }, between(common::kMinInductance_H, 1.0), "H", "d-axis inductance as commissioned.");
   s.real("motor.lq_H", [](C& c) -> double& { return c.drive.motor.lq_H; }, between(common::kMinInductance_H, 1.0), "H", "q-axis inductance as commissioned.");
   s.real("motor.lq_rated_H", [](C& c) -> double& { return c.drive.motor.lq_rated_H; }, at_least(0, 1.0), "H",
@@ -666,6 +672,23 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
   }
   if (!window_reported && d.injection.rs_min_ohm >= d.injection.rs_max_ohm) {  // equal ends around the nameplate
     rule("injection.rs_min_ohm", "injection.rs_max_ohm", "injection.rs_min_ohm must be below injection.rs_max_ohm");
+  }
+  // The cable is a share of the resistance the drive measures: it must leave the winding some.
+  for (const std::string_view r : {std::string_view("motor.rs_ohm"), std::string_view("calibration.rs0_ohm")}) {
+    if (!(d.thermal.cable_resistance_20C_ohm > 0.0) || (r == "calibration.rs0_ohm" && !given(r))) {
+      continue;
+    }
+    const bool nameplate = r == "motor.rs_ohm";
+    const double rs = nameplate ? m.rs_ohm : d.calibration.rs0_ohm;
+    const double t0 = nameplate ? m.rs_reference_temp_C : d.calibration.t0_C;
+    const double cable = core::resistance_at_temperature_ohm(d.thermal.cable_resistance_20C_ohm, 20.0, t0);
+    if (cable >= rs) {
+      const std::string_view l = lead("motor.cable_resistance_ohm", r);
+      rule("motor.cable_resistance_ohm", r,
+           ref("motor.cable_resistance_ohm", d.thermal.cable_resistance_20C_ohm, "ohm", l) +
+               fmt::format(" is {:.6g} ohm at {:.6g} C, not below ", cable, t0) + ref(r, rs, "ohm", l) +
+               ", the whole resistance the drive measures: it would leave no winding for Eq. 1");
+    }
   }
   // A stored Vx and its error bar go together: without the error bar (0 means "not learned")
   // the Vx would be silently ignored, and an error bar alone would make 0 V a certain prior.

@@ -130,6 +130,7 @@ void ThermalObserver::restore(const ThermalState& state, double downtime_thermal
   restore_referable_ = true;
   restore_relaxation_ = e;
   restore_ambient_C_ = ambient_C;
+  ambient_C_ = ambient_C;
 }
 
 double ThermalObserver::refer_restored_to_ambient(double ambient_C) {
@@ -189,19 +190,34 @@ void ThermalObserver::keep_loss_errors(const ThermalObserver& other) {
   p_.block<2, 2>(2, 2) = other.p_.block<2, 2>(2, 2);
 }
 
+double ThermalObserver::cable_resistance_now_ohm() const {
+  // A copper cable at the ambient sensor's temperature, its resistance given at 20 C.
+  const double t_C = std::isfinite(ambient_C_) ? ambient_C_ : calibration_.t0_C;
+  return resistance_at_temperature_ohm(config_.cable_resistance_20C_ohm, 20.0, t_C, kCopperInferredZero_C);
+}
+
+double ThermalObserver::winding_rs0_ohm() const {
+  // Rs0 was measured at T0 with the cable soaked at T0 too, as the winding.
+  return calibration_.rs0_ohm -
+         resistance_at_temperature_ohm(config_.cable_resistance_20C_ohm, 20.0, calibration_.t0_C, kCopperInferredZero_C);
+}
+
 double ThermalObserver::resistance_at_C(double temp_C) const {
-  return resistance_at_temperature_ohm(calibration_.rs0_ohm, calibration_.t0_C, temp_C,
-                                       config_.conductor_inferred_zero_C);  // Eq. 1
+  return resistance_at_temperature_ohm(winding_rs0_ohm(), calibration_.t0_C, temp_C,
+                                       config_.conductor_inferred_zero_C) +  // Eq. 1
+         cable_resistance_now_ohm();
 }
 
 double ThermalObserver::temperature_from_resistance_C(double rs_ohm) const {
-  return core::temperature_from_resistance_C(rs_ohm, calibration_.rs0_ohm, calibration_.t0_C,
+  return core::temperature_from_resistance_C(rs_ohm - cable_resistance_now_ohm(), winding_rs0_ohm(), calibration_.t0_C,
                                              config_.conductor_inferred_zero_C);  // Eq. 1
 }
 
 double ThermalObserver::copper_loss_W(double copper_current_sq_A2) const {
-  // Amplitude-invariant dq: P = 3/2 Rs (id^2 + iq^2).
-  return 1.5 * resistance_at_C(x_(0)) * copper_current_sq_A2;
+  // Amplitude-invariant dq: P = 3/2 Rs (id^2 + iq^2), the winding's Rs (the cable's loss is
+  // outside the machine).
+  return 1.5 * resistance_at_temperature_ohm(winding_rs0_ohm(), calibration_.t0_C, x_(0), config_.conductor_inferred_zero_C) *
+         copper_current_sq_A2;
 }
 
 double ThermalObserver::housing_loss_floor_W(double iron_loss_W, double ambient_C) const {
@@ -224,6 +240,7 @@ double ThermalObserver::iron_loss_W(double omega_m_rad_s) const {
 void ThermalObserver::predict(double dt_s, double copper_current_sq_A2, double omega_m_rad_s,
                               double ambient_C, bool at_rest) {
   restore_referable_ = false;  // the state has moved on under the ambient it was given
+  ambient_C_ = ambient_C;
   const double dt = dt_s * config_.time_scale;  // thermal seconds
   const double pcu = copper_loss_W(copper_current_sq_A2);
   last_copper_loss_W_ = pcu;
@@ -352,7 +369,7 @@ bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm, double
   }
   const double z = temperature_from_resistance_C(rs_ohm) + (x_(0) - then_C);
   const double dt_dr =
-      temperature_per_resistance_C_per_ohm(calibration_.rs0_ohm, calibration_.t0_C, config_.conductor_inferred_zero_C);
+      temperature_per_resistance_C_per_ohm(winding_rs0_ohm(), calibration_.t0_C, config_.conductor_inferred_zero_C);
   const double r = std::pow(rs_std_ohm * dt_dr, 2) + std::pow(config_.measurement_floor_std_C, 2);
   const Eigen::RowVector4d h(1.0, 0.0, 0.0, 0.0);
   // A measurement without a finite value and error bar is no measurement (NaN compares false,
@@ -446,7 +463,9 @@ double ThermalObserver::uncalibrated_rs0_std_C() const {
   if (calibration_.calibrated || !holds_uncalibrated_) {
     return 0.0;
   }
-  const double s = (config_.conductor_inferred_zero_C + x_(0)) * calibration_.rs0_std_fraction;
+  // (With a cable, dT/dRs0 = -(K + T) / (Rs0 - Rc) for an error that is Rs0's fraction.)
+  const double s = (config_.conductor_inferred_zero_C + x_(0)) *
+                   (calibration_.rs0_std_fraction * (calibration_.rs0_ohm / winding_rs0_ohm()));
   return std::isfinite(s) ? std::abs(s) : 0.0;
 }
 
@@ -470,7 +489,10 @@ bool ThermalObserver::time_to_limit_s(double limit_C, double copper_current_sq_A
   }
   // Losses held constant; copper loss taken at the limit temperature (resistance rises with
   // temperature, so this errs towards a shorter time).
-  const double pcu_copper = 1.5 * resistance_at_C(limit_C) * copper_current_sq_A2 * (1.0 + x_(3));
+  const double pcu_copper = 1.5 *
+                            resistance_at_temperature_ohm(winding_rs0_ohm(), calibration_.t0_C, limit_C,
+                                                          config_.conductor_inferred_zero_C) *
+                            copper_current_sq_A2 * (1.0 + x_(3));
   const double pfe = iron_loss_W(omega_m_rad_s);
   const double gwh = 1.0 / config_.winding_to_housing_K_W;
   const double gha = 1.0 / config_.housing_to_ambient_K_W;

@@ -76,6 +76,10 @@ common::ConfigSchema<PlantConfig> build_schema() {
              [](const PlantConfig& c) { return c.motor.conductor_inferred_zero_C == 225.0 ? 1 : 0; },
              [](PlantConfig& c, int v) { c.motor.conductor_inferred_zero_C = v == 1 ? 225.0 : 234.5; },
              "Winding conductor: resistance proportional to K + T, K = 234.5 °C for copper, 225 °C for aluminium.");
+    real("motor.cable_resistance_ohm", PMSM_MEMBER(motor.cable_resistance_ohm),
+         closed(0, common::kMaxStatorResistance_ohm),
+         "A motor cable in series with each phase, ohm at 20 °C (copper), at the ambient temperature: it adds to "
+         "the resistance the drive sees, and its loss stays outside the machine's thermal network (0: none).");
     real("motor.ke_V_s_per_rad", PMSM_MEMBER(motor.ke_V_s_per_rad), closed(common::kMinEmfConstant_V_s_per_rad, 100.0),
                      "EMF constant of Table I: line-to-line RMS volts per mechanical rad/s, "
                      "at magnet_ref_temp_C. psi_m = Ke·sqrt(2/3)/p.");

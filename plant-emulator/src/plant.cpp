@@ -91,6 +91,7 @@ struct Meters {
   double iron_J = 0.0;
   double friction_J = 0.0;
   double load_J = 0.0;
+  double cable_J = 0.0;
   std::array<double, 3> v_int_V_s{};
 
   void add(const Meters& p, double h) {
@@ -99,6 +100,7 @@ struct Meters {
     iron_J += h * p.iron_J;
     friction_J += h * p.friction_J;
     load_J += h * p.load_J;
+    cable_J += h * p.cable_J;
     for (std::size_t i = 0; i < 3; ++i) {
       v_int_V_s[i] += h * p.v_int_V_s[i];
     }
@@ -142,6 +144,7 @@ struct Motion {
   double friction_W = 0.0;
   double iron_W = 0.0;
   double copper_W = 0.0;
+  double cable_W = 0.0;
   double load_W = 0.0;
 };
 
@@ -243,7 +246,8 @@ struct Plant::Impl {
   bool ideal_dyno = false;
 
   // Per-period parameters from the temperatures.
-  double rs_ohm = 0.0;
+  double rs_ohm = 0.0;          // the circuit's: the winding's and the cable's
+  double winding_rs_ohm = 0.0;  // the winding's alone (its copper loss)
   double psi_m_Wb = 0.0;
   double iron_scale = 1.0;
   double ambient_C = 25.0;
@@ -391,7 +395,8 @@ struct Plant::Impl {
 
   void update_temperature_parameters() {
     const auto& t = thermal.temperatures_C();
-    rs_ohm = cfg.motor.rs_at_C(t[ThermalNetwork::kWinding]);  // Eq. 1
+    winding_rs_ohm = cfg.motor.rs_at_C(t[ThermalNetwork::kWinding]);  // Eq. 1
+    rs_ohm = winding_rs_ohm + cfg.motor.cable_at_C(ambient_C);
     psi_m_Wb = psi_m0_Wb * (1.0 + cfg.motor.magnet_temp_coefficient_per_C *
                                       (t[ThermalNetwork::kRotor] - cfg.motor.magnet_ref_temp_C));
     const double ratio = psi_m_Wb / psi_m0_Wb;
@@ -539,7 +544,8 @@ struct Plant::Impl {
       }
     }
     mo.torque_load = torque_load;
-    mo.copper_W = 1.5 * rs_ohm * (s.id_A * s.id_A + s.iq_A * s.iq_A);
+    mo.copper_W = 1.5 * winding_rs_ohm * (s.id_A * s.id_A + s.iq_A * s.iq_A);
+    mo.cable_W = 1.5 * (rs_ohm - winding_rs_ohm) * (s.id_A * s.id_A + s.iq_A * s.iq_A);
     mo.load_W = torque_load * omega;
   }
 
@@ -642,6 +648,7 @@ struct Plant::Impl {
     pw.input_J = aux.v_phase_V[0] * i_abc[0] + aux.v_phase_V[1] * i_abc[1] +
                  aux.v_phase_V[2] * i_abc[2];
     pw.copper_J = mo.copper_W;
+    pw.cable_J = mo.cable_W;
     pw.load_J = mo.load_W;
     pw.v_int_V_s = aux.v_phase_V;
 
@@ -1240,7 +1247,7 @@ struct Plant::Impl {
     s.overcurrent_tripped = tripped;
     s.shaft_stuck = shaft_stuck;
     s.energy = EnergyMeters{meters.input_J, meters.copper_J, meters.iron_J, meters.friction_J,
-                            meters.load_J};
+                            meters.load_J, meters.cable_J};
     return s;
   }
 };

@@ -223,6 +223,28 @@ TEST(EstimatorRobustness, PairsOnTheLoopsVoltageLimitAreMeasuredUnbiased) {
   EXPECT_LT(std::abs(sum / n), 0.01);
 }
 
+// A motor cable is measured with the winding but neither warms with it nor heats it (round 8's
+// agitator: 0.0759 of its 0.408 ohm at 35 C). Told nothing, the drive reads the winding's rise
+// low by the cable's share of Rs0, about 19 %: at the hottest, 30 K over the ambient, 5.6 C.
+// Told the cable (motor.cable_resistance_ohm, 3 % high), it reads as the same machine without
+// one (0.24 / 0.71 C over the whole file), the cable's error a few hundredths of a degree.
+TEST(EstimatorRobustness, AMotorCableTheDriveIsToldOfReadsTheWindingsRise) {
+  const SimulationResult told = run_data("agitator-cable-commissioned-short.toml");
+  const SimulationResult untold = run_data("agitator-cable-short.toml");
+  ASSERT_TRUE(told.calibrated);
+  ASSERT_TRUE(untold.calibrated);
+  const double rise_K = untold.max_winding_true_C - 35.0;
+  ASSERT_GT(rise_K, 20.0) << "the batch no longer heats the winding";
+  const double share = 0.0759 / (0.320 * (234.5 + 35.0) / (234.5 + 25.0) + 0.0759);
+  EXPECT_LT(untold.winding_error_mean_C, -1.5);
+  EXPECT_GT(untold.winding_error_max_C, 0.7 * share * rise_K) << "the cable's share of the rise, read low";
+  EXPECT_LT(told.winding_error_rms_C, 1.0);
+  EXPECT_LT(std::abs(told.winding_error_mean_C), 0.6);
+  // The resistances are the same in both: only Eq. 1's conversion differs.
+  EXPECT_LT(std::abs(told.rs_error_mean_pct), 0.5);
+  EXPECT_LT(std::abs(untold.rs_error_mean_pct), 0.5);
+}
+
 // The same periods on a bridge whose 3.5 us dead time the extreme duties cannot lose (0.035 of
 // the period against 0.025 from the rails): the bridge does not apply those commands, and the
 // pairs that recorded one are rejected (rejected_voltage_saturation), not kept as above.

@@ -570,5 +570,29 @@ TEST_F(CalibrationFile, SigkillDuringWritesLeavesTheOldOrTheNewFile) {
   EXPECT_EQ(std::distance(fs::directory_iterator(dir), fs::directory_iterator()), 2);
 }
 
+// A calibration's Rs0 far above the configured nameplate names a motor cable as the likely
+// cause: round 8's agitator, 0.320 ohm of winding and 0.0759 of cable at 35 C, configured with
+// the nameplate's 0.33 at 25 C.
+TEST(CalibrationWarning, AnRs0FarAboveTheNameplateNamesACable) {
+  core::Calibration c;
+  c.rs0_ohm = 0.320 * (234.5 + 35.0) / (234.5 + 25.0) + 0.0759;
+  c.t0_C = 35.0;
+  const std::string w = rs0_off_nameplate_warning(0.33, 25.0, core::kCopperInferredZero_C, c);
+  EXPECT_NE(w.find("calibration: Rs0 0.40823 ohm is +19 % off motor.rs_ohm referred to 35.0 C (0.34272 ohm)"),
+            std::string::npos)
+      << w;
+  EXPECT_NE(w.find("motor.cable_resistance_ohm"), std::string::npos) << w;
+  // Within 10 % of it (a nameplate's tolerance), nothing; the same Rs0 with the cable counted in
+  // motor.rs_ohm, nothing.
+  c.rs0_ohm = 0.33 * (234.5 + 35.0) / (234.5 + 25.0) * 1.09;
+  EXPECT_EQ(rs0_off_nameplate_warning(0.33, 25.0, core::kCopperInferredZero_C, c), "");
+  c.rs0_ohm = 0.320 * (234.5 + 35.0) / (234.5 + 25.0) + 0.0759;
+  EXPECT_EQ(rs0_off_nameplate_warning(0.405, 25.0, core::kCopperInferredZero_C, c), "");
+  // Far below it: the nameplate is checked.
+  c.rs0_ohm = 0.25;
+  EXPECT_NE(rs0_off_nameplate_warning(0.33, 25.0, core::kCopperInferredZero_C, c).find("Check motor.rs_ohm"),
+            std::string::npos);
+}
+
 }  // namespace
 }  // namespace pmsm::app

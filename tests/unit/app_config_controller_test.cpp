@@ -270,6 +270,22 @@ TEST(ControllerConfig, CalibrationResistanceOutsideTheWindowIsAnError) {
             "plausibility window would reject every resistance estimate near the reference temperature");
 }
 
+// A motor cable is a share of the resistance the drive measures: one that takes all of it leaves
+// no winding for Eq. 1; a negative one is out of range.
+TEST(ControllerConfig, ACableThatLeavesNoWindingIsAnError) {
+  EXPECT_EQ(error_of("[motor]\ncable_resistance_ohm = 0.14\n"),
+            "drive.toml:2: motor.cable_resistance_ohm (0.14 ohm) is 0.14275 ohm at 25 C, not below motor.rs_ohm "
+            "(0.133 ohm, its default), the whole resistance the drive measures: it would leave no winding for Eq. 1");
+  EXPECT_EQ(error_of("[motor]\ncable_resistance_ohm = 0.13\n"), "") << "0.1328 ohm at 25 C: below 0.133";
+  EXPECT_EQ(error_of("[motor]\ncable_resistance_ohm = 0.03\n[calibration]\nrs0_ohm = 0.1\nt0_C = 20\n"), "");
+  const std::string stored = error_of("[motor]\nrs_ohm = 0.2\ncable_resistance_ohm = 0.12\n[calibration]\nrs0_ohm = 0.1\nt0_C = 20\n");
+  EXPECT_NE(stored.find("calibration.rs0_ohm (0.1 ohm"), std::string::npos) << stored;
+  EXPECT_NE(stored.find("it would leave no winding for Eq. 1"), std::string::npos) << stored;
+  EXPECT_NE(error_of("[motor]\ncable_resistance_ohm = -0.01\n").find("motor.cable_resistance_ohm"), std::string::npos);
+  const ControllerConfig c = parse("[motor]\ncable_resistance_ohm = 0.03\n");
+  EXPECT_EQ(c.drive.thermal.cable_resistance_20C_ohm, 0.03);
+}
+
 // The defaults that scale with the motor give exactly the Table I numbers at Table I.
 TEST(ControllerConfig, MotorRelativeDefaultsAreTableIAtTableI) {
   const ControllerConfig c = default_controller_config();

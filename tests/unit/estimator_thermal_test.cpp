@@ -101,6 +101,40 @@ TEST(ThermalObserver, PredictionWithTemperatureDependentCopperLoss) {
   EXPECT_NEAR(obs.estimate().housing_C, x(1), 0.02);
 }
 
+// A motor cable (ThermalModelConfig::cable_resistance_20C_ohm) is part of what the drive
+// measures, Rs0 at T0 included, at the ambient's temperature: Eq. 1 takes the winding's share
+// alone, and so does the copper loss. Figures of round 8's agitator: 0.320 ohm of winding and
+// 0.073 of cable at 35 C.
+TEST(ThermalObserver, AMotorCableIsMeasuredButNeitherWarmsNorHeats) {
+  const double rw0 = 0.320;
+  const double t0 = 35.0;
+  const double cable_20 = 0.073 * (234.5 + 20.0) / (234.5 + t0);  // 0.073 ohm at 35 C
+  ThermalModelConfig c;
+  c.cable_resistance_20C_ohm = cable_20;
+  Calibration cal;
+  cal.rs0_ohm = rw0 + 0.073;
+  cal.t0_C = t0;
+  ThermalObserver obs(c, cal, t0);
+  EXPECT_NEAR(obs.winding_rs0_ohm(), rw0, 1e-12);
+  EXPECT_NEAR(obs.cable_resistance_now_ohm(), 0.073, 1e-12);  // before any ambient: at T0
+  // The winding at 85 C, the cable at the ambient of 35 C.
+  const double measured = resistance_at_temperature_ohm(rw0, t0, 85.0) + 0.073;
+  EXPECT_NEAR(obs.temperature_from_resistance_C(measured), 85.0, 1e-9);
+  EXPECT_NEAR(obs.resistance_at_C(85.0), measured, 1e-12);
+  // Without the key the whole rise is scaled by the winding's share of Rs0: 81 % of it.
+  ThermalObserver no_cable(ThermalModelConfig{}, cal, t0);
+  EXPECT_NEAR(no_cable.temperature_from_resistance_C(measured) - t0, 50.0 * rw0 / (rw0 + 0.073), 1e-9);
+  // The copper loss is the winding's: at the estimate's temperature (T0 here).
+  EXPECT_NEAR(obs.copper_loss_W(100.0), 1.5 * 100.0 * rw0, 1e-12);
+  // The cable follows the ambient of the last prediction (copper, from its 20 C value).
+  obs.predict(1e-3, 0.0, 0.0, 15.0);
+  EXPECT_NEAR(obs.cable_resistance_now_ohm(), cable_20 * (234.5 + 15.0) / (234.5 + 20.0), 1e-12);
+  const double winding_C = obs.estimate().winding_C;
+  EXPECT_NEAR(obs.temperature_from_resistance_C(resistance_at_temperature_ohm(rw0, t0, winding_C) +
+                                                obs.cable_resistance_now_ohm()),
+              winding_C, 1e-9);
+}
+
 TEST(ThermalObserver, TimeScaleRunsThermalTimeFaster) {
   ThermalModelConfig slow;
   ThermalModelConfig fast = slow;

@@ -328,10 +328,11 @@ double axis_energy_J(double i, double L, double Ls, double knee, bool saturating
   return i * psi - co;
 }
 
-TEST(plant_physics, EnergyBalanceWithVaryingLoad) {
-  // Everything on: saturation, saliency, trapezoidal EMF, cogging, iron loss, dead time,
-  // device drop, DC ripple, load steps with ripple, thermal coupling.
+// Everything on: saturation, saliency, trapezoidal EMF, cogging, iron loss, dead time, device
+// drop, DC ripple, load steps with ripple, thermal coupling; and a motor cable of cable_ohm.
+void expect_energy_balance_with_varying_load(double cable_ohm) {
   PlantConfig c;
+  c.motor.cable_resistance_ohm = cable_ohm;
   c.motor.lq_H = 7.5e-3;
   c.saturation.enabled = true;
   c.saturation.id_knee_A = 30.0;
@@ -376,14 +377,24 @@ TEST(plant_physics, EnergyBalanceWithVaryingLoad) {
     return magnetic + kinetic + cogging;
   };
   const EnergyMeters& e = last.energy;
-  const double out = e.copper_J + e.iron_J + e.friction_J + e.load_J + stored_J(last) -
+  const double out = e.copper_J + e.cable_J + e.iron_J + e.friction_J + e.load_J + stored_J(last) -
                      stored_J(first);
   EXPECT_GT(e.input_J, 100.0);
   EXPECT_GT(e.iron_J, 0.0);
   EXPECT_NEAR(out, e.input_J, 0.001 * e.input_J)
-      << "in " << e.input_J << " copper " << e.copper_J << " iron " << e.iron_J << " friction "
-      << e.friction_J << " load " << e.load_J;
+      << "in " << e.input_J << " copper " << e.copper_J << " cable " << e.cable_J << " iron " << e.iron_J
+      << " friction " << e.friction_J << " load " << e.load_J;
+  // The cable's loss against the winding's: their resistances' ratio, the cable at the ambient
+  // (25 C) and the winding near it (it warms by a fraction of a kelvin here).
+  const double cable_share = c.motor.cable_at_C(c.thermal.ambient_C) / c.motor.rs_at_C(c.thermal.ambient_C);
+  EXPECT_NEAR(e.cable_J, cable_share * e.copper_J, 0.01 * cable_share * e.copper_J + 1e-12);
 }
+
+TEST(plant_physics, EnergyBalanceWithVaryingLoad) { expect_energy_balance_with_varying_load(0.0); }
+
+// A motor cable: its loss leaves the machine (EnergyMeters::cable_J), the winding's copper loss is
+// its own resistance's.
+TEST(plant_physics, EnergyBalanceWithAMotorCable) { expect_energy_balance_with_varying_load(0.03); }
 
 TEST(plant_physics, EnergyBalanceWhileRectifying) {
   // Gates off above the speed where the line EMF exceeds the bus: the diodes rectify, the
@@ -408,7 +419,7 @@ TEST(plant_physics, EnergyBalanceWhileRectifying) {
   const EnergyMeters& e = last.energy;
   EXPECT_LT(e.input_J, -1.0);   // generating into the DC bus
   EXPECT_LT(min_torque, -1.0);  // braking torque
-  const double out = e.copper_J + e.iron_J + e.friction_J + e.load_J + stored_J(last) -
+  const double out = e.copper_J + e.cable_J + e.iron_J + e.friction_J + e.load_J + stored_J(last) -
                      stored_J(first);
   EXPECT_NEAR(out, e.input_J, 0.001 * std::abs(e.load_J));
 }

@@ -10,6 +10,7 @@
 #pragma once
 
 #include <array>
+#include <limits>
 
 #include <Eigen/Core>
 
@@ -31,6 +32,11 @@ struct ThermalModelConfig {
   // The winding's conductor for Eq. 1: its inferred zero-resistance temperature (copper
   // 234.5 C, aluminium 225 C; machine_equations.hpp).
   double conductor_inferred_zero_C = 234.5;
+  // A resistance in series with the winding that is part of everything the drive measures (the
+  // calibration's Rs0 and every estimate) but not of the winding: the motor cable, per phase,
+  // at 20 C (copper, at the ambient sensor's temperature). Eq. 1 and the copper loss take the
+  // winding's share alone; 0: none (docs/estimator.md section 7, "A motor cable").
+  double cable_resistance_20C_ohm = 0.0;
   // Thermal time runs this many times faster than controller time (test acceleration; 1 on a
   // real machine).
   double time_scale = 1.0;
@@ -234,8 +240,14 @@ class ThermalObserver {
   [[nodiscard]] double measured_winding_variance_C2() const;
   // The winding's rate of change over the last predict() (C per controller second).
   [[nodiscard]] double winding_rate_C_per_s() const { return winding_rate_C_per_s_; }
+  // Eq. 1 between what the drive measures (the winding's resistance plus the cable's,
+  // ThermalModelConfig::cable_resistance_20C_ohm) and the winding's temperature.
   [[nodiscard]] double temperature_from_resistance_C(double rs_ohm) const;
   [[nodiscard]] double resistance_at_C(double temp_C) const;
+  // The cable's share of a measured resistance now: at the ambient of the last predict() or
+  // restore() (before either, at the calibration's T0); and the winding's share of Rs0.
+  [[nodiscard]] double cable_resistance_now_ohm() const;
+  [[nodiscard]] double winding_rs0_ohm() const;
 
   // Time (controller seconds) until the winding reaches limit_C if the present load
   // continues; nothing when the steady state stays below the limit. The copper loss is taken
@@ -273,6 +285,7 @@ class ThermalObserver {
   bool restore_referable_ = false;
   Eigen::Matrix2d restore_relaxation_ = Eigen::Matrix2d::Identity();
   double restore_ambient_C_ = 0.0;
+  double ambient_C_ = std::numeric_limits<double>::quiet_NaN();  // the last predict()'s or restore()'s
   bool holds_uncalibrated_ = false;  // a measurement through an uncalibrated Rs0 is in the state
   int gated_in_row_ = 0;      // measurements gated out since the last fused one
   double gated_sum_C_ = 0.0, gated_sq_sum_C2_ = 0.0, gated_r_sum_C2_ = 0.0;  // of those

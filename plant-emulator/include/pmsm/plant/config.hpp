@@ -54,6 +54,12 @@ struct MotorConfig {
   [[nodiscard]] double rs_at_C(double temp_C) const {
     return rs_ohm * (1.0 + alpha_at_reference() * (temp_C - rs_reference_temp_C));
   }
+  // A motor cable in series with each phase, at 20 C (copper), at the ambient temperature: in
+  // the electrical model, its loss outside the machine (not in the thermal network). 0: none.
+  double cable_resistance_ohm = 0.0;
+  [[nodiscard]] double cable_at_C(double ambient_C) const {
+    return cable_resistance_ohm * (234.5 + ambient_C) / (234.5 + 20.0);
+  }
   double ke_V_s_per_rad = 1.19;       // line-to-line RMS volts per mechanical rad/s (Table I)
   double ld_H = 5.5e-3;           // half the line-to-line inductance of Table I
   double lq_H = 5.5e-3;

@@ -23,11 +23,12 @@ namespace pmsm::plant {
 // Energy meters, integrated with the same RK4 weights as the state, so that they are as
 // accurate as the simulation itself (a power analyser on the terminals and a torque flange).
 struct EnergyMeters {
-  double input_J = 0.0;     // ∫ Σ v_xn·i_x dt at the motor terminals (phase-to-neutral)
+  double input_J = 0.0;     // ∫ Σ v_xn·i_x dt at the inverter's terminals (phase-to-neutral; the cable's, if any, in it)
   double copper_J = 0.0;    // ∫ 3/2·Rs·(id² + iq²) dt
   double iron_J = 0.0;      // ∫ iron-loss power dt
   double friction_J = 0.0;  // ∫ (Coulomb + viscous friction torque)·ω dt
   double load_J = 0.0;      // ∫ T_load·ω dt: work delivered to the load or dynamometer
+  double cable_J = 0.0;     // ∫ 3/2·R_cable·(id² + iq²) dt: the motor cable's loss (motor.cable_resistance_ohm)
 };
 
 // The true state, for tests and diagnostics. Never part of what the controller sees.
