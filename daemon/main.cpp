@@ -267,6 +267,13 @@ int run(const Options& o) {
                    ? fmt::format(" (Rs0 {:.5f} ohm at {:.1f} C)", config.controller.drive.calibration.rs0_ohm,
                                  config.controller.drive.calibration.t0_C)
                    : std::string{});
+  if (stored == pmsm::app::StoredCalibration::kLoaded) {
+    if (const std::string w =
+            pmsm::app::rs0_off_nameplate_warning(config.controller.drive, config.controller.drive.calibration);
+        !w.empty()) {
+      spdlog::warn("{}", w);
+    }
+  }
 
   // CAN: the RT socket receives exactly this node's samples and commands; the publishing
   // socket nothing until the publisher installs its filters (this node's published

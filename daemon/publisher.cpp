@@ -406,10 +406,7 @@ void Publisher::handle(const PublicationRecord& r) {
                                           : std::string("bridge band not measured (the configured one holds)"),
                  c.vx_std_V > 0.0 ? fmt::format("bridge voltage Vx {:.3f} +- {:.3f} V", c.vx_V, c.vx_std_V)
                                   : std::string("bridge voltage not learned (the configured prior holds)"));
-    const core::DriveConfig& d = config_.controller.drive;
-    if (const std::string w = app::rs0_off_nameplate_warning(d.motor.rs_ohm, d.motor.rs_reference_temp_C,
-                                                             d.thermal.conductor_inferred_zero_C, c);
-        !w.empty()) {
+    if (const std::string w = app::rs0_off_nameplate_warning(config_.controller.drive, c); !w.empty()) {
       spdlog::warn("{}", w);
     }
     if (!config_.controller.calibration_file.empty()) {

@@ -476,23 +476,28 @@ StoredThermalState read_thermal_state_file(const std::filesystem::path& path) {
   return s;
 }
 
-std::string rs0_off_nameplate_warning(double rs_ohm, double rs_reference_temp_C, double conductor_inferred_zero_C,
-                                      const core::Calibration& c) {
+std::string rs0_off_nameplate_warning(const core::DriveConfig& config, const core::Calibration& c) {
   // A measured Rs0 well above the configured one is most often a motor cable the configuration
   // does not give: Eq. 1 then takes the cable for winding, and every rise reads low by the
   // cable's share of Rs0.
+  const double cable_20C_ohm = config.thermal.cable_resistance_20C_ohm;
   const double expected_ohm =
-      core::resistance_at_temperature_ohm(rs_ohm, rs_reference_temp_C, c.t0_C, conductor_inferred_zero_C);
+      core::resistance_at_temperature_ohm(config.motor.rs_ohm, config.motor.rs_reference_temp_C, c.t0_C,
+                                          config.thermal.conductor_inferred_zero_C) +
+      core::cable_resistance_at_C(cable_20C_ohm, c.t0_C);
   const double off = c.rs0_ohm / expected_ohm - 1.0;
   if (!std::isfinite(off) || std::abs(off) <= kRs0NameplateWarnFraction) {
     return {};
   }
-  return fmt::format("calibration: Rs0 {:.5f} ohm is {:+.0f} % off motor.rs_ohm referred to {:.1f} C ({:.5f} ohm). {}",
-                     c.rs0_ohm, 100.0 * off, c.t0_C, expected_ohm,
-                     off > 0.0 ? "A motor cable the configuration does not give (motor.cable_resistance_ohm, its share "
-                                 "of what the drive measures) makes every winding rise read low by its share of Rs0; "
-                                 "otherwise the nameplate value is wrong"
-                               : "Check motor.rs_ohm (and motor.cable_resistance_ohm, if given)");
+  const bool cable = cable_20C_ohm > 0.0;
+  return fmt::format(
+      "calibration: Rs0 {:.5f} ohm is {:+.0f} % off motor.rs_ohm{} referred to {:.1f} C ({:.5f} ohm). {}", c.rs0_ohm,
+      100.0 * off, cable ? " and motor.cable_resistance_ohm" : "", c.t0_C, expected_ohm,
+      off > 0.0 ? (cable ? "More cable than motor.cable_resistance_ohm gives"
+                         : "A motor cable the configuration does not give (motor.cable_resistance_ohm)") +
+                      std::string(" makes every winding rise read low by its share of Rs0; otherwise the nameplate "
+                                  "value is wrong")
+                : std::string("Check motor.rs_ohm") + (cable ? " and motor.cable_resistance_ohm" : ""));
 }
 
 }  // namespace pmsm::app

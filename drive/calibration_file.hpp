@@ -24,6 +24,7 @@
 #include <string>
 #include <string_view>
 
+#include "pmsm/core/drive_controller.hpp"
 #include "pmsm/core/thermal_observer.hpp"
 
 namespace pmsm::app {
@@ -46,13 +47,13 @@ inline constexpr int kCalibrationFileFormat = 1;
 void write_calibration_file(const std::filesystem::path& path, const core::Calibration& calibration,
                             std::string_view source);
 
-// A calibration's Rs0 more than kRs0NameplateWarnFraction off the configured motor.rs_ohm
-// referred to its T0 (Eq. 1, the configured conductor): a warning that names the likely cause,
-// a motor cable the configuration does not give (docs/estimator.md section 7, "A motor cable");
-// empty when it is within that. For the drive's log once a calibration is done.
+// A calibration's Rs0 more than kRs0NameplateWarnFraction off what the configuration expects at
+// its T0 (motor.rs_ohm by Eq. 1 and the configured conductor, plus motor.cable_resistance_ohm's
+// cable): a warning that names the likely cause, a motor cable the configuration does not give
+// or gives too small (docs/estimator.md section 6, "A motor cable"); empty when it is within
+// that. For the drive's log when a calibration is done or loaded.
 inline constexpr double kRs0NameplateWarnFraction = 0.10;
-[[nodiscard]] std::string rs0_off_nameplate_warning(double rs_ohm, double rs_reference_temp_C,
-                                                    double conductor_inferred_zero_C, const core::Calibration& c);
+[[nodiscard]] std::string rs0_off_nameplate_warning(const core::DriveConfig& config, const core::Calibration& c);
 
 // Reads a calibration file (calibrated = true). Throws CalibrationFileError naming the file,
 // line and key when it cannot be read or is not a valid calibration.

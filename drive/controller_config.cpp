@@ -25,12 +25,24 @@ using core::Separation;
 using core::WindowKind;
 using C = ControllerConfig;
 
+// A motor cable (at 20 C) that takes all of a calibration's Rs0 at its T0: the text of why, or
+// empty. Eq. 1 would have no winding left (and a negative one turns its slope over).
+std::string cable_leaves_no_winding(double cable_20C_ohm, const core::Calibration& cal) {
+  const double cable_ohm = core::cable_resistance_at_C(cable_20C_ohm, cal.t0_C);
+  if (!(cable_20C_ohm > 0.0) || cable_ohm < cal.rs0_ohm) {
+    return {};
+  }
+  return fmt::format(" is {:.6g} ohm at {:.6g} C, not below the calibration's Rs0 ({:.6g} ohm), the whole resistance "
+                     "the drive measures: it would leave no winding for Eq. 1",
+                     cable_ohm, cal.t0_C, cal.rs0_ohm);
+}
+
 ConfigSchema<C> build() {
   ConfigSchema<C> s;
   // [motor] — the controller's commissioned model of the machine.
   s.real("motor.rs_ohm", [](C& c) -> double& { return c.drive.motor.rs_ohm; }, between(common::kMinStatorResistance_ohm, common::kMaxStatorResistance_ohm), "ohm",
-         "Phase-to-neutral resistance the drive sees at motor.rs_reference_temp_C: the nameplate's, plus the motor cable's "
-         "(motor.cable_resistance_ohm) where there is one; the temperature scale until a calibration replaces it.");
+         "Nameplate phase-to-neutral resistance of the winding at motor.rs_reference_temp_C (a motor cable is "
+         "motor.cable_resistance_ohm); with the cable, the temperature scale until a calibration replaces it.");
   s.real("motor.rs_reference_temp_C", [](C& c) -> double& { return c.drive.motor.rs_reference_temp_C; }, between(-50, 200), "C",
          "Temperature at which motor.rs_ohm holds (T0 of Eq. 1).");
   s.choice("motor.conductor", {{"copper", 0}, {"aluminium", 1}},
@@ -42,9 +54,10 @@ ConfigSchema<C> build() {
            "3.93e-3 /C at 20 C, 3.85e-3 at 25 C) or 225 C (aluminium).");
   s.real("motor.cable_resistance_ohm", [](C& c) -> double& { return c.drive.thermal.cable_resistance_20C_ohm; },
          at_least(0, common::kMaxStatorResistance_ohm), "ohm",
-         "The motor cable's share of motor.rs_ohm and of every resistance the drive measures, per phase (half the "
-         "line-to-line value) at 20 C, copper at the ambient sensor's temperature: Eq. 1 and the copper loss take the "
-         "winding's share alone. 0: none (a cable of 19 % of the total read 81 % of the winding's rise).");
+         "A motor cable in series with the winding, per phase (half the line-to-line value) at 20 C, copper at the "
+         "ambient sensor's temperature: part of every resistance the drive measures, which the drive adds to "
+         "motor.rs_ohm (current loop, Rs0 before a calibration, plausibility window) and takes off before Eq. 1 and "
+         "the copper loss. 0: none (a cable of 19 % of the total read 81 % of the winding's rise).");
   s.real("motor.ld_H", [](C& c) -> double& { return c.drive.motor.ld_H; }, between(common::kMinInductance_H, 1.0), "H", "d-axis inductance as commissioned.");
   s.real("motor.lq_H", [](C& c) -> double& { return c.drive.motor.lq_H; }, between(common::kMinInductance_H, 1.0), "H", "q-axis inductance as commissioned.");
   s.real("motor.lq_rated_H", [](C& c) -> double& { return c.drive.motor.lq_rated_H; }, at_least(0, 1.0), "H",
@@ -253,9 +266,9 @@ ConfigSchema<C> build() {
   inj.real("injection.min_condition", [](C& c) -> double& { return c.drive.injection.min_condition; }, between(0, 1), "",
            "Reject a fit whose regressors are more collinear than this (reciprocal condition).");
   inj.optional_real("injection.rs_min_ohm", [](C& c) -> std::optional<double>& { return c.relative.rs_min_ohm; }, positive(100), "ohm",
-                    "0.677 motor.rs_ohm", "Plausibility window of a resistance estimate, lower end (Table I: 0.09 ohm, about -57 C).");
+                    "0.677 motor.rs_ohm (+ the cable)", "Plausibility window of a resistance estimate, lower end (Table I: 0.09 ohm, about -57 C).");
   inj.optional_real("injection.rs_max_ohm", [](C& c) -> std::optional<double>& { return c.relative.rs_max_ohm; }, positive(100), "ohm",
-                    "2.03 motor.rs_ohm", "Plausibility window, upper end (Table I: 0.27 ohm, about 287 C).");
+                    "2.03 motor.rs_ohm (+ the cable)", "Plausibility window, upper end (Table I: 0.27 ohm, about 287 C).");
   inj.boolean("injection.fit_dead_time", [](C& c) -> bool& { return c.drive.injection.fit_dead_time; },
               "Model the inverter's uncompensated voltage Vx (learned across events).");
   inj.boolean("injection.fit_inductance", [](C& c) -> bool& { return c.drive.injection.fit_inductance; },
@@ -362,7 +375,7 @@ ConfigSchema<C> build() {
          "The relative standard uncertainty of Rs0 while no calibration run of this drive has measured it (a data "
          "sheet's +-10 % tolerance is about 0.05; a four-wire measurement at a known temperature about 0.005): every "
          "estimate shares its error, so it widens the band, and the derating's T + k sigma, by (234.5 + T) times it for "
-         "copper, until a calibration replaces it (docs/estimator.md section 6). Default 0.05 for the nameplate's "
+         "copper (times Rs0 over the winding's share with a motor cable), until a calibration replaces it (docs/estimator.md section 6). Default 0.05 for the nameplate's "
          "motor.rs_ohm, 0 where calibration.rs0_ohm is given (a stored calibration's).");
   s.real("calibration.ke0_V_s_per_rad", [](C& c) -> double& { return c.drive.calibration.ke0_V_s_per_rad; }, at_least(0, 100), "V s/rad",
          "Eq. 3's Ke at T0 (0: not calibrated; no magnet temperature): phase-peak volts per mechanical rad/s, psi p, "
@@ -481,8 +494,11 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
   const core::MotorRelativeDefaults relative = core::motor_relative_defaults(m);
   d.injection.f_A = c.relative.injection_f_A.value_or(relative.injection_f_A);
   d.injection.f_min_A = c.relative.injection_f_min_A.value_or(relative.injection_f_min_A);
-  d.injection.rs_min_ohm = c.relative.rs_min_ohm.value_or(relative.rs_min_ohm);
-  d.injection.rs_max_ohm = c.relative.rs_max_ohm.value_or(relative.rs_max_ohm);
+  // The window is the winding's temperatures (-57 to 287 C on Table I) plus a motor cable's
+  // resistance, which does not warm with it.
+  const double cable_ohm = core::cable_resistance_at_C(d.thermal.cable_resistance_20C_ohm, m.rs_reference_temp_C);
+  d.injection.rs_min_ohm = c.relative.rs_min_ohm.value_or(relative.rs_min_ohm + cable_ohm);
+  d.injection.rs_max_ohm = c.relative.rs_max_ohm.value_or(relative.rs_max_ohm + cable_ohm);
   d.injection.max_load_change_A = c.relative.max_load_change_A.value_or(relative.max_load_change_A);
   d.injection.max_speed_change_rad_s = c.relative.max_speed_change_rad_s.value_or(relative.max_speed_change_rad_s);
   // The missing loss's prior and random walk: Table I's 50 W and 0.5 W/sqrt(s) in proportion to
@@ -657,7 +673,7 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
     if (r == "calibration.rs0_ohm" && !given(r)) {
       continue;
     }
-    const double rs = r == "motor.rs_ohm" ? m.rs_ohm : d.calibration.rs0_ohm;
+    const double rs = r == "motor.rs_ohm" ? core::terminal_resistance_ohm(d) : d.calibration.rs0_ohm;
     for (const std::string_view end : {std::string_view("injection.rs_min_ohm"), std::string_view("injection.rs_max_ohm")}) {
       const bool lower = end == "injection.rs_min_ohm";
       const double limit = lower ? d.injection.rs_min_ohm : d.injection.rs_max_ohm;
@@ -673,21 +689,12 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
   if (!window_reported && d.injection.rs_min_ohm >= d.injection.rs_max_ohm) {  // equal ends around the nameplate
     rule("injection.rs_min_ohm", "injection.rs_max_ohm", "injection.rs_min_ohm must be below injection.rs_max_ohm");
   }
-  // The cable is a share of the resistance the drive measures: it must leave the winding some.
-  for (const std::string_view r : {std::string_view("motor.rs_ohm"), std::string_view("calibration.rs0_ohm")}) {
-    if (!(d.thermal.cable_resistance_20C_ohm > 0.0) || (r == "calibration.rs0_ohm" && !given(r))) {
-      continue;
-    }
-    const bool nameplate = r == "motor.rs_ohm";
-    const double rs = nameplate ? m.rs_ohm : d.calibration.rs0_ohm;
-    const double t0 = nameplate ? m.rs_reference_temp_C : d.calibration.t0_C;
-    const double cable = core::resistance_at_temperature_ohm(d.thermal.cable_resistance_20C_ohm, 20.0, t0);
-    if (cable >= rs) {
-      const std::string_view l = lead("motor.cable_resistance_ohm", r);
-      rule("motor.cable_resistance_ohm", r,
-           ref("motor.cable_resistance_ohm", d.thermal.cable_resistance_20C_ohm, "ohm", l) +
-               fmt::format(" is {:.6g} ohm at {:.6g} C, not below ", cable, t0) + ref(r, rs, "ohm", l) +
-               ", the whole resistance the drive measures: it would leave no winding for Eq. 1");
+  // A stored Rs0 holds the cable too (the drive measures both): it must leave the winding some.
+  if (given("calibration.rs0_ohm")) {
+    if (const std::string why = cable_leaves_no_winding(d.thermal.cable_resistance_20C_ohm, d.calibration); !why.empty()) {
+      const std::string_view l = lead("motor.cable_resistance_ohm", "calibration.rs0_ohm");
+      rule("motor.cable_resistance_ohm", "calibration.rs0_ohm",
+           ref("motor.cable_resistance_ohm", d.thermal.cable_resistance_20C_ohm, "ohm", l) + why);
     }
   }
   // A stored Vx and its error bar go together: without the error bar (0 means "not learned")
@@ -944,7 +951,7 @@ ControllerConfig parse_controller_config(const toml::table& table, std::string_v
   c.vx_initial_from_compensation = !table.at_path("injection.vx_initial_V");
   controller_schema().apply(table, c, source, foreign, key_prefix);
   if (!rs0_given) {
-    c.drive.calibration.rs0_ohm = c.drive.motor.rs_ohm;
+    c.drive.calibration.rs0_ohm = core::terminal_resistance_ohm(c.drive);  // the nameplate's and a cable's
   } else if (!rs0_std_given) {
     // A stored calibration's Rs0 (the key's meaning) was measured: no nameplate share.
     c.drive.calibration.rs0_std_fraction = 0.0;
@@ -987,6 +994,13 @@ StoredCalibration load_stored_calibration(ControllerConfig& config) {
         "or correct the window",
         config.calibration_file, common::format_number(stored.rs0_ohm), low ? "below" : "above",
         low ? "rs_min_ohm" : "rs_max_ohm", common::format_number(low ? inj.rs_min_ohm : inj.rs_max_ohm)));
+  }
+  if (const std::string why = cable_leaves_no_winding(config.drive.thermal.cable_resistance_20C_ohm, stored);
+      !why.empty()) {
+    throw CalibrationFileError(fmt::format("{}: the configured controller.motor.cable_resistance_ohm ({} ohm at 20 C){}: "
+                                           "correct the cable, or calibrate again (remove the file)",
+                                           config.calibration_file,
+                                           common::format_number(config.drive.thermal.cable_resistance_20C_ohm), why));
   }
   config.drive.calibration = stored;
   return StoredCalibration::kLoaded;

@@ -6,8 +6,10 @@ namespace pmsm::core {
 
 void DriveConfig::derive_from_motor() {
   const double psi_Wb = flux_linkage_Wb(motor);
+  // What the drive sees: the winding's nameplate resistance and a motor cable's, if any.
+  const double rs_seen_ohm = terminal_resistance_ohm(*this);
   current.period_s = period_s;
-  current.rs_ohm = motor.rs_ohm;
+  current.rs_ohm = rs_seen_ohm;
   current.ld_H = motor.ld_H;
   current.lq_H = motor.lq_H;
   current.flux_linkage_Wb = psi_Wb;
@@ -21,14 +23,14 @@ void DriveConfig::derive_from_motor() {
     injection_config->lq_map = motor.lq_map;
     injection_config->rated_current_A = continuous_current_peak_A(motor);
     injection_config->ld_H = motor.ld_H;
-    injection_config->rs_nominal_ohm = motor.rs_ohm;
+    injection_config->rs_nominal_ohm = rs_seen_ohm;
     injection_config->flux_linkage_Wb = psi_Wb;
     injection_config->pole_pairs = motor.pole_pairs;
   }
   baseline.period_s = period_s;
   baseline.ld_H = motor.ld_H;
   baseline.pole_pairs = motor.pole_pairs;
-  baseline.initial_rs_ohm = motor.rs_ohm;
+  baseline.initial_rs_ohm = rs_seen_ohm;
   baseline.initial_ke_V_s_per_rad = emf_constant_dq_V_s_per_rad(motor);
 }
 

@@ -868,14 +868,12 @@ void DriveController::handle_estimate(const EventEstimate& e) {
     // (An event dated after now, which the calibration's pairs at no load do not make, is
     // referred back by the model's rate of warming: the calibration cannot wait for it.)
     // The winding's share only: a motor cable (ThermalModelConfig::cable_resistance_20C_ohm) is
-    // at the ambient, where a calibration at rest has it.
+    // at the ambient now and is stored at T0, as the winding (ThermalObserver::winding_rs0_ohm).
     const double rs_now = referred_back_ohm(e.rs_ohm, e.measured_at_s - e.time_s);
-    const double cable_ohm = observer_.cable_resistance_now_ohm();
-    const double rs_at_known =
-        (rs_now - cable_ohm) * resistance_at_temperature_ohm(1.0, observer_.estimate().winding_C,
-                                                             calibration_temp_C_,
-                                                             config_.thermal.conductor_inferred_zero_C) +  // Eq. 1
-        cable_ohm;
+    const double rs_at_known = resistance_referred_to_C(
+        rs_now, observer_.estimate().winding_C, calibration_temp_C_, observer_.cable_resistance_now_ohm(),
+        cable_resistance_at_C(config_.thermal.cable_resistance_20C_ohm, calibration_temp_C_),
+        config_.thermal.conductor_inferred_zero_C);  // Eq. 1
     const double w = 1.0 / std::max(e.rs_std_ohm * e.rs_std_ohm, 1e-12);
     calibration_rs_sum_ += w * rs_at_known;
     calibration_weight_sum_ += w;

@@ -192,14 +192,14 @@ void ThermalObserver::keep_loss_errors(const ThermalObserver& other) {
 
 double ThermalObserver::cable_resistance_now_ohm() const {
   // A copper cable at the ambient sensor's temperature, its resistance given at 20 C.
-  const double t_C = std::isfinite(ambient_C_) ? ambient_C_ : calibration_.t0_C;
-  return resistance_at_temperature_ohm(config_.cable_resistance_20C_ohm, 20.0, t_C, kCopperInferredZero_C);
+  return cable_resistance_at_C(config_.cable_resistance_20C_ohm,
+                               std::isfinite(ambient_C_) ? ambient_C_ : calibration_.t0_C);
 }
 
 double ThermalObserver::winding_rs0_ohm() const {
-  // Rs0 was measured at T0 with the cable soaked at T0 too, as the winding.
-  return calibration_.rs0_ohm -
-         resistance_at_temperature_ohm(config_.cable_resistance_20C_ohm, 20.0, calibration_.t0_C, kCopperInferredZero_C);
+  // Rs0 holds the winding and the cable both at T0 (a calibration refers its events so:
+  // resistance_referred_to_C).
+  return calibration_.rs0_ohm - cable_resistance_at_C(config_.cable_resistance_20C_ohm, calibration_.t0_C);
 }
 
 double ThermalObserver::resistance_at_C(double temp_C) const {

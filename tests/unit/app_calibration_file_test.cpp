@@ -572,26 +572,57 @@ TEST_F(CalibrationFile, SigkillDuringWritesLeavesTheOldOrTheNewFile) {
 
 // A calibration's Rs0 far above the configured nameplate names a motor cable as the likely
 // cause: round 8's agitator, 0.320 ohm of winding and 0.0759 of cable at 35 C, configured with
-// the nameplate's 0.33 at 25 C.
+// the nameplate's 0.33 at 25 C. Once the cable is configured, nothing; a cable configured too
+// small is named as such.
 TEST(CalibrationWarning, AnRs0FarAboveTheNameplateNamesACable) {
+  core::DriveConfig d;
+  d.motor.rs_ohm = 0.33;
+  d.motor.rs_reference_temp_C = 25.0;
   core::Calibration c;
   c.rs0_ohm = 0.320 * (234.5 + 35.0) / (234.5 + 25.0) + 0.0759;
   c.t0_C = 35.0;
-  const std::string w = rs0_off_nameplate_warning(0.33, 25.0, core::kCopperInferredZero_C, c);
+  const std::string w = rs0_off_nameplate_warning(d, c);
   EXPECT_NE(w.find("calibration: Rs0 0.40823 ohm is +19 % off motor.rs_ohm referred to 35.0 C (0.34272 ohm)"),
             std::string::npos)
       << w;
-  EXPECT_NE(w.find("motor.cable_resistance_ohm"), std::string::npos) << w;
-  // Within 10 % of it (a nameplate's tolerance), nothing; the same Rs0 with the cable counted in
-  // motor.rs_ohm, nothing.
+  EXPECT_NE(w.find("A motor cable the configuration does not give (motor.cable_resistance_ohm)"), std::string::npos) << w;
+  d.thermal.cable_resistance_20C_ohm = 0.0717;
+  EXPECT_EQ(rs0_off_nameplate_warning(d, c), "");
+  d.thermal.cable_resistance_20C_ohm = 0.005;
+  EXPECT_NE(rs0_off_nameplate_warning(d, c).find("More cable than motor.cable_resistance_ohm gives"), std::string::npos);
+  // Within 10 % of it (a nameplate's tolerance), nothing.
+  d.thermal.cable_resistance_20C_ohm = 0.0;
   c.rs0_ohm = 0.33 * (234.5 + 35.0) / (234.5 + 25.0) * 1.09;
-  EXPECT_EQ(rs0_off_nameplate_warning(0.33, 25.0, core::kCopperInferredZero_C, c), "");
-  c.rs0_ohm = 0.320 * (234.5 + 35.0) / (234.5 + 25.0) + 0.0759;
-  EXPECT_EQ(rs0_off_nameplate_warning(0.405, 25.0, core::kCopperInferredZero_C, c), "");
+  EXPECT_EQ(rs0_off_nameplate_warning(d, c), "");
   // Far below it: the nameplate is checked.
   c.rs0_ohm = 0.25;
-  EXPECT_NE(rs0_off_nameplate_warning(0.33, 25.0, core::kCopperInferredZero_C, c).find("Check motor.rs_ohm"),
-            std::string::npos);
+  EXPECT_NE(rs0_off_nameplate_warning(d, c).find("Check motor.rs_ohm"), std::string::npos);
+}
+
+// A stored calibration whose Rs0 the configured cable takes whole is refused with both named.
+TEST(CalibrationWarning, AStoredRs0ACableTakesWholeIsRefused) {
+  const fs::path dir = fs::temp_directory_path() / ("pmsm-cable-" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  ControllerConfig config = default_controller_config();
+  config.calibration_file = (dir / "calibration.toml").string();
+  core::Calibration stored;
+  stored.rs0_ohm = 0.095;
+  stored.t0_C = 20.0;
+  stored.calibrated = true;
+  write_calibration_file(config.calibration_file, stored, "test");
+  config.drive.thermal.cable_resistance_20C_ohm = 0.1;
+  try {
+    (void)load_stored_calibration(config);
+    ADD_FAILURE() << "a calibration the cable takes whole was loaded";
+  } catch (const CalibrationFileError& e) {
+    EXPECT_NE(std::string(e.what()).find("controller.motor.cable_resistance_ohm (0.1 ohm at 20 C) is 0.1 ohm at 20 C, not "
+                                         "below the calibration's Rs0 (0.095 ohm)"),
+              std::string::npos)
+        << e.what();
+  }
+  config.drive.thermal.cable_resistance_20C_ohm = 0.02;
+  EXPECT_EQ(load_stored_calibration(config), StoredCalibration::kLoaded);
+  fs::remove_all(dir);
 }
 
 }  // namespace

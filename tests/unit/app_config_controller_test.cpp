@@ -270,20 +270,24 @@ TEST(ControllerConfig, CalibrationResistanceOutsideTheWindowIsAnError) {
             "plausibility window would reject every resistance estimate near the reference temperature");
 }
 
-// A motor cable is a share of the resistance the drive measures: one that takes all of it leaves
-// no winding for Eq. 1; a negative one is out of range.
-TEST(ControllerConfig, ACableThatLeavesNoWindingIsAnError) {
-  EXPECT_EQ(error_of("[motor]\ncable_resistance_ohm = 0.14\n"),
-            "drive.toml:2: motor.cable_resistance_ohm (0.14 ohm) is 0.14275 ohm at 25 C, not below motor.rs_ohm "
-            "(0.133 ohm, its default), the whole resistance the drive measures: it would leave no winding for Eq. 1");
-  EXPECT_EQ(error_of("[motor]\ncable_resistance_ohm = 0.13\n"), "") << "0.1328 ohm at 25 C: below 0.133";
-  EXPECT_EQ(error_of("[motor]\ncable_resistance_ohm = 0.03\n[calibration]\nrs0_ohm = 0.1\nt0_C = 20\n"), "");
-  const std::string stored = error_of("[motor]\nrs_ohm = 0.2\ncable_resistance_ohm = 0.12\n[calibration]\nrs0_ohm = 0.1\nt0_C = 20\n");
-  EXPECT_NE(stored.find("calibration.rs0_ohm (0.1 ohm"), std::string::npos) << stored;
-  EXPECT_NE(stored.find("it would leave no winding for Eq. 1"), std::string::npos) << stored;
+// A motor cable adds to the nameplate's winding where the drive needs what it measures: an
+// uncalibrated Rs0 and the plausibility window (the winding's temperatures plus the cable). A
+// stored Rs0 the cable takes whole is an error; a negative cable is out of range.
+TEST(ControllerConfig, AMotorCableAddsToTheNameplateWhereTheDriveMeasures) {
+  const ControllerConfig c = parse("[motor]\nrs_ohm = 0.33\ncable_resistance_ohm = 0.0717\n");
+  const double cable_25 = 0.0717 * (234.5 + 25.0) / (234.5 + 20.0);
+  EXPECT_EQ(c.drive.thermal.cable_resistance_20C_ohm, 0.0717);
+  EXPECT_DOUBLE_EQ(c.drive.calibration.rs0_ohm, 0.33 + cable_25);
+  EXPECT_DOUBLE_EQ(c.drive.injection.rs_min_ohm, 0.09 / 0.133 * 0.33 + cable_25);
+  EXPECT_DOUBLE_EQ(c.drive.injection.rs_max_ohm, 0.27 / 0.133 * 0.33 + cable_25);
+  EXPECT_DOUBLE_EQ(core::with_motor_derived(c.drive).current.rs_ohm, 0.33 + cable_25);
+  EXPECT_EQ(error_of("[motor]\ncable_resistance_ohm = 0.14\n"), "") << "any cable beside a nameplate winding";
+  EXPECT_EQ(error_of("[motor]\ncable_resistance_ohm = 0.12\n[calibration]\nrs0_ohm = 0.1\nt0_C = 20\n[injection]\n"
+                     "rs_min_ohm = 0.05\n"),
+            "drive.toml:2: motor.cable_resistance_ohm (0.12 ohm) is 0.12 ohm at 20 C, not below the "
+            "calibration's Rs0 (0.1 ohm), the whole resistance the drive measures: it would leave no winding for Eq. 1");
+  EXPECT_EQ(error_of("[motor]\ncable_resistance_ohm = 0.03\n[calibration]\nrs0_ohm = 0.15\nt0_C = 20\n"), "");
   EXPECT_NE(error_of("[motor]\ncable_resistance_ohm = -0.01\n").find("motor.cable_resistance_ohm"), std::string::npos);
-  const ControllerConfig c = parse("[motor]\ncable_resistance_ohm = 0.03\n");
-  EXPECT_EQ(c.drive.thermal.cable_resistance_20C_ohm, 0.03);
 }
 
 // The defaults that scale with the motor give exactly the Table I numbers at Table I.

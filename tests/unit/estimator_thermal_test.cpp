@@ -135,6 +135,30 @@ TEST(ThermalObserver, AMotorCableIsMeasuredButNeitherWarmsNorHeats) {
               winding_C, 1e-9);
 }
 
+// A calibration whose T0 is not the ambient (an operator gives a warm winding's temperature):
+// its events, the winding at 60 C and the cable at the ambient's 25 C, are referred to Rs0 at
+// T0 = 45 C with the cable at T0 too, as winding_rs0_ohm() takes it off; the filter then reads
+// the same resistance as 60 C. Adding the cable back at the ambient instead left Rw0 short by
+// Rc20 (T0 - Ta) / 254.5 and read high (2.2 C at 10 K apart on the agitator).
+TEST(ThermalObserver, ACalibrationAwayFromTheAmbientStoresTheCableAtT0) {
+  const double rw_25 = 0.320;
+  const double cable_20 = 0.0717;
+  const double measured = resistance_at_temperature_ohm(rw_25, 25.0, 60.0) + cable_resistance_at_C(cable_20, 25.0);
+  Calibration cal;
+  cal.t0_C = 45.0;
+  cal.rs0_ohm = resistance_referred_to_C(measured, 60.0, 45.0, cable_resistance_at_C(cable_20, 25.0),
+                                         cable_resistance_at_C(cable_20, 45.0));
+  EXPECT_NEAR(cal.rs0_ohm, resistance_at_temperature_ohm(rw_25, 25.0, 45.0) + cable_resistance_at_C(cable_20, 45.0),
+              1e-15);
+  ThermalModelConfig c;
+  c.cable_resistance_20C_ohm = cable_20;
+  ThermalObserver obs(c, cal, 25.0);
+  obs.predict(1e-3, 0.0, 0.0, 25.0);  // the ambient known: the cable at 25 C
+  EXPECT_NEAR(obs.temperature_from_resistance_C(measured), 60.0, 1e-9);
+  // Without a cable the referral is Eq. 1 itself.
+  EXPECT_DOUBLE_EQ(resistance_referred_to_C(0.2, 60.0, 45.0, 0.0, 0.0), 0.2 * resistance_at_temperature_ohm(1.0, 60.0, 45.0));
+}
+
 TEST(ThermalObserver, TimeScaleRunsThermalTimeFaster) {
   ThermalModelConfig slow;
   ThermalModelConfig fast = slow;

@@ -1012,7 +1012,8 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
   }
   if (result.calibrated) {
     // The plant's law at the calibration's temperature.
-    const double truth_rs0 = scenario.plant.motor.rs_at_C(result.calibration.t0_C);
+    const double truth_rs0 =
+        scenario.plant.motor.rs_at_C(result.calibration.t0_C) + scenario.plant.motor.cable_at_C(result.calibration.t0_C);
     if (truth_rs0 > 0.0) {
       result.calibration_rs0_error_pct = 100.0 * (result.calibration.rs0_ohm / truth_rs0 - 1.0);
     }

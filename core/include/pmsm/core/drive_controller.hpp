@@ -134,6 +134,14 @@ struct DriveConfig {
 // A copy of `config` with derive_from_motor() applied.
 [[nodiscard]] DriveConfig with_motor_derived(DriveConfig config);
 
+// The resistance the drive sees at the nameplate's temperature (motor.rs_reference_temp_C): the
+// winding's nameplate value and a motor cable's (ThermalModelConfig::cable_resistance_20C_ohm)
+// at that temperature. What the current loop, the pulse budget and an uncalibrated Rs0 take.
+[[nodiscard]] inline double terminal_resistance_ohm(const DriveConfig& config) {
+  return config.motor.rs_ohm +
+         cable_resistance_at_C(config.thermal.cable_resistance_20C_ohm, config.motor.rs_reference_temp_C);
+}
+
 enum class DriveMode : std::uint8_t { kDisabled, kTorque, kSpeed };
 
 struct DriveCommand {

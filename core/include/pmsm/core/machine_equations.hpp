@@ -100,6 +100,21 @@ inline constexpr double kAluminiumInferredZero_C = 225.0;
   return rs_ohm / rs0_ohm * (inferred_zero_C + t0_C) - inferred_zero_C;
 }
 
+// A motor cable's resistance (copper) at temp_C from its value at 20 C (the data sheets').
+[[nodiscard]] constexpr double cable_resistance_at_C(double cable_20C_ohm, double temp_C) {
+  return resistance_at_temperature_ohm(cable_20C_ohm, 20.0, temp_C, kCopperInferredZero_C);
+}
+
+// A resistance measured with the winding at winding_C and a cable of cable_now_ohm (at the
+// ambient), referred to the winding and the cable both at t0_C (a calibration's Rs0): Eq. 1 on
+// the winding's share alone.
+[[nodiscard]] constexpr double resistance_referred_to_C(double rs_ohm, double winding_C, double t0_C,
+                                                        double cable_now_ohm, double cable_at_t0_ohm,
+                                                        double inferred_zero_C = kCopperInferredZero_C) {
+  return (rs_ohm - cable_now_ohm) * resistance_at_temperature_ohm(1.0, winding_C, t0_C, inferred_zero_C) +
+         cable_at_t0_ohm;
+}
+
 // Temperature change per resistance change, d(Ts)/d(Rs) = (K + T0) / Rs0 = 1 / (alpha(T0) Rs0).
 [[nodiscard]] constexpr double temperature_per_resistance_C_per_ohm(double rs0_ohm, double t0_C,
                                                                     double inferred_zero_C = kCopperInferredZero_C) {

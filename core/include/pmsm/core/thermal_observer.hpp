@@ -35,7 +35,7 @@ struct ThermalModelConfig {
   // A resistance in series with the winding that is part of everything the drive measures (the
   // calibration's Rs0 and every estimate) but not of the winding: the motor cable, per phase,
   // at 20 C (copper, at the ambient sensor's temperature). Eq. 1 and the copper loss take the
-  // winding's share alone; 0: none (docs/estimator.md section 7, "A motor cable").
+  // winding's share alone; 0: none (docs/estimator.md section 6, "A motor cable").
   double cable_resistance_20C_ohm = 0.0;
   // Thermal time runs this many times faster than controller time (test acceleration; 1 on a
   // real machine).
@@ -94,7 +94,7 @@ struct ThermalState {
 inline constexpr double kNameplateRs0StdFraction = 0.05;
 
 struct Calibration {
-  double rs0_ohm = 0.133;       // winding resistance at t0_C
+  double rs0_ohm = 0.133;       // the resistance the drive measures at t0_C (winding, and a cable at t0_C)
   double t0_C = 25.0;
   double ke0_V_s_per_rad = 0.0; // EMF constant (Eq. 3 form) at t0_C; 0 when not calibrated
   // Its standard error from the calibration's events; 0 when unknown (entered by hand, or

@@ -43,7 +43,7 @@ struct PlantState {
   double omega_e_rad_s = 0.0;
   std::array<double, 3> phase_emf_V{};  // instantaneous phase-to-neutral EMF
   double psi_m_Wb = 0.0;         // magnet flux linkage at the magnet temperature
-  double rs_ohm = 0.0;           // phase-to-neutral resistance at the winding temperature
+  double rs_ohm = 0.0;           // phase-to-neutral resistance the drive sees: the winding at its temperature, and a cable at the ambient
   double winding_temp_C = 0.0;
   double housing_temp_C = 0.0;
   double magnet_temp_C = 0.0;
