@@ -254,6 +254,14 @@ int run(const Options& o) {
       }
     }
   }
+  // A stored Rs0 (a calibration file, or calibration.rs0_ohm given) far off the nameplate and the
+  // configured cable: said at every start and by --check (without one, the default is the
+  // nameplate's own and nothing is said).
+  if (const std::string w =
+          pmsm::app::rs0_off_nameplate_warning(config.controller.drive, config.controller.drive.calibration);
+      !w.empty()) {
+    spdlog::warn("{}", w);
+  }
   if (o.check) {
     std::printf("%s: OK (node %d on %s, %s; calibration %s)\n", o.config_path.c_str(), config.can.node,
                 config.can.interface.c_str(), budget.c_str(), std::string(pmsm::app::to_string(stored)).c_str());
@@ -267,13 +275,6 @@ int run(const Options& o) {
                    ? fmt::format(" (Rs0 {:.5f} ohm at {:.1f} C)", config.controller.drive.calibration.rs0_ohm,
                                  config.controller.drive.calibration.t0_C)
                    : std::string{});
-  if (stored == pmsm::app::StoredCalibration::kLoaded) {
-    if (const std::string w =
-            pmsm::app::rs0_off_nameplate_warning(config.controller.drive, config.controller.drive.calibration);
-        !w.empty()) {
-      spdlog::warn("{}", w);
-    }
-  }
 
   // CAN: the RT socket receives exactly this node's samples and commands; the publishing
   // socket nothing until the publisher installs its filters (this node's published

@@ -369,7 +369,8 @@ ConfigSchema<C> build() {
          "A measurement further than this many sigma from the prediction is gated out.");
   // [calibration]
   s.real("calibration.rs0_ohm", [](C& c) -> double& { return c.drive.calibration.rs0_ohm; }, between(common::kMinStatorResistance_ohm, common::kMaxStatorResistance_ohm), "ohm",
-         "Rs0 of a stored calibration (defaults to motor.rs_ohm).");
+         "Rs0 of a stored calibration: what the drive measures at T0, a motor cable's share included (defaults to "
+         "motor.rs_ohm plus motor.cable_resistance_ohm at motor.rs_reference_temp_C).");
   s.real("calibration.t0_C", [](C& c) -> double& { return c.drive.calibration.t0_C; }, between(-50, 200), "C", "T0 of that calibration.");
   s.real("calibration.rs0_std_fraction", [](C& c) -> double& { return c.drive.calibration.rs0_std_fraction; }, between(0, 0.5), "",
          "The relative standard uncertainty of Rs0 while no calibration run of this drive has measured it (a data "
@@ -514,6 +515,10 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
   // A fifth above rated: the reference's duty cycles run up to rated speed, and the supervisor's
   // OVERSPEED (1.5 x rated by default) stays well above what the limit lets the shaft reach.
   d.speed_limit_rad_s = c.relative.speed_limit_rad_s.value_or(1.2 * m.rated_speed_rad_s);
+  if (!c.relative.max_speed_change_rad_s && d.thermal.cable_resistance_20C_ohm > 0.0) {
+    // The fit's resistive signal is what the drive measures, Rs dId with a cable's share too.
+    d.injection.max_speed_change_rad_s *= core::terminal_resistance_ohm(d) / m.rs_ohm;
+  }
   // Field weakening's bound: past the characteristic current psi / Ld the d current weakens the
   // flux to nothing and then reverses it; and never more than the drive's current.
   d.field_weakening.max_current_A = c.relative.field_weakening_max_current_A.value_or(
@@ -679,8 +684,14 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
       const double limit = lower ? d.injection.rs_min_ohm : d.injection.rs_max_ohm;
       if (!window_reported && (lower ? rs < limit : rs > limit)) {
         const std::string_view l = lead(end, r);
+        // (The nameplate with a motor cable: both named, and their sum the drive sees.)
+        const std::string what = r == "motor.rs_ohm" && d.thermal.cable_resistance_20C_ohm > 0.0
+                                     ? ref(r, m.rs_ohm, "ohm", l) + " with " +
+                                           ref("motor.cable_resistance_ohm", d.thermal.cable_resistance_20C_ohm, "ohm", l) +
+                                           fmt::format(" ({:.6g} ohm in all)", rs)
+                                     : ref(r, rs, "ohm", l);
         rule(end, r,
-             ref(r, rs, "ohm", l) + " lies " + (lower ? "below " : "above ") + ref(end, limit, "ohm", l) +
+             what + " lies " + (lower ? "below " : "above ") + ref(end, limit, "ohm", l) +
                  ": the plausibility window would reject every resistance estimate near the reference temperature");
         window_reported = true;
       }

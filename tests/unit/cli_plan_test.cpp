@@ -193,6 +193,15 @@ TEST(PlanCli, BudgetTakesADrivesConfiguration) {
   const ProcessResult turning = run_process(base);
   ASSERT_EQ(turning.exit_code, 0) << turning.err;
   EXPECT_NEAR(json_number(turning.out, "max_current_injection_current_A").value_or(-1), 225.0, 1e-9);
+  // A motor cable is in what the pulse's voltage drives through: its resistance at the
+  // nameplate's temperature (25 C) joins the winding's, as in the drive's own budget.
+  const std::filesystem::path cabled = dir.path / "cabled.toml";
+  std::ofstream(cabled) << "[can]\ninterface = \"vcan0\"\n"
+                           "[controller.motor]\nrs_ohm = 0.0315\ncable_resistance_ohm = 0.01\n";
+  const ProcessResult cable = run_process(kExe + " budget --config " + cabled.string() + " --speed 314 --iq 75 --json");
+  ASSERT_EQ(cable.exit_code, 0) << cable.err;
+  EXPECT_NEAR(json_number(cable.out, "rs_ohm").value_or(-1), 0.0315 + 0.01 * (234.5 + 25.0) / (234.5 + 20.0), 1e-9)
+      << "(printed to ten digits)";
   // Refused: a bad key (named with its line), a file with no drive in it, a missing file.
   std::ofstream(dir.path / "bad.toml") << "[controller.motor]\nld_H = -1\n";
   const ProcessResult bad = run_process(kExe + " budget --config " + (dir.path / "bad.toml").string() + " --speed 3");

@@ -109,7 +109,7 @@ void apply_drive_configuration(BudgetOptions& o, const CLI::App& cmd) {
   const core::DriveConfig& d = c.drive;
   auto unset = [&cmd](const char* flag) { return cmd.count(flag) == 0; };
   if (unset("--Ld")) o.ld_H = d.motor.ld_H;
-  if (unset("--Rs")) o.rs_ohm = d.motor.rs_ohm;
+  if (unset("--Rs")) o.rs_ohm = core::terminal_resistance_ohm(d);  // the nameplate's and a motor cable's
   if (unset("--Tw")) o.tw_s = d.injection.tw_s;
   if (unset("--window")) o.window = d.injection.window;
   if (unset("--vdc")) o.vdc_V = c.nominal_dc_bus_V;
