@@ -35,7 +35,8 @@ ThermalObserver::Matrix system_matrix(const ThermalModelConfig& c, double copper
 
 ThermalObserver::ThermalObserver(const ThermalModelConfig& config, const Calibration& calibration,
                                  double initial_temp_C, bool known)
-    : config_(config), calibration_(calibration), anchor_C_(initial_temp_C), anchored_(known) {
+    : config_(config), anchor_C_(initial_temp_C), anchored_(known) {
+  set_calibration(calibration);
   const double std_C = known ? config.initial_std_C : config.unknown_initial_std_C;
   x_ << initial_temp_C, initial_temp_C, 0.0, 0.0;
   p_.setZero();
@@ -196,16 +197,20 @@ double ThermalObserver::cable_resistance_now_ohm() const {
                                std::isfinite(ambient_C_) ? ambient_C_ : calibration_.t0_C);
 }
 
-double ThermalObserver::winding_rs0_ohm() const {
+void ThermalObserver::set_calibration(const Calibration& c) {
+  calibration_ = c;
   // Rs0 holds the winding and the cable both at T0 (a calibration refers its events so:
   // resistance_referred_to_C).
-  return calibration_.rs0_ohm - cable_resistance_at_C(config_.cable_resistance_20C_ohm, calibration_.t0_C);
+  winding_rs0_ohm_ = c.rs0_ohm - cable_resistance_at_C(config_.cable_resistance_20C_ohm, c.t0_C);
+}
+
+double ThermalObserver::winding_resistance_at_C(double temp_C) const {
+  return resistance_at_temperature_ohm(winding_rs0_ohm_, calibration_.t0_C, temp_C,
+                                       config_.conductor_inferred_zero_C);  // Eq. 1
 }
 
 double ThermalObserver::resistance_at_C(double temp_C) const {
-  return resistance_at_temperature_ohm(winding_rs0_ohm(), calibration_.t0_C, temp_C,
-                                       config_.conductor_inferred_zero_C) +  // Eq. 1
-         cable_resistance_now_ohm();
+  return winding_resistance_at_C(temp_C) + cable_resistance_now_ohm();
 }
 
 double ThermalObserver::temperature_from_resistance_C(double rs_ohm) const {
@@ -216,8 +221,7 @@ double ThermalObserver::temperature_from_resistance_C(double rs_ohm) const {
 double ThermalObserver::copper_loss_W(double copper_current_sq_A2) const {
   // Amplitude-invariant dq: P = 3/2 Rs (id^2 + iq^2), the winding's Rs (the cable's loss is
   // outside the machine).
-  return 1.5 * resistance_at_temperature_ohm(winding_rs0_ohm(), calibration_.t0_C, x_(0), config_.conductor_inferred_zero_C) *
-         copper_current_sq_A2;
+  return 1.5 * winding_resistance_at_C(x_(0)) * copper_current_sq_A2;
 }
 
 double ThermalObserver::housing_loss_floor_W(double iron_loss_W, double ambient_C) const {
@@ -489,10 +493,7 @@ bool ThermalObserver::time_to_limit_s(double limit_C, double copper_current_sq_A
   }
   // Losses held constant; copper loss taken at the limit temperature (resistance rises with
   // temperature, so this errs towards a shorter time).
-  const double pcu_copper = 1.5 *
-                            resistance_at_temperature_ohm(winding_rs0_ohm(), calibration_.t0_C, limit_C,
-                                                          config_.conductor_inferred_zero_C) *
-                            copper_current_sq_A2 * (1.0 + x_(3));
+  const double pcu_copper = 1.5 * winding_resistance_at_C(limit_C) * copper_current_sq_A2 * (1.0 + x_(3));
   const double pfe = iron_loss_W(omega_m_rad_s);
   const double gwh = 1.0 / config_.winding_to_housing_K_W;
   const double gha = 1.0 / config_.housing_to_ambient_K_W;

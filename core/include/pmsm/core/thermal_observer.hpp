@@ -227,7 +227,7 @@ class ThermalObserver {
   // jumps of the state since (a fusion), so that differences are the model's predictions.
   [[nodiscard]] double winding_at_age_C(double age_s) const;
 
-  void set_calibration(const Calibration& c) { calibration_ = c; }
+  void set_calibration(const Calibration& c);
   void set_time_scale(double time_scale) { config_.time_scale = time_scale; }
   [[nodiscard]] double time_scale() const { return config_.time_scale; }
   [[nodiscard]] const Calibration& calibration() const { return calibration_; }
@@ -247,7 +247,7 @@ class ThermalObserver {
   // The cable's share of a measured resistance now: at the ambient of the last predict() or
   // restore() (before either, at the calibration's T0); and the winding's share of Rs0.
   [[nodiscard]] double cable_resistance_now_ohm() const;
-  [[nodiscard]] double winding_rs0_ohm() const;
+  [[nodiscard]] double winding_rs0_ohm() const { return winding_rs0_ohm_; }
 
   // Time (controller seconds) until the winding reaches limit_C if the present load
   // continues; nothing when the steady state stays below the limit. The copper loss is taken
@@ -266,8 +266,11 @@ class ThermalObserver {
   // What keeps the missing loss dP from taking more heat out of the housing than a machine can
   // lose: the iron loss and once more what the modelled path to the ambient takes out.
   [[nodiscard]] double housing_loss_floor_W(double iron_loss_W, double ambient_C) const;
+  // Eq. 1 for the winding alone (without the cable).
+  [[nodiscard]] double winding_resistance_at_C(double temp_C) const;
   ThermalModelConfig config_;
   Calibration calibration_;
+  double winding_rs0_ohm_ = 0.0;  // the winding's share of calibration_.rs0_ohm (set_calibration)
   Vector x_;   // winding C, housing C, the missing loss dP W, the copper loss's relative error k
   // The model's rise of winding and housing by the drive's own losses (model_rise_C), K.
   Eigen::Vector2d model_rise_K_ = Eigen::Vector2d::Zero();
