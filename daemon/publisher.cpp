@@ -384,6 +384,12 @@ void Publisher::handle(const PublicationRecord& r) {
                    "it would put every later estimate off by about as much. Check the reading (the winding's, at rest), or "
                    "calibrate on the ambient sensor after a cool-down. The previous calibration stays in use",
                    std::abs(r.calibration_winding_rise_C), r.calibration_winding_rise_C > 0.0 ? "below" : "above");
+    } else if (r.calibration_failure == core::CalibrationFailure::kCableTakesAll) {
+      spdlog::warn("calibration refused: Rs0 {:.5f} ohm, the whole resistance the drive measured, is not above the motor "
+                   "cable's resistance (motor.cable_resistance_ohm = {} ohm at 20 C): Eq. 1 would have no winding left. "
+                   "Check the cable's resistance and the window (injection.rs_min_ohm); the previous calibration stays "
+                   "in use",
+                   r.calibration_rs0_ohm, config_.controller.drive.thermal.cable_resistance_20C_ohm);
     } else if (r.calibration_failure == core::CalibrationFailure::kUncertain) {
       spdlog::warn("calibration refused: Rs0 {:.5f} +- {:.5f} ohm is less certain than "
                    "calibration.max_rs0_std_fraction allows (the bridge's voltage was not learned: calibrate "

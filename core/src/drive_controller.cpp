@@ -172,7 +172,8 @@ void DriveController::record_calibration_failure(CalibrationFailure why) {
     case CalibrationFailure::kAngleOffset:
     case CalibrationFailure::kWindingWarm:
     case CalibrationFailure::kTemperatureImplausible:
-    case CalibrationFailure::kAmbientHeld: calibration_outcome_ = CalibrationOutcome::kRefused; break;
+    case CalibrationFailure::kAmbientHeld:
+    case CalibrationFailure::kCableTakesAll: calibration_outcome_ = CalibrationOutcome::kRefused; break;
     case CalibrationFailure::kTimeout: calibration_outcome_ = CalibrationOutcome::kTimedOut; break;
     case CalibrationFailure::kNone: calibration_outcome_ = CalibrationOutcome::kNone; break;
   }
@@ -219,6 +220,7 @@ const char* calibration_failure_name(CalibrationFailure f) {
     case CalibrationFailure::kWindingWarm: return "winding_warm";
     case CalibrationFailure::kTemperatureImplausible: return "temperature_implausible";
     case CalibrationFailure::kAmbientHeld: return "ambient_held";
+    case CalibrationFailure::kCableTakesAll: return "cable_takes_all";
   }
   return "unknown";
 }
@@ -898,6 +900,13 @@ void DriveController::handle_estimate(const EventEstimate& e) {
       telemetry_.calibration_rs0_std_ohm = rs0_std;
       if (!(rs0_std <= config_.calibration_max_rs0_std_fraction * std::abs(rs0))) {
         fail_calibration(CalibrationFailure::kUncertain);
+        return;
+      }
+      // Rs0 holds the cable too: a cable configured longer (or a winding measured lower) than
+      // the whole resistance leaves Eq. 1 no winding, and a negative one turns its slope over.
+      // (The configuration refuses the same of a stored Rs0: cable_leaves_no_winding.)
+      if (!(rs0 > cable_resistance_at_C(config_.thermal.cable_resistance_20C_ohm, calibration_temp_C_))) {
+        fail_calibration(CalibrationFailure::kCableTakesAll);
         return;
       }
       Calibration c;

@@ -524,7 +524,9 @@ void check_rules(const PlantConfig& c, Fail&& fail, Given&& given) {
       smaller("saturation.ld_sat_H", c.saturation.ld_sat_H);
       smaller("saturation.lq_sat_H", c.saturation.lq_sat_H);
     }
-    const double tau_s = l_min.second / (2.0 * c.motor.rs_ohm);
+    // The inverter drives the winding and the cable in series.
+    const double r_ohm = c.motor.rs_ohm + c.motor.cable_resistance_ohm;
+    const double tau_s = l_min.second / (2.0 * r_ohm);
     const double h_s = 1.0 / (c.inverter.pwm_frequency_Hz * c.simulation.substeps);
     if (!(h_s <= 0.5 * tau_s)) {
       const double needed = std::ceil(2.0 / (tau_s * c.inverter.pwm_frequency_Hz));
@@ -533,10 +535,12 @@ void check_rules(const PlantConfig& c, Fail&& fail, Given&& given) {
       const bool at_inductance = given(l_min.first) && !given("motor.rs_ohm");
       fail(at_inductance ? l_min.first : std::string_view("motor.rs_ohm"),
            fmt::format("the winding's electrical time constant, the smallest inductance ({} = {} H) over twice "
-                       "motor.rs_ohm ({} ohm), {:.3g} s, is shorter than two integration steps (1 / "
+                       "{} ({} ohm), {:.3g} s, is shorter than two integration steps (1 / "
                        "(inverter.pwm_frequency_Hz x simulation.substeps) = {:.3g} s): the model would diverge; check "
                        "the resistance and the inductances, or raise simulation.substeps to {}",
-                       l_min.first, common::format_number(l_min.second), common::format_number(c.motor.rs_ohm), tau_s,
+                       l_min.first, common::format_number(l_min.second),
+                       c.motor.cable_resistance_ohm > 0.0 ? "motor.rs_ohm + motor.cable_resistance_ohm" : "motor.rs_ohm",
+                       common::format_number(r_ohm), tau_s,
                        h_s, needed <= 64.0 ? fmt::format("{:.0f}", needed) : std::string("its 64 and lower the PWM period")));
     }
   }

@@ -1324,6 +1324,23 @@ TEST(DriveNode, AnInjectionReportNamesThePairsOwnMethodAndOnlyAMeasuredSpeedChan
   }
 }
 
+// A motor cable configured longer than the whole resistance the drive measures (here 0.25 ohm
+// against the plant's 0.18 ohm winding, no cable): the calibration's Rs0 would leave Eq. 1 no
+// winding, and is refused with its Rs0 named, the calibration in use kept.
+TEST(DriveNode, ACalibrationTheConfiguredCableTakesWholeIsRefused) {
+  Rig rig;
+  rig.plant_config.load.torque_Nm = 0.0;  // a calibration runs unloaded
+  rig.plant = std::make_unique<plant::Plant>(rig.plant_config);
+  rig.config.drive.thermal.cable_resistance_20C_ohm = 0.25;
+  rig.node = std::make_unique<DriveNode>(rig.config, rig.supervisor, PublishRates{});
+  rig.run(2000);
+  expect_failed_calibration(rig, core::CalibrationFailure::kCableTakesAll, protocol::CalibrationResult::kRefused);
+  const core::DriveTelemetry& tel = rig.node->controller().telemetry();
+  EXPECT_NEAR(tel.calibration_rs0_ohm, rig.plant_config.motor.rs_at_C(rig.plant_config.thermal.ambient_C), 0.02);
+  EXPECT_FALSE(rig.node->controller().calibration().calibrated);
+  EXPECT_STREQ(core::calibration_failure_name(tel.calibration_failure), "cable_takes_all");
+}
+
 // A calibration that gives up says so on the bus, and the one in use (here the configured
 // default) stays: a supervisor that asked for it sees TIMED_OUT with Calibrated 0.
 TEST(DriveNode, ACalibrationThatTimesOutIsPublishedAsSuch) {

@@ -48,6 +48,14 @@ TEST(plant_config, TheWindingsTimeConstantMustSpanTwoIntegrationSteps) {
   EXPECT_NE(one_step.find("0.00015 s, is shorter than two integration steps"), std::string::npos) << one_step;
   EXPECT_NE(one_step.find("raise simulation.substeps to 2"), std::string::npos) << one_step;
   EXPECT_EQ(error_of(fast + "[simulation]\nsubsteps = 2\n"), "");
+  // A motor cable is in series with the winding: 0.3 mH over twice 2 ohm is 75 us, not two
+  // 50 us substeps.
+  const std::string cabled = error_of(
+      "[motor]\nrs_ohm = 1.0\ncable_resistance_ohm = 1.0\nld_H = 0.3e-3\nlq_H = 0.3e-3\n[saturation]\nenabled = "
+      "false\n[simulation]\nsubsteps = 2\n");
+  EXPECT_NE(cabled.find("over twice motor.rs_ohm + motor.cable_resistance_ohm (2 ohm), 7.5e-05 s"), std::string::npos)
+      << cabled;
+  EXPECT_NE(cabled.find("raise simulation.substeps to 3"), std::string::npos) << cabled;
   // The saturated inductances count where saturation is on.
   const std::string saturated =
       error_of("[motor]\nrs_ohm = 1.0\n[saturation]\nenabled = true\nld_sat_H = 0.3e-3\nlq_sat_H = 0.3e-3\n");

@@ -892,9 +892,11 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
       }
     }
 
-    // The injection's own copper loss: 3/2 Rs |i_injection|^2.
+    // The injection's own copper loss: 3/2 Rs |i_injection|^2, the winding's Rs (a motor
+    // cable's loss heats the cable, not the machine).
     const double inj_sq = tel.injection_A.d * tel.injection_A.d + tel.injection_A.q * tel.injection_A.q;
-    injection_energy_J += 1.5 * truth.rs_ohm * inj_sq * ts;
+    const double winding_rs_ohm = truth.rs_ohm - scenario.plant.motor.cable_at_C(truth.ambient_C);
+    injection_energy_J += 1.5 * winding_rs_ohm * inj_sq * ts;
     injection_periods += tel.injection_active ? 1U : 0U;
     const bool counted = metrics_from_s >= 0.0 && t >= metrics_from_s;
     if (const std::optional<FastRow> row = run.accumulate(k, truth, tel.injection_active, counted); row && twin) {
@@ -1142,13 +1144,15 @@ std::string result_json(const SimulationResult& r) {
         .end_object();
   }
   if (r.calibration_failure != core::CalibrationFailure::kNone) {
+    // The failures that measured an Rs0 and refused it.
+    const bool measured_rs0 = r.calibration_failure == core::CalibrationFailure::kUncertain ||
+                              r.calibration_failure == core::CalibrationFailure::kCableTakesAll;
     j.key("calibration_failure")
         .begin_object()
         .field("time_s", r.calibration_failure_time_s)
         .field("reason", core::calibration_failure_name(r.calibration_failure))
-        .field("rs0_ohm", r.calibration_failure == core::CalibrationFailure::kUncertain ? r.calibration_failure_rs0_ohm : kNan)
-        .field("rs0_std_ohm",
-               r.calibration_failure == core::CalibrationFailure::kUncertain ? r.calibration_failure_rs0_std_ohm : kNan)
+        .field("rs0_ohm", measured_rs0 ? r.calibration_failure_rs0_ohm : kNan)
+        .field("rs0_std_ohm", measured_rs0 ? r.calibration_failure_rs0_std_ohm : kNan)
         .field("winding_rise_C", core::refused_on_winding_rise(r.calibration_failure) ? r.calibration_failure_winding_rise_C : kNan)
         .key("pairs")
         .begin_object();

@@ -200,6 +200,9 @@ enum class CalibrationFailure : std::uint8_t {
   // The ambient / coolant sensor the calibration would be referred to stopped reporting: its
   // last reading is held, of unknown age (DriveNode::ambient_held)
   kAmbientHeld = 6,
+  // The Rs0 measured is not above the motor cable's resistance at T0
+  // (ThermalModelConfig::cable_resistance_20C_ohm): Eq. 1 would have no winding left
+  kCableTakesAll = 7,
 };
 [[nodiscard]] const char* calibration_failure_name(CalibrationFailure f);
 // Refused as it was asked for, before any of it ran.
@@ -223,7 +226,7 @@ enum class CalibrationOutcome : std::uint8_t {
   kDone = 1,       // completed: its Rs0 is in use (the daemon stores it when it has a file)
   kAborted = 2,    // stopped by a command (a fault or disabling the drive only suspends it)
   kTimedOut = 3,   // CalibrationFailure::kTimeout
-  kRefused = 4,    // CalibrationFailure::kUncertain or kAngleOffset
+  kRefused = 4,    // CalibrationFailure::kUncertain, kAngleOffset, kCableTakesAll, or refused on request
 };
 
 // An EMF (magnet) reading is refused outside kMagnetPlausibleMin_C..kMagnetPlausibleMax_C
