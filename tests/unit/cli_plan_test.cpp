@@ -358,6 +358,14 @@ TEST(SimulateCli, TheScenariosNameIsTextInThePlotNotCommands) {
   const ProcessResult md = run_process(kExe + " simulate --quiet --markdown " + (dir / "bar.toml").string());
   EXPECT_EQ(md.exit_code, 0) << md.err;
   EXPECT_NE(md.out.find("| a \\| b (`bar.toml`) | fixed-magnitude bipolar |"), std::string::npos) << md.out;
+  // A calibration check that ran and did not measure is said in the row: a rotor at rest is not
+  // turning, so its encoder's angle was not checked (the JSON says it; the row did not).
+  std::ofstream(dir / "rest.toml") << "[scenario]\nbase = \"" << PMSM_SOURCE_DIR
+                                   << "/bench/scenarios/standstill-fm-bipolar.toml\"\nduration_s = 0.6\n";
+  const ProcessResult rest = run_process(kExe + " simulate --quiet --markdown " + (dir / "rest.toml").string());
+  EXPECT_EQ(rest.exit_code, 0) << rest.err;
+  EXPECT_NE(rest.out.find("(`rest.toml`) — angle check: not_turning |"), std::string::npos) << rest.out;
+  EXPECT_EQ(md.out.find("angle check"), std::string::npos) << "the reference's check measured: " << md.out;
   // An output that cannot take the series fails with exit 3 and says so.
   const ProcessResult full = run_process(kExe + " simulate --quiet --csv /dev/full " + (dir / "q.toml").string());
   EXPECT_EQ(full.exit_code, 3);

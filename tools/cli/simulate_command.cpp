@@ -77,8 +77,18 @@ std::string markdown_row(const SimulationResult& r, const std::string& file) {
   const SimulationResult::FaultSeen* trip = r.first_fault();
   const std::string tripped =
       trip == nullptr ? std::string() : fmt::format(" — tripped: {} at {:.1f} s", core::to_string(r.fault_code(*trip)), trip->first_s);
-  return fmt::format("| {} (`{}`){}{} | {} | {} | {} | {} | {} | {} | {} | {} | {} / {} | {} | {} | {:.1f} | {:.0f} / {:.1f} |\n",
-                     common::markdown_cell(r.scenario), common::markdown_cell(file), failed, tripped, r.method, cell(r.winding_error_rms_C, w), cell(r.winding_error_max_C, w),
+  // The calibration's bridge sweep and rotor-angle check likewise, when one ran and did not
+  // measure: the calibration then stands on the configured Vx, band or angle (the JSON has why).
+  std::string checks;
+  if (r.inverter_sweep.outcome != core::InverterSweepOutcome::kNone &&
+      r.inverter_sweep.outcome != core::InverterSweepOutcome::kMeasured) {
+    checks += fmt::format(" — bridge sweep: {}", core::to_string(r.inverter_sweep.outcome));
+  }
+  if (r.angle_check.outcome != core::AngleCheckOutcome::kNone && r.angle_check.outcome != core::AngleCheckOutcome::kMeasured) {
+    checks += fmt::format(" — angle check: {}", core::to_string(r.angle_check.outcome));
+  }
+  return fmt::format("| {} (`{}`){}{}{} | {} | {} | {} | {} | {} | {} | {} | {} | {} / {} | {} | {} | {:.1f} | {:.0f} / {:.1f} |\n",
+                     common::markdown_cell(r.scenario), common::markdown_cell(file), failed, tripped, checks, r.method, cell(r.winding_error_rms_C, w), cell(r.winding_error_max_C, w),
                      cell(r.winding_error_mean_C, w, "{:+.2f}"), cell(100.0 * r.coverage_2sigma, w, "{:.0f}"),
                      cell(r.rs_error_rms_mohm, r.estimates_published() > 0 && std::isfinite(r.rs_error_rms_mohm)), cell(r.magnet_error_rms_C, r.magnet_error_samples > 0),
                      r.estimates_accepted, r.pairs[0], rejected, cell(r.speed_disturbance_pct, r.disturbance_measured, "{:.3f}"),
