@@ -31,11 +31,24 @@ struct Rig {
   Rig() {
     plant_config.load.profile = plant::LoadProfile::constant_torque;
     plant_config.load.torque_Nm = 5.0;
-    plant = std::make_unique<plant::Plant>(plant_config);
-    node = std::make_unique<DriveNode>(config, supervisor, PublishRates{});
+    rebuild_plant();
+    rebuild_node();
     in.mode = core::DriveMode::kSpeed;
     in.speed_ref_rad_s = 50.0;
   }
+
+  // A calibration runs unloaded: the plant rebuilt without its load torque (after any other
+  // change of plant_config the caller made first).
+  void unload() {
+    plant_config.load.torque_Nm = 0.0;
+    rebuild_plant();
+  }
+
+  // The plant built again from `plant_config` (after the caller changed it).
+  void rebuild_plant() { plant = std::make_unique<plant::Plant>(plant_config); }
+
+  // The node built again from `config` (after the caller changed it).
+  void rebuild_node() { node = std::make_unique<DriveNode>(config, supervisor, PublishRates{}); }
 
   // Runs `periods` with the plant's samples, optionally altered.
   const NodeStep& run(int periods, const std::function<void(hal::SensorSample&)>& alter = {}) {
@@ -308,7 +321,7 @@ TEST(DriveNode, APowerStageAtAnotherPwmPeriodIsRefused) {
   // A whole plant at 20 kHz from its first sample.
   Rig fast;
   fast.plant_config.inverter.pwm_frequency_Hz = 20000.0;
-  fast.plant = std::make_unique<plant::Plant>(fast.plant_config);
+  fast.rebuild_plant();
   ASSERT_EQ(fast.plant->sample().pwm_period_code, 200U);
   const NodeStep& first = fast.run(1);
   EXPECT_TRUE(fast.node->supervisor().latched(core::FaultCode::kPeriodMismatch));
@@ -367,7 +380,7 @@ TEST(DriveNode, TheSpeedLimitHoldsAnUnloadedShaftAndClampsASetPoint) {
   for (const double limit : {150.0, 0.0}) {
     Rig rig;
     rig.config.drive.speed_limit_rad_s = limit;
-    rig.node = std::make_unique<DriveNode>(rig.config, rig.supervisor, PublishRates{});
+    rig.rebuild_node();
     rig.plant->set_load_torque_Nm(0.0);
     rig.run(1000);  // the ADC offsets, then 50 rad/s
     rig.in.mode = core::DriveMode::kTorque;
@@ -525,7 +538,7 @@ void run_into_field_weakening(Rig& rig, double interval_s) {
   rig.config.drive.speed_limit_rad_s = 450.0;
   rig.config.drive.injection.interval_s = interval_s;
   rig.supervisor.overspeed_rad_s = 480.0;
-  rig.node = std::make_unique<DriveNode>(rig.config, rig.supervisor, PublishRates{});
+  rig.rebuild_node();
   rig.run(5000);
   rig.in.speed_ref_rad_s = 420.0;
 }
@@ -602,14 +615,14 @@ TEST(DriveNode, ATorqueCommandInFieldWeakeningCountsTheReluctanceTorque) {
   rig.plant_config.load.profile = plant::LoadProfile::speed_cycle;
   rig.plant_config.load.speed_rad_s = 420.0;
   rig.plant_config.mechanics.initial_speed_rad_s = 420.0;
-  rig.plant = std::make_unique<plant::Plant>(rig.plant_config);
+  rig.rebuild_plant();
   rig.config.drive.motor.ld_H = rig.plant_config.motor.ld_H;
   rig.config.drive.motor.lq_H = rig.plant_config.motor.lq_H;
   rig.config.drive.field_weakening.enabled = true;
   rig.config.drive.estimator = core::EstimatorKind::kNone;  // the command's torque alone, no pulses
   rig.config.drive.speed_limit_rad_s = 0.0;
   rig.supervisor.overspeed_rad_s = 480.0;
-  rig.node = std::make_unique<DriveNode>(rig.config, rig.supervisor, PublishRates{});
+  rig.rebuild_node();
   rig.in.mode = core::DriveMode::kTorque;
   rig.in.torque_ref_Nm = 20.0;
   rig.run(10000);
@@ -631,7 +644,7 @@ TEST(DriveNode, ATorqueBeyondTheCurrentLimitIsReportedAsLimited) {
   Rig rig;
   // A heavy shaft: the limited torque accelerates it by only a few rad/s over the test.
   rig.plant_config.mechanics.inertia_kg_m2 = 2.0;
-  rig.plant = std::make_unique<plant::Plant>(rig.plant_config);
+  rig.rebuild_plant();
   rig.run(1000);
   rig.in.mode = core::DriveMode::kTorque;
   rig.in.torque_ref_Nm = 5.0;
@@ -745,12 +758,12 @@ TEST(DriveNode, ALatchedOvertemperatureCoolsOnAndClears) {
   rig.plant_config.load.profile = plant::LoadProfile::fan;
   rig.plant_config.load.torque_Nm = 0.0;
   rig.plant_config.load.fan_k_Nm_s2 = 40.0 / (50.0 * 50.0);
-  rig.plant = std::make_unique<plant::Plant>(rig.plant_config);
+  rig.rebuild_plant();
   rig.config.drive.estimator = core::EstimatorKind::kNone;
   rig.config.drive.thermal.time_scale = 2000.0;
   rig.supervisor.trip_temp_C = 45.0;
   rig.supervisor.trip_hysteresis_C = 10.0;
-  rig.node = std::make_unique<DriveNode>(rig.config, rig.supervisor, PublishRates{});
+  rig.rebuild_node();
   const auto winding_C = [&] { return rig.node->controller().telemetry().thermal.winding_C; };
   const auto tripped = [&] { return rig.node->supervisor().latched(core::FaultCode::kOvertemperature); };
   int k = 0;
@@ -821,10 +834,10 @@ void expect_refused_on_request(Rig& rig, core::CalibrationFailure why) {
 TEST(DriveNode, ACalibrationOnTheAmbientOfAWarmWindingIsRefused) {
   Rig rig;
   rig.plant_config.load.torque_Nm = 30.0;
-  rig.plant = std::make_unique<plant::Plant>(rig.plant_config);
+  rig.rebuild_plant();
   rig.config.drive.thermal.time_scale = 2000.0;
   rig.config.drive.estimator = core::EstimatorKind::kNone;  // the model alone warms it
-  rig.node = std::make_unique<DriveNode>(rig.config, rig.supervisor, PublishRates{});
+  rig.rebuild_node();
   const core::DriveTelemetry& tel = rig.node->controller().telemetry();
   const double ambient_C = 25.0;
   for (int k = 0; k < 100000 && !(tel.thermal.winding_C > ambient_C + 10.0); ++k) {
@@ -851,11 +864,11 @@ TEST(DriveNode, ACalibrationOnTheAmbientOfAWarmWindingIsRefused) {
 struct NameplateRig : Rig {
   NameplateRig() {
     plant_config.thermal.acceleration = 100.0;
-    plant = std::make_unique<plant::Plant>(plant_config);
+    rebuild_plant();
     config.drive.thermal.time_scale = 100.0;
     config.drive.calibration.rs0_ohm = 1.05 * plant_config.motor.rs_ohm;  // a data sheet's 5 % high
     config.drive.calibration.rs0_std_fraction = 0.05;
-    node = std::make_unique<DriveNode>(config, supervisor, PublishRates{});
+    rebuild_node();
   }
   // Runs at the light load until the filter has fused a measurement, then under 30 N m until the
   // plant's winding is `rise_K` above its ambient (at most 60 s each).
@@ -935,7 +948,7 @@ TEST(DriveNode, ALateAmbientReadingIsNoRiseOfTheWinding) {
 TEST(DriveNode, AnOperatorsTemperatureFarFromTheMeasuredWindingIsRefused) {
   Rig model_only;
   model_only.config.drive.estimator = core::EstimatorKind::kNone;
-  model_only.node = std::make_unique<DriveNode>(model_only.config, model_only.supervisor, PublishRates{});
+  model_only.rebuild_node();
   model_only.run(2000);
   model_only.in.start_calibration = true;
   model_only.in.calibration_known_C = 150.0;
@@ -967,10 +980,6 @@ TEST(DriveNode, AnOperatorsTemperatureFarFromTheMeasuredWindingIsRefused) {
 // calibration's band (the one its Rs0 was learned with) is put back; and a stored band
 // survives a sweep that was void.
 TEST(DriveNode, TheSweptBandReplacesTheConfiguredGuessButNotAStoredBand) {
-  auto unloaded = [](Rig& r) {  // a calibration runs unloaded
-    r.plant_config.load.torque_Nm = 0.0;
-    r.plant = std::make_unique<plant::Plant>(r.plant_config);
-  };
   // Starts a calibration and runs its sweep to the end (after the rotor-angle check that comes
   // first); then aborts the calibration.
   auto sweep = [](Rig& r) {
@@ -994,7 +1003,7 @@ TEST(DriveNode, TheSweptBandReplacesTheConfiguredGuessButNotAStoredBand) {
     return r.node->controller().telemetry().dead_time_band_A;
   };
   Rig rig;
-  unloaded(rig);
+  rig.unload();
   rig.run(2000);
   const double configured = rig.node->controller().telemetry().dead_time_band_A;
   ASSERT_EQ(configured, rig.config.drive.dead_time.current_band_A);
@@ -1007,9 +1016,9 @@ TEST(DriveNode, TheSweptBandReplacesTheConfiguredGuessButNotAStoredBand) {
 
   // A stored calibration's band comes back when a calibration whose sweep measured is aborted.
   Rig kept;
-  unloaded(kept);
+  kept.unload();
   kept.config.drive.calibration.dead_time_band_A = 0.6;
-  kept.node = std::make_unique<DriveNode>(kept.config, kept.supervisor, PublishRates{});
+  kept.rebuild_node();
   kept.run(2000);
   ASSERT_EQ(sweep(kept), core::InverterSweepOutcome::kMeasured);
   EXPECT_NEAR(kept.node->controller().telemetry().dead_time_band_A, swept, 1e-9 + 0.05 * swept);
@@ -1018,9 +1027,9 @@ TEST(DriveNode, TheSweptBandReplacesTheConfiguredGuessButNotAStoredBand) {
   // A stored calibration that no sweep measured (its file has no band) was learned with the
   // configured band: that one comes back too, not the swept one.
   Rig unswept;
-  unloaded(unswept);
+  unswept.unload();
   unswept.config.drive.calibration.calibrated = true;
-  unswept.node = std::make_unique<DriveNode>(unswept.config, unswept.supervisor, PublishRates{});
+  unswept.rebuild_node();
   unswept.run(2000);
   ASSERT_EQ(sweep(unswept), core::InverterSweepOutcome::kMeasured);
   EXPECT_EQ(abort(unswept), configured) << "the band its Rs0 was learned with";
@@ -1029,9 +1038,9 @@ TEST(DriveNode, TheSweptBandReplacesTheConfiguredGuessButNotAStoredBand) {
   // while the drive is stopped; when it runs again the sweep starts again (as the calibration
   // resumes), and the calibration that then completes stores the band it measured.
   Rig stored;
-  unloaded(stored);
+  stored.unload();
   stored.config.drive.calibration.dead_time_band_A = 0.6;
-  stored.node = std::make_unique<DriveNode>(stored.config, stored.supervisor, PublishRates{});
+  stored.rebuild_node();
   stored.run(2000);
   EXPECT_EQ(stored.node->controller().telemetry().dead_time_band_A, 0.6);
   stored.in.start_calibration = true;
@@ -1063,7 +1072,7 @@ TEST(DriveNode, TheSweptBandReplacesTheConfiguredGuessButNotAStoredBand) {
 TEST(DriveNode, ACalibrationAskedForBeforeTheDriveRunsStillSweepsTheBridge) {
   Rig rig;
   rig.plant_config.load.torque_Nm = 0.0;
-  rig.plant = std::make_unique<plant::Plant>(rig.plant_config);
+  rig.rebuild_plant();
   rig.in.mode = core::DriveMode::kDisabled;
   rig.run(100);
   rig.in.start_calibration = true;
@@ -1117,9 +1126,8 @@ void expect_failed_calibration(Rig& rig, core::CalibrationFailure why, protocol:
 TEST(DriveNode, TheRotorAngleCheckCorrectsAnEncoderOffsetAndRefusesAGrossOne) {
   constexpr double kDeg = std::numbers::pi / 180.0;
   auto rig_with_offset = [](Rig& r, double electrical_rad) {
-    r.plant_config.load.torque_Nm = 0.0;  // a calibration runs unloaded
     r.plant_config.encoder.offset_rad = electrical_rad / r.config.drive.motor.pole_pairs;  // the plant's is mechanical
-    r.plant = std::make_unique<plant::Plant>(r.plant_config);
+    r.unload();
   };
   auto until_sweep = [](Rig& r) {
     for (int k = 0; k < 30000 && !r.node->controller().telemetry().inverter_sweep_active; ++k) {
@@ -1150,7 +1158,7 @@ TEST(DriveNode, TheRotorAngleCheckCorrectsAnEncoderOffsetAndRefusesAGrossOne) {
   Rig stored;
   rig_with_offset(stored, 4.0 * kDeg);
   stored.config.drive.calibration = *done;
-  stored.node = std::make_unique<DriveNode>(stored.config, stored.supervisor, PublishRates{});
+  stored.rebuild_node();
   stored.run(1);
   EXPECT_EQ(stored.node->controller().angle_correction_rad(), done->angle_correction_rad);
   stored.run(3000);
@@ -1183,9 +1191,8 @@ TEST(DriveNode, TheRotorAngleCheckCorrectsAnEncoderOffsetAndRefusesAGrossOne) {
 TEST(DriveNode, TheLearnedTelemetryFollowsWhatTheDriveLearnsInTheSamePeriod) {
   constexpr double kDeg = std::numbers::pi / 180.0;
   Rig rig;
-  rig.plant_config.load.torque_Nm = 0.0;  // a calibration runs unloaded
   rig.plant_config.encoder.offset_rad = 2.0 * kDeg / rig.config.drive.motor.pole_pairs;
-  rig.plant = std::make_unique<plant::Plant>(rig.plant_config);
+  rig.unload();
   int mismatches = 0;
   int vx_changes = 0;
   double last_vx = rig.node->controller().vx_V();
@@ -1276,13 +1283,12 @@ TEST(DriveNode, ACalibrationsPairsAreNamedByOutcome) {
 // run's pairs after it are the run-time method's. (It named the configured method for both.)
 TEST(DriveNode, AnInjectionReportNamesThePairsOwnMethodAndOnlyAMeasuredSpeedChange) {
   Rig rig;
-  rig.plant_config.load.torque_Nm = 0.0;  // a calibration runs unloaded
-  rig.plant = std::make_unique<plant::Plant>(rig.plant_config);
+  rig.unload();
   rig.config.drive.injection.method = core::InjectionMethod::kFixedAngle;
   rig.config.drive.injection.separation = core::Separation::kUnipolar;
   rig.config.drive.injection.interval_s = 0.5;
   rig.config.drive.calibration_injection.interval_s = 0.5;
-  rig.node = std::make_unique<DriveNode>(rig.config, rig.supervisor, PublishRates{});
+  rig.rebuild_node();
   rig.run(2000);
   rig.in.start_calibration = true;
   rig.run(1);
@@ -1329,10 +1335,9 @@ TEST(DriveNode, AnInjectionReportNamesThePairsOwnMethodAndOnlyAMeasuredSpeedChan
 // winding, and is refused with its Rs0 named, the calibration in use kept.
 TEST(DriveNode, ACalibrationTheConfiguredCableTakesWholeIsRefused) {
   Rig rig;
-  rig.plant_config.load.torque_Nm = 0.0;  // a calibration runs unloaded
-  rig.plant = std::make_unique<plant::Plant>(rig.plant_config);
+  rig.unload();
   rig.config.drive.thermal.cable_resistance_20C_ohm = 0.25;
-  rig.node = std::make_unique<DriveNode>(rig.config, rig.supervisor, PublishRates{});
+  rig.rebuild_node();
   rig.run(2000);
   expect_failed_calibration(rig, core::CalibrationFailure::kCableTakesAll, protocol::CalibrationResult::kRefused);
   const core::DriveTelemetry& tel = rig.node->controller().telemetry();
@@ -1346,7 +1351,7 @@ TEST(DriveNode, ACalibrationTheConfiguredCableTakesWholeIsRefused) {
 TEST(DriveNode, ACalibrationThatTimesOutIsPublishedAsSuch) {
   Rig rig;
   rig.config.drive.calibration_timeout_s = 0.05;  // far less than one event takes
-  rig.node = std::make_unique<DriveNode>(rig.config, rig.supervisor, PublishRates{});
+  rig.rebuild_node();
   rig.run(2000);
   EXPECT_EQ(next_thermal(rig).calibration_result, protocol::CalibrationResult::kNone);
   expect_failed_calibration(rig, core::CalibrationFailure::kTimeout, protocol::CalibrationResult::kTimedOut);
@@ -1374,13 +1379,13 @@ TEST(DriveNode, TheSensorsNoiseIsMeasuredWithTheOffsetsAndHandedToTheController)
 
   Rig quiet;
   quiet.plant_config.current_adc.noise_enabled = false;
-  quiet.plant = std::make_unique<plant::Plant>(quiet.plant_config);
+  quiet.rebuild_plant();
   quiet.run(1000);
   EXPECT_EQ(quiet.node->controller().pattern_noise_A(), 0.0) << "without noise every sample reads the same code";
 
   Rig configured;
   configured.config.sensors.current_noise_A = 0.5;
-  configured.node = std::make_unique<DriveNode>(configured.config, configured.supervisor, PublishRates{});
+  configured.rebuild_node();
   configured.run(1000);
   EXPECT_DOUBLE_EQ(configured.node->controller().pattern_noise_A(), std::sqrt(2.0 / 3.0) * 0.5);
 }
@@ -1475,12 +1480,11 @@ TEST(SensorFrontend, DutiesAreRoundedToCountsAsLroundRoundsThem) {
 // old value; the next measurement makes it valid again.
 TEST(DriveNode, AMagnetEstimateNobodyRenewsStopsBeingValid) {
   Rig rig;
-  rig.plant_config.load.torque_Nm = 0.0;  // a calibration runs unloaded
-  rig.plant = std::make_unique<plant::Plant>(rig.plant_config);
+  rig.unload();
   rig.config.drive.injection.interval_s = 2.0;
   rig.config.drive.calibration_injection.interval_s = 2.0;  // the first event after it follows its last
   rig.config.drive.magnet_max_age_s = 0.5;
-  rig.node = std::make_unique<DriveNode>(rig.config, rig.supervisor, PublishRates{});
+  rig.rebuild_node();
   rig.run(2000);
   rig.in.start_calibration = true;
   rig.run(1);
@@ -1515,15 +1519,14 @@ TEST(DriveNode, AMagnetEstimateNobodyRenewsStopsBeingValid) {
 // motor's magnets (about 25 C) half way.
 TEST(DriveNode, TheMagnetEstimateDeratesTheCurrentLimitAndSaysSo) {
   Rig rig;
-  rig.plant_config.load.torque_Nm = 0.0;  // a calibration runs unloaded
-  rig.plant = std::make_unique<plant::Plant>(rig.plant_config);
+  rig.unload();
   rig.config.drive.injection.interval_s = 2.0;
   rig.config.drive.calibration_injection.interval_s = 2.0;
   rig.config.drive.magnet_max_age_s = 0.5;
   core::DeratingConfig& d = rig.config.drive.derating;
   d.magnet_start_C = 10.0;
   d.magnet_limit_C = 40.0;
-  rig.node = std::make_unique<DriveNode>(rig.config, rig.supervisor, PublishRates{});
+  rig.rebuild_node();
   rig.run(2000);
   rig.in.start_calibration = true;
   rig.run(1);
@@ -1583,7 +1586,7 @@ TEST(DriveNode, ADriveDeratingOnItsWindingStillMeasures) {
   d.limit_C = -50.0;
   d.min_current_A = 6.0;
   rig.config.drive.injection.interval_s = 0.5;
-  rig.node = std::make_unique<DriveNode>(rig.config, rig.supervisor, PublishRates{});
+  rig.rebuild_node();
   rig.run(80000);  // 8 s
   const auto& tel = rig.node->controller().telemetry();
   ASSERT_TRUE(tel.derating);
@@ -1604,7 +1607,7 @@ TEST(DriveNode, ADriveDeratingOnItsWindingStillMeasures) {
 TEST(DriveNode, AnEstimateTheFilterRefusedIsNotPublishedAsTheResistance) {
   Rig rig;
   rig.config.drive.injection.interval_s = 0.5;
-  rig.node = std::make_unique<DriveNode>(rig.config, rig.supervisor, PublishRates{});
+  rig.rebuild_node();
   std::vector<double> taken;  // the Rs of every estimate the filter took
   std::vector<double> refused;
   std::vector<double> sent;   // RESISTANCE_ESTIMATE's Rs from the jump on
@@ -1644,8 +1647,7 @@ TEST(DriveNode, AnEstimateTheFilterRefusedIsNotPublishedAsTheResistance) {
 // new START clears the result to NONE while it runs.
 TEST(DriveNode, AFaultSuspendsACalibrationAndAnAbortShowsAtOnce) {
   Rig rig;
-  rig.plant_config.load.torque_Nm = 0.0;  // a calibration runs unloaded
-  rig.plant = std::make_unique<plant::Plant>(rig.plant_config);
+  rig.unload();
   rig.run(2000);
   auto start = [&] {
     rig.in.start_calibration = true;
@@ -1684,10 +1686,9 @@ TEST(DriveNode, AFaultSuspendsACalibrationAndAnAbortShowsAtOnce) {
 // thermal.calibration_real_time off, the calibration keeps the acceleration.
 TEST(DriveNode, AnAcceleratedDriveCalibratesAtRealThermalTimeAndSaysSo) {
   Rig rig;
-  rig.plant_config.load.torque_Nm = 0.0;  // a calibration runs unloaded
-  rig.plant = std::make_unique<plant::Plant>(rig.plant_config);
+  rig.unload();
   rig.config.drive.thermal.time_scale = 400.0;
-  rig.node = std::make_unique<DriveNode>(rig.config, rig.supervisor, PublishRates{});
+  rig.rebuild_node();
   const auto scale = [&] { return rig.node->controller().thermal_time_scale(); };
   // The Calibrating bit goes out in the very period it changes, not at the next 100 ms: a
   // plant following it at 400x would otherwise run up to 40 s of thermal time out of step.
@@ -1723,10 +1724,10 @@ TEST(DriveNode, AnAcceleratedDriveCalibratesAtRealThermalTimeAndSaysSo) {
 
   Rig kept;
   kept.plant_config.load.torque_Nm = 0.0;
-  kept.plant = std::make_unique<plant::Plant>(kept.plant_config);
+  kept.rebuild_plant();
   kept.config.drive.thermal.time_scale = 400.0;
   kept.config.calibration_real_time = false;
-  kept.node = std::make_unique<DriveNode>(kept.config, kept.supervisor, PublishRates{});
+  kept.rebuild_node();
   kept.run(2000);
   kept.in.start_calibration = true;
   kept.run(1);
@@ -1740,7 +1741,7 @@ TEST(DriveNode, AnAcceleratedDriveCalibratesAtRealThermalTimeAndSaysSo) {
 TEST(DriveNode, ACalibrationRefusedAsUncertainIsPublishedAsSuch) {
   Rig rig;
   rig.plant_config.load.torque_Nm = 0.0;
-  rig.plant = std::make_unique<plant::Plant>(rig.plant_config);
+  rig.rebuild_plant();
   rig.in.speed_ref_rad_s = 200.0;
   rig.run(5000);
   expect_failed_calibration(rig, core::CalibrationFailure::kUncertain, protocol::CalibrationResult::kRefused);
@@ -1792,7 +1793,7 @@ TEST(DriveNode, ARestoredStateMeetsTheAmbientOfTheRestart) {
   for (const double present_C : {30.0, 5.0}) {
     Rig rig;
     rig.plant_config.thermal.ambient_C = present_C;  // (the plant's first sample is made as it is built)
-    rig.plant = std::make_unique<plant::Plant>(rig.plant_config);
+    rig.rebuild_plant();
     rig.node->controller().restore_thermal_state(core::ThermalState{60.0, 50.0, 1.0}, 3000.0, 5.0);
     const double cooled_C = rig.node->controller().thermal_state().winding_C;
     ASSERT_LT(cooled_C, 30.0);
@@ -1813,7 +1814,7 @@ TEST(DriveNode, ARestoredStateMeetsTheAmbientOfTheRestart) {
   Rig late;
   late.in.ambient_C = 12.0;
   late.plant_config.thermal.ambient_C = 30.0;
-  late.plant = std::make_unique<plant::Plant>(late.plant_config);
+  late.rebuild_plant();
   late.node->controller().restore_thermal_state(core::ThermalState{60.0, 50.0, 1.0}, 3000.0, 5.0);
   const double cooled_C = late.node->controller().thermal_state().winding_C;
   late.run(2, [](hal::SensorSample& s) { s.flags = static_cast<std::uint8_t>(s.flags & ~hal::kSensorAmbientValid); });
