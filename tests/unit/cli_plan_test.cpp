@@ -353,8 +353,9 @@ TEST(SimulateCli, TheScenariosNameIsTextInThePlotNotCommands) {
   EXPECT_TRUE(std::filesystem::exists(png)) << r.err;
   EXPECT_FALSE(std::filesystem::exists(pwned)) << "the scenario's name ran a command";
   // In a Markdown row a '|' of the name is escaped: it would end the cell and shift the figures.
+  // (1.2 s: past the calibration's rotor-angle check, which ends measured at 0.9 s.)
   std::ofstream(dir / "bar.toml") << "[scenario]\nbase = \"" << PMSM_SOURCE_DIR
-                                  << "/bench/scenarios/reference-fm-bipolar.toml\"\nduration_s = 0.6\nname = \"a | b\"\n";
+                                  << "/bench/scenarios/reference-fm-bipolar.toml\"\nduration_s = 1.2\nname = \"a | b\"\n";
   const ProcessResult md = run_process(kExe + " simulate --quiet --markdown " + (dir / "bar.toml").string());
   EXPECT_EQ(md.exit_code, 0) << md.err;
   EXPECT_NE(md.out.find("| a \\| b (`bar.toml`) | fixed-magnitude bipolar |"), std::string::npos) << md.out;
