@@ -305,6 +305,11 @@ ConfigSchema<C> build() {
            "uncertainty of motor.lq_rated_H's gap until pairs at two loads resolve the curve. 0: one Lq at every load.");
   inj.real("injection.lq_learning_min_voltage_V", [](C& c) -> double& { return c.drive.injection.lq_learning_min_voltage_V; },
            at_least(0, 1000), "V", "Learn Lq only from pairs whose Lq <w iq> is at least this.");
+  inj.real("injection.lq_angle_std_rad", [](C& c) -> double& { return c.drive.injection.lq_angle_std_rad; },
+           between(0, 0.1), "rad",
+           "Rotor-angle error (electrical) the Lq learner allows for until a rotor-angle check measures it (the check's "
+           "result replaces it): its EMF share psi delta on the d axis is learned with Lq's curve, not taken for Lq. "
+           "0: none until a check (pairs at one load cannot tell it from an Lq error). Not on a salient machine.");
   // [estimator]
   s.choice("estimator.kind",
            {{"injection", static_cast<int>(EstimatorKind::kInjection)},

@@ -151,6 +151,8 @@ void DriveController::publish_learned() {
   telemetry_.lq_H = scheduler_.lq_H();
   telemetry_.lq_std_H = scheduler_.lq_std_H();
   telemetry_.lq_saturation_H = scheduler_.lq_saturation_H();
+  telemetry_.lq_emf_d_Wb = scheduler_.lq_emf_d_Wb();
+  telemetry_.lq_emf_d_std_Wb = scheduler_.lq_emf_d_std_Wb();
   telemetry_.calibrated = observer_.calibration().calibrated;
 }
 
@@ -391,10 +393,20 @@ void DriveController::finish_angle_check() {
   if (r.outcome == AngleCheckOutcome::kMeasured) {
     // Below the check's own error the angle in use stands (and counts as checked).
     const double error_bar = std::hypot(r.offset_std_rad, r.model_std_rad);
-    if (std::abs(r.offset_rad) >= std::max(config_.angle_check.min_correction_rad, 3.0 * error_bar)) {
+    const bool correct = std::abs(r.offset_rad) >= std::max(config_.angle_check.min_correction_rad, 3.0 * error_bar);
+    if (correct) {
       set_angle_correction(total);
     }
     angle_measured_ = true;
+    // What is left of the angle's error is the Lq learner's prior for it (its EMF share on the
+    // d axis, InjectionConfig::lq_angle_std_rad): 0 on average, and as wide as the check's
+    // error bar, the offset it left uncorrected, and the correction floor (the check's error
+    // bar has one degree of freedom: a machine whose check corrected by 0.176 deg with
+    // +-0.013 deg was exact before). Not centred on the offset left: pairs at one light load
+    // would take it for certain, and a shredder whose check read -0.148 +- 0.071 deg with
+    // an exact encoder read 6.2 C max in its first surge (docs/estimator.md section 5.6).
+    const double left = correct ? 0.0 : std::abs(r.offset_rad);
+    scheduler_.set_angle_prior(0.0, std::max({error_bar, left, config_.angle_check.min_correction_rad}));
   }
   // The sweep follows once the check has ended its wait at zero d current (step()).
   sweep_after_check_ = !check_restart_.pending;

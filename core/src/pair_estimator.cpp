@@ -425,6 +425,7 @@ void PairRecorder::start(const PairFitConfig& config, MatchBy match_by, double d
   sum_vq2_ = sum_wid2_ = sum_wm2_ = sum_gq2_ = 0.0;
   sum_vd_ = sum_id_ = sum_didt_ = sum_wiq_ = sum_gd_ = 0.0;
   sum_lq_sec_ = sum_lq_inc_ = sum_x_lq_sec_ = sum_x_lq_inc_ = sum_xx_ = 0.0;
+  sum_emf_ = sum_x_emf_ = 0.0;
   any_clipped_ = false;
   any_limited_ = false;
 }
@@ -495,8 +496,9 @@ double PairRecorder::add_second(const PeriodSample& s) {
 
   // Eqs. 37 / 43, recording 1 minus recording 2 at the same angle:
   // dVd + d(w psi_q) = Rs dId + Vx dGd + Ld d(dId/dt), with d(w psi_q) = Lq iq dw +
-  // Lq_inc w diq (the secant and the incremental inductance; equal without saturation).
-  const double y = (r[kVd] - s.v_V.d) +
+  // Lq_inc w diq (the secant and the incremental inductance; equal without saturation), and
+  // the EMF's share c dw that an angle error puts on the measured d axis (emf_d_Wb).
+  const double y = (r[kVd] - s.v_V.d) - config_.emf_d_Wb * (r[kOmegaE] - s.omega_e_rad_s) +
                    config_.lq_H * 0.5 * (r[kIq] + s.i_A.q) * (r[kOmegaE] - s.omega_e_rad_s) +
                    config_.lq_incremental_H * 0.5 * (r[kOmegaE] + s.omega_e_rad_s) * (r[kIq] - s.i_A.q) -
                    config_.ld_H * (r[kDidDt] - s.di_dt_A_s.d);
@@ -554,6 +556,9 @@ double PairRecorder::add_second(const PeriodSample& s) {
   sum_x_lq_sec_ += raw[kRegRs] * lq_sec;
   sum_x_lq_inc_ += raw[kRegRs] * lq_inc;
   sum_xx_ += raw[kRegRs] * raw[kRegRs];
+  const double emf = s.omega_e_rad_s - r[kOmegaE];  // y per unit of c
+  sum_emf_ += emf;
+  sum_x_emf_ += raw[kRegRs] * emf;
   return phi;
 }
 
@@ -603,6 +608,8 @@ PairConditions PairRecorder::conditions() const {
     c.lq_incremental_mean_V_H = sum_lq_inc_ / m;
     c.lq_secant_x_sum_A_V_H = sum_x_lq_sec_;
     c.lq_incremental_x_sum_A_V_H = sum_x_lq_inc_;
+    c.emf_mean_V_Wb = sum_emf_ / m;
+    c.emf_x_sum_A_V_Wb = sum_x_emf_;
     c.x_sq_sum_A2 = sum_xx_;
   }
   return c;

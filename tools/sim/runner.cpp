@@ -1031,6 +1031,9 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
   result.lq_H = drive.telemetry().lq_H;
   result.lq_std_H = drive.telemetry().lq_std_H;
   result.lq_saturation_H = drive.telemetry().lq_saturation_H;
+  result.lq_emf_d_Wb = drive.telemetry().lq_emf_d_Wb;
+  result.lq_emf_d_std_Wb = drive.telemetry().lq_emf_d_std_Wb;
+  result.flux_linkage_Wb = scenario.controller.drive.injection.flux_linkage_Wb;
   result.lq_saturation_resolved = drive.telemetry().lq_saturation_resolved;
   result.estimates_dropped_at_restart = drive.telemetry().estimates_dropped_at_restart;
   result.lq_commissioned_saturation_H = core::commissioned_lq_saturation_H(scenario.controller.drive.injection);
@@ -1226,6 +1229,8 @@ std::string result_json(const SimulationResult& r) {
       .field("lq_H", r.lq_H)
       .field("lq_std_H", r.lq_std_H)
       .field("lq_saturation_H", r.lq_saturation_H)
+      .field("lq_emf_d_Wb", r.lq_emf_d_Wb)
+      .field("lq_emf_d_std_Wb", r.lq_emf_d_std_Wb)
       .field("lq_saturation_resolved", r.lq_saturation_resolved)
       .field("lq_commissioned_saturation_H", r.lq_commissioned_saturation_H)
       .field("max_winding_true_C", r.max_winding_true_C)
@@ -1357,6 +1362,11 @@ std::string result_text(const SimulationResult& r) {
                          ? fmt::format(" (not resolved: incremental = secant less the commissioned gap, b0 {:.3f} mH)",
                                        1e3 * r.lq_commissioned_saturation_H)
                          : std::string(" (not resolved: incremental = secant)"));
+  if (r.flux_linkage_Wb > 0.0) {
+    out += fmt::format("  learned d-axis EMF share        {:.2f} +- {:.2f} mWb (a rotor angle {:+.3f} +- {:.3f} deg electrical off)\n",
+                       1e3 * r.lq_emf_d_Wb, 1e3 * r.lq_emf_d_std_Wb, r.lq_emf_d_Wb / r.flux_linkage_Wb * 180.0 / std::numbers::pi,
+                       r.lq_emf_d_std_Wb / r.flux_linkage_Wb * 180.0 / std::numbers::pi);
+  }
   out += fmt::format("  simulated {:.1f} s in {:.1f} s ({:.1f}x real time{})\n", r.sim_time_s, r.wall_time_s,
                      r.wall_time_s > 0 ? r.sim_time_s / r.wall_time_s : 0.0,
                      r.twin_wall_time_s > 0 ? fmt::format("; the twin without injection ran {:.1f} s of it around the events, in {:.1f} s",

@@ -195,6 +195,9 @@ struct SimulationResult {
   double lq_H = 0.0;                    // learned q-axis inductance at the end
   double lq_std_H = 0.0;
   double lq_saturation_H = 0.0;         // its saturation: secant lost at the current limit
+  double lq_emf_d_Wb = 0.0;             // the angle error's EMF share psi delta learned with it
+  double lq_emf_d_std_Wb = 0.0;
+  double flux_linkage_Wb = 0.0;         // the commissioned psi, to read it as an angle
   bool lq_saturation_resolved = false;  // by pairs at two loads
   double lq_commissioned_saturation_H = 0.0;  // b0 from motor.lq_rated_H (0: none)
   // The faults the drive's supervisor latched (as its FAULT frames would show them on a bus):

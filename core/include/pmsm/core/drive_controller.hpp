@@ -313,6 +313,8 @@ struct DriveTelemetry {
   double lq_H = 0.0;                  // the q-axis inductance the estimator has learned
   double lq_std_H = 0.0;
   double lq_saturation_H = 0.0;       // its saturation: secant Lq lost where s = 1 (core::LqShape)
+  double lq_emf_d_Wb = 0.0;           // the angle error's EMF share psi delta learned with it
+  double lq_emf_d_std_Wb = 0.0;
   bool lq_saturation_resolved = false;       // by pairs at two loads (else the commissioned gap holds)
   bool calibrating = false;
   bool inverter_sweep_active = false;  // the calibration's bridge sweep is running

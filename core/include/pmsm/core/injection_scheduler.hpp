@@ -213,6 +213,22 @@ struct InjectionConfig {
   LqMap lq_map{};
   double rated_current_A = 45.1;  // peak
   double lq_learning_min_voltage_V = 1.0; // |Lq <w iq>| of a pair, to learn from it
+  // The rotor angle's error delta (electrical rad) the Lq learner allows for, as a standard
+  // deviation around 0. An encoder off by delta puts the EMF's share c = psi delta on the
+  // measured d axis: <vd> holds c <w>, which a pair at one load cannot tell from -Lq <w iq>
+  // (c / iq of Lq: an encoder 0.18 deg off read a shredder's Lq 10 % high at light load, and
+  // surges then fitted with that Lq read Rs 10 % off; docs/accuracy.md). c is learned as a
+  // third state of the curve, h = (1, -s, -<w> / <w iq>), and the fits take c dw, not Lq, for
+  // it: the incremental Lq the surges need no longer carries light load's angle error, and
+  // until loads far apart tell c from Lq, the pairs' error bars carry the difference. 0: not
+  // modelled (Lq takes it all). This is the prior until a rotor-angle check measures the
+  // angle (set_angle_prior: the drive gives the check's result); 0 by default, because pairs at
+  // one load cannot tell c from an Lq error, and a prior splits a commissioning error of Lq
+  // between the two (an unloaded salient machine's Lq, 10 % low, was learned 21 % low with
+  // 0.2 deg). Not on a machine configured as salient (max_torque_disturbance_Nm > 0): there the
+  // angle error moves the reluctance terms too, which c does not model, and the 30 mOhm IPM's
+  // heat-up read 5.0 C RMS with the state against 1.8 C without (docs/estimator.md section 5.6).
+  double lq_angle_std_rad = 0.0;
   double ld_H = 5.5e-3;
   double rs_nominal_ohm = 0.133;  // for the headroom calculation
   double flux_linkage_Wb = 0.3239;
@@ -540,7 +556,15 @@ class InjectionScheduler {
   // early for it (retry_at_rest_).
   void set_motoring_current_limit(double limit_A) { motoring_limit_A_ = limit_A; }
   [[nodiscard]] double lq_H() const { return lq_H_; }   // the secant Lq at zero current
-  [[nodiscard]] double lq_std_H() const { return std::sqrt(lq_var_); }
+  [[nodiscard]] double lq_std_H() const { return std::sqrt(lq_p_[0][0]); }
+  // The learned EMF share of the d axis, c = psi delta (InjectionConfig::lq_angle_std_rad).
+  [[nodiscard]] double lq_emf_d_Wb() const { return emf_d_Wb_; }
+  [[nodiscard]] double lq_emf_d_std_Wb() const { return std::sqrt(lq_p_[2][2]); }
+  // What a rotor-angle check measured of the angle in use (the learner's sign: vd holds
+  // psi delta w) and its standard deviation: c's prior from here on, uncorrelated with the curve
+  // (a correction moves the angle, and what pairs taught c before no longer holds). Ignored
+  // with learning off, on a machine configured as salient, or with a non-finite argument.
+  void set_angle_prior(double delta_rad, double std_rad);
   // The saturation model's b: the secant Lq lost where s = 1, the current limit without a map (LqShape).
   [[nodiscard]] double lq_saturation_H() const { return lq_b_H_; }
   // Whether pairs at two loads have resolved it (its variance below a quarter of its prior);
@@ -611,19 +635,22 @@ class InjectionScheduler {
     double incremental_mean_V_H = 0.0;
     double secant_x_sum_A_V_H = 0.0;  // weighted by dId, with dId's sum of squares
     double incremental_x_sum_A_V_H = 0.0;
+    double emf_d_Wb = 0.0;            // the angle error's EMF share the fit used, and its terms
+    double emf_mean_V_Wb = 0.0;
+    double emf_x_sum_A_V_Wb = 0.0;
     double x_sq_sum_A2 = 0.0;
   };
   [[nodiscard]] LqTerm lq_term(const PairConditions& c) const;
   [[nodiscard]] double lq_secant_at(const LqShape::At& shape) const;  // the learned curve there
   [[nodiscard]] double lq_incremental_at(const LqShape::At& shape) const;
-  // The learned curve now less the one a pair used: (secant, incremental), 0 with learning off.
-  [[nodiscard]] std::array<double, 2> lq_change_H(const LqTerm& t) const;
-  // How an estimate moves with the curve's state (a, b), summed over the pairs it is made of:
-  // add(dR/dLq_sec, dR/dLq_inc, u) for each.
+  // The learned curve now less the one a pair used: (secant, incremental, EMF share), 0 with
+  // learning off.
+  [[nodiscard]] std::array<double, 3> lq_change_H(const LqTerm& t) const;
+  // How an estimate moves with the curve's state (a, b, c), summed over the pairs it is made
+  // of: add(dR/dLq_sec, dR/dLq_inc, dR/dc, u) for each.
   struct LqGradient {
-    double a = 0.0;
-    double b = 0.0;
-    void add(double d_secant, double d_incremental, const LqShape::At& shape);
+    std::array<double, 3> g{};
+    void add(double d_secant, double d_incremental, double d_emf, const LqShape::At& shape);
   };
   // The variance the learned curve's uncertainty leaves in such an estimate.
   [[nodiscard]] double lq_variance(const LqGradient& g) const;
@@ -691,12 +718,11 @@ class InjectionScheduler {
   Dq motoring_voltage_V_{};
   double motoring_voltage_mean_sq_V2_ = 0.0;
   double lq_H_ = 0.0;               // learned q-axis inductance (see InjectionConfig::learn_lq)
-  double lq_var_ = 0.0;
   LqShape lq_shape_;                // the saturation curve's shape and its commissioned b0 (InjectionConfig::lq_map)
   bool lq_resolved_ = false;        // saturation_variance_resolved(), kept as b's variance changes
   double lq_b_H_ = 0.0;             // its saturation: secant lost where s = 1 (LqShape)
-  double lq_b_var_ = 0.0;
-  double lq_cov_ = 0.0;             // covariance of the two
+  double emf_d_Wb_ = 0.0;           // the angle error's EMF share c (InjectionConfig::lq_angle_std_rad)
+  std::array<std::array<double, 3>, 3> lq_p_{};  // covariance of (a, b, c): lq_H_, lq_b_H_, emf_d_Wb_
   bool time_based_ = false;
   double direction_ = 1.0;
   double f_A_ = 0.0;                // magnitude for this pair

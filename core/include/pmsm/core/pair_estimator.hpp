@@ -179,6 +179,10 @@ struct PairFitConfig {
   // still settling during a recording does not pose as resistance (the means fit has no
   // inductive term; the sample fit's Ld regressor then fits only the residue of Ld's error).
   double ld_H = 5.5e-3;
+  // The d axis's share of the magnet's EMF that a rotor-angle error delta leaves in the
+  // measured frame, c = psi delta: <vd> holds c w, and y the difference c dw between the
+  // recordings (learned with Lq: InjectionConfig::lq_angle_std_rad). 0: none.
+  double emf_d_Wb = 0.0;
   // Moving-average length (periods) applied alike to y and every regressor before the fit.
   // The relation is linear with constant coefficients, so filtering both sides keeps it
   // exact, while the noise of the two-sample derivative d(dId/dt) falls by this factor: with
@@ -243,6 +247,9 @@ struct PairConditions {
   double lq_incremental_mean_V_H = 0.0;
   double lq_secant_x_sum_A_V_H = 0.0;
   double lq_incremental_x_sum_A_V_H = 0.0;
+  // The same for the angle error's EMF share (PairFitConfig::emf_d_Wb): y moves by -dw dc.
+  double emf_mean_V_Wb = 0.0;
+  double emf_x_sum_A_V_Wb = 0.0;
   double x_sq_sum_A2 = 0.0;
 };
 
@@ -351,6 +358,7 @@ class PairRecorder {
   double sum_vq2_ = 0.0, sum_wid2_ = 0.0, sum_wm2_ = 0.0, sum_gq2_ = 0.0;
   double sum_vd_ = 0.0, sum_id_ = 0.0, sum_didt_ = 0.0, sum_wiq_ = 0.0, sum_gd_ = 0.0;
   double sum_lq_sec_ = 0.0, sum_lq_inc_ = 0.0, sum_x_lq_sec_ = 0.0, sum_x_lq_inc_ = 0.0, sum_xx_ = 0.0;
+  double sum_emf_ = 0.0, sum_x_emf_ = 0.0;
   bool any_clipped_ = false;
   bool any_limited_ = false;
 };
