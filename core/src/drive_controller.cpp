@@ -144,6 +144,8 @@ void DriveController::publish_learned() {
   learned_version_published_ = scheduler_.learned_version();
   telemetry_.angle_correction_rad = angle_.offset_correction_rad();
   telemetry_.dead_time_band_A = config_.dead_time.current_band_A;
+  // (Every change of the band is published: the scheduler's copy follows it here.)
+  scheduler_.set_bridge_band(config_.dead_time.current_band_A);
   telemetry_.vx_V = scheduler_.vx_V();
   telemetry_.vx_std_V = scheduler_.vx_std_V();
   telemetry_.vx_bus_slope = scheduler_.vx_bus_slope();

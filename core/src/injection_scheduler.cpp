@@ -850,13 +850,26 @@ void InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit,
       !(std::abs(lq - predicted) <= 4.0 * std::sqrt(s))) {
     return;
   }
+  // A pair whose q current idles inside the bridge's ripple band does not teach c: its d-axis
+  // mean keeps a per cent or two of Vx that the bipolar recordings cancel only as far as the
+  // model of the bridge's zero crossings holds, and c / iq, whose lever is largest there, took
+  // it for the angle. On the 14-pole servo of round 7 (idling at 0.6 A, band 1.25 A, Vx 6.5 V)
+  // 0.12 V read as -0.038 deg, and with only two loads b followed (Lq 3.67 mH at zero current,
+  // 4.61 mH at the limit, true 3.8 flat: +1.15 C on average); idling at 1.9 A or 3.5 A the same
+  // machine's pairs put the angle at -0.017 and -0.008 deg (docs/estimator.md section 5.6). Such
+  // a pair updates a and b with c considered, not estimated (a Schmidt update: c's uncertainty is
+  // in s, its gain 0, its variance and mean kept).
+  const bool teaches_c = !(std::abs(c.iq_mean_A) < bridge_band_A_);
+  const std::array<double, 3> k{ph[0] / s, ph[1] / s, teaches_c ? ph[2] / s : 0.0};
   const double innovation = lq - predicted;
-  lq_H_ += ph[0] / s * innovation;
-  lq_b_H_ += ph[1] / s * innovation;
-  emf_d_Wb_ += ph[2] / s * innovation;
+  lq_H_ += k[0] * innovation;
+  lq_b_H_ += k[1] * innovation;
+  emf_d_Wb_ += k[2] * innovation;
+  // The covariance for any gain, P - K (P h)' - (P h) K' + K s K' (Joseph's form expanded); with
+  // every gain the optimal one it is P - (P h)(P h)' / s.
   for (std::size_t i = 0; i < 3; ++i) {
     for (std::size_t j = 0; j < 3; ++j) {
-      lq_p_[i][j] -= ph[i] * ph[j] / s;
+      lq_p_[i][j] += -k[i] * ph[j] - ph[i] * k[j] + k[i] * k[j] * s;
     }
   }
   lq_resolved_ = saturation_variance_resolved();

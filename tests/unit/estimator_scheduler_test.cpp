@@ -1362,6 +1362,41 @@ TEST(InjectionScheduler, ARotorAngleErrorIsNotTakenForLq) {
   EXPECT_EQ(without.emf_d_Wb, 0.0);
 }
 
+// A pair whose q current idles inside the bridge's ripple band teaches the curve but not the
+// angle's share c: its d-axis mean keeps what the bridge model leaves of the bridge's error, and
+// c / iq has its largest lever there (docs/estimator.md section 5.6). The same pairs at 5 A with
+// the band above their current leave c at its prior, mean and variance, and learn Lq; with the
+// band below it, they move c toward the plant's angle error.
+TEST(InjectionScheduler, APairIdlingInsideTheBridgesBandDoesNotTeachTheAngle) {
+  const double psi = saturation_test_config().flux_linkage_Wb;
+  const double prior_std_rad = 0.005;
+  struct Learned {
+    double emf_d_Wb;
+    double emf_d_std_Wb;
+    double lq_std_H;
+  };
+  auto run = [&](double band_A) {
+    InjectionConfig c = saturation_test_config();
+    c.lq_angle_std_rad = prior_std_rad;
+    Harness h(c);
+    h.plant.angle_error_rad = 0.3 * kPi / 180.0;
+    h.scheduler.set_bridge_band(band_A);
+    const double iq0 = 5.0;
+    answer_the_reluctance_torque(h, &iq0);
+    h.run_until(3.0);
+    return Learned{h.scheduler.lq_emf_d_Wb(), h.scheduler.lq_emf_d_std_Wb(), h.scheduler.lq_std_H()};
+  };
+  const Learned inside = run(6.0);
+  const Learned outside = run(4.0);
+  const double prior_lq_std_H = saturation_test_config().lq_initial_std_fraction * saturation_test_config().lq_H;
+  EXPECT_EQ(inside.emf_d_Wb, 0.0) << "c left at its prior's mean";
+  EXPECT_DOUBLE_EQ(inside.emf_d_std_Wb, psi * prior_std_rad) << "and its prior's width";
+  // (Lq's error bar at 5 A cannot fall below what c leaves open there, psi sigma / iq = 0.32 mH.)
+  EXPECT_LT(inside.lq_std_H, 0.75 * prior_lq_std_H) << "the curve learned";
+  EXPECT_GT(outside.emf_d_Wb, 0.1 * psi * 0.3 * kPi / 180.0) << "outside the band the pairs teach c";
+  EXPECT_LT(outside.emf_d_std_Wb, 0.9 * psi * prior_std_rad);
+}
+
 // The drive gives the Lq learner the rotor-angle check's result as c's prior (what a pair at one
 // load cannot tell from Lq): with the true angle as its prior, a machine seen at one light load
 // learns its Lq, 10 % off as commissioned, as well as with an exact encoder; without it (the

@@ -555,6 +555,10 @@ class InjectionScheduler {
   // it or more may be one the derating stalled, not one that rests, and no event is started
   // early for it (retry_at_rest_).
   void set_motoring_current_limit(double limit_A) { motoring_limit_A_ = limit_A; }
+  // The bridge's ripple band in use (control.dead_time_band_A, or the one a sweep measured): a
+  // pair whose q current idles inside it does not teach the Lq learner the angle's share c
+  // (learn_lq).
+  void set_bridge_band(double band_A) { bridge_band_A_ = band_A; }
   [[nodiscard]] double lq_H() const { return lq_H_; }   // the secant Lq at zero current
   [[nodiscard]] double lq_std_H() const { return std::sqrt(lq_p_[0][0]); }
   // The learned EMF share of the d axis, c = psi delta (InjectionConfig::lq_angle_std_rad).
@@ -722,6 +726,7 @@ class InjectionScheduler {
   bool lq_resolved_ = false;        // saturation_variance_resolved(), kept as b's variance changes
   double lq_b_H_ = 0.0;             // its saturation: secant lost where s = 1 (LqShape)
   double emf_d_Wb_ = 0.0;           // the angle error's EMF share c (InjectionConfig::lq_angle_std_rad)
+  double bridge_band_A_ = 0.0;      // set_bridge_band
   std::array<std::array<double, 3>, 3> lq_p_{};  // covariance of (a, b, c): lq_H_, lq_b_H_, emf_d_Wb_
   bool time_based_ = false;
   double direction_ = 1.0;
