@@ -116,10 +116,8 @@ DriveController::DriveController(const DriveConfig& config)
   // DRIVE_STATUS reads the limit before the first thermal update sets it.
   telemetry_.current_limit_A = derating_.current_limit_A;
   // A stored calibration that measured the bridge replaces the configured band.
-  if (config_.calibration.dead_time_band_A > 0.0) {
-    config_.dead_time.current_band_A = config_.calibration.dead_time_band_A;
-    band_measured_ = true;
-  }
+  band_measured_ = config_.calibration.dead_time_band_A > 0.0;
+  use_band(band_measured_ ? config_.calibration.dead_time_band_A : config_.dead_time.current_band_A);
   // ... and one that checked the rotor angle corrects the commissioned offset.
   // (A non-finite one is no correction: the loaders refuse it, a configuration built in code
   // must not put NaN into every angle.)
@@ -140,12 +138,17 @@ DriveController::DriveController(const DriveConfig& config)
   publish_learned();
 }
 
+void DriveController::use_band(double band_A) {
+  // The compensation and the estimator's pattern read it from the configuration; the Lq
+  // learner keeps its own copy (InjectionScheduler::set_bridge_band).
+  config_.dead_time.current_band_A = band_A;
+  scheduler_.set_bridge_band(band_A);
+}
+
 void DriveController::publish_learned() {
   learned_version_published_ = scheduler_.learned_version();
   telemetry_.angle_correction_rad = angle_.offset_correction_rad();
   telemetry_.dead_time_band_A = config_.dead_time.current_band_A;
-  // (Every change of the band is published: the scheduler's copy follows it here.)
-  scheduler_.set_bridge_band(config_.dead_time.current_band_A);
   telemetry_.vx_V = scheduler_.vx_V();
   telemetry_.vx_std_V = scheduler_.vx_std_V();
   telemetry_.vx_bus_slope = scheduler_.vx_bus_slope();
@@ -311,7 +314,7 @@ void DriveController::restore_band() {
   // 0.74 A, and 2 % low with the measured band (docs/accuracy.md).
   const bool nameplate = !observer_.calibration().calibrated;
   if (!(nameplate && band_measured_ && !band_measured_before_)) {
-    config_.dead_time.current_band_A = band_before_calibration_A_;
+    use_band(band_before_calibration_A_);
     band_measured_ = band_measured_before_;
     publish_learned();
   }
@@ -428,7 +431,7 @@ void DriveController::finish_inverter_sweep(double now_s) {
     // below the bridge's (the level means keep a 50 mV residual the model does not explain),
     // and Rs0 moves about 0.3 % per 0.02 V of prior; measured, it made the seeds read low
     // (docs/estimator.md section 4). The calibration's joint fit learns Vx itself.
-    config_.dead_time.current_band_A = r.band_A;
+    use_band(r.band_A);
     band_measured_ = true;
     publish_learned();
   }

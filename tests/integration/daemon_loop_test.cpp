@@ -871,9 +871,9 @@ TEST(DaemonLoop, AWallClockSetForwardLeavesTheSocketWaitCounted) {
 
 // The wall clock's offset read once, as the median of a thousand readings: a test whose
 // figure hangs on the offset to tens of microseconds cannot take the daemon's one reading of a
-// few tries, all of which a loaded machine (two sanitizer builds' tests side by side) can
-// preempt; a frame then reads as having waited less than nothing, and the daemon, rightly,
-// takes that as no wait.
+// few tries (its tries preempted, or the guest's wall clock stepped between the reading and the
+// frames: which of them, one failed CI run under ASan did not tell); a frame then reads as having
+// waited less than nothing, and the daemon, rightly, takes that as no wait.
 std::int64_t wall_clock_offset_read_with_care() noexcept {
   static const std::int64_t offset = [] {
     std::vector<std::int64_t> readings(1001);

@@ -596,6 +596,8 @@ class DriveController {
   // bridge's band and Vx, Lq, the calibration's flag): copied where it changes, and after a
   // step in which the scheduler learned (InjectionScheduler::learned_version), not every period.
   void publish_learned();
+  // The bridge's ripple band in use, wherever it changes (configured, stored, measured, restored).
+  void use_band(double band_A);
   // At a step's end: what the scheduler learned in it (the rest changes outside the scheduler,
   // where publish_learned() is called).
   void publish_learned_if_moved() {
