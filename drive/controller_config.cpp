@@ -377,6 +377,11 @@ ConfigSchema<C> build() {
          "Rs0 of a stored calibration: what the drive measures at T0, a motor cable's share included (defaults to "
          "motor.rs_ohm plus motor.cable_resistance_ohm at motor.rs_reference_temp_C).");
   s.real("calibration.t0_C", [](C& c) -> double& { return c.drive.calibration.t0_C; }, between(-50, 200), "C", "T0 of that calibration.");
+  s.real("calibration.t0_std_C", [](C& c) -> double& { return c.drive.thermal.reference_std_C; }, between(0, 20), "C",
+         "The standard uncertainty of the temperature a calibration refers Rs0 to: the ambient / coolant sensor's "
+         "accuracy (an NTC of +-2 C at two sigma: 1), or that of an operator's reading. Every estimate shares its error "
+         "through Eq. 1, (234.5 + T) / (234.5 + T0) times it for copper, so it widens the band, and the derating's "
+         "T + k sigma, once a calibration run's Rs0 is in use (docs/estimator.md section 6). 0: the sensor taken as exact.");
   s.real("calibration.rs0_std_fraction", [](C& c) -> double& { return c.drive.calibration.rs0_std_fraction; }, between(0, 0.5), "",
          "The relative standard uncertainty of Rs0 while no calibration run of this drive has measured it (a data "
          "sheet's +-10 % tolerance is about 0.05; a four-wire measurement at a known temperature about 0.005): every "

@@ -60,7 +60,7 @@ ThermalState ThermalObserver::state() const {
   ThermalState s;
   s.winding_C = x_(0);
   s.housing_C = x_(1);
-  // The band without an uncalibrated Rs0's share: restore() adds that again (uncalibrated_rs0_std_C),
+  // The band without an uncalibrated Rs0's share or T0's: estimate() adds them again (uncalibrated_rs0_std_C, reference_std_C),
   // and a share stored in P would count twice and raise the gain.
   s.winding_std_C = std::sqrt(measured_winding_variance_C2());
   s.has_loss_errors = true;
@@ -473,13 +473,26 @@ double ThermalObserver::uncalibrated_rs0_std_C() const {
   return std::isfinite(s) ? std::abs(s) : 0.0;
 }
 
+double ThermalObserver::reference_std_C() const {
+  // Eq. 1 referred to T0: T = (K + T0) Rs / Rs0 - K, so dT/dT0 = Rs / Rs0 = (K + T) / (K + T0)
+  // (with a cable, (Rs - Rc) / (Rs0 - Rc): the same ratio). An Rs0 no calibration run measured
+  // is the nameplate's at its own reference temperature: its share is rs0_std_fraction's.
+  if (!calibration_.calibrated || !(config_.reference_std_C > 0.0)) {
+    return 0.0;
+  }
+  const double k = config_.conductor_inferred_zero_C;
+  const double s = config_.reference_std_C * (k + x_(0)) / (k + calibration_.t0_C);
+  return std::isfinite(s) ? std::abs(s) : 0.0;
+}
+
 double ThermalObserver::measured_winding_variance_C2() const {
   return std::max(p_(0, 0), 0.0) + drift_std_C_ * drift_std_C_ + shared_error_C_ * shared_error_C_;
 }
 
 ThermalEstimate ThermalObserver::estimate() const {
   const double rs0_C = uncalibrated_rs0_std_C();
-  return {x_(0), std::sqrt(measured_winding_variance_C2() + rs0_C * rs0_C),
+  const double t0_C = reference_std_C();
+  return {x_(0), std::sqrt(measured_winding_variance_C2() + rs0_C * rs0_C + t0_C * t0_C),
           x_(1), x_(2) + x_(3) * last_copper_loss_W_, x_(2), x_(3), std::sqrt(std::max(p_(3, 3), 0.0)),
           since_measurement_s_};
 }

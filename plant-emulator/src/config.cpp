@@ -295,6 +295,9 @@ common::ConfigSchema<PlantConfig> build_schema() {
                         "Thermal network; when false all temperatures stay at initial_C.");
     real("thermal.ambient_C", PMSM_MEMBER(thermal.ambient_C), closed(-50, 150),
                      "Ambient temperature (changeable at run time).");
+    real("thermal.ambient_sensor_offset_C", PMSM_MEMBER(thermal.ambient_sensor_offset_C), closed(-20, 20),
+         "The drive's ambient / coolant sensor (SENSOR_SAMPLE's Ambient) reads the ambient plus this: a sensor off by "
+         "its tolerance, or one the drive's own heat reaches. The thermal network's ambient is ambient_C.");
     s.optional_real("thermal.initial_C", PMSM_MEMBER(thermal.initial_C), closed(-50, 250), "",
                     "ambient_C", "Initial temperature of every node (default: ambient_C).");
     real("thermal.acceleration", PMSM_MEMBER(thermal.acceleration), closed(1e-3, 1e6),

@@ -1127,8 +1127,10 @@ struct Plant::Impl {
       }
       out.flags |= hal::kSensorPhaseVoltageValid;
     }
-    // The drive's ambient / coolant sensor (a digital sensor: 0.01 C steps).
-    out.ambient_centi_C = static_cast<std::int16_t>(std::clamp(std::round(ambient_C * 100.0), -32768.0, 32767.0));
+    // The drive's ambient / coolant sensor (a digital sensor: 0.01 C steps), off by its offset.
+    const double sensed_ambient_C = ambient_C + cfg.thermal.ambient_sensor_offset_C;
+    out.ambient_centi_C =
+        static_cast<std::int16_t>(std::clamp(std::round(sensed_ambient_C * 100.0), -32768.0, 32767.0));
     out.flags |= hal::kSensorAmbientValid;
     if (cfg.inverter.overcurrent_trip_enabled) {
       for (double i : aux.i_abc_A) {

@@ -278,6 +278,54 @@ TEST(ThermalObserver, AnUncalibratedRs0StaysInTheBand) {
   EXPECT_NEAR(obs.estimate().winding_std_C, p.winding_std_C, 1e-9);
 }
 
+// The temperature a calibration refers Rs0 to comes from a sensor (or an operator): an error of
+// T0 moves every estimate through Eq. 1 by dT/dT0 = (K + T) / (K + T0), the same in every
+// measurement, so averaging cannot take it out of the band. Its share, the configured
+// uncertainty times that ratio, is in the band once a calibration run's Rs0 is in use, and
+// not in the filter's P (a stored state holds the band without it: no double count). An Rs0 no
+// calibration measured is the nameplate's at its own reference: no T0 share.
+TEST(ThermalObserver, TheCalibrationsTemperatureUncertaintyStaysInTheBand) {
+  ThermalModelConfig plain_config;
+  ThermalModelConfig c = plain_config;
+  c.reference_std_C = 1.0;  // an NTC of +-2 C at two sigma
+  Calibration cal;
+  cal.rs0_ohm = 0.160;  // measured at 45 C
+  cal.t0_C = 45.0;
+  cal.calibrated = true;
+  ThermalObserver obs(c, cal, 45.0);
+  ThermalObserver plain(plain_config, cal, 45.0);
+  EXPECT_NEAR(obs.reference_std_C(), 1.0, 1e-12);  // at T0 the ratio is 1
+  const double rs = obs.resistance_at_C(52.0);
+  for (int k = 0; k < 400; ++k) {
+    ASSERT_TRUE(obs.update_resistance(rs, 0.0005));
+    ASSERT_TRUE(plain.update_resistance(rs, 0.0005));
+  }
+  const ThermalEstimate e = obs.estimate();
+  const ThermalEstimate p = plain.estimate();
+  EXPECT_NEAR(e.winding_C, p.winding_C, 1e-12);  // the same gain: only the band differs
+  const double k = c.conductor_inferred_zero_C;
+  const double term = (k + e.winding_C) / (k + 45.0);
+  EXPECT_NEAR(term, 1.025, 0.002);  // about 52 C on a calibration at 45 C
+  EXPECT_NEAR(obs.reference_std_C(), term, 1e-9);
+  EXPECT_NEAR(e.winding_std_C, std::hypot(p.winding_std_C, term), 1e-9);
+  EXPECT_LT(p.winding_std_C, 1.0);  // the measurements alone were averaged down
+  // A stored state holds the band without the share; a restore adds it once.
+  EXPECT_NEAR(obs.state().winding_std_C, p.winding_std_C, 1e-9);
+  ThermalObserver restored(c, cal, 45.0);
+  restored.restore(obs.state(), 0.0, 45.0);
+  ThermalObserver restored_plain(plain_config, cal, 45.0);
+  restored_plain.restore(plain.state(), 0.0, 45.0);
+  EXPECT_NEAR(restored.estimate().winding_std_C,
+              std::hypot(restored_plain.estimate().winding_std_C, restored.reference_std_C()), 1e-9);
+  // The nameplate's Rs0 (no calibration run): its own share, rs0_std_fraction's, not T0's.
+  Calibration nameplate;
+  ThermalObserver uncalibrated(c, nameplate, 45.0);
+  for (int j = 0; j < 10; ++j) {
+    ASSERT_TRUE(uncalibrated.update_resistance(uncalibrated.resistance_at_C(52.0), 0.0005));
+  }
+  EXPECT_EQ(uncalibrated.reference_std_C(), 0.0);
+}
+
 TEST(ThermalObserver, AfterPredictionAMeasurementAlsoMovesTheCorrelatedStates) {
   ThermalModelConfig c;
   ThermalObserver obs(c, Calibration{}, 40.0);

@@ -37,6 +37,13 @@ struct ThermalModelConfig {
   // at 20 C (copper, at the ambient sensor's temperature). Eq. 1 and the copper loss take the
   // winding's share alone; 0: none (docs/estimator.md section 6, "A motor cable").
   double cable_resistance_20C_ohm = 0.0;
+  // The standard uncertainty of the temperature a calibration refers Rs0 to (T0: the ambient /
+  // coolant sensor's reading at the calibration, or the operator's): every estimate through
+  // Eq. 1 shares its error, dT/dT0 = (K + T) / (K + T0), so no number of measurements averages
+  // it away. It widens the reported band (and the derating's T + k sigma) once a calibration
+  // run's Rs0 is in use; 0: the sensor taken as exact (docs/estimator.md section 6, "The
+  // calibration's temperature").
+  double reference_std_C = 0.0;
   // Thermal time runs this many times faster than controller time (test acceleration; 1 on a
   // real machine).
   double time_scale = 1.0;
@@ -235,6 +242,8 @@ class ThermalObserver {
   [[nodiscard]] ThermalEstimate estimate() const;
   // The band's share from an uncalibrated Rs0 (Calibration::rs0_std_fraction), 1 sigma, C.
   [[nodiscard]] double uncalibrated_rs0_std_C() const;
+  // The band's share from the calibration's T0 (ThermalObserverConfig::reference_std_C), 1 sigma, C.
+  [[nodiscard]] double reference_std_C() const;
   // The band's variance without that share (C^2): what the filter itself holds, which a stored
   // state keeps and a resistance taken back through the same Rs0 carries.
   [[nodiscard]] double measured_winding_variance_C2() const;

@@ -189,6 +189,9 @@ struct IronLossConfig {
 struct ThermalConfig {
   bool enabled = true;
   double ambient_C = 25.0;
+  // The drive's ambient / coolant sensor reads the ambient plus this (a sensor off by its
+  // tolerance, or one the drive's own heat reaches); the network's ambient is ambient_C.
+  double ambient_sensor_offset_C = 0.0;
   std::optional<double> initial_C;  // all nodes; ambient when absent
   double acceleration = 1.0;        // thermal time runs this many times faster
   double winding_capacity_J_K = 3000.0;
