@@ -228,6 +228,27 @@ TEST(ThermalObserver, ASharedErrorWidensTheBandButNotTheGain) {
   EXPECT_LT(excess(), 0.7 * before);
 }
 
+// A share of the band that every measurement through Eq. 1 has in common (`share` of an
+// observer): `obs` and `plain` fused the same measurements, so the estimates agree (the same gain)
+// and the bands differ by `term` in quadrature; a stored state holds the band without the share
+// (the measurements were averaged down), and a restore adds it once, not twice. Returns the
+// share of the restored observer.
+template <class Share>
+double expect_a_shared_share(const ThermalObserver& obs, const ThermalObserver& plain, double term,
+                             ThermalObserver restored, ThermalObserver restored_plain, double ambient_C, Share share) {
+  const ThermalEstimate e = obs.estimate();
+  const ThermalEstimate p = plain.estimate();
+  EXPECT_NEAR(e.winding_C, p.winding_C, 1e-12);
+  EXPECT_NEAR(share(obs), term, 1e-9);
+  EXPECT_NEAR(e.winding_std_C, std::hypot(p.winding_std_C, term), 1e-9);
+  EXPECT_LT(p.winding_std_C, 1.0);
+  EXPECT_NEAR(obs.state().winding_std_C, p.winding_std_C, 1e-9);
+  restored.restore(obs.state(), 0.0, ambient_C);
+  restored_plain.restore(plain.state(), 0.0, ambient_C);
+  EXPECT_NEAR(restored.estimate().winding_std_C, std::hypot(restored_plain.estimate().winding_std_C, share(restored)), 1e-9);
+  return share(restored);
+}
+
 // An Rs0 no calibration measured (the nameplate's) puts the same error into every measurement
 // through Eq. 1, so averaging cannot take it out of the band: its share, dT/dRs0 times its
 // uncertainty, (K + T) rs0_std_fraction for copper, stays in the band from the first fused
@@ -250,25 +271,13 @@ TEST(ThermalObserver, AnUncalibratedRs0StaysInTheBand) {
     ASSERT_TRUE(obs.update_resistance(rs, 0.0005));
     ASSERT_TRUE(plain.update_resistance(rs, 0.0005));
   }
-  // The same gain: the estimates agree; only the band differs, by the Rs0 term in quadrature.
-  const ThermalEstimate e = obs.estimate();
-  const ThermalEstimate p = plain.estimate();
-  EXPECT_NEAR(e.winding_C, p.winding_C, 1e-12);
-  const double term = (c.conductor_inferred_zero_C + e.winding_C) * kNameplateRs0StdFraction;
-  EXPECT_NEAR(obs.uncalibrated_rs0_std_C(), term, 1e-9);
+  const double term = (c.conductor_inferred_zero_C + obs.estimate().winding_C) * kNameplateRs0StdFraction;
   EXPECT_NEAR(term, 14.0, 0.1);  // at 45 C: (234.5 + 45) x 5 %
-  EXPECT_NEAR(e.winding_std_C, std::hypot(p.winding_std_C, term), 1e-9);
-  EXPECT_LT(p.winding_std_C, 1.0);  // the measurements alone were averaged down
-  // A stored state keeps the measurements' band and gets the share once more on restore, not
-  // twice: the state holds the band without it.
-  EXPECT_NEAR(obs.state().winding_std_C, p.winding_std_C, 1e-9);
-  ThermalObserver restored(c, nameplate, 25.0);
-  restored.restore(obs.state(), 0.0, 25.0);
-  ThermalObserver restored_plain(c, exact, 25.0);
-  restored_plain.restore(plain.state(), 0.0, 25.0);
-  EXPECT_NEAR(restored.estimate().winding_std_C,
-              std::hypot(restored_plain.estimate().winding_std_C, restored.uncalibrated_rs0_std_C()), 1e-9);
-  EXPECT_NEAR(restored.uncalibrated_rs0_std_C(), term, 1e-6);
+  const double restored_term =
+      expect_a_shared_share(obs, plain, term, ThermalObserver(c, nameplate, 25.0), ThermalObserver(c, exact, 25.0), 25.0,
+                            [](const ThermalObserver& o) { return o.uncalibrated_rs0_std_C(); });
+  EXPECT_NEAR(restored_term, term, 1e-6);
+  const ThermalEstimate p = plain.estimate();
   // A calibration replaces it.
   Calibration measured = exact;
   measured.calibrated = true;
@@ -300,23 +309,11 @@ TEST(ThermalObserver, TheCalibrationsTemperatureUncertaintyStaysInTheBand) {
     ASSERT_TRUE(obs.update_resistance(rs, 0.0005));
     ASSERT_TRUE(plain.update_resistance(rs, 0.0005));
   }
-  const ThermalEstimate e = obs.estimate();
-  const ThermalEstimate p = plain.estimate();
-  EXPECT_NEAR(e.winding_C, p.winding_C, 1e-12);  // the same gain: only the band differs
   const double k = c.conductor_inferred_zero_C;
-  const double term = (k + e.winding_C) / (k + 45.0);
+  const double term = (k + obs.estimate().winding_C) / (k + 45.0);
   EXPECT_NEAR(term, 1.025, 0.002);  // about 52 C on a calibration at 45 C
-  EXPECT_NEAR(obs.reference_std_C(), term, 1e-9);
-  EXPECT_NEAR(e.winding_std_C, std::hypot(p.winding_std_C, term), 1e-9);
-  EXPECT_LT(p.winding_std_C, 1.0);  // the measurements alone were averaged down
-  // A stored state holds the band without the share; a restore adds it once.
-  EXPECT_NEAR(obs.state().winding_std_C, p.winding_std_C, 1e-9);
-  ThermalObserver restored(c, cal, 45.0);
-  restored.restore(obs.state(), 0.0, 45.0);
-  ThermalObserver restored_plain(plain_config, cal, 45.0);
-  restored_plain.restore(plain.state(), 0.0, 45.0);
-  EXPECT_NEAR(restored.estimate().winding_std_C,
-              std::hypot(restored_plain.estimate().winding_std_C, restored.reference_std_C()), 1e-9);
+  expect_a_shared_share(obs, plain, term, ThermalObserver(c, cal, 45.0), ThermalObserver(plain_config, cal, 45.0), 45.0,
+                        [](const ThermalObserver& o) { return o.reference_std_C(); });
   // The nameplate's Rs0 (no calibration run): its own share, rs0_std_fraction's, not T0's.
   Calibration nameplate;
   ThermalObserver uncalibrated(c, nameplate, 45.0);
