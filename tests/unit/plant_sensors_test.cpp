@@ -89,6 +89,24 @@ TEST(plant_sensors, ADivergedModelIsToldAndItsCodesStayDefined) {
   EXPECT_DOUBLE_EQ(plant.diverged_at_s(), at_s) << "the first period stays the one reported";
 }
 
+// The drive's ambient sensor reads the ambient plus thermal.ambient_sensor_offset_C, in 0.01 C
+// steps; the thermal network runs on the true ambient (a soaked motor stays at it).
+TEST(plant_sensors, TheAmbientSensorReadsItsOffset) {
+  PlantConfig c;
+  hold_shaft(c);
+  c.thermal.ambient_C = 31.0;
+  c.thermal.ambient_sensor_offset_C = -2.5;
+  Plant plant(c);
+  for (std::uint32_t k = 0; k < 100; ++k) {
+    const hal::SensorSample& s = plant.step(gates_off(k));
+    ASSERT_NE(s.flags & hal::kSensorAmbientValid, 0U);
+    ASSERT_EQ(s.ambient_centi_C, 2850);
+  }
+  EXPECT_NEAR(plant.state().winding_temp_C, 31.0, 1e-9);
+  plant.set_ambient_C(40.0);
+  EXPECT_EQ(plant.step(gates_off(100)).ambient_centi_C, 3750);
+}
+
 TEST(plant_sensors, CurrentAdcGainErrorPerPhase) {
   PlantConfig c;
   hold_shaft(c);
