@@ -367,8 +367,9 @@ void Publisher::handle(const PublicationRecord& r) {
       spdlog::warn("calibration refused: the rotor angle is off by more than the check corrects (above); the previous "
                    "calibration stays in use");
     } else if (r.calibration_failure == core::CalibrationFailure::kWindingWarm) {
-      spdlog::warn("calibration refused: the thermal filter holds the winding {:.1f} C above the ambient sensor's "
-                   "temperature (calibration.max_winding_rise_C): Rs0 would be referred to a temperature the winding is "
+      spdlog::warn("calibration refused: the winding is {:.1f} C above the ambient sensor's temperature (the thermal "
+                   "filter's, or the measured Rs0 read through the calibration in use; calibration.max_winding_rise_C): "
+                   "Rs0 would be referred to a temperature the winding is "
                    "not at; let the motor cool to the ambient, or give the winding's temperature with the request. The "
                    "previous calibration stays in use",
                    r.calibration_winding_rise_C);

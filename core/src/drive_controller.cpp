@@ -537,6 +537,7 @@ void DriveController::start_calibration(double known_temp_C, bool from_ambient_s
   telemetry_.calibration_rs0_std_ohm = 0.0;
   calibration_started_s_ = static_cast<double>(period_) * config_.period_s;
   calibration_temp_C_ = known_temp_C;
+  calibration_from_ambient_sensor_ = from_ambient_sensor;
   calibration_count_ = 0;
   calibration_rs_sum_ = 0.0;
   calibration_weight_sum_ = 0.0;
@@ -925,6 +926,39 @@ void DriveController::handle_estimate(const EventEstimate& e) {
       if (!(rs0 > cable_resistance_at_C(config_.thermal.cable_resistance_20C_ohm, calibration_temp_C_))) {
         fail_calibration(CalibrationFailure::kCableTakesAll);
         return;
+      }
+      // The Rs0 the drive holds (a calibration run's, a stored one's, or the nameplate's) reads
+      // the new Rs0 through it as a temperature (Eq. 1). Where that puts the winding more than
+      // calibration.max_winding_rise_C above the ambient sensor's reading this run is referred
+      // to, beyond three standard errors of the two Rs0 (the new one's; the held one's
+      // calibration.rs0_std_fraction, 5 % for the nameplate's: about 13 K, so only a winding
+      // some 45 K warm is seen through it), the winding was warm, not at T0: referred to the
+      // sensor, every later estimate would read low by the difference. A newcomer's press, powered up 10 minutes
+      // after a stop with the winding at 70 C in a 25 C shop and no stored thermal state,
+      // recalibrated at once: the filter had measured nothing yet, the request's guard passed,
+      // Rs0 came 17.5 % above the stored one, and the drive read 34.6 C RMS low with the truth
+      // never inside its band (docs/estimator.md section 6, "A warm recalibration"). Refused
+      // (winding_warm); the calibration in use stays, and the filter starts again from the
+      // temperature the old calibration reads, with a start's wide band and no gate for its
+      // first measurement. An operator's temperature is not second-guessed here (a rewound
+      // or replaced motor: calibrate at a known temperature, or remove the stored calibration).
+      if (calibration_from_ambient_sensor_ && config_.calibration_max_winding_rise_C > 0.0) {
+        const Calibration& held = observer_.calibration();
+        const double reads_C = observer_.temperature_from_resistance_C(rs0);
+        const double new_std_C = std::abs(observer_.temperature_from_resistance_C(rs0 + rs0_std) - reads_C);
+        const double held_fraction = held.calibrated ? 0.0 : held.rs0_std_fraction;
+        const double held_std_C = (config_.thermal.conductor_inferred_zero_C + reads_C) * held_fraction *
+                                  (held.rs0_ohm / std::max(observer_.winding_rs0_ohm(), 1e-12));
+        const double rise = reads_C - calibration_temp_C_;
+        if (std::isfinite(rise) &&
+            rise > config_.calibration_max_winding_rise_C + 3.0 * std::hypot(new_std_C, held_std_C)) {
+          telemetry_.calibration_winding_rise_C = rise;
+          fail_calibration(CalibrationFailure::kWindingWarm);
+          const ThermalObserver refused = observer_;
+          start_thermal_from_guess(reads_C);
+          observer_.keep_loss_errors(refused);
+          return;
+        }
       }
       Calibration c;
       c.rs0_ohm = rs0;

@@ -99,6 +99,26 @@ TEST(EstimatorRobustness, AWarmRestartIsReadWarmFromTheFirstMeasurement) {
   EXPECT_GE(r.coverage_2sigma, 0.9);
 }
 
+// A recalibration asked for at power-up on a warm motor without a stored thermal state: the
+// filter has measured nothing when it starts, so the request's guard passes; the calibration's
+// Rs0, read through the stored calibration (Eq. 1), puts the winding about 65 K above the
+// ambient sensor it would be referred to. Accepted, every later estimate read that much low
+// (a newcomer's press at 70 C: 34.6 C RMS low, the truth never inside the band). Refused
+// (winding_warm): the stored calibration stays, and the filter starts again from the
+// temperature it reads, so the run is read as the warm restart without a recalibration is.
+TEST(EstimatorRobustness, AWarmRecalibrationIsRefusedByTheStoredCalibration) {
+  const SimulationResult r = run_data("warm-recalibration-short.toml");
+  EXPECT_FALSE(r.calibrated) << "a warm winding must not become T0";
+  ASSERT_EQ(r.calibration_failure, core::CalibrationFailure::kWindingWarm);
+  // Eq. 1 with the stored 0.13238 ohm at 25 C: the winding's 90 C is 65 K above the sensor.
+  EXPECT_GT(r.calibration_failure_winding_rise_C, 50.0);
+  EXPECT_LT(r.calibration_failure_winding_rise_C, 75.0);
+  ASSERT_GT(r.winding_error_samples, 500U);
+  EXPECT_LT(r.winding_error_max_C, 6.0);
+  EXPECT_LT(r.winding_error_rms_C, 2.5);
+  EXPECT_GE(r.coverage_2sigma, 0.9);
+}
+
 // Pairs that never reverse the current vector (unipolar) learn no Vx: a warm restart's every
 // estimate rests on the stored calibration's. Before the calibration kept it, the drive fell
 // back to the configured prior (5.85 +- 3 V against the bridge's 7.5 V): these 40 s read

@@ -1326,8 +1326,9 @@ std::string result_text(const SimulationResult& r) {
                        "(its pairs: {}); the calibration in use stays\n",
                        r.calibration_failure_time_s, core::pair_outcomes_text(r.calibration_failure_pairs, r.calibration_failure_aborts));
   } else if (r.calibration_failure == core::CalibrationFailure::kWindingWarm) {
-    out += fmt::format("  calibration failed at {:.2f} s    winding_warm: the thermal filter held the winding {:.1f} C above "
-                       "the ambient sensor (calibration.max_winding_rise_C); the calibration in use stays\n",
+    out += fmt::format("  calibration failed at {:.2f} s    winding_warm: the winding was {:.1f} C above the ambient sensor "
+                       "(the thermal filter's, or the measured Rs0 read through the calibration in use; "
+                       "calibration.max_winding_rise_C); the calibration in use stays\n",
                        r.calibration_failure_time_s, r.calibration_failure_winding_rise_C);
   } else if (r.calibration_failure == core::CalibrationFailure::kAmbientHeld) {
     out += fmt::format("  calibration failed at {:.2f} s    ambient_held: the ambient sensor had stopped reporting, its last "

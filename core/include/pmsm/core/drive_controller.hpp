@@ -331,7 +331,8 @@ struct DriveTelemetry {
   double calibration_rs0_ohm = 0.0;
   double calibration_rs0_std_ohm = 0.0;
   // A calibration refused as kWindingWarm or kTemperatureImplausible: how far above the
-  // temperature it would be referred to (the ambient, the operator's) the filter held the winding.
+  // temperature it would be referred to (the ambient, the operator's) the filter held the winding,
+  // or, at a calibration's end, the measured Rs0 read through the calibration in use put it.
   double calibration_winding_rise_C = 0.0;
 };
 
@@ -752,6 +753,7 @@ class DriveController {
   CalibrationOutcome calibration_outcome_ = CalibrationOutcome::kNone;
   double calibration_started_s_ = 0.0;
   double calibration_temp_C_ = 25.0;
+  bool calibration_from_ambient_sensor_ = false;  // the running calibration's T0 is the sensor's
   int calibration_count_ = 0;
   double calibration_rs_sum_ = 0.0;
   double calibration_weight_sum_ = 0.0;
