@@ -943,12 +943,9 @@ void DriveController::handle_estimate(const EventEstimate& e) {
       // first measurement. An operator's temperature is not second-guessed here (a rewound
       // or replaced motor: calibrate at a known temperature, or remove the stored calibration).
       if (calibration_from_ambient_sensor_ && config_.calibration_max_winding_rise_C > 0.0) {
-        const Calibration& held = observer_.calibration();
         const double reads_C = observer_.temperature_from_resistance_C(rs0);
         const double new_std_C = std::abs(observer_.temperature_from_resistance_C(rs0 + rs0_std) - reads_C);
-        const double held_fraction = held.calibrated ? 0.0 : held.rs0_std_fraction;
-        const double held_std_C = (config_.thermal.conductor_inferred_zero_C + reads_C) * held_fraction *
-                                  (held.rs0_ohm / std::max(observer_.winding_rs0_ohm(), 1e-12));
+        const double held_std_C = observer_.rs0_std_C_at(reads_C);
         const double rise = reads_C - calibration_temp_C_;
         if (std::isfinite(rise) &&
             rise > config_.calibration_max_winding_rise_C + 3.0 * std::hypot(new_std_C, held_std_C)) {

@@ -463,12 +463,16 @@ bool ThermalObserver::reanchor_consistent(double z, double r) const {
 }
 
 double ThermalObserver::uncalibrated_rs0_std_C() const {
+  return holds_uncalibrated_ ? rs0_std_C_at(x_(0)) : 0.0;
+}
+
+double ThermalObserver::rs0_std_C_at(double temp_C) const {
   // Eq. 1 referred to T0: T = (K + T0) Rs / Rs0 - K, so dT/dRs0 = -(K + T) / Rs0.
-  if (calibration_.calibrated || !holds_uncalibrated_) {
+  if (calibration_.calibrated) {
     return 0.0;
   }
   // (With a cable, dT/dRs0 = -(K + T) / (Rs0 - Rc) for an error that is Rs0's fraction.)
-  const double s = (config_.conductor_inferred_zero_C + x_(0)) *
+  const double s = (config_.conductor_inferred_zero_C + temp_C) *
                    (calibration_.rs0_std_fraction * (calibration_.rs0_ohm / winding_rs0_ohm()));
   return std::isfinite(s) ? std::abs(s) : 0.0;
 }

@@ -242,9 +242,12 @@ class ThermalObserver {
   [[nodiscard]] ThermalEstimate estimate() const;
   // The band's share from an uncalibrated Rs0 (Calibration::rs0_std_fraction), 1 sigma, C.
   [[nodiscard]] double uncalibrated_rs0_std_C() const;
-  // The band's share from the calibration's T0 (ThermalObserverConfig::reference_std_C), 1 sigma, C.
+  // The same share for a winding at temp_C, whether or not the filter has measured through that
+  // Rs0 yet (0 for a calibration run's Rs0).
+  [[nodiscard]] double rs0_std_C_at(double temp_C) const;
+  // The band's share from the calibration's T0 (ThermalModelConfig::reference_std_C), 1 sigma, C.
   [[nodiscard]] double reference_std_C() const;
-  // The band's variance without that share (C^2): what the filter itself holds, which a stored
+  // The band's variance without those shares (C^2): what the filter itself holds, which a stored
   // state keeps and a resistance taken back through the same Rs0 carries.
   [[nodiscard]] double measured_winding_variance_C2() const;
   // The winding's rate of change over the last predict() (C per controller second).
