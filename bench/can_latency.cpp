@@ -80,7 +80,10 @@ int open_socket(const Options& o, canid_t receive_id, bool timestamps) {
   if (timestamps) {
     check(::setsockopt(fd, SOL_SOCKET, SO_TIMESTAMPNS, &on, sizeof on), "SO_TIMESTAMPNS");
     const int buffer = 16 << 20;  // the observer must never drop a frame
-    (void)::setsockopt(fd, SOL_SOCKET, SO_RCVBUF, &buffer, sizeof buffer);
+    // Beyond net.core.rmem_max with CAP_NET_ADMIN (as candump -r); capped there otherwise.
+    if (::setsockopt(fd, SOL_SOCKET, SO_RCVBUFFORCE, &buffer, sizeof buffer) != 0) {
+      (void)::setsockopt(fd, SOL_SOCKET, SO_RCVBUF, &buffer, sizeof buffer);
+    }
   }
   const timeval timeout{o.timeout_s, 0};  // a lost frame ends the run instead of hanging it
   check(::setsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &timeout, sizeof timeout), "SO_RCVTIMEO");

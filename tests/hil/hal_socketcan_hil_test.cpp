@@ -303,6 +303,30 @@ TEST(SocketCanHil, KernelReceiveDropsAreCountedWithSoRxqOvfl) {
   EXPECT_EQ(c.rx_frames, got.size() + 1);
 }
 
+// A receive buffer larger than net.core.rmem_max (the monitor asks 16 MiB): granted with
+// CAP_NET_ADMIN through SO_RCVBUFFORCE, as candump -r does, and then a burst hundreds of times
+// what the default queue holds (about 500 frames) arrives whole. Without the capability the
+// kernel's cap is what is granted, and the accessor says so.
+TEST(SocketCanHil, ALargeReceiveBufferIsGrantedBeyondRmemMaxWithCapNetAdmin) {
+  constexpr int kAsked = 16 * 1024 * 1024;
+  auto tx = open_bus(false, {tag_filter()});
+  auto rx = std::make_unique<SocketCanBus>(SocketCanConfig{
+      .interface = iface(), .fd = false, .filters = std::vector{tag_filter()}, .receive_buffer_bytes = kAsked});
+  if (::geteuid() != 0) {
+    EXPECT_GT(rx->receive_buffer_granted_bytes(), 0);
+    EXPECT_LE(rx->receive_buffer_granted_bytes(), kAsked);
+    GTEST_SKIP() << "SO_RCVBUFFORCE needs CAP_NET_ADMIN; granted " << rx->receive_buffer_granted_bytes() << " bytes";
+  }
+  EXPECT_EQ(rx->receive_buffer_granted_bytes(), kAsked);
+  constexpr std::uint32_t kBurst = 10000;
+  for (std::uint32_t i = 0; i < kBurst; ++i) {
+    ASSERT_EQ(tx->send(frame(i, 8), 100ms), SendResult::kOk) << "frame " << i;
+  }
+  const std::vector<ReceivedFrame> got = receive_all(*rx);
+  EXPECT_EQ(got.size(), kBurst);
+  EXPECT_EQ(rx->counters().rx_overflow, 0U);
+}
+
 TEST(SocketCanHil, MissingOrNonCanInterfacesAreClearErrors) {
   try {
     (void)open_bus(false, {}, "pmsmnosuch0");

@@ -679,6 +679,12 @@ int run_monitor(MonitorOptions o) {
     std::fprintf(stderr, "monitor: cannot open the CAN bus: %s\n", error.message().c_str());
     return 2;
   }
+  if (const int granted = bus->receive_buffer_granted_bytes(); granted > 0 && granted < config.receive_buffer_bytes) {
+    std::fprintf(stderr,
+                 "monitor: the socket's receive queue is %d KiB, not the %d KiB asked (net.core.rmem_max caps it "
+                 "without CAP_NET_ADMIN): a monitor that falls behind a fast loop drops frames sooner, and says so\n",
+                 granted / 1024, config.receive_buffer_bytes / 1024);
+  }
   (void)hal::install_stop_signals();
   const std::int64_t start = hal::monotonic_ns();
   hal::ReceivedFrame r;

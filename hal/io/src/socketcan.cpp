@@ -232,11 +232,25 @@ Status SocketCanBus::open_socket() {
     return s;
   }
   if (config_.receive_buffer_bytes > 0) {
-    if (Status s = set_option(fd_.get(), SOL_SOCKET, SO_RCVBUF, config_.receive_buffer_bytes, "SO_RCVBUF", name);
-        !s) {
-      fd_.reset();
-      return s;
+    // As candump -r does: SO_RCVBUFFORCE first, which a process with CAP_NET_ADMIN may set
+    // beyond net.core.rmem_max; SO_RCVBUF otherwise, which the kernel caps there silently
+    // (receive_buffer_granted_bytes() says what was granted).
+    if (::setsockopt(fd_.get(), SOL_SOCKET, SO_RCVBUFFORCE, &config_.receive_buffer_bytes,
+                     sizeof config_.receive_buffer_bytes) != 0) {
+      if (Status s = set_option(fd_.get(), SOL_SOCKET, SO_RCVBUF, config_.receive_buffer_bytes, "SO_RCVBUF", name);
+          !s) {
+        fd_.reset();
+        return s;
+      }
     }
+  }
+  {
+    // The kernel reports twice the size asked (its bookkeeping share included); half of it is
+    // the figure comparable with the request.
+    int granted = 0;
+    socklen_t length = sizeof granted;
+    receive_buffer_granted_bytes_ =
+        ::getsockopt(fd_.get(), SOL_SOCKET, SO_RCVBUF, &granted, &length) == 0 ? granted / 2 : 0;
   }
 
   sockaddr_can addr{};

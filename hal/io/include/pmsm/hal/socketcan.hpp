@@ -28,7 +28,8 @@ struct SocketCanConfig {
   // Receive filters (empty optional: every data frame; empty list: none).
   std::optional<std::vector<CanFilter>> filters{};
   std::uint32_t error_mask = 0;  // CanErrorClass bits of error frames to receive
-  // Socket receive buffer in bytes (SO_RCVBUF); 0 keeps the kernel default.
+  // Socket receive buffer in bytes (SO_RCVBUFFORCE with CAP_NET_ADMIN, else SO_RCVBUF, which
+  // the kernel caps at net.core.rmem_max); 0 keeps the kernel default.
   int receive_buffer_bytes = 0;
 };
 
@@ -62,6 +63,9 @@ class SocketCanBus final : public CanBus {
 
   [[nodiscard]] const std::string& interface_name() const noexcept { return config_.interface; }
   [[nodiscard]] int interface_index() const noexcept { return ifindex_; }
+  // The socket's receive buffer as granted, comparable with receive_buffer_bytes (the kernel's
+  // figure halved); 0 when it could not be read.
+  [[nodiscard]] int receive_buffer_granted_bytes() const noexcept { return receive_buffer_granted_bytes_; }
   // errno of the last failed send/receive (0 if none yet). Read it on the I/O thread.
   [[nodiscard]] int last_error_number() const noexcept { return last_errno_; }
   // The socket, e.g. to wait on it together with other descriptors. Do not close it.
@@ -95,6 +99,7 @@ class SocketCanBus final : public CanBus {
   SocketCanConfig config_;
   UniqueFd fd_;
   int ifindex_ = 0;
+  int receive_buffer_granted_bytes_ = 0;
   int last_errno_ = 0;
   std::uint32_t last_drop_count_ = 0;  // SO_RXQ_OVFL's running count on this socket
   bool last_receive_waited_ = false;   // the previous receive() found no frame queued
