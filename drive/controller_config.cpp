@@ -292,7 +292,7 @@ ConfigSchema<C> build() {
            at_least(0, 100), "",
            "... and whose motoring |iq| stays below this fraction of the event's smallest F (its pairs reverse the current).");
   inj.real("injection.vx_min_identifiability", [](C& c) -> double& { return c.drive.injection.vx_min_identifiability; },
-           between(0, 1), "", "... and whose levels separate Rs from Vx at least this well (1 - rho^2 of the means fit).");
+           between(0, 1), "", "... and whose levels separate Rs from Vx at least this well (1 - rho^2 of the levels' design, unweighted).");
   inj.boolean("injection.learn_lq", [](C& c) -> bool& { return c.drive.injection.learn_lq; },
               "Learn the q-axis inductance from the pairs' d-axis means (the Eq. 37 correction needs the true Lq).");
   inj.real("injection.lq_initial_std_fraction", [](C& c) -> double& { return c.drive.injection.lq_initial_std_fraction; },

@@ -996,8 +996,19 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
   // The event's own joint fit of Rs and Vx (several levels make it well conditioned) ...
   const int means = std::min(event_means_done_, std::min(event_pairs_, InjectionConfig::kMaxLevels));
   const MeansFit joint = event_joint_fit() ? solve_means_fit(event_means_.data(), means) : MeansFit{};
-  e.joint_condition = joint.identifiability;
-  e.vx_learning = joint.valid && joint.identifiability >= config_.vx_min_identifiability;
+  // How well its levels separate Rs from Vx. With the rotor at rest (time-based pairs) the
+  // means' model is exact but for noise: no EMF, no harmonics, a sign pattern that stays put.
+  // The weights are then noise alone, and what a residual can do to Vx is the levels'
+  // geometry (MeansFit::design_identifiability): weighted, a 24 V truck's standstill events at
+  // F and 0.4 F, whose lower level is ten times noisier, read 0.02-0.04 against the geometry's
+  // 0.155, and its stops never relearned a Vx they measured to 3 mV while the battery's
+  // discharge moved it (docs/estimator.md section 4). Turning, a pair's residual carries what
+  // the model lacks too (the zero crossings, the harmonics), and the weighted figure, which
+  // discounts the pair that fits worse, is the guard: the geometry there let salient machines'
+  // light-load events teach a biased Vx (the salient benchmark 1.89 -> 2.41 C RMS).
+  const bool at_rest = event_max_speed_ < config_.min_speed_for_angle_rad_s;
+  e.joint_condition = at_rest ? joint.design_identifiability : joint.identifiability;
+  e.vx_learning = joint.valid && e.joint_condition >= config_.vx_min_identifiability;
   e.joint_rs_ohm = joint.rs_ohm;
   e.joint_vx_V = joint.vx_V;
   if (e.vx_learning && joint.var_vx > 0.0) {

@@ -312,10 +312,12 @@ namespace {
 struct JointMeans {
   Eigen::Matrix2d a = Eigen::Matrix2d::Zero();
   Eigen::Vector2d b = Eigen::Vector2d::Zero();
+  Eigen::Matrix2d design = Eigen::Matrix2d::Zero();  // the same, unweighted
   void add(const PairMeans& m) {
     const Eigen::Vector2d x(m.x_rs, m.x_vx);
     a += m.w * x * x.transpose();
     b += m.w * x * m.y;
+    design += x * x.transpose();
   }
   [[nodiscard]] MeansFit solve() const {
     MeansFit out;
@@ -326,6 +328,7 @@ struct JointMeans {
     if (!(out.identifiability > 1e-9)) {
       return out;
     }
+    out.design_identifiability = 1.0 - design(0, 1) * design(0, 1) / (design(0, 0) * design(1, 1));
     const Eigen::Matrix2d cov = a.inverse();
     const Eigen::Vector2d theta = cov * b;
     out.rs_ohm = theta(0);

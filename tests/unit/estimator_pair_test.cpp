@@ -586,6 +586,42 @@ TEST(MeansFit, OneLevelOrProportionalLevelsCannotSeparateVx) {
   EXPECT_LT(fit.identifiability, 1e-6);
 }
 
+// The design's identifiability is the levels' geometry: with two pairs the fit passes through
+// both means whatever their weights (a model error in either moves Vx by what the geometry
+// allows), so a noisier lower level changes the error bars and the weighted figure, not the
+// geometry. The figures are a 24 V truck's standstill event (F = 62.5 A and 0.4 F, the sign
+// pattern saturated at 8/3): the weighted 1 - rho^2 read 0.02-0.04 there, and the scheduler,
+// which took it, never learned a Vx measured to 3 mV.
+TEST(MeansFit, TheDesignsIdentifiabilityIsTheLevelsGeometryNotTheirWeights) {
+  const double rs = 0.0096;
+  const double vx = 0.665;
+  auto means = [&](double x, double w) {
+    const double g = 8.0 / 3.0;
+    return std::optional<PairMeans>(PairMeans{.x_rs = x, .x_vx = g, .y = rs * x + vx * g, .w = w});
+  };
+  const double x_hi = 125.0;
+  const double x_lo = 50.0;
+  // 1 - (x_hi + x_lo)^2 g^2 / ((x_hi^2 + x_lo^2) 2 g^2)
+  const double geometry = 1.0 - (x_hi + x_lo) * (x_hi + x_lo) / (2.0 * (x_hi * x_hi + x_lo * x_lo));
+  const std::array<std::optional<PairMeans>, 2> even{means(x_hi, 5e5), means(x_lo, 5e5)};
+  const std::array<std::optional<PairMeans>, 2> uneven{means(x_hi, 5e5), means(x_lo, 3e4)};
+  const MeansFit a = solve_means_fit(even.data(), 2);
+  const MeansFit b = solve_means_fit(uneven.data(), 2);
+  ASSERT_TRUE(a.valid);
+  ASSERT_TRUE(b.valid);
+  EXPECT_NEAR(a.design_identifiability, geometry, 1e-12);
+  EXPECT_NEAR(b.design_identifiability, geometry, 1e-12);
+  EXPECT_NEAR(geometry, 0.155, 1e-3);
+  // Even weights: the weighted figure is the geometry; uneven, it falls below the 0.05 the
+  // scheduler asks by default.
+  EXPECT_NEAR(a.identifiability, geometry, 1e-12);
+  EXPECT_LT(b.identifiability, 0.05);
+  // Both pass through the means exactly; the weights show in the error bars.
+  EXPECT_NEAR(b.rs_ohm, rs, 1e-12);
+  EXPECT_NEAR(b.vx_V, vx, 1e-9);
+  EXPECT_GT(b.var_vx, 2.0 * a.var_vx);
+}
+
 // ---- closed-loop sensor noise: the sample fit against the means ----
 
 // A d-axis current loop at standstill, simulated here period by period: a PI (Kp = wc L,

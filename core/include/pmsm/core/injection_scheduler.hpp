@@ -357,7 +357,7 @@ struct EventEstimate {
   double vx_V = 0.0;               // the fused inverter voltage after this event
   double vx_std_V = 0.0;
   bool vx_from_event = false;      // the event's own levels determined Vx (joint fit)
-  double joint_condition = 0.0;    // reciprocal condition of the event's joint (Rs, Vx) fit
+  double joint_condition = 0.0;    // identifiability of the event's joint (Rs, Vx) fit (MeansFit)
   bool vx_learning = false;        // the event reversed the current vector: Vx was fitted
   double joint_rs_ohm = 0.0;       // the joint fit before fusion (diagnostics)
   double joint_vx_V = 0.0;

@@ -139,6 +139,11 @@ struct MeansFit {
   double var_vx = 0.0;
   double cov_rs_vx = 0.0;
   double identifiability = 0.0;  // 1 - rho^2 of the weighted design
+  // ... and of the design alone, the levels' geometry without the noise weights. With two
+  // pairs (the usual event) the fit passes through both means whatever their weights, so a
+  // model error in either moves Vx by what this allows (InjectionScheduler::summarize_event
+  // takes it at standstill).
+  double design_identifiability = 0.0;
   double drs_dvx = 0.0;          // fixed-Vx form: how the Rs moves with the assumed Vx
 };
 [[nodiscard]] MeansFit solve_means_fit(const BlockedSums* pairs, int count, bool fit_ld);
