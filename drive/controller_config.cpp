@@ -219,6 +219,9 @@ ConfigSchema<C> build() {
            "Time-based recording length (standstill, low speed).");
   inj.boolean("injection.mechanical_harmonics", [](C& c) -> bool& { return c.drive.injection.mechanical_harmonics; },
               "dTheta a multiple of 2 pi p (mechanical harmonics) instead of 2 pi.");
+  inj.real("injection.mechanical_harmonics_min_speed_rad_s",
+           [](C& c) -> double& { return c.drive.injection.mechanical_harmonics_min_speed_rad_s; }, at_least(0, 10000),
+           "rad/s", "... at mechanical speeds from this on; slower, dTheta is 2 pi (a pair would span a slow mechanical turn).");
   inj.real("injection.min_speed_for_angle_rad_s", [](C& c) -> double& { return c.drive.injection.min_speed_for_angle_rad_s; },
            at_least(0, 10000), "rad/s", "Electrical speed below which recordings are time-based.");
   inj.integer("injection.unipolar_polarity", [](C& c) -> int& { return c.drive.injection.unipolar_polarity; }, between(-1, 1),

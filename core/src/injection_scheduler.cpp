@@ -234,10 +234,16 @@ double InjectionScheduler::level_for(int recording) const {
   return recording == 1 ? level1_ : level2_;
 }
 
-double InjectionScheduler::delta_theta(double needed_rad) const {
+double InjectionScheduler::delta_theta(double needed_rad, double omega_e_rad_s) const {
   // dTheta = 2 pi (electrical harmonics) or 2 pi p (mechanical), times the smallest whole
-  // number that leaves room for recording 1 and the transition.
-  const double unit = config_.mechanical_harmonics ? kTwoPi * config_.pole_pairs : kTwoPi;
+  // number that leaves room for recording 1 and the transition. Mechanical only where a
+  // mechanical turn is quick enough: a 22-pole-pair rotary table creeping at 2-3 rad/s spanned
+  // 2-3 s a pair, four estimates in 26 s with load changes inside pairs (1.58-1.74 / 3.48-4.37 C);
+  // with dTheta = 2 pi, 0.1 s, 0.55-0.63 / 1.32-1.60 C, and the magnet still measured
+  // (docs/accuracy.md, ninth round, d).
+  const bool mechanical = config_.mechanical_harmonics &&
+                          std::abs(omega_e_rad_s) >= config_.mechanical_harmonics_min_speed_rad_s * config_.pole_pairs;
+  const double unit = mechanical ? kTwoPi * config_.pole_pairs : kTwoPi;
   return unit * std::max(1.0, std::ceil(needed_rad / unit));
 }
 
@@ -1433,7 +1439,7 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
             const int ramps = l1 == l2 ? 0 : (l1 * l2 < 0.0 ? 2 : 1);
             const double transition_s = ramps * config_.tw_s + config_.settle_s + 4.0 * period_s_;
             const double needed = recorder_.first_extent() + std::abs(in.omega_e_rad_s) * transition_s;
-            origin2_ = recorder_.first_origin() + delta_theta(needed);
+            origin2_ = recorder_.first_origin() + delta_theta(needed, in.omega_e_rad_s);
             recorder_.begin_second(origin2_);
           }
           const double first = level_for(1);
@@ -1485,7 +1491,7 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
           }
           if (phi_sample >= pulse_arc_rad_ + tail) {
             const double needed = pulse_arc_rad_ + tail + 4.0 * std::abs(in.omega_e_rad_s) * period_s_;
-            const double dtheta = delta_theta(needed);
+            const double dtheta = delta_theta(needed, in.omega_e_rad_s);
             origin2_ = recorder_.first_origin() + dtheta;
             recorder_.begin_second(origin2_);
             pulse_start_theta_ += direction_ * dtheta;

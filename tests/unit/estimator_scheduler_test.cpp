@@ -375,14 +375,17 @@ std::vector<PairAngles> pair_angles(const Harness& h) {
   return out;
 }
 
-void check_dtheta(bool mechanical, double omega_e) {
+// mechanical_min_speed: InjectionConfig::mechanical_harmonics_min_speed_rad_s (mechanical).
+void check_dtheta(bool mechanical, double omega_e, double mechanical_min_speed = 10.0) {
   InjectionConfig c = test_config();
   c.mechanical_harmonics = mechanical;
+  c.mechanical_harmonics_min_speed_rad_s = mechanical_min_speed;
   Harness h(c, omega_e);
   h.run_until(0.4);
   const std::vector<PairAngles> angles = pair_angles(h);
   ASSERT_EQ(angles.size(), 2U);
-  const double unit = mechanical ? kTwoPi * c.pole_pairs : kTwoPi;
+  const bool whole_mechanical_turns = mechanical && omega_e >= mechanical_min_speed * c.pole_pairs;
+  const double unit = whole_mechanical_turns ? kTwoPi * c.pole_pairs : kTwoPi;
   for (const PairAngles& a : angles) {
     const double extent = a.extent_end1 - a.first1;
     // Recording 1 spans whole turns, at least one and at least record_min_time_s: at least
@@ -405,6 +408,12 @@ void check_dtheta(bool mechanical, double omega_e) {
 TEST(InjectionScheduler, DThetaIsAMultipleOfTwoPiPForMechanicalHarmonics) {
   check_dtheta(true, 300.0);
   check_dtheta(true, 900.0);
+}
+// Slower than a mechanical turn in 1 / mechanical_harmonics_min_speed_rad_s: a pair spans an
+// electrical turn, not a slow mechanical one (300 electrical rad/s at p = 3 is 100 rad/s).
+TEST(InjectionScheduler, DThetaIsAMultipleOfTwoPiBelowTheMechanicalHarmonicsSpeed) {
+  check_dtheta(true, 300.0, 101.0);
+  check_dtheta(true, 300.0, 99.0);  // just above it: whole mechanical turns again
 }
 TEST(InjectionScheduler, DThetaIsAMultipleOfTwoPiForElectricalHarmonics) {
   check_dtheta(false, 300.0);

@@ -99,6 +99,12 @@ struct InjectionConfig {
   double record_time_s = 0.05;    // time-based recording length (standstill)
   double record_min_time_s = 0.04;  // angle-based recordings last at least this (whole turns)
   bool mechanical_harmonics = true;   // dTheta a multiple of 2 pi p (mechanical harmonics) instead of 2 pi
+  // ... at mechanical speeds from this on (rad/s, mechanical); slower, a mechanical turn takes
+  // longer than the reference's slowest angle-based pair spans (30 electrical rad/s at p = 3:
+  // 0.63 s), and dTheta is 2 pi. A mechanical harmonic of order k then moves by 2 pi k / p
+  // between the recordings, little on a machine of many poles, whose pairs would otherwise
+  // span seconds (InjectionScheduler::delta_theta).
+  double mechanical_harmonics_min_speed_rad_s = 10.0;
   int pole_pairs = 3;
   double min_speed_for_angle_rad_s = 30.0;  // electrical; below: time-based recordings
   int unipolar_polarity = -1;     // unipolar injects -F by default (it lowers the voltage)
@@ -661,7 +667,7 @@ class InjectionScheduler {
   double level_for(int recording) const;       // injection level of recording 1 or 2 (in units of F)
   Dq injection_current(const SchedulerInput& in) const;
   double edge_value(double elapsed_s) const;   // 0..1 along a rising window edge
-  double delta_theta(double needed_rad) const;
+  double delta_theta(double needed_rad, double omega_e_rad_s) const;
 
   InjectionConfig config_;
   double period_s_;
