@@ -221,7 +221,7 @@ ConfigSchema<C> build() {
               "dTheta a multiple of 2 pi p (mechanical harmonics) instead of 2 pi.");
   inj.real("injection.mechanical_harmonics_min_speed_rad_s",
            [](C& c) -> double& { return c.drive.injection.mechanical_harmonics_min_speed_rad_s; }, at_least(0, 10000),
-           "rad/s", "... at mechanical speeds from this on; slower, dTheta is 2 pi (a pair would span a slow mechanical turn).");
+           "rad/s", "... at mechanical speeds from this on; slower, dTheta is a multiple of 2 pi (a pair would span a slow mechanical turn).");
   inj.real("injection.min_speed_for_angle_rad_s", [](C& c) -> double& { return c.drive.injection.min_speed_for_angle_rad_s; },
            at_least(0, 10000), "rad/s", "Electrical speed below which recordings are time-based.");
   inj.integer("injection.unipolar_polarity", [](C& c) -> int& { return c.drive.injection.unipolar_polarity; }, between(-1, 1),
@@ -295,7 +295,8 @@ ConfigSchema<C> build() {
            at_least(0, 100), "",
            "... and whose motoring |iq| stays below this fraction of the event's smallest F (its pairs reverse the current).");
   inj.real("injection.vx_min_identifiability", [](C& c) -> double& { return c.drive.injection.vx_min_identifiability; },
-           between(0, 1), "", "... and whose levels separate Rs from Vx at least this well (1 - rho^2 of the levels' design, unweighted).");
+           between(0, 1), "", "... and whose levels separate Rs from Vx at least this well (1 - rho^2 of the means fit, weighted; below "
+           "injection.min_speed_for_angle_rad_s / 10, of the levels' design, unweighted).");
   inj.boolean("injection.learn_lq", [](C& c) -> bool& { return c.drive.injection.learn_lq; },
               "Learn the q-axis inductance from the pairs' d-axis means (the Eq. 37 correction needs the true Lq).");
   inj.real("injection.lq_initial_std_fraction", [](C& c) -> double& { return c.drive.injection.lq_initial_std_fraction; },

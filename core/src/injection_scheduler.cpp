@@ -239,8 +239,8 @@ double InjectionScheduler::delta_theta(double needed_rad, double omega_e_rad_s) 
   // number that leaves room for recording 1 and the transition. Mechanical only where a
   // mechanical turn is quick enough: a 22-pole-pair rotary table creeping at 2-3 rad/s spanned
   // 2-3 s a pair, four estimates in 26 s with load changes inside pairs (1.58-1.74 / 3.48-4.37 C);
-  // with dTheta = 2 pi, 0.1 s, 0.55-0.63 / 1.32-1.60 C, and the magnet still measured
-  // (docs/accuracy.md, ninth round, d).
+  // with whole electrical turns (two there, 0.19-0.29 s), 0.55-0.63 / 1.32-1.60 C, and the
+  // magnet still measured (docs/accuracy.md, ninth round, d).
   const bool mechanical = config_.mechanical_harmonics &&
                           std::abs(omega_e_rad_s) >= config_.mechanical_harmonics_min_speed_rad_s * config_.pole_pairs;
   const double unit = mechanical ? kTwoPi * config_.pole_pairs : kTwoPi;
@@ -1002,8 +1002,11 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
   // The event's own joint fit of Rs and Vx (several levels make it well conditioned) ...
   const int means = std::min(event_means_done_, std::min(event_pairs_, InjectionConfig::kMaxLevels));
   const MeansFit joint = event_joint_fit() ? solve_means_fit(event_means_.data(), means) : MeansFit{};
-  // How well its levels separate Rs from Vx. With the rotor at rest (time-based pairs) the
-  // means' model is exact but for noise: no EMF, no harmonics, a sign pattern that stays put.
+  // How well its levels separate Rs from Vx. With the rotor at rest (every pair's mean speed
+  // below a tenth of min_speed_for_angle_rad_s, the rest the retry after a lost speed waits
+  // for) the means' model is exact but for noise: no EMF, no harmonics, a sign pattern that
+  // stays put. (Time-based pairs alone do not say it: below 30 electrical rad/s a rotor may
+  // creep through a sector within a recording.)
   // The weights are then noise alone, and what a residual can do to Vx is the levels'
   // geometry (MeansFit::design_identifiability): weighted, a 24 V truck's standstill events at
   // F and 0.4 F, whose lower level is ten times noisier, read 0.02-0.04 against the geometry's
@@ -1012,7 +1015,7 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
   // the model lacks too (the zero crossings, the harmonics), and the weighted figure, which
   // discounts the pair that fits worse, is the guard: the geometry there let salient machines'
   // light-load events teach a biased Vx (the salient benchmark 1.89 -> 2.41 C RMS).
-  const bool at_rest = event_max_speed_ < config_.min_speed_for_angle_rad_s;
+  const bool at_rest = event_max_speed_ < 0.1 * config_.min_speed_for_angle_rad_s;
   e.joint_condition = at_rest ? joint.design_identifiability : joint.identifiability;
   e.vx_learning = joint.valid && e.joint_condition >= config_.vx_min_identifiability;
   e.joint_rs_ohm = joint.rs_ohm;

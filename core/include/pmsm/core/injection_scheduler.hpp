@@ -101,9 +101,10 @@ struct InjectionConfig {
   bool mechanical_harmonics = true;   // dTheta a multiple of 2 pi p (mechanical harmonics) instead of 2 pi
   // ... at mechanical speeds from this on (rad/s, mechanical); slower, a mechanical turn takes
   // longer than the reference's slowest angle-based pair spans (30 electrical rad/s at p = 3:
-  // 0.63 s), and dTheta is 2 pi. A mechanical harmonic of order k then moves by 2 pi k / p
-  // between the recordings, little on a machine of many poles, whose pairs would otherwise
-  // span seconds (InjectionScheduler::delta_theta).
+  // 0.63 s), and dTheta is a multiple of 2 pi (n electrical turns, the fewest that hold
+  // recording 1 and the transition). A mechanical harmonic of order k then moves by
+  // 2 pi n k / p between the recordings, little on a machine of many poles, whose pairs would
+  // otherwise span seconds (InjectionScheduler::delta_theta).
   double mechanical_harmonics_min_speed_rad_s = 10.0;
   int pole_pairs = 3;
   double min_speed_for_angle_rad_s = 30.0;  // electrical; below: time-based recordings
