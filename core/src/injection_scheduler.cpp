@@ -960,6 +960,12 @@ double InjectionScheduler::event_pairs_mean(double weighted_sum, double plain_su
   return event_time_weight_ > 0.0 ? weighted_sum / event_time_weight_ : plain_sum / std::max(event_pairs_, 1);
 }
 
+double InjectionScheduler::rest_speed_rad_s() const {
+  // A shaft below a tenth of the time-based floor rests: the retry after a lost speed waits for
+  // it, and a joint fit at it takes the levels' geometry (finish_event).
+  return 0.1 * config_.min_speed_for_angle_rad_s;
+}
+
 bool InjectionScheduler::event_uses_means() const {
   return event_joint_fit() || config_.method == InjectionMethod::kFixedMagnitude;
 }
@@ -1015,7 +1021,7 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
   // the model lacks too (the zero crossings, the harmonics), and the weighted figure, which
   // discounts the pair that fits worse, is the guard: the geometry there let salient machines'
   // light-load events teach a biased Vx (the salient benchmark 1.89 -> 2.41 C RMS).
-  const bool at_rest = event_max_speed_ < 0.1 * config_.min_speed_for_angle_rad_s;
+  const bool at_rest = event_max_speed_ < rest_speed_rad_s();
   e.joint_condition = at_rest ? joint.design_identifiability : joint.identifiability;
   e.vx_learning = joint.valid && e.joint_condition >= config_.vx_min_identifiability;
   e.joint_rs_ohm = joint.rs_ohm;
@@ -1287,7 +1293,7 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
           // And the motoring current holding (within half the load-change guard's tolerance):
           // the speed loop still settling from the stop moved iq between a pair's recordings,
           // and the bridge's error with it (a hoist's pair 0.06 s after it stopped read +1.7 %).
-          if (std::abs(in.omega_e_rad_s) >= 0.1 * config_.min_speed_for_angle_rad_s) {
+          if (std::abs(in.omega_e_rad_s) >= rest_speed_rad_s()) {
             rest_since_s_ = -1.0;
           } else if (rest_since_s_ < 0.0 || std::abs(in.motoring_ref_A.q - rest_iq_A_) > 0.5 * config_.max_load_change_A) {
             rest_since_s_ = in.time_s;

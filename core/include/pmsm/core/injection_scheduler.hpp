@@ -627,6 +627,7 @@ class InjectionScheduler {
   void learn_vx(double bus_offset_V, double vx_V, double var_V2);
   void drift_vx();
   [[nodiscard]] bool event_uses_means() const;
+  [[nodiscard]] double rest_speed_rad_s() const;  // electrical: below it the shaft rests
   // The time the event's estimate belongs to: its pairs' Rs times weighted by their information
   // (their plain mean where no pair has a variance; EventEstimate::measured_at_s).
   [[nodiscard]] double event_time_s() const;

@@ -141,8 +141,8 @@ struct MeansFit {
   double identifiability = 0.0;  // 1 - rho^2 of the weighted design
   // ... and of the design alone, the levels' geometry without the noise weights. With two
   // pairs (the usual event) the fit passes through both means whatever their weights, so a
-  // model error in either moves Vx by what this allows (InjectionScheduler::summarize_event
-  // takes it at standstill).
+  // model error in either moves Vx by what this allows (InjectionScheduler::finish_event
+  // takes it at rest).
   double design_identifiability = 0.0;
   double drs_dvx = 0.0;          // fixed-Vx form: how the Rs moves with the assumed Vx
 };
