@@ -527,6 +527,7 @@ Dq InjectionScheduler::injection_current(const SchedulerInput& in) const {
 }
 
 void InjectionScheduler::abort(SchedulerOutput& out, const SchedulerInput& in, AbortCause cause) {
+  const double jitter = (phase_ != SchedulerPhase::kIdle || in_event_) ? refusal_jitter() : 1.0;  // one refusal
   if (phase_ != SchedulerPhase::kIdle) {
     PairResult r;
     r.outcome = PairOutcome::kAborted;
@@ -539,7 +540,7 @@ void InjectionScheduler::abort(SchedulerOutput& out, const SchedulerInput& in, A
     r.low_level = field_weakening_ ? fw_low_level_ : 0.0;
     r.level_index = level_index_;
     out.completed = r;
-    next_event_s_ = std::max(next_event_s_, in.time_s + config_.retry_s);
+    next_event_s_ = in.time_s + jitter * (std::max(next_event_s_, in.time_s + config_.retry_s) - in.time_s);
     if (cause == AbortCause::kSpeedLost) {
       retry_at_rest_ = true;
       rest_since_s_ = -1.0;
@@ -550,7 +551,7 @@ void InjectionScheduler::abort(SchedulerOutput& out, const SchedulerInput& in, A
     // retry delay too, or it would start the next event in the same transient (the shaft
     // reversing under an overhauling load), whose current then eats the voltage and current
     // the drive needs to hold it.
-    retry_after_s_ = std::max(retry_after_s_, in.time_s + config_.retry_s);
+    retry_after_s_ = std::max(retry_after_s_, in.time_s + jitter * config_.retry_s);
     // The event is incomplete: its accepted pairs (if any) are dropped with it, and it says so.
     EventEstimate e;
     e.outcome = EventOutcome::kAborted;
@@ -966,6 +967,29 @@ double InjectionScheduler::rest_speed_rad_s() const {
   return 0.1 * config_.min_speed_for_angle_rad_s;
 }
 
+double InjectionScheduler::refusal_jitter() {
+  // An event that yielded nothing (every pair refused, rejected or aborted) is followed by the
+  // next one at the interval or after retry_s, as the refusal's path has it, and the first such
+  // delay is kept exactly: a one-off refusal (a speed ramp, a load step) is over by then, and
+  // the events keep their place in the duty. A second refusal in a row may be a periodic duty
+  // whose period divides the delay (a press at 60 strokes a minute and events or retries 1 s
+  // apart), met again at the phase that refused the event: from then on each delay is scaled
+  // by 1 + retry_jitter u, u uniform in [-1, 1), until an event yields pairs, which moves that
+  // phase over a whole period of any duty up to 2 retry_jitter times the delay long
+  // (docs/estimator.md §2, "Repeated refusals are jittered"). splitmix64 (Steele, Lea & Flood
+  // 2014): a few multiplies once per refusal, no allocation, the same sequence on every run.
+  if (++refusals_in_a_row_ < 2) {
+    return 1.0;
+  }
+  retry_rng_ += 0x9E3779B97F4A7C15ULL;
+  std::uint64_t z = retry_rng_;
+  z = (z ^ (z >> 30U)) * 0xBF58476D1CE4E5B9ULL;
+  z = (z ^ (z >> 27U)) * 0x94D049BB133111EBULL;
+  z ^= z >> 31U;
+  const double u = static_cast<double>(z >> 11U) * 0x1.0p-52 - 1.0;  // [-1, 1)
+  return 1.0 + config_.retry_jitter * u;
+}
+
 bool InjectionScheduler::event_uses_means() const {
   return event_joint_fit() || config_.method == InjectionMethod::kFixedMagnitude;
 }
@@ -978,10 +1002,13 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
   e.lq_std_H = std::sqrt(lq_p_[0][0]);
   if (event_pairs_ == 0) {
     e.outcome = EventOutcome::kNoAcceptedPairs;
-    retry_after_s_ = std::max(retry_after_s_, in.time_s + config_.retry_s);
+    const double jitter = refusal_jitter();
+    retry_after_s_ = std::max(retry_after_s_, in.time_s + jitter * config_.retry_s);
+    next_event_s_ = in.time_s + jitter * std::max(next_event_s_ - in.time_s, 0.0);
     return e;
   }
   e.pairs = event_pairs_;
+  refusals_in_a_row_ = 0;
   e.measured_at_s = event_time_s();
   e.measured_from_s = e.measured_at_s + event_pairs_mean(event_span_sums_s_[0], event_span_sums_s_[2]);
   e.measured_to_s = e.measured_at_s + event_pairs_mean(event_span_sums_s_[1], event_span_sums_s_[3]);
@@ -1380,6 +1407,7 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
         ++level_index_;
         if (event_pairs_ == 0 && level_index_ >= config_.level_count) {
           // Nothing at all this time: try again soon rather than a whole interval later.
+          // (finish_event, next period, counts the refusal and jitters a repeated one)
           next_event_s_ = in.time_s + config_.retry_s;
           retry_after_s_ = next_event_s_;
         }

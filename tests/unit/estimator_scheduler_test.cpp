@@ -805,6 +805,7 @@ TEST(InjectionScheduler, ReadsASampleOnlyWhenItSaysItRecords) {
     InjectionConfig c = test_config();
     c.method = k.method;
     c.separation = k.separation;
+    c.retry_jitter = 0.0;  // the retry after the abort at 1.03 s, inside the run
     Harness always(c, k.omega_e);
     Harness lazy(c, k.omega_e);
     lazy.sample_only_when_recording = true;
@@ -1639,7 +1640,9 @@ TEST(InjectionScheduler, SkipsEveryLevelWhenTheBudgetIsTooSmallAndRetries) {
   EXPECT_EQ(h.estimates[0].outcome, EventOutcome::kNoAcceptedPairs);
   // No injection at all, and the next attempt after retry_s rather than interval_s.
   for (const StepRecord& r : h.records) EXPECT_EQ(r.out.injection_A.d, 0.0);
-  EXPECT_NEAR(h.scheduler.next_event_s(), c.first_event_s + kPeriod + c.retry_s, 2.5 * kPeriod);
+  // The retry delay is jittered: retry_s (1 +- retry_jitter).
+  EXPECT_GE(h.scheduler.next_event_s(), c.first_event_s + kPeriod + c.retry_s * (1.0 - c.retry_jitter) - 2.5 * kPeriod);
+  EXPECT_LE(h.scheduler.next_event_s(), c.first_event_s + kPeriod + c.retry_s * (1.0 + c.retry_jitter) + 2.5 * kPeriod);
 }
 
 TEST(InjectionScheduler, DisabledDriveAbortsThePair) {
@@ -1666,7 +1669,7 @@ TEST(InjectionScheduler, DisabledDriveAbortsThePair) {
       EXPECT_EQ(r.out.phase, P::kIdle);
     }
   }
-  EXPECT_GE(h.scheduler.next_event_s(), abort_time + c.retry_s - 1e-9);
+  EXPECT_GE(h.scheduler.next_event_s(), abort_time + c.retry_s * (1.0 - c.retry_jitter) - 1e-9);
 }
 
 // The drive ends a pair whose held field weakening no longer suits the speed
@@ -1691,12 +1694,12 @@ TEST(InjectionScheduler, ReleasingTheMotoringPointAbortsThePair) {
   ASSERT_GE(h.estimates.size(), 1U);
   EXPECT_EQ(h.estimates[0].outcome, EventOutcome::kAborted);
   for (const StepRecord& r : h.records) {
-    if (r.time_s >= release_time && r.time_s < release_time + c.retry_s - 1e-9) {
+    if (r.time_s >= release_time && r.time_s < release_time + c.retry_s * (1.0 - c.retry_jitter) - 1e-9) {
       EXPECT_FALSE(r.out.active);
       EXPECT_EQ(r.out.injection_A.d, 0.0);
     }
   }
-  EXPECT_GE(h.scheduler.next_event_s(), release_time + c.retry_s - 1e-9);
+  EXPECT_GE(h.scheduler.next_event_s(), release_time + c.retry_s * (1.0 - c.retry_jitter) - 1e-9);
   // Between pairs it ends nothing: the flag up in every idle period, the event publishes.
   Harness idle(c);
   idle.hook = [](Harness& x) { x.release_motoring = x.records.empty() || x.records.back().out.phase == P::kIdle; };
@@ -1817,6 +1820,60 @@ TEST(InjectionScheduler, AShaftThatStoppedIsMeasuredOnceItRests) {
   const Run disabled = run(kNoLimit, 0.0, 0.1);
   ASSERT_GE(disabled.abort_s, 0.0);
   EXPECT_LT(disabled.next_start_s, 0.0) << "an event started within retry_s after a disable";
+}
+
+// A press at 60 strokes a minute, each stroke holding the current at its limit for 0.2 s: an
+// event that starts in a stroke finds no budget, and a retry exactly retry_s (1 s) later finds
+// the next stroke at the same phase, for ever; so does an event aborted by a stroke's start and
+// followed at an interval of whole seconds. Jittered from the second refusal in a row (the
+// default), an event lands outside the strokes within a few tries.
+TEST(InjectionScheduler, RepeatedRefusalsAreNotLockedToADutyWhosePeriodDividesTheDelay) {
+  InjectionConfig c = test_config();
+  c.interval_s = 2.0;  // after an event aborted by the next stroke: 2 s from its start, jittered
+  ASSERT_DOUBLE_EQ(c.retry_s, 1.0);
+  ASSERT_GT(c.retry_jitter, 0.0) << "the default delays after repeated refusals are jittered";
+  const auto run = [](const InjectionConfig& cfg) {
+    Harness h(cfg);
+    h.hook = [](Harness& x) {
+      const double phase = x.time_s - std::floor(x.time_s);
+      x.motoring_A = {0.0, phase < 0.2 ? 79.9 : 10.0};  // the stroke at its 80 A limit
+    };
+    h.run_until(12.0);
+    return h;
+  };
+  const auto published = [](const Harness& h) {
+    int n = 0;
+    for (const EventEstimate& e : h.estimates) n += e.outcome == EventOutcome::kPublished ? 1 : 0;
+    return n;
+  };
+  InjectionConfig exact = c;
+  exact.retry_jitter = 0.0;
+  const Harness locked = run(exact);
+  EXPECT_GE(locked.pairs.size(), 22U) << "a refused attempt every second";
+  for (const PairResult& p : locked.pairs) EXPECT_EQ(p.outcome, PairOutcome::kRejectedCurrentLimit);
+  EXPECT_EQ(published(locked), 0);
+  const Harness jittered = run(c);
+  ASSERT_FALSE(jittered.pairs.empty());
+  EXPECT_EQ(jittered.pairs[0].outcome, PairOutcome::kRejectedCurrentLimit) << "the first event (0.01 s) lies in a stroke";
+  EXPECT_GE(published(jittered), 2) << "the retries stayed in the strokes";
+  ASSERT_GE(jittered.pairs.size(), 3U);
+  EXPECT_NEAR(jittered.pairs[2].time_s - jittered.pairs[1].time_s, c.retry_s, 1.5 * kPeriod)
+      << "the first retry after a refusal is exact";
+  // A retry after an event refused for its budget (both levels refused, the next pair the next
+  // event's first): retry_s (1 +- retry_jitter) later, exactly retry_s the first time.
+  int retries = 0;
+  for (std::size_t i = 0; i + 2 < jittered.pairs.size(); ++i) {
+    const PairResult& a = jittered.pairs[i];
+    const PairResult& b = jittered.pairs[i + 1];
+    const PairResult& next = jittered.pairs[i + 2];
+    if (a.outcome == PairOutcome::kRejectedCurrentLimit && a.level_index == 0 &&
+        b.outcome == PairOutcome::kRejectedCurrentLimit && b.level_index == 1 && next.level_index == 0) {
+      ++retries;
+      EXPECT_GE(next.time_s - b.time_s, c.retry_s * (1.0 - c.retry_jitter) - kPeriod);
+      EXPECT_LE(next.time_s - b.time_s, c.retry_s * (1.0 + c.retry_jitter) + kPeriod);
+    }
+  }
+  EXPECT_GE(retries, 1);
 }
 
 // After recording 1 of every pair, `change` alters the operating point for the rest of it.
@@ -2055,11 +2112,12 @@ TEST(InjectionScheduler, AStandingRequestWaitsTheRetryDelayAfterAnAbort) {
   EXPECT_EQ(h.estimates.back().outcome, EventOutcome::kAborted);
   const double aborted_at = h.records.back().time_s;
   const std::size_t after = h.records.size();
-  h.run_until(aborted_at + 0.49);
+  // The retry delay is jittered, retry_s (1 +- retry_jitter): 0.25-0.75 s here.
+  h.run_until(aborted_at + c.retry_s * (1.0 - c.retry_jitter) - 0.01);
   for (std::size_t k = after; k < h.records.size(); ++k) {
     ASSERT_FALSE(h.records[k].out.active) << "an event started " << h.records[k].time_s - aborted_at << " s after the abort";
   }
-  h.run_until(aborted_at + 0.52);
+  h.run_until(aborted_at + c.retry_s * (1.0 + c.retry_jitter) + 0.02);
   EXPECT_TRUE(h.records.back().out.active) << "the request is served again after the retry delay";
 }
 

@@ -88,6 +88,12 @@ struct InjectionConfig {
   double f_min_A = 5.0;           // after budget reduction, below this the pair is skipped
   double interval_s = 10.0;       // from the start of one event to the next
   double retry_s = 1.0;           // after a skipped event
+  // From the second refusal in a row on (an event that yielded nothing), the delay to the next
+  // event, the interval's or retry_s, is scaled by 1 + retry_jitter u, u drawn uniform in
+  // [-1, 1) from a fixed-seed generator: exact delays met a duty whose period divides them (a
+  // press at 60 strokes a minute) at the phase that had refused the event, every time
+  // (InjectionScheduler::refusal_jitter). 0: exact delays.
+  double retry_jitter = 0.5;
   static constexpr int kMaxLevels = 4;
   std::array<double, kMaxLevels> levels{1.0, 0.4, 0.0, 0.0};  // F multipliers, one pair each
   int level_count = 2;
@@ -628,6 +634,7 @@ class InjectionScheduler {
   void drift_vx();
   [[nodiscard]] bool event_uses_means() const;
   [[nodiscard]] double rest_speed_rad_s() const;  // electrical: below it the shaft rests
+  double refusal_jitter();  // the factor on the delay after a refusal (InjectionConfig::retry_jitter)
   // The time the event's estimate belongs to: its pairs' Rs times weighted by their information
   // (their plain mean where no pair has a variance; EventEstimate::measured_at_s).
   [[nodiscard]] double event_time_s() const;
@@ -679,6 +686,8 @@ class InjectionScheduler {
   SchedulerOutput out_;  // what step() returns (see there)
   double next_event_s_ = 0.0;
   double retry_after_s_ = 0.0;      // a request waits until then after an event that yielded nothing
+  int refusals_in_a_row_ = 0;        // refusals since an event last yielded pairs (refusal_jitter)
+  std::uint64_t retry_rng_ = 0;    // refusal_jitter's generator state (splitmix64, fixed seed)
   // After an angle-based pair lost its speed (the rotor stopped under it), the event is tried
   // again once the shaft has rested a time-based recording's length (record_time_s), not only
   // after retry_s: a press that dwells 0.7 s between its strokes had every retry fall in the
