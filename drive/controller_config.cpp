@@ -197,8 +197,8 @@ ConfigSchema<C> build() {
            "Time between injection events.");
   inj.real("injection.retry_s", [](C& c) -> double& { return c.drive.injection.retry_s; }, positive(1e6), "s",
            "Retry delay after an event yielded nothing.");
-  inj.real("injection.retry_jitter", [](C& c) -> double& { return c.drive.injection.retry_jitter; }, between(0.0, 0.9), "",
-           "From the second refused event in a row, the delay to the next is scaled by 1 + retry_jitter u, u uniform in [-1, 1): no lock onto a duty whose period divides it.");
+  inj.real("injection.retry_jitter", [](C& c) -> double& { return c.drive.injection.retry_jitter; }, between(0.0, 2.0), "",
+           "From the second refused event in a row, the delay to the next is scaled by 1 + retry_jitter v, v uniform in [0, 1): no lock onto a duty whose period divides it.");
   inj.real("injection.first_event_s", [](C& c) -> double& { return c.drive.injection.first_event_s; }, at_least(0), "s",
            "Time of the first event after start.");
   inj.choice("injection.window",

@@ -222,6 +222,7 @@ void InjectionScheduler::set_config(const InjectionConfig& config) {
   recording_ = 0;
   retry_at_rest_ = false;  // (a calibration's start or end: its own timing)
   rest_since_s_ = -1.0;
+  refusals_in_a_row_ = 0;  // (the generator runs on: its sequence depends on nothing else)
 }
 
 double InjectionScheduler::edge_value(double elapsed_s) const {
@@ -540,7 +541,10 @@ void InjectionScheduler::abort(SchedulerOutput& out, const SchedulerInput& in, A
     r.low_level = field_weakening_ ? fw_low_level_ : 0.0;
     r.level_index = level_index_;
     out.completed = r;
-    next_event_s_ = in.time_s + jitter * (std::max(next_event_s_, in.time_s + config_.retry_s) - in.time_s);
+    next_event_s_ = std::max(next_event_s_, in.time_s + config_.retry_s);
+    if (jitter != 1.0) {
+      next_event_s_ = in.time_s + jitter * (next_event_s_ - in.time_s);
+    }
     if (cause == AbortCause::kSpeedLost) {
       retry_at_rest_ = true;
       rest_since_s_ = -1.0;
@@ -973,12 +977,17 @@ double InjectionScheduler::refusal_jitter() {
   // delay is kept exactly: a one-off refusal (a speed ramp, a load step) is over by then, and
   // the events keep their place in the duty. A second refusal in a row may be a periodic duty
   // whose period divides the delay (a press at 60 strokes a minute and events or retries 1 s
-  // apart), met again at the phase that refused the event: from then on each delay is scaled
-  // by 1 + retry_jitter u, u uniform in [-1, 1), until an event yields pairs, which moves that
-  // phase over a whole period of any duty up to 2 retry_jitter times the delay long
-  // (docs/estimator.md §2, "Repeated refusals are jittered"). splitmix64 (Steele, Lea & Flood
-  // 2014): a few multiplies once per refusal, no allocation, the same sequence on every run.
-  if (++refusals_in_a_row_ < 2) {
+  // apart), met again at the phase that refused the event: from then on, until an event yields
+  // pairs, each delay is scaled by 1 + retry_jitter v, v uniform in [0, 1), which moves that
+  // phase over a whole period of any duty up to retry_jitter times the delay long and never
+  // shortens the delay (retry_s is the least time a refused event's transient is given;
+  // docs/estimator.md §2, "Repeated refusals are jittered"). splitmix64 (Steele, Lea & Flood
+  // 2014): a few multiplies once per refusal, no allocation, and the same sequence on every run
+  // (its seed is fixed, not the scenario's).
+  if (refusals_in_a_row_ < 2) {
+    ++refusals_in_a_row_;  // (counted up to 2: all that is asked of it)
+  }
+  if (refusals_in_a_row_ < 2) {
     return 1.0;
   }
   retry_rng_ += 0x9E3779B97F4A7C15ULL;
@@ -986,8 +995,8 @@ double InjectionScheduler::refusal_jitter() {
   z = (z ^ (z >> 30U)) * 0xBF58476D1CE4E5B9ULL;
   z = (z ^ (z >> 27U)) * 0x94D049BB133111EBULL;
   z ^= z >> 31U;
-  const double u = static_cast<double>(z >> 11U) * 0x1.0p-52 - 1.0;  // [-1, 1)
-  return 1.0 + config_.retry_jitter * u;
+  const double v = static_cast<double>(z >> 11U) * 0x1.0p-53;  // [0, 1)
+  return 1.0 + config_.retry_jitter * v;
 }
 
 bool InjectionScheduler::event_uses_means() const {
@@ -1004,7 +1013,9 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
     e.outcome = EventOutcome::kNoAcceptedPairs;
     const double jitter = refusal_jitter();
     retry_after_s_ = std::max(retry_after_s_, in.time_s + jitter * config_.retry_s);
-    next_event_s_ = in.time_s + jitter * std::max(next_event_s_ - in.time_s, 0.0);
+    if (jitter != 1.0) {
+      next_event_s_ = in.time_s + jitter * std::max(next_event_s_ - in.time_s, 0.0);
+    }
     return e;
   }
   e.pairs = event_pairs_;

@@ -265,8 +265,9 @@ TEST(EstimatorClosedLoop, RejectedPairsAreNeverPublished) {
   // Clarke of (1, -1, -1)), and is divided by the injected current F: the physics bounds the
   // Rs error of an accepted pair by (4/3) * 1.65 V / F, plus 3 mOhm for noise and the fit. F is
   // the pair's own level: an event whose one accepted pair is its lower level (0.4 of F_A, 14 A)
-  // is bounded by 0.16 ohm (one read +0.10 ohm, sigma 0.19 ohm). A pair that took a load step
-  // between its recordings reads of the order of w Lq diq / F: about 1.1 ohm for 10 A at 14 A.
+  // is bounded by 0.16 ohm (with the file's retries jittered, one read +0.10 ohm, sigma
+  // 0.19 ohm). A pair that took a load step between its recordings reads of the order of
+  // w Lq diq / F: about 1.1 ohm for 10 A at 14 A.
   const Scenario s = load_scenario(kData / "steps-every-event.toml");
   const core::InjectionConfig& inj = s.controller.drive.injection;
   const double smallest_f_A = inj.f_A * *std::min_element(inj.levels.begin(), inj.levels.begin() + inj.level_count);

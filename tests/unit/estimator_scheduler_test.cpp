@@ -805,7 +805,6 @@ TEST(InjectionScheduler, ReadsASampleOnlyWhenItSaysItRecords) {
     InjectionConfig c = test_config();
     c.method = k.method;
     c.separation = k.separation;
-    c.retry_jitter = 0.0;  // the retry after the abort at 1.03 s, inside the run
     Harness always(c, k.omega_e);
     Harness lazy(c, k.omega_e);
     lazy.sample_only_when_recording = true;
@@ -1640,9 +1639,7 @@ TEST(InjectionScheduler, SkipsEveryLevelWhenTheBudgetIsTooSmallAndRetries) {
   EXPECT_EQ(h.estimates[0].outcome, EventOutcome::kNoAcceptedPairs);
   // No injection at all, and the next attempt after retry_s rather than interval_s.
   for (const StepRecord& r : h.records) EXPECT_EQ(r.out.injection_A.d, 0.0);
-  // The retry delay is jittered: retry_s (1 +- retry_jitter).
-  EXPECT_GE(h.scheduler.next_event_s(), c.first_event_s + kPeriod + c.retry_s * (1.0 - c.retry_jitter) - 2.5 * kPeriod);
-  EXPECT_LE(h.scheduler.next_event_s(), c.first_event_s + kPeriod + c.retry_s * (1.0 + c.retry_jitter) + 2.5 * kPeriod);
+  EXPECT_NEAR(h.scheduler.next_event_s(), c.first_event_s + kPeriod + c.retry_s, 2.5 * kPeriod);
 }
 
 TEST(InjectionScheduler, DisabledDriveAbortsThePair) {
@@ -1669,7 +1666,7 @@ TEST(InjectionScheduler, DisabledDriveAbortsThePair) {
       EXPECT_EQ(r.out.phase, P::kIdle);
     }
   }
-  EXPECT_GE(h.scheduler.next_event_s(), abort_time + c.retry_s * (1.0 - c.retry_jitter) - 1e-9);
+  EXPECT_GE(h.scheduler.next_event_s(), abort_time + c.retry_s - 1e-9);
 }
 
 // The drive ends a pair whose held field weakening no longer suits the speed
@@ -1694,12 +1691,12 @@ TEST(InjectionScheduler, ReleasingTheMotoringPointAbortsThePair) {
   ASSERT_GE(h.estimates.size(), 1U);
   EXPECT_EQ(h.estimates[0].outcome, EventOutcome::kAborted);
   for (const StepRecord& r : h.records) {
-    if (r.time_s >= release_time && r.time_s < release_time + c.retry_s * (1.0 - c.retry_jitter) - 1e-9) {
+    if (r.time_s >= release_time && r.time_s < release_time + c.retry_s - 1e-9) {
       EXPECT_FALSE(r.out.active);
       EXPECT_EQ(r.out.injection_A.d, 0.0);
     }
   }
-  EXPECT_GE(h.scheduler.next_event_s(), release_time + c.retry_s * (1.0 - c.retry_jitter) - 1e-9);
+  EXPECT_GE(h.scheduler.next_event_s(), release_time + c.retry_s - 1e-9);
   // Between pairs it ends nothing: the flag up in every idle period, the event publishes.
   Harness idle(c);
   idle.hook = [](Harness& x) { x.release_motoring = x.records.empty() || x.records.back().out.phase == P::kIdle; };
@@ -1860,7 +1857,7 @@ TEST(InjectionScheduler, RepeatedRefusalsAreNotLockedToADutyWhosePeriodDividesTh
   EXPECT_NEAR(jittered.pairs[2].time_s - jittered.pairs[1].time_s, c.retry_s, 1.5 * kPeriod)
       << "the first retry after a refusal is exact";
   // A retry after an event refused for its budget (both levels refused, the next pair the next
-  // event's first): retry_s (1 +- retry_jitter) later, exactly retry_s the first time.
+  // event's first): retry_s (1 + retry_jitter v), v in [0, 1), later; exactly retry_s the first time.
   int retries = 0;
   for (std::size_t i = 0; i + 2 < jittered.pairs.size(); ++i) {
     const PairResult& a = jittered.pairs[i];
@@ -1869,11 +1866,61 @@ TEST(InjectionScheduler, RepeatedRefusalsAreNotLockedToADutyWhosePeriodDividesTh
     if (a.outcome == PairOutcome::kRejectedCurrentLimit && a.level_index == 0 &&
         b.outcome == PairOutcome::kRejectedCurrentLimit && b.level_index == 1 && next.level_index == 0) {
       ++retries;
-      EXPECT_GE(next.time_s - b.time_s, c.retry_s * (1.0 - c.retry_jitter) - kPeriod);
+      EXPECT_GE(next.time_s - b.time_s, c.retry_s - kPeriod);
       EXPECT_LE(next.time_s - b.time_s, c.retry_s * (1.0 + c.retry_jitter) + kPeriod);
     }
   }
   EXPECT_GE(retries, 1);
+}
+
+// The jitter starts at the second refusal in a row and ends with an event that yields pairs:
+// refused events at the current limit (the first retry exact, the next ones retry_s to
+// retry_s (1 + retry_jitter) later, not all alike), then an event that publishes, then refused
+// events again, whose first retry is exact again.
+TEST(InjectionScheduler, TheJitterStartsAtTheSecondRefusalAndEndsWithAnEventThatYieldsPairs) {
+  InjectionConfig c = test_config();
+  c.interval_s = 10.0;  // only retries in this test, but for the event that publishes
+  Harness h(c);
+  const auto refusal_times = [&](std::size_t count) {
+    std::vector<double> t;
+    while (t.size() < count && h.time_s < 60.0) {
+      const std::size_t before = h.pairs.size();
+      h.step();
+      if (h.pairs.size() > before && h.pairs.back().level_index == 1) {
+        EXPECT_EQ(h.pairs.back().outcome, PairOutcome::kRejectedCurrentLimit);
+        t.push_back(h.time_s);  // the event's end: both levels refused
+      }
+    }
+    return t;
+  };
+  h.motoring_A = {0.0, 79.9};
+  const std::vector<double> first = refusal_times(6);
+  ASSERT_EQ(first.size(), 6U);
+  // (From one event's end to the next's: the retry, and the two periods its levels take.)
+  EXPECT_NEAR(first[1] - first[0], c.retry_s + 2 * kPeriod, 0.5 * kPeriod) << "the first retry is exact";
+  double shortest = 1e9;
+  double longest = 0.0;
+  for (std::size_t k = 2; k < first.size(); ++k) {
+    const double d = first[k] - first[k - 1];
+    EXPECT_GE(d, c.retry_s - kPeriod);
+    EXPECT_LE(d, c.retry_s * (1.0 + c.retry_jitter) + 3 * kPeriod);
+    shortest = std::min(shortest, d);
+    longest = std::max(longest, d);
+  }
+  EXPECT_GT(longest - shortest, 0.1 * c.retry_s) << "the repeated retries are not jittered";
+  // Room for the pulses: the next event publishes.
+  h.motoring_A = {0.0, 10.0};
+  const std::size_t estimates_before = h.estimates.size();
+  while (h.time_s < first.back() + 3.0 && (h.estimates.size() == estimates_before ||
+                                           h.estimates.back().outcome != EventOutcome::kPublished)) {
+    h.step();
+  }
+  ASSERT_EQ(h.estimates.back().outcome, EventOutcome::kPublished);
+  // Refused again (from the next event, the interval later): the first retry is exact again.
+  h.motoring_A = {0.0, 79.9};
+  const std::vector<double> again = refusal_times(2);
+  ASSERT_EQ(again.size(), 2U);
+  EXPECT_NEAR(again[1] - again[0], c.retry_s + 2 * kPeriod, 0.5 * kPeriod) << "an event that yielded pairs ended the jitter";
 }
 
 // After recording 1 of every pair, `change` alters the operating point for the rest of it.
@@ -2112,12 +2159,11 @@ TEST(InjectionScheduler, AStandingRequestWaitsTheRetryDelayAfterAnAbort) {
   EXPECT_EQ(h.estimates.back().outcome, EventOutcome::kAborted);
   const double aborted_at = h.records.back().time_s;
   const std::size_t after = h.records.size();
-  // The retry delay is jittered, retry_s (1 +- retry_jitter): 0.25-0.75 s here.
-  h.run_until(aborted_at + c.retry_s * (1.0 - c.retry_jitter) - 0.01);
+  h.run_until(aborted_at + 0.49);
   for (std::size_t k = after; k < h.records.size(); ++k) {
     ASSERT_FALSE(h.records[k].out.active) << "an event started " << h.records[k].time_s - aborted_at << " s after the abort";
   }
-  h.run_until(aborted_at + c.retry_s * (1.0 + c.retry_jitter) + 0.02);
+  h.run_until(aborted_at + 0.52);
   EXPECT_TRUE(h.records.back().out.active) << "the request is served again after the retry delay";
 }
 

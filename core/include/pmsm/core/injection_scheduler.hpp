@@ -89,11 +89,11 @@ struct InjectionConfig {
   double interval_s = 10.0;       // from the start of one event to the next
   double retry_s = 1.0;           // after a skipped event
   // From the second refusal in a row on (an event that yielded nothing), the delay to the next
-  // event, the interval's or retry_s, is scaled by 1 + retry_jitter u, u drawn uniform in
-  // [-1, 1) from a fixed-seed generator: exact delays met a duty whose period divides them (a
+  // event, the interval's or retry_s, is scaled by 1 + retry_jitter v, v drawn uniform in
+  // [0, 1) from a fixed-seed generator: exact delays met a duty whose period divides them (a
   // press at 60 strokes a minute) at the phase that had refused the event, every time
-  // (InjectionScheduler::refusal_jitter). 0: exact delays.
-  double retry_jitter = 0.5;
+  // (InjectionScheduler::refusal_jitter). Never shorter than the exact delay. 0: exact delays.
+  double retry_jitter = 1.0;
   static constexpr int kMaxLevels = 4;
   std::array<double, kMaxLevels> levels{1.0, 0.4, 0.0, 0.0};  // F multipliers, one pair each
   int level_count = 2;
