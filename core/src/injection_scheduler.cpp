@@ -222,7 +222,7 @@ void InjectionScheduler::set_config(const InjectionConfig& config) {
   recording_ = 0;
   retry_at_rest_ = false;  // (a calibration's start or end: its own timing)
   rest_since_s_ = -1.0;
-  refusals_in_a_row_ = 0;  // (the generator runs on: its sequence depends on nothing else)
+  last_event_refused_ = false;  // (the generator runs on: its sequence depends on nothing else)
 }
 
 double InjectionScheduler::edge_value(double elapsed_s) const {
@@ -542,9 +542,7 @@ void InjectionScheduler::abort(SchedulerOutput& out, const SchedulerInput& in, A
     r.level_index = level_index_;
     out.completed = r;
     next_event_s_ = std::max(next_event_s_, in.time_s + config_.retry_s);
-    if (jitter != 1.0) {
-      next_event_s_ = in.time_s + jitter * (next_event_s_ - in.time_s);
-    }
+    delay_next_event(in.time_s, jitter);
     if (cause == AbortCause::kSpeedLost) {
       retry_at_rest_ = true;
       rest_since_s_ = -1.0;
@@ -984,10 +982,8 @@ double InjectionScheduler::refusal_jitter() {
   // docs/estimator.md §2, "Repeated refusals are jittered"). splitmix64 (Steele, Lea & Flood
   // 2014): a few multiplies once per refusal, no allocation, and the same sequence on every run
   // (its seed is fixed, not the scenario's).
-  if (refusals_in_a_row_ < 2) {
-    ++refusals_in_a_row_;  // (counted up to 2: all that is asked of it)
-  }
-  if (refusals_in_a_row_ < 2) {
+  if (!last_event_refused_) {
+    last_event_refused_ = true;
     return 1.0;
   }
   retry_rng_ += 0x9E3779B97F4A7C15ULL;
@@ -997,6 +993,13 @@ double InjectionScheduler::refusal_jitter() {
   z ^= z >> 31U;
   const double v = static_cast<double>(z >> 11U) * 0x1.0p-53;  // [0, 1)
   return 1.0 + config_.retry_jitter * v;
+}
+
+void InjectionScheduler::delay_next_event(double now_s, double jitter) {
+  // The delay still to run, scaled; not rewritten at all where the factor is 1 (bit-exact).
+  if (jitter != 1.0) {
+    next_event_s_ = now_s + jitter * std::max(next_event_s_ - now_s, 0.0);
+  }
 }
 
 bool InjectionScheduler::event_uses_means() const {
@@ -1013,13 +1016,11 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
     e.outcome = EventOutcome::kNoAcceptedPairs;
     const double jitter = refusal_jitter();
     retry_after_s_ = std::max(retry_after_s_, in.time_s + jitter * config_.retry_s);
-    if (jitter != 1.0) {
-      next_event_s_ = in.time_s + jitter * std::max(next_event_s_ - in.time_s, 0.0);
-    }
+    delay_next_event(in.time_s, jitter);
     return e;
   }
   e.pairs = event_pairs_;
-  refusals_in_a_row_ = 0;
+  last_event_refused_ = false;
   e.measured_at_s = event_time_s();
   e.measured_from_s = e.measured_at_s + event_pairs_mean(event_span_sums_s_[0], event_span_sums_s_[2]);
   e.measured_to_s = e.measured_at_s + event_pairs_mean(event_span_sums_s_[1], event_span_sums_s_[3]);

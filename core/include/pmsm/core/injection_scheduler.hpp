@@ -635,6 +635,7 @@ class InjectionScheduler {
   [[nodiscard]] bool event_uses_means() const;
   [[nodiscard]] double rest_speed_rad_s() const;  // electrical: below it the shaft rests
   double refusal_jitter();  // the factor on the delay after a refusal (InjectionConfig::retry_jitter)
+  void delay_next_event(double now_s, double jitter);  // scales the delay to next_event_s_ by it
   // The time the event's estimate belongs to: its pairs' Rs times weighted by their information
   // (their plain mean where no pair has a variance; EventEstimate::measured_at_s).
   [[nodiscard]] double event_time_s() const;
@@ -686,7 +687,7 @@ class InjectionScheduler {
   SchedulerOutput out_;  // what step() returns (see there)
   double next_event_s_ = 0.0;
   double retry_after_s_ = 0.0;      // a request waits until then after an event that yielded nothing
-  int refusals_in_a_row_ = 0;        // refusals since an event last yielded pairs (refusal_jitter)
+  bool last_event_refused_ = false;  // no pairs since the last event that yielded some (refusal_jitter)
   std::uint64_t retry_rng_ = 0;    // refusal_jitter's generator state (splitmix64, fixed seed)
   // After an angle-based pair lost its speed (the rotor stopped under it), the event is tried
   // again once the shaft has rested a time-based recording's length (record_time_s), not only
