@@ -3,6 +3,7 @@
 #include "calibration_file.hpp"
 #include "config_schema.hpp"
 #include "pmsm/core/machine_equations.hpp"
+#include "pmsm/core/speed_controller.hpp"
 #include "pmsm/core/thermal_observer.hpp"
 #include "text_file.hpp"
 
@@ -114,7 +115,12 @@ ConfigSchema<C> build() {
          "Current-loop bandwidth (Kp = wc L, Ki = wc Rs).");
   s.real("control.voltage_limit_fraction", [](C& c) -> double& { return c.drive.current.voltage_limit_fraction; }, between(0.5, 1.0), "",
          "Usable fraction of Vdc/sqrt(3).");
-  s.real("control.speed_bandwidth_rad_s", [](C& c) -> double& { return c.drive.speed.bandwidth_rad_s; }, positive(2000), "rad/s", "Speed-loop bandwidth.");
+  s.real("control.speed_bandwidth_rad_s", [](C& c) -> double& { return c.drive.speed.bandwidth_rad_s; }, positive(2000), "rad/s",
+         "Speed-loop bandwidth (Kp = motor.inertia_kg_m2 x it). Its proportional gain turns the encoder's rounding, read "
+         "through the PLL's speed, into torque demand: J wc 2 wn (1 + wn T) q / sqrt(12) RMS, q = 2 pi / "
+         "2^sensors.encoder_bits, wn = control.pll_bandwidth_rad_s, T = control.period_s. Above 5 % of the rated torque (Kt "
+         "x the rated peak current) the loader warns, naming the bandwidth that keeps it there (docs/daemon.md, \"The speed "
+         "loop and the encoder\").");
   s.integer("control.speed_decimation", [](C& c) -> int& { return c.drive.speed_decimation; }, between(1, 1000),
             "Speed loop every N current-loop periods.");
   s.optional_real("control.speed_limit_rad_s", [](C& c) -> std::optional<double>& { return c.relative.speed_limit_rad_s; },
@@ -496,6 +502,16 @@ const std::vector<std::string>& controller_sections() {
   static const std::vector<std::string> sections{"motor", "sensors", "control", "injection", "estimator",
                                                  "thermal", "calibration", "derating"};
   return sections;
+}
+
+double speed_loop_rated_torque_Nm(const core::DriveConfig& d) {
+  return core::torque_constant_dq_Nm_per_A(d.motor) * core::continuous_current_peak_A(d.motor);
+}
+
+double quantisation_limited_speed_bandwidth_rad_s(const core::DriveConfig& d) {
+  return core::speed_bandwidth_for_quantisation_torque_rad_s(
+      kSpeedLoopQuantisationTorqueShare * speed_loop_rated_torque_Nm(d), d.motor.inertia_kg_m2,
+      d.angle.pll_bandwidth_rad_s, d.period_s, d.angle.encoder_bits);
 }
 
 ControllerConfig default_controller_config() {
@@ -1066,6 +1082,22 @@ std::vector<std::string> reference_default_warnings(const ControllerConfig& conf
         "sqrt 3): without control.field_weakening = true the drive does not reach it, and set-points beyond it are "
         "best kept out, since the injection's pulses can carry the shaft there (docs/daemon.md)",
         d.motor.rated_speed_rad_s, emf_speed_rad_s, config.nominal_dc_bus_V));
+  }
+  // The speed loop's answer to the encoder's resolution: the torque noise its gain makes of the
+  // PLL's speed (docs/daemon.md, "The speed loop and the encoder").
+  if (const double rated_Nm = speed_loop_rated_torque_Nm(d), quiet_rad_s = quantisation_limited_speed_bandwidth_rad_s(d);
+      d.speed.bandwidth_rad_s > quiet_rad_s * (1.0 + 1e-9)) {
+    const double noise_Nm = core::speed_loop_quantisation_torque_Nm(
+        d.motor.inertia_kg_m2, d.speed.bandwidth_rad_s, d.angle.pll_bandwidth_rad_s, d.period_s, d.angle.encoder_bits);
+    out.push_back(fmt::format(
+        "controller.control.speed_bandwidth_rad_s = {:g} rad/s: the speed loop's gain (motor.inertia_kg_m2 = {:g} kg m^2 "
+        "x the bandwidth) turns the {}-bit encoder's rounding, read through the PLL's speed "
+        "(control.pll_bandwidth_rad_s = {:g} rad/s), into {:.3g} N m RMS of torque demand, {:.1f} % of the rated "
+        "{:.3g} N m; {:.0f} % at {:.3g} rad/s. The noise is in the current and the shaft's torque, and its peaks take "
+        "current the load needs: a lower bandwidth, a lower PLL bandwidth (the noise goes with it; keep it several "
+        "times the speed loop's) or a finer encoder (docs/daemon.md, \"The speed loop and the encoder\")",
+        d.speed.bandwidth_rad_s, d.motor.inertia_kg_m2, d.angle.encoder_bits, d.angle.pll_bandwidth_rad_s, noise_Nm,
+        100.0 * noise_Nm / rated_Nm, rated_Nm, 100.0 * kSpeedLoopQuantisationTorqueShare, quiet_rad_s));
   }
   const double rated_peak_A = core::continuous_current_peak_A(d.motor);
   if (d.derating.min_current_A > rated_peak_A) {

@@ -55,6 +55,11 @@ struct MotorRelativeKeys {
   std::optional<double> vx_bus_slope_std;
 };
 
+// The share of the rated torque (RMS) the encoder's rounding may make of the speed loop's
+// torque demand before the loader warns (core::speed_loop_quantisation_torque_Nm;
+// docs/daemon.md, "The speed loop and the encoder").
+inline constexpr double kSpeedLoopQuantisationTorqueShare = 0.05;
+
 struct ControllerConfig {
   core::DriveConfig drive{};
   MotorRelativeKeys relative{};
@@ -126,5 +131,12 @@ void finalize(ControllerConfig& config, std::string_view source, const toml::tab
 // Warnings, not errors: the drive runs, but its model and derating are not this motor's.
 // pmsm-thermald logs them at start and under --check; simulate prints them.
 [[nodiscard]] std::vector<std::string> reference_default_warnings(const ControllerConfig& config);
+
+// The rated torque the speed loop's noise is judged against: Kt (dq) x the rated peak current.
+[[nodiscard]] double speed_loop_rated_torque_Nm(const core::DriveConfig& d);
+// The speed-loop bandwidth at which the encoder's rounding makes kSpeedLoopQuantisationTorqueShare
+// of speed_loop_rated_torque_Nm() of torque demand (RMS), with the configured motor inertia,
+// encoder, PLL and period.
+[[nodiscard]] double quantisation_limited_speed_bandwidth_rad_s(const core::DriveConfig& d);
 
 }  // namespace pmsm::app

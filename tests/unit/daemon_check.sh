@@ -143,6 +143,10 @@ check_warns '[controller.motor]\ncontinuous_current_A_rms = 4.5\n[controller.sen
 # A rated speed the bus cannot hold without field weakening (Table I's EMF at 650 V: 367 rad/s).
 check_warns '[controller.motor]\nrated_speed_rad_s = 400.0\n[controller.control]\nspeed_limit_rad_s = 450.0\n' \
   "controller.motor.rated_speed_rad_s = 400 rad/s lies beyond the 367 rad/s where the EMF"
+# A speed loop whose gain turns the encoder's rounding into torque noise (Table I's motor on a
+# 2 kg m^2 flywheel: 12 % of its rated torque at the default 60 rad/s): warned, naming the figures.
+check_warns '[controller.motor]\ninertia_kg_m2 = 2.0\n' \
+  "controller.control.speed_bandwidth_rad_s = 60 rad/s: the speed loop's gain (motor.inertia_kg_m2 = 2 kg m^2 x the bandwidth) turns the 14-bit encoder's rounding"
 # check_clean NAME TOML WHAT: the configuration passes --check without a warning.
 check_clean() {
   printf "$2" > "$dir/$1.toml"

@@ -7,6 +7,7 @@
 #include <cstdint>
 
 #include "pmsm/core/angle_tracker.hpp"
+#include "pmsm/core/speed_controller.hpp"
 #include "pmsm/core/transforms.hpp"
 
 namespace pmsm::core {
@@ -287,6 +288,51 @@ TEST(AngleTracker, ATruncatingEncoderIsReadWithoutBias) {
     }
     const double mean_error_counts = error_sum / n / count;
     EXPECT_NEAR(mean_error_counts, centre - 0.5, 0.01) << "count_centre " << centre;
+  }
+}
+
+// The speed loop's default bandwidth (drive/controller_config.cpp) and its warning rest on the
+// PLL's speed noise from the encoder's rounding alone, 2 wn (1 + wn T) q / sqrt(12) RMS
+// (core::speed_loop_quantisation_torque_Nm with J = 1 and a unit bandwidth): measured here on
+// the tracker itself, turning at constant speed, for coarse and fine encoders, slow and fast
+// loops and two periods.
+TEST(AngleTracker, ItsSpeedNoiseFromTheEncodersRoundingIsWhatTheSpeedLoopsDefaultAssumes) {
+  struct Case {
+    int bits;
+    double pll_rad_s;
+    double period_s;
+    double speed_rad_s;
+  };
+  for (const Case& c : {Case{14, 300.0, 1e-4, 101.3}, Case{10, 300.0, 1e-4, 23.7}, Case{14, 1000.0, 1e-4, -61.9},
+                        Case{16, 100.0, 1.25e-4, 149.2}, Case{12, 300.0, 5e-5, 7.31}}) {
+    AngleTrackerConfig cfg = config();
+    cfg.encoder_bits = c.bits;
+    cfg.pll_bandwidth_rad_s = c.pll_rad_s;
+    cfg.period_s = c.period_s;
+    AngleTracker t(cfg);
+    const double counts = std::ldexp(1.0, c.bits);
+    double sum = 0.0;
+    double sum_sq = 0.0;
+    int n = 0;
+    for (int k = 0; k < 60000; ++k) {
+      const double turns = (0.3 + c.speed_rad_s * k * c.period_s) / kTwoPi;
+      t.update(static_cast<std::uint32_t>(std::floor((turns - std::floor(turns)) * counts)) %
+               static_cast<std::uint32_t>(counts));
+      if (k >= 20000) {  // settled: 20000 periods are 200 loop time constants or more
+        const double e = t.mechanical_speed_rad_s() - c.speed_rad_s;
+        sum += e;
+        sum_sq += e * e;
+        ++n;
+      }
+    }
+    const double mean = sum / n;
+    const double rms = std::sqrt(std::max(sum_sq / n - mean * mean, 0.0));
+    const double model = speed_loop_quantisation_torque_Nm(1.0, 1.0, c.pll_rad_s, c.period_s, c.bits);
+    EXPECT_GT(rms, 0.92 * model) << c.bits << " bits, " << c.pll_rad_s << " rad/s: measured " << rms;
+    EXPECT_LT(rms, 1.08 * model) << c.bits << " bits, " << c.pll_rad_s << " rad/s: measured " << rms;
+    // And the bandwidth for a torque noise is its inverse.
+    EXPECT_NEAR(speed_bandwidth_for_quantisation_torque_rad_s(model * 2.0 * 3.0, 2.0, c.pll_rad_s, c.period_s, c.bits),
+                3.0, 1e-9);
   }
 }
 
