@@ -328,9 +328,10 @@ void Publisher::handle(const PublicationRecord& r) {
     const core::AngleCheckResult& a = *r.angle_check;
     constexpr double kDeg = 180.0 / std::numbers::pi;
     if (a.outcome == core::AngleCheckOutcome::kMeasured) {
-      spdlog::info("calibration: rotor-angle check found {:+.3f} deg electrical (+- {:.3f} levels, +- {:.3f} saliency "
-                   "model); correction of sensors.encoder_offset_rad in use {:+.3f} deg",
-                   a.offset_rad * kDeg, a.offset_std_rad * kDeg, a.model_std_rad * kDeg, r.angle_correction_rad * kDeg);
+      spdlog::info("calibration: rotor-angle check found {:+.3f} deg electrical (+- {:.3f} levels, +- {:.3f} the "
+                   "speed's noise, +- {:.3f} saliency model); correction of sensors.encoder_offset_rad in use {:+.3f} deg",
+                   a.offset_rad * kDeg, a.offset_std_rad * kDeg, a.speed_std_rad * kDeg, a.model_std_rad * kDeg,
+                   r.angle_correction_rad * kDeg);
     } else if (a.outcome == core::AngleCheckOutcome::kOutOfRange) {
       spdlog::error("calibration: rotor-angle check found the angle {:+.1f} deg electrical off, more than "
                     "calibration.angle_check_max_offset_rad corrects: commission sensors.encoder_offset_rad (or check the "

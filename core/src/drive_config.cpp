@@ -1,6 +1,7 @@
 // DriveConfig::derive_from_motor(): the one place where the sub-configurations take their
 // copies of the motor model (and of the period), so that they cannot disagree with it.
 #include "pmsm/core/drive_controller.hpp"
+#include "pmsm/core/speed_controller.hpp"
 
 namespace pmsm::core {
 
@@ -17,6 +18,7 @@ void DriveConfig::derive_from_motor() {
   speed.inertia_kg_m2 = motor.inertia_kg_m2;
   angle.period_s = period_s;
   angle.pole_pairs = motor.pole_pairs;
+  angle_check.speed_noise_rad_s = pll_quantisation_speed_noise_rad_s(angle.pll_bandwidth_rad_s, period_s, angle.encoder_bits);
   for (InjectionConfig* injection_config : {&injection, &calibration_injection}) {
     injection_config->lq_H = motor.lq_H;
     injection_config->lq_rated_H = motor.lq_rated_H;

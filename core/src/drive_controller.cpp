@@ -397,7 +397,7 @@ void DriveController::finish_angle_check() {
   }
   if (r.outcome == AngleCheckOutcome::kMeasured) {
     // Below the check's own error the angle in use stands (and counts as checked).
-    const double error_bar = std::hypot(r.offset_std_rad, r.model_std_rad);
+    const double error_bar = std::hypot(std::max(r.offset_std_rad, r.speed_std_rad), r.model_std_rad);
     const bool correct = std::abs(r.offset_rad) >= std::max(config_.angle_check.min_correction_rad, 3.0 * error_bar);
     if (correct) {
       set_angle_correction(total);

@@ -6,24 +6,19 @@
 
 namespace pmsm::core {
 
-namespace {
-
-// RMS speed (rad/s) the PLL reads from the encoder's rounding alone: 2 wn (1 + wn T) q / sqrt(12).
-double quantisation_speed_noise_rad_s(double pll_bandwidth_rad_s, double period_s, int encoder_bits) {
+double pll_quantisation_speed_noise_rad_s(double pll_bandwidth_rad_s, double period_s, int encoder_bits) {
   const double count_rad = 2.0 * std::numbers::pi / std::ldexp(1.0, encoder_bits);
   return 2.0 * pll_bandwidth_rad_s * (1.0 + pll_bandwidth_rad_s * period_s) * count_rad / std::sqrt(12.0);
 }
 
-}  // namespace
-
 double speed_loop_quantisation_torque_Nm(double inertia_kg_m2, double bandwidth_rad_s, double pll_bandwidth_rad_s,
                                          double period_s, int encoder_bits) {
-  return inertia_kg_m2 * bandwidth_rad_s * quantisation_speed_noise_rad_s(pll_bandwidth_rad_s, period_s, encoder_bits);
+  return inertia_kg_m2 * bandwidth_rad_s * pll_quantisation_speed_noise_rad_s(pll_bandwidth_rad_s, period_s, encoder_bits);
 }
 
 double speed_bandwidth_for_quantisation_torque_rad_s(double torque_rms_Nm, double inertia_kg_m2,
                                                      double pll_bandwidth_rad_s, double period_s, int encoder_bits) {
-  return torque_rms_Nm / (inertia_kg_m2 * quantisation_speed_noise_rad_s(pll_bandwidth_rad_s, period_s, encoder_bits));
+  return torque_rms_Nm / (inertia_kg_m2 * pll_quantisation_speed_noise_rad_s(pll_bandwidth_rad_s, period_s, encoder_bits));
 }
 
 SpeedController::SpeedController(const SpeedControllerConfig& config) : config_(config) {

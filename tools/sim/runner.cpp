@@ -1206,6 +1206,7 @@ std::string result_json(const SimulationResult& r) {
         .field("offset_rad", solved ? a.offset_rad : kNan)
         .field("offset_std_rad", solved ? a.offset_std_rad : kNan)
         .field("model_std_rad", solved ? a.model_std_rad : kNan)
+        .field("speed_std_rad", solved ? a.speed_std_rad : kNan)
         .field("d_id_A", solved ? a.d_id_A : kNan)
         .field("d_iq_A", solved ? a.d_iq_A : kNan)
         .end_object();
@@ -1306,9 +1307,11 @@ std::string result_text(const SimulationResult& r) {
                      100.0 * r.injection_duty);
   if (r.angle_check.outcome != core::AngleCheckOutcome::kNone) {
     const core::AngleCheckResult& a = r.angle_check;
-    out += fmt::format("  rotor-angle check at {:.2f} s     {}: offset {:+.3f} +- {:.3f} deg electrical (correction in use {:+.3f} deg)\n",
+    out += fmt::format("  rotor-angle check at {:.2f} s     {}: offset {:+.3f} +- {:.3f} deg electrical (the speed's noise "
+                       "+- {:.3f}; correction in use {:+.3f} deg)\n",
                        r.angle_check_time_s, core::to_string(a.outcome), a.offset_rad * 180.0 / std::numbers::pi,
-                       a.offset_std_rad * 180.0 / std::numbers::pi, r.angle_correction_rad * 180.0 / std::numbers::pi);
+                       a.offset_std_rad * 180.0 / std::numbers::pi, a.speed_std_rad * 180.0 / std::numbers::pi,
+                       r.angle_correction_rad * 180.0 / std::numbers::pi);
   }
   if (r.inverter_sweep.outcome != core::InverterSweepOutcome::kNone) {
     const core::InverterSweepResult& w = r.inverter_sweep;

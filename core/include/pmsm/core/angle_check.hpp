@@ -49,6 +49,11 @@ struct AngleCheckConfig {
   // disagreement and the saliency model's, combined) and beyond this floor; inside, the angle in
   // use stands: correcting it would add the check's own error (docs/estimator.md section 6.1).
   double min_correction_rad = 0.0017;    // 0.1 degree electrical
+  // The PLL speed's noise from the encoder's rounding, RMS per sample (mechanical rad/s;
+  // DriveConfig::derive_from_motor from the tracker's settings): what the speed's slope over
+  // each level, and with it J dw/dt, cannot be measured better than (AngleCheckResult::
+  // speed_std_rad). 0: not counted.
+  double speed_noise_rad_s = 0.0;
 };
 
 // The controller's motor model the torque balance needs.
@@ -82,6 +87,10 @@ struct AngleCheckResult {
   double offset_rad = 0.0;      // add to the controller's electrical angle (kMeasured, kOutOfRange)
   double offset_std_rad = 0.0;  // from the two +L levels' disagreement (the noise, a drift; one degree of freedom)
   double model_std_rad = 0.0;   // what the commissioned saliency's uncertainty can move it by
+  // What the speed's noise leaves in the levels' J dw/dt (their least-squares slopes of a PLL
+  // speed with AngleCheckConfig::speed_noise_rad_s of white noise): a floor under offset_std_rad,
+  // whose one degree of freedom can read far below it.
+  double speed_std_rad = 0.0;
   double d_iq_A = 0.0;          // the q current the levels moved (+L minus -L), diagnostics
   double d_id_A = 0.0;          // the d current they moved
 };
@@ -153,6 +162,7 @@ class AngleCheck {
   std::array<double, kLevels> mean_id_{};
   std::array<double, kLevels> mean_iq_{};
   std::array<double, kLevels> accel_{};      // mechanical rad/s^2
+  std::array<double, kLevels> time_spread_s2_{};  // sum of (t - mean t)^2 over the level's average
   std::array<double, kLevels> speed_e_{};    // electrical rad/s
   int solve_index_ = 0;
   bool speed_steady_ = true;   // the levels' mean speeds within the limit

@@ -26,6 +26,10 @@ struct SpeedControllerConfig {
 // the shaft.) A 12 kg m^2 centrifuge with a 14-bit encoder, the default 60 rad/s and the PLL's
 // 300 rad/s: 52 N m RMS on a 95 N m motor, and braking it tripped on overcurrent
 // (docs/daemon.md, "The speed loop and the encoder").
+// The PLL's speed noise from the encoder's rounding alone: 2 wn (1 + wn T) q / sqrt(12), RMS
+// rad/s (the same speed noise as speed_loop_quantisation_torque_Nm, before the loop's gain).
+[[nodiscard]] double pll_quantisation_speed_noise_rad_s(double pll_bandwidth_rad_s, double period_s, int encoder_bits);
+
 [[nodiscard]] double speed_loop_quantisation_torque_Nm(double inertia_kg_m2, double bandwidth_rad_s,
                                                        double pll_bandwidth_rad_s, double period_s,
                                                        int encoder_bits);
