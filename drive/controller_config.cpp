@@ -202,7 +202,10 @@ ConfigSchema<C> build() {
   inj.real("injection.interval_s", [](C& c) -> double& { return c.drive.injection.interval_s; }, positive(1e6), "s",
            "Time between injection events.");
   inj.real("injection.retry_s", [](C& c) -> double& { return c.drive.injection.retry_s; }, positive(1e6), "s",
-           "Retry delay after an event yielded nothing.");
+           "Retry delay after an event that yielded nothing: one whose every pair was refused for its budget "
+           "(current, voltage, torque) is followed by the next this long after it, not a whole interval_s after its "
+           "start; an aborted one by the next no sooner than this (nor than its interval); one whose pairs were "
+           "rejected, at its interval. A request (a calibration's, an operator's) waits it after any of them.");
   inj.real("injection.retry_jitter", [](C& c) -> double& { return c.drive.injection.retry_jitter; }, between(0.0, 2.0), "",
            "From the second refused event in a row, the delay to the next is scaled by 1 + retry_jitter v, v uniform in [0, 1): no lock onto a duty whose period divides it.");
   inj.real("injection.first_event_s", [](C& c) -> double& { return c.drive.injection.first_event_s; }, at_least(0), "s",
