@@ -376,6 +376,7 @@ std::vector<PairAngles> pair_angles(const Harness& h) {
 }
 
 // mechanical_min_speed: InjectionConfig::mechanical_harmonics_min_speed_rad_s (mechanical).
+// omega_e may be negative: the angles then fall, and every span is taken by its size.
 void check_dtheta(bool mechanical, double omega_e, double mechanical_min_speed = 10.0) {
   InjectionConfig c = test_config();
   c.mechanical_harmonics = mechanical;
@@ -383,25 +384,27 @@ void check_dtheta(bool mechanical, double omega_e, double mechanical_min_speed =
   Harness h(c, omega_e);
   h.run_until(0.4);
   const std::vector<PairAngles> angles = pair_angles(h);
-  ASSERT_EQ(angles.size(), 2U);
-  const bool whole_mechanical_turns = mechanical && omega_e >= mechanical_min_speed * c.pole_pairs;
+  ASSERT_EQ(angles.size(), 2U) << "omega_e " << omega_e;
+  const double speed = std::abs(omega_e);
+  const double step = std::abs(h.omega_e_rad_s) * kPeriod;
+  const bool whole_mechanical_turns = mechanical && speed >= mechanical_min_speed * c.pole_pairs;
   const double unit = whole_mechanical_turns ? kTwoPi * c.pole_pairs : kTwoPi;
   for (const PairAngles& a : angles) {
-    const double extent = a.extent_end1 - a.first1;
+    const double extent = std::abs(a.extent_end1 - a.first1);
     // Recording 1 spans whole turns, at least one and at least record_min_time_s: at least
     // that, less than a period more.
-    const double turns = std::ceil(std::max(kTwoPi, omega_e * c.record_min_time_s) / kTwoPi - 1e-9);
-    EXPECT_GE(extent, turns * kTwoPi - 1e-9);
-    EXPECT_LT(extent, turns * kTwoPi + h.omega_e_rad_s * kPeriod + 1e-9);
-    const double dtheta = a.first2 - a.first1;
+    const double turns = std::ceil(std::max(kTwoPi, speed * c.record_min_time_s) / kTwoPi - 1e-9);
+    EXPECT_GE(extent, turns * kTwoPi - 1e-9) << "omega_e " << omega_e;
+    EXPECT_LT(extent, turns * kTwoPi + step + 1e-9) << "omega_e " << omega_e;
+    const double dtheta = std::abs(a.first2 - a.first1);
     // Recording 2 starts at the first sample at or past origin + dTheta.
     const double multiple = std::floor(dtheta / unit + 1e-9);
     EXPECT_GE(multiple, 1.0);
-    EXPECT_LT(dtheta - multiple * unit, h.omega_e_rad_s * kPeriod + 1e-9);
+    EXPECT_LT(dtheta - multiple * unit, step + 1e-9) << "omega_e " << omega_e;
     // The smallest multiple that leaves room for recording 1 and the transition (two ramps,
     // settling and 4 periods at the present speed).
-    const double needed = extent + h.omega_e_rad_s * (2.0 * c.tw_s + c.settle_s + 4.0 * kPeriod);
-    EXPECT_EQ(multiple, std::max(1.0, std::ceil(needed / unit)));
+    const double needed = extent + std::abs(h.omega_e_rad_s) * (2.0 * c.tw_s + c.settle_s + 4.0 * kPeriod);
+    EXPECT_EQ(multiple, std::max(1.0, std::ceil(needed / unit))) << "omega_e " << omega_e;
   }
 }
 
@@ -418,6 +421,15 @@ TEST(InjectionScheduler, DThetaIsAMultipleOfTwoPiBelowTheMechanicalHarmonicsSpee
 TEST(InjectionScheduler, DThetaIsAMultipleOfTwoPiForElectricalHarmonics) {
   check_dtheta(false, 300.0);
   check_dtheta(false, 900.0);  // here the transition (ramps, settling) needs a turn of its own
+}
+// Turning backwards, the same spans: whole mechanical turns above the speed, electrical ones
+// below it and without the mechanical harmonics (InjectionScheduler::delta_theta takes |w|).
+TEST(InjectionScheduler, DThetaIsTheSameTurningBackwards) {
+  check_dtheta(true, -300.0);
+  check_dtheta(true, -900.0);
+  check_dtheta(true, -300.0, 101.0);
+  check_dtheta(true, -300.0, 99.0);
+  check_dtheta(false, -900.0);
 }
 
 TEST(InjectionScheduler, PublishesOneEstimatePerEventNearTheTruth) {
