@@ -202,10 +202,12 @@ ConfigSchema<C> build() {
   inj.real("injection.interval_s", [](C& c) -> double& { return c.drive.injection.interval_s; }, positive(1e6), "s",
            "Time between injection events.");
   inj.real("injection.retry_s", [](C& c) -> double& { return c.drive.injection.retry_s; }, positive(1e6), "s",
-           "Retry delay after an event that yielded nothing: one whose every pair was refused for its budget "
-           "(current, voltage, torque) is followed by the next this long after it, not a whole interval_s after its "
-           "start; an aborted one by the next no sooner than this (nor than its interval); one whose pairs were "
-           "rejected, at its interval. A request (a calibration's, an operator's) waits it after any of them.");
+           "Retry delay after an event that yielded nothing. One whose last level was refused for its budget "
+           "(current, voltage or torque: rejected_current_limit, rejected_voltage_headroom, skipped_torque_disturbance) "
+           "with no pair accepted is followed by the next this long after it, not a whole interval_s after its start; "
+           "one aborted during a pair, no sooner than this (nor than its interval), except after speed_lost, where it "
+           "starts again once the shaft rests (injection.record_time_s); any other, at its interval. A request (a "
+           "calibration's, an operator's) waits it after any of them.");
   inj.real("injection.retry_jitter", [](C& c) -> double& { return c.drive.injection.retry_jitter; }, between(0.0, 2.0), "",
            "From the second refused event in a row, the delay to the next is scaled by 1 + retry_jitter v, v uniform in [0, 1): no lock onto a duty whose period divides it.");
   inj.real("injection.first_event_s", [](C& c) -> double& { return c.drive.injection.first_event_s; }, at_least(0), "s",
@@ -1096,7 +1098,7 @@ std::vector<std::string> reference_default_warnings(const ControllerConfig& conf
         "controller.control.speed_bandwidth_rad_s = {:g} rad/s: the speed loop's gain (motor.inertia_kg_m2 = {:g} kg m^2 "
         "x the bandwidth) turns the {}-bit encoder's rounding, read through the PLL's speed "
         "(control.pll_bandwidth_rad_s = {:g} rad/s), into {:.3g} N m RMS of torque demand, {:.1f} % of the rated "
-        "{:.3g} N m; {:.0f} % at {:.3g} rad/s. The noise is in the current and the shaft's torque, and its peaks take "
+        "{:.3g} N m; it would be {:.0f} %, where this warning starts, at {:.3g} rad/s. The noise is in the current and the shaft's torque, and its peaks take "
         "current the load needs: a lower bandwidth, a lower PLL bandwidth (the noise goes with it; keep it several "
         "times the speed loop's) or a finer encoder (docs/daemon.md, \"The speed loop and the encoder\")",
         d.speed.bandwidth_rad_s, d.motor.inertia_kg_m2, d.angle.encoder_bits, d.angle.pll_bandwidth_rad_s, noise_Nm,

@@ -400,7 +400,8 @@ nominal_dc_bus_V = 650.0
   EXPECT_TRUE(any_names(w, "controller.control.speed_bandwidth_rad_s = 60 rad/s: the speed loop's gain "
                            "(motor.inertia_kg_m2 = 12.6 kg m^2 x the bandwidth) turns the 14-bit encoder's rounding, "
                            "read through the PLL's speed (control.pll_bandwidth_rad_s = 300 rad/s), into 52.1 N m RMS of "
-                           "torque demand, 52.5 % of the rated 99.3 N m; 5 % at 5.72 rad/s"))
+                           "torque demand, 52.5 % of the rated 99.3 N m; it would be 5 %, where this warning starts, at 5.72 "
+                           "rad/s"))
       << (w.empty() ? "" : w.front());
 
   // A finer encoder or a slower PLL allows more: 16 bits, four times the bandwidth; the PLL at

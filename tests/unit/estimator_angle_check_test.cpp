@@ -7,7 +7,6 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
-#include <cstdio>
 #include <numbers>
 #include <random>
 
@@ -270,10 +269,12 @@ TEST(AngleCheck, TheSpeedsNoiseIsAFloorUnderItsErrorBar) {
   const double scatter = std::sqrt(sum_sq / n);
   const double predicted = floor_sum / n;
   EXPECT_GT(scatter, 0.003) << "the speed loop's noise makes a scatter of milliradians";
-  EXPECT_GT(predicted, 0.5 * scatter) << "within a factor of two (here 1.5 times it, 0.95 times it on the press in closed loop)";
+  // Within a factor of two at this 60 rad/s speed loop (1.5 times it here, 0.83 times it on the
+  // press in closed loop); the floor does not follow the loop's bandwidth (angle_check.cpp).
+  EXPECT_GT(predicted, 0.5 * scatter);
   EXPECT_LT(predicted, 2.0 * scatter);
-  std::printf("scatter %.5f rad, predicted %.5f rad, %d of %d past three of their own error bars\n", scatter, predicted,
-              passed_own, n);
+  // And the levels' own error bar alone would have let some through (4 of 10 here).
+  EXPECT_GE(passed_own, 1);
   // On the rotor's own speed the floor is nothing to speak of.
   Rotor exact = r;
   exact.encoder_bits = 0;

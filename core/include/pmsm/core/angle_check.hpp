@@ -87,9 +87,9 @@ struct AngleCheckResult {
   double offset_rad = 0.0;      // add to the controller's electrical angle (kMeasured, kOutOfRange)
   double offset_std_rad = 0.0;  // from the two +L levels' disagreement (the noise, a drift; one degree of freedom)
   double model_std_rad = 0.0;   // what the commissioned saliency's uncertainty can move it by
-  // What the speed's noise leaves in the levels' J dw/dt (their least-squares slopes of a PLL
-  // speed with AngleCheckConfig::speed_noise_rad_s of white noise): a floor under offset_std_rad,
-  // whose one degree of freedom can read far below it.
+  // An empirical floor under offset_std_rad, whose one degree of freedom can read far below the
+  // check's scatter: the levels' J dw/dt slopes' uncertainty as if the PLL's speed carried
+  // AngleCheckConfig::speed_noise_rad_s of white noise (angle_check.cpp says what it misses).
   double speed_std_rad = 0.0;
   double d_iq_A = 0.0;          // the q current the levels moved (+L minus -L), diagnostics
   double d_id_A = 0.0;          // the d current they moved

@@ -15,21 +15,22 @@ struct SpeedControllerConfig {
   double max_torque_Nm = 100.0;
 };
 
-// The speed loop's answer to the encoder's resolution. An encoder of b bits reads the angle to a
-// count q = 2 pi / 2^b; turning, its rounding error is uniform over the count and nearly white
-// from one sample to the next: q / sqrt(12) RMS. The PLL (angle_tracker.hpp, kp = 2 wn,
-// ki = wn^2 on the sampled angle) passes it to its speed with the gain of its proportional path,
-// 2 wn, and a little more from the loop's own dynamics: the l2 norm of its discrete impulse
-// response is 2 wn (1 + wn T) to 0.3 % for wn T up to 0.1. The speed loop's proportional gain,
-// J x its bandwidth, turns that speed noise into torque demand: the RMS returned here. (The
-// integral's share is integral_ratio (wc T_speed) of it, and the current loop passes the rest to
-// the shaft.) A 12 kg m^2 centrifuge with a 14-bit encoder, the default 60 rad/s and the PLL's
-// 300 rad/s: 52 N m RMS on a 95 N m motor, and braking it tripped on overcurrent
-// (docs/daemon.md, "The speed loop and the encoder").
-// The PLL's speed noise from the encoder's rounding alone: 2 wn (1 + wn T) q / sqrt(12), RMS
-// rad/s (the same speed noise as speed_loop_quantisation_torque_Nm, before the loop's gain).
+// The PLL's speed noise from the encoder's rounding alone, RMS rad/s. An encoder of b bits reads
+// the angle to a count q = 2 pi / 2^b; turning, its rounding error is uniform over the count and
+// nearly white from one sample to the next: q / sqrt(12) RMS. The PLL (angle_tracker.hpp,
+// kp = 2 wn, ki = wn^2 on the sampled angle) passes it to its speed with the gain of its
+// proportional path, 2 wn, and a little more from the loop's own dynamics: the l2 norm of its
+// discrete impulse response is 2 wn (1 + wn T) to 0.3 % for wn T up to 0.1. (Sample to sample,
+// not independent: the speed is the step of the PLL's own angle, so its average over a span is
+// the span's angle error over its length, bounded.)
 [[nodiscard]] double pll_quantisation_speed_noise_rad_s(double pll_bandwidth_rad_s, double period_s, int encoder_bits);
 
+// The speed loop's answer to the encoder's resolution: its proportional gain, J x its bandwidth,
+// turns the speed noise above into torque demand, the RMS returned here. (The integral's share is
+// integral_ratio (wc T_speed) of it, and the current loop passes the rest to the shaft.) A
+// 12.6 kg m^2 centrifuge with a 14-bit encoder, the default 60 rad/s and the PLL's 300 rad/s:
+// 52 N m RMS on a 99 N m motor, and braking it tripped on overcurrent (docs/daemon.md, "The speed
+// loop and the encoder").
 [[nodiscard]] double speed_loop_quantisation_torque_Nm(double inertia_kg_m2, double bandwidth_rad_s,
                                                        double pll_bandwidth_rad_s, double period_s,
                                                        int encoder_bits);
