@@ -174,6 +174,11 @@ double AngleCheck::imbalance_Nm(double delta_rad, double weight_first) const {
   return weight_first * load[0] + (1.0 - weight_first) * load[2] - load[1];
 }
 
+double AngleCheck::imbalance_slope_Nm_per_rad(double delta_rad, double weight_first) const {
+  constexpr double kH = 1e-6;  // central difference: the balance is smooth in delta
+  return (imbalance_Nm(delta_rad + kH, weight_first) - imbalance_Nm(delta_rad - kH, weight_first)) / (2.0 * kH);
+}
+
 bool AngleCheck::solve(double weight_first, double* delta_rad) const {
   // Newton on the balance from the surface-magnet, settled answer (tan(delta) = d iq' / d id');
   // the balance is smooth and nearly linear in delta over the range that is corrected at all.
@@ -181,9 +186,8 @@ bool AngleCheck::solve(double weight_first, double* delta_rad) const {
   const double d_iq = weight_first * mean_iq_[0] + (1.0 - weight_first) * mean_iq_[2] - mean_iq_[1];
   double delta = std::atan(d_iq / d_id);
   for (int it = 0; it < 20 && std::isfinite(delta); ++it) {
-    constexpr double kH = 1e-6;
     const double f = imbalance_Nm(delta, weight_first);
-    const double slope = (imbalance_Nm(delta + kH, weight_first) - imbalance_Nm(delta - kH, weight_first)) / (2.0 * kH);
+    const double slope = imbalance_slope_Nm_per_rad(delta, weight_first);
     if (!(std::abs(slope) > 0.0)) {
       return false;
     }
@@ -258,9 +262,7 @@ void AngleCheck::solve_step() {
     const double load_std_Nm =
         motor_.inertia_kg_m2 * config_.speed_noise_rad_s *
         std::sqrt(0.25 / time_spread_s2_[0] + 1.0 / time_spread_s2_[1] + 0.25 / time_spread_s2_[2]);
-    constexpr double kH = 1e-6;
-    const double slope_Nm_per_rad =
-        (imbalance_Nm(solved_[0] + kH, 0.5) - imbalance_Nm(solved_[0] - kH, 0.5)) / (2.0 * kH);
+    const double slope_Nm_per_rad = imbalance_slope_Nm_per_rad(solved_[0], 0.5);
     if (std::abs(slope_Nm_per_rad) > 0.0) {
       result_.speed_std_rad = load_std_Nm / std::abs(slope_Nm_per_rad);
     }

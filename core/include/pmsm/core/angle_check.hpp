@@ -139,6 +139,7 @@ class AngleCheck {
   // The torque balance's residual at offset delta: the +L levels' torque (weight_first on the
   // first, the rest on the third) minus the -L level's, each less its J dw/dt (N m).
   [[nodiscard]] double imbalance_Nm(double delta_rad, double weight_first) const;
+  [[nodiscard]] double imbalance_slope_Nm_per_rad(double delta_rad, double weight_first) const;  // d imbalance / d delta
   // The delta that balances them; false when the solve does not converge to a finite value.
   [[nodiscard]] bool solve(double weight_first, double* delta_rad) const;
 
