@@ -420,11 +420,13 @@ void DriveController::finish_angle_check() {
 void DriveController::finish_inverter_sweep(double now_s) {
   const InverterSweepResult& r = sweep_.result();
   report(sweep_done_, r);
-  // Aborted by a stop or a lost sample, or by a speed still settling, during a calibration:
-  // started again once the drive has run a while (kSweepHoldoff_s).
-  sweep_restart_.ended(
-      (r.outcome == InverterSweepOutcome::kAborted || r.outcome == InverterSweepOutcome::kSpeedChanged) && calibrating_,
-      kSweepAttempts);
+  // Aborted by a stop or a lost sample, by a speed still settling, or unresolved (a load or a
+  // speed ramp's torque under its levels), during a calibration: started again once the drive
+  // has run a while (kSweepHoldoff_s).
+  sweep_restart_.ended((r.outcome == InverterSweepOutcome::kAborted || r.outcome == InverterSweepOutcome::kSpeedChanged ||
+                        r.outcome == InverterSweepOutcome::kUnresolved) &&
+                           calibrating_,
+                       kSweepAttempts);
   if (r.outcome == InverterSweepOutcome::kMeasured) {
     // The band replaces the configured one (compensation and the estimator's pattern alike).
     // The sweep's Vx is reported, not used as the calibration's prior: it reads up to 0.04 V

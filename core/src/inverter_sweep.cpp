@@ -24,6 +24,7 @@ const char* to_string(InverterSweepOutcome outcome) {
     case InverterSweepOutcome::kVoltageLimited: return "voltage_limited";
     case InverterSweepOutcome::kBandAtLimit: return "band_at_limit";
     case InverterSweepOutcome::kImplausible: return "implausible";
+    case InverterSweepOutcome::kUnresolved: return "unresolved";
   }
   return "unknown";
 }
@@ -322,6 +323,13 @@ void InverterSweep::conclude() {
     res.outcome = InverterSweepOutcome::kSpeedChanged;
   } else if (!(res.vx_V > 0.0) || !(res.rs_ohm > 0.0) || !std::isfinite(res.vx_std_V) || !std::isfinite(res.band_A)) {
     res.outcome = InverterSweepOutcome::kImplausible;
+  } else if (res.vx_std_V > kMaxVxStdFraction * res.vx_V) {
+    // The band is what the small levels' pattern shows, and only where their current vector
+    // passes near zero: with a q current many bands wide under them (a load, the torque of a
+    // speed ramp) every candidate fits about as well, the residual's curvature in the band is
+    // flat and Vx's error bar says so. So does a q current that moved between the levels (the
+    // even term c, -w Lq iq, is taken as one for all twelve).
+    res.outcome = InverterSweepOutcome::kUnresolved;
   } else if (best_grid_ == 0 || best_grid_ == kBands - 1) {
     res.outcome = InverterSweepOutcome::kBandAtLimit;
   } else {
