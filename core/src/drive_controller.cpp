@@ -420,9 +420,10 @@ void DriveController::finish_angle_check() {
 void DriveController::finish_inverter_sweep(double now_s) {
   const InverterSweepResult& r = sweep_.result();
   report(sweep_done_, r);
-  // Aborted by a stop or a lost sample, by a speed still settling, or unresolved (a load or a
-  // speed ramp's torque under its levels), during a calibration: started again once the drive
-  // has run a while (kSweepHoldoff_s).
+  // Aborted by a stop or a lost sample, by a speed still settling, or unresolved (a speed
+  // ramp's torque ending under its levels), during a calibration: started again once the drive
+  // has run a while (kSweepHoldoff_s). A load that stays under every start stays unresolved:
+  // the configured band holds, as after the last start of a speed that keeps changing.
   sweep_restart_.ended((r.outcome == InverterSweepOutcome::kAborted || r.outcome == InverterSweepOutcome::kSpeedChanged ||
                         r.outcome == InverterSweepOutcome::kUnresolved) &&
                            calibrating_,
@@ -1490,8 +1491,8 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   }
 
   if (sweep_restart_.pending) {
-    // The calibration's sweep, aborted by a stop, a lost sample or a settling speed, starts
-    // again once the drive has run kSweepHoldoff_s (kSweepAttempts); the calibration's events
+    // The calibration's sweep, aborted by a stop, a lost sample or a settling speed, or
+    // unresolved, starts again once the drive has run kSweepHoldoff_s (kSweepAttempts); the calibration's events
     // wait for it as before. A calibration that ended wants no sweep.
     if (!calibrating_) {
       sweep_restart_.pending = false;

@@ -321,15 +321,17 @@ void InverterSweep::conclude() {
   const double speed_allowed = config_.max_speed_change_rad_s + 0.05 * speed_max_;
   if (speed_max_ - speed_min_ > speed_allowed) {
     res.outcome = InverterSweepOutcome::kSpeedChanged;
-  } else if (!(res.vx_V > 0.0) || !(res.rs_ohm > 0.0) || !std::isfinite(res.vx_std_V) || !std::isfinite(res.band_A)) {
-    res.outcome = InverterSweepOutcome::kImplausible;
-  } else if (res.vx_std_V > kMaxVxStdFraction * res.vx_V) {
+  } else if (std::isfinite(res.vx_V) && std::isfinite(res.vx_std_V) && res.vx_std_V > kMaxVxStdFraction * std::abs(res.vx_V)) {
     // The band is what the small levels' pattern shows, and only where their current vector
-    // passes near zero: with a q current many bands wide under them (a load, the torque of a
-    // speed ramp) every candidate fits about as well, the residual's curvature in the band is
-    // flat and Vx's error bar says so. So does a q current that moved between the levels (the
-    // even term c, -w Lq iq, is taken as one for all twelve).
+    // passes near zero; and the even term c, -w Lq iq, is taken as one for all twelve levels. A
+    // q current that moved between them (a speed ramp's torque ending under the sweep) breaks
+    // both, and Vx's error bar says so; such a Vx may come out of either sign, so this comes
+    // before the sign test (and before band_at_limit: a band at the range's end is only
+    // reported as such when the fit resolved Vx).
     res.outcome = InverterSweepOutcome::kUnresolved;
+  } else if (!(res.vx_V > 0.0) || !(res.rs_ohm > 0.0) || !std::isfinite(res.vx_V) || !std::isfinite(res.vx_std_V) ||
+             !std::isfinite(res.band_A)) {
+    res.outcome = InverterSweepOutcome::kImplausible;
   } else if (best_grid_ == 0 || best_grid_ == kBands - 1) {
     res.outcome = InverterSweepOutcome::kBandAtLimit;
   } else {

@@ -189,6 +189,7 @@ class Axis {
   [[nodiscard]] const DriveLoop& loop() const { return *loop_; }
   [[nodiscard]] DriveLoop& loop() { return *loop_; }
   [[nodiscard]] const Publisher& publisher() const { return *publisher_; }
+  [[nodiscard]] Publisher& publisher() { return *publisher_; }
   [[nodiscard]] std::int64_t longest_command_wait_ns() const { return rt_bus_->longest_send_wait_ns(); }
   // The daemon's frames read as having arrived `ns` earlier than the bus delivered them.
   void shift_arrivals(std::int64_t ns) { rt_bus_->shift_timestamps(ns); }
@@ -503,6 +504,39 @@ TEST(DaemonLoop, ImplausibleMagnetReadingsAreRefusedAndLoggedWithTheirReason) {
   ASSERT_FALSE(refused.empty()) << "no refusal in the daemon's log";
   EXPECT_NE(refused.front().find("outside -60...300 C"), std::string::npos) << refused.front();
   EXPECT_NE(refused.front().find("calibration.ke0_V_s_per_rad"), std::string::npos) << refused.front();
+}
+
+// A calibration's bridge sweep that resolved no bridge (its Vx error bar above 10 % of Vx:
+// docs/estimator.md section 4.1) is logged with what its fit read, the reason itself, and whether it
+// starts again; a voided sweep without a fit says only why.
+TEST(DaemonLoop, AnUnresolvedBridgeSweepIsLoggedWithItsFit) {
+  LogCapture log;
+  Bench bench;
+  Axis axis(bench.bus, 1, 1.0);
+  PublicationRecord r;
+  core::InverterSweepResult w;
+  w.outcome = core::InverterSweepOutcome::kUnresolved;
+  w.vx_V = 0.7156;
+  w.vx_std_V = 1.2571;
+  w.band_A = 53.366;
+  r.inverter_sweep = w;
+  r.inverter_sweep_pending = true;
+  axis.publisher().handle(r);
+  const std::vector<std::string> again = log.lines_with("bridge sweep unresolved");
+  ASSERT_EQ(again.size(), 1U);
+  EXPECT_NE(again.front().find("(its fit: Vx 0.716 +- 1.257 V, band 53.366 A): it starts again"), std::string::npos)
+      << again.front();
+  r.inverter_sweep_pending = false;
+  axis.publisher().handle(r);
+  const std::vector<std::string> last = log.lines_with("the bridge's band is not measured");
+  ASSERT_EQ(last.size(), 1U);
+  EXPECT_NE(last.front().find("unresolved (its fit: Vx 0.716"), std::string::npos) << last.front();
+  w.outcome = core::InverterSweepOutcome::kAborted;
+  r.inverter_sweep = w;
+  axis.publisher().handle(r);
+  const std::vector<std::string> aborted = log.lines_with("bridge sweep aborted");
+  ASSERT_EQ(aborted.size(), 1U);
+  EXPECT_EQ(aborted.front().find("its fit"), std::string::npos) << aborted.front();
 }
 
 TEST(DaemonLoop, PlantOutageSafeStateThenRecovery) {

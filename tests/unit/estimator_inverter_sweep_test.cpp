@@ -200,6 +200,8 @@ TEST(InverterSweep, AQCurrentThatEndsUnderTheLevelsLeavesItUnresolved) {
         EXPECT_EQ(ramp.result.outcome, InverterSweepOutcome::kUnresolved)
             << iq_A << " A to level " << level << ": " << to_string(ramp.result.outcome) << ", band "
             << ramp.result.band_A << " A, Vx " << ramp.result.vx_V << " +- " << ramp.result.vx_std_V << " V";
+        EXPECT_GT(ramp.result.vx_std_V, 4.0 * InverterSweep::kMaxVxStdFraction * std::abs(ramp.result.vx_V))
+            << "near the threshold";
       }
     }
   }

@@ -481,8 +481,8 @@ class DriveController {
   [[nodiscard]] double angle_correction_rad() const { return angle_.offset_correction_rad(); }
   // Set for the one period in which the calibration's bridge sweep ended, whatever its outcome.
   [[nodiscard]] const std::optional<InverterSweepResult>& inverter_sweep_completed() const { return sweep_done_; }
-  // A sweep the drive's stop, a lost sample or a speed still settling aborted is started
-  // again once the drive has run kSweepHoldoff_s without a stop, as the calibration itself
+  // A sweep the drive's stop, a lost sample or a speed still settling aborted, or whose fit
+  // resolved no bridge (InverterSweepOutcome::kUnresolved), is started again once the drive has run kSweepHoldoff_s without a stop, as the calibration itself
   // resumes: a calibration asked for before the drive was enabled (and so before it reached
   // its speed), or a passing sensor timeout, must not cost it the bridge's measurement. At
   // most kSweepAttempts starts per calibration (a drive that keeps stopping or changing speed

@@ -52,7 +52,7 @@ enum class InverterSweepOutcome : std::uint8_t {
   kBandAtLimit,       // the best band is at the end of the candidate range: not resolved
   kImplausible,       // Vx <= 0, Rs <= 0, or a singular fit
   kUnresolved,        // the fit's own Vx error bar is not small against Vx: the levels did not
-                      // resolve the bridge (a load or a speed ramp under them), not used
+                      // resolve the bridge (a q current that moved under them), not used
 };
 
 [[nodiscard]] const char* to_string(InverterSweepOutcome outcome);
@@ -73,10 +73,13 @@ class InverterSweep {
   static constexpr int kBands = 32;         // candidate bands, log-spaced
   static constexpr double kBandMinFraction = 0.005;  // of max_current_A
   static constexpr double kBandMaxFraction = 0.5;
-  // A fit whose Vx standard error exceeds this share of its Vx resolved no bridge. Measured: a
-  // sweep at a steady no-load point reads 0.3-2 % (the reference 0.3 %, a 6 mOhm traction motor
-  // 1.4-2.1 %); the same motor's sweeps that ran into its speed ramp's end, 130 A of q current
-  // under the small levels, read 70-430 % with bands of 53-61 A against 4.7 A.
+  // A fit whose Vx standard error exceeds this share of |Vx| resolved no bridge (it comes
+  // before the sign test: such a fit's Vx may have either sign). Measured: the suite's 119 sweeps
+  // that measured read 0.07-4.6 % (median 0.35 %; the reference 0.3 %); a 6 mOhm traction
+  // motor's sweeps that ran into its speed ramp's end, 130 A of q current under the small levels
+  // and 10 A under the large ones, read 73-430 % with bands of 1.7-53 A against 4.7 A. A steady
+  // q current many bands wide is not always caught: 30-35 A under that motor's levels read 13
+  // and 23 A within 3-4 % (docs/accuracy.md, "A sweep that resolved nothing").
   static constexpr double kMaxVxStdFraction = 0.1;
 
   InverterSweep() = default;
