@@ -1098,8 +1098,8 @@ std::vector<std::string> reference_default_warnings(const ControllerConfig& conf
         "controller.control.speed_bandwidth_rad_s = {:g} rad/s: the speed loop's gain (motor.inertia_kg_m2 = {:g} kg m^2 "
         "x the bandwidth) turns the {}-bit encoder's rounding, read through the PLL's speed "
         "(control.pll_bandwidth_rad_s = {:g} rad/s), into {:.3g} N m RMS of torque demand, {:.1f} % of the rated "
-        "{:.3g} N m; it would be {:.0f} %, where this warning starts, at {:.3g} rad/s. The noise is in the current and the shaft's torque, and its peaks take "
-        "current the load needs: a lower bandwidth, a lower PLL bandwidth (the noise goes with it; keep it several "
+        "{:.3g} N m; it would be {:.0f} %, where this warning starts, at {:.3g} rad/s. The noise is in the current "
+        "and the shaft's torque, and its peaks take current the load needs: a lower bandwidth, a lower PLL bandwidth (the noise goes with it; keep it several "
         "times the speed loop's) or a finer encoder (docs/daemon.md, \"The speed loop and the encoder\")",
         d.speed.bandwidth_rad_s, d.motor.inertia_kg_m2, d.angle.encoder_bits, d.angle.pll_bandwidth_rad_s, noise_Nm,
         100.0 * noise_Nm / rated_Nm, rated_Nm, 100.0 * kSpeedLoopQuantisationTorqueShare, quiet_rad_s));

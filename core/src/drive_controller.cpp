@@ -1492,8 +1492,8 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
 
   if (sweep_restart_.pending) {
     // The calibration's sweep, aborted by a stop, a lost sample or a settling speed, or
-    // unresolved, starts again once the drive has run kSweepHoldoff_s (kSweepAttempts); the calibration's events
-    // wait for it as before. A calibration that ended wants no sweep.
+    // unresolved, starts again once the drive has run kSweepHoldoff_s (kSweepAttempts); the
+    // calibration's events wait for it as before. A calibration that ended wants no sweep.
     if (!calibrating_) {
       sweep_restart_.pending = false;
     } else if (sweep_restart_.due(enabled, config_.period_s, kSweepHoldoff_s)) {

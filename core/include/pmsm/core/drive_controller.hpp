@@ -482,11 +482,12 @@ class DriveController {
   // Set for the one period in which the calibration's bridge sweep ended, whatever its outcome.
   [[nodiscard]] const std::optional<InverterSweepResult>& inverter_sweep_completed() const { return sweep_done_; }
   // A sweep the drive's stop, a lost sample or a speed still settling aborted, or whose fit
-  // resolved no bridge (InverterSweepOutcome::kUnresolved), is started again once the drive has run kSweepHoldoff_s without a stop, as the calibration itself
-  // resumes: a calibration asked for before the drive was enabled (and so before it reached
-  // its speed), or a passing sensor timeout, must not cost it the bridge's measurement. At
-  // most kSweepAttempts starts per calibration (a drive that keeps stopping or changing speed
-  // goes on without it, as before). True while such a start is due.
+  // resolved no bridge (InverterSweepOutcome::kUnresolved), is started again once the drive has
+  // run kSweepHoldoff_s without a stop, as the calibration itself resumes: a calibration asked
+  // for before the drive was enabled (and so before it reached its speed), or a passing sensor
+  // timeout, must not cost it the bridge's measurement. At most kSweepAttempts starts per
+  // calibration (a drive that keeps stopping or changing speed goes on without it, as before).
+  // True while such a start is due.
   static constexpr int kSweepAttempts = 5;
   static constexpr double kSweepHoldoff_s = 0.25;
   [[nodiscard]] bool inverter_sweep_pending() const { return sweep_restart_.pending; }
