@@ -353,13 +353,10 @@ void Publisher::handle(const PublicationRecord& r) {
       spdlog::info("calibration: bridge sweep measured Vx {:.3f} +- {:.3f} V, band {:.3f} A", w.vx_V, w.vx_std_V,
                    w.band_A);
     } else {
-      // What a fit that was not used read, for the reasons that had one (an unresolved fit's Vx
-      // error bar is the reason itself).
-      const bool fitted = w.outcome == core::InverterSweepOutcome::kUnresolved ||
-                          w.outcome == core::InverterSweepOutcome::kBandAtLimit ||
-                          w.outcome == core::InverterSweepOutcome::kSpeedChanged;
+      // What a fit that was not used read, where the levels were fitted (an unresolved fit's Vx
+      // error bar is the reason itself; an implausible one's sign).
       const std::string fit =
-          fitted ? fmt::format(" (its fit: Vx {:.3f} +- {:.3f} V, band {:.3f} A)", w.vx_V, w.vx_std_V, w.band_A) : "";
+          w.fitted ? fmt::format(" (its fit: Vx {:.3f} +- {:.3f} V, band {:.3f} A)", w.vx_V, w.vx_std_V, w.band_A) : "";
       if (r.inverter_sweep_pending) {
         spdlog::warn("calibration: bridge sweep {}{}: it starts again once the drive has run {:.2f} s without a stop",
                      core::to_string(w.outcome), fit, core::DriveController::kSweepHoldoff_s);

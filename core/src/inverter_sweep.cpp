@@ -305,6 +305,7 @@ void InverterSweep::conclude() {
     result_ = res;
     return;
   }
+  res.fitted = true;
   res.vx_V = best.vx_V;
   res.rs_ohm = best.rs_ohm;
   res.offset_V = best.offset_V;

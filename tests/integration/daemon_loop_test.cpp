@@ -516,6 +516,7 @@ TEST(DaemonLoop, AnUnresolvedBridgeSweepIsLoggedWithItsFit) {
   PublicationRecord r;
   core::InverterSweepResult w;
   w.outcome = core::InverterSweepOutcome::kUnresolved;
+  w.fitted = true;
   w.vx_V = 0.7156;
   w.vx_std_V = 1.2571;
   w.band_A = 53.366;
@@ -531,6 +532,7 @@ TEST(DaemonLoop, AnUnresolvedBridgeSweepIsLoggedWithItsFit) {
   const std::vector<std::string> last = log.lines_with("the bridge's band is not measured");
   ASSERT_EQ(last.size(), 1U);
   EXPECT_NE(last.front().find("unresolved (its fit: Vx 0.716"), std::string::npos) << last.front();
+  w = core::InverterSweepResult{};
   w.outcome = core::InverterSweepOutcome::kAborted;
   r.inverter_sweep = w;
   axis.publisher().handle(r);

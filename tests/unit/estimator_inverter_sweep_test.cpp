@@ -158,6 +158,7 @@ TEST(InverterSweep, ABandBelowTheCandidatesIsReportedNotMeasured) {
   b.band_A = 0.02;  // below 0.005 x 25 A, the smallest candidate
   const SweepRun run = run_sweep(b, table_one_sweep());
   EXPECT_EQ(run.result.outcome, InverterSweepOutcome::kBandAtLimit);
+  EXPECT_TRUE(run.result.fitted);  // what it read is reported, not used
 }
 
 TEST(InverterSweep, ASpeedChangeVoidsTheSweep) {
@@ -166,6 +167,7 @@ TEST(InverterSweep, ASpeedChangeVoidsTheSweep) {
   b.speed_step_at_level = 6;  // a load change halfway through
   const SweepRun run = run_sweep(b, table_one_sweep());
   EXPECT_EQ(run.result.outcome, InverterSweepOutcome::kSpeedChanged);
+  EXPECT_TRUE(run.result.fitted);
 }
 
 // The round-3 traction motor (6 mOhm, 48 V, band 4.7 A, Vx 0.56 V) calibrating at 60 rad/s
@@ -186,6 +188,7 @@ TEST(InverterSweep, AQCurrentThatEndsUnderTheLevelsLeavesItUnresolved) {
   cfg.max_current_A = 62.5;
   const SweepRun steady = run_sweep(b, cfg);
   ASSERT_EQ(steady.result.outcome, InverterSweepOutcome::kMeasured) << to_string(steady.result.outcome);
+  EXPECT_TRUE(steady.result.fitted);
   EXPECT_NEAR(steady.result.band_A, b.band_A, 0.05 * b.band_A);
   EXPECT_LT(steady.result.vx_std_V, 0.02 * b.vx_V);
 
@@ -200,6 +203,7 @@ TEST(InverterSweep, AQCurrentThatEndsUnderTheLevelsLeavesItUnresolved) {
         EXPECT_EQ(ramp.result.outcome, InverterSweepOutcome::kUnresolved)
             << iq_A << " A to level " << level << ": " << to_string(ramp.result.outcome) << ", band "
             << ramp.result.band_A << " A, Vx " << ramp.result.vx_V << " +- " << ramp.result.vx_std_V << " V";
+        EXPECT_TRUE(ramp.result.fitted);
         EXPECT_GT(ramp.result.vx_std_V, 4.0 * InverterSweep::kMaxVxStdFraction * std::abs(ramp.result.vx_V))
             << "near the threshold";
       }
@@ -210,6 +214,7 @@ TEST(InverterSweep, AQCurrentThatEndsUnderTheLevelsLeavesItUnresolved) {
 TEST(InverterSweep, DisablingTheDriveAbortsIt) {
   const SweepRun run = run_sweep(Bridge{}, table_one_sweep(), true);
   EXPECT_EQ(run.result.outcome, InverterSweepOutcome::kAborted);
+  EXPECT_FALSE(run.result.fitted);  // no figures to report
   EXPECT_EQ(run.periods, 3001);  // it ends in the period the drive was disabled
 }
 
@@ -236,6 +241,7 @@ TEST(InverterSweep, ANonFiniteInputOrALimitedCommandVoidsIt) {
   ASSERT_FALSE(done);
   EXPECT_TRUE(sweep.step(true, i, r, 1.0, 0.75, 0.0, true));
   EXPECT_EQ(sweep.result().outcome, InverterSweepOutcome::kVoltageLimited);
+  EXPECT_FALSE(sweep.result().fitted);
 }
 
 TEST(InverterSweep, ASecondStartBeginsAfresh) {

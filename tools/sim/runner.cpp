@@ -1182,7 +1182,7 @@ std::string result_json(const SimulationResult& r) {
   j.end_object();
   if (r.inverter_sweep.outcome != core::InverterSweepOutcome::kNone) {
     const core::InverterSweepResult& w = r.inverter_sweep;
-    const bool fitted = w.outcome != core::InverterSweepOutcome::kAborted;
+    const bool fitted = w.fitted;
     j.key("inverter_sweep")
         .begin_object()
         .field("time_s", r.inverter_sweep_time_s)
@@ -1315,9 +1315,13 @@ std::string result_text(const SimulationResult& r) {
   }
   if (r.inverter_sweep.outcome != core::InverterSweepOutcome::kNone) {
     const core::InverterSweepResult& w = r.inverter_sweep;
-    out += fmt::format("  inverter sweep at {:.2f} s        {}: Vx {:.4f} +- {:.4f} V, band {:.3f} A, Rs {:.5f} ohm, residual {:.4f} V\n",
-                       r.inverter_sweep_time_s, core::to_string(w.outcome), w.vx_V, w.vx_std_V, w.band_A, w.rs_ohm,
-                       w.residual_rms_V);
+    if (w.fitted) {
+      out += fmt::format("  inverter sweep at {:.2f} s        {}: Vx {:.4f} +- {:.4f} V, band {:.3f} A, Rs {:.5f} ohm, residual {:.4f} V\n",
+                         r.inverter_sweep_time_s, core::to_string(w.outcome), w.vx_V, w.vx_std_V, w.band_A, w.rs_ohm,
+                         w.residual_rms_V);
+    } else {
+      out += fmt::format("  inverter sweep at {:.2f} s        {}: no fit\n", r.inverter_sweep_time_s, core::to_string(w.outcome));
+    }
   }
   if (r.calibrated) {
     out += fmt::format("  calibration at {:.2f} s           Rs0 {:.5f} +- {:.5f} ohm at {:.1f} C, Ke0 {:.4f} V s/rad\n",

@@ -65,6 +65,11 @@ struct InverterSweepResult {
   double rs_ohm = 0.0;              // the fit's resistance (diagnostic; Rs0 is the calibration's)
   double offset_V = 0.0;            // c
   double residual_rms_V = 0.0;      // of the level means about the best fit
+  // The levels were fitted and the figures above are that fit's, whatever the outcome made of
+  // it (measured, speed_changed, unresolved, band_at_limit, and implausible after a fit: Vx or
+  // Rs <= 0). False where no fit was made (aborted, voltage_limited, a singular fit): the
+  // figures are then zero and mean nothing.
+  bool fitted = false;
 };
 
 class InverterSweep {
