@@ -91,6 +91,12 @@ ConfigSchema<C> build() {
   s.integer("sensors.current_adc_bits", [](C& c) -> int& { return c.sensors.current_adc_bits; }, between(8, 16), "Phase-current ADC resolution.");
   s.real("sensors.current_range_A", [](C& c) -> double& { return c.sensors.current_range_A; }, positive(10000), "A",
          "Phase-current ADC full scale (+-).");
+  s.real("sensors.current_gain_std_fraction", [](C& c) -> double& { return c.drive.injection.current_gain_std_fraction; },
+         between(0.0, 0.2), "",
+         "The phase-current sensors' gain error, one standard deviation per phase (0.01: a shunt and amplifier chain "
+         "without a per-unit gain trim). A turning rotor averages their mismatch out of the injection pairs; at rest it "
+         "does not, and an estimate made there carries sigma / sqrt(6) of Rs more in its error bar (docs/estimator.md "
+         "section 5.7). 0: the sensors are matched.");
   s.integer("sensors.dc_bus_adc_bits", [](C& c) -> int& { return c.sensors.dc_bus_adc_bits; }, between(8, 16), "DC-bus ADC resolution.");
   s.real("sensors.dc_bus_full_scale_V", [](C& c) -> double& { return c.sensors.dc_bus_full_scale_V; }, positive(10000), "V",
          "DC-bus ADC full scale.");

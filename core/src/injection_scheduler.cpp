@@ -1158,6 +1158,19 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
     var_rs += lq_var;
     e.rs_systematic_std_ohm = std::sqrt(e.rs_systematic_std_ohm * e.rs_systematic_std_ohm + lq_var);
   }
+  if (event_q_pairs_ == 0) {
+    // Every pair time-based (the rotor at rest, or creeping through less than a turn per
+    // recording): the current sensors' gain mismatch is not averaged over a turn. Measured
+    // through the Park transform at the rest angle, a d current reads (1 + g_mean + (1/3)
+    // sum_k g_k cos(2 theta_k)) of itself, theta_k the angle from phase k's axis; g_mean cancels
+    // against the calibration (Eq. 1's ratio), the rest is this angle's, with the variance
+    // sigma^2 / 6 for independent phase errors of sigma whatever the angle. A treadmill's shunts
+    // (+3, -2.5, +1.5 %) read -2.1 to +0.3 % of Rs at five stop angles, where its turning pairs
+    // read the same to 0.1 % and the same run without the gain errors +-0.1 % at all five
+    // (docs/estimator.md section 5.7). Shared by every event at this stop: below.
+    const double gain_ohm = rs * config_.current_gain_std_fraction / std::sqrt(6.0);
+    var_rs += gain_ohm * gain_ohm;
+  }
   if (!plausible(rs, 0.0) || !(var_rs >= 0.0)) {
     e.outcome = EventOutcome::kImplausible;
     e.rs_ohm = rs;
@@ -1256,6 +1269,7 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
     // against a band fused down to a third of one estimate's, its coverage 97 -> 59 % over each
     // stop). The whole error bar is shared: the band keeps one estimate's width while the rotor
     // rests (the gain is unchanged), and running events' smaller shares take over once it turns.
+    // (The current sensors' gains at this angle, added above, are such an error too.)
     e.rs_systematic_std_ohm = e.rs_std_ohm;
   }
   // An event can date its Rs after its own end: a pair's time weighs its recordings by their d

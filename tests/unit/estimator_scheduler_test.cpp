@@ -795,6 +795,45 @@ TEST(InjectionScheduler, StandstillRecordsOverTime) {
   EXPECT_LT(turning.estimates[0].rs_systematic_std_ohm, turning.estimates[0].rs_std_ohm);
 }
 
+// At rest the current sensors' gain mismatch is not averaged over a turn: a time-based event's
+// error bar carries sigma / sqrt(6) of Rs for independent per-phase gain errors of sigma (the
+// variance of (1/3) sum_k g_k cos(2 theta_k) over the phases' errors, at any angle); a turning
+// event's whole-turn pairs average it out and do not.
+TEST(InjectionScheduler, AtRestTheCurrentSensorsGainMismatchWidensTheErrorBar) {
+  const auto standstill = [](double gain_std) {
+    InjectionConfig c = test_config();
+    c.current_gain_std_fraction = gain_std;
+    Harness h(c, 0.0);
+    h.plant.kd6 = 0.0;
+    h.plant.kq6 = 0.0;
+    h.run_until(0.5);
+    return h.estimates;
+  };
+  const std::vector<EventEstimate> matched = standstill(0.0);
+  const std::vector<EventEstimate> mismatched = standstill(0.03);
+  ASSERT_EQ(matched.size(), 1U);
+  ASSERT_EQ(mismatched.size(), 1U);
+  EXPECT_EQ(mismatched[0].rs_ohm, matched[0].rs_ohm);  // the same measurement
+  const double gain_ohm = matched[0].rs_ohm * 0.03 / std::sqrt(6.0);
+  EXPECT_NEAR(mismatched[0].rs_std_ohm * mismatched[0].rs_std_ohm,
+              matched[0].rs_std_ohm * matched[0].rs_std_ohm + gain_ohm * gain_ohm, 1e-6 * gain_ohm * gain_ohm);
+  EXPECT_EQ(mismatched[0].rs_systematic_std_ohm, mismatched[0].rs_std_ohm);  // one angle: shared by the stop
+
+  const auto turning = [](double gain_std) {
+    InjectionConfig c = test_config();
+    c.current_gain_std_fraction = gain_std;
+    Harness h(c, 300.0);
+    h.motoring_A = {0.0, 10.0};
+    h.run_until(0.5);
+    return h.estimates;
+  };
+  const std::vector<EventEstimate> turning_matched = turning(0.0);
+  const std::vector<EventEstimate> turning_mismatched = turning(0.03);
+  ASSERT_GE(turning_matched.size(), 1U);
+  ASSERT_EQ(turning_mismatched.size(), turning_matched.size());
+  EXPECT_EQ(turning_mismatched[0].rs_std_ohm, turning_matched[0].rs_std_ohm);
+}
+
 // The controller leaves a period's sample unbuilt when records() is false: the scheduler must
 // then behave exactly as if it had been given, for every method, separation and phase.
 TEST(InjectionScheduler, ReadsASampleOnlyWhenItSaysItRecords) {

@@ -176,6 +176,12 @@ struct InjectionConfig {
   double vx_initial_V = 0.0;      // prior before the first event
   double vx_initial_std_V = 3.0;
   double vx_drift_std_V = 0.005;  // how far Vx may wander between events
+  // The phase-current sensors' gain errors, one standard deviation per phase as a fraction. A
+  // turning rotor averages their mismatch out of every whole-turn pair (their mean gain cancels
+  // in Rs / Rs0); a rotor at rest does not, and a time-based event's Rs carries
+  // (1/3) sum_k g_k cos(2 theta_k) of the stop's angle: sigma / sqrt(6) of Rs (docs/estimator.md
+  // section 5.7).
+  double current_gain_std_fraction = 0.01;
   // Vx is the bridge's error at the reference bus; each period's voltage is referred to it by
   // the dead time the compensation assumes (DriveController, vx_reference_bus_V). What that
   // dead time misses, a slope in V of Vx per V of bus, is a second learned state with this
