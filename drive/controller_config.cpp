@@ -2,6 +2,7 @@
 
 #include "calibration_file.hpp"
 #include "config_schema.hpp"
+#include "pmsm/core/injection.hpp"
 #include "pmsm/core/machine_equations.hpp"
 #include "pmsm/core/speed_controller.hpp"
 #include "pmsm/core/thermal_observer.hpp"
@@ -223,7 +224,12 @@ ConfigSchema<C> build() {
              [](const C& c) { return static_cast<int>(c.drive.injection.window); },
              [](C& c, int v) { c.drive.injection.window = static_cast<WindowKind>(v); },
              "Window of the pulse edges: blackman (Eq. 23) or modified (Eq. 24).");
-  inj.real("injection.Tw_s", [](C& c) -> double& { return c.drive.injection.tw_s; }, positive(1.0), "s", "Window period of each edge.");
+  inj.optional_real("injection.Tw_s", [](C& c) -> std::optional<double>& { return c.relative.tw_s; }, positive(1.0), "s",
+                    "4 ms, or k Ld F / (Vdc / sqrt(3) / 2) where longer",
+                    "Window period of each edge. The default is the paper's 4 ms, lengthened where an edge of the larger of "
+                    "injection.F_A and calibration.F_A through motor.ld_H would take more than half the phase voltage limit "
+                    "control.nominal_dc_bus_V / sqrt(3) (Eq. 29's inductive term k Ld F / Tw, k = 2.04 for the modified "
+                    "Blackman window, 1.81 for Blackman; docs/estimator.md section 2, \"The window's period\").");
   inj.real("injection.settle_s", [](C& c) -> double& { return c.drive.injection.settle_s; }, at_least(0, 1.0), "s",
            "Wait after an edge before recording.");
   inj.real("injection.record_arc_rad", [](C& c) -> double& { return c.drive.injection.record_arc_rad; }, positive(1000), "rad",
@@ -575,6 +581,10 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
       0.25 * std::min(core::torque_constant_dq_Nm_per_A(m) * d.derating.max_current_A, d.speed.max_torque_Nm) /
       m.inertia_kg_m2);
   c.calibration_f_A = c.relative.calibration_f_A.value_or(relative.calibration_f_A);
+  // The window's period: an edge's inductive voltage k Ld F / Tw goes with the inductance and the
+  // current, and at 4 ms a 0.1 H motor's edge asked more than its bus (docs/estimator.md §2).
+  d.injection.tw_s = c.relative.tw_s.value_or(core::default_window_period_s(
+      std::max(c.calibration_f_A, d.injection.f_A), m.ld_H, c.nominal_dc_bus_V / std::sqrt(3.0), d.injection.window));
   // What the margin keeps free (the dead-time compensation's dead_time f_pwm Vdc, the bus's
   // ripple and sag, the modulator's and the current loop's reserve) scales with the bus: the
   // Table I drive's 15 V at 650 V, as a share. An absolute 15 V was 58 % of a 48 V drive's

@@ -44,6 +44,7 @@ struct MotorRelativeKeys {
   std::optional<double> rs_max_ohm;
   std::optional<double> max_load_change_A;
   std::optional<double> calibration_f_A;
+  std::optional<double> tw_s;
   std::optional<double> max_speed_change_rad_s;
   std::optional<double> speed_limit_rad_s;
   std::optional<double> speed_ramp_rad_s2;

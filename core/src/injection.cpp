@@ -97,6 +97,12 @@ double max_injection_current_A(double headroom_V, double ld_H, double rs_ohm, do
   return headroom_V / required_injection_voltage_V(1.0, ld_H, rs_ohm, tw_s, kind);
 }
 
+double default_window_period_s(double f_A, double ld_H, double phase_voltage_limit_V, WindowKind kind) {
+  constexpr double kEdgeShareOfLimit = 0.5;
+  const double tw_s = window_slope_constant(kind) * ld_H * f_A / (kEdgeShareOfLimit * phase_voltage_limit_V);
+  return std::isfinite(tw_s) ? std::max(kPaperWindowPeriod_s, tw_s) : kPaperWindowPeriod_s;
+}
+
 Dq motoring_voltage(const InjectionHeadroomInput& in) {
   return {in.rs_ohm * in.id_A - in.omega_e_rad_s * in.lq_H * in.iq_A + in.motoring_voltage_error_V.d,
           in.rs_ohm * in.iq_A + in.omega_e_rad_s * (in.ld_H * in.id_A + in.flux_linkage_Wb) +

@@ -12,7 +12,9 @@
 
 #include "config_schema.hpp"
 #include "controller_config.hpp"
+#include "pmsm/core/injection.hpp"
 #include "pmsm/core/speed_controller.hpp"
+#include "pmsm/core/window.hpp"
 
 namespace pmsm::app {
 namespace {
@@ -309,12 +311,50 @@ TEST(ControllerConfig, MotorRelativeDefaultsAreTableIAtTableI) {
   EXPECT_EQ(d.injection.headroom_margin_V, 15.0);  // at the Table I drive's 650 V bus
   EXPECT_EQ(d.thermal.initial_loss_error_std_W, 50.0);  // at the Table I model's 0.125 K/W to ambient
   EXPECT_EQ(d.thermal.loss_error_process_std_W_per_sqrt_s, 0.5);
+  EXPECT_EQ(d.injection.tw_s, 0.004);  // the paper's: the calibration's edge asks 37 % of the limit
+  EXPECT_EQ(d.calibration_injection.tw_s, 0.004);
   // Given keys win over the rule.
   const ControllerConfig g = parse("[injection]\nF_A = 20\nrs_max_ohm = 0.3\n[calibration]\nF_A = 30\n");
   EXPECT_EQ(g.drive.injection.f_A, 20.0);
   EXPECT_EQ(g.drive.injection.rs_max_ohm, 0.3);
   EXPECT_EQ(g.calibration_f_A, 30.0);
   EXPECT_EQ(g.drive.calibration_injection.f_A, 30.0);
+}
+
+// The window's period follows the edge's inductive voltage, k Ld F / Tw (Eq. 29): where the
+// paper's 4 ms would take more than half the phase voltage limit it is lengthened to take half.
+// A 0.1 H ball-mill motor (9.2 A peak rated, its calibration at 14.4 A, 560 V) gets about 20 ms,
+// where 4 ms asked an edge of 1,100 V; a motor a third more inductive than Table I keeps 4 ms.
+TEST(ControllerConfig, TheWindowsPeriodFollowsTheEdgesVoltage) {
+  const std::string mill = R"(
+[motor]
+rs_ohm = 2.563
+ld_H = 0.108
+lq_H = 0.1
+ke_V_s_per_rad = 4.0
+pole_pairs = 12
+continuous_current_A_rms = 6.5
+rated_speed_rad_s = 6.0
+inertia_kg_m2 = 60.0
+[control]
+nominal_dc_bus_V = 560.0
+[derating]
+max_current_A = 20.0
+min_current_A = 2.0
+[calibration]
+F_A = 14.4
+)";
+  const ControllerConfig c = parse(mill);
+  const double k = core::window_constants(c.drive.injection.window).max_slope_times_tw;  // 2.04
+  const double half_limit_V = 0.5 * 560.0 / std::sqrt(3.0);
+  EXPECT_NEAR(c.drive.injection.tw_s, k * 0.108 * 14.4 / half_limit_V, 1e-12);  // 19.6 ms
+  EXPECT_EQ(c.drive.calibration_injection.tw_s, c.drive.injection.tw_s);
+  EXPECT_NEAR(core::required_injection_voltage_V(14.4, 0.108, 0.0, c.drive.injection.tw_s, c.drive.injection.window),
+              half_limit_V, 1e-9);
+  // A stated period wins.
+  EXPECT_EQ(parse(mill + "[injection]\nTw_s = 0.01\n").drive.injection.tw_s, 0.01);
+  // Table I's motor with a third more inductance: 3.98 ms by the rule, the paper's 4 ms kept.
+  EXPECT_EQ(parse("[motor]\nld_H = 7.3e-3\nlq_H = 7.3e-3\n").drive.injection.tw_s, 0.004);
 }
 
 // A small servo (1.6 ohm, 4 A RMS continuous) gets a window around its own resistance and
