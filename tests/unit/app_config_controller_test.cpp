@@ -323,8 +323,10 @@ TEST(ControllerConfig, MotorRelativeDefaultsAreTableIAtTableI) {
 
 // The window's period follows the edge's inductive voltage, k Ld F / Tw (Eq. 29): where the
 // paper's 4 ms would take more than half the phase voltage limit it is lengthened to take half.
-// A 0.1 H ball-mill motor (9.2 A peak rated, its calibration at 14.4 A, 560 V) gets about 20 ms,
-// where 4 ms asked an edge of 1,100 V; a motor a third more inductive than Table I keeps 4 ms.
+// A 0.1 H ball-mill motor (9.2 A peak rated, 560 V) gets 13.9 ms at its default calibration F of
+// 10.2 A, where 4 ms asked an edge of 561 V, and 19.6 ms with a calibration at 14.4 A; the
+// larger injection F decides where it is the larger. A motor a third more inductive than Table I
+// keeps 4 ms, and no default exceeds the key's 1 s.
 TEST(ControllerConfig, TheWindowsPeriodFollowsTheEdgesVoltage) {
   const std::string mill = R"(
 [motor]
@@ -341,19 +343,29 @@ nominal_dc_bus_V = 560.0
 [derating]
 max_current_A = 20.0
 min_current_A = 2.0
-[calibration]
-F_A = 14.4
 )";
-  const ControllerConfig c = parse(mill);
-  const double k = core::window_constants(c.drive.injection.window).max_slope_times_tw;  // 2.04
+  const double k = core::window_constants(core::WindowKind::kModifiedBlackman).max_slope_times_tw;  // 2.04
   const double half_limit_V = 0.5 * 560.0 / std::sqrt(3.0);
+  const double rated_A = 6.5 * std::sqrt(2.0);
+  const ControllerConfig own = parse(mill);  // calibration.F_A = 1.11 I_rated
+  EXPECT_NEAR(own.drive.injection.tw_s, k * 0.108 * (50.0 / (31.9 * std::sqrt(2.0)) * rated_A) / half_limit_V,
+              1e-12);  // 13.9 ms
+  const ControllerConfig c = parse(mill + "[calibration]\nF_A = 14.4\n");
   EXPECT_NEAR(c.drive.injection.tw_s, k * 0.108 * 14.4 / half_limit_V, 1e-12);  // 19.6 ms
   EXPECT_EQ(c.drive.calibration_injection.tw_s, c.drive.injection.tw_s);
   EXPECT_NEAR(core::required_injection_voltage_V(14.4, 0.108, 0.0, c.drive.injection.tw_s, c.drive.injection.window),
               half_limit_V, 1e-9);
+  // The injection's F where it is the larger.
+  EXPECT_NEAR(parse(mill + "[injection]\nF_A = 16.0\n").drive.injection.tw_s, k * 0.108 * 16.0 / half_limit_V, 1e-12);
   // A stated period wins.
   EXPECT_EQ(parse(mill + "[injection]\nTw_s = 0.01\n").drive.injection.tw_s, 0.01);
-  // Table I's motor with a third more inductance: 3.98 ms by the rule, the paper's 4 ms kept.
+  // An edge no period of the key's range allows: its longest, 1 s.
+  std::string henry = mill;
+  henry.replace(henry.find("ld_H = 0.108"), 12, "ld_H = 1.0");
+  henry.replace(henry.find("lq_H = 0.1"), 10, "lq_H = 1.0");
+  henry.replace(henry.find("nominal_dc_bus_V = 560.0"), 24, "nominal_dc_bus_V = 60.0");
+  EXPECT_EQ(parse(henry).drive.injection.tw_s, 1.0);  // 1 H on a 60 V bus: 1.2 s by the rule
+  // Table I's motor with a third more inductance: 3.97 ms by the rule, the paper's 4 ms kept.
   EXPECT_EQ(parse("[motor]\nld_H = 7.3e-3\nlq_H = 7.3e-3\n").drive.injection.tw_s, 0.004);
 }
 
