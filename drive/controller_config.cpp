@@ -224,7 +224,7 @@ ConfigSchema<C> build() {
              [](const C& c) { return static_cast<int>(c.drive.injection.window); },
              [](C& c, int v) { c.drive.injection.window = static_cast<WindowKind>(v); },
              "Window of the pulse edges: blackman (Eq. 23) or modified (Eq. 24).");
-  inj.optional_real("injection.Tw_s", [](C& c) -> std::optional<double>& { return c.relative.tw_s; }, positive(1.0), "s",
+  inj.optional_real("injection.Tw_s", [](C& c) -> std::optional<double>& { return c.relative.tw_s; }, positive(core::kMaxWindowPeriod_s), "s",
                     "4 ms, or k Ld F / (Vdc / sqrt(3) / 2) where longer",
                     "Window period of each edge. The default is the paper's 4 ms, lengthened where an edge of the larger of "
                     "injection.F_A and calibration.F_A through motor.ld_H would take more than half the phase voltage limit "

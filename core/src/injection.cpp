@@ -99,9 +99,8 @@ double max_injection_current_A(double headroom_V, double ld_H, double rs_ohm, do
 
 double default_window_period_s(double f_A, double ld_H, double phase_voltage_limit_V, WindowKind kind) {
   constexpr double kEdgeShareOfLimit = 0.5;
-  constexpr double kLongest_s = 1.0;  // injection.Tw_s's range
   const double tw_s = window_slope_constant(kind) * ld_H * f_A / (kEdgeShareOfLimit * phase_voltage_limit_V);
-  return std::isnan(tw_s) ? kPaperWindowPeriod_s : std::clamp(tw_s, kPaperWindowPeriod_s, kLongest_s);
+  return std::isnan(tw_s) ? kPaperWindowPeriod_s : std::clamp(tw_s, kPaperWindowPeriod_s, kMaxWindowPeriod_s);
 }
 
 Dq motoring_voltage(const InjectionHeadroomInput& in) {

@@ -95,14 +95,11 @@ struct SignalDirections {
 [[nodiscard]] double required_injection_voltage_V(double f_A, double ld_H, double rs_ohm,
                                                   double tw_s, WindowKind kind);
 
-// The paper's window period (each edge), the default where the machine's inductance allows it.
-inline constexpr double kPaperWindowPeriod_s = 0.004;
-
 // The default window period: the paper's 4 ms, or longer where an edge of F through Ld would
 // take more than half the phase voltage limit by Eq. 29's inductive term (k Ld F / Tw). Table I
 // (5.5 mH, the calibration's 50 A, 650 V) asks 37 % of it at 4 ms; a 0.1 H ball-mill motor's
-// 10 A asked 561 V of 323 (docs/estimator.md section 2, "The window's period"). At most 1 s,
-// the key's range (a longer edge would leave no time to record).
+// 10 A asked 561 V of 323 (docs/estimator.md section 2, "The window's period"). At most
+// kMaxWindowPeriod_s.
 [[nodiscard]] double default_window_period_s(double f_A, double ld_H, double phase_voltage_limit_V, WindowKind kind);
 
 // Eq. 29 inverted: the largest F for a given voltage headroom (the curves of Fig. 8).

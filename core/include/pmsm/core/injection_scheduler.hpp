@@ -99,7 +99,7 @@ struct InjectionConfig {
   int level_count = 2;
   double first_event_s = 1.0;     // time of the first event after start
   WindowKind window = WindowKind::kModifiedBlackman;
-  double tw_s = 0.004;            // window period (each edge)
+  double tw_s = kPaperWindowPeriod_s;  // window period (each edge)
   double settle_s = 0.005;        // after an edge, before recording (current loop settling)
   double record_arc_rad = 6.283185307179586;  // angle-based recording length (one electrical turn)
   double record_time_s = 0.05;    // time-based recording length (standstill)

@@ -15,6 +15,12 @@ enum class WindowKind { kBlackman, kModifiedBlackman };
 
 [[nodiscard]] std::string_view to_string(WindowKind kind);
 
+// The window period (each edge): the paper's 4 ms, the default where the machine's inductance
+// allows it (default_window_period_s), and the longest injection.Tw_s takes (a longer edge
+// leaves no time to record).
+inline constexpr double kPaperWindowPeriod_s = 0.004;
+inline constexpr double kMaxWindowPeriod_s = 1.0;
+
 // Eq. 23 (B) or Eq. 24 (B2); zero outside |tn| <= Tw.
 [[nodiscard]] double window_value(WindowKind kind, double tn_s, double tw_s);
 
