@@ -305,8 +305,11 @@ ConfigSchema<C> build() {
            "The bridge's dead-time + drop voltage per phase before the first event (default: what the compensation assumes at control.nominal_dc_bus_V).");
   inj.real("injection.vx_initial_std_V", [](C& c) -> double& { return c.drive.injection.vx_initial_std_V; }, positive(100), "V",
            "Its uncertainty.");
+  inj.real("injection.vx_drift_fraction", [](C& c) -> double& { return c.drive.injection.vx_drift_fraction; }, at_least(0, 1), "",
+           "How far it may wander between events, as a share of the Vx held (one standard deviation per event; the default is "
+           "Table I's 5 mV at its 7.5 V bridge).");
   inj.real("injection.vx_drift_std_V", [](C& c) -> double& { return c.drive.injection.vx_drift_std_V; }, at_least(0, 100), "V",
-           "How far it may wander between events.");
+           "An absolute part of that drift per event, in quadrature with the share.");
   inj.optional_real("injection.vx_bus_slope_std_V_per_V", [](C& c) -> std::optional<double>& { return c.relative.vx_bus_slope_std; },
                     at_least(0, 1), "V/V", "0.2 control.dead_time_s x PWM frequency",
                     "Uncertainty of the bridge's dead-time share of the bus (V of Vx per V of bus) beyond what control.dead_time_s "

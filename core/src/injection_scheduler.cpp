@@ -915,8 +915,10 @@ void InjectionScheduler::learn_vx(double bus_offset_V, double vx_V, double var_V
 }
 
 void InjectionScheduler::drift_vx() {
-  // The next event's prior: Vx may drift meanwhile (the bridge warms); the dead time does not.
-  vx_var_ += config_.vx_drift_std_V * config_.vx_drift_std_V;
+  // The next event's prior: Vx may drift meanwhile (the bridge warms), by a share of the error
+  // held and an absolute part; the dead time does not.
+  const double relative = config_.vx_drift_fraction * vx_V_;
+  vx_var_ += config_.vx_drift_std_V * config_.vx_drift_std_V + relative * relative;
   ++learned_version_;
 }
 

@@ -98,6 +98,7 @@ InjectionConfig test_config() {
   c.fit_inductance = true;
   c.vx_initial_V = 0.0;
   c.vx_initial_std_V = 3.0;
+  c.vx_drift_fraction = 0.0;
   c.vx_drift_std_V = 0.005;
   c.vx_learning_max_iq_fraction = 0.5;
   c.vx_min_identifiability = 0.05;
@@ -617,6 +618,36 @@ TEST(InjectionScheduler, UnipolarEventUsesTheVxPrior) {
   // The mean d current is -F/2 here, so Eq. 34's w Ld id term matters for Ke.
   EXPECT_TRUE(e.has_emf);
   EXPECT_NEAR(e.ke_V_s_per_rad, h.plant.ke_V_s_per_rad, 5e-4);
+}
+
+// Vx's drift between events goes with the bridge's error (InjectionConfig::vx_drift_fraction):
+// a 0.2 V bridge's held Vx widens by a share of 0.2 V per event, Table I's 7.5 V one by 5 mV,
+// and an absolute part adds in quadrature. Unipolar events hold Vx, so each event's widening is
+// the drift alone.
+TEST(InjectionScheduler, VxDriftsByAShareOfTheBridgesError) {
+  EXPECT_NEAR(kTableIVxDriftFraction * kTableIBridgeVx_V, 0.005, 1e-12);
+  for (const double absolute_V : {0.0, 0.003}) {
+    for (const double bridge_V : {0.2, 7.5}) {
+      InjectionConfig c = test_config();
+      c.separation = Separation::kUnipolar;
+      c.vx_initial_V = bridge_V;
+      c.vx_initial_std_V = 0.01;
+      c.vx_drift_fraction = kTableIVxDriftFraction;
+      c.vx_drift_std_V = absolute_V;
+      Harness h(c);
+      h.plant.vx_V = bridge_V;
+      h.motoring_A = {0.0, 5.0};
+      h.run_until(0.45);
+      ASSERT_EQ(h.estimates.size(), 1U) << bridge_V;
+      ASSERT_EQ(h.estimates[0].outcome, EventOutcome::kPublished) << bridge_V;
+      ASSERT_FALSE(h.estimates[0].vx_from_event);
+      const double std_V = h.scheduler.vx_std_V();
+      const double grown_V = std::sqrt(std_V * std_V - c.vx_initial_std_V * c.vx_initial_std_V);
+      EXPECT_NEAR(grown_V, std::hypot(absolute_V, kTableIVxDriftFraction * bridge_V), 1e-9)
+          << "bridge " << bridge_V << " V, absolute part " << absolute_V << " V";
+      EXPECT_EQ(h.scheduler.vx_V(), bridge_V);
+    }
+  }
 }
 
 // The same with the machine's Ld 10 % above the commissioned one: the pair measures Ld from

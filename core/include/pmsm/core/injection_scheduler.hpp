@@ -81,6 +81,12 @@ enum class AbortCause : std::uint8_t {
 };
 [[nodiscard]] std::string_view to_string(AbortCause c);
 
+// Table I's bridge (1 us of dead time at 10 kHz on 650 V, 1 V of device drop: 7.5 V) and the
+// 5 mV its Vx was allowed to drift per event, which InjectionConfig::vx_drift_fraction carries
+// to other bridges as a share.
+inline constexpr double kTableIBridgeVx_V = 1.0e-6 * 1.0e4 * 650.0 + 1.0;
+inline constexpr double kTableIVxDriftFraction = 0.005 / kTableIBridgeVx_V;
+
 struct InjectionConfig {
   InjectionMethod method = InjectionMethod::kFixedMagnitude;
   Separation separation = Separation::kBipolar;
@@ -175,7 +181,14 @@ struct InjectionConfig {
   bool fit_inductance = true;     // fit Ld d(dId/dt): the inductive voltage within a recording
   double vx_initial_V = 0.0;      // prior before the first event
   double vx_initial_std_V = 3.0;
-  double vx_drift_std_V = 0.005;  // how far Vx may wander between events
+  // How far Vx may wander between events (the bridge warms and cools): a share of the bridge's
+  // error held, in quadrature with an absolute part. A bridge's voltage error is its devices'
+  // drop and the share of the bus its switching delays take, each of which a junction's
+  // temperature changes by a fraction, so the drift goes with the error: Table I's 5 mV per
+  // event at its 7.5 V bridge (kTableIBridgeVx_V), as a share. Absolute, the same 5 mV was 2.6 %
+  // of a 6S drone's 0.19 V bridge per event (docs/estimator.md section 4).
+  double vx_drift_fraction = kTableIVxDriftFraction;
+  double vx_drift_std_V = 0.0;
   // The phase-current sensors' gain errors, one standard deviation per phase as a fraction. A
   // turning rotor averages their mismatch out of every whole-turn pair (their mean gain cancels
   // in Rs / Rs0); a rotor at rest does not, and a time-based event's Rs carries
