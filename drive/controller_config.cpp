@@ -306,8 +306,10 @@ ConfigSchema<C> build() {
   inj.real("injection.vx_initial_std_V", [](C& c) -> double& { return c.drive.injection.vx_initial_std_V; }, positive(100), "V",
            "Its uncertainty.");
   inj.real("injection.vx_drift_fraction", [](C& c) -> double& { return c.drive.injection.vx_drift_fraction; }, at_least(0, 1), "",
-           "How far it may wander between events, as a share of the Vx held (one standard deviation per event; the default is "
-           "Table I's 5 mV at its 7.5 V bridge).");
+           "How far the estimator's Vx (at control.nominal_dc_bus_V; learned, or the prior before) may wander between two events, "
+           "as a share of itself: one standard deviation per event, so more per minute at a shorter injection.interval_s. "
+           "The default, the reference plant's 5 mV at its 7.5 V bridge, was not measured on a bridge; 0 with "
+           "vx_drift_std_V 0 holds Vx fixed between learning events (docs/estimator.md section 4).");
   inj.real("injection.vx_drift_std_V", [](C& c) -> double& { return c.drive.injection.vx_drift_std_V; }, at_least(0, 100), "V",
            "An absolute part of that drift per event, in quadrature with the share.");
   inj.optional_real("injection.vx_bus_slope_std_V_per_V", [](C& c) -> std::optional<double>& { return c.relative.vx_bus_slope_std; },

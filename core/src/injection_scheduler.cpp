@@ -916,9 +916,10 @@ void InjectionScheduler::learn_vx(double bus_offset_V, double vx_V, double var_V
 
 void InjectionScheduler::drift_vx() {
   // The next event's prior: Vx may drift meanwhile (the bridge warms), by a share of the error
-  // held and an absolute part; the dead time does not.
-  const double relative = config_.vx_drift_fraction * vx_V_;
-  vx_var_ += config_.vx_drift_std_V * config_.vx_drift_std_V + relative * relative;
+  // held and an absolute part. The share is of E[Vx^2] = Vx^2 + var(Vx): a guess of 0 that no
+  // event has learned yet still drifts by the share of its uncertainty.
+  const double share_sq = config_.vx_drift_fraction * config_.vx_drift_fraction;
+  vx_var_ += config_.vx_drift_std_V * config_.vx_drift_std_V + share_sq * (vx_V_ * vx_V_ + vx_var_);
   ++learned_version_;
 }
 

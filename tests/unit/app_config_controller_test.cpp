@@ -321,6 +321,26 @@ TEST(ControllerConfig, MotorRelativeDefaultsAreTableIAtTableI) {
   EXPECT_EQ(g.drive.calibration_injection.f_A, 30.0);
 }
 
+// Vx's drift between events: a share of the Vx held by default (the reference's 5 mV at its
+// 7.5 V bridge), no absolute part; both keys given win, the calibration's events drift alike,
+// and values out of range name the key.
+TEST(ControllerConfig, VxDriftsByAShareOfItselfByDefault) {
+  const ControllerConfig d = default_controller_config();
+  EXPECT_EQ(d.drive.injection.vx_drift_fraction, core::kReferenceVxDriftFraction);
+  EXPECT_EQ(d.drive.injection.vx_drift_std_V, 0.0);
+  EXPECT_EQ(d.drive.calibration_injection.vx_drift_fraction, core::kReferenceVxDriftFraction);
+  const ControllerConfig g = parse("[injection]\nvx_drift_fraction = 0.002\nvx_drift_std_V = 0.001\n");
+  EXPECT_EQ(g.drive.injection.vx_drift_fraction, 0.002);
+  EXPECT_EQ(g.drive.injection.vx_drift_std_V, 0.001);
+  EXPECT_EQ(g.drive.calibration_injection.vx_drift_fraction, 0.002);
+  EXPECT_EQ(g.drive.calibration_injection.vx_drift_std_V, 0.001);
+  EXPECT_EQ(error_of("[injection]\nvx_drift_fraction = 1.5\n"),
+            "drive.toml:2: injection.vx_drift_fraction: must be in [0, 1], got 1.5");
+  EXPECT_EQ(error_of("[injection]\nvx_drift_fraction = -0.1\n"),
+            "drive.toml:2: injection.vx_drift_fraction: must be in [0, 1], got -0.1");
+  EXPECT_NE(error_of("[injection]\nvx_drift_fraction = nan\n").find("injection.vx_drift_fraction"), std::string::npos);
+}
+
 // The window's period follows the edge's inductive voltage, k Ld F / Tw (Eq. 29): where the
 // paper's 4 ms would take more than half the phase voltage limit it is lengthened to take half.
 // A 0.1 H ball-mill motor (9.2 A peak rated, 560 V) gets 13.9 ms at its default calibration F of

@@ -13,6 +13,7 @@
 #include <cmath>
 #include <functional>
 #include <optional>
+#include <string>
 #include <string_view>
 #include <vector>
 
@@ -621,31 +622,42 @@ TEST(InjectionScheduler, UnipolarEventUsesTheVxPrior) {
 }
 
 // Vx's drift between events goes with the bridge's error (InjectionConfig::vx_drift_fraction):
-// a 0.2 V bridge's held Vx widens by a share of 0.2 V per event, Table I's 7.5 V one by 5 mV,
-// and an absolute part adds in quadrature. Unipolar events hold Vx, so each event's widening is
-// the drift alone.
+// the held Vx widens per event by the share of sqrt(Vx^2 + var(Vx)), the Vx held now (not the
+// configured prior's), and an absolute part adds in quadrature: a 0.2 V bridge by 0.13 mV, the
+// reference's 7.5 V one by 5 mV, a guess of 0 +- 3 V by the share of its 3 V. Unipolar events
+// hold Vx, so each event's widening is the drift alone.
 TEST(InjectionScheduler, VxDriftsByAShareOfTheBridgesError) {
-  EXPECT_NEAR(kTableIVxDriftFraction * kTableIBridgeVx_V, 0.005, 1e-12);
+  EXPECT_NEAR(kReferenceVxDriftFraction * kReferenceBridgeVx_V, 0.005, 1e-12);
+  struct Held {
+    double vx_V;
+    double std_V;
+  };
   for (const double absolute_V : {0.0, 0.003}) {
-    for (const double bridge_V : {0.2, 7.5}) {
+    for (const Held held : {Held{0.2, 0.01}, Held{7.5, 0.01}, Held{-0.2, 0.01}, Held{0.0, 3.0}}) {
       InjectionConfig c = test_config();
       c.separation = Separation::kUnipolar;
-      c.vx_initial_V = bridge_V;
-      c.vx_initial_std_V = 0.01;
-      c.vx_drift_fraction = kTableIVxDriftFraction;
+      c.vx_initial_V = 1.0;  // the configured prior, replaced below by what the drive holds
+      c.vx_initial_std_V = 0.5;
+      c.vx_drift_fraction = kReferenceVxDriftFraction;
       c.vx_drift_std_V = absolute_V;
       Harness h(c);
-      h.plant.vx_V = bridge_V;
+      InjectionScheduler::VxState state = h.scheduler.vx_state();
+      state.vx_V = held.vx_V;
+      state.vx_var = held.std_V * held.std_V;
+      h.scheduler.set_vx_state(state);
+      h.plant.vx_V = held.vx_V;
       h.motoring_A = {0.0, 5.0};
       h.run_until(0.45);
-      ASSERT_EQ(h.estimates.size(), 1U) << bridge_V;
-      ASSERT_EQ(h.estimates[0].outcome, EventOutcome::kPublished) << bridge_V;
-      ASSERT_FALSE(h.estimates[0].vx_from_event);
-      const double std_V = h.scheduler.vx_std_V();
-      const double grown_V = std::sqrt(std_V * std_V - c.vx_initial_std_V * c.vx_initial_std_V);
-      EXPECT_NEAR(grown_V, std::hypot(absolute_V, kTableIVxDriftFraction * bridge_V), 1e-9)
-          << "bridge " << bridge_V << " V, absolute part " << absolute_V << " V";
-      EXPECT_EQ(h.scheduler.vx_V(), bridge_V);
+      const std::string what = "held " + std::to_string(held.vx_V) + " +- " + std::to_string(held.std_V) +
+                               " V, absolute part " + std::to_string(absolute_V) + " V";
+      ASSERT_EQ(h.estimates.size(), 1U) << what;
+      ASSERT_EQ(h.estimates[0].outcome, EventOutcome::kPublished) << what;
+      ASSERT_FALSE(h.estimates[0].vx_from_event) << what;
+      const double var_before = held.std_V * held.std_V;
+      const double grown_sq = h.scheduler.vx_std_V() * h.scheduler.vx_std_V() - var_before;
+      const double share_sq = kReferenceVxDriftFraction * kReferenceVxDriftFraction * (held.vx_V * held.vx_V + var_before);
+      EXPECT_NEAR(std::sqrt(std::max(grown_sq, 0.0)), std::sqrt(absolute_V * absolute_V + share_sq), 1e-8) << what;
+      EXPECT_EQ(h.scheduler.vx_V(), held.vx_V) << what;
     }
   }
 }
