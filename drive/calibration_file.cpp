@@ -344,6 +344,20 @@ constexpr LossKey kLossKeys[] = {{"missing_loss_W", -1e6, 1e6},
                                  {"loss_scale_std", 0.0, 10.0},
                                  {"loss_correlation", -1.0, 1.0}};
 
+// The cooling path's error g and its deviation: a pair of its own (a file from before g was
+// kept has neither), within the filter's bounds.
+constexpr LossKey kCoolingKeys[] = {{"cooling_scale_error", -0.5, 1.0}, {"cooling_scale_std", 0.0, 10.0}};
+
+bool cooling_error_storable(const core::ThermalState& s) {
+  const double values[] = {s.cooling_scale_error, s.cooling_scale_std};
+  for (std::size_t k = 0; k < std::size(kCoolingKeys); ++k) {
+    if (!(values[k] >= kCoolingKeys[k].lo && values[k] <= kCoolingKeys[k].hi)) {
+      return false;
+    }
+  }
+  return true;
+}
+
 bool loss_errors_storable(const core::ThermalState& s) {
   const double values[] = {s.missing_loss_W, s.missing_loss_std_W, s.loss_scale_error, s.loss_scale_std,
                            s.loss_correlation};
@@ -421,6 +435,10 @@ void write_thermal_state_file(const std::filesystem::path& path, const StoredThe
          << "loss_scale_std = " << toml_float(s.loss_scale_std) << "\n"
          << "loss_correlation = " << toml_float(s.loss_correlation) << "\n";
   }
+  if (s.has_cooling_error && cooling_error_storable(s)) {
+    text << "cooling_scale_error = " << toml_float(s.cooling_scale_error) << "\n"
+         << "cooling_scale_std = " << toml_float(s.cooling_scale_std) << "\n";
+  }
   write_atomically(path, text.str());
 }
 
@@ -429,7 +447,7 @@ StoredThermalState read_thermal_state_file(const std::filesystem::path& path) {
   const toml::table t =
       read_stored(path, {"format", "winding_C", "housing_C", "winding_std_C", "ambient_C", "saved_unix_s",
                          "missing_loss_node", "missing_loss_W", "missing_loss_std_W", "loss_scale_error",
-                         "loss_scale_std", "loss_correlation"});
+                         "loss_scale_std", "loss_correlation", "cooling_scale_error", "cooling_scale_std"});
   StoredThermalState s;
   s.state.winding_C = number(t, "winding_C", file, -60.0, 400.0, false);
   s.state.housing_C = number(t, "housing_C", file, -60.0, 400.0, false);
@@ -471,6 +489,25 @@ StoredThermalState read_thermal_state_file(const std::filesystem::path& path) {
     } catch (const CalibrationFileError& e) {
       s.state.has_loss_errors = false;
       s.loss_errors_ignored = e.what();
+    }
+  }
+  // The cooling path's error: both keys or neither, a bad pair costing only itself (g restarts
+  // from its prior).
+  const bool g_present = t.get(kCoolingKeys[0].name) != nullptr;
+  const bool g_std_present = t.get(kCoolingKeys[1].name) != nullptr;
+  if (g_present || g_std_present) {
+    try {
+      if (g_present != g_std_present) {
+        throw CalibrationFileError(fmt::format("{}: {} is missing (the cooling path's error comes as cooling_scale_error and "
+                                               "cooling_scale_std, or not at all)",
+                                               file, g_present ? kCoolingKeys[1].name : kCoolingKeys[0].name));
+      }
+      s.state.cooling_scale_error = number(t, kCoolingKeys[0].name, file, kCoolingKeys[0].lo, kCoolingKeys[0].hi, false);
+      s.state.cooling_scale_std = number(t, kCoolingKeys[1].name, file, kCoolingKeys[1].lo, kCoolingKeys[1].hi, false);
+      s.state.has_cooling_error = true;
+    } catch (const CalibrationFileError& e) {
+      s.state.has_cooling_error = false;
+      s.cooling_error_ignored = e.what();
     }
   }
   return s;

@@ -75,12 +75,15 @@ inline constexpr double kRs0NameplateWarnFraction = 0.10;
 //   loss_scale_std = 0.05        # them from the priors (loss_errors_ignored says why) and
 //   loss_correlation = -0.8      # keeps the temperatures; so does a block without
 //                                #   missing_loss_node = "housing" (dP learned on the winding)
+//   cooling_scale_error = 0.12   # the cooling path's error g and its deviation: both or neither;
+//   cooling_scale_std = 0.08     #   without them, or with a bad pair, g restarts from its prior
 // The drive cools it through the downtime with its model (ThermalObserver::restore).
 struct StoredThermalState {
   core::ThermalState state;
   double ambient_C = 25.0;
   double saved_unix_s = 0.0;  // CLOCK_REALTIME when it held
   std::string loss_errors_ignored;  // why a loss-error block was not used (empty: used or absent)
+  std::string cooling_error_ignored;  // why the cooling error's pair was not used (empty: used or absent)
 };
 // Refuses (CalibrationFileError, nothing written) to replace a file there that is no thermal
 // state file (foreign_thermal_state_file).

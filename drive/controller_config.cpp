@@ -394,6 +394,14 @@ ConfigSchema<C> build() {
          at_least(0), "1/sqrt(s)", "Random walk of the copper-loss model's relative error (per thermal second).");
   s.real("thermal.initial_loss_scale_std", [](C& c) -> double& { return c.drive.thermal.initial_loss_scale_std; }, at_least(0), "",
          "Initial uncertainty of the copper-loss model's relative error (0.2: the model within about 20 %).");
+  s.real("thermal.initial_cooling_scale_std", [](C& c) -> double& { return c.drive.thermal.initial_cooling_scale_std; },
+         between(0, 1), "",
+         "Initial uncertainty of the cooling path's relative error g, which the filter learns (the housing sheds 1 + g times "
+         "what thermal.housing_to_ambient_K_W passes; 0.25: a resistance to the ambient known within about a quarter; 0: g "
+         "not learned).");
+  s.real("thermal.cooling_scale_process_std_per_sqrt_s",
+         [](C& c) -> double& { return c.drive.thermal.cooling_scale_process_std_per_sqrt_s; }, at_least(0), "1/sqrt(s)",
+         "Random walk of the cooling path's relative error (per thermal second; 0: a machine's cooling path holds).");
   s.real("thermal.model_error_fraction", [](C& c) -> double& { return c.drive.thermal.model_error_fraction; }, between(0, 1), "",
          "An extra, unlearned share of the winding's uncertainty between measurements: this fraction of the temperature change "
          "the model predicted since the last fused measurement (0, the default since 2026-11-28, 0.25 before: the band grows "

@@ -14,13 +14,15 @@ namespace {
 // the housing's side (a commissioning's error in the winding's own path scales with the copper
 // loss, which is k's; docs/estimator.md section 7):
 // Cw dTw/dt = (1 + k) Pcu - (Tw - Th)/Rwh
-// Ch dTh/dt = Pfe + dP + (Tw - Th)/Rwh - (Th - Ta)/Rha
-// d(dP)/dt  = 0, dk/dt = 0 (random walks)
+// Ch dTh/dt = Pfe + dP + (Tw - Th)/Rwh - (1 + g) (Th - Ta)/Rha
+// d(dP)/dt  = 0, dk/dt = 0, dg/dt = 0 (random walks)
 // The k column carries this period's copper loss: the system is linear in the state for a
-// known loss, time-varying with it.
-ThermalObserver::Matrix system_matrix(const ThermalModelConfig& c, double copper_loss_W) {
+// known loss, time-varying with it. The cooling's error g multiplies the housing's rise, which
+// is a state: the matrix holds the path at the learned conductance (1 + g) Rha^-1, and g's
+// column, the rise it multiplies (the Jacobian's, for the covariance), is set by predict().
+ThermalObserver::Matrix system_matrix(const ThermalModelConfig& c, double copper_loss_W, double cooling_scale = 0.0) {
   const double gwh = 1.0 / c.winding_to_housing_K_W;
-  const double gha = 1.0 / c.housing_to_ambient_K_W;
+  const double gha = (1.0 + cooling_scale) / c.housing_to_ambient_K_W;
   ThermalObserver::Matrix a = ThermalObserver::Matrix::Zero();
   a(0, 0) = -gwh / c.winding_capacity_J_K;
   a(0, 1) = gwh / c.winding_capacity_J_K;
@@ -38,7 +40,7 @@ ThermalObserver::ThermalObserver(const ThermalModelConfig& config, const Calibra
     : config_(config), anchor_C_(initial_temp_C), anchored_(known) {
   set_calibration(calibration);
   const double std_C = known ? config.initial_std_C : config.unknown_initial_std_C;
-  x_ << initial_temp_C, initial_temp_C, 0.0, 0.0;
+  x_ << initial_temp_C, initial_temp_C, 0.0, 0.0, 0.0;
   p_.setZero();
   p_(0, 0) = std_C * std_C;
   p_(1, 1) = std_C * std_C;
@@ -50,6 +52,7 @@ ThermalObserver::ThermalObserver(const ThermalModelConfig& config, const Calibra
   }
   p_(2, 2) = config.initial_loss_error_std_W * config.initial_loss_error_std_W;
   p_(3, 3) = config.initial_loss_scale_std * config.initial_loss_scale_std;
+  p_(4, 4) = config.initial_cooling_scale_std * config.initial_cooling_scale_std;
 }
 
 void ThermalObserver::restart_unknown(double guess_C) {
@@ -70,6 +73,9 @@ ThermalState ThermalObserver::state() const {
   s.loss_scale_std = std::sqrt(std::max(p_(3, 3), 0.0));
   const double den = s.missing_loss_std_W * s.loss_scale_std;
   s.loss_correlation = den > 0.0 ? std::clamp(p_(2, 3) / den, -1.0, 1.0) : 0.0;
+  s.has_cooling_error = true;
+  s.cooling_scale_error = x_(4);
+  s.cooling_scale_std = std::sqrt(std::max(p_(4, 4), 0.0));
   return s;
 }
 
@@ -78,9 +84,13 @@ void ThermalObserver::restore(const ThermalState& state, double downtime_thermal
   holds_uncalibrated_ = !calibration_.calibrated;
   // The two-node network without losses relaxes towards the ambient: x(t) = Ta + e^{A t} (x0 - Ta),
   // e^{A t} by scaling and squaring of a Taylor step (A's time constants are far above t / 2^n).
+  // The cooling path as the run before learned it (g), within the filter's bounds.
+  const bool cooling_learned = state.has_cooling_error && std::isfinite(state.cooling_scale_error) &&
+                               std::isfinite(state.cooling_scale_std) && config_.initial_cooling_scale_std > 0.0;
+  const double g = cooling_learned ? std::clamp(state.cooling_scale_error, kMinCoolingScale, kMaxCoolingScale) : 0.0;
   Eigen::Matrix2d a;
   const double gwh = 1.0 / config_.winding_to_housing_K_W;
-  const double gha = 1.0 / config_.housing_to_ambient_K_W;
+  const double gha = (1.0 + g) / config_.housing_to_ambient_K_W;
   a << -gwh / config_.winding_capacity_J_K, gwh / config_.winding_capacity_J_K, gwh / config_.housing_capacity_J_K,
       -(gwh + gha) / config_.housing_capacity_J_K;
   const double t = std::max(downtime_thermal_s, 0.0);
@@ -97,7 +107,7 @@ void ThermalObserver::restore(const ThermalState& state, double downtime_thermal
   const Eigen::Vector2d x0(state.winding_C - ambient_C, state.housing_C - ambient_C);
   const Eigen::Vector2d x1 = e * x0;
   const double cooled_by = std::abs(x1(0) - x0(0));
-  x_ << ambient_C + x1(0), ambient_C + x1(1), 0.0, 0.0;
+  x_ << ambient_C + x1(0), ambient_C + x1(1), 0.0, 0.0, 0.0;
   model_rise_K_ = x1.cwiseMax(0.0);  // (a state stored below the ambient is no warmth of the drive's)
   anchor_C_ = x_(0);
   // The stored uncertainty, the model error of the cooling, and the process noise of the
@@ -122,6 +132,8 @@ void ThermalObserver::restore(const ThermalState& state, double downtime_thermal
   } else {
     set_loss_errors(0.0, config_.initial_loss_error_std_W, 0.0, config_.initial_loss_scale_std, 0.0, 0.0);
   }
+  set_cooling_error(g, cooling_learned ? state.cooling_scale_std : config_.initial_cooling_scale_std,
+                    cooling_learned ? t : 0.0);
   drift_std_C_ = 0.0;
   rest_drift_C_ = 0.0;
   shared_error_C_ = 0.0;  // part of the stored band now
@@ -182,13 +194,24 @@ void ThermalObserver::set_loss_errors(double dp_W, double dp_std_W, double k, do
   p_(2, 3) = p_(3, 2) = std::clamp(correlation, -1.0, 1.0) * s2 * s3;
 }
 
+void ThermalObserver::set_cooling_error(double g, double g_std, double elapsed_thermal_s) {
+  const double p4 = config_.initial_cooling_scale_std * config_.initial_cooling_scale_std;
+  x_(4) = p4 > 0.0 ? std::clamp(g, kMinCoolingScale, kMaxCoolingScale) : 0.0;
+  const double q4 = config_.cooling_scale_process_std_per_sqrt_s * config_.cooling_scale_process_std_per_sqrt_s *
+                    elapsed_thermal_s;
+  p_.row(4).setZero();
+  p_.col(4).setZero();
+  // (Its correlation with dP and k is not kept: the stored state holds g and its deviation.)
+  p_(4, 4) = std::min(g_std * g_std + q4, p4);
+}
+
 void ThermalObserver::keep_loss_errors(const ThermalObserver& other) {
   // The same model's states: taken over as they are (their covariance with the temperatures,
   // which restart, is dropped).
-  x_.tail<2>() = other.x_.tail<2>();
-  p_.block<2, 2>(0, 2).setZero();
-  p_.block<2, 2>(2, 0).setZero();
-  p_.block<2, 2>(2, 2) = other.p_.block<2, 2>(2, 2);
+  x_.tail<kStates - 2>() = other.x_.tail<kStates - 2>();
+  p_.topRightCorner<2, kStates - 2>().setZero();
+  p_.bottomLeftCorner<kStates - 2, 2>().setZero();
+  p_.bottomRightCorner<kStates - 2, kStates - 2>() = other.p_.bottomRightCorner<kStates - 2, kStates - 2>();
 }
 
 double ThermalObserver::cable_resistance_now_ohm() const {
@@ -232,8 +255,10 @@ double ThermalObserver::housing_loss_floor_W(double iron_loss_W, double ambient_
   // from estimates that read low) would cool a motor at rest below its coolant, and the stored
   // state would carry that to the next start. What the linear model's dP term puts below that
   // floor is added back.
+  // The learned cooling's error g is such a loss too: -g (Th - Ta) / Rha.
   const double rise_C = std::max(x_(1) - ambient_C, 0.0);
-  return std::max(-iron_loss_W - rise_C / config_.housing_to_ambient_K_W - x_(2), 0.0);
+  const double gha = 1.0 / config_.housing_to_ambient_K_W;
+  return std::max(-iron_loss_W - rise_C * gha - (x_(2) - x_(4) * rise_C * gha), 0.0);
 }
 
 double ThermalObserver::iron_loss_W(double omega_m_rad_s) const {
@@ -248,16 +273,19 @@ void ThermalObserver::predict(double dt_s, double copper_current_sq_A2, double o
   const double dt = dt_s * config_.time_scale;  // thermal seconds
   const double pcu = copper_loss_W(copper_current_sq_A2);
   last_copper_loss_W_ = pcu;
-  Matrix a = system_matrix(config_, pcu);
+  Matrix a = system_matrix(config_, pcu, x_(4));
   const double pfe = iron_loss_W(omega_m_rad_s);
   const double gha_ch = 1.0 / (config_.housing_to_ambient_K_W * config_.housing_capacity_J_K);
-  Vector u;
-  u << pcu / config_.winding_capacity_J_K, pfe / config_.housing_capacity_J_K + ambient_C * gha_ch, 0.0, 0.0;
+  const double cooling = 1.0 + x_(4);  // the learned path's share of the modelled one
+  // The inputs: they enter the temperatures' rows alone.
+  Eigen::Vector2d u(pcu / config_.winding_capacity_J_K, pfe / config_.housing_capacity_J_K + cooling * ambient_C * gha_ch);
+  // g's column for the covariance: d(dTh/dt)/dg = -(Th - Ta) / (Rha Ch) at the estimate.
+  double g_column = -(x_(1) - ambient_C) * gha_ch;
   {
     // The model's rise by the drive's own losses (model_rise_C): the network's block, the computed
     // losses without the ambient's term (no dP, no k, so the floor below never binds for it), the
     // same step as the filter's.
-    const Eigen::Matrix2d a2 = a.topLeftCorner<2, 2>();
+    const Eigen::Matrix2d a2 = system_matrix(config_, pcu).topLeftCorner<2, 2>();
     const Eigen::Matrix2d b2 = Eigen::Matrix2d::Identity() * dt + 0.5 * a2 * dt * dt;
     const Eigen::Vector2d losses(pcu / config_.winding_capacity_J_K, pfe / config_.housing_capacity_J_K);
     model_rise_K_ = (Eigen::Matrix2d::Identity() + a2 * dt + 0.5 * a2 * a2 * dt * dt) * model_rise_K_ + b2 * losses;
@@ -267,7 +295,10 @@ void ThermalObserver::predict(double dt_s, double copper_current_sq_A2, double o
     // of Pfe + dP. dP then has no part in the prediction (its column is 0, so its covariance
     // with the temperatures does not grow on a term that is not there), and above the ambient
     // the path to it counts twice.
+    // So does g: the floor takes the place of the learned path too.
     a(1, 2) = 0.0;
+    g_column = 0.0;
+    a(1, 1) = system_matrix(config_, pcu)(1, 1);
     u(1) = ambient_C * gha_ch;
     if (x_(1) > ambient_C) {
       a(1, 1) -= gha_ch;
@@ -275,11 +306,21 @@ void ThermalObserver::predict(double dt_s, double copper_current_sq_A2, double o
     }
   }
   // Exact discretisation is not needed at the update rate used (dt far below the winding
-  // time constant); a second-order Taylor step keeps it accurate and allocation-free.
-  const Matrix ad = Matrix::Identity() + a * dt + 0.5 * a * a * dt * dt;
-  const Matrix bd = Matrix::Identity() * dt + 0.5 * a * dt * dt;
+  // time constant); a second-order Taylor step keeps it accurate and allocation-free. Only the
+  // temperatures' rows of A are nonzero (the loss errors are random walks), so the step
+  // I + A dt + A^2 dt^2 / 2 is [F G; 0 I] with F = I + A11 dt + A11^2 dt^2 / 2 and
+  // G = E A12, E = I dt + A11 dt^2 / 2 (also the inputs' step: they enter the temperatures'
+  // rows alone), and the blocks are all the step needs.
+  // The mean moves by the path at the learned conductance (g's column 0: g's part is in the
+  // housing's own term); the covariance by the Jacobian, whose g column is the rise g scales.
+  const Eigen::Matrix2d a11 = a.topLeftCorner<2, 2>();
+  const Eigen::Matrix2d e = Eigen::Matrix2d::Identity() * dt + 0.5 * a11 * dt * dt;
+  const Eigen::Matrix2d f = Eigen::Matrix2d::Identity() + a11 * dt + 0.5 * a11 * a11 * dt * dt;
+  Eigen::Matrix<double, 2, kStates - 2> a12 = a.topRightCorner<2, kStates - 2>();
   const double before_C = x_(0);
-  x_ = ad * x_ + bd * u;
+  x_.head<2>() = f * x_.head<2>() + e * (a12 * x_.tail<kStates - 2>()) + e * u;
+  a12(1, 2) = g_column;
+  const Eigen::Matrix<double, 2, kStates - 2> g = e * a12;
   winding_rate_C_per_s_ = dt_s > 0.0 ? (x_(0) - before_C) / dt_s : 0.0;
   // An error the loss states do not carry: at rest no loss runs to teach them, so the cooling
   // path's relative error of the change predicted meanwhile adds up (summed: it is systematic);
@@ -289,16 +330,26 @@ void ThermalObserver::predict(double dt_s, double copper_current_sq_A2, double o
     rest_drift_C_ += config_.downtime_error_fraction * std::abs(x_(0) - before_C);
   }
   drift_std_C_ = config_.model_error_fraction * std::abs(x_(0) - anchor_C_) + rest_drift_C_;
-  Matrix q = Matrix::Zero();
-  q(0, 0) = config_.winding_process_std_C_per_sqrt_s * config_.winding_process_std_C_per_sqrt_s * dt;
-  q(1, 1) = config_.housing_process_std_C_per_sqrt_s * config_.housing_process_std_C_per_sqrt_s * dt;
-  q(2, 2) = config_.loss_error_process_std_W_per_sqrt_s * config_.loss_error_process_std_W_per_sqrt_s * dt;
-  q(3, 3) = config_.loss_scale_process_std_per_sqrt_s * config_.loss_scale_process_std_per_sqrt_s * dt;
-  p_ = ad * p_ * ad.transpose() + q;
+  // P = [P11 P12; P12' P22] -> F P11 F' + F P12 G' + G P12' F' + G P22 G', F P12 + G P22, P22.
+  const Eigen::Matrix2d p11 = p_.topLeftCorner<2, 2>();
+  const Eigen::Matrix<double, 2, kStates - 2> p12 = p_.topRightCorner<2, kStates - 2>();
+  const Eigen::Matrix<double, kStates - 2, kStates - 2> p22 = p_.bottomRightCorner<kStates - 2, kStates - 2>();
+  const Eigen::Matrix<double, 2, kStates - 2> p12_next = f * p12 + g * p22;
+  const Eigen::Matrix2d fp12g = f * p12 * g.transpose();
+  p_.topLeftCorner<2, 2>() = f * p11 * f.transpose() + fp12g + fp12g.transpose() + g * p22 * g.transpose();
+  p_.topRightCorner<2, kStates - 2>() = p12_next;
+  p_.bottomLeftCorner<kStates - 2, 2>() = p12_next.transpose();
+  // The process noise, on the diagonal.
+  p_(0, 0) += config_.winding_process_std_C_per_sqrt_s * config_.winding_process_std_C_per_sqrt_s * dt;
+  p_(1, 1) += config_.housing_process_std_C_per_sqrt_s * config_.housing_process_std_C_per_sqrt_s * dt;
+  p_(2, 2) += config_.loss_error_process_std_W_per_sqrt_s * config_.loss_error_process_std_W_per_sqrt_s * dt;
+  p_(3, 3) += config_.loss_scale_process_std_per_sqrt_s * config_.loss_scale_process_std_per_sqrt_s * dt;
+  p_(4, 4) += config_.cooling_scale_process_std_per_sqrt_s * config_.cooling_scale_process_std_per_sqrt_s * dt;
   // A loss error unobserved for long (the motor idle: no copper loss to show k) must not
   // become less certain than the commissioning made it: the random walks stop at their priors.
   cap_variance(2, config_.initial_loss_error_std_W * config_.initial_loss_error_std_W);
   cap_variance(3, config_.initial_loss_scale_std * config_.initial_loss_scale_std);
+  cap_variance(4, config_.initial_cooling_scale_std * config_.initial_cooling_scale_std);
   since_measurement_s_ += dt_s;
   clock_s_ += dt_s;
   history_C_[history_next_] = x_(0) - history_offset_C_;
@@ -375,7 +426,8 @@ bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm, double
   const double dt_dr =
       temperature_per_resistance_C_per_ohm(winding_rs0_ohm(), calibration_.t0_C, config_.conductor_inferred_zero_C);
   const double r = std::pow(rs_std_ohm * dt_dr, 2) + std::pow(config_.measurement_floor_std_C, 2);
-  const Eigen::RowVector4d h(1.0, 0.0, 0.0, 0.0);
+  Eigen::Matrix<double, 1, kStates> h = Eigen::Matrix<double, 1, kStates>::Zero();
+  h(0) = 1.0;
   // A measurement without a finite value and error bar is no measurement (NaN compares false,
   // so it would otherwise pass the gate and poison the state).
   if (!std::isfinite(z) || !std::isfinite(r) || !(rs_std_ohm >= 0.0)) {
@@ -389,8 +441,8 @@ bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm, double
     const double u = config_.unknown_initial_std_C * config_.unknown_initial_std_C;
     p_(0, 0) = p_(1, 1) = u;
     p_(0, 1) = p_(1, 0) = 0.95 * u;
-    p_(0, 2) = p_(2, 0) = p_(1, 2) = p_(2, 1) = 0.0;
-    p_(0, 3) = p_(3, 0) = p_(1, 3) = p_(3, 1) = 0.0;
+    p_.topRightCorner<2, kStates - 2>().setZero();
+    p_.bottomLeftCorner<kStates - 2, 2>().setZero();
     shared_error_C_ = 0.0;
     anchored_ = false;
   }
@@ -426,6 +478,8 @@ bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm, double
   // The copper loss's scale stays physical: the machine's loss between half and twice the
   // model's (beyond that it is no commissioning, and below -1 the loss would be negative).
   x_(3) = std::clamp(x_(3), kMinLossScale, kMaxLossScale);
+  // And the cooling path's: between half and twice the model's.
+  x_(4) = std::clamp(x_(4), kMinCoolingScale, kMaxCoolingScale);
   // A model error shared by consecutive measurements is not averaged away: the state carries
   // the share k of this measurement's and (1 - k) of what it carried before. It widens the
   // reported band without changing the gain (which must not trust the next measurement with
@@ -498,7 +552,7 @@ ThermalEstimate ThermalObserver::estimate() const {
   const double t0_C = reference_std_C();
   return {x_(0), std::sqrt(measured_winding_variance_C2() + rs0_C * rs0_C + t0_C * t0_C),
           x_(1), x_(2) + x_(3) * last_copper_loss_W_, x_(2), x_(3), std::sqrt(std::max(p_(3, 3), 0.0)),
-          since_measurement_s_};
+          since_measurement_s_, x_(4)};
 }
 
 bool ThermalObserver::time_to_limit_s(double limit_C, double copper_current_sq_A2,
@@ -513,7 +567,7 @@ bool ThermalObserver::time_to_limit_s(double limit_C, double copper_current_sq_A
   const double pcu_copper = 1.5 * winding_resistance_at_C(limit_C) * copper_current_sq_A2 * (1.0 + x_(3));
   const double pfe = iron_loss_W(omega_m_rad_s);
   const double gwh = 1.0 / config_.winding_to_housing_K_W;
-  const double gha = 1.0 / config_.housing_to_ambient_K_W;
+  const double gha = (1.0 + x_(4)) / config_.housing_to_ambient_K_W;  // the learned path
   // The torque held, the copper loss grows with the housing's (and so the magnets')
   // temperature as the flux falls: linearised, gamma W more per kelvin of housing above its
   // present temperature. It stays below half the housing's conductance to ambient, so the

@@ -551,8 +551,9 @@ TEST(SimulateCli, JsonFiguresCsvAndPlot) {
   std::getline(csv, header);
   EXPECT_EQ(header.rfind("time_s,winding_true_C,winding_est_C", 0), 0U) << header;
   // The filter's learned model, then the magnet estimate's sigma: empty (not 0) while there is
-  // no estimate (no magnet estimate), numbers after; last the true bus, always a number.
-  const std::string learned = ",housing_est_C,missing_loss_W,loss_scale_error,magnet_std_C,dc_bus_V";
+  // no estimate (no magnet estimate), numbers after; the true bus, always a number; last the
+  // cooling path's learned error, empty while there is no estimate.
+  const std::string learned = ",housing_est_C,missing_loss_W,loss_scale_error,magnet_std_C,dc_bus_V,cooling_scale_error";
   ASSERT_EQ(header.size() - header.rfind(learned), learned.size()) << header;
   std::string line;
   std::size_t empty_rows = 0;
@@ -567,9 +568,9 @@ TEST(SimulateCli, JsonFiguresCsvAndPlot) {
       fields.emplace_back();  // getline drops an empty last field
     }
     ASSERT_GE(fields.size(), 4U) << line;
-    ASSERT_EQ(fields.size(), 24U) << line;
+    ASSERT_EQ(fields.size(), 25U) << line;
     const bool has_estimate = !fields[2].empty();  // winding_est_C
-    for (std::size_t k = 19; k < 22; ++k) {
+    for (const std::size_t k : {19U, 20U, 21U, 24U}) {
       EXPECT_EQ(fields[k].empty(), !has_estimate) << line;
     }
     EXPECT_EQ(fields[22].empty(), fields[6] != "1") << line;  // magnet_std_C with magnet_valid

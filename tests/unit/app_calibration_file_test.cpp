@@ -479,6 +479,47 @@ TEST_F(CalibrationFile, ThermalStateKeepsTheLossModelsErrors) {
   }
 }
 
+// The cooling path's learned error goes with the thermal state as a pair of its own (both or
+// neither); a bad pair costs only itself and says why.
+TEST_F(CalibrationFile, ThermalStateKeepsTheCoolingPathsError) {
+  const fs::path path = dir_ / "axis1.thermal";
+  StoredThermalState s;
+  s.state = {92.4, 71.25, 1.3, true, 4.25, 21.5, 0.125, 0.0625, -0.75, true, 0.375, 0.09375};
+  s.saved_unix_s = 1795493852.25;
+  write_thermal_state_file(path, s);
+  const StoredThermalState back = read_thermal_state_file(path);
+  ASSERT_TRUE(back.state.has_cooling_error);
+  EXPECT_DOUBLE_EQ(back.state.cooling_scale_error, 0.375);
+  EXPECT_DOUBLE_EQ(back.state.cooling_scale_std, 0.09375);
+  EXPECT_TRUE(back.state.has_loss_errors) << "the loss errors' block is its own";
+  EXPECT_TRUE(back.cooling_error_ignored.empty());
+  // Not learned: not written, and read back as absent.
+  StoredThermalState without = s;
+  without.state.has_cooling_error = false;
+  write_thermal_state_file(path, without);
+  EXPECT_FALSE(read_thermal_state_file(path).state.has_cooling_error);
+  EXPECT_TRUE(read_thermal_state_file(path).cooling_error_ignored.empty());
+  // The writer keeps to the reader's range: a g of -0.75 (a path a quarter of the model's) is left out.
+  StoredThermalState odd = s;
+  odd.state.cooling_scale_error = -0.75;
+  write_thermal_state_file(path, odd);
+  EXPECT_FALSE(read_thermal_state_file(path).state.has_cooling_error);
+  const std::string head = "format = 1\nwinding_C = 90.0\nhousing_C = 70.0\nwinding_std_C = 1.0\nambient_C = 25.0\n"
+                           "saved_unix_s = 1.0\n";
+  const std::pair<std::string, std::string> refused[] = {
+      {"cooling_scale_error = 0.2\n", "cooling_scale_std is missing"},
+      {"cooling_scale_std = 0.1\n", "cooling_scale_error is missing"},
+      {"cooling_scale_error = 1.5\ncooling_scale_std = 0.1\n", ":7: cooling_scale_error"},
+      {"cooling_scale_error = 0.2\ncooling_scale_std = nan\n", ":8: cooling_scale_std"}};
+  for (const auto& [tail, named] : refused) {
+    write_text(path, head + tail);
+    const StoredThermalState r = read_thermal_state_file(path);
+    EXPECT_DOUBLE_EQ(r.state.winding_C, 90.0);
+    EXPECT_FALSE(r.state.has_cooling_error);
+    EXPECT_NE(r.cooling_error_ignored.find(named), std::string::npos) << r.cooling_error_ignored;
+  }
+}
+
 // Killed at any point of a write (SIGKILL: no destructor, no handler runs), the writer leaves
 // the old file or the new one, never a torn, empty or missing one; the next write removes the
 // temporary a killed writer left behind. 100 kills at random points of a child that writes

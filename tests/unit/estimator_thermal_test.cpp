@@ -532,11 +532,81 @@ TEST(ThermalObserver, TheLearnedLossModelSurvivesARestart) {
   EXPECT_DOUBLE_EQ(recalibrated.estimate().missing_loss_W, before.estimate().missing_loss_W);
 }
 
+// A cooling path better than the model's (an outrunner's bell, a flange bolted to its machine:
+// here half as much again, g = 0.5) sheds heat in proportion to the housing's rise. A missing
+// loss in watts learned at one temperature is too little at a hotter one; the cooling path's
+// relative error g, learned as the housing warms (a light load, then a heavy one, both
+// measured), carries over. Then a heavier spell without
+// measurements ends closer with g than a filter without it (its prior set to zero), and a
+// restart from the stored state keeps g; a state without it (an older file) restarts g from
+// its prior.
+TEST(ThermalObserver, ACoolingPathsErrorIsLearnedAndCarriesToAHotterSpell) {
+  const Calibration cal;
+  auto run = [&](bool learn_cooling, ThermalState* stored) {
+    ThermalModelConfig c;
+    if (!learn_cooling) {
+      c.initial_cooling_scale_std = 0.0;
+    }
+    ThermalObserver obs(c, cal, 25.0);
+    Network n = network_of(c, cal);
+    n.rha /= 1.5;
+    TestMachine m{n, 1.0, 0.0};
+    m.learn(obs, 1500.0);
+    m.learn(obs, 3000.0);
+    if (stored != nullptr) {
+      *stored = obs.state();
+    }
+    return m.unmeasured_error_C(obs, 5000.0);
+  };
+  ThermalState stored;
+  const double with_g = run(true, &stored);
+  const double without_g = run(false, nullptr);
+  // Measured: 3.8 C with g (learned 0.22 +- 0.18: the winding alone is measured, and dP and k
+  // take their shares by their priors), 6.9 C without (dP -58 W and k -0.12 at the end of the
+  // heavy spell, too little for the hotter housing).
+  EXPECT_GT(without_g, 4.0) << "the scenario no longer needs the cooling's error";
+  EXPECT_LT(with_g, 0.7 * without_g);
+  ASSERT_TRUE(stored.has_cooling_error);
+  EXPECT_GT(stored.cooling_scale_error, 0.1) << "a better path is a positive g";
+  EXPECT_LT(stored.cooling_scale_std, ThermalModelConfig{}.initial_cooling_scale_std);
+
+  const ThermalModelConfig c;
+  ThermalObserver kept(c, cal, 25.0);
+  kept.restore(stored, 0.0, 25.0);
+  EXPECT_DOUBLE_EQ(kept.state().cooling_scale_error, stored.cooling_scale_error);
+  EXPECT_DOUBLE_EQ(kept.state().cooling_scale_std, stored.cooling_scale_std);
+  EXPECT_DOUBLE_EQ(kept.estimate().cooling_scale_error, stored.cooling_scale_error);
+  ThermalState old_file = stored;
+  old_file.has_cooling_error = false;
+  ThermalObserver forgot(c, cal, 25.0);
+  forgot.restore(old_file, 0.0, 25.0);
+  EXPECT_EQ(forgot.state().cooling_scale_error, 0.0);
+  EXPECT_DOUBLE_EQ(forgot.state().cooling_scale_std, c.initial_cooling_scale_std);
+  // A stored g beyond the filter's bounds (a cooling path between half and twice the model's)
+  // is held at the bound; with g's learning off it stays 0.
+  ThermalState wild = stored;
+  wild.cooling_scale_error = 7.0;
+  ThermalObserver bounded(c, cal, 25.0);
+  bounded.restore(wild, 0.0, 25.0);
+  EXPECT_DOUBLE_EQ(bounded.state().cooling_scale_error, 1.0);
+  ThermalModelConfig no_g = c;
+  no_g.initial_cooling_scale_std = 0.0;
+  ThermalObserver off(no_g, cal, 25.0);
+  off.restore(stored, 0.0, 25.0);
+  EXPECT_EQ(off.state().cooling_scale_error, 0.0);
+  EXPECT_EQ(off.state().cooling_scale_std, 0.0);
+  // A calibration's restart of the temperatures keeps it, as it keeps dP and k.
+  ThermalObserver recalibrated(c, cal, 25.0);
+  recalibrated.keep_loss_errors(kept);
+  EXPECT_DOUBLE_EQ(recalibrated.state().cooling_scale_error, stored.cooling_scale_error);
+}
+
 // k stays physical (the machine's copper loss between half and twice the model's) however far
 // the measurements pull, and an idle motor (no copper loss, so nothing shows k) does not make
 // k less certain than its prior.
 TEST(ThermalObserver, TheLossScaleStaysPhysicalAndWithinItsPrior) {
   ThermalModelConfig c;
+  c.initial_cooling_scale_std = 0.0;  // k alone (a hotter winding also reads as a weaker cooling path)
   const Calibration cal;
   ThermalObserver obs(c, cal, 25.0);
   const Network n = network_of(c, cal);
@@ -758,10 +828,12 @@ TEST(ThermalObserver, TimeToLimitMatchesABruteForceSimulation) {
   double t_out = -1.0;
   ASSERT_TRUE(obs.time_to_limit_s(limit, i2, w, ambient, &t_out));
   // As documented: the copper loss at the limit temperature scaled by (1 + k) in the winding,
-  // dP with the iron loss in the housing.
+  // dP with the iron loss in the housing, and the path to the ambient at the learned (1 + g)
+  // times the model's conductance.
   const double p_cu = 1.5 * i2 * 0.133 * (1.0 + kAlpha * (limit - 25.0)) * (1.0 + e.loss_scale_error);
   const double p_fe = c.iron_loss_k1_W_s_rad * w + c.iron_loss_k2_W_s2_rad2 * w * w + e.missing_loss_W;
-  const Network n = network_of(c, cal);
+  Network n = network_of(c, cal);
+  n.rha /= 1.0 + e.cooling_scale_error;
   const double expected = brute_force_time(n, e.winding_C, e.housing_C, p_cu, p_fe, ambient, limit, false, i2);
   ASSERT_GT(expected, 0.0);
   EXPECT_NEAR(t_out, expected, 0.5) << "expected " << expected;

@@ -918,6 +918,7 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
       row.housing_est_C = tel.thermal.housing_C;
       row.missing_loss_W = tel.thermal.missing_loss_W;
       row.loss_scale_error = tel.thermal.loss_scale_error;
+      row.cooling_scale_error = tel.thermal.cooling_scale_error;
       row.rs_true_ohm = truth.rs_ohm;
       row.speed_ref_rad_s = cmd.speed_ref_rad_s;
       row.speed_rad_s = truth.omega_m_rad_s;
@@ -1406,9 +1407,10 @@ void write_series_csv(const SimulationResult& r, const std::string& path) {
   }
   out << "time_s,winding_true_C,winding_est_C,winding_std_C,magnet_true_C,magnet_est_C,magnet_valid,housing_true_C,"
          "rs_true_ohm,speed_ref_rad_s,speed_rad_s,torque_Nm,load_torque_Nm,id_A,iq_A,current_limit_A,derating,"
-         "time_to_limit_s,injection_active,housing_est_C,missing_loss_W,loss_scale_error,magnet_std_C,dc_bus_V\n";
+         "time_to_limit_s,injection_active,housing_est_C,missing_loss_W,loss_scale_error,magnet_std_C,dc_bus_V,"
+         "cooling_scale_error\n";
   for (const SeriesRow& s : r.series) {
-    out << fmt::format("{:.4f},{:.3f},{},{},{:.3f},{},{},{:.3f},{:.6f},{:.3f},{:.3f},{:.3f},{:.3f},{:.3f},{:.3f},{:.2f},{},{},{},{},{},{},{},{:.2f}\n",
+    out << fmt::format("{:.4f},{:.3f},{},{},{:.3f},{},{},{:.3f},{:.6f},{:.3f},{:.3f},{:.3f},{:.3f},{:.3f},{:.3f},{:.2f},{},{},{},{},{},{},{},{:.2f},{}\n",
                        s.time_s, s.winding_true_C, s.winding_est_valid ? fmt::format("{:.3f}", s.winding_est_C) : "",
                        s.winding_est_valid ? fmt::format("{:.3f}", s.winding_std_C) : "", s.magnet_true_C,
                        s.magnet_valid ? fmt::format("{:.3f}", s.magnet_est_C) : "", s.magnet_valid ? 1 : 0,
@@ -1418,7 +1420,8 @@ void write_series_csv(const SimulationResult& r, const std::string& path) {
                        s.winding_est_valid ? fmt::format("{:.3f}", s.housing_est_C) : "",
                        s.winding_est_valid ? fmt::format("{:.2f}", s.missing_loss_W) : "",
                        s.winding_est_valid ? fmt::format("{:.4f}", s.loss_scale_error) : "",
-                       s.magnet_valid ? fmt::format("{:.3f}", s.magnet_std_C) : "", s.dc_bus_V);
+                       s.magnet_valid ? fmt::format("{:.3f}", s.magnet_std_C) : "", s.dc_bus_V,
+                       s.winding_est_valid ? fmt::format("{:.4f}", s.cooling_scale_error) : "");
   }
   out.close();
   if (!out) {

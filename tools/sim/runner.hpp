@@ -75,10 +75,12 @@ struct SeriesRow {
   bool injection_active = false;
   bool counted = false;             // inside the error-metric window
   // What the thermal filter has learned of its model (empty in the CSV before an estimate):
-  // its housing node, the missing loss dP and the copper loss's relative error k.
+  // its housing node, the missing loss dP, the copper loss's relative error k and the cooling
+  // path's g.
   double housing_est_C = 0.0;
   double missing_loss_W = 0.0;
   double loss_scale_error = 0.0;
+  double cooling_scale_error = 0.0;
 };
 
 struct EstimateRow {

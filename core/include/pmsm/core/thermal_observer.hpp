@@ -1,8 +1,9 @@
 // Continuous winding temperature between injections: a two-node thermal model (winding,
 // stator/housing, to ambient) driven by the losses the controller can compute, fused with the
-// resistance measurements by a Kalman filter. Two more states, the loss model's errors (the
-// copper loss's relative error in the winding, a missing loss in watts in the housing), let the filter learn
-// a model mismatch from the measurements, which keeps the prediction honest between
+// resistance measurements by a Kalman filter. Three more states, the model's errors (the
+// copper loss's relative error in the winding, a missing loss in watts in the housing, and the
+// cooling path's relative error, which scales the housing's heat to the ambient), let the filter
+// learn a model mismatch from the measurements, which keeps the prediction honest between
 // measurements and the time-to-limit sensible.
 //
 // Also here: temperature from resistance (Eq. 1) through the calibration, time-to-limit at
@@ -62,6 +63,14 @@ struct ThermalModelConfig {
   double initial_loss_error_std_W = 50.0;
   double loss_scale_process_std_per_sqrt_s = 0.002;
   double initial_loss_scale_std = 0.2;
+  // g, the cooling path's relative error: the housing sheds (1 + g) times what the modelled
+  // housing-to-ambient resistance passes. Its heat goes with the housing's rise over the
+  // ambient, so unlike dP it carries over from one temperature to the next: a catalogue's or a
+  // commissioning's resistance to the ambient depends on the mounting, the airflow and the
+  // paths the two-node model lumps (an outrunner's bell, a flange on its machine), and is
+  // rarely known to better than a quarter.
+  double cooling_scale_process_std_per_sqrt_s = 0.0;
+  double initial_cooling_scale_std = 0.25;
   double measurement_floor_std_C = 0.3;  // added in quadrature to each measurement's own error
   double gate_sigma = 6.0;               // innovation gate (from the first fused measurement on)
   // A start without a known winding temperature (no calibration run, no stored state): the
@@ -84,7 +93,7 @@ struct ThermalModelConfig {
 
 // What the drive keeps across a restart (a warm motor): the filter's temperatures and their
 // uncertainty, and what it has learned of the loss model (dP and k with their
-// standard deviations), which a power cycle does not change.
+// standard deviations) and of the cooling path (g), which a power cycle does not change.
 struct ThermalState {
   double winding_C = 0.0;
   double housing_C = 0.0;
@@ -95,6 +104,9 @@ struct ThermalState {
   double loss_scale_error = 0.0;  // k
   double loss_scale_std = 0.0;
   double loss_correlation = 0.0;  // of dP and k (at one load the filter learns a combination of dP and k Pcu)
+  bool has_cooling_error = false;   // false: a state without g (an older file): its prior
+  double cooling_scale_error = 0.0; // g
+  double cooling_scale_std = 0.0;
 };
 
 // A data sheet's resistance, +-10 % read as two standard deviations.
@@ -161,12 +173,14 @@ struct ThermalEstimate {
   double loss_scale_error = 0.0;  // k
   double loss_scale_std = 0.0;    // its standard deviation
   double time_since_measurement_s = 0.0;
+  double cooling_scale_error = 0.0;  // g: the housing sheds (1 + g) times what the model's path passes
 };
 
 class ThermalObserver {
  public:
-  using Matrix = Eigen::Matrix4d;
-  using Vector = Eigen::Vector4d;
+  static constexpr int kStates = 5;
+  using Matrix = Eigen::Matrix<double, kStates, kStates>;
+  using Vector = Eigen::Matrix<double, kStates, 1>;
   // known: the winding is at initial_temp_C (a soaked motor at a calibration) with
   // config.initial_std_C; otherwise a guess with config.unknown_initial_std_C, and the first
   // measurement passes without the gate.
@@ -196,7 +210,8 @@ class ThermalObserver {
   [[nodiscard]] double model_rise_C() const { return model_rise_K_(0); }
   // Restarts from a guess (see the constructor), e.g. the ambient sensor's temperature.
   void restart_unknown(double guess_C);
-  // Takes over what `other` has learned of the loss model (dP, k and their covariance), as
+  // Takes over what `other` has learned of the loss model and the cooling path (dP, k, g and
+  // their covariance), as
   // when the temperatures restart (a calibration) but the machine is the same.
   void keep_loss_errors(const ThermalObserver& other);
   // Takes over `other`'s model-only rise (model_rise_C), winding and housing: the drive's own
@@ -283,7 +298,7 @@ class ThermalObserver {
   ThermalModelConfig config_;
   Calibration calibration_;
   double winding_rs0_ohm_ = 0.0;  // the winding's share of calibration_.rs0_ohm (set_calibration)
-  Vector x_;   // winding C, housing C, the missing loss dP W, the copper loss's relative error k
+  Vector x_;   // winding C, housing C, the missing loss dP W, the copper loss's relative error k, the cooling's g
   // The model's rise of winding and housing by the drive's own losses (model_rise_C), K.
   Eigen::Vector2d model_rise_K_ = Eigen::Vector2d::Zero();
   double last_copper_loss_W_ = 0.0;
@@ -322,8 +337,11 @@ class ThermalObserver {
   void cap_variance(int i, double limit);
   void set_loss_errors(double dp_W, double dp_std_W, double k, double k_std, double correlation,
                        double elapsed_thermal_s);
+  void set_cooling_error(double g, double g_std, double elapsed_thermal_s);
   static constexpr double kMinLossScale = -0.5;
   static constexpr double kMaxLossScale = 1.0;
+  static constexpr double kMinCoolingScale = -0.5;
+  static constexpr double kMaxCoolingScale = 1.0;
 };
 
 // The thermal model's fastest time constant (thermal seconds): the two-node network's faster
