@@ -142,7 +142,7 @@ void restore_thermal_state(const DaemonConfig& config, pmsm::daemon::DriveLoop& 
       spdlog::warn("thermal state: the loss model's errors not used ({}); they restart from the priors, the "
                    "temperatures are kept", s.loss_errors_ignored);
     }
-    if (s.state.has_cooling_error) {
+    if (s.state.has_cooling_error && loop.node().controller().thermal_state().has_cooling_error) {
       spdlog::info("thermal state: the cooling path's learned error kept: {:+.3f} +- {:.3f} of the model's conductance "
                    "(after the downtime)",
                    loop.node().controller().thermal_state().cooling_scale_error,

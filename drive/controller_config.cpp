@@ -388,8 +388,8 @@ ConfigSchema<C> build() {
   s.optional_real("thermal.initial_loss_error_std_W",
                   [](C& c) -> std::optional<double>& { return c.relative.initial_loss_error_std_W; }, at_least(0), "W",
                   "6.25 K / thermal.housing_to_ambient_K_W",
-                  "Initial uncertainty of the missing loss on the housing node (iron, friction, rotor, cooling path; "
-                  "Table I: 50 W), in proportion to the cooling path's conductance.");
+                  "Initial uncertainty of the missing loss on the housing node (iron, friction, rotor, the cooling path's "
+                  "error at one temperature; Table I: 50 W), in proportion to the cooling path's conductance.");
   s.real("thermal.loss_scale_process_std_per_sqrt_s", [](C& c) -> double& { return c.drive.thermal.loss_scale_process_std_per_sqrt_s; },
          at_least(0), "1/sqrt(s)", "Random walk of the copper-loss model's relative error (per thermal second).");
   s.real("thermal.initial_loss_scale_std", [](C& c) -> double& { return c.drive.thermal.initial_loss_scale_std; }, at_least(0), "",
@@ -409,7 +409,7 @@ ConfigSchema<C> build() {
   s.real("thermal.downtime_error_fraction", [](C& c) -> double& { return c.drive.thermal.downtime_error_fraction; }, between(0, 1), "",
          "A motor at rest (the drive disabled) or a stored thermal state cooled through the downtime: the winding's uncertainty "
          "grows by this fraction of the change the model predicts meanwhile (the cooling path's relative error; no loss runs to "
-         "teach it).");
+         "teach the loss states; on top of what the learned cooling error's variance adds, a conservative overlap).");
   s.real("thermal.measurement_floor_std_C", [](C& c) -> double& { return c.drive.thermal.measurement_floor_std_C; }, at_least(0), "C",
          "Added in quadrature to every measurement's own error.");
   s.real("thermal.gate_sigma", [](C& c) -> double& { return c.drive.thermal.gate_sigma; }, positive(1000), "",

@@ -8,10 +8,11 @@
 namespace pmsm::core {
 namespace {
 
-// Continuous-time matrices of the two-node network with the two loss-error states: k, the
+// Continuous-time matrices of the two-node network with the three model-error states: k, the
 // copper loss model's relative error, in the winding; dP, a loss the model lacks (watts), in
-// the housing: the iron and friction losses, the rotor's heat, the cooling path's error, all on
-// the housing's side (a commissioning's error in the winding's own path scales with the copper
+// the housing: the iron and friction losses, the rotor's heat, a cooling path's error at one
+// temperature, all on the housing's side; and g, the cooling path's relative error, which
+// scales with the housing's rise (a commissioning's error in the winding's own path scales with the copper
 // loss, which is k's; docs/estimator.md section 7):
 // Cw dTw/dt = (1 + k) Pcu - (Tw - Th)/Rwh
 // Ch dTh/dt = Pfe + dP + (Tw - Th)/Rwh - (1 + g) (Th - Ta)/Rha
@@ -73,7 +74,9 @@ ThermalState ThermalObserver::state() const {
   s.loss_scale_std = std::sqrt(std::max(p_(3, 3), 0.0));
   const double den = s.missing_loss_std_W * s.loss_scale_std;
   s.loss_correlation = den > 0.0 ? std::clamp(p_(2, 3) / den, -1.0, 1.0) : 0.0;
-  s.has_cooling_error = true;
+  // Only where g is learned: a stored 0 +- 0 from a filter with g off would hold g at 0 for good
+  // once it is switched on.
+  s.has_cooling_error = config_.initial_cooling_scale_std > 0.0;
   s.cooling_scale_error = x_(4);
   s.cooling_scale_std = std::sqrt(std::max(p_(4, 4), 0.0));
   return s;
@@ -274,6 +277,7 @@ void ThermalObserver::predict(double dt_s, double copper_current_sq_A2, double o
   const double pcu = copper_loss_W(copper_current_sq_A2);
   last_copper_loss_W_ = pcu;
   Matrix a = system_matrix(config_, pcu, x_(4));
+  const Eigen::Matrix2d a_model = system_matrix(config_, pcu).topLeftCorner<2, 2>();  // g = 0
   const double pfe = iron_loss_W(omega_m_rad_s);
   const double gha_ch = 1.0 / (config_.housing_to_ambient_K_W * config_.housing_capacity_J_K);
   const double cooling = 1.0 + x_(4);  // the learned path's share of the modelled one
@@ -285,7 +289,7 @@ void ThermalObserver::predict(double dt_s, double copper_current_sq_A2, double o
     // The model's rise by the drive's own losses (model_rise_C): the network's block, the computed
     // losses without the ambient's term (no dP, no k, so the floor below never binds for it), the
     // same step as the filter's.
-    const Eigen::Matrix2d a2 = system_matrix(config_, pcu).topLeftCorner<2, 2>();
+    const Eigen::Matrix2d& a2 = a_model;
     const Eigen::Matrix2d b2 = Eigen::Matrix2d::Identity() * dt + 0.5 * a2 * dt * dt;
     const Eigen::Vector2d losses(pcu / config_.winding_capacity_J_K, pfe / config_.housing_capacity_J_K);
     model_rise_K_ = (Eigen::Matrix2d::Identity() + a2 * dt + 0.5 * a2 * a2 * dt * dt) * model_rise_K_ + b2 * losses;
@@ -298,7 +302,7 @@ void ThermalObserver::predict(double dt_s, double copper_current_sq_A2, double o
     // So does g: the floor takes the place of the learned path too.
     a(1, 2) = 0.0;
     g_column = 0.0;
-    a(1, 1) = system_matrix(config_, pcu)(1, 1);
+    a(1, 1) = a_model(1, 1);
     u(1) = ambient_C * gha_ch;
     if (x_(1) > ambient_C) {
       a(1, 1) -= gha_ch;
@@ -320,9 +324,9 @@ void ThermalObserver::predict(double dt_s, double copper_current_sq_A2, double o
   const double before_C = x_(0);
   x_.head<2>() = f * x_.head<2>() + e * (a12 * x_.tail<kStates - 2>()) + e * u;
   a12(1, 2) = g_column;
-  const Eigen::Matrix<double, 2, kStates - 2> g = e * a12;
+  const Eigen::Matrix<double, 2, kStates - 2> g_block = e * a12;
   winding_rate_C_per_s_ = dt_s > 0.0 ? (x_(0) - before_C) / dt_s : 0.0;
-  // An error the loss states do not carry: at rest no loss runs to teach them, so the cooling
+  // An error the loss states do not carry: at rest no loss runs to teach dP and k, so the cooling
   // path's relative error of the change predicted meanwhile adds up (summed: it is systematic);
   // and the optional unlearned share of how far the model has carried the estimate from where
   // a measurement (or the start) left it.
@@ -334,9 +338,9 @@ void ThermalObserver::predict(double dt_s, double copper_current_sq_A2, double o
   const Eigen::Matrix2d p11 = p_.topLeftCorner<2, 2>();
   const Eigen::Matrix<double, 2, kStates - 2> p12 = p_.topRightCorner<2, kStates - 2>();
   const Eigen::Matrix<double, kStates - 2, kStates - 2> p22 = p_.bottomRightCorner<kStates - 2, kStates - 2>();
-  const Eigen::Matrix<double, 2, kStates - 2> p12_next = f * p12 + g * p22;
-  const Eigen::Matrix2d fp12g = f * p12 * g.transpose();
-  p_.topLeftCorner<2, 2>() = f * p11 * f.transpose() + fp12g + fp12g.transpose() + g * p22 * g.transpose();
+  const Eigen::Matrix<double, 2, kStates - 2> p12_next = f * p12 + g_block * p22;
+  const Eigen::Matrix2d fp12g = f * p12 * g_block.transpose();
+  p_.topLeftCorner<2, 2>() = f * p11 * f.transpose() + fp12g + fp12g.transpose() + g_block * p22 * g_block.transpose();
   p_.topRightCorner<2, kStates - 2>() = p12_next;
   p_.bottomLeftCorner<kStates - 2, 2>() = p12_next.transpose();
   // The process noise, on the diagonal.
@@ -344,7 +348,9 @@ void ThermalObserver::predict(double dt_s, double copper_current_sq_A2, double o
   p_(1, 1) += config_.housing_process_std_C_per_sqrt_s * config_.housing_process_std_C_per_sqrt_s * dt;
   p_(2, 2) += config_.loss_error_process_std_W_per_sqrt_s * config_.loss_error_process_std_W_per_sqrt_s * dt;
   p_(3, 3) += config_.loss_scale_process_std_per_sqrt_s * config_.loss_scale_process_std_per_sqrt_s * dt;
-  p_(4, 4) += config_.cooling_scale_process_std_per_sqrt_s * config_.cooling_scale_process_std_per_sqrt_s * dt;
+  if (config_.initial_cooling_scale_std > 0.0) {  // (a prior of 0: g not learned, whatever its walk)
+    p_(4, 4) += config_.cooling_scale_process_std_per_sqrt_s * config_.cooling_scale_process_std_per_sqrt_s * dt;
+  }
   // A loss error unobserved for long (the motor idle: no copper loss to show k) must not
   // become less certain than the commissioning made it: the random walks stop at their priors.
   cap_variance(2, config_.initial_loss_error_std_W * config_.initial_loss_error_std_W);

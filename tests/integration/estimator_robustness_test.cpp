@@ -379,10 +379,11 @@ TEST(EstimatorRobustness, APositiveLevelHeldOnTheVoltageLimitEnds) {
 // age of 0. Held, the estimates' mean error at their own time is within 3 mOhm over three
 // seeds (70-90 of them, 11-15 mOhm RMS each: a standard error of 1.3-1.6 mOhm). (A bound of
 // 5 C on one seed's largest winding error was a draw: 3.5-5.4 C over seeds 901-906, and 6.3 C on
-// the file's own once repeated refusals were jittered, docs/accuracy.md. Since the filter learns
-// the cooling path's error the three read 6.8, 8.4 and 2.9 C, from 7.4, 7.4 and 3.1, their RMS
-// lower on each: 3.6, 3.2, 1.4 C from 4.0, 3.5, 1.6; the largest error is the model's heating
-// 18 s in, before g has anything to learn from.)
+// the file's own once repeated refusals were jittered, docs/accuracy.md. The build before the
+// cooling path's error was learned read 7.4, 7.4 and 3.1 C (6.3, 6.5, 3.2 on an older one);
+// since, 6.8, 8.4 and 2.9 C, their RMS lower on each: 3.6, 3.2, 1.4 C from 4.0, 3.5, 1.6. Seed
+// 901's largest error is the model's heating 18 s in, with g still near 0 (-0.01): the fifth
+// state's variance moved the gains, not its value.)
 TEST(EstimatorRobustness, AFieldWeakeningEstimateWaitsForItsTime) {
   double error_sum_ohm = 0.0;
   int fused_held = 0;

@@ -595,6 +595,19 @@ TEST(ThermalObserver, ACoolingPathsErrorIsLearnedAndCarriesToAHotterSpell) {
   off.restore(stored, 0.0, 25.0);
   EXPECT_EQ(off.state().cooling_scale_error, 0.0);
   EXPECT_EQ(off.state().cooling_scale_std, 0.0);
+  EXPECT_FALSE(off.state().has_cooling_error) << "a g never learned is not stored (0 +- 0 would hold it at 0 for good)";
+  // A downtime cools the stored state through the learned path: a better one cools it more.
+  ThermalState warm = stored;
+  warm.winding_C = 120.0;
+  warm.housing_C = 100.0;
+  ThermalState warm_model = warm;
+  warm_model.cooling_scale_error = 0.0;
+  ThermalObserver through_g(c, cal, 25.0);
+  through_g.restore(warm, 2000.0, 25.0);
+  ThermalObserver through_model(c, cal, 25.0);
+  through_model.restore(warm_model, 2000.0, 25.0);
+  EXPECT_LT(through_g.estimate().winding_C, through_model.estimate().winding_C - 1.0);
+  EXPECT_GT(through_g.estimate().winding_C, 25.0);
   // A calibration's restart of the temperatures keeps it, as it keeps dP and k.
   ThermalObserver recalibrated(c, cal, 25.0);
   recalibrated.keep_loss_errors(kept);

@@ -55,7 +55,8 @@ struct ThermalModelConfig {
   // The loss model's errors, random walks the measurements teach: k, the copper loss model's
   // relative error (the winding node gets (1 + k) times the computed loss), and dP, a loss the
   // model lacks (watts), on the housing node: the iron and friction losses, the rotor's heat,
-  // the cooling path's error. A commissioning's error in the winding's capacity or thermal
+  // a cooling path's error at one temperature (g below carries its part that scales with the
+  // housing's rise). A commissioning's error in the winding's capacity or thermal
   // resistance acts like k: it scales with the loss, so what one load spell teaches carries
   // over to the next at another load; an error on the housing's side warms the winding and the
   // housing alike and leaves the winding's rise over the housing to the copper loss.
@@ -85,9 +86,11 @@ struct ThermalModelConfig {
   // spell teaches the loss model nothing (docs/estimator.md §7, "An honest band").
   double model_error_fraction = 0.0;
   // A motor at rest (the drive disabled: predict() told that no losses run) or a stored state
-  // cooled through a downtime (restore()): the loss states cannot carry the cooling's error, so
-  // the band grows by this fraction of the change the model predicts meanwhile (the cooling
-  // path's relative error).
+  // cooled through a downtime (restore()): no loss runs to teach the loss states, so the band
+  // grows by this fraction of the change the model predicts meanwhile (the cooling path's
+  // relative error; counted on top of what g's variance adds through the housing, a
+  // conservative overlap: a winding cools mostly through its path to the housing, which g
+  // does not scale).
   double downtime_error_fraction = 0.25;
 };
 
@@ -168,7 +171,7 @@ struct ThermalEstimate {
   double winding_C = 0.0;
   double winding_std_C = 0.0;
   double housing_C = 0.0;
-  double loss_error_W = 0.0;      // the heat the model lacks: dP (housing) plus k times the last period's copper loss (winding)
+  double loss_error_W = 0.0;      // the heat the model lacks: dP (housing) plus k times the last period's copper loss (winding); without g's share
   double missing_loss_W = 0.0;    // dP
   double loss_scale_error = 0.0;  // k
   double loss_scale_std = 0.0;    // its standard deviation
@@ -290,8 +293,9 @@ class ThermalObserver {
   [[nodiscard]] double iron_loss_W(double omega_m_rad_s) const;
 
  private:
-  // What keeps the missing loss dP from taking more heat out of the housing than a machine can
-  // lose: the iron loss and once more what the modelled path to the ambient takes out.
+  // What keeps the missing loss dP and the cooling's error g together (dP - g (Th - Ta)/Rha)
+  // from taking more heat out of the housing than a machine can lose: the iron loss and once
+  // more what the modelled path to the ambient takes out.
   [[nodiscard]] double housing_loss_floor_W(double iron_loss_W, double ambient_C) const;
   // Eq. 1 for the winding alone (without the cable).
   [[nodiscard]] double winding_resistance_at_C(double temp_C) const;
