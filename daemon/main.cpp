@@ -142,11 +142,11 @@ void restore_thermal_state(const DaemonConfig& config, pmsm::daemon::DriveLoop& 
       spdlog::warn("thermal state: the loss model's errors not used ({}); they restart from the priors, the "
                    "temperatures are kept", s.loss_errors_ignored);
     }
-    if (s.state.has_cooling_error && loop.node().controller().thermal_state().has_cooling_error) {
+    const pmsm::core::ThermalState restored = loop.node().controller().thermal_state();
+    if (s.state.has_cooling_error && restored.has_cooling_error) {
       spdlog::info("thermal state: the cooling path's learned error kept: {:+.3f} +- {:.3f} of the model's conductance "
                    "(after the downtime)",
-                   loop.node().controller().thermal_state().cooling_scale_error,
-                   loop.node().controller().thermal_state().cooling_scale_std);
+                   restored.cooling_scale_error, restored.cooling_scale_std);
     } else if (!s.cooling_error_ignored.empty()) {
       spdlog::warn("thermal state: the cooling path's error not used ({}); it restarts from its prior, the temperatures "
                    "are kept", s.cooling_error_ignored);

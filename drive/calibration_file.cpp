@@ -340,33 +340,37 @@ constexpr const char* kMissingLossNode = "housing";
 
 constexpr LossKey kLossKeys[] = {{"missing_loss_W", -1e6, 1e6},
                                  {"missing_loss_std_W", 0.0, 1e6},
-                                 {"loss_scale_error", -0.5, 1.0},
+                                 {"loss_scale_error", core::ThermalObserver::kMinLossScale,
+                                  core::ThermalObserver::kMaxLossScale},
                                  {"loss_scale_std", 0.0, 10.0},
                                  {"loss_correlation", -1.0, 1.0}};
 
 // The cooling path's error g and its deviation: a pair of its own (a file from before g was
 // kept has neither), within the filter's bounds.
-constexpr LossKey kCoolingKeys[] = {{"cooling_scale_error", -0.5, 1.0}, {"cooling_scale_std", 0.0, 10.0}};
+constexpr LossKey kCoolingKeys[] = {
+    {"cooling_scale_error", core::ThermalObserver::kMinCoolingScale, core::ThermalObserver::kMaxCoolingScale},
+    {"cooling_scale_std", 0.0, 10.0}};
 
-bool cooling_error_storable(const core::ThermalState& s) {
-  const double values[] = {s.cooling_scale_error, s.cooling_scale_std};
-  for (std::size_t k = 0; k < std::size(kCoolingKeys); ++k) {
-    if (!(values[k] >= kCoolingKeys[k].lo && values[k] <= kCoolingKeys[k].hi)) {
+// Every value within its key's range (NaN is not).
+template <std::size_t N>
+bool within(const LossKey (&keys)[N], const double (&values)[N]) {
+  for (std::size_t k = 0; k < N; ++k) {
+    if (!(values[k] >= keys[k].lo && values[k] <= keys[k].hi)) {
       return false;
     }
   }
   return true;
 }
 
+bool cooling_error_storable(const core::ThermalState& s) {
+  const double values[] = {s.cooling_scale_error, s.cooling_scale_std};
+  return within(kCoolingKeys, values);
+}
+
 bool loss_errors_storable(const core::ThermalState& s) {
   const double values[] = {s.missing_loss_W, s.missing_loss_std_W, s.loss_scale_error, s.loss_scale_std,
                            s.loss_correlation};
-  for (std::size_t k = 0; k < std::size(kLossKeys); ++k) {
-    if (!(values[k] >= kLossKeys[k].lo && values[k] <= kLossKeys[k].hi)) {
-      return false;
-    }
-  }
-  return true;
+  return within(kLossKeys, values);
 }
 
 }  // namespace

@@ -91,11 +91,7 @@ void ThermalObserver::restore(const ThermalState& state, double downtime_thermal
   const bool cooling_learned = state.has_cooling_error && std::isfinite(state.cooling_scale_error) &&
                                std::isfinite(state.cooling_scale_std) && config_.initial_cooling_scale_std > 0.0;
   const double g = cooling_learned ? std::clamp(state.cooling_scale_error, kMinCoolingScale, kMaxCoolingScale) : 0.0;
-  Eigen::Matrix2d a;
-  const double gwh = 1.0 / config_.winding_to_housing_K_W;
-  const double gha = (1.0 + g) / config_.housing_to_ambient_K_W;
-  a << -gwh / config_.winding_capacity_J_K, gwh / config_.winding_capacity_J_K, gwh / config_.housing_capacity_J_K,
-      -(gwh + gha) / config_.housing_capacity_J_K;
+  const Eigen::Matrix2d a = system_matrix(config_, 0.0, g).topLeftCorner<2, 2>();
   const double t = std::max(downtime_thermal_s, 0.0);
   int squarings = 0;
   double h = t;

@@ -182,6 +182,12 @@ struct ThermalEstimate {
 class ThermalObserver {
  public:
   static constexpr int kStates = 5;
+  // The bounds the filter holds k and g within (a thermal state file's reader too): the
+  // machine's copper loss, and its cooling path, between half and twice the model's.
+  static constexpr double kMinLossScale = -0.5;
+  static constexpr double kMaxLossScale = 1.0;
+  static constexpr double kMinCoolingScale = -0.5;
+  static constexpr double kMaxCoolingScale = 1.0;
   using Matrix = Eigen::Matrix<double, kStates, kStates>;
   using Vector = Eigen::Matrix<double, kStates, 1>;
   // known: the winding is at initial_temp_C (a soaked motor at a calibration) with
@@ -342,10 +348,6 @@ class ThermalObserver {
   void set_loss_errors(double dp_W, double dp_std_W, double k, double k_std, double correlation,
                        double elapsed_thermal_s);
   void set_cooling_error(double g, double g_std, double elapsed_thermal_s);
-  static constexpr double kMinLossScale = -0.5;
-  static constexpr double kMaxLossScale = 1.0;
-  static constexpr double kMinCoolingScale = -0.5;
-  static constexpr double kMaxCoolingScale = 1.0;
 };
 
 // The thermal model's fastest time constant (thermal seconds): the two-node network's faster
