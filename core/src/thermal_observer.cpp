@@ -470,13 +470,26 @@ bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm, double
   p_(0, 0) += drift_var;
   drift_std_C_ = 0.0;
   rest_drift_C_ = 0.0;
+  const bool anchored_before = anchored_;
   anchored_ = true;
-  const Vector k = p_ * h.transpose() / s;
+  // Huber's weight (ThermalConfig::huber_sigma): beyond the threshold the measurement's own
+  // variance grows until the innovation's standard deviation is |innovation| / huber_sigma, so the
+  // state moves as far as it would for a measurement at the threshold, and the covariance
+  // shrinks by what such a measurement teaches. Not for a start's first measurement (nothing
+  // trustworthy to weigh it against, as for the gate).
+  const double innovation_C = z - x_(0);
+  double s_fused = s;
+  double r_fused = r;
+  if (anchored_before && std::abs(innovation_C) > config_.huber_sigma * std::sqrt(s)) {
+    s_fused = s * std::abs(innovation_C) / (config_.huber_sigma * std::sqrt(s));
+    r_fused = r + (s_fused - s);
+  }
+  const Vector k = p_ * h.transpose() / s_fused;
   const double before_C = x_(0);
-  x_ += k * (z - x_(0));
+  x_ += k * innovation_C;
   // Joseph form keeps P symmetric and positive.
   const Matrix i_kh = Matrix::Identity() - k * h;
-  p_ = i_kh * p_ * i_kh.transpose() + k * r * k.transpose();
+  p_ = i_kh * p_ * i_kh.transpose() + k * r_fused * k.transpose();
   // The copper loss's scale stays physical: the machine's loss between half and twice the
   // model's (beyond that it is no commissioning, and below -1 the loss would be negative).
   x_(3) = std::clamp(x_(3), kMinLossScale, kMaxLossScale);

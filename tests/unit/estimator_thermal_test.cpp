@@ -795,6 +795,49 @@ TEST(ThermalObserver, OutlierBeyondTheGateIsRejectedAndLeavesTheState) {
   }
 }
 
+// Huber's weight: inside huber_sigma a measurement is fused with its own variance; beyond it (and
+// inside the gate) it moves the estimate exactly as far as one at huber_sigma would, and the
+// band shrinks by less than a measurement at huber_sigma makes it shrink (its variance is
+// scaled by |innovation| / (huber_sigma sigma)). At or above the gate the weight is off.
+TEST(ThermalObserver, AFarMeasurementMovesTheEstimateNoFurtherThanOneAtHubersThreshold) {
+  ThermalModelConfig c;
+  Calibration cal;
+  const double rs_std = 0.001;
+  const double r = std::pow(rs_std / (kAlpha * 0.133), 2) + std::pow(c.measurement_floor_std_C, 2);
+  const double p0 = c.initial_std_C * c.initial_std_C;
+  const double s = p0 + r;
+  auto rs_at = [&](double t) { return 0.133 * (1.0 + kAlpha * (t - 25.0)); };
+  auto fused = [&](const ThermalModelConfig& config, double sigmas) {
+    ThermalObserver obs(config, cal, 50.0);  // a known start: gated (and weighed) from its first
+    EXPECT_TRUE(obs.update_resistance(rs_at(50.0 + sigmas * std::sqrt(s)), rs_std));
+    return obs.estimate();
+  };
+  ASSERT_LT(c.huber_sigma, c.gate_sigma);
+  const ThermalEstimate at_threshold = fused(c, c.huber_sigma);
+  const ThermalEstimate inside = fused(c, 0.5 * c.huber_sigma);
+  // Inside: the plain Kalman update.
+  EXPECT_NEAR(inside.winding_C, 50.0 + p0 / s * 0.5 * c.huber_sigma * std::sqrt(s), 1e-9);
+  EXPECT_NEAR(inside.winding_std_C, std::sqrt(p0 * r / s), 1e-9);
+  EXPECT_NEAR(at_threshold.winding_C, 50.0 + p0 / s * c.huber_sigma * std::sqrt(s), 1e-9);
+  for (const double sigmas : {1.2 * c.huber_sigma, 0.99 * c.gate_sigma}) {
+    const ThermalEstimate far = fused(c, sigmas);
+    EXPECT_NEAR(far.winding_C, at_threshold.winding_C, 1e-9) << sigmas << " sigma";
+    // P - P^2 / s', s' = s |nu| / (huber sigma): the band shrinks, by less.
+    const double s_far = s * sigmas / c.huber_sigma;
+    EXPECT_NEAR(far.winding_std_C, std::sqrt(p0 - p0 * p0 / s_far), 1e-9) << sigmas << " sigma";
+    EXPECT_GT(far.winding_std_C, at_threshold.winding_std_C);
+    EXPECT_LT(far.winding_std_C, c.initial_std_C);
+    // The correlated states move with the winding, as far as they would at the threshold.
+    EXPECT_NEAR(far.housing_C, at_threshold.housing_C, 1e-9);
+  }
+  // Negative innovations alike.
+  EXPECT_NEAR(fused(c, -1.5 * c.huber_sigma).winding_C, 50.0 - (at_threshold.winding_C - 50.0), 1e-9);
+  // Off at or above the gate: the plain update however far inside the gate.
+  ThermalModelConfig off = c;
+  off.huber_sigma = off.gate_sigma;
+  EXPECT_NEAR(fused(off, 0.99 * c.gate_sigma).winding_C, 50.0 + p0 / s * 0.99 * c.gate_sigma * std::sqrt(s), 1e-9);
+}
+
 // Brute force: RK4 on the two-node network with the losses held constant, until the winding
 // reaches the limit. Returns thermal seconds.
 // `scale_with_housing` (if given) multiplies the constant loss p_cu by a function of how far

@@ -74,6 +74,13 @@ struct ThermalModelConfig {
   double initial_cooling_scale_std = 0.25;
   double measurement_floor_std_C = 0.3;  // added in quadrature to each measurement's own error
   double gate_sigma = 6.0;               // innovation gate (from the first fused measurement on)
+  // Huber's weight: a measurement whose innovation lies beyond this many sigma (and inside the
+  // gate) is fused with its variance scaled by |innovation| / (huber_sigma sigma), so that it
+  // moves the state as far as one at huber_sigma would and no further. A resistance estimate's
+  // error has heavier tails than its error bar's Gaussian (a field-weakening pair's bridge
+  // pattern, a pulse crowded by a load step): one such estimate must not pull the winding and
+  // the learned loss and cooling errors by its whole distance. 1000 (at or above the gate) is off.
+  double huber_sigma = 3.0;
   // A start without a known winding temperature (no calibration run, no stored state): the
   // filter starts at the ambient sensor with this uncertainty and takes its first
   // measurement without the gate (a warm motor must not be rejected as implausible).
