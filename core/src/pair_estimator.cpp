@@ -57,7 +57,7 @@ constexpr double kMinDeterminant = 6.75e-12;
 
 // Solves a symmetric positive-definite 3x3 system a z = b by Cholesky, written out: a
 // quarter of the instructions of Eigen's pivoted LDLT on a matrix this small, and the
-// jackknife solves nine such systems in one control period (the worst-case step,
+// jackknife solves seventeen such systems in one control period (the worst-case step,
 // docs/performance.md). False if the matrix is singular in the sense of kMinDeterminant.
 bool cholesky_solve3(const Eigen::Matrix3d& a, const Eigen::Vector3d& b, Eigen::Vector3d& z) {
   const double d0 = a(0, 0);
@@ -219,6 +219,7 @@ void BlockedSums::add(const BlockedSums& other) {
   for (std::size_t b = 0; b < blocks.size(); ++b) {
     blocks[b].add(other.blocks[b]);
   }
+  used = std::max(used, other.used);
 }
 
 FitSums BlockedSums::total() const {
@@ -258,9 +259,10 @@ FitResult solve_fit(const BlockedSums& sums, const FitOptions& options) {
 
   // Jackknife over blocks: samples within a recording are strongly correlated (the current
   // loop, the EMF harmonics), so the textbook standard error would be far too small.
+  const int used = sums.used > 0 ? std::clamp(sums.used, 2, kFitBlocks) : kFitBlocks;
   std::array<Eigen::Vector2d, kFitBlocks> leave_out{};
   Eigen::Vector2d mean = Eigen::Vector2d::Zero();
-  for (int b = 0; b < kFitBlocks; ++b) {
+  for (int b = 0; b < used; ++b) {
     FitSums s = total;
     s.add(sums.blocks[static_cast<std::size_t>(b)], -1.0);
     Solution partial;
@@ -270,13 +272,13 @@ FitResult solve_fit(const BlockedSums& sums, const FitOptions& options) {
     leave_out[static_cast<std::size_t>(b)] = {partial.theta(kRegRs), partial.theta(kRegVx)};
     mean += leave_out[static_cast<std::size_t>(b)];
   }
-  mean /= kFitBlocks;
+  mean /= used;
   Eigen::Matrix2d cov = Eigen::Matrix2d::Zero();
-  for (const Eigen::Vector2d& t : leave_out) {
-    const Eigen::Vector2d d = t - mean;
+  for (int b = 0; b < used; ++b) {
+    const Eigen::Vector2d d = leave_out[static_cast<std::size_t>(b)] - mean;
     cov += d * d.transpose();
   }
-  cov *= static_cast<double>(kFitBlocks - 1) / kFitBlocks;
+  cov *= static_cast<double>(used - 1) / used;
   out.var_rs = cov(0, 0);
   out.var_vx = options.fit_vx ? cov(1, 1) : 0.0;
   out.cov_rs_vx = options.fit_vx ? cov(0, 1) : 0.0;
@@ -526,8 +528,11 @@ double PairRecorder::add_second(const PeriodSample& s) {
   if (ring_count_ == length) {
     const double inv = 1.0 / length;
     const std::array<double, kRegressors> x{ring_sum_[0] * inv, ring_sum_[1] * inv, ring_sum_[2] * inv};
-    const int block = std::clamp(static_cast<int>(phi / std::max(extent, 1e-12) * kFitBlocks), 0,
-                                 kFitBlocks - 1);
+    // Whole turns per block where the recording holds kFitBlocks turns (kFitBlocks above).
+    const int blocks =
+        match_by_ == MatchBy::kAngle && extent >= kFitBlocks * kTwoPi ? kFitBlocks : kFitBlocksShort;
+    sums_.used = blocks;
+    const int block = std::clamp(static_cast<int>(phi / std::max(extent, 1e-12) * blocks), 0, blocks - 1);
     sums_.blocks[static_cast<std::size_t>(block)].add(x, ring_sum_[kRegressors] * inv);
   }
 

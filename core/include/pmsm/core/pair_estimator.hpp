@@ -85,11 +85,21 @@ struct FitSums {
   void add(const FitSums& other, double sign = 1.0);
 };
 
-inline constexpr int kFitBlocks = 8;  // jackknife blocks
+// Jackknife blocks (docs/estimator.md section 3, "How many blocks"): a recording of at least
+// kFitBlocks whole electrical turns is cut into kFitBlocks, each a turn or more, so that the
+// variance is estimated with 15 degrees of freedom instead of 7; a shorter one (and a
+// time-based one) into kFitBlocksShort, whose blocks are parts of a turn: there the pattern
+// within a turn (EMF harmonics, the bridge's six steps), which cancels over whole turns, would
+// differ between shorter blocks and read as noise.
+inline constexpr int kFitBlocks = 16;
+inline constexpr int kFitBlocksShort = 8;
 
 // Sums of one or more pairs, kept per block so the jackknife can leave blocks out.
 struct BlockedSums {
   std::array<FitSums, kFitBlocks> blocks{};
+  // The blocks the jackknife leaves out in turn, the first `used`: set by the recorder, the
+  // largest of the pairs summed (add); 0, not set (sums filled by hand), counts as kFitBlocks.
+  int used = 0;
   void add(const BlockedSums& other);
   [[nodiscard]] FitSums total() const;
 };
