@@ -457,6 +457,9 @@ bool PairRecorder::add_first(const PeriodSample& s) {
 
 void PairRecorder::begin_second(double origin) {
   origin2_ = origin;
+  // Recording 1 is complete: its extent decides the blocks (kFitBlocks in the header), whole
+  // turns per block where it holds kFitBlocks turns.
+  sums_.used = match_by_ == MatchBy::kAngle && first_extent() >= kFitBlocks * kTwoPi ? kFitBlocks : kFitBlocksShort;
   cursor_ = 0;
   ring_sum_ = {};
   ring_count_ = 0;
@@ -528,10 +531,7 @@ double PairRecorder::add_second(const PeriodSample& s) {
   if (ring_count_ == length) {
     const double inv = 1.0 / length;
     const std::array<double, kRegressors> x{ring_sum_[0] * inv, ring_sum_[1] * inv, ring_sum_[2] * inv};
-    // Whole turns per block where the recording holds kFitBlocks turns (kFitBlocks above).
-    const int blocks =
-        match_by_ == MatchBy::kAngle && extent >= kFitBlocks * kTwoPi ? kFitBlocks : kFitBlocksShort;
-    sums_.used = blocks;
+    const int blocks = sums_.used;  // begin_second
     const int block = std::clamp(static_cast<int>(phi / std::max(extent, 1e-12) * blocks), 0, blocks - 1);
     sums_.blocks[static_cast<std::size_t>(block)].add(x, ring_sum_[kRegressors] * inv);
   }

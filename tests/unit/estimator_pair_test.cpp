@@ -15,9 +15,9 @@
 
 #include <array>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <functional>
-#include <cstdio>
 #include <optional>
 #include <random>
 #include <vector>
