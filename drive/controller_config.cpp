@@ -414,7 +414,7 @@ ConfigSchema<C> build() {
          "Added in quadrature to every measurement's own error.");
   s.real("thermal.gate_sigma", [](C& c) -> double& { return c.drive.thermal.gate_sigma; }, positive(1000), "",
          "A measurement further than this many sigma from the prediction is gated out.");
-  s.real("thermal.huber_sigma", [](C& c) -> double& { return c.drive.thermal.huber_sigma; }, positive(1000), "",
+  s.real("thermal.huber_sigma", [](C& c) -> double& { return c.drive.thermal.huber_sigma; }, between(1, 1000), "",
          "A measurement further than this many sigma from the prediction (and inside the gate) is fused with its variance "
          "scaled by how far beyond it lies (Huber's weight): it moves the estimate as far as one at this distance would, no "
          "further. At or above thermal.gate_sigma it is off.");

@@ -476,20 +476,22 @@ bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm, double
   // variance grows until the innovation's standard deviation is |innovation| / huber_sigma, so the
   // state moves as far as it would for a measurement at the threshold, and the covariance
   // shrinks by what such a measurement teaches. Not for a start's first measurement (nothing
-  // trustworthy to weigh it against, as for the gate).
+  // trustworthy to weigh it against, as for the gate). With the weight w = huber_sigma sqrt(s) /
+  // |innovation| in (0, 1] the fused variance is s / w and the fused measurement variance
+  // r + s / w - s; both are written through w so that nothing divides by a weight near zero.
   const double innovation_C = z - x_(0);
-  double s_fused = s;
-  double r_fused = r;
+  double w = 1.0;
   if (anchored_before && std::abs(innovation_C) > config_.huber_sigma * std::sqrt(s)) {
-    s_fused = s * std::abs(innovation_C) / (config_.huber_sigma * std::sqrt(s));
-    r_fused = r + (s_fused - s);
+    w = config_.huber_sigma * std::sqrt(s) / std::abs(innovation_C);
   }
-  const Vector k = p_ * h.transpose() / s_fused;
+  const Vector g = p_ * h.transpose() / s;  // the plain Kalman gain
+  const Vector k = w * g;
   const double before_C = x_(0);
   x_ += k * innovation_C;
-  // Joseph form keeps P symmetric and positive.
+  // Joseph form keeps P symmetric and positive: P' = (I - K h) P (I - K h)' + K r_fused K',
+  // where K r_fused K' = g (w s - w^2 (s - r)) g' (s - r is the prediction's share of s).
   const Matrix i_kh = Matrix::Identity() - k * h;
-  p_ = i_kh * p_ * i_kh.transpose() + k * r_fused * k.transpose();
+  p_ = i_kh * p_ * i_kh.transpose() + g * (w * s - w * w * (s - r)) * g.transpose();
   // The copper loss's scale stays physical: the machine's loss between half and twice the
   // model's (beyond that it is no commissioning, and below -1 the loss would be negative).
   x_(3) = std::clamp(x_(3), kMinLossScale, kMaxLossScale);

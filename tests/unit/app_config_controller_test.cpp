@@ -71,6 +71,7 @@ TEST(ControllerConfig, DefaultsAreTableIAndTheDocumentedSettings) {
   const core::ThermalModelConfig th;
   EXPECT_EQ(d.thermal.winding_capacity_J_K, th.winding_capacity_J_K);
   EXPECT_EQ(d.thermal.gate_sigma, th.gate_sigma);
+  EXPECT_EQ(d.thermal.huber_sigma, th.huber_sigma);
   EXPECT_EQ(d.thermal.time_scale, 1.0);  // a real machine
   // As DESIGN section 4 and the headers state them.
   EXPECT_EQ(d.injection.rs_min_ohm, 0.09);
@@ -212,6 +213,9 @@ TEST(ControllerConfig, ErrorsNameFileLineAndKey) {
   EXPECT_EQ(error_of("[injection]\nfit_dead_time = \"yes\"\n"),
             "drive.toml:2: injection.fit_dead_time: expected true or false, got a string");
   EXPECT_EQ(error_of("[thermal]\ngate_sigma = 0\n"), "drive.toml:2: thermal.gate_sigma: must be in (0, 1000], got 0");
+  // Huber's weight below 1 sigma would weigh down measurements that agree with the prediction.
+  EXPECT_EQ(error_of("[thermal]\nhuber_sigma = 0.5\n"), "drive.toml:2: thermal.huber_sigma: must be in [1, 1000], got 0.5");
+  EXPECT_EQ(error_of("[thermal]\nhuber_sigma = 1001\n"), "drive.toml:2: thermal.huber_sigma: must be in [1, 1000], got 1001");
   // A pair whose budget leaves no current would run without injection: F_min_A is no zero.
   EXPECT_EQ(error_of("[injection]\nF_min_A = 0\n"), "drive.toml:2: injection.F_min_A: must be in (0, 1000], got 0");
   EXPECT_EQ(error_of("[motr]\nrs_ohm = 0.1\n"), "drive.toml:1: motr: unknown key (did you mean [motor]?)");

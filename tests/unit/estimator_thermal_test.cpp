@@ -836,6 +836,23 @@ TEST(ThermalObserver, AFarMeasurementMovesTheEstimateNoFurtherThanOneAtHubersThr
   ThermalModelConfig off = c;
   off.huber_sigma = off.gate_sigma;
   EXPECT_NEAR(fused(off, 0.99 * c.gate_sigma).winding_C, 50.0 + p0 / s * 0.99 * c.gate_sigma * std::sqrt(s), 1e-9);
+  // The lowest threshold the configuration accepts (1 sigma) with a measurement just inside the
+  // gate: a weight of 1/6, the covariance finite and the band shrunk by less than at 1 sigma.
+  ThermalModelConfig low = c;
+  low.huber_sigma = 1.0;
+  const ThermalEstimate low_far = fused(low, 0.99 * c.gate_sigma);
+  EXPECT_NEAR(low_far.winding_C, 50.0 + p0 / s * std::sqrt(s), 1e-9);
+  EXPECT_NEAR(low_far.winding_std_C, std::sqrt(p0 - p0 * p0 / (s * 0.99 * c.gate_sigma)), 1e-9);
+  EXPECT_TRUE(std::isfinite(low_far.loss_error_W));
+  // A start without a known temperature takes its first measurement with its own variance,
+  // however far from the guess (nothing trustworthy to weigh it against, as for the gate).
+  const double u = c.unknown_initial_std_C * c.unknown_initial_std_C;
+  const double s_unknown = u + r;
+  const double far_C = 5.0 * c.huber_sigma * std::sqrt(s_unknown);
+  ThermalObserver guess(c, cal, 50.0, false);
+  ASSERT_TRUE(guess.update_resistance(rs_at(50.0 + far_C), rs_std));
+  EXPECT_NEAR(guess.estimate().winding_C, 50.0 + u / s_unknown * far_C, 1e-9);
+  EXPECT_NEAR(guess.estimate().winding_std_C, std::sqrt(u * r / s_unknown), 1e-9);
 }
 
 // Brute force: RK4 on the two-node network with the losses held constant, until the winding

@@ -79,7 +79,8 @@ struct ThermalModelConfig {
   // moves the state as far as one at huber_sigma would and no further. A resistance estimate's
   // error has heavier tails than its error bar's Gaussian (a field-weakening pair's bridge
   // pattern, a pulse crowded by a load step): one such estimate must not pull the winding and
-  // the learned loss and cooling errors by its whole distance. 1000 (at or above the gate) is off.
+  // the learned loss and cooling errors by its whole distance. At or above gate_sigma it is off;
+  // the configuration accepts 1 to 1000.
   double huber_sigma = 3.0;
   // A start without a known winding temperature (no calibration run, no stored state): the
   // filter starts at the ambient sensor with this uncertainty and takes its first
