@@ -141,7 +141,7 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns, 
       r.calibration_winding_rise_C = t.calibration_winding_rise_C;
       r.calibration_pairs = t.calibration_outcomes;
       r.calibration_aborts = t.calibration_aborts;
-      if (t.calibration_failure == core::CalibrationFailure::kUncertain) {
+      if (core::refused_measured_rs0(t.calibration_failure)) {
         r.calibration_rs0_ohm = t.calibration_rs0_ohm;
         r.calibration_rs0_std_ohm = t.calibration_rs0_std_ohm;
       }

@@ -375,8 +375,10 @@ void Publisher::handle(const PublicationRecord& r) {
       spdlog::warn("calibration refused: the winding is {:.1f} C above the ambient sensor's temperature (the thermal "
                    "filter's, or the measured Rs0 read through the calibration in use; calibration.max_winding_rise_C): "
                    "Rs0 would be referred to a temperature the winding is "
-                   "not at; let the motor cool to the ambient, or give the winding's temperature with the request. The "
-                   "previous calibration stays in use",
+                   "not at; let the motor cool to the ambient, or give the winding's temperature with the request. A motor "
+                   "replaced or rewound since the calibration in use reads warm through that calibration's Rs0 even when "
+                   "cold: give its temperature with the request, or remove the stored calibration. The previous "
+                   "calibration stays in use",
                    r.calibration_winding_rise_C);
     } else if (r.calibration_failure == core::CalibrationFailure::kAmbientHeld) {
       spdlog::warn("calibration refused: the ambient sensor (SENSOR_SAMPLE AmbientTemp) stopped reporting and its last "
@@ -396,6 +398,9 @@ void Publisher::handle(const PublicationRecord& r) {
                    "Check the cable's resistance and the window (injection.rs_min_ohm); the previous calibration stays "
                    "in use",
                    r.calibration_rs0_ohm, config_.controller.drive.thermal.cable_resistance_20C_ohm);
+    } else if (r.calibration_failure == core::CalibrationFailure::kRsOutsideWindow) {
+      spdlog::warn("calibration refused: {} The previous calibration stays in use",
+                   app::rs_outside_window_text(config_.controller.drive, r.calibration_rs0_ohm, r.calibration_rs0_std_ohm));
     } else if (r.calibration_failure == core::CalibrationFailure::kUncertain) {
       spdlog::warn("calibration refused: Rs0 {:.5f} +- {:.5f} ohm is less certain than "
                    "calibration.max_rs0_std_fraction allows (the bridge's voltage was not learned: calibrate "

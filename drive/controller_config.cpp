@@ -1148,4 +1148,34 @@ std::vector<std::string> reference_default_warnings(const ControllerConfig& conf
   return out;
 }
 
+std::string rs_outside_window_text(const core::DriveConfig& d, double measured_ohm, double scatter_ohm) {
+  const core::InjectionConfig& w = d.calibration_injection;
+  const double nameplate_ohm = core::terminal_resistance_ohm(d);
+  const double ratio = measured_ohm / nameplate_ohm;
+  std::string text = fmt::format(
+      "its {} events in a row measured Rs {:.4g} ohm (+- {:.2g}), {} the plausibility window {:.4g}-{:.4g} ohm "
+      "(injection.rs_min_ohm, injection.rs_max_ohm) that motor.rs_ohm = {:g} ohm at {:g} C sets{}: the nameplate is "
+      "not this winding's ({:.2f} times it). ",
+      core::kCalibrationOutsideWindowEvents, measured_ohm, scatter_ohm,
+      measured_ohm < w.rs_min_ohm ? "below" : "above", w.rs_min_ohm, w.rs_max_ohm, d.motor.rs_ohm,
+      d.motor.rs_reference_temp_C,
+      d.thermal.cable_resistance_20C_ohm > 0.0 ? fmt::format(" with motor.cable_resistance_ohm = {:g} ohm", d.thermal.cable_resistance_20C_ohm)
+                                               : std::string(),
+      ratio);
+  if (ratio > 0.4 && ratio < 0.62) {
+    text += "About half: a datasheet's line-to-line (terminal-to-terminal) resistance entered as motor.rs_ohm reads "
+            "twice the phase value the drive wants; enter half of it, and check motor.ld_H and motor.lq_H, whose "
+            "line-to-line values are twice theirs too (or one of two parallel paths' resistance was entered).";
+  } else if (ratio > 1.6 && ratio < 2.5) {
+    text += "About twice: check that motor.rs_ohm is the whole phase's resistance to the star point (not one of its "
+            "coils in series) and that a motor cable is configured (motor.cable_resistance_ohm).";
+  } else if (ratio < 0.003 || ratio > 300.0) {
+    text += "By a factor near a thousand: motor.rs_ohm is in ohm, not milliohm.";
+  } else {
+    text += "Check motor.rs_ohm (phase to star point, at motor.rs_reference_temp_C), its unit, and a motor cable "
+            "(motor.cable_resistance_ohm).";
+  }
+  return text;
+}
+
 }  // namespace pmsm::app

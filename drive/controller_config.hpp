@@ -126,6 +126,13 @@ void finalize(ControllerConfig& config, std::string_view source, const toml::tab
 
 [[nodiscard]] ControllerConfig default_controller_config();
 
+// Why a calibration was refused as rs_outside_window (core::CalibrationFailure::kRsOutsideWindow),
+// for a person: the resistance its events measured (`measured_ohm`, their scatter), the
+// plausibility window and the nameplate that set it, and what to check: about half the nameplate
+// is a line-to-line (terminal) value entered as the phase's, about a thousandth or a thousand
+// times a unit. For the daemon's log and simulate's report (it allocates).
+[[nodiscard]] std::string rs_outside_window_text(const core::DriveConfig& d, double measured_ohm, double scatter_ohm);
+
 // Defaults that describe the reference machine (Table I, 11.9 kW) and no other, on a motor
 // that is another (continuous current under half or over twice the reference's): the thermal
 // model left at the reference's values, a derating floor above the motor's rated peak current.

@@ -1346,6 +1346,51 @@ TEST(DriveNode, ACalibrationTheConfiguredCableTakesWholeIsRefused) {
   EXPECT_STREQ(core::calibration_failure_name(tel.calibration_failure), "cable_takes_all");
 }
 
+// A nameplate resistance twice the winding's (a datasheet's line-to-line value entered as the
+// phase's): the plausibility window it sets lies above every resistance the winding has, and each
+// of the calibration's events, measuring the winding, is refused as implausible. Three in a row
+// refuse the calibration there and then (not a timeout or an uncertain Rs0 much later), with the
+// resistance they measured, and the text for a person names the window, the nameplate and the
+// line-to-line mistake (docs/estimator.md section 6, "A nameplate that is not this winding's").
+TEST(DriveNode, ANameplateTwiceTheWindingsRefusesTheCalibrationAndSaysWhy) {
+  Rig rig;
+  rig.unload();
+  rig.config.drive.motor.rs_ohm *= 2.0;
+  finalize(rig.config, "drive_node_test");
+  rig.rebuild_node();
+  rig.run(2000);
+  const double window_min_ohm = rig.config.drive.calibration_injection.rs_min_ohm;
+  const double rs_ohm = rig.plant_config.motor.rs_at_C(rig.plant_config.thermal.ambient_C);
+  ASSERT_LT(1.2 * rs_ohm, window_min_ohm);  // the premise: the winding lies well below the window
+  expect_failed_calibration(rig, core::CalibrationFailure::kRsOutsideWindow, protocol::CalibrationResult::kRefused);
+  const core::DriveTelemetry& tel = rig.node->controller().telemetry();
+  EXPECT_NEAR(tel.calibration_rs0_ohm, rs_ohm, 0.03 * rs_ohm);
+  EXPECT_GT(tel.calibration_rs0_std_ohm, 0.0);
+  EXPECT_LT(tel.calibration_rs0_std_ohm, 0.03 * rs_ohm);
+  EXPECT_GE(tel.events_without_estimate, static_cast<std::uint32_t>(core::kCalibrationOutsideWindowEvents));
+  EXPECT_FALSE(rig.node->controller().calibration().calibrated);
+  EXPECT_STREQ(core::calibration_failure_name(tel.calibration_failure), "rs_outside_window");
+  const std::string text = rs_outside_window_text(rig.config.drive, tel.calibration_rs0_ohm, tel.calibration_rs0_std_ohm);
+  EXPECT_NE(text.find("below the plausibility window"), std::string::npos) << text;
+  EXPECT_NE(text.find("motor.rs_ohm = "), std::string::npos) << text;
+  EXPECT_NE(text.find("line-to-line"), std::string::npos) << text;
+}
+
+// The text's advice follows the ratio of the measured resistance to the nameplate's.
+TEST(DriveNode, AResistanceOutsideTheWindowIsExplainedByItsRatioToTheNameplate) {
+  const core::DriveConfig& d = default_controller_config().drive;
+  const double nameplate_ohm = core::terminal_resistance_ohm(d);
+  const auto text = [&](double ratio) { return rs_outside_window_text(d, ratio * nameplate_ohm, 1e-4); };
+  EXPECT_NE(text(0.5).find("line-to-line"), std::string::npos) << text(0.5);
+  EXPECT_NE(text(2.0).find("About twice"), std::string::npos) << text(2.0);
+  EXPECT_NE(text(2.0).find("above the plausibility window"), std::string::npos) << text(2.0);
+  EXPECT_NE(text(1e-3).find("not milliohm"), std::string::npos) << text(1e-3);
+  EXPECT_NE(text(1e3).find("not milliohm"), std::string::npos) << text(1e3);
+  const std::string other = text(0.3);
+  EXPECT_NE(other.find("Check motor.rs_ohm"), std::string::npos) << other;
+  EXPECT_EQ(other.find("line-to-line"), std::string::npos) << other;
+}
+
 // A calibration that gives up says so on the bus, and the one in use (here the configured
 // default) stays: a supervisor that asked for it sees TIMED_OUT with Calibrated 0.
 TEST(DriveNode, ACalibrationThatTimesOutIsPublishedAsSuch) {

@@ -132,6 +132,10 @@ Report run_one(const std::string& path, const Scenario& scenario, const Simulate
                          "a steady speed); the figures are those of the calibration in use before it\n",
                          path, result.calibration_failure_time_s,
                          core::pair_outcomes_text(result.calibration_failure_pairs, result.calibration_failure_aborts));
+  } else if (result.calibration_failure == core::CalibrationFailure::kRsOutsideWindow) {
+    r.err += fmt::format("simulate: {}: the calibration failed (rs_outside_window at {:.2f} s: {}); the figures are those "
+                         "of the calibration in use before it\n",
+                         path, result.calibration_failure_time_s, result.calibration_failure_detail);
   } else if (result.calibration_failure != core::CalibrationFailure::kNone) {
     r.err += fmt::format("simulate: {}: the calibration failed ({} at {:.2f} s); the figures are those of the "
                          "calibration in use before it\n",

@@ -766,10 +766,13 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
     if (drive.calibration_just_failed()) {
       result.calibration_failure = tel.calibration_failure;
       result.calibration_failure_time_s = t;
-      result.calibration_failure_rs0_ohm =
-          tel.calibration_failure == core::CalibrationFailure::kUncertain ? tel.calibration_rs0_ohm : 0.0;
-      result.calibration_failure_rs0_std_ohm =
-          tel.calibration_failure == core::CalibrationFailure::kUncertain ? tel.calibration_rs0_std_ohm : 0.0;
+      const bool measured = core::refused_measured_rs0(tel.calibration_failure);
+      result.calibration_failure_rs0_ohm = measured ? tel.calibration_rs0_ohm : 0.0;
+      result.calibration_failure_rs0_std_ohm = measured ? tel.calibration_rs0_std_ohm : 0.0;
+      result.calibration_failure_detail =
+          tel.calibration_failure == core::CalibrationFailure::kRsOutsideWindow
+              ? rs_outside_window_text(controller_config.drive, tel.calibration_rs0_ohm, tel.calibration_rs0_std_ohm)
+              : std::string();
       const bool refused_before_it_ran = core::refused_on_request(tel.calibration_failure);
       result.calibration_failure_winding_rise_C =
           core::refused_on_winding_rise(tel.calibration_failure) ? tel.calibration_winding_rise_C : 0.0;
@@ -1149,8 +1152,7 @@ std::string result_json(const SimulationResult& r) {
   }
   if (r.calibration_failure != core::CalibrationFailure::kNone) {
     // The failures that measured an Rs0 and refused it.
-    const bool measured_rs0 = r.calibration_failure == core::CalibrationFailure::kUncertain ||
-                              r.calibration_failure == core::CalibrationFailure::kCableTakesAll;
+    const bool measured_rs0 = core::refused_measured_rs0(r.calibration_failure);
     j.key("calibration_failure")
         .begin_object()
         .field("time_s", r.calibration_failure_time_s)
@@ -1336,7 +1338,9 @@ std::string result_text(const SimulationResult& r) {
   } else if (r.calibration_failure == core::CalibrationFailure::kWindingWarm) {
     out += fmt::format("  calibration failed at {:.2f} s    winding_warm: the winding was {:.1f} C above the ambient sensor "
                        "(the thermal filter's, or the measured Rs0 read through the calibration in use; "
-                       "calibration.max_winding_rise_C); the calibration in use stays\n",
+                       "calibration.max_winding_rise_C); the calibration in use stays (a motor replaced or rewound since that "
+                       "calibration reads warm through its Rs0 even when cold: give the winding's temperature with the "
+                       "request, or remove the stored calibration)\n",
                        r.calibration_failure_time_s, r.calibration_failure_winding_rise_C);
   } else if (r.calibration_failure == core::CalibrationFailure::kAmbientHeld) {
     out += fmt::format("  calibration failed at {:.2f} s    ambient_held: the ambient sensor had stopped reporting, its last "
@@ -1347,6 +1351,9 @@ std::string result_text(const SimulationResult& r) {
                        "the winding the drive had just measured (more than 4 sigma + calibration.max_winding_rise_C); the "
                        "calibration in use stays\n",
                        r.calibration_failure_time_s, std::abs(r.calibration_failure_winding_rise_C));
+  } else if (r.calibration_failure == core::CalibrationFailure::kRsOutsideWindow) {
+    out += fmt::format("  calibration failed at {:.2f} s    rs_outside_window: {} The calibration in use stays\n",
+                       r.calibration_failure_time_s, r.calibration_failure_detail);
   } else if (r.calibration_failure == core::CalibrationFailure::kUncertain) {
     out += fmt::format("  calibration failed at {:.2f} s    uncertain: Rs0 {:.5f} +- {:.5f} ohm ({:.2f} %, above "
                        "calibration.max_rs0_std_fraction); the calibration in use stays\n",

@@ -179,6 +179,7 @@ struct SimulationResult {
   double calibration_failure_winding_rise_C = 0.0;  // kWindingWarm: the filter's winding above the ambient
   core::OutcomeCounts calibration_failure_pairs{};  // the failed calibration's pairs, by outcome
   core::AbortCounts calibration_failure_aborts{};   // its aborted pairs, by cause
+  std::string calibration_failure_detail;  // kRsOutsideWindow: what was measured and what to check (rs_outside_window_text)
   core::InverterSweepResult inverter_sweep{};  // the calibration's bridge sweep (outcome kNone: not run)
   double inverter_sweep_time_s = 0.0;
   core::AngleCheckResult angle_check{};  // the calibration's last rotor-angle check (outcome kNone: not run)

@@ -203,12 +203,26 @@ enum class CalibrationFailure : std::uint8_t {
   // The Rs0 measured is not above the motor cable's resistance at T0
   // (ThermalModelConfig::cable_resistance_20C_ohm): Eq. 1 would have no winding left
   kCableTakesAll = 7,
+  // The calibration's events measured, one after another, a resistance on the same side
+  // outside the plausibility window that the nameplate sets (InjectionConfig::rs_min_ohm,
+  // rs_max_ohm): the nameplate and the winding disagree (a line-to-line value entered as the
+  // phase's, a wrong unit). kCalibrationOutsideWindowEvents of them end the calibration.
+  kRsOutsideWindow = 8,
 };
+// Calibration events in a row, all below or all above the plausibility window, that refuse the
+// calibration as kRsOutsideWindow.
+inline constexpr int kCalibrationOutsideWindowEvents = 3;
 [[nodiscard]] const char* calibration_failure_name(CalibrationFailure f);
 // Refused as it was asked for, before any of it ran.
 [[nodiscard]] constexpr bool refused_on_request(CalibrationFailure f) {
   return f == CalibrationFailure::kWindingWarm || f == CalibrationFailure::kTemperatureImplausible ||
          f == CalibrationFailure::kAmbientHeld;
+}
+// A refusal of a resistance the calibration measured (DriveTelemetry::calibration_rs0_ohm and its
+// standard error, or for kRsOutsideWindow its events' mean and scatter).
+[[nodiscard]] constexpr bool refused_measured_rs0(CalibrationFailure f) {
+  return f == CalibrationFailure::kUncertain || f == CalibrationFailure::kCableTakesAll ||
+         f == CalibrationFailure::kRsOutsideWindow;
 }
 // A refusal that measured the winding against the temperature asked for (calibration_winding_rise_C).
 [[nodiscard]] constexpr bool refused_on_winding_rise(CalibrationFailure f) {
@@ -226,7 +240,7 @@ enum class CalibrationOutcome : std::uint8_t {
   kDone = 1,       // completed: its Rs0 is in use (the daemon stores it when it has a file)
   kAborted = 2,    // stopped by a command (a fault or disabling the drive only suspends it)
   kTimedOut = 3,   // CalibrationFailure::kTimeout
-  kRefused = 4,    // CalibrationFailure::kUncertain, kAngleOffset, kCableTakesAll, or refused on request
+  kRefused = 4,    // CalibrationFailure::kUncertain, kAngleOffset, kCableTakesAll, kRsOutsideWindow, or refused on request
 };
 
 // An EMF (magnet) reading is refused outside kMagnetPlausibleMin_C..kMagnetPlausibleMax_C
@@ -327,7 +341,9 @@ struct DriveTelemetry {
   CalibrationOutcome calibration_outcome = CalibrationOutcome::kNone;
   // The last completed or refused calibration's Rs0 and its standard error (the events'
   // inverse-variance combination, referred to T0); 0 before any, from the start of a
-  // calibration run, and after one that timed out.
+  // calibration run, and after one that timed out. After kRsOutsideWindow: the mean of the
+  // resistances its events measured outside the window (as measured, not referred to T0) and
+  // their scatter (sample standard deviation).
   double calibration_rs0_ohm = 0.0;
   double calibration_rs0_std_ohm = 0.0;
   // A calibration refused as kWindingWarm or kTemperatureImplausible: how far above the
@@ -592,6 +608,9 @@ class DriveController {
   void fail_calibration(CalibrationFailure why);
   // The failure's status (failed, reason, outcome) and its publication, without ending a run.
   void record_calibration_failure(CalibrationFailure why);
+  // A calibration event refused for its resistance outside the plausibility window: counted, and
+  // kCalibrationOutsideWindowEvents of them in a row on one side refuse the calibration.
+  void count_calibration_outside_window(const EventEstimate& e);
   void publish_calibration_state();
   void clear_motoring_telemetry();  // nothing asked of the motor this period (disabled, no sample)
   // The telemetry of what the drive has learned or been given (the angle correction, the
@@ -763,6 +782,12 @@ class DriveController {
   int calibration_ke_pairs_ = 0;
   double calibration_ke_model_var_sum_ = 0.0;
   bool calibration_vx_learned_ = false;  // an event of this calibration run learned Vx
+  // This calibration run's latest events refused as outside the plausibility window, in a row
+  // and on one side (+1 above it, -1 below): their count and their resistances' sums.
+  int calibration_outside_count_ = 0;
+  int calibration_outside_side_ = 0;
+  double calibration_outside_sum_ohm_ = 0.0;
+  double calibration_outside_sq_sum_ohm2_ = 0.0;
   InjectionScheduler::VxState vx_before_calibration_{};  // the scheduler's Vx state when the run started
   DeratingResult derating_{};
   // The pulses' current limit: the magnets' derating only (update_thermal).
