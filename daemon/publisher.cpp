@@ -169,7 +169,11 @@ std::string Publisher::fault_cause(protocol::FaultCode code, double value) const
     case protocol::FaultCode::kOverspeed:
       return fmt::format("the shaft at {:.1f} rad/s, above supervisor.overspeed_rad_s ({:g} rad/s): ", value, c.overspeed_rad_s);
     case protocol::FaultCode::kSensorTimeout:
-      return fmt::format("no sample for {:.0f} periods (supervisor.sensor_timeout_periods): ", value);
+      // The supervisor counts the loop's waits that ended without a sample, each can.sample_timeout_ms
+      // of wall time (not control periods: a review found the log said 10 periods for a 20 ms gap).
+      return fmt::format("no sample in {:.0f} waits of can.sample_timeout_ms ({:g} ms each, about {:g} ms; "
+                         "supervisor.sensor_timeout_periods): ",
+                         value, config_.can.sample_timeout_ms, value * config_.can.sample_timeout_ms);
     case protocol::FaultCode::kDuplicateNode: {
       std::string cause;
       if (foreign_.active || !second_source_.active) {
@@ -398,6 +402,10 @@ void Publisher::handle(const PublicationRecord& r) {
                    "Check the cable's resistance and the window (injection.rs_min_ohm); the previous calibration stays "
                    "in use",
                    r.calibration_rs0_ohm, config_.controller.drive.thermal.cable_resistance_20C_ohm);
+    } else if (r.calibration_failure == core::CalibrationFailure::kDriveFaulted) {
+      spdlog::warn("calibration refused: the drive has a latched fault (FAULT frames, above): its gates are off, and "
+                   "a calibration would start the thermal estimate again from the temperature it is given. Clear the "
+                   "fault (a stop command, once its cause is gone), then ask again. The previous calibration stays in use");
     } else if (r.calibration_failure == core::CalibrationFailure::kRsOutsideWindow) {
       spdlog::warn("calibration refused: {} The previous calibration stays in use",
                    app::rs_outside_window_text(config_.controller.drive, r.calibration_rs0_ohm, r.calibration_rs0_std_ohm));

@@ -170,7 +170,13 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
   if (in.abort_calibration) {
     controller_.abort_calibration();
   }
-  if (in.start_calibration) {
+  if (in.start_calibration && status.latched_mask != 0U) {
+    // Not with a fault latched: the gates are off and nothing would measure, and a calibration
+    // starts the thermal filter again from the temperature it is given. A reviewer found that an
+    // operator's 25 C sent after an OVERTEMPERATURE trip reset the estimate, and the next stop
+    // cleared the trip with the winding still hot (docs/daemon.md, "Calibration").
+    controller_.refuse_calibration_while_faulted();
+  } else if (in.start_calibration) {
     // The drive's own knowledge of the winding's temperature: the operator's value, or the
     // ambient / coolant sensor of a motor at rest (soaked).
     controller_.start_calibration(in.calibration_known_C.value_or(ambient_C), !in.calibration_known_C.has_value(),

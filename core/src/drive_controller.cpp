@@ -181,7 +181,8 @@ void DriveController::record_calibration_failure(CalibrationFailure why) {
     case CalibrationFailure::kTemperatureImplausible:
     case CalibrationFailure::kAmbientHeld:
     case CalibrationFailure::kCableTakesAll:
-    case CalibrationFailure::kRsOutsideWindow: calibration_outcome_ = CalibrationOutcome::kRefused; break;
+    case CalibrationFailure::kRsOutsideWindow:
+    case CalibrationFailure::kDriveFaulted: calibration_outcome_ = CalibrationOutcome::kRefused; break;
     case CalibrationFailure::kTimeout: calibration_outcome_ = CalibrationOutcome::kTimedOut; break;
     case CalibrationFailure::kNone: calibration_outcome_ = CalibrationOutcome::kNone; break;
   }
@@ -230,6 +231,7 @@ const char* calibration_failure_name(CalibrationFailure f) {
     case CalibrationFailure::kAmbientHeld: return "ambient_held";
     case CalibrationFailure::kCableTakesAll: return "cable_takes_all";
     case CalibrationFailure::kRsOutsideWindow: return "rs_outside_window";
+    case CalibrationFailure::kDriveFaulted: return "drive_faulted";
   }
   return "unknown";
 }
@@ -443,6 +445,13 @@ void DriveController::finish_inverter_sweep(double now_s) {
   // The calibration's events (and its timeout) start now, whatever the sweep found: without a
   // measurement the configured band and Vx prior hold, as before the sweep existed.
   calibration_started_s_ = now_s;
+}
+
+void DriveController::refuse_calibration_while_faulted() {
+  if (!calibrating_) {
+    calibration_refused_on_request_ = true;
+    record_calibration_failure(CalibrationFailure::kDriveFaulted);
+  }
 }
 
 void DriveController::start_calibration(double known_temp_C, bool from_ambient_sensor, bool ambient_held) {

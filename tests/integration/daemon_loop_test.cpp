@@ -554,7 +554,9 @@ TEST(DaemonLoop, PlantOutageSafeStateThenRecovery) {
   supervise(bench, {2}, 50.0, 30s, seen, [&] { return has_state(seen, 2, protocol::DriveState::kRunning); });
   ASSERT_TRUE(has_state(seen, 2, protocol::DriveState::kRunning));
   // (A plant slow to send its first sample may have tripped it once already, at the start.)
-  const std::string cause = "fault SENSOR_TIMEOUT: no sample for 5 periods (supervisor.sensor_timeout_periods)";
+  const std::string cause =
+      "fault SENSOR_TIMEOUT: no sample in 5 waits of can.sample_timeout_ms (20 ms each, about 100 ms; "
+      "supervisor.sensor_timeout_periods)";
   const std::size_t logged_before = log.lines_with(cause).size();
   axis.stop_plant();
   const std::size_t outage = seen.size();

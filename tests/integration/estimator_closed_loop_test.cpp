@@ -92,6 +92,27 @@ TEST(EstimatorClosedLoop, ATripIsReportedWithItsCodeAndTime) {
   const std::string json = result_json(r);
   EXPECT_NE(json.find("\"overspeed\": {\"count\": 1, \"first_s\": 2."), std::string::npos) << json;
   EXPECT_NE(result_text(r).find("fault overspeed"), std::string::npos);
+  // The series carries the currents the drive measured while it used its samples, and none once
+  // the fault is latched (its telemetry holds the last period's: a newcomer's CSV showed them
+  // frozen for 29 s while the shaft ran away).
+  ASSERT_FALSE(r.series.empty());
+  std::size_t rows_before = 0;
+  std::size_t measured_before = 0;
+  std::size_t rows_after = 0;
+  std::size_t measured_after = 0;
+  for (const SeriesRow& row : r.series) {
+    if (row.time_s > 0.5 && row.time_s < 1.9) {
+      ++rows_before;
+      measured_before += row.current_valid ? 1U : 0U;
+    } else if (row.time_s > first->first_s + 0.01) {
+      ++rows_after;
+      measured_after += row.current_valid ? 1U : 0U;
+    }
+  }
+  EXPECT_GT(rows_before, 50U);
+  EXPECT_EQ(measured_before, rows_before);
+  EXPECT_GT(rows_after, 5U);
+  EXPECT_EQ(measured_after, 0U);
   // Without the load step nothing trips, and the JSON says so with an empty object.
   s.plant.load.points = {{0.0, 0.0}};
   const SimulationResult calm = run_scenario(s, quiet());

@@ -751,10 +751,10 @@ TEST(DriveNode, NoThermalEstimateBeforeTheModelRan) {
 // trip for ever (the drive off until a restart) and the stored thermal state would keep a
 // temperature long gone. The model alone here (no injection), 2000 times faster than real time,
 // 40 Nm to heat it.
-TEST(DriveNode, ALatchedOvertemperatureCoolsOnAndClears) {
-  Rig rig;
-  // A fan (40 Nm at the 50 rad/s set-point) brakes the shaft while the gates are off; an active
-  // load would spin it away to OVERSPEED.
+// The rig of the overtemperature tests: the model alone (no injection) at 2000 times real time,
+// a trip at 45 C that clears below 35 C, and a fan (40 Nm at the 50 rad/s set-point) that brakes
+// the shaft while the gates are off (an active load would spin it away to OVERSPEED).
+void configure_for_overtemperature(Rig& rig) {
   rig.plant_config.load.profile = plant::LoadProfile::fan;
   rig.plant_config.load.torque_Nm = 0.0;
   rig.plant_config.load.fan_k_Nm_s2 = 40.0 / (50.0 * 50.0);
@@ -764,6 +764,11 @@ TEST(DriveNode, ALatchedOvertemperatureCoolsOnAndClears) {
   rig.supervisor.trip_temp_C = 45.0;
   rig.supervisor.trip_hysteresis_C = 10.0;
   rig.rebuild_node();
+}
+
+TEST(DriveNode, ALatchedOvertemperatureCoolsOnAndClears) {
+  Rig rig;
+  configure_for_overtemperature(rig);
   const auto winding_C = [&] { return rig.node->controller().telemetry().thermal.winding_C; };
   const auto tripped = [&] { return rig.node->supervisor().latched(core::FaultCode::kOvertemperature); };
   int k = 0;
@@ -786,6 +791,41 @@ TEST(DriveNode, ALatchedOvertemperatureCoolsOnAndClears) {
   rig.in.clear_faults = false;
   rig.in.mode = core::DriveMode::kSpeed;
   EXPECT_TRUE(rig.run(10).command->enable) << "runs again";
+}
+
+// A calibration asked for with a fault latched is refused: its gates are off, and a calibration
+// starts the thermal filter again from the temperature it is given. Before, an operator's 25 C
+// sent after an OVERTEMPERATURE trip reset the estimate, and the next stop cleared the trip with
+// the winding still hot (found by a review). Now the estimate holds, the trip stays latched under
+// the stop until the model has cooled the winding, and the refusal is said on the step it was
+// asked in. The same set-up as ALatchedOvertemperatureCoolsOnAndClears; the stop below lasts
+// 10 ms, 20 s of its thermal time, far from enough to cool the winding 10 K.
+TEST(DriveNode, ACalibrationAskedForWithAFaultLatchedIsRefusedAndTheTripHolds) {
+  Rig rig;
+  configure_for_overtemperature(rig);
+  const core::DriveTelemetry& tel = rig.node->controller().telemetry();
+  const auto tripped = [&] { return rig.node->supervisor().latched(core::FaultCode::kOvertemperature); };
+  for (int k = 0; k < 200000 && !tripped(); ++k) {
+    rig.run(1);
+  }
+  ASSERT_TRUE(tripped()) << "the winding estimate reached only " << tel.thermal.winding_C << " C";
+  const double at_trip_C = tel.thermal.winding_C;
+  rig.in.start_calibration = true;
+  rig.in.calibration_known_C = 25.0;
+  const NodeStep& asked = rig.run(1);
+  rig.in.start_calibration = false;
+  rig.in.calibration_known_C.reset();
+  EXPECT_TRUE(asked.calibration_failed);
+  EXPECT_EQ(tel.calibration_failure, core::CalibrationFailure::kDriveFaulted);
+  EXPECT_EQ(tel.calibration_outcome, core::CalibrationOutcome::kRefused);
+  EXPECT_FALSE(tel.calibrating);
+  EXPECT_STREQ(core::calibration_failure_name(tel.calibration_failure), "drive_faulted");
+  EXPECT_GT(tel.thermal.winding_C, at_trip_C - 1.0) << "the estimate was started again from the 25 C given";
+  // A stop asks for the clear; the trip holds while the winding is above the clear threshold.
+  rig.in.mode = core::DriveMode::kDisabled;
+  rig.in.clear_faults = true;
+  rig.run(100);
+  EXPECT_TRUE(tripped()) << "cleared at " << tel.thermal.winding_C << " C";
 }
 
 TEST(DriveNode, CalibrationUsesTheOperatorsTemperatureOrTheAmbientSensor) {

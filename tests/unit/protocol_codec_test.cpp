@@ -916,6 +916,10 @@ TEST(protocol_reject, SenderDoesNotAdvanceOnInvalidFrames) {
   DriveCommand big;
   big.torque_setpoint_Nm = 5000;
   EXPECT_EQ(tx.encode(big, f), EncodeStatus::kSaturated);
+  EXPECT_EQ(tx.next_counter(CommandStream::kDrive), 0) << "a saturated command is not sent: it takes no counter";
+  DriveCommand fine;
+  fine.torque_setpoint_Nm = 5;
+  EXPECT_EQ(tx.encode(fine, f), EncodeStatus::kOk);
   EXPECT_EQ(tx.next_counter(CommandStream::kDrive), 1);
 }
 

@@ -928,6 +928,7 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
       row.torque_Nm = truth.torque_em_Nm;
       row.load_torque_Nm = truth.load_torque_Nm;
       row.dc_bus_V = truth.dc_bus_V;
+      row.current_valid = node.supervisor().status().sample_usable;
       row.id_A = tel.i_A.d;
       row.iq_A = tel.i_A.q;
       row.current_limit_A = tel.current_limit_A;
@@ -1351,6 +1352,10 @@ std::string result_text(const SimulationResult& r) {
                        "the winding the drive had just measured (more than 4 sigma + calibration.max_winding_rise_C); the "
                        "calibration in use stays\n",
                        r.calibration_failure_time_s, std::abs(r.calibration_failure_winding_rise_C));
+  } else if (r.calibration_failure == core::CalibrationFailure::kDriveFaulted) {
+    out += fmt::format("  calibration failed at {:.2f} s    drive_faulted: asked for with a fault latched (the gates off); "
+                       "the calibration in use stays\n",
+                       r.calibration_failure_time_s);
   } else if (r.calibration_failure == core::CalibrationFailure::kRsOutsideWindow) {
     out += fmt::format("  calibration failed at {:.2f} s    rs_outside_window: {} The calibration in use stays\n",
                        r.calibration_failure_time_s, r.calibration_failure_detail);
@@ -1417,12 +1422,13 @@ void write_series_csv(const SimulationResult& r, const std::string& path) {
          "time_to_limit_s,injection_active,housing_est_C,missing_loss_W,loss_scale_error,magnet_std_C,dc_bus_V,"
          "cooling_scale_error\n";
   for (const SeriesRow& s : r.series) {
-    out << fmt::format("{:.4f},{:.3f},{},{},{:.3f},{},{},{:.3f},{:.6f},{:.3f},{:.3f},{:.3f},{:.3f},{:.3f},{:.3f},{:.2f},{},{},{},{},{},{},{},{:.2f},{}\n",
+    out << fmt::format("{:.4f},{:.3f},{},{},{:.3f},{},{},{:.3f},{:.6f},{:.3f},{:.3f},{:.3f},{:.3f},{},{},{:.2f},{},{},{},{},{},{},{},{:.2f},{}\n",
                        s.time_s, s.winding_true_C, s.winding_est_valid ? fmt::format("{:.3f}", s.winding_est_C) : "",
                        s.winding_est_valid ? fmt::format("{:.3f}", s.winding_std_C) : "", s.magnet_true_C,
                        s.magnet_valid ? fmt::format("{:.3f}", s.magnet_est_C) : "", s.magnet_valid ? 1 : 0,
                        s.housing_true_C, s.rs_true_ohm, s.speed_ref_rad_s, s.speed_rad_s, s.torque_Nm, s.load_torque_Nm,
-                       s.id_A, s.iq_A, s.current_limit_A, s.derating ? 1 : 0,
+                       s.current_valid ? fmt::format("{:.3f}", s.id_A) : "",
+                       s.current_valid ? fmt::format("{:.3f}", s.iq_A) : "", s.current_limit_A, s.derating ? 1 : 0,
                        s.time_to_limit_valid ? fmt::format("{:.1f}", s.time_to_limit_s) : "", s.injection_active ? 1 : 0,
                        s.winding_est_valid ? fmt::format("{:.3f}", s.housing_est_C) : "",
                        s.winding_est_valid ? fmt::format("{:.2f}", s.missing_loss_W) : "",

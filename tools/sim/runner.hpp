@@ -66,6 +66,9 @@ struct SeriesRow {
   double torque_Nm = 0.0;           // true electromagnetic torque
   double load_torque_Nm = 0.0;
   double dc_bus_V = 0.0;            // true DC bus (its ripple included)
+  // The currents the drive measured this period; not measured (empty in CSV) when the drive used no
+  // sample: a latched fault, an outage (the controller's telemetry holds its last period's then).
+  bool current_valid = false;
   double id_A = 0.0;
   double iq_A = 0.0;
   double current_limit_A = 0.0;

@@ -1041,7 +1041,10 @@ PlantInput PlantReceiver::receive(const CanFrame& frame) noexcept {
 }
 
 void CommandSender::advance(CommandStream stream, EncodeStatus status) noexcept {
-  if (status == EncodeStatus::kOk || status == EncodeStatus::kSaturated) {
+  // Only a frame that may be sent takes the counter: a saturated command is not sent
+  // (docs/protocol.md), and a counter it took would make the next command a jump, which the
+  // drive refuses (found by a review, 2026-12-05).
+  if (status == EncodeStatus::kOk) {
     auto& counter = counters_[static_cast<std::size_t>(stream)];
     counter = static_cast<std::uint8_t>((counter + 1U) % kAliveCounterModulo);
   }

@@ -299,8 +299,9 @@ class PlantReceiver {
 };
 
 // The supervisor's send side for one node: stamps each command stream's alive counter.
-// The counter advances whenever a frame is written (kOk or kSaturated); send every frame
-// written, or the receiver sees a gap (tolerated up to its max delta).
+// The counter advances with every frame encoded kOk, the only commands to send (a saturated one
+// is not sent: docs/protocol.md); send each of those, or the receiver sees a gap (tolerated up to
+// its max delta).
 class CommandSender {
  public:
   explicit CommandSender(NodeId node) noexcept : node_(node) {}
