@@ -94,8 +94,9 @@ const ConfigSchema<D>& schema() {
            "overhauling load, a runaway in torque control; default: 1.5 x rated; 0: off).");
     c.integer("supervisor.output_feedback_periods", [](D& d) -> int& { return d.supervisor.output_feedback_periods; },
               app::between(0, 100000),
-              "Samples in a row that report the gates off (SENSOR_SAMPLE OutputEnabled) while the drive has enabled them: "
-              "OUTPUT_FEEDBACK fault (an open enable chain, a safe torque off, a stage's own latched fault); 0: not judged.");
+              "Samples in a row that report the gates off (SENSOR_SAMPLE OutputEnabled) while the drive has enabled them, "
+              "or on while it holds them off: OUTPUT_FEEDBACK fault (an open enable chain, a safe torque off, a stage's own "
+              "latched fault; a stage that ignores the enable, a stuck report); 0: not judged.");
     c.integer("supervisor.sensor_timeout_periods", [](D& d) -> int& { return d.supervisor.sensor_timeout_periods; }, app::between(1, 100000),
               "Missing samples in a row before the sensor-timeout fault (gates off).");
     c.integer("supervisor.sensor_recovery_periods", [](D& d) -> int& { return d.supervisor.sensor_recovery_periods; },

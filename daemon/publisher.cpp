@@ -149,6 +149,13 @@ std::string Publisher::fault_cause(protocol::FaultCode code, double value) const
                          "fixed): ",
                          value, c.current_offset_max_A);
     case protocol::FaultCode::kOutputFeedback:
+      if (value < 0.0) {
+        return fmt::format("the power stage reported its gates switching for {:.0f} samples in a row while the drive held "
+                           "them off (supervisor.output_feedback_periods = {}; a stage that ignores the enable, or a stuck "
+                           "OutputEnabled report; at power-up the drive measures its current offsets only with the gates "
+                           "off): ",
+                           -value, c.output_feedback_periods);
+      }
       return fmt::format("the power stage reported its gates off for {:.0f} samples in a row while the drive enabled them "
                          "(supervisor.output_feedback_periods = {}; an open enable chain, a safe torque off, a fault of the "
                          "stage's own): ",
@@ -402,10 +409,11 @@ void Publisher::handle(const PublicationRecord& r) {
                    "Check the cable's resistance and the window (injection.rs_min_ohm); the previous calibration stays "
                    "in use",
                    r.calibration_rs0_ohm, config_.controller.drive.thermal.cable_resistance_20C_ohm);
-    } else if (r.calibration_failure == core::CalibrationFailure::kDriveFaulted) {
-      spdlog::warn("calibration refused: the drive has a latched fault (FAULT frames, above): its gates are off, and "
-                   "a calibration would start the thermal estimate again from the temperature it is given. Clear the "
-                   "fault (a stop command, once its cause is gone), then ask again. The previous calibration stays in use");
+    } else if (r.calibration_failure == core::CalibrationFailure::kOvertemperatureLatched) {
+      spdlog::warn("calibration refused: OVERTEMPERATURE is latched, and a calibration would start the thermal estimate "
+                   "again from the temperature it is given, so that the trip could clear with the winding still hot. Let "
+                   "the motor cool until a stop command clears the trip, then ask again. The previous calibration stays "
+                   "in use");
     } else if (r.calibration_failure == core::CalibrationFailure::kRsOutsideWindow) {
       spdlog::warn("calibration refused: {} The previous calibration stays in use",
                    app::rs_outside_window_text(config_.controller.drive, r.calibration_rs0_ohm, r.calibration_rs0_std_ohm));

@@ -170,12 +170,14 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
   if (in.abort_calibration) {
     controller_.abort_calibration();
   }
-  if (in.start_calibration && status.latched_mask != 0U) {
-    // Not with a fault latched: the gates are off and nothing would measure, and a calibration
-    // starts the thermal filter again from the temperature it is given. A reviewer found that an
-    // operator's 25 C sent after an OVERTEMPERATURE trip reset the estimate, and the next stop
-    // cleared the trip with the winding still hot (docs/daemon.md, "Calibration").
-    controller_.refuse_calibration_while_faulted();
+  if (in.start_calibration && supervisor_.latched(core::FaultCode::kOvertemperature)) {
+    // Not with OVERTEMPERATURE latched: a calibration starts the thermal filter again from the
+    // temperature it is given, and the trip clears on the estimate. A reviewer found that an
+    // operator's 25 C sent after the trip reset the estimate, and the next stop cleared the trip
+    // with the winding still hot (docs/daemon.md, CALIBRATION_COMMAND). Other faults do not
+    // refuse it: a calibration asked for while, say, SENSOR_TIMEOUT holds (a daemon started before
+    // its power stage) waits for the fault to clear, as a running one does.
+    controller_.refuse_calibration_while_overtemperature();
   } else if (in.start_calibration) {
     // The drive's own knowledge of the winding's temperature: the operator's value, or the
     // ambient / coolant sensor of a motor at rest (soaked).

@@ -182,7 +182,7 @@ void DriveController::record_calibration_failure(CalibrationFailure why) {
     case CalibrationFailure::kAmbientHeld:
     case CalibrationFailure::kCableTakesAll:
     case CalibrationFailure::kRsOutsideWindow:
-    case CalibrationFailure::kDriveFaulted: calibration_outcome_ = CalibrationOutcome::kRefused; break;
+    case CalibrationFailure::kOvertemperatureLatched: calibration_outcome_ = CalibrationOutcome::kRefused; break;
     case CalibrationFailure::kTimeout: calibration_outcome_ = CalibrationOutcome::kTimedOut; break;
     case CalibrationFailure::kNone: calibration_outcome_ = CalibrationOutcome::kNone; break;
   }
@@ -231,7 +231,7 @@ const char* calibration_failure_name(CalibrationFailure f) {
     case CalibrationFailure::kAmbientHeld: return "ambient_held";
     case CalibrationFailure::kCableTakesAll: return "cable_takes_all";
     case CalibrationFailure::kRsOutsideWindow: return "rs_outside_window";
-    case CalibrationFailure::kDriveFaulted: return "drive_faulted";
+    case CalibrationFailure::kOvertemperatureLatched: return "overtemperature_latched";
   }
   return "unknown";
 }
@@ -447,10 +447,10 @@ void DriveController::finish_inverter_sweep(double now_s) {
   calibration_started_s_ = now_s;
 }
 
-void DriveController::refuse_calibration_while_faulted() {
+void DriveController::refuse_calibration_while_overtemperature() {
   if (!calibrating_) {
     calibration_refused_on_request_ = true;
-    record_calibration_failure(CalibrationFailure::kDriveFaulted);
+    record_calibration_failure(CalibrationFailure::kOvertemperatureLatched);
   }
 }
 

@@ -139,6 +139,20 @@ void Supervisor::check_sample(const SupervisedSample& s) noexcept {
   } else {
     output_off_samples_ = 0;
   }
+  // And the other way round: a stage that reports its gates switching while the drive holds them
+  // off (a stage that ignores the enable, a stuck OutputEnabled). The power-up's current offsets
+  // are measured only on samples with the gates off, so such a stage held the drive in INIT
+  // without a fault or a word, and after INIT it went unnoticed (found by a review, 2026-12-05).
+  // The value is the count, negative for this direction (the log tells the two apart).
+  if (!meant_on && s.output_enabled) {
+    ++output_on_samples_;
+    if (config_.output_feedback_periods > 0 &&
+        output_on_samples_ >= static_cast<std::uint32_t>(config_.output_feedback_periods)) {
+      cause(FaultCode::kOutputFeedback, -static_cast<double>(output_on_samples_));
+    }
+  } else {
+    output_on_samples_ = 0;
+  }
   if (s.ambient_C && !(*s.ambient_C >= config_.ambient_min_C && *s.ambient_C <= config_.ambient_max_C)) {
     cause(FaultCode::kAmbientImplausible, *s.ambient_C);
   }

@@ -438,11 +438,17 @@ TEST(Supervisor, APowerStageSamplingAtAnotherPeriodIsAFaultThatHoldsWhileItLasts
 // output_feedback_periods such samples; a sample lost now and then (the drive switches the
 // gates off for that period alone) does not restart the count, the stage switching does, and
 // 0 turns the check off.
+// A healthy sample whose stage reports its gates switching (`on`) or not.
+SupervisedSample gates(bool on) {
+  SupervisedSample s = healthy();
+  s.output_enabled = on;
+  return s;
+}
+
 TEST(Supervisor, AStageThatKeepsItsGatesOffTripsOutputFeedback) {
   SupervisorConfig c = config();
   c.output_feedback_periods = 50;
-  SupervisedSample off = healthy();
-  off.output_enabled = false;
+  const SupervisedSample off = gates(false);
   SupervisorInput missing = running();
   missing.sample.reset();
   auto run = [&](Supervisor& sup, int samples, bool drop_some) {
@@ -471,6 +477,44 @@ TEST(Supervisor, AStageThatKeepsItsGatesOffTripsOutputFeedback) {
   Supervisor unjudged(c, kPeriod);
   run(unjudged, 500, false);
   EXPECT_FALSE(unjudged.latched(FaultCode::kOutputFeedback));
+}
+
+// The other way round: a stage that reports its gates switching while the drive holds them off
+// (in INIT, in standby, in a fault) trips OUTPUT_FEEDBACK after the same run of samples, its value
+// the count made negative; a stage that follows the drive's enable a sample or two late does not.
+TEST(Supervisor, AStageThatSwitchesWhileHeldOffTripsOutputFeedback) {
+  SupervisorConfig c = config();
+  c.output_feedback_periods = 50;
+  SupervisorInput held_off = running(gates(true));
+  held_off.enable_requested = false;  // standby: the drive holds the gates off
+  Supervisor sup(c, kPeriod);
+  for (int k = 0; k < 49; ++k) {
+    sup.step(held_off);
+  }
+  EXPECT_FALSE(sup.latched(FaultCode::kOutputFeedback));
+  sup.step(held_off);
+  EXPECT_TRUE(sup.latched(FaultCode::kOutputFeedback)) << "50 samples with the gates on while held off";
+  EXPECT_FALSE(sup.status().power_stage_enabled);
+
+  Supervisor init(c, kPeriod);
+  SupervisorInput powering_up = running(gates(true));
+  powering_up.frontend_ready = false;  // INIT: the offsets wait for samples with the gates off
+  for (int k = 0; k < 60; ++k) {
+    init.step(powering_up);
+  }
+  EXPECT_TRUE(init.latched(FaultCode::kOutputFeedback)) << "a stuck report must not hold INIT without a word";
+
+  Supervisor following(c, kPeriod);
+  following.step(running(gates(true)));
+  for (int k = 0; k < 200; ++k) {
+    // Enabled and disabled in turns of 40 samples; the stage follows two samples late.
+    const bool enabled = (k / 40) % 2 == 0;
+    const bool stage_on = ((k - 2 < 0 ? 0 : k - 2) / 40) % 2 == 0;
+    SupervisorInput in = running(gates(stage_on));
+    in.enable_requested = enabled;
+    following.step(in);
+  }
+  EXPECT_FALSE(following.latched(FaultCode::kOutputFeedback));
 }
 
 TEST(Supervisor, TripIsImmediateAndLatched) {

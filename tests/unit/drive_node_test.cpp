@@ -221,6 +221,24 @@ TEST(DriveNode, AStageThatKeepsItsGatesOffIsAFault) {
   EXPECT_FALSE(rig.run(1, gates_off).command->enable);
 }
 
+// A power stage whose OutputEnabled is stuck on (or that switches whatever the drive asks) held the
+// drive in INIT for ever without a fault or a word: the current offsets are measured only on
+// samples with the gates off. Now it is OUTPUT_FEEDBACK, published, after the same run of samples.
+TEST(DriveNode, AStageThatReportsItsGatesOnAtPowerUpIsAFault) {
+  Rig rig;
+  auto gates_on = [](hal::SensorSample& s) { s.flags = static_cast<std::uint8_t>(s.flags | hal::kSensorOutputEnabled); };
+  bool published_fault = false;
+  int periods = 0;
+  while (!rig.node->supervisor().latched(core::FaultCode::kOutputFeedback) && periods < 1000) {
+    published_fault = published_fault || published(rig.run(1, gates_on), protocol::FaultCode::kOutputFeedback, true);
+    ++periods;
+  }
+  EXPECT_TRUE(rig.node->supervisor().latched(core::FaultCode::kOutputFeedback)) << "still in INIT, without a fault";
+  EXPECT_LE(periods, rig.supervisor.output_feedback_periods + 1);
+  EXPECT_TRUE(published_fault || published(rig.run(1, gates_on), protocol::FaultCode::kOutputFeedback, true));
+  EXPECT_FALSE(rig.run(1, gates_on).command->enable);
+}
+
 TEST(DriveNode, MissingSamplesNoCommandThenSensorTimeoutThenRecovery) {
   Rig rig;
   rig.run(2000);
@@ -235,6 +253,33 @@ TEST(DriveNode, MissingSamplesNoCommandThenSensorTimeoutThenRecovery) {
   const NodeStep& recovered = rig.run(rig.supervisor.sensor_recovery_periods + 5);
   EXPECT_TRUE(recovered.command->enable) << "sensor loss clears itself when samples return";
   EXPECT_FALSE(rig.node->supervisor().latched(core::FaultCode::kSensorTimeout));
+}
+
+// A calibration asked for while SENSOR_TIMEOUT holds (a daemon started before its power stage, a
+// passing outage) is not refused: it waits for the samples, and runs once the fault has cleared
+// itself. Only OVERTEMPERATURE refuses a request
+// (DriveNode.ACalibrationAskedForWithOvertemperatureLatchedIsRefusedAndTheTripHolds).
+TEST(DriveNode, ACalibrationAskedForUnderASensorTimeoutRunsOnceSamplesReturn) {
+  Rig rig;
+  rig.unload();
+  rig.run(2000);
+  for (int k = 0; k < rig.supervisor.sensor_timeout_periods; ++k) {
+    rig.node->step(nullptr, rig.in);
+  }
+  ASSERT_TRUE(rig.node->supervisor().latched(core::FaultCode::kSensorTimeout));
+  rig.in.start_calibration = true;
+  const NodeStep& asked = rig.node->step(nullptr, rig.in);
+  rig.in.start_calibration = false;
+  EXPECT_FALSE(asked.calibration_failed);
+  EXPECT_TRUE(rig.node->controller().telemetry().calibrating) << "waits for the fault to clear";
+  rig.run(rig.supervisor.sensor_recovery_periods + 5);
+  EXPECT_FALSE(rig.node->supervisor().latched(core::FaultCode::kSensorTimeout));
+  const core::DriveTelemetry& tel = rig.node->controller().telemetry();
+  for (int k = 0; k < 200000 && tel.calibrating; ++k) {
+    rig.run(1);
+  }
+  EXPECT_TRUE(rig.node->controller().calibration().calibrated)
+      << core::calibration_failure_name(tel.calibration_failure);
 }
 
 // A lockstep power stage slower than the sample timeout: a step without a sample, then the
@@ -793,14 +838,14 @@ TEST(DriveNode, ALatchedOvertemperatureCoolsOnAndClears) {
   EXPECT_TRUE(rig.run(10).command->enable) << "runs again";
 }
 
-// A calibration asked for with a fault latched is refused: its gates are off, and a calibration
-// starts the thermal filter again from the temperature it is given. Before, an operator's 25 C
+// A calibration asked for with OVERTEMPERATURE latched is refused: a calibration starts the
+// thermal filter again from the temperature it is given, and the trip clears on the estimate. Before, an operator's 25 C
 // sent after an OVERTEMPERATURE trip reset the estimate, and the next stop cleared the trip with
 // the winding still hot (found by a review). Now the estimate holds, the trip stays latched under
 // the stop until the model has cooled the winding, and the refusal is said on the step it was
 // asked in. The same set-up as ALatchedOvertemperatureCoolsOnAndClears; the stop below lasts
 // 10 ms, 20 s of its thermal time, far from enough to cool the winding 10 K.
-TEST(DriveNode, ACalibrationAskedForWithAFaultLatchedIsRefusedAndTheTripHolds) {
+TEST(DriveNode, ACalibrationAskedForWithOvertemperatureLatchedIsRefusedAndTheTripHolds) {
   Rig rig;
   configure_for_overtemperature(rig);
   const core::DriveTelemetry& tel = rig.node->controller().telemetry();
@@ -816,10 +861,10 @@ TEST(DriveNode, ACalibrationAskedForWithAFaultLatchedIsRefusedAndTheTripHolds) {
   rig.in.start_calibration = false;
   rig.in.calibration_known_C.reset();
   EXPECT_TRUE(asked.calibration_failed);
-  EXPECT_EQ(tel.calibration_failure, core::CalibrationFailure::kDriveFaulted);
+  EXPECT_EQ(tel.calibration_failure, core::CalibrationFailure::kOvertemperatureLatched);
   EXPECT_EQ(tel.calibration_outcome, core::CalibrationOutcome::kRefused);
   EXPECT_FALSE(tel.calibrating);
-  EXPECT_STREQ(core::calibration_failure_name(tel.calibration_failure), "drive_faulted");
+  EXPECT_STREQ(core::calibration_failure_name(tel.calibration_failure), "overtemperature_latched");
   EXPECT_GT(tel.thermal.winding_C, at_trip_C - 1.0) << "the estimate was started again from the 25 C given";
   // A stop asks for the clear; the trip holds while the winding is above the clear threshold.
   rig.in.mode = core::DriveMode::kDisabled;

@@ -1352,8 +1352,8 @@ std::string result_text(const SimulationResult& r) {
                        "the winding the drive had just measured (more than 4 sigma + calibration.max_winding_rise_C); the "
                        "calibration in use stays\n",
                        r.calibration_failure_time_s, std::abs(r.calibration_failure_winding_rise_C));
-  } else if (r.calibration_failure == core::CalibrationFailure::kDriveFaulted) {
-    out += fmt::format("  calibration failed at {:.2f} s    drive_faulted: asked for with a fault latched (the gates off); "
+  } else if (r.calibration_failure == core::CalibrationFailure::kOvertemperatureLatched) {
+    out += fmt::format("  calibration failed at {:.2f} s    overtemperature_latched: asked for with OVERTEMPERATURE latched; "
                        "the calibration in use stays\n",
                        r.calibration_failure_time_s);
   } else if (r.calibration_failure == core::CalibrationFailure::kRsOutsideWindow) {

@@ -208,10 +208,10 @@ enum class CalibrationFailure : std::uint8_t {
   // rs_max_ohm): the nameplate and the winding disagree (a line-to-line value entered as the
   // phase's, a wrong unit). kCalibrationOutsideWindowEvents of them end the calibration.
   kRsOutsideWindow = 8,
-  // Asked for while the drive had a latched fault (DriveNode): the gates are off, nothing would
-  // measure, and a calibration starts the thermal filter again from the temperature it is given,
-  // which would let a latched OVERTEMPERATURE clear on the next stop with the winding still hot.
-  kDriveFaulted = 9,
+  // Asked for while OVERTEMPERATURE was latched (DriveNode): a calibration starts the thermal
+  // filter again from the temperature it is given, which would let the trip clear on the next
+  // stop with the winding still hot.
+  kOvertemperatureLatched = 9,
 };
 // Calibration events in a row, all below or all above the plausibility window, that refuse the
 // calibration as kRsOutsideWindow.
@@ -220,7 +220,7 @@ inline constexpr int kCalibrationOutsideWindowEvents = 3;
 // Refused as it was asked for, before any of it ran.
 [[nodiscard]] constexpr bool refused_on_request(CalibrationFailure f) {
   return f == CalibrationFailure::kWindingWarm || f == CalibrationFailure::kTemperatureImplausible ||
-         f == CalibrationFailure::kAmbientHeld || f == CalibrationFailure::kDriveFaulted;
+         f == CalibrationFailure::kAmbientHeld || f == CalibrationFailure::kOvertemperatureLatched;
 }
 // A refusal of a resistance the calibration measured (DriveTelemetry::calibration_rs0_ohm and its
 // standard error, or for kRsOutsideWindow its events' mean and scatter).
@@ -417,10 +417,10 @@ class DriveController {
   // from it. `ambient_held`: the ambient sensor's temperature is its last reading, held since it
   // stopped reporting: a calibration on it is refused with kAmbientHeld.
   void start_calibration(double known_temp_C, bool from_ambient_sensor = false, bool ambient_held = false);
-  // A calibration asked for while the drive has a latched fault: refused as it was asked for
-  // (kDriveFaulted); the thermal filter and the calibration in use stay. A calibration already
-  // running (suspended by the fault) goes on once the fault is cleared, as before.
-  void refuse_calibration_while_faulted();
+  // A calibration asked for while OVERTEMPERATURE is latched: refused as it was asked for
+  // (kOvertemperatureLatched); the thermal filter and the calibration in use stay. A calibration
+  // already running (suspended by the fault) goes on once the fault is cleared, as before.
+  void refuse_calibration_while_overtemperature();
   // Stops a calibration in progress and keeps the calibration in use (nothing is stored).
   void abort_calibration();
 

@@ -64,7 +64,7 @@ enum class FaultCode : std::uint8_t {
   kOverspeed = 20,           // the shaft turns faster than overspeed_rad_s (over a 1 ms window)
   kPeriodMismatch = 21,      // the power stage reports another sampling period than the drive's
   kCurrentOffset = 22,       // a current sensor read far from zero with the gates off at power-up
-  kOutputFeedback = 23,      // the power stage kept its gates off while the drive enabled them
+  kOutputFeedback = 23,      // the power stage kept its gates off while the drive enabled them, or on while it held them off
   kDuplicateNode = 24,       // another sender transmits this node's frames, published or samples (reported by the caller)
   kCount = 25,
 };
@@ -217,6 +217,7 @@ class Supervisor {
   std::uint32_t window_periods_ = 0;
   std::uint32_t periods_without_sample_ = 0;  // since the last sample, as the steps said
   std::uint32_t output_off_samples_ = 0;      // in a row reporting the gates off while enabled
+  std::uint32_t output_on_samples_ = 0;       // in a row reporting the gates on while held off
   bool overspeed_cause_ = false;
 };
 
