@@ -270,7 +270,16 @@ const SupervisorStatus& Supervisor::step(const SupervisorInput& in) noexcept {
   }
   if (clear_requested_) {
     clear_requested_ = false;
-    status_.latched_mask &= cause_mask_;
+    // A fault judged on a sample's readings clears only on a sample that shows its cause gone:
+    // in a period without one nothing was judged, and a stop there cleared them all (a stage
+    // that latched its own over-current and fell silent), to be latched and counted again on the
+    // next sample (found by a review, 2026-12-05).
+    constexpr std::uint32_t kJudgedOnSamples =
+        bit(FaultCode::kInputNotFinite) | bit(FaultCode::kDcBusUndervoltage) | bit(FaultCode::kDcBusOvervoltage) |
+        bit(FaultCode::kOvercurrent) | bit(FaultCode::kCurrentSum) | bit(FaultCode::kHardwareOvercurrent) |
+        bit(FaultCode::kAmbientImplausible) | bit(FaultCode::kOutputFeedback);
+    const std::uint32_t unjudged = in.sample ? 0U : kJudgedOnSamples;
+    status_.latched_mask &= cause_mask_ | unjudged;
   }
   if (status_.latched_mask == 0U) {
     status_.first_fault = FaultCode::kNone;

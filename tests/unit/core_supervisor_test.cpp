@@ -517,6 +517,27 @@ TEST(Supervisor, AStageThatSwitchesWhileHeldOffTripsOutputFeedback) {
   EXPECT_FALSE(following.latched(FaultCode::kOutputFeedback));
 }
 
+// A stop asked for in a period without a sample does not clear a fault judged on the samples'
+// readings: nothing showed its cause gone. The next sample that does clears it.
+TEST(Supervisor, AStopWithoutASampleKeepsTheFaultsJudgedOnSamples) {
+  Supervisor sup(config(), kPeriod);
+  sup.step(running());
+  SupervisedSample hot = healthy();
+  hot.i_A = {900.0, -450.0, -450.0};
+  sup.step(running(hot));
+  ASSERT_TRUE(sup.latched(FaultCode::kOvercurrent));
+  SupervisorInput silent = running();
+  silent.sample.reset();
+  sup.request_clear();
+  sup.step(silent);
+  EXPECT_TRUE(sup.latched(FaultCode::kOvercurrent)) << "cleared in a period without a sample";
+  EXPECT_EQ(count(sup, FaultCode::kOvercurrent), 1U);
+  sup.request_clear();
+  sup.step(running());
+  EXPECT_FALSE(sup.latched(FaultCode::kOvercurrent)) << "a healthy sample and a stop clear it";
+  EXPECT_EQ(count(sup, FaultCode::kOvercurrent), 1U) << "latched once, not again";
+}
+
 TEST(Supervisor, TripIsImmediateAndLatched) {
   Supervisor sup(config(), kPeriod);
   sup.step(running());
