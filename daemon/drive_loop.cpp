@@ -123,9 +123,13 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns, 
   }
 
   const app::NodePublications& p = out.publications;
+  // The thermal state goes every kThermalStateEvery_s whether or not anything else is published
+  // (with every publish.* period at 0 it went only at a clean stop).
+  const bool thermal_state_due =
+      node_.uptime_s() >= next_thermal_state_s_ && node_.controller().telemetry().thermal_valid;
   if (p.thermal || p.resistance || p.injection || p.status || p.heartbeat || p.fault_count > 0 ||
       out.calibration_to_store || out.calibration_failed || node_.controller().inverter_sweep_completed() ||
-      node_.controller().angle_check_completed()) {
+      node_.controller().angle_check_completed() || thermal_state_due) {
     PublicationRecord r;
     r.publications = p;
     r.calibration_to_store = out.calibration_to_store;
@@ -162,7 +166,7 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns, 
     if (p.heartbeat) {
       r.timing = close_timing_window();
     }
-    if (r.uptime_s >= next_thermal_state_s_ && node_.controller().telemetry().thermal_valid) {
+    if (thermal_state_due) {
       next_thermal_state_s_ = r.uptime_s + kThermalStateEvery_s;
       r.thermal_state = node_.controller().thermal_state();
     }
@@ -171,10 +175,43 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns, 
     r.ambient_dropouts = node_.ambient_dropouts();
     r.ambient_sensed = node_.ambient_sensed();
     r.restore_ambient_shift_C = node_.restore_ambient_shift_C();
-    if (!ring_.try_push(r)) {
-      counters_.publications_dropped.bump();
-    }
+    publish(r);
+  } else if (backlog_count_ > 0U) {
+    (void)flush_backlog();
   }
+}
+
+bool carries_event(const PublicationRecord& r) noexcept {
+  return r.publications.fault_count > 0U || r.calibration_to_store.has_value() ||
+         r.calibration_failed || r.inverter_sweep.has_value() || r.angle_check.has_value();
+}
+
+bool DriveLoop::flush_backlog() noexcept {
+  while (backlog_count_ > 0U) {
+    if (!ring_.try_push(backlog_[backlog_first_])) {
+      return false;
+    }
+    backlog_first_ = (backlog_first_ + 1U) % kBacklogRecords;
+    --backlog_count_;
+  }
+  return true;
+}
+
+void DriveLoop::publish(const PublicationRecord& r) noexcept {
+  if (flush_backlog() && ring_.try_push(r)) {
+    return;
+  }
+  if (!carries_event(r)) {
+    counters_.publications_dropped.bump();
+    return;
+  }
+  if (backlog_count_ == kBacklogRecords) {
+    counters_.events_lost.bump();
+    return;
+  }
+  backlog_[(backlog_first_ + backlog_count_) % kBacklogRecords] = r;
+  ++backlog_count_;
+  counters_.events_held.bump();
 }
 
 void DriveLoop::record_timing(std::int64_t took_ns) noexcept {
@@ -454,6 +491,12 @@ void DriveLoop::run(const std::atomic<bool>& stop) {
     }
   }
   switch_off();
+  // What waits in the backlog goes before the drain thread stops (main.cpp stops it after run()
+  // returns), if the ring makes room within a second.
+  for (int k = 0; k < 1000 && !flush_backlog(); ++k) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  }
+  counters_.events_lost.bump(backlog_count_);
 }
 
 void DriveLoop::switch_off() noexcept {
@@ -503,6 +546,8 @@ LoopStats DriveLoop::stats() const noexcept {
   s.rx_errors = c.rx_errors.get();
   s.rx_overflow = bus_.counters().rx_overflow;  // (counters() may be read from any thread)
   s.publications_dropped = c.publications_dropped.get();
+  s.events_held = c.events_held.get();
+  s.events_lost = c.events_lost.get();
   s.deadline_misses = c.deadline_misses.get();
   s.interface_losses = c.interface_losses.get();
   s.reopens = c.reopens.get();

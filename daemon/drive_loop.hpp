@@ -96,7 +96,11 @@ struct LoopStats {
   // Frames the kernel dropped for the loop's socket, its receive buffer full (SO_RXQ_OVFL):
   // samples and commands that never reached the loop (the backend's count, kept over reopens).
   std::uint64_t rx_overflow = 0;
-  std::uint64_t publications_dropped = 0;  // the ring was full
+  std::uint64_t publications_dropped = 0;  // the ring was full: periodic values lost (later ones supersede them)
+  // Records carrying an event (carries_event) that found the ring full and waited in
+  // the loop's backlog, and those lost because the backlog was full too.
+  std::uint64_t events_held = 0;
+  std::uint64_t events_lost = 0;
   std::uint64_t deadline_misses = 0;       // receive -> send longer than one control period
   std::uint64_t interface_losses = 0;
   std::uint64_t reopens = 0;
@@ -106,6 +110,14 @@ struct LoopStats {
 };
 
 inline constexpr double kThermalStateEvery_s = 10.0;
+
+// A record the publisher must not lose: a fault's report (latched or cleared), a calibration to
+// store or its failure, a bridge sweep's or an angle check's end. The rest of a record is a
+// periodic value that the next one supersedes (THERMAL_ESTIMATE, DRIVE_STATUS, HEARTBEAT, the
+// thermal state to keep, RESISTANCE_ESTIMATE with its EstimateCount) or a pair's report, several
+// a second while injecting, whose loss its InjectionCount shows: those, held, would fill the
+// backlog ahead of a calibration's end.
+[[nodiscard]] bool carries_event(const PublicationRecord& r) noexcept;
 
 class DriveLoop {
  public:
@@ -117,6 +129,10 @@ class DriveLoop {
 
   // The error-frame classes the control socket should select (CanBus::set_error_mask): the
   // controller's bus-off and restart, and its state changes. A bus-off latches BUS_OFF.
+  // How many records carrying an event wait when the ring is full (the drain thread stalled for
+  // longer than the ring's 512 records last).
+  static constexpr std::size_t kBacklogRecords = 64;
+
   static constexpr std::uint32_t kErrorClasses =
       hal::kCanErrBusOff | hal::kCanErrRestarted | hal::kCanErrController;
 
@@ -171,6 +187,17 @@ class DriveLoop {
   [[nodiscard]] std::int64_t sample_timeout_ns() const noexcept { return sample_timeout_ns_; }
   void record_timing(std::int64_t took_ns) noexcept;
   [[nodiscard]] hal::protocol::LoopTiming close_timing_window() noexcept;
+  // Hands a record to the ring, after the backlog (order kept). A record that finds the ring
+  // full is kept in the backlog if it carries an event (and counted as held), else dropped and
+  // counted; an event that finds the backlog full too is lost and counted.
+  void publish(const PublicationRecord& r) noexcept;
+  // Moves what the backlog holds into the ring while it has room; whether the backlog is empty.
+  bool flush_backlog() noexcept;
+
+  // Events that found the ring full (kBacklogRecords): filled and emptied by this thread only.
+  std::array<PublicationRecord, kBacklogRecords> backlog_{};
+  std::size_t backlog_first_ = 0;
+  std::size_t backlog_count_ = 0;
 
   app::DriveNode node_;
   hal::CanBus& bus_;
@@ -227,6 +254,7 @@ class DriveLoop {
     std::array<hal::SingleWriterCounter, 3> commands_accepted;
     std::array<hal::SingleWriterCounter, hal::protocol::kDecodeStatusCount> rejected;
     hal::SingleWriterCounter tx_dropped, tx_failures, rx_errors, publications_dropped, deadline_misses;
+    hal::SingleWriterCounter events_held, events_lost;
     hal::SingleWriterCounter interface_losses, reopens, max_step_ns;
     std::array<hal::SingleWriterCounter, kTimingBuckets> timing_us;
     std::atomic<bool> interface_down{false};

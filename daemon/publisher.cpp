@@ -635,6 +635,16 @@ void Publisher::report() {
     spdlog::warn("{} publication record(s) dropped: this thread did not keep up with the control loop",
                  s.publications_dropped - p.publications_dropped);
   }
+  if (s.events_held != p.events_held) {
+    spdlog::warn("{} event record(s) (fault reports, a calibration's end) waited in the control loop's "
+                 "backlog: this thread did not keep up; they are published late, in order",
+                 s.events_held - p.events_held);
+  }
+  if (s.events_lost != p.events_lost) {
+    spdlog::error("{} event record(s) lost: the control loop's backlog of {} was full too (fault reports, or a "
+                  "calibration's end that was then not stored)",
+                  s.events_lost - p.events_lost, DriveLoop::kBacklogRecords);
+  }
   if (p.samples == 0U && s.samples != 0U) {
     spdlog::info("sensor samples arriving: the control loop is running ({})", timing_text(s));
   }
@@ -646,12 +656,14 @@ std::string Publisher::summary() const {
   const std::uint64_t rejected = total_rejected(s);
   return fmt::format(
       "periods {}, samples {} (re-sent {}, missing {}, skipped {}, stale {}), commands sent {}, accepted drive/injection/calibration commands "
-      "{}/{}/{}, rejected frames {} ({}), deadline misses {}, {}, frames published {} (failed {}), calibrations stored {}, "
+      "{}/{}/{}, rejected frames {} ({}), deadline misses {}, {}, frames published {} (failed {}), publication records "
+      "dropped {} (events held {}, lost {}), calibrations stored {}, "
       "interface losses {} (publishing socket reopened {}), CAN I/O: commands dropped {} (queue full), failed sends {}, "
       "failed reads {}, frames dropped on receive {}, frames of this node sent by another device {}",
       s.periods, s.samples, s.resent_samples, s.missing_samples, s.skipped_samples, s.stale_samples, s.commands_sent, s.commands_accepted[0], s.commands_accepted[1],
       s.commands_accepted[2], rejected, rejected == 0U ? std::string("none") : rejected_text(s, LoopStats{}), s.deadline_misses,
-      timing_text(s), stats_.frames_sent, stats_.frames_failed, stats_.calibrations_stored, s.interface_losses,
+      timing_text(s), stats_.frames_sent, stats_.frames_failed, s.publications_dropped, s.events_held, s.events_lost,
+      stats_.calibrations_stored, s.interface_losses,
       stats_.reopens, s.tx_dropped, s.tx_failures, s.rx_errors, s.rx_overflow, stats_.foreign_frames);
 }
 

@@ -117,6 +117,26 @@ class TempFile {
   bool released_ = false;
 };
 
+// A stored key's range: the reader refuses a file with a value outside it, and the writer refuses
+// to store one (a file it wrote would otherwise stop the next start).
+struct KeyRange {
+  const char* key;
+  double lo;
+  double hi;
+  bool lo_open;  // (lo, hi] rather than [lo, hi]
+  [[nodiscard]] bool holds(double v) const noexcept { return std::isfinite(v) && (lo_open ? v > lo : v >= lo) && v <= hi; }
+  [[nodiscard]] std::string text() const { return fmt::format("{}{}, {}]", lo_open ? "(" : "[", lo, hi); }
+};
+constexpr KeyRange kRs0Range{"rs0_ohm", common::kMinStatorResistance_ohm, common::kMaxStatorResistance_ohm, false};
+constexpr KeyRange kT0Range{"t0_C", -50.0, 200.0, false};
+constexpr KeyRange kKe0Range{"ke0_V_s_per_rad", 0.0, 100.0, false};
+constexpr KeyRange kKe0StdRange{"ke0_std_V_s_per_rad", 0.0, 100.0, false};
+constexpr KeyRange kBandRange{"dead_time_band_A", 0.0, 1000.0, true};          // written only when > 0
+constexpr KeyRange kAngleRange{"angle_correction_rad", -1.0, 1.0, false};
+constexpr KeyRange kVxRange{"vx_V", -50.0, 50.0, false};
+constexpr KeyRange kVxStdRange{"vx_std_V", 0.0, 100.0, true};                  // written only when > 0
+constexpr KeyRange kVxBusRange{"vx_bus_V", 0.0, 10000.0, true};                // written only when > 0
+
 double number(const toml::table& t, const char* key, const std::string& file, double lo, double hi, bool lo_open) {
   const toml::node* node = t.get(key);
   if (node == nullptr) {
@@ -133,6 +153,10 @@ double number(const toml::table& t, const char* key, const std::string& file, do
         fmt::format("{}:{}: {}: {} is out of range, expected in {}{}, {}]", file, line, key, *v, lo_open ? "(" : "[", lo, hi));
   }
   return *v;
+}
+
+double number(const toml::table& t, const KeyRange& r, const std::string& file) {
+  return number(t, r.key, file, r.lo, r.hi, r.lo_open);
 }
 
 // Replaces `path` with `text`: temporary file in the same directory, fsync, rename, directory
@@ -205,17 +229,24 @@ void write_calibration_file(const std::filesystem::path& path, const core::Calib
   if (path.empty()) {
     throw CalibrationFileError("calibration file: no path given");
   }
-  if (!(c.rs0_ohm > 0.0) || !std::isfinite(c.rs0_ohm) || !std::isfinite(c.t0_C) || !std::isfinite(c.ke0_V_s_per_rad) ||
-      !(c.ke0_std_V_s_per_rad >= 0.0 && c.ke0_std_V_s_per_rad <= 100.0) || !(c.dead_time_band_A >= 0.0 && c.dead_time_band_A <= 1000.0) ||
-      (c.angle_correction_measured && !(std::abs(c.angle_correction_rad) <= 1.0)) ||
-      !(c.vx_std_V >= 0.0 && c.vx_std_V <= 100.0) || (c.vx_std_V > 0.0 && !(std::abs(c.vx_V) <= 50.0)) ||
-      !(c.vx_bus_V >= 0.0 && c.vx_bus_V <= 10000.0)) {
-    throw CalibrationFileError(fmt::format("{}: refusing to store an invalid calibration (Rs0 {}, T0 {}, Ke0 {} +- {}, "
-                                           "band {} A, angle correction {} rad, Vx {} +- {} V at a bus of {} V)",
-                                           path.string(), c.rs0_ohm, c.t0_C, c.ke0_V_s_per_rad, c.ke0_std_V_s_per_rad,
-                                           c.dead_time_band_A,
-                                           c.angle_correction_measured ? c.angle_correction_rad : 0.0, c.vx_V, c.vx_std_V,
-                                           c.vx_bus_V));
+  // Every key the file will hold within the range the reader accepts.
+  const std::pair<const KeyRange*, double> stored[] = {
+      {&kRs0Range, c.rs0_ohm},
+      {&kT0Range, c.t0_C},
+      {&kKe0Range, c.ke0_V_s_per_rad},
+      {&kKe0StdRange, c.ke0_std_V_s_per_rad},
+      {c.dead_time_band_A != 0.0 ? &kBandRange : nullptr, c.dead_time_band_A},
+      {c.angle_correction_measured ? &kAngleRange : nullptr, c.angle_correction_rad},
+      {c.vx_std_V != 0.0 ? &kVxRange : nullptr, c.vx_V},
+      {c.vx_std_V != 0.0 ? &kVxStdRange : nullptr, c.vx_std_V},
+      {c.vx_std_V != 0.0 && c.vx_bus_V != 0.0 ? &kVxBusRange : nullptr, c.vx_bus_V},
+  };
+  for (const auto& [range, value] : stored) {
+    if (range != nullptr && !range->holds(value)) {
+      throw CalibrationFileError(fmt::format("{}: refusing to store an invalid calibration: {} = {} is outside {}, which "
+                                             "the reader would refuse at the next start (Rs0 {} ohm at T0 {} C)",
+                                             path.string(), range->key, value, range->text(), c.rs0_ohm, c.t0_C));
+    }
   }
   std::ostringstream text;
   text << "# pmsm-thermal calibration (Eq. 1: Rs = Rs0 (1 + alpha (T - T0))); replaced atomically by the drive\n"
@@ -296,15 +327,15 @@ core::Calibration read_calibration_file(const std::filesystem::path& path) {
     }
   }
   core::Calibration c;
-  c.rs0_ohm = number(t, "rs0_ohm", file, common::kMinStatorResistance_ohm, common::kMaxStatorResistance_ohm, false);
-  c.t0_C = number(t, "t0_C", file, -50.0, 200.0, false);
-  c.ke0_V_s_per_rad = t.get("ke0_V_s_per_rad") != nullptr ? number(t, "ke0_V_s_per_rad", file, 0.0, 100.0, false) : 0.0;
+  c.rs0_ohm = number(t, kRs0Range, file);
+  c.t0_C = number(t, kT0Range, file);
+  c.ke0_V_s_per_rad = t.get("ke0_V_s_per_rad") != nullptr ? number(t, kKe0Range, file) : 0.0;
   c.ke0_std_V_s_per_rad =
-      t.get("ke0_std_V_s_per_rad") != nullptr ? number(t, "ke0_std_V_s_per_rad", file, 0.0, 100.0, false) : 0.0;
+      t.get("ke0_std_V_s_per_rad") != nullptr ? number(t, kKe0StdRange, file) : 0.0;
   c.dead_time_band_A =
-      t.get("dead_time_band_A") != nullptr ? number(t, "dead_time_band_A", file, 0.0, 1000.0, true) : 0.0;
+      t.get("dead_time_band_A") != nullptr ? number(t, kBandRange, file) : 0.0;
   c.angle_correction_measured = t.get("angle_correction_rad") != nullptr;
-  c.angle_correction_rad = c.angle_correction_measured ? number(t, "angle_correction_rad", file, -1.0, 1.0, false) : 0.0;
+  c.angle_correction_rad = c.angle_correction_measured ? number(t, kAngleRange, file) : 0.0;
   // Vx and its error bar come together: one without the other is a hand edit gone wrong.
   if ((t.get("vx_V") != nullptr) != (t.get("vx_std_V") != nullptr)) {
     throw CalibrationFileError(fmt::format("{}: vx_V and vx_std_V go together (the bridge's voltage and its standard error); "
@@ -312,14 +343,14 @@ core::Calibration read_calibration_file(const std::filesystem::path& path) {
                                            file, t.get("vx_V") != nullptr ? "vx_V" : "vx_std_V"));
   }
   if (t.get("vx_V") != nullptr) {
-    c.vx_V = number(t, "vx_V", file, -50.0, 50.0, false);
-    c.vx_std_V = number(t, "vx_std_V", file, 0.0, 100.0, true);
+    c.vx_V = number(t, kVxRange, file);
+    c.vx_std_V = number(t, kVxStdRange, file);
   }
   if (t.get("vx_bus_V") != nullptr) {
     if (t.get("vx_V") == nullptr) {
       throw CalibrationFileError(fmt::format("{}: vx_bus_V is the bus of a stored vx_V, which the file does not have", file));
     }
-    c.vx_bus_V = number(t, "vx_bus_V", file, 0.0, 10000.0, true);
+    c.vx_bus_V = number(t, kVxBusRange, file);
   }
   c.calibrated = true;
   return c;

@@ -24,6 +24,8 @@
 #include <thread>
 #include <vector>
 
+#include <unistd.h>
+
 #include <spdlog/sinks/ringbuffer_sink.h>
 #include <spdlog/spdlog.h>
 
@@ -140,9 +142,27 @@ class Axis {
   ~Axis() { stop(); }
 
   void start_daemon() {
+    start_drain();
+    start_loop();
+  }
+  // The daemon's two threads one at a time: a test may hold the publisher back.
+  void start_loop() { daemon_thread_ = std::thread([this] { loop_->run(daemon_stop_); }); }
+  void start_drain() {
     drain_ = std::make_unique<hal::RecordDrain<PublicationRecord, PublicationRing::capacity()>>(
         ring_, [this](const PublicationRecord& r) { publisher_->handle(r); }, 2ms, [this] { publisher_->after_batch(); });
-    daemon_thread_ = std::thread([this] { loop_->run(daemon_stop_); });
+  }
+  // Before either thread starts: changes to the daemon's own configuration (DaemonConfig).
+  void reconfigure(const std::function<void(DaemonConfig&)>& change) {
+    change(config_);
+    publisher_.reset();
+    loop_ = std::make_unique<DriveLoop>(config_, *rt_bus_, ring_);
+    publisher_ = std::make_unique<Publisher>(config_, *pub_bus_, *loop_);
+  }
+  // Before start_loop(): the ring full of records with nothing to say, as a publisher thread
+  // stalled for longer than the ring lasts leaves it.
+  void fill_ring() {
+    while (ring_.try_push(PublicationRecord{})) {
+    }
   }
   // A passive load (a fan, 10 Nm at 60 rad/s) in place of the scenario's active one: with the
   // gates off it brakes the shaft instead of spinning it backwards, so that what a test sees
@@ -361,6 +381,15 @@ bool wait_for(const Axis& axis, Done done) {
   return done(axis.loop().stats());
 }
 
+// Runs node 1 at 94 rad/s while its plant runs to its end (at most 600 s of wall clock); every
+// decoded frame in `seen`. Whether the plant finished.
+[[nodiscard]] bool run_plant_to_its_end(Bench& bench, Axis& axis, std::vector<protocol::AnyDecoded>& seen) {
+  bench.run_speed(1, 94.0);
+  axis.start_plant();
+  supervise(bench, {1}, 94.0, 600s, seen, [&] { return axis.plant_done(); });
+  return axis.plant_done();
+}
+
 // A stop command (it clears the faults whose cause is gone), then until the axis runs again;
 // `from` receives where in `seen` that wait began. Whether it runs again.
 bool runs_again_after_a_stop(Bench& bench, protocol::NodeId node, std::vector<protocol::AnyDecoded>& seen,
@@ -448,6 +477,74 @@ TEST(DaemonLoop, HeatUpOverTheBusTracksThePlantsTruth) {
   EXPECT_EQ(s.publications_dropped, 0U);
 }
 
+// A publisher thread stalled for longer than the ring lasts loses periodic values (counted), not
+// events: the calibration that ends meanwhile waits in the control loop's backlog and is stored
+// once the thread drains again. Before, its record was dropped with the periodic ones and the
+// drive ran on a calibration no file kept.
+TEST(DaemonLoop, ACalibrationThatEndsWhileThePublisherStallsIsStoredWhenItResumes) {
+  const std::filesystem::path file =
+      std::filesystem::temp_directory_path() / ("pmsm-stalled-calibration-" + std::to_string(::getpid()) + ".toml");
+  std::filesystem::remove(file);
+  Bench bench;
+  Axis axis(bench.bus, 1, 12.0, 25.0, 5.0, [&](app::ControllerConfig& c) { c.calibration_file = file.string(); });
+  axis.fill_ring();
+  axis.start_loop();
+  std::this_thread::sleep_for(50ms);
+  // No file yet: the daemon calibrates at its first run (startup.calibrate_if_missing).
+  std::vector<protocol::AnyDecoded> seen;
+  ASSERT_TRUE(run_plant_to_its_end(bench, axis, seen)) << "the plant did not finish its 12 s in time";
+  const LoopStats stalled = axis.loop().stats();
+  EXPECT_GT(stalled.publications_dropped, 0U) << "the ring was full: periodic values are dropped";
+  ASSERT_GE(stalled.events_held, 1U) << "the calibration's end waits in the backlog";
+  EXPECT_EQ(stalled.events_lost, 0U);
+  EXPECT_FALSE(std::filesystem::exists(file)) << "nothing drained the ring yet";
+
+  axis.start_drain();
+  const auto until = std::chrono::steady_clock::now() + 10s;
+  while (axis.publisher().stats().calibrations_stored == 0U && std::chrono::steady_clock::now() < until) {
+    std::this_thread::sleep_for(10ms);
+  }
+  axis.stop();
+  EXPECT_EQ(axis.publisher().stats().calibrations_stored, 1U);
+  EXPECT_TRUE(std::filesystem::exists(file));
+  EXPECT_EQ(axis.loop().stats().events_lost, 0U);
+  std::filesystem::remove(file);
+}
+
+// The thermal state is kept every 10 s of drive time also where nothing else is published (every
+// publish.* period 0, no injection): before, it went out only with another publication, and such
+// a drive wrote it only at a clean stop.
+TEST(DaemonLoop, TheThermalStateIsKeptWhenNothingElseIsPublished) {
+  const std::filesystem::path file =
+      std::filesystem::temp_directory_path() / ("pmsm-quiet-thermal-state-" + std::to_string(::getpid()) + ".toml");
+  std::filesystem::remove(file);
+  Bench bench;
+  Axis axis(bench.bus, 1, 25.0, 25.0, 5.0, [&](app::ControllerConfig& c) {
+    c.thermal_state_file = file.string();
+    c.drive.injection.method = core::InjectionMethod::kNone;
+    c.drive.calibration.calibrated = true;  // the configured Rs0: the model runs from the start
+  });
+  axis.reconfigure([](DaemonConfig& d) {
+    d.publish.thermal_estimate_s = 0.0;
+    d.publish.resistance_estimate_s = 0.0;
+    d.publish.drive_status_s = 0.0;
+    d.publish.heartbeat_s = 0.0;
+    d.publish.fault_repeat_s = 0.0;
+  });
+  axis.start_daemon();
+  std::this_thread::sleep_for(50ms);
+  std::vector<protocol::AnyDecoded> seen;
+  ASSERT_TRUE(run_plant_to_its_end(bench, axis, seen)) << "the plant did not finish its 25 s in time";
+  const auto until = std::chrono::steady_clock::now() + 5s;
+  while (axis.publisher().stats().thermal_states_stored < 2U && std::chrono::steady_clock::now() < until) {
+    std::this_thread::sleep_for(10ms);
+  }
+  EXPECT_GE(axis.publisher().stats().thermal_states_stored, 2U) << "at 10 s and 20 s of drive time";
+  EXPECT_TRUE(std::filesystem::exists(file));
+  axis.stop();
+  std::filesystem::remove(file);
+}
+
 // The daemon's log, as an operator reads it (journal): the default logger replaced by a ring
 // buffer for the test's lifetime.
 class LogCapture {
@@ -487,11 +584,8 @@ TEST(DaemonLoop, ImplausibleMagnetReadingsAreRefusedAndLoggedWithTheirReason) {
   });
   axis.start_daemon();
   std::this_thread::sleep_for(50ms);
-  bench.run_speed(1, 94.0);
-  axis.start_plant();
   std::vector<protocol::AnyDecoded> seen;
-  supervise(bench, {1}, 94.0, 600s, seen, [&] { return axis.plant_done(); });
-  ASSERT_TRUE(axis.plant_done()) << "the plant did not finish its 8 s in time";
+  ASSERT_TRUE(run_plant_to_its_end(bench, axis, seen)) << "the plant did not finish its 8 s in time";
   std::size_t estimates = 0;
   for (const protocol::AnyDecoded& d : seen) {
     if (const auto* e = as<protocol::ThermalEstimate>(d); e != nullptr && e->valid) {

@@ -219,6 +219,57 @@ TEST_F(CalibrationFile, RefusesToStoreAnInvalidCalibration) {
   EXPECT_EQ(entries(), 0U);
 }
 
+// The writer holds every key to the range the reader accepts: before, a calibration at an ambient
+// near ambient_max_C (T0 up to 250 C) or of a very low-resistance winding was stored, and the
+// next start refused the file as damaged.
+TEST_F(CalibrationFile, WhatTheWriterStoresTheReaderAccepts) {
+  struct Case {
+    const char* key;
+    void (*spoil)(core::Calibration&);
+  };
+  const Case cases[] = {
+      {"t0_C", [](core::Calibration& c) { c.t0_C = 210.0; }},
+      {"t0_C", [](core::Calibration& c) { c.t0_C = -60.0; }},
+      {"rs0_ohm", [](core::Calibration& c) { c.rs0_ohm = 1e-7; }},
+      {"ke0_V_s_per_rad", [](core::Calibration& c) { c.ke0_V_s_per_rad = -0.5; }},
+      {"ke0_V_s_per_rad", [](core::Calibration& c) { c.ke0_V_s_per_rad = 150.0; }},
+      {"dead_time_band_A", [](core::Calibration& c) { c.dead_time_band_A = -1.0; }},
+      {"vx_V", [](core::Calibration& c) {
+         c.vx_V = 60.0;
+         c.vx_std_V = 0.1;
+       }},
+      {"vx_bus_V", [](core::Calibration& c) {
+         c.vx_V = 6.0;
+         c.vx_std_V = 0.1;
+         c.vx_bus_V = std::nan("");
+       }},
+  };
+  for (const Case& k : cases) {
+    core::Calibration c = sample();
+    k.spoil(c);
+    try {
+      write_calibration_file(dir_ / "c.toml", c, "test");
+      ADD_FAILURE() << k.key << ": stored";
+    } catch (const CalibrationFileError& e) {
+      EXPECT_NE(std::string(e.what()).find(std::string(k.key) + " = "), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("the reader would refuse"), std::string::npos) << e.what();
+    }
+    EXPECT_EQ(entries(), 0U) << k.key;
+  }
+  // At the edges of the ranges both sides agree.
+  core::Calibration edge = sample();
+  edge.t0_C = 200.0;
+  edge.ke0_V_s_per_rad = 0.0;
+  edge.vx_V = -50.0;
+  edge.vx_std_V = 100.0;
+  edge.vx_bus_V = 10000.0;
+  write_calibration_file(dir_ / "c.toml", edge, "test");
+  const core::Calibration back = read_calibration_file(dir_ / "c.toml");
+  EXPECT_EQ(back.t0_C, 200.0);
+  EXPECT_EQ(back.vx_V, -50.0);
+  EXPECT_EQ(back.vx_bus_V, 10000.0);
+}
+
 TEST_F(CalibrationFile, BadFilesAreRejectedWithFileLineAndKey) {
   EXPECT_NE(error_of("format = 1\nrs0_ohm = 0.13\nt0_C = [\n").find("bad.toml:3"), std::string::npos);
   EXPECT_NE(error_of("format = 1\nrs0_ohm = 0.13\nt0_C = 25.0\nrs0 = 1\n").find("bad.toml:4: unknown key 'rs0'"),
