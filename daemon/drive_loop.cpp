@@ -182,7 +182,7 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns, 
 }
 
 bool carries_event(const PublicationRecord& r) noexcept {
-  return r.publications.fault_count > 0U || r.calibration_to_store.has_value() ||
+  return r.publications.fault_changed || r.publications.calibrating_changed || r.calibration_to_store.has_value() ||
          r.calibration_failed || r.inverter_sweep.has_value() || r.angle_check.has_value();
 }
 
@@ -209,7 +209,23 @@ void DriveLoop::publish(const PublicationRecord& r) noexcept {
     counters_.events_lost.bump();
     return;
   }
-  backlog_[(backlog_first_ + backlog_count_) % kBacklogRecords] = r;
+  // Held, the record keeps its events only: its periodic values would go out late, in a burst,
+  // after newer ones (an old thermal state would be stored as the present one).
+  PublicationRecord& held = backlog_[(backlog_first_ + backlog_count_) % kBacklogRecords];
+  held = r;
+  app::NodePublications& p = held.publications;
+  if (!p.calibrating_changed) {
+    p.thermal.reset();
+  }
+  p.resistance.reset();
+  p.injection.reset();
+  p.status.reset();
+  p.heartbeat.reset();
+  if (!p.fault_changed) {
+    p.fault_count = 0;
+  }
+  held.timing.reset();
+  held.thermal_state.reset();
   ++backlog_count_;
   counters_.events_held.bump();
 }

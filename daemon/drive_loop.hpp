@@ -111,12 +111,14 @@ struct LoopStats {
 
 inline constexpr double kThermalStateEvery_s = 10.0;
 
-// A record the publisher must not lose: a fault's report (latched or cleared), a calibration to
-// store or its failure, a bridge sweep's or an angle check's end. The rest of a record is a
-// periodic value that the next one supersedes (THERMAL_ESTIMATE, DRIVE_STATUS, HEARTBEAT, the
+// A record the publisher must not lose: a fault latched or cleared (not the repeats of latched
+// ones), the THERMAL_ESTIMATE of a calibration's start or end (its Calibrating bit's edge, the
+// only report of an operator's abort), a calibration to store or its failure, a bridge sweep's or
+// an angle check's end. The rest of a record is a periodic value that the next one supersedes
+// (THERMAL_ESTIMATE, DRIVE_STATUS, HEARTBEAT, LOOP_TIMING, the repeats of latched faults, the
 // thermal state to keep, RESISTANCE_ESTIMATE with its EstimateCount) or a pair's report, several
 // a second while injecting, whose loss its InjectionCount shows: those, held, would fill the
-// backlog ahead of a calibration's end.
+// backlog ahead of a calibration's end, and are taken out of a record that is held.
 [[nodiscard]] bool carries_event(const PublicationRecord& r) noexcept;
 
 class DriveLoop {
@@ -127,12 +129,12 @@ class DriveLoop {
   DriveLoop(const DriveLoop&) = delete;
   DriveLoop& operator=(const DriveLoop&) = delete;
 
-  // The error-frame classes the control socket should select (CanBus::set_error_mask): the
-  // controller's bus-off and restart, and its state changes. A bus-off latches BUS_OFF.
   // How many records carrying an event wait when the ring is full (the drain thread stalled for
   // longer than the ring's 512 records last).
   static constexpr std::size_t kBacklogRecords = 64;
 
+  // The error-frame classes the control socket should select (CanBus::set_error_mask): the
+  // controller's bus-off and restart, and its state changes. A bus-off latches BUS_OFF.
   static constexpr std::uint32_t kErrorClasses =
       hal::kCanErrBusOff | hal::kCanErrRestarted | hal::kCanErrController;
 

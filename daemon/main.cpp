@@ -447,6 +447,13 @@ int run(const Options& o) {
   fault_thread.join();
   rt_thread.join();
   drain.stop();
+  // (The loop gave the ring a second at its stop to take its backlog: what it could not is
+  // counted, and said here, after the last of the publishing thread's reports.)
+  if (const std::uint64_t lost = loop.stats().events_lost; lost != 0U) {
+    spdlog::error("{} event record(s) lost while this daemon ran (fault changes, a calibration's start, end or "
+                  "store): the publishing thread did not keep up with the control loop",
+                  lost);
+  }
   if (loop.node().controller().telemetry().thermal_valid) {
     publisher.store_thermal_state(loop.node().controller().thermal_state(), loop.node().ambient_C());
   }

@@ -292,7 +292,8 @@ void DriveNode::publish(const NodeInputs& in) noexcept {
   // A calibration's start and end go out at once, not at the next 100 ms: a plant that follows
   // the Calibrating bit with an accelerated thermal time (pmsm-plant) would otherwise run up to
   // a publication interval times its acceleration out of step at each edge.
-  if (due(thermal_every_) || tel.calibrating != calibrating_published_) {
+  p.calibrating_changed = tel.calibrating != calibrating_published_;
+  if (due(thermal_every_) || p.calibrating_changed) {
     calibrating_published_ = tel.calibrating;
     protocol::ThermalEstimate t;
     t.valid = tel.thermal_valid && std::isfinite(tel.thermal.winding_C) && std::isfinite(tel.thermal.winding_std_C);
@@ -358,6 +359,7 @@ void DriveNode::publish_fault_changes(bool repeat_due) noexcept {
   NodePublications& p = out_.publications;
   const std::uint32_t latched = supervisor_.status().latched_mask;
   const std::uint32_t changed = latched ^ published_latched_;
+  p.fault_changed = changed != 0U;
   if (changed == 0U && !(repeat_due && latched != 0U)) {
     return;  // the common period: nothing latched, nothing changed (a scan of every code costs 240 instructions)
   }

@@ -70,6 +70,11 @@ struct NodePublications {
   std::optional<hal::protocol::Heartbeat> heartbeat;
   std::array<hal::protocol::FaultReport, core::kFaultCodeCount> faults{};  // the first fault_count
   std::size_t fault_count = 0;
+  // Events among the above (the rest repeats what the next period's publications say again):
+  // a fault latched or cleared this period (not only the repeats of latched ones), and the
+  // THERMAL_ESTIMATE sent at once for a calibration's start or end (its Calibrating bit's edge).
+  bool fault_changed = false;
+  bool calibrating_changed = false;
 
   // Nothing due. Not `= {}`: zeroing the fault reports past fault_count, which nobody reads,
   // cost a twentieth of the node's step. A field added above is reset here.
@@ -80,6 +85,8 @@ struct NodePublications {
     status.reset();
     heartbeat.reset();
     fault_count = 0;
+    fault_changed = false;
+    calibrating_changed = false;
   }
 };
 

@@ -255,6 +255,47 @@ TEST(DriveNode, MissingSamplesNoCommandThenSensorTimeoutThenRecovery) {
   EXPECT_FALSE(rig.node->supervisor().latched(core::FaultCode::kSensorTimeout));
 }
 
+// The publications say which of them are events, the ones a stalled publishing thread must not
+// lose (the daemon's backlog, docs/daemon.md): a fault's report in the period it latched or
+// cleared, not its repeats every publish.fault_repeat_s; the THERMAL_ESTIMATE of a calibration's
+// start and end, not the periodic ones.
+TEST(DriveNode, PublicationsMarkTheirEventsApartFromTheirRepeats) {
+  Rig rig;
+  rig.run(2000);
+  int changed = 0;
+  int repeats = 0;
+  for (int k = 0; k < 30000; ++k) {  // 3 s without samples: SENSOR_TIMEOUT latches and repeats
+    const NodeStep& s = rig.node->step(nullptr, rig.in);
+    changed += s.publications.fault_changed ? 1 : 0;
+    repeats += s.publications.fault_count > 0U && !s.publications.fault_changed ? 1 : 0;
+    EXPECT_FALSE(s.publications.fault_changed && s.publications.fault_count == 0U);
+  }
+  ASSERT_TRUE(rig.node->supervisor().latched(core::FaultCode::kSensorTimeout));
+  EXPECT_EQ(changed, 1) << "the period SENSOR_TIMEOUT latched";
+  EXPECT_GE(repeats, 2) << "its repeats every second";
+  int cleared = 0;
+  for (int k = 0; k < rig.supervisor.sensor_recovery_periods + 100; ++k) {
+    cleared += rig.run(1).publications.fault_changed ? 1 : 0;
+  }
+  ASSERT_FALSE(rig.node->supervisor().latched(core::FaultCode::kSensorTimeout));
+  EXPECT_EQ(cleared, 1) << "the period it cleared";
+
+  rig.in.start_calibration = true;
+  rig.in.calibration_known_C = 25.0;
+  int edges = 0;
+  int periodic = 0;
+  for (int k = 0; k < 5000; ++k) {  // 0.5 s: the calibration starts
+    const NodeStep& s = rig.run(1);
+    rig.in.start_calibration = false;
+    edges += s.publications.calibrating_changed ? 1 : 0;
+    periodic += s.publications.thermal && !s.publications.calibrating_changed ? 1 : 0;
+    EXPECT_TRUE(!s.publications.calibrating_changed || s.publications.thermal.has_value());
+  }
+  ASSERT_TRUE(rig.node->controller().telemetry().calibrating);
+  EXPECT_EQ(edges, 1) << "the calibration's start";
+  EXPECT_GE(periodic, 4) << "every 100 ms";
+}
+
 // A calibration asked for while SENSOR_TIMEOUT holds (a daemon started before its power stage, a
 // passing outage) is not refused: it waits for the samples, and runs once the fault has cleared
 // itself. Only OVERTEMPERATURE refuses a request
