@@ -1010,19 +1010,26 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
              ref("injection.settle_s", d.injection.settle_s, "s", l) + " by two control periods");
   }
   {
-    // A recording must fit the recorder (preallocated): the longest asked for, in whole turns
-    // at the slowest angle-based speed (one more turn at most).
+    // The recorder holds the longest recording asked for, in whole turns at the slowest
+    // angle-based speed (one more turn at most), preallocated when the drive is built: 8192
+    // samples at least, more on a fast drive. (It was 8192 whatever the rate, and the default
+    // recordings, 0.33 s with the turn, did not fit a drive above 25 kHz: a 32 kHz spindle's
+    // configuration with every injection key at its default was refused.) At most
+    // kMaxRecordingSamples, 11.5 MB of rows.
     const double longest_s = std::max({d.injection.record_time_s, d.injection.record_min_time_s,
                                        d.injection.field_weakening_record_min_time_s}) +
                              2.0 * std::numbers::pi / d.injection.min_speed_for_angle_rad_s;
-    const double holds_s = static_cast<double>(d.recording_capacity) * d.period_s;
-    if (longest_s > holds_s) {
+    const double samples = std::ceil(longest_s / d.period_s) + 1.0;
+    if (!(samples <= static_cast<double>(kMaxRecordingSamples))) {
       rule("injection.field_weakening_record_min_time_s", "injection.record_min_time_s",
            fmt::format("recordings of up to {:.4g} s (the longest of injection.record_time_s, record_min_time_s and "
                        "field_weakening_record_min_time_s, plus one turn at injection.min_speed_for_angle_rad_s = {} rad/s) "
-                       "do not fit the {:.4g} s a recording holds at control.period_s = {} s (its {} samples)",
-                       longest_s, common::format_number(d.injection.min_speed_for_angle_rad_s), holds_s,
-                       common::format_number(d.period_s), d.recording_capacity));
+                       "do not fit the {:.4g} s the recorder can hold at control.period_s = {} s (at most {} samples)",
+                       longest_s, common::format_number(d.injection.min_speed_for_angle_rad_s),
+                       static_cast<double>(kMaxRecordingSamples) * d.period_s, common::format_number(d.period_s),
+                       kMaxRecordingSamples));
+    } else {
+      d.recording_capacity = std::max(kMinRecordingSamples, static_cast<std::size_t>(samples));
     }
   }
   if (!errors.empty()) {

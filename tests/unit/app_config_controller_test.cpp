@@ -235,10 +235,10 @@ TEST(ControllerConfig, CrossKeyRulesNameBothKeys) {
   EXPECT_EQ(error_of("[injection]\nsettle_s = 0.05\n"),
             "drive.toml:2: injection.record_time_s (0.05 s, its default) must be longer than injection.settle_s (0.05 s) "
             "by two control periods");
-  EXPECT_EQ(error_of("[injection]\nfield_weakening_record_min_time_s = 0.7\n"),
-            "drive.toml:2: recordings of up to 0.9094 s (the longest of injection.record_time_s, record_min_time_s and "
-            "field_weakening_record_min_time_s, plus one turn at injection.min_speed_for_angle_rad_s = 30 rad/s) do not "
-            "fit the 0.8192 s a recording holds at control.period_s = 0.0001 s (its 8192 samples)");
+  EXPECT_EQ(error_of("[injection]\nfield_weakening_record_min_time_s = 10\nmin_speed_for_angle_rad_s = 2\n"),
+            "drive.toml:2: recordings of up to 13.14 s (the longest of injection.record_time_s, record_min_time_s and "
+            "field_weakening_record_min_time_s, plus one turn at injection.min_speed_for_angle_rad_s = 2 rad/s) do not "
+            "fit the 13.11 s the recorder can hold at control.period_s = 0.0001 s (at most 131072 samples)");
   // A tiny speed is a number of a few digits, not of three hundred ({:.3f} printed them all).
   EXPECT_NE(error_of("[injection]\nmin_speed_for_angle_rad_s = 1e-300\n").find("recordings of up to 6.283e+300 s"), std::string::npos);
   // Equal ends are rejected too (the derating would divide by zero).
@@ -343,6 +343,16 @@ TEST(ControllerConfig, VxDriftsByAShareOfItselfByDefault) {
   EXPECT_EQ(error_of("[injection]\nvx_drift_fraction = -0.1\n"),
             "drive.toml:2: injection.vx_drift_fraction: must be in [0, 1], got -0.1");
   EXPECT_NE(error_of("[injection]\nvx_drift_fraction = nan\n").find("injection.vx_drift_fraction"), std::string::npos);
+}
+
+// The pair recorder holds the longest recording the keys ask for: 8192 samples at least, more on a
+// fast drive. A 32 kHz drive with every injection key at its default (0.12 s field-weakening
+// recordings and a turn at 30 rad/s, 0.33 s: 10,544 samples) was refused, its 8192 holding 0.256 s.
+TEST(ControllerConfig, TheRecorderHoldsTheLongestRecordingAtAnyControlRate) {
+  EXPECT_EQ(default_controller_config().drive.recording_capacity, 8192U);
+  const ControllerConfig fast = parse("[control]\nperiod_s = 3.125e-5\n");
+  EXPECT_EQ(fast.drive.recording_capacity, 10544U);
+  EXPECT_EQ(parse("[injection]\nfield_weakening_record_min_time_s = 0.7\n").drive.recording_capacity, 9096U);
 }
 
 // Vx is learned up to 600 electrical rad/s, and faster where the control periods are short
