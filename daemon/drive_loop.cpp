@@ -33,6 +33,19 @@ std::size_t timing_bucket(std::int64_t ns) noexcept {
   return width < kTimingBuckets ? width : kTimingBuckets - 1;
 }
 
+// A record the publisher must not lose: a fault latched or cleared (not the repeats of latched
+// ones), the THERMAL_ESTIMATE of a calibration's start or end (its Calibrating bit's edge, the
+// only report of an operator's abort), a calibration to store or its failure, a bridge sweep's or
+// an angle check's end. The rest of a record is a periodic value that the next one supersedes
+// (THERMAL_ESTIMATE, DRIVE_STATUS, HEARTBEAT, LOOP_TIMING, the repeats of latched faults, the
+// thermal state to keep, RESISTANCE_ESTIMATE with its EstimateCount) or a pair's report, several
+// a second while injecting, whose loss its InjectionCount shows: those, held, would fill the
+// backlog ahead of a calibration's end, and are taken out of a record that is held.
+bool carries_event(const PublicationRecord& r) noexcept {
+  return r.publications.fault_changed || r.publications.calibrating_changed || r.calibration_to_store.has_value() ||
+         r.calibration_failed || r.inverter_sweep.has_value() || r.angle_check.has_value();
+}
+
 }  // namespace
 
 DriveLoop::DriveLoop(const DaemonConfig& config, hal::CanBus& bus, PublicationRing& ring)
@@ -179,11 +192,6 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns, 
   } else if (backlog_count_ > 0U) {
     (void)flush_backlog();
   }
-}
-
-bool carries_event(const PublicationRecord& r) noexcept {
-  return r.publications.fault_changed || r.publications.calibrating_changed || r.calibration_to_store.has_value() ||
-         r.calibration_failed || r.inverter_sweep.has_value() || r.angle_check.has_value();
 }
 
 bool DriveLoop::flush_backlog() noexcept {

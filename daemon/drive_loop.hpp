@@ -97,7 +97,8 @@ struct LoopStats {
   // samples and commands that never reached the loop (the backend's count, kept over reopens).
   std::uint64_t rx_overflow = 0;
   std::uint64_t publications_dropped = 0;  // the ring was full: periodic values lost (later ones supersede them)
-  // Records carrying an event (carries_event) that found the ring full and waited in
+  // Records carrying an event (a fault latched or cleared, a calibration's edge, store or failure,
+  // a sweep's or angle check's end: drive_loop.cpp) that found the ring full and waited in
   // the loop's backlog, and those lost because the backlog was full too.
   std::uint64_t events_held = 0;
   std::uint64_t events_lost = 0;
@@ -110,16 +111,6 @@ struct LoopStats {
 };
 
 inline constexpr double kThermalStateEvery_s = 10.0;
-
-// A record the publisher must not lose: a fault latched or cleared (not the repeats of latched
-// ones), the THERMAL_ESTIMATE of a calibration's start or end (its Calibrating bit's edge, the
-// only report of an operator's abort), a calibration to store or its failure, a bridge sweep's or
-// an angle check's end. The rest of a record is a periodic value that the next one supersedes
-// (THERMAL_ESTIMATE, DRIVE_STATUS, HEARTBEAT, LOOP_TIMING, the repeats of latched faults, the
-// thermal state to keep, RESISTANCE_ESTIMATE with its EstimateCount) or a pair's report, several
-// a second while injecting, whose loss its InjectionCount shows: those, held, would fill the
-// backlog ahead of a calibration's end, and are taken out of a record that is held.
-[[nodiscard]] bool carries_event(const PublicationRecord& r) noexcept;
 
 class DriveLoop {
  public:

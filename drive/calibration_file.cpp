@@ -123,7 +123,7 @@ struct KeyRange {
   const char* key;
   double lo;
   double hi;
-  bool lo_open;  // (lo, hi] rather than [lo, hi]
+  bool lo_open = false;  // (lo, hi] rather than [lo, hi]
   [[nodiscard]] bool holds(double v) const noexcept { return std::isfinite(v) && (lo_open ? v > lo : v >= lo) && v <= hi; }
   [[nodiscard]] std::string text() const { return fmt::format("{}{}, {}]", lo_open ? "(" : "[", lo, hi); }
 };
@@ -147,10 +147,8 @@ double number(const toml::table& t, const char* key, const std::string& file, do
   if (!v || !node->is_number()) {
     throw CalibrationFileError(fmt::format("{}:{}: {}: expected a number", file, line, key));
   }
-  const bool below = lo_open ? !(*v > lo) : !(*v >= lo);
-  if (!std::isfinite(*v) || below || !(*v <= hi)) {
-    throw CalibrationFileError(
-        fmt::format("{}:{}: {}: {} is out of range, expected in {}{}, {}]", file, line, key, *v, lo_open ? "(" : "[", lo, hi));
+  if (const KeyRange range{key, lo, hi, lo_open}; !range.holds(*v)) {
+    throw CalibrationFileError(fmt::format("{}:{}: {}: {} is out of range, expected in {}", file, line, key, *v, range.text()));
   }
   return *v;
 }
@@ -361,15 +359,10 @@ namespace {
 // The loss model's errors in a thermal state file, with the ranges the reader accepts (and the
 // writer keeps to, so that it never writes what it would refuse). k within the filter's
 // [-0.5, 1]; the standard deviations and dP within what any configured prior allows.
-struct LossKey {
-  const char* name;
-  double lo;
-  double hi;
-};
 // Where the filter's missing loss dP enters the network (core::ThermalObserver: the housing).
 constexpr const char* kMissingLossNode = "housing";
 
-constexpr LossKey kLossKeys[] = {{"missing_loss_W", -1e6, 1e6},
+constexpr KeyRange kLossKeys[] = {{"missing_loss_W", -1e6, 1e6},
                                  {"missing_loss_std_W", 0.0, 1e6},
                                  {"loss_scale_error", core::ThermalObserver::kMinLossScale,
                                   core::ThermalObserver::kMaxLossScale},
@@ -378,15 +371,15 @@ constexpr LossKey kLossKeys[] = {{"missing_loss_W", -1e6, 1e6},
 
 // The cooling path's error g and its deviation: a pair of its own (a file from before g was
 // kept has neither), within the filter's bounds.
-constexpr LossKey kCoolingKeys[] = {
+constexpr KeyRange kCoolingKeys[] = {
     {"cooling_scale_error", core::ThermalObserver::kMinCoolingScale, core::ThermalObserver::kMaxCoolingScale},
     {"cooling_scale_std", 0.0, 10.0}};
 
 // Every value within its key's range (NaN is not).
 template <std::size_t N>
-bool within(const LossKey (&keys)[N], const double (&values)[N]) {
+bool within(const KeyRange (&keys)[N], const double (&values)[N]) {
   for (std::size_t k = 0; k < N; ++k) {
-    if (!(values[k] >= keys[k].lo && values[k] <= keys[k].hi)) {
+    if (!keys[k].holds(values[k])) {
       return false;
     }
   }
@@ -492,20 +485,20 @@ StoredThermalState read_thermal_state_file(const std::filesystem::path& path) {
   // The loss model's errors: all five or none (a file from before they were kept). A bad
   // block costs only itself: the temperatures hold, the loss errors restart from the priors.
   int present = 0;
-  for (const LossKey& key : kLossKeys) {
-    present += t.get(key.name) != nullptr ? 1 : 0;
+  for (const KeyRange& key : kLossKeys) {
+    present += t.get(key.key) != nullptr ? 1 : 0;
   }
   if (present != 0) {
     try {
       double values[std::size(kLossKeys)] = {};
       for (std::size_t k = 0; k < std::size(kLossKeys); ++k) {
-        if (t.get(kLossKeys[k].name) == nullptr) {
+        if (t.get(kLossKeys[k].key) == nullptr) {
           throw CalibrationFileError(fmt::format("{}: {} is missing (the loss model's errors come as missing_loss_W, "
                                                  "missing_loss_std_W, loss_scale_error, loss_scale_std and "
                                                  "loss_correlation, or not at all)",
-                                                 file, kLossKeys[k].name));
+                                                 file, kLossKeys[k].key));
         }
-        values[k] = number(t, kLossKeys[k].name, file, kLossKeys[k].lo, kLossKeys[k].hi, false);
+        values[k] = number(t, kLossKeys[k], file);
       }
       const std::optional<std::string> node = t["missing_loss_node"].value<std::string>();
       if (node != kMissingLossNode) {
@@ -528,17 +521,17 @@ StoredThermalState read_thermal_state_file(const std::filesystem::path& path) {
   }
   // The cooling path's error: both keys or neither, a bad pair costing only itself (g restarts
   // from its prior).
-  const bool g_present = t.get(kCoolingKeys[0].name) != nullptr;
-  const bool g_std_present = t.get(kCoolingKeys[1].name) != nullptr;
+  const bool g_present = t.get(kCoolingKeys[0].key) != nullptr;
+  const bool g_std_present = t.get(kCoolingKeys[1].key) != nullptr;
   if (g_present || g_std_present) {
     try {
       if (g_present != g_std_present) {
         throw CalibrationFileError(fmt::format("{}: {} is missing (the cooling path's error comes as cooling_scale_error and "
                                                "cooling_scale_std, or not at all)",
-                                               file, g_present ? kCoolingKeys[1].name : kCoolingKeys[0].name));
+                                               file, g_present ? kCoolingKeys[1].key : kCoolingKeys[0].key));
       }
-      s.state.cooling_scale_error = number(t, kCoolingKeys[0].name, file, kCoolingKeys[0].lo, kCoolingKeys[0].hi, false);
-      s.state.cooling_scale_std = number(t, kCoolingKeys[1].name, file, kCoolingKeys[1].lo, kCoolingKeys[1].hi, false);
+      s.state.cooling_scale_error = number(t, kCoolingKeys[0], file);
+      s.state.cooling_scale_std = number(t, kCoolingKeys[1], file);
       s.state.has_cooling_error = true;
     } catch (const CalibrationFileError& e) {
       s.state.has_cooling_error = false;
