@@ -362,6 +362,14 @@ namespace {
 // Where the filter's missing loss dP enters the network (core::ThermalObserver: the housing).
 constexpr const char* kMissingLossNode = "housing";
 
+// The thermal state's temperatures, its deviation, the ambient and the time of the save, in
+// this order (the writer's and the reader's).
+constexpr KeyRange kThermalStateKeys[] = {{"winding_C", -60.0, 400.0},
+                                          {"housing_C", -60.0, 400.0},
+                                          {"winding_std_C", 0.0, 1000.0},
+                                          {"ambient_C", -60.0, 200.0},
+                                          {"saved_unix_s", 0.0, 1e11}};
+
 constexpr KeyRange kLossKeys[] = {{"missing_loss_W", -1e6, 1e6},
                                  {"missing_loss_std_W", 0.0, 1e6},
                                  {"loss_scale_error", core::ThermalObserver::kMinLossScale,
@@ -439,10 +447,16 @@ void write_thermal_state_file(const std::filesystem::path& path, const StoredThe
     throw CalibrationFileError(why);
   }
   const core::ThermalState& s = stored.state;
-  if (!std::isfinite(s.winding_C) || !std::isfinite(s.housing_C) || !(s.winding_std_C >= 0.0) ||
-      !std::isfinite(s.winding_std_C) || !std::isfinite(stored.ambient_C) || !std::isfinite(stored.saved_unix_s)) {
-    throw CalibrationFileError(fmt::format("{}: refusing to store an invalid thermal state (winding {} +- {} C, housing {} C)",
-                                           path.string(), s.winding_C, s.winding_std_C, s.housing_C));
+  // Every temperature within the range the reader accepts: a state it would refuse would cost
+  // the next start its warm restart.
+  const double kept[] = {s.winding_C, s.housing_C, s.winding_std_C, stored.ambient_C, stored.saved_unix_s};
+  for (std::size_t k = 0; k < std::size(kThermalStateKeys); ++k) {
+    if (!kThermalStateKeys[k].holds(kept[k])) {
+      throw CalibrationFileError(fmt::format("{}: refusing to store an invalid thermal state: {} = {} is outside {}, which "
+                                             "the reader would refuse at the next start (winding {} +- {} C, housing {} C)",
+                                             path.string(), kThermalStateKeys[k].key, kept[k],
+                                             kThermalStateKeys[k].text(), s.winding_C, s.winding_std_C, s.housing_C));
+    }
   }
   std::ostringstream text;
   text << kThermalStateHeader << "; replaced atomically by the drive\n"
@@ -477,11 +491,11 @@ StoredThermalState read_thermal_state_file(const std::filesystem::path& path) {
                          "missing_loss_node", "missing_loss_W", "missing_loss_std_W", "loss_scale_error",
                          "loss_scale_std", "loss_correlation", "cooling_scale_error", "cooling_scale_std"});
   StoredThermalState s;
-  s.state.winding_C = number(t, "winding_C", file, -60.0, 400.0, false);
-  s.state.housing_C = number(t, "housing_C", file, -60.0, 400.0, false);
-  s.state.winding_std_C = number(t, "winding_std_C", file, 0.0, 1000.0, false);
-  s.ambient_C = number(t, "ambient_C", file, -60.0, 200.0, false);
-  s.saved_unix_s = number(t, "saved_unix_s", file, 0.0, 1e11, false);
+  s.state.winding_C = number(t, kThermalStateKeys[0], file);
+  s.state.housing_C = number(t, kThermalStateKeys[1], file);
+  s.state.winding_std_C = number(t, kThermalStateKeys[2], file);
+  s.ambient_C = number(t, kThermalStateKeys[3], file);
+  s.saved_unix_s = number(t, kThermalStateKeys[4], file);
   // The loss model's errors: all five or none (a file from before they were kept). A bad
   // block costs only itself: the temperatures hold, the loss errors restart from the priors.
   int present = 0;

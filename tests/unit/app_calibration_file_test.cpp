@@ -484,6 +484,50 @@ TEST_F(CalibrationFile, ThermalStateRoundTripAndBadFiles) {
   }
 }
 
+// The thermal state's writer keeps to the reader's ranges: a winding of 450 C (a filter gone
+// wrong) stored would refuse the next start its warm restart. The old file stays.
+TEST_F(CalibrationFile, WhatTheThermalStateWriterStoresTheReaderAccepts) {
+  const fs::path path = dir_ / "axis1.thermal";
+  StoredThermalState good;
+  good.state = {92.4, 71.25, 1.3};
+  good.ambient_C = 31.5;
+  good.saved_unix_s = 1795493852.25;
+  write_thermal_state_file(path, good);
+  struct Case {
+    const char* key;
+    void (*spoil)(StoredThermalState&);
+  };
+  const Case cases[] = {
+      {"winding_C", [](StoredThermalState& s) { s.state.winding_C = 450.0; }},
+      {"winding_C", [](StoredThermalState& s) { s.state.winding_C = -75.0; }},
+      {"housing_C", [](StoredThermalState& s) { s.state.housing_C = 401.0; }},
+      {"winding_std_C", [](StoredThermalState& s) { s.state.winding_std_C = -0.1; }},
+      {"winding_std_C", [](StoredThermalState& s) { s.state.winding_std_C = 2000.0; }},
+      {"ambient_C", [](StoredThermalState& s) { s.ambient_C = 250.0; }},
+      {"saved_unix_s", [](StoredThermalState& s) { s.saved_unix_s = -1.0; }},
+  };
+  for (const Case& k : cases) {
+    StoredThermalState s = good;
+    k.spoil(s);
+    try {
+      write_thermal_state_file(path, s);
+      ADD_FAILURE() << k.key << ": stored";
+    } catch (const CalibrationFileError& e) {
+      EXPECT_NE(std::string(e.what()).find(std::string(k.key) + " = "), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("the reader would refuse"), std::string::npos) << e.what();
+    }
+    EXPECT_DOUBLE_EQ(read_thermal_state_file(path).state.winding_C, 92.4) << k.key << ": the old file stays";
+  }
+  // At the edges both sides agree.
+  StoredThermalState edge = good;
+  edge.state.winding_C = 400.0;
+  edge.state.housing_C = -60.0;
+  edge.state.winding_std_C = 0.0;
+  edge.ambient_C = 200.0;
+  write_thermal_state_file(path, edge);
+  EXPECT_DOUBLE_EQ(read_thermal_state_file(path).state.winding_C, 400.0);
+}
+
 // The loss model's learned errors go with the thermal state: all five keys or none, with the
 // node its missing loss enters (the housing; a block learned with it on the winding is refused).
 TEST_F(CalibrationFile, ThermalStateKeepsTheLossModelsErrors) {
