@@ -365,6 +365,8 @@ InjectionScheduler::Budget InjectionScheduler::budget(const SchedulerInput& in, 
 }
 
 void InjectionScheduler::begin_pair(const SchedulerInput& in) {
+  pair_bus_sum_V_ = {};
+  pair_bus_periods_ = {};
   time_based_ = std::abs(in.omega_e_rad_s) < config_.min_speed_for_angle_rad_s;
   direction_ = in.omega_e_rad_s >= 0.0 ? 1.0 : -1.0;
   PairFitConfig fit;
@@ -568,6 +570,30 @@ void InjectionScheduler::abort(SchedulerOutput& out, const SchedulerInput& in, A
   out.phase = phase_;
 }
 
+double InjectionScheduler::bus_change_error_ohm(const FitResult& fit) const {
+  // Each period's voltage is referred to the reference bus with the bus slope learned so far; a
+  // bus that moved between the recordings (a neighbour braking onto a common bus, a supply
+  // switched) leaves the recordings referred apart by the slope's error times the move, which
+  // the separation takes for resistance: one standard deviation of it, through drs/dVx. It is a
+  // part of the pair's error bar and of its event's (finish_event), not a reason to refuse the
+  // pair: a single-phase rectifier's bus differs by volts between recordings at every pair, and
+  // a table saw refusing them failed its calibration. The reference motor, its dead time
+  // commissioned 25 % short, read up to +25 % with its bus stepping 650 -> 800 V within an event
+  // (docs/estimator.md section 4, "A bus that moves within an event").
+  if (!config_.fit_dead_time) {
+    return 0.0;
+  }
+  double mean[2] = {0.0, 0.0};
+  for (std::size_t k = 0; k < 2; ++k) {
+    if (pair_bus_periods_[k] == 0) {
+      return 0.0;
+    }
+    mean[k] = pair_bus_sum_V_[k] / static_cast<double>(pair_bus_periods_[k]);
+  }
+  const double error = std::abs(fit.drs_dvx) * std::sqrt(std::max(vx_slope_var_, 0.0)) * std::abs(mean[0] - mean[1]);
+  return std::isfinite(error) ? error : 0.0;
+}
+
 PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
   PairResult r;
   r.method = config_.method;
@@ -595,8 +621,10 @@ PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
   // Vx's variance at the bus the event has seen so far (its slope's uncertainty away from the
   // reference bus; vx_variance_at).
   const double vx_var_rs = fit.drs_dvx * fit.drs_dvx * (config_.fit_dead_time ? vx_variance_at(event_bus_offset_V()) : 0.0);
+  // And what a bus that moved between its recordings can do with the slope's uncertainty.
+  const double bus_rs = bus_change_error_ohm(fit);
   r.rs_ohm = fit.rs_ohm;
-  r.rs_std_ohm = std::sqrt(fit.var_rs + vx_var_rs + lq_var_rs);
+  r.rs_std_ohm = std::sqrt(fit.var_rs + vx_var_rs + lq_var_rs + bus_rs * bus_rs);
   r.residual_rms_V = fit.residual_rms_V;
   r.condition = fit.condition;
   r.delta_omega_e_rad_s = c.omega_e_mean_1_rad_s - c.omega_e_mean_2_rad_s;
@@ -619,7 +647,7 @@ PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
     r.outcome = PairOutcome::kRejectedLoadChange;
   } else if (fit.residual_rms_V > config_.max_residual_V) {
     r.outcome = PairOutcome::kRejectedResidual;
-  } else if (!plausible(fit.rs_ohm, 3.0 * std::sqrt(vx_var_rs))) {
+  } else if (!plausible(fit.rs_ohm, 3.0 * std::sqrt(vx_var_rs + bus_rs * bus_rs))) {
     // The window widens by what the uncertain inverter voltage can move this pair's Rs (not by
     // the Lq term's: on a DC pulse at speed it is large, and the window would pass anything).
     r.outcome = PairOutcome::kRejectedImplausible;
@@ -630,6 +658,11 @@ PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
     const auto slot = static_cast<std::size_t>(std::min(event_pairs_, InjectionConfig::kMaxLevels - 1));
     event_pair_sums_[slot] = recorder_.sums();
     event_pair_time_s_[slot] = c.rs_time_s;
+    event_bus_error_ohm_ = std::max(event_bus_error_ohm_, bus_rs);
+    for (std::size_t k = 0; k < 2; ++k) {
+      event_pair_bus_V_[slot][k] = pair_bus_periods_[k] > 0 ? pair_bus_sum_V_[k] / static_cast<double>(pair_bus_periods_[k])
+                                                            : event_bus_offset_V();
+    }
     event_pair_lq_[slot] = lq;
     event_min_f_A_ = event_pairs_ == 0 ? f_A_ : std::min(event_min_f_A_, f_A_);
     event_max_iq_A_ = std::max(event_max_iq_A_, 0.5 * std::abs(c.iq_mean_1_A + c.iq_mean_2_A));
@@ -1066,6 +1099,30 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
   const bool at_rest = event_max_speed_ < rest_speed_rad_s();
   e.joint_condition = at_rest ? joint.design_identifiability : joint.identifiability;
   e.vx_learning = joint.valid && e.joint_condition >= config_.vx_min_identifiability;
+  // Nor from recordings that ran at different buses beyond what the learned bus slope can refer
+  // between: each period's voltage is referred to the reference bus with the slope learned so
+  // far, and where the slope's error times the spread of the recordings' buses exceeds the fit's
+  // own error bar on Vx, the recordings disagree by that error and the fit takes it for Vx with a
+  // bar that cannot show it. A 16 kHz slitter commissioned with its dead time 30 % short (the slope's
+  // error 0.0048 V/V) learned Vx = 10.45 +- 0.018 V from an event spanning a step of its bus
+  // from 540 to 655 V, and the filter followed the estimates 45 C low (docs/estimator.md
+  // section 4, "Vx follows the bus"). Its Rs takes Vx held at the prior, whose uncertainty at
+  // the event's bus the slope's includes.
+  if (e.vx_learning) {
+    double lo = event_pair_bus_V_[0][0];
+    double hi = lo;
+    for (int j = 0; j < means; ++j) {
+      for (const double bus : event_pair_bus_V_[static_cast<std::size_t>(j)]) {
+        lo = std::min(lo, bus);
+        hi = std::max(hi, bus);
+      }
+    }
+    e.bus_spread_V = hi - lo;
+    if (std::sqrt(vx_slope_var_) * e.bus_spread_V > std::sqrt(joint.var_vx)) {
+      e.vx_learning = false;
+      e.vx_refused_bus_spread = true;
+    }
+  }
   e.joint_rs_ohm = joint.rs_ohm;
   e.joint_vx_V = joint.vx_V;
   if (e.vx_learning && joint.var_vx > 0.0) {
@@ -1174,6 +1231,12 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
     const double gain_ohm = rs * config_.current_gain_std_fraction / std::sqrt(6.0);
     var_rs += gain_ohm * gain_ohm;
   }
+  // The largest error a bus that moved between a pair's recordings can make of its Rs at the bus
+  // slope's uncertainty (bus_change_error_ohm): one slope error acts on every pair of the event
+  // alike, so the largest bounds what their fit can take of it, and it is shared by the events
+  // until the slope is learned.
+  var_rs += event_bus_error_ohm_ * event_bus_error_ohm_;
+  e.rs_systematic_std_ohm = std::hypot(e.rs_systematic_std_ohm, event_bus_error_ohm_);
   if (!plausible(rs, 0.0) || !(var_rs >= 0.0)) {
     e.outcome = EventOutcome::kImplausible;
     e.rs_ohm = rs;
@@ -1329,6 +1392,12 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
   if (in_event_) {
     event_bus_sum_V_ += in.bus_offset_V;  // the event's mean bus (finish_event)
     ++event_bus_periods_;
+    if (phase_ == SchedulerPhase::kRecord1 || phase_ == SchedulerPhase::kRecord2) {
+      // And each recording's (EventEstimate::bus_spread_V).
+      const std::size_t k = phase_ == SchedulerPhase::kRecord1 ? 0 : 1;
+      pair_bus_sum_V_[k] += in.bus_offset_V;
+      ++pair_bus_periods_[k];
+    }
   }
   const double elapsed = in.time_s - phase_start_s_;
   auto enter = [&](SchedulerPhase p) {
@@ -1383,6 +1452,7 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
         event_field_weakening_ = false;
         event_bus_sum_V_ = 0.0;
         event_bus_periods_ = 0;
+        event_bus_error_ohm_ = 0.0;
         next_event_s_ = in.time_s + config_.interval_s;
       }
       if (level_index_ >= std::clamp(config_.level_count, 1, InjectionConfig::kMaxLevels)) {

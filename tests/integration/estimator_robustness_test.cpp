@@ -158,6 +158,40 @@ TEST(EstimatorRobustness, AStoredBridgeVoltageFollowsTheBus) {
   EXPECT_LT(r.winding_error_max_C, 20.0);
 }
 
+// A bus that steps within an event (650 -> 800 V, the dead time commissioned 25 % short): each
+// period's voltage is referred to the nominal bus with a slope no event has taught yet, 0.375 V
+// off after the step. An event whose recordings lie on both sides of it may not learn Vx from
+// them, and a pair whose two recordings do carries what the slope's uncertainty can make of the
+// move in its error bar and its event's. Before, such an event learned a wrong Vx with a narrow
+// bar, and it and the events after it read 1-22 % low (4-12 sigma; with the step 0.06 s into
+// the event the next two read 22 % low). Bounds: every estimate within 3 sigma of the truth,
+// the spanning event's too, and the events after it, which learn Vx and the slope on the new
+// bus, within 1 % (2.6 C).
+TEST(EstimatorRobustness, ABusStepWithinAnEventTeachesNoWrongVx) {
+  const std::filesystem::path file = std::filesystem::path(PMSM_SOURCE_DIR) / "tests/integration/data/bus-step-within-an-event.toml";
+  for (const double step_s : {4.52, 4.56, 4.60, 4.64}) {
+    Scenario s = load_scenario(file);
+    s.plant.inverter.dc_source_points = {{0.0, 650.0}, {step_s, 650.0}, {step_s + 0.01, 800.0}};
+    RunOptions o;
+    o.twin_for_disturbance = false;
+    const SimulationResult r = run_scenario(s, o);
+    ASSERT_TRUE(r.calibrated) << step_s;
+    int spanning = 0;
+    int after = 0;
+    for (const EstimateRow& e : r.estimates) {
+      const double error = e.rs_est_ohm - e.rs_true_ohm;
+      EXPECT_LT(std::abs(error), 3.0 * e.rs_std_ohm) << "step at " << step_s << " s, estimate at " << e.time_s << " s";
+      spanning += e.time_s > 4.5 && e.time_s < 5.0 ? 1 : 0;
+      if (e.time_s > 5.5) {
+        EXPECT_LT(std::abs(error), 0.01 * e.rs_true_ohm) << "step at " << step_s << " s, estimate at " << e.time_s << " s";
+        ++after;
+      }
+    }
+    EXPECT_EQ(spanning, 1) << step_s;
+    EXPECT_GE(after, 2) << step_s;
+  }
+}
+
 // The compensation's dead time (0.9 us) is not the bridge's (1 us): referred to the nominal bus
 // with it, a Vx learned at 650 V is 0.001 x 110 V = 0.11 V off when the supply steps to 540 V.
 // Events that learn Vx on the new bus teach the second state, the slope by which Vx follows

@@ -669,6 +669,10 @@ TEST(DriveNode, FieldWeakeningCarriesTheShaftPastTheIdZeroSpeed) {
 // the calibration's filter (nor taken for a calibration event).
 TEST(DriveNode, EstimatesWaitingForTheirTimeAreDroppedWhenACalibrationStarts) {
   Rig rig;
+  // One level an event: its one field-weakening pair's date, beyond its second recording, is the
+  // event's (with two, the first pair's earlier date weighs in, and whether an event waits at all
+  // turned on the noise's draw).
+  rig.config.drive.injection.level_count = 1;
   run_into_field_weakening(rig, 0.2);
   const core::DriveController& c = rig.node->controller();
   int k = 0;

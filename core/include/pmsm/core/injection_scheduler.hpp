@@ -396,6 +396,13 @@ struct EventEstimate {
   bool vx_from_event = false;      // the event's own levels determined Vx (joint fit)
   double joint_condition = 0.0;    // identifiability of the event's joint (Rs, Vx) fit (MeansFit)
   bool vx_learning = false;        // the event reversed the current vector: Vx was fitted
+  // How far apart the buses of its recordings lay (the largest less the smallest recording's
+  // mean bus, over both recordings of every pair in its fit),
+  // and whether that alone kept the event from learning Vx: each pair's voltage is referred to
+  // the reference bus with the bus slope learned so far, and the slope's uncertainty times this
+  // spread is what the levels may disagree by beyond the fit's own noise (finish_event).
+  double bus_spread_V = 0.0;
+  bool vx_refused_bus_spread = false;
   double joint_rs_ohm = 0.0;       // the joint fit before fusion (diagnostics)
   double joint_vx_V = 0.0;
   bool has_emf = false;            // angle-based pairs: the EMF constant below is meaningful
@@ -654,6 +661,7 @@ class InjectionScheduler {
   [[nodiscard]] MeansFit sample_fit_fixed_vx(double vx_V) const;
   // An event's fused Vx as the prior of the next (with the drift between events).
   [[nodiscard]] double vx_variance_at(double bus_offset_V) const;
+  [[nodiscard]] double bus_change_error_ohm(const FitResult& fit) const;
   void learn_vx(double bus_offset_V, double vx_V, double var_V2);
   void drift_vx();
   [[nodiscard]] bool event_uses_means() const;
@@ -754,6 +762,12 @@ class InjectionScheduler {
   double learned_bus_offset_V_ = 0.0;  // last_learned_bus_offset_V()
   double event_bus_sum_V_ = 0.0;    // the event's bus offsets (SchedulerInput::bus_offset_V), summed
   std::uint32_t event_bus_periods_ = 0;
+  // The pair in progress's bus offsets over each recording, summed, and each accepted pair's
+  // recordings' mean bus offsets (EventEstimate::bus_spread_V).
+  std::array<double, 2> pair_bus_sum_V_{};
+  std::array<std::uint32_t, 2> pair_bus_periods_{};
+  std::array<std::array<double, 2>, InjectionConfig::kMaxLevels> event_pair_bus_V_{};
+  double event_bus_error_ohm_ = 0.0;  // the largest bus_change_error_ohm of the event's accepted pairs
   [[nodiscard]] double event_bus_offset_V() const {
     return event_bus_periods_ > 0 ? event_bus_sum_V_ / static_cast<double>(event_bus_periods_) : 0.0;
   }
