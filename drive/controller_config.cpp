@@ -317,10 +317,13 @@ ConfigSchema<C> build() {
                     "Uncertainty of the bridge's dead-time share of the bus (V of Vx per V of bus) beyond what control.dead_time_s "
                     "assumes: learned from events that learn Vx at different buses, and until then the held Vx's uncertainty "
                     "grows with the bus's distance from control.nominal_dc_bus_V (docs/estimator.md section 4). 0: not modelled.");
-  inj.real("injection.vx_learning_max_speed_rad_s", [](C& c) -> double& { return c.drive.injection.vx_learning_max_speed_rad_s; },
-           at_least(0, 1e5), "rad/s",
-           "Learn Vx only from events slower than this (electrical; docs/estimator.md section 4); a calibration faster "
-           "than this cannot learn it and is refused (calibration.max_rs0_std_fraction).");
+  inj.optional_real("injection.vx_learning_max_speed_rad_s",
+                    [](C& c) -> std::optional<double>& { return c.relative.vx_learning_max_speed_rad_s; }, at_least(0, 1e5),
+                    "rad/s", "max(600, 0.06 / control.period_s)",
+                    "Learn Vx only from events slower than this (electrical): 600 rad/s, or faster at control rates above "
+                    "10 kHz as long as the rotor turns at most 0.06 rad in a period, 105 periods an electrical turn "
+                    "(docs/estimator.md section 4, \"How fast an event may learn Vx\"); a calibration faster than this "
+                    "cannot learn it and is refused (calibration.max_rs0_std_fraction).");
   inj.real("injection.vx_learning_max_iq_fraction", [](C& c) -> double& { return c.drive.injection.vx_learning_max_iq_fraction; },
            at_least(0, 100), "",
            "... and whose motoring |iq| stays below this fraction of the event's smallest F (its pairs reverse the current).");
@@ -612,6 +615,11 @@ void finalize(ControllerConfig& c, std::string_view source, const toml::table* t
   d.injection.current_limit_A = d.derating.max_current_A;
   // A dead time is commissioned from the gate driver's data within about a fifth.
   d.injection.vx_bus_slope_std = c.relative.vx_bus_slope_std.value_or(0.2 * d.dead_time.dead_time_s / d.period_s);
+  // A fast event's means go wrong with how far the rotor turns in a period (a 4 kHz blower at 14
+  // periods a turn taught a wrong Vx), not with the speed alone (a 16 kHz saw at 754 rad/s
+  // learns it right): the tested 600 rad/s, and more where the periods are short.
+  d.injection.vx_learning_max_speed_rad_s = c.relative.vx_learning_max_speed_rad_s.value_or(
+      std::max(kVxLearningMaxSpeed_rad_s, kVxLearningMaxAnglePerPeriod_rad / d.period_s));
   // The calibration procedure: the run-time settings, as fixed-magnitude bipolar at two levels.
   // (Its vx_initial_V is never used: set_config() keeps the scheduler's learned Vx.)
   d.calibration_injection = d.injection;

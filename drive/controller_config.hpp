@@ -54,12 +54,21 @@ struct MotorRelativeKeys {
   // Follows the bus, not the motor: a share of control.nominal_dc_bus_V.
   std::optional<double> headroom_margin_V;
   std::optional<double> vx_bus_slope_std;
+  // Follows the control rate above 10 kHz: kVxLearningMaxAnglePerPeriod_rad / control.period_s.
+  std::optional<double> vx_learning_max_speed_rad_s;
 };
+
+// How fast an event may turn to learn the bridge's voltage Vx (injection.vx_learning_max_speed_
+// rad_s): 600 electrical rad/s, or faster where the rotor still turns at most 0.06 rad in a
+// control period, 105 periods an electrical turn (above 10 kHz). docs/estimator.md section 4,
+// "How fast an event may learn Vx".
+inline constexpr double kVxLearningMaxSpeed_rad_s = 600.0;
 
 // The pair recorder's size (core::DriveConfig::recording_capacity): the longest recording the
 // injection keys ask for at the control period, within these bounds.
 inline constexpr std::size_t kMinRecordingSamples = 8192;
 inline constexpr std::size_t kMaxRecordingSamples = std::size_t{1} << 17;
+inline constexpr double kVxLearningMaxAnglePerPeriod_rad = 0.06;
 
 // The share of the rated torque (RMS) the encoder's rounding may make of the speed loop's
 // torque demand before the loader warns (core::speed_loop_quantisation_torque_Nm;

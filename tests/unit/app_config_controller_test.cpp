@@ -355,6 +355,24 @@ TEST(ControllerConfig, TheRecorderHoldsTheLongestRecordingAtAnyControlRate) {
   EXPECT_EQ(parse("[injection]\nfield_weakening_record_min_time_s = 0.7\n").drive.recording_capacity, 9096U);
 }
 
+// Vx is learned up to 600 electrical rad/s, and faster where the control periods are short
+// enough that the rotor turns at most 0.06 rad in one: a 16 kHz drive up to 960 rad/s, a 20 kHz
+// one up to 1200; a 4 kHz drive keeps 600 (0.15 rad a period, where a blower's calibration
+// learned it right). The calibration's procedure takes the same; a given key holds as given.
+TEST(ControllerConfig, TheVxLearningSpeedFollowsTheControlRateAbove10kHz) {
+  EXPECT_EQ(default_controller_config().drive.injection.vx_learning_max_speed_rad_s, 600.0);
+  const ControllerConfig slow = parse("[control]\nperiod_s = 2.5e-4\n");
+  EXPECT_EQ(slow.drive.injection.vx_learning_max_speed_rad_s, 600.0);
+  const ControllerConfig fast = parse("[control]\nperiod_s = 6.25e-5\n");
+  EXPECT_DOUBLE_EQ(fast.drive.injection.vx_learning_max_speed_rad_s, 960.0);
+  EXPECT_DOUBLE_EQ(fast.drive.calibration_injection.vx_learning_max_speed_rad_s, 960.0);
+  EXPECT_DOUBLE_EQ(parse("[control]\nperiod_s = 5e-5\n").drive.injection.vx_learning_max_speed_rad_s, 1200.0);
+  const ControllerConfig given = parse("[control]\nperiod_s = 6.25e-5\n[injection]\nvx_learning_max_speed_rad_s = 500\n");
+  EXPECT_EQ(given.drive.injection.vx_learning_max_speed_rad_s, 500.0);
+  EXPECT_NE(error_of("[injection]\nvx_learning_max_speed_rad_s = -1\n").find("injection.vx_learning_max_speed_rad_s"),
+            std::string::npos);
+}
+
 // The window's period follows the edge's inductive voltage, k Ld F / Tw (Eq. 29): where the
 // paper's 4 ms would take more than half the phase voltage limit it is lengthened to take half.
 // A 0.1 H ball-mill motor (9.2 A peak rated, 560 V) gets 13.9 ms at its default calibration F of

@@ -213,10 +213,10 @@ struct InjectionConfig {
   // is biased in a way its own error bar cannot show (docs/estimator.md).
   double vx_learning_max_iq_fraction = 0.5;
   double vx_min_identifiability = 0.05;  // of the event's means fit, to learn Vx from it
-  // ... and only below this electrical speed: at speed the EMF harmonics' current ripple
-  // interacts with the dead time near the zero crossings and biases what is learned, and a 4 kHz
-  // blower at 14 periods a turn learned a wrong Vx. (A limit raised with the control rate above
-  // 10 kHz was tried and not kept: docs/accuracy.md, "Unseen motors, twelfth round".)
+  // ... and only below this electrical speed. What biases a fast event's Vx goes with how far
+  // the rotor turns in a control period (a 4 kHz blower at 14 periods a turn learned a wrong
+  // one; a 16 kHz saw at 754 rad/s learns it right): the configuration's default is 600 rad/s,
+  // or 0.06 rad a period above 10 kHz (app::kVxLearningMaxAnglePerPeriod_rad).
   double vx_learning_max_speed_rad_s = 600.0;
   double lq_H = 5.5e-3;           // the controller's model, for the Eq. 37 correction
   // The Eq. 37 correction Lq d(w iq) is exact only with the true Lq, and on a salient machine
