@@ -75,6 +75,15 @@ core::Calibration sample() {
   return c;
 }
 
+// A warm winding's thermal state, as the drive stores it.
+StoredThermalState sample_state() {
+  StoredThermalState s;
+  s.state = {92.4, 71.25, 1.3};
+  s.ambient_C = 31.5;
+  s.saved_unix_s = 1795493852.25;
+  return s;
+}
+
 // A stored file is read at every start: a corrupt one of 50,000 key segments made toml++
 // overflow the stack and the daemon died at start-up; now it is an error like any other.
 TEST_F(CalibrationFile, ADeeplyNestedFileIsAnErrorNotACrash) {
@@ -455,10 +464,7 @@ TEST_F(CalibrationFile, AThermalStateIsNotWrittenOverAFileOfAnotherKind) {
 // The thermal state kept across a restart: the same atomic write and strict read.
 TEST_F(CalibrationFile, ThermalStateRoundTripAndBadFiles) {
   const fs::path path = dir_ / "axis1.thermal";
-  StoredThermalState s;
-  s.state = {92.4, 71.25, 1.3};
-  s.ambient_C = 31.5;
-  s.saved_unix_s = 1795493852.25;
+  const StoredThermalState s = sample_state();
   write_thermal_state_file(path, s);
   const StoredThermalState back = read_thermal_state_file(path);
   EXPECT_DOUBLE_EQ(back.state.winding_C, 92.4);
@@ -488,10 +494,7 @@ TEST_F(CalibrationFile, ThermalStateRoundTripAndBadFiles) {
 // wrong) stored would refuse the next start its warm restart. The old file stays.
 TEST_F(CalibrationFile, WhatTheThermalStateWriterStoresTheReaderAccepts) {
   const fs::path path = dir_ / "axis1.thermal";
-  StoredThermalState good;
-  good.state = {92.4, 71.25, 1.3};
-  good.ambient_C = 31.5;
-  good.saved_unix_s = 1795493852.25;
+  const StoredThermalState good = sample_state();
   write_thermal_state_file(path, good);
   struct Case {
     const char* key;
