@@ -577,9 +577,10 @@ double InjectionScheduler::bus_change_error_ohm(const FitResult& fit) const {
   // the separation takes for resistance: one standard deviation of it, through drs/dVx. It is a
   // part of the pair's error bar and of its event's (finish_event), not a reason to refuse the
   // pair: a single-phase rectifier's bus differs by volts between recordings at every pair, and
-  // a table saw refusing them failed its calibration. The reference motor, its dead time
-  // commissioned 25 % short, read up to +25 % with its bus stepping 650 -> 800 V within an event
-  // (docs/estimator.md section 4, "A bus that moves within an event").
+  // a table saw refusing them failed its calibration. With the reference motor's dead time
+  // commissioned 25 % short and its bus stepping 650 -> 800 V within an event, the events read
+  // up to 22 % low before these guards (docs/estimator.md section 4, "A bus that moves within
+  // an event").
   if (!config_.fit_dead_time) {
     return 0.0;
   }
@@ -1105,9 +1106,10 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
   // own error bar on Vx, the recordings disagree by that error and the fit takes it for Vx with a
   // bar that cannot show it. A 16 kHz slitter commissioned with its dead time 30 % short (the slope's
   // error 0.0048 V/V) learned Vx = 10.45 +- 0.018 V from an event spanning a step of its bus
-  // from 540 to 655 V, and the filter followed the estimates 45 C low (docs/estimator.md
-  // section 4, "Vx follows the bus"). Its Rs takes Vx held at the prior, whose uncertainty at
-  // the event's bus the slope's includes.
+  // from 540 to 655 V, and the filter followed the estimates 45 C low (docs/accuracy.md, "Unseen
+  // motors, twelfth round"; docs/estimator.md section 4, "A bus that moves within an event"). Its
+  // Rs takes Vx held at the prior, whose uncertainty at the event's bus the slope's includes. A
+  // spread or a slope variance that is not a number refuses too.
   if (e.vx_learning) {
     double lo = event_pair_bus_V_[0][0];
     double hi = lo;
@@ -1118,7 +1120,8 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
       }
     }
     e.bus_spread_V = hi - lo;
-    if (std::sqrt(vx_slope_var_) * e.bus_spread_V > std::sqrt(joint.var_vx)) {
+    const double misreference_V = std::sqrt(std::max(vx_slope_var_, 0.0)) * e.bus_spread_V;
+    if (!std::isfinite(misreference_V) || misreference_V > std::sqrt(joint.var_vx)) {
       e.vx_learning = false;
       e.vx_refused_bus_spread = true;
     }
@@ -1392,9 +1395,11 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
   if (in_event_) {
     event_bus_sum_V_ += in.bus_offset_V;  // the event's mean bus (finish_event)
     ++event_bus_periods_;
-    if (phase_ == SchedulerPhase::kRecord1 || phase_ == SchedulerPhase::kRecord2) {
-      // And each recording's (EventEstimate::bus_spread_V).
-      const std::size_t k = phase_ == SchedulerPhase::kRecord1 ? 0 : 1;
+    // And each recording's (EventEstimate::bus_spread_V): a fixed-angle pair at speed records
+    // both pulses in kPulseWait, recording_ saying which.
+    const bool pulse = phase_ == SchedulerPhase::kPulseWait && (recording_ == 1 || recording_ == 2);
+    if (phase_ == SchedulerPhase::kRecord1 || phase_ == SchedulerPhase::kRecord2 || pulse) {
+      const std::size_t k = pulse ? static_cast<std::size_t>(recording_ - 1) : phase_ == SchedulerPhase::kRecord1 ? 0 : 1;
       pair_bus_sum_V_[k] += in.bus_offset_V;
       ++pair_bus_periods_[k];
     }

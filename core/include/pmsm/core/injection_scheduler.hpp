@@ -400,7 +400,8 @@ struct EventEstimate {
   // mean bus, over both recordings of every pair in its fit),
   // and whether that alone kept the event from learning Vx: each pair's voltage is referred to
   // the reference bus with the bus slope learned so far, and the slope's uncertainty times this
-  // spread is what the levels may disagree by beyond the fit's own noise (finish_event).
+  // spread is what the levels may disagree by beyond the fit's own noise (finish_event). Only
+  // computed for an event that would otherwise learn Vx (0 for the others).
   double bus_spread_V = 0.0;
   bool vx_refused_bus_spread = false;
   double joint_rs_ohm = 0.0;       // the joint fit before fusion (diagnostics)
