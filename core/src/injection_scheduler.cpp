@@ -581,17 +581,11 @@ double InjectionScheduler::bus_change_error_ohm(const FitResult& fit) const {
   // commissioned 25 % short and its bus stepping 650 -> 800 V within an event, the events read
   // up to 22 % low before these guards (docs/estimator.md section 4, "A bus that moves within
   // an event").
-  if (!config_.fit_dead_time) {
+  if (!config_.fit_dead_time || pair_bus_periods_[0] == 0 || pair_bus_periods_[1] == 0) {
     return 0.0;
   }
-  double mean[2] = {0.0, 0.0};
-  for (std::size_t k = 0; k < 2; ++k) {
-    if (pair_bus_periods_[k] == 0) {
-      return 0.0;
-    }
-    mean[k] = pair_bus_sum_V_[k] / static_cast<double>(pair_bus_periods_[k]);
-  }
-  const double error = std::abs(fit.drs_dvx) * std::sqrt(std::max(vx_slope_var_, 0.0)) * std::abs(mean[0] - mean[1]);
+  const double move_V = recording_bus_offset_V(0) - recording_bus_offset_V(1);
+  const double error = std::abs(fit.drs_dvx) * std::sqrt(std::max(vx_slope_var_, 0.0)) * std::abs(move_V);
   return std::isfinite(error) ? error : 0.0;
 }
 
@@ -660,10 +654,7 @@ PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
     event_pair_sums_[slot] = recorder_.sums();
     event_pair_time_s_[slot] = c.rs_time_s;
     event_bus_error_ohm_ = std::max(event_bus_error_ohm_, bus_rs);
-    for (std::size_t k = 0; k < 2; ++k) {
-      event_pair_bus_V_[slot][k] = pair_bus_periods_[k] > 0 ? pair_bus_sum_V_[k] / static_cast<double>(pair_bus_periods_[k])
-                                                            : event_bus_offset_V();
-    }
+    event_pair_bus_V_[slot] = {recording_bus_offset_V(0), recording_bus_offset_V(1)};
     event_pair_lq_[slot] = lq;
     event_min_f_A_ = event_pairs_ == 0 ? f_A_ : std::min(event_min_f_A_, f_A_);
     event_max_iq_A_ = std::max(event_max_iq_A_, 0.5 * std::abs(c.iq_mean_1_A + c.iq_mean_2_A));

@@ -772,6 +772,11 @@ class InjectionScheduler {
   [[nodiscard]] double event_bus_offset_V() const {
     return event_bus_periods_ > 0 ? event_bus_sum_V_ / static_cast<double>(event_bus_periods_) : 0.0;
   }
+  // Recording k's (0, 1) mean bus offset in the pair in progress; the event's so far where it
+  // counted no period.
+  [[nodiscard]] double recording_bus_offset_V(std::size_t k) const {
+    return pair_bus_periods_[k] > 0 ? pair_bus_sum_V_[k] / static_cast<double>(pair_bus_periods_[k]) : event_bus_offset_V();
+  }
   // set_motoring_voltage(): NaN time until given.
   double motoring_voltage_time_s_ = std::numeric_limits<double>::quiet_NaN();
   double winding_rs_ohm_ = std::numeric_limits<double>::quiet_NaN();  // set_winding_resistance
