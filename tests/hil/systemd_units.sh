@@ -301,7 +301,7 @@ chmod 0755 "$work/init" "$work/check.sh"
 echo "$prog: booting systemd in User-Mode Linux ($uml_release), work $work"
 t0=$(date +%s)
 set +e
-TMPDIR="$work/mem" timeout --kill-after=10 "$timeout_s" "$linux_bin" mem=384M "umid=systemd-units-$$" \
+TMPDIR="$work/mem" timeout --kill-after=10 "$timeout_s" "$src/scripts/uml-run" "$work" "$linux_bin" mem=384M "umid=systemd-units-$$" \
   "uml_dir=$work/uml" rootfstype=hostfs rootflags=/ ro quiet "init=$work/init" con=null "con0=fd:0,fd:1" \
   systemd.unit=pmsm-hil.target systemd.mask=systemd-timesyncd.service systemd.show_status=0 \
   </dev/null > >(cat >"$work/console") 2>&1 &
