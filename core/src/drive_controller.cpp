@@ -1083,6 +1083,8 @@ void DriveController::fuse_estimate(const EventEstimate& e, double age_s) {
   out.lq_H = e.lq_H;
   out.pairs = e.pairs;
   out.vx_learning = e.vx_learning;
+  out.bus_spread_V = e.bus_spread_V;
+  out.vx_refused_bus_spread = e.vx_refused_bus_spread;
   out.joint_rs_ohm = e.joint_rs_ohm;
   out.joint_vx_V = e.joint_vx_V;
   if (thermal_guess_pending_) {

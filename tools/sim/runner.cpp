@@ -876,6 +876,8 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
       row.vx_std_V = e.vx_std_V;
       row.lq_H = e.lq_H;
       row.vx_learning = e.vx_learning;
+      row.bus_spread_V = e.bus_spread_V;
+      row.vx_refused_bus_spread = e.vx_refused_bus_spread;
       row.joint_rs_ohm = e.joint_rs_ohm;
       row.joint_vx_V = e.joint_vx_V;
       row.speed_rad_s = truth.omega_m_rad_s;
@@ -1398,15 +1400,18 @@ std::string result_text(const SimulationResult& r) {
 
 std::string estimates_text(const SimulationResult& r) {
   // time_s is the publication; the truth (rs_true, winding_true, err) is the plant's at the
-  // time the estimate belongs to, age_s before it.
+  // time the estimate belongs to, age_s before it. learn: "yes" where the event refined Vx,
+  // "bus" where only the spread of its recordings' buses (bus_V, the largest less the smallest
+  // recording's mean; 0 for an event that would not have learned anyway) kept it from that.
   std::string out =
       "    time_s  age_s  speed_rad_s   iq_A   rs_est_mohm  std_mohm  rs_true_mohm  err_mohm  winding_est_C  winding_true_C  "
-      "vx_V   vx_std_V  learn  joint_rs_mohm  joint_vx_V  lq_mH  fused\n";
+      "vx_V   vx_std_V  learn  bus_V  joint_rs_mohm  joint_vx_V  lq_mH  fused\n";
   for (const EstimateRow& e : r.estimates) {
-    out += fmt::format("{:10.3f} {:6.3f} {:12.1f} {:6.1f} {:13.2f} {:9.2f} {:13.2f} {:9.2f} {:14.1f} {:15.1f} {:6.3f} {:10.3f} {:6} {:14.2f} {:11.3f} {:6.3f}  {}\n",
+    out += fmt::format("{:10.3f} {:6.3f} {:12.1f} {:6.1f} {:13.2f} {:9.2f} {:13.2f} {:9.2f} {:14.1f} {:15.1f} {:6.3f} {:10.3f} {:6} {:6.2f} {:14.2f} {:11.3f} {:6.3f}  {}\n",
                        e.time_s, e.age_s, e.speed_rad_s, e.iq_A, 1e3 * e.rs_est_ohm, 1e3 * e.rs_std_ohm, 1e3 * e.rs_true_ohm,
                        1e3 * (e.rs_est_ohm - e.rs_true_ohm), e.winding_est_C, e.winding_true_C, e.vx_V, e.vx_std_V,
-                       e.vx_learning ? "yes" : "no", 1e3 * e.joint_rs_ohm, e.joint_vx_V, 1e3 * e.lq_H, e.fused ? "yes" : "gated");
+                       e.vx_learning ? "yes" : (e.vx_refused_bus_spread ? "bus" : "no"), e.bus_spread_V,
+                       1e3 * e.joint_rs_ohm, e.joint_vx_V, 1e3 * e.lq_H, e.fused ? "yes" : "gated");
   }
   return out;
 }

@@ -101,6 +101,8 @@ struct EstimateRow {
   double vx_std_V = 0.0;
   double lq_H = 0.0;
   bool vx_learning = false;
+  double bus_spread_V = 0.0;          // ResistanceEstimate::bus_spread_V
+  bool vx_refused_bus_spread = false;
   double joint_rs_ohm = 0.0;
   double joint_vx_V = 0.0;
   double speed_rad_s = 0.0;

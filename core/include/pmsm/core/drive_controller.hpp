@@ -370,6 +370,10 @@ struct ResistanceEstimate {
   int pairs = 0;
   bool fused = false;               // the thermal filter took it (not gated out)
   bool vx_learning = false;         // this event also refined the inverter voltage
+  // The spread of its recordings' mean buses, and whether that alone kept it from refining the
+  // inverter voltage (EventEstimate::bus_spread_V; diagnostics).
+  double bus_spread_V = 0.0;
+  bool vx_refused_bus_spread = false;
   double joint_rs_ohm = 0.0;        // the event's joint fit before fusion (diagnostics)
   double joint_vx_V = 0.0;
 };
