@@ -63,12 +63,12 @@ struct MotorRelativeKeys {
 // control period, 105 periods an electrical turn (above 10 kHz). docs/estimator.md section 4,
 // "How fast an event may learn Vx".
 inline constexpr double kVxLearningMaxSpeed_rad_s = 600.0;
+inline constexpr double kVxLearningMaxAnglePerPeriod_rad = 0.06;
 
 // The pair recorder's size (core::DriveConfig::recording_capacity): the longest recording the
 // injection keys ask for at the control period, within these bounds.
 inline constexpr std::size_t kMinRecordingSamples = 8192;
 inline constexpr std::size_t kMaxRecordingSamples = std::size_t{1} << 17;
-inline constexpr double kVxLearningMaxAnglePerPeriod_rad = 0.06;
 
 // The share of the rated torque (RMS) the encoder's rounding may make of the speed loop's
 // torque demand before the loader warns (core::speed_loop_quantisation_torque_Nm;

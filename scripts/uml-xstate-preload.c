@@ -45,7 +45,7 @@ static _Alignas(64) unsigned char host_area[64 * 1024];
 
 /* Where each component of the standard format ends (CPUID leaf 0xD, sub-leaf i: the size in
  * EAX, the offset in EBX), read once: CPUID is a trap to the hypervisor in a virtual machine.
- * Components 0 and 1 are in the legacy area; 0 where CPUID names none. */
+ * Components 0 and 1 are in the legacy area; one CPUID does not name lies beyond any size. */
 static size_t component_end[64];
 
 static void read_component_ends(void) {

@@ -322,11 +322,9 @@ if [ -s "$work/stage1.err" ]; then
 fi
 if [ ! -f "$results/status" ]; then
   tail -n 30 "$work/console" >&2 || true
-  if grep -q "ptrace set fp regs failed" "$work/console" 2>/dev/null; then
-    # As scripts/vcan-env: the host's CPU keeps this UML kernel from running any process
-    # (scripts/uml-run's bridge not built, not loaded, or refusing a request: its lines).
-    grep -m3 -E "^uml-run:|cannot be preloaded|^uml-xstate-preload:" "$work/console" >&2 || true
-    skip "User-Mode Linux cannot run a process on this host (its kernel's FP state buffer is not the host CPU's XSAVE size); the check did not run"
+  # As scripts/vcan-env: the host's CPU kept this UML kernel from running any process.
+  if reason=$("$src/scripts/uml-run" --host-incompatible "$work/console"); then
+    skip "$reason; the check did not run"
   fi
   if [ "$uml_rc" -eq 124 ] || [ "$uml_rc" -eq 137 ]; then
     die "the guest did not finish within $timeout_s s (SYSTEMD_UNITS_TIMEOUT)"
