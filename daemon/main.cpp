@@ -106,28 +106,51 @@ struct Options {
   std::string log_level = "info";
 };
 
+// The thermal state kept from before this start, if it can be used: a damaged, future or
+// week-old file is not (`why` says so; empty when there is no file yet).
+std::optional<pmsm::app::StoredThermalState> usable_thermal_state(const std::string& path, double& downtime_s,
+                                                                  std::string& why) {
+  std::error_code ec;
+  why.clear();
+  if (path.empty() || !std::filesystem::exists(path, ec)) {
+    return std::nullopt;
+  }
+  try {
+    pmsm::app::StoredThermalState s = pmsm::app::read_thermal_state_file(path);
+    const double now = std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
+    downtime_s = now - s.saved_unix_s;
+    if (!(downtime_s >= 0.0) || downtime_s > 7.0 * 86400.0) {
+      why = fmt::format("{} is {:.0f} s old (clock changed?)", path, downtime_s);
+      return std::nullopt;
+    }
+    return s;
+  } catch (const std::exception& e) {
+    why = e.what();
+    return std::nullopt;
+  }
+}
+
 // The thermal state kept from before this start: cooled through the downtime by the model. A
 // damaged, future or week-old file is not used (the filter then starts from the ambient
 // sensor, as without one): it is a prediction, never worth refusing to start for.
 void restore_thermal_state(const DaemonConfig& config, pmsm::daemon::DriveLoop& loop) {
   const std::string& path = config.controller.thermal_state_file;
-  std::error_code ec;
   if (path.empty()) {
     return;
   }
-  if (!std::filesystem::exists(path, ec)) {
-    spdlog::info("thermal state: {} not there yet: the filter starts from the ambient sensor", path);
+  double downtime_s = 0.0;
+  std::string why;
+  const std::optional<pmsm::app::StoredThermalState> stored = usable_thermal_state(path, downtime_s, why);
+  if (!stored) {
+    if (why.empty()) {
+      spdlog::info("thermal state: {} not there yet: the filter starts from the ambient sensor", path);
+    } else {
+      spdlog::warn("thermal state not used: {}; the filter starts from the ambient sensor", why);
+    }
     return;
   }
-  try {
-    const pmsm::app::StoredThermalState s = pmsm::app::read_thermal_state_file(path);
-    const double now = std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
-    const double downtime_s = now - s.saved_unix_s;
-    if (!(downtime_s >= 0.0) || downtime_s > 7.0 * 86400.0) {
-      spdlog::warn("thermal state in {} is {:.0f} s old (clock changed?): not used; the filter starts from the ambient "
-                   "sensor", path, downtime_s);
-      return;
-    }
+  {
+    const pmsm::app::StoredThermalState& s = *stored;
     loop.restore_thermal_state(s.state, downtime_s, s.ambient_C);
     spdlog::info("thermal state restored from {}: winding {:.1f} +- {:.1f} C {:.0f} s ago, cooled towards the stored "
                  "ambient {:.1f} C to {:.1f} +- {:.1f} C",
@@ -151,8 +174,6 @@ void restore_thermal_state(const DaemonConfig& config, pmsm::daemon::DriveLoop& 
       spdlog::warn("thermal state: the cooling path's error not used ({}); it restarts from its prior, the temperatures "
                    "are kept", s.cooling_error_ignored);
     }
-  } catch (const std::exception& e) {
-    spdlog::warn("thermal state not used: {}; the filter starts from the ambient sensor", e.what());
   }
 }
 
@@ -272,8 +293,24 @@ int run(const Options& o) {
     spdlog::warn("{}", w);
   }
   if (o.check) {
-    std::printf("%s: OK (node %d on %s, %s; calibration %s)\n", o.config_path.c_str(), config.can.node,
-                config.can.interface.c_str(), budget.c_str(), std::string(pmsm::app::to_string(stored)).c_str());
+    // The thermal state as the start would take it: a file it would not use is a warning (the
+    // daemon starts without it, from the ambient sensor), not an invalid configuration.
+    std::string thermal = "none configured";
+    if (!config.controller.thermal_state_file.empty()) {
+      double downtime_s = 0.0;
+      std::string why;
+      if (const auto s = usable_thermal_state(config.controller.thermal_state_file, downtime_s, why)) {
+        thermal = fmt::format("thermal state usable (winding {:.1f} C, saved {:.0f} s ago)", s->state.winding_C, downtime_s);
+      } else if (why.empty()) {
+        thermal = "thermal state missing";
+      } else {
+        spdlog::warn("thermal state not usable: {}; the daemon would start from the ambient sensor", why);
+        thermal = "thermal state not usable";
+      }
+    }
+    std::printf("%s: OK (node %d on %s, %s; calibration %s; %s)\n", o.config_path.c_str(), config.can.node,
+                config.can.interface.c_str(), budget.c_str(), std::string(pmsm::app::to_string(stored)).c_str(),
+                thermal.c_str());
     return 0;
   }
   spdlog::info("pmsm-thermald {} starting: config {}, node {} on {}", PMSM_VERSION, o.config_path, config.can.node,
@@ -470,7 +507,7 @@ int main(int argc, char** argv) {
                  "configuration file (TOML), e.g. /etc/pmsm-thermal/axis1.toml; required except with --keys and --version")
       ->check(pmsm::cli::file_name());
   CLI::Option* check =
-      app.add_flag("--check", o.check, "validate the configuration (and the stored calibration) and exit: 0 valid, 1 not");
+      app.add_flag("--check", o.check, "validate the configuration (and the stored calibration; the thermal state is reported) and exit: 0 valid, 1 not");
   // (--keys prints and exits: with --check it would answer 0 having validated nothing.)
   app.add_flag("--keys", o.keys, "print every configuration key of the daemon's own sections as Markdown and exit")
       ->excludes(check);

@@ -166,5 +166,45 @@ TEST(DaemonAnswers, ARejectedCommandIsARefusalButACounterResynchronisationIsNot)
   }
 }
 
+// Two supervisors on one node: their counters interleave and the daemon refuses most frames of
+// both as repeated or jumped counters. Each run's synchronising frames are its allowance; more
+// refusals are said once and make the exit status 3 (they went unsaid, exit 0, before).
+TEST(DaemonAnswers, CounterRefusalsBeyondTheSynchronisingFramesAreAnotherSender) {
+  const auto drive_id = static_cast<std::uint16_t>(0x040 + kNode);
+  {
+    Quiet q;
+    DaemonAnswers a(kNode, false, q.out, 1);
+    a.read(receive_status(0, 0, protocol::DecodeStatus::kOk, 0));
+    a.read(receive_status(4, 0, protocol::DecodeStatus::kRepeatedCounter, drive_id));
+    a.read(receive_status(9, 0, protocol::DecodeStatus::kCounterJump, drive_id));
+    EXPECT_TRUE(a.finish());
+    const std::string text = text_of(q.out);
+    const auto at = text.find("node 2: the daemon refused 4 command frame(s) of this node for their alive counter, "
+                              "more than this run's 1 synchronising frame(s): another supervisor is sending to node 2");
+    EXPECT_NE(at, std::string::npos) << text;
+    EXPECT_EQ(text.find("another supervisor", text.find("another supervisor") + 1), std::string::npos)
+        << "said once: " << text;
+  }
+  {
+    // Three streams started (a drive command, a calibration, an injection request): three
+    // refusals are theirs; the counts wrap at 256 as RECEIVE_STATUS sends them.
+    Quiet q;
+    DaemonAnswers a(kNode, false, q.out, 3);
+    a.read(receive_status(254, 0, protocol::DecodeStatus::kOk, 0));
+    a.read(receive_status(1, 0, protocol::DecodeStatus::kRepeatedCounter, drive_id));
+    EXPECT_FALSE(a.finish()) << text_of(q.out);
+    a.read(receive_status(2, 0, protocol::DecodeStatus::kRepeatedCounter, drive_id));
+    EXPECT_TRUE(a.finish()) << "254 -> 2 is four refusals, one more than three";
+  }
+  {
+    // Refusals counted before this run's first RECEIVE_STATUS are another run's.
+    Quiet q;
+    DaemonAnswers a(kNode, false, q.out, 1);
+    a.read(receive_status(200, 0, protocol::DecodeStatus::kRepeatedCounter, drive_id));
+    a.read(receive_status(200, 0, protocol::DecodeStatus::kRepeatedCounter, drive_id));
+    EXPECT_FALSE(a.finish());
+  }
+}
+
 }  // namespace
 }  // namespace pmsm::app

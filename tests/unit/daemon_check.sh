@@ -133,6 +133,14 @@ check_warns() {
 check_warns "[controller.calibration]\nfile = \"$dir/no-such-dir/cal.toml\"\n[controller.thermal]\nstate_file = \"$dir\"\n" \
   "controller.calibration.file = $dir/no-such-dir/cal.toml: its directory $dir/no-such-dir does not exist: nothing this run learns can be stored there" \
   "controller.thermal.state_file = $dir: it is a directory"
+# A thermal state file the start would not use (a NaN): --check says so, as the start does,
+# and passes (the daemon starts from the ambient sensor without it); a usable one is named.
+now=$(date +%s)
+printf '# pmsm-thermal thermal state\nformat = 1\nwinding_C = nan\nhousing_C = 60.0\nwinding_std_C = 2.0\nambient_C = 25.0\nsaved_unix_s = %s\n' "$now" > "$dir/state-nan.toml"
+check_warns "[controller.thermal]\nstate_file = \"$dir/state-nan.toml\"\n" \
+  "thermal state not usable: $dir/state-nan.toml:3: winding_C: nan is out of range" "; thermal state not usable)"
+printf '# pmsm-thermal thermal state\nformat = 1\nwinding_C = 71.5\nhousing_C = 60.0\nwinding_std_C = 2.0\nambient_C = 25.0\nsaved_unix_s = %s\n' "$now" > "$dir/state-ok.toml"
+check_warns "[controller.thermal]\nstate_file = \"$dir/state-ok.toml\"\n" "; thermal state usable (winding 71.5 C, saved "
 # A drive whose current limit the bus's DRIVE_STATUS cannot carry (0..400 A): warned, naming both.
 check_warns '[controller.derating]\nmax_current_A = 600\n[controller.sensors]\ncurrent_range_A = 1000\n[supervisor]\novercurrent_A = 800\n' \
   "controller.derating.max_current_A (600 A) lies beyond DRIVE_STATUS CurrentLimit's range (up to 400 A): while the limit is above it, the frame reads 400 A"

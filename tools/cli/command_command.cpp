@@ -149,7 +149,10 @@ int run_command(const CommandOptions& o) {
   const std::int64_t start = hal::monotonic_ns();
   std::uint64_t sent = 0;
   std::uint64_t failed = 0;
-  DaemonAnswers answers(o.node, o.calibrate_at_C.has_value());
+  // One synchronising frame a stream this run starts (DRIVE_COMMAND's first, and the requests'
+  // frames that ask for nothing) may be refused for its counter; more is another sender.
+  const int synchronising = 1 + (o.calibrate_at_C ? 1 : 0) + (o.inject_now ? 1 : 0);
+  DaemonAnswers answers(o.node, o.calibrate_at_C.has_value(), stderr, synchronising);
   hal::ReceivedFrame received;
   while (!hal::stop_requested().load()) {
     if (o.duration_s && static_cast<double>(hal::monotonic_ns() - start) * 1e-9 >= *o.duration_s) {

@@ -17,11 +17,14 @@ namespace protocol = hal::protocol;
 // Calibrating and CalibrationResult) and the rejections of this node's commands that are not the
 // synchronising frames' expected counter refusals (RECEIVE_STATUS: a bad CRC, a value out of
 // range, a command held back while its stream was disturbed). Without it a refused or held-back
-// request went unnoticed unless someone watched the bus.
+// request went unnoticed unless someone watched the bus. Counter refusals beyond this run's
+// synchronising frames (one a stream it starts: `synchronising_frames`) are a second sender on
+// this node's command streams: two supervisors interleaving their counters had most of their
+// frames refused while each said all went out.
 class DaemonAnswers {
  public:
-  DaemonAnswers(int node, bool calibration_asked, std::FILE* out = stderr)
-      : node_(node), calibration_asked_(calibration_asked), out_(out) {}
+  DaemonAnswers(int node, bool calibration_asked, std::FILE* out = stderr, int synchronising_frames = 1)
+      : node_(node), calibration_asked_(calibration_asked), out_(out), counter_allowance_(synchronising_frames) {}
 
   void read(const hal::CanFrame& frame) {
     protocol::AnyDecoded d;
@@ -69,13 +72,28 @@ class DaemonAnswers {
                      label(protocol::kDecodeStatusLabels, r->last_rejection));
         refused_ = true;
       }
+      if (heard_status_) {
+        // Each count is sent modulo 256 (RECEIVE_STATUS): the difference is taken the same way.
+        counter_refusals_ += (r->rejected_counter - last_counter_count_) & 0xFFU;
+        if (counter_refusals_ > static_cast<std::uint64_t>(counter_allowance_) && !clash_said_) {
+          std::fprintf(out_,
+                       "pmsm-thermal command: node %d: the daemon refused %llu command frame(s) of this node for their "
+                       "alive counter, more than this run's %d synchronising frame(s): another supervisor is sending "
+                       "to node %d (a command stream follows one sender's counter; docs/protocol.md)\n",
+                       node_, static_cast<unsigned long long>(counter_refusals_), counter_allowance_, node_);
+          clash_said_ = true;
+          refused_ = true;
+        }
+      }
+      last_counter_count_ = r->rejected_counter;
       total_ = total;
       heard_status_ = true;
     }
   }
 
   // Whether the daemon refused something asked of it: a calibration that ended other than DONE
-  // or was never seen, a command of this node rejected (not a counter's refusal).
+  // or was never seen, a command of this node rejected (not a synchronising frame's counter
+  // refusal), counter refusals beyond those.
   [[nodiscard]] bool finish() const {
     if (calibration_asked_ && !calibration_seen_) {
       std::fprintf(out_,
@@ -102,6 +120,10 @@ class DaemonAnswers {
   protocol::CalibrationResult result_ = protocol::CalibrationResult::kNone;
   bool heard_status_ = false;
   std::uint64_t total_ = 0;  // RECEIVE_STATUS's rejection counts (each modulo 256), summed
+  int counter_allowance_;
+  std::uint64_t last_counter_count_ = 0;  // RejectedCounter as last heard (modulo 256)
+  std::uint64_t counter_refusals_ = 0;    // since the first RECEIVE_STATUS heard
+  bool clash_said_ = false;
   bool refused_ = false;
   const char* suspended_why_ = nullptr;  // the cause last said (a string literal), or none
 };
