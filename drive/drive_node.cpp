@@ -261,7 +261,10 @@ void DriveNode::publish(const NodeInputs& in) noexcept {
     rep.method = protocol_method(r.method, r.separation);  // the pair's own: a calibration's are its procedure's
     rep.result = static_cast<protocol::InjectionResult>(static_cast<std::uint8_t>(r.outcome));
     rep.amplitude_A = r.f_A;
-    rep.rs_valid = r.outcome == core::PairOutcome::kAccepted && std::isfinite(r.rs_ohm);
+    // A pair whose Rs rests on the configured guess of the bridge's voltage (a calibration's
+    // first event, before its levels learned Vx) measured no Rs of its own: 0.17 and 0.24 ohm
+    // were published as accepted measurements of a 0.133 ohm winding.
+    rep.rs_valid = r.outcome == core::PairOutcome::kAccepted && std::isfinite(r.rs_ohm) && !r.rs_rests_on_vx_guess;
     rep.measured_rs_ohm = rep.rs_valid ? r.rs_ohm : 0.0;
     // Electrical to mechanical.
     // Both recordings' means exist only when the second matched samples of the first: an aborted

@@ -620,6 +620,7 @@ PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
   const double bus_rs = bus_change_error_ohm(fit);
   r.rs_ohm = fit.rs_ohm;
   r.rs_std_ohm = std::sqrt(fit.var_rs + vx_var_rs + lq_var_rs + bus_rs * bus_rs);
+  r.rs_rests_on_vx_guess = !vx_learned_ && vx_var_rs > fit.var_rs;
   r.residual_rms_V = fit.residual_rms_V;
   r.condition = fit.condition;
   r.delta_omega_e_rad_s = c.omega_e_mean_1_rad_s - c.omega_e_mean_2_rad_s;
@@ -930,6 +931,7 @@ void InjectionScheduler::learn_vx(double bus_offset_V, double vx_V, double var_V
     const double k0 = p0 / s;
     const double k1 = p1 / s;
     const double innovation = vx_V - vx_V_;
+    vx_learned_ = true;
     vx_V_ += k0 * innovation;
     vx_slope_ += k1 * innovation;
     vx_var_ -= k0 * p0;

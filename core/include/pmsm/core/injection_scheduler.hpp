@@ -346,6 +346,10 @@ struct PairResult {
   double low_level = 0.0;          // that pair's lower level in units of F
   double rs_ohm = 0.0;             // only meaningful when accepted
   double rs_std_ohm = 0.0;
+  // Its Rs rests on the configured guess of the inverter voltage: no event (nor the stored
+  // calibration) has learned Vx yet, and the guess's uncertainty moves this Rs by more than the
+  // pair's own noise (a calibration's first event; the event's fit across levels measures both).
+  bool rs_rests_on_vx_guess = false;
   double delta_omega_e_rad_s = 0.0;
   double delta_iq_A = 0.0;
   double residual_rms_V = 0.0;
@@ -537,9 +541,11 @@ class InjectionScheduler {
     double slope = 0.0;
     double slope_var = 0.0;
     double cov = 0.0;
+    bool learned = false;  // an event or a stored calibration gave it (not the configured guess)
   };
-  [[nodiscard]] VxState vx_state() const { return {vx_V_, vx_var_, vx_slope_, vx_slope_var_, vx_cov_}; }
+  [[nodiscard]] VxState vx_state() const { return {vx_V_, vx_var_, vx_slope_, vx_slope_var_, vx_cov_, vx_learned_}; }
   void set_vx_state(const VxState& s) {
+    vx_learned_ = s.learned;
     vx_V_ = s.vx_V;
     vx_var_ = s.vx_var;
     vx_slope_ = s.slope;
@@ -556,6 +562,7 @@ class InjectionScheduler {
   // are correlated so that at the stored bus the error is std_V again.
   void set_vx_prior_at(double vx_V, double std_V, double bus_offset_V, double slope_std) {
     const double v_b = slope_std * slope_std;
+    vx_learned_ = true;
     vx_V_ = vx_V;
     vx_var_ = std_V * std_V + bus_offset_V * bus_offset_V * v_b;
     vx_cov_ = -bus_offset_V * v_b;
@@ -589,7 +596,9 @@ class InjectionScheduler {
   }
   // Replaces the inverter-voltage prior (a stored calibration's Vx at start-up; the configured
   // guess when a calibration run starts, so that it learns Vx afresh).
+  // The configured guess (a calibration's start): no longer a learned Vx.
   void set_vx_prior(double vx_V, double std_V) {
+    vx_learned_ = false;
     vx_V_ = vx_V;
     vx_var_ = std_V * std_V;
     vx_cov_ = 0.0;  // a new prior, independent of the bus slope learned so far
@@ -760,6 +769,7 @@ class InjectionScheduler {
   double vx_slope_ = 0.0;           // vx_bus_slope()
   double vx_slope_var_ = 0.0;
   double vx_cov_ = 0.0;             // covariance of Vx and the slope
+  bool vx_learned_ = false;         // VxState::learned
   double learned_bus_offset_V_ = 0.0;  // last_learned_bus_offset_V()
   double event_bus_sum_V_ = 0.0;    // the event's bus offsets (SchedulerInput::bus_offset_V), summed
   std::uint32_t event_bus_periods_ = 0;

@@ -650,11 +650,13 @@ inline constexpr SignalDef kMethod{"Method", 8, 3, false, 1, 0, 0, 5, "", kInjec
 inline constexpr SignalDef kResult{"Result", 11, 4, false, 1, 0, 0, 10, "", kInjectionResultLabels,
     "Outcome of the injection."};
 inline constexpr SignalDef kRsValid{"RsValid", 15, 1, false, 1, 0, 0, 1, "", detail::kNoValues,
-    "1: MeasuredRs holds a measurement."};
+    "1: MeasuredRs holds this pair's measurement. 0: the pair was not accepted, or its Rs rests on the configured "
+    "guess of the inverter's voltage (no event has learned it yet: a calibration's first pairs)."};
 inline constexpr SignalDef kAmplitude{"Amplitude", 16, 12, false, 0.1, 0, 0, 400, "A", detail::kNoValues,
     "Injection amplitude F used; for a pair skipped by its budget, the largest the budget allowed (below the minimum)."};
 inline constexpr SignalDef kMeasuredRs{"MeasuredRs", 28, 20, false, 0.00001, 0, 0, 10, "Ohm", detail::kNoValues,
-    "Resistance measured by this injection (0 when RsValid is 0)."};
+    "Resistance measured by this pair, with the inverter's voltage as learned when it ended (0 when RsValid is 0); the "
+    "estimate is RESISTANCE_ESTIMATE's, the event's fit over its pairs."};
 inline constexpr SignalDef kSpeedChangeValid{"SpeedChangeValid", 48, 1, false, 1, 0, 0, 1, "", detail::kNoValues,
     "1: SpeedChange holds a measurement; 0: none (the pair was aborted or skipped before both recordings had samples)."};
 inline constexpr SignalDef kSpeedChange{"SpeedChange", 49, 15, true, 0.002, 0, -32.768, 32.766, "rad/s", detail::kNoValues,
