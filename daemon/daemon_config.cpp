@@ -1,5 +1,7 @@
 #include "daemon_config.hpp"
 
+#include <net/if.h>
+
 #include <algorithm>
 #include <cmath>
 #include <fstream>
@@ -314,7 +316,11 @@ DaemonConfig parse_daemon_config(const std::string& text, const std::filesystem:
         "with these bit rates; only a name beginning with 'vcan' is a virtual bus, whose load is not enforced)",
         source.string(), 100.0 * load.fast_loop_fraction, load.fast_loop_frame_us, load.period_us,
         100.0 * load.publications_fraction, 100.0 * load.total_fraction, c.can.nominal_bitrate_bit_s,
-        c.can.data_bitrate_bit_s, 100.0 * c.can.max_bus_load, c.can.interface));
+        c.can.data_bitrate_bit_s, 100.0 * c.can.max_bus_load, c.can.interface) +
+        // A name mistyped reads as a physical bus too: say that this machine has no such interface.
+        (::if_nametoindex(c.can.interface.c_str()) == 0
+             ? fmt::format("; this machine has no interface '{}' either (a name mistyped?)", c.can.interface)
+             : std::string{}));
   }
   return c;
 }

@@ -32,6 +32,10 @@ check_bad() {
 check_bad '[can]\nnode = 22\n' 1 'bad.toml:2: can.node: must be in [0, 15], got 22'
 check_bad '[can]\nnode = 4294967297\n' 1 'bad.toml:2: can.node: must be in [0, 15], got 4294967297'
 check_bad '[can]\ninterfaec = "vcan0"\n' 1 'can.interfaec'
+# A physical bus's load is enforced, and the 10 kHz loop's two fast frames do not fit CAN FD at
+# 1/8 Mbit/s; a name this machine does not have is said to be missing too (a typo of vcan0).
+check_bad '[can]\ninterface = "pmsmnosuch7"\n' 1 "can.interface 'pmsmnosuch7' is taken for a physical CAN bus with these bit rates"
+check_bad '[can]\ninterface = "pmsmnosuch7"\n' 1 "this machine has no interface 'pmsmnosuch7' either (a name mistyped?)"
 check_bad '[rt]\npriority = "high"\n' 1 'rt.priority'
 # An interface that exists and cannot be opened (not CAN; here, or without CAN in the kernel) is
 # a configuration to fix: exit 2, which the unit does not restart. One that does not exist (yet)
