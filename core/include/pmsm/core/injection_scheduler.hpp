@@ -75,7 +75,7 @@ enum class AbortCause : std::uint8_t {
   kNone = 0,
   kDisabled = 1,            // the drive disabled or faulted: the scheduler stepped not enabled
   kMotoringNeedsVoltage = 2, // held on the voltage limit, or the field weakening short of the speed
-  kSpeedLost = 3,           // an angle-based pair with the rotor stopping or reversing
+  kSpeedLost = 3,           // a pair timed by the rotor's angle with the rotor stopping or reversing
   kCurrentLimit = 4,        // the motoring current crowded the pulse past what a cut may take
   kCount = 5,
 };

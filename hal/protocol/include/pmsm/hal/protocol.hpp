@@ -545,7 +545,7 @@ inline constexpr SignalDef kRequestNow{"RequestNow", 12, 1, false, 1, 0, 0, 1, "
 inline constexpr SignalDef kMethod{"Method", 16, 8, false, 1, 0, 0, 5, "", kInjectionMethodLabels,
     "Injection and separation method (paper: fixed-magnitude / fixed-angle, bipolar / unipolar; DC baseline)."};
 inline constexpr SignalDef kAmplitude{"Amplitude", 24, 16, false, 0.01, 0, 0, 300, "A", detail::kNoValues,
-    "Injection amplitude F (peak d-axis current)."};
+    "Injection amplitude F (peak d-axis current); 0: the drive keeps its configured F."};
 inline constexpr SignalDef kInterval{"Interval", 40, 16, false, 0.1, 0, 0, 6000, "s", detail::kNoValues,
     "Time between injections; 0: injections only on request."};
 inline constexpr std::array<SignalDef, 6> kSignals{
