@@ -188,6 +188,21 @@ TEST(Scenario, ErrorsInTheScenarioNameFileLineAndKey) {
       << inline_error("[scenario]\nname = \n");
 }
 
+// A file with mistakes in several parts names every one, as pmsm-thermald does with its own
+// file: the scenario's keys, the plant's and the controller's (only the first was named).
+TEST(Scenario, MistakesInEveryPartAreNamedTogether) {
+  EXPECT_EQ(inline_error("[scenario]\nduraton_s = 5\n[operation]\nspeed_rad_s = [[0, 0], [1, nan]]\n[plant.motor]\n"
+                         "rs_ohm = -1\n[controller.injection]\nF = 3\nF_A = 1e9\n"),
+            path_of("inline.toml") + ":2: scenario.duraton_s: unknown key (did you mean scenario.duration_s?)\n" +
+                path_of("inline.toml") + ":6: plant.motor.rs_ohm: must be in [1e-06, 100], got -1\n" +
+                path_of("inline.toml") + ":8: controller.injection.F: unknown key (did you mean controller.injection.F_A?)\n" +
+                path_of("inline.toml") + ":9: controller.injection.F_A: must be in (0, 1000], got 1e+09");
+  // The set-points wait for the scenario's keys (the mode), then are named with the rest.
+  EXPECT_EQ(inline_error("[operation]\nspeed_rad_s = [[0, 0], [1, nan]]\n[controller.injection]\nF = 3\n"),
+            path_of("inline.toml") + ":2: operation.speed_rad_s: point 1: value must be a number in [-2000, 2000] rad/s, got nan\n" +
+                path_of("inline.toml") + ":4: controller.injection.F: unknown key (did you mean controller.injection.F_A?)");
+}
+
 // The [controller] table keeps its lines (it is not copied).
 // [plant] and [controller] are read by their own parsers; given as anything but a section they
 // are an error, not skipped with every key they were meant to hold.

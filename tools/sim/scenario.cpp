@@ -529,113 +529,143 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
   Scenario out;
   out.source = source;
   out.files = std::move(chain);
-  schema().apply(root, out.scenario, source.string(),
-                 {"plant", "controller", "scenario.seed", "operation.speed_rad_s", "operation.torque_Nm", "operation.speed_csv",
-                  "operation.torque_csv"});
-  // Set-point profiles, inline or from CSV: one of the two (a file replaces its base's, in
-  // resolve_base), so both here were given in one file: one would be ignored.
-  for (const auto& [inline_key, csv_key] : {std::pair{"operation.speed_rad_s", "operation.speed_csv"},
-                                            std::pair{"operation.torque_Nm", "operation.torque_csv"}}) {
-    const auto points = root.at_path(inline_key);
-    const auto csv = root.at_path(csv_key);
-    if (points && csv) {
-      throw ConfigError(where(*csv.node(), source.string(), csv_key) + "given together with " + std::string(inline_key) +
-                        " (line " + std::to_string(points.node()->source().begin.line) +
-                        "): a profile is either inline or from a CSV file; remove one");
+  // Every part's mistakes in one message, as pmsm-thermald gives its file's: the scenario's own
+  // keys, the plant's and the controller's are read apart, each part to its own errors (the
+  // plant's and the controller's schemas list every bad key of theirs), and a part that needs
+  // another's values waits for them. (A file with a mistyped scenario key and a wrong controller
+  // key named only the first.)
+  std::string errors;
+  auto attempt = [&errors](auto&& part) {
+    try {
+      part();
+      return true;
+    } catch (const ConfigError& e) {
+      errors += (errors.empty() ? "" : "\n") + std::string(e.what());
+      return false;
     }
-  }
-  // A profile the mode does not follow would be ignored without a word (the load torque of a
-  // speed-mode run is plant.load's, not a set-point).
-  const bool speed_mode = out.scenario.mode == core::DriveMode::kSpeed;
-  for (const char* key : speed_mode ? std::array{"operation.torque_Nm", "operation.torque_csv"}
-                                    : std::array{"operation.speed_rad_s", "operation.speed_csv"}) {
-    if (const auto node = root.at_path(key)) {
-      throw ConfigError(where(*node.node(), source.string(), key) + "a set-point of " +
-                        (speed_mode ? "torque" : "speed") + " mode, but operation.mode is \"" +
-                        (speed_mode ? "speed" : "torque") + "\"" +
-                        (root.at_path("operation.mode") ? "" : " (the default)") + "; it would be ignored" +
-                        (speed_mode ? " (the load's torque is [plant.load])" : " (the speed follows the load, [plant.load])") +
-                        ": remove it or set the mode");
-    }
-  }
-  const std::filesystem::path dir = source.parent_path();
-  if (const auto node = root.at_path("operation.speed_rad_s")) {
-    out.scenario.speed_rad_s = read_points(*node.node(), source.string(), "operation.speed_rad_s", kSpeedLimits);
-  }
-  auto csv_profile = [&](const char* key, Profile& into, const ProfileLimits& limits) {
-    const auto node = root.at_path(key);
-    if (!node) {
-      return;
-    }
-    const std::string at = where(*node.node(), source.string(), key);
-    const auto* text = node.as_string();
-    if (text == nullptr) {
-      throw ConfigError(at + "expected a path (string)");
-    }
-    into = read_csv(dir / text->get(), key, at, limits);
-    out.files.push_back(dir / text->get());
   };
-  csv_profile("operation.speed_csv", out.scenario.speed_rad_s, kSpeedLimits);
-  if (const auto node = root.at_path("operation.torque_Nm")) {
-    out.scenario.torque_Nm = read_points(*node.node(), source.string(), "operation.torque_Nm", kTorqueLimits);
-  }
-  csv_profile("operation.torque_csv", out.scenario.torque_Nm, kTorqueLimits);
-  if (speed_mode && out.scenario.speed_rad_s.empty()) {
-    throw ConfigError(source.string() + ": operation.speed_rad_s (or operation.speed_csv) is required in speed mode");
-  }
-  if (!speed_mode && out.scenario.torque_Nm.empty()) {
-    throw ConfigError(source.string() + ": operation.torque_Nm (or operation.torque_csv) is required in torque mode");
-  }
-  out.plant = load_plant(root, source, out.files);
-  if (!out.plant.load.csv_path.empty()) {
-    out.files.push_back(out.plant.load.csv_path);
-  }
-  // The scenario's ambient, seed and acceleration apply to the plant unless it says otherwise.
-  const bool plant_ambient = static_cast<bool>(root.at_path("plant.thermal.ambient_C"));
-  if (!plant_ambient) {
-    out.plant.thermal.ambient_C = out.scenario.ambient_profile.empty() ? out.scenario.ambient_C
-                                                                        : out.scenario.ambient_profile.at(0.0);
-  }
-  if (root.at_path("scenario.thermal_acceleration") && !root.at_path("plant.thermal.acceleration")) {
-    out.plant.thermal.acceleration = out.scenario.thermal_acceleration;
-  }
-  if (const auto node = root.at_path("scenario.seed"); node && !root.at_path("plant.simulation.seed")) {
-    const auto* seed = node.as_integer();
-    if (seed == nullptr || seed->get() < 0) {
-      throw ConfigError(where(*node.node(), source.string(), "scenario.seed") + "expected an integer >= 0");
-    }
-    out.plant.simulation.seed = static_cast<std::uint64_t>(seed->get());
-  }
-  // The ambient profile is a flat list t0, C0, t1, C1, ... with ascending times.
-  if (const auto node = root.at_path("scenario.ambient_profile")) {
-    const std::string at = where(*node.node(), source.string(), "scenario.ambient_profile");
-    const auto& points = out.scenario.ambient_profile.points;
-    if (node.as_array() != nullptr && node.as_array()->size() % 2 != 0) {
-      throw ConfigError(at + "expected pairs of time_s and temperature_C (an even number of values)");
-    }
-    for (std::size_t k = 1; k < points.size(); ++k) {
-      if (!(points[k].time_s > points[k - 1].time_s)) {
-        throw ConfigError(at + "times must ascend");
+  const bool scenario_ok = attempt([&] {
+    schema().apply(root, out.scenario, source.string(),
+                   {"plant", "controller", "scenario.seed", "operation.speed_rad_s", "operation.torque_Nm", "operation.speed_csv",
+                    "operation.torque_csv"});
+  });
+  const bool operation_ok = scenario_ok && attempt([&] {
+    // Set-point profiles, inline or from CSV: one of the two (a file replaces its base's, in
+    // resolve_base), so both here were given in one file: one would be ignored.
+    for (const auto& [inline_key, csv_key] : {std::pair{"operation.speed_rad_s", "operation.speed_csv"},
+                                              std::pair{"operation.torque_Nm", "operation.torque_csv"}}) {
+      const auto points = root.at_path(inline_key);
+      const auto csv = root.at_path(csv_key);
+      if (points && csv) {
+        throw ConfigError(where(*csv.node(), source.string(), csv_key) + "given together with " + std::string(inline_key) +
+                          " (line " + std::to_string(points.node()->source().begin.line) +
+                          "): a profile is either inline or from a CSV file; remove one");
       }
     }
-    for (const ProfilePoint& q : points) {  // the bounds of scenario.ambient_C
-      if (!(q.time_s >= 0.0 && q.time_s <= kMaxProfileTime_s) || !(q.value >= -40.0 && q.value <= 80.0)) {
-        throw ConfigError(at + "every point needs time_s >= 0 and a temperature in [-40, 80] C, got " +
-                          common::format_number(q.time_s) + ", " + common::format_number(q.value));
+    // A profile the mode does not follow would be ignored without a word (the load torque of a
+    // speed-mode run is plant.load's, not a set-point).
+    const bool speed_mode = out.scenario.mode == core::DriveMode::kSpeed;
+    for (const char* key : speed_mode ? std::array{"operation.torque_Nm", "operation.torque_csv"}
+                                      : std::array{"operation.speed_rad_s", "operation.speed_csv"}) {
+      if (const auto node = root.at_path(key)) {
+        throw ConfigError(where(*node.node(), source.string(), key) + "a set-point of " +
+                          (speed_mode ? "torque" : "speed") + " mode, but operation.mode is \"" +
+                          (speed_mode ? "speed" : "torque") + "\"" +
+                          (root.at_path("operation.mode") ? "" : " (the default)") + "; it would be ignored" +
+                          (speed_mode ? " (the load's torque is [plant.load])" : " (the speed follows the load, [plant.load])") +
+                          ": remove it or set the mode");
       }
     }
-  }
+    const std::filesystem::path dir = source.parent_path();
+    if (const auto node = root.at_path("operation.speed_rad_s")) {
+      out.scenario.speed_rad_s = read_points(*node.node(), source.string(), "operation.speed_rad_s", kSpeedLimits);
+    }
+    auto csv_profile = [&](const char* key, Profile& into, const ProfileLimits& limits) {
+      const auto node = root.at_path(key);
+      if (!node) {
+        return;
+      }
+      const std::string at = where(*node.node(), source.string(), key);
+      const auto* text = node.as_string();
+      if (text == nullptr) {
+        throw ConfigError(at + "expected a path (string)");
+      }
+      into = read_csv(dir / text->get(), key, at, limits);
+      out.files.push_back(dir / text->get());
+    };
+    csv_profile("operation.speed_csv", out.scenario.speed_rad_s, kSpeedLimits);
+    if (const auto node = root.at_path("operation.torque_Nm")) {
+      out.scenario.torque_Nm = read_points(*node.node(), source.string(), "operation.torque_Nm", kTorqueLimits);
+    }
+    csv_profile("operation.torque_csv", out.scenario.torque_Nm, kTorqueLimits);
+    if (speed_mode && out.scenario.speed_rad_s.empty()) {
+      throw ConfigError(source.string() + ": operation.speed_rad_s (or operation.speed_csv) is required in speed mode");
+    }
+    if (!speed_mode && out.scenario.torque_Nm.empty()) {
+      throw ConfigError(source.string() + ": operation.torque_Nm (or operation.torque_csv) is required in torque mode");
+    }
+  });
+  const bool plant_ok = attempt([&] {
+    out.plant = load_plant(root, source, out.files);
+    if (!out.plant.load.csv_path.empty()) {
+      out.files.push_back(out.plant.load.csv_path);
+    }
+  });
+  if (operation_ok && plant_ok) {
+    (void)attempt([&] {
+      // The scenario's ambient, seed and acceleration apply to the plant unless it says otherwise.
+      const bool plant_ambient = static_cast<bool>(root.at_path("plant.thermal.ambient_C"));
+      if (!plant_ambient) {
+        out.plant.thermal.ambient_C = out.scenario.ambient_profile.empty() ? out.scenario.ambient_C
+                                                                            : out.scenario.ambient_profile.at(0.0);
+      }
+      if (root.at_path("scenario.thermal_acceleration") && !root.at_path("plant.thermal.acceleration")) {
+        out.plant.thermal.acceleration = out.scenario.thermal_acceleration;
+      }
+      if (const auto node = root.at_path("scenario.seed"); node && !root.at_path("plant.simulation.seed")) {
+        const auto* seed = node.as_integer();
+        if (seed == nullptr || seed->get() < 0) {
+          throw ConfigError(where(*node.node(), source.string(), "scenario.seed") + "expected an integer >= 0");
+        }
+        out.plant.simulation.seed = static_cast<std::uint64_t>(seed->get());
+      }
+      // The ambient profile is a flat list t0, C0, t1, C1, ... with ascending times.
+      if (const auto node = root.at_path("scenario.ambient_profile")) {
+        const std::string at = where(*node.node(), source.string(), "scenario.ambient_profile");
+        const auto& points = out.scenario.ambient_profile.points;
+        if (node.as_array() != nullptr && node.as_array()->size() % 2 != 0) {
+          throw ConfigError(at + "expected pairs of time_s and temperature_C (an even number of values)");
+        }
+        for (std::size_t k = 1; k < points.size(); ++k) {
+          if (!(points[k].time_s > points[k - 1].time_s)) {
+            throw ConfigError(at + "times must ascend");
+          }
+        }
+        for (const ProfilePoint& q : points) {  // the bounds of scenario.ambient_C
+          if (!(q.time_s >= 0.0 && q.time_s <= kMaxProfileTime_s) || !(q.value >= -40.0 && q.value <= 80.0)) {
+            throw ConfigError(at + "every point needs time_s >= 0 and a temperature in [-40, 80] C, got " +
+                              common::format_number(q.time_s) + ", " + common::format_number(q.value));
+          }
+        }
+      }
 
-  // The controller: the same sections as pmsm-thermald's configuration, under [controller]
-  // (parsed in place, so that messages keep the file's line numbers).
-  static const toml::table kEmpty;
-  const toml::table* controller_table = common::optional_section(root, "controller", source.string());
-  out.controller = parse_controller_config(controller_table != nullptr ? *controller_table : kEmpty, source.string(), {},
-                                           "controller.");
-  for (const std::string& file : {out.controller.calibration_file, out.controller.thermal_state_file}) {
-    if (!file.empty()) {
-      out.files.emplace_back(file);
+    });
+  }
+  (void)attempt([&] {
+    // The controller: the same sections as pmsm-thermald's configuration, under [controller]
+    // (parsed in place, so that messages keep the file's line numbers).
+    static const toml::table kEmpty;
+    const toml::table* controller_table = common::optional_section(root, "controller", source.string());
+    out.controller = parse_controller_config(controller_table != nullptr ? *controller_table : kEmpty, source.string(), {},
+                                             "controller.");
+    for (const std::string& file : {out.controller.calibration_file, out.controller.thermal_state_file}) {
+      if (!file.empty()) {
+        out.files.emplace_back(file);
+      }
     }
+  });
+  if (!errors.empty()) {
+    throw ConfigError(errors);
   }
   // The scenario's acceleration applies to the controller's thermal model too, unless the
   // controller section sets its own.
