@@ -94,6 +94,19 @@ grep -q "the plant's last truth 88.0, about 2 s of the daemon's time ago: not co
   fail "a truth the plant stopped sending shown against later estimates"
 grep -q "1 calibrated estimates" "$work/out" || fail "an estimate scored against a truth the plant stopped sending"
 
+# With the power stage's samples on the bus, an estimate is compared with the truth at its own
+# sample (interpolated between the truth frames around it), and the line shows that comparison,
+# the summary's: not the estimate against a truth frame older than it (which read -0.8 and
+# -2.8 C here where the estimate's own error is -1.75 C).
+sample() { echo "($1) vcan0 020##4${2}030000CD009AFF99FF0020FF0C00000000000001000000"; }
+est_line="vcan0 110#15229600E8171700"
+{ sample 1.000 E9; echo "(1.001) vcan0 200#6022A217D417C409"; sample 1.002 EA; echo "(1.003) $est_line"
+  sample 1.004 EB; echo "(1.005) vcan0 200#2823A217D417C409"; sample 1.006 EC; echo "(1.007) $est_line"; } > "$work/seq.log"
+"$exe" monitor --log "$work/seq.log" --plain --every 0 > "$work/out"
+grep -q "(true   89.0, error  -1.8)" "$work/out" || fail "the line does not show the estimate against the truth at its sample"
+grep -q "error  -0.8)\|error  -2.8)" "$work/out" && fail "an estimate shown against a truth frame older than it"
+grep -q "1 calibrated estimates, error RMS 1.75 C" "$work/out" || fail "the summary's comparison moved"
+
 # --node: another axis's frames (here node 0's, with node 3's HEARTBEAT beside them) stay out
 # of the summary, its checks included.
 heartbeat=$(grep -m1 " 140#" "$log")

@@ -67,6 +67,15 @@ struct Axis {
   std::optional<protocol::ResistanceEstimate> rs;
   std::optional<protocol::DriveStatus> status;
   std::optional<double> truth_C;
+  // The last estimate compared with the truth at its own time (judge()): the error a line shows.
+  // An estimate that waits for the next truth frame (pending) is not compared with the last one,
+  // which is older than it (the line after a plant stopped showed such an error, -5.3 C, that the
+  // summary rightly left out).
+  struct Compared {
+    double estimate_C = 0.0;
+    double truth_C = 0.0;
+  };
+  std::optional<Compared> compared;
   // HEARTBEATs since the last TRUTH_THERMAL, the most seen between two truths while the plant
   // reported, and the daemon's uptime at the last truth (its last HEARTBEAT's). More HEARTBEATs
   // than ever came between two truths, and at least two: the plant has stopped reporting while
@@ -374,6 +383,9 @@ class Monitor {
 
   // One estimate against the truth at its time: the CSV row and the error statistics.
   void judge(int node, Axis& a, const protocol::ThermalEstimate& t, double time_s, std::optional<double> truth) {
+    if (t.valid && truth) {
+      a.compared = Axis::Compared{t.winding_temp_C, *truth};
+    }
     if (csv_.is_open() && t.valid) {
       csv_ << fmt::format("{:.3f},{},{:.2f},{:.2f},{},{}\n", time_s, node, t.winding_temp_C, t.winding_temp_sigma_C,
                           truth ? fmt::format("{:.2f}", *truth) : std::string{}, t.calibrated ? 1 : 0);
@@ -452,8 +464,9 @@ class Monitor {
                    ? fmt::format(" (the plant's last truth {:.1f}, about {:.0f} s of the daemon's time ago: not compared)",
                                  *a.truth_C, *a.daemon_uptime_s - *a.uptime_at_truth_s)
                    : fmt::format(" (the plant's last truth {:.1f}, no longer reported: not compared)", *a.truth_C);
-      } else if (a.truth_C) {
-        out += fmt::format(" (true {:6.1f}, error {:+5.1f})", *a.truth_C, a.thermal->winding_temp_C - *a.truth_C);
+      } else if (a.compared) {
+        out += fmt::format(" (true {:6.1f}, error {:+5.1f})", a.compared->truth_C,
+                           a.compared->estimate_C - a.compared->truth_C);
       }
       out += a.thermal->calibrated ? "" : " uncalibrated";
       out += a.thermal->stale ? " STALE" : "";
