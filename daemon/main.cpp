@@ -112,7 +112,13 @@ std::optional<pmsm::app::StoredThermalState> usable_thermal_state(const std::str
                                                                   std::string& why) {
   std::error_code ec;
   why.clear();
-  if (path.empty() || !std::filesystem::exists(path, ec)) {
+  if (path.empty()) {
+    return std::nullopt;
+  }
+  if (!std::filesystem::exists(path, ec)) {
+    if (ec) {
+      why = fmt::format("{}: cannot be looked at ({})", path, ec.message());  // e.g. a directory it may not enter
+    }
     return std::nullopt;
   }
   try {

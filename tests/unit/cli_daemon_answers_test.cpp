@@ -33,6 +33,12 @@ hal::CanFrame estimate(bool calibrating, protocol::CalibrationResult result, int
   return encoded(t, node);
 }
 
+hal::CanFrame heartbeat(double uptime_s) {
+  protocol::Heartbeat h;
+  h.uptime_s = uptime_s;
+  return encoded(h);
+}
+
 hal::CanFrame receive_status(std::uint64_t counter_rejections, std::uint64_t other_rejections, protocol::DecodeStatus last,
                              std::uint16_t id) {
   protocol::ReceiveStatus r;
@@ -179,8 +185,8 @@ TEST(DaemonAnswers, CounterRefusalsBeyondTheSynchronisingFramesAreAnotherSender)
     a.read(receive_status(9, 0, protocol::DecodeStatus::kCounterJump, drive_id));
     EXPECT_TRUE(a.finish());
     const std::string text = text_of(q.out);
-    const auto at = text.find("node 2: the daemon refused 4 command frame(s) of this node for their alive counter, "
-                              "more than this run's 1 synchronising frame(s): another supervisor is sending to node 2");
+    const auto at = text.find("node 2: the daemon refused 9 command frame(s) of this node for their alive counter, "
+                              "more than this run's 1 synchronising or unsent frame(s): another supervisor is sending to node 2");
     EXPECT_NE(at, std::string::npos) << text;
     EXPECT_EQ(text.find("another supervisor", text.find("another supervisor") + 1), std::string::npos)
         << "said once: " << text;
@@ -195,6 +201,25 @@ TEST(DaemonAnswers, CounterRefusalsBeyondTheSynchronisingFramesAreAnotherSender)
     EXPECT_FALSE(a.finish()) << text_of(q.out);
     a.read(receive_status(2, 0, protocol::DecodeStatus::kRepeatedCounter, drive_id));
     EXPECT_TRUE(a.finish()) << "254 -> 2 is four refusals, one more than three";
+  }
+  {
+    // A daemon started again during the run counts from zero: a count that went down is no 200
+    // refusals; from there its own count is the baseline. A frame this run could not send spent
+    // its counter, and the jump that follows is this run's own.
+    Quiet q;
+    DaemonAnswers a(kNode, false, q.out, 1);
+    a.read(heartbeat(3600.0));
+    a.read(receive_status(200, 0, protocol::DecodeStatus::kRepeatedCounter, drive_id));
+    a.read(receive_status(0, 0, protocol::DecodeStatus::kOk, 0));  // reads as 56 refusals until ...
+    a.read(heartbeat(0.5));                                        // ... the restart is told
+    a.read(receive_status(1, 0, protocol::DecodeStatus::kRepeatedCounter, drive_id));
+    a.read(heartbeat(1.5));
+    EXPECT_FALSE(a.finish()) << text_of(q.out);
+    a.note_unsent_frame();
+    a.read(receive_status(2, 0, protocol::DecodeStatus::kCounterJump, drive_id));
+    EXPECT_FALSE(a.finish()) << text_of(q.out);
+    a.read(receive_status(3, 0, protocol::DecodeStatus::kCounterJump, drive_id));
+    EXPECT_TRUE(a.finish());
   }
   {
     // Refusals counted before this run's first RECEIVE_STATUS are another run's.

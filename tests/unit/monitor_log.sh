@@ -106,6 +106,11 @@ est_line="vcan0 110#15229600E8171700"
 grep -q "(true   89.0, error  -1.8)" "$work/out" || fail "the line does not show the estimate against the truth at its sample"
 grep -q "error  -0.8)\|error  -2.8)" "$work/out" && fail "an estimate shown against a truth frame older than it"
 grep -q "1 calibrated estimates, error RMS 1.75 C" "$work/out" || fail "the summary's comparison moved"
+# A newer estimate waiting for its truth: the line says which estimate its error is of.
+{ cat "$work/seq.log"; sample 1.008 ED; echo "(1.009) vcan0 110#60229600E8171700"; } > "$work/seq2.log"
+"$exe" monitor --log "$work/seq2.log" --plain --every 0 > "$work/out"
+grep -q "winding   88.0 +-  1.5 C (last compared 87.2: true   89.0, error  -1.8)" "$work/out" ||
+  fail "an error shown beside a newer estimate without saying which estimate it is of"
 
 # --node: another axis's frames (here node 0's, with node 3's HEARTBEAT beside them) stay out
 # of the summary, its checks included.

@@ -158,7 +158,12 @@ int run_command(const CommandOptions& o) {
     if (o.duration_s && static_cast<double>(hal::monotonic_ns() - start) * 1e-9 >= *o.duration_s) {
       break;
     }
-    (send(drive) ? sent : failed) += 1;
+    if (send(drive)) {
+      ++sent;
+    } else {
+      ++failed;
+      answers.note_unsent_frame();
+    }
     // The period in slices of at most 10 ms, reading what the daemon says meanwhile: Ctrl-C
     // sends the disabling frame at once, not after the rest of a long period.
     const std::int64_t next = hal::monotonic_ns() + static_cast<std::int64_t>(o.period_ms * 1e6);
@@ -198,7 +203,9 @@ void register_command_command(CLI::App& app, int& exit_code) {
   CLI::App* cmd = app.add_subcommand("command", "Send E2E-protected drive commands to pmsm-thermald (the supervisor's role)");
   cmd->footer("Exit status: 0 every frame sent and nothing refused; 1 a frame could not be sent (the bus, a full transmit "
               "queue); 2 a bad command line; 3 every frame sent, but the daemon refused something asked of it (a "
-              "calibration that ended other than DONE or was never seen, a command rejected).");
+              "calibration that ended other than DONE or was never seen, a command rejected, or more of this node's "
+              "commands refused for their alive counter than this run's own synchronising frames: another supervisor "
+              "sending to the node).");
   cmd->add_option("--iface", options->iface, "CAN interface")
       ->capture_default_str()
       ->check(pmsm::cli::text_rule(pmsm::hal::can_interface_name_problem, "NAME"));

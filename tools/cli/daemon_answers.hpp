@@ -60,6 +60,15 @@ class DaemonAnswers {
                      why);
       }
       suspended_why_ = why;
+    } else if (const auto* h = std::get_if<protocol::Heartbeat>(&d.message)) {
+      if (last_uptime_s_ >= 0.0 && h->uptime_s < last_uptime_s_) {
+        // The daemon started again: what its first reports added was its counts starting over.
+        counter_refusals_ = refusals_at_heartbeat_;
+      } else {
+        judge_counter_refusals();
+      }
+      refusals_at_heartbeat_ = counter_refusals_;
+      last_uptime_s_ = h->uptime_s;
     } else if (const auto* r = std::get_if<protocol::ReceiveStatus>(&d.message)) {
       const std::uint64_t total = std::uint64_t{r->rejected_crc} + r->rejected_counter + r->rejected_range +
                                   r->rejected_format + r->rejected_other;
@@ -74,16 +83,9 @@ class DaemonAnswers {
       }
       if (heard_status_) {
         // Each count is sent modulo 256 (RECEIVE_STATUS): the difference is taken the same way.
+        // (A daemon started again counts from zero, which reads as refusals here: the next
+        // HEARTBEAT tells, and takes them back.)
         counter_refusals_ += (r->rejected_counter - last_counter_count_) & 0xFFU;
-        if (counter_refusals_ > static_cast<std::uint64_t>(counter_allowance_) && !clash_said_) {
-          std::fprintf(out_,
-                       "pmsm-thermal command: node %d: the daemon refused %llu command frame(s) of this node for their "
-                       "alive counter, more than this run's %d synchronising frame(s): another supervisor is sending "
-                       "to node %d (a command stream follows one sender's counter; docs/protocol.md)\n",
-                       node_, static_cast<unsigned long long>(counter_refusals_), counter_allowance_, node_);
-          clash_said_ = true;
-          refused_ = true;
-        }
       }
       last_counter_count_ = r->rejected_counter;
       total_ = total;
@@ -91,10 +93,15 @@ class DaemonAnswers {
     }
   }
 
+  // A frame of this run's that did not go out (a full transmit queue): its counter was spent, so
+  // the daemon may refuse the next one as a jump; that is this run's own, not another sender.
+  void note_unsent_frame() { ++counter_allowance_; }
+
   // Whether the daemon refused something asked of it: a calibration that ended other than DONE
   // or was never seen, a command of this node rejected (not a synchronising frame's counter
   // refusal), counter refusals beyond those.
-  [[nodiscard]] bool finish() const {
+  [[nodiscard]] bool finish() {
+    judge_counter_refusals();
     if (calibration_asked_ && !calibration_seen_) {
       std::fprintf(out_,
                    "pmsm-thermal command: node %d: no THERMAL_ESTIMATE showed the calibration asked for (the daemon's "
@@ -111,6 +118,20 @@ class DaemonAnswers {
     return protocol::label_of(table, static_cast<std::int64_t>(value)).data();  // string literals
   }
 
+  // Counter refusals beyond the allowance, said once (judged at each HEARTBEAT that tells no
+  // restart, and at the end).
+  void judge_counter_refusals() {
+    if (counter_refusals_ > static_cast<std::uint64_t>(counter_allowance_) && !clash_said_) {
+      std::fprintf(out_,
+                   "pmsm-thermal command: node %d: the daemon refused %llu command frame(s) of this node for their "
+                   "alive counter, more than this run's %d synchronising or unsent frame(s): another supervisor is "
+                   "sending to node %d (a command stream follows one sender's counter; docs/protocol.md)\n",
+                   node_, static_cast<unsigned long long>(counter_refusals_), counter_allowance_, node_);
+      clash_said_ = true;
+      refused_ = true;
+    }
+  }
+
   int node_;
   bool calibration_asked_;
   std::FILE* out_;
@@ -124,6 +145,8 @@ class DaemonAnswers {
   std::uint64_t last_counter_count_ = 0;  // RejectedCounter as last heard (modulo 256)
   std::uint64_t counter_refusals_ = 0;    // since the first RECEIVE_STATUS heard
   bool clash_said_ = false;
+  std::uint64_t refusals_at_heartbeat_ = 0;  // counter_refusals_ at the last HEARTBEAT
+  double last_uptime_s_ = -1.0;              // its uptime (-1: none heard)
   bool refused_ = false;
   const char* suspended_why_ = nullptr;  // the cause last said (a string literal), or none
 };

@@ -403,6 +403,7 @@ class Monitor {
   static void set_time(Axis& a, double t) {
     if (a.time_s && t < *a.time_s) {
       a.next_print_s = t;
+      a.compared.reset();  // the run before's comparison is no measure of this one
     }
     a.time_s = t;
   }
@@ -465,8 +466,12 @@ class Monitor {
                                  *a.truth_C, *a.daemon_uptime_s - *a.uptime_at_truth_s)
                    : fmt::format(" (the plant's last truth {:.1f}, no longer reported: not compared)", *a.truth_C);
       } else if (a.compared) {
-        out += fmt::format(" (true {:6.1f}, error {:+5.1f})", a.compared->truth_C,
-                           a.compared->estimate_C - a.compared->truth_C);
+        // An estimate newer than the last one compared waits for the truth at its sample: the
+        // line then says which estimate its error is of.
+        const bool newest = a.compared->estimate_C == a.thermal->winding_temp_C;
+        out += fmt::format(" ({}true {:6.1f}, error {:+5.1f})",
+                           newest ? "" : fmt::format("last compared {:.1f}: ", a.compared->estimate_C),
+                           a.compared->truth_C, a.compared->estimate_C - a.compared->truth_C);
       }
       out += a.thermal->calibrated ? "" : " uncalibrated";
       out += a.thermal->stale ? " STALE" : "";

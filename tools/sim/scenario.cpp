@@ -605,6 +605,30 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
       throw ConfigError(source.string() + ": operation.torque_Nm (or operation.torque_csv) is required in torque mode");
     }
   });
+  // The ambient profile needs the scenario's keys alone.
+  if (scenario_ok) {
+    (void)attempt([&] {
+      // The ambient profile is a flat list t0, C0, t1, C1, ... with ascending times.
+      if (const auto node = root.at_path("scenario.ambient_profile")) {
+        const std::string at = where(*node.node(), source.string(), "scenario.ambient_profile");
+        const auto& points = out.scenario.ambient_profile.points;
+        if (node.as_array() != nullptr && node.as_array()->size() % 2 != 0) {
+          throw ConfigError(at + "expected pairs of time_s and temperature_C (an even number of values)");
+        }
+        for (std::size_t k = 1; k < points.size(); ++k) {
+          if (!(points[k].time_s > points[k - 1].time_s)) {
+            throw ConfigError(at + "times must ascend");
+          }
+        }
+        for (const ProfilePoint& q : points) {  // the bounds of scenario.ambient_C
+          if (!(q.time_s >= 0.0 && q.time_s <= kMaxProfileTime_s) || !(q.value >= -40.0 && q.value <= 80.0)) {
+            throw ConfigError(at + "every point needs time_s >= 0 and a temperature in [-40, 80] C, got " +
+                              common::format_number(q.time_s) + ", " + common::format_number(q.value));
+          }
+        }
+      }
+    });
+  }
   const bool plant_ok = attempt([&] {
     out.plant = load_plant(root, source, out.files);
     if (!out.plant.load.csv_path.empty()) {
@@ -628,25 +652,6 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
           throw ConfigError(where(*node.node(), source.string(), "scenario.seed") + "expected an integer >= 0");
         }
         out.plant.simulation.seed = static_cast<std::uint64_t>(seed->get());
-      }
-      // The ambient profile is a flat list t0, C0, t1, C1, ... with ascending times.
-      if (const auto node = root.at_path("scenario.ambient_profile")) {
-        const std::string at = where(*node.node(), source.string(), "scenario.ambient_profile");
-        const auto& points = out.scenario.ambient_profile.points;
-        if (node.as_array() != nullptr && node.as_array()->size() % 2 != 0) {
-          throw ConfigError(at + "expected pairs of time_s and temperature_C (an even number of values)");
-        }
-        for (std::size_t k = 1; k < points.size(); ++k) {
-          if (!(points[k].time_s > points[k - 1].time_s)) {
-            throw ConfigError(at + "times must ascend");
-          }
-        }
-        for (const ProfilePoint& q : points) {  // the bounds of scenario.ambient_C
-          if (!(q.time_s >= 0.0 && q.time_s <= kMaxProfileTime_s) || !(q.value >= -40.0 && q.value <= 80.0)) {
-            throw ConfigError(at + "every point needs time_s >= 0 and a temperature in [-40, 80] C, got " +
-                              common::format_number(q.time_s) + ", " + common::format_number(q.value));
-          }
-        }
       }
 
     });

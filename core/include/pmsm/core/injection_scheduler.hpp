@@ -349,6 +349,8 @@ struct PairResult {
   // Its Rs rests on the configured guess of the inverter voltage: no event (nor the stored
   // calibration) has learned Vx yet, and the guess's uncertainty moves this Rs by more than the
   // pair's own noise (a calibration's first event; the event's fit across levels measures both).
+  // Where no event ever learns Vx (a stored calibration without it, a method or a load that
+  // cannot), every such pair stays so.
   bool rs_rests_on_vx_guess = false;
   double delta_omega_e_rad_s = 0.0;
   double delta_iq_A = 0.0;
@@ -594,9 +596,9 @@ class InjectionScheduler {
     motoring_voltage_V_ = mean_V;
     motoring_voltage_mean_sq_V2_ = mean_sq_V2;
   }
-  // Replaces the inverter-voltage prior (a stored calibration's Vx at start-up; the configured
-  // guess when a calibration run starts, so that it learns Vx afresh).
-  // The configured guess (a calibration's start): no longer a learned Vx.
+  // Replaces the inverter-voltage prior with the configured guess (when a calibration run starts,
+  // so that it learns Vx afresh): no longer a learned Vx (a stored calibration's Vx is
+  // set_vx_prior_at's).
   void set_vx_prior(double vx_V, double std_V) {
     vx_learned_ = false;
     vx_V_ = vx_V;

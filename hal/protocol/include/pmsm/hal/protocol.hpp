@@ -651,7 +651,8 @@ inline constexpr SignalDef kResult{"Result", 11, 4, false, 1, 0, 0, 10, "", kInj
     "Outcome of the injection."};
 inline constexpr SignalDef kRsValid{"RsValid", 15, 1, false, 1, 0, 0, 1, "", detail::kNoValues,
     "1: MeasuredRs holds this pair's measurement. 0: the pair was not accepted, or its Rs rests on the configured "
-    "guess of the inverter's voltage (no event has learned it yet: a calibration's first pairs)."};
+    "guess of the inverter's voltage (no event has learned it yet: a calibration's first pairs, and every pair of a "
+    "drive where none does)."};
 inline constexpr SignalDef kAmplitude{"Amplitude", 16, 12, false, 0.1, 0, 0, 400, "A", detail::kNoValues,
     "Injection amplitude F used; for a pair skipped by its budget, the largest the budget allowed (below the minimum)."};
 inline constexpr SignalDef kMeasuredRs{"MeasuredRs", 28, 20, false, 0.00001, 0, 0, 10, "Ohm", detail::kNoValues,
