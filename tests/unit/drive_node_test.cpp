@@ -1408,6 +1408,31 @@ TEST(DriveNode, ACalibrationsPairsAreNamedByOutcome) {
             "16 aborted (12 motoring_needs_voltage, 4 current_limit), 8 accepted, 2 rejected_speed_change");
 }
 
+// The INJECTION_REPORTs of a calibration started after 0.2 s of running, split at the report of
+// the calibration's completion, and those after it until `after_wanted` reports of the run's own
+// method (those of `only` if given); `stored` says whether the calibration completed.
+struct CalibrationReports {
+  std::vector<protocol::InjectionReport> during;
+  std::vector<protocol::InjectionReport> after;
+  bool stored = false;
+};
+CalibrationReports reports_through_calibration(Rig& rig, std::size_t after_wanted,
+                                               std::optional<protocol::InjectionResult> only = std::nullopt) {
+  rig.run(2000);
+  rig.in.start_calibration = true;
+  rig.run(1);
+  rig.in.start_calibration = false;
+  CalibrationReports r;
+  for (int k = 0; k < 400000 && (!r.stored || r.after.size() < after_wanted); ++k) {
+    const NodeStep& step = rig.run(1);
+    r.stored = r.stored || step.calibration_to_store.has_value();
+    if (const auto& rep = step.publications.injection; rep && (!only || rep->result == *only)) {
+      (r.stored ? r.after : r.during).push_back(*rep);
+    }
+  }
+  return r;
+}
+
 // INJECTION_REPORT's MeasuredRs is a pair's own measurement only where the pair can tell its Rs
 // from the bridge's voltage: a calibration's first event holds the configured guess of it (3 V
 // of prior uncertainty, 0.06 ohm over a 50 A pulse), so its pairs' Rs go out as not measured;
@@ -1417,20 +1442,7 @@ TEST(DriveNode, ACalibrationsPairsAreNamedByOutcome) {
 TEST(DriveNode, AnInjectionReportPublishesNoRsThatRestsOnTheBridgesGuessedVoltage) {
   Rig rig;
   rig.unload();
-  rig.run(2000);
-  rig.in.start_calibration = true;
-  rig.run(1);
-  rig.in.start_calibration = false;
-  std::vector<protocol::InjectionReport> during;
-  std::vector<protocol::InjectionReport> after;
-  bool stored = false;
-  for (int k = 0; k < 400000 && (!stored || after.size() < 4U); ++k) {
-    const NodeStep& step = rig.run(1);
-    stored = stored || step.calibration_to_store.has_value();
-    if (const auto& rep = step.publications.injection; rep && rep->result == protocol::InjectionResult::kAccepted) {
-      (stored ? after : during).push_back(*rep);
-    }
-  }
+  const auto [during, after, stored] = reports_through_calibration(rig, 4U, protocol::InjectionResult::kAccepted);
   ASSERT_TRUE(stored) << "the calibration did not complete";
   const double rs_true = rig.plant_config.motor.rs_at_C(rig.plant_config.thermal.ambient_C);
   ASSERT_GE(during.size(), 3U);
@@ -1464,20 +1476,15 @@ TEST(DriveNode, AnInjectionReportNamesThePairsOwnMethodAndOnlyAMeasuredSpeedChan
   rig.config.drive.injection.interval_s = 0.5;
   rig.config.drive.calibration_injection.interval_s = 0.5;
   rig.rebuild_node();
-  rig.run(2000);
-  rig.in.start_calibration = true;
-  rig.run(1);
-  rig.in.start_calibration = false;
+  const CalibrationReports reports = reports_through_calibration(rig, 2U);
+  const bool stored = reports.stored;
   std::vector<protocol::InjectionMethod> during;
   std::vector<protocol::InjectionMethod> after;
-  bool stored = false;
-  for (int k = 0; k < 400000 && (!stored || after.size() < 2U); ++k) {
-    const NodeStep& step = rig.run(1);
-    stored = stored || step.calibration_to_store.has_value();
-    if (const auto& rep = step.publications.injection) {
-      (stored ? after : during).push_back(rep->method);
-      if (rep->result == protocol::InjectionResult::kAccepted) {
-        EXPECT_TRUE(rep->speed_change_valid) << "an accepted pair measured its speed change";
+  for (const auto* list : {&reports.during, &reports.after}) {
+    for (const protocol::InjectionReport& rep : *list) {
+      (list == &reports.after ? after : during).push_back(rep.method);
+      if (rep.result == protocol::InjectionResult::kAccepted) {
+        EXPECT_TRUE(rep.speed_change_valid) << "an accepted pair measured its speed change";
       }
     }
   }
