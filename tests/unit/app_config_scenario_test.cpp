@@ -197,6 +197,12 @@ TEST(Scenario, MistakesInEveryPartAreNamedTogether) {
                 path_of("inline.toml") + ":6: plant.motor.rs_ohm: must be in [1e-06, 100], got -1\n" +
                 path_of("inline.toml") + ":8: controller.injection.F: unknown key (did you mean controller.injection.F_A?)\n" +
                 path_of("inline.toml") + ":9: controller.injection.F_A: must be in (0, 1000], got 1e+09");
+  // The seed and the ambient profile need only the scenario's keys: named beside the plant's.
+  EXPECT_EQ(inline_error("[scenario]\nseed = -3\nambient_profile = [0.0, 20.0, 10.0]\n[operation]\nspeed_rad_s = [[0, 1]]\n"
+                         "[plant.motor]\nrs_ohm = -1\n"),
+            path_of("inline.toml") + ":2: scenario.seed: expected an integer >= 0\n" + path_of("inline.toml") +
+                ":3: scenario.ambient_profile: expected pairs of time_s and temperature_C (an even number of values)\n" +
+                path_of("inline.toml") + ":7: plant.motor.rs_ohm: must be in [1e-06, 100], got -1");
   // The set-points wait for the scenario's keys (the mode), then are named with the rest.
   EXPECT_EQ(inline_error("[operation]\nspeed_rad_s = [[0, 0], [1, nan]]\n[controller.injection]\nF = 3\n"),
             path_of("inline.toml") + ":2: operation.speed_rad_s: point 1: value must be a number in [-2000, 2000] rad/s, got nan\n" +

@@ -605,8 +605,16 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
       throw ConfigError(source.string() + ": operation.torque_Nm (or operation.torque_csv) is required in torque mode");
     }
   });
-  // The ambient profile needs the scenario's keys alone.
+  // The seed and the ambient profile need the scenario's keys alone. (A seed the plant's own
+  // plant.simulation.seed overrides is not used, and not judged.)
   if (scenario_ok) {
+    (void)attempt([&] {
+      if (const auto node = root.at_path("scenario.seed"); node && !root.at_path("plant.simulation.seed")) {
+        if (const auto* seed = node.as_integer(); seed == nullptr || seed->get() < 0) {
+          throw ConfigError(where(*node.node(), source.string(), "scenario.seed") + "expected an integer >= 0");
+        }
+      }
+    });
     (void)attempt([&] {
       // The ambient profile is a flat list t0, C0, t1, C1, ... with ascending times.
       if (const auto node = root.at_path("scenario.ambient_profile")) {
@@ -647,11 +655,9 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
         out.plant.thermal.acceleration = out.scenario.thermal_acceleration;
       }
       if (const auto node = root.at_path("scenario.seed"); node && !root.at_path("plant.simulation.seed")) {
-        const auto* seed = node.as_integer();
-        if (seed == nullptr || seed->get() < 0) {
-          throw ConfigError(where(*node.node(), source.string(), "scenario.seed") + "expected an integer >= 0");
+        if (const auto* seed = node.as_integer(); seed != nullptr && seed->get() >= 0) {  // checked above
+          out.plant.simulation.seed = static_cast<std::uint64_t>(seed->get());
         }
-        out.plant.simulation.seed = static_cast<std::uint64_t>(seed->get());
       }
 
     });
