@@ -155,31 +155,29 @@ void restore_thermal_state(const DaemonConfig& config, pmsm::daemon::DriveLoop& 
     }
     return;
   }
-  {
-    const pmsm::app::StoredThermalState& s = *stored;
-    loop.restore_thermal_state(s.state, downtime_s, s.ambient_C);
-    spdlog::info("thermal state restored from {}: winding {:.1f} +- {:.1f} C {:.0f} s ago, cooled towards the stored "
-                 "ambient {:.1f} C to {:.1f} +- {:.1f} C",
-                 path, s.state.winding_C, s.state.winding_std_C, downtime_s, s.ambient_C,
-                 loop.node().controller().thermal_state().winding_C, loop.node().controller().thermal_state().winding_std_C);
-    if (s.state.has_loss_errors) {
-      const pmsm::core::ThermalState kept = loop.node().controller().thermal_state();
-      spdlog::info("thermal state: the loss model's learned errors kept: missing loss {:.1f} +- {:.1f} W, copper loss scale "
-                   "{:+.3f} +- {:.3f} (after the downtime)",
-                   kept.missing_loss_W, kept.missing_loss_std_W, kept.loss_scale_error, kept.loss_scale_std);
-    } else if (!s.loss_errors_ignored.empty()) {
-      spdlog::warn("thermal state: the loss model's errors not used ({}); they restart from the priors, the "
-                   "temperatures are kept", s.loss_errors_ignored);
-    }
-    const pmsm::core::ThermalState restored = loop.node().controller().thermal_state();
-    if (s.state.has_cooling_error && restored.has_cooling_error) {
-      spdlog::info("thermal state: the cooling path's learned error kept: {:+.3f} +- {:.3f} of the model's conductance "
-                   "(after the downtime)",
-                   restored.cooling_scale_error, restored.cooling_scale_std);
-    } else if (!s.cooling_error_ignored.empty()) {
-      spdlog::warn("thermal state: the cooling path's error not used ({}); it restarts from its prior, the temperatures "
-                   "are kept", s.cooling_error_ignored);
-    }
+  const pmsm::app::StoredThermalState& s = *stored;
+  loop.restore_thermal_state(s.state, downtime_s, s.ambient_C);
+  spdlog::info("thermal state restored from {}: winding {:.1f} +- {:.1f} C {:.0f} s ago, cooled towards the stored "
+               "ambient {:.1f} C to {:.1f} +- {:.1f} C",
+               path, s.state.winding_C, s.state.winding_std_C, downtime_s, s.ambient_C,
+               loop.node().controller().thermal_state().winding_C, loop.node().controller().thermal_state().winding_std_C);
+  if (s.state.has_loss_errors) {
+    const pmsm::core::ThermalState kept = loop.node().controller().thermal_state();
+    spdlog::info("thermal state: the loss model's learned errors kept: missing loss {:.1f} +- {:.1f} W, copper loss scale "
+                 "{:+.3f} +- {:.3f} (after the downtime)",
+                 kept.missing_loss_W, kept.missing_loss_std_W, kept.loss_scale_error, kept.loss_scale_std);
+  } else if (!s.loss_errors_ignored.empty()) {
+    spdlog::warn("thermal state: the loss model's errors not used ({}); they restart from the priors, the "
+                 "temperatures are kept", s.loss_errors_ignored);
+  }
+  const pmsm::core::ThermalState restored = loop.node().controller().thermal_state();
+  if (s.state.has_cooling_error && restored.has_cooling_error) {
+    spdlog::info("thermal state: the cooling path's learned error kept: {:+.3f} +- {:.3f} of the model's conductance "
+                 "(after the downtime)",
+                 restored.cooling_scale_error, restored.cooling_scale_std);
+  } else if (!s.cooling_error_ignored.empty()) {
+    spdlog::warn("thermal state: the cooling path's error not used ({}); it restarts from its prior, the temperatures "
+                 "are kept", s.cooling_error_ignored);
   }
 }
 

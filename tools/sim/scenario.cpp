@@ -549,7 +549,8 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
                    {"plant", "controller", "scenario.seed", "operation.speed_rad_s", "operation.torque_Nm", "operation.speed_csv",
                     "operation.torque_csv"});
   });
-  const bool operation_ok = scenario_ok && attempt([&] {
+  // The set-points need the scenario's keys (the mode).
+  (void)(scenario_ok && attempt([&] {
     // Set-point profiles, inline or from CSV: one of the two (a file replaces its base's, in
     // resolve_base), so both here were given in one file: one would be ignored.
     for (const auto& [inline_key, csv_key] : {std::pair{"operation.speed_rad_s", "operation.speed_csv"},
@@ -604,7 +605,7 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
     if (!speed_mode && out.scenario.torque_Nm.empty()) {
       throw ConfigError(source.string() + ": operation.torque_Nm (or operation.torque_csv) is required in torque mode");
     }
-  });
+  }));
   // The seed and the ambient profile need the scenario's keys alone. (A seed the plant's own
   // plant.simulation.seed overrides is not used, and not judged.)
   if (scenario_ok) {
@@ -637,31 +638,12 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
       }
     });
   }
-  const bool plant_ok = attempt([&] {
+  (void)attempt([&] {
     out.plant = load_plant(root, source, out.files);
     if (!out.plant.load.csv_path.empty()) {
       out.files.push_back(out.plant.load.csv_path);
     }
   });
-  if (operation_ok && plant_ok) {
-    (void)attempt([&] {
-      // The scenario's ambient, seed and acceleration apply to the plant unless it says otherwise.
-      const bool plant_ambient = static_cast<bool>(root.at_path("plant.thermal.ambient_C"));
-      if (!plant_ambient) {
-        out.plant.thermal.ambient_C = out.scenario.ambient_profile.empty() ? out.scenario.ambient_C
-                                                                            : out.scenario.ambient_profile.at(0.0);
-      }
-      if (root.at_path("scenario.thermal_acceleration") && !root.at_path("plant.thermal.acceleration")) {
-        out.plant.thermal.acceleration = out.scenario.thermal_acceleration;
-      }
-      if (const auto node = root.at_path("scenario.seed"); node && !root.at_path("plant.simulation.seed")) {
-        if (const auto* seed = node.as_integer(); seed != nullptr && seed->get() >= 0) {  // checked above
-          out.plant.simulation.seed = static_cast<std::uint64_t>(seed->get());
-        }
-      }
-
-    });
-  }
   (void)attempt([&] {
     // The controller: the same sections as pmsm-thermald's configuration, under [controller]
     // (parsed in place, so that messages keep the file's line numbers).
@@ -677,6 +659,18 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
   });
   if (!errors.empty()) {
     throw ConfigError(errors);
+  }
+  // The scenario's ambient, seed and acceleration apply to the plant unless it says otherwise
+  // (every part read cleanly: the seed is an integer >= 0).
+  if (!root.at_path("plant.thermal.ambient_C")) {
+    out.plant.thermal.ambient_C = out.scenario.ambient_profile.empty() ? out.scenario.ambient_C
+                                                                        : out.scenario.ambient_profile.at(0.0);
+  }
+  if (root.at_path("scenario.thermal_acceleration") && !root.at_path("plant.thermal.acceleration")) {
+    out.plant.thermal.acceleration = out.scenario.thermal_acceleration;
+  }
+  if (const auto node = root.at_path("scenario.seed"); node && !root.at_path("plant.simulation.seed")) {
+    out.plant.simulation.seed = static_cast<std::uint64_t>(node.as_integer()->get());
   }
   // The scenario's acceleration applies to the controller's thermal model too, unless the
   // controller section sets its own.
