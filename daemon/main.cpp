@@ -107,9 +107,11 @@ struct Options {
 };
 
 // The thermal state kept from before this start, if it can be used: a damaged, future or
-// week-old file is not (`why` says so; empty when there is no file yet).
-std::optional<pmsm::app::StoredThermalState> usable_thermal_state(const std::string& path, double& downtime_s,
+// week-old file is not, nor one another axis wrote (`why` says so; empty when there is no file
+// yet).
+std::optional<pmsm::app::StoredThermalState> usable_thermal_state(const DaemonConfig& config, double& downtime_s,
                                                                   std::string& why) {
+  const std::string& path = config.controller.thermal_state_file;
   std::error_code ec;
   why.clear();
   if (path.empty()) {
@@ -129,6 +131,14 @@ std::optional<pmsm::app::StoredThermalState> usable_thermal_state(const std::str
       why = fmt::format("{} is {:.0f} s old (clock changed?)", path, downtime_s);
       return std::nullopt;
     }
+    // Another axis's winding is not this one's (two configurations naming one file: one copied
+    // for a second axis). A file from before the axis was recorded is taken as this axis's.
+    if (s.can_node >= 0 && (s.can_node != static_cast<int>(config.can.node) || s.can_interface != config.can.interface)) {
+      why = fmt::format("{} was written by the axis on {} node {}, and this daemon is node {} on {} (does another axis's "
+                        "configuration name the same controller.thermal.state_file?)",
+                        path, s.can_interface, s.can_node, config.can.node, config.can.interface);
+      return std::nullopt;
+    }
     return s;
   } catch (const std::exception& e) {
     why = e.what();
@@ -146,7 +156,7 @@ void restore_thermal_state(const DaemonConfig& config, pmsm::daemon::DriveLoop& 
   }
   double downtime_s = 0.0;
   std::string why;
-  const std::optional<pmsm::app::StoredThermalState> stored = usable_thermal_state(path, downtime_s, why);
+  const std::optional<pmsm::app::StoredThermalState> stored = usable_thermal_state(config, downtime_s, why);
   if (!stored) {
     if (why.empty()) {
       spdlog::info("thermal state: {} not there yet: the filter starts from the ambient sensor", path);
@@ -303,7 +313,7 @@ int run(const Options& o) {
     if (!config.controller.thermal_state_file.empty()) {
       double downtime_s = 0.0;
       std::string why;
-      if (const auto s = usable_thermal_state(config.controller.thermal_state_file, downtime_s, why)) {
+      if (const auto s = usable_thermal_state(config, downtime_s, why)) {
         thermal = fmt::format("thermal state usable (winding {:.1f} C, saved {:.0f} s ago)", s->state.winding_C, downtime_s);
       } else if (why.empty()) {
         thermal = "thermal state missing";

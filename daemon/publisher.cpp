@@ -485,6 +485,8 @@ void Publisher::store_thermal_state(const core::ThermalState& state, double ambi
   stored.ambient_C = ambient_C;
   stored.saved_unix_s =
       std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
+  stored.can_interface = config_.can.interface;
+  stored.can_node = static_cast<int>(config_.can.node);
   try {
     app::write_thermal_state_file(path, stored);
     ++stats_.thermal_states_stored;

@@ -21,6 +21,7 @@
 #include <fstream>
 #include <iterator>
 #include <set>
+#include <string_view>
 #include <sstream>
 #include <string_view>
 
@@ -155,6 +156,50 @@ double number(const toml::table& t, const char* key, const std::string& file, do
 
 double number(const toml::table& t, const KeyRange& r, const std::string& file) {
   return number(t, r.key, file, r.lo, r.hi, r.lo_open);
+}
+
+std::int64_t integer(const toml::table& t, const char* key, const std::string& file, std::int64_t lo, std::int64_t hi) {
+  const toml::node* node = t.get(key);
+  if (node == nullptr) {
+    throw CalibrationFileError(fmt::format("{}: {}: missing", file, key));
+  }
+  const auto line = node->source().begin.line;
+  const std::optional<std::int64_t> v = node->is_integer() ? node->value<std::int64_t>() : std::nullopt;
+  if (!v) {
+    throw CalibrationFileError(fmt::format("{}:{}: {}: expected an integer", file, line, key));
+  }
+  if (*v < lo || *v > hi) {
+    throw CalibrationFileError(fmt::format("{}:{}: {}: {} is out of range, expected in [{}, {}]", file, line, key, *v, lo, hi));
+  }
+  return *v;
+}
+
+// The axis a stored file belongs to: a CAN node of the protocol (docs/protocol.md) on a named
+// interface.
+constexpr std::int64_t kMaxStoredNode = 15;
+
+std::string printable(std::string_view text) {
+  std::string shown;
+  for (const char c : text) {
+    shown += std::isprint(static_cast<unsigned char>(c)) != 0 ? c : '?';
+  }
+  return shown;
+}
+
+// Why `name` cannot be an interface's name as a stored file keeps it, or "": Linux's 1..15
+// characters, none of them a space, '/', a quote, a backslash or a control character.
+std::string stored_interface_problem(std::string_view name) {
+  if (name.empty() || name.size() > 15) {
+    return fmt::format("\"{}\" is no interface name (1 to 15 characters)", printable(name));
+  }
+  for (const char c : name) {
+    const auto u = static_cast<unsigned char>(c);
+    if (std::isgraph(u) == 0 || c == '/' || c == '"' || c == '\\') {
+      return fmt::format("\"{}\" is no interface name (a space, '/', a quote, a backslash or a control character)",
+                         printable(name));
+    }
+  }
+  return {};
 }
 
 // Replaces `path` with `text`: temporary file in the same directory, fsync, rename, directory
@@ -431,12 +476,8 @@ std::string foreign_thermal_state_file(const std::filesystem::path& path) {
   if (first.empty() || first == kThermalStateHeader) {
     return {};
   }
-  std::string shown;
-  for (const char c : first.substr(0, first.find('\n'))) {
-    shown += std::isprint(static_cast<unsigned char>(c)) != 0 ? c : '?';
-  }
   return fmt::format("{} is there and is no thermal state file (it starts \"{}\", not \"{}\"): not written over",
-                     path.string(), shown, kThermalStateHeader);
+                     path.string(), printable(first.substr(0, first.find('\n'))), kThermalStateHeader);
 }
 
 void write_thermal_state_file(const std::filesystem::path& path, const StoredThermalState& stored) {
@@ -481,6 +522,16 @@ void write_thermal_state_file(const std::filesystem::path& path, const StoredThe
     text << "cooling_scale_error = " << toml_float(s.cooling_scale_error) << "\n"
          << "cooling_scale_std = " << toml_float(s.cooling_scale_std) << "\n";
   }
+  if (stored.can_node >= 0) {
+    if (const std::string bad = stored_interface_problem(stored.can_interface); !bad.empty() ||
+        stored.can_node > static_cast<int>(kMaxStoredNode)) {
+      throw CalibrationFileError(fmt::format("{}: refusing to store the axis as interface \"{}\" node {}: {}", path.string(),
+                                             printable(stored.can_interface), stored.can_node,
+                                             bad.empty() ? fmt::format("a node is 0..{}", kMaxStoredNode) : bad));
+    }
+    text << "can_interface = \"" << stored.can_interface << "\"\n"
+         << "can_node = " << stored.can_node << "\n";
+  }
   write_atomically(path, text.str());
 }
 
@@ -489,7 +540,8 @@ StoredThermalState read_thermal_state_file(const std::filesystem::path& path) {
   const toml::table t =
       read_stored(path, {"format", "winding_C", "housing_C", "winding_std_C", "ambient_C", "saved_unix_s",
                          "missing_loss_node", "missing_loss_W", "missing_loss_std_W", "loss_scale_error",
-                         "loss_scale_std", "loss_correlation", "cooling_scale_error", "cooling_scale_std"});
+                         "loss_scale_std", "loss_correlation", "cooling_scale_error", "cooling_scale_std",
+                         "can_interface", "can_node"});
   StoredThermalState s;
   s.state.winding_C = number(t, kThermalStateKeys[0], file);
   s.state.housing_C = number(t, kThermalStateKeys[1], file);
@@ -551,6 +603,28 @@ StoredThermalState read_thermal_state_file(const std::filesystem::path& path) {
       s.state.has_cooling_error = false;
       s.cooling_error_ignored = e.what();
     }
+  }
+  // The axis that wrote it: both keys or neither, and a bad one refuses the file (whose axis
+  // it is cannot be told: it is not taken for this one's).
+  const toml::node* interface_node = t.get("can_interface");
+  const bool node_present = t.get("can_node") != nullptr;
+  if ((interface_node != nullptr) != node_present) {
+    throw CalibrationFileError(fmt::format("{}: {} is missing (the axis that wrote the file comes as can_interface and "
+                                           "can_node, or not at all)",
+                                           file, node_present ? "can_interface" : "can_node"));
+  }
+  if (node_present) {
+    const std::optional<std::string> name = interface_node->value<std::string>();
+    if (!name) {
+      throw CalibrationFileError(fmt::format("{}:{}: can_interface: expected a string", file,
+                                             interface_node->source().begin.line));
+    }
+    if (const std::string bad = stored_interface_problem(*name); !bad.empty()) {
+      throw CalibrationFileError(
+          fmt::format("{}:{}: can_interface: {}", file, interface_node->source().begin.line, bad));
+    }
+    s.can_interface = *name;
+    s.can_node = static_cast<int>(integer(t, "can_node", file, 0, kMaxStoredNode));
   }
   return s;
 }

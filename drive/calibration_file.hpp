@@ -77,11 +77,18 @@ inline constexpr double kRs0NameplateWarnFraction = 0.10;
 //                                #   missing_loss_node = "housing" (dP learned on the winding)
 //   cooling_scale_error = 0.12   # the cooling path's error g and its deviation: both or neither;
 //   cooling_scale_std = 0.08     #   without them, or with a bad pair, g restarts from its prior
+//   can_interface = "can0"       # the axis that wrote it: its bus and node (both or neither; a
+//   can_node = 1                 #   file without them is from before they were kept)
 // The drive cools it through the downtime with its model (ThermalObserver::restore).
 struct StoredThermalState {
   core::ThermalState state;
   double ambient_C = 25.0;
   double saved_unix_s = 0.0;  // CLOCK_REALTIME when it held
+  // The axis that wrote it (pmsm-thermald: can.interface and can.node): a daemon does not take
+  // another axis's state, e.g. from a configuration copied for a second axis whose
+  // thermal.state_file still names the first one's file. -1 and "": not recorded.
+  std::string can_interface;
+  int can_node = -1;
   std::string loss_errors_ignored;  // why a loss-error block was not used (empty: used or absent)
   std::string cooling_error_ignored;  // why the cooling error's pair was not used (empty: used or absent)
 };

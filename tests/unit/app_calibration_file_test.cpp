@@ -490,6 +490,51 @@ TEST_F(CalibrationFile, ThermalStateRoundTripAndBadFiles) {
   }
 }
 
+// The axis that wrote a thermal state goes with it (its bus and node), so that a daemon does not
+// take another axis's winding for its own; a file without it (from before) still reads, and a
+// damaged record refuses the file rather than pass for this axis's.
+TEST_F(CalibrationFile, AThermalStateKeepsTheAxisThatWroteIt) {
+  const fs::path path = dir_ / "axis1.thermal";
+  StoredThermalState s = sample_state();
+  write_thermal_state_file(path, s);
+  EXPECT_EQ(read_thermal_state_file(path).can_node, -1) << "none given, none stored";
+  s.can_interface = "can1";
+  s.can_node = 7;
+  write_thermal_state_file(path, s);
+  const StoredThermalState back = read_thermal_state_file(path);
+  EXPECT_EQ(back.can_interface, "can1");
+  EXPECT_EQ(back.can_node, 7);
+  EXPECT_DOUBLE_EQ(back.state.winding_C, 92.4);
+  // The writer refuses what the reader would.
+  for (const auto& [name, node] : {std::pair<std::string, int>{"can1", 16}, {"", 1}, {"a/b", 1}, {"can\"0", 1},
+                                   {"sixteen-chars-xx", 1}}) {
+    StoredThermalState bad = s;
+    bad.can_interface = name;
+    bad.can_node = node;
+    EXPECT_THROW(write_thermal_state_file(path, bad), CalibrationFileError) << name << " node " << node;
+  }
+  EXPECT_EQ(read_thermal_state_file(path).can_node, 7) << "the old file stays";
+  const std::string head = "format = 1\nwinding_C = 90.0\nhousing_C = 70.0\nwinding_std_C = 1.0\nambient_C = 25.0\n"
+                           "saved_unix_s = 1.0\n";
+  const std::pair<std::string, std::string> damaged[] = {
+      {"can_node = 1\n", "can_interface is missing"},
+      {"can_interface = \"can0\"\n", "can_node is missing"},
+      {"can_interface = \"can0\"\ncan_node = 16\n", ":8: can_node: 16 is out of range, expected in [0, 15]"},
+      {"can_interface = \"can0\"\ncan_node = 1.5\n", ":8: can_node: expected an integer"},
+      {"can_interface = 3\ncan_node = 1\n", ":7: can_interface: expected a string"},
+      {"can_interface = \"can 0\"\ncan_node = 1\n", ":7: can_interface: \"can 0\" is no interface name"},
+  };
+  for (const auto& [tail, want] : damaged) {
+    write_text(path, head + tail);
+    try {
+      (void)read_thermal_state_file(path);
+      ADD_FAILURE() << "accepted: " << tail;
+    } catch (const CalibrationFileError& e) {
+      EXPECT_NE(std::string(e.what()).find(want), std::string::npos) << e.what();
+    }
+  }
+}
+
 // The thermal state's writer keeps to the reader's ranges: a winding of 450 C (a filter gone
 // wrong) stored would refuse the next start its warm restart. The old file stays.
 TEST_F(CalibrationFile, WhatTheThermalStateWriterStoresTheReaderAccepts) {

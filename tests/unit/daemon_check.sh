@@ -145,6 +145,13 @@ check_warns "[controller.thermal]\nstate_file = \"$dir/state-nan.toml\"\n" \
   "thermal state not usable: $dir/state-nan.toml:3: winding_C: nan is out of range" "; thermal state not usable)"
 printf '# pmsm-thermal thermal state\nformat = 1\nwinding_C = 71.5\nhousing_C = 60.0\nwinding_std_C = 2.0\nambient_C = 25.0\nsaved_unix_s = %s\n' "$now" > "$dir/state-ok.toml"
 check_warns "[controller.thermal]\nstate_file = \"$dir/state-ok.toml\"\n" "; thermal state usable (winding 71.5 C, saved "
+# One another axis wrote (a configuration copied for a second axis, its state file left as the
+# first one's) is not this axis's winding; the axis that wrote it, when it is this one, is.
+{ cat "$dir/state-ok.toml"; printf 'can_interface = "vcan0"\ncan_node = 2\n'; } > "$dir/state-node2.toml"
+check_warns "[controller.thermal]\nstate_file = \"$dir/state-node2.toml\"\n" \
+  "thermal state not usable: $dir/state-node2.toml was written by the axis on vcan0 node 2, and this daemon is node 0 on vcan0 (does another axis's configuration name the same controller.thermal.state_file?)" \
+  "; thermal state not usable)"
+check_warns "[can]\nnode = 2\n[controller.thermal]\nstate_file = \"$dir/state-node2.toml\"\n" "; thermal state usable (winding 71.5 C, saved "
 # A drive whose current limit the bus's DRIVE_STATUS cannot carry (0..400 A): warned, naming both.
 check_warns '[controller.derating]\nmax_current_A = 600\n[controller.sensors]\ncurrent_range_A = 1000\n[supervisor]\novercurrent_A = 800\n' \
   "controller.derating.max_current_A (600 A) lies beyond DRIVE_STATUS CurrentLimit's range (up to 400 A): while the limit is above it, the frame reads 400 A"
