@@ -66,7 +66,7 @@ DriveLoop::DriveLoop(const DaemonConfig& config, hal::CanBus& bus, PublicationRi
                               !config.controller.drive.calibration.calibrated) {}
 
 void DriveLoop::send_answer(const hal::CanFrame& frame, std::int64_t arrival_ns) noexcept {
-  // after_ns_ is the clock as the sample was read (run()): the step's own few microseconds
+  // after_ns_ is the moment the sample was in hand (run()): the step's own few microseconds
   // since are not read again (under User-Mode Linux a clock reading is a system call).
   const std::int64_t left_ns = arrival_ns + period_ns_ - after_ns_;
   switch (bus_.send(frame, nanoseconds{left_ns > 0 ? left_ns : 0})) {
@@ -121,6 +121,7 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns, 
     send_answer(frame_, received_ns);
     counters_.commands_sent.bump();
     after_ns_ = hal::monotonic_ns();
+    after_read_ = true;
     record_timing(after_ns_ - received_ns);
   } else {
     // No sample to answer: the drive's last answer no longer holds (a repeat of that sample
@@ -459,27 +460,35 @@ std::int64_t DriveLoop::arrival_ns(std::int64_t read_ns) noexcept {
 
 void DriveLoop::run(const std::atomic<bool>& stop) {
   read_realtime_offset(hal::monotonic_ns());
-  // In the steady state the clock is read twice a period: when the sample arrives and after the
-  // command is sent (the step's latency). The wait for the next sample starts from the second
-  // reading; only a wake-up without a sample reads the clock again. (Under User-Mode Linux a
-  // clock reading is a system call, as costly as a frame's.)
+  // In the steady state the clock is read once a period: after the command is sent (the step's
+  // latency). The wait for the next sample starts from that reading, and the moment the sample
+  // is in hand is that reading plus the wait as the kernel accounted it (SocketCanBus: ppoll's
+  // time left), where the backend tells it; else, and after a frame that sent no command, the
+  // clock is read again. A wake-up without a sample reads the clock too. (Under User-Mode Linux
+  // a clock reading is a system call, as costly as a frame's; on a controller with a vDSO it is
+  // tens of nanoseconds, and the kernel's account of the wait is as good as a reading.)
   std::int64_t now = hal::monotonic_ns();
+  bool now_read = true;  // `now` was read from the clock, with no wait since
   std::int64_t deadline = now + sample_timeout_ns_;
   while (!stop.load(std::memory_order_relaxed)) {
     if (now >= deadline) {
       // No sample within the timeout: a missing period for the supervisor.
       counters_.missing_samples.bump();
       after_ns_ = now;
+      after_read_ = false;
       sample_missed_ = true;
       step(nullptr, now, missing_periods_);
       deadline = now + sample_timeout_ns_;
       now = after_ns_;
+      now_read = now_read || after_read_;
       continue;
     }
     switch (bus_.receive(received_, nanoseconds{deadline - now})) {
       case hal::ReceiveStatus::kFrame: {
-        const std::int64_t at = hal::monotonic_ns();
+        const std::int64_t at =
+            now_read && received_.waited_ns >= 0 ? now + received_.waited_ns : hal::monotonic_ns();
         now = at;
+        now_read = false;
         if (received_.frame.error) {
           // The backend keeps the controller's state from these (kErrorClasses); the next
           // step reports it (no samples come during a bus-off: a missing period).
@@ -487,8 +496,10 @@ void DriveLoop::run(const std::atomic<bool>& stop) {
         }
         const std::uint64_t samples_before = counters_.samples.get();
         after_ns_ = at;
+        after_read_ = false;
         on_frame(received_.frame, arrival_ns(at));
         now = after_ns_;
+        now_read = after_read_;
         if (counters_.samples.get() != samples_before) {
           deadline = at + sample_timeout_ns_;
         }
@@ -496,21 +507,25 @@ void DriveLoop::run(const std::atomic<bool>& stop) {
       }
       case hal::ReceiveStatus::kTimeout:
         now = hal::monotonic_ns();
+        now_read = true;
         break;
       case hal::ReceiveStatus::kInterfaceDown:
         recover_interface(stop);
         now = hal::monotonic_ns();
+        now_read = true;
         deadline = now + sample_timeout_ns_;
         break;
       case hal::ReceiveStatus::kError:
         counters_.rx_errors.bump();
         now = hal::monotonic_ns();
+        now_read = true;
         break;
     }
     if (counters_.interface_down.load(std::memory_order_relaxed) && !stop.load(std::memory_order_relaxed)) {
       // A send found the interface gone.
       recover_interface(stop);
       now = hal::monotonic_ns();
+      now_read = true;
       deadline = now + sample_timeout_ns_;
     }
   }

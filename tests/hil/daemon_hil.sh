@@ -107,6 +107,18 @@ if ! "$tool" monitor --log "$work/heatup.log" --node $node --every 1 --check-rms
   die "the estimates on the bus are not within the bounds (daemon log: $(grep -c . "$work/daemon.log") lines)"
 fi
 tail -4 "$work/heatup-monitor.txt"
+# The loop's timing as the daemon published it (LOOP_TIMING, each heartbeat's window): the median
+# latency from a sample's arrival to its command is the loop's own work (a read, a step, a send:
+# at least a microsecond, well under a millisecond), neither 0 nor a wait misdated as work. The
+# arrival is the clock read after the last command plus the wait the kernel accounted.
+"$build/tools/pmsm-dbc-gen" --node $node --dbc "$work/node$node.dbc" > /dev/null || die "pmsm-dbc-gen failed"
+"$tool" decode --dbc "$work/node$node.dbc" "$work/heatup.log" 2>/dev/null | grep -o "LOOP_TIMING(LatencyP50: [0-9]* us.*Periods: [0-9]*" \
+  > "$work/heatup-timing.txt" || true
+windows=$(awk '{ if ($NF > 0) n++ } END { print n + 0 }' "$work/heatup-timing.txt")
+[ "$windows" -ge 3 ] || die "fewer than 3 LOOP_TIMING windows with periods in the heat-up ($windows)"
+bad=$(awk '$NF > 0 && ($2 < 2 || $2 > 1024)' "$work/heatup-timing.txt" | head -3)
+[ -z "$bad" ] || die "LOOP_TIMING's median latency outside 2..1024 us: $bad"
+echo "$prog: LOOP_TIMING: $windows windows, median latency $(awk '$NF > 0 { print $2 }' "$work/heatup-timing.txt" | sort -n | uniq -c | awk '{ printf "%s%s us x%s", s, $2, $1; s = ", " }')"
 # The supervisor tool reports what the daemon said of its calibration request (THERMAL_ESTIMATE).
 grep -q "node $node: calibration running" "$work/command.log" && grep -q "node $node: calibration ended: DONE" "$work/command.log" ||
   die "pmsm-thermal command did not report the calibration's run and outcome: $(tail -3 "$work/command.log")"
@@ -128,7 +140,6 @@ grep -q "SENSOR_TIMEOUT" "$work/outage.txt" ||
 echo "$prog: plant gone: the daemon published SENSOR_TIMEOUT"
 mark=$(wc -l < "$work/candump.log")
 plant_run "$hil_plant" 1 plant-2.log || die "the second pmsm-plant failed: $(tail -3 "$work/plant-2.log")"
-"$build/tools/pmsm-dbc-gen" --node $node --dbc "$work/node$node.dbc" > /dev/null || die "pmsm-dbc-gen failed"
 tail -n +"$mark" "$work/candump.log" | "$tool" monitor --log - --node $node > "$work/recovery.txt" || true
 tail -n +"$mark" "$work/candump.log" | "$tool" decode --dbc "$work/node$node.dbc" - > "$work/recovery-decoded.txt" 2>/dev/null || true
 grep -q "fault SENSOR_TIMEOUT cleared" "$work/recovery.txt" || die "SENSOR_TIMEOUT did not clear when a plant came back"

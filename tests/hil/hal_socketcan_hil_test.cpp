@@ -14,6 +14,7 @@
 #include <thread>
 #include <vector>
 
+#include "pmsm/hal/rt.hpp"       // monotonic_ns
 #include "pmsm/hal/sim_bus.hpp"  // make_error_frame
 #include "pmsm/hal/socketcan.hpp"
 
@@ -152,8 +153,10 @@ TEST(SocketCanHil, EveryWaitOrderAndTheBackstopReadDeliverEveryFrameInOrder) {
     ASSERT_EQ(tx->send(frame(k, 8)), SendResult::kOk);
   }
   expect_next(rx->receive(r, 1s));
+  EXPECT_EQ(r.waited_ns, 0) << "a frame already queued is read without a wait";
   expect_next(rx->receive(r, 1s));
   expect_next(rx->receive_backstop(r, 1s));
+  EXPECT_EQ(r.waited_ns, -1) << "the backstop's wait is not told";
   expect_next(rx->receive(r, 1s));
   // Empty: each form times out, and not before its timeout.
   for (const bool backstop : {false, true}) {
@@ -161,15 +164,25 @@ TEST(SocketCanHil, EveryWaitOrderAndTheBackstopReadDeliverEveryFrameInOrder) {
     EXPECT_EQ(backstop ? rx->receive_backstop(r, 30ms) : rx->receive(r, 30ms), ReceiveStatus::kTimeout);
     EXPECT_GE(std::chrono::steady_clock::now() - t0, 30ms) << (backstop ? "backstop" : "receive");
   }
-  // A frame that arrives during the wait (the lockstep case), for both forms.
+  // A frame that arrives during the wait (the lockstep case), for both forms. receive() tells
+  // how long it waited, by the kernel's account (ppoll's time left, on a 64-bit target): more
+  // than nothing, and within the call as the clock saw it from outside.
   for (const bool backstop : {false, true, false}) {
     const std::uint32_t k = next;
     std::thread sender([&tx, k] {
       std::this_thread::sleep_for(20ms);
       (void)tx->send(frame(k, 8));
     });
+    const std::int64_t before = monotonic_ns();
     expect_next(backstop ? rx->receive_backstop(r, 2s) : rx->receive(r, 2s));
+    const std::int64_t after = monotonic_ns();
     sender.join();
+    if (backstop || sizeof(long) != 8) {
+      EXPECT_EQ(r.waited_ns, -1);
+    } else {
+      EXPECT_GT(r.waited_ns, 0) << "the frame came 20 ms into the wait";
+      EXPECT_LE(r.waited_ns, after - before);
+    }
   }
   // After a wait, a queued frame is still read at once.
   ASSERT_EQ(tx->send(frame(next, 8)), SendResult::kOk);

@@ -9,7 +9,9 @@
 #include <poll.h>
 #include <sys/ioctl.h>
 #include <sys/socket.h>
+#include <sys/syscall.h>
 #include <time.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <cerrno>
@@ -61,6 +63,24 @@ std::int64_t to_ns(const timespec& ts) {
 
 void bump(std::atomic<std::uint64_t>& counter, std::uint64_t by = 1) noexcept {
   counter.fetch_add(by, std::memory_order_relaxed);
+}
+
+// ppoll() for one descriptor, as the kernel gives it: a finite wait leaves in `*ts` the time
+// that was left of it (fs/select.c, poll_select_finish: the wait's end, set at entry from the
+// monotonic clock, minus the clock at return), which glibc's wrapper hides by passing a copy.
+// The time waited is then the timeout less what is left, to the nanosecond and without a clock
+// reading of ours. Only where the kernel's timespec is the C library's (64-bit targets); else
+// the wrapper, and the time left is not known (`*left_known` false). A zero timeout is never
+// written back (nothing is left to tell).
+int poll_one(pollfd& p, timespec* ts, bool& left_known) noexcept {
+#if defined(SYS_ppoll) && defined(__LP64__)
+  static_assert(sizeof(timespec) == 16, "the kernel's __kernel_timespec on a 64-bit target");
+  left_known = ts != nullptr && (ts->tv_sec != 0 || ts->tv_nsec != 0);
+  return static_cast<int>(::syscall(SYS_ppoll, &p, 1UL, ts, nullptr, 0UL));
+#else
+  left_known = false;
+  return ::ppoll(&p, 1, ts, nullptr);
+#endif
 }
 
 }  // namespace
@@ -430,6 +450,7 @@ SendResult SocketCanBus::do_send(const CanFrame& frame, std::chrono::nanoseconds
 }
 
 ReceiveStatus SocketCanBus::do_receive(ReceivedFrame& out, std::chrono::nanoseconds timeout) noexcept {
+  out.waited_ns = -1;
   if (!fd_.valid()) {
     bump(counters_.interface_down_events);
     return ReceiveStatus::kInterfaceDown;
@@ -441,25 +462,29 @@ ReceiveStatus SocketCanBus::do_receive(ReceivedFrame& out, std::chrono::nanoseco
     const ReceiveStatus status = read_one(out);
     if (status != ReceiveStatus::kTimeout || timeout.count() == 0) {
       last_receive_waited_ = false;
+      out.waited_ns = 0;
       return status;
     }
   }
   last_receive_waited_ = true;
   // The first wait takes the timeout as given; the clock is read only if a wait ends without a
-  // frame before the timeout (a signal, or a frame another reader took), to wait the rest.
+  // frame before the timeout (a signal, or a frame another reader took), to wait the rest. The
+  // time waited is told (out.waited_ns) when the first wait ended with the frame.
   const bool forever = timeout.count() < 0;
   std::int64_t deadline_ns = 0;
   std::int64_t left_ns = timeout.count();
-  for (;;) {
-    const timespec ts{left_ns / 1'000'000'000, left_ns % 1'000'000'000};
+  for (bool first = true;; first = false) {
+    timespec ts{left_ns / 1'000'000'000, left_ns % 1'000'000'000};
     pollfd p{fd_.get(), POLLIN, 0};
-    const int n = ::ppoll(&p, 1, forever ? nullptr : &ts, nullptr);
+    bool left_known = false;
+    const int n = poll_one(p, forever ? nullptr : &ts, left_known);
     if (n == 0) {
       return ReceiveStatus::kTimeout;
     }
     if (n > 0) {
       const ReceiveStatus status = read_one(out);
       if (status != ReceiveStatus::kTimeout) {
+        out.waited_ns = first && left_known ? std::clamp<std::int64_t>(left_ns - to_ns(ts), 0, left_ns) : -1;
         return status;
       }
     } else if (errno != EINTR) {
@@ -500,6 +525,7 @@ ReceiveStatus SocketCanBus::do_receive_backstop(ReceivedFrame& out, std::chrono:
     receive_timeout_ns_ = timeout.count();
   }
   last_receive_waited_ = true;
+  out.waited_ns = -1;  // SO_RCVTIMEO's wait is not told back
   return read_one(out, true);  // EAGAIN (the timeout) and EINTR (a signal) both read as a timeout
 }
 

@@ -92,6 +92,13 @@ struct ReceivedFrame {
   // hardware one (on the controller's own clock): what the host's clocks can be compared with.
   // 0 when the backend delivered none.
   std::int64_t software_timestamp_ns = 0;
+  // How long the receive() call waited for this frame, by the kernel's own account of the
+  // wait (SocketCanBus: ppoll's time left): 0 when the frame was queued already, -1 when the
+  // backend cannot tell (a wait a signal interrupted, a wait without a timeout, SimBus, a
+  // 32-bit target). A caller that read its clock just before the call knows, without reading
+  // it again, when the frame was in hand: its reading plus this. (Under User-Mode Linux, as
+  // on any target without a vDSO, every clock reading is a system call.)
+  std::int64_t waited_ns = -1;
 };
 
 // Monotonic counts since the endpoint was created (reopen() keeps them).
