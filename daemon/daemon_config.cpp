@@ -1,6 +1,7 @@
 #include "daemon_config.hpp"
 
 #include <net/if.h>
+#include <net/if_arp.h>
 
 #include <algorithm>
 #include <cmath>
@@ -16,6 +17,25 @@
 
 namespace pmsm::daemon {
 namespace {
+
+// What this machine says of a configured interface's name, for the bus-load refusal: nothing
+// for a CAN interface (or one whose type cannot be read), else that it has none by that name or
+// that the one it has is not CAN (its type from /sys/class/net/NAME/type, ARPHRD_*).
+std::string interface_on_this_machine(const std::string& name) {
+  if (::if_nametoindex(name.c_str()) == 0) {
+    return fmt::format("; this machine has no interface '{}' either (a name mistyped?)", name);
+  }
+  if (name.find('/') != std::string::npos) {
+    return {};
+  }
+  std::ifstream type_file("/sys/class/net/" + name + "/type");
+  int type = -1;
+  if (!(type_file >> type) || type == ARPHRD_CAN) {
+    return {};
+  }
+  return fmt::format("; and '{}' on this machine is not a CAN interface at all (its link type is {}, CAN's {})", name,
+                     type, ARPHRD_CAN);
+}
 
 using app::ConfigError;
 using app::ConfigSchema;
@@ -317,10 +337,9 @@ DaemonConfig parse_daemon_config(const std::string& text, const std::filesystem:
         source.string(), 100.0 * load.fast_loop_fraction, load.fast_loop_frame_us, load.period_us,
         100.0 * load.publications_fraction, 100.0 * load.total_fraction, c.can.nominal_bitrate_bit_s,
         c.can.data_bitrate_bit_s, 100.0 * c.can.max_bus_load, c.can.interface) +
-        // A name mistyped reads as a physical bus too: say that this machine has no such interface.
-        (::if_nametoindex(c.can.interface.c_str()) == 0
-             ? fmt::format("; this machine has no interface '{}' either (a name mistyped?)", c.can.interface)
-             : std::string{}));
+        // A name mistyped reads as a physical bus too: say that this machine has no such
+        // interface, or that the one it has is no CAN interface (e.g. "lo").
+        interface_on_this_machine(c.can.interface));
   }
   return c;
 }

@@ -45,6 +45,7 @@
 #include "drive_loop.hpp"
 #include "fault_watch.hpp"
 #include "pmsm/hal/gpio.hpp"
+#include "pmsm/hal/journal.hpp"
 #include "pmsm/hal/protocol_filters.hpp"
 #include "pmsm/hal/record_drain.hpp"
 #include "pmsm/hal/rt.hpp"
@@ -64,21 +65,39 @@ using pmsm::daemon::DaemonConfig;
 
 constexpr int kExitIo = 1;
 constexpr int kExitConfig = 2;
+// systemd/pmsm-thermald@.service's LimitRTPRIO= (tests/unit/daemon_check.sh reads it there).
+constexpr int kUnitMaxRtPriority = 90;
 
 // An interface that does not exist (yet: a USB adapter, a .netdev that comes late) is worth
 // waiting for: exit 1, which the unit restarts. One that exists and still cannot be opened (not
 // a CAN interface, classic CAN only, no permission) is a configuration to fix: exit 2, which
 // the unit does not restart (a non-CAN interface restarted it every second for good).
+// A missing virtual bus is named with what makes one: on a fresh Debian 12 the package's
+// 80-vcan0.netdev waits for a systemd-networkd that is not enabled, and the unit restarted the
+// daemon every second saying only that vcan0 was missing.
 int bus_open_failure(const char* what, const std::string& interface, const pmsm::hal::Status& error) {
   const bool exists = ::if_nametoindex(interface.c_str()) != 0;
-  spdlog::error("{}: {}{}", what, error.message(), exists ? " (the interface exists: a configuration to fix, not retried)" : "");
+  std::string hint;
+  if (exists) {
+    hint = " (the interface exists: a configuration to fix, not retried)";
+  } else if (pmsm::daemon::is_virtual_interface(interface) && error.error_number() != EAFNOSUPPORT) {
+    // (Not on a kernel without CAN, where the message says what to load.)
+    hint = fmt::format(
+        " (retried; a virtual bus is made {}by hand: ip link add {} type vcan && ip link set {} up)",
+        interface == "vcan0" ? "by the package's 80-vcan0.netdev once systemd-networkd runs (Debian does not enable "
+                               "it: systemctl enable --now systemd-networkd), or "
+                             : "",
+        interface, interface);
+  }
+  spdlog::error("{}: {}{}", what, error.message(), hint);
   return exists ? kExitConfig : kExitIo;
 }
 
 void setup_logging(const std::string& level) {
-  // Under systemd (INVOCATION_ID, or stderr connected to the journal) log to the journal
-  // with priorities; elsewhere to stderr.
-  const bool journal = std::getenv("INVOCATION_ID") != nullptr || std::getenv("JOURNAL_STREAM") != nullptr;
+  // Where stderr is the journal's stream (a unit's default) log to the journal with priorities;
+  // elsewhere to stderr, also from under systemd: a `--check` run from a service's shell wrote
+  // its refusal to the journal and printed nothing (hal::stderr_is_journal).
+  const bool journal = pmsm::hal::stderr_is_journal();
   std::shared_ptr<spdlog::logger> logger;
   if (journal) {
     logger = std::make_shared<spdlog::logger>("pmsm-thermald", std::make_shared<spdlog::sinks::systemd_sink_mt>("pmsm-thermald"));
@@ -264,6 +283,15 @@ int run(const Options& o) {
   }
   for (const std::string& w : pmsm::daemon::bus_range_warnings(config)) {
     spdlog::warn("{}", w);
+  }
+  // The shipped unit lets the control thread have SCHED_FIFO 1..90 (LimitRTPRIO=90): above,
+  // the start is refused the priority and the drive runs with normal scheduling, the unit
+  // active and only the journal's warning saying so.
+  if (config.rt.priority > kUnitMaxRtPriority) {
+    spdlog::warn("rt.priority = {} is above pmsm-thermald@.service's LimitRTPRIO={}: under that unit the control thread "
+                 "would get no real-time priority and run with normal scheduling (use 1..{}, or raise LimitRTPRIO in a "
+                 "drop-in: systemctl edit pmsm-thermald@INSTANCE)",
+                 config.rt.priority, kUnitMaxRtPriority, kUnitMaxRtPriority);
   }
   {
     // A stored calibration without the bridge's voltage: the estimates rest on the configured

@@ -459,7 +459,9 @@ ConfigSchema<C> build() {
            "calibration run completes (relative to this file; empty: none).");
   s.string("thermal.state_file", [](C& c) -> std::string& { return c.thermal_state_file; },
            "Where the daemon keeps the thermal filter's state across a restart (written every 10 s and at stop, restored "
-           "cooled through the downtime; relative to this file; empty: none, the filter starts from the ambient sensor).");
+           "cooled through the downtime; relative to this file; empty: none, the filter starts from the ambient sensor). "
+           "One file per axis: it records the axis that wrote it (can.interface, can.node), and a daemon of another "
+           "axis does not take it.");
   s.integer("calibration.events", [](C& c) -> int& { return c.drive.calibration_events; }, between(1, 100),
             "Injection events averaged by a calibration run.");
   s.real("calibration.timeout_s", [](C& c) -> double& { return c.drive.calibration_timeout_s; }, between(1, 3600), "s",

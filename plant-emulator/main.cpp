@@ -330,7 +330,7 @@ int main(int argc, char** argv) {
   CLI::App app{"pmsm-plant: the PMSM, inverter, thermal network and sensors on a CAN bus (lockstep or real time)"};
   Options o;
   app.set_version_flag("--version", std::string("pmsm-plant ") + PMSM_VERSION);
-  app.add_option("--config", o.config_path, "plant configuration (TOML), e.g. plant-emulator/profiles/reference.toml")
+  app.add_option("--config", o.config_path, "plant configuration (TOML), e.g. /usr/share/pmsm-thermal/plant-profiles/reference.toml (installed) or plant-emulator/profiles/reference.toml (the source tree)")
       ->required()
       ->check(pmsm::cli::file_name());
   app.add_option("--iface", o.iface, "CAN interface (CAN FD, MTU 72)")
@@ -353,8 +353,8 @@ int main(int argc, char** argv) {
       ->check(pmsm::cli::number_in_range(0.1, 60000.0))->capture_default_str();
   app.add_option("--rt-priority", o.rt_priority, "realtime: SCHED_FIFO priority 1..99 for the plant thread (0: leave)")
       ->check(pmsm::cli::integer_in_range(0, 99))->capture_default_str();
-  app.add_option("--log-level", o.log_level, "trace, debug, info, warn, error")
-      ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error"}))->capture_default_str();
+  app.add_option("--log-level", o.log_level, "trace, debug, info, warning (or warn), error: as pmsm-thermald takes them")
+      ->check(CLI::IsMember({"trace", "debug", "info", "warning", "warn", "error"}))->capture_default_str();
   app.add_flag("--check", o.check, "validate the configuration and exit (0: valid)");
   app.add_flag("--accelerated-calibration", o.accelerated_calibration,
                "with thermal.acceleration other than 1, keep it while the node calibrates (default: real thermal "

@@ -9,6 +9,8 @@
 #include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
 
+#include "pmsm/hal/journal.hpp"
+
 namespace pmsm::plant {
 namespace {
 
@@ -51,8 +53,7 @@ std::shared_ptr<spdlog::logger> make_process_logger(const std::string& name, con
   // color_mode::automatic colours only when stderr is a terminal that supports it.
   auto sink = std::make_shared<spdlog::sinks::stderr_color_sink_mt>(spdlog::color_mode::automatic);
   auto formatter = std::make_unique<spdlog::pattern_formatter>();
-  const char* journal = std::getenv("JOURNAL_STREAM");
-  if (journal != nullptr && *journal != '\0' && ::isatty(STDERR_FILENO) == 0) {
+  if (hal::stderr_is_journal()) {
     formatter->add_flag<JournalPriorityFlag>('J').set_pattern("%J%v");
   } else if (::isatty(STDERR_FILENO) != 0) {
     formatter->set_pattern("[%H:%M:%S.%e] [%^%l%$] %v");

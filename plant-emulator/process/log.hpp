@@ -1,5 +1,5 @@
 // Logging for the pmsm-plant process: spdlog to stderr, as journald expects it from a
-// service (DESIGN §7): colours only on a terminal; under systemd (JOURNAL_STREAM set) no
+// service (DESIGN §7): colours only on a terminal; where stderr is the journal's stream (hal::stderr_is_journal) no
 // timestamps of our own (the journal stamps every line) and the sd-daemon "<N>" priority
 // prefix, so `journalctl -p warning` filters by level.
 #pragma once

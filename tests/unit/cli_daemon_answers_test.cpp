@@ -81,6 +81,21 @@ std::string text_of(std::FILE* f) {
   return s;
 }
 
+// A restarted daemon's result reads NONE (no calibration since its start): said as a restart,
+// not as a calibration that ended NONE, and no refusal.
+TEST(DaemonAnswers, AResultBackToNoneIsARestartNotARefusal) {
+  Quiet q;
+  DaemonAnswers a(kNode, true, q.out);
+  a.read(estimate(false, protocol::CalibrationResult::kNone));
+  a.read(estimate(true, protocol::CalibrationResult::kNone));
+  a.read(estimate(false, protocol::CalibrationResult::kDone));
+  a.read(estimate(false, protocol::CalibrationResult::kNone));
+  EXPECT_FALSE(a.finish());
+  const std::string text = text_of(q.out);
+  EXPECT_NE(text.find("calibration result NONE again: the daemon started again"), std::string::npos) << text;
+  EXPECT_EQ(text.find("calibration NONE\n"), std::string::npos) << text;
+}
+
 // A calibration a fault suspends is said to be suspended, once, not only "running".
 TEST(DaemonAnswers, ACalibrationAFaultSuspendsIsSaidToBeSuspended) {
   Quiet q;

@@ -37,6 +37,17 @@ check_bad '[can]\ninterfaec = "vcan0"\n' 1 'can.interfaec'
 check_bad '[can]\ninterface = "pmsmnosuch7"\n' 1 "can.interface 'pmsmnosuch7' is taken for a physical CAN bus with these bit rates"
 check_bad '[can]\ninterface = "pmsmnosuch7"\n' 1 "this machine has no interface 'pmsmnosuch7' either (a name mistyped?)"
 check_bad '[rt]\npriority = "high"\n' 1 'rt.priority'
+# An interface this machine has that is no CAN interface is named as such beside the load's refusal.
+check_bad '[can]\ninterface = "lo"\n' 1 "and 'lo' on this machine is not a CAN interface at all (its link type is 772, CAN's 280)"
+# Under systemd's environment but with stderr on a pipe (a --check run from a service's shell),
+# the refusal is printed where stderr goes, not sent to the journal: stderr is the journal's
+# stream only when JOURNAL_STREAM names its device and inode.
+printf '[can]\nnode = 16\n' > "$dir/bad.toml"
+out=$(INVOCATION_ID=0123456789abcdef JOURNAL_STREAM=8:12345 "$exe" --config "$dir/bad.toml" --check 2>&1)
+rc=$?
+if [ "$rc" -ne 1 ] || [[ "$out" != *"can.node: must be in [0, 15], got 16"* ]]; then
+  echo "FAIL: under a unit's environment with stderr on a pipe, --check said nothing (exit $rc): '$out'"; fail=1
+fi
 # An interface that exists and cannot be opened (not CAN; here, or without CAN in the kernel) is
 # a configuration to fix: exit 2, which the unit does not restart. One that does not exist (yet)
 # is waited for: exit 1, restarted.
@@ -45,6 +56,21 @@ rc=0
 out=$(timeout 20 "$exe" --config "$dir/lo.toml" 2>&1) || rc=$?
 if [ "$rc" -ne 2 ] || [[ "$out" != *"the interface exists: a configuration to fix, not retried"* ]]; then
   echo "FAIL: an existing non-CAN interface: exit $rc (expected 2): $out"; fail=1
+fi
+# A virtual bus that is not there is named with the commands that make one (where the kernel
+# has CAN: without, the message says what to load; daemon_hil runs this case in User-Mode Linux).
+sed 's/"lo"/"vcan7"/' "$dir/lo.toml" > "$dir/vcan7.toml"
+if ! ip link show vcan7 >/dev/null 2>&1; then
+  rc=0
+  out=$(timeout 20 "$exe" --config "$dir/vcan7.toml" 2>&1) || rc=$?
+  if [[ "$out" == *"this kernel has no CAN support"* ]]; then
+    want="load the can and can-raw modules"
+  else
+    want="(retried; a virtual bus is made by hand: ip link add vcan7 type vcan && ip link set vcan7 up)"
+  fi
+  if [ "$rc" -ne 1 ] || [[ "$out" != *"$want"* ]]; then
+    echo "FAIL: a missing virtual bus: exit $rc (expected 1, and '$want'): $out"; fail=1
+  fi
 fi
 sed 's/"lo"/"pmsmnosuch9"/' "$dir/lo.toml" > "$dir/nosuch.toml"
 rc=0
@@ -137,6 +163,12 @@ check_warns() {
 check_warns "[controller.calibration]\nfile = \"$dir/no-such-dir/cal.toml\"\n[controller.thermal]\nstate_file = \"$dir\"\n" \
   "controller.calibration.file = $dir/no-such-dir/cal.toml: its directory $dir/no-such-dir does not exist: nothing this run learns can be stored there" \
   "controller.thermal.state_file = $dir: it is a directory"
+# A real-time priority the shipped unit cannot grant (its LimitRTPRIO=): warned, naming the limit.
+limit=$(sed -n 's/^LimitRTPRIO=//p' "$src/systemd/pmsm-thermald@.service")
+check_warns "[rt]\npriority = $((limit + 1))\n" "rt.priority = $((limit + 1)) is above pmsm-thermald@.service's LimitRTPRIO=$limit"
+printf '[rt]\npriority = %s\n' "$limit" > "$dir/rt-limit.toml"
+out=$("$exe" --config "$dir/rt-limit.toml" --check 2>&1)
+[[ "$out" != *"LimitRTPRIO"* ]] || { echo "FAIL: rt.priority = $limit, the unit's limit, warned: $out"; fail=1; }
 # A thermal state file the start would not use (a NaN): --check says so, as the start does,
 # and passes (the daemon starts from the ambient sensor without it); a usable one is named.
 now=$(date +%s)

@@ -39,6 +39,13 @@ class DaemonAnswers {
         std::fprintf(out_, "pmsm-thermal command: node %d: calibration ended: %s\n", node_,
                      label(protocol::kCalibrationResultLabels, t->calibration_result));
         refused_ = refused_ || (calibration_asked_ && t->calibration_result != protocol::CalibrationResult::kDone);
+      } else if (heard_estimate_ && t->calibration_result != result_ && !t->calibrating &&
+                 t->calibration_result == protocol::CalibrationResult::kNone) {
+        // NONE is "no calibration since this start": the daemon started again. Its result was
+        // its run's, and what it stored stays in use; no refusal (it read as one: "calibration
+        // NONE", exit 3, after a restart of a daemon whose calibration had ended DONE).
+        std::fprintf(out_, "pmsm-thermal command: node %d: calibration result NONE again: the daemon started again (a "
+                     "result is kept for the daemon's run; a stored calibration stays in use)\n", node_);
       } else if (heard_estimate_ && t->calibration_result != result_ && !t->calibrating) {
         calibration_seen_ = true;  // refused at once: it never ran
         std::fprintf(out_, "pmsm-thermal command: node %d: calibration %s\n", node_,
