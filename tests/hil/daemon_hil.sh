@@ -81,6 +81,14 @@ plant_start() {
 }
 hil_plant=$src/tests/hil/data/hil-plant.toml
 
+# A virtual bus that is not there (a daemon configured for vcan7): exit 1, retried by the unit,
+# the message naming the commands that make one.
+sed -e "s/^interface = .*/interface = \"vcan7\"/" "$work/daemon.toml" > "$work/daemon-vcan7.toml"
+rc=0
+timeout 20 "$thermald" --config "$work/daemon-vcan7.toml" > "$work/daemon-vcan7.log" 2>&1 || rc=$?
+[ "$rc" -eq 1 ] && grep -q "no such CAN interface 'vcan7'.* (retried; a virtual bus is made by hand: ip link add vcan7 type vcan" \
+  "$work/daemon-vcan7.log" || die "a missing vcan7: exit $rc, expected 1 and how to make one: $(grep error "$work/daemon-vcan7.log")"
+
 # A large receive buffer: under User-Mode Linux on a loaded host candump can fall behind, and
 # a frame it drops would read as an alive-counter jump in the strict decode below.
 candump -L -r 16777216 "$iface" > "$work/candump.log" &

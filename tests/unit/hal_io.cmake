@@ -7,5 +7,6 @@ pmsm_add_gtest(hal_io_unit_tests LABEL unit
     ${CMAKE_CURRENT_LIST_DIR}/hal_gpio_test.cpp
     ${CMAKE_CURRENT_LIST_DIR}/hal_socketcan_test.cpp
     ${CMAKE_CURRENT_LIST_DIR}/hal_rt_test.cpp
+    ${CMAKE_CURRENT_LIST_DIR}/hal_journal_test.cpp
     ${CMAKE_CURRENT_LIST_DIR}/hal_loop_test.cpp
   LIBS pmsm::hal)
