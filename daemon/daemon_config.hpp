@@ -82,5 +82,11 @@ struct BusLoad {
 [[nodiscard]] BusLoad bus_load(const DaemonConfig& config);
 // vcan*: no bit timing, so the load budget is reported, not enforced.
 [[nodiscard]] bool is_virtual_interface(const std::string& interface);
+// The ARPHRD_* link type of an interface this machine has (/sys/class/net/NAME/type), -1 when
+// it has none by that name or the type cannot be read.
+[[nodiscard]] int interface_link_type(const std::string& name);
+// Why can.interface, present on this machine, is not a CAN interface (e.g. "lo"), or "": for
+// --check, which says what the start would (it refuses such an interface, exit 2).
+[[nodiscard]] std::string non_can_interface_problem(const std::string& name);
 
 }  // namespace pmsm::daemon

@@ -66,10 +66,11 @@ DriveLoop::DriveLoop(const DaemonConfig& config, hal::CanBus& bus, PublicationRi
                               !config.controller.drive.calibration.calibrated) {}
 
 void DriveLoop::send_answer(const hal::CanFrame& frame, std::int64_t arrival_ns) noexcept {
-  // after_ns_ is the moment the sample was in hand (run()): the step's own few microseconds
-  // since are not read again (under User-Mode Linux a clock reading is a system call).
-  const std::int64_t left_ns = arrival_ns + period_ns_ - after_ns_;
-  switch (bus_.send(frame, nanoseconds{left_ns > 0 ? left_ns : 0})) {
+  // It may wait for room until the sample's period ends, on the clock the backend reads only
+  // when the queue is full: not from the loop's last reading, which is the moment the sample
+  // was in hand at best (run(): under User-Mode Linux a clock reading is a system call), and
+  // let an answer wait past its period by the step's time and whatever preempted the thread.
+  switch (bus_.send_before(frame, arrival_ns + period_ns_)) {
     case hal::SendResult::kOk:
       return;
     case hal::SendResult::kNoBufferSpace:
@@ -134,6 +135,12 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns, 
     // Once a second of control periods (the wall clock may have been set or slewed).
     periods_since_offset_ = 0;
     read_realtime_offset(after_ns_);
+    if (after_read_) {
+      // Its readings take system calls (under User-Mode Linux a few hundred microseconds): the
+      // next wait starts from the clock after them, or a sample that came meanwhile would be
+      // dated before them (run()).
+      after_ns_ = hal::monotonic_ns();
+    }
   }
 
   const app::NodePublications& p = out.publications;
@@ -408,7 +415,8 @@ bool DriveLoop::read_realtime_offset(std::int64_t now_ns) noexcept {
 
 // A frame's arrival on the monotonic clock: the kernel's software receive timestamp where the
 // backend gives one (beside a hardware one, which is on the controller's own clock), else the
-// moment it was read. A loop that was late to read a sample (its thread preempted, a burst of
+// moment it was in hand (`read_ns`: run()'s clock reading, or its last one plus the wait the
+// backend accounted). A loop that was late to read a sample (its thread preempted, a burst of
 // frames before it) was late to answer it: the step's latency and the deadline count from the
 // arrival, and its answer may wait for room only until that period ends.
 //   A wait that reads as a sample timeout or longer is a stall that long or a wall clock set

@@ -210,8 +210,8 @@ class DriveLoop {
   std::optional<std::uint32_t> last_sequence_;
   bool sample_missed_ = false;  // a step without a sample since the last sample (its time is counted)
   hal::InverterCommand last_command_{};
-  std::int64_t after_ns_ = 0;  // the clock after the last command was sent (run() waits from it)
-  bool after_read_ = false;    // after_ns_ is a clock reading (a command was sent), not the frame's time
+  std::int64_t after_ns_ = 0;  // the clock after the last command was sent (run() waits from it), else the frame's moment
+  bool after_read_ = false;    // after_ns_ is a clock reading (a command was sent), not the frame's moment
   // CLOCK_REALTIME - CLOCK_MONOTONIC (hal::realtime_minus_monotonic_ns), read at the start, then
   // once a second of periods and when a frame's wait reads as a stall or a clock set
   // (arrival_ns()): how long a frame waited in the socket before the loop read it.

@@ -80,8 +80,9 @@ int bus_open_failure(const char* what, const std::string& interface, const pmsm:
   std::string hint;
   if (exists) {
     hint = " (the interface exists: a configuration to fix, not retried)";
-  } else if (pmsm::daemon::is_virtual_interface(interface) && error.error_number() != EAFNOSUPPORT) {
-    // (Not on a kernel without CAN, where the message says what to load.)
+  } else if (pmsm::daemon::is_virtual_interface(interface) && error.error_number() != EAFNOSUPPORT &&
+             error.error_number() != EPROTONOSUPPORT) {
+    // (Not on a kernel without CAN or can_raw, where the message says what to load.)
     hint = fmt::format(
         " (retried; a virtual bus is made {}by hand: ip link add {} type vcan && ip link set {} up)",
         interface == "vcan0" ? "by the package's 80-vcan0.netdev once systemd-networkd runs (Debian does not enable "
@@ -125,6 +126,11 @@ struct Options {
   std::string log_level = "info";
 };
 
+// The axis this daemon is, as its stored files record it.
+pmsm::app::StoredAxis this_axis(const DaemonConfig& config) {
+  return {config.can.interface, static_cast<int>(config.can.node)};
+}
+
 // The thermal state kept from before this start, if it can be used: a damaged, future or
 // week-old file is not, nor one another axis wrote (`why` says so; empty when there is no file
 // yet).
@@ -152,10 +158,8 @@ std::optional<pmsm::app::StoredThermalState> usable_thermal_state(const DaemonCo
     }
     // Another axis's winding is not this one's (two configurations naming one file: one copied
     // for a second axis). A file from before the axis was recorded is taken as this axis's.
-    if (s.can_node >= 0 && (s.can_node != static_cast<int>(config.can.node) || s.can_interface != config.can.interface)) {
-      why = fmt::format("{} was written by the axis on {} node {}, and this daemon is node {} on {} (does another axis's "
-                        "configuration name the same controller.thermal.state_file?)",
-                        path, s.can_interface, s.can_node, config.can.node, config.can.interface);
+    why = pmsm::app::other_axis_problem(path, s.axis, this_axis(config), "controller.thermal.state_file");
+    if (!why.empty()) {
       return std::nullopt;
     }
     return s;
@@ -248,7 +252,16 @@ int run(const Options& o) {
   // The stored calibration replaces the configured one before the drive starts.
   pmsm::app::StoredCalibration stored = pmsm::app::StoredCalibration::kNotConfigured;
   try {
-    stored = pmsm::app::load_stored_calibration(config.controller);
+    pmsm::app::StoredAxis written_by;
+    stored = pmsm::app::load_stored_calibration(config.controller, &written_by);
+    // Another axis's motor is not this one's: a configuration copied for a second axis, still
+    // naming the first one's file, would refer every temperature to the wrong Rs0.
+    if (const std::string other = pmsm::app::other_axis_problem(config.controller.calibration_file, written_by,
+                                                                this_axis(config), "controller.calibration.file");
+        !other.empty()) {
+      throw pmsm::app::CalibrationFileError(other + "; name this axis's own file (its first run calibrates with "
+                                                    "startup.calibrate_if_missing), or remove this one if the axis moved");
+    }
   } catch (const std::exception& e) {
     spdlog::error("calibration file refused: {}", e.what());
     return o.check ? 1 : kExitConfig;
@@ -286,8 +299,9 @@ int run(const Options& o) {
   }
   // The shipped unit lets the control thread have SCHED_FIFO 1..90 (LimitRTPRIO=90): above,
   // the start is refused the priority and the drive runs with normal scheduling, the unit
-  // active and only the journal's warning saying so.
-  if (config.rt.priority > kUnitMaxRtPriority) {
+  // active and only the journal's warning saying so. Said by --check; a start says whether the
+  // priority was granted (a drop-in may have raised the limit).
+  if (o.check && config.rt.priority > kUnitMaxRtPriority) {
     spdlog::warn("rt.priority = {} is above pmsm-thermald@.service's LimitRTPRIO={}: under that unit the control thread "
                  "would get no real-time priority and run with normal scheduling (use 1..{}, or raise LimitRTPRIO in a "
                  "drop-in: systemctl edit pmsm-thermald@INSTANCE)",
@@ -335,6 +349,12 @@ int run(const Options& o) {
     spdlog::warn("{}", w);
   }
   if (o.check) {
+    // An interface this machine has that is no CAN interface: the start refuses it (exit 2), so
+    // --check does too (before, "lo" at 1 kHz passed --check and the unit then failed).
+    if (const std::string not_can = pmsm::daemon::non_can_interface_problem(config.can.interface); !not_can.empty()) {
+      spdlog::error("{}: {}", o.config_path, not_can);
+      return 1;
+    }
     // The thermal state as the start would take it: a file it would not use is a warning (the
     // daemon starts without it, from the ambient sensor), not an invalid configuration.
     std::string thermal = "none configured";

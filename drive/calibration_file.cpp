@@ -23,7 +23,6 @@
 #include <set>
 #include <string_view>
 #include <sstream>
-#include <string_view>
 
 #include <fmt/format.h>
 #include <toml++/toml.h>
@@ -202,6 +201,69 @@ std::string stored_interface_problem(std::string_view name) {
   return {};
 }
 
+// The keys of the axis that writes a file: "" when none is recorded, and when the interface's
+// name is one the reader would refuse. Linux allows a quote, a backslash or bytes that are not
+// UTF-8 in an interface's name, which a TOML string cannot always carry: such an axis stores
+// its files unrecorded (any axis's, as before the record) rather than not at all.
+std::string axis_keys(const StoredAxis& axis) {
+  if (!axis.recorded() || axis.can_node > static_cast<int>(kMaxStoredNode) ||
+      !stored_interface_problem(axis.can_interface).empty()) {
+    return {};
+  }
+  return fmt::format("can_interface = \"{}\"\ncan_node = {}\n", axis.can_interface, axis.can_node);
+}
+
+// The axis recorded in the file at `path` if it is a readable file of the kind `read` reads
+// (not recorded otherwise: none there, damaged, unrecorded).
+template <typename Read>
+StoredAxis axis_of_existing(const std::filesystem::path& path, Read read) {
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(path, ec)) {
+    return {};
+  }
+  try {
+    return read(path);
+  } catch (const CalibrationFileError&) {
+    return {};  // damaged: written over, as before
+  }
+}
+
+// Refuses to write over a file another axis wrote (two configurations naming one file: the
+// first to write keeps it, and the other's writes fail with this, logged).
+void refuse_other_axis(const std::filesystem::path& path, const StoredAxis& there, const StoredAxis& mine,
+                       std::string_view what) {
+  if (there.recorded() && mine.recorded() && !(there == mine)) {
+    throw CalibrationFileError(fmt::format("{} is the {} of the axis on {} node {}, not this one's ({} node {}): not written "
+                                           "over (name a file of this axis's own)",
+                                           path.string(), what, there.can_interface, there.can_node, mine.can_interface,
+                                           mine.can_node));
+  }
+}
+
+StoredAxis read_axis(const toml::table& t, const std::string& file) {
+  const toml::node* interface_node = t.get("can_interface");
+  const bool node_present = t.get("can_node") != nullptr;
+  if ((interface_node != nullptr) != node_present) {
+    throw CalibrationFileError(fmt::format("{}: {} is missing (the axis that wrote the file comes as can_interface and "
+                                           "can_node, or not at all)",
+                                           file, node_present ? "can_interface" : "can_node"));
+  }
+  StoredAxis axis;
+  if (node_present) {
+    const auto line = interface_node->source().begin.line;
+    const std::optional<std::string> name = interface_node->value<std::string>();
+    if (!name) {
+      throw CalibrationFileError(fmt::format("{}:{}: can_interface: expected a string", file, line));
+    }
+    if (const std::string bad = stored_interface_problem(*name); !bad.empty()) {
+      throw CalibrationFileError(fmt::format("{}:{}: can_interface: {}", file, line, bad));
+    }
+    axis.can_interface = *name;
+    axis.can_node = static_cast<int>(integer(t, "can_node", file, 0, kMaxStoredNode));
+  }
+  return axis;
+}
+
 // Replaces `path` with `text`: temporary file in the same directory, fsync, rename, directory
 // fsync, so that a power cut leaves the old content or the new, never a torn file.
 // A writer killed between creating its temporary and the rename (SIGKILL, power loss) leaves
@@ -268,7 +330,8 @@ void write_atomically(const std::filesystem::path& path, const std::string& text
 
 }  // namespace
 
-void write_calibration_file(const std::filesystem::path& path, const core::Calibration& c, std::string_view source) {
+void write_calibration_file(const std::filesystem::path& path, const core::Calibration& c, std::string_view source,
+                            const StoredAxis& axis) {
   if (path.empty()) {
     throw CalibrationFileError("calibration file: no path given");
   }
@@ -320,9 +383,26 @@ void write_calibration_file(const std::filesystem::path& path, const core::Calib
     }
   }
   text << "written_utc = " << quoted(utc_now()) << "\n"
-       << "source = " << quoted(source) << "\n";
+       << "source = " << quoted(source) << "\n"
+       << axis_keys(axis);
+  refuse_other_axis(path, axis_of_existing(path, [](const std::filesystem::path& p) {
+                      StoredAxis a;
+                      (void)read_calibration_file(p, &a);
+                      return a;
+                    }),
+                    axis, "calibration");
 
   write_atomically(path, text.str());
+}
+
+std::string other_axis_problem(const std::string& file, const StoredAxis& stored, const StoredAxis& mine,
+                               std::string_view key) {
+  if (!stored.recorded() || !mine.recorded() || stored == mine) {
+    return {};
+  }
+  return fmt::format("{} was written by the axis on {} node {}, and this daemon is node {} on {} (does another axis's "
+                     "configuration name the same {}?)",
+                     file, stored.can_interface, stored.can_node, mine.can_node, mine.can_interface, key);
 }
 
 namespace {
@@ -358,11 +438,15 @@ toml::table read_stored(const std::filesystem::path& path, const std::set<std::s
 
 }  // namespace
 
-core::Calibration read_calibration_file(const std::filesystem::path& path) {
+core::Calibration read_calibration_file(const std::filesystem::path& path, StoredAxis* axis) {
   const std::string file = path.string();
   const toml::table t =
       read_stored(path, {"format", "rs0_ohm", "t0_C", "ke0_V_s_per_rad", "ke0_std_V_s_per_rad", "dead_time_band_A", "angle_correction_rad",
-                         "vx_V", "vx_std_V", "vx_bus_V", "written_utc", "source"});
+                         "vx_V", "vx_std_V", "vx_bus_V", "written_utc", "source", "can_interface", "can_node"});
+  const StoredAxis written_by = read_axis(t, file);
+  if (axis != nullptr) {
+    *axis = written_by;
+  }
   // The record of who wrote it and when: text, if given (a number there is a hand edit gone wrong).
   for (const char* key : {"written_utc", "source"}) {
     if (const toml::node* n = t.get(key); n != nullptr && !n->is_string()) {
@@ -522,16 +606,9 @@ void write_thermal_state_file(const std::filesystem::path& path, const StoredThe
     text << "cooling_scale_error = " << toml_float(s.cooling_scale_error) << "\n"
          << "cooling_scale_std = " << toml_float(s.cooling_scale_std) << "\n";
   }
-  if (stored.can_node >= 0) {
-    if (const std::string bad = stored_interface_problem(stored.can_interface); !bad.empty() ||
-        stored.can_node > static_cast<int>(kMaxStoredNode)) {
-      throw CalibrationFileError(fmt::format("{}: refusing to store the axis as interface \"{}\" node {}: {}", path.string(),
-                                             printable(stored.can_interface), stored.can_node,
-                                             bad.empty() ? fmt::format("a node is 0..{}", kMaxStoredNode) : bad));
-    }
-    text << "can_interface = \"" << stored.can_interface << "\"\n"
-         << "can_node = " << stored.can_node << "\n";
-  }
+  text << axis_keys(stored.axis);
+  refuse_other_axis(path, axis_of_existing(path, [](const std::filesystem::path& p) { return read_thermal_state_file(p).axis; }),
+                    stored.axis, "thermal state");
   write_atomically(path, text.str());
 }
 
@@ -606,26 +683,7 @@ StoredThermalState read_thermal_state_file(const std::filesystem::path& path) {
   }
   // The axis that wrote it: both keys or neither, and a bad one refuses the file (whose axis
   // it is cannot be told: it is not taken for this one's).
-  const toml::node* interface_node = t.get("can_interface");
-  const bool node_present = t.get("can_node") != nullptr;
-  if ((interface_node != nullptr) != node_present) {
-    throw CalibrationFileError(fmt::format("{}: {} is missing (the axis that wrote the file comes as can_interface and "
-                                           "can_node, or not at all)",
-                                           file, node_present ? "can_interface" : "can_node"));
-  }
-  if (node_present) {
-    const std::optional<std::string> name = interface_node->value<std::string>();
-    if (!name) {
-      throw CalibrationFileError(fmt::format("{}:{}: can_interface: expected a string", file,
-                                             interface_node->source().begin.line));
-    }
-    if (const std::string bad = stored_interface_problem(*name); !bad.empty()) {
-      throw CalibrationFileError(
-          fmt::format("{}:{}: can_interface: {}", file, interface_node->source().begin.line, bad));
-    }
-    s.can_interface = *name;
-    s.can_node = static_cast<int>(integer(t, "can_node", file, 0, kMaxStoredNode));
-  }
+  s.axis = read_axis(t, file);
   return s;
 }
 

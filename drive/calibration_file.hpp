@@ -12,6 +12,8 @@
 //   vx_std_V = 0.05                  Rs0 was learned with, and its standard error)
 //   written_utc = "2026-11-21T10:00:00Z"
 //   source = "reference-fm-bipolar.toml"
+//   can_interface = "can0"          (optional, with can_node: the axis that wrote it,
+//   can_node = 1                     StoredAxis)
 //
 // Written atomically: to a temporary file in the same directory, flushed to the device
 // (fsync), renamed over the old file, and the directory flushed, so that a power cut leaves
@@ -42,10 +44,25 @@ class CalibrationFileNotDurable : public CalibrationFileError {
 
 inline constexpr int kCalibrationFileFormat = 1;
 
+// The axis a stored file belongs to, as pmsm-thermald writes it (its can.interface and can.node:
+// keys can_interface and can_node, both or neither). A file is one axis's: a configuration
+// copied for a second axis that still names the first one's file must not take the first
+// motor's calibration or winding for its own. Not recorded (node -1): a file from before the
+// keys, or written by another program (simulate, a hand edit), taken as any axis's.
+struct StoredAxis {
+  std::string can_interface;
+  int can_node = -1;
+  [[nodiscard]] bool recorded() const noexcept { return can_node >= 0; }
+  [[nodiscard]] bool operator==(const StoredAxis&) const = default;
+};
+// Why a file of `stored`'s axis is not `mine`'s, or "" (the same axis, or not recorded).
+[[nodiscard]] std::string other_axis_problem(const std::string& file, const StoredAxis& stored, const StoredAxis& mine,
+                                             std::string_view key);
+
 // Replaces `path` atomically with the calibration. Throws CalibrationFileError naming the
 // path and the system's reason; the old file is then untouched and no temporary is left.
 void write_calibration_file(const std::filesystem::path& path, const core::Calibration& calibration,
-                            std::string_view source);
+                            std::string_view source, const StoredAxis& axis = {});
 
 // A calibration's Rs0 more than kRs0NameplateWarnFraction off what the configuration expects at
 // its T0 (motor.rs_ohm by Eq. 1 and the configured conductor, plus motor.cable_resistance_ohm's
@@ -57,7 +74,8 @@ inline constexpr double kRs0NameplateWarnFraction = 0.10;
 
 // Reads a calibration file (calibrated = true). Throws CalibrationFileError naming the file,
 // line and key when it cannot be read or is not a valid calibration.
-[[nodiscard]] core::Calibration read_calibration_file(const std::filesystem::path& path);
+// `axis`, if given, receives the axis that wrote it (not recorded: node -1).
+[[nodiscard]] core::Calibration read_calibration_file(const std::filesystem::path& path, StoredAxis* axis = nullptr);
 
 // The thermal filter's state kept across a restart (a motor power-cycled warm), in the same
 // atomic, strictly read TOML form:
@@ -84,11 +102,9 @@ struct StoredThermalState {
   core::ThermalState state;
   double ambient_C = 25.0;
   double saved_unix_s = 0.0;  // CLOCK_REALTIME when it held
-  // The axis that wrote it (pmsm-thermald: can.interface and can.node): a daemon does not take
-  // another axis's state, e.g. from a configuration copied for a second axis whose
-  // thermal.state_file still names the first one's file. -1 and "": not recorded.
-  std::string can_interface;
-  int can_node = -1;
+  // The axis that wrote it: a daemon does not take another axis's state, e.g. from a
+  // configuration copied for a second axis whose thermal.state_file still names the first one's.
+  StoredAxis axis;
   std::string loss_errors_ignored;  // why a loss-error block was not used (empty: used or absent)
   std::string cooling_error_ignored;  // why the cooling error's pair was not used (empty: used or absent)
 };

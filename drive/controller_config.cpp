@@ -1070,7 +1070,7 @@ std::string_view to_string(StoredCalibration s) {
   return "?";
 }
 
-StoredCalibration load_stored_calibration(ControllerConfig& config) {
+StoredCalibration load_stored_calibration(ControllerConfig& config, StoredAxis* written_by) {
   if (config.calibration_file.empty()) {
     return StoredCalibration::kNotConfigured;
   }
@@ -1078,7 +1078,7 @@ StoredCalibration load_stored_calibration(ControllerConfig& config) {
   if (!std::filesystem::exists(config.calibration_file, ec)) {
     return StoredCalibration::kMissing;
   }
-  const core::Calibration stored = read_calibration_file(config.calibration_file);
+  const core::Calibration stored = read_calibration_file(config.calibration_file, written_by);
   // The file's own ranges are wide (any motor); against this drive's plausibility window a
   // stored Rs0 is held to the rule a configured calibration.rs0_ohm is (check_cross_keys): a
   // calibration of another motor, or a hand edit, would otherwise set every temperature (Eq. 1

@@ -117,7 +117,9 @@ enum class StoredCalibration : std::uint8_t {
 // Loads calibration.file into config.drive.calibration when it exists. Throws
 // CalibrationFileError when it exists but is not a valid calibration (naming file, line and
 // key): a damaged calibration must be looked at, not silently replaced by the nameplate.
-StoredCalibration load_stored_calibration(ControllerConfig& config);
+// `written_by`, if given, receives the axis that wrote the file (calibration_file.hpp).
+struct StoredAxis;
+StoredCalibration load_stored_calibration(ControllerConfig& config, StoredAxis* written_by = nullptr);
 [[nodiscard]] std::string_view to_string(StoredCalibration s);
 
 // The schema of every controller key (docs/configuration.md is generated from it).

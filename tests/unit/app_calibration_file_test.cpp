@@ -497,23 +497,38 @@ TEST_F(CalibrationFile, AThermalStateKeepsTheAxisThatWroteIt) {
   const fs::path path = dir_ / "axis1.thermal";
   StoredThermalState s = sample_state();
   write_thermal_state_file(path, s);
-  EXPECT_EQ(read_thermal_state_file(path).can_node, -1) << "none given, none stored";
-  s.can_interface = "can1";
-  s.can_node = 7;
+  EXPECT_FALSE(read_thermal_state_file(path).axis.recorded()) << "none given, none stored";
+  s.axis = {"can1", 7};
   write_thermal_state_file(path, s);
   const StoredThermalState back = read_thermal_state_file(path);
-  EXPECT_EQ(back.can_interface, "can1");
-  EXPECT_EQ(back.can_node, 7);
+  EXPECT_EQ(back.axis.can_interface, "can1");
+  EXPECT_EQ(back.axis.can_node, 7);
   EXPECT_DOUBLE_EQ(back.state.winding_C, 92.4);
-  // The writer refuses what the reader would.
+  // Another axis does not write over it: the first to write keeps the file.
+  StoredThermalState neighbour = s;
+  neighbour.axis = {"can1", 8};
+  try {
+    write_thermal_state_file(path, neighbour);
+    ADD_FAILURE() << "node 8 wrote over node 7's state";
+  } catch (const CalibrationFileError& e) {
+    EXPECT_NE(std::string(e.what()).find("is the thermal state of the axis on can1 node 7, not this one's (can1 node 8): "
+                                         "not written over"),
+              std::string::npos)
+        << e.what();
+  }
+  EXPECT_EQ(read_thermal_state_file(path).axis.can_node, 7) << "the old file stays";
+  // A name the reader would refuse (Linux allows a quote or a backslash in one) is not recorded,
+  // and the state is stored all the same.
   for (const auto& [name, node] : {std::pair<std::string, int>{"can1", 16}, {"", 1}, {"a/b", 1}, {"can\"0", 1},
                                    {"sixteen-chars-xx", 1}}) {
-    StoredThermalState bad = s;
-    bad.can_interface = name;
-    bad.can_node = node;
-    EXPECT_THROW(write_thermal_state_file(path, bad), CalibrationFileError) << name << " node " << node;
+    fs::remove(path);
+    StoredThermalState odd = s;
+    odd.axis = {name, node};
+    write_thermal_state_file(path, odd);
+    const StoredThermalState read_back = read_thermal_state_file(path);
+    EXPECT_FALSE(read_back.axis.recorded()) << name << " node " << node;
+    EXPECT_DOUBLE_EQ(read_back.state.winding_C, 92.4) << name;
   }
-  EXPECT_EQ(read_thermal_state_file(path).can_node, 7) << "the old file stays";
   const std::string head = "format = 1\nwinding_C = 90.0\nhousing_C = 70.0\nwinding_std_C = 1.0\nambient_C = 25.0\n"
                            "saved_unix_s = 1.0\n";
   const std::pair<std::string, std::string> damaged[] = {
@@ -533,6 +548,36 @@ TEST_F(CalibrationFile, AThermalStateKeepsTheAxisThatWroteIt) {
       EXPECT_NE(std::string(e.what()).find(want), std::string::npos) << e.what();
     }
   }
+}
+
+// A calibration records its axis too: another axis's is named as such (the daemon refuses it at
+// start), a file without the record (from before, or simulate's) is any axis's.
+TEST_F(CalibrationFile, ACalibrationKeepsTheAxisThatWroteIt) {
+  const fs::path path = dir_ / "axis1-calibration.toml";
+  write_calibration_file(path, sample(), "axis1.toml", {"vcan0", 1});
+  StoredAxis axis;
+  EXPECT_DOUBLE_EQ(read_calibration_file(path, &axis).rs0_ohm, sample().rs0_ohm);
+  EXPECT_EQ(axis, (StoredAxis{"vcan0", 1}));
+  EXPECT_EQ(other_axis_problem(path.string(), axis, {"vcan0", 1}, "controller.calibration.file"), "");
+  const std::string other = other_axis_problem(path.string(), axis, {"vcan0", 2}, "controller.calibration.file");
+  EXPECT_NE(other.find("was written by the axis on vcan0 node 1, and this daemon is node 2 on vcan0 (does another axis's "
+                       "configuration name the same controller.calibration.file?)"),
+            std::string::npos)
+      << other;
+  EXPECT_NE(other_axis_problem(path.string(), axis, {"can0", 1}, "k"), "") << "the same node on another bus";
+  write_calibration_file(path, sample(), "scenario.toml");
+  (void)read_calibration_file(path, &axis);
+  EXPECT_FALSE(axis.recorded()) << "none given, none stored";
+  EXPECT_EQ(other_axis_problem(path.string(), axis, {"vcan0", 2}, "k"), "") << "not recorded: any axis's";
+  ControllerConfig c;
+  c.calibration_file = path.string();
+  write_calibration_file(path, sample(), "axis1.toml", {"can1", 3});
+  EXPECT_EQ(load_stored_calibration(c, &axis), StoredCalibration::kLoaded);
+  EXPECT_EQ(axis, (StoredAxis{"can1", 3}));
+  // Another axis's calibration is not written over (the file, unrecorded, was any axis's).
+  EXPECT_THROW(write_calibration_file(path, sample(), "axis2.toml", {"can1", 4}), CalibrationFileError);
+  (void)read_calibration_file(path, &axis);
+  EXPECT_EQ(axis, (StoredAxis{"can1", 3})) << "the old file stays";
 }
 
 // The thermal state's writer keeps to the reader's ranges: a winding of 450 C (a filter gone

@@ -47,6 +47,7 @@ diff <(sort "$control/conffiles") <(cd "$root" && find etc -type f | sed 's#^#/#
 grep -q 'systemd-sysusers /usr/lib/sysusers.d/pmsm-thermal.conf' "$control/postinst" || fail "postinst does not create the user"
 sh -n "$control/postinst" && sh -n "$control/prerm" && sh -n "$control/postrm" || fail "a maintainer script is not valid sh"
 grep -q 'deb-systemd-invoke stop "$unit"' "$control/prerm" || fail "prerm does not stop the running instances on removal"
+grep -q 'systemctl stop "$unit"' "$control/prerm" || fail "prerm does not stop, whatever policy-rc.d says, the instances still running"
 [ "$(dpkg-deb -f "$deb" Version)" = "$version" ] || fail "Version is $(dpkg-deb -f "$deb" Version), not $version"
 depends=$(dpkg-deb -f "$deb" Depends)
 for lib in libspdlog libfmt libtomlplusplus libgpiod libsystemd0 libstdc++6; do

@@ -8,6 +8,7 @@
 #include <cstring>
 
 #include "filter_rule.hpp"
+#include "pmsm/hal/rt.hpp"
 #include "pmsm/hal/status.hpp"
 
 namespace pmsm::hal {
@@ -147,6 +148,11 @@ CanBusState state_after_error_frame(const CanFrame& error_frame, CanBusState cur
     }
   }
   return current;
+}
+
+SendResult CanBus::do_send_before(const CanFrame& frame, std::int64_t deadline_ns) noexcept {
+  const std::int64_t left_ns = deadline_ns - monotonic_ns();
+  return do_send(frame, std::chrono::nanoseconds{left_ns > 0 ? left_ns : 0});
 }
 
 }  // namespace pmsm::hal

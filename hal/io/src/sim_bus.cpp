@@ -150,6 +150,9 @@ class SimEndpoint final : public CanBus {
   }
 
   ReceiveStatus do_receive(ReceivedFrame& out, std::chrono::nanoseconds timeout) noexcept override {
+    // The wait as this call's own clock saw it (ReceivedFrame::waited_ns), so that a caller's
+    // timing from it runs in the in-process tests as on SocketCAN.
+    const auto called = std::chrono::steady_clock::now();
     std::unique_lock lock{mutex_};
     const auto ready = [&] { return count_ > 0 || !link_up_; };
     if (timeout.count() < 0) {
@@ -162,6 +165,7 @@ class SimEndpoint final : public CanBus {
       return ReceiveStatus::kInterfaceDown;
     }
     out = queue_[head_];
+    out.waited_ns = timeout.count() < 0 ? -1 : std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - called).count();
     head_ = (head_ + 1) % queue_.size();
     --count_;
     if (out.frame.error) {

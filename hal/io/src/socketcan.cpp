@@ -384,6 +384,16 @@ bool SocketCanBus::interface_up() const noexcept {
 }
 
 SendResult SocketCanBus::do_send(const CanFrame& frame, std::chrono::nanoseconds max_wait) noexcept {
+  return send_until(frame, max_wait, 0);
+}
+
+SendResult SocketCanBus::do_send_before(const CanFrame& frame, std::int64_t deadline_ns) noexcept {
+  // (max_wait only says that waiting is allowed: the deadline is given.)
+  return send_until(frame, std::chrono::nanoseconds{deadline_ns > 0 ? 1 : 0}, deadline_ns);
+}
+
+SendResult SocketCanBus::send_until(const CanFrame& frame, std::chrono::nanoseconds max_wait,
+                                    std::int64_t deadline_ns) noexcept {
   if (!is_sendable(frame, config_.fd)) {
     bump(counters_.tx_errors);
     return SendResult::kInvalidFrame;
@@ -397,7 +407,6 @@ SendResult SocketCanBus::do_send(const CanFrame& frame, std::chrono::nanoseconds
   const std::size_t size = socketcan_detail::encode(frame, bytes);
   // The clock is read only when the queue is full: a send that goes through costs one system
   // call (clock_gettime is one too where there is no vDSO, e.g. under User-Mode Linux).
-  std::int64_t deadline_ns = 0;
 
   for (;;) {
     const ssize_t n = ::send(fd_.get(), bytes.data(), size, MSG_DONTWAIT);
@@ -467,9 +476,10 @@ ReceiveStatus SocketCanBus::do_receive(ReceivedFrame& out, std::chrono::nanoseco
     }
   }
   last_receive_waited_ = true;
-  // The first wait takes the timeout as given; the clock is read only if a wait ends without a
-  // frame before the timeout (a signal, or a frame another reader took), to wait the rest. The
-  // time waited is told (out.waited_ns) when the first wait ended with the frame.
+  // The first wait takes the timeout as given. A wait that ends without a frame before the
+  // timeout (a signal, or a frame another reader took) waits the rest: the kernel's time left
+  // where it tells it, else from the clock. The time waited is told (out.waited_ns) when the
+  // first wait ended with the frame.
   const bool forever = timeout.count() < 0;
   std::int64_t deadline_ns = 0;
   std::int64_t left_ns = timeout.count();
@@ -484,7 +494,11 @@ ReceiveStatus SocketCanBus::do_receive(ReceivedFrame& out, std::chrono::nanoseco
     if (n > 0) {
       const ReceiveStatus status = read_one(out);
       if (status != ReceiveStatus::kTimeout) {
-        out.waited_ns = first && left_known ? std::clamp<std::int64_t>(left_ns - to_ns(ts), 0, left_ns) : -1;
+        // Only a time left strictly inside the wait is the kernel's account of it: 0 is a wait
+        // that ran out (rounded up from a late return, by how much is not told), the whole
+        // timeout a kernel that did not write it back (the STICKY_TIMEOUTS personality).
+        const std::int64_t left_after = to_ns(ts);
+        out.waited_ns = first && left_known && left_after > 0 && left_after < left_ns ? left_ns - left_after : -1;
         return status;
       }
     } else if (errno != EINTR) {
@@ -493,11 +507,15 @@ ReceiveStatus SocketCanBus::do_receive(ReceivedFrame& out, std::chrono::nanoseco
       return ReceiveStatus::kError;
     }
     if (!forever) {
-      const std::int64_t now_ns = monotonic_ns();
-      if (deadline_ns == 0) {
-        deadline_ns = now_ns + left_ns;  // a little later than the call's: by one wait's return
+      if (left_known) {
+        left_ns = to_ns(ts);  // the rest of the same wait, as the kernel counted it
+      } else {
+        const std::int64_t now_ns = monotonic_ns();
+        if (deadline_ns == 0) {
+          deadline_ns = now_ns + left_ns;  // a little later than the call's: by one wait's length
+        }
+        left_ns = deadline_ns - now_ns;
       }
-      left_ns = deadline_ns - now_ns;
       if (left_ns <= 0) {
         return ReceiveStatus::kTimeout;
       }

@@ -93,11 +93,14 @@ struct ReceivedFrame {
   // 0 when the backend delivered none.
   std::int64_t software_timestamp_ns = 0;
   // How long the receive() call waited for this frame, by the kernel's own account of the
-  // wait (SocketCanBus: ppoll's time left): 0 when the frame was queued already, -1 when the
-  // backend cannot tell (a wait a signal interrupted, a wait without a timeout, SimBus, a
-  // 32-bit target). A caller that read its clock just before the call knows, without reading
-  // it again, when the frame was in hand: its reading plus this. (Under User-Mode Linux, as
-  // on any target without a vDSO, every clock reading is a system call.)
+  // wait (SocketCanBus: ppoll's time left; SimBus: its clock around the wait): 0 when the frame
+  // was queued already, -1 when the backend cannot tell (a wait a signal interrupted, one that
+  // ran out as the frame came, a wait without a timeout, the backstop read, a 32-bit target).
+  // A caller that read its clock just before the call knows, without reading it again, when
+  // the frame was in hand: its reading plus this. (Under User-Mode Linux, as on any target
+  // without a vDSO, every clock reading is a system call.) Not counted: a stop of the process
+  // in the wait (SIGSTOP, a debugger attaching), after which the kernel restarts the wait with
+  // the time left; a moment read this way is then early by the stop.
   std::int64_t waited_ns = -1;
 };
 
@@ -131,6 +134,13 @@ class CanBus {
     return do_send(frame, max_wait);
   }
 
+  // As send(), waiting for room at most until `deadline_ns` on the monotonic clock (a period's
+  // end): the caller needs no clock reading of its own. SocketCanBus reads the clock only when
+  // the queue is full; the default reads it first and calls send() with what is left.
+  SendResult send_before(const CanFrame& frame, std::int64_t deadline_ns) noexcept {
+    return do_send_before(frame, deadline_ns);
+  }
+
   // Waits up to `timeout` for one frame (a negative timeout waits forever, zero polls).
   ReceiveStatus receive(ReceivedFrame& out, std::chrono::nanoseconds timeout) noexcept {
     return do_receive(out, timeout);
@@ -162,6 +172,7 @@ class CanBus {
 
  protected:
   virtual SendResult do_send(const CanFrame& frame, std::chrono::nanoseconds max_wait) noexcept = 0;
+  virtual SendResult do_send_before(const CanFrame& frame, std::int64_t deadline_ns) noexcept;
   virtual ReceiveStatus do_receive(ReceivedFrame& out, std::chrono::nanoseconds timeout) noexcept = 0;
   virtual ReceiveStatus do_receive_backstop(ReceivedFrame& out, std::chrono::nanoseconds timeout) noexcept {
     return do_receive(out, timeout);
