@@ -25,12 +25,10 @@ std::string interface_on_this_machine(const std::string& name) {
   if (::if_nametoindex(name.c_str()) == 0) {
     return fmt::format("; this machine has no interface '{}' either (a name mistyped?)", name);
   }
-  const int type = interface_link_type(name);
-  if (type < 0 || type == ARPHRD_CAN) {
-    return {};
-  }
-  return fmt::format("; and '{}' on this machine is not a CAN interface at all (its link type is {}, CAN's {})", name,
-                     type, ARPHRD_CAN);
+  const int type = non_can_link_type(name);
+  return type < 0 ? std::string{}
+                  : fmt::format("; and '{}' on this machine is not a CAN interface at all (its link type is {}, CAN's {})",
+                                name, type, ARPHRD_CAN);
 }
 
 using app::ConfigError;
@@ -346,23 +344,25 @@ DaemonConfig load_daemon_config(const std::filesystem::path& path) {
 
 bool is_virtual_interface(const std::string& interface) { return interface.rfind("vcan", 0) == 0; }
 
-int interface_link_type(const std::string& name) {
+int non_can_link_type(const std::string& name) {
   if (name.empty() || name.find('/') != std::string::npos || ::if_nametoindex(name.c_str()) == 0) {
     return -1;
   }
   std::ifstream type_file("/sys/class/net/" + name + "/type");
   int type = -1;
-  return type_file >> type ? type : -1;
+  return type_file >> type && type != ARPHRD_CAN ? type : -1;
 }
 
 std::string non_can_interface_problem(const std::string& name) {
-  const int type = interface_link_type(name);
-  if (type < 0 || type == ARPHRD_CAN) {
-    return {};
-  }
-  return fmt::format("can.interface '{}' on this machine is not a CAN interface (its link type is {}, CAN's {}): the "
-                     "start would refuse it",
-                     name, type, ARPHRD_CAN);
+  const int type = non_can_link_type(name);
+  return type < 0 ? std::string{}
+                  : fmt::format("can.interface '{}' on this machine is not a CAN interface (its link type is {}, CAN's "
+                                "{}): the start would refuse it",
+                                name, type, ARPHRD_CAN);
+}
+
+app::StoredAxis stored_axis(const DaemonConfig& config) {
+  return {config.can.interface, static_cast<int>(config.can.node)};
 }
 
 // The key table shows what a file without the key gets: the supervisor's defaults follow the

@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <string>
 
+#include "calibration_file.hpp"
 #include "controller_config.hpp"
 #include "drive_node.hpp"
 #include "pmsm/core/supervisor.hpp"
@@ -82,11 +83,13 @@ struct BusLoad {
 [[nodiscard]] BusLoad bus_load(const DaemonConfig& config);
 // vcan*: no bit timing, so the load budget is reported, not enforced.
 [[nodiscard]] bool is_virtual_interface(const std::string& interface);
-// The ARPHRD_* link type of an interface this machine has (/sys/class/net/NAME/type), -1 when
-// it has none by that name or the type cannot be read.
-[[nodiscard]] int interface_link_type(const std::string& name);
+// The ARPHRD_* link type of an interface this machine has (/sys/class/net/NAME/type) when it is
+// not CAN's; -1 for a CAN interface, none by that name, or a type that cannot be read.
+[[nodiscard]] int non_can_link_type(const std::string& name);
 // Why can.interface, present on this machine, is not a CAN interface (e.g. "lo"), or "": for
 // --check, which says what the start would (it refuses such an interface, exit 2).
 [[nodiscard]] std::string non_can_interface_problem(const std::string& name);
+// The axis this daemon is, as its stored calibration and thermal state record it.
+[[nodiscard]] app::StoredAxis stored_axis(const DaemonConfig& config);
 
 }  // namespace pmsm::daemon

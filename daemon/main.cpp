@@ -126,11 +126,6 @@ struct Options {
   std::string log_level = "info";
 };
 
-// The axis this daemon is, as its stored files record it.
-pmsm::app::StoredAxis this_axis(const DaemonConfig& config) {
-  return {config.can.interface, static_cast<int>(config.can.node)};
-}
-
 // The thermal state kept from before this start, if it can be used: a damaged, future or
 // week-old file is not, nor one another axis wrote (`why` says so; empty when there is no file
 // yet).
@@ -158,7 +153,7 @@ std::optional<pmsm::app::StoredThermalState> usable_thermal_state(const DaemonCo
     }
     // Another axis's winding is not this one's (two configurations naming one file: one copied
     // for a second axis). A file from before the axis was recorded is taken as this axis's.
-    why = pmsm::app::other_axis_problem(path, s.axis, this_axis(config), "controller.thermal.state_file");
+    why = pmsm::app::other_axis_problem(path, s.axis, pmsm::daemon::stored_axis(config), "controller.thermal.state_file");
     if (!why.empty()) {
       return std::nullopt;
     }
@@ -257,7 +252,7 @@ int run(const Options& o) {
     // Another axis's motor is not this one's: a configuration copied for a second axis, still
     // naming the first one's file, would refer every temperature to the wrong Rs0.
     if (const std::string other = pmsm::app::other_axis_problem(config.controller.calibration_file, written_by,
-                                                                this_axis(config), "controller.calibration.file");
+                                                                pmsm::daemon::stored_axis(config), "controller.calibration.file");
         !other.empty()) {
       throw pmsm::app::CalibrationFileError(other + "; name this axis's own file (its first run calibrates with "
                                                     "startup.calibrate_if_missing), or remove this one if the axis moved");

@@ -445,7 +445,7 @@ void Publisher::handle(const PublicationRecord& r) {
     if (!config_.controller.calibration_file.empty()) {
       try {
         app::write_calibration_file(config_.controller.calibration_file, c, config_.source.filename().string(),
-                                    {config_.can.interface, static_cast<int>(config_.can.node)});
+                                    stored_axis(config_));
         ++stats_.calibrations_stored;
         spdlog::info("calibration stored in {}", config_.controller.calibration_file);
       } catch (const app::CalibrationFileNotDurable& e) {
@@ -486,7 +486,7 @@ void Publisher::store_thermal_state(const core::ThermalState& state, double ambi
   stored.ambient_C = ambient_C;
   stored.saved_unix_s =
       std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
-  stored.axis = {config_.can.interface, static_cast<int>(config_.can.node)};
+  stored.axis = stored_axis(config_);
   try {
     app::write_thermal_state_file(path, stored);
     ++stats_.thermal_states_stored;

@@ -388,8 +388,7 @@ SendResult SocketCanBus::do_send(const CanFrame& frame, std::chrono::nanoseconds
 }
 
 SendResult SocketCanBus::do_send_before(const CanFrame& frame, std::int64_t deadline_ns) noexcept {
-  // (max_wait only says that waiting is allowed: the deadline is given.)
-  return send_until(frame, std::chrono::nanoseconds{deadline_ns > 0 ? 1 : 0}, deadline_ns);
+  return send_until(frame, std::chrono::nanoseconds{0}, deadline_ns);
 }
 
 SendResult SocketCanBus::send_until(const CanFrame& frame, std::chrono::nanoseconds max_wait,
@@ -419,7 +418,7 @@ SendResult SocketCanBus::send_until(const CanFrame& frame, std::chrono::nanoseco
       continue;
     }
     last_errno_ = e;
-    if ((e == ENOBUFS || e == EAGAIN) && max_wait.count() > 0) {
+    if ((e == ENOBUFS || e == EAGAIN) && (deadline_ns > 0 || max_wait.count() > 0)) {
       const std::int64_t now_ns = monotonic_ns();
       if (deadline_ns == 0) {
         deadline_ns = now_ns + max_wait.count();

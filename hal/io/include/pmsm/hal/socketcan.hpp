@@ -74,7 +74,8 @@ class SocketCanBus final : public CanBus {
  protected:
   SendResult do_send(const CanFrame& frame, std::chrono::nanoseconds max_wait) noexcept override;
   SendResult do_send_before(const CanFrame& frame, std::int64_t deadline_ns) noexcept override;
-  // Sends, waiting for room until `deadline_ns` (0: max_wait from the first refusal on).
+  // Sends, waiting for room until `deadline_ns` on the monotonic clock, or (deadline 0) for
+  // max_wait from the first refusal on; neither: no wait.
   SendResult send_until(const CanFrame& frame, std::chrono::nanoseconds max_wait, std::int64_t deadline_ns) noexcept;
   ReceiveStatus do_receive(ReceivedFrame& out, std::chrono::nanoseconds timeout) noexcept override;
   ReceiveStatus do_receive_backstop(ReceivedFrame& out, std::chrono::nanoseconds timeout) noexcept override;
