@@ -160,6 +160,12 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns, 
     r.angle_check_pending = node_.controller().angle_check_pending();
     r.angle_correction_rad = node_.controller().angle_correction_rad();
     r.calibration_failed = out.calibration_failed;
+    if (out.calibration_to_store) {
+      const core::DriveTelemetry& t = node_.controller().telemetry();
+      r.calibration_events = t.calibration_events;
+      r.calibration_pairs = t.calibration_outcomes;
+      r.calibration_aborts = t.calibration_aborts;
+    }
     if (out.calibration_failed) {
       const core::DriveTelemetry& t = node_.controller().telemetry();
       r.calibration_failure = t.calibration_failure;
@@ -169,6 +175,7 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns, 
       if (core::refused_measured_rs0(t.calibration_failure)) {
         r.calibration_rs0_ohm = t.calibration_rs0_ohm;
         r.calibration_rs0_std_ohm = t.calibration_rs0_std_ohm;
+        r.calibration_events = t.calibration_events;
       }
     }
     r.uptime_s = node_.uptime_s();

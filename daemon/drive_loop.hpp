@@ -58,7 +58,9 @@ struct PublicationRecord {
   double calibration_rs0_ohm = 0.0;      // a refused calibration's Rs0 and its standard error
   double calibration_rs0_std_ohm = 0.0;
   double calibration_winding_rise_C = 0.0;  // kWindingWarm: the filter's winding above the ambient
-  core::OutcomeCounts calibration_pairs{};   // the failed calibration's pairs, by outcome (a timeout's why)
+  core::OutcomeCounts calibration_pairs{};   // the ended calibration's pairs, by outcome (a timeout's why)
+  // With calibration_to_store or a refused measured Rs0: the events it averaged (fewer at its timeout).
+  int calibration_events = 0;
   core::AbortCounts calibration_aborts{};    // its aborted pairs, by cause
   double uptime_s = 0.0;
   double current_noise_A = 0.0;  // the current sensors' noise the front end measured (or was given)

@@ -418,10 +418,13 @@ void Publisher::handle(const PublicationRecord& r) {
       spdlog::warn("calibration refused: {} The previous calibration stays in use",
                    app::rs_outside_window_text(config_.controller.drive, r.calibration_rs0_ohm, r.calibration_rs0_std_ohm));
     } else if (r.calibration_failure == core::CalibrationFailure::kUncertain) {
-      spdlog::warn("calibration refused: Rs0 {:.5f} +- {:.5f} ohm is less certain than "
+      const std::string partial = app::calibration_events_text(r.calibration_events, config_.controller.drive.calibration_events);
+      spdlog::warn("calibration refused: Rs0 {:.5f} +- {:.5f} ohm{} is less certain than "
                    "calibration.max_rs0_std_fraction allows (the bridge's voltage was not learned: calibrate "
-                   "unloaded, below injection.vx_learning_max_speed_rad_s); the previous calibration stays in use",
-                   r.calibration_rs0_ohm, r.calibration_rs0_std_ohm);
+                   "unloaded, below injection.vx_learning_max_speed_rad_s){}; the previous calibration stays in use",
+                   r.calibration_rs0_ohm, r.calibration_rs0_std_ohm, partial,
+                   partial.empty() ? std::string()
+                                   : "; its pairs: " + core::pair_outcomes_text(r.calibration_pairs, r.calibration_aborts));
     } else {
       spdlog::warn("calibration gave up (calibration.timeout_s, {:.0f} s, without enough published events; its pairs: {}: "
                  "calibrate unloaded at a steady speed); the previous calibration stays in use",
@@ -432,6 +435,12 @@ void Publisher::handle(const PublicationRecord& r) {
     const core::Calibration& c = *r.calibration_to_store;
     // Ke0 in Eq. 3's form (phase peak volts per mechanical rad/s), and in motor.ke_V_s_per_rad's
     // (line-to-line RMS: x sqrt(3/2)), so that it compares with the nameplate.
+    const std::string partial = app::calibration_events_text(r.calibration_events, config_.controller.drive.calibration_events);
+    if (!partial.empty()) {
+      spdlog::warn("calibration completed{} (its pairs: {}): its Rs0 is less certain than a whole run's; calibrate "
+                   "again unloaded at a steady speed when the machine allows",
+                   partial, core::pair_outcomes_text(r.calibration_pairs, r.calibration_aborts));
+    }
     spdlog::info("calibration done: Rs0 {:.5f} ohm at {:.1f} C, Ke0 {:.4f} V s/rad phase peak ({:.4f} line-to-line RMS, "
                  "the form of motor.ke_V_s_per_rad), {}, {}",
                  c.rs0_ohm, c.t0_C, c.ke0_V_s_per_rad, c.ke0_V_s_per_rad * std::sqrt(1.5),

@@ -465,7 +465,12 @@ ConfigSchema<C> build() {
   s.integer("calibration.events", [](C& c) -> int& { return c.drive.calibration_events; }, between(1, 100),
             "Injection events averaged by a calibration run.");
   s.real("calibration.timeout_s", [](C& c) -> double& { return c.drive.calibration_timeout_s; }, between(1, 3600), "s",
-         "A calibration run without enough published events by then gives up; the calibration in use stays.");
+         "A calibration run without enough published events by then gives up; the calibration in use stays "
+         "(calibration.min_events).");
+  s.integer("calibration.min_events", [](C& c) -> int& { return c.drive.calibration_min_events; }, between(0, 100),
+            "A calibration run that has published at least this many events by calibration.timeout_s (a load came "
+            "before its end) completes with them: their Rs0, with its larger standard error, refused as a whole run's "
+            "would be. 0, or calibration.events or more: it gives up instead.");
   s.real("calibration.max_winding_rise_C", [](C& c) -> double& { return c.drive.calibration_max_winding_rise_C; },
          between(0, 200), "C",
          "A calibration on the ambient sensor's temperature is refused while the thermal filter holds the winding more "
@@ -1163,6 +1168,13 @@ std::vector<std::string> reference_default_warnings(const ControllerConfig& conf
         d.derating.min_current_A, rated_peak_A, d.motor.continuous_current_A_rms));
   }
   return out;
+}
+
+std::string calibration_events_text(int used, int wanted) {
+  if (used <= 0 || used >= wanted) {
+    return {};
+  }
+  return fmt::format(" on {} of {} events, at its timeout (calibration.min_events)", used, wanted);
 }
 
 std::string rs_outside_window_text(const core::DriveConfig& d, double measured_ohm, double scatter_ohm) {

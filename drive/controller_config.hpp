@@ -149,6 +149,10 @@ void finalize(ControllerConfig& config, std::string_view source, const toml::tab
 // times a unit. For the daemon's log and simulate's report (it allocates).
 [[nodiscard]] std::string rs_outside_window_text(const core::DriveConfig& d, double measured_ohm, double scatter_ohm);
 
+// For a completed calibration's report: "" when its Rs0 averaged the `wanted` events
+// (calibration.events), else " on N of M events, at its timeout (calibration.min_events)".
+[[nodiscard]] std::string calibration_events_text(int used, int wanted);
+
 // Defaults that describe the reference machine (Table I, 11.9 kW) and no other, on a motor
 // that is another (continuous current under half or over twice the reference's): the thermal
 // model left at the reference's values, a derating floor above the motor's rated peak current.

@@ -549,6 +549,7 @@ void DriveController::start_calibration(double known_temp_C, bool from_ambient_s
   calibration_outcome_ = CalibrationOutcome::kNone;
   telemetry_.calibration_rs0_ohm = 0.0;
   telemetry_.calibration_rs0_std_ohm = 0.0;
+  telemetry_.calibration_events = 0;
   calibration_started_s_ = static_cast<double>(period_) * config_.period_s;
   calibration_temp_C_ = known_temp_C;
   calibration_from_ambient_sensor_ = from_ambient_sensor;
@@ -921,6 +922,7 @@ void DriveController::count_calibration_outside_window(const EventEstimate& e) {
     const double n = static_cast<double>(calibration_outside_count_);
     const double mean = calibration_outside_sum_ohm_ / n;
     telemetry_.calibration_rs0_ohm = mean;
+    telemetry_.calibration_events = calibration_outside_count_;
     telemetry_.calibration_rs0_std_ohm =
         std::sqrt(std::max(calibration_outside_sq_sum_ohm2_ - n * mean * mean, 0.0) / (n - 1.0));
     fail_calibration(CalibrationFailure::kRsOutsideWindow);
@@ -970,91 +972,7 @@ void DriveController::handle_estimate(const EventEstimate& e) {
       pool_ke_scatter(e, std::abs(e.ke_V_s_per_rad));
     }
     if (calibration_count_ >= config_.calibration_events) {
-      const double rs0 = calibration_rs_sum_ / calibration_weight_sum_;
-      // The events' inverse-variance standard error. They share the inverter-voltage prior,
-      // so this is a lower bound on Rs0's uncertainty: a calibration that fails it is
-      // uncertain at least this much.
-      const double rs0_std = std::sqrt(1.0 / calibration_weight_sum_);
-      telemetry_.calibration_rs0_ohm = rs0;
-      telemetry_.calibration_rs0_std_ohm = rs0_std;
-      if (!(rs0_std <= config_.calibration_max_rs0_std_fraction * std::abs(rs0))) {
-        fail_calibration(CalibrationFailure::kUncertain);
-        return;
-      }
-      // Rs0 holds the cable too: a cable configured longer (or a winding measured lower) than
-      // the whole resistance leaves Eq. 1 no winding, and a negative one turns its slope over.
-      // (The configuration refuses the same of a stored Rs0: cable_leaves_no_winding.)
-      if (!(rs0 > cable_resistance_at_C(config_.thermal.cable_resistance_20C_ohm, calibration_temp_C_))) {
-        fail_calibration(CalibrationFailure::kCableTakesAll);
-        return;
-      }
-      // The Rs0 the drive holds (a calibration run's, a stored one's, or the nameplate's) reads
-      // the new Rs0 through it as a temperature (Eq. 1). Where that puts the winding more than
-      // calibration.max_winding_rise_C above the ambient sensor's reading this run is referred
-      // to, beyond three standard errors of the two Rs0 (the new one's; the held one's
-      // calibration.rs0_std_fraction, 5 % for the nameplate's: about 13 K, so only a winding
-      // some 45 K warm is seen through it), the winding was warm, not at T0: referred to the
-      // sensor, every later estimate would read low by the difference. A newcomer's press, powered up 10 minutes
-      // after a stop with the winding at 70 C in a 25 C shop and no stored thermal state,
-      // recalibrated at once: the filter had measured nothing yet, the request's guard passed,
-      // Rs0 came 17.5 % above the stored one, and the drive read 34.6 C RMS low with the truth
-      // never inside its band (docs/estimator.md section 6, "A warm recalibration"). Refused
-      // (winding_warm); the calibration in use stays, and the filter starts again from the
-      // temperature the old calibration reads, with a start's wide band and no gate for its
-      // first measurement. An operator's temperature is not second-guessed here (a rewound
-      // or replaced motor: calibrate at a known temperature, or remove the stored calibration).
-      if (calibration_from_ambient_sensor_ && config_.calibration_max_winding_rise_C > 0.0) {
-        const double reads_C = observer_.temperature_from_resistance_C(rs0);
-        const double new_std_C = std::abs(observer_.temperature_from_resistance_C(rs0 + rs0_std) - reads_C);
-        const double held_std_C = observer_.rs0_std_C_at(reads_C);
-        const double rise = reads_C - calibration_temp_C_;
-        if (std::isfinite(rise) &&
-            rise > config_.calibration_max_winding_rise_C + 3.0 * std::hypot(new_std_C, held_std_C)) {
-          telemetry_.calibration_winding_rise_C = rise;
-          fail_calibration(CalibrationFailure::kWindingWarm);
-          const ThermalObserver refused = observer_;
-          start_thermal_from_guess(reads_C);
-          observer_.keep_loss_errors(refused);
-          return;
-        }
-      }
-      Calibration c;
-      c.rs0_ohm = rs0;
-      c.t0_C = calibration_temp_C_;
-      c.ke0_V_s_per_rad = calibration_ke_count_ > 0 ? calibration_ke_sum_ / calibration_ke_count_ : 0.0;
-      c.ke0_std_V_s_per_rad = calibration_ke0_std(c.ke0_V_s_per_rad);
-      c.calibrated = true;
-      if (band_measured_) {
-        // The band Rs0 was learned with, when a sweep measured it (this run's, or the stored
-        // calibration's when this run's sweep was void).
-        c.dead_time_band_A = config_.dead_time.current_band_A;
-      }
-      // Likewise the angle correction, when a check measured it.
-      c.angle_correction_measured = angle_measured_;
-      c.angle_correction_rad = angle_measured_ ? angle_.offset_correction_rad() : 0.0;
-      // And the bridge's voltage Rs0 was learned with, when this run's events learned it (not
-      // the configured guess they started from).
-      if (config_.injection.fit_dead_time && calibration_vx_learned_) {
-        // Referred to the reference bus, with its error where the events measured it: the
-        // error at the reference would carry the bus slope's prior times the distance, and a
-        // restart adds that again (docs/estimator.md section 4).
-        const double u = vx_referred_to_bus_ ? scheduler_.last_learned_bus_offset_V() : 0.0;
-        c.vx_V = scheduler_.vx_V();
-        c.vx_std_V = scheduler_.vx_std_at_V(u);
-        c.vx_bus_V = vx_referred_to_bus_ ? config_.vx_reference_bus_V + u : 0.0;
-      }
-      calibrating_ = false;
-      scheduler_.set_config(config_.injection);
-      // The filter keeps its state (the winding has warmed during the calibration); only the
-      // temperature scale changes.
-      observer_.set_calibration(c);
-      publish_learned();
-      report(calibration_done_, c);
-      magnet_valid_ = false;  // the next estimate is against the new Ke0, not blended with the old
-      telemetry_.magnet_valid = false;
-      magnet_reset_ = true;
-      calibration_outcome_ = CalibrationOutcome::kDone;
-      publish_calibration_state();
+      complete_calibration();
     }
     return;
   }
@@ -1069,6 +987,98 @@ void DriveController::handle_estimate(const EventEstimate& e) {
   if (e.has_emf && cal.ke0_V_s_per_rad > 0.0) {
     update_magnet(e, cal);
   }
+}
+
+// The calibration's Rs0 and Ke0 from the events it has published (calibration_events of them, or
+// at its timeout at least calibration_min_events): refused where they are too uncertain, leave
+// the winding no resistance beside a cable, or put the winding warm; else in use from now on.
+void DriveController::complete_calibration() {
+  const double rs0 = calibration_rs_sum_ / calibration_weight_sum_;
+  // The events' inverse-variance standard error. They share the inverter-voltage prior,
+  // so this is a lower bound on Rs0's uncertainty: a calibration that fails it is
+  // uncertain at least this much.
+  const double rs0_std = std::sqrt(1.0 / calibration_weight_sum_);
+  telemetry_.calibration_rs0_ohm = rs0;
+  telemetry_.calibration_rs0_std_ohm = rs0_std;
+  telemetry_.calibration_events = calibration_count_;
+  if (!(rs0_std <= config_.calibration_max_rs0_std_fraction * std::abs(rs0))) {
+    fail_calibration(CalibrationFailure::kUncertain);
+    return;
+  }
+  // Rs0 holds the cable too: a cable configured longer (or a winding measured lower) than
+  // the whole resistance leaves Eq. 1 no winding, and a negative one turns its slope over.
+  // (The configuration refuses the same of a stored Rs0: cable_leaves_no_winding.)
+  if (!(rs0 > cable_resistance_at_C(config_.thermal.cable_resistance_20C_ohm, calibration_temp_C_))) {
+    fail_calibration(CalibrationFailure::kCableTakesAll);
+    return;
+  }
+  // The Rs0 the drive holds (a calibration run's, a stored one's, or the nameplate's) reads
+  // the new Rs0 through it as a temperature (Eq. 1). Where that puts the winding more than
+  // calibration.max_winding_rise_C above the ambient sensor's reading this run is referred
+  // to, beyond three standard errors of the two Rs0 (the new one's; the held one's
+  // calibration.rs0_std_fraction, 5 % for the nameplate's: about 13 K, so only a winding
+  // some 45 K warm is seen through it), the winding was warm, not at T0: referred to the
+  // sensor, every later estimate would read low by the difference. A newcomer's press, powered up 10 minutes
+  // after a stop with the winding at 70 C in a 25 C shop and no stored thermal state,
+  // recalibrated at once: the filter had measured nothing yet, the request's guard passed,
+  // Rs0 came 17.5 % above the stored one, and the drive read 34.6 C RMS low with the truth
+  // never inside its band (docs/estimator.md section 6, "A warm recalibration"). Refused
+  // (winding_warm); the calibration in use stays, and the filter starts again from the
+  // temperature the old calibration reads, with a start's wide band and no gate for its
+  // first measurement. An operator's temperature is not second-guessed here (a rewound
+  // or replaced motor: calibrate at a known temperature, or remove the stored calibration).
+  if (calibration_from_ambient_sensor_ && config_.calibration_max_winding_rise_C > 0.0) {
+    const double reads_C = observer_.temperature_from_resistance_C(rs0);
+    const double new_std_C = std::abs(observer_.temperature_from_resistance_C(rs0 + rs0_std) - reads_C);
+    const double held_std_C = observer_.rs0_std_C_at(reads_C);
+    const double rise = reads_C - calibration_temp_C_;
+    if (std::isfinite(rise) &&
+        rise > config_.calibration_max_winding_rise_C + 3.0 * std::hypot(new_std_C, held_std_C)) {
+      telemetry_.calibration_winding_rise_C = rise;
+      fail_calibration(CalibrationFailure::kWindingWarm);
+      const ThermalObserver refused = observer_;
+      start_thermal_from_guess(reads_C);
+      observer_.keep_loss_errors(refused);
+      return;
+    }
+  }
+  Calibration c;
+  c.rs0_ohm = rs0;
+  c.t0_C = calibration_temp_C_;
+  c.ke0_V_s_per_rad = calibration_ke_count_ > 0 ? calibration_ke_sum_ / calibration_ke_count_ : 0.0;
+  c.ke0_std_V_s_per_rad = calibration_ke0_std(c.ke0_V_s_per_rad);
+  c.calibrated = true;
+  if (band_measured_) {
+    // The band Rs0 was learned with, when a sweep measured it (this run's, or the stored
+    // calibration's when this run's sweep was void).
+    c.dead_time_band_A = config_.dead_time.current_band_A;
+  }
+  // Likewise the angle correction, when a check measured it.
+  c.angle_correction_measured = angle_measured_;
+  c.angle_correction_rad = angle_measured_ ? angle_.offset_correction_rad() : 0.0;
+  // And the bridge's voltage Rs0 was learned with, when this run's events learned it (not
+  // the configured guess they started from).
+  if (config_.injection.fit_dead_time && calibration_vx_learned_) {
+    // Referred to the reference bus, with its error where the events measured it: the
+    // error at the reference would carry the bus slope's prior times the distance, and a
+    // restart adds that again (docs/estimator.md section 4).
+    const double u = vx_referred_to_bus_ ? scheduler_.last_learned_bus_offset_V() : 0.0;
+    c.vx_V = scheduler_.vx_V();
+    c.vx_std_V = scheduler_.vx_std_at_V(u);
+    c.vx_bus_V = vx_referred_to_bus_ ? config_.vx_reference_bus_V + u : 0.0;
+  }
+  calibrating_ = false;
+  scheduler_.set_config(config_.injection);
+  // The filter keeps its state (the winding has warmed during the calibration); only the
+  // temperature scale changes.
+  observer_.set_calibration(c);
+  publish_learned();
+  report(calibration_done_, c);
+  magnet_valid_ = false;  // the next estimate is against the new Ke0, not blended with the old
+  telemetry_.magnet_valid = false;
+  magnet_reset_ = true;
+  calibration_outcome_ = CalibrationOutcome::kDone;
+  publish_calibration_state();
 }
 
 void DriveController::fuse_estimate(const EventEstimate& e, double age_s) {
@@ -1701,9 +1711,18 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   si.bus_offset_V = bus_offset_V;
   si.enabled = enabled && config_.estimator == EstimatorKind::kInjection && !sweeping && !after_lost;
   if (calibrating_ && !sweeping && now - calibration_started_s_ > config_.calibration_timeout_s) {
-    // No usable events in time (the method cannot inject here, or every pair was
-    // rejected): keep the stored calibration and say so.
-    fail_calibration(CalibrationFailure::kTimeout);
+    if (config_.calibration_min_events > 0 && calibration_count_ >= config_.calibration_min_events) {
+      // Some of its events before it could measure no more (a load came, the speed left the
+      // range): Rs0 from those, with their larger standard error, and the same refusals as a
+      // whole calibration. A nameplate's Rs0 is off by a few per cent (ten kelvin and more); a
+      // few of the calibration's own events are good to a fraction of that (docs/estimator.md
+      // section 6, "A calibration cut short").
+      complete_calibration();
+    } else {
+      // Too few usable events in time (the method cannot inject here, or every pair was
+      // rejected): keep the stored calibration and say so.
+      fail_calibration(CalibrationFailure::kTimeout);
+    }
   }
   si.request_now = command.request_injection || (calibrating_ && enabled);
   const SchedulerOutput& so = scheduler_.step(si, sample);

@@ -1593,6 +1593,39 @@ TEST(DriveNode, ACalibrationThatTimesOutIsPublishedAsSuch) {
   EXPECT_EQ(rig.node->controller().telemetry().dead_time_band_A, sweep.band_A);
 }
 
+// A calibration that has some of its events by its timeout (here asked for 100, far more than 3 s
+// allows) completes with them (calibration.min_events, 3 by default), and the bus says DONE with
+// Calibrated 1; with the key at 0 the same run gives up (TIMED_OUT) and the configured Rs0 stays.
+TEST(DriveNode, ACalibrationWithSomeEventsByItsTimeoutCompletesOnThem) {
+  Rig rig;
+  rig.config.drive.calibration_events = 100;
+  rig.config.drive.calibration_timeout_s = 3.0;
+  rig.rebuild_node();
+  rig.run(2000);
+  rig.in.start_calibration = true;
+  rig.run(1);
+  rig.in.start_calibration = false;
+  const std::optional<core::Calibration> done = run_until_stored(rig);
+  ASSERT_TRUE(done.has_value()) << core::calibration_failure_name(rig.node->controller().telemetry().calibration_failure);
+  const core::DriveTelemetry& t = rig.node->controller().telemetry();
+  EXPECT_GE(t.calibration_events, rig.config.drive.calibration_min_events);
+  EXPECT_LT(t.calibration_events, rig.config.drive.calibration_events);
+  EXPECT_EQ(calibration_events_text(t.calibration_events, rig.config.drive.calibration_events),
+            " on " + std::to_string(t.calibration_events) + " of 100 events, at its timeout (calibration.min_events)");
+  const protocol::ThermalEstimate thermal = next_thermal(rig);
+  EXPECT_EQ(thermal.calibration_result, protocol::CalibrationResult::kDone);
+  EXPECT_TRUE(thermal.calibrated);
+  EXPECT_EQ(calibration_events_text(6, 6), "") << "a whole calibration says nothing of its events";
+
+  Rig strict;
+  strict.config.drive.calibration_events = 100;
+  strict.config.drive.calibration_timeout_s = 3.0;
+  strict.config.drive.calibration_min_events = 0;
+  strict.rebuild_node();
+  strict.run(2000);
+  expect_failed_calibration(strict, core::CalibrationFailure::kTimeout, protocol::CalibrationResult::kTimedOut);
+}
+
 // The current sensors' noise, measured with the offsets at power-up (gates off), is handed to
 // the controller for its sign pattern (as 2/3 of its variance, the sampled line's); a
 // configured value replaces the measurement.

@@ -37,6 +37,16 @@ namespace {
 // JSON writes a non-finite number as null: "no value", never a plausible-looking number.
 constexpr double kNan = std::numeric_limits<double>::quiet_NaN();
 
+// After a calibration's figures: its events and pairs, where it completed at its timeout on fewer
+// events than calibration.events (why it fell short is in its pairs).
+std::string partial_calibration_pairs_text(const SimulationResult& r) {
+  const std::string events = calibration_events_text(r.calibration_failure_events, r.calibration_events_wanted);
+  if (events.empty()) {
+    return {};
+  }
+  return events + "; its pairs: " + core::pair_outcomes_text(r.calibration_failure_pairs, r.calibration_failure_aborts);
+}
+
 std::string method_name(const ControllerConfig& c) {
   const core::DriveConfig& d = c.drive;
   if (d.estimator == core::EstimatorKind::kNoInjection) {
@@ -769,6 +779,8 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
       const bool measured = core::refused_measured_rs0(tel.calibration_failure);
       result.calibration_failure_rs0_ohm = measured ? tel.calibration_rs0_ohm : 0.0;
       result.calibration_failure_rs0_std_ohm = measured ? tel.calibration_rs0_std_ohm : 0.0;
+      result.calibration_failure_events = measured ? tel.calibration_events : 0;
+      result.calibration_events_wanted = controller_config.drive.calibration_events;
       result.calibration_failure_detail =
           tel.calibration_failure == core::CalibrationFailure::kRsOutsideWindow
               ? rs_outside_window_text(controller_config.drive, tel.calibration_rs0_ohm, tel.calibration_rs0_std_ohm)
@@ -792,14 +804,17 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
     }
     if (step.calibration_to_store) {
       if (options.log_events) {
-        calibration_line = fmt::format("{:10.3f}  calibration: Rs0 {:.5f} ohm at {:.1f} C; its pairs: {}", t,
+        calibration_line = fmt::format("{:10.3f}  calibration: Rs0 {:.5f} ohm at {:.1f} C{}; its pairs: {}", t,
                                        step.calibration_to_store->rs0_ohm, step.calibration_to_store->t0_C,
+                                       calibration_events_text(tel.calibration_events, controller_config.drive.calibration_events),
                                        core::pair_outcomes_text(tel.calibration_outcomes, tel.calibration_aborts));
       }
       calibration_ended = true;
       result.calibrated = true;
       result.calibration = *step.calibration_to_store;
       result.calibration_rs0_std_ohm = tel.calibration_rs0_std_ohm;
+      result.calibration_events = tel.calibration_events;
+      result.calibration_events_wanted = controller_config.drive.calibration_events;
       result.calibration_time_s = t;
       metrics_from_s = t;
       if (!scenario.controller.calibration_file.empty()) {
@@ -1142,6 +1157,7 @@ std::string result_json(const SimulationResult& r) {
         .field("time_s", r.calibration_time_s)
         .field("rs0_ohm", r.calibration.rs0_ohm)
         .field("rs0_std_ohm", r.calibration_rs0_std_ohm)
+        .field("events", r.calibration_events)
         .field("rs0_error_pct", r.calibration_rs0_error_pct)
         .field("t0_C", r.calibration.t0_C)
         .field("ke0_V_s_per_rad", r.calibration.ke0_V_s_per_rad)
@@ -1330,9 +1346,9 @@ std::string result_text(const SimulationResult& r) {
     }
   }
   if (r.calibrated) {
-    out += fmt::format("  calibration at {:.2f} s           Rs0 {:.5f} +- {:.5f} ohm at {:.1f} C, Ke0 {:.4f} V s/rad\n",
+    out += fmt::format("  calibration at {:.2f} s           Rs0 {:.5f} +- {:.5f} ohm at {:.1f} C, Ke0 {:.4f} V s/rad{}\n",
                        r.calibration_time_s, r.calibration.rs0_ohm, r.calibration_rs0_std_ohm, r.calibration.t0_C,
-                       r.calibration.ke0_V_s_per_rad);
+                       r.calibration.ke0_V_s_per_rad, calibration_events_text(r.calibration_events, r.calibration_events_wanted));
   }
   if (r.calibration_failure == core::CalibrationFailure::kTimeout) {
     out += fmt::format("  calibration failed at {:.2f} s    timeout: not enough published events in calibration.timeout_s "
@@ -1363,9 +1379,10 @@ std::string result_text(const SimulationResult& r) {
                        r.calibration_failure_time_s, r.calibration_failure_detail);
   } else if (r.calibration_failure == core::CalibrationFailure::kUncertain) {
     out += fmt::format("  calibration failed at {:.2f} s    uncertain: Rs0 {:.5f} +- {:.5f} ohm ({:.2f} %, above "
-                       "calibration.max_rs0_std_fraction); the calibration in use stays\n",
+                       "calibration.max_rs0_std_fraction){}; the calibration in use stays\n",
                        r.calibration_failure_time_s, r.calibration_failure_rs0_ohm, r.calibration_failure_rs0_std_ohm,
-                       100.0 * r.calibration_failure_rs0_std_ohm / std::max(std::abs(r.calibration_failure_rs0_ohm), 1e-12));
+                       100.0 * r.calibration_failure_rs0_std_ohm / std::max(std::abs(r.calibration_failure_rs0_ohm), 1e-12),
+                       partial_calibration_pairs_text(r));
   }
   for (const SimulationResult::FaultSeen& f : r.faults) {
     if (f.count > 0) {

@@ -175,6 +175,11 @@ struct SimulationResult {
   double calibration_time_s = 0.0;
   core::Calibration calibration{};
   double calibration_rs0_std_ohm = 0.0;  // the calibration's Rs0 standard error
+  // The events its Rs0 averaged: calibration.events, or fewer where it completed at its timeout
+  // (calibration.min_events).
+  int calibration_events = 0;
+  int calibration_events_wanted = 0;  // calibration.events
+  int calibration_failure_events = 0;  // a refusal that measured an Rs0: the events it averaged
   // A calibration run that failed (timed out, or refused an uncertain Rs0): why, when, and
   // the Rs0 it had (0 when it timed out before enough events).
   core::CalibrationFailure calibration_failure = core::CalibrationFailure::kNone;

@@ -116,6 +116,10 @@ struct DriveConfig {
   // the current), so Rs0 rests on the inverter-voltage prior.
   double calibration_max_rs0_std_fraction = 0.02;
   double calibration_timeout_s = 20.0;  // give up (keep the stored calibration) after this
+  // A calibration that has published at least this many events by its timeout completes with
+  // them (their inverse-variance Rs0, refused as a whole one would be) instead of giving up;
+  // 0, or calibration_events or more: it gives up.
+  int calibration_min_events = 3;
   // A calibration refers Rs0 to the temperature it is given. From the ambient sensor that is the
   // winding's only on a machine at rest long enough: one the thermal filter holds warmer than
   // that by more than this (the drive's own losses since it started, a stored warm state) is
@@ -350,6 +354,9 @@ struct DriveTelemetry {
   // their scatter (sample standard deviation).
   double calibration_rs0_ohm = 0.0;
   double calibration_rs0_std_ohm = 0.0;
+  // The events that Rs0 averaged: calibration_events, or fewer for one that completed at its
+  // timeout (DriveConfig::calibration_min_events); 0 alongside calibration_rs0_ohm's 0.
+  int calibration_events = 0;
   // A calibration refused as kWindingWarm or kTemperatureImplausible: how far above the
   // temperature it would be referred to (the ambient, the operator's) the filter held the winding,
   // or, at a calibration's end, the measured Rs0 read through the calibration in use put it.
@@ -623,6 +630,7 @@ class DriveController {
   // A calibration event refused for its resistance outside the plausibility window: counted, and
   // kCalibrationOutsideWindowEvents of them in a row on one side refuse the calibration.
   void count_calibration_outside_window(const EventEstimate& e);
+  void complete_calibration();
   void publish_calibration_state();
   void clear_motoring_telemetry();  // nothing asked of the motor this period (disabled, no sample)
   // The telemetry of what the drive has learned or been given (the angle correction, the
