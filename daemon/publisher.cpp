@@ -441,9 +441,9 @@ void Publisher::handle(const PublicationRecord& r) {
                    "again unloaded at a steady speed when the machine allows",
                    partial, core::pair_outcomes_text(r.calibration_pairs, r.calibration_aborts));
     }
-    spdlog::info("calibration done: Rs0 {:.5f} ohm at {:.1f} C, Ke0 {:.4f} V s/rad phase peak ({:.4f} line-to-line RMS, "
+    spdlog::info("calibration done: Rs0 {:.5f} ohm at {:.1f} C{}, Ke0 {:.4f} V s/rad phase peak ({:.4f} line-to-line RMS, "
                  "the form of motor.ke_V_s_per_rad), {}, {}",
-                 c.rs0_ohm, c.t0_C, c.ke0_V_s_per_rad, c.ke0_V_s_per_rad * std::sqrt(1.5),
+                 c.rs0_ohm, c.t0_C, app::t0_rise_text(c), c.ke0_V_s_per_rad, c.ke0_V_s_per_rad * std::sqrt(1.5),
                  c.dead_time_band_A > 0.0 ? fmt::format("bridge band {:.3f} A (swept)", c.dead_time_band_A)
                                           : std::string("bridge band not measured (the configured one holds)"),
                  c.vx_std_V > 0.0 ? fmt::format("bridge voltage Vx {:.3f} +- {:.3f} V", c.vx_V, c.vx_std_V)

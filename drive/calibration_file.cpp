@@ -129,6 +129,7 @@ struct KeyRange {
 };
 constexpr KeyRange kRs0Range{"rs0_ohm", common::kMinStatorResistance_ohm, common::kMaxStatorResistance_ohm, false};
 constexpr KeyRange kT0Range{"t0_C", -50.0, 200.0, false};
+constexpr KeyRange kT0RiseStdRange{"t0_rise_std_C", 0.0, 100.0, true};         // written only when > 0
 constexpr KeyRange kKe0Range{"ke0_V_s_per_rad", 0.0, 100.0, false};
 constexpr KeyRange kKe0StdRange{"ke0_std_V_s_per_rad", 0.0, 100.0, false};
 constexpr KeyRange kBandRange{"dead_time_band_A", 0.0, 1000.0, true};          // written only when > 0
@@ -339,6 +340,7 @@ void write_calibration_file(const std::filesystem::path& path, const core::Calib
   const std::pair<const KeyRange*, double> stored[] = {
       {&kRs0Range, c.rs0_ohm},
       {&kT0Range, c.t0_C},
+      {c.t0_rise_std_C != 0.0 ? &kT0RiseStdRange : nullptr, c.t0_rise_std_C},
       {&kKe0Range, c.ke0_V_s_per_rad},
       {&kKe0StdRange, c.ke0_std_V_s_per_rad},
       {c.dead_time_band_A != 0.0 ? &kBandRange : nullptr, c.dead_time_band_A},
@@ -360,6 +362,11 @@ void write_calibration_file(const std::filesystem::path& path, const core::Calib
        << "rs0_ohm = " << toml_float(c.rs0_ohm) << "\n"
        << "t0_C = " << toml_float(c.t0_C) << "\n"
        << "ke0_V_s_per_rad = " << toml_float(c.ke0_V_s_per_rad) << "\n";
+  if (c.t0_rise_std_C > 0.0) {
+    // T0's uncertainty from the thermal model's rise it includes (absent: none; the ambient
+    // sensor's own, calibration.t0_std_C, is the configuration's).
+    text << "t0_rise_std_C = " << toml_float(c.t0_rise_std_C) << "\n";
+  }
   if (c.ke0_std_V_s_per_rad > 0.0) {
     // Ke0's standard error (absent: unknown; the magnet estimate's error bar then assumes one).
     text << "ke0_std_V_s_per_rad = " << toml_float(c.ke0_std_V_s_per_rad) << "\n";
@@ -441,7 +448,7 @@ toml::table read_stored(const std::filesystem::path& path, const std::set<std::s
 core::Calibration read_calibration_file(const std::filesystem::path& path, StoredAxis* axis) {
   const std::string file = path.string();
   const toml::table t =
-      read_stored(path, {"format", "rs0_ohm", "t0_C", "ke0_V_s_per_rad", "ke0_std_V_s_per_rad", "dead_time_band_A", "angle_correction_rad",
+      read_stored(path, {"format", "rs0_ohm", "t0_C", "t0_rise_std_C", "ke0_V_s_per_rad", "ke0_std_V_s_per_rad", "dead_time_band_A", "angle_correction_rad",
                          "vx_V", "vx_std_V", "vx_bus_V", "written_utc", "source", "can_interface", "can_node"});
   const StoredAxis written_by = read_axis(t, file);
   if (axis != nullptr) {
@@ -456,6 +463,7 @@ core::Calibration read_calibration_file(const std::filesystem::path& path, Store
   core::Calibration c;
   c.rs0_ohm = number(t, kRs0Range, file);
   c.t0_C = number(t, kT0Range, file);
+  c.t0_rise_std_C = t.get("t0_rise_std_C") != nullptr ? number(t, kT0RiseStdRange, file) : 0.0;
   c.ke0_V_s_per_rad = t.get("ke0_V_s_per_rad") != nullptr ? number(t, kKe0Range, file) : 0.0;
   c.ke0_std_V_s_per_rad =
       t.get("ke0_std_V_s_per_rad") != nullptr ? number(t, kKe0StdRange, file) : 0.0;

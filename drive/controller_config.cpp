@@ -476,10 +476,18 @@ ConfigSchema<C> build() {
          "A calibration on the ambient sensor's temperature is refused while the thermal filter holds the winding more "
          "than this above the ambient it runs on (the drive's own losses since it started, a stored warm state): Rs0 "
          "would be referred to a temperature the winding is not at. On the nameplate's Rs0 (no calibration yet) the model "
-         "alone judges it instead, and a calibration within the limit starts at the ambient plus the model's rise "
-         "(docs/estimator.md section 6). 0: no check (that reference still counts the rise). An operator's temperature "
+         "alone judges it instead: a calibration starts at the ambient plus the model's rise, and beyond the limit is "
+         "refused only where that rise is too uncertain to beat the nameplate (calibration.model_rise_std_fraction; "
+         "docs/estimator.md section 6). 0: no check (that reference still counts the rise). An operator's temperature "
          "(CALIBRATION_REQUEST) is checked only against a resistance measurement of the last 60 s: refused more than "
          "4 sigma + this from it.");
+  s.real("calibration.model_rise_std_fraction",
+         [](C& c) -> double& { return c.drive.calibration_model_rise_std_fraction; }, between(0, 1), "",
+         "On the nameplate's Rs0 (no calibration yet) a calibration on the ambient sensor starts at the ambient plus "
+         "the thermal model's rise by the drive's own losses; that rise is known to this fraction of itself (the "
+         "commissioned winding capacity and copper loss). It is T0's uncertainty, kept with the calibration and in the "
+         "band. Above calibration.max_winding_rise_C such a calibration is taken while this uncertainty stays below half "
+         "the nameplate's (calibration.rs0_std_fraction, in kelvin), and refused beyond (docs/estimator.md section 6).");
   s.real("calibration.max_rs0_std_fraction", [](C& c) -> double& { return c.drive.calibration_max_rs0_std_fraction; },
          between(1e-4, 1.0), "",
          "A calibration run whose Rs0 standard error exceeds this fraction of Rs0 is refused and the calibration in use "
@@ -1168,6 +1176,14 @@ std::vector<std::string> reference_default_warnings(const ControllerConfig& conf
         d.derating.min_current_A, rated_peak_A, d.motor.continuous_current_A_rms));
   }
   return out;
+}
+
+std::string t0_rise_text(const core::Calibration& c) {
+  if (!(c.t0_rise_std_C > 0.0)) {
+    return {};
+  }
+  return fmt::format(" (+- {:.2f} K: the ambient plus the thermal model's rise, calibration.model_rise_std_fraction)",
+                     c.t0_rise_std_C);
 }
 
 std::string calibration_events_text(int used, int wanted) {

@@ -153,6 +153,10 @@ void finalize(ControllerConfig& config, std::string_view source, const toml::tab
 // (calibration.events), else " on N of M events, at its timeout (calibration.min_events)".
 [[nodiscard]] std::string calibration_events_text(int used, int wanted);
 
+// For a completed calibration's report: "" when T0 is the ambient's or an operator's reading,
+// else " (+- S K: the ambient plus the thermal model's rise)" (core::Calibration::t0_rise_std_C).
+[[nodiscard]] std::string t0_rise_text(const core::Calibration& c);
+
 // Defaults that describe the reference machine (Table I, 11.9 kW) and no other, on a motor
 // that is another (continuous current under half or over twice the reference's): the thermal
 // model left at the reference's values, a derating floor above the motor's rated peak current.

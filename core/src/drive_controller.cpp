@@ -474,12 +474,17 @@ void DriveController::start_calibration(double known_temp_C, bool from_ambient_s
   // newcomer's hub motor, calibrated after a 12 s ride at 20x thermal time with the winding
   // 12 K warm, read 13.6 C low for the whole run). Refused, as an uncertain Rs0 is; the
   // calibration in use and the filter stay. Before the filter's first update it knows nothing.
+  // On the nameplate's Rs0 the calibration refers T0 to the ambient plus the model's rise (below):
+  // the filter is then held to that, and refuses a winding warmer than the drive's own losses
+  // made it (a warm motor powered up without a stored state).
+  const bool on_nameplate = !observer_.calibration().calibrated;
   if (from_ambient_sensor && !was_calibrating && !thermal_guess_pending_ &&
       config_.calibration_max_winding_rise_C > 0.0) {
     // Against the ambient the filter runs on, not the one given now: a configured ambient
     // changed just before the request (no sensor) is no warmth of the winding.
     const double rise = observer_.estimate().winding_C - thermal_ambient_C_;
-    if (rise > config_.calibration_max_winding_rise_C) {
+    const double assumed_rise = on_nameplate ? std::max(observer_.model_rise_C(), 0.0) : 0.0;
+    if (rise - assumed_rise > config_.calibration_max_winding_rise_C) {
       // Nothing of a calibration run has started: nothing to restore (fail_calibration).
       calibration_refused_on_request_ = true;
       telemetry_.calibration_winding_rise_C = rise;
@@ -495,18 +500,27 @@ void DriveController::start_calibration(double known_temp_C, bool from_ambient_s
   // losses did since: beyond the limit the calibration is refused, within it Rs0 is referred to
   // the ambient plus that rise (docs/estimator.md section 6).
   // (A repeated request while one runs takes the same reference: the restarted observer carries
-  // the rise on.)
-  if (from_ambient_sensor && !thermal_guess_pending_ && !observer_.calibration().calibrated) {
+  // the rise on.) The rise is the commissioned model's, known to calibration_model_rise_std_fraction
+  // of itself: T0's uncertainty, kept with the calibration and in the band. Above the limit the
+  // calibration is still better than the nameplate it would replace while that uncertainty is
+  // below half the nameplate's (5 % of Rs0, about 13 K): a newcomer's flywheel, calibrated after a
+  // spin-up that warmed the winding 5.4 K by the model, was refused and ran 9.5 C RMS high on the
+  // nameplate; referred to the model's rise it reads 0.7 C (docs/estimator.md section 6).
+  double t0_rise_std_C = 0.0;
+  if (from_ambient_sensor && !thermal_guess_pending_ && on_nameplate) {
     const double model_rise = std::max(observer_.model_rise_C(), 0.0);
+    const double rise_std_C = std::max(config_.calibration_model_rise_std_fraction, 0.0) * model_rise;
+    const double nameplate_std_C = observer_.rs0_std_C_at(known_temp_C + model_rise);
     if (!was_calibrating && config_.calibration_max_winding_rise_C > 0.0 &&
-        model_rise > config_.calibration_max_winding_rise_C) {
+        model_rise > config_.calibration_max_winding_rise_C && !(rise_std_C < 0.5 * nameplate_std_C)) {
       calibration_refused_on_request_ = true;
       telemetry_.calibration_winding_rise_C = model_rise;
       record_calibration_failure(CalibrationFailure::kWindingWarm);
       return;
     }
-    if (std::isfinite(model_rise)) {
+    if (std::isfinite(model_rise) && std::isfinite(rise_std_C)) {
       known_temp_C += model_rise;
+      t0_rise_std_C = rise_std_C;
     }
   }
   // An operator's reading is not second-guessed against the model alone, which may start from
@@ -552,6 +566,7 @@ void DriveController::start_calibration(double known_temp_C, bool from_ambient_s
   telemetry_.calibration_events = 0;
   calibration_started_s_ = static_cast<double>(period_) * config_.period_s;
   calibration_temp_C_ = known_temp_C;
+  calibration_t0_rise_std_C_ = t0_rise_std_C;
   calibration_from_ambient_sensor_ = from_ambient_sensor;
   calibration_count_ = 0;
   calibration_rs_sum_ = 0.0;
@@ -1045,6 +1060,7 @@ void DriveController::complete_calibration() {
   Calibration c;
   c.rs0_ohm = rs0;
   c.t0_C = calibration_temp_C_;
+  c.t0_rise_std_C = calibration_t0_rise_std_C_;
   c.ke0_V_s_per_rad = calibration_ke_count_ > 0 ? calibration_ke_sum_ / calibration_ke_count_ : 0.0;
   c.ke0_std_V_s_per_rad = calibration_ke0_std(c.ke0_V_s_per_rad);
   c.calibrated = true;

@@ -552,11 +552,13 @@ double ThermalObserver::reference_std_C() const {
   // Eq. 1 referred to T0: T = (K + T0) Rs / Rs0 - K, so dT/dT0 = Rs / Rs0 = (K + T) / (K + T0)
   // (with a cable, (Rs - Rc) / (Rs0 - Rc): the same ratio). An Rs0 no calibration run measured
   // is the nameplate's at its own reference temperature: its share is rs0_std_fraction's.
-  if (!calibration_.calibrated || !(config_.reference_std_C > 0.0)) {
+  // Beside the sensor's, the share of the model's rise T0 was referred through (Calibration::t0_rise_std_C).
+  const double t0_std_C = std::hypot(std::max(config_.reference_std_C, 0.0), std::max(calibration_.t0_rise_std_C, 0.0));
+  if (!calibration_.calibrated || !(t0_std_C > 0.0)) {
     return 0.0;
   }
   const double k = config_.conductor_inferred_zero_C;
-  const double s = config_.reference_std_C * (k + x_(0)) / (k + calibration_.t0_C);
+  const double s = t0_std_C * (k + x_(0)) / (k + calibration_.t0_C);
   return std::isfinite(s) ? std::abs(s) : 0.0;
 }
 

@@ -150,6 +150,26 @@ TEST_F(CalibrationFile, TheRotorAngleCorrectionIsKeptWhenMeasured) {
   EXPECT_THROW(write_calibration_file(dir_ / "c.toml", measured, "test"), CalibrationFileError);
 }
 
+// T0's uncertainty from the thermal model's rise (a calibration on the nameplate's Rs0 after the
+// drive's own losses warmed the winding) travels with it, so a restart's band carries it; absent
+// (a calibration on a soaked winding, or a file written before): none.
+TEST_F(CalibrationFile, TheModelRisesShareOfT0IsKeptWhenThere) {
+  const fs::path p = dir_ / "calibration.toml";
+  core::Calibration warm = sample();
+  warm.t0_rise_std_C = 1.35;
+  write_calibration_file(p, warm, "test");
+  EXPECT_DOUBLE_EQ(read_calibration_file(p).t0_rise_std_C, 1.35);
+  write_calibration_file(p, sample(), "test");
+  EXPECT_EQ(toml::parse_file(p.string()).get("t0_rise_std_C"), nullptr) << "none is left out, not written as 0";
+  EXPECT_EQ(read_calibration_file(p).t0_rise_std_C, 0.0);
+  EXPECT_NE(error_of("format = 1\nrs0_ohm = 0.13\nt0_C = 25.0\nt0_rise_std_C = -1.0\n")
+                .find("t0_rise_std_C: -1 is out of range"),
+            std::string::npos)
+      << error_of("format = 1\nrs0_ohm = 0.13\nt0_C = 25.0\nt0_rise_std_C = -1.0\n");
+  warm.t0_rise_std_C = std::nan("");
+  EXPECT_THROW(write_calibration_file(dir_ / "c.toml", warm, "test"), CalibrationFileError);
+}
+
 // The bridge's voltage Rs0 was learned with travels with it, with its error bar: a restarted
 // drive whose pairs cannot learn Vx (unipolar, fixed-angle under load) starts from it. Absent
 // (not learned, or a file written before): the configured prior holds.

@@ -967,6 +967,10 @@ TEST(DriveNode, ACalibrationOnTheAmbientOfAWarmWindingIsRefused) {
   rig.rebuild_plant();
   rig.config.drive.thermal.time_scale = 2000.0;
   rig.config.drive.estimator = core::EstimatorKind::kNone;  // the model alone warms it
+  // A stored calibration: the filter's guard (on the nameplate's Rs0 the model's rise is the
+  // reference instead, ANameplateCalibrationAtTheAmbientCountsTheModelsRise).
+  rig.config.drive.calibration.calibrated = true;
+  rig.config.drive.calibration.rs0_std_fraction = 0.0;
   rig.rebuild_node();
   const core::DriveTelemetry& tel = rig.node->controller().telemetry();
   const double ambient_C = 25.0;
@@ -990,7 +994,9 @@ TEST(DriveNode, ACalibrationOnTheAmbientOfAWarmWindingIsRefused) {
 // above, and the calibration referred Rs0 to the ambient with the winding warmer (a newcomer's
 // fan, calibrated after its run-up at 60x thermal time 2.6 K warm, read 3.4 C low for the
 // whole run). The model alone from the soaked start says what the drive's own losses did: the
-// calibration starts at the ambient plus that rise, and beyond the limit it is refused.
+// calibration starts at the ambient plus that rise, which carries a quarter of itself into T0's
+// uncertainty (calibration.model_rise_std_fraction); beyond the limit it is refused only where that
+// uncertainty is more than half the nameplate's.
 struct NameplateRig : Rig {
   NameplateRig() {
     plant_config.thermal.acceleration = 100.0;
@@ -1040,12 +1046,37 @@ TEST(DriveNode, ANameplateCalibrationAtTheAmbientCountsTheModelsRise) {
   ASSERT_TRUE(tel.calibrating);
   EXPECT_NEAR(tel.thermal.winding_C, static_cast<double>(rig.plant->truth().winding_temp_C), 0.6) << "asked twice";
 
+  // 8 K warm, above the 5 K limit: 2 K of T0's uncertainty against the 5 % nameplate's 13 K, so
+  // taken, at the ambient plus the model's rise; the calibration keeps that uncertainty.
   NameplateRig warm;
   warm.warm_by(8.0);
   const double rise_K = static_cast<double>(warm.plant->truth().winding_temp_C) - ambient_C;
+  ASSERT_GT(rise_K, warm.config.drive.calibration_max_winding_rise_C);
   ASSERT_LT(warm.node->controller().telemetry().thermal.winding_C, ambient_C + 5.0) << "the filter's guard is blind";
-  expect_refused_on_request(warm, core::CalibrationFailure::kWindingWarm);
-  EXPECT_NEAR(warm.node->controller().telemetry().calibration_winding_rise_C, rise_K, 0.25 * rise_K);
+  warm.in.start_calibration = true;
+  warm.run(1);
+  warm.in.start_calibration = false;
+  const core::DriveTelemetry& warm_tel = warm.node->controller().telemetry();
+  ASSERT_TRUE(warm_tel.calibrating) << static_cast<int>(warm_tel.calibration_failure);
+  warm.run(200);
+  EXPECT_NEAR(warm_tel.thermal.winding_C, ambient_C + rise_K, 0.25 * rise_K) << "the ambient plus the model's rise";
+  warm.plant->set_load_torque_Nm(0.0);  // a calibration at no load learns the bridge's voltage
+  const std::optional<core::Calibration> done = run_until_stored(warm);
+  ASSERT_TRUE(done.has_value()) << core::calibration_failure_name(warm_tel.calibration_failure) << " calibrating "
+                                << warm_tel.calibrating << " events " << warm_tel.calibration_events;
+  EXPECT_NEAR(done->t0_C - ambient_C, rise_K, 0.25 * rise_K);
+  EXPECT_NEAR(done->t0_rise_std_C, warm.config.drive.calibration_model_rise_std_fraction * (done->t0_C - ambient_C), 1e-9);
+  EXPECT_NE(t0_rise_text(*done).find("the ambient plus the thermal model's rise"), std::string::npos);
+
+  // The same against a nameplate known to 1 % (2.6 K): the referral's 2 K are no better than half
+  // of it, so refused, naming the model's rise.
+  NameplateRig sure;
+  sure.config.drive.calibration.rs0_std_fraction = 0.01;
+  sure.rebuild_node();
+  sure.warm_by(8.0);
+  const double sure_rise_K = static_cast<double>(sure.plant->truth().winding_temp_C) - ambient_C;
+  expect_refused_on_request(sure, core::CalibrationFailure::kWindingWarm);
+  EXPECT_NEAR(sure.node->controller().telemetry().calibration_winding_rise_C, sure_rise_K, 0.25 * sure_rise_K);
 }
 
 // The model's rise is the drive's own losses' alone: an ambient sensor whose first reading comes

@@ -321,6 +321,12 @@ TEST(ThermalObserver, TheCalibrationsTemperatureUncertaintyStaysInTheBand) {
     ASSERT_TRUE(uncalibrated.update_resistance(uncalibrated.resistance_at_C(52.0), 0.0005));
   }
   EXPECT_EQ(uncalibrated.reference_std_C(), 0.0);
+  // A T0 that includes the thermal model's rise (a calibration on the nameplate after the drive's
+  // own losses) carries that rise's uncertainty beside the sensor's, in quadrature; alone too.
+  Calibration warm = cal;
+  warm.t0_rise_std_C = 0.75;
+  EXPECT_NEAR(ThermalObserver(c, warm, 45.0).reference_std_C(), 1.25, 1e-12);
+  EXPECT_NEAR(ThermalObserver(plain_config, warm, 45.0).reference_std_C(), 0.75, 1e-12);
 }
 
 TEST(ThermalObserver, AfterPredictionAMeasurementAlsoMovesTheCorrelatedStates) {

@@ -804,8 +804,9 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
     }
     if (step.calibration_to_store) {
       if (options.log_events) {
-        calibration_line = fmt::format("{:10.3f}  calibration: Rs0 {:.5f} ohm at {:.1f} C{}; its pairs: {}", t,
+        calibration_line = fmt::format("{:10.3f}  calibration: Rs0 {:.5f} ohm at {:.1f} C{}{}; its pairs: {}", t,
                                        step.calibration_to_store->rs0_ohm, step.calibration_to_store->t0_C,
+                                       t0_rise_text(*step.calibration_to_store),
                                        calibration_events_text(tel.calibration_events, controller_config.drive.calibration_events),
                                        core::pair_outcomes_text(tel.calibration_outcomes, tel.calibration_aborts));
       }
@@ -1160,6 +1161,7 @@ std::string result_json(const SimulationResult& r) {
         .field("events", r.calibration_events)
         .field("rs0_error_pct", r.calibration_rs0_error_pct)
         .field("t0_C", r.calibration.t0_C)
+        .field("t0_rise_std_C", r.calibration.t0_rise_std_C)
         .field("ke0_V_s_per_rad", r.calibration.ke0_V_s_per_rad)
         .field("ke0_std_V_s_per_rad", r.calibration.ke0_std_V_s_per_rad > 0.0 ? r.calibration.ke0_std_V_s_per_rad : kNan)
         .field("dead_time_band_A", r.calibration.dead_time_band_A > 0.0 ? r.calibration.dead_time_band_A : kNan)
@@ -1346,8 +1348,9 @@ std::string result_text(const SimulationResult& r) {
     }
   }
   if (r.calibrated) {
-    out += fmt::format("  calibration at {:.2f} s           Rs0 {:.5f} +- {:.5f} ohm at {:.1f} C, Ke0 {:.4f} V s/rad{}\n",
+    out += fmt::format("  calibration at {:.2f} s           Rs0 {:.5f} +- {:.5f} ohm at {:.1f} C{}, Ke0 {:.4f} V s/rad{}\n",
                        r.calibration_time_s, r.calibration.rs0_ohm, r.calibration_rs0_std_ohm, r.calibration.t0_C,
+                       t0_rise_text(r.calibration),
                        r.calibration.ke0_V_s_per_rad, calibration_events_text(r.calibration_events, r.calibration_events_wanted));
   }
   if (r.calibration_failure == core::CalibrationFailure::kTimeout) {

@@ -125,6 +125,13 @@ struct DriveConfig {
   // that by more than this (the drive's own losses since it started, a stored warm state) is
   // refused, and the calibration in use stays. 0: no check.
   double calibration_max_winding_rise_C = 5.0;
+  // On the nameplate's Rs0 (no calibration yet) a calibration on the ambient sensor refers Rs0 to
+  // the ambient plus the thermal model's rise by the drive's own losses, which is known to this
+  // fraction of itself (the commissioned winding capacity and copper loss, 10-20 % each): T0's
+  // uncertainty (Calibration::t0_rise_std_C), in the band. Above calibration_max_winding_rise_C
+  // such a calibration is taken while that uncertainty stays below half the nameplate's own
+  // (Calibration::rs0_std_fraction, in kelvin), and refused beyond (docs/estimator.md section 6).
+  double calibration_model_rise_std_fraction = 0.25;
   std::size_t recording_capacity = 8192;      // periods per recording (preallocated)
 
   // Fills every sub-configuration's copy of the motor model and of the period from `motor`
@@ -793,6 +800,7 @@ class DriveController {
   CalibrationOutcome calibration_outcome_ = CalibrationOutcome::kNone;
   double calibration_started_s_ = 0.0;
   double calibration_temp_C_ = 25.0;
+  double calibration_t0_rise_std_C_ = 0.0;  // Calibration::t0_rise_std_C of the run under way
   bool calibration_from_ambient_sensor_ = false;  // the running calibration's T0 is the sensor's
   int calibration_count_ = 0;
   double calibration_rs_sum_ = 0.0;

@@ -159,6 +159,12 @@ struct Calibration {
   // vx_V is referred to the reference bus; vx_std_V is its error at this bus, where the events
   // measured it: away from it the bus slope's uncertainty adds (docs/estimator.md section 4).
   double vx_bus_V = 0.0;
+  // The standard uncertainty T0 carries beyond the sensor's (ThermalModelConfig::reference_std_C):
+  // a calibration on the nameplate's Rs0 refers Rs0 to the ambient plus the thermal model's rise
+  // by the drive's own losses since a soaked start, and that rise is known to
+  // DriveConfig::calibration_model_rise_std_fraction of itself. 0: none (a calibration at rest on
+  // the ambient, an operator's reading, a stored one from before this was kept).
+  double t0_rise_std_C = 0.0;
 };
 
 struct DeratingConfig {
