@@ -384,7 +384,9 @@ void Publisher::handle(const PublicationRecord& r) {
                    "calibration stays in use");
     } else if (r.calibration_failure == core::CalibrationFailure::kWindingWarm) {
       spdlog::warn("calibration refused: the winding is {:.1f} C above the ambient sensor's temperature (the thermal "
-                   "filter's, or the measured Rs0 read through the calibration in use; calibration.max_winding_rise_C): "
+                   "filter's, or the measured Rs0 read through the calibration in use; calibration.max_winding_rise_C; on "
+                   "the nameplate's Rs0 the thermal model's rise, taken beyond that limit only while "
+                   "calibration.model_rise_std_fraction of it stays below half the nameplate's uncertainty): "
                    "Rs0 would be referred to a temperature the winding is "
                    "not at; let the motor cool to the ambient, or give the winding's temperature with the request. A motor "
                    "replaced or rewound since the calibration in use reads warm through that calibration's Rs0 even when "
@@ -419,14 +421,18 @@ void Publisher::handle(const PublicationRecord& r) {
                    app::rs_outside_window_text(config_.controller.drive, r.calibration_rs0_ohm, r.calibration_rs0_std_ohm));
     } else if (r.calibration_failure == core::CalibrationFailure::kUncertain) {
       const std::string partial = app::calibration_events_text(r.calibration_events, config_.controller.drive.calibration_events);
+      // A whole run that is uncertain could not learn the bridge's voltage; one cut short at its
+      // timeout has too few events, and its pairs say what stopped the rest.
       spdlog::warn("calibration refused: Rs0 {:.5f} +- {:.5f} ohm{} is less certain than "
-                   "calibration.max_rs0_std_fraction allows (the bridge's voltage was not learned: calibrate "
-                   "unloaded, below injection.vx_learning_max_speed_rad_s){}; the previous calibration stays in use",
+                   "calibration.max_rs0_std_fraction allows ({}); the previous calibration stays in use",
                    r.calibration_rs0_ohm, r.calibration_rs0_std_ohm, partial,
-                   partial.empty() ? std::string()
-                                   : "; its pairs: " + core::pair_outcomes_text(r.calibration_pairs, r.calibration_aborts));
+                   partial.empty() ? std::string("the bridge's voltage was not learned: calibrate unloaded, below "
+                                                 "injection.vx_learning_max_speed_rad_s")
+                                   : "its pairs: " + core::pair_outcomes_text(r.calibration_pairs, r.calibration_aborts) +
+                                         ": calibrate unloaded at a steady speed");
     } else {
-      spdlog::warn("calibration gave up (calibration.timeout_s, {:.0f} s, without enough published events; its pairs: {}: "
+      spdlog::warn("calibration gave up (calibration.timeout_s, {:.0f} s, with fewer published events than "
+                 "calibration.min_events; its pairs: {}: "
                  "calibrate unloaded at a steady speed); the previous calibration stays in use",
                  config_.controller.drive.calibration_timeout_s, core::pair_outcomes_text(r.calibration_pairs, r.calibration_aborts));
     }

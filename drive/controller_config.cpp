@@ -482,12 +482,13 @@ ConfigSchema<C> build() {
          "(CALIBRATION_REQUEST) is checked only against a resistance measurement of the last 60 s: refused more than "
          "4 sigma + this from it.");
   s.real("calibration.model_rise_std_fraction",
-         [](C& c) -> double& { return c.drive.calibration_model_rise_std_fraction; }, between(0, 1), "",
+         [](C& c) -> double& { return c.drive.calibration_model_rise_std_fraction; }, positive(1.0), "",
          "On the nameplate's Rs0 (no calibration yet) a calibration on the ambient sensor starts at the ambient plus "
          "the thermal model's rise by the drive's own losses; that rise is known to this fraction of itself (the "
          "commissioned winding capacity and copper loss). It is T0's uncertainty, kept with the calibration and in the "
          "band. Above calibration.max_winding_rise_C such a calibration is taken while this uncertainty stays below half "
-         "the nameplate's (calibration.rs0_std_fraction, in kelvin), and refused beyond (docs/estimator.md section 6).");
+         "the nameplate's (calibration.rs0_std_fraction, in kelvin), and refused beyond; not after a restored thermal "
+         "state, whose rise was measured through the same nameplate (docs/estimator.md section 6).");
   s.real("calibration.max_rs0_std_fraction", [](C& c) -> double& { return c.drive.calibration_max_rs0_std_fraction; },
          between(1e-4, 1.0), "",
          "A calibration run whose Rs0 standard error exceeds this fraction of Rs0 is refused and the calibration in use "

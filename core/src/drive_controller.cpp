@@ -474,16 +474,24 @@ void DriveController::start_calibration(double known_temp_C, bool from_ambient_s
   // newcomer's hub motor, calibrated after a 12 s ride at 20x thermal time with the winding
   // 12 K warm, read 13.6 C low for the whole run). Refused, as an uncertain Rs0 is; the
   // calibration in use and the filter stay. Before the filter's first update it knows nothing.
-  // On the nameplate's Rs0 the calibration refers T0 to the ambient plus the model's rise (below):
-  // the filter is then held to that, and refuses a winding warmer than the drive's own losses
-  // made it (a warm motor powered up without a stored state).
+  // On the nameplate's Rs0 the calibration refers T0 to the ambient plus the model's rise (below).
+  // Where that rise is the drive's own losses' since a soaked start (not a restored state's, which
+  // was measured through the same nameplate) and the nameplate is not taken as exact, the filter
+  // is held to it: it refuses a winding warmer than those losses made it (a warm motor powered up
+  // without a stored state), and its measurements, through the nameplate's error, are not the
+  // reference. A newcomer's flywheel, asked after a spin-up, had the filter at 5.4 K and the model
+  // at 3.9 K: refused, it ran 9.5 C RMS high on a nameplate 3 % off; referred to the model's rise
+  // it reads 0.7 C (docs/estimator.md section 6, "A warm first calibration").
   const bool on_nameplate = !observer_.calibration().calibrated;
+  const double model_rise = std::isfinite(observer_.model_rise_C()) ? std::max(observer_.model_rise_C(), 0.0) : 0.0;
+  const bool model_is_reference =
+      on_nameplate && !thermal_restored_ && observer_.calibration().rs0_std_fraction > 0.0;
   if (from_ambient_sensor && !was_calibrating && !thermal_guess_pending_ &&
       config_.calibration_max_winding_rise_C > 0.0) {
     // Against the ambient the filter runs on, not the one given now: a configured ambient
     // changed just before the request (no sensor) is no warmth of the winding.
     const double rise = observer_.estimate().winding_C - thermal_ambient_C_;
-    const double assumed_rise = on_nameplate ? std::max(observer_.model_rise_C(), 0.0) : 0.0;
+    const double assumed_rise = model_is_reference ? model_rise : 0.0;
     if (rise - assumed_rise > config_.calibration_max_winding_rise_C) {
       // Nothing of a calibration run has started: nothing to restore (fail_calibration).
       calibration_refused_on_request_ = true;
@@ -497,22 +505,19 @@ void DriveController::start_calibration(double known_temp_C, bool from_ambient_s
   // newcomer's fan, calibrated after 2.5 s of run-up at 60x thermal time with the winding 2.6 K
   // above its coolant and the filter at 22 +- 14 C, read 3.4 C low for the whole run. The model
   // alone, from the soaked start a calibration at the ambient assumes, says what the drive's own
-  // losses did since: beyond the limit the calibration is refused, within it Rs0 is referred to
-  // the ambient plus that rise (docs/estimator.md section 6).
+  // losses did since: Rs0 is referred to the ambient plus that rise (docs/estimator.md section 6).
   // (A repeated request while one runs takes the same reference: the restarted observer carries
   // the rise on.) The rise is the commissioned model's, known to calibration_model_rise_std_fraction
-  // of itself: T0's uncertainty, kept with the calibration and in the band. Above the limit the
-  // calibration is still better than the nameplate it would replace while that uncertainty is
-  // below half the nameplate's (5 % of Rs0, about 13 K): a newcomer's flywheel, calibrated after a
-  // spin-up that warmed the winding 5.4 K by the model, was refused and ran 9.5 C RMS high on the
-  // nameplate; referred to the model's rise it reads 0.7 C (docs/estimator.md section 6).
+  // of itself: T0's uncertainty, kept with the calibration and in the band. Beyond the limit the
+  // calibration is refused, unless the model is the reference (above) and that uncertainty is
+  // below half the nameplate's (5 % of Rs0, about 13 K): then it is still the better of the two.
   double t0_rise_std_C = 0.0;
   if (from_ambient_sensor && !thermal_guess_pending_ && on_nameplate) {
-    const double model_rise = std::max(observer_.model_rise_C(), 0.0);
-    const double rise_std_C = std::max(config_.calibration_model_rise_std_fraction, 0.0) * model_rise;
+    const double rise_std_C = config_.calibration_model_rise_std_fraction * model_rise;
     const double nameplate_std_C = observer_.rs0_std_C_at(known_temp_C + model_rise);
+    const bool better_than_nameplate = model_is_reference && rise_std_C < 0.5 * nameplate_std_C;
     if (!was_calibrating && config_.calibration_max_winding_rise_C > 0.0 &&
-        model_rise > config_.calibration_max_winding_rise_C && !(rise_std_C < 0.5 * nameplate_std_C)) {
+        model_rise > config_.calibration_max_winding_rise_C && !better_than_nameplate) {
       calibration_refused_on_request_ = true;
       telemetry_.calibration_winding_rise_C = model_rise;
       record_calibration_failure(CalibrationFailure::kWindingWarm);
@@ -1272,12 +1277,14 @@ double DriveController::calibration_ke0_std(double ke0) const {
 void DriveController::start_thermal_from_guess(double guess_C) {
   observer_.restart_unknown(guess_C);  // keeps the observer's configuration, time scale included
   thermal_guess_pending_ = false;
+  thermal_restored_ = false;  // the model's rise starts from 0 at a guess
 }
 
 void DriveController::restore_thermal_state(const ThermalState& state, double downtime_s, double ambient_C) {
   drop_held_estimates();
   observer_.restore(state, downtime_s * observer_.time_scale(), ambient_C);
   thermal_guess_pending_ = false;
+  thermal_restored_ = true;  // the model's rise holds the restored state's
 }
 
 void DriveController::advance_thermal(std::uint32_t periods, const DriveCommand& command) {

@@ -1077,6 +1077,24 @@ TEST(DriveNode, ANameplateCalibrationAtTheAmbientCountsTheModelsRise) {
   const double sure_rise_K = static_cast<double>(sure.plant->truth().winding_temp_C) - ambient_C;
   expect_refused_on_request(sure, core::CalibrationFailure::kWindingWarm);
   EXPECT_NEAR(sure.node->controller().telemetry().calibration_winding_rise_C, sure_rise_K, 0.25 * sure_rise_K);
+
+  // A nameplate the configuration calls exact (a calibration.rs0_ohm given by hand): its filter is
+  // the judge, and the model's rise beyond the limit is refused as before.
+  NameplateRig exact;
+  exact.config.drive.calibration.rs0_std_fraction = 0.0;
+  exact.rebuild_node();
+  exact.warm_by(8.0);
+  expect_refused_on_request(exact, core::CalibrationFailure::kWindingWarm);
+
+  // A restored warm state: the model's rise holds it, measured through the same nameplate, so it
+  // is no soaked start's rise to refer T0 to beyond the limit; refused.
+  NameplateRig restored;
+  restored.plant->set_temperatures_C(ambient_C + 10.0, ambient_C + 8.0, ambient_C + 8.0);
+  restored.node->controller().restore_thermal_state(core::ThermalState{ambient_C + 10.0, ambient_C + 8.0, 1.0}, 0.0,
+                                                     ambient_C);
+  restored.run(2000);
+  ASSERT_GT(restored.node->controller().telemetry().thermal.winding_C, ambient_C + 8.0);
+  expect_refused_on_request(restored, core::CalibrationFailure::kWindingWarm);
 }
 
 // The model's rise is the drive's own losses' alone: an ambient sensor whose first reading comes

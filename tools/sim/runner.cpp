@@ -1180,6 +1180,7 @@ std::string result_json(const SimulationResult& r) {
         .field("reason", core::calibration_failure_name(r.calibration_failure))
         .field("rs0_ohm", measured_rs0 ? r.calibration_failure_rs0_ohm : kNan)
         .field("rs0_std_ohm", measured_rs0 ? r.calibration_failure_rs0_std_ohm : kNan)
+        .field("events", measured_rs0 ? r.calibration_failure_events : 0)
         .field("winding_rise_C", core::refused_on_winding_rise(r.calibration_failure) ? r.calibration_failure_winding_rise_C : kNan)
         .key("pairs")
         .begin_object();
@@ -1354,13 +1355,15 @@ std::string result_text(const SimulationResult& r) {
                        r.calibration.ke0_V_s_per_rad, calibration_events_text(r.calibration_events, r.calibration_events_wanted));
   }
   if (r.calibration_failure == core::CalibrationFailure::kTimeout) {
-    out += fmt::format("  calibration failed at {:.2f} s    timeout: not enough published events in calibration.timeout_s "
-                       "(its pairs: {}); the calibration in use stays\n",
+    out += fmt::format("  calibration failed at {:.2f} s    timeout: fewer published events by calibration.timeout_s than "
+                       "calibration.min_events (its pairs: {}); the calibration in use stays\n",
                        r.calibration_failure_time_s, core::pair_outcomes_text(r.calibration_failure_pairs, r.calibration_failure_aborts));
   } else if (r.calibration_failure == core::CalibrationFailure::kWindingWarm) {
     out += fmt::format("  calibration failed at {:.2f} s    winding_warm: the winding was {:.1f} C above the ambient sensor "
                        "(the thermal filter's, or the measured Rs0 read through the calibration in use; "
-                       "calibration.max_winding_rise_C); the calibration in use stays (a motor replaced or rewound since that "
+                       "calibration.max_winding_rise_C; on the nameplate's Rs0 the thermal model's rise, taken beyond that "
+                       "limit only while calibration.model_rise_std_fraction of it stays below half the nameplate's "
+                       "uncertainty); the calibration in use stays (a motor replaced or rewound since that "
                        "calibration reads warm through its Rs0 even when cold: give the winding's temperature with the "
                        "request, or remove the stored calibration)\n",
                        r.calibration_failure_time_s, r.calibration_failure_winding_rise_C);

@@ -801,6 +801,9 @@ class DriveController {
   double calibration_started_s_ = 0.0;
   double calibration_temp_C_ = 25.0;
   double calibration_t0_rise_std_C_ = 0.0;  // Calibration::t0_rise_std_C of the run under way
+  // The thermal state was restored (restore_thermal_state) since the filter last started from a
+  // guess: the model's rise then holds the restored state's, which is no soaked start's.
+  bool thermal_restored_ = false;
   bool calibration_from_ambient_sensor_ = false;  // the running calibration's T0 is the sensor's
   int calibration_count_ = 0;
   double calibration_rs_sum_ = 0.0;
