@@ -90,6 +90,14 @@ std::optional<core::Calibration> run_until_stored(Rig& rig) {
   return std::nullopt;
 }
 
+// Asks for a calibration at the ambient and runs until it is stored (nullopt: it was not).
+std::optional<core::Calibration> calibrate(Rig& rig) {
+  rig.in.start_calibration = true;
+  rig.run(1);
+  rig.in.start_calibration = false;
+  return run_until_stored(rig);
+}
+
 // Runs until the magnet estimate's validity is `valid` (at most max_periods); the periods run.
 int run_until_magnet(Rig& rig, bool valid, int max_periods) {
   int k = 0;
@@ -1651,10 +1659,7 @@ TEST(DriveNode, ACalibrationWithSomeEventsByItsTimeoutCompletesOnThem) {
   rig.config.drive.calibration_timeout_s = 3.0;
   rig.rebuild_node();
   rig.run(2000);
-  rig.in.start_calibration = true;
-  rig.run(1);
-  rig.in.start_calibration = false;
-  const std::optional<core::Calibration> done = run_until_stored(rig);
+  const std::optional<core::Calibration> done = calibrate(rig);
   ASSERT_TRUE(done.has_value()) << core::calibration_failure_name(rig.node->controller().telemetry().calibration_failure);
   const core::DriveTelemetry& t = rig.node->controller().telemetry();
   EXPECT_GE(t.calibration_events, rig.config.drive.calibration_min_events);
@@ -1795,10 +1800,7 @@ TEST(DriveNode, AMagnetEstimateNobodyRenewsStopsBeingValid) {
   rig.config.drive.magnet_max_age_s = 0.5;
   rig.rebuild_node();
   rig.run(2000);
-  rig.in.start_calibration = true;
-  rig.run(1);
-  rig.in.start_calibration = false;
-  const std::optional<core::Calibration> done = run_until_stored(rig);
+  const std::optional<core::Calibration> done = calibrate(rig);
   ASSERT_TRUE(done.has_value()) << "the calibration did not complete";
   ASSERT_GT(done->ke0_V_s_per_rad, 0.0);
   const auto& tel = rig.node->controller().telemetry();
