@@ -160,22 +160,19 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns, 
     r.angle_check_pending = node_.controller().angle_check_pending();
     r.angle_correction_rad = node_.controller().angle_correction_rad();
     r.calibration_failed = out.calibration_failed;
-    if (out.calibration_to_store) {
+    if (out.calibration_to_store || out.calibration_failed) {
       const core::DriveTelemetry& t = node_.controller().telemetry();
-      r.calibration_events = t.calibration_events;
       r.calibration_pairs = t.calibration_outcomes;
       r.calibration_aborts = t.calibration_aborts;
-    }
-    if (out.calibration_failed) {
-      const core::DriveTelemetry& t = node_.controller().telemetry();
-      r.calibration_failure = t.calibration_failure;
-      r.calibration_winding_rise_C = t.calibration_winding_rise_C;
-      r.calibration_pairs = t.calibration_outcomes;
-      r.calibration_aborts = t.calibration_aborts;
-      if (core::refused_measured_rs0(t.calibration_failure)) {
-        r.calibration_rs0_ohm = t.calibration_rs0_ohm;
-        r.calibration_rs0_std_ohm = t.calibration_rs0_std_ohm;
-        r.calibration_events = t.calibration_events;
+      const bool measured = out.calibration_to_store || core::refused_measured_rs0(t.calibration_failure);
+      r.calibration_events = measured ? t.calibration_events : 0;
+      if (out.calibration_failed) {
+        r.calibration_failure = t.calibration_failure;
+        r.calibration_winding_rise_C = t.calibration_winding_rise_C;
+        if (measured) {
+          r.calibration_rs0_ohm = t.calibration_rs0_ohm;
+          r.calibration_rs0_std_ohm = t.calibration_rs0_std_ohm;
+        }
       }
     }
     r.uptime_s = node_.uptime_s();

@@ -268,6 +268,11 @@ void Publisher::log_refusals(const PublicationRecord& r) {
 }
 
 void Publisher::handle(const PublicationRecord& r) {
+  // A calibration's events and pairs where it ended at its timeout on fewer than calibration.events.
+  const auto cut_short_text = [this](const PublicationRecord& record) {
+    return app::cut_short_calibration_text(record.calibration_events, config_.controller.drive.calibration_events,
+                                           record.calibration_pairs, record.calibration_aborts);
+  };
   log_refusals(r);
   const app::NodePublications& p = r.publications;
   for (std::size_t k = 0; k < p.fault_count; ++k) {
@@ -420,16 +425,15 @@ void Publisher::handle(const PublicationRecord& r) {
       spdlog::warn("calibration refused: {} The previous calibration stays in use",
                    app::rs_outside_window_text(config_.controller.drive, r.calibration_rs0_ohm, r.calibration_rs0_std_ohm));
     } else if (r.calibration_failure == core::CalibrationFailure::kUncertain) {
-      const std::string partial = app::calibration_events_text(r.calibration_events, config_.controller.drive.calibration_events);
+      const std::string cut_short = cut_short_text(r);
       // A whole run that is uncertain could not learn the bridge's voltage; one cut short at its
       // timeout has too few events, and its pairs say what stopped the rest.
       spdlog::warn("calibration refused: Rs0 {:.5f} +- {:.5f} ohm{} is less certain than "
                    "calibration.max_rs0_std_fraction allows ({}); the previous calibration stays in use",
-                   r.calibration_rs0_ohm, r.calibration_rs0_std_ohm, partial,
-                   partial.empty() ? std::string("the bridge's voltage was not learned: calibrate unloaded, below "
-                                                 "injection.vx_learning_max_speed_rad_s")
-                                   : "its pairs: " + core::pair_outcomes_text(r.calibration_pairs, r.calibration_aborts) +
-                                         ": calibrate unloaded at a steady speed");
+                   r.calibration_rs0_ohm, r.calibration_rs0_std_ohm, cut_short,
+                   cut_short.empty() ? "the bridge's voltage was not learned: calibrate unloaded, below "
+                                       "injection.vx_learning_max_speed_rad_s"
+                                     : "calibrate unloaded at a steady speed");
     } else {
       spdlog::warn("calibration gave up (calibration.timeout_s, {:.0f} s, with fewer published events than "
                  "calibration.min_events; its pairs: {}: "
@@ -441,11 +445,10 @@ void Publisher::handle(const PublicationRecord& r) {
     const core::Calibration& c = *r.calibration_to_store;
     // Ke0 in Eq. 3's form (phase peak volts per mechanical rad/s), and in motor.ke_V_s_per_rad's
     // (line-to-line RMS: x sqrt(3/2)), so that it compares with the nameplate.
-    const std::string partial = app::calibration_events_text(r.calibration_events, config_.controller.drive.calibration_events);
-    if (!partial.empty()) {
-      spdlog::warn("calibration completed{} (its pairs: {}): its Rs0 is less certain than a whole run's; calibrate "
-                   "again unloaded at a steady speed when the machine allows",
-                   partial, core::pair_outcomes_text(r.calibration_pairs, r.calibration_aborts));
+    if (const std::string cut_short = cut_short_text(r); !cut_short.empty()) {
+      spdlog::warn("calibration completed{}: its Rs0 is less certain than a whole run's; calibrate again unloaded at a "
+                   "steady speed when the machine allows",
+                   cut_short);
     }
     spdlog::info("calibration done: Rs0 {:.5f} ohm at {:.1f} C{}, Ke0 {:.4f} V s/rad phase peak ({:.4f} line-to-line RMS, "
                  "the form of motor.ke_V_s_per_rad), {}, {}",

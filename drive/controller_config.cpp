@@ -1194,6 +1194,15 @@ std::string calibration_events_text(int used, int wanted) {
   return fmt::format(" on {} of {} events, at its timeout (calibration.min_events)", used, wanted);
 }
 
+std::string cut_short_calibration_text(int used, int wanted, const core::OutcomeCounts& pairs,
+                                       const core::AbortCounts& aborts) {
+  std::string text = calibration_events_text(used, wanted);
+  if (!text.empty()) {
+    text += "; its pairs: " + core::pair_outcomes_text(pairs, aborts);
+  }
+  return text;
+}
+
 std::string rs_outside_window_text(const core::DriveConfig& d, double measured_ohm, double scatter_ohm) {
   const core::InjectionConfig& w = d.calibration_injection;
   const double nameplate_ohm = core::terminal_resistance_ohm(d);

@@ -152,6 +152,9 @@ void finalize(ControllerConfig& config, std::string_view source, const toml::tab
 // For a completed calibration's report: "" when its Rs0 averaged the `wanted` events
 // (calibration.events), else " on N of M events, at its timeout (calibration.min_events)".
 [[nodiscard]] std::string calibration_events_text(int used, int wanted);
+// The same followed by "; its pairs: ..." (why it fell short), or "" for a whole calibration.
+[[nodiscard]] std::string cut_short_calibration_text(int used, int wanted, const core::OutcomeCounts& pairs,
+                                                     const core::AbortCounts& aborts);
 
 // For a completed calibration's report: "" when T0 is the ambient's or an operator's reading,
 // else " (+- S K: the ambient plus the thermal model's rise)" (core::Calibration::t0_rise_std_C).

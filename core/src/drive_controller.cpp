@@ -523,10 +523,8 @@ void DriveController::start_calibration(double known_temp_C, bool from_ambient_s
       record_calibration_failure(CalibrationFailure::kWindingWarm);
       return;
     }
-    if (std::isfinite(model_rise) && std::isfinite(rise_std_C)) {
-      known_temp_C += model_rise;
-      t0_rise_std_C = rise_std_C;
-    }
+    known_temp_C += model_rise;  // finite (above), and so its share (the fraction is a checked key)
+    t0_rise_std_C = rise_std_C;
   }
   // An operator's reading is not second-guessed against the model alone, which may start from
   // a guess (a warm motor powered up without a stored state); but where the drive measured the

@@ -37,16 +37,6 @@ namespace {
 // JSON writes a non-finite number as null: "no value", never a plausible-looking number.
 constexpr double kNan = std::numeric_limits<double>::quiet_NaN();
 
-// After a calibration's figures: its events and pairs, where it completed at its timeout on fewer
-// events than calibration.events (why it fell short is in its pairs).
-std::string partial_calibration_pairs_text(const SimulationResult& r) {
-  const std::string events = calibration_events_text(r.calibration_failure_events, r.calibration_events_wanted);
-  if (events.empty()) {
-    return {};
-  }
-  return events + "; its pairs: " + core::pair_outcomes_text(r.calibration_failure_pairs, r.calibration_failure_aborts);
-}
-
 std::string method_name(const ControllerConfig& c) {
   const core::DriveConfig& d = c.drive;
   if (d.estimator == core::EstimatorKind::kNoInjection) {
@@ -1388,7 +1378,8 @@ std::string result_text(const SimulationResult& r) {
                        "calibration.max_rs0_std_fraction){}; the calibration in use stays\n",
                        r.calibration_failure_time_s, r.calibration_failure_rs0_ohm, r.calibration_failure_rs0_std_ohm,
                        100.0 * r.calibration_failure_rs0_std_ohm / std::max(std::abs(r.calibration_failure_rs0_ohm), 1e-12),
-                       partial_calibration_pairs_text(r));
+                       cut_short_calibration_text(r.calibration_failure_events, r.calibration_events_wanted,
+                                                  r.calibration_failure_pairs, r.calibration_failure_aborts));
   }
   for (const SimulationResult::FaultSeen& f : r.faults) {
     if (f.count > 0) {
