@@ -255,6 +255,13 @@ std::string check_cross_keys(const DaemonConfig& c, const toml::table& root, con
                        key, common::format_number(every_s), common::format_number(c.controller.drive.period_s)));
     }
   }
+  // A command timeout within one control period would fault in every period a command did not
+  // come in (1e-5 s passed --check).
+  if (s.command_timeout_s > 0.0 && !(s.command_timeout_s > c.controller.drive.period_s)) {
+    rule(fmt::format("supervisor.command_timeout_s ({} s) must be above the control period controller.control.period_s "
+                     "({} s), or 0 (off): a drive enabled would fault in every period without a fresh DRIVE_COMMAND",
+                     common::format_number(s.command_timeout_s), common::format_number(c.controller.drive.period_s)));
+  }
   if (const double period_ms = 1e3 * c.controller.drive.period_s; !(c.can.sample_timeout_ms > period_ms)) {
     rule(fmt::format("can.sample_timeout_ms ({} ms) must be above the control period controller.control.period_s ({} ms): "
                      "every period would count as missing",

@@ -41,6 +41,7 @@
 
 #include "calibration_file.hpp"
 #include "cli_validators.hpp"
+#include "standard_output.hpp"
 #include "daemon_config.hpp"
 #include "drive_loop.hpp"
 #include "fault_watch.hpp"
@@ -358,6 +359,15 @@ int run(const Options& o) {
       std::string why;
       if (const auto s = usable_thermal_state(config, downtime_s, why)) {
         thermal = fmt::format("thermal state usable (winding {:.1f} C, saved {:.0f} s ago)", s->state.winding_C, downtime_s);
+        // What the start would say of a bad block, which costs only itself.
+        if (!s->loss_errors_ignored.empty()) {
+          spdlog::warn("thermal state: the loss model's errors would not be used ({}); they would restart from the "
+                       "priors, the temperatures kept", s->loss_errors_ignored);
+        }
+        if (!s->cooling_error_ignored.empty()) {
+          spdlog::warn("thermal state: the cooling path's error would not be used ({}); it would restart from its "
+                       "prior, the temperatures kept", s->cooling_error_ignored);
+        }
       } else if (why.empty()) {
         thermal = "thermal state missing";
       } else {
@@ -368,7 +378,7 @@ int run(const Options& o) {
     std::printf("%s: OK (node %d on %s, %s; calibration %s; %s)\n", o.config_path.c_str(), config.can.node,
                 config.can.interface.c_str(), budget.c_str(), std::string(pmsm::app::to_string(stored)).c_str(),
                 thermal.c_str());
-    return 0;
+    return pmsm::cli::exit_with_standard_output_checked("pmsm-thermald", 0, kExitIo);
   }
   spdlog::info("pmsm-thermald {} starting: config {}, node {} on {}", PMSM_VERSION, o.config_path, config.can.node,
                config.can.interface);
@@ -581,7 +591,7 @@ int main(int argc, char** argv) {
   }
   if (o.keys) {
     std::fputs(pmsm::daemon::daemon_keys_markdown().c_str(), stdout);
-    return 0;
+    return pmsm::cli::exit_with_standard_output_checked("pmsm-thermald", 0, kExitIo);
   }
   if (o.config_path.empty()) {
     std::fprintf(stderr, "pmsm-thermald: --config FILE is required (see --help)\n");

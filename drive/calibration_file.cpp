@@ -467,6 +467,11 @@ core::Calibration read_calibration_file(const std::filesystem::path& path, Store
   c.ke0_V_s_per_rad = t.get("ke0_V_s_per_rad") != nullptr ? number(t, kKe0Range, file) : 0.0;
   c.ke0_std_V_s_per_rad =
       t.get("ke0_std_V_s_per_rad") != nullptr ? number(t, kKe0StdRange, file) : 0.0;
+  if (t.get("ke0_std_V_s_per_rad") != nullptr && !(c.ke0_V_s_per_rad > 0.0)) {
+    throw CalibrationFileError(fmt::format("{}: ke0_std_V_s_per_rad without ke0_V_s_per_rad: the error bar of no Ke0 is "
+                                           "a hand edit gone wrong",
+                                           file));
+  }
   c.dead_time_band_A =
       t.get("dead_time_band_A") != nullptr ? number(t, kBandRange, file) : 0.0;
   c.angle_correction_measured = t.get("angle_correction_rad") != nullptr;
@@ -548,7 +553,11 @@ namespace {
 constexpr std::string_view kThermalStateHeader = "# pmsm-thermal thermal state";
 }  // namespace
 
-std::string foreign_thermal_state_file(const std::filesystem::path& path) {
+namespace {
+
+// Why the file at `path` is no thermal state file the drive wrote ("" where it is one, or none
+// is there, or it is empty, or unreadable): not a regular file, or not starting with the header.
+std::string not_a_thermal_state_file(const std::filesystem::path& path) {
   std::error_code ec;
   const std::filesystem::file_type type = std::filesystem::status(path, ec).type();
   if (type == std::filesystem::file_type::not_found) {
@@ -556,11 +565,11 @@ std::string foreign_thermal_state_file(const std::filesystem::path& path) {
   }
   if (type != std::filesystem::file_type::regular) {
     // (Opened, a FIFO would block until a writer came; /dev/null would be replaced by the rename.)
-    return fmt::format("{} is there and is not a regular file: not written over", path.string());
+    return fmt::format("{} is there and is not a regular file", path.string());
   }
   std::ifstream in(path, std::ios::binary);
   if (!in) {
-    return {};  // unreadable: the write will say why
+    return {};  // unreadable: the write (or the read) says why
   }
   std::string first(kThermalStateHeader.size(), '\0');
   in.read(first.data(), static_cast<std::streamsize>(first.size()));
@@ -568,8 +577,15 @@ std::string foreign_thermal_state_file(const std::filesystem::path& path) {
   if (first.empty() || first == kThermalStateHeader) {
     return {};
   }
-  return fmt::format("{} is there and is no thermal state file (it starts \"{}\", not \"{}\"): not written over",
-                     path.string(), printable(first.substr(0, first.find('\n'))), kThermalStateHeader);
+  return fmt::format("{} is there and is no thermal state file (it starts \"{}\", not \"{}\")", path.string(),
+                     printable(first.substr(0, first.find('\n'))), kThermalStateHeader);
+}
+
+}  // namespace
+
+std::string foreign_thermal_state_file(const std::filesystem::path& path) {
+  const std::string why = not_a_thermal_state_file(path);
+  return why.empty() ? why : why + ": not written over";
 }
 
 void write_thermal_state_file(const std::filesystem::path& path, const StoredThermalState& stored) {
@@ -692,6 +708,12 @@ StoredThermalState read_thermal_state_file(const std::filesystem::path& path) {
   // The axis that wrote it: both keys or neither, and a bad one refuses the file (whose axis
   // it is cannot be told: it is not taken for this one's).
   s.axis = read_axis(t, file);
+  // Only what the drive wrote, which starts with its header: a file without it (one written by
+  // hand, a copy of something else that happens to parse) is not taken, as it is not written
+  // over (foreign_thermal_state_file), which would leave it in place for every start.
+  if (const std::string why = not_a_thermal_state_file(path); !why.empty()) {
+    throw CalibrationFileError(why + ": not used");
+  }
   return s;
 }
 

@@ -70,6 +70,9 @@ void write_calibration_file(const std::filesystem::path& path, const core::Calib
 // or gives too small (docs/estimator.md section 6, "A motor cable"); empty when it is within
 // that. For the drive's log when a calibration is done or loaded.
 inline constexpr double kRs0NameplateWarnFraction = 0.10;
+// A stored Ke0 further than this share from the motor's EMF constant (motor.ke_V_s_per_rad as
+// phase peak per mechanical rad/s) is refused: another motor's calibration, or other units.
+inline constexpr double kKe0OffMotorFraction = 0.30;
 [[nodiscard]] std::string rs0_off_nameplate_warning(const core::DriveConfig& config, const core::Calibration& c);
 
 // Reads a calibration file (calibrated = true). Throws CalibrationFileError naming the file,
@@ -116,6 +119,8 @@ void write_thermal_state_file(const std::filesystem::path& path, const StoredThe
 // (another axis's calibration, a log: a mistyped thermal.state_file) may be anything, and is
 // not written over.
 [[nodiscard]] std::string foreign_thermal_state_file(const std::filesystem::path& path);
+// Refuses (CalibrationFileError) a file without the header the drive writes, as the write
+// refuses to replace one.
 [[nodiscard]] StoredThermalState read_thermal_state_file(const std::filesystem::path& path);
 
 }  // namespace pmsm::app

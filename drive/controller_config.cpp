@@ -217,7 +217,7 @@ ConfigSchema<C> build() {
            "calibration's, an operator's) waits it after any of them.");
   inj.real("injection.retry_jitter", [](C& c) -> double& { return c.drive.injection.retry_jitter; }, between(0.0, 2.0), "",
            "From the second refused event in a row, the delay to the next is scaled by 1 + retry_jitter v, v uniform in [0, 1): no lock onto a duty whose period divides it.");
-  inj.real("injection.first_event_s", [](C& c) -> double& { return c.drive.injection.first_event_s; }, at_least(0), "s",
+  inj.real("injection.first_event_s", [](C& c) -> double& { return c.drive.injection.first_event_s; }, at_least(0, 1e7), "s",
            "Time of the first event after start.");
   inj.choice("injection.window",
              {{"blackman", static_cast<int>(WindowKind::kBlackman)}, {"modified", static_cast<int>(WindowKind::kModifiedBlackman)}},
@@ -284,10 +284,10 @@ ConfigSchema<C> build() {
   inj.real("injection.max_speed_change_fraction", [](C& c) -> double& { return c.drive.injection.max_speed_change_fraction; },
            between(0, 1), "", "Reject a pair whose recordings differ in speed by more than this fraction...");
   inj.optional_real("injection.max_speed_change_rad_s", [](C& c) -> std::optional<double>& { return c.relative.max_speed_change_rad_s; },
-                    at_least(0), "rad/s", "0.124 Rs/Lq",
+                    at_least(0, 1e6), "rad/s", "0.124 Rs/Lq",
                     "... or by more than this (electrical), whichever is larger (Table I: 3 rad/s).");
   inj.optional_real("injection.max_load_change_A", [](C& c) -> std::optional<double>& { return c.relative.max_load_change_A; },
-                    at_least(0), "A", "0.0332 I_rated",
+                    at_least(0, 1e6), "A", "0.0332 I_rated",
                     "Reject a pair whose recordings differ in motoring iq by more than this, beyond the speed loop's answer to the pulses' reluctance torque (Table I: 1.5 A).");
   inj.real("injection.max_residual_V", [](C& c) -> double& { return c.drive.injection.max_residual_V; }, positive(1000), "V",
            "Reject a pair whose fit residual (RMS) exceeds this.");
@@ -368,9 +368,9 @@ ConfigSchema<C> build() {
          "Controller's model: winding to housing.");
   s.real("thermal.housing_to_ambient_K_W", [](C& c) -> double& { return c.drive.thermal.housing_to_ambient_K_W; }, between(common::kMinThermalResistance_K_W, 100), "K/W",
          "Controller's model: housing to ambient.");
-  s.real("thermal.iron_loss_k1_W_s_rad", [](C& c) -> double& { return c.drive.thermal.iron_loss_k1_W_s_rad; }, at_least(0), "W s/rad",
+  s.real("thermal.iron_loss_k1_W_s_rad", [](C& c) -> double& { return c.drive.thermal.iron_loss_k1_W_s_rad; }, at_least(0, 1e4), "W s/rad",
          "Iron loss per mechanical rad/s.");
-  s.real("thermal.iron_loss_k2_W_s2_rad2", [](C& c) -> double& { return c.drive.thermal.iron_loss_k2_W_s2_rad2; }, at_least(0), "W s^2/rad^2",
+  s.real("thermal.iron_loss_k2_W_s2_rad2", [](C& c) -> double& { return c.drive.thermal.iron_loss_k2_W_s2_rad2; }, at_least(0, 1e3), "W s^2/rad^2",
          "Iron loss per (mechanical rad/s)^2.");
   s.real("thermal.acceleration", [](C& c) -> double& { return c.drive.thermal.time_scale; }, positive(1e6), "",
          "Thermal time runs this many times faster than controller time (1 on a real machine; the plant's acceleration in "
@@ -380,22 +380,22 @@ ConfigSchema<C> build() {
   s.real("thermal.update_s", [](C& c) -> double& { return c.drive.thermal_update_s; }, positive(10), "s", "Thermal filter period.");
   s.real("thermal.initial_std_C", [](C& c) -> double& { return c.drive.thermal.initial_std_C; }, positive(1000), "C", "Initial uncertainty.");
   s.real("thermal.winding_process_std_C_per_sqrt_s", [](C& c) -> double& { return c.drive.thermal.winding_process_std_C_per_sqrt_s; },
-         at_least(0), "C/sqrt(s)", "Process noise of the winding node (per thermal second).");
+         at_least(0, 100), "C/sqrt(s)", "Process noise of the winding node (per thermal second).");
   s.real("thermal.housing_process_std_C_per_sqrt_s", [](C& c) -> double& { return c.drive.thermal.housing_process_std_C_per_sqrt_s; },
-         at_least(0), "C/sqrt(s)", "Process noise of the housing node.");
+         at_least(0, 100), "C/sqrt(s)", "Process noise of the housing node.");
   s.optional_real("thermal.loss_error_process_std_W_per_sqrt_s",
-                  [](C& c) -> std::optional<double>& { return c.relative.loss_error_process_std_W_per_sqrt_s; }, at_least(0),
+                  [](C& c) -> std::optional<double>& { return c.relative.loss_error_process_std_W_per_sqrt_s; }, at_least(0, 1e6),
                   "W/sqrt(s)", "0.0625 K/sqrt(s) / thermal.housing_to_ambient_K_W",
                   "Random walk of the missing loss on the housing node (per thermal second; Table I: 0.5 W/sqrt(s)), in "
                   "proportion to the cooling path's conductance.");
   s.optional_real("thermal.initial_loss_error_std_W",
-                  [](C& c) -> std::optional<double>& { return c.relative.initial_loss_error_std_W; }, at_least(0), "W",
+                  [](C& c) -> std::optional<double>& { return c.relative.initial_loss_error_std_W; }, at_least(0, 1e7), "W",
                   "6.25 K / thermal.housing_to_ambient_K_W",
                   "Initial uncertainty of the missing loss on the housing node (iron, friction, rotor, the cooling path's "
                   "error at one temperature; Table I: 50 W), in proportion to the cooling path's conductance.");
   s.real("thermal.loss_scale_process_std_per_sqrt_s", [](C& c) -> double& { return c.drive.thermal.loss_scale_process_std_per_sqrt_s; },
-         at_least(0), "1/sqrt(s)", "Random walk of the copper-loss model's relative error (per thermal second).");
-  s.real("thermal.initial_loss_scale_std", [](C& c) -> double& { return c.drive.thermal.initial_loss_scale_std; }, at_least(0), "",
+         at_least(0, 1), "1/sqrt(s)", "Random walk of the copper-loss model's relative error (per thermal second).");
+  s.real("thermal.initial_loss_scale_std", [](C& c) -> double& { return c.drive.thermal.initial_loss_scale_std; }, at_least(0, 10), "",
          "Initial uncertainty of the copper-loss model's relative error (0.2: the model within about 20 %).");
   s.real("thermal.initial_cooling_scale_std", [](C& c) -> double& { return c.drive.thermal.initial_cooling_scale_std; },
          between(0, 1), "",
@@ -403,7 +403,7 @@ ConfigSchema<C> build() {
          "what thermal.housing_to_ambient_K_W passes; 0.25: a resistance to the ambient known within about a quarter; 0: g "
          "not learned).");
   s.real("thermal.cooling_scale_process_std_per_sqrt_s",
-         [](C& c) -> double& { return c.drive.thermal.cooling_scale_process_std_per_sqrt_s; }, at_least(0), "1/sqrt(s)",
+         [](C& c) -> double& { return c.drive.thermal.cooling_scale_process_std_per_sqrt_s; }, at_least(0, 1), "1/sqrt(s)",
          "Random walk of the cooling path's relative error (per thermal second; 0: a machine's cooling path holds).");
   s.real("thermal.model_error_fraction", [](C& c) -> double& { return c.drive.thermal.model_error_fraction; }, between(0, 1), "",
          "An extra, unlearned share of the winding's uncertainty between measurements: this fraction of the temperature change "
@@ -413,7 +413,7 @@ ConfigSchema<C> build() {
          "A motor at rest (the drive disabled) or a stored thermal state cooled through the downtime: the winding's uncertainty "
          "grows by this fraction of the change the model predicts meanwhile (the cooling path's relative error; no loss runs to "
          "teach the loss states; on top of what the learned cooling error's variance adds, a conservative overlap).");
-  s.real("thermal.measurement_floor_std_C", [](C& c) -> double& { return c.drive.thermal.measurement_floor_std_C; }, at_least(0), "C",
+  s.real("thermal.measurement_floor_std_C", [](C& c) -> double& { return c.drive.thermal.measurement_floor_std_C; }, at_least(0, 1000), "C",
          "Added in quadrature to every measurement's own error.");
   s.real("thermal.gate_sigma", [](C& c) -> double& { return c.drive.thermal.gate_sigma; }, positive(1000), "",
          "A measurement further than this many sigma from the prediction is gated out.");
@@ -1090,6 +1090,12 @@ StoredCalibration load_stored_calibration(ControllerConfig& config, StoredAxis* 
   }
   std::error_code ec;
   if (!std::filesystem::exists(config.calibration_file, ec)) {
+    if (ec) {
+      // Not "missing": a path that cannot be looked at (a symlink loop, a name too long, a
+      // directory it may not enter) cannot be written either, and a calibration there would be
+      // lost at its end.
+      throw CalibrationFileError(fmt::format("{}: cannot be looked at ({})", config.calibration_file, ec.message()));
+    }
     return StoredCalibration::kMissing;
   }
   const core::Calibration stored = read_calibration_file(config.calibration_file, written_by);
@@ -1113,6 +1119,21 @@ StoredCalibration load_stored_calibration(ControllerConfig& config, StoredAxis* 
                                            "correct the cable, or calibrate again (remove the file)",
                                            config.calibration_file,
                                            common::format_number(config.drive.thermal.cable_resistance_20C_ohm), why));
+  }
+  // Ke0 likewise, against the motor's EMF constant: a magnet moves Ke by about 0.1-0.2 % a
+  // kelvin and a data sheet's by its tolerance, so a third either way is no calibration of this
+  // motor (nor of these units: a Ke0 per electrical rad/s is the motor's over its pole pairs).
+  // Every magnet reading would be refused against it (a stored 100 V s/rad against the motor's
+  // 0.97 read 850 C and was refused at every event).
+  if (const double motor_ke = core::emf_constant_dq_V_s_per_rad(config.drive.motor);
+      stored.ke0_V_s_per_rad > 0.0 && !(std::abs(stored.ke0_V_s_per_rad / motor_ke - 1.0) <= kKe0OffMotorFraction)) {
+    throw CalibrationFileError(fmt::format(
+        "{}: ke0_V_s_per_rad {} V s/rad is {:+.0f} % off the motor's EMF constant ({} V s/rad: motor.ke_V_s_per_rad x "
+        "sqrt(2/3), phase peak per mechanical rad/s), beyond the {:.0f} % a magnet's temperature and a data sheet's "
+        "tolerance explain: a calibration of another motor or a hand edit. Calibrate again (remove the file) or correct "
+        "motor.ke_V_s_per_rad",
+        config.calibration_file, common::format_number(stored.ke0_V_s_per_rad),
+        100.0 * (stored.ke0_V_s_per_rad / motor_ke - 1.0), common::format_number(motor_ke), 100.0 * kKe0OffMotorFraction));
   }
   config.drive.calibration = stored;
   return StoredCalibration::kLoaded;

@@ -663,14 +663,14 @@ TEST_F(CalibrationFile, ThermalStateKeepsTheLossModelsErrors) {
   write_thermal_state_file(path, odd);
   EXPECT_FALSE(read_thermal_state_file(path).state.has_loss_errors);
   // A bad block costs only itself: the temperatures are kept, and the reason is given.
-  const std::string head = "format = 1\nwinding_C = 90.0\nhousing_C = 70.0\nwinding_std_C = 1.0\nambient_C = 25.0\n"
-                           "saved_unix_s = 1.0\n";
+  const std::string head = "# pmsm-thermal thermal state\nformat = 1\nwinding_C = 90.0\nhousing_C = 70.0\n"
+                           "winding_std_C = 1.0\nambient_C = 25.0\nsaved_unix_s = 1.0\n";
   const std::pair<std::string, std::string> refused[] = {
       {"missing_loss_W = 3.0\nloss_scale_error = 0.1\nloss_scale_std = 0.05\nloss_correlation = 0.0\n",
        "missing_loss_std_W is missing"},
       {"missing_loss_W = 3.0\nmissing_loss_std_W = 2.0\nloss_scale_error = 7.5\nloss_scale_std = 0.05\n"
        "loss_correlation = 0.0\n",
-       ":9: loss_scale_error"},  // a copper loss 8.5 times the model's
+       ":10: loss_scale_error"},  // a copper loss 8.5 times the model's
       // A file from before dP moved to the housing: its dP was the winding's.
       {"missing_loss_W = 3.0\nmissing_loss_std_W = 2.0\nloss_scale_error = 0.1\nloss_scale_std = 0.05\n"
        "loss_correlation = 0.0\n",
@@ -712,13 +712,13 @@ TEST_F(CalibrationFile, ThermalStateKeepsTheCoolingPathsError) {
   odd.state.cooling_scale_error = -0.75;
   write_thermal_state_file(path, odd);
   EXPECT_FALSE(read_thermal_state_file(path).state.has_cooling_error);
-  const std::string head = "format = 1\nwinding_C = 90.0\nhousing_C = 70.0\nwinding_std_C = 1.0\nambient_C = 25.0\n"
-                           "saved_unix_s = 1.0\n";
+  const std::string head = "# pmsm-thermal thermal state\nformat = 1\nwinding_C = 90.0\nhousing_C = 70.0\n"
+                           "winding_std_C = 1.0\nambient_C = 25.0\nsaved_unix_s = 1.0\n";
   const std::pair<std::string, std::string> refused[] = {
       {"cooling_scale_error = 0.2\n", "cooling_scale_std is missing"},
       {"cooling_scale_std = 0.1\n", "cooling_scale_error is missing"},
-      {"cooling_scale_error = 1.5\ncooling_scale_std = 0.1\n", ":7: cooling_scale_error"},
-      {"cooling_scale_error = 0.2\ncooling_scale_std = nan\n", ":8: cooling_scale_std"}};
+      {"cooling_scale_error = 1.5\ncooling_scale_std = 0.1\n", ":8: cooling_scale_error"},
+      {"cooling_scale_error = 0.2\ncooling_scale_std = nan\n", ":9: cooling_scale_std"}};
   for (const auto& [tail, named] : refused) {
     write_text(path, head + tail);
     const StoredThermalState r = read_thermal_state_file(path);
@@ -726,6 +726,27 @@ TEST_F(CalibrationFile, ThermalStateKeepsTheCoolingPathsError) {
     EXPECT_FALSE(r.state.has_cooling_error);
     EXPECT_NE(r.cooling_error_ignored.find(named), std::string::npos) << r.cooling_error_ignored;
   }
+}
+
+// Only what the drive wrote is taken: a file without its header (written by hand, or another
+// file that happens to parse) is refused with the reason, as the writer refuses to replace it;
+// taken, it would be restored at every start and never written over.
+TEST_F(CalibrationFile, AThermalStateWithoutTheDrivesHeaderIsNotUsed) {
+  const fs::path path = dir_ / "axis1.thermal";
+  const std::string body =
+      "format = 1\nwinding_C = 92.5\nhousing_C = 70.0\nwinding_std_C = 1.0\nambient_C = 25.0\nsaved_unix_s = 1.0\n";
+  write_text(path, "# pmsm-thermal thermal state\n" + body);
+  EXPECT_DOUBLE_EQ(read_thermal_state_file(path).state.winding_C, 92.5) << "the premise: with the header it reads";
+  write_text(path, body);
+  try {
+    (void)read_thermal_state_file(path);
+    FAIL() << "a file without the header was taken";
+  } catch (const CalibrationFileError& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("is no thermal state file (it starts \"format = 1\""), std::string::npos) << what;
+    EXPECT_NE(what.find(": not used"), std::string::npos) << what;
+  }
+  EXPECT_NE(foreign_thermal_state_file(path).find("not written over"), std::string::npos);
 }
 
 // Killed at any point of a write (SIGKILL: no destructor, no handler runs), the writer leaves

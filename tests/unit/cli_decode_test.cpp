@@ -378,6 +378,25 @@ TEST(cli_dbc, GivesEachNodesDbc) {
   EXPECT_TRUE(contains(r.err, "dbc: cannot write standard output (No space left on device)")) << r.err;
 }
 
+// Output that did not reach standard output or its file (a full disk) is no success: 3, as for
+// simulate's outputs and dbc's file, named on standard error; a check that failed keeps its 1.
+TEST(cli_decode, AnOutputThatCouldNotBeWrittenFails) {
+  const std::string commands[] = {"config-keys", "budget --speed 10", "budget --speed 10 --json", "losses --F 10",
+                                   "decode --dbc " + kDbc + " " + kData + "protocol_node0.log"};
+  for (const std::string& args : commands) {
+    const ProcessResult r = run_process(kExe + " " + args + " > /dev/full");
+    EXPECT_EQ(r.exit_code, 3) << args << ": " << r.err;
+    // (The reason where the failed write's is still known: a long output failed before the end.)
+    EXPECT_TRUE(contains(r.err, "pmsm-thermal: cannot write standard output (")) << args << ": " << r.err;
+  }
+  const std::string monitor = kExe + " monitor --log " + kData + "protocol_node0.log --plain --csv ";
+  ProcessResult r = run_process(monitor + "/dev/full > /dev/null");
+  EXPECT_EQ(r.exit_code, 3) << r.err;
+  EXPECT_TRUE(contains(r.err, "monitor: cannot write --csv '/dev/full' (")) << r.err;
+  r = run_process(monitor + "/dev/null > /dev/null");
+  EXPECT_EQ(r.exit_code, 0) << "the premise: the same run with room for its rows: " << r.err;
+}
+
 TEST(cli_decode, AMissingInputFileIsNamed) {
   const ProcessResult r = run_process(kDecode + "/nonexistent/capture.log");
   EXPECT_EQ(r.exit_code, 2);

@@ -145,6 +145,18 @@ check_bad '[controller.control]\nperiod_s = 1e-3\n' 1 'controller.control.curren
 check_bad '[controller.control]\nspeed_bandwidth_rad_s = 1000\n' 1 'controller.control.speed_bandwidth_rad_s (1000 rad/s) must be at most a fifth of controller.control.current_bandwidth_rad_s (2000 rad/s, its default)'
 check_bad '[controller.control]\ndead_time_s = 1e-5\n' 1 'gives the bridge a voltage error of 65 V, beyond the +-50 V controller.injection.vx_initial_V allows'
 check_bad '[controller.control]\nperiod_s = 2e-5\ndead_time_s = 5e-6\ncurrent_bandwidth_rad_s = 2000\n' 1 'controller.control.dead_time_s (5e-06 s) must be below a quarter of controller.control.period_s (2e-05 s'
+check_bad '[supervisor]\ncommand_timeout_s = 1e-5\n' 1 'supervisor.command_timeout_s (1e-05 s) must be above the control period controller.control.period_s (0.0001 s), or 0 (off)'
+# The filter's noise keys are bounded (1e200 passed, and the drive tripped within 0.06 s).
+check_bad '[controller.thermal]\nwinding_process_std_C_per_sqrt_s = 1e200\n' 1 'bad.toml:2: controller.thermal.winding_process_std_C_per_sqrt_s: must be in [0, 100], got 1e+200'
+check_bad '[controller.thermal]\niron_loss_k2_W_s2_rad2 = 1e6\n' 1 'bad.toml:2: controller.thermal.iron_loss_k2_W_s2_rad2: must be in [0, 1000], got 1e+06'
+# A calibration path that cannot be looked at is no missing calibration (it could not be written).
+ln -s loop "$dir/loop"
+check_bad "[controller.calibration]\nfile = \"$dir/loop\"\n" 1 "$dir/loop: cannot be looked at (Too many levels of symbolic links)"
+# A stored Ke0 far off the motor's EMF constant: another motor's, or other units.
+printf 'format = 1\nrs0_ohm = 0.2\nt0_C = 25.0\nke0_V_s_per_rad = 100.0\n' > "$dir/other-ke0.toml"
+check_bad "[controller.calibration]\nfile = \"$dir/other-ke0.toml\"\n" 1 "other-ke0.toml: ke0_V_s_per_rad 100 V s/rad is"
+printf 'format = 1\nrs0_ohm = 0.2\nt0_C = 25.0\nke0_std_V_s_per_rad = 0.01\n' > "$dir/ke0-std-alone.toml"
+check_bad "[controller.calibration]\nfile = \"$dir/ke0-std-alone.toml\"\n" 1 "ke0_std_V_s_per_rad without ke0_V_s_per_rad"
 # A stored calibration of another motor: valid as a file, outside this drive's window.
 printf 'format = 1\nrs0_ohm = 5.0\nt0_C = 25.0\n' > "$dir/other-motor.toml"
 check_bad "[controller.calibration]\nfile = \"$dir/other-motor.toml\"\n" 1 'calibration file refused: '"$dir"'/other-motor.toml: rs0_ohm 5 ohm lies above the drive'"'"'s plausibility window (controller.injection.rs_max_ohm = 0.27 ohm)'
@@ -247,6 +259,14 @@ if [ "$rc" -ne 2 ] || [[ "$out" != *"--config: expected a file name, got an empt
   echo "FAIL: --config '' should exit 2 saying the name is empty, got exit $rc: $out"; fail=1
 else
   echo "ok (rejected): --config '': $out"
+fi
+# Output that did not reach standard output (a full disk) is no success: --keys exits 1 (I/O).
+out=$("$exe" --keys 2>&1 >/dev/full)
+rc=$?
+if [ "$rc" -ne 1 ] || [[ "$out" != *"pmsm-thermald: cannot write standard output ("* ]]; then
+  echo "FAIL: --keys > /dev/full should exit 1 saying so, got exit $rc: $out"; fail=1
+else
+  echo "ok (rejected): --keys > /dev/full: $out"
 fi
 for args in --help --version; do
   "$exe" "$args" >/dev/null 2>&1 || { echo "FAIL: $args did not exit 0"; fail=1; }

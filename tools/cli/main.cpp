@@ -7,6 +7,7 @@
 #include <string>
 
 #include "cli_validators.hpp"
+#include "standard_output.hpp"
 #include "commands.hpp"
 
 int main(int argc, char** argv) {
@@ -52,5 +53,7 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "pmsm-thermal: %s\n", e.what());
     return 2;
   }
-  return exit_code;
+  // 3, as for any output that could not be written (simulate's CSV, dbc's file): a report, a
+  // table or a decoded log piped to a full disk is not a success.
+  return pmsm::cli::exit_with_standard_output_checked("pmsm-thermal", exit_code, 3);
 }

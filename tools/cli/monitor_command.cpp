@@ -518,6 +518,23 @@ class Monitor {
     return out;
   }
 
+  // The exit status after the summary: 0, 1 when a --check bound is broken, else 3 when the
+  // --csv file did not get every row (a full disk), as for simulate's outputs.
+  int finish(const MonitorOptions& o) {
+    const int code = summary() ? 0 : 1;
+    if (csv_.is_open()) {
+      errno = 0;
+      csv_.close();
+      if (csv_.fail()) {
+        const int error = errno;
+        std::fprintf(stderr, "monitor: cannot write --csv '%s' (%s): its rows are incomplete\n", o.csv.c_str(),
+                     std::strerror(error != 0 ? error : EIO));
+        return code == 0 ? 3 : code;
+      }
+    }
+    return code;
+  }
+
   // The summary; false when a --check bound is broken.
   bool summary() {
     erase_block();
@@ -678,7 +695,7 @@ int run_monitor(MonitorOptions o) {
         return 2;
       }
     }
-    return m.summary() ? 0 : 1;
+    return m.finish(o);
   }
   hal::SocketCanConfig config;
   config.interface = o.iface;
@@ -729,7 +746,7 @@ int run_monitor(MonitorOptions o) {
       }
     }
   }
-  return m.summary() ? 0 : 1;
+  return m.finish(o);
 }
 
 }  // namespace

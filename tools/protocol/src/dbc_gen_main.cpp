@@ -4,6 +4,7 @@
 //   pmsm-dbc-gen --node 3 --dbc axis3.dbc         the DBC of another node
 //   pmsm-dbc-gen --dbc can/pmsm-thermal.dbc --docs docs/protocol.md
 //   pmsm-dbc-gen --check --dbc ... --docs ...     exit 1 if a file is out of date
+#include <algorithm>
 #include <cerrno>
 #include <cstring>
 #include <cstdio>
@@ -12,8 +13,10 @@
 #include <iostream>
 #include <string>
 #include <string_view>
+#include <vector>
 
 #include "pmsm/tools/dbc_writer.hpp"
+#include "standard_output.hpp"
 #include "text_file.hpp"
 
 namespace {
@@ -62,6 +65,7 @@ int main(int argc, char** argv) {
   std::string dbc_path;
   std::string docs_path;
   bool check = false;
+  std::vector<std::string_view> given;  // each option once: a second would silently win
   for (int i = 1; i < argc; ++i) {
     const std::string_view arg = argv[i];
     const auto value = [&]() -> std::string {
@@ -69,13 +73,25 @@ int main(int argc, char** argv) {
         std::cerr << "pmsm-dbc-gen: " << arg << " needs a value\n" << kUsage;
         std::exit(2);
       }
-      return argv[++i];
+      if (std::find(given.begin(), given.end(), arg) != given.end()) {
+        std::cerr << "pmsm-dbc-gen: " << arg << " given twice\n" << kUsage;
+        std::exit(2);
+      }
+      given.push_back(arg);
+      std::string v = argv[++i];
+      if (v.empty() && arg != "--node") {
+        std::cerr << "pmsm-dbc-gen: " << arg << " expects a file name, got an empty one\n" << kUsage;
+        std::exit(2);
+      }
+      return v;
     };
     if (arg == "--node") {
       const std::string text = value();
       char* end = nullptr;
       const long n = std::strtol(text.c_str(), &end, 10);
-      if (end == text.c_str() || *end != '\0' || n < 0 || n > pmsm::hal::protocol::kMaxNodeId) {
+      // Digits only (strtol skipped leading blanks: ' 3' passed where '3 ' did not).
+      if (text.empty() || text.find_first_not_of("0123456789") != std::string::npos || end == text.c_str() ||
+          *end != '\0' || n < 0 || n > pmsm::hal::protocol::kMaxNodeId) {
         std::cerr << "pmsm-dbc-gen: --node must be 0..15, got '" << text << "'\n";
         return 2;
       }
@@ -102,7 +118,8 @@ int main(int argc, char** argv) {
       return 2;
     }
     std::cout << dbc;
-    return 0;
+    // 1, as the usage says of a write that failed (a full disk).
+    return pmsm::cli::exit_with_standard_output_checked("pmsm-dbc-gen", 0, 1);
   }
   bool ok = true;
   if (!dbc_path.empty()) {

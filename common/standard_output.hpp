@@ -1,0 +1,47 @@
+// A command's standard output, checked at its end (every executable: pmsm-thermal,
+// pmsm-thermald, pmsm-plant, pmsm-dbc-gen). Header only.
+#pragma once
+
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
+#include <iostream>
+#include <string>
+
+namespace pmsm::cli {
+
+// Standard output flushed and checked at a command's end: a full disk (or any failed write)
+// must not pass as done. Empty when everything reached it, else the reason ("No space left on
+// device"). (A closed pipe ends the process with SIGPIPE before this, as for any program.)
+inline std::string standard_output_failure() {
+  // (The reason is the failed write's where it is still known: a write that failed during the
+  // command has left only the stream's error flag.)
+  errno = 0;
+  std::cout.flush();
+  int error = errno;
+  const bool flushed = std::fflush(stdout) == 0;
+  error = error != 0 ? error : errno;
+  if (flushed && std::ferror(stdout) == 0 && std::cout.good()) {
+    return {};
+  }
+  return error != 0 ? std::strerror(error) : "a write failed";
+}
+
+// A command's exit status with its standard output checked: a command that succeeded (`code`
+// 0) but whose output did not all reach standard output says so on standard error (`program:
+// cannot write standard output (reason)`) and exits `write_failed_code`. A command that failed
+// keeps its own code and its own message (one that wrote to standard output itself, as `dbc`
+// does, has named the failure already).
+inline int exit_with_standard_output_checked(const char* program, int code, int write_failed_code) {
+  if (code != 0) {
+    return code;
+  }
+  const std::string failure = standard_output_failure();
+  if (failure.empty()) {
+    return code;
+  }
+  std::fprintf(stderr, "%s: cannot write standard output (%s)\n", program, failure.c_str());
+  return write_failed_code;
+}
+
+}  // namespace pmsm::cli
