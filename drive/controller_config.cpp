@@ -476,9 +476,10 @@ ConfigSchema<C> build() {
          "A calibration on the ambient sensor's temperature is refused while the thermal filter holds the winding more "
          "than this above the ambient it runs on (the drive's own losses since it started, a stored warm state): Rs0 "
          "would be referred to a temperature the winding is not at. On the nameplate's Rs0 (no calibration yet) the model "
-         "alone judges it instead: a calibration starts at the ambient plus the model's rise, and beyond the limit is "
-         "refused only where that rise is too uncertain to beat the nameplate (calibration.model_rise_std_fraction; "
-         "docs/estimator.md section 6). 0: no check (that reference still counts the rise). An operator's temperature "
+         "alone is the reference instead: a calibration starts at the ambient plus the model's rise, half the filter's "
+         "rise beyond it (the nameplate's error or a warm winding: no measurement on the nameplate tells them apart) "
+         "joins T0's uncertainty, and beyond the limit, by either rise, it is refused only where that uncertainty is too "
+         "large to beat the nameplate (calibration.model_rise_std_fraction; docs/estimator.md section 6). 0: no check (that reference still counts the rise). An operator's temperature "
          "(CALIBRATION_REQUEST) is checked only against a resistance measurement of the last 60 s: refused more than "
          "4 sigma + this from it.");
   s.real("calibration.model_rise_std_fraction",

@@ -486,13 +486,18 @@ void DriveController::start_calibration(double known_temp_C, bool from_ambient_s
   const double model_rise = std::isfinite(observer_.model_rise_C()) ? std::max(observer_.model_rise_C(), 0.0) : 0.0;
   const bool model_is_reference =
       on_nameplate && !thermal_restored_ && observer_.calibration().rs0_std_fraction > 0.0;
+  // Where the model is the reference, the filter's rise beyond it is judged below with the
+  // nameplate's own uncertainty: it is as much the nameplate's error as the winding's warmth.
+  double beyond_model_C = 0.0;
   if (from_ambient_sensor && !was_calibrating && !thermal_guess_pending_ &&
       config_.calibration_max_winding_rise_C > 0.0) {
     // Against the ambient the filter runs on, not the one given now: a configured ambient
     // changed just before the request (no sensor) is no warmth of the winding.
     const double rise = observer_.estimate().winding_C - thermal_ambient_C_;
     const double assumed_rise = model_is_reference ? model_rise : 0.0;
-    if (rise - assumed_rise > config_.calibration_max_winding_rise_C) {
+    if (model_is_reference) {
+      beyond_model_C = std::isfinite(rise) ? std::max(rise - assumed_rise, 0.0) : 0.0;
+    } else if (rise - assumed_rise > config_.calibration_max_winding_rise_C) {
       // Nothing of a calibration run has started: nothing to restore (fail_calibration).
       calibration_refused_on_request_ = true;
       telemetry_.calibration_winding_rise_C = rise;
@@ -508,18 +513,30 @@ void DriveController::start_calibration(double known_temp_C, bool from_ambient_s
   // losses did since: Rs0 is referred to the ambient plus that rise (docs/estimator.md section 6).
   // (A repeated request while one runs takes the same reference: the restarted observer carries
   // the rise on.) The rise is the commissioned model's, known to calibration_model_rise_std_fraction
-  // of itself: T0's uncertainty, kept with the calibration and in the band. Beyond the limit the
-  // calibration is refused, unless the model is the reference (above) and that uncertainty is
-  // below half the nameplate's (5 % of Rs0, about 13 K): then it is still the better of the two.
+  // of itself: T0's uncertainty, kept with the calibration and in the band.
+  //   The filter's rise beyond the model's, read through the nameplate, is a winding warmer
+  // than the drive's losses made it (a warm motor powered up without a stored state) or the
+  // nameplate's error, which no measurement on it can tell apart: a data sheet's Rs0 3 % low
+  // reads a cold winding 8 K warm. A newcomer's pump, its first event before the request, was
+  // refused on 7.6 K and ran on that nameplate 7.9 C RMS high. T0 stays at the cold end, the
+  // ambient plus the model's rise, and half that excess joins its uncertainty: the warm end lies
+  // two of it away, in the band and under the derating's T + k sigma.
+  //   Beyond the limit, by the model's rise or by the filter's, the calibration is refused,
+  // unless the model is the reference (above) and T0's whole uncertainty is below half the
+  // nameplate's (5 % of Rs0, about 13 K): then it is still the better of the two.
   double t0_rise_std_C = 0.0;
   if (from_ambient_sensor && !thermal_guess_pending_ && on_nameplate) {
-    const double rise_std_C = config_.calibration_model_rise_std_fraction * model_rise;
+    double rise_std_C = std::hypot(config_.calibration_model_rise_std_fraction * model_rise, 0.5 * beyond_model_C);
+    if (was_calibrating) {
+      rise_std_C = std::max(rise_std_C, calibration_t0_rise_std_C_);  // a repeated request: the run's own excess kept
+    }
     const double nameplate_std_C = observer_.rs0_std_C_at(known_temp_C + model_rise);
     const bool better_than_nameplate = model_is_reference && rise_std_C < 0.5 * nameplate_std_C;
-    if (!was_calibrating && config_.calibration_max_winding_rise_C > 0.0 &&
-        model_rise > config_.calibration_max_winding_rise_C && !better_than_nameplate) {
+    const double limit_C = config_.calibration_max_winding_rise_C;
+    if (!was_calibrating && limit_C > 0.0 && (model_rise > limit_C || beyond_model_C > limit_C) &&
+        !better_than_nameplate) {
       calibration_refused_on_request_ = true;
-      telemetry_.calibration_winding_rise_C = model_rise;
+      telemetry_.calibration_winding_rise_C = model_rise + beyond_model_C;
       record_calibration_failure(CalibrationFailure::kWindingWarm);
       return;
     }

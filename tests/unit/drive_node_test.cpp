@@ -1105,6 +1105,57 @@ TEST(DriveNode, ANameplateCalibrationAtTheAmbientCountsTheModelsRise) {
   expect_refused_on_request(restored, core::CalibrationFailure::kWindingWarm);
 }
 
+// A data sheet's Rs0 5 % low reads a cold winding up to 13 K warm through the filter's first
+// measurements, beyond the model's rise by more than calibration.max_winding_rise_C: that
+// refused a cold motor's calibration (a newcomer's pump, its first event before the request, ran
+// 7.9 C RMS high on such a nameplate). On the nameplate no measurement tells that error from a
+// warm winding: taken at the ambient plus the model's rise, with half the excess in T0's
+// uncertainty. An excess beyond the nameplate's own uncertainty (a motor powered up 25 K warm
+// without a stored state) is still refused.
+TEST(DriveNode, ANameplateThatReadsAColdWindingWarmStillCalibrates) {
+  NameplateRig low;
+  low.config.drive.calibration.rs0_ohm = 0.95 * low.plant_config.motor.rs_ohm;
+  low.rebuild_node();
+  const double ambient_C = low.plant_config.thermal.ambient_C;
+  const core::DriveTelemetry& tel = low.node->controller().telemetry();
+  for (int k = 0; k < 600000 && tel.estimates_published < 1U; ++k) {
+    low.run(1);
+  }
+  low.run(200);
+  const auto truth_C = static_cast<double>(low.plant->truth().winding_temp_C);
+  const double filter_rise_K = tel.thermal.winding_C - ambient_C;
+  const double true_rise_K = truth_C - ambient_C;  // the drive's own losses' (the model's, nearly)
+  ASSERT_LT(true_rise_K, 3.0) << "the premise: a winding nearly cold";
+  ASSERT_GT(filter_rise_K - true_rise_K, low.config.drive.calibration_max_winding_rise_C + 1.0) << "the premise: read warm";
+  low.in.start_calibration = true;
+  low.run(1);
+  low.in.start_calibration = false;
+  ASSERT_TRUE(tel.calibrating) << core::calibration_failure_name(tel.calibration_failure) << " rise "
+                               << tel.calibration_winding_rise_C;
+  const std::optional<core::Calibration> done = run_until_stored(low);
+  ASSERT_TRUE(done.has_value()) << core::calibration_failure_name(tel.calibration_failure);
+  EXPECT_NEAR(done->t0_C, truth_C, 1.0) << "the ambient plus the model's rise";
+  // Half the filter's rise beyond the model's, with a quarter of the model's rise.
+  EXPECT_GT(done->t0_rise_std_C, 0.5 * (filter_rise_K - true_rise_K - 1.0));
+  EXPECT_LT(done->t0_rise_std_C, 0.5 * filter_rise_K + 0.5);
+  // Rs0 measured, not the nameplate's 5 % low (the winding warms a little during the run at
+  // 100x thermal time).
+  EXPECT_GT(done->rs0_ohm / low.config.drive.calibration.rs0_ohm, 1.04);
+  EXPECT_LT(done->rs0_ohm / low.plant_config.motor.rs_at_C(done->t0_C), 1.04);
+
+  NameplateRig warm;
+  warm.config.drive.calibration.rs0_ohm = warm.plant_config.motor.rs_ohm;
+  warm.rebuild_node();
+  warm.plant->set_temperatures_C(ambient_C + 25.0, ambient_C + 20.0, ambient_C + 20.0);
+  for (int k = 0; k < 600000 && warm.node->controller().telemetry().estimates_published == 0U; ++k) {
+    warm.run(1);
+  }
+  warm.run(200);
+  ASSERT_GT(warm.node->controller().telemetry().thermal.winding_C, ambient_C + 15.0) << "the premise: measured warm";
+  expect_refused_on_request(warm, core::CalibrationFailure::kWindingWarm);
+  EXPECT_GT(warm.node->controller().telemetry().calibration_winding_rise_C, 15.0);
+}
+
 // The model's rise is the drive's own losses' alone: an ambient sensor whose first reading comes
 // after the model started on the configured 25 C (a sensor's conversion time), and reads 40 C,
 // is no 15 K of cold in the winding (nor, reading 10 C, 15 K of warmth): the calibration starts
