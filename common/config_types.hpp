@@ -61,6 +61,8 @@ inline constexpr double kMinMotorCurrent_A = 1e-3;
 inline constexpr double kMinMotorSpeed_rad_s = 1e-3;
 inline constexpr double kMinHeatCapacity_J_K = 1e-3;
 inline constexpr double kMinThermalResistance_K_W = 1e-6;
+// A DC bus below a volt drives no machine (1e-300 V passed, and the voltage limits divided by it).
+inline constexpr double kMinDcBus_V = 1.0;
 
 // "%g" of a number, as every message and table prints it.
 [[nodiscard]] inline std::string format_number(double v) {

@@ -166,7 +166,7 @@ ConfigSchema<C> build() {
   s.real("control.max_torque_Nm", [](C& c) -> double& { return c.drive.speed.max_torque_Nm; }, positive(10000), "Nm", "Torque demand limit.");
   s.real("control.pll_bandwidth_rad_s", [](C& c) -> double& { return c.drive.angle.pll_bandwidth_rad_s; }, positive(10000), "rad/s",
          "Speed observer (PLL) bandwidth.");
-  s.real("control.nominal_dc_bus_V", [](C& c) -> double& { return c.nominal_dc_bus_V; }, positive(10000), "V",
+  s.real("control.nominal_dc_bus_V", [](C& c) -> double& { return c.nominal_dc_bus_V; }, between(common::kMinDcBus_V, 10000), "V",
          "Nominal DC-bus voltage (the inverter-error prior and Vx are referred to it).");
   s.real("control.dead_time_s", [](C& c) -> double& { return c.drive.dead_time.dead_time_s; }, between(0, 1e-5), "s",
          "Dead time the compensation assumes; the estimator's Vx follows the bus by it.");

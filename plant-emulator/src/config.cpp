@@ -188,7 +188,7 @@ common::ConfigSchema<PlantConfig> build_schema() {
     // [inverter]
     real("inverter.pwm_frequency_Hz", PMSM_MEMBER(inverter.pwm_frequency_Hz),
                      closed(1000, 100000), "PWM, sampling and control frequency fs (every SENSOR_SAMPLE reports its period, PwmPeriod).");
-    real("inverter.dc_bus_V", PMSM_MEMBER(inverter.dc_bus_V), positive(2000.0),
+    real("inverter.dc_bus_V", PMSM_MEMBER(inverter.dc_bus_V), closed(common::kMinDcBus_V, 2000.0),
                      "Nominal DC-bus voltage.");
     boolean("inverter.dc_ripple_enabled", PMSM_MEMBER(inverter.dc_ripple_enabled),
                         "DC-bus ripple Vdc·(1 + fraction·sin(2π·f·t)).");
@@ -197,7 +197,7 @@ common::ConfigSchema<PlantConfig> build_schema() {
     real("inverter.dc_ripple_frequency_Hz",
                      PMSM_MEMBER(inverter.dc_ripple_frequency_Hz), positive(1e5),
                      "DC-bus ripple frequency (six-pulse rectifier on 50 Hz: 300 Hz).");
-    s.points("inverter.dc_source_points", positive(2000.0), PMSM_MEMBER(inverter.dc_source_points), "",
+    s.points("inverter.dc_source_points", closed(common::kMinDcBus_V, 2000.0), PMSM_MEMBER(inverter.dc_source_points), "",
              "[[time_s, V], ...]: the supply's voltage over time in place of dc_bus_V (a sag, a step, a "
              "battery discharging): linear interpolation (repeat a time for a step), ends held. The bus "
              "moves between PWM periods; the ripple is relative to it.");
@@ -498,7 +498,13 @@ void check_rules(const PlantConfig& c, Fail&& fail, Given&& given) {
       fail("emf.harmonic_orders",
            fmt::format("at most {} harmonics, got {}", kMaxHarmonics, c.emf.custom_orders.size()));
     }
-    for (int n : c.emf.custom_orders) {
+    for (std::size_t k = 0; k < c.emf.custom_orders.size(); ++k) {
+      const int n = c.emf.custom_orders[k];
+      // One amplitude an order: a repeated one would add its amplitudes, which no table means.
+      if (std::find(c.emf.custom_orders.begin(), c.emf.custom_orders.begin() + static_cast<std::ptrdiff_t>(k), n) !=
+          c.emf.custom_orders.begin() + static_cast<std::ptrdiff_t>(k)) {
+        fail("emf.harmonic_orders", fmt::format("order {} is given twice", n));
+      }
       if (n < 5 || n % 2 == 0 || n % 3 == 0) {
         fail("emf.harmonic_orders",
              fmt::format("orders must be odd, >= 5 and not multiples of 3 (triplens are "

@@ -360,7 +360,7 @@ void register_budget_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--Lq", options->lq_H, "q-axis inductance, H (default: equal to Ld; with --config the configuration's secant at --iq)")->check(cli::number_in_range(kMinInductance_H, kMaxInductance_H))->needs(speed);
   cmd->add_option("--iq", options->iq_A, "motoring q-axis current, A peak")
       ->check(cli::number_in_range(-kMaxCurrent_A, kMaxCurrent_A))->capture_default_str()->needs(speed);
-  cmd->add_option("--vdc", options->vdc_V, "DC-bus voltage, V")->check(cli::positive(kMaxVoltage_V))->capture_default_str()->needs(speed);
+  cmd->add_option("--vdc", options->vdc_V, "DC-bus voltage, V")->check(cli::number_in_range(common::kMinDcBus_V, kMaxVoltage_V))->capture_default_str()->needs(speed);
   cmd->add_option("--voltage-fraction", options->voltage_fraction, "usable fraction of Vdc/sqrt(3)")
       ->check(cli::number_in_range(0.1, 1.0))->capture_default_str()->needs(speed);
   cmd->add_option("--margin", options->margin_V,
@@ -374,8 +374,8 @@ void register_budget_command(CLI::App& app, int& exit_code) {
                   "current limit shared by motoring and injection, A peak (derating.max_current_A; 0: none)")
       ->check(cli::non_negative(kMaxCurrent_A))->capture_default_str()->needs(speed);
   cmd->add_option("--Ke", options->ke_V_s_per_rad, "EMF constant, line-to-line RMS V per mechanical rad/s")
-      ->check(cli::positive(kMaxKe))->capture_default_str()->needs(speed);
-  cmd->add_option("--pole-pairs", options->pole_pairs, "pole pairs")->check(cli::number_in_range(1, 100))->capture_default_str()->needs(speed);
+      ->check(cli::number_in_range(common::kMinEmfConstant_V_s_per_rad, kMaxKe))->capture_default_str()->needs(speed);
+  cmd->add_option("--pole-pairs", options->pole_pairs, "pole pairs")->check(cli::integer_in_range(1, 64))->capture_default_str()->needs(speed);
   cmd->add_option("--config", options->config_path,
                   "a pmsm-thermald axis configuration (its [controller] section, checked as the daemon checks it): "
                   "the motor, bus, voltage fraction, margin, torque budget, current limit, window and Tw of every option not given "
