@@ -1,5 +1,5 @@
-// A command's standard output, checked at its end (every executable: pmsm-thermal,
-// pmsm-thermald, pmsm-plant, pmsm-dbc-gen). Header only.
+// A command's standard output, checked at its end (pmsm-thermal, pmsm-thermald --keys and
+// --check, pmsm-dbc-gen). Header only.
 #pragma once
 
 #include <cerrno>
@@ -12,7 +12,8 @@ namespace pmsm::cli {
 
 // Standard output flushed and checked at a command's end: a full disk (or any failed write)
 // must not pass as done. Empty when everything reached it, else the reason ("No space left on
-// device"). (A closed pipe ends the process with SIGPIPE before this, as for any program.)
+// device" where the failed write's is still known, else "a write failed"). (A closed pipe ends
+// the process with SIGPIPE before this, as for any program.)
 inline std::string standard_output_failure() {
   // (The reason is the failed write's where it is still known: a write that failed during the
   // command has left only the stream's error flag.)

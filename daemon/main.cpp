@@ -344,6 +344,11 @@ int run(const Options& o) {
       !w.empty()) {
     spdlog::warn("{}", w);
   }
+  if (const std::string w =
+          pmsm::app::ke0_off_motor_warning(config.controller.drive, config.controller.drive.calibration);
+      !w.empty()) {
+    spdlog::warn("{}", w);
+  }
   if (o.check) {
     // An interface this machine has that is no CAN interface: the start refuses it (exit 2), so
     // --check does too (before, "lo" at 1 kHz passed --check and the unit then failed).

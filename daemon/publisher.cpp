@@ -388,16 +388,13 @@ void Publisher::handle(const PublicationRecord& r) {
       spdlog::warn("calibration refused: the rotor angle is off by more than the check corrects (above); the previous "
                    "calibration stays in use");
     } else if (r.calibration_failure == core::CalibrationFailure::kWindingWarm) {
-      spdlog::warn("calibration refused: the winding is {:.1f} C above the ambient sensor's temperature (the thermal "
-                   "filter's, or the measured Rs0 read through the calibration in use; calibration.max_winding_rise_C; on "
-                   "the nameplate's Rs0 the thermal model's rise, taken beyond that limit only while "
-                   "calibration.model_rise_std_fraction of it stays below half the nameplate's uncertainty): "
+      spdlog::warn("calibration refused: the winding is {:.1f} C above the ambient sensor's temperature ({}): "
                    "Rs0 would be referred to a temperature the winding is "
                    "not at; let the motor cool to the ambient, or give the winding's temperature with the request. A motor "
                    "replaced or rewound since the calibration in use reads warm through that calibration's Rs0 even when "
                    "cold: give its temperature with the request, or remove the stored calibration. The previous "
                    "calibration stays in use",
-                   r.calibration_winding_rise_C);
+                   r.calibration_winding_rise_C, app::kWindingWarmMeasure);
     } else if (r.calibration_failure == core::CalibrationFailure::kAmbientHeld) {
       spdlog::warn("calibration refused: the ambient sensor (SENSOR_SAMPLE AmbientTemp) stopped reporting and its last "
                    "reading, {:.1f} C, of unknown age, stands for it: Rs0 referred to it would carry its error into every "
@@ -458,6 +455,9 @@ void Publisher::handle(const PublicationRecord& r) {
                  c.vx_std_V > 0.0 ? fmt::format("bridge voltage Vx {:.3f} +- {:.3f} V", c.vx_V, c.vx_std_V)
                                   : std::string("bridge voltage not learned (the configured prior holds)"));
     if (const std::string w = app::rs0_off_nameplate_warning(config_.controller.drive, c); !w.empty()) {
+      spdlog::warn("{}", w);
+    }
+    if (const std::string w = app::ke0_off_motor_warning(config_.controller.drive, c); !w.empty()) {
       spdlog::warn("{}", w);
     }
     if (!config_.controller.calibration_file.empty()) {

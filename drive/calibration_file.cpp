@@ -717,6 +717,23 @@ StoredThermalState read_thermal_state_file(const std::filesystem::path& path) {
   return s;
 }
 
+std::string ke0_off_motor_warning(const core::DriveConfig& config, const core::Calibration& c) {
+  const double motor_ke = core::emf_constant_dq_V_s_per_rad(config.motor);
+  const double off = c.ke0_V_s_per_rad / motor_ke - 1.0;
+  if (!(c.ke0_V_s_per_rad > 0.0) || !std::isfinite(off) || std::abs(off) <= kKe0OffMotorFraction) {
+    return {};
+  }
+  return fmt::format(
+      "calibration: Ke0 {} V s/rad (phase peak per mechanical rad/s) is {:+.0f} % off motor.ke_V_s_per_rad's {} V s/rad "
+      "in that form ({} line-to-line RMS), beyond the {:.0f} % a magnet's temperature and a data sheet's tolerance "
+      "explain. Where this drive measured it, motor.ke_V_s_per_rad is wrong (its EMF feed-forward and voltage limits use "
+      "it; the measurement's line-to-line RMS form is {}); otherwise it is another motor's calibration, or other units. "
+      "Magnet readings are referred to Ke0",
+      common::format_number(c.ke0_V_s_per_rad), 100.0 * off, common::format_number(motor_ke),
+      common::format_number(config.motor.ke_V_s_per_rad), 100.0 * kKe0OffMotorFraction,
+      common::format_number(c.ke0_V_s_per_rad * std::sqrt(1.5)));
+}
+
 std::string rs0_off_nameplate_warning(const core::DriveConfig& config, const core::Calibration& c) {
   // A measured Rs0 well above the configured one is most often a motor cable the configuration
   // does not give: Eq. 1 then takes the cable for winding, and every rise reads low by the

@@ -70,10 +70,17 @@ void write_calibration_file(const std::filesystem::path& path, const core::Calib
 // or gives too small (docs/estimator.md section 6, "A motor cable"); empty when it is within
 // that. For the drive's log when a calibration is done or loaded.
 inline constexpr double kRs0NameplateWarnFraction = 0.10;
-// A stored Ke0 further than this share from the motor's EMF constant (motor.ke_V_s_per_rad as
-// phase peak per mechanical rad/s) is refused: another motor's calibration, or other units.
+// A Ke0 further than this share from the motor's EMF constant (motor.ke_V_s_per_rad as phase
+// peak per mechanical rad/s) is warned of: a magnet's temperature and a data sheet's tolerance
+// do not explain it.
 inline constexpr double kKe0OffMotorFraction = 0.30;
 [[nodiscard]] std::string rs0_off_nameplate_warning(const core::DriveConfig& config, const core::Calibration& c);
+// Why the calibration's Ke0 (stored, configured or just measured) lies more than
+// kKe0OffMotorFraction from motor.ke_V_s_per_rad, or "": a motor.ke_V_s_per_rad entered wrong
+// (the drive's EMF feed-forward and voltage limits use it; a measured Ke0 says which), another
+// motor's calibration, or other units (a Ke0 per electrical rad/s is the motor's over its pole
+// pairs). Every magnet reading is referred to Ke0.
+[[nodiscard]] std::string ke0_off_motor_warning(const core::DriveConfig& config, const core::Calibration& c);
 
 // Reads a calibration file (calibrated = true). Throws CalibrationFileError naming the file,
 // line and key when it cannot be read or is not a valid calibration.

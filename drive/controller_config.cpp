@@ -1121,21 +1121,6 @@ StoredCalibration load_stored_calibration(ControllerConfig& config, StoredAxis* 
                                            config.calibration_file,
                                            common::format_number(config.drive.thermal.cable_resistance_20C_ohm), why));
   }
-  // Ke0 likewise, against the motor's EMF constant: a magnet moves Ke by about 0.1-0.2 % a
-  // kelvin and a data sheet's by its tolerance, so a third either way is no calibration of this
-  // motor (nor of these units: a Ke0 per electrical rad/s is the motor's over its pole pairs).
-  // Every magnet reading would be refused against it (a stored 100 V s/rad against the motor's
-  // 0.97 read 850 C and was refused at every event).
-  if (const double motor_ke = core::emf_constant_dq_V_s_per_rad(config.drive.motor);
-      stored.ke0_V_s_per_rad > 0.0 && !(std::abs(stored.ke0_V_s_per_rad / motor_ke - 1.0) <= kKe0OffMotorFraction)) {
-    throw CalibrationFileError(fmt::format(
-        "{}: ke0_V_s_per_rad {} V s/rad is {:+.0f} % off the motor's EMF constant ({} V s/rad: motor.ke_V_s_per_rad x "
-        "sqrt(2/3), phase peak per mechanical rad/s), beyond the {:.0f} % a magnet's temperature and a data sheet's "
-        "tolerance explain: a calibration of another motor or a hand edit. Calibrate again (remove the file) or correct "
-        "motor.ke_V_s_per_rad",
-        config.calibration_file, common::format_number(stored.ke0_V_s_per_rad),
-        100.0 * (stored.ke0_V_s_per_rad / motor_ke - 1.0), common::format_number(motor_ke), 100.0 * kKe0OffMotorFraction));
-  }
   config.drive.calibration = stored;
   return StoredCalibration::kLoaded;
 }

@@ -149,6 +149,13 @@ void finalize(ControllerConfig& config, std::string_view source, const toml::tab
 // times a unit. For the daemon's log and simulate's report (it allocates).
 [[nodiscard]] std::string rs_outside_window_text(const core::DriveConfig& d, double measured_ohm, double scatter_ohm);
 
+// What a winding_warm refusal measured against, for the daemon's log and simulate's report.
+inline constexpr std::string_view kWindingWarmMeasure =
+    "the thermal filter's, or the measured Rs0 read through the calibration in use; "
+    "calibration.max_winding_rise_C; on the nameplate's Rs0 the thermal model's rise and the filter's rise beyond it, "
+    "taken beyond that limit only while T0's uncertainty (calibration.model_rise_std_fraction of the model's rise, half "
+    "the filter's excess: the nameplate's error or warmth) stays below half the nameplate's";
+
 // For a completed calibration's report: "" when its Rs0 averaged the `wanted` events
 // (calibration.events), else " on N of M events, at its timeout (calibration.min_events)".
 [[nodiscard]] std::string calibration_events_text(int used, int wanted);

@@ -487,17 +487,19 @@ void DriveController::start_calibration(double known_temp_C, bool from_ambient_s
   const bool model_is_reference =
       on_nameplate && !thermal_restored_ && observer_.calibration().rs0_std_fraction > 0.0;
   // Where the model is the reference, the filter's rise beyond it is judged below with the
-  // nameplate's own uncertainty: it is as much the nameplate's error as the winding's warmth.
+  // nameplate's own uncertainty: it is as much the nameplate's error as the winding's warmth. (It
+  // joins T0's uncertainty with the check off too: the band is the check's business no more than
+  // the sensor's tolerance is.) A run taken with it that failed restarted the filter at the cold
+  // end: what it was taken with still holds.
   double beyond_model_C = 0.0;
-  if (from_ambient_sensor && !was_calibrating && !thermal_guess_pending_ &&
-      config_.calibration_max_winding_rise_C > 0.0) {
+  if (from_ambient_sensor && !was_calibrating && !thermal_guess_pending_) {
     // Against the ambient the filter runs on, not the one given now: a configured ambient
     // changed just before the request (no sensor) is no warmth of the winding.
     const double rise = observer_.estimate().winding_C - thermal_ambient_C_;
     const double assumed_rise = model_is_reference ? model_rise : 0.0;
     if (model_is_reference) {
-      beyond_model_C = std::isfinite(rise) ? std::max(rise - assumed_rise, 0.0) : 0.0;
-    } else if (rise - assumed_rise > config_.calibration_max_winding_rise_C) {
+      beyond_model_C = std::max(std::isfinite(rise) ? std::max(rise - assumed_rise, 0.0) : 0.0, nameplate_excess_C_);
+    } else if (config_.calibration_max_winding_rise_C > 0.0 && rise - assumed_rise > config_.calibration_max_winding_rise_C) {
       // Nothing of a calibration run has started: nothing to restore (fail_calibration).
       calibration_refused_on_request_ = true;
       telemetry_.calibration_winding_rise_C = rise;
@@ -542,6 +544,9 @@ void DriveController::start_calibration(double known_temp_C, bool from_ambient_s
     }
     known_temp_C += model_rise;  // finite (above), and so its share (the fraction is a checked key)
     t0_rise_std_C = rise_std_C;
+    if (!was_calibrating) {
+      nameplate_excess_C_ = beyond_model_C;
+    }
   }
   // An operator's reading is not second-guessed against the model alone, which may start from
   // a guess (a warm motor powered up without a stored state); but where the drive measured the
@@ -1293,6 +1298,7 @@ void DriveController::start_thermal_from_guess(double guess_C) {
   observer_.restart_unknown(guess_C);  // keeps the observer's configuration, time scale included
   thermal_guess_pending_ = false;
   thermal_restored_ = false;  // the model's rise starts from 0 at a guess
+  nameplate_excess_C_ = 0.0;
 }
 
 void DriveController::restore_thermal_state(const ThermalState& state, double downtime_s, double ambient_C) {

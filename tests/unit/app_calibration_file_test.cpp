@@ -869,6 +869,27 @@ TEST(CalibrationWarning, AnRs0FarAboveTheNameplateNamesACable) {
   EXPECT_NE(rs0_off_nameplate_warning(d, c).find("Check motor.rs_ohm"), std::string::npos);
 }
 
+// A Ke0 far off the motor's EMF constant (a calibration of this drive measuring a
+// motor.ke_V_s_per_rad entered 40 % low, another motor's file, a Ke0 per electrical rad/s) is
+// warned of with both figures; within 30 % (a magnet's temperature, a data sheet), or without a
+// Ke0, nothing. (Refused at load, the drive's own measurement was a file its next start refused.)
+TEST(CalibrationWarning, AKe0FarOffTheMotorsEmfConstantIsNamed) {
+  core::DriveConfig d;
+  const double motor_ke = core::emf_constant_dq_V_s_per_rad(d.motor);
+  core::Calibration c;
+  EXPECT_EQ(ke0_off_motor_warning(d, c), "") << "no Ke0";
+  c.ke0_V_s_per_rad = 1.29 * motor_ke;
+  EXPECT_EQ(ke0_off_motor_warning(d, c), "");
+  c.ke0_V_s_per_rad = 0.71 * motor_ke;
+  EXPECT_EQ(ke0_off_motor_warning(d, c), "");
+  c.ke0_V_s_per_rad = motor_ke / 0.6;
+  const std::string w = ke0_off_motor_warning(d, c);
+  EXPECT_NE(w.find("is +67 % off motor.ke_V_s_per_rad's"), std::string::npos) << w;
+  EXPECT_NE(w.find("motor.ke_V_s_per_rad is wrong"), std::string::npos) << w;
+  c.ke0_V_s_per_rad = motor_ke / d.motor.pole_pairs;
+  EXPECT_NE(ke0_off_motor_warning(d, c).find("% off"), std::string::npos) << "per electrical rad/s";
+}
+
 // A stored calibration whose Rs0 the configured cable takes whole is refused with both named.
 TEST(CalibrationWarning, AStoredRs0ACableTakesWholeIsRefused) {
   const fs::path dir = fs::temp_directory_path() / ("pmsm-cable-" + std::to_string(::getpid()));

@@ -397,6 +397,16 @@ TEST(cli_decode, AnOutputThatCouldNotBeWrittenFails) {
   EXPECT_EQ(r.exit_code, 0) << "the premise: the same run with room for its rows: " << r.err;
 }
 
+// The planning options take the configurations' floors (1e-300 V and 1e-300 V s/rad ran, and
+// --pole-pairs took 100 where a configuration takes 64).
+TEST(cli_decode, ThePlanningOptionsTakeTheConfigurationsFloors) {
+  for (const std::string args : {"--vdc 1e-300", "--Ke 1e-300", "--pole-pairs 65"}) {
+    const ProcessResult r = run_process(kExe + " budget --speed 100 " + args);
+    EXPECT_EQ(r.exit_code, 2) << args << ": " << r.err;
+    EXPECT_TRUE(contains(r.err, args.substr(0, args.find(' ')))) << args << ": " << r.err;
+  }
+}
+
 TEST(cli_decode, AMissingInputFileIsNamed) {
   const ProcessResult r = run_process(kDecode + "/nonexistent/capture.log");
   EXPECT_EQ(r.exit_code, 2);

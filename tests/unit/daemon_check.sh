@@ -145,6 +145,7 @@ check_bad '[controller.control]\nperiod_s = 1e-3\n' 1 'controller.control.curren
 check_bad '[controller.control]\nspeed_bandwidth_rad_s = 1000\n' 1 'controller.control.speed_bandwidth_rad_s (1000 rad/s) must be at most a fifth of controller.control.current_bandwidth_rad_s (2000 rad/s, its default)'
 check_bad '[controller.control]\ndead_time_s = 1e-5\n' 1 'gives the bridge a voltage error of 65 V, beyond the +-50 V controller.injection.vx_initial_V allows'
 check_bad '[controller.control]\nperiod_s = 2e-5\ndead_time_s = 5e-6\ncurrent_bandwidth_rad_s = 2000\n' 1 'controller.control.dead_time_s (5e-06 s) must be below a quarter of controller.control.period_s (2e-05 s'
+check_bad '[controller.control]\nnominal_dc_bus_V = 1e-300\n' 1 'bad.toml:2: controller.control.nominal_dc_bus_V: must be in [1, 10000], got 1e-300'
 check_bad '[supervisor]\ncommand_timeout_s = 1e-5\n' 1 'supervisor.command_timeout_s (1e-05 s) must be above the control period controller.control.period_s (0.0001 s), or 0 (off)'
 # The filter's noise keys are bounded (1e200 passed, and the drive tripped within 0.06 s).
 check_bad '[controller.thermal]\nwinding_process_std_C_per_sqrt_s = 1e200\n' 1 'bad.toml:2: controller.thermal.winding_process_std_C_per_sqrt_s: must be in [0, 100], got 1e+200'
@@ -152,9 +153,6 @@ check_bad '[controller.thermal]\niron_loss_k2_W_s2_rad2 = 1e6\n' 1 'bad.toml:2: 
 # A calibration path that cannot be looked at is no missing calibration (it could not be written).
 ln -s loop "$dir/loop"
 check_bad "[controller.calibration]\nfile = \"$dir/loop\"\n" 1 "$dir/loop: cannot be looked at (Too many levels of symbolic links)"
-# A stored Ke0 far off the motor's EMF constant: another motor's, or other units.
-printf 'format = 1\nrs0_ohm = 0.2\nt0_C = 25.0\nke0_V_s_per_rad = 100.0\n' > "$dir/other-ke0.toml"
-check_bad "[controller.calibration]\nfile = \"$dir/other-ke0.toml\"\n" 1 "other-ke0.toml: ke0_V_s_per_rad 100 V s/rad is"
 printf 'format = 1\nrs0_ohm = 0.2\nt0_C = 25.0\nke0_std_V_s_per_rad = 0.01\n' > "$dir/ke0-std-alone.toml"
 check_bad "[controller.calibration]\nfile = \"$dir/ke0-std-alone.toml\"\n" 1 "ke0_std_V_s_per_rad without ke0_V_s_per_rad"
 # A stored calibration of another motor: valid as a file, outside this drive's window.
@@ -208,6 +206,16 @@ check_warns "[controller.thermal]\nstate_file = \"$dir/state-node2.toml\"\n" \
   "thermal state not usable: $dir/state-node2.toml was written by the axis on vcan0 node 2, and this daemon is node 0 on vcan0 (does another axis's configuration name the same controller.thermal.state_file?)" \
   "; thermal state not usable)"
 check_warns "[can]\nnode = 2\n[controller.thermal]\nstate_file = \"$dir/state-node2.toml\"\n" "; thermal state usable (winding 71.5 C, saved "
+# One without the drive's header (written by hand, another file that parses) is not restored, as
+# it is not written over.
+tail -n +2 "$dir/state-ok.toml" > "$dir/state-headless.toml"
+check_warns "[controller.thermal]\nstate_file = \"$dir/state-headless.toml\"\n" \
+  "is no thermal state file (it starts \"format = 1\", not \"# pmsm-thermal thermal state\"): not used" "; thermal state not usable)"
+# A stored Ke0 far off the motor's EMF constant (another motor's, other units, or a
+# motor.ke_V_s_per_rad entered wrong, which a drive's own measurement would show): warned, naming both.
+printf 'format = 1\nrs0_ohm = 0.2\nt0_C = 25.0\nke0_V_s_per_rad = 100.0\n' > "$dir/other-ke0.toml"
+check_warns "[controller.calibration]\nfile = \"$dir/other-ke0.toml\"\n" \
+  "calibration: Ke0 100 V s/rad (phase peak per mechanical rad/s) is +10192 % off motor.ke_V_s_per_rad's 0.971631 V s/rad in that form"
 # A drive whose current limit the bus's DRIVE_STATUS cannot carry (0..400 A): warned, naming both.
 check_warns '[controller.derating]\nmax_current_A = 600\n[controller.sensors]\ncurrent_range_A = 1000\n[supervisor]\novercurrent_A = 800\n' \
   "controller.derating.max_current_A (600 A) lies beyond DRIVE_STATUS CurrentLimit's range (up to 400 A): while the limit is above it, the frame reads 400 A"

@@ -1110,8 +1110,8 @@ TEST(DriveNode, ANameplateCalibrationAtTheAmbientCountsTheModelsRise) {
 // refused a cold motor's calibration (a newcomer's pump, its first event before the request, ran
 // 7.9 C RMS high on such a nameplate). On the nameplate no measurement tells that error from a
 // warm winding: taken at the ambient plus the model's rise, with half the excess in T0's
-// uncertainty. An excess beyond the nameplate's own uncertainty (a motor powered up 25 K warm
-// without a stored state) is still refused.
+// uncertainty, which a request after an aborted run keeps. An excess beyond the nameplate's own
+// uncertainty (a motor powered up 25 K warm without a stored state) is still refused.
 TEST(DriveNode, ANameplateThatReadsAColdWindingWarmStillCalibrates) {
   NameplateRig low;
   low.config.drive.calibration.rs0_ohm = 0.95 * low.plant_config.motor.rs_ohm;
@@ -1132,6 +1132,17 @@ TEST(DriveNode, ANameplateThatReadsAColdWindingWarmStillCalibrates) {
   low.in.start_calibration = false;
   ASSERT_TRUE(tel.calibrating) << core::calibration_failure_name(tel.calibration_failure) << " rise "
                                << tel.calibration_winding_rise_C;
+  // Aborted (or failed) and asked again at once: the filter restarted at the cold end, but the
+  // excess the first request saw still holds.
+  low.run(100);
+  low.in.abort_calibration = true;
+  low.run(1);
+  low.in.abort_calibration = false;
+  ASSERT_FALSE(tel.calibrating);
+  low.in.start_calibration = true;
+  low.run(1);
+  low.in.start_calibration = false;
+  ASSERT_TRUE(tel.calibrating) << core::calibration_failure_name(tel.calibration_failure);
   const std::optional<core::Calibration> done = run_until_stored(low);
   ASSERT_TRUE(done.has_value()) << core::calibration_failure_name(tel.calibration_failure);
   EXPECT_NEAR(done->t0_C, truth_C, 1.0) << "the ambient plus the model's rise";

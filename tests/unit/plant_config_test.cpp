@@ -249,6 +249,13 @@ TEST(plant_config, CrossFieldRules) {
   EXPECT_NE(trip.find("emf.harmonic_orders"), std::string::npos) << trip;
   EXPECT_NE(trip.find("9"), std::string::npos) << trip;
 
+  const std::string twice = error_of(
+      "[emf]\nshape = \"custom\"\nharmonic_orders = [5, 5]\nharmonic_amplitudes = [0.1, 0.1]\n");
+  EXPECT_NE(twice.find("emf.harmonic_orders: order 5 is given twice"), std::string::npos) << twice;
+
+  const std::string bus = error_of("[inverter]\ndc_bus_V = 1e-300\n");
+  EXPECT_NE(bus.find("inverter.dc_bus_V"), std::string::npos) << bus;
+
   const std::string len = error_of(
       "[emf]\nshape = \"custom\"\nharmonic_orders = [5, 7]\nharmonic_amplitudes = [0.1]\n");
   EXPECT_NE(len.find("emf.harmonic_amplitudes"), std::string::npos) << len;

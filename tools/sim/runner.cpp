@@ -1350,13 +1350,10 @@ std::string result_text(const SimulationResult& r) {
                        r.calibration_failure_time_s, core::pair_outcomes_text(r.calibration_failure_pairs, r.calibration_failure_aborts));
   } else if (r.calibration_failure == core::CalibrationFailure::kWindingWarm) {
     out += fmt::format("  calibration failed at {:.2f} s    winding_warm: the winding was {:.1f} C above the ambient sensor "
-                       "(the thermal filter's, or the measured Rs0 read through the calibration in use; "
-                       "calibration.max_winding_rise_C; on the nameplate's Rs0 the thermal model's rise, taken beyond that "
-                       "limit only while calibration.model_rise_std_fraction of it stays below half the nameplate's "
-                       "uncertainty); the calibration in use stays (a motor replaced or rewound since that "
+                       "({}); the calibration in use stays (a motor replaced or rewound since that "
                        "calibration reads warm through its Rs0 even when cold: give the winding's temperature with the "
                        "request, or remove the stored calibration)\n",
-                       r.calibration_failure_time_s, r.calibration_failure_winding_rise_C);
+                       r.calibration_failure_time_s, r.calibration_failure_winding_rise_C, kWindingWarmMeasure);
   } else if (r.calibration_failure == core::CalibrationFailure::kAmbientHeld) {
     out += fmt::format("  calibration failed at {:.2f} s    ambient_held: the ambient sensor had stopped reporting, its last "
                        "reading held; the calibration in use stays\n",

@@ -804,6 +804,11 @@ class DriveController {
   // The thermal state was restored (restore_thermal_state) since the filter last started from a
   // guess: the model's rise then holds the restored state's, which is no soaked start's.
   bool thermal_restored_ = false;
+  // The filter's rise beyond the model's that a calibration on the nameplate was last taken with
+  // (start_calibration): a run that then fails leaves the filter restarted at the cold end, and
+  // the next request takes the larger of it and what the filter holds then. 0 again where the
+  // filter starts from a guess.
+  double nameplate_excess_C_ = 0.0;
   bool calibration_from_ambient_sensor_ = false;  // the running calibration's T0 is the sensor's
   int calibration_count_ = 0;
   double calibration_rs_sum_ = 0.0;
