@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <fstream>
+#include <initializer_list>
 #include <sstream>
 
 #include <fmt/format.h>
@@ -168,6 +169,17 @@ std::string check_cross_keys(const DaemonConfig& c, const toml::table& root, con
   auto rule = [&](const std::string& text) { add(source + ": ", text); };
   // The same at the line of `key` when the file gives it.
   auto rule_at = [&](std::string_view key, const std::string& text) { add(common::key_location(root, key, source), text); };
+  // At the line of the first of `keys` the file gives (the file alone where it gives none: the
+  // rule is broken by defaults).
+  auto rule_on = [&](std::initializer_list<std::string_view> keys, const std::string& text) {
+    for (const std::string_view key : keys) {
+      if (root.at_path(key)) {
+        rule_at(key, text);
+        return;
+      }
+    }
+    rule(text);
+  };
   // "supervisor.x (v unit)", or "supervisor.x (v unit, its default: how)" for a key the file
   // does not give: a rule broken by a default names what the default follows.
   auto value = [&](std::string_view key, double v, std::string_view unit, std::string_view default_from) {
@@ -205,40 +217,49 @@ std::string check_cross_keys(const DaemonConfig& c, const toml::table& root, con
   constexpr std::string_view kMaxFrom =
       "the lower of 1.25 x controller.control.nominal_dc_bus_V and 0.98 x controller.sensors.dc_bus_full_scale_V";
   if (!(s.dc_bus_min_V < s.dc_bus_max_V)) {
-    rule(value("supervisor.dc_bus_min_V", s.dc_bus_min_V, "V", kMinFrom) + " must be below " +
+    rule_on({"supervisor.dc_bus_min_V", "supervisor.dc_bus_max_V", "controller.control.nominal_dc_bus_V",
+             "controller.sensors.dc_bus_full_scale_V"},
+            value("supervisor.dc_bus_min_V", s.dc_bus_min_V, "V", kMinFrom) + " must be below " +
          value("supervisor.dc_bus_max_V", s.dc_bus_max_V, "V", kMaxFrom));
   } else if (c.controller.nominal_dc_bus_V < s.dc_bus_min_V || c.controller.nominal_dc_bus_V > s.dc_bus_max_V) {
-    rule(fmt::format("controller.control.nominal_dc_bus_V ({} V) lies outside supervisor.dc_bus_min_V .. "
+    rule_on({"controller.control.nominal_dc_bus_V", "supervisor.dc_bus_min_V", "supervisor.dc_bus_max_V"},
+            fmt::format("controller.control.nominal_dc_bus_V ({} V) lies outside supervisor.dc_bus_min_V .. "
                      "supervisor.dc_bus_max_V ({} .. {} V): the drive would trip at once",
                      c.controller.nominal_dc_bus_V, s.dc_bus_min_V, s.dc_bus_max_V));
   }
   if (s.dc_bus_max_V >= c.controller.sensors.dc_bus_full_scale_V) {
-    rule(fmt::format("supervisor.dc_bus_max_V ({} V) must be below controller.sensors.dc_bus_full_scale_V ({} V): a "
+    rule_on({"supervisor.dc_bus_max_V", "controller.sensors.dc_bus_full_scale_V"},
+            fmt::format("supervisor.dc_bus_max_V ({} V) must be below controller.sensors.dc_bus_full_scale_V ({} V): a "
                      "saturated ADC reading never shows an over-voltage",
                      s.dc_bus_max_V, c.controller.sensors.dc_bus_full_scale_V));
   }
   if (s.overcurrent_A >= c.controller.sensors.current_range_A) {
-    rule(fmt::format("supervisor.overcurrent_A ({} A) must be below controller.sensors.current_range_A ({} A): "
+    rule_on({"supervisor.overcurrent_A", "controller.sensors.current_range_A"},
+            fmt::format("supervisor.overcurrent_A ({} A) must be below controller.sensors.current_range_A ({} A): "
                      "a saturated ADC reading is never a valid current",
                      s.overcurrent_A, c.controller.sensors.current_range_A));
   } else if (const double limit_A = c.controller.drive.derating.max_current_A; s.overcurrent_A <= limit_A) {
-    rule(fmt::format("supervisor.overcurrent_A ({} A) must be above controller.derating.max_current_A ({} A): the drive "
+    rule_on({"supervisor.overcurrent_A", "controller.derating.max_current_A"},
+            fmt::format("supervisor.overcurrent_A ({} A) must be above controller.derating.max_current_A ({} A): the drive "
                      "would trip below its own current limit",
                      s.overcurrent_A, limit_A));
   }
   if (s.overspeed_rad_s >= s.max_speed_rad_s) {
-    rule(fmt::format("supervisor.overspeed_rad_s ({} rad/s) must be below supervisor.max_speed_rad_s ({} rad/s): "
+    rule_on({"supervisor.overspeed_rad_s", "supervisor.max_speed_rad_s"},
+            fmt::format("supervisor.overspeed_rad_s ({} rad/s) must be below supervisor.max_speed_rad_s ({} rad/s): "
                      "beyond that a step of the encoder is an encoder jump, not a speed",
                      s.overspeed_rad_s, s.max_speed_rad_s));
   }
   if (const double limit = c.controller.drive.speed_limit_rad_s; s.overspeed_rad_s > 0.0 && limit >= s.overspeed_rad_s) {
-    rule(fmt::format("controller.control.speed_limit_rad_s ({} rad/s{}) must be below supervisor.overspeed_rad_s ({} "
+    rule_on({"controller.control.speed_limit_rad_s", "supervisor.overspeed_rad_s", "controller.motor.rated_speed_rad_s"},
+            fmt::format("controller.control.speed_limit_rad_s ({} rad/s{}) must be below supervisor.overspeed_rad_s ({} "
                      "rad/s): the shaft would trip OVERSPEED before the drive limits its speed",
                      limit, c.controller.relative.speed_limit_rad_s ? "" : ", its default 1.2 x motor.rated_speed_rad_s",
                      s.overspeed_rad_s));
   }
   if (s.trip_temp_C <= c.controller.drive.derating.limit_C) {
-    rule(fmt::format("supervisor.trip_temp_C ({} C) must be above controller.derating.limit_C ({} C): the "
+    rule_on({"supervisor.trip_temp_C", "controller.derating.limit_C"},
+            fmt::format("supervisor.trip_temp_C ({} C) must be above controller.derating.limit_C ({} C): the "
                      "drive derates before it trips",
                      s.trip_temp_C, c.controller.drive.derating.limit_C));
   }
@@ -250,7 +271,8 @@ std::string check_cross_keys(const DaemonConfig& c, const toml::table& root, con
                                      {"publish.heartbeat_s", c.publish.heartbeat_s},
                                      {"publish.fault_repeat_s", c.publish.fault_repeat_s}}) {
     if (every_s > 0.0 && every_s < c.controller.drive.period_s) {
-      rule(fmt::format("{} ({} s) is shorter than the control period controller.control.period_s ({} s): the drive "
+      rule_on({key, "controller.control.period_s"},
+              fmt::format("{} ({} s) is shorter than the control period controller.control.period_s ({} s): the drive "
                        "publishes once a period at most (0 turns the periodic frames off)",
                        key, common::format_number(every_s), common::format_number(c.controller.drive.period_s)));
     }
@@ -258,12 +280,14 @@ std::string check_cross_keys(const DaemonConfig& c, const toml::table& root, con
   // A command timeout within one control period would fault in every period a command did not
   // come in (1e-5 s passed --check).
   if (s.command_timeout_s > 0.0 && !(s.command_timeout_s > c.controller.drive.period_s)) {
-    rule(fmt::format("supervisor.command_timeout_s ({} s) must be above the control period controller.control.period_s "
+    rule_on({"supervisor.command_timeout_s", "controller.control.period_s"},
+            fmt::format("supervisor.command_timeout_s ({} s) must be above the control period controller.control.period_s "
                      "({} s), or 0 (off): a drive enabled would fault in every period without a fresh DRIVE_COMMAND",
                      common::format_number(s.command_timeout_s), common::format_number(c.controller.drive.period_s)));
   }
   if (const double period_ms = 1e3 * c.controller.drive.period_s; !(c.can.sample_timeout_ms > period_ms)) {
-    rule(fmt::format("can.sample_timeout_ms ({} ms) must be above the control period controller.control.period_s ({} ms): "
+    rule_on({"can.sample_timeout_ms", "controller.control.period_s"},
+            fmt::format("can.sample_timeout_ms ({} ms) must be above the control period controller.control.period_s ({} ms): "
                      "every period would count as missing",
                      common::format_number(c.can.sample_timeout_ms), common::format_number(period_ms)));
   }

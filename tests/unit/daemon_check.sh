@@ -135,7 +135,10 @@ check_bad '[can]\ninterface = "vcan0123456789abcdef"\n' 1 'can.interface: an int
 check_bad '[can]\ninterface = "can/0"\n' 1 "can.interface: an interface name has no '/', ':' or white space"
 check_bad '[can]\nsample_timeout_ms = 0.05\n' 1 'can.sample_timeout_ms (0.05 ms) must be above the control period controller.control.period_s (0.1 ms)'
 check_bad '[publish]\nthermal_estimate_s = 1e-9\n' 1 'publish.thermal_estimate_s (1e-09 s) is shorter than the control period controller.control.period_s (0.0001 s)'
-check_bad '[supervisor]\novercurrent_A = 50\n' 1 'supervisor.overcurrent_A (50 A) must be above controller.derating.max_current_A (80 A)'
+check_bad '[supervisor]\novercurrent_A = 50\n' 1 'bad.toml:2: supervisor.overcurrent_A (50 A) must be above controller.derating.max_current_A (80 A)'
+# A rule between two keys is located at the first of them the file gives.
+check_bad '[supervisor]\ntrip_temp_C = 100\n' 1 'bad.toml:2: supervisor.trip_temp_C (100 C) must be above controller.derating.limit_C (155 C)'
+check_bad '[supervisor]\ndc_bus_min_V = 900\n' 1 'bad.toml:2: supervisor.dc_bus_min_V (900 V) must be below supervisor.dc_bus_max_V'
 check_bad '[supervisor]\ndc_bus_max_V = 5000\n' 1 'supervisor.dc_bus_max_V (5000 V) must be below controller.sensors.dc_bus_full_scale_V (1000 V)'
 check_bad '[controller.sensors]\ndc_bus_full_scale_V = 10\n' 1 'supervisor.dc_bus_min_V (390 V, its default: 0.6 x controller.control.nominal_dc_bus_V) must be below supervisor.dc_bus_max_V (9.8 V, its default: the lower of'
 check_bad '[gpio]\nchip = "gpiochip0"\nenable_line = 17\nfault_line = 17\n' 1 'bad.toml:4: gpio.fault_line and gpio.enable_line are both line 17'
