@@ -489,17 +489,16 @@ void DriveController::start_calibration(double known_temp_C, bool from_ambient_s
   // Where the model is the reference, the filter's rise beyond it is judged below with the
   // nameplate's own uncertainty: it is as much the nameplate's error as the winding's warmth. (It
   // joins T0's uncertainty with the check off too: the band is the check's business no more than
-  // the sensor's tolerance is.) A run taken with it that failed restarted the filter at the cold
-  // end: what it was taken with still holds.
-  double beyond_model_C = 0.0;
+  // the sensor's tolerance is.) A run taken with it restarted the filter at the cold end: what it
+  // was taken with still holds, for a repeated request while it runs and after it failed.
+  double beyond_model_C = model_is_reference ? nameplate_excess_C_ : 0.0;
   if (from_ambient_sensor && !was_calibrating && !thermal_guess_pending_) {
     // Against the ambient the filter runs on, not the one given now: a configured ambient
     // changed just before the request (no sensor) is no warmth of the winding.
     const double rise = observer_.estimate().winding_C - thermal_ambient_C_;
-    const double assumed_rise = model_is_reference ? model_rise : 0.0;
     if (model_is_reference) {
-      beyond_model_C = std::max(std::isfinite(rise) ? std::max(rise - assumed_rise, 0.0) : 0.0, nameplate_excess_C_);
-    } else if (config_.calibration_max_winding_rise_C > 0.0 && rise - assumed_rise > config_.calibration_max_winding_rise_C) {
+      beyond_model_C = std::max(std::isfinite(rise) ? rise - model_rise : 0.0, beyond_model_C);
+    } else if (config_.calibration_max_winding_rise_C > 0.0 && rise > config_.calibration_max_winding_rise_C) {
       // Nothing of a calibration run has started: nothing to restore (fail_calibration).
       calibration_refused_on_request_ = true;
       telemetry_.calibration_winding_rise_C = rise;
@@ -528,10 +527,7 @@ void DriveController::start_calibration(double known_temp_C, bool from_ambient_s
   // nameplate's (5 % of Rs0, about 13 K): then it is still the better of the two.
   double t0_rise_std_C = 0.0;
   if (from_ambient_sensor && !thermal_guess_pending_ && on_nameplate) {
-    double rise_std_C = std::hypot(config_.calibration_model_rise_std_fraction * model_rise, 0.5 * beyond_model_C);
-    if (was_calibrating) {
-      rise_std_C = std::max(rise_std_C, calibration_t0_rise_std_C_);  // a repeated request: the run's own excess kept
-    }
+    const double rise_std_C = std::hypot(config_.calibration_model_rise_std_fraction * model_rise, 0.5 * beyond_model_C);
     const double nameplate_std_C = observer_.rs0_std_C_at(known_temp_C + model_rise);
     const bool better_than_nameplate = model_is_reference && rise_std_C < 0.5 * nameplate_std_C;
     const double limit_C = config_.calibration_max_winding_rise_C;
@@ -544,9 +540,7 @@ void DriveController::start_calibration(double known_temp_C, bool from_ambient_s
     }
     known_temp_C += model_rise;  // finite (above), and so its share (the fraction is a checked key)
     t0_rise_std_C = rise_std_C;
-    if (!was_calibrating) {
-      nameplate_excess_C_ = beyond_model_C;
-    }
+    nameplate_excess_C_ = beyond_model_C;
   }
   // An operator's reading is not second-guessed against the model alone, which may start from
   // a guess (a warm motor powered up without a stored state); but where the drive measured the

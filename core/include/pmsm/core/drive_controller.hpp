@@ -805,9 +805,9 @@ class DriveController {
   // guess: the model's rise then holds the restored state's, which is no soaked start's.
   bool thermal_restored_ = false;
   // The filter's rise beyond the model's that a calibration on the nameplate was last taken with
-  // (start_calibration): a run that then fails leaves the filter restarted at the cold end, and
-  // the next request takes the larger of it and what the filter holds then. 0 again where the
-  // filter starts from a guess.
+  // (start_calibration): its run restarted the filter at the cold end, so a repeated request and
+  // one after the run failed take the larger of it and what the filter holds then. 0 again where
+  // the filter starts from a guess.
   double nameplate_excess_C_ = 0.0;
   bool calibration_from_ambient_sensor_ = false;  // the running calibration's T0 is the sensor's
   int calibration_count_ = 0;
