@@ -16,6 +16,8 @@
 #include <utility>
 #include <vector>
 
+#include "standard_output.hpp"
+
 namespace pmsm::cli {
 
 // A number within [lo, hi]; `strict_lo` excludes lo itself.
@@ -85,15 +87,17 @@ inline CLI::Validator file_name() {
 }
 
 // The exit code of a command line CLI11 refused, with its message printed: 0 for --help and
-// --version, else `usage_exit_code`. CLI11 checks the required options before the words it did
+// --version (`write_failed_code`, naming `program`, when their text did not all reach standard
+// output: a full disk), else `usage_exit_code`. CLI11 checks the required options before the words it did
 // not know, so `--bogus` alone, or a misspelt flag beside a required one, read "A subcommand is
 // required" or "--voltage is required" and never named the word: it is named first here.
-inline int exit_on_parse_error(const CLI::App& app, const CLI::ParseError& e, int usage_exit_code) {
+inline int exit_on_parse_error(const CLI::App& app, const CLI::ParseError& e, int usage_exit_code,
+                               const char* program, int write_failed_code) {
   const std::vector<std::string> unknown = app.remaining(true);
   if (e.get_exit_code() != 0 && !unknown.empty() && dynamic_cast<const CLI::ExtrasError*>(&e) == nullptr) {
     std::fprintf(stderr, "%s\n", CLI::ExtrasError(unknown).what());
   }
-  return app.exit(e) == 0 ? 0 : usage_exit_code;
+  return app.exit(e) == 0 ? exit_with_standard_output_checked(program, 0, write_failed_code) : usage_exit_code;
 }
 
 }  // namespace pmsm::cli

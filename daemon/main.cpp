@@ -592,7 +592,7 @@ int main(int argc, char** argv) {
   } catch (const CLI::ParseError& e) {
     // --help and --version exit 0; a bad command line is a configuration error like a bad
     // file (exit 2, which the unit does not restart on), not one of CLI11's own codes.
-    return pmsm::cli::exit_on_parse_error(app, e, kExitConfig);
+    return pmsm::cli::exit_on_parse_error(app, e, kExitConfig, "pmsm-thermald", kExitIo);
   }
   if (o.keys) {
     std::fputs(pmsm::daemon::daemon_keys_markdown().c_str(), stdout);

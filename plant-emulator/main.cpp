@@ -364,7 +364,7 @@ int main(int argc, char** argv) {
   } catch (const CLI::ParseError& e) {
     // --help and --version exit 0; a bad command line is a configuration error (2), not one
     // of CLI11's own codes.
-    return pmsm::cli::exit_on_parse_error(app, e, kExitConfig);
+    return pmsm::cli::exit_on_parse_error(app, e, kExitConfig, "pmsm-plant", kExitBus);
   }
   // A flag of the other mode would do nothing: said, not ignored.
   for (const auto& [flag, mode] : {std::pair<const char*, const char*>{"--command-timeout-ms", "realtime"},

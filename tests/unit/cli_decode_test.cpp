@@ -382,7 +382,8 @@ TEST(cli_dbc, GivesEachNodesDbc) {
 // simulate's outputs and dbc's file, named on standard error; a check that failed keeps its 1.
 TEST(cli_decode, AnOutputThatCouldNotBeWrittenFails) {
   const std::string commands[] = {"config-keys", "budget --speed 10", "budget --speed 10 --json", "losses --F 10",
-                                   "decode --dbc " + kDbc + " " + kData + "protocol_node0.log"};
+                                   "decode --dbc " + kDbc + " " + kData + "protocol_node0.log",
+                                   "--help", "--version", "simulate --help"};
   for (const std::string& args : commands) {
     const ProcessResult r = run_process(kExe + " " + args + " > /dev/full");
     EXPECT_EQ(r.exit_code, 3) << args << ": " << r.err;

@@ -281,5 +281,13 @@ else
 fi
 for args in --help --version; do
   "$exe" "$args" >/dev/null 2>&1 || { echo "FAIL: $args did not exit 0"; fail=1; }
+  # ... and to a full disk, 1 (I/O), saying so, as --keys.
+  out=$("$exe" "$args" 2>&1 >/dev/full)
+  rc=$?
+  if [ "$rc" -ne 1 ] || [[ "$out" != *"pmsm-thermald: cannot write standard output ("* ]]; then
+    echo "FAIL: $args > /dev/full should exit 1 saying so, got exit $rc: $out"; fail=1
+  else
+    echo "ok (rejected): $args > /dev/full: $out"
+  fi
 done
 exit $fail

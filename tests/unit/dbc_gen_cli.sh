@@ -26,4 +26,14 @@ printf 'old\n' > "$work/stale.dbc"
 expect 1 "pmsm-dbc-gen: $work/stale.dbc is out of date" --check --dbc "$work/stale.dbc"
 "$exe" --dbc "$work/stale.dbc" > "$work/out" 2>&1 || fail "cannot write a DBC"
 expect 0 "" --check --dbc "$work/stale.dbc"
+expect 0 "pmsm-dbc-gen " --version
+expect 0 "usage: pmsm-dbc-gen" --help
+# --help, --version and the DBC on standard output to a full disk: exit 1, naming it.
+for args in --help --version ""; do
+  status=0
+  # shellcheck disable=SC2086
+  "$exe" $args > /dev/full 2> "$work/out" || status=$?
+  [ "$status" -eq 1 ] && grep -qF "pmsm-dbc-gen: cannot write standard output (" "$work/out" ||
+    fail "pmsm-dbc-gen $args > /dev/full: exit $status, expected 1 naming it"
+done
 echo "dbc_gen_cli: ok"

@@ -71,6 +71,12 @@ TEST(plant_cli, ABadOptionExitsTwoNamingIt) {
   EXPECT_EQ(r.exit_code, 2);  // as a bad configuration (not CLI11's own codes)
   EXPECT_TRUE(contains(r.err, "--node")) << r.err;
   EXPECT_EQ(run_process(kPlant + " --version").exit_code, 0);
+  // --help and --version whose text could not be written (a full disk) are no success: 1, named.
+  for (const char* flag : {" --help", " --version"}) {
+    const ProcessResult full = run_process(kPlant + flag + " >/dev/full");
+    EXPECT_EQ(full.exit_code, 1) << flag;
+    EXPECT_TRUE(contains(full.err, "pmsm-plant: cannot write standard output (")) << flag << ": " << full.err;
+  }
 }
 
 TEST(plant_cli, CheckRejectsAnUnknownKey) {

@@ -43,7 +43,7 @@ int main(int argc, char** argv) {
   } catch (const CLI::ParseError& e) {
     // --help and --version exit 0; a bad command line is unusable input (2), as a bad file is,
     // not one of CLI11's own codes.
-    return pmsm::cli::exit_on_parse_error(app, e, 2);
+    return pmsm::cli::exit_on_parse_error(app, e, 2, "pmsm-thermal", 3);
   } catch (const std::bad_alloc&) {
     // (Each command bounds what it reads; this is the last line of defence, not an abort.) 2:
     // the command could not do its work, never a check's 1 (monitor's gate, decode --strict).

@@ -22,7 +22,7 @@
 namespace {
 
 constexpr std::string_view kUsage =
-    "usage: pmsm-dbc-gen [--node N] [--dbc FILE] [--docs FILE] [--check]\n"
+    "usage: pmsm-dbc-gen [--node N] [--dbc FILE] [--docs FILE] [--check] | --help | --version\n"
     "  --node N     node id 0..15 for the DBC's IDs (default 0, the committed file)\n"
     "  --dbc FILE   write the DBC to FILE (without --dbc/--docs: to stdout)\n"
     "  --docs FILE  rewrite the generated section of FILE (docs/protocol.md)\n"
@@ -104,7 +104,10 @@ int main(int argc, char** argv) {
       check = true;
     } else if (arg == "--help" || arg == "-h") {
       std::cout << kUsage;
-      return 0;
+      return pmsm::cli::exit_with_standard_output_checked("pmsm-dbc-gen", 0, 1);
+    } else if (arg == "--version") {
+      std::cout << "pmsm-dbc-gen " << PMSM_VERSION << "\n";
+      return pmsm::cli::exit_with_standard_output_checked("pmsm-dbc-gen", 0, 1);
     } else {
       std::cerr << "pmsm-dbc-gen: unknown argument '" << arg << "'\n" << kUsage;
       return 2;
