@@ -633,7 +633,8 @@ PlantConfig parse_plant_config(std::string_view toml_text, std::string_view sour
     try {
       load_drive_cycle_csv(csv, config.load);
     } catch (const ConfigError& e) {
-      throw ConfigError(fmt::format("{}: {}", source_name, e.what()));
+      // "plant.toml:6: load.csv_path: cycle.csv:3: ...": the plant file's line of the key too.
+      throw ConfigError(common::key_location(root, "load.csv_path", source_name) + e.what());
     }
   }
 
