@@ -165,6 +165,22 @@ std::optional<pmsm::app::StoredThermalState> usable_thermal_state(const DaemonCo
   }
 }
 
+// A stored thermal state's learned blocks that are not used (a bad or missing value: each costs
+// only itself; the temperatures are kept), said at the start or, `would`, by --check.
+void warn_unused_thermal_blocks(const pmsm::app::StoredThermalState& s, bool would) {
+  const char* const are_not = would ? "would not be" : "not";
+  const char* const restart = would ? "would restart" : "restart";
+  const char* const restarts = would ? "would restart" : "restarts";
+  if (!s.loss_errors_ignored.empty()) {
+    spdlog::warn("thermal state: the loss model's errors {} used ({}); they {} from the priors, the temperatures are "
+                 "kept", are_not, s.loss_errors_ignored, restart);
+  }
+  if (!s.cooling_error_ignored.empty()) {
+    spdlog::warn("thermal state: the cooling path's error {} used ({}); it {} from its prior, the temperatures are "
+                 "kept", are_not, s.cooling_error_ignored, restarts);
+  }
+}
+
 // The thermal state kept from before this start: cooled through the downtime by the model. A
 // damaged, future or week-old file is not used (the filter then starts from the ambient
 // sensor, as without one): it is a prediction, never worth refusing to start for.
@@ -195,19 +211,14 @@ void restore_thermal_state(const DaemonConfig& config, pmsm::daemon::DriveLoop& 
     spdlog::info("thermal state: the loss model's learned errors kept: missing loss {:.1f} +- {:.1f} W, copper loss scale "
                  "{:+.3f} +- {:.3f} (after the downtime)",
                  kept.missing_loss_W, kept.missing_loss_std_W, kept.loss_scale_error, kept.loss_scale_std);
-  } else if (!s.loss_errors_ignored.empty()) {
-    spdlog::warn("thermal state: the loss model's errors not used ({}); they restart from the priors, the "
-                 "temperatures are kept", s.loss_errors_ignored);
   }
   const pmsm::core::ThermalState restored = loop.node().controller().thermal_state();
   if (s.state.has_cooling_error && restored.has_cooling_error) {
     spdlog::info("thermal state: the cooling path's learned error kept: {:+.3f} +- {:.3f} of the model's conductance "
                  "(after the downtime)",
                  restored.cooling_scale_error, restored.cooling_scale_std);
-  } else if (!s.cooling_error_ignored.empty()) {
-    spdlog::warn("thermal state: the cooling path's error not used ({}); it restarts from its prior, the temperatures "
-                 "are kept", s.cooling_error_ignored);
   }
+  warn_unused_thermal_blocks(s, false);
 }
 
 // Why the daemon could not write `path` (the calibration, the thermal state) when the time
@@ -365,14 +376,7 @@ int run(const Options& o) {
       if (const auto s = usable_thermal_state(config, downtime_s, why)) {
         thermal = fmt::format("thermal state usable (winding {:.1f} C, saved {:.0f} s ago)", s->state.winding_C, downtime_s);
         // What the start would say of a bad block, which costs only itself.
-        if (!s->loss_errors_ignored.empty()) {
-          spdlog::warn("thermal state: the loss model's errors would not be used ({}); they would restart from the "
-                       "priors, the temperatures kept", s->loss_errors_ignored);
-        }
-        if (!s->cooling_error_ignored.empty()) {
-          spdlog::warn("thermal state: the cooling path's error would not be used ({}); it would restart from its "
-                       "prior, the temperatures kept", s->cooling_error_ignored);
-        }
+        warn_unused_thermal_blocks(*s, true);
       } else if (why.empty()) {
         thermal = "thermal state missing";
       } else {

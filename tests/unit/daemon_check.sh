@@ -202,6 +202,13 @@ check_warns "[controller.thermal]\nstate_file = \"$dir/state-nan.toml\"\n" \
   "thermal state not usable: $dir/state-nan.toml:3: winding_C: nan is out of range" "; thermal state not usable)"
 printf '# pmsm-thermal thermal state\nformat = 1\nwinding_C = 71.5\nhousing_C = 60.0\nwinding_std_C = 2.0\nambient_C = 25.0\nsaved_unix_s = %s\n' "$now" > "$dir/state-ok.toml"
 check_warns "[controller.thermal]\nstate_file = \"$dir/state-ok.toml\"\n" "; thermal state usable (winding 71.5 C, saved "
+# A learned block the start would drop (half a loss block, half a cooling pair): said, the
+# temperatures usable.
+{ cat "$dir/state-ok.toml"; printf 'missing_loss_W = 3.0\ncooling_scale_error = 0.1\n'; } > "$dir/state-halves.toml"
+check_warns "[controller.thermal]\nstate_file = \"$dir/state-halves.toml\"\n" \
+  "thermal state: the loss model's errors would not be used ($dir/state-halves.toml: missing_loss_std_W is missing" \
+  "thermal state: the cooling path's error would not be used ($dir/state-halves.toml: cooling_scale_std is missing" \
+  "; thermal state usable (winding 71.5 C, saved "
 # One another axis wrote (a configuration copied for a second axis, its state file left as the
 # first one's) is not this axis's winding; the axis that wrote it, when it is this one, is.
 { cat "$dir/state-ok.toml"; printf 'can_interface = "vcan0"\ncan_node = 2\n'; } > "$dir/state-node2.toml"
