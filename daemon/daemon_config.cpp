@@ -169,33 +169,46 @@ std::string check_cross_keys(const DaemonConfig& c, const toml::table& root, con
   auto rule = [&](const std::string& text) { add(source + ": ", text); };
   // The same at the line of `key` when the file gives it.
   auto rule_at = [&](std::string_view key, const std::string& text) { add(common::key_location(root, key, source), text); };
-  // At the line of the first of `keys` the file gives (the file alone where it gives none: the
-  // rule is broken by defaults).
-  auto rule_on = [&](std::initializer_list<std::string_view> keys, const std::string& text) {
+  // A rule on `keys`, located at the line of the first of them the file gives (the file alone
+  // where it gives none: the rule is broken by defaults), its text made by `text(value)`.
+  // value(key, v, unit, how) names a key with its value and where that comes from, as the
+  // drive's rules do: "supervisor.x (v unit)" for the key the message is located at, "(v unit,
+  // bad.toml:3)" for another the file gives, "(v unit, its default)" or "(v unit, its default:
+  // how)" for one it does not.
+  auto rule_with = [&](std::initializer_list<std::string_view> keys, const auto& text) {
+    std::string_view at_key;
     for (const std::string_view key : keys) {
       if (root.at_path(key)) {
-        rule_at(key, text);
-        return;
+        at_key = key;
+        break;
       }
     }
-    rule(text);
-  };
-  // "supervisor.x (v unit)", or "supervisor.x (v unit, its default: how)" for a key the file
-  // does not give: a rule broken by a default names what the default follows.
-  auto value = [&](std::string_view key, double v, std::string_view unit, std::string_view default_from) {
-    const bool given = static_cast<bool>(root.at_path(key));
-    return fmt::format("{} ({} {}{}{})", key, common::format_number(v), unit, given ? "" : ", its default: ",
-                       given ? "" : default_from);
+    const auto value = [&](std::string_view key, double v, std::string_view unit, std::string_view how = {}) {
+      std::string from;
+      if (!root.at_path(key)) {
+        from = how.empty() ? std::string(", its default") : ", its default: " + std::string(how);
+      } else if (key != at_key) {
+        from = common::key_location(root, key, source);
+        from = ", " + from.substr(0, from.size() - 2);  // "bad.toml:3: " less its ": "
+      }
+      return fmt::format("{} ({}{}{}{})", key, common::format_number(v), unit.empty() ? "" : " ", unit, from);
+    };
+    const std::string message = text(value);
+    if (at_key.empty()) {
+      rule(message);
+    } else {
+      rule_at(at_key, message);
+    }
   };
   const core::SupervisorConfig& s = c.supervisor;
   if (const std::string problem = hal::can_interface_name_problem(c.can.interface); !problem.empty()) {
     rule_at("can.interface", "can.interface: " + problem);
   }
   if (!(s.ambient_min_C < s.ambient_max_C)) {
-    rule_at(root.at_path("supervisor.ambient_min_C") ? "supervisor.ambient_min_C" : "supervisor.ambient_max_C",
-            fmt::format("supervisor.ambient_min_C ({} C) must be below supervisor.ambient_max_C ({} C): every "
-                        "ambient reading would be implausible",
-                        s.ambient_min_C, s.ambient_max_C));
+    rule_with({"supervisor.ambient_min_C", "supervisor.ambient_max_C"}, [&](const auto& value) {
+      return value("supervisor.ambient_min_C", s.ambient_min_C, "C") + " must be below " +
+             value("supervisor.ambient_max_C", s.ambient_max_C, "C") + ": every ambient reading would be implausible";
+    });
   }
   if (c.gpio.chip.empty() != (c.gpio.enable_line < 0)) {
     rule_at(c.gpio.chip.empty() ? "gpio.enable_line" : "gpio.chip",
@@ -216,52 +229,65 @@ std::string check_cross_keys(const DaemonConfig& c, const toml::table& root, con
   constexpr std::string_view kMinFrom = "0.6 x controller.control.nominal_dc_bus_V";
   constexpr std::string_view kMaxFrom =
       "the lower of 1.25 x controller.control.nominal_dc_bus_V and 0.98 x controller.sensors.dc_bus_full_scale_V";
+  constexpr std::string_view kRatedSpeed = "controller.motor.rated_speed_rad_s";
   if (!(s.dc_bus_min_V < s.dc_bus_max_V)) {
-    rule_on({"supervisor.dc_bus_min_V", "supervisor.dc_bus_max_V", "controller.control.nominal_dc_bus_V",
-             "controller.sensors.dc_bus_full_scale_V"},
-            value("supervisor.dc_bus_min_V", s.dc_bus_min_V, "V", kMinFrom) + " must be below " +
-         value("supervisor.dc_bus_max_V", s.dc_bus_max_V, "V", kMaxFrom));
+    rule_with({"supervisor.dc_bus_min_V", "supervisor.dc_bus_max_V", "controller.control.nominal_dc_bus_V",
+               "controller.sensors.dc_bus_full_scale_V"},
+              [&](const auto& value) {
+                return value("supervisor.dc_bus_min_V", s.dc_bus_min_V, "V", kMinFrom) + " must be below " +
+                       value("supervisor.dc_bus_max_V", s.dc_bus_max_V, "V", kMaxFrom);
+              });
   } else if (c.controller.nominal_dc_bus_V < s.dc_bus_min_V || c.controller.nominal_dc_bus_V > s.dc_bus_max_V) {
-    rule_on({"controller.control.nominal_dc_bus_V", "supervisor.dc_bus_min_V", "supervisor.dc_bus_max_V"},
-            fmt::format("controller.control.nominal_dc_bus_V ({} V) lies outside supervisor.dc_bus_min_V .. "
-                     "supervisor.dc_bus_max_V ({} .. {} V): the drive would trip at once",
-                     c.controller.nominal_dc_bus_V, s.dc_bus_min_V, s.dc_bus_max_V));
+    rule_with({"controller.control.nominal_dc_bus_V", "supervisor.dc_bus_min_V", "supervisor.dc_bus_max_V"},
+              [&](const auto& value) {
+                return value("controller.control.nominal_dc_bus_V", c.controller.nominal_dc_bus_V, "V") +
+                       " lies outside " + value("supervisor.dc_bus_min_V", s.dc_bus_min_V, "V", kMinFrom) + " .. " +
+                       value("supervisor.dc_bus_max_V", s.dc_bus_max_V, "V", kMaxFrom) + ": the drive would trip at once";
+              });
   }
   if (s.dc_bus_max_V >= c.controller.sensors.dc_bus_full_scale_V) {
-    rule_on({"supervisor.dc_bus_max_V", "controller.sensors.dc_bus_full_scale_V"},
-            fmt::format("supervisor.dc_bus_max_V ({} V) must be below controller.sensors.dc_bus_full_scale_V ({} V): a "
-                     "saturated ADC reading never shows an over-voltage",
-                     s.dc_bus_max_V, c.controller.sensors.dc_bus_full_scale_V));
+    rule_with({"supervisor.dc_bus_max_V", "controller.sensors.dc_bus_full_scale_V"}, [&](const auto& value) {
+      return value("supervisor.dc_bus_max_V", s.dc_bus_max_V, "V", kMaxFrom) + " must be below " +
+             value("controller.sensors.dc_bus_full_scale_V", c.controller.sensors.dc_bus_full_scale_V, "V") +
+             ": a saturated ADC reading never shows an over-voltage";
+    });
   }
+  constexpr std::string_view kOvercurrentFrom = "90 % of controller.sensors.current_range_A";
   if (s.overcurrent_A >= c.controller.sensors.current_range_A) {
-    rule_on({"supervisor.overcurrent_A", "controller.sensors.current_range_A"},
-            fmt::format("supervisor.overcurrent_A ({} A) must be below controller.sensors.current_range_A ({} A): "
-                     "a saturated ADC reading is never a valid current",
-                     s.overcurrent_A, c.controller.sensors.current_range_A));
+    rule_with({"supervisor.overcurrent_A", "controller.sensors.current_range_A"}, [&](const auto& value) {
+      return value("supervisor.overcurrent_A", s.overcurrent_A, "A", kOvercurrentFrom) + " must be below " +
+             value("controller.sensors.current_range_A", c.controller.sensors.current_range_A, "A") +
+             ": a saturated ADC reading is never a valid current";
+    });
   } else if (const double limit_A = c.controller.drive.derating.max_current_A; s.overcurrent_A <= limit_A) {
-    rule_on({"supervisor.overcurrent_A", "controller.derating.max_current_A"},
-            fmt::format("supervisor.overcurrent_A ({} A) must be above controller.derating.max_current_A ({} A): the drive "
-                     "would trip below its own current limit",
-                     s.overcurrent_A, limit_A));
+    rule_with({"supervisor.overcurrent_A", "controller.derating.max_current_A"}, [&](const auto& value) {
+      return value("supervisor.overcurrent_A", s.overcurrent_A, "A", kOvercurrentFrom) + " must be above " +
+             value("controller.derating.max_current_A", limit_A, "A") + ": the drive would trip below its own current limit";
+    });
   }
+  const std::string max_speed_from = fmt::format("3 x {}", kRatedSpeed);
+  const std::string overspeed_from = fmt::format("1.5 x {}", kRatedSpeed);
   if (s.overspeed_rad_s >= s.max_speed_rad_s) {
-    rule_on({"supervisor.overspeed_rad_s", "supervisor.max_speed_rad_s"},
-            fmt::format("supervisor.overspeed_rad_s ({} rad/s) must be below supervisor.max_speed_rad_s ({} rad/s): "
-                     "beyond that a step of the encoder is an encoder jump, not a speed",
-                     s.overspeed_rad_s, s.max_speed_rad_s));
+    rule_with({"supervisor.overspeed_rad_s", "supervisor.max_speed_rad_s", kRatedSpeed}, [&](const auto& value) {
+      return value("supervisor.overspeed_rad_s", s.overspeed_rad_s, "rad/s", overspeed_from) + " must be below " +
+             value("supervisor.max_speed_rad_s", s.max_speed_rad_s, "rad/s", max_speed_from) +
+             ": beyond that a step of the encoder is an encoder jump, not a speed";
+    });
   }
   if (const double limit = c.controller.drive.speed_limit_rad_s; s.overspeed_rad_s > 0.0 && limit >= s.overspeed_rad_s) {
-    rule_on({"controller.control.speed_limit_rad_s", "supervisor.overspeed_rad_s", "controller.motor.rated_speed_rad_s"},
-            fmt::format("controller.control.speed_limit_rad_s ({} rad/s{}) must be below supervisor.overspeed_rad_s ({} "
-                     "rad/s): the shaft would trip OVERSPEED before the drive limits its speed",
-                     limit, c.controller.relative.speed_limit_rad_s ? "" : ", its default 1.2 x motor.rated_speed_rad_s",
-                     s.overspeed_rad_s));
+    rule_with({"controller.control.speed_limit_rad_s", "supervisor.overspeed_rad_s", kRatedSpeed},
+              [&](const auto& value) {
+                return value("controller.control.speed_limit_rad_s", limit, "rad/s", fmt::format("1.2 x {}", kRatedSpeed)) +
+                       " must be below " + value("supervisor.overspeed_rad_s", s.overspeed_rad_s, "rad/s", overspeed_from) +
+                       ": the shaft would trip OVERSPEED before the drive limits its speed";
+              });
   }
   if (s.trip_temp_C <= c.controller.drive.derating.limit_C) {
-    rule_on({"supervisor.trip_temp_C", "controller.derating.limit_C"},
-            fmt::format("supervisor.trip_temp_C ({} C) must be above controller.derating.limit_C ({} C): the "
-                     "drive derates before it trips",
-                     s.trip_temp_C, c.controller.drive.derating.limit_C));
+    rule_with({"supervisor.trip_temp_C", "controller.derating.limit_C"}, [&](const auto& value) {
+      return value("supervisor.trip_temp_C", s.trip_temp_C, "C") + " must be above " +
+             value("controller.derating.limit_C", c.controller.drive.derating.limit_C, "C") +
+             ": the drive derates before it trips";
+    });
   }
   // A publication comes at most once a control period: a shorter period is a typo (1e-9 s
   // passed --check, with a bus load of 13,500,000 % computed from it).
@@ -271,25 +297,27 @@ std::string check_cross_keys(const DaemonConfig& c, const toml::table& root, con
                                      {"publish.heartbeat_s", c.publish.heartbeat_s},
                                      {"publish.fault_repeat_s", c.publish.fault_repeat_s}}) {
     if (every_s > 0.0 && every_s < c.controller.drive.period_s) {
-      rule_on({key, "controller.control.period_s"},
-              fmt::format("{} ({} s) is shorter than the control period controller.control.period_s ({} s): the drive "
-                       "publishes once a period at most (0 turns the periodic frames off)",
-                       key, common::format_number(every_s), common::format_number(c.controller.drive.period_s)));
+      rule_with({key, "controller.control.period_s"}, [&](const auto& value) {
+        return value(key, every_s, "s") + " is shorter than the control period " +
+               value("controller.control.period_s", c.controller.drive.period_s, "s") +
+               ": the drive publishes once a period at most (0 turns the periodic frames off)";
+      });
     }
   }
   // A command timeout within one control period would fault in every period a command did not
   // come in (1e-5 s passed --check).
   if (s.command_timeout_s > 0.0 && !(s.command_timeout_s > c.controller.drive.period_s)) {
-    rule_on({"supervisor.command_timeout_s", "controller.control.period_s"},
-            fmt::format("supervisor.command_timeout_s ({} s) must be above the control period controller.control.period_s "
-                     "({} s), or 0 (off): a drive enabled would fault in every period without a fresh DRIVE_COMMAND",
-                     common::format_number(s.command_timeout_s), common::format_number(c.controller.drive.period_s)));
+    rule_with({"supervisor.command_timeout_s", "controller.control.period_s"}, [&](const auto& value) {
+      return value("supervisor.command_timeout_s", s.command_timeout_s, "s") + " must be above the control period " +
+             value("controller.control.period_s", c.controller.drive.period_s, "s") +
+             ", or 0 (off): a drive enabled would fault in every period without a fresh DRIVE_COMMAND";
+    });
   }
   if (const double period_ms = 1e3 * c.controller.drive.period_s; !(c.can.sample_timeout_ms > period_ms)) {
-    rule_on({"can.sample_timeout_ms", "controller.control.period_s"},
-            fmt::format("can.sample_timeout_ms ({} ms) must be above the control period controller.control.period_s ({} ms): "
-                     "every period would count as missing",
-                     common::format_number(c.can.sample_timeout_ms), common::format_number(period_ms)));
+    rule_with({"can.sample_timeout_ms", "controller.control.period_s"}, [&](const auto& value) {
+      return value("can.sample_timeout_ms", c.can.sample_timeout_ms, "ms") + " must be above the control period " +
+             value("controller.control.period_s", c.controller.drive.period_s, "s") + ": every period would count as missing";
+    });
   }
   return errors;
 }

@@ -369,7 +369,7 @@ int run(const Options& o) {
     }
     // The thermal state as the start would take it: a file it would not use is a warning (the
     // daemon starts without it, from the ambient sensor), not an invalid configuration.
-    std::string thermal = "none configured";
+    std::string thermal = "thermal state not configured";
     if (!config.controller.thermal_state_file.empty()) {
       double downtime_s = 0.0;
       std::string why;

@@ -90,9 +90,11 @@ check_bad '[supervisor]\nambient_max_C = 250.0\n' 1 'bad.toml:2: supervisor.ambi
 check_bad '[can]\ninterface = "vcan0\\u0000x"\n' 1 'can.interface: contains a control character (U+0000) at position 6'
 check_bad '[supervisor]\ntrip_temp_C = 100\n' 1 'supervisor.trip_temp_C'
 check_bad '[supervisor]\ndc_bus_min_V = 700\n' 1 'nominal_dc_bus_V'
-check_bad '[supervisor]\noverspeed_rad_s = 1000\nmax_speed_rad_s = 900\n' 1 'supervisor.overspeed_rad_s (1000 rad/s) must be below supervisor.max_speed_rad_s (900 rad/s)'
+check_bad '[supervisor]\noverspeed_rad_s = 1000\nmax_speed_rad_s = 900\n' 1 'bad.toml:2: supervisor.overspeed_rad_s (1000 rad/s) must be below supervisor.max_speed_rad_s (900 rad/s, '"$dir"'/bad.toml:3)'
 check_bad '[supervisor]\noverspeed_rad_s = nan\n' 1 'supervisor.overspeed_rad_s'
-check_bad '[controller.control]\nspeed_limit_rad_s = 480\n[supervisor]\noverspeed_rad_s = 471\n' 1 'controller.control.speed_limit_rad_s (480 rad/s) must be below supervisor.overspeed_rad_s (471 rad/s)'
+check_bad '[controller.control]\nspeed_limit_rad_s = 480\n[supervisor]\noverspeed_rad_s = 471\n' 1 'bad.toml:2: controller.control.speed_limit_rad_s (480 rad/s) must be below supervisor.overspeed_rad_s (471 rad/s, '"$dir"'/bad.toml:4)'
+# Where the file gives only the keys a default follows, the defaults say how they follow.
+check_bad '[controller.motor]\nrated_speed_rad_s = 300\n[supervisor]\nmax_speed_rad_s = 400\n' 1 'bad.toml:4: supervisor.overspeed_rad_s (450 rad/s, its default: 1.5 x controller.motor.rated_speed_rad_s) must be below supervisor.max_speed_rad_s (400 rad/s)'
 check_bad '[controller.control]\nspeed_limit_rad_s = -1\n' 1 'control.speed_limit_rad_s'
 check_bad '[controller.control]\nspeed_limit_rad_s = nan\n' 1 'control.speed_limit_rad_s'
 check_bad '[controller.motor]\nrs_ohm = -1\n' 1 'controller.motor.rs_ohm'
@@ -123,7 +125,7 @@ check_bad '[controller.derating]\nmagnet_start_C = 160\n' 1 'derating.magnet_sta
 # The daemon's own rules are reported alongside a broken drive rule (its values parsed).
 check_bad '[supervisor]\nambient_min_C = 100.0\nambient_max_C = 0.0\n[controller.derating]\nstart_C = 160.0\nlimit_C = 150.0\n' 1 'derating.start_C (160 C) must be below'
 out=$("$exe" --config "$dir/bad.toml" --check 2>&1)
-if [[ "$out" != *'supervisor.ambient_min_C (100 C) must be below supervisor.ambient_max_C (0 C)'* ]]; then
+if [[ "$out" != *'supervisor.ambient_min_C (100 C) must be below supervisor.ambient_max_C (0 C, '"$dir"'/bad.toml:3)'* ]]; then
   echo "FAIL: the daemon's rule is missing beside the drive's: $out"; fail=1
 fi
 # A section another parser reads, given as something else, is an error (not skipped with its keys).
@@ -133,13 +135,13 @@ check_bad '[[controller]]\nmotor = 1\n' 1 'controller: expected a table (section
 check_bad '[can]\ninterface = ""\n' 1 'bad.toml:2: can.interface: an interface name is 1 to 15 characters, got an empty one'
 check_bad '[can]\ninterface = "vcan0123456789abcdef"\n' 1 'can.interface: an interface name is 1 to 15 characters, got 20'
 check_bad '[can]\ninterface = "can/0"\n' 1 "can.interface: an interface name has no '/', ':' or white space"
-check_bad '[can]\nsample_timeout_ms = 0.05\n' 1 'can.sample_timeout_ms (0.05 ms) must be above the control period controller.control.period_s (0.1 ms)'
-check_bad '[publish]\nthermal_estimate_s = 1e-9\n' 1 'publish.thermal_estimate_s (1e-09 s) is shorter than the control period controller.control.period_s (0.0001 s)'
-check_bad '[supervisor]\novercurrent_A = 50\n' 1 'bad.toml:2: supervisor.overcurrent_A (50 A) must be above controller.derating.max_current_A (80 A)'
+check_bad '[can]\nsample_timeout_ms = 0.05\n' 1 'bad.toml:2: can.sample_timeout_ms (0.05 ms) must be above the control period controller.control.period_s (0.0001 s, its default)'
+check_bad '[publish]\nthermal_estimate_s = 1e-9\n' 1 'bad.toml:2: publish.thermal_estimate_s (1e-09 s) is shorter than the control period controller.control.period_s (0.0001 s, its default)'
+check_bad '[supervisor]\novercurrent_A = 50\n' 1 'bad.toml:2: supervisor.overcurrent_A (50 A) must be above controller.derating.max_current_A (80 A, its default)'
 # A rule between two keys is located at the first of them the file gives.
-check_bad '[supervisor]\ntrip_temp_C = 100\n' 1 'bad.toml:2: supervisor.trip_temp_C (100 C) must be above controller.derating.limit_C (155 C)'
+check_bad '[supervisor]\ntrip_temp_C = 100\n' 1 'bad.toml:2: supervisor.trip_temp_C (100 C) must be above controller.derating.limit_C (155 C, its default)'
 check_bad '[supervisor]\ndc_bus_min_V = 900\n' 1 'bad.toml:2: supervisor.dc_bus_min_V (900 V) must be below supervisor.dc_bus_max_V'
-check_bad '[supervisor]\ndc_bus_max_V = 5000\n' 1 'supervisor.dc_bus_max_V (5000 V) must be below controller.sensors.dc_bus_full_scale_V (1000 V)'
+check_bad '[supervisor]\ndc_bus_max_V = 5000\n' 1 'bad.toml:2: supervisor.dc_bus_max_V (5000 V) must be below controller.sensors.dc_bus_full_scale_V (1000 V, its default)'
 check_bad '[controller.sensors]\ndc_bus_full_scale_V = 10\n' 1 'supervisor.dc_bus_min_V (390 V, its default: 0.6 x controller.control.nominal_dc_bus_V) must be below supervisor.dc_bus_max_V (9.8 V, its default: the lower of'
 check_bad '[gpio]\nchip = "gpiochip0"\nenable_line = 17\nfault_line = 17\n' 1 'bad.toml:4: gpio.fault_line and gpio.enable_line are both line 17'
 check_bad '[gpio]\nchip = ""\nenable_line = 17\n' 1 'bad.toml:3: gpio.chip and gpio.enable_line go together'
@@ -149,7 +151,7 @@ check_bad '[controller.control]\nspeed_bandwidth_rad_s = 1000\n' 1 'controller.c
 check_bad '[controller.control]\ndead_time_s = 1e-5\n' 1 'gives the bridge a voltage error of 65 V, beyond the +-50 V controller.injection.vx_initial_V allows'
 check_bad '[controller.control]\nperiod_s = 2e-5\ndead_time_s = 5e-6\ncurrent_bandwidth_rad_s = 2000\n' 1 'controller.control.dead_time_s (5e-06 s) must be below a quarter of controller.control.period_s (2e-05 s'
 check_bad '[controller.control]\nnominal_dc_bus_V = 1e-300\n' 1 'bad.toml:2: controller.control.nominal_dc_bus_V: must be in [1, 10000], got 1e-300'
-check_bad '[supervisor]\ncommand_timeout_s = 1e-5\n' 1 'supervisor.command_timeout_s (1e-05 s) must be above the control period controller.control.period_s (0.0001 s), or 0 (off)'
+check_bad '[supervisor]\ncommand_timeout_s = 1e-5\n' 1 'bad.toml:2: supervisor.command_timeout_s (1e-05 s) must be above the control period controller.control.period_s (0.0001 s, its default), or 0 (off)'
 # The filter's noise keys are bounded (1e200 passed, and the drive tripped within 0.06 s).
 check_bad '[controller.thermal]\nwinding_process_std_C_per_sqrt_s = 1e200\n' 1 'bad.toml:2: controller.thermal.winding_process_std_C_per_sqrt_s: must be in [0, 100], got 1e+200'
 check_bad '[controller.thermal]\niron_loss_k2_W_s2_rad2 = 1e6\n' 1 'bad.toml:2: controller.thermal.iron_loss_k2_W_s2_rad2: must be in [0, 1000], got 1e+06'
@@ -202,6 +204,8 @@ check_warns "[controller.thermal]\nstate_file = \"$dir/state-nan.toml\"\n" \
   "thermal state not usable: $dir/state-nan.toml:3: winding_C: nan is out of range" "; thermal state not usable)"
 printf '# pmsm-thermal thermal state\nformat = 1\nwinding_C = 71.5\nhousing_C = 60.0\nwinding_std_C = 2.0\nambient_C = 25.0\nsaved_unix_s = %s\n' "$now" > "$dir/state-ok.toml"
 check_warns "[controller.thermal]\nstate_file = \"$dir/state-ok.toml\"\n" "; thermal state usable (winding 71.5 C, saved "
+# No thermal state configured: the OK line says which item that is.
+check_warns "[can]\nnode = 3\n" "; calibration not configured; thermal state not configured)"
 # A learned block the start would drop (half a loss block, half a cooling pair): said, the
 # temperatures usable.
 { cat "$dir/state-ok.toml"; printf 'missing_loss_W = 3.0\ncooling_scale_error = 0.1\n'; } > "$dir/state-halves.toml"
