@@ -381,13 +381,23 @@ DaemonConfig parse_daemon_config(const std::string& text, const std::filesystem:
   const BusLoad load = bus_load(c);
   // A vcan interface has no bit timing: the budget is logged at start-up, not enforced.
   if (!is_virtual_interface(c.can.interface) && load.total_fraction > c.can.max_bus_load) {
-    throw ConfigError(fmt::format(
-        "{}: the fast loop ({:.0f} % of the bus: one SENSOR_SAMPLE and one INVERTER_COMMAND, {:.1f} us, every {:.1f} us "
+    // Located at the first of the keys it follows from that the file gives (the interface that
+    // makes it a real bus, as a rule of several keys is).
+    std::string at = source.string() + ": ";
+    for (const std::string_view key : {"can.interface", "can.data_bitrate_bit_s", "can.nominal_bitrate_bit_s",
+                                       "controller.control.period_s", "can.max_bus_load"}) {
+      if (root.at_path(key)) {
+        at = common::key_location(root, key, source.string());
+        break;
+      }
+    }
+    throw ConfigError(at + fmt::format(
+        "the fast loop ({:.0f} % of the bus: one SENSOR_SAMPLE and one INVERTER_COMMAND, {:.1f} us, every {:.1f} us "
         "period) and the publications ({:.1f} %) need {:.0f} % of a bus at can.nominal_bitrate_bit_s {:.0f} / "
         "can.data_bitrate_bit_s {:.0f}, above can.max_bus_load {:.0f} %: raise can.data_bitrate_bit_s or "
         "controller.control.period_s, or lower the publish.* rates (can.interface '{}' is taken for a physical CAN bus "
         "with these bit rates; only a name beginning with 'vcan' is a virtual bus, whose load is not enforced)",
-        source.string(), 100.0 * load.fast_loop_fraction, load.fast_loop_frame_us, load.period_us,
+        100.0 * load.fast_loop_fraction, load.fast_loop_frame_us, load.period_us,
         100.0 * load.publications_fraction, 100.0 * load.total_fraction, c.can.nominal_bitrate_bit_s,
         c.can.data_bitrate_bit_s, 100.0 * c.can.max_bus_load, c.can.interface) +
         // A name mistyped reads as a physical bus too: say that this machine has no such
