@@ -238,7 +238,8 @@ std::string check_cross_keys(const DaemonConfig& c, const toml::table& root, con
                        value("supervisor.dc_bus_max_V", s.dc_bus_max_V, "V", kMaxFrom);
               });
   } else if (c.controller.nominal_dc_bus_V < s.dc_bus_min_V || c.controller.nominal_dc_bus_V > s.dc_bus_max_V) {
-    rule_with({"controller.control.nominal_dc_bus_V", "supervisor.dc_bus_min_V", "supervisor.dc_bus_max_V"},
+    rule_with({"controller.control.nominal_dc_bus_V", "supervisor.dc_bus_min_V", "supervisor.dc_bus_max_V",
+               "controller.sensors.dc_bus_full_scale_V"},
               [&](const auto& value) {
                 return value("controller.control.nominal_dc_bus_V", c.controller.nominal_dc_bus_V, "V") +
                        " lies outside " + value("supervisor.dc_bus_min_V", s.dc_bus_min_V, "V", kMinFrom) + " .. " +
@@ -260,10 +261,12 @@ std::string check_cross_keys(const DaemonConfig& c, const toml::table& root, con
              ": a saturated ADC reading is never a valid current";
     });
   } else if (const double limit_A = c.controller.drive.derating.max_current_A; s.overcurrent_A <= limit_A) {
-    rule_with({"supervisor.overcurrent_A", "controller.derating.max_current_A"}, [&](const auto& value) {
-      return value("supervisor.overcurrent_A", s.overcurrent_A, "A", kOvercurrentFrom) + " must be above " +
-             value("controller.derating.max_current_A", limit_A, "A") + ": the drive would trip below its own current limit";
-    });
+    rule_with({"supervisor.overcurrent_A", "controller.derating.max_current_A", "controller.sensors.current_range_A"},
+              [&](const auto& value) {
+                return value("supervisor.overcurrent_A", s.overcurrent_A, "A", kOvercurrentFrom) + " must be above " +
+                       value("controller.derating.max_current_A", limit_A, "A") +
+                       ": the drive would trip below its own current limit";
+              });
   }
   const std::string max_speed_from = fmt::format("3 x {}", kRatedSpeed);
   const std::string overspeed_from = fmt::format("1.5 x {}", kRatedSpeed);

@@ -93,7 +93,11 @@ check_bad '[supervisor]\ndc_bus_min_V = 700\n' 1 'nominal_dc_bus_V'
 check_bad '[supervisor]\noverspeed_rad_s = 1000\nmax_speed_rad_s = 900\n' 1 'bad.toml:2: supervisor.overspeed_rad_s (1000 rad/s) must be below supervisor.max_speed_rad_s (900 rad/s, '"$dir"'/bad.toml:3)'
 check_bad '[supervisor]\noverspeed_rad_s = nan\n' 1 'supervisor.overspeed_rad_s'
 check_bad '[controller.control]\nspeed_limit_rad_s = 480\n[supervisor]\noverspeed_rad_s = 471\n' 1 'bad.toml:2: controller.control.speed_limit_rad_s (480 rad/s) must be below supervisor.overspeed_rad_s (471 rad/s, '"$dir"'/bad.toml:4)'
-# Where the file gives only the keys a default follows, the defaults say how they follow.
+# Where the file gives only the keys a default follows, the defaults say how they follow, and
+# the message is located at that key.
+check_bad '[controller.sensors]\ndc_bus_full_scale_V = 600\n' 1 'bad.toml:2: controller.control.nominal_dc_bus_V (650 V, its default) lies outside supervisor.dc_bus_min_V (390 V, its default: 0.6 x controller.control.nominal_dc_bus_V) .. supervisor.dc_bus_max_V (588 V, its default: the lower of'
+check_bad '[controller.sensors]\ncurrent_range_A = 85\n' 1 'bad.toml:2: supervisor.overcurrent_A (76.5 A, its default: 90 % of controller.sensors.current_range_A) must be above controller.derating.max_current_A (80 A, its default)'
+
 check_bad '[controller.motor]\nrated_speed_rad_s = 300\n[supervisor]\nmax_speed_rad_s = 400\n' 1 'bad.toml:4: supervisor.overspeed_rad_s (450 rad/s, its default: 1.5 x controller.motor.rated_speed_rad_s) must be below supervisor.max_speed_rad_s (400 rad/s)'
 check_bad '[controller.control]\nspeed_limit_rad_s = -1\n' 1 'control.speed_limit_rad_s'
 check_bad '[controller.control]\nspeed_limit_rad_s = nan\n' 1 'control.speed_limit_rad_s'
