@@ -49,6 +49,10 @@ struct ValueRange {
 // accepts: one bound, so that a motor the drive's configuration takes can reload the
 // calibration it stored (the file's was 10 ohm, the keys' 100) and the plant takes it too.
 inline constexpr double kMaxStatorResistance_ohm = 100.0;
+// The largest inertia, the drive's (motor.inertia_kg_m2: what its speed loop is designed for)
+// and the plant's alike: a conveyor, a mill or a winder reflects more than 100 kg m^2 to the
+// motor (a newcomer's downhill conveyor 142), which the drive refused while the plant took it.
+inline constexpr double kMaxInertia_kg_m2 = 1e3;
 // ... and the smallest value of a physical quantity the configurations accept, far below every
 // real machine: `> 0` let 5e-324 through (motor.ld_H = 5e-324 passed --check, and the drive's
 // first step divided it into a non-finite voltage and tripped INTERNAL). The planning options

@@ -423,14 +423,10 @@ void Publisher::handle(const PublicationRecord& r) {
                    app::rs_outside_window_text(config_.controller.drive, r.calibration_rs0_ohm, r.calibration_rs0_std_ohm));
     } else if (r.calibration_failure == core::CalibrationFailure::kUncertain) {
       const std::string cut_short = cut_short_text(r);
-      // A whole run that is uncertain could not learn the bridge's voltage; one cut short at its
-      // timeout has too few events, and its pairs say what stopped the rest.
       spdlog::warn("calibration refused: Rs0 {:.5f} +- {:.5f} ohm{} is less certain than "
                    "calibration.max_rs0_std_fraction allows ({}); the previous calibration stays in use",
                    r.calibration_rs0_ohm, r.calibration_rs0_std_ohm, cut_short,
-                   cut_short.empty() ? "the bridge's voltage was not learned: calibrate unloaded, below "
-                                       "injection.vx_learning_max_speed_rad_s"
-                                     : "calibrate unloaded at a steady speed");
+                   app::uncertain_calibration_advice(!cut_short.empty()));
     } else {
       spdlog::warn("calibration gave up (calibration.timeout_s, {:.0f} s, with fewer published events than "
                  "calibration.min_events; its pairs: {}: "

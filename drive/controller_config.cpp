@@ -86,7 +86,7 @@ ConfigSchema<C> build() {
   s.real("motor.rated_speed_rad_s", [](C& c) -> double& { return c.drive.motor.rated_speed_rad_s; }, between(common::kMinMotorSpeed_rad_s, 100000), "rad/s",
          "Rated mechanical speed (Table I: 314 rad/s). control.speed_limit_rad_s, supervisor.overspeed_rad_s and "
          "supervisor.max_speed_rad_s default to 1.2, 1.5 and 3 times it.");
-  s.real("motor.inertia_kg_m2", [](C& c) -> double& { return c.drive.motor.inertia_kg_m2; }, between(common::kMinInertia_kg_m2, 100.0), "kg m^2",
+  s.real("motor.inertia_kg_m2", [](C& c) -> double& { return c.drive.motor.inertia_kg_m2; }, between(common::kMinInertia_kg_m2, common::kMaxInertia_kg_m2), "kg m^2",
          "Total inertia the speed loop is designed for.");
   // [sensors]
   s.integer("sensors.current_adc_bits", [](C& c) -> int& { return c.sensors.current_adc_bits; }, between(8, 16), "Phase-current ADC resolution.");

@@ -156,6 +156,16 @@ inline constexpr std::string_view kWindingWarmMeasure =
     "taken beyond that limit only while T0's uncertainty (calibration.model_rise_std_fraction of the model's rise, half "
     "the filter's excess: the nameplate's error or warmth) stays below half the nameplate's";
 
+// What to do about a calibration refused as uncertain (the daemon's log, simulate's report): a
+// whole run could not learn the bridge's voltage (Vx is learned only unloaded and slow), one cut
+// short at its timeout had too few events, and its pairs say what stopped the rest.
+[[nodiscard]] inline std::string_view uncertain_calibration_advice(bool cut_short) {
+  return cut_short ? "calibrate unloaded at a steady speed"
+                   : "the bridge's voltage was not learned: calibrate unloaded (|iq| below "
+                     "injection.vx_learning_max_iq_fraction of the event's smallest pulse), below "
+                     "injection.vx_learning_max_speed_rad_s";
+}
+
 // For a completed calibration's report: "" when its Rs0 averaged the `wanted` events
 // (calibration.events), else " on N of M events, at its timeout (calibration.min_events)".
 [[nodiscard]] std::string calibration_events_text(int used, int wanted);

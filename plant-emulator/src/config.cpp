@@ -130,7 +130,7 @@ common::ConfigSchema<PlantConfig> build_schema() {
     real("cogging.phase_rad", PMSM_MEMBER(cogging.phase_rad), angle(),
                      "Cogging phase.");
     // [mechanics]
-    real("mechanics.inertia_kg_m2", PMSM_MEMBER(mechanics.inertia_kg_m2), closed(common::kMinInertia_kg_m2, 1e3),
+    real("mechanics.inertia_kg_m2", PMSM_MEMBER(mechanics.inertia_kg_m2), closed(common::kMinInertia_kg_m2, common::kMaxInertia_kg_m2),
                      "Total inertia on the shaft (Table I rotor: 0.00841).");
     real("mechanics.coulomb_Nm", PMSM_MEMBER(mechanics.coulomb_Nm),
                      non_negative(1e3), "Kinetic Coulomb friction (Table I: 0.908).");

@@ -1371,12 +1371,13 @@ std::string result_text(const SimulationResult& r) {
     out += fmt::format("  calibration failed at {:.2f} s    rs_outside_window: {} The calibration in use stays\n",
                        r.calibration_failure_time_s, r.calibration_failure_detail);
   } else if (r.calibration_failure == core::CalibrationFailure::kUncertain) {
+    const std::string cut_short = cut_short_calibration_text(r.calibration_failure_events, r.calibration_events_wanted,
+                                                             r.calibration_failure_pairs, r.calibration_failure_aborts);
     out += fmt::format("  calibration failed at {:.2f} s    uncertain: Rs0 {:.5f} +- {:.5f} ohm ({:.2f} %, above "
-                       "calibration.max_rs0_std_fraction){}; the calibration in use stays\n",
+                       "calibration.max_rs0_std_fraction){} ({}); the calibration in use stays\n",
                        r.calibration_failure_time_s, r.calibration_failure_rs0_ohm, r.calibration_failure_rs0_std_ohm,
                        100.0 * r.calibration_failure_rs0_std_ohm / std::max(std::abs(r.calibration_failure_rs0_ohm), 1e-12),
-                       cut_short_calibration_text(r.calibration_failure_events, r.calibration_events_wanted,
-                                                  r.calibration_failure_pairs, r.calibration_failure_aborts));
+                       cut_short, uncertain_calibration_advice(!cut_short.empty()));
   }
   for (const SimulationResult::FaultSeen& f : r.faults) {
     if (f.count > 0) {
