@@ -294,11 +294,14 @@ std::string check_cross_keys(const DaemonConfig& c, const toml::table& root, con
   }
   // A publication comes at most once a control period: a shorter period is a typo (1e-9 s
   // passed --check, with a bus load of 13,500,000 % computed from it).
-  for (const auto& [key, every_s] : {std::pair<std::string_view, double>{"publish.thermal_estimate_s", c.publish.thermal_estimate_s},
-                                     {"publish.resistance_estimate_s", c.publish.resistance_estimate_s},
-                                     {"publish.drive_status_s", c.publish.drive_status_s},
-                                     {"publish.heartbeat_s", c.publish.heartbeat_s},
-                                     {"publish.fault_repeat_s", c.publish.fault_repeat_s}}) {
+  for (const auto& publication : {std::pair<std::string_view, double>{"publish.thermal_estimate_s", c.publish.thermal_estimate_s},
+                                   {"publish.resistance_estimate_s", c.publish.resistance_estimate_s},
+                                   {"publish.drive_status_s", c.publish.drive_status_s},
+                                   {"publish.heartbeat_s", c.publish.heartbeat_s},
+                                   {"publish.fault_repeat_s", c.publish.fault_repeat_s}}) {
+    // (Named copies: clang 14 cannot capture a structured binding in the lambda below.)
+    const std::string_view key = publication.first;
+    const double every_s = publication.second;
     if (every_s > 0.0 && every_s < c.controller.drive.period_s) {
       rule_with({key, "controller.control.period_s"}, [&](const auto& value) {
         return value(key, every_s, "s") + " is shorter than the control period " +
