@@ -312,7 +312,9 @@ class ConfigSchema {
   }
 
   // Markdown table of every key with its default (from `defaults`), range and meaning.
-  [[nodiscard]] std::string markdown(const Config& defaults) const;
+  // `key_prefix` names the keys of a nested table ("supervisor."); `with_header` false gives the
+  // rows alone, to follow another table's.
+  [[nodiscard]] std::string markdown(const Config& defaults, std::string_view key_prefix = {}, bool with_header = true) const;
 
   [[nodiscard]] std::vector<std::string> keys() const {
     std::vector<std::string> out;
@@ -724,10 +726,10 @@ class ConfigSchema {
 };
 
 template <typename Config>
-std::string ConfigSchema<Config>::markdown(const Config& defaults) const {
+std::string ConfigSchema<Config>::markdown(const Config& defaults, std::string_view key_prefix, bool with_header) const {
   Config copy = defaults;
   auto with_unit = [](std::string value, const std::string& unit) { return unit.empty() ? value : value + " " + unit; };
-  std::string out = "| key | default | range | meaning |\n|---|---|---|---|\n";
+  std::string out = with_header ? "| key | default | range | meaning |\n|---|---|---|---|\n" : "";
   for (const Entry& e : entries_) {
     std::string value;
     std::string range;
@@ -802,7 +804,7 @@ std::string ConfigSchema<Config>::markdown(const Config& defaults) const {
       }
     }
     // (the formulas such as ω·|ω| have their '|' escaped)
-    out += "| `" + e.key + "` | " + value + " | " + range + " | " + markdown_cell(e.doc) + " |\n";
+    out += "| `" + std::string(key_prefix) + e.key + "` | " + value + " | " + range + " | " + markdown_cell(e.doc) + " |\n";
   }
   return out;
 }

@@ -6,13 +6,14 @@
 #include <algorithm>
 #include <cmath>
 #include <fstream>
-#include <initializer_list>
 #include <sstream>
 
 #include <fmt/format.h>
 #include <toml++/toml.h>
 
 #include "config_schema.hpp"
+#include "key_rules.hpp"
+#include "supervisor_config.hpp"
 #include "pmsm/hal/protocol.hpp"
 #include "pmsm/hal/socketcan.hpp"
 
@@ -84,46 +85,6 @@ const ConfigSchema<D>& schema() {
            "Latched faults are repeated this often (at least the control period), besides one FAULT frame per change (0: changes only).");
     c.real("publish.stale_after_s", [](D& d) -> double& { return d.publish.stale_after_s; }, app::between(0.1, 1e6), "s",
            "THERMAL_ESTIMATE says stale when no resistance estimate was accepted for this long.");
-    // [supervisor]
-    c.real("supervisor.dc_bus_min_V", [](D& d) -> double& { return d.supervisor.dc_bus_min_V; }, app::between(0, 10000), "V",
-           "DC-bus under-voltage trip (default: 0.6 x controller.control.nominal_dc_bus_V).");
-    c.real("supervisor.dc_bus_max_V", [](D& d) -> double& { return d.supervisor.dc_bus_max_V; }, app::between(0, 10000), "V",
-           "DC-bus over-voltage trip (default: 1.25 x nominal, at most 98 % of the DC-bus ADC's full scale).");
-    c.real("supervisor.overcurrent_A", [](D& d) -> double& { return d.supervisor.overcurrent_A; }, app::positive(100000), "A",
-           "Phase-current trip (default: 90 % of the current ADC's range).");
-    c.real("supervisor.current_sum_max_A", [](D& d) -> double& { return d.supervisor.current_sum_max_A; }, app::positive(100000), "A",
-           "|ia + ib + ic| above this: a phase-current sensor is broken (default: 10 % of the ADC's range).");
-    c.real("supervisor.current_offset_max_A", [](D& d) -> double& { return d.supervisor.current_offset_max_A; },
-           app::positive(100000), "A",
-           "A phase current sensor whose power-up offset (its mean reading with the gates off) lies further from zero "
-           "than this is broken or stuck: CURRENT_OFFSET fault, the gates stay off until a restart (default: 5 % of the "
-           "ADC's range).");
-    c.real("supervisor.ambient_min_C", [](D& d) -> double& { return d.supervisor.ambient_min_C; }, app::between(-50, 200), "C",
-           "The ambient / coolant sensor (in SENSOR_SAMPLE) reading below this is implausible: AMBIENT_IMPLAUSIBLE fault.");
-    c.real("supervisor.ambient_max_C", [](D& d) -> double& { return d.supervisor.ambient_max_C; }, app::between(-50, 200), "C",
-           "The ambient / coolant sensor reading above this is implausible: AMBIENT_IMPLAUSIBLE fault. (Both within "
-           "[-50, 200] C, the T0 a calibration on the ambient may store: a wider window let one store a calibration the "
-           "next start refused.)");
-    c.real("supervisor.max_speed_rad_s", [](D& d) -> double& { return d.supervisor.max_speed_rad_s; }, app::positive(100000), "rad/s",
-           "Mechanical speed the encoder may show; a larger step between samples is an encoder-jump fault (default: 3 x rated).");
-    c.real("supervisor.overspeed_rad_s", [](D& d) -> double& { return d.supervisor.overspeed_rad_s; }, app::between(0, 100000), "rad/s",
-           "Mechanical speed over about 1 ms of encoder counts above which the drive trips: OVERSPEED fault, gates off (an "
-           "overhauling load, a runaway in torque control; default: 1.5 x rated; 0: off).");
-    c.integer("supervisor.output_feedback_periods", [](D& d) -> int& { return d.supervisor.output_feedback_periods; },
-              app::between(0, 100000),
-              "Samples in a row that report the gates off (SENSOR_SAMPLE OutputEnabled) while the drive has enabled them, "
-              "or on while it holds them off: OUTPUT_FEEDBACK fault (an open enable chain, a safe torque off, a stage's own "
-              "latched fault; a stage that ignores the enable, a stuck report); 0: not judged.");
-    c.integer("supervisor.sensor_timeout_periods", [](D& d) -> int& { return d.supervisor.sensor_timeout_periods; }, app::between(1, 100000),
-              "Missing samples in a row before the sensor-timeout fault (gates off).");
-    c.integer("supervisor.sensor_recovery_periods", [](D& d) -> int& { return d.supervisor.sensor_recovery_periods; },
-              app::between(1, 100000), "Samples in a row after which a sensor timeout clears itself.");
-    c.real("supervisor.command_timeout_s", [](D& d) -> double& { return d.supervisor.command_timeout_s; }, app::between(0, 3600), "s",
-           "Enabled without a valid, fresh DRIVE_COMMAND this long: command-timeout fault, gates off (0: off).");
-    c.real("supervisor.trip_temp_C", [](D& d) -> double& { return d.supervisor.trip_temp_C; }, app::between(-50, 400), "C",
-           "Winding-estimate trip (default: controller.derating.limit_C + 25 C; derating starts below).");
-    c.real("supervisor.trip_hysteresis_C", [](D& d) -> double& { return d.supervisor.trip_hysteresis_C; }, app::between(0, 100), "C",
-           "An over-temperature fault may be cleared this far below the trip.");
     // [startup]
     c.boolean("startup.calibrate_if_missing", [](D& d) -> bool& { return d.startup.calibrate_if_missing; },
               "With controller.calibration.file set but absent, calibrate at the ambient sensor's temperature the first time the "
@@ -162,136 +123,29 @@ double frame_time_s(std::size_t bytes, bool fd, double nominal, double data) {
 // contradictions the file does not have. `root` tells a given key from a default.
 std::string check_cross_keys(const DaemonConfig& c, const toml::table& root, const std::string& source,
                              bool controller_valid) {
-  std::string errors;
-  auto add = [&](const std::string& location, const std::string& text) {
-    errors += (errors.empty() ? "" : "\n") + location + text;
-  };
-  auto rule = [&](const std::string& text) { add(source + ": ", text); };
-  // The same at the line of `key` when the file gives it.
-  auto rule_at = [&](std::string_view key, const std::string& text) { add(common::key_location(root, key, source), text); };
-  // A rule on `keys`, located at the line of the first of them the file gives (the file alone
-  // where it gives none: the rule is broken by defaults), its text made by `text(value)`.
-  // value(key, v, unit, how) names a key with its value and where that comes from, as the
-  // drive's rules do: "supervisor.x (v unit)" for the key the message is located at, "(v unit,
-  // bad.toml:3)" for another the file gives, "(v unit, its default)" or "(v unit, its default:
-  // how)" for one it does not.
-  auto rule_with = [&](std::initializer_list<std::string_view> keys, const auto& text) {
-    std::string_view at_key;
-    for (const std::string_view key : keys) {
-      if (root.at_path(key)) {
-        at_key = key;
-        break;
-      }
-    }
-    const auto value = [&](std::string_view key, double v, std::string_view unit, std::string_view how = {}) {
-      std::string from;
-      if (!root.at_path(key)) {
-        from = how.empty() ? std::string(", its default") : ", its default: " + std::string(how);
-      } else if (key != at_key) {
-        from = common::key_location(root, key, source);
-        from = ", " + from.substr(0, from.size() - 2);  // "bad.toml:3: " less its ": "
-      }
-      return fmt::format("{} ({}{}{}{})", key, common::format_number(v), unit.empty() ? "" : " ", unit, from);
-    };
-    const std::string message = text(value);
-    if (at_key.empty()) {
-      rule(message);
-    } else {
-      rule_at(at_key, message);
-    }
-  };
-  const core::SupervisorConfig& s = c.supervisor;
+  common::KeyRules rules(root, source);
   if (const std::string problem = hal::can_interface_name_problem(c.can.interface); !problem.empty()) {
-    rule_at("can.interface", "can.interface: " + problem);
+    rules.at("can.interface", "can.interface: " + problem);
   }
-  if (!(s.ambient_min_C < s.ambient_max_C)) {
-    rule_with({"supervisor.ambient_min_C", "supervisor.ambient_max_C"}, [&](const auto& value) {
-      return value("supervisor.ambient_min_C", s.ambient_min_C, "C") + " must be below " +
-             value("supervisor.ambient_max_C", s.ambient_max_C, "C") + ": every ambient reading would be implausible";
-    });
-  }
+  rules.append(app::check_supervisor_own_rules(c.supervisor, root, source));
   if (c.gpio.chip.empty() != (c.gpio.enable_line < 0)) {
-    rule_at(c.gpio.chip.empty() ? "gpio.enable_line" : "gpio.chip",
-            fmt::format("gpio.chip and gpio.enable_line go together (chip '{}', enable_line {})", c.gpio.chip,
-                        c.gpio.enable_line));
+    rules.at(c.gpio.chip.empty() ? "gpio.enable_line" : "gpio.chip",
+             fmt::format("gpio.chip and gpio.enable_line go together (chip '{}', enable_line {})", c.gpio.chip,
+                         c.gpio.enable_line));
   }
   if (c.gpio.fault_line >= 0 && c.gpio.chip.empty()) {
-    rule_at("gpio.fault_line", "gpio.fault_line needs gpio.chip");
+    rules.at("gpio.fault_line", "gpio.fault_line needs gpio.chip");
   }
   if (c.gpio.fault_line >= 0 && c.gpio.fault_line == c.gpio.enable_line) {
-    rule_at("gpio.fault_line", fmt::format("gpio.fault_line and gpio.enable_line are both line {}: one line cannot "
-                                           "be the gate enable output and the fault input",
-                                           c.gpio.fault_line));
+    rules.at("gpio.fault_line", fmt::format("gpio.fault_line and gpio.enable_line are both line {}: one line cannot "
+                                            "be the gate enable output and the fault input",
+                                            c.gpio.fault_line));
   }
   if (!controller_valid) {
-    return errors;
+    return rules.errors();
   }
-  constexpr std::string_view kMinFrom = "0.6 x controller.control.nominal_dc_bus_V";
-  constexpr std::string_view kMaxFrom =
-      "the lower of 1.25 x controller.control.nominal_dc_bus_V and 0.98 x controller.sensors.dc_bus_full_scale_V";
-  constexpr std::string_view kRatedSpeed = "controller.motor.rated_speed_rad_s";
-  if (!(s.dc_bus_min_V < s.dc_bus_max_V)) {
-    rule_with({"supervisor.dc_bus_min_V", "supervisor.dc_bus_max_V", "controller.control.nominal_dc_bus_V",
-               "controller.sensors.dc_bus_full_scale_V"},
-              [&](const auto& value) {
-                return value("supervisor.dc_bus_min_V", s.dc_bus_min_V, "V", kMinFrom) + " must be below " +
-                       value("supervisor.dc_bus_max_V", s.dc_bus_max_V, "V", kMaxFrom);
-              });
-  } else if (c.controller.nominal_dc_bus_V < s.dc_bus_min_V || c.controller.nominal_dc_bus_V > s.dc_bus_max_V) {
-    rule_with({"controller.control.nominal_dc_bus_V", "supervisor.dc_bus_min_V", "supervisor.dc_bus_max_V",
-               "controller.sensors.dc_bus_full_scale_V"},
-              [&](const auto& value) {
-                return value("controller.control.nominal_dc_bus_V", c.controller.nominal_dc_bus_V, "V") +
-                       " lies outside " + value("supervisor.dc_bus_min_V", s.dc_bus_min_V, "V", kMinFrom) + " .. " +
-                       value("supervisor.dc_bus_max_V", s.dc_bus_max_V, "V", kMaxFrom) + ": the drive would trip at once";
-              });
-  }
-  if (s.dc_bus_max_V >= c.controller.sensors.dc_bus_full_scale_V) {
-    rule_with({"supervisor.dc_bus_max_V", "controller.sensors.dc_bus_full_scale_V"}, [&](const auto& value) {
-      return value("supervisor.dc_bus_max_V", s.dc_bus_max_V, "V", kMaxFrom) + " must be below " +
-             value("controller.sensors.dc_bus_full_scale_V", c.controller.sensors.dc_bus_full_scale_V, "V") +
-             ": a saturated ADC reading never shows an over-voltage";
-    });
-  }
-  constexpr std::string_view kOvercurrentFrom = "90 % of controller.sensors.current_range_A";
-  if (s.overcurrent_A >= c.controller.sensors.current_range_A) {
-    rule_with({"supervisor.overcurrent_A", "controller.sensors.current_range_A"}, [&](const auto& value) {
-      return value("supervisor.overcurrent_A", s.overcurrent_A, "A", kOvercurrentFrom) + " must be below " +
-             value("controller.sensors.current_range_A", c.controller.sensors.current_range_A, "A") +
-             ": a saturated ADC reading is never a valid current";
-    });
-  } else if (const double limit_A = c.controller.drive.derating.max_current_A; s.overcurrent_A <= limit_A) {
-    rule_with({"supervisor.overcurrent_A", "controller.derating.max_current_A", "controller.sensors.current_range_A"},
-              [&](const auto& value) {
-                return value("supervisor.overcurrent_A", s.overcurrent_A, "A", kOvercurrentFrom) + " must be above " +
-                       value("controller.derating.max_current_A", limit_A, "A") +
-                       ": the drive would trip below its own current limit";
-              });
-  }
-  const std::string max_speed_from = fmt::format("3 x {}", kRatedSpeed);
-  const std::string overspeed_from = fmt::format("1.5 x {}", kRatedSpeed);
-  if (s.overspeed_rad_s >= s.max_speed_rad_s) {
-    rule_with({"supervisor.overspeed_rad_s", "supervisor.max_speed_rad_s", kRatedSpeed}, [&](const auto& value) {
-      return value("supervisor.overspeed_rad_s", s.overspeed_rad_s, "rad/s", overspeed_from) + " must be below " +
-             value("supervisor.max_speed_rad_s", s.max_speed_rad_s, "rad/s", max_speed_from) +
-             ": beyond that a step of the encoder is an encoder jump, not a speed";
-    });
-  }
-  if (const double limit = c.controller.drive.speed_limit_rad_s; s.overspeed_rad_s > 0.0 && limit >= s.overspeed_rad_s) {
-    rule_with({"controller.control.speed_limit_rad_s", "supervisor.overspeed_rad_s", kRatedSpeed},
-              [&](const auto& value) {
-                return value("controller.control.speed_limit_rad_s", limit, "rad/s", fmt::format("1.2 x {}", kRatedSpeed)) +
-                       " must be below " + value("supervisor.overspeed_rad_s", s.overspeed_rad_s, "rad/s", overspeed_from) +
-                       ": the shaft would trip OVERSPEED before the drive limits its speed";
-              });
-  }
-  if (s.trip_temp_C <= c.controller.drive.derating.limit_C) {
-    rule_with({"supervisor.trip_temp_C", "controller.derating.limit_C"}, [&](const auto& value) {
-      return value("supervisor.trip_temp_C", s.trip_temp_C, "C") + " must be above " +
-             value("controller.derating.limit_C", c.controller.drive.derating.limit_C, "C") +
-             ": the drive derates before it trips";
-    });
-  }
+  rules.append(app::check_supervisor_rules(c.supervisor, c.controller, root, source));
+  const core::SupervisorConfig& s = c.supervisor;
   // A publication comes at most once a control period: a shorter period is a typo (1e-9 s
   // passed --check, with a bus load of 13,500,000 % computed from it).
   for (const auto& publication : {std::pair<std::string_view, double>{"publish.thermal_estimate_s", c.publish.thermal_estimate_s},
@@ -303,7 +157,7 @@ std::string check_cross_keys(const DaemonConfig& c, const toml::table& root, con
     const std::string_view key = publication.first;
     const double every_s = publication.second;
     if (every_s > 0.0 && every_s < c.controller.drive.period_s) {
-      rule_with({key, "controller.control.period_s"}, [&](const auto& value) {
+      rules.with({key, "controller.control.period_s"}, [&](const auto& value) {
         return value(key, every_s, "s") + " is shorter than the control period " +
                value("controller.control.period_s", c.controller.drive.period_s, "s") +
                ": the drive publishes once a period at most (0 turns the periodic frames off)";
@@ -313,19 +167,19 @@ std::string check_cross_keys(const DaemonConfig& c, const toml::table& root, con
   // A command timeout within one control period would fault in every period a command did not
   // come in (1e-5 s passed --check).
   if (s.command_timeout_s > 0.0 && !(s.command_timeout_s > c.controller.drive.period_s)) {
-    rule_with({"supervisor.command_timeout_s", "controller.control.period_s"}, [&](const auto& value) {
+    rules.with({"supervisor.command_timeout_s", "controller.control.period_s"}, [&](const auto& value) {
       return value("supervisor.command_timeout_s", s.command_timeout_s, "s") + " must be above the control period " +
              value("controller.control.period_s", c.controller.drive.period_s, "s") +
              ", or 0 (off): a drive enabled would fault in every period without a fresh DRIVE_COMMAND";
     });
   }
   if (const double period_ms = 1e3 * c.controller.drive.period_s; !(c.can.sample_timeout_ms > period_ms)) {
-    rule_with({"can.sample_timeout_ms", "controller.control.period_s"}, [&](const auto& value) {
+    rules.with({"can.sample_timeout_ms", "controller.control.period_s"}, [&](const auto& value) {
       return value("can.sample_timeout_ms", c.can.sample_timeout_ms, "ms") + " must be above the control period " +
              value("controller.control.period_s", c.controller.drive.period_s, "s") + ": every period would count as missing";
     });
   }
-  return errors;
+  return rules.errors();
 }
 
 // A configured value beyond a signal's range, as a warning naming both.
@@ -368,10 +222,17 @@ DaemonConfig parse_daemon_config(const std::string& text, const std::filesystem:
   }
   const bool controller_valid = errors.empty();
   c.supervisor = daemon_supervisor_defaults(c.controller);
-  std::vector<std::string> foreign{"controller"};
+  std::vector<std::string> foreign{"controller", "supervisor"};
   bool daemon_valid = true;
   try {
     schema().apply(root, c, source.string(), foreign);
+  } catch (const ConfigError& e) {
+    errors += (errors.empty() ? "" : "\n") + std::string(e.what());
+    daemon_valid = false;
+  }
+  // [supervisor]: the schema and rules a scenario's [supervisor] shares (supervisor_config.hpp).
+  try {
+    c.supervisor = app::parse_supervisor_config(root, source.string(), c.supervisor, app::SupervisorKeys::kDaemon);
   } catch (const ConfigError& e) {
     errors += (errors.empty() ? "" : "\n") + std::string(e.what());
     daemon_valid = false;
@@ -445,7 +306,7 @@ app::StoredAxis stored_axis(const DaemonConfig& config) {
 std::string daemon_keys_markdown() {
   DaemonConfig c;
   c.supervisor = daemon_supervisor_defaults(c.controller);
-  return schema().markdown(c);
+  return schema().markdown(c) + app::supervisor_schema(app::SupervisorKeys::kDaemon).markdown(c.supervisor, "supervisor.", false);
 }
 
 std::vector<std::string> bus_range_warnings(const DaemonConfig& config) {

@@ -411,6 +411,24 @@ RunOptions figures_only() {
 // nothing per row, so its memory does not grow with the simulated time. (Before, every run kept
 // a 1 kHz record of itself and of its twin for the disturbance figures, and the series: about
 // 0.06 MiB per simulated second, 3 MiB for the longer run below.)
+// A scenario's [supervisor] keys reach the simulated drive's supervisor: its ambient window put
+// below the plant's 25 C trips AMBIENT_IMPLAUSIBLE on the first samples; the same file without the
+// key runs clean. (A test engineer's trip levels, simulated as pmsm-thermald would run them.)
+TEST(SimulateSupervisor, TheScenariosTripLevelsAreTheDrives) {
+  const std::string base = "[scenario]\nbase = \"heatup-short.toml\"\nduration_s = 1.5\n";
+  const Scenario plain = parse_scenario(base, kData / "supervisor-inline.toml");
+  const SimulationResult calm = run_scenario(plain, quiet());
+  EXPECT_EQ(calm.first_fault(), nullptr) << core::to_string(calm.fault_code(*calm.first_fault()));
+  const Scenario narrow = parse_scenario(base + "[supervisor]\nambient_min_C = 0.0\nambient_max_C = 20.0\n",
+                                         kData / "supervisor-inline.toml");
+  EXPECT_EQ(narrow.supervisor.ambient_max_C, 20.0);
+  const SimulationResult tripped = run_scenario(narrow, quiet());
+  const SimulationResult::FaultSeen* first = tripped.first_fault();
+  ASSERT_NE(first, nullptr) << "the scenario's ambient window did not reach the drive's supervisor";
+  EXPECT_EQ(tripped.fault_code(*first), core::FaultCode::kAmbientImplausible) << core::to_string(tripped.fault_code(*first));
+  EXPECT_LT(first->first_s, 0.1);
+}
+
 TEST(SimulateMemory, PeakDoesNotGrowWithTheSimulatedTime) {
   if (PMSM_TEST_ASAN) {
     GTEST_SKIP() << "AddressSanitizer's quarantine holds freed memory: resident size is not the program's";

@@ -9,6 +9,7 @@
 
 #include "config_schema.hpp"
 #include "app_config_test_support.hpp"
+#include "drive_node.hpp"
 #include "scenario.hpp"
 
 namespace pmsm::app {
@@ -71,17 +72,63 @@ TEST(Scenario, ControlPeriodMustBeThePlantsPwmPeriod) {
             std::string::npos);
 }
 
-// simulate's supervisor trips OVERSPEED at 1.5 x the rated speed (the daemon's default): a
+// simulate's supervisor trips OVERSPEED at 1.5 x the rated speed by default (the daemon's): a
 // speed limit at or above it was accepted, and a washer's spin tripped on its way to 550 rad/s.
+// The rule is the daemon's, worded as the daemon words it, and a scenario may raise the trip.
 TEST(Scenario, ASpeedLimitAtTheOverspeedTripIsRefused) {
   EXPECT_EQ(inline_error("[operation]\nspeed_rad_s = [[0, 1]]\n[controller.motor]\nrated_speed_rad_s = 314.0\n"
                          "[controller.control]\nspeed_limit_rad_s = 600.0\n"),
             path_of("inline.toml") +
-                ":6: controller.control.speed_limit_rad_s: 600 rad/s must be below the overspeed trip, 471 rad/s (1.5 x "
-                "controller.motor.rated_speed_rad_s, the supervisor simulate runs with, as pmsm-thermald's default): the "
-                "shaft would trip OVERSPEED before the drive limits its speed; lower it or raise the rated speed");
+                ":6: controller.control.speed_limit_rad_s (600 rad/s) must be below supervisor.overspeed_rad_s (471 rad/s, "
+                "its default: 1.5 x controller.motor.rated_speed_rad_s): the shaft would trip OVERSPEED before the drive "
+                "limits its speed");
   EXPECT_NO_THROW((void)parse("[operation]\nspeed_rad_s = [[0, 1]]\n[controller.motor]\nrated_speed_rad_s = 420.0\n"
                               "[controller.control]\nspeed_limit_rad_s = 600.0\n"));
+  const Scenario raised = parse("[operation]\nspeed_rad_s = [[0, 1]]\n[controller.motor]\nrated_speed_rad_s = 314.0\n"
+                                "[controller.control]\nspeed_limit_rad_s = 600.0\n[supervisor]\noverspeed_rad_s = 650.0\n");
+  EXPECT_EQ(raised.supervisor.overspeed_rad_s, 650.0);
+}
+
+// [supervisor]: pmsm-thermald's keys, with its defaults for the scenario's drive where absent.
+TEST(Scenario, SupervisorKeysAreTheDaemonsOverTheDrivesDefaults) {
+  const Scenario plain = parse(kMinimal);
+  const core::SupervisorConfig defaults = default_supervisor_config(plain.controller);
+  EXPECT_EQ(plain.supervisor.dc_bus_max_V, defaults.dc_bus_max_V);
+  EXPECT_EQ(plain.supervisor.overspeed_rad_s, defaults.overspeed_rad_s);
+  EXPECT_EQ(plain.supervisor.command_timeout_s, 0.0) << "a scenario sends no DRIVE_COMMAND";
+  // The defaults follow the scenario's drive: its bus, its ADC, its rated speed.
+  const Scenario other = parse("[operation]\nspeed_rad_s = [[0, 1]]\n[controller.control]\nnominal_dc_bus_V = 300.0\n");
+  EXPECT_EQ(other.supervisor.dc_bus_max_V, 375.0);
+  EXPECT_EQ(other.supervisor.dc_bus_min_V, 180.0);
+  const Scenario given = parse(std::string(kMinimal) + "[supervisor]\ndc_bus_max_V = 800.0\ntrip_temp_C = 200.0\n"
+                                                       "sensor_timeout_periods = 20\n");
+  EXPECT_EQ(given.supervisor.dc_bus_max_V, 800.0);
+  EXPECT_EQ(given.supervisor.trip_temp_C, 200.0);
+  EXPECT_EQ(given.supervisor.sensor_timeout_periods, 20);
+  EXPECT_EQ(given.supervisor.dc_bus_min_V, defaults.dc_bus_min_V);
+}
+
+TEST(Scenario, SupervisorKeysAreCheckedAsTheDaemonChecksThem) {
+  // A key out of its range, an unknown one: named with their lines, both at once.
+  const std::string bad = inline_error(std::string(kMinimal) + "[supervisor]\ndc_bus_max_V = -5.0\nover_speed = 1.0\n");
+  EXPECT_NE(bad.find(":4: supervisor.dc_bus_max_V: must be in [0, 10000], got -5"), std::string::npos) << bad;
+  EXPECT_NE(bad.find(":5: supervisor.over_speed"), std::string::npos) << bad;
+  // The command timeout is the daemon's alone.
+  const std::string timeout = inline_error(std::string(kMinimal) + "[supervisor]\ncommand_timeout_s = 0.5\n");
+  EXPECT_EQ(timeout, path_of("inline.toml") +
+                         ":4: supervisor.command_timeout_s: a scenario takes every supervisor.* key of pmsm-thermald but "
+                         "this one: its drive gets no DRIVE_COMMAND stream (its set-points are [operation]), so the "
+                         "timeout would never be judged; delete the key");
+  // A rule between the supervisor's keys and the drive's, located at the supervisor's line.
+  const std::string above = inline_error(std::string(kMinimal) + "[supervisor]\ndc_bus_max_V = 1000.0\n");
+  EXPECT_NE(above.find(":4: supervisor.dc_bus_max_V (1000 V) must be below controller.sensors.dc_bus_full_scale_V"),
+            std::string::npos)
+      << above;
+  // And one between the supervisor's own keys.
+  const std::string window = inline_error(std::string(kMinimal) + "[supervisor]\nambient_min_C = 50.0\nambient_max_C = 40.0\n");
+  EXPECT_NE(window.find(":4: supervisor.ambient_min_C (50 C) must be below supervisor.ambient_max_C (40 C, "),
+            std::string::npos)
+      << window;
 }
 
 TEST(Scenario, BaseInheritanceOverrideWinsAndBaseKeysStay) {

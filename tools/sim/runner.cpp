@@ -201,7 +201,7 @@ class DisturbanceMeter {
 struct Rig {
   Rig(const Scenario& scenario, const ControllerConfig& controller)
       : plant(scenario.plant),
-        node(controller, default_supervisor_config(scenario.controller), PublishRates{}) {}
+        node(controller, scenario.supervisor, PublishRates{}) {}
 
   // The period's set-points as the scenario gives them at the plant's time, with the plant's
   // ambient and the start of the calibration (in real time, for the drive and the plant alike).

@@ -18,6 +18,7 @@
 #include <toml++/toml.h>
 
 #include "config_schema.hpp"
+#include "supervisor_config.hpp"
 #include "drive_node.hpp"
 #include "pmsm/core/thermal_observer.hpp"
 #include "text_file.hpp"
@@ -546,7 +547,7 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
   };
   const bool scenario_ok = attempt([&] {
     schema().apply(root, out.scenario, source.string(),
-                   {"plant", "controller", "scenario.seed", "operation.speed_rad_s", "operation.torque_Nm", "operation.speed_csv",
+                   {"plant", "controller", "supervisor", "scenario.seed", "operation.speed_rad_s", "operation.torque_Nm", "operation.speed_csv",
                     "operation.torque_csv"});
   });
   // The set-points need the scenario's keys (the mode).
@@ -644,6 +645,7 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
       out.files.push_back(out.plant.load.csv_path);
     }
   });
+  bool controller_ok = false;
   (void)attempt([&] {
     // The controller: the same sections as pmsm-thermald's configuration, under [controller]
     // (parsed in place, so that messages keep the file's line numbers).
@@ -655,6 +657,21 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
       if (!file.empty()) {
         out.files.emplace_back(file);
       }
+    }
+    controller_ok = true;
+  });
+  // The supervisor's keys (its defaults follow the drive's, as pmsm-thermald's do), and every rule
+  // between them and the drive's, worded as the daemon words them.
+  (void)attempt([&] {
+    out.supervisor = parse_supervisor_config(root, source.string(), default_supervisor_config(out.controller),
+                                             SupervisorKeys::kScenario);
+    std::string broken = check_supervisor_own_rules(out.supervisor, root, source.string());
+    if (controller_ok) {
+      const std::string more = check_supervisor_rules(out.supervisor, out.controller, root, source.string());
+      broken += (broken.empty() || more.empty() ? "" : "\n") + more;
+    }
+    if (!broken.empty()) {
+      throw ConfigError(broken);
     }
   });
   if (!errors.empty()) {
@@ -691,22 +708,6 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
                         " s: its prediction would be wrong, and beyond twice it diverge; lower the acceleration or "
                         "controller.thermal.update_s");
     }
-  }
-  // simulate runs the daemon's default supervisor (default_supervisor_config: the overspeed trip
-  // at 1.5 x the rated speed): a speed limit at or above it is a trip before the drive limits
-  // its speed, as pmsm-thermald --check refuses it (a washer's 550 rad/s spin under a 600 rad/s
-  // limit tripped OVERSPEED at 471 rad/s, 159 s into the run).
-  if (const double trip = default_supervisor_config(out.controller).overspeed_rad_s,
-      limit = out.controller.drive.speed_limit_rad_s;
-      limit >= trip) {
-    const auto given = root.at_path("controller.control.speed_limit_rad_s");
-    const std::string at = given ? where(*given.node(), source.string(), "controller.control.speed_limit_rad_s")
-                                 : source.string() + ": controller.control.speed_limit_rad_s: ";
-    throw ConfigError(at + common::format_number(limit) + " rad/s must be below the overspeed trip, " +
-                      common::format_number(trip) +
-                      " rad/s (1.5 x controller.motor.rated_speed_rad_s, the supervisor simulate runs with, as "
-                      "pmsm-thermald's default): the shaft would trip OVERSPEED before the drive limits its speed; "
-                      "lower it or raise the rated speed");
   }
   // A calibration asked for at or after the run's end never runs: the run's figures would count
   // from a calibration that is not there, and say nothing.

@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "controller_config.hpp"
+#include "pmsm/core/supervisor.hpp"
 #include "pmsm/plant/config.hpp"
 
 namespace pmsm::app {
@@ -53,6 +54,9 @@ struct Scenario {
   ScenarioConfig scenario;
   plant::PlantConfig plant;
   ControllerConfig controller;
+  // The drive's supervisor: pmsm-thermald's defaults for the drive (default_supervisor_config),
+  // with the scenario's [supervisor] keys, every one of the daemon's but command_timeout_s.
+  core::SupervisorConfig supervisor;
   std::filesystem::path source;
   // Every file the scenario is read from or keeps its state in: itself, its bases, its CSV
   // files, the plant profile and the drive's calibration and thermal-state files (an output
