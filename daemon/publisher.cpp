@@ -426,12 +426,13 @@ void Publisher::handle(const PublicationRecord& r) {
       spdlog::warn("calibration refused: Rs0 {:.5f} +- {:.5f} ohm{} is less certain than "
                    "calibration.max_rs0_std_fraction allows ({}); the previous calibration stays in use",
                    r.calibration_rs0_ohm, r.calibration_rs0_std_ohm, cut_short,
-                   app::uncertain_calibration_advice(!cut_short.empty()));
+                   app::uncertain_calibration_advice(!cut_short.empty(), config_.controller.drive.estimator));
     } else {
       spdlog::warn("calibration gave up (calibration.timeout_s, {:.0f} s, with fewer published events than "
-                 "calibration.min_events; its pairs: {}: "
-                 "calibrate unloaded at a steady speed); the previous calibration stays in use",
-                 config_.controller.drive.calibration_timeout_s, core::pair_outcomes_text(r.calibration_pairs, r.calibration_aborts));
+                   "calibration.min_events; its pairs: {}: {}); the previous calibration stays in use",
+                   config_.controller.drive.calibration_timeout_s,
+                   core::pair_outcomes_text(r.calibration_pairs, r.calibration_aborts),
+                   app::calibration_timeout_advice(config_.controller.drive.estimator));
     }
   }
   if (r.calibration_to_store) {

@@ -156,14 +156,37 @@ inline constexpr std::string_view kWindingWarmMeasure =
     "taken beyond that limit only while T0's uncertainty (calibration.model_rise_std_fraction of the model's rise, half "
     "the filter's excess: the nameplate's error or warmth) stays below half the nameplate's";
 
+// What to do about a calibration that timed out (too few events by calibration.timeout_s: the
+// daemon's log, simulate's warning). For injection, a steady unloaded run lets the pairs pass
+// their guards. The no-injection baseline sees Rs only through Rs iq in the motoring voltage
+// (about 1 % of it on Table I's machine), so calibrating unloaded would take away the little it
+// sees; the thermal model alone measures nothing.
+[[nodiscard]] inline std::string_view calibration_timeout_advice(core::EstimatorKind kind) {
+  switch (kind) {
+    case core::EstimatorKind::kNoInjection:
+      return "estimator.kind = \"no-injection\" sees Rs only through Rs iq in the motoring voltage, a per cent or so "
+             "of it: calibrate with estimator.kind = \"injection\", or enter calibration.rs0_ohm and calibration.t0_C "
+             "measured at a known temperature (a four-wire reading of the cold winding)";
+    case core::EstimatorKind::kNone:
+      return "estimator.kind = \"none\" measures no resistance: calibrate with estimator.kind = \"injection\", or "
+             "enter calibration.rs0_ohm and calibration.t0_C measured at a known temperature";
+    case core::EstimatorKind::kInjection:
+      break;
+  }
+  return "calibrate unloaded at a steady speed";
+}
+
 // What to do about a calibration refused as uncertain (the daemon's log, simulate's report): a
 // whole run could not learn the bridge's voltage (Vx is learned only unloaded and slow), one cut
-// short at its timeout had too few events, and its pairs say what stopped the rest.
-[[nodiscard]] inline std::string_view uncertain_calibration_advice(bool cut_short) {
-  return cut_short ? "calibrate unloaded at a steady speed"
-                   : "the bridge's voltage was not learned: calibrate unloaded (|iq| below "
-                     "injection.vx_learning_max_iq_fraction of the event's smallest pulse), below "
-                     "injection.vx_learning_max_speed_rad_s";
+// short at its timeout had too few events, and its pairs say what stopped the rest; without
+// injection, calibration_timeout_advice's.
+[[nodiscard]] inline std::string_view uncertain_calibration_advice(bool cut_short, core::EstimatorKind kind) {
+  if (kind != core::EstimatorKind::kInjection || cut_short) {
+    return calibration_timeout_advice(kind);
+  }
+  return "the bridge's voltage was not learned: calibrate unloaded (|iq| below "
+         "injection.vx_learning_max_iq_fraction of the event's smallest pulse), below "
+         "injection.vx_learning_max_speed_rad_s";
 }
 
 // For a completed calibration's report: "" when its Rs0 averaged the `wanted` events

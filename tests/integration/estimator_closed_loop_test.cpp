@@ -635,5 +635,30 @@ TEST(SimulateCli, ABadScenarioNamesTheKeyAndFails) {
   std::filesystem::remove(bad);
 }
 
+// A calibration that times out says what would help for the drive's resistance source: for
+// injection, a steady unloaded run; without injection, that the baseline sees Rs only through
+// Rs iq (calibrating unloaded would take that away) and the thermal model alone measures nothing.
+TEST(SimulateCli, ACalibrationTimeoutAdvisesForTheEstimatorKind) {
+  const std::string exe = PMSM_THERMAL_EXE;
+  const std::filesystem::path dir = std::filesystem::temp_directory_path() / ("pmsm-cal-advice-" + std::to_string(::getpid()));
+  std::filesystem::create_directories(dir);
+  for (const auto& [kind, advice] :
+       {std::pair<std::string, std::string>{"no-injection", "estimator.kind = \"no-injection\" sees Rs only through Rs iq"},
+        {"none", "estimator.kind = \"none\" measures no resistance"}}) {
+    const std::filesystem::path file = dir / (kind + ".toml");
+    {
+      std::ofstream f(file);
+      f << "[scenario]\nbase = \"" << (kData / "heatup-short.toml").string() << "\"\nduration_s = 25.0\n"
+        << "[controller.estimator]\nkind = \"" << kind << "\"\n";
+    }
+    const test::ProcessResult r = test::run_process(exe + " simulate " + file.string() + " --quiet");
+    EXPECT_EQ(r.exit_code, 0) << r.err;
+    EXPECT_NE(r.err.find("the calibration failed (timeout at"), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find(advice), std::string::npos) << r.err;
+    EXPECT_EQ(r.err.find("calibrate unloaded"), std::string::npos) << r.err;
+  }
+  std::filesystem::remove_all(dir);
+}
+
 }  // namespace
 }  // namespace pmsm::app

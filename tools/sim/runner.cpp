@@ -671,6 +671,7 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
   result.scenario = sc.name;
   result.error_threshold_C = sc.error_threshold_C;
   result.method = method_name(scenario.controller);
+  result.estimator = scenario.controller.drive.estimator;
 
   // The drive's whole per-sample path, as pmsm-thermald runs it; the runner only feeds it
   // the plant's samples and the scenario's set-points, and measures.
@@ -1377,7 +1378,7 @@ std::string result_text(const SimulationResult& r) {
                        "calibration.max_rs0_std_fraction){} ({}); the calibration in use stays\n",
                        r.calibration_failure_time_s, r.calibration_failure_rs0_ohm, r.calibration_failure_rs0_std_ohm,
                        100.0 * r.calibration_failure_rs0_std_ohm / std::max(std::abs(r.calibration_failure_rs0_ohm), 1e-12),
-                       cut_short, uncertain_calibration_advice(!cut_short.empty()));
+                       cut_short, uncertain_calibration_advice(!cut_short.empty(), r.estimator));
   }
   for (const SimulationResult::FaultSeen& f : r.faults) {
     if (f.count > 0) {
