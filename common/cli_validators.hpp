@@ -11,6 +11,9 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
+#include <iostream>
+#include <sstream>
 #include <string>
 #include <string_view>
 #include <utility>
@@ -97,7 +100,29 @@ inline int exit_on_parse_error(const CLI::App& app, const CLI::ParseError& e, in
   if (e.get_exit_code() != 0 && !unknown.empty() && dynamic_cast<const CLI::ExtrasError*>(&e) == nullptr) {
     std::fprintf(stderr, "%s\n", CLI::ExtrasError(unknown).what());
   }
-  return app.exit(e) == 0 ? exit_with_standard_output_checked(program, 0, write_failed_code) : usage_exit_code;
+  if (e.get_exit_code() != 0) {
+    (void)app.exit(e);
+    return usage_exit_code;
+  }
+  // --help or --version: their text rendered here and written in one go, so that a failed write
+  // is named with its own reason ("No space left on device"); CLI11 writes and flushes it itself,
+  // and what its failed write left in errno was gone by the check.
+  std::ostringstream text;
+  (void)app.exit(e, text, std::cerr);
+  const std::string rendered = text.str();
+  if (!standard_output_failure().empty()) {
+    // (Something before it failed already: the reason as the check finds it.)
+    return exit_with_standard_output_checked(program, 0, write_failed_code);
+  }
+  errno = 0;
+  const bool written = std::fwrite(rendered.data(), 1, rendered.size(), stdout) == rendered.size() && std::fflush(stdout) == 0;
+  if (!written) {
+    const int error = errno;
+    std::fprintf(stderr, "%s: cannot write standard output (%s)\n", program,
+                 error != 0 ? std::strerror(error) : "a write failed");
+    return write_failed_code;
+  }
+  return exit_with_standard_output_checked(program, 0, write_failed_code);
 }
 
 }  // namespace pmsm::cli

@@ -35,5 +35,10 @@ for args in --help --version ""; do
   "$exe" $args > /dev/full 2> "$work/out" || status=$?
   [ "$status" -eq 1 ] && grep -qF "pmsm-dbc-gen: cannot write standard output (" "$work/out" ||
     fail "pmsm-dbc-gen $args > /dev/full: exit $status, expected 1 naming it"
+  # --help and --version are written in one go: the reason is the failed write's own.
+  if [ -n "$args" ]; then
+    grep -qF "pmsm-dbc-gen: cannot write standard output (No space left on device)" "$work/out" ||
+      fail "pmsm-dbc-gen $args > /dev/full: the reason is not the write's: $(cat "$work/out")"
+  fi
 done
 echo "dbc_gen_cli: ok"
