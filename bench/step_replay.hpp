@@ -35,7 +35,7 @@ class StepReplay {
   explicit StepReplay(const std::filesystem::path& scenario_path)
       : scenario_(app::load_scenario(scenario_path)),
         plant_(scenario_.plant),
-        node_(scenario_.controller, app::default_supervisor_config(scenario_.controller), app::PublishRates{}) {}
+        node_(scenario_.controller, scenario_.supervisor, app::PublishRates{}) {}
 
   [[nodiscard]] double period_s() const { return plant_.period_s(); }
 

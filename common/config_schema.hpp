@@ -312,9 +312,7 @@ class ConfigSchema {
   }
 
   // Markdown table of every key with its default (from `defaults`), range and meaning.
-  // `key_prefix` names the keys of a nested table ("supervisor."); `with_header` false gives the
-  // rows alone, to follow another table's.
-  [[nodiscard]] std::string markdown(const Config& defaults, std::string_view key_prefix = {}, bool with_header = true) const;
+  [[nodiscard]] std::string markdown(const Config& defaults) const;
 
   [[nodiscard]] std::vector<std::string> keys() const {
     std::vector<std::string> out;
@@ -726,10 +724,10 @@ class ConfigSchema {
 };
 
 template <typename Config>
-std::string ConfigSchema<Config>::markdown(const Config& defaults, std::string_view key_prefix, bool with_header) const {
+std::string ConfigSchema<Config>::markdown(const Config& defaults) const {
   Config copy = defaults;
   auto with_unit = [](std::string value, const std::string& unit) { return unit.empty() ? value : value + " " + unit; };
-  std::string out = with_header ? "| key | default | range | meaning |\n|---|---|---|---|\n" : "";
+  std::string out = "| key | default | range | meaning |\n|---|---|---|---|\n";
   for (const Entry& e : entries_) {
     std::string value;
     std::string range;
@@ -804,7 +802,7 @@ std::string ConfigSchema<Config>::markdown(const Config& defaults, std::string_v
       }
     }
     // (the formulas such as ω·|ω| have their '|' escaped)
-    out += "| `" + std::string(key_prefix) + e.key + "` | " + value + " | " + range + " | " + markdown_cell(e.doc) + " |\n";
+    out += "| `" + e.key + "` | " + value + " | " + range + " | " + markdown_cell(e.doc) + " |\n";
   }
   return out;
 }

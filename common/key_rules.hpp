@@ -18,6 +18,7 @@ class KeyRules {
  public:
   // `root`: the whole file (its keys are dotted paths from the top); `source`: its name.
   KeyRules(const toml::table& root, std::string_view source) : root_(root), source_(source) {}
+  KeyRules(toml::table&& root, std::string_view source) = delete;  // it keeps a reference
 
   // A broken rule at the line of `key` when the file gives it, else at the file.
   void at(std::string_view key, const std::string& text) { add(key_location(root_, key, source_), text); }
@@ -32,13 +33,7 @@ class KeyRules {
   // does not.
   template <typename Text>
   void with(std::initializer_list<std::string_view> keys, const Text& text) {
-    std::string_view at_key;
-    for (const std::string_view key : keys) {
-      if (root_.at_path(key)) {
-        at_key = key;
-        break;
-      }
-    }
+    const std::string_view at_key = first_given(root_, keys);
     const auto value = [&](std::string_view key, double v, std::string_view unit, std::string_view how = {}) {
       std::string from;
       if (!root_.at_path(key)) {
@@ -68,6 +63,23 @@ class KeyRules {
     if (!lines.empty()) {
       errors_ += (errors_.empty() ? "" : "\n") + lines;
     }
+  }
+
+  // The first of `keys` that `root` gives, or "" when it gives none.
+  [[nodiscard]] static std::string_view first_given(const toml::table& root, std::initializer_list<std::string_view> keys) {
+    for (const std::string_view key : keys) {
+      if (root.at_path(key)) {
+        return key;
+      }
+    }
+    return {};
+  }
+  // "file:line: " of the first of `keys` that `root` gives, else "source: ": where a refusal that
+  // follows from several keys is located.
+  [[nodiscard]] static std::string location_of_first(const toml::table& root, std::initializer_list<std::string_view> keys,
+                                                     std::string_view source) {
+    const std::string_view key = first_given(root, keys);
+    return key.empty() ? std::string(source) + ": " : key_location(root, key, source);
   }
 
   // Every broken rule so far, one a line ("" when none).

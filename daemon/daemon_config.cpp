@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <fstream>
+#include <initializer_list>
 #include <sstream>
 
 #include <fmt/format.h>
@@ -85,6 +86,8 @@ const ConfigSchema<D>& schema() {
            "Latched faults are repeated this often (at least the control period), besides one FAULT frame per change (0: changes only).");
     c.real("publish.stale_after_s", [](D& d) -> double& { return d.publish.stale_after_s; }, app::between(0.1, 1e6), "s",
            "THERMAL_ESTIMATE says stale when no resistance estimate was accepted for this long.");
+    // [supervisor]: the keys a scenario's [supervisor] shares (supervisor_config.hpp).
+    app::add_supervisor_keys<D>(c, [](D& d) -> core::SupervisorConfig& { return d.supervisor; });
     // [startup]
     c.boolean("startup.calibrate_if_missing", [](D& d) -> bool& { return d.startup.calibrate_if_missing; },
               "With controller.calibration.file set but absent, calibrate at the ambient sensor's temperature the first time the "
@@ -222,17 +225,10 @@ DaemonConfig parse_daemon_config(const std::string& text, const std::filesystem:
   }
   const bool controller_valid = errors.empty();
   c.supervisor = daemon_supervisor_defaults(c.controller);
-  std::vector<std::string> foreign{"controller", "supervisor"};
+  std::vector<std::string> foreign{"controller"};
   bool daemon_valid = true;
   try {
     schema().apply(root, c, source.string(), foreign);
-  } catch (const ConfigError& e) {
-    errors += (errors.empty() ? "" : "\n") + std::string(e.what());
-    daemon_valid = false;
-  }
-  // [supervisor]: the schema and rules a scenario's [supervisor] shares (supervisor_config.hpp).
-  try {
-    c.supervisor = app::parse_supervisor_config(root, source.string(), c.supervisor, app::SupervisorKeys::kDaemon);
   } catch (const ConfigError& e) {
     errors += (errors.empty() ? "" : "\n") + std::string(e.what());
     daemon_valid = false;
@@ -250,14 +246,10 @@ DaemonConfig parse_daemon_config(const std::string& text, const std::filesystem:
   if (!is_virtual_interface(c.can.interface) && load.total_fraction > c.can.max_bus_load) {
     // Located at the first of the keys it follows from that the file gives (the interface that
     // makes it a real bus, as a rule of several keys is).
-    std::string at = source.string() + ": ";
-    for (const std::string_view key : {"can.interface", "can.data_bitrate_bit_s", "can.nominal_bitrate_bit_s",
-                                       "controller.control.period_s", "can.max_bus_load"}) {
-      if (root.at_path(key)) {
-        at = common::key_location(root, key, source.string());
-        break;
-      }
-    }
+    const std::string at = common::KeyRules::location_of_first(
+        root, {"can.interface", "can.data_bitrate_bit_s", "can.nominal_bitrate_bit_s", "controller.control.period_s",
+               "can.max_bus_load"},
+        source.string());
     throw ConfigError(at + fmt::format(
         "the fast loop ({:.0f} % of the bus: one SENSOR_SAMPLE and one INVERTER_COMMAND, {:.1f} us, every {:.1f} us "
         "period) and the publications ({:.1f} %) need {:.0f} % of a bus at can.nominal_bitrate_bit_s {:.0f} / "
@@ -306,7 +298,7 @@ app::StoredAxis stored_axis(const DaemonConfig& config) {
 std::string daemon_keys_markdown() {
   DaemonConfig c;
   c.supervisor = daemon_supervisor_defaults(c.controller);
-  return schema().markdown(c) + app::supervisor_schema(app::SupervisorKeys::kDaemon).markdown(c.supervisor, "supervisor.", false);
+  return schema().markdown(c);
 }
 
 std::vector<std::string> bus_range_warnings(const DaemonConfig& config) {

@@ -271,7 +271,8 @@ void Publisher::handle(const PublicationRecord& r) {
   // A calibration's events and pairs where it ended at its timeout on fewer than calibration.events.
   const auto cut_short_text = [this](const PublicationRecord& record) {
     return app::cut_short_calibration_text(record.calibration_events, config_.controller.drive.calibration_events,
-                                           record.calibration_pairs, record.calibration_aborts);
+                                           record.calibration_pairs, record.calibration_aborts,
+                                           config_.controller.drive.estimator);
   };
   log_refusals(r);
   const app::NodePublications& p = r.publications;
@@ -429,9 +430,9 @@ void Publisher::handle(const PublicationRecord& r) {
                    app::uncertain_calibration_advice(!cut_short.empty(), config_.controller.drive.estimator));
     } else {
       spdlog::warn("calibration gave up (calibration.timeout_s, {:.0f} s, with fewer published events than "
-                   "calibration.min_events; its pairs: {}: {}); the previous calibration stays in use",
+                   "calibration.min_events{}: {}); the previous calibration stays in use",
                    config_.controller.drive.calibration_timeout_s,
-                   core::pair_outcomes_text(r.calibration_pairs, r.calibration_aborts),
+                   app::calibration_pairs_text(config_.controller.drive.estimator, r.calibration_pairs, r.calibration_aborts),
                    app::calibration_timeout_advice(config_.controller.drive.estimator));
     }
   }

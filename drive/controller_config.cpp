@@ -1202,12 +1202,17 @@ std::string calibration_events_text(int used, int wanted) {
 }
 
 std::string cut_short_calibration_text(int used, int wanted, const core::OutcomeCounts& pairs,
-                                       const core::AbortCounts& aborts) {
+                                       const core::AbortCounts& aborts, core::EstimatorKind kind) {
   std::string text = calibration_events_text(used, wanted);
   if (!text.empty()) {
-    text += "; its pairs: " + core::pair_outcomes_text(pairs, aborts);
+    text += calibration_pairs_text(kind, pairs, aborts);
   }
   return text;
+}
+
+std::string calibration_pairs_text(core::EstimatorKind kind, const core::OutcomeCounts& pairs,
+                                   const core::AbortCounts& aborts) {
+  return kind == core::EstimatorKind::kInjection ? "; its pairs: " + core::pair_outcomes_text(pairs, aborts) : std::string{};
 }
 
 std::string rs_outside_window_text(const core::DriveConfig& d, double measured_ohm, double scatter_ohm) {

@@ -194,7 +194,13 @@ inline constexpr std::string_view kWindingWarmMeasure =
 [[nodiscard]] std::string calibration_events_text(int used, int wanted);
 // The same followed by "; its pairs: ..." (why it fell short), or "" for a whole calibration.
 [[nodiscard]] std::string cut_short_calibration_text(int used, int wanted, const core::OutcomeCounts& pairs,
-                                                     const core::AbortCounts& aborts);
+                                                     const core::AbortCounts& aborts,
+                                                     core::EstimatorKind kind = core::EstimatorKind::kInjection);
+// "; its pairs: ..." (a calibration's pairs by outcome: why it fell short), or "" without injection:
+// the no-injection baseline and the thermal model alone make no pairs, and "its pairs: no pair"
+// read as if something had stopped them.
+[[nodiscard]] std::string calibration_pairs_text(core::EstimatorKind kind, const core::OutcomeCounts& pairs,
+                                                 const core::AbortCounts& aborts);
 
 // For a completed calibration's report: "" when T0 is the ambient's or an operator's reading,
 // else " (+- S K: the ambient plus the thermal model's rise)" (core::Calibration::t0_rise_std_C).

@@ -1,82 +1,51 @@
 #include "supervisor_config.hpp"
 
 #include <string>
+#include <vector>
+
+#include <toml++/toml.h>
 
 #include "config_schema.hpp"
 #include "key_rules.hpp"
 
 namespace pmsm::app {
-namespace {
 
-using S = core::SupervisorConfig;
-
-ConfigSchema<S> build(SupervisorKeys which) {
-  ConfigSchema<S> c;
-  c.real("dc_bus_min_V", [](S& s) -> double& { return s.dc_bus_min_V; }, between(0, 10000), "V",
-         "DC-bus under-voltage trip (default: 0.6 x controller.control.nominal_dc_bus_V).");
-  c.real("dc_bus_max_V", [](S& s) -> double& { return s.dc_bus_max_V; }, between(0, 10000), "V",
-         "DC-bus over-voltage trip (default: 1.25 x nominal, at most 98 % of the DC-bus ADC's full scale).");
-  c.real("overcurrent_A", [](S& s) -> double& { return s.overcurrent_A; }, positive(100000), "A",
-         "Phase-current trip (default: 90 % of the current ADC's range).");
-  c.real("current_sum_max_A", [](S& s) -> double& { return s.current_sum_max_A; }, positive(100000), "A",
-         "|ia + ib + ic| above this: a phase-current sensor is broken (default: 10 % of the ADC's range).");
-  c.real("current_offset_max_A", [](S& s) -> double& { return s.current_offset_max_A; }, positive(100000), "A",
-         "A phase current sensor whose power-up offset (its mean reading with the gates off) lies further from zero "
-         "than this is broken or stuck: CURRENT_OFFSET fault, the gates stay off until a restart (default: 5 % of the "
-         "ADC's range).");
-  c.real("ambient_min_C", [](S& s) -> double& { return s.ambient_min_C; }, between(-50, 200), "C",
-         "The ambient / coolant sensor (in SENSOR_SAMPLE) reading below this is implausible: AMBIENT_IMPLAUSIBLE fault.");
-  c.real("ambient_max_C", [](S& s) -> double& { return s.ambient_max_C; }, between(-50, 200), "C",
-         "The ambient / coolant sensor reading above this is implausible: AMBIENT_IMPLAUSIBLE fault. (Both within "
-         "[-50, 200] C, the T0 a calibration on the ambient may store: a wider window let one store a calibration the "
-         "next start refused.)");
-  c.real("max_speed_rad_s", [](S& s) -> double& { return s.max_speed_rad_s; }, positive(100000), "rad/s",
-         "Mechanical speed the encoder may show; a larger step between samples is an encoder-jump fault (default: 3 x rated).");
-  c.real("overspeed_rad_s", [](S& s) -> double& { return s.overspeed_rad_s; }, between(0, 100000), "rad/s",
-         "Mechanical speed over about 1 ms of encoder counts above which the drive trips: OVERSPEED fault, gates off (an "
-         "overhauling load, a runaway in torque control; default: 1.5 x rated; 0: off).");
-  c.integer("output_feedback_periods", [](S& s) -> int& { return s.output_feedback_periods; }, between(0, 100000),
-            "Samples in a row that report the gates off (SENSOR_SAMPLE OutputEnabled) while the drive has enabled them, "
-            "or on while it holds them off: OUTPUT_FEEDBACK fault (an open enable chain, a safe torque off, a stage's own "
-            "latched fault; a stage that ignores the enable, a stuck report); 0: not judged.");
-  c.integer("sensor_timeout_periods", [](S& s) -> int& { return s.sensor_timeout_periods; }, between(1, 100000),
-            "Missing samples in a row before the sensor-timeout fault (gates off).");
-  c.integer("sensor_recovery_periods", [](S& s) -> int& { return s.sensor_recovery_periods; }, between(1, 100000),
-            "Samples in a row after which a sensor timeout clears itself.");
-  if (which == SupervisorKeys::kDaemon) {
-    c.real("command_timeout_s", [](S& s) -> double& { return s.command_timeout_s; }, between(0, 3600), "s",
-           "Enabled without a valid, fresh DRIVE_COMMAND this long: command-timeout fault, gates off (0: off).");
-  }
-  c.real("trip_temp_C", [](S& s) -> double& { return s.trip_temp_C; }, between(-50, 400), "C",
-         "Winding-estimate trip (default: controller.derating.limit_C + 25 C; derating starts below).");
-  c.real("trip_hysteresis_C", [](S& s) -> double& { return s.trip_hysteresis_C; }, between(0, 100), "C",
-         "An over-temperature fault may be cleared this far below the trip.");
-  return c;
-}
-
-}  // namespace
-
-const ConfigSchema<core::SupervisorConfig>& supervisor_schema(SupervisorKeys which) {
-  static const ConfigSchema<S> daemon = build(SupervisorKeys::kDaemon);
-  static const ConfigSchema<S> scenario = build(SupervisorKeys::kScenario);
-  return which == SupervisorKeys::kDaemon ? daemon : scenario;
-}
-
-core::SupervisorConfig parse_supervisor_config(const toml::table& root, std::string_view source,
-                                               core::SupervisorConfig defaults, SupervisorKeys which) {
-  const toml::table* table = common::optional_section(root, "supervisor", source);
-  if (table == nullptr) {
-    return defaults;
-  }
-  if (which == SupervisorKeys::kScenario) {
-    if (const auto given = table->get("command_timeout_s"); given != nullptr) {
-      throw ConfigError(common::node_location(*given, source) +
-                        "supervisor.command_timeout_s: a scenario takes every supervisor.* key of pmsm-thermald but this "
-                        "one: its drive gets no DRIVE_COMMAND stream (its set-points are [operation]), so the timeout "
-                        "would never be judged; delete the key");
+core::SupervisorConfig parse_scenario_supervisor(const toml::table& root, std::string_view source,
+                                                 core::SupervisorConfig defaults) {
+  static const ConfigSchema<core::SupervisorConfig> schema = [] {
+    ConfigSchema<core::SupervisorConfig> c;
+    add_supervisor_keys<core::SupervisorConfig>(c, [](core::SupervisorConfig& s) -> core::SupervisorConfig& { return s; });
+    return c;
+  }();
+  // The schema's keys are the file's dotted paths ("supervisor.x"), applied to the whole file with
+  // every other top-level table left to its own reader: messages as for the scenario's own
+  // sections (a `supervisor = 5` is "expected a table (section)").
+  std::vector<std::string> others;
+  for (const auto& [key, node] : root) {
+    if (key.str() != "supervisor") {
+      others.emplace_back(key.str());
     }
   }
-  supervisor_schema(which).apply(*table, defaults, source, {}, "supervisor.");
+  std::string errors;
+  // The daemon's command timeout, which a scenario cannot judge, named with its reason beside the
+  // section's other mistakes (not instead of them).
+  const toml::table* section = root.get_as<toml::table>("supervisor");
+  const toml::node* timeout = section != nullptr ? section->get("command_timeout_s") : nullptr;
+  if (timeout != nullptr) {
+    errors = common::node_location(*timeout, source) +
+             "supervisor.command_timeout_s: a scenario takes every supervisor.* key of pmsm-thermald but this one: its "
+             "drive gets no DRIVE_COMMAND stream (its set-points are [operation]), so the timeout would never be "
+             "judged; delete the key";
+  }
+  // (The schema knows the key, so that the file's other mistakes keep their lines and order.)
+  try {
+    schema.apply(root, defaults, source, others);
+  } catch (const ConfigError& e) {
+    errors += (errors.empty() ? "" : "\n") + std::string(e.what());
+  }
+  if (!errors.empty()) {
+    throw ConfigError(errors);
+  }
   return defaults;
 }
 

@@ -407,10 +407,6 @@ RunOptions figures_only() {
   return o;
 }
 
-// The figures are computed as the run goes: a run without a CSV, a plot or --events keeps
-// nothing per row, so its memory does not grow with the simulated time. (Before, every run kept
-// a 1 kHz record of itself and of its twin for the disturbance figures, and the series: about
-// 0.06 MiB per simulated second, 3 MiB for the longer run below.)
 // A scenario's [supervisor] keys reach the simulated drive's supervisor: its ambient window put
 // below the plant's 25 C trips AMBIENT_IMPLAUSIBLE on the first samples; the same file without the
 // key runs clean. (A test engineer's trip levels, simulated as pmsm-thermald would run them.)
@@ -429,6 +425,10 @@ TEST(SimulateSupervisor, TheScenariosTripLevelsAreTheDrives) {
   EXPECT_LT(first->first_s, 0.1);
 }
 
+// The figures are computed as the run goes: a run without a CSV, a plot or --events keeps
+// nothing per row, so its memory does not grow with the simulated time. (Before, every run kept
+// a 1 kHz record of itself and of its twin for the disturbance figures, and the series: about
+// 0.06 MiB per simulated second, 3 MiB for the longer run below.)
 TEST(SimulateMemory, PeakDoesNotGrowWithTheSimulatedTime) {
   if (PMSM_TEST_ASAN) {
     GTEST_SKIP() << "AddressSanitizer's quarantine holds freed memory: resident size is not the program's";
@@ -656,6 +656,8 @@ TEST(SimulateCli, ACalibrationTimeoutAdvisesForTheEstimatorKind) {
     EXPECT_NE(r.err.find("the calibration failed (timeout at"), std::string::npos) << r.err;
     EXPECT_NE(r.err.find(advice), std::string::npos) << r.err;
     EXPECT_EQ(r.err.find("calibrate unloaded"), std::string::npos) << r.err;
+    // Neither makes pairs: no "its pairs: no pair", which read as if something had stopped them.
+    EXPECT_EQ(r.err.find("its pairs"), std::string::npos) << r.err;
   }
   std::filesystem::remove_all(dir);
 }

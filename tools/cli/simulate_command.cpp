@@ -128,10 +128,11 @@ Report run_one(const std::string& path, const Scenario& scenario, const Simulate
   }
   if (result.calibration_failure == core::CalibrationFailure::kTimeout) {
     // Why it timed out: its pairs' outcomes (a load, a speed ramp, the voltage limit).
-    r.err += fmt::format("simulate: {}: the calibration failed (timeout at {:.2f} s; its pairs: {}: {}); the figures are "
-                         "those of the calibration in use before it\n",
+    r.err += fmt::format("simulate: {}: the calibration failed (timeout at {:.2f} s{}: {}); the figures are those of the "
+                         "calibration in use before it\n",
                          path, result.calibration_failure_time_s,
-                         core::pair_outcomes_text(result.calibration_failure_pairs, result.calibration_failure_aborts),
+                         calibration_pairs_text(result.estimator, result.calibration_failure_pairs,
+                                                result.calibration_failure_aborts),
                          calibration_timeout_advice(result.estimator));
   } else if (result.calibration_failure == core::CalibrationFailure::kRsOutsideWindow) {
     r.err += fmt::format("simulate: {}: the calibration failed (rs_outside_window at {:.2f} s: {}); the figures are those "

@@ -787,19 +787,21 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
         calibration_line =
             refused_before_it_ran
                 ? fmt::format("{:10.3f}  calibration refused: {}", t, core::calibration_failure_name(tel.calibration_failure))
-                : fmt::format("{:10.3f}  calibration failed: {}; its pairs: {}", t,
+                : fmt::format("{:10.3f}  calibration failed: {}{}", t,
                               core::calibration_failure_name(tel.calibration_failure),
-                              core::pair_outcomes_text(tel.calibration_outcomes, tel.calibration_aborts));
+                              calibration_pairs_text(controller_config.drive.estimator, tel.calibration_outcomes,
+                                                     tel.calibration_aborts));
       }
       calibration_ended = !refused_before_it_ran;  // a refusal leaves the event under way alone
     }
     if (step.calibration_to_store) {
       if (options.log_events) {
-        calibration_line = fmt::format("{:10.3f}  calibration: Rs0 {:.5f} ohm at {:.1f} C{}{}; its pairs: {}", t,
+        calibration_line = fmt::format("{:10.3f}  calibration: Rs0 {:.5f} ohm at {:.1f} C{}{}{}", t,
                                        step.calibration_to_store->rs0_ohm, step.calibration_to_store->t0_C,
                                        t0_rise_text(*step.calibration_to_store),
                                        calibration_events_text(tel.calibration_events, controller_config.drive.calibration_events),
-                                       core::pair_outcomes_text(tel.calibration_outcomes, tel.calibration_aborts));
+                                       calibration_pairs_text(controller_config.drive.estimator, tel.calibration_outcomes,
+                                                              tel.calibration_aborts));
       }
       calibration_ended = true;
       result.calibrated = true;
@@ -1347,8 +1349,11 @@ std::string result_text(const SimulationResult& r) {
   }
   if (r.calibration_failure == core::CalibrationFailure::kTimeout) {
     out += fmt::format("  calibration failed at {:.2f} s    timeout: fewer published events by calibration.timeout_s than "
-                       "calibration.min_events (its pairs: {}); the calibration in use stays\n",
-                       r.calibration_failure_time_s, core::pair_outcomes_text(r.calibration_failure_pairs, r.calibration_failure_aborts));
+                       "calibration.min_events{}; the calibration in use stays\n",
+                       r.calibration_failure_time_s,
+                       r.estimator == core::EstimatorKind::kInjection
+                           ? " (its pairs: " + core::pair_outcomes_text(r.calibration_failure_pairs, r.calibration_failure_aborts) + ")"
+                           : std::string{});
   } else if (r.calibration_failure == core::CalibrationFailure::kWindingWarm) {
     out += fmt::format("  calibration failed at {:.2f} s    winding_warm: the winding was {:.1f} C above the ambient sensor "
                        "({}); the calibration in use stays (a motor replaced or rewound since that "
@@ -1373,7 +1378,8 @@ std::string result_text(const SimulationResult& r) {
                        r.calibration_failure_time_s, r.calibration_failure_detail);
   } else if (r.calibration_failure == core::CalibrationFailure::kUncertain) {
     const std::string cut_short = cut_short_calibration_text(r.calibration_failure_events, r.calibration_events_wanted,
-                                                             r.calibration_failure_pairs, r.calibration_failure_aborts);
+                                                             r.calibration_failure_pairs, r.calibration_failure_aborts,
+                                                             r.estimator);
     out += fmt::format("  calibration failed at {:.2f} s    uncertain: Rs0 {:.5f} +- {:.5f} ohm ({:.2f} %, above "
                        "calibration.max_rs0_std_fraction){} ({}); the calibration in use stays\n",
                        r.calibration_failure_time_s, r.calibration_failure_rs0_ohm, r.calibration_failure_rs0_std_ohm,

@@ -663,8 +663,7 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
   // The supervisor's keys (its defaults follow the drive's, as pmsm-thermald's do), and every rule
   // between them and the drive's, worded as the daemon words them.
   (void)attempt([&] {
-    out.supervisor = parse_supervisor_config(root, source.string(), default_supervisor_config(out.controller),
-                                             SupervisorKeys::kScenario);
+    out.supervisor = parse_scenario_supervisor(root, source.string(), default_supervisor_config(out.controller));
     std::string broken = check_supervisor_own_rules(out.supervisor, root, source.string());
     if (controller_ok) {
       const std::string more = check_supervisor_rules(out.supervisor, out.controller, root, source.string());

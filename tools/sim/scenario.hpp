@@ -56,6 +56,8 @@ struct Scenario {
   ControllerConfig controller;
   // The drive's supervisor: pmsm-thermald's defaults for the drive (default_supervisor_config),
   // with the scenario's [supervisor] keys, every one of the daemon's but command_timeout_s.
+  // (load_scenario fills it in; a Scenario built in code sets it from its controller, or it keeps
+  // core::SupervisorConfig's own values, which are no drive's defaults.)
   core::SupervisorConfig supervisor;
   std::filesystem::path source;
   // Every file the scenario is read from or keeps its state in: itself, its bases, its CSV
