@@ -1062,7 +1062,25 @@ ControllerConfig parse_controller_config(const toml::table& table, std::string_v
   const bool t0_given = static_cast<bool>(table.at_path("calibration.t0_C"));
   const bool rs0_std_given = static_cast<bool>(table.at_path("calibration.rs0_std_fraction"));
   c.vx_initial_from_compensation = !table.at_path("injection.vx_initial_V");
-  controller_schema().apply(table, c, source, foreign, key_prefix);
+  // [controller.supervisor]: the supervisor's keys put under the drive's (a newcomer's first guess,
+  // since [controller.*] is where every other drive key goes). Named with where they belong, beside
+  // the section's other mistakes; "unknown key" alone left the reader to guess.
+  std::string misplaced;
+  std::vector<std::string> not_ours = foreign;
+  if (const toml::node* node = key_prefix == "controller." ? table.get("supervisor") : nullptr; node != nullptr) {
+    misplaced = common::node_location(*node, source) +
+                "controller.supervisor: the supervisor's keys are a section of their own at the file's top level, "
+                "[supervisor] (supervisor.dc_bus_max_V, ...), not under [controller]: move the section out";
+    not_ours.emplace_back("supervisor");
+  }
+  try {
+    controller_schema().apply(table, c, source, not_ours, key_prefix);
+  } catch (const ConfigError& e) {
+    throw ConfigError(misplaced.empty() ? std::string(e.what()) : misplaced + "\n" + e.what());
+  }
+  if (!misplaced.empty()) {
+    throw ConfigError(misplaced);
+  }
   if (!rs0_given) {
     c.drive.calibration.rs0_ohm = core::terminal_resistance_ohm(c.drive);  // the nameplate's and a cable's
   } else if (!rs0_std_given) {

@@ -124,6 +124,16 @@ TEST(Scenario, SupervisorKeysAreCheckedAsTheDaemonChecksThem) {
   EXPECT_NE(above.find(":4: supervisor.dc_bus_max_V (1000 V) must be below controller.sensors.dc_bus_full_scale_V"),
             std::string::npos)
       << above;
+  // The section put under [controller], where every other drive key goes: named with where it
+  // belongs, beside the file's other mistakes.
+  const std::string nested = inline_error(std::string(kMinimal) +
+                                          "[controller.supervisor]\ndc_bus_max_V = 760.0\n[controller.motor]\nrs_ohm = -1.0\n");
+  EXPECT_NE(nested.find(":3: controller.supervisor: the supervisor's keys are a section of their own at the file's top "
+                        "level, [supervisor]"),
+            std::string::npos)
+      << nested;
+  EXPECT_NE(nested.find(":6: controller.motor.rs_ohm"), std::string::npos) << nested;
+  EXPECT_EQ(nested.find("unknown key"), std::string::npos) << nested;
   // And one between the supervisor's own keys.
   const std::string window = inline_error(std::string(kMinimal) + "[supervisor]\nambient_min_C = 50.0\nambient_max_C = 40.0\n");
   EXPECT_NE(window.find(":4: supervisor.ambient_min_C (50 C) must be below supervisor.ambient_max_C (40 C, "),

@@ -107,6 +107,8 @@ check_bad '[can]\ninterface = "can0"\ndata_bitrate_bit_s = 2000000\n' 1 'bad.tom
 # (Located at can.interface, which makes it a real bus; the cure named.)
 [[ "$out" == *'raise can.data_bitrate_bit_s'* ]] || { echo "FAIL: the bus budget's refusal names no cure: $out"; fail=1; }
 check_bad 'this is not toml' 1 'bad.toml:1:'
+# The supervisor's section put under [controller]: named with where it belongs.
+check_bad '[controller.supervisor]\ndc_bus_max_V = 760\n' 1 "bad.toml:1: controller.supervisor: the supervisor's keys are a section of their own at the file's top level, [supervisor]"
 # Every bad key at once, from the daemon's sections and the drive's.
 check_bad '[can]\nnode = 22\nbitrate = 5\n[rt]\npriority = 100\n[controller.motor]\nrs_ohm = -1\n' 1 'controller.motor.rs_ohm'
 out=$("$exe" --config "$dir/bad.toml" --check 2>&1)
