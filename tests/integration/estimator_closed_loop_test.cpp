@@ -419,6 +419,10 @@ TEST(SimulateSupervisor, TheScenariosTripLevelsAreTheDrives) {
                                          kData / "supervisor-inline.toml");
   EXPECT_EQ(narrow.supervisor.ambient_max_C, 20.0);
   const SimulationResult tripped = run_scenario(narrow, quiet());
+  // The report says which levels the run was judged by.
+  const std::string json = result_json(tripped);
+  EXPECT_NE(json.find("\"ambient_max_C\": 20}"), std::string::npos) << json;
+  EXPECT_NE(result_json(calm).find("\"ambient_max_C\": 130}"), std::string::npos);
   const SimulationResult::FaultSeen* first = tripped.first_fault();
   ASSERT_NE(first, nullptr) << "the scenario's ambient window did not reach the drive's supervisor";
   EXPECT_EQ(tripped.fault_code(*first), core::FaultCode::kAmbientImplausible) << core::to_string(tripped.fault_code(*first));

@@ -672,6 +672,7 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
   result.error_threshold_C = sc.error_threshold_C;
   result.method = method_name(scenario.controller);
   result.estimator = scenario.controller.drive.estimator;
+  result.supervisor = scenario.supervisor;
 
   // The drive's whole per-sample path, as pmsm-thermald runs it; the runner only feeds it
   // the plant's samples and the scenario's set-points, and measures.
@@ -1198,6 +1199,20 @@ std::string result_json(const SimulationResult& r) {
     }
   }
   j.end_object();
+  // The levels those faults trip at: the scenario's [supervisor] keys over the daemon's defaults
+  // for its drive, so that a report says which trips the run was judged by.
+  const core::SupervisorConfig& s = r.supervisor;
+  j.key("supervisor")
+      .begin_object()
+      .field("dc_bus_min_V", s.dc_bus_min_V)
+      .field("dc_bus_max_V", s.dc_bus_max_V)
+      .field("overcurrent_A", s.overcurrent_A)
+      .field("max_speed_rad_s", s.max_speed_rad_s)
+      .field("overspeed_rad_s", s.overspeed_rad_s)
+      .field("trip_temp_C", s.trip_temp_C)
+      .field("ambient_min_C", s.ambient_min_C)
+      .field("ambient_max_C", s.ambient_max_C)
+      .end_object();
   if (r.inverter_sweep.outcome != core::InverterSweepOutcome::kNone) {
     const core::InverterSweepResult& w = r.inverter_sweep;
     const bool fitted = w.fitted;

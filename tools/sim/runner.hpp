@@ -114,6 +114,7 @@ struct SimulationResult {
   std::string scenario;
   std::string method;               // e.g. "fixed-magnitude bipolar", "no-injection", "none"
   core::EstimatorKind estimator = core::EstimatorKind::kInjection;  // the resistance source behind `method`
+  core::SupervisorConfig supervisor{};  // the trip levels the drive ran with (the scenario's [supervisor] over the defaults)
   // Accuracy (winding: samples whose true winding temperature is above the threshold, after
   // the calibration).
   double winding_error_rms_C = 0.0;
