@@ -11,7 +11,6 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
-#include <cstring>
 #include <iostream>
 #include <sstream>
 #include <string>
@@ -109,19 +108,7 @@ inline int exit_on_parse_error(const CLI::App& app, const CLI::ParseError& e, in
   // and what its failed write left in errno was gone by the check.
   std::ostringstream text;
   (void)app.exit(e, text, std::cerr);
-  const std::string rendered = text.str();
-  if (!standard_output_failure().empty()) {
-    // (Something before it failed already: the reason as the check finds it.)
-    return exit_with_standard_output_checked(program, 0, write_failed_code);
-  }
-  errno = 0;
-  const bool written = std::fwrite(rendered.data(), 1, rendered.size(), stdout) == rendered.size() && std::fflush(stdout) == 0;
-  if (!written) {
-    const int error = errno;
-    std::fprintf(stderr, "%s: cannot write standard output (%s)\n", program,
-                 error != 0 ? std::strerror(error) : "a write failed");
-    return write_failed_code;
-  }
+  (void)write_standard_output(text.str());
   return exit_with_standard_output_checked(program, 0, write_failed_code);
 }
 

@@ -7,6 +7,7 @@
 #include <cstring>
 #include <iostream>
 #include <string>
+#include <string_view>
 
 namespace pmsm::cli {
 
@@ -14,6 +15,24 @@ namespace pmsm::cli {
 // must not pass as done. Empty when everything reached it, else the reason ("No space left on
 // device" where the failed write's is still known, else "a write failed"). (A closed pipe ends
 // the process with SIGPIPE before this, as for any program.)
+// The errno of the first write_standard_output() that failed (0: none failed).
+inline int& standard_output_errno() {
+  static int error = 0;
+  return error;
+}
+
+// Writes `text` to standard output and flushes it, keeping a failure's errno for
+// standard_output_failure(): a text written in one go is named with its own reason ("No space
+// left on device"), where pieces written through the stream leave only its error flag.
+inline bool write_standard_output(std::string_view text) {
+  errno = 0;
+  const bool written = std::fwrite(text.data(), 1, text.size(), stdout) == text.size() && std::fflush(stdout) == 0;
+  if (!written && standard_output_errno() == 0) {
+    standard_output_errno() = errno != 0 ? errno : EIO;
+  }
+  return written;
+}
+
 inline std::string standard_output_failure() {
   // (The reason is the failed write's where it is still known: a write that failed during the
   // command has left only the stream's error flag.)
@@ -25,6 +44,7 @@ inline std::string standard_output_failure() {
   if (flushed && std::ferror(stdout) == 0 && std::cout.good()) {
     return {};
   }
+  error = error != 0 ? error : standard_output_errno();
   return error != 0 ? std::strerror(error) : "a write failed";
 }
 

@@ -599,7 +599,7 @@ int main(int argc, char** argv) {
     return pmsm::cli::exit_on_parse_error(app, e, kExitConfig, "pmsm-thermald", kExitIo);
   }
   if (o.keys) {
-    std::fputs(pmsm::daemon::daemon_keys_markdown().c_str(), stdout);
+    (void)pmsm::cli::write_standard_output(pmsm::daemon::daemon_keys_markdown());
     return pmsm::cli::exit_with_standard_output_checked("pmsm-thermald", 0, kExitIo);
   }
   if (o.config_path.empty()) {

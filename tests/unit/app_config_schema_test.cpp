@@ -13,6 +13,7 @@
 #include <toml++/toml.h>
 
 #include "config_schema.hpp"
+#include "key_rules.hpp"
 
 namespace pmsm::common {
 namespace {
@@ -384,6 +385,30 @@ TEST(TomlDepth, StringsCommentsNumbersAndDatesAreNoKeys) {
   const auto p = toml_key_depth_problem("s = \"\"\"\n\n\n\"\"\"\n" + dotted(100) + " = 1\n");
   ASSERT_TRUE(p.has_value());
   EXPECT_EQ(p->line, 5U);
+}
+
+// A rule between keys is located at the first of them the file gives, and names each key with
+// its value and where it comes from: the line of another given key, or its default (and how).
+TEST(KeyRules, LocatedAtTheFirstGivenKeyNamingEveryValuesSource) {
+  const toml::table root = parse_toml("[a]\nx = 1\n[b]\ny = 2\n", "f.toml");
+  KeyRules rules(root, "f.toml");
+  EXPECT_FALSE(rules.any());
+  const auto text = [](const auto& value) {
+    return value("c.z", 3.0, "V", "twice a.x") + " and " + value("b.y", 2.0, "") + " and " + value("a.x", 1.0, "A");
+  };
+  rules.with({"c.z", "b.y", "a.x"}, text);  // c.z absent: located at b.y, the first given
+  rules.with({"c.z", "c.w"}, text);          // none given: at the file
+  rules.append("");                          // nothing
+  rules.append("g.toml:9: another check's line");
+  rules.at("a.x", "a.x: wrong");
+  EXPECT_EQ(rules.errors(),
+            "f.toml:4: c.z (3 V, its default: twice a.x) and b.y (2) and a.x (1 A, f.toml:2)\n"
+            "f.toml: c.z (3 V, its default: twice a.x) and b.y (2, f.toml:4) and a.x (1 A, f.toml:2)\n"
+            "g.toml:9: another check's line\n"
+            "f.toml:2: a.x: wrong");
+  EXPECT_EQ(KeyRules::location_of_first(root, {"c.z", "a.x"}, "f.toml"), "f.toml:2: ");
+  EXPECT_EQ(KeyRules::location_of_first(root, {"c.z"}, "f.toml"), "f.toml: ");
+  EXPECT_EQ(KeyRules::first_given(root, {"c.z", "b.y", "a.x"}), "b.y");
 }
 
 }  // namespace

@@ -389,8 +389,9 @@ TEST(cli_decode, AnOutputThatCouldNotBeWrittenFails) {
     EXPECT_EQ(r.exit_code, 3) << args << ": " << r.err;
     // (The reason where the failed write's is still known: a long output failed before the end.)
     EXPECT_TRUE(contains(r.err, "pmsm-thermal: cannot write standard output (")) << args << ": " << r.err;
-    if (args.find("--help") != std::string::npos || args == "--version") {
-      // Written in one go: the reason is the failed write's own, not "a write failed".
+    if (args.find("--help") != std::string::npos || args == "--version" || args == "config-keys") {
+      // Written in one go: the reason is the failed write's own, not "a write failed" (a text
+      // printed in pieces through the stream still says that: its errno is gone by the check).
       EXPECT_TRUE(contains(r.err, "(No space left on device)")) << args << ": " << r.err;
     }
   }

@@ -8,6 +8,7 @@
 #include "config_schema.hpp"
 #include "controller_config.hpp"
 #include "pmsm/plant/config.hpp"
+#include "standard_output.hpp"
 #include "scenario.hpp"
 #include "commands.hpp"
 
@@ -20,13 +21,10 @@ void register_config_keys_command(CLI::App& app, int& exit_code) {
       ->check(CLI::IsMember({"controller", "scenario", "plant"}))
       ->capture_default_str();
   cmd->callback([which, &exit_code] {
-    if (*which == "scenario") {
-      std::printf("%s", scenario_keys_markdown().c_str());
-    } else if (*which == "plant") {
-      std::printf("%s", plant::plant_config_reference_markdown().c_str());
-    } else {
-      std::printf("%s", controller_schema().markdown(default_controller_config()).c_str());
-    }
+    // In one go: a full disk is named with the write's own reason (standard_output.hpp).
+    (void)cli::write_standard_output(*which == "scenario" ? scenario_keys_markdown()
+                                     : *which == "plant"  ? plant::plant_config_reference_markdown()
+                                                          : controller_schema().markdown(default_controller_config()));
     exit_code = 0;
   });
 }
