@@ -11,10 +11,6 @@
 
 namespace pmsm::cli {
 
-// Standard output flushed and checked at a command's end: a full disk (or any failed write)
-// must not pass as done. Empty when everything reached it, else the reason ("No space left on
-// device" where the failed write's is still known, else "a write failed"). (A closed pipe ends
-// the process with SIGPIPE before this, as for any program.)
 // The errno of the first write_standard_output() that failed (0: none failed).
 inline int& standard_output_errno() {
   static int error = 0;
@@ -33,6 +29,10 @@ inline bool write_standard_output(std::string_view text) {
   return written;
 }
 
+// Standard output flushed and checked at a command's end: a full disk (or any failed write)
+// must not pass as done. Empty when everything reached it, else the reason ("No space left on
+// device" where the failed write's is still known, else "a write failed"). (A closed pipe ends
+// the process with SIGPIPE before this, as for any program.)
 inline std::string standard_output_failure() {
   // (The reason is the failed write's where it is still known: a write that failed during the
   // command has left only the stream's error flag.)

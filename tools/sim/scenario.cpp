@@ -18,6 +18,7 @@
 #include <toml++/toml.h>
 
 #include "config_schema.hpp"
+#include "key_rules.hpp"
 #include "supervisor_config.hpp"
 #include "drive_node.hpp"
 #include "pmsm/core/thermal_observer.hpp"
@@ -664,13 +665,13 @@ Scenario parse_scenario(std::string_view toml_text, const std::filesystem::path&
   // between them and the drive's, worded as the daemon words them.
   (void)attempt([&] {
     out.supervisor = parse_scenario_supervisor(root, source.string(), default_supervisor_config(out.controller));
-    std::string broken = check_supervisor_own_rules(out.supervisor, root, source.string());
+    common::KeyRules broken(root, source.string());
+    broken.append(check_supervisor_own_rules(out.supervisor, root, source.string()));
     if (controller_ok) {
-      const std::string more = check_supervisor_rules(out.supervisor, out.controller, root, source.string());
-      broken += (broken.empty() || more.empty() ? "" : "\n") + more;
+      broken.append(check_supervisor_rules(out.supervisor, out.controller, root, source.string()));
     }
-    if (!broken.empty()) {
-      throw ConfigError(broken);
+    if (broken.any()) {
+      throw ConfigError(broken.errors());
     }
   });
   if (!errors.empty()) {
