@@ -1173,6 +1173,24 @@ EventEstimate InjectionScheduler::finish_event(const SchedulerInput& in) {
     take_fixed_vx_fit(fixed, var_vx);
     vx_held = true;
     drs_dvx_held = fixed.drs_dvx;
+    if (config_.fit_dead_time && vx_slope_var_ > 0.0) {
+      // Vx at the event's bus u is Vx at the reference plus the slope's error times u, and the
+      // two errors are correlated (vx_variance_at): given the slope's error ds, Vx's error is
+      // (u + cov / var_slope) ds plus an independent rest. The first part is the same for every
+      // event until the slope is learned again, and it grows with the bus's distance from
+      // where Vx is known (u + cov / var_slope; -cov / var_slope is that bus after an event
+      // learned Vx there): a held Vx low by it reads Rs off by -drs/dVx of it (the fit's Rs
+      // falls as the Vx it holds rises). The winding's filter learns ds (BusSlopeTerm).
+      const double u_eff = bus_offset_V + vx_cov_ / vx_slope_var_;
+      const double sensitivity = -fixed.drs_dvx * u_eff;
+      const double slope_var_rs = std::min(sensitivity * sensitivity * vx_slope_var_, fixed.drs_dvx * fixed.drs_dvx * var_vx);
+      if (std::isfinite(sensitivity) && std::isfinite(slope_var_rs)) {
+        e.bus_slope_sensitivity_ohm = sensitivity;
+        e.rs_bus_slope_var_ohm2 = slope_var_rs;
+        e.bus_slope = vx_slope_;
+        e.bus_slope_var = vx_slope_var_;
+      }
+    }
     if (event_field_weakening_) {
       // At the voltage limit the bridge's term is most of the pair's signal (the current
       // vector only turns) and the sign pattern is least exact (docs/estimator.md §2): its

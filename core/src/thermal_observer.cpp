@@ -41,7 +41,7 @@ ThermalObserver::ThermalObserver(const ThermalModelConfig& config, const Calibra
     : config_(config), anchor_C_(initial_temp_C), anchored_(known) {
   set_calibration(calibration);
   const double std_C = known ? config.initial_std_C : config.unknown_initial_std_C;
-  x_ << initial_temp_C, initial_temp_C, 0.0, 0.0, 0.0;
+  x_ << initial_temp_C, initial_temp_C, 0.0, 0.0, 0.0, 0.0;
   p_.setZero();
   p_(0, 0) = std_C * std_C;
   p_(1, 1) = std_C * std_C;
@@ -106,7 +106,8 @@ void ThermalObserver::restore(const ThermalState& state, double downtime_thermal
   const Eigen::Vector2d x0(state.winding_C - ambient_C, state.housing_C - ambient_C);
   const Eigen::Vector2d x1 = e * x0;
   const double cooled_by = std::abs(x1(0) - x0(0));
-  x_ << ambient_C + x1(0), ambient_C + x1(1), 0.0, 0.0, 0.0;
+  x_ << ambient_C + x1(0), ambient_C + x1(1), 0.0, 0.0, 0.0, 0.0;
+  clear_bus_slope();  // the estimator's slope restarts with it (its calibration's prior)
   model_rise_K_ = x1.cwiseMax(0.0);  // (a state stored below the ambient is no warmth of the drive's)
   anchor_C_ = x_(0);
   // The stored uncertainty, the model error of the cooling, and the process noise of the
@@ -206,11 +207,45 @@ void ThermalObserver::set_cooling_error(double g, double g_std, double elapsed_t
 
 void ThermalObserver::keep_loss_errors(const ThermalObserver& other) {
   // The same model's states: taken over as they are (their covariance with the temperatures,
-  // which restart, is dropped).
-  x_.tail<kStates - 2>() = other.x_.tail<kStates - 2>();
+  // which restart, is dropped). Not the bus slope's error: a calibration learns the bridge afresh.
+  constexpr int kLoss = 3;  // dP, k, g
+  x_.segment<kLoss>(2) = other.x_.segment<kLoss>(2);
   p_.topRightCorner<2, kStates - 2>().setZero();
   p_.bottomLeftCorner<kStates - 2, 2>().setZero();
-  p_.bottomRightCorner<kStates - 2, kStates - 2>() = other.p_.bottomRightCorner<kStates - 2, kStates - 2>();
+  p_.block<kLoss, kLoss>(2, 2) = other.p_.block<kLoss, kLoss>(2, 2);
+  clear_bus_slope();
+}
+
+void ThermalObserver::clear_bus_slope() {
+  x_(kBusSlopeState) = 0.0;
+  p_.row(kBusSlopeState).setZero();
+  p_.col(kBusSlopeState).setZero();
+  bus_slope_active_ = false;
+  bus_slope_ref_ = 0.0;
+  bus_slope_ref_var_ = 0.0;
+}
+
+void ThermalObserver::refer_bus_slope(const BusSlopeTerm& term) {
+  // The state is the error of the slope the estimates were referred with. A slope the estimator
+  // moved by a little (an event that learned Vx at the bus it was known at barely moves it) is
+  // the same slope: its move comes out of the error. One it learned anew (events at another
+  // bus) is a new prior, independent of what the state learned before: the state restarts.
+  const double sigma = std::sqrt(bus_slope_ref_var_);
+  const bool same = bus_slope_active_ && std::abs(term.slope - bus_slope_ref_) <= 0.01 * sigma &&
+                    std::abs(term.slope_var - bus_slope_ref_var_) <= 0.01 * bus_slope_ref_var_;
+  if (same) {
+    x_(kBusSlopeState) -= term.slope - bus_slope_ref_;
+  } else {
+    clear_bus_slope();
+    p_(kBusSlopeState, kBusSlopeState) = term.slope_var;
+    bus_slope_active_ = true;
+    bus_slope_ref_var_ = term.slope_var;
+  }
+  bus_slope_ref_ = term.slope;
+}
+
+double ThermalObserver::bus_slope_error_std() const {
+  return std::sqrt(std::max(p_(kBusSlopeState, kBusSlopeState), 0.0));
 }
 
 double ThermalObserver::cable_resistance_now_ohm() const {
@@ -406,7 +441,8 @@ double ThermalObserver::winding_at_age_C(double age_s) const {
 }
 
 bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm, double systematic_std_ohm,
-                                        double age_s, double from_age_s, double to_age_s) {
+                                        double age_s, double from_age_s, double to_age_s,
+                                        const BusSlopeTerm& bus_slope) {
   restore_referable_ = false;  // a measurement holds the state from here on, not the downtime's cooling
   // Measurement of the winding temperature through Eq. 1; its variance from the resistance's.
   // It belongs to a moment age_s ago: carried to now by the change the filter predicted since
@@ -435,6 +471,16 @@ bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm, double
   if (!std::isfinite(z) || !std::isfinite(r) || !(rs_std_ohm >= 0.0)) {
     return false;
   }
+  // The bus slope's error moves the measured temperature by dT/dRs times its resistance.
+  const bool slope_term = bus_slope.sensitivity_ohm != 0.0 && std::isfinite(bus_slope.sensitivity_ohm) &&
+                          std::isfinite(bus_slope.slope) && bus_slope.slope_var > 0.0 &&
+                          std::isfinite(bus_slope.slope_var);
+  if (slope_term) {
+    refer_bus_slope(bus_slope);
+    h(kBusSlopeState) = bus_slope.sensitivity_ohm * dt_dr;
+  }
+  // The prediction of the measurement: the winding, and the bus slope's share.
+  const double predicted_C = (h * x_)(0, 0);
   if (gated_in_row_ >= kReanchorAfterGated && reanchor_consistent(z, r)) {
     // Several gated measurements in a row that agree with each other (and with this one) mean
     // the state is wrong, not the measurements (e.g. an outlier took the first, ungated
@@ -454,7 +500,7 @@ bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm, double
   const double s = (h * p_ * h.transpose())(0, 0) + drift_var + r;
   // Before the first measurement of a start from a guess (or a restored prediction) there is
   // no trustworthy prediction to gate against.
-  if (anchored_ && !(std::abs(z - x_(0)) <= config_.gate_sigma * std::sqrt(s))) {
+  if (anchored_ && !(std::abs(z - predicted_C) <= config_.gate_sigma * std::sqrt(s))) {
     if (gated_in_row_ >= 2 * kReanchorAfterGated) {
       gated_in_row_ = 0;  // a window of scattered ones: start the count again
       gated_sum_C_ = gated_sq_sum_C2_ = gated_r_sum_C2_ = 0.0;
@@ -479,7 +525,7 @@ bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm, double
   // trustworthy to weigh it against, as for the gate). With the weight w = huber_sigma sqrt(s) /
   // |innovation| in (0, 1] the fused variance is s / w and the fused measurement variance
   // r + s / w - s; both are written through w so that nothing divides by a weight near zero.
-  const double innovation_C = z - x_(0);
+  const double innovation_C = z - predicted_C;
   double w = 1.0;
   if (anchored_before && std::abs(innovation_C) > config_.huber_sigma * std::sqrt(s)) {
     w = config_.huber_sigma * std::sqrt(s) / std::abs(innovation_C);

@@ -3,7 +3,9 @@
 // brute-force simulation.
 #include <gtest/gtest.h>
 
+#include <array>
 #include <functional>
+#include <random>
 
 #include <vector>
 
@@ -1311,6 +1313,83 @@ TEST(ThermalObserver, TheModelsRiseIsTheDrivesOwnLosses) {
   cold.housing_C = 20.0;
   obs.restore(cold, 0.0, 25.0);
   EXPECT_EQ(obs.model_rise_C(), 0.0);
+}
+
+// The bus slope's error (BusSlopeTerm): estimates under load hold Vx at a value referred to
+// their bus by a slope whose error moves each one by its sensitivity, u / |iq| here (110 V from
+// where Vx was learned, |iq| 40-90 A; drs/dVx is about -1 / |iq| for fixed-magnitude pulses).
+// With the error a state, estimates at several loads tell it from the winding's temperature:
+// the winding comes out right and the error near the truth. Passed as today's shared error bar
+// instead (the slope's prior in the estimate's variance and its systematic part), the same
+// estimates leave the winding several kelvin high, inside a band the prior widened.
+TEST(ThermalObserver, TheBusSlopesErrorIsLearnedFromEstimatesAtSeveralLoads) {
+  ThermalModelConfig c;
+  const Calibration cal;
+  ThermalObserver with(c, cal, 80.0);
+  ThermalObserver without(c, cal, 80.0);
+  const double r_true = with.resistance_at_C(80.0);
+  constexpr double kPriorStd = 0.0016;  // 20 % of 0.8 us x 10 kHz
+  constexpr double kTrueError = 0.002;  // the bridge's 1 us against the compensation's 0.8 us
+  constexpr double kOwnStd_ohm = 0.0005;
+  constexpr std::array<double, 4> kIq_A = {40.0, 90.0, 55.0, 75.0};
+  std::mt19937 rng(7);
+  std::normal_distribution<double> noise(0.0, kOwnStd_ohm);
+  for (int k = 0; k < 60; ++k) {
+    const double sensitivity = 110.0 / kIq_A[static_cast<std::size_t>(k) % kIq_A.size()];
+    const double rs = r_true + sensitivity * kTrueError + noise(rng);
+    ASSERT_TRUE(with.update_resistance(rs, kOwnStd_ohm, 0.0, 0.0, 0.0, 0.0, {sensitivity, 0.0, kPriorStd * kPriorStd}));
+    const double shared = sensitivity * kPriorStd;
+    without.update_resistance(rs, std::hypot(kOwnStd_ohm, shared), shared);
+  }
+  const ThermalEstimate e = with.estimate();
+  EXPECT_NEAR(e.winding_C, 80.0, 1.0);
+  EXPECT_LT(std::abs(e.winding_C - 80.0), 2.0 * e.winding_std_C);
+  EXPECT_NEAR(with.bus_slope_error(), kTrueError, 3.0 * with.bus_slope_error_std());
+  EXPECT_LT(with.bus_slope_error_std(), 0.25 * kPriorStd);
+  EXPECT_GT(without.estimate().winding_C - 80.0, 3.0) << "the case no longer shows the bias it is about";
+  EXPECT_EQ(without.bus_slope_error(), 0.0);
+  EXPECT_EQ(without.bus_slope_error_std(), 0.0);
+}
+
+// The state is the error of the slope the estimates were referred with: a slope the estimator
+// moved by a little is the same slope, and its move comes out of the error; one it learned anew
+// (moved by more than a hundredth of its deviation, or its variance by more than 1 %) restarts
+// the state from that slope's variance. A calibration's restart does not carry it.
+TEST(ThermalObserver, ABusSlopeLearnedAnewRestartsItsState) {
+  ThermalModelConfig c;
+  ThermalObserver obs(c, Calibration{}, 60.0);
+  const double rs = obs.resistance_at_C(60.0);
+  constexpr double kVar = 0.0016 * 0.0016;
+  for (int k = 0; k < 20; ++k) {
+    const double sensitivity = k % 2 == 0 ? 2.0 : 1.0;
+    ASSERT_TRUE(obs.update_resistance(rs + sensitivity * 0.002, 0.0005, 0.0, 0.0, 0.0, 0.0, {sensitivity, 0.0, kVar}));
+  }
+  const double learned = obs.bus_slope_error();
+  const double learned_std = obs.bus_slope_error_std();
+  ASSERT_GT(learned, 0.001);
+  // A measurement that barely sees the slope (its sensitivity 1e-9 ohm per V/V) moves the state
+  // as it would with the slope unmoved, less the referral.
+  constexpr double kTiny = 1e-9;
+  const double small_move = 0.005 * 0.0016;
+  ThermalObserver unmoved = obs;
+  ASSERT_TRUE(obs.update_resistance(rs, 0.0005, 0.0, 0.0, 0.0, 0.0, {kTiny, small_move, kVar}));
+  ASSERT_TRUE(unmoved.update_resistance(rs, 0.0005, 0.0, 0.0, 0.0, 0.0, {kTiny, 0.0, kVar}));
+  EXPECT_NEAR(obs.bus_slope_error(), unmoved.bus_slope_error() - small_move, 1e-9);
+  EXPECT_NEAR(obs.bus_slope_error_std(), unmoved.bus_slope_error_std(), 1e-12);
+  EXPECT_GT(obs.bus_slope_error_std(), 0.5 * learned_std) << "the state was kept, not restarted";
+  EXPECT_GT(std::abs(obs.bus_slope_error()), 0.5 * learned);
+  const double new_slope = 0.0015;  // an event pair at two buses taught the slope
+  const double new_var = 0.0004 * 0.0004;
+  ASSERT_TRUE(obs.update_resistance(rs, 0.0005, 0.0, 0.0, 0.0, 0.0, {kTiny, new_slope, new_var}));
+  EXPECT_NEAR(obs.bus_slope_error(), 0.0, 1e-9);
+  EXPECT_NEAR(obs.bus_slope_error_std(), 0.0004, 1e-9);
+  ThermalObserver calibrated(c, Calibration{}, 60.0);
+  calibrated.keep_loss_errors(obs);
+  EXPECT_EQ(calibrated.bus_slope_error(), 0.0);
+  EXPECT_EQ(calibrated.bus_slope_error_std(), 0.0);
+  // A measurement without the term leaves the state alone.
+  ASSERT_TRUE(obs.update_resistance(rs + 0.001, 0.0005));
+  EXPECT_NEAR(obs.bus_slope_error_std(), 0.0004, 1e-6);
 }
 
 }  // namespace

@@ -1045,6 +1045,8 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
   result.vx_std_V = drive.telemetry().vx_std_V;
   result.vx_bus_slope = drive.telemetry().vx_bus_slope;
   result.vx_bus_slope_std = drive.telemetry().vx_bus_slope_std;
+  result.bus_slope_error = drive.bus_slope_error();
+  result.bus_slope_error_std = drive.bus_slope_error_std();
   result.lq_H = drive.telemetry().lq_H;
   result.lq_std_H = drive.telemetry().lq_std_H;
   result.lq_saturation_H = drive.telemetry().lq_saturation_H;
@@ -1260,6 +1262,8 @@ std::string result_json(const SimulationResult& r) {
       .field("vx_std_V", r.vx_std_V)
       .field("vx_bus_slope_V_per_V", r.vx_bus_slope)
       .field("vx_bus_slope_std_V_per_V", r.vx_bus_slope_std)
+      .field("bus_slope_error_V_per_V", r.bus_slope_error)
+      .field("bus_slope_error_std_V_per_V", r.bus_slope_error_std)
       .field("lq_H", r.lq_H)
       .field("lq_std_H", r.lq_std_H)
       .field("lq_saturation_H", r.lq_saturation_H)

@@ -207,6 +207,9 @@ struct SimulationResult {
   double vx_std_V = 0.0;
   double vx_bus_slope = 0.0;            // learned: what the compensation's dead time misses of the bus (V/V)
   double vx_bus_slope_std = 0.0;
+  // The winding filter's learned error of that slope at the end (DriveController::bus_slope_error).
+  double bus_slope_error = 0.0;
+  double bus_slope_error_std = 0.0;
   double lq_H = 0.0;                    // learned q-axis inductance at the end
   double lq_std_H = 0.0;
   double lq_saturation_H = 0.0;         // its saturation: secant lost at the current limit

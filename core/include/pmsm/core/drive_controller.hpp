@@ -480,6 +480,11 @@ class DriveController {
   // nothing to refer (no restore pending, the same ambient, the filter already ran).
   double refer_restored_state_to_ambient(double ambient_C) { return observer_.refer_restored_to_ambient(ambient_C); }
   [[nodiscard]] ThermalState thermal_state() const { return observer_.state(); }
+  // The error of the estimator's bus slope (vx_bus_slope) the winding's filter has learned from
+  // the estimates under load (V/V, ThermalObserver's BusSlopeTerm) and its standard deviation:
+  // 0 and 0 until an estimate held Vx away from where it was learned.
+  [[nodiscard]] double bus_slope_error() const { return observer_.bus_slope_error(); }
+  [[nodiscard]] double bus_slope_error_std() const { return observer_.bus_slope_error_std(); }
   // Estimates dated after their publication, waiting for their time (hold_estimate()).
   [[nodiscard]] std::size_t held_estimates() const noexcept { return held_count_; }
 

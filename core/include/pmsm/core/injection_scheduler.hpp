@@ -397,6 +397,14 @@ struct EventEstimate {
   // consecutive estimates (field-weakening pairs' sign pattern, the learned Lq's uncertainty,
   // a Vx held at its prior), 0 when none is known.
   double rs_systematic_std_ohm = 0.0;
+  // The share of both (a variance, ohm^2) that the bus slope's error makes of an Rs held at a
+  // Vx referred to the event's bus by that slope, and its sensitivity to it (ThermalObserver's
+  // BusSlopeTerm, which the winding's filter learns as a state instead): 0 for an event that
+  // learned its own Vx, or where no slope is learned.
+  double rs_bus_slope_var_ohm2 = 0.0;
+  double bus_slope_sensitivity_ohm = 0.0;  // dRs / d(slope error), ohm per V/V
+  double bus_slope = 0.0;                  // the slope the event's voltages were referred with (V/V)
+  double bus_slope_var = 0.0;              // its variance
   double vx_V = 0.0;               // the fused inverter voltage after this event
   double vx_std_V = 0.0;
   bool vx_from_event = false;      // the event's own levels determined Vx (joint fit)

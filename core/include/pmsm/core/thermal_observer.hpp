@@ -193,9 +193,27 @@ struct ThermalEstimate {
   double cooling_scale_error = 0.0;  // g: the housing sheds (1 + g) times what the model's path passes
 };
 
+// What an estimate's resistance owes to the error of the bus slope it was referred with
+// (docs/estimator.md section 4, "The bus slope's error, learned under load"). The bridge's
+// voltage error Vx is referred from the bus it was learned at to the event's by a slope (the
+// dead time's share of the bus); an event that cannot learn Vx (its current vector does not
+// reverse: under load) holds Vx there, and the slope's error times the bus's distance moves its
+// resistance by drs/dVx of it. The filter carries that error as a state, shared by every such
+// estimate: estimates at different loads and buses, with the winding carried between them by
+// the thermal model, tell it from the winding's temperature.
+struct BusSlopeTerm {
+  // dRs / d(slope error), ohm per V/V: -drs/dVx times the event's bus distance from where Vx
+  // is known; 0: the estimate has no such term (it learned its own Vx, or no slope is learned).
+  double sensitivity_ohm = 0.0;
+  double slope = 0.0;      // the slope (V/V) the estimate was referred with
+  double slope_var = 0.0;  // its variance: the state's prior when the slope is new to the filter
+};
+
 class ThermalObserver {
  public:
-  static constexpr int kStates = 5;
+  static constexpr int kStates = 6;
+  // The bus slope's error (BusSlopeTerm), V/V: the last state.
+  static constexpr int kBusSlopeState = 5;
   // The bounds the filter holds k and g within (a thermal state file's reader too): the
   // machine's copper loss, and its cooling path, between half and twice the model's.
   static constexpr double kMinLossScale = -0.5;
@@ -264,8 +282,18 @@ class ThermalObserver {
   // `from_age_s` > `to_age_s`: the measurement is the line through the winding's resistance at
   // those ages, taken at age_s (EventEstimate::measured_from_s), and is compared with the same
   // line through the filter's trajectory.
+  // `bus_slope`: the estimate's share of the bus slope's error (BusSlopeTerm); rs_std_ohm and
+  // systematic_std_ohm then exclude that share, which the state carries. A slope the filter has
+  // not seen (new, or one the estimator has since learned anew: it moved by more than a hundredth
+  // of its deviation, or its variance by more than 1 %) restarts the state at 0 with the slope's
+  // variance; a smaller move is taken out of the state.
   bool update_resistance(double rs_ohm, double rs_std_ohm, double systematic_std_ohm = 0.0,
-                         double age_s = 0.0, double from_age_s = 0.0, double to_age_s = 0.0);
+                         double age_s = 0.0, double from_age_s = 0.0, double to_age_s = 0.0,
+                         const BusSlopeTerm& bus_slope = {});
+  // The bus slope's error the filter has learned (V/V) and its standard deviation; 0 and 0
+  // before an estimate brought one.
+  [[nodiscard]] double bus_slope_error() const { return x_(kBusSlopeState); }
+  [[nodiscard]] double bus_slope_error_std() const;
 
   // The filter's winding estimate `age_s` controller seconds before its last update, from the
   // history below (linear between updates; before the oldest kept, the oldest), moved by the
@@ -322,7 +350,16 @@ class ThermalObserver {
   ThermalModelConfig config_;
   Calibration calibration_;
   double winding_rs0_ohm_ = 0.0;  // the winding's share of calibration_.rs0_ohm (set_calibration)
-  Vector x_;   // winding C, housing C, the missing loss dP W, the copper loss's relative error k, the cooling's g
+  // The bus slope the last state refers to (BusSlopeTerm): its value and variance, and whether
+  // the state holds one.
+  void refer_bus_slope(const BusSlopeTerm& term);
+  void clear_bus_slope();
+  bool bus_slope_active_ = false;
+  double bus_slope_ref_ = 0.0;
+  double bus_slope_ref_var_ = 0.0;
+  // winding C, housing C, the missing loss dP W, the copper loss's relative error k, the
+  // cooling's g, the bus slope's error (V/V)
+  Vector x_;
   // The model's rise of winding and housing by the drive's own losses (model_rise_C), K.
   Eigen::Vector2d model_rise_K_ = Eigen::Vector2d::Zero();
   double last_copper_loss_W_ = 0.0;
