@@ -1139,12 +1139,13 @@ void DriveController::fuse_estimate(const EventEstimate& e, double age_s) {
   // The line the estimate extrapolates along (EventEstimate::measured_from_s), in ages.
   const double from_age_s = age_s + (e.measured_at_s - e.measured_from_s);
   const double to_age_s = age_s + (e.measured_at_s - e.measured_to_s);
-  // The bus slope's share of the error bar goes to the filter as its state (BusSlopeTerm).
-  const double slope_var = std::max(e.rs_bus_slope_var_ohm2, 0.0);
+  // The bus slope's share of the error bar goes to the filter as its state (BusSlopeTerm), where
+  // the filter takes the term.
+  const BusSlopeTerm slope{e.bus_slope_sensitivity_ohm, e.bus_slope, e.bus_slope_var};
+  const double slope_var = slope.usable() ? std::max(e.rs_bus_slope_var_ohm2, 0.0) : 0.0;
   const double std_ohm = std::sqrt(std::max(e.rs_std_ohm * e.rs_std_ohm - slope_var, 0.0));
   const double systematic_ohm = std::sqrt(std::max(e.rs_systematic_std_ohm * e.rs_systematic_std_ohm - slope_var, 0.0));
-  out.fused = observer_.update_resistance(e.rs_ohm, std_ohm, systematic_ohm, age_s, from_age_s, to_age_s,
-                                          {e.bus_slope_sensitivity_ohm, e.bus_slope, e.bus_slope_var});
+  out.fused = observer_.update_resistance(e.rs_ohm, std_ohm, systematic_ohm, age_s, from_age_s, to_age_s, slope);
   if (out.fused) {
     ++telemetry_.estimates_published;
     // The published temperature follows the fused measurement at once, not at the next

@@ -226,22 +226,46 @@ void ThermalObserver::clear_bus_slope() {
 }
 
 void ThermalObserver::refer_bus_slope(const BusSlopeTerm& term) {
-  // The state is the error of the slope the estimates were referred with. A slope the estimator
-  // moved by a little (an event that learned Vx at the bus it was known at barely moves it) is
-  // the same slope: its move comes out of the error. One it learned anew (events at another
-  // bus) is a new prior, independent of what the state learned before: the state restarts.
-  const double sigma = std::sqrt(bus_slope_ref_var_);
-  const bool same = bus_slope_active_ && std::abs(term.slope - bus_slope_ref_) <= 0.01 * sigma &&
-                    std::abs(term.slope_var - bus_slope_ref_var_) <= 0.01 * bus_slope_ref_var_;
-  if (same) {
-    x_(kBusSlopeState) -= term.slope - bus_slope_ref_;
-  } else {
+  // The state is the error of the slope the estimates are referred with, b - slope. The
+  // estimator learns the slope from its own events (a Vx measured unloaded at a bus, docs/
+  // estimator.md section 4): the slope moves by `move` and its variance falls from p_prev to
+  // p_new. Those events are data the filter has not seen, and their information beyond the
+  // estimator's earlier belief is a measurement of b (in the frame of the slope before the move):
+  // y = r move / p_new with the variance r, 1 / r = 1 / p_new - 1 / p_prev (the two Gaussians'
+  // quotient). The filter fuses it, then refers its state to the moved slope. A variance that
+  // grew (a calibration, or a stored Vx, starts the slope afresh from its prior) is a new slope:
+  // the state restarts from it.
+  constexpr double kRelative = 1e-9;  // a variance the same but for rounding
+  if (!bus_slope_active_ || term.slope_var > bus_slope_ref_var_ * (1.0 + kRelative)) {
     clear_bus_slope();
     p_(kBusSlopeState, kBusSlopeState) = term.slope_var;
     bus_slope_active_ = true;
-    bus_slope_ref_var_ = term.slope_var;
+  } else {
+    const double move = term.slope - bus_slope_ref_;
+    const double p_prev = bus_slope_ref_var_;
+    const double p_new = term.slope_var;
+    if (p_prev - p_new > kRelative * p_prev) {
+      const double r = p_new * p_prev / (p_prev - p_new);
+      const double y = r * move / p_new;
+      const double s = p_(kBusSlopeState, kBusSlopeState) + r;
+      if (std::isfinite(r) && std::isfinite(y) && s > 0.0) {
+        // A Kalman update with h the state's unit row, in Joseph form (as update_resistance's).
+        Eigen::Matrix<double, 1, kStates> h = Eigen::Matrix<double, 1, kStates>::Zero();
+        h(kBusSlopeState) = 1.0;
+        const Vector k = p_.col(kBusSlopeState) / s;
+        const double before_C = x_(0);
+        x_ += k * (y - x_(kBusSlopeState));
+        const Matrix i_kh = Matrix::Identity() - k * h;
+        p_ = i_kh * p_ * i_kh.transpose() + k * r * k.transpose();
+        x_(3) = std::clamp(x_(3), kMinLossScale, kMaxLossScale);
+        x_(4) = std::clamp(x_(4), kMinCoolingScale, kMaxCoolingScale);
+        history_offset_C_ += x_(0) - before_C;  // the winding moved with it (update_resistance)
+      }
+    }
+    x_(kBusSlopeState) -= move;
   }
   bus_slope_ref_ = term.slope;
+  bus_slope_ref_var_ = term.slope_var;
 }
 
 double ThermalObserver::bus_slope_error_std() const {
@@ -472,10 +496,7 @@ bool ThermalObserver::update_resistance(double rs_ohm, double rs_std_ohm, double
     return false;
   }
   // The bus slope's error moves the measured temperature by dT/dRs times its resistance.
-  const bool slope_term = bus_slope.sensitivity_ohm != 0.0 && std::isfinite(bus_slope.sensitivity_ohm) &&
-                          std::isfinite(bus_slope.slope) && bus_slope.slope_var > 0.0 &&
-                          std::isfinite(bus_slope.slope_var);
-  if (slope_term) {
+  if (bus_slope.usable()) {
     refer_bus_slope(bus_slope);
     h(kBusSlopeState) = bus_slope.sensitivity_ohm * dt_dr;
   }

@@ -1351,11 +1351,16 @@ TEST(ThermalObserver, TheBusSlopesErrorIsLearnedFromEstimatesAtSeveralLoads) {
   EXPECT_EQ(without.bus_slope_error_std(), 0.0);
 }
 
-// The state is the error of the slope the estimates were referred with: a slope the estimator
-// moved by a little is the same slope, and its move comes out of the error; one it learned anew
-// (moved by more than a hundredth of its deviation, or its variance by more than 1 %) restarts
-// the state from that slope's variance. A calibration's restart does not carry it.
-TEST(ThermalObserver, ABusSlopeLearnedAnewRestartsItsState) {
+// The state is the error of the slope the estimates are referred with. A slope the estimator
+// moved without learning anything (its variance the same) only refers the state: the move comes
+// out of it. One it learned from its own events (its variance fell from p_prev to p_new) is
+// fused as the measurement of b those events make, y = r move / p_new with 1 / r = 1 / p_new -
+// 1 / p_prev: the state combines the two by their precisions. A slope started afresh (its
+// variance back at a prior) restarts the state; so does a calibration's restart, which does not
+// carry it. Each step checked against the formula with a measurement that barely sees the slope
+// (sensitivity 1e-9 ohm per V/V), at the filter's own winding and a kilo-ohm wide, so that it
+// teaches nothing itself.
+TEST(ThermalObserver, TheEstimatorsOwnSlopeLearningIsFusedAndAFreshSlopeRestartsTheState) {
   ThermalModelConfig c;
   ThermalObserver obs(c, Calibration{}, 60.0);
   const double rs = obs.resistance_at_C(60.0);
@@ -1365,31 +1370,46 @@ TEST(ThermalObserver, ABusSlopeLearnedAnewRestartsItsState) {
     ASSERT_TRUE(obs.update_resistance(rs + sensitivity * 0.002, 0.0005, 0.0, 0.0, 0.0, 0.0, {sensitivity, 0.0, kVar}));
   }
   const double learned = obs.bus_slope_error();
-  const double learned_std = obs.bus_slope_error_std();
+  const double learned_var = std::pow(obs.bus_slope_error_std(), 2);
   ASSERT_GT(learned, 0.001);
-  // A measurement that barely sees the slope (its sensitivity 1e-9 ohm per V/V) moves the state
-  // as it would with the slope unmoved, less the referral.
+  ASSERT_LT(learned_var, 0.25 * kVar);
   constexpr double kTiny = 1e-9;
-  const double small_move = 0.005 * 0.0016;
-  ThermalObserver unmoved = obs;
-  ASSERT_TRUE(obs.update_resistance(rs, 0.0005, 0.0, 0.0, 0.0, 0.0, {kTiny, small_move, kVar}));
-  ASSERT_TRUE(unmoved.update_resistance(rs, 0.0005, 0.0, 0.0, 0.0, 0.0, {kTiny, 0.0, kVar}));
-  EXPECT_NEAR(obs.bus_slope_error(), unmoved.bus_slope_error() - small_move, 1e-9);
-  EXPECT_NEAR(obs.bus_slope_error_std(), unmoved.bus_slope_error_std(), 1e-12);
-  EXPECT_GT(obs.bus_slope_error_std(), 0.5 * learned_std) << "the state was kept, not restarted";
-  EXPECT_GT(std::abs(obs.bus_slope_error()), 0.5 * learned);
-  const double new_slope = 0.0015;  // an event pair at two buses taught the slope
-  const double new_var = 0.0004 * 0.0004;
-  ASSERT_TRUE(obs.update_resistance(rs, 0.0005, 0.0, 0.0, 0.0, 0.0, {kTiny, new_slope, new_var}));
+  auto quiet = [&](double slope, double var) {
+    // At the filter's winding, with an error bar of a kilo-ohm: it teaches nothing.
+    return obs.update_resistance(obs.resistance_at_C(obs.estimate().winding_C), 1000.0, 0.0, 0.0, 0.0, 0.0,
+                                 {kTiny, slope, var});
+  };
+  // Moved, nothing learned: referred.
+  const double small_move = 0.0001;
+  ASSERT_TRUE(quiet(small_move, kVar));
+  EXPECT_NEAR(obs.bus_slope_error(), learned - small_move, 1e-9);
+  EXPECT_NEAR(std::pow(obs.bus_slope_error_std(), 2), learned_var, 1e-15);
+  // Learned by the estimator: 0.0015 +- 0.0004 from its prior 0 +- 0.0016 (in the frame the
+  // state started in), fused with the state's b = learned +- sqrt(learned_var).
+  const double p_new = 0.0004 * 0.0004;
+  const double r = p_new * kVar / (kVar - p_new);
+  const double y = r * (0.0015 - small_move) / p_new + small_move;  // in the state's first frame
+  const double fused_var = 1.0 / (1.0 / learned_var + 1.0 / r);
+  const double fused = fused_var * (learned / learned_var + y / r);
+  ASSERT_TRUE(quiet(0.0015, p_new));
+  EXPECT_NEAR(obs.bus_slope_error(), fused - 0.0015, 1e-7);
+  EXPECT_NEAR(std::pow(obs.bus_slope_error_std(), 2), fused_var, 1e-12);
+  EXPECT_LT(fused_var, std::min(learned_var, p_new)) << "both taught b";
+  // Started afresh (a calibration resets the slope to its prior): restarted.
+  ASSERT_TRUE(quiet(0.0, kVar));
   EXPECT_NEAR(obs.bus_slope_error(), 0.0, 1e-9);
-  EXPECT_NEAR(obs.bus_slope_error_std(), 0.0004, 1e-9);
+  EXPECT_NEAR(obs.bus_slope_error_std(), 0.0016, 1e-9);
   ThermalObserver calibrated(c, Calibration{}, 60.0);
   calibrated.keep_loss_errors(obs);
   EXPECT_EQ(calibrated.bus_slope_error(), 0.0);
   EXPECT_EQ(calibrated.bus_slope_error_std(), 0.0);
-  // A measurement without the term leaves the state alone.
+  ThermalObserver restored = obs;
+  restored.restore(obs.state(), 10.0, 25.0);
+  EXPECT_EQ(restored.bus_slope_error_std(), 0.0);
+  // A measurement without the term leaves the state alone (it has no covariance with the rest
+  // after the restart).
   ASSERT_TRUE(obs.update_resistance(rs + 0.001, 0.0005));
-  EXPECT_NEAR(obs.bus_slope_error_std(), 0.0004, 1e-6);
+  EXPECT_NEAR(obs.bus_slope_error_std(), 0.0016, 1e-9);
 }
 
 }  // namespace

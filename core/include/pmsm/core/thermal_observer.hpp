@@ -11,6 +11,7 @@
 #pragma once
 
 #include <array>
+#include <cmath>
 #include <limits>
 
 #include <Eigen/Core>
@@ -207,6 +208,12 @@ struct BusSlopeTerm {
   double sensitivity_ohm = 0.0;
   double slope = 0.0;      // the slope (V/V) the estimate was referred with
   double slope_var = 0.0;  // its variance: the state's prior when the slope is new to the filter
+  // A term the filter takes: a finite, nonzero sensitivity and a finite slope with a positive,
+  // finite variance (otherwise the estimate's error bar keeps the slope's share).
+  [[nodiscard]] bool usable() const noexcept {
+    return sensitivity_ohm != 0.0 && std::isfinite(sensitivity_ohm) && std::isfinite(slope) && slope_var > 0.0 &&
+           std::isfinite(slope_var);
+  }
 };
 
 class ThermalObserver {
@@ -282,11 +289,12 @@ class ThermalObserver {
   // `from_age_s` > `to_age_s`: the measurement is the line through the winding's resistance at
   // those ages, taken at age_s (EventEstimate::measured_from_s), and is compared with the same
   // line through the filter's trajectory.
-  // `bus_slope`: the estimate's share of the bus slope's error (BusSlopeTerm); rs_std_ohm and
-  // systematic_std_ohm then exclude that share, which the state carries. A slope the filter has
-  // not seen (new, or one the estimator has since learned anew: it moved by more than a hundredth
-  // of its deviation, or its variance by more than 1 %) restarts the state at 0 with the slope's
-  // variance; a smaller move is taken out of the state.
+  // `bus_slope`: the estimate's share of the bus slope's error (BusSlopeTerm); when it is
+  // usable(), rs_std_ohm and systematic_std_ohm exclude that share, which the state carries. The
+  // first usable term starts the state at 0 with the slope's variance, and so does a slope whose
+  // variance grew (started afresh from its prior); one the estimator has learned since (its
+  // variance fell) is fused as a measurement of the state, which is then referred to the moved
+  // slope (refer_bus_slope).
   bool update_resistance(double rs_ohm, double rs_std_ohm, double systematic_std_ohm = 0.0,
                          double age_s = 0.0, double from_age_s = 0.0, double to_age_s = 0.0,
                          const BusSlopeTerm& bus_slope = {});
