@@ -288,6 +288,8 @@ void expect_the_bus_slopes_error_learned(const Scenario& scenario) {
   EXPECT_GT(r.bus_slope_error_std, 0.0);
   EXPECT_LT(r.bus_slope_error_std, 0.5 * 0.2 * 0.8e-6 * 10000.0) << "learned: below half its prior";
   EXPECT_GE(r.coverage_2sigma, 0.9);
+  // simulate's report says what the filter learned.
+  EXPECT_NE(result_text(r).find("its error under load +0.00"), std::string::npos) << result_text(r);
 }
 
 TEST(EstimatorRobustness, TheBusSlopesErrorIsLearnedUnderLoad) {

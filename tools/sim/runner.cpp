@@ -1416,6 +1416,13 @@ std::string result_text(const SimulationResult& r) {
                        r.calibration_stored ? ", replaced by this run's calibration" : "");
   }
   out += fmt::format("  inverter voltage error Vx       {:.3f} +- {:.3f} V\n", r.vx_V, r.vx_std_V);
+  if (r.bus_slope_error_std > 0.0 && r.bus_slope_error_std < 0.9 * r.vx_bus_slope_std) {
+    // Only where estimates under load, holding Vx away from where it was learned, taught the
+    // filter the slope's error beyond what the events knew (docs/estimator.md section 4).
+    out += fmt::format("  Vx's bus slope                  {:+.5f} +- {:.5f} V/V from the events that learned Vx; its error under "
+                       "load {:+.5f} +- {:.5f} V/V, learned by the winding's filter\n",
+                       r.vx_bus_slope, r.vx_bus_slope_std, r.bus_slope_error, r.bus_slope_error_std);
+  }
   out += fmt::format("  learned Lq                      {:.3f} +- {:.3f} mH at zero current, {:.3f} mH at the current limit{}\n",
                      1e3 * r.lq_H, 1e3 * r.lq_std_H, 1e3 * (r.lq_H - r.lq_saturation_H),
                      r.lq_saturation_resolved ? std::string()
