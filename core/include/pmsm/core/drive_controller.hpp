@@ -482,7 +482,8 @@ class DriveController {
   [[nodiscard]] ThermalState thermal_state() const { return observer_.state(); }
   // The error of the estimator's bus slope (vx_bus_slope) the winding's filter has learned from
   // the estimates under load (V/V, ThermalObserver's BusSlopeTerm) and its standard deviation:
-  // 0 and 0 until an estimate held Vx away from where it was learned.
+  // 0 and 0 until an estimate held Vx; near 0 with the slope's prior while the bus stays where Vx
+  // was learned.
   [[nodiscard]] double bus_slope_error() const { return observer_.bus_slope_error(); }
   [[nodiscard]] double bus_slope_error_std() const { return observer_.bus_slope_error_std(); }
   // Estimates dated after their publication, waiting for their time (hold_estimate()).
