@@ -10,13 +10,42 @@
 
 namespace pmsm::app {
 
-core::SupervisorConfig parse_scenario_supervisor(const toml::table& root, std::string_view source,
-                                                 core::SupervisorConfig defaults) {
+namespace {
+
+// The daemon's supervisor.* keys on a SupervisorConfig of its own (a scenario's section).
+const ConfigSchema<core::SupervisorConfig>& scenario_supervisor_schema() {
   static const ConfigSchema<core::SupervisorConfig> schema = [] {
     ConfigSchema<core::SupervisorConfig> c;
     add_supervisor_keys<core::SupervisorConfig>(c, [](core::SupervisorConfig& s) -> core::SupervisorConfig& { return s; });
     return c;
   }();
+  return schema;
+}
+
+constexpr std::string_view kCommandTimeoutKey = "supervisor.command_timeout_s";
+
+}  // namespace
+
+std::string scenario_supervisor_keys_markdown(const core::SupervisorConfig& defaults) {
+  // The daemon's table less the one key a scenario refuses (its header kept).
+  const std::string table = scenario_supervisor_schema().markdown(defaults);
+  std::string out;
+  std::size_t at = 0;
+  while (at < table.size()) {
+    const std::size_t end = std::min(table.find('\n', at), table.size());
+    const std::string_view line(table.data() + at, end - at);
+    if (line.find(std::string("| `") + std::string(kCommandTimeoutKey) + "`") != 0) {
+      out.append(line);
+      out += '\n';
+    }
+    at = end + 1;
+  }
+  return out;
+}
+
+core::SupervisorConfig parse_scenario_supervisor(const toml::table& root, std::string_view source,
+                                                 core::SupervisorConfig defaults) {
+  const ConfigSchema<core::SupervisorConfig>& schema = scenario_supervisor_schema();
   // The schema's keys are the file's dotted paths ("supervisor.x"), applied to the whole file with
   // every other top-level table left to its own reader: messages as for the scenario's own
   // sections (a `supervisor = 5` is "expected a table (section)").
