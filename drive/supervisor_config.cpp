@@ -27,14 +27,15 @@ constexpr std::string_view kCommandTimeoutKey = "supervisor.command_timeout_s";
 }  // namespace
 
 std::string scenario_supervisor_keys_markdown(const core::SupervisorConfig& defaults) {
-  // The daemon's table less the one key a scenario refuses (its header kept).
+  // The daemon's table's rows, without its two header lines and the one key a scenario refuses.
   const std::string table = scenario_supervisor_schema().markdown(defaults);
+  const std::string refused = std::string("| `") + std::string(kCommandTimeoutKey) + "`";
   std::string out;
-  std::size_t at = 0;
-  while (at < table.size()) {
+  int line_number = 0;
+  for (std::size_t at = 0; at < table.size(); ++line_number) {
     const std::size_t end = std::min(table.find('\n', at), table.size());
     const std::string_view line(table.data() + at, end - at);
-    if (line.find(std::string("| `") + std::string(kCommandTimeoutKey) + "`") != 0) {
+    if (line_number >= 2 && !line.starts_with(refused)) {
       out.append(line);
       out += '\n';
     }

@@ -75,8 +75,9 @@ void add_supervisor_keys(ConfigSchema<Config>& c, const std::function<core::Supe
 // bad key at once.
 [[nodiscard]] core::SupervisorConfig parse_scenario_supervisor(const toml::table& root, std::string_view source,
                                                                core::SupervisorConfig defaults);
-// The reference table of those keys (Markdown, config-keys scenario), with `defaults` as the
-// default column: a scenario's drive takes the daemon's defaults for its own motor and bus.
+// The reference table's rows of those keys (Markdown, without a header: config-keys scenario
+// appends them to the scenario's table), with `defaults` as the default column: a scenario's
+// drive takes the daemon's defaults for its own motor and bus.
 [[nodiscard]] std::string scenario_supervisor_keys_markdown(const core::SupervisorConfig& defaults);
 
 // Every broken rule between the supervisor's keys and the drive's ("controller." keys of

@@ -757,12 +757,8 @@ std::string scenario_keys_markdown() {
   // The scenario's own keys, then [supervisor]'s (the daemon's, read by its code), in one table:
   // their defaults are the daemon's for the default drive (a scenario's drive takes them for its
   // own motor and bus).
-  const std::string supervisor = scenario_supervisor_keys_markdown(default_supervisor_config(default_controller_config()));
-  std::size_t rows = 0;
-  for (int header_lines = 0; header_lines < 2 && rows != std::string::npos; ++header_lines) {
-    rows = supervisor.find('\n', rows == 0 ? 0 : rows + 1);
-  }
-  return schema().markdown(ScenarioConfig{}) + (rows == std::string::npos ? std::string() : supervisor.substr(rows + 1));
+  return schema().markdown(ScenarioConfig{}) +
+         scenario_supervisor_keys_markdown(default_supervisor_config(default_controller_config()));
 }
 
 }  // namespace pmsm::app
