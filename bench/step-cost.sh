@@ -34,9 +34,12 @@ while [ $# -gt 0 ]; do
     *) echo "step-cost: unknown option '$1'" >&2; usage ;;
   esac
 done
+# The argument list's '(' is part of the pattern: callgrind toggles collection on entering and on
+# leaving every function that matches, so a function the step calls whose name also began with
+# "step" (step_without_sample) would turn collection off inside it.
 case "$function" in
-  controller) pattern='pmsm::core::DriveController::step*' ;;
-  node) pattern='pmsm::app::DriveNode::step*' ;;
+  controller) pattern='pmsm::core::DriveController::step(*' ;;
+  node) pattern='pmsm::app::DriveNode::step(*' ;;
   *) echo "step-cost: --function must be controller or node, not '$function'" >&2; exit 2 ;;
 esac
 if [ -n "$budget" ] && ! [[ "$budget" =~ ^[0-9]+$ ]]; then

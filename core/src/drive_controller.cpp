@@ -1501,6 +1501,58 @@ const DriveOutput& DriveController::step_without_sample(double now, std::uint32_
   return output_;
 }
 
+// The angle check's and the bridge sweep's share of a period, which step() runs only while either
+// runs or waits to start: their restarts, their ends on the voltage limit, the check's step and the
+// sweep that follows it.
+void DriveController::check_and_sweep_period(double now, bool enabled, bool speed_controlled, const Dq& i, double omega_e) {
+  if (check_restart_.pending) {
+    // The calibration's angle check, aborted or voided, starts again as the sweep does (below).
+    if (!calibrating_) {
+      check_restart_.pending = false;
+    } else if (check_restart_.due(enabled, config_.period_s, kSweepHoldoff_s)) {
+      check_.start(config_.angle_check, angle_check_motor(), config_.period_s);
+    }
+  }
+  // The check's and the sweep's levels run on top of the held motoring point. In field
+  // weakening a positive level takes back part of the weakening the held d current does, and
+  // above the id = 0 speed the current loop loses the machine to its EMF: a newcomer's servo
+  // calibrating at 600 rad/s tripped 5 ms into the angle check's first level
+  // (docs/estimator.md section 6.1). There each ends before its first level as voltage-limited,
+  // as it would have at it; the calibration's events then wait for headroom, as at the voltage
+  // limit, and its timeout says so. A positive level held on the voltage limit ends too, at any
+  // speed (held_on_voltage_limit).
+  if ((check_.starting() && field_weakened()) || (held_on_voltage_limit() && check_.id_ref_A() > 0.0)) {
+    check_.stop(AngleCheckOutcome::kVoltageLimited);
+    finish_angle_check();
+  }
+  if (check_.active() &&
+      check_.step(enabled, speed_controlled, i.d, i.q, angle_.mechanical_speed_rad_s(), omega_e,
+                  flags_now_.limited)) {
+    finish_angle_check();
+  }
+  if (sweep_after_check_ && !check_.active()) {
+    sweep_after_check_ = false;
+    if (calibrating_) {
+      start_calibration_sweep(now);
+    }
+  }
+
+  if (sweep_restart_.pending) {
+    // The calibration's sweep, aborted by a stop, a lost sample or a settling speed, or
+    // unresolved, starts again once the drive has run kSweepHoldoff_s (kSweepAttempts); the
+    // calibration's events wait for it as before. A calibration that ended wants no sweep.
+    if (!calibrating_) {
+      sweep_restart_.pending = false;
+    } else if (sweep_restart_.due(enabled, config_.period_s, kSweepHoldoff_s)) {
+      sweep_.start(config_.inverter_sweep, config_.period_s);
+    }
+  }
+  if ((sweep_.starting() && field_weakened()) || (held_on_voltage_limit() && sweep_.id_ref_A() > 0.0)) {  // (as the check's)
+    sweep_.stop(InverterSweepOutcome::kVoltageLimited);
+    finish_inverter_sweep(now);
+  }
+}
+
 const DriveOutput& DriveController::step(const DriveInput& in, const DriveCommand& command) {
   if (reported_) {  // (six optionals asked one by one cost a dozen instructions a step)
     last_pair_.reset();
@@ -1572,51 +1624,15 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   }
   const double smooth_advance = have_previous_ ? theta_smooth - previous_theta_smooth_ : 0.0;
 
-  if (check_restart_.pending) {
-    // The calibration's angle check, aborted or voided, starts again as the sweep does (below).
-    if (!calibrating_) {
-      check_restart_.pending = false;
-    } else if (check_restart_.due(enabled, config_.period_s, kSweepHoldoff_s)) {
-      check_.start(config_.angle_check, angle_check_motor(), config_.period_s);
-    }
-  }
-  // The check's and the sweep's levels run on top of the held motoring point. In field
-  // weakening a positive level takes back part of the weakening the held d current does, and
-  // above the id = 0 speed the current loop loses the machine to its EMF: a newcomer's servo
-  // calibrating at 600 rad/s tripped 5 ms into the angle check's first level
-  // (docs/estimator.md section 6.1). There each ends before its first level as voltage-limited,
-  // as it would have at it; the calibration's events then wait for headroom, as at the voltage
-  // limit, and its timeout says so. A positive level held on the voltage limit ends too, at any
-  // speed (held_on_voltage_limit).
-  if ((check_.starting() && field_weakened()) || (held_on_voltage_limit() && check_.id_ref_A() > 0.0)) {
-    check_.stop(AngleCheckOutcome::kVoltageLimited);
-    finish_angle_check();
-  }
-  if (check_.active() &&
-      check_.step(enabled, command.mode == DriveMode::kSpeed, i.d, i.q, angle_.mechanical_speed_rad_s(), omega_e,
-                  flags_now_.limited)) {
-    finish_angle_check();
-  }
-  if (sweep_after_check_ && !check_.active()) {
-    sweep_after_check_ = false;
-    if (calibrating_) {
-      start_calibration_sweep(now);
-    }
-  }
-
-  if (sweep_restart_.pending) {
-    // The calibration's sweep, aborted by a stop, a lost sample or a settling speed, or
-    // unresolved, starts again once the drive has run kSweepHoldoff_s (kSweepAttempts); the
-    // calibration's events wait for it as before. A calibration that ended wants no sweep.
-    if (!calibrating_) {
-      sweep_restart_.pending = false;
-    } else if (sweep_restart_.due(enabled, config_.period_s, kSweepHoldoff_s)) {
-      sweep_.start(config_.inverter_sweep, config_.period_s);
-    }
-  }
-  if ((sweep_.starting() && field_weakened()) || (held_on_voltage_limit() && sweep_.id_ref_A() > 0.0)) {  // (as the check's)
-    sweep_.stop(InverterSweepOutcome::kVoltageLimited);
-    finish_inverter_sweep(now);
+  // The calibration's angle check and bridge sweep, running or waiting to start: in almost every
+  // period neither is, and this one test stands for the dozen that would each find them idle (an
+  // idle check or sweep has no level, does not start and does not step; each starts only in
+  // check_and_sweep_period or in start_calibration, between steps). About 25 instructions of the
+  // nominal step (docs/performance.md).
+  const bool check_or_sweep =
+      check_restart_.pending || sweep_restart_.pending || sweep_after_check_ || check_.active() || sweep_.active();
+  if (check_or_sweep) {
+    check_and_sweep_period(now, enabled, command.mode == DriveMode::kSpeed, i, omega_e);
   }
 
   // The measured bus's distance from the one Vx is referred to (0 without one).
@@ -1627,11 +1643,11 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   // sixth of a step's instructions, docs/performance.md). The bridge sweep needs only the
   // period's middle angle and ends' mean current.
   const bool baseline_reads =
-      config_.estimator == EstimatorKind::kNoInjection && enabled && !sweep_.active() && !check_.active();
+      config_.estimator == EstimatorKind::kNoInjection && enabled && !(check_or_sweep && (sweep_.active() || check_.active()));
   const double sample_theta = 0.5 * (previous_theta_smooth_ + theta_smooth);  // the period's middle
   const bool scheduler_reads = config_.estimator == EstimatorKind::kInjection && scheduler_.records(sample_theta);
   const PeriodSample* sample = nullptr;  // period_sample_ once built
-  if (have_previous_ && (baseline_reads || scheduler_reads || sweep_.active())) {
+  if (have_previous_ && (baseline_reads || scheduler_reads || (check_or_sweep && sweep_.active()))) {
     // The rotor's frame at the period's middle: the sample's angle less half the encoder's
     // advance over the period (no second sincos). The rotor's, not the PLL's: the smooth angle
     // lags the rotor by a / wn^2 under an acceleration a, and a pulse's own reluctance torque
@@ -1697,7 +1713,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     // turning slowly (60 rad/s on the reference, 0.024 rad a period), not at standstill; which
     // frame its command is taken in draws each reference seed's calibration anew
     // (docs/accuracy.md, thirteenth session).
-    if (sweep_.active() &&
+    if (check_or_sweep && sweep_.active() &&
         sweep_.step(enabled, in.i_A, at_mid, v_mid.d, ends_mean.d, omega_e, flags_now_.limited)) {
       finish_inverter_sweep(now);
     }
@@ -1714,7 +1730,9 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   was_enabled_ = enabled;
 
   // A sweep waiting to start again holds the calibration's events back as a running one does.
-  const bool sweeping = sweep_.active() || sweep_restart_.pending || check_.active() || check_restart_.pending;
+  const bool sweeping =
+      check_or_sweep && (sweep_.active() || sweep_restart_.pending || check_.active() || check_restart_.pending);
+  const bool levels = check_or_sweep && (sweep_.active() || check_.active());  // a sweep's or a check's level
   Dq motoring{};
   bool motoring_settling = false;  // (SchedulerInput::motoring_settling)
   bool release_motoring = false;   // (SchedulerInput::release_motoring)
@@ -1723,7 +1741,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     // its limit reads 0 until the first period), held while a pair records or the sweep and
     // the angle check run: their separations take the motoring point as still.
     if (field_weakening_.enabled()) {
-      motoring_settling = weaken_field(sweep_.active() || check_.active(), omega_e, release_motoring);
+      motoring_settling = weaken_field(levels, omega_e, release_motoring);
     }
     if (sweeping) {
       motoring_voltage_periods_ = 0;  // the sweep's and the check's levels are not motoring
@@ -1735,7 +1753,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     field_weakening_.reset();
     clear_motoring_telemetry();
   }
-  if ((sweep_.active() || check_.active()) && enabled) {
+  if (levels && enabled) {
     // The bridge sweep's or the angle check's level, on top of id = 0 control, inside the
     // drive's current limit.
     const double limit = derating_.current_limit_A;
@@ -1888,8 +1906,8 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   telemetry_.voltage_limited = limited;
   telemetry_.injection_phase = so.phase;
   telemetry_.injection_active = so.active;
-  telemetry_.inverter_sweep_active = sweep_.active();
-  telemetry_.angle_check_active = check_.active();
+  telemetry_.inverter_sweep_active = check_or_sweep && sweep_.active();
+  telemetry_.angle_check_active = check_or_sweep && check_.active();
   publish_learned_if_moved();
   return output_;
 }

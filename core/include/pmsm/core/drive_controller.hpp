@@ -614,6 +614,8 @@ class DriveController {
   void start_thermal_from_guess(double guess_C);
   void finish_inverter_sweep(double now_s);
   void finish_angle_check();
+  // The angle check's and the bridge sweep's share of a step, while either runs or waits to start.
+  void check_and_sweep_period(double now, bool enabled, bool speed_controlled, const Dq& i, double omega_e);
   void start_calibration_sweep(double now_s);
   void set_angle_correction(double correction_rad);
   [[nodiscard]] AngleCheckMotor angle_check_motor() const;
