@@ -40,4 +40,7 @@ file(WRITE ${CMAKE_BINARY_DIR}/debian/changelog
 execute_process(COMMAND gzip -9nc ${CMAKE_BINARY_DIR}/debian/changelog
   OUTPUT_FILE ${CMAKE_BINARY_DIR}/debian/changelog.gz COMMAND_ERROR_IS_FATAL ANY)
 install(FILES ${CMAKE_BINARY_DIR}/debian/changelog.gz DESTINATION ${CMAKE_INSTALL_DOCDIR})
+# The copyright file every package carries (lintian: no-copyright-file): the licence is not
+# chosen yet, and the file says so.
+install(FILES ${CMAKE_CURRENT_LIST_DIR}/debian/copyright DESTINATION ${CMAKE_INSTALL_DOCDIR})
 include(CPack)

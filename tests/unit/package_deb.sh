@@ -28,6 +28,7 @@ for f in usr/sbin/pmsm-thermald usr/bin/pmsm-plant usr/bin/pmsm-thermal \
          etc/pmsm-thermal/axis1.toml etc/pmsm-thermal/plant-axis1.toml etc/pmsm-thermal/plant-axis1.env \
          usr/share/pmsm-thermal/pmsm-thermal.dbc usr/share/pmsm-thermal/plant-profiles/reference.toml \
          usr/share/doc/pmsm-thermal/changelog.gz \
+         usr/share/doc/pmsm-thermal/copyright \
          usr/share/man/man8/pmsm-thermald.8.gz usr/share/man/man1/pmsm-plant.1.gz usr/share/man/man1/pmsm-thermal.1.gz; do
   [ -e "$root/$f" ] || fail "missing /$f"
 done
