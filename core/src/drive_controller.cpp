@@ -1627,7 +1627,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
   // The calibration's angle check and bridge sweep, running or waiting to start: in almost every
   // period neither is, and this one test stands for the dozen that would each find them idle (an
   // idle check or sweep has no level, does not start and does not step; each starts only in
-  // check_and_sweep_period or in start_calibration, between steps). About 25 instructions of the
+  // check_and_sweep_period or in start_calibration, between steps). About 30 instructions of the
   // nominal step (docs/performance.md).
   const bool check_or_sweep =
       check_restart_.pending || sweep_restart_.pending || sweep_after_check_ || check_.active() || sweep_.active();

@@ -614,7 +614,8 @@ class DriveController {
   void start_thermal_from_guess(double guess_C);
   void finish_inverter_sweep(double now_s);
   void finish_angle_check();
-  // The angle check's and the bridge sweep's share of a step, while either runs or waits to start.
+  // The angle check's and the bridge sweep's restarts, their ends on the voltage limit and the
+  // check's step, while either runs or waits to start (step() keeps the sweep's step and the levels).
   void check_and_sweep_period(double now, bool enabled, bool speed_controlled, const Dq& i, double omega_e);
   void start_calibration_sweep(double now_s);
   void set_angle_correction(double correction_rad);
