@@ -312,7 +312,12 @@ class ConfigSchema {
   }
 
   // Markdown table of every key with its default (from `defaults`), range and meaning.
-  [[nodiscard]] std::string markdown(const Config& defaults) const;
+  [[nodiscard]] std::string markdown(const Config& defaults) const {
+    return "| key | default | range | meaning |\n|---|---|---|---|\n" + markdown_rows(defaults);
+  }
+  // The same table's rows alone, without the key `except` (empty: none), for a table that joins
+  // another schema's keys to its own.
+  [[nodiscard]] std::string markdown_rows(const Config& defaults, std::string_view except = {}) const;
 
   [[nodiscard]] std::vector<std::string> keys() const {
     std::vector<std::string> out;
@@ -724,11 +729,14 @@ class ConfigSchema {
 };
 
 template <typename Config>
-std::string ConfigSchema<Config>::markdown(const Config& defaults) const {
+std::string ConfigSchema<Config>::markdown_rows(const Config& defaults, std::string_view except) const {
   Config copy = defaults;
   auto with_unit = [](std::string value, const std::string& unit) { return unit.empty() ? value : value + " " + unit; };
-  std::string out = "| key | default | range | meaning |\n|---|---|---|---|\n";
+  std::string out;
   for (const Entry& e : entries_) {
+    if (!except.empty() && e.key == except) {
+      continue;
+    }
     std::string value;
     std::string range;
     switch (e.kind) {

@@ -27,21 +27,8 @@ constexpr std::string_view kCommandTimeoutKey = "supervisor.command_timeout_s";
 }  // namespace
 
 std::string scenario_supervisor_keys_markdown(const core::SupervisorConfig& defaults) {
-  // The daemon's table's rows, without its two header lines and the one key a scenario refuses.
-  const std::string table = scenario_supervisor_schema().markdown(defaults);
-  const std::string refused = std::string("| `") + std::string(kCommandTimeoutKey) + "`";
-  std::string out;
-  int line_number = 0;
-  for (std::size_t at = 0; at < table.size(); ++line_number) {
-    const std::size_t end = std::min(table.find('\n', at), table.size());
-    const std::string_view line(table.data() + at, end - at);
-    if (line_number >= 2 && !line.starts_with(refused)) {
-      out.append(line);
-      out += '\n';
-    }
-    at = end + 1;
-  }
-  return out;
+  // The daemon's table's rows but the one key a scenario refuses.
+  return scenario_supervisor_schema().markdown_rows(defaults, kCommandTimeoutKey);
 }
 
 core::SupervisorConfig parse_scenario_supervisor(const toml::table& root, std::string_view source,
