@@ -48,7 +48,10 @@ floor=$(tail -1 "$work/floor.json")
 echo "floor (two processes, ping-pong): $floor"
 
 # (b) pmsm-plant <-> pmsm-thermald in lockstep.
-sed -e "s/^interface = .*/interface = \"$iface\"/" "$src/tests/hil/data/hil-daemon.toml" > "$work/daemon.toml"
+# HIL_LATENCY_IO_URING=0: the daemon's period as a send, a poll and a read (can.io_uring = false),
+# for a side-by-side comparison in one boot.
+io_uring=$([ "${HIL_LATENCY_IO_URING:-1}" = 0 ] && echo false || echo true)
+sed -e "s/^interface = .*/interface = \"$iface\"\nio_uring = $io_uring/" "$src/tests/hil/data/hil-daemon.toml" > "$work/daemon.toml"
 "$thermald" --config "$work/daemon.toml" > "$work/daemon.log" 2>&1 &
 daemon=$!
 pids+=("$daemon")
@@ -67,6 +70,7 @@ duration=$(awk -v n="$((periods + warmup + 2000))" 'BEGIN { printf "%.4f", n * 1
 wait "$observer" || die "the observer failed: $(tail -2 "$work/period.json")"
 period=$(tail -1 "$work/period.json")
 echo "period (pmsm-plant <-> pmsm-thermald, lockstep): $period"
+grep -m1 -o "CAN: .*" "$work/daemon.log" || true
 
 ratio() { awk -v a="$(field "$period" "$1")" -v b="$(field "$floor" "$1")" 'BEGIN { printf "%.2f", a / b }'; }
 printf '%-8s %10s %10s %8s\n' "" "floor us" "period us" "ratio"

@@ -57,6 +57,9 @@ const ConfigSchema<D>& schema() {
            "them trip the sensor-timeout fault). Above the period: lockstep plants run slower than real time.");
     c.real("can.reopen_interval_ms", [](D& d) -> double& { return d.can.reopen_interval_ms; }, app::between(1, 60000), "ms",
            "How often a lost interface is checked for and the socket reopened.");
+    c.boolean("can.io_uring", [](D& d) -> bool& { return d.can.io_uring; },
+              "Send each period's answer and wait for the next sample in one system call (io_uring), where the kernel "
+              "has it and allows it (the log says which); false: a send, a poll and a read.");
     // [rt]
     c.integer("rt.priority", [](D& d) -> int& { return d.rt.priority; }, app::between(0, 99),
               "SCHED_FIFO priority of the control thread (0: normal scheduling). Refused without LimitRTPRIO= or "

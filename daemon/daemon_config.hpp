@@ -24,6 +24,7 @@ struct CanSection {
   double max_bus_load = 0.7;             // refuse to start above this fraction of the bus
   double sample_timeout_ms = 2.0;        // wall time without a sample counted as one missing period
   double reopen_interval_ms = 200.0;     // how often a lost interface is checked for
+  bool io_uring = true;                  // a period's answer and wait in one system call where the kernel allows
 };
 
 struct RtSection {

@@ -62,6 +62,7 @@ DriveLoop::DriveLoop(const DaemonConfig& config, hal::CanBus& bus, PublicationRi
       outage_slice_periods_(static_cast<std::uint32_t>(
           std::max(1.0, std::round(std::min(config.can.sample_timeout_ms, config.can.reopen_interval_ms) * 1e-3 /
                                    config.controller.drive.period_s)))),
+      exchange_(bus.exchanges_in_one_call()),
       calibrate_at_first_run_(config.startup.calibrate_if_missing && !config.controller.calibration_file.empty() &&
                               !config.controller.drive.calibration.calibrated) {}
 
@@ -70,7 +71,26 @@ void DriveLoop::send_answer(const hal::CanFrame& frame, std::int64_t arrival_ns)
   // when the queue is full: not from the loop's last reading, which is the moment the sample
   // was in hand at best (run(): under User-Mode Linux a clock reading is a system call), and
   // let an answer wait past its period by the step's time and whatever preempted the thread.
-  switch (bus_.send_before(frame, arrival_ns + period_ns_)) {
+  flush_answer();  // one answer per sample: an earlier one goes first
+  if (exchange_) {
+    // run() sends it with its wait for the next frame, in one system call.
+    staged_frame_ = frame;
+    staged_deadline_ns_ = arrival_ns + period_ns_;
+    answer_staged_ = true;
+    return;
+  }
+  count_send(bus_.send_before(frame, arrival_ns + period_ns_));
+}
+
+void DriveLoop::flush_answer() noexcept {
+  if (answer_staged_) {
+    answer_staged_ = false;
+    count_send(bus_.send_before(staged_frame_, staged_deadline_ns_));
+  }
+}
+
+void DriveLoop::count_send(hal::SendResult result) noexcept {
+  switch (result) {
     case hal::SendResult::kOk:
       return;
     case hal::SendResult::kNoBufferSpace:
@@ -134,6 +154,7 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns, 
   if (++periods_since_offset_ >= offset_refresh_periods_) {
     // Once a second of control periods (the wall clock may have been set or slewed).
     periods_since_offset_ = 0;
+    flush_answer();  // not held up by the readings
     read_realtime_offset(after_ns_);
     if (after_read_) {
       // Its readings take system calls (under User-Mode Linux a few hundred microseconds): the
@@ -387,6 +408,7 @@ void DriveLoop::on_frame(const hal::CanFrame& frame, std::int64_t now_ns) noexce
 }
 
 void DriveLoop::recover_interface(const std::atomic<bool>& stop) noexcept {
+  flush_answer();  // as if it had gone when the step made it: refused and counted
   counters_.interface_losses.bump();
   counters_.interface_down.store(true, std::memory_order_relaxed);
   // The drive keeps its own time meanwhile: every slice of the wait (a sample timeout, or the
@@ -470,13 +492,34 @@ std::int64_t DriveLoop::arrival_ns(std::int64_t read_ns) noexcept {
   return read_ns - std::clamp<std::int64_t>(waited, 0, sample_timeout_ns_);
 }
 
+// When the frame run() just received was in hand: its last clock reading plus the wait as the
+// backend accounted it; for a wait the backend did not account (io_uring: one call sent the answer
+// and waited), the frame's receive timestamp on the monotonic clock where it falls inside that
+// wait, from the reading to the deadline (the frame came during the wait: in a lockstep period the
+// sample comes after the answer; the loop had it a wake-up later, which arrival_ns() counts as
+// none, as it counts any wait under a sample timeout); else (a frame queued before the wait, a
+// wall clock set since the offset was read, no timestamp) the clock.
+std::int64_t DriveLoop::in_hand_ns(std::int64_t now, bool now_read, std::int64_t deadline) const noexcept {
+  if (now_read && received_.waited_ns >= 0) {
+    return now + received_.waited_ns;
+  }
+  if (now_read && received_.software_timestamp_ns != 0) {
+    const std::int64_t stamped = received_.software_timestamp_ns - realtime_offset_ns_;
+    if (stamped >= now && stamped <= deadline) {
+      return stamped;
+    }
+  }
+  return hal::monotonic_ns();
+}
+
 void DriveLoop::run(const std::atomic<bool>& stop) {
   read_realtime_offset(hal::monotonic_ns());
-  // In the steady state the clock is read once a period: after the command is sent (the step's
-  // latency). The wait for the next sample starts from that reading, and the moment the sample
-  // is in hand is that reading plus the wait as the kernel accounted it (SocketCanBus: ppoll's
-  // time left), where the backend tells it; else, and after a frame that sent no command, the
-  // clock is read again. A wake-up without a sample reads the clock too. (Under User-Mode Linux
+  // In the steady state the clock is read once a period: after the command is sent, or staged
+  // where the bus sends it with the wait for the next frame in one call (the step's latency).
+  // The wait for the next sample starts from that reading, and the moment the sample is in hand
+  // is that reading plus the wait as the kernel accounted it (SocketCanBus: ppoll's time left),
+  // where the backend tells it, or its receive timestamp where one call sent and waited
+  // (in_hand_ns()); else, and after a frame that sent no command, the clock is read again. A wake-up without a sample reads the clock too. (Under User-Mode Linux
   // a clock reading is a system call, as costly as a frame's; on a controller with a vDSO it is
   // tens of nanoseconds, and the kernel's account of the wait is as good as a reading.)
   std::int64_t now = hal::monotonic_ns();
@@ -484,7 +527,9 @@ void DriveLoop::run(const std::atomic<bool>& stop) {
   std::int64_t deadline = now + sample_timeout_ns_;
   while (!stop.load(std::memory_order_relaxed)) {
     if (now >= deadline) {
-      // No sample within the timeout: a missing period for the supervisor.
+      // No sample within the timeout: a missing period for the supervisor. (An answer staged by a
+      // step that ran past the deadline goes first, as it would have without the staging.)
+      flush_answer();
       counters_.missing_samples.bump();
       after_ns_ = now;
       after_read_ = false;
@@ -495,10 +540,17 @@ void DriveLoop::run(const std::atomic<bool>& stop) {
       now_read = now_read || after_read_;
       continue;
     }
-    switch (bus_.receive(received_, nanoseconds{deadline - now})) {
+    // The answer to the last sample goes with the wait for the next (one system call where the
+    // backend has io_uring; send_answer() staged it), else it went when the step made it.
+    const hal::ExchangeResult exchanged = bus_.send_and_receive(answer_staged_ ? &staged_frame_ : nullptr,
+                                                                staged_deadline_ns_, received_, now, deadline);
+    if (answer_staged_) {
+      answer_staged_ = false;
+      count_send(exchanged.sent);
+    }
+    switch (exchanged.received) {
       case hal::ReceiveStatus::kFrame: {
-        const std::int64_t at =
-            now_read && received_.waited_ns >= 0 ? now + received_.waited_ns : hal::monotonic_ns();
+        const std::int64_t at = in_hand_ns(now, now_read, deadline);
         now = at;
         now_read = false;
         if (received_.frame.error) {
@@ -555,6 +607,7 @@ void DriveLoop::switch_off() noexcept {
   // comes within a sample timeout (a power stage in lockstep waits for it), else the last
   // answer repeated with the gates off. Without it a stopped daemon left the stage with its last
   // command, gates on, until the stage's own timeout.
+  flush_answer();  // the answer to the last sample, as if it had gone when the step made it
   gates_enabled_.store(false, std::memory_order_relaxed);
   last_command_.enable = false;
   const std::int64_t until = hal::monotonic_ns() + sample_timeout_ns_;

@@ -176,7 +176,15 @@ class DriveLoop {
   // Sends the answer to a sample that arrived at `arrival_ns`: on a full transmit queue it waits
   // for room until that sample's period ends, not longer (a later command is stale, and the
   // wait would hold up the next sample); what cannot go is dropped and counted.
+  // Where the bus sends and waits in one call (exchanges_in_one_call()), the answer is staged
+  // instead, and run() sends it with its wait for the next frame; anything that would hold it
+  // up (the once-a-second clock readings, an interface recovery, the stop) sends it first
+  // (flush_answer()). The step's latency then ends when the answer is staged, before the call
+  // that sends it.
   void send_answer(const hal::CanFrame& frame, std::int64_t arrival_ns) noexcept;
+  void flush_answer() noexcept;
+  void count_send(hal::SendResult result) noexcept;
+  [[nodiscard]] std::int64_t in_hand_ns(std::int64_t now, bool now_read, std::int64_t deadline) const noexcept;
   void recover_interface(const std::atomic<bool>& stop) noexcept;
   void switch_off() noexcept;
   [[nodiscard]] std::int64_t sample_timeout_ns() const noexcept { return sample_timeout_ns_; }
@@ -206,6 +214,7 @@ class DriveLoop {
   std::uint32_t missing_periods_;  // control periods in one sample timeout
   std::uint32_t outage_slice_periods_;  // in one slice of an interface outage (the shorter of the timeout and the reopen interval)
   double next_thermal_state_s_ = kThermalStateEvery_s;  // drive uptime of the next one
+  bool exchange_;  // the bus sends and waits in one call: answers are staged (send_answer())
   bool calibrate_at_first_run_;
   app::NodeInputs inputs_{};
   std::optional<std::int64_t> last_drive_command_ns_;
@@ -235,6 +244,9 @@ class DriveLoop {
   bool read_realtime_offset(std::int64_t now_ns) noexcept;
   [[nodiscard]] std::int64_t arrival_ns(std::int64_t read_ns) noexcept;
   hal::CanFrame frame_{};
+  hal::CanFrame staged_frame_{};  // the answer run() sends next (answer_staged_)
+  std::int64_t staged_deadline_ns_ = 0;  // its period's end: it may wait for room until then
+  bool answer_staged_ = false;
   hal::ReceivedFrame received_{};
   // The timing window closed by each heartbeat (this thread only).
   std::array<std::uint32_t, kTimingBuckets> window_timing_{};

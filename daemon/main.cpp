@@ -409,6 +409,7 @@ int run(const Options& o) {
   // The controller's state changes reach the loop (bus-off, its restart, error-passive): a
   // drive whose controller went bus-off hears no sample and would only say SENSOR_TIMEOUT.
   rt_bus_config.error_mask = pmsm::daemon::DriveLoop::kErrorClasses;
+  rt_bus_config.io_uring = config.can.io_uring;
   pmsm::hal::Status error;
   std::unique_ptr<pmsm::hal::SocketCanBus> rt_bus = pmsm::hal::SocketCanBus::open(rt_bus_config, error);
   if (!rt_bus) {
@@ -421,6 +422,14 @@ int run(const Options& o) {
   std::unique_ptr<pmsm::hal::SocketCanBus> pub_bus = pmsm::hal::SocketCanBus::open(pub_bus_config, error);
   if (!pub_bus) {
     return bus_open_failure("cannot open the CAN bus for publishing", config.can.interface, error);
+  }
+  if (rt_bus->exchanges_in_one_call()) {
+    spdlog::info("CAN: each period's answer and wait for the next sample in one system call (io_uring)");
+  } else if (config.can.io_uring) {
+    spdlog::info("CAN: each period's answer and wait for the next sample in separate system calls (no io_uring "
+                 "here: the kernel lacks it or refuses it)");
+  } else {
+    spdlog::info("CAN: each period's answer and wait for the next sample in separate system calls (can.io_uring = false)");
   }
 
   // GPIO: the gate enable is requested inactive; a configured chip or line that is missing

@@ -8,6 +8,7 @@
 
 #include <chrono>
 #include <cstdint>
+#include <cstdio>
 #include <cstdlib>
 #include <fstream>
 #include <string>
@@ -190,6 +191,113 @@ TEST(SocketCanHil, EveryWaitOrderAndTheBackstopReadDeliverEveryFrameInOrder) {
   EXPECT_EQ(rx->receive(r, 0ms), ReceiveStatus::kTimeout);
   EXPECT_EQ(rx->counters().rx_frames, next);
   EXPECT_EQ(rx->counters().rx_errors, 0U);
+}
+
+// send_and_receive(): a lockstep period's answer and wait for the next frame, one io_uring_enter
+// where the kernel has io_uring (User-Mode Linux's 6.1 has), else a send and a receive; the
+// same behaviour either way. Every frame arrives once and in order, also when it comes as a wait
+// times out (the read is then cancelled: a frame it took meanwhile is delivered, not lost).
+TEST(SocketCanHil, SendAndReceiveSendsWaitsTimesOutAndLosesNoFrame) {
+  auto a = std::make_unique<SocketCanBus>(
+      SocketCanConfig{.interface = iface(), .fd = true, .filters = std::vector<CanFilter>{tag_filter()}, .io_uring = true});
+  auto b = open_bus(true, {tag_filter()});
+  const bool one_call = a->exchanges_in_one_call();
+  std::printf("send_and_receive in one call (io_uring): %s\n", one_call ? "yes" : "no");
+  ReceivedFrame r;
+
+  // Lockstep: b answers every frame from a with its number + 100.
+  constexpr std::uint32_t kPeriods = 200;
+  std::thread peer([&b] {
+    ReceivedFrame in;
+    for (std::uint32_t k = 0; k < kPeriods; ++k) {
+      if (b->receive(in, 5s) != ReceiveStatus::kFrame) {
+        return;
+      }
+      (void)b->send(frame(in.frame.data[0] / 7U + 100U, 12, true));
+    }
+  });
+  // The first period sends only (nothing to wait for yet but the answer).
+  for (std::uint32_t k = 0; k < kPeriods; ++k) {
+    const CanFrame out = frame(k % 30U, 24, true);
+    const std::int64_t before = monotonic_ns();
+    const std::int64_t before_rt = std::chrono::duration_cast<std::chrono::nanoseconds>(
+                                       std::chrono::system_clock::now().time_since_epoch()).count();
+    const ExchangeResult x = a->send_and_receive(&out, before + 1'000'000'000, r, before, before + 2'000'000'000);
+    ASSERT_EQ(x.sent, SendResult::kOk) << "period " << k;
+    ASSERT_EQ(x.received, ReceiveStatus::kFrame) << "period " << k;
+    EXPECT_EQ(r.frame.data[0], static_cast<std::uint8_t>((k % 30U + 100U) * 7U)) << "period " << k;
+    EXPECT_EQ(r.frame.length, 12U);
+    EXPECT_TRUE(r.frame.fd);
+    // The receive timestamp is there (the frame's moment where the wait is not told), after the
+    // call began.
+    EXPECT_GE(r.software_timestamp_ns, before_rt - 1'000'000) << "period " << k;
+    if (one_call) {
+      EXPECT_EQ(r.waited_ns, -1) << "one call does not tell its wait";
+    }
+  }
+  peer.join();
+  EXPECT_EQ(a->counters().tx_frames, kPeriods);
+  EXPECT_EQ(a->counters().rx_frames, kPeriods);
+
+  // Nothing comes: a timeout, not early; no send.
+  {
+    const std::int64_t t0 = monotonic_ns();
+    const ExchangeResult x = a->send_and_receive(nullptr, 0, r, t0, t0 + 30'000'000);
+    EXPECT_EQ(x.sent, SendResult::kOk);
+    EXPECT_EQ(x.received, ReceiveStatus::kTimeout);
+    EXPECT_GE(monotonic_ns() - t0, 30'000'000);
+  }
+  // A frame queued before the call is read at once; an unsendable frame is refused and counted
+  // and the wait still happens.
+  ASSERT_EQ(b->send(frame(7, 8, true)), SendResult::kOk);
+  std::this_thread::sleep_for(10ms);
+  {
+    CanFrame bad = frame(1, 8, true);
+    bad.id = 0x2000'0000U;  // beyond 29 bits
+    const std::int64_t t0 = monotonic_ns();
+    const ExchangeResult x = a->send_and_receive(&bad, t0 + 1'000'000, r, t0, t0 + 1'000'000'000);
+    EXPECT_EQ(x.sent, SendResult::kInvalidFrame);
+    ASSERT_EQ(x.received, ReceiveStatus::kFrame);
+    EXPECT_EQ(r.frame.data[0], static_cast<std::uint8_t>(7U * 7U));
+    EXPECT_LT(monotonic_ns() - t0, 500'000'000) << "a queued frame is no wait";
+  }
+  EXPECT_EQ(a->counters().tx_errors, 1U);
+
+  // Frames at random moments against waits of 1 ms: many waits end as a frame comes. Every
+  // frame is delivered once, in order.
+  constexpr std::uint32_t kFrames = 300;
+  std::thread sender([&b] {
+    std::uint32_t seed = 12345;
+    for (std::uint32_t k = 0; k < kFrames; ++k) {
+      seed = seed * 1103515245U + 12345U;
+      std::this_thread::sleep_for(std::chrono::microseconds(200 + (seed >> 16U) % 1800U));
+      (void)b->send(frame(k % 36U, 8, true));
+    }
+  });
+  std::uint32_t got = 0;
+  std::uint32_t timeouts = 0;
+  const std::int64_t end = monotonic_ns() + 20'000'000'000;
+  while (got < kFrames && monotonic_ns() < end) {
+    const std::int64_t t0 = monotonic_ns();
+    const ExchangeResult x = a->send_and_receive(nullptr, 0, r, t0, t0 + 1'000'000);
+    if (x.received == ReceiveStatus::kTimeout) {
+      ++timeouts;
+      continue;
+    }
+    ASSERT_EQ(x.received, ReceiveStatus::kFrame);
+    ASSERT_EQ(r.frame.data[0], static_cast<std::uint8_t>((got % 36U) * 7U)) << "frame " << got;
+    ++got;
+  }
+  sender.join();
+  EXPECT_EQ(got, kFrames);
+  EXPECT_GT(timeouts, 0U);
+  EXPECT_EQ(a->send_and_receive(nullptr, 0, r, monotonic_ns(), monotonic_ns() + 20'000'000).received,
+            ReceiveStatus::kTimeout);
+  EXPECT_EQ(a->counters().rx_errors, 0U);
+  // Plain receive() after the exchanges: nothing left in flight takes its frame.
+  ASSERT_EQ(b->send(frame(3, 8, true)), SendResult::kOk);
+  ASSERT_EQ(a->receive(r, 1s), ReceiveStatus::kFrame);
+  EXPECT_EQ(r.frame.data[0], static_cast<std::uint8_t>(3U * 7U));
 }
 
 TEST(SocketCanHil, FdFramesReachFdSocketsOnlyAndReadsHaveExactSizes) {

@@ -203,6 +203,11 @@ journal=$(journalctl -b -u "$unit" -o cat --no-pager)
 fifo=$(grep -m1 'SCHED_FIFO priority .* granted' <<<"$journal") || fail "the journal does not say SCHED_FIFO was granted: $(grep -iE 'sched|priority|real-time|rt ' <<<"$journal" | head -3 | tr '\n' ' ')"
 locked=$(grep -m1 'memory locked' <<<"$journal") || fail "the journal does not say the memory was locked"
 log "journal: '$fifo'; '$locked'"
+# The unit's system-call filter (@system-service, which holds @aio) leaves the daemon io_uring:
+# each period's answer and wait in one system call (docs/daemon.md, can.io_uring).
+one_call=$(grep -m1 'CAN: each period' <<<"$journal") || fail "the journal does not say how the daemon sends and waits"
+grep -q 'in one system call (io_uring)' <<<"$one_call" || fail "under the unit's hardening the daemon has no io_uring: '$one_call'"
+log "journal: '$one_call'"
 policy=$(ps -L -o cls=,rtprio=,comm= -p "$pid1" | awk '$1 == "FF" { print $3 " FF " $2; exit }')
 [ -n "$policy" ] || fail "no thread of the daemon runs SCHED_FIFO: $(ps -L -o cls=,rtprio=,comm= -p "$pid1" | tr '\n' ';')"
 log "thread with SCHED_FIFO: $policy"

@@ -59,6 +59,13 @@ class Unbindable final : public hal::CanBus {
   [[nodiscard]] std::int64_t longest_send_wait_ns() const { return longest_wait_ns_.load(); }
   // Every frame received from now on reads as having arrived `ns` earlier (its timestamps).
   void shift_timestamps(std::int64_t ns) { shift_ns_ = ns; }
+  // Sends and waits in one call, as SocketCanBus does with io_uring: the wait's length is not
+  // told (waited_ns -1), so the loop stages its answers and dates a frame by its timestamp. Before
+  // a DriveLoop is made on it (it asks once).
+  void exchange_in_one_call() { exchanging_ = true; }
+  [[nodiscard]] bool exchanges_in_one_call() const noexcept override { return exchanging_; }
+  // Answers that went with a wait (send_and_receive with a frame).
+  [[nodiscard]] std::uint64_t answers_exchanged() const { return answers_exchanged_.load(); }
   hal::Status set_filters(std::span<const hal::CanFilter> filters) override { return inner_->set_filters(filters); }
   hal::Status set_error_mask(std::uint32_t classes) override { return inner_->set_error_mask(classes); }
   hal::Status reopen() override {
@@ -88,8 +95,25 @@ class Unbindable final : public hal::CanBus {
     }
     return status;
   }
+  hal::ExchangeResult do_send_and_receive(const hal::CanFrame* frame, std::int64_t send_deadline_ns,
+                                          hal::ReceivedFrame& out, std::int64_t now_ns,
+                                          std::int64_t receive_deadline_ns) noexcept override {
+    if (!exchanging_) {
+      return hal::CanBus::do_send_and_receive(frame, send_deadline_ns, out, now_ns, receive_deadline_ns);
+    }
+    hal::ExchangeResult result;
+    if (frame != nullptr) {
+      result.sent = do_send_before(*frame, send_deadline_ns);
+      answers_exchanged_.fetch_add(1);
+    }
+    result.received = do_receive(out, std::chrono::nanoseconds{std::max<std::int64_t>(receive_deadline_ns - now_ns, 0)});
+    out.waited_ns = -1;
+    return result;
+  }
 
  private:
+  bool exchanging_ = false;
+  std::atomic<std::uint64_t> answers_exchanged_{0};
   std::unique_ptr<hal::CanBus> inner_;
   std::atomic<bool> unbound_{false};
   std::atomic<std::int64_t> longest_wait_ns_{-1};
@@ -216,6 +240,13 @@ class Axis {
   [[nodiscard]] protocol::NodeId node() const { return node_; }
   // The publishing socket loses its binding (its interface deleted and created again).
   void unbind_publishing() { pub_bus_->unbind(); }
+  // Before either thread starts: the control socket sends each answer with the wait for the next
+  // frame, in one call (Unbindable::exchange_in_one_call), and the loop is made anew to use it.
+  void exchange_in_one_call() {
+    rt_bus_->exchange_in_one_call();
+    reconfigure([](DaemonConfig&) {});
+  }
+  [[nodiscard]] std::uint64_t answers_exchanged() const { return rt_bus_->answers_exchanged(); }
 
  private:
   protocol::NodeId node_;
@@ -434,9 +465,13 @@ void run_then_silence_the_plant(Bench& bench, Axis& axis, std::vector<protocol::
   ASSERT_EQ(read(axis.loop().stats()), sent) << "the daemon read every sample the plant sent";
 }
 
-TEST(DaemonLoop, HeatUpOverTheBusTracksThePlantsTruth) {
+// one_call: the control socket sends and waits in one call (io_uring's way, can.io_uring).
+void heat_up_tracks_the_plants_truth(bool one_call) {
   Bench bench;
   Axis axis(bench.bus, 1, 30.0);
+  if (one_call) {
+    axis.exchange_in_one_call();
+  }
   axis.start_daemon();
   // Enable, and calibrate at the ambient (the soaked motor's temperature) before the plant
   // runs: the wall-clock pace of these commands must not decide when the calibration starts.
@@ -475,6 +510,22 @@ TEST(DaemonLoop, HeatUpOverTheBusTracksThePlantsTruth) {
   EXPECT_GT(s.commands_accepted[0], 10U);
   EXPECT_EQ(s.commands_accepted[2], 1U) << "the calibration command";
   EXPECT_EQ(s.publications_dropped, 0U);
+  EXPECT_EQ(s.tx_failures + s.tx_dropped, 0U);
+  if (one_call) {
+    // Every answer but the few sent ahead of a clock reading, an outage or the stop went with
+    // the wait for the next sample (one a second goes before the offset's readings).
+    EXPECT_GE(axis.answers_exchanged(), s.commands_sent - s.commands_sent / 1000U - 10U) << s.commands_sent << " sent";
+  } else {
+    EXPECT_EQ(axis.answers_exchanged(), 0U);
+  }
+}
+
+TEST(DaemonLoop, HeatUpOverTheBusTracksThePlantsTruth) { heat_up_tracks_the_plants_truth(false); }
+
+// The same with each answer sent with the wait for the next sample, in one call: the answer is
+// staged by the step and sent by the loop, and each sample dated by its receive timestamp.
+TEST(DaemonLoop, HeatUpWithTheAnswerAndTheWaitInOneCallTracksThePlantsTruth) {
+  heat_up_tracks_the_plants_truth(true);
 }
 
 // A publisher thread stalled for longer than the ring lasts loses periodic values (counted), not
@@ -875,9 +926,12 @@ LoopStats answer_one_late_sample(Bench& bench, Axis& axis, std::int64_t shift_ns
 // its answer, its period long over, may not wait for room on a full transmit queue (before, any
 // answer could wait 200 us, two periods, and hold up the next sample).
 // (A 0.5 s sample timeout: the daemon's thread may start late, and its wait must not reach it.)
-TEST(DaemonLoop, ASampleThatWaitedInTheSocketIsADeadlineMiss) {
+void a_sample_that_waited_in_the_socket_is_a_deadline_miss(bool one_call) {
   Bench bench;
   Axis axis(bench.bus, 6, 60.0, 25.0, 5.0, {}, 500.0);
+  if (one_call) {
+    axis.exchange_in_one_call();
+  }
   std::uint64_t elapsed_ns = 0;
   const LoopStats stats = answer_one_late_sample(bench, axis, 5'000'000, elapsed_ns);
   ASSERT_EQ(stats.samples, 1U);
@@ -887,14 +941,21 @@ TEST(DaemonLoop, ASampleThatWaitedInTheSocketIsADeadlineMiss) {
   EXPECT_EQ(axis.longest_command_wait_ns(), 0);
 }
 
+TEST(DaemonLoop, ASampleThatWaitedInTheSocketIsADeadlineMiss) { a_sample_that_waited_in_the_socket_is_a_deadline_miss(false); }
+// The same with the answer and the wait in one call (can.io_uring's way).
+TEST(DaemonLoop, ASampleThatWaitedInTheSocketIsADeadlineMissInOneCall) { a_sample_that_waited_in_the_socket_is_a_deadline_miss(true); }
+
 // A sample that waited longer than the sample timeout (a stalled thread; the wall clock stood) is
 // a deadline miss of its whole wait, and its answer does not wait for room (before, any wait that
 // long was taken for a wall clock set since the offset was read: the latency read as the step's
 // few microseconds, no deadline miss, and the answer could wait a whole period, which failed the
 // test below on a loaded machine).
-TEST(DaemonLoop, ASampleOlderThanTheSampleTimeoutIsAnsweredAtOnce) {
+void a_sample_older_than_the_sample_timeout_is_answered_at_once(bool one_call) {
   Bench bench;
   Axis axis(bench.bus, 6, 60.0, 25.0, 5.0, {}, 500.0);
+  if (one_call) {
+    axis.exchange_in_one_call();
+  }
   std::uint64_t elapsed_ns = 0;
   const LoopStats stats = answer_one_late_sample(bench, axis, 10'000'000'000, elapsed_ns);
   ASSERT_EQ(stats.samples, 1U);
@@ -903,6 +964,10 @@ TEST(DaemonLoop, ASampleOlderThanTheSampleTimeoutIsAnsweredAtOnce) {
   EXPECT_LE(stats.max_step_ns, 10'000'000'000U + elapsed_ns);
   EXPECT_EQ(axis.longest_command_wait_ns(), 0);
 }
+
+TEST(DaemonLoop, ASampleOlderThanTheSampleTimeoutIsAnsweredAtOnce) { a_sample_older_than_the_sample_timeout_is_answered_at_once(false); }
+// The same with the answer and the wait in one call (can.io_uring's way).
+TEST(DaemonLoop, ASampleOlderThanTheSampleTimeoutIsAnsweredAtOnceInOneCall) { a_sample_older_than_the_sample_timeout_is_answered_at_once(true); }
 
 // The wall clock as the daemon reads it: the host's, set by g_wall_clock_set_ns (a test cannot
 // set the host's own; DriveLoop::use_realtime_offset_source), and how often it was read.
@@ -942,14 +1007,21 @@ LoopStats answer_one_sample_after_a_clock_set(Bench& bench, Axis& axis, std::int
 // A wall clock set back 10 s since the offset was read makes a fresh sample read as 10 s old:
 // the offset, read again, moved, so the wait is taken with the new one (a few microseconds to
 // what the test's threads took), not as a 10 s stall.
-TEST(DaemonLoop, AWallClockSetBackIsNoStall) {
+void a_wall_clock_set_back_is_no_stall(bool one_call) {
   Bench bench;
   Axis axis(bench.bus, 6, 60.0, 25.0, 5.0, {}, 500.0);
+  if (one_call) {
+    axis.exchange_in_one_call();
+  }
   std::uint64_t elapsed_ns = 0;
   const LoopStats stats = answer_one_sample_after_a_clock_set(bench, axis, -10'000'000'000, 0, elapsed_ns);
   ASSERT_EQ(stats.samples, 1U);
   EXPECT_LE(stats.max_step_ns, elapsed_ns) << "read as the clock's 10 s";
 }
+
+TEST(DaemonLoop, AWallClockSetBackIsNoStall) { a_wall_clock_set_back_is_no_stall(false); }
+// The same with the answer and the wait in one call (can.io_uring's way).
+TEST(DaemonLoop, AWallClockSetBackIsNoStallInOneCall) { a_wall_clock_set_back_is_no_stall(true); }
 
 // The same set within a sample timeout of the offset's reading (here its first, at the start;
 // on a drive, the once-a-second one): the wait is read again then too (before, that reading
@@ -989,9 +1061,12 @@ TEST(DaemonLoop, AFrameStampedBeforeASetForwardIsNoStall) {
 // A wall clock set forward 10 s makes a sample that waited 5 ms read as 10 s from the future:
 // with the offset read again it waited its 5 ms, a deadline miss (taken as none, it would hide
 // the stall).
-TEST(DaemonLoop, AWallClockSetForwardLeavesTheSocketWaitCounted) {
+void a_wall_clock_set_forward_leaves_the_socket_wait_counted(bool one_call) {
   Bench bench;
   Axis axis(bench.bus, 6, 60.0, 25.0, 5.0, {}, 500.0);
+  if (one_call) {
+    axis.exchange_in_one_call();
+  }
   std::uint64_t elapsed_ns = 0;
   const LoopStats stats = answer_one_sample_after_a_clock_set(bench, axis, 10'000'000'000, 5'000'000, elapsed_ns);
   ASSERT_EQ(stats.samples, 1U);
@@ -1000,6 +1075,10 @@ TEST(DaemonLoop, AWallClockSetForwardLeavesTheSocketWaitCounted) {
   EXPECT_LE(stats.max_step_ns, 5'000'000U + elapsed_ns);
   EXPECT_EQ(axis.longest_command_wait_ns(), 0);
 }
+
+TEST(DaemonLoop, AWallClockSetForwardLeavesTheSocketWaitCounted) { a_wall_clock_set_forward_leaves_the_socket_wait_counted(false); }
+// The same with the answer and the wait in one call (can.io_uring's way).
+TEST(DaemonLoop, AWallClockSetForwardLeavesTheSocketWaitCountedInOneCall) { a_wall_clock_set_forward_leaves_the_socket_wait_counted(true); }
 
 // The wall clock's offset read once, as the median of a thousand readings: a test whose
 // figure hangs on the offset to tens of microseconds cannot take the daemon's one reading of a
@@ -1023,9 +1102,12 @@ std::int64_t wall_clock_offset_read_with_care() noexcept {
 // 100 us period (a wait of one period, or the former 200 us, fails). The offset is read once
 // with care (above): read wrong by more than 60 us, every answer of the next second may wait
 // its whole period (in one CI run under ASan, 100 us).
-TEST(DaemonLoop, AnAnswerWaitsForRoomAtMostUntilItsPeriodEnds) {
+void an_answer_waits_for_room_at_most_until_its_period_ends(bool one_call) {
   Bench bench;
   Axis axis(bench.bus, 7, 60.0);
+  if (one_call) {
+    axis.exchange_in_one_call();
+  }
   axis.shift_arrivals(60'000);
   axis.loop().use_realtime_offset_source(wall_clock_offset_read_with_care);
   std::vector<protocol::AnyDecoded> seen;
@@ -1034,12 +1116,19 @@ TEST(DaemonLoop, AnAnswerWaitsForRoomAtMostUntilItsPeriodEnds) {
   EXPECT_LE(axis.longest_command_wait_ns(), 40'000);
 }
 
+TEST(DaemonLoop, AnAnswerWaitsForRoomAtMostUntilItsPeriodEnds) { an_answer_waits_for_room_at_most_until_its_period_ends(false); }
+// The same with the answer and the wait in one call (can.io_uring's way).
+TEST(DaemonLoop, AnAnswerWaitsForRoomAtMostUntilItsPeriodEndsInOneCall) { an_answer_waits_for_room_at_most_until_its_period_ends(true); }
+
 // A stopped daemon's last word to the power stage is "off": the plant, still running in lockstep,
 // gets its next sample answered with the gates off (before, it kept the last command, gates on,
 // until its own timeout).
-TEST(DaemonLoop, AStoppedDaemonLeavesThePowerStageOff) {
+void a_stopped_daemon_leaves_the_power_stage_off(bool one_call) {
   Bench bench;
   Axis axis(bench.bus, 8, 1e6);
+  if (one_call) {
+    axis.exchange_in_one_call();
+  }
   std::vector<protocol::AnyDecoded> seen;
   ASSERT_NO_FATAL_FAILURE(start_running(bench, axis, seen));
   bench.run_speed(8, 50.0);
@@ -1055,6 +1144,10 @@ TEST(DaemonLoop, AStoppedDaemonLeavesThePowerStageOff) {
   ASSERT_NE(last, nullptr);
   EXPECT_FALSE(last->enable);
 }
+
+TEST(DaemonLoop, AStoppedDaemonLeavesThePowerStageOff) { a_stopped_daemon_leaves_the_power_stage_off(false); }
+// The same with the answer and the wait in one call (can.io_uring's way).
+TEST(DaemonLoop, AStoppedDaemonLeavesThePowerStageOffInOneCall) { a_stopped_daemon_leaves_the_power_stage_off(true); }
 
 // A second daemon configured as the same node (a unit's configuration copied without changing
 // can.node): each hears the other's published frames on its publishing endpoint, which does
@@ -1415,9 +1508,12 @@ TEST(DaemonLoop, BadCommandsAreRejectedByReasonAndValidOnesActedOn) {
   EXPECT_TRUE(has_state(stopped, 4, protocol::DriveState::kStandby));
 }
 
-TEST(DaemonLoop, InterfaceDownAndUpBothProcessesRecover) {
+void interface_down_and_up_both_processes_recover(bool one_call) {
   Bench bench;
   Axis axis(bench.bus, 7, 1e6);
+  if (one_call) {
+    axis.exchange_in_one_call();
+  }
   // the command timeout after the interface comes back: gates off a while
   std::vector<protocol::AnyDecoded> seen;
   ASSERT_NO_FATAL_FAILURE(start_running(bench, axis, seen));
@@ -1437,6 +1533,10 @@ TEST(DaemonLoop, InterfaceDownAndUpBothProcessesRecover) {
   EXPECT_GE(s.reopens, 1U);
   EXPECT_FALSE(s.interface_down);
 }
+
+TEST(DaemonLoop, InterfaceDownAndUpBothProcessesRecover) { interface_down_and_up_both_processes_recover(false); }
+// The same with the answer and the wait in one call (can.io_uring's way).
+TEST(DaemonLoop, InterfaceDownAndUpBothProcessesRecoverInOneCall) { interface_down_and_up_both_processes_recover(true); }
 
 // The interface deleted and created again unbinds both sockets. The control socket has always
 // been reopened by the loop; the publishing one now is too, by the publisher, at the reopen

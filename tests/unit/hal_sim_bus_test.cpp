@@ -9,6 +9,8 @@
 #include <thread>
 #include <vector>
 
+#include "pmsm/hal/rt.hpp"  // monotonic_ns
+
 namespace pmsm::hal {
 namespace {
 
@@ -77,6 +79,42 @@ TEST(SimBus, ReceiveTimesOutWhenNothingArrives) {
   const auto t0 = std::chrono::steady_clock::now();
   EXPECT_EQ(a->receive(r, 20ms), ReceiveStatus::kTimeout);
   EXPECT_GE(std::chrono::steady_clock::now() - t0, 19ms);
+}
+
+// send_and_receive() where the backend has no one-call form: a send, then a receive until the
+// deadline; a refused send is told and the wait still happens; no frame to send, only the wait.
+TEST(SimBus, SendAndReceiveIsASendThenAReceiveUntilTheDeadline) {
+  SimBus bus;
+  auto a = bus.connect();
+  auto b = bus.connect();
+  EXPECT_FALSE(a->exchanges_in_one_call());
+  ReceivedFrame r;
+  ASSERT_EQ(b->send(classic(0x222, 2)), SendResult::kOk);  // already queued for a
+  std::int64_t now = monotonic_ns();
+  ExchangeResult x = a->send_and_receive(nullptr, 0, r, now, now + 1'000'000'000);
+  EXPECT_EQ(x.sent, SendResult::kOk);
+  ASSERT_EQ(x.received, ReceiveStatus::kFrame);
+  EXPECT_EQ(r.frame.id, 0x222U);
+
+  const CanFrame out = classic(0x111, 8);
+  now = monotonic_ns();
+  x = a->send_and_receive(&out, now + 100'000, r, now, now + 20'000'000);
+  EXPECT_EQ(x.sent, SendResult::kOk);
+  EXPECT_EQ(x.received, ReceiveStatus::kTimeout);
+  EXPECT_GE(monotonic_ns() - now, 19'000'000);
+  ASSERT_EQ(b->receive(r, 0ns), ReceiveStatus::kFrame);
+  EXPECT_EQ(r.frame.id, 0x111U);
+
+  CanFrame bad = classic(0x111, 8);
+  bad.id = 0x800;  // beyond 11 bits
+  ASSERT_EQ(b->send(classic(0x333, 1)), SendResult::kOk);
+  now = monotonic_ns();
+  x = a->send_and_receive(&bad, now + 100'000, r, now, now + 1'000'000'000);
+  EXPECT_EQ(x.sent, SendResult::kInvalidFrame);
+  ASSERT_EQ(x.received, ReceiveStatus::kFrame);
+  EXPECT_EQ(r.frame.id, 0x333U);
+  EXPECT_EQ(a->counters().tx_frames, 1U);
+  EXPECT_EQ(a->counters().tx_errors, 1U);
 }
 
 TEST(SimBus, FiltersSelectByIdMaskAndKind) {

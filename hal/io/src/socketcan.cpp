@@ -1,6 +1,7 @@
 // SocketCAN backend (see socketcan.hpp for the set-up order, taken from can-utils).
 #include "pmsm/hal/socketcan.hpp"
 
+#include <liburing.h>
 #include <linux/can.h>
 #include <linux/can/raw.h>
 #include <linux/net_tstamp.h>
@@ -17,6 +18,8 @@
 #include <cerrno>
 #include <cctype>
 #include <cstring>
+#include <limits>
+#include <new>
 #include <utility>
 
 #include "filter_rule.hpp"
@@ -55,6 +58,18 @@ Status set_option(int fd, int level, int option, const T& value, const char* opt
                                 quoted(interface) + " failed: " + errno_text(e));
   }
   return {};
+}
+
+// Room for SO_TIMESTAMPING (3 timespecs) and SO_RXQ_OVFL (a u32), as candump sizes it.
+constexpr std::size_t kControlBytes = CMSG_SPACE(3 * sizeof(timespec)) + CMSG_SPACE(sizeof(std::uint32_t)) + 64;
+
+// Tags of the io_uring operations (user_data).
+constexpr std::uint64_t kTagSend = 1;
+constexpr std::uint64_t kTagReceive = 2;
+constexpr std::uint64_t kTagCancel = 3;
+
+__kernel_timespec kernel_timespec(std::int64_t ns) {
+  return __kernel_timespec{ns / 1'000'000'000, ns % 1'000'000'000};
 }
 
 std::int64_t to_ns(const timespec& ts) {
@@ -144,12 +159,89 @@ bool decode(std::span<const std::uint8_t> bytes, CanFrame& frame) noexcept {
 
 }  // namespace socketcan_detail
 
+// The ring of send_and_receive() and what its operations read and write, together: the kernel
+// reads the send's bytes and fills the read's buffer and control messages while they are in
+// flight, after the call that queued them has left its stack frame for the wait.
+struct SocketCanBus::Ring {
+  io_uring ring{};
+  std::array<std::uint8_t, CANFD_MTU> rx{};
+  alignas(cmsghdr) std::array<char, kControlBytes> control{};
+  iovec iov{};
+  msghdr msg{};
+  std::array<std::uint8_t, socketcan_detail::kFdMtu> tx{};
+  bool set_up = false;
+
+  Ring() = default;
+  Ring(const Ring&) = delete;
+  Ring& operator=(const Ring&) = delete;
+  ~Ring() {
+    if (set_up) {
+      io_uring_queue_exit(&ring);  // cancels whatever is still in flight
+    }
+  }
+
+  // A ring of 8 entries (a period needs 2, a cancellation 1) with what the exchange needs: a
+  // send whose success posts no completion (5.17) and a wait with a timeout in the same call
+  // (5.11). Null where there is none: no io_uring (ENOSYS), seccomp or kernel.io_uring_disabled
+  // refusing it (EPERM), an older kernel.
+  static std::unique_ptr<Ring> create() noexcept {
+    auto r = std::unique_ptr<Ring>(new (std::nothrow) Ring);
+    if (r == nullptr) {
+      return nullptr;
+    }
+    io_uring_params params{};
+    if (io_uring_queue_init_params(8, &r->ring, &params) < 0) {
+      return nullptr;
+    }
+    r->set_up = true;
+    if ((params.features & IORING_FEAT_EXT_ARG) == 0U || (params.features & IORING_FEAT_CQE_SKIP) == 0U) {
+      return nullptr;  // ~Ring exits the ring
+    }
+    r->iov = iovec{r->rx.data(), r->rx.size()};
+    r->msg.msg_iov = &r->iov;
+    r->msg.msg_iovlen = 1;
+    return r;
+  }
+
+  // The next free entry. The ring has 8 and a call takes at most 3, submitting all it took, so
+  // one is always free; were none, submitting what is queued would free them.
+  io_uring_sqe* next_sqe() noexcept {
+    for (;;) {
+      if (io_uring_sqe* sqe = io_uring_get_sqe(&ring); sqe != nullptr) {
+        return sqe;
+      }
+      (void)io_uring_submit(&ring);
+    }
+  }
+
+  // Takes every completion there is: a failed send's result into `send_res`, the receive's into
+  // `receive_res` (each kNone until seen); a cancellation's is dropped. No system call.
+  static constexpr int kNone = std::numeric_limits<int>::min();
+  void reap(int& send_res, int& receive_res) noexcept {
+    io_uring_cqe* cqe = nullptr;
+    while (io_uring_peek_cqe(&ring, &cqe) == 0 && cqe != nullptr) {
+      const std::uint64_t tag = io_uring_cqe_get_data64(cqe);
+      if (tag == kTagSend) {
+        send_res = cqe->res;
+      } else if (tag == kTagReceive) {
+        receive_res = cqe->res;
+      }
+      io_uring_cqe_seen(&ring, cqe);
+    }
+  }
+};
+
 SocketCanBus::SocketCanBus(SocketCanConfig config) : config_(std::move(config)) {
   Status status = open_socket();
   if (!status.ok()) {
     throw HalError(status.error_number(), status.message());
   }
+  if (config_.io_uring) {
+    ring_ = Ring::create();
+  }
 }
+
+SocketCanBus::~SocketCanBus() = default;
 
 std::unique_ptr<SocketCanBus> SocketCanBus::open(SocketCanConfig config, Status& error) {
   try {
@@ -546,12 +638,105 @@ ReceiveStatus SocketCanBus::do_receive_backstop(ReceivedFrame& out, std::chrono:
   return read_one(out, true);  // EAGAIN (the timeout) and EINTR (a signal) both read as a timeout
 }
 
+ExchangeResult SocketCanBus::do_send_and_receive(const CanFrame* frame, std::int64_t send_deadline_ns,
+                                                 ReceivedFrame& out, std::int64_t now_ns,
+                                                 std::int64_t receive_deadline_ns) noexcept {
+  if (ring_ == nullptr || !fd_.valid() || receive_deadline_ns <= now_ns ||
+      (frame != nullptr && !is_sendable(*frame, config_.fd))) {
+    return CanBus::do_send_and_receive(frame, send_deadline_ns, out, now_ns, receive_deadline_ns);
+  }
+  Ring& r = *ring_;
+  int send_res = Ring::kNone;
+  int receive_res = Ring::kNone;
+  r.reap(send_res, receive_res);  // nothing is left from a call before (each ends with its receive's)
+  send_res = Ring::kNone;
+  receive_res = Ring::kNone;
+  // The send first: the kernel issues the entries in order, the send at once (MSG_DONTWAIT: a full
+  // queue fails it instead of queueing it in the ring), the read next, which finds a frame already
+  // queued at once or else waits on the socket inside the kernel.
+  if (frame != nullptr) {
+    const std::size_t size = socketcan_detail::encode(*frame, r.tx);
+    io_uring_sqe* sqe = r.next_sqe();
+    io_uring_prep_send(sqe, fd_.get(), r.tx.data(), size, MSG_DONTWAIT);
+    io_uring_sqe_set_flags(sqe, IOSQE_CQE_SKIP_SUCCESS);
+    io_uring_sqe_set_data64(sqe, kTagSend);
+  }
+  r.msg.msg_control = r.control.data();
+  r.msg.msg_controllen = r.control.size();
+  r.msg.msg_flags = 0;
+  io_uring_sqe* sqe = r.next_sqe();
+  io_uring_prep_recvmsg(sqe, fd_.get(), &r.msg, 0);
+  io_uring_sqe_set_data64(sqe, kTagReceive);
+  last_receive_waited_ = true;
+  out.waited_ns = -1;
+
+  ExchangeResult result;
+  __kernel_timespec ts = kernel_timespec(receive_deadline_ns - now_ns);
+  io_uring_cqe* cqe = nullptr;
+  // One system call in the steady state: submit both, wait for a completion or the timeout.
+  int rc = io_uring_submit_and_wait_timeout(&r.ring, &cqe, 1, &ts, nullptr);
+  for (;;) {
+    r.reap(send_res, receive_res);
+    if (send_res != Ring::kNone) {
+      // Refused (a full queue, the interface gone, ...): the read waits in the kernel meanwhile,
+      // and the send goes the plain way, with its wait for room and its counting.
+      result.sent = send_until(*frame, std::chrono::nanoseconds{0}, send_deadline_ns);
+      send_res = Ring::kNone;
+      frame = nullptr;
+    }
+    if (receive_res != Ring::kNone) {
+      break;
+    }
+    // The wait ended without the read: its timeout (or the deadline passed while the refused
+    // send waited for room), or a signal, or the refused send's completion, or a failed wait.
+    // Wait on to the deadline, or take the read back.
+    const bool wait_over = rc == -ETIME || (rc < 0 && rc != -EINTR);
+    const std::int64_t left_ns = wait_over ? 0 : receive_deadline_ns - monotonic_ns();
+    if (left_ns > 0) {
+      ts = kernel_timespec(left_ns);
+      rc = io_uring_wait_cqe_timeout(&r.ring, &cqe, &ts);
+      continue;
+    }
+    io_uring_sqe* cancel = r.next_sqe();
+    io_uring_prep_cancel64(cancel, kTagReceive, 0);
+    io_uring_sqe_set_data64(cancel, kTagCancel);
+    // Until the read's own completion: ECANCELED, or a frame that came meanwhile (delivered).
+    for (;;) {
+      const int submitted = io_uring_submit_and_wait(&r.ring, 1);
+      r.reap(send_res, receive_res);
+      if (receive_res != Ring::kNone) {
+        break;
+      }
+      if (submitted < 0 && submitted != -EINTR) {
+        // The ring itself fails (not seen): closing it cancels the read, and the calls after this
+        // one take the two-call way.
+        last_errno_ = -submitted;
+        bump(counters_.rx_errors);
+        ring_.reset();
+        if (frame != nullptr) {
+          bump(counters_.tx_frames);
+        }
+        result.received = ReceiveStatus::kError;
+        return result;
+      }
+    }
+  }
+  if (frame != nullptr) {
+    bump(counters_.tx_frames);  // sent: a refusal would have posted its completion at submission
+  }
+  const int res = receive_res;
+  if (res == -ECANCELED) {
+    result.received = ReceiveStatus::kTimeout;
+    return result;
+  }
+  result.received = finish_read(res, res < 0 ? -res : 0, r.msg, r.rx.data(), out);
+  return result;
+}
+
 ReceiveStatus SocketCanBus::read_one(ReceivedFrame& out, bool block) noexcept {
   std::array<std::uint8_t, CANFD_MTU> buffer{};
   iovec iov{buffer.data(), buffer.size()};
-  // Room for SO_TIMESTAMPING (3 timespecs) and SO_RXQ_OVFL (a u32), as candump sizes it.
-  alignas(cmsghdr) std::array<char, CMSG_SPACE(3 * sizeof(timespec)) + CMSG_SPACE(sizeof(std::uint32_t)) + 64>
-      control{};
+  alignas(cmsghdr) std::array<char, kControlBytes> control{};
   msghdr msg{};
   msg.msg_iov = &iov;
   msg.msg_iovlen = 1;
@@ -562,8 +747,13 @@ ReceiveStatus SocketCanBus::read_one(ReceivedFrame& out, bool block) noexcept {
   do {
     n = ::recvmsg(fd_.get(), &msg, block ? 0 : MSG_DONTWAIT);
   } while (n < 0 && errno == EINTR && !block);
+  return finish_read(n, n < 0 ? errno : 0, msg, buffer.data(), out);
+}
+
+ReceiveStatus SocketCanBus::finish_read(long n, int error_number, msghdr& msg, const std::uint8_t* buffer,
+                                        ReceivedFrame& out) noexcept {
   if (n < 0) {
-    const int e = errno;
+    const int e = error_number;
     if (e == EAGAIN || e == EINTR) {
       return ReceiveStatus::kTimeout;  // nothing queued (or, blocking, the wait ended without a frame)
     }
@@ -601,7 +791,7 @@ ReceiveStatus SocketCanBus::read_one(ReceivedFrame& out, bool block) noexcept {
 
   const auto size = static_cast<std::size_t>(n);
   if ((size != CAN_MTU && size != CANFD_MTU) || (msg.msg_flags & MSG_TRUNC) != 0 ||
-      !socketcan_detail::decode(std::span<const std::uint8_t>{buffer.data(), size}, out.frame)) {
+      !socketcan_detail::decode(std::span<const std::uint8_t>{buffer, size}, out.frame)) {
     bump(counters_.bad_size_reads);
     bump(counters_.rx_errors);
     last_errno_ = EBADMSG;

@@ -104,6 +104,13 @@ struct ReceivedFrame {
   std::int64_t waited_ns = -1;
 };
 
+// What send_and_receive() did: the send's result (kOk when there was nothing to send) and the
+// receive's.
+struct ExchangeResult {
+  SendResult sent = SendResult::kOk;
+  ReceiveStatus received = ReceiveStatus::kTimeout;
+};
+
 // Monotonic counts since the endpoint was created (reopen() keeps them).
 struct CanBusCounters {
   std::uint64_t tx_frames = 0;           // frames handed to the kernel / bus
@@ -154,6 +161,23 @@ class CanBus {
     return do_receive_backstop(out, timeout);
   }
 
+  // A lockstep period's input and output in one call: sends `*frame` (unless null) as
+  // send_before(*frame, send_deadline_ns) does, then waits for one frame as receive() does, until
+  // `receive_deadline_ns` on the monotonic clock. `now_ns` is a reading of that clock the caller
+  // took since its last wait (the first wait lasts receive_deadline_ns - now_ns; a wait that a
+  // signal or a refused send cut short goes on to the deadline from a fresh reading).
+  //   SocketCanBus does both in one system call where the kernel has io_uring (one
+  // io_uring_enter: the send, the read and the wait; receive() costs a poll and a read besides a
+  // send, and under User-Mode Linux every system call costs as much as a frame's trip); it then
+  // cannot tell the wait's length (out.waited_ns -1): the frame's receive timestamp dates it.
+  // Elsewhere, and for a deadline already past, the two calls.
+  ExchangeResult send_and_receive(const CanFrame* frame, std::int64_t send_deadline_ns, ReceivedFrame& out,
+                                  std::int64_t now_ns, std::int64_t receive_deadline_ns) noexcept {
+    return do_send_and_receive(frame, send_deadline_ns, out, now_ns, receive_deadline_ns);
+  }
+  // Whether send_and_receive() takes one system call (SocketCanBus with io_uring), for the log.
+  [[nodiscard]] virtual bool exchanges_in_one_call() const noexcept { return false; }
+
   // Replaces the kernel receive filters (CAN_RAW_FILTER). Not for the hot path.
   virtual Status set_filters(std::span<const CanFilter> filters) = 0;
   // Selects which error-frame classes (CanErrorClass bits) reach receive() (CAN_RAW_ERR_FILTER).
@@ -176,6 +200,16 @@ class CanBus {
   virtual ReceiveStatus do_receive(ReceivedFrame& out, std::chrono::nanoseconds timeout) noexcept = 0;
   virtual ReceiveStatus do_receive_backstop(ReceivedFrame& out, std::chrono::nanoseconds timeout) noexcept {
     return do_receive(out, timeout);
+  }
+  virtual ExchangeResult do_send_and_receive(const CanFrame* frame, std::int64_t send_deadline_ns,
+                                             ReceivedFrame& out, std::int64_t now_ns,
+                                             std::int64_t receive_deadline_ns) noexcept {
+    ExchangeResult result;
+    if (frame != nullptr) {
+      result.sent = do_send_before(*frame, send_deadline_ns);
+    }
+    result.received = do_receive(out, std::chrono::nanoseconds{std::max<std::int64_t>(receive_deadline_ns - now_ns, 0)});
+    return result;
   }
 };
 

@@ -20,6 +20,8 @@
 #include "pmsm/hal/can_bus.hpp"
 #include "pmsm/hal/unique_fd.hpp"
 
+struct msghdr;
+
 namespace pmsm::hal {
 
 struct SocketCanConfig {
@@ -31,6 +33,10 @@ struct SocketCanConfig {
   // Socket receive buffer in bytes (SO_RCVBUFFORCE with CAP_NET_ADMIN, else SO_RCVBUF, which
   // the kernel caps at net.core.rmem_max); 0 keeps the kernel default.
   int receive_buffer_bytes = 0;
+  // Set up an io_uring for send_and_receive() (a lockstep period's send and wait in one system
+  // call) where the kernel allows it (exchanges_in_one_call() says whether it did); off, that
+  // call makes a send and a receive.
+  bool io_uring = false;
 };
 
 class SocketCanBus final : public CanBus {
@@ -46,7 +52,7 @@ class SocketCanBus final : public CanBus {
   // Non-throwing form: the bus, or nullptr and `error` filled in.
   [[nodiscard]] static std::unique_ptr<SocketCanBus> open(SocketCanConfig config, Status& error);
 
-  ~SocketCanBus() override = default;
+  ~SocketCanBus() override;
   SocketCanBus(SocketCanBus&&) = delete;  // the counters are shared with reader threads
   SocketCanBus& operator=(SocketCanBus&&) = delete;
 
@@ -60,6 +66,10 @@ class SocketCanBus final : public CanBus {
   [[nodiscard]] CanBusState state() const noexcept override;
   [[nodiscard]] bool interface_up() const noexcept override;
   [[nodiscard]] bool fd_enabled() const noexcept override { return config_.fd; }
+  // Whether send_and_receive() is one io_uring_enter: the kernel has io_uring with the
+  // features it needs (5.17: a send's success without a completion; 5.11: a wait with a
+  // timeout), and neither seccomp nor kernel.io_uring_disabled refused the ring.
+  [[nodiscard]] bool exchanges_in_one_call() const noexcept override { return ring_ != nullptr; }
 
   [[nodiscard]] const std::string& interface_name() const noexcept { return config_.interface; }
   [[nodiscard]] int interface_index() const noexcept { return ifindex_; }
@@ -79,8 +89,11 @@ class SocketCanBus final : public CanBus {
   SendResult send_until(const CanFrame& frame, std::chrono::nanoseconds max_wait, std::int64_t deadline_ns) noexcept;
   ReceiveStatus do_receive(ReceivedFrame& out, std::chrono::nanoseconds timeout) noexcept override;
   ReceiveStatus do_receive_backstop(ReceivedFrame& out, std::chrono::nanoseconds timeout) noexcept override;
+  ExchangeResult do_send_and_receive(const CanFrame* frame, std::int64_t send_deadline_ns, ReceivedFrame& out,
+                                     std::int64_t now_ns, std::int64_t receive_deadline_ns) noexcept override;
 
  private:
+  struct Ring;  // the io_uring and the buffers its operations use (socketcan.cpp)
   struct AtomicCounters {
     std::atomic<std::uint64_t> tx_frames{0};
     std::atomic<std::uint64_t> rx_frames{0};
@@ -99,6 +112,10 @@ class SocketCanBus final : public CanBus {
   Status apply_filters();
   Status apply_error_mask();
   ReceiveStatus read_one(ReceivedFrame& out, bool block = false) noexcept;
+  // A read's outcome: `n` bytes into `buffer` with `msg`'s control messages, or (n < 0) the
+  // error `error_number`.
+  ReceiveStatus finish_read(long n, int error_number, ::msghdr& msg, const std::uint8_t* buffer,
+                            ReceivedFrame& out) noexcept;
 
   SocketCanConfig config_;
   UniqueFd fd_;
@@ -110,6 +127,7 @@ class SocketCanBus final : public CanBus {
   std::int64_t receive_timeout_ns_ = 0; // SO_RCVTIMEO as last set (0: none, reads block)
   std::atomic<CanBusState> state_{CanBusState::kErrorActive};
   AtomicCounters counters_;
+  std::unique_ptr<Ring> ring_;  // null: no io_uring here, send_and_receive() makes two calls
 };
 
 // Why `name` cannot name a network interface, or "" when it can: the kernel's rule
