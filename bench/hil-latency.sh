@@ -13,6 +13,8 @@
 # (a) or of SENSOR_SAMPLE (b), whose intervals are one whole exchange or lockstep period.
 # Prints both distributions (min, median, p99, p99.9, max, a histogram) as JSON lines and the
 # ratios b/a. A measurement: no pass or fail. docs/performance.md has the figures.
+# HIL_LATENCY_IO_URING=0 runs the daemon with can.io_uring = false (a send, a poll and a read a
+# period instead of one io_uring_enter), to compare the two in one boot.
 set -euo pipefail
 prog=hil-latency
 [ $# -ge 1 ] || { echo "usage: $0 BUILD_DIR [PERIODS]" >&2; exit 2; }
@@ -48,8 +50,6 @@ floor=$(tail -1 "$work/floor.json")
 echo "floor (two processes, ping-pong): $floor"
 
 # (b) pmsm-plant <-> pmsm-thermald in lockstep.
-# HIL_LATENCY_IO_URING=0: the daemon's period as a send, a poll and a read (can.io_uring = false),
-# for a side-by-side comparison in one boot.
 io_uring=$([ "${HIL_LATENCY_IO_URING:-1}" = 0 ] && echo false || echo true)
 sed -e "s/^interface = .*/interface = \"$iface\"\nio_uring = $io_uring/" "$src/tests/hil/data/hil-daemon.toml" > "$work/daemon.toml"
 "$thermald" --config "$work/daemon.toml" > "$work/daemon.log" 2>&1 &

@@ -143,6 +143,16 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns, 
     counters_.commands_sent.bump();
     after_ns_ = hal::monotonic_ns();
     after_read_ = true;
+    if (received_ns > after_ns_) {
+      // Dated by its receive timestamp through an offset that moved since it was read
+      // (in_hand_ns()): the sample was in hand before this reading. The offset is read again; the
+      // latency and the answer's period count from the reading.
+      counters_.stamp_dated_late.bump();
+      (void)read_realtime_offset(after_ns_);
+      received_ns = after_ns_;
+      staged_deadline_ns_ = std::min(staged_deadline_ns_, after_ns_ + period_ns_);
+      after_ns_ = hal::monotonic_ns();  // after the offset's readings (system calls)
+    }
     record_timing(after_ns_ - received_ns);
   } else {
     // No sample to answer: the drive's last answer no longer holds (a repeat of that sample
@@ -499,13 +509,18 @@ std::int64_t DriveLoop::arrival_ns(std::int64_t read_ns) noexcept {
 // sample comes after the answer; the loop had it a wake-up later, which arrival_ns() counts as
 // none, as it counts any wait under a sample timeout); else (a frame queued before the wait, a
 // wall clock set since the offset was read, no timestamp) the clock.
-std::int64_t DriveLoop::in_hand_ns(std::int64_t now, bool now_read, std::int64_t deadline) const noexcept {
+//   The offset is read once a second: one that moved since (a wall clock slewed or set by less
+// than the window) dates the frame off by as much, late or early. Early counts as a longer wait,
+// as a reading would. Late is caught by the clock reading after the step (step(): the frame was in
+// hand before it), and the reading is taken instead (stamp_dated_late).
+std::int64_t DriveLoop::in_hand_ns(std::int64_t now, bool now_read, std::int64_t deadline) noexcept {
   if (now_read && received_.waited_ns >= 0) {
     return now + received_.waited_ns;
   }
-  if (now_read && received_.software_timestamp_ns != 0) {
+  if (exchange_ && now_read && received_.software_timestamp_ns != 0) {
     const std::int64_t stamped = received_.software_timestamp_ns - realtime_offset_ns_;
     if (stamped >= now && stamped <= deadline) {
+      counters_.stamp_dated_frames.bump();
       return stamped;
     }
   }
@@ -565,7 +580,8 @@ void DriveLoop::run(const std::atomic<bool>& stop) {
         now = after_ns_;
         now_read = after_read_;
         if (counters_.samples.get() != samples_before) {
-          deadline = at + sample_timeout_ns_;
+          // (A frame dated late by its timestamp, step(): from the reading after its step.)
+          deadline = std::min(at, now) + sample_timeout_ns_;
         }
         break;
       }
@@ -645,6 +661,8 @@ LoopStats DriveLoop::stats() const noexcept {
   for (std::size_t k = 0; k < s.rejected.size(); ++k) {
     s.rejected[k] = c.rejected[k].get();
   }
+  s.stamp_dated_frames = c.stamp_dated_frames.get();
+  s.stamp_dated_late = c.stamp_dated_late.get();
   s.tx_dropped = c.tx_dropped.get();
   s.tx_failures = c.tx_failures.get();
   s.rx_errors = c.rx_errors.get();

@@ -105,6 +105,11 @@ struct LoopStats {
   std::uint64_t events_held = 0;
   std::uint64_t events_lost = 0;
   std::uint64_t deadline_misses = 0;       // receive -> send longer than one control period
+  // Frames dated by their receive timestamp alone, with no clock reading (the bus sent and waited
+  // in one call: in_hand_ns()), and those of them a clock reading after their step found dated
+  // late (the realtime offset had moved since it was read: read again, the reading taken).
+  std::uint64_t stamp_dated_frames = 0;
+  std::uint64_t stamp_dated_late = 0;
   std::uint64_t interface_losses = 0;
   std::uint64_t reopens = 0;
   bool interface_down = false;
@@ -184,7 +189,7 @@ class DriveLoop {
   void send_answer(const hal::CanFrame& frame, std::int64_t arrival_ns) noexcept;
   void flush_answer() noexcept;
   void count_send(hal::SendResult result) noexcept;
-  [[nodiscard]] std::int64_t in_hand_ns(std::int64_t now, bool now_read, std::int64_t deadline) const noexcept;
+  [[nodiscard]] std::int64_t in_hand_ns(std::int64_t now, bool now_read, std::int64_t deadline) noexcept;
   void recover_interface(const std::atomic<bool>& stop) noexcept;
   void switch_off() noexcept;
   [[nodiscard]] std::int64_t sample_timeout_ns() const noexcept { return sample_timeout_ns_; }
@@ -262,6 +267,7 @@ class DriveLoop {
     std::array<hal::SingleWriterCounter, 3> commands_accepted;
     std::array<hal::SingleWriterCounter, hal::protocol::kDecodeStatusCount> rejected;
     hal::SingleWriterCounter tx_dropped, tx_failures, rx_errors, publications_dropped, deadline_misses;
+    hal::SingleWriterCounter stamp_dated_frames, stamp_dated_late;
     hal::SingleWriterCounter events_held, events_lost;
     hal::SingleWriterCounter interface_losses, reopens, max_step_ns;
     std::array<hal::SingleWriterCounter, kTimingBuckets> timing_us;

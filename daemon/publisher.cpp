@@ -677,12 +677,14 @@ std::string Publisher::summary() const {
       "{}/{}/{}, rejected frames {} ({}), deadline misses {}, {}, frames published {} (failed {}), publication records "
       "dropped {} (events held {}, lost {}), calibrations stored {}, "
       "interface losses {} (publishing socket reopened {}), CAN I/O: commands dropped {} (queue full), failed sends {}, "
-      "failed reads {}, frames dropped on receive {}, frames of this node sent by another device {}",
+      "failed reads {}, frames dropped on receive {}, frames of this node sent by another device {}, frames dated by their "
+      "receive timestamp alone {} (found late and read again {})",
       s.periods, s.samples, s.resent_samples, s.missing_samples, s.skipped_samples, s.stale_samples, s.commands_sent, s.commands_accepted[0], s.commands_accepted[1],
       s.commands_accepted[2], rejected, rejected == 0U ? std::string("none") : rejected_text(s, LoopStats{}), s.deadline_misses,
       timing_text(s), stats_.frames_sent, stats_.frames_failed, s.publications_dropped, s.events_held, s.events_lost,
       stats_.calibrations_stored, s.interface_losses,
-      stats_.reopens, s.tx_dropped, s.tx_failures, s.rx_errors, s.rx_overflow, stats_.foreign_frames);
+      stats_.reopens, s.tx_dropped, s.tx_failures, s.rx_errors, s.rx_overflow, stats_.foreign_frames,
+      s.stamp_dated_frames, s.stamp_dated_late);
 }
 
 }  // namespace pmsm::daemon

@@ -513,10 +513,15 @@ void heat_up_tracks_the_plants_truth(bool one_call) {
   EXPECT_EQ(s.tx_failures + s.tx_dropped, 0U);
   if (one_call) {
     // Every answer but the few sent ahead of a clock reading, an outage or the stop went with
-    // the wait for the next sample (one a second goes before the offset's readings).
+    // the wait for the next sample (one a second goes before the offset's readings), and nearly
+    // every sample was dated by its receive timestamp, without a clock reading (the others: a
+    // sample that came before the wait began, after a step that sent nothing).
     EXPECT_GE(axis.answers_exchanged(), s.commands_sent - s.commands_sent / 1000U - 10U) << s.commands_sent << " sent";
+    EXPECT_GE(s.stamp_dated_frames, s.samples - s.samples / 100U) << s.samples << " samples";
+    EXPECT_LE(s.stamp_dated_late, s.stamp_dated_frames / 100U) << "an offset that moved (a slewed clock) now and then";
   } else {
     EXPECT_EQ(axis.answers_exchanged(), 0U);
+    EXPECT_EQ(s.stamp_dated_frames, 0U);
   }
 }
 

@@ -150,6 +150,17 @@ CanBusState state_after_error_frame(const CanFrame& error_frame, CanBusState cur
   return current;
 }
 
+ExchangeResult CanBus::do_send_and_receive(const CanFrame* frame, std::int64_t send_deadline_ns, ReceivedFrame& out,
+                                           std::int64_t now_ns, std::int64_t receive_deadline_ns) noexcept {
+  ExchangeResult result;
+  if (frame != nullptr) {
+    result.sent = do_send_before(*frame, send_deadline_ns);
+    now_ns = monotonic_ns();
+  }
+  result.received = do_receive(out, std::chrono::nanoseconds{std::max<std::int64_t>(receive_deadline_ns - now_ns, 0)});
+  return result;
+}
+
 SendResult CanBus::do_send_before(const CanFrame& frame, std::int64_t deadline_ns) noexcept {
   const std::int64_t left_ns = deadline_ns - monotonic_ns();
   return do_send(frame, std::chrono::nanoseconds{left_ns > 0 ? left_ns : 0});

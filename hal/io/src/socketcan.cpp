@@ -641,7 +641,7 @@ ReceiveStatus SocketCanBus::do_receive_backstop(ReceivedFrame& out, std::chrono:
 ExchangeResult SocketCanBus::do_send_and_receive(const CanFrame* frame, std::int64_t send_deadline_ns,
                                                  ReceivedFrame& out, std::int64_t now_ns,
                                                  std::int64_t receive_deadline_ns) noexcept {
-  if (ring_ == nullptr || !fd_.valid() || receive_deadline_ns <= now_ns ||
+  if (!exchanges_in_one_call() || !fd_.valid() || receive_deadline_ns <= now_ns ||
       (frame != nullptr && !is_sendable(*frame, config_.fd))) {
     return CanBus::do_send_and_receive(frame, send_deadline_ns, out, now_ns, receive_deadline_ns);
   }
@@ -708,13 +708,15 @@ ExchangeResult SocketCanBus::do_send_and_receive(const CanFrame* frame, std::int
         break;
       }
       if (submitted < 0 && submitted != -EINTR) {
-        // The ring itself fails (not seen): closing it cancels the read, and the calls after this
-        // one take the two-call way.
+        // The ring itself fails (not seen). It is parked, never freed while the read may be in
+        // the kernel's hands, and the calls after this one take the two-call way; the send is
+        // counted as failed, whether or not it went.
         last_errno_ = -submitted;
         bump(counters_.rx_errors);
-        ring_.reset();
+        ring_failed_ = true;
         if (frame != nullptr) {
-          bump(counters_.tx_frames);
+          bump(counters_.tx_errors);
+          result.sent = SendResult::kError;
         }
         result.received = ReceiveStatus::kError;
         return result;

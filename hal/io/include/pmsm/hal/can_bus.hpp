@@ -201,16 +201,11 @@ class CanBus {
   virtual ReceiveStatus do_receive_backstop(ReceivedFrame& out, std::chrono::nanoseconds timeout) noexcept {
     return do_receive(out, timeout);
   }
+  // The two calls: the send, then a receive until the deadline (from a fresh reading of the clock
+  // after a send, which may have waited for room).
   virtual ExchangeResult do_send_and_receive(const CanFrame* frame, std::int64_t send_deadline_ns,
                                              ReceivedFrame& out, std::int64_t now_ns,
-                                             std::int64_t receive_deadline_ns) noexcept {
-    ExchangeResult result;
-    if (frame != nullptr) {
-      result.sent = do_send_before(*frame, send_deadline_ns);
-    }
-    result.received = do_receive(out, std::chrono::nanoseconds{std::max<std::int64_t>(receive_deadline_ns - now_ns, 0)});
-    return result;
-  }
+                                             std::int64_t receive_deadline_ns) noexcept;
 };
 
 // Checks a frame against CAN / CAN FD limits (identifier range, length, FD lengths, no

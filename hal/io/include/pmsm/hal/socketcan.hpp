@@ -69,7 +69,7 @@ class SocketCanBus final : public CanBus {
   // Whether send_and_receive() is one io_uring_enter: the kernel has io_uring with the
   // features it needs (5.17: a send's success without a completion; 5.11: a wait with a
   // timeout), and neither seccomp nor kernel.io_uring_disabled refused the ring.
-  [[nodiscard]] bool exchanges_in_one_call() const noexcept override { return ring_ != nullptr; }
+  [[nodiscard]] bool exchanges_in_one_call() const noexcept override { return ring_ != nullptr && !ring_failed_; }
 
   [[nodiscard]] const std::string& interface_name() const noexcept { return config_.interface; }
   [[nodiscard]] int interface_index() const noexcept { return ifindex_; }
@@ -128,6 +128,7 @@ class SocketCanBus final : public CanBus {
   std::atomic<CanBusState> state_{CanBusState::kErrorActive};
   AtomicCounters counters_;
   std::unique_ptr<Ring> ring_;  // null: no io_uring here, send_and_receive() makes two calls
+  bool ring_failed_ = false;    // the ring failed a call: parked (a read may be in flight), not used
 };
 
 // Why `name` cannot name a network interface, or "" when it can: the kernel's rule
