@@ -325,5 +325,17 @@ wait "$daemon2_pid" || die "the restarted daemon did not stop cleanly: $(tail -3
 grep -q "accepted drive/injection/calibration commands [0-9]*/0/3," "$work/daemon-2.log" ||
   die "a repeated calibration request was lost: $(grep -o 'accepted drive/injection/calibration commands [0-9/]*' "$work/daemon-2.log")"
 echo "$prog: a second supervisor run's calibration request reached the daemon"
+# Where the daemon sends and waits in one system call (io_uring), its samples are dated by their
+# receive timestamps, without a clock reading: nearly all of them, on this kernel's clocks.
+samples=$(grep -o "stopped: periods [0-9]*, samples [0-9]*" "$work/daemon-2.log" | grep -o "[0-9]*\$")
+dated=$(grep -o "frames dated by their receive timestamp alone [0-9]* (found late and read again [0-9]*)" "$work/daemon-2.log")
+[ -n "$samples" ] && [ -n "$dated" ] || die "the restarted daemon's stop line lacks its sample counts: $(tail -1 "$work/daemon-2.log")"
+if grep -q "CAN: each period's answer and wait for the next sample in one system call" "$work/daemon-2.log"; then
+  n=$(grep -o "alone [0-9]*" <<<"$dated" | grep -o "[0-9]*")
+  [ "$n" -ge $((samples * 9 / 10)) ] || die "one system call a period, but only $n of $samples samples dated by their timestamps ($dated)"
+  echo "$prog: one system call a period (io_uring): $samples samples, $dated"
+else
+  echo "$prog: a send and a wait a period (no io_uring here): $samples samples"
+fi
 ok=1
 echo "$prog: PASS"
