@@ -534,9 +534,10 @@ void DriveLoop::run(const std::atomic<bool>& stop) {
   // The wait for the next sample starts from that reading, and the moment the sample is in hand
   // is that reading plus the wait as the kernel accounted it (SocketCanBus: ppoll's time left),
   // where the backend tells it, or its receive timestamp where one call sent and waited
-  // (in_hand_ns()); else, and after a frame that sent no command, the clock is read again. A wake-up without a sample reads the clock too. (Under User-Mode Linux
-  // a clock reading is a system call, as costly as a frame's; on a controller with a vDSO it is
-  // tens of nanoseconds, and the kernel's account of the wait is as good as a reading.)
+  // (in_hand_ns()); else, and after a frame that sent no command, the clock is read again. A
+  // wake-up without a sample reads the clock too. (Under User-Mode Linux a clock reading is a
+  // system call, as costly as a frame's; on a controller with a vDSO it is tens of nanoseconds,
+  // and the kernel's account of the wait is as good as a reading.)
   std::int64_t now = hal::monotonic_ns();
   bool now_read = true;  // `now` was read from the clock, with no wait since
   std::int64_t deadline = now + sample_timeout_ns_;

@@ -183,9 +183,9 @@ class DriveLoop {
   // wait would hold up the next sample); what cannot go is dropped and counted.
   // Where the bus sends and waits in one call (exchanges_in_one_call()), the answer is staged
   // instead, and run() sends it with its wait for the next frame; anything that would hold it
-  // up (the once-a-second clock readings, an interface recovery, the stop) sends it first
-  // (flush_answer()). The step's latency then ends when the answer is staged, before the call
-  // that sends it.
+  // up (the once-a-second clock readings, a missing period, an interface recovery, the stop)
+  // sends it first (flush_answer()). The step's latency then ends when the answer is staged,
+  // before the call that sends it.
   void send_answer(const hal::CanFrame& frame, std::int64_t arrival_ns) noexcept;
   void flush_answer() noexcept;
   void count_send(hal::SendResult result) noexcept;

@@ -107,15 +107,10 @@ trap 'hil_cleanup; [ -z "$scratch" ] || ip link delete "$scratch" 2>/dev/null ||
 # truth frame, which is up to 100 ms of simulated time old: at 400x thermal acceleration the
 # winding warms up to 7 C in that time, and the stale comparison read as a 6.9-7.2 C error
 # twice in five runs. Apart, so that the start-up checks below re-read a small log.
-# At a higher priority where the test may set one, as daemon_hil.sh's candump (since the daemons
-# send and wait in one system call the lockstep pairs run faster, and User-Mode Linux has one CPU).
-observer_priority=()
-if nice -n -10 true 2>/dev/null; then
-  observer_priority=(nice -n -10)
-fi
-"${observer_priority[@]}" candump -L -r 16777216 "$iface,010~7F0,020~7F0,300~700,600~600,j" >"$work/capture.log" &
+# At a higher priority where the test may set one (lib.sh, hil_observer).
+"${hil_observer[@]}" candump -L -r 16777216 "$iface,010~7F0,020~7F0,300~700,600~600,j" >"$work/capture.log" &
 pids+=("$!")
-"${observer_priority[@]}" candump -L -r 16777216 "$iface,020:7F0" >"$work/samples.log" &
+"${hil_observer[@]}" candump -L -r 16777216 "$iface,020:7F0" >"$work/samples.log" &
 pids+=("$!")
 
 daemon_pid=()

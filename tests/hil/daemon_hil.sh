@@ -90,18 +90,9 @@ timeout 20 "$thermald" --config "$work/daemon-vcan7.toml" > "$work/daemon-vcan7.
   "$work/daemon-vcan7.log" || die "a missing vcan7: exit $rc, expected 1 and how to make one: $(grep error "$work/daemon-vcan7.log")"
 
 # A large receive buffer: under User-Mode Linux on a loaded host candump can fall behind, and
-# a frame it drops would read as an alive-counter jump in the strict decode below. And a higher
-# priority where the test may set one (root in the guest): User-Mode Linux has one CPU, and
-# since the daemon sends and waits in one system call (io_uring) the lockstep pair runs about
-# 1.6 times as fast; at the same priority candump then lost a third of the frames of the heat-up.
-# (nice -10 rather than SCHED_FIFO: enough for candump to keep up, every frame captured in two
-# runs, without preempting the daemon at every frame: its step latency's median read < 32 us
-# under nice, < 256-512 us under FIFO. The heat-up took 52-60 s of wall time either way.)
-observer_priority=()
-if nice -n -10 true 2>/dev/null; then
-  observer_priority=(nice -n -10)
-fi
-"${observer_priority[@]}" candump -L -r 16777216 "$iface" > "$work/candump.log" &
+# a frame it drops would read as an alive-counter jump in the strict decode below; and a higher
+# priority (lib.sh, hil_observer).
+"${hil_observer[@]}" candump -L -r 16777216 "$iface" > "$work/candump.log" &
 candump_pid=$!
 pids+=("$candump_pid")
 "$thermald" --config "$work/daemon.toml" > "$work/daemon.log" 2>&1 &

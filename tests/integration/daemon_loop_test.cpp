@@ -98,16 +98,12 @@ class Unbindable final : public hal::CanBus {
   hal::ExchangeResult do_send_and_receive(const hal::CanFrame* frame, std::int64_t send_deadline_ns,
                                           hal::ReceivedFrame& out, std::int64_t now_ns,
                                           std::int64_t receive_deadline_ns) noexcept override {
-    if (!exchanging_) {
-      return hal::CanBus::do_send_and_receive(frame, send_deadline_ns, out, now_ns, receive_deadline_ns);
+    const hal::ExchangeResult result =
+        hal::CanBus::do_send_and_receive(frame, send_deadline_ns, out, now_ns, receive_deadline_ns);
+    if (exchanging_) {
+      answers_exchanged_.fetch_add(frame != nullptr ? 1U : 0U);
+      out.waited_ns = -1;
     }
-    hal::ExchangeResult result;
-    if (frame != nullptr) {
-      result.sent = do_send_before(*frame, send_deadline_ns);
-      answers_exchanged_.fetch_add(1);
-    }
-    result.received = do_receive(out, std::chrono::nanoseconds{std::max<std::int64_t>(receive_deadline_ns - now_ns, 0)});
-    out.waited_ns = -1;
     return result;
   }
 
