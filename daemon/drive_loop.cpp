@@ -383,23 +383,8 @@ void DriveLoop::on_frame(const hal::CanFrame& frame, std::int64_t now_ns) noexce
     }
   } else if (const auto* injection = std::get_if<protocol::InjectionCommand>(&input)) {
     counters_.commands_accepted[1].bump();
-    core::InjectionMethod method = core::InjectionMethod::kNone;
-    core::Separation separation = core::Separation::kBipolar;
-    switch (injection->method) {
-      case protocol::InjectionMethod::kFixedMagnitudeBipolar: method = core::InjectionMethod::kFixedMagnitude; break;
-      case protocol::InjectionMethod::kFixedMagnitudeUnipolar:
-        method = core::InjectionMethod::kFixedMagnitude;
-        separation = core::Separation::kUnipolar;
-        break;
-      case protocol::InjectionMethod::kFixedAngleBipolar: method = core::InjectionMethod::kFixedAngle; break;
-      case protocol::InjectionMethod::kFixedAngleUnipolar:
-        method = core::InjectionMethod::kFixedAngle;
-        separation = core::Separation::kUnipolar;
-        break;
-      case protocol::InjectionMethod::kDc: method = core::InjectionMethod::kDc; break;
-      case protocol::InjectionMethod::kOff: break;
-    }
-    node_.configure_injection(method, separation, injection->amplitude_A, injection->interval_s);
+    const CoreInjectionMethod m = core_injection_method(injection->method);
+    node_.configure_injection(m.method, m.separation, injection->amplitude_A, injection->interval_s);
     // A request is kept until the step takes it, whatever frame of the stream follows it.
     inputs_.request_injection = inputs_.request_injection || injection->request_now;
   } else if (const auto* calibration = std::get_if<protocol::CalibrationCommand>(&input)) {
@@ -683,6 +668,19 @@ LoopStats DriveLoop::stats() const noexcept {
   s.last_rejection = static_cast<protocol::DecodeStatus>(last >> 16U);
   s.last_rejected_id = last & 0xFFFFU;
   return s;
+}
+
+CoreInjectionMethod core_injection_method(protocol::InjectionMethod method) noexcept {
+  switch (method) {
+    case protocol::InjectionMethod::kFixedMagnitudeBipolar: return {core::InjectionMethod::kFixedMagnitude, core::Separation::kBipolar};
+    case protocol::InjectionMethod::kFixedMagnitudeUnipolar:
+      return {core::InjectionMethod::kFixedMagnitude, core::Separation::kUnipolar};
+    case protocol::InjectionMethod::kFixedAngleBipolar: return {core::InjectionMethod::kFixedAngle, core::Separation::kBipolar};
+    case protocol::InjectionMethod::kFixedAngleUnipolar: return {core::InjectionMethod::kFixedAngle, core::Separation::kUnipolar};
+    case protocol::InjectionMethod::kDc: return {core::InjectionMethod::kDc, core::Separation::kBipolar};
+    case protocol::InjectionMethod::kOff: break;
+  }
+  return {};
 }
 
 }  // namespace pmsm::daemon

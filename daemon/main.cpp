@@ -296,9 +296,10 @@ int run(const Options& o) {
                    foreign);
     }
   }
-  // Defaults that fit only the reference machine, on another motor (a newcomer's 1.5 kW servo
-  // ran on them and read 11 C RMS off).
-  for (const std::string& w : pmsm::app::reference_default_warnings(config.controller)) {
+  // A configuration measured to mislead (app::configuration_warnings): defaults that fit only
+  // the reference machine on another motor (a newcomer's 1.5 kW servo ran on them and read 11 C
+  // RMS off), a method that does not hold a salient machine's torque, and the like.
+  for (const std::string& w : pmsm::app::configuration_warnings(config.controller)) {
     spdlog::warn("{}", w);
   }
   for (const std::string& w : pmsm::daemon::bus_range_warnings(config)) {

@@ -298,6 +298,20 @@ void Publisher::handle(const PublicationRecord& r) {
   }
   if (p.injection) {
     send(*p.injection);
+    // A method picked at run time (INJECTION_CONFIG) that misleads on a machine configured as
+    // salient: said once per method, as the configured one was at start.
+    const unsigned bit = 1U << static_cast<unsigned>(p.injection->method);
+    if ((salient_method_warned_ & bit) == 0U) {
+      salient_method_warned_ |= bit;
+      const CoreInjectionMethod m = core_injection_method(p.injection->method);
+      const core::InjectionConfig& configured = config_.controller.drive.injection;
+      if (!(m.method == configured.method && m.separation == configured.separation)) {
+        if (const std::string w = app::salient_method_warning(config_.controller.drive, m.method, m.separation);
+            !w.empty()) {
+          spdlog::warn("injection method changed by command: {}", w);
+        }
+      }
+    }
   }
   if (p.heartbeat) {
     send(*p.heartbeat);

@@ -83,6 +83,7 @@ class Publisher {
   LoopStats last_{};
   std::chrono::steady_clock::time_point last_report_{};
   bool first_thermal_logged_ = false;
+  unsigned salient_method_warned_ = 0;  // INJECTION_REPORT methods judged, one bit each
   bool ambient_held_ = false;  // as last logged
   std::uint32_t ambient_dropouts_ = 0;  // as last logged
   bool restore_shift_logged_ = false;

@@ -206,12 +206,22 @@ inline constexpr std::string_view kWindingWarmMeasure =
 // else " (+- S K: the ambient plus the thermal model's rise)" (core::Calibration::t0_rise_std_C).
 [[nodiscard]] std::string t0_rise_text(const core::Calibration& c);
 
-// Defaults that describe the reference machine (Table I, 11.9 kW) and no other, on a motor
-// that is another (continuous current under half or over twice the reference's): the thermal
-// model left at the reference's values, a derating floor above the motor's rated peak current.
-// Warnings, not errors: the drive runs, but its model and derating are not this motor's.
-// pmsm-thermald logs them at start and under --check; simulate prints them.
-[[nodiscard]] std::vector<std::string> reference_default_warnings(const ControllerConfig& config);
+// A configuration that loads but is measured to mislead: defaults that describe the reference
+// machine (Table I, 11.9 kW) and no other, on a motor that is another (continuous current
+// under half or over twice the reference's), as the thermal model left at the reference's
+// values; a rated speed the EMF does not let the drive reach; a speed loop that amplifies the
+// encoder's rounding; a derating floor above the motor's rated peak current; an injection
+// method other than fixed-magnitude bipolar on a machine configured as salient.
+// Warnings, not errors: the drive runs, but its model, derating or estimates are not what
+// the engineer meant. pmsm-thermald logs them at start and under --check; simulate prints them.
+[[nodiscard]] std::vector<std::string> configuration_warnings(const ControllerConfig& config);
+
+// configuration_warnings' text for an injection method on a machine configured as salient
+// (injection.max_torque_disturbance_Nm above 0) other than fixed-magnitude bipolar, or "" (a
+// round rotor, no injection, or that method). The daemon also logs it when an INJECTION_CONFIG
+// command picks such a method.
+[[nodiscard]] std::string salient_method_warning(const core::DriveConfig& d, core::InjectionMethod method,
+                                                 core::Separation separation);
 
 // The rated torque the speed loop's noise is judged against: Kt (dq) x the rated peak current.
 [[nodiscard]] double speed_loop_rated_torque_Nm(const core::DriveConfig& d);

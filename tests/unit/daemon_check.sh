@@ -198,6 +198,9 @@ check_warns() {
 check_warns "[controller.calibration]\nfile = \"$dir/no-such-dir/cal.toml\"\n[controller.thermal]\nstate_file = \"$dir\"\n" \
   "controller.calibration.file = $dir/no-such-dir/cal.toml: its directory $dir/no-such-dir does not exist: nothing this run learns can be stored there" \
   "controller.thermal.state_file = $dir: it is a directory"
+# A method that misleads on a machine configured as salient (app::configuration_warnings).
+check_warns "[controller.injection]\nmax_torque_disturbance_Nm = 1.5\nseparation = \"unipolar\"\n" \
+  'controller.injection: method = "fixed-magnitude", separation = "unipolar" on a machine configured as salient'
 # A real-time priority the shipped unit cannot grant (its LimitRTPRIO=): warned, naming the limit.
 limit=$(sed -n 's/^LimitRTPRIO=//p' "$src/systemd/pmsm-thermald@.service")
 check_warns "[rt]\npriority = $((limit + 1))\n" "rt.priority = $((limit + 1)) is above pmsm-thermald@.service's LimitRTPRIO=$limit"

@@ -97,7 +97,7 @@ std::string markdown_row(const SimulationResult& r, const std::string& file) {
 
 Report run_one(const std::string& path, const Scenario& scenario, const SimulateOptions& o) {
   Report r;
-  for (const std::string& w : reference_default_warnings(scenario.controller)) {
+  for (const std::string& w : configuration_warnings(scenario.controller)) {
     r.err += fmt::format("simulate: {}: warning: {}\n", path, w);
   }
   RunOptions run;
