@@ -76,7 +76,7 @@ struct PublicationRecord {
 };
 using PublicationRing = hal::SpscRing<PublicationRecord, 512>;
 
-// The controller's method and separation for a method of the protocol (INJECTION_CONFIG,
+// The controller's method and separation for a method of the protocol (INJECTION_COMMAND,
 // INJECTION_REPORT); kOff is core::InjectionMethod::kNone.
 struct CoreInjectionMethod {
   core::InjectionMethod method = core::InjectionMethod::kNone;

@@ -298,7 +298,8 @@ int run(const Options& o) {
   }
   // A configuration measured to mislead (app::configuration_warnings): defaults that fit only
   // the reference machine on another motor (a newcomer's 1.5 kW servo ran on them and read 11 C
-  // RMS off), a method that does not hold a salient machine's torque, and the like.
+  // RMS off), a method other than fixed-magnitude bipolar on a machine configured as salient,
+  // and the like.
   for (const std::string& w : pmsm::app::configuration_warnings(config.controller)) {
     spdlog::warn("{}", w);
   }

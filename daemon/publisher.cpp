@@ -298,17 +298,19 @@ void Publisher::handle(const PublicationRecord& r) {
   }
   if (p.injection) {
     send(*p.injection);
-    // A method picked at run time (INJECTION_CONFIG) that misleads on a machine configured as
-    // salient: said once per method, as the configured one was at start.
+    // A method picked at run time (INJECTION_COMMAND) that misleads on a machine configured as
+    // salient: said once per method, with its first report, as the configured one was at start.
+    // (Reports come only from the scheduler, which runs only with estimator.kind = "injection".)
+    static_assert(static_cast<unsigned>(hal::protocol::InjectionMethod::kDc) < 32U);
     const unsigned bit = 1U << static_cast<unsigned>(p.injection->method);
     if ((salient_method_warned_ & bit) == 0U) {
       salient_method_warned_ |= bit;
-      const CoreInjectionMethod m = core_injection_method(p.injection->method);
       const core::InjectionConfig& configured = config_.controller.drive.injection;
-      if (!(m.method == configured.method && m.separation == configured.separation)) {
+      if (p.injection->method != app::protocol_method(configured.method, configured.separation)) {
+        const CoreInjectionMethod m = core_injection_method(p.injection->method);
         if (const std::string w = app::salient_method_warning(config_.controller.drive, m.method, m.separation);
             !w.empty()) {
-          spdlog::warn("injection method changed by command: {}", w);
+          spdlog::warn("injection method changed by an INJECTION_COMMAND: {}", w);
         }
       }
     }

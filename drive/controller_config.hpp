@@ -216,10 +216,10 @@ inline constexpr std::string_view kWindingWarmMeasure =
 // the engineer meant. pmsm-thermald logs them at start and under --check; simulate prints them.
 [[nodiscard]] std::vector<std::string> configuration_warnings(const ControllerConfig& config);
 
-// configuration_warnings' text for an injection method on a machine configured as salient
-// (injection.max_torque_disturbance_Nm above 0) other than fixed-magnitude bipolar, or "" (a
-// round rotor, no injection, or that method). The daemon also logs it when an INJECTION_CONFIG
-// command picks such a method.
+// Why an injection method other than fixed-magnitude bipolar misleads on a machine configured
+// as salient (injection.max_torque_disturbance_Nm above 0), or "" (a round rotor, no injection,
+// or that method). configuration_warnings gives it for the configured method; the daemon logs
+// it with the first INJECTION_REPORT of another method (an INJECTION_COMMAND picked it).
 [[nodiscard]] std::string salient_method_warning(const core::DriveConfig& d, core::InjectionMethod method,
                                                  core::Separation separation);
 

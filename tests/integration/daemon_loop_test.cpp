@@ -687,11 +687,12 @@ TEST(DaemonLoop, AnUnresolvedBridgeSweepIsLoggedWithItsFit) {
   EXPECT_EQ(aborted.front().find("its fit"), std::string::npos) << aborted.front();
 }
 
-// An INJECTION_CONFIG command that picks a method measured to mislead on a machine configured
-// as salient (a torque budget) is logged with its first INJECTION_REPORT, as the loader warns
-// of a configured one (app::salient_method_warning): once per method; fixed-magnitude bipolar
-// and a round rotor are not.
-TEST(DaemonLoop, AMethodThatMisleadsOnASalientMachineIsLoggedWhenACommandPicksIt) {
+// An INJECTION_COMMAND that picks a method measured to mislead on a machine configured as
+// salient (a torque budget) is logged with the first INJECTION_REPORT of that method, as the
+// loader warns of a configured one (app::salient_method_warning): once per method. The reports
+// are handed to the publisher as the pairs of such a command would publish them. The configured
+// method (warned at start), fixed-magnitude bipolar and a round rotor are not logged.
+TEST(DaemonLoop, AMethodThatMisleadsOnASalientMachineIsLoggedWithItsFirstReport) {
   LogCapture log;
   Bench bench;
   const auto report = [](protocol::InjectionMethod method) {
@@ -701,23 +702,32 @@ TEST(DaemonLoop, AMethodThatMisleadsOnASalientMachineIsLoggedWhenACommandPicksIt
     r.publications.injection = injection;
     return r;
   };
-  const std::string text = "injection method changed by command: controller.injection: method = \"fixed-angle\", "
-                           "separation = \"unipolar\" on a machine configured as salient";
+  const std::string changed = "injection method changed by an INJECTION_COMMAND: ";
+  const std::string text = changed + "method = \"fixed-angle\", separation = \"unipolar\" on a machine configured as salient";
   {
     Axis salient(bench.bus, 1, 1.0, 25.0, 5.0,
                  [](app::ControllerConfig& c) { c.drive.injection.max_torque_disturbance_Nm = 1.5; });
     salient.publisher().handle(report(protocol::InjectionMethod::kFixedMagnitudeBipolar));
-    EXPECT_TRUE(log.lines_with("injection method changed by command").empty()) << "the recommended method";
+    EXPECT_TRUE(log.lines_with(changed).empty()) << "the recommended method";
     salient.publisher().handle(report(protocol::InjectionMethod::kFixedAngleUnipolar));
     salient.publisher().handle(report(protocol::InjectionMethod::kFixedMagnitudeBipolar));
     salient.publisher().handle(report(protocol::InjectionMethod::kFixedAngleUnipolar));
     EXPECT_EQ(log.lines_with(text).size(), 1U) << "once per method";
     salient.publisher().handle(report(protocol::InjectionMethod::kDc));
-    EXPECT_EQ(log.lines_with("injection method changed by command").size(), 2U);
+    EXPECT_EQ(log.lines_with(changed).size(), 2U);
+  }
+  {
+    Axis configured(bench.bus, 3, 1.0, 25.0, 5.0, [](app::ControllerConfig& c) {
+      c.drive.injection.max_torque_disturbance_Nm = 1.5;
+      c.drive.injection.method = core::InjectionMethod::kFixedAngle;
+      c.drive.injection.separation = core::Separation::kUnipolar;
+    });
+    configured.publisher().handle(report(protocol::InjectionMethod::kFixedAngleUnipolar));
+    EXPECT_EQ(log.lines_with(changed).size(), 2U) << "the configured method, warned at start: nothing new";
   }
   Axis round(bench.bus, 2, 1.0);
   round.publisher().handle(report(protocol::InjectionMethod::kFixedAngleUnipolar));
-  EXPECT_EQ(log.lines_with("injection method changed by command").size(), 2U) << "a round rotor: nothing new";
+  EXPECT_EQ(log.lines_with(changed).size(), 2U) << "a round rotor: nothing new";
 }
 
 TEST(DaemonLoop, PlantOutageSafeStateThenRecovery) {
