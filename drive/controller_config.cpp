@@ -258,8 +258,9 @@ ConfigSchema<C> build() {
            "Field-weakening pairs: least lower level, as a fraction of the upper.");
   inj.real("injection.field_weakening_pattern_error",
            [](C& c) -> double& { return c.drive.injection.field_weakening_pattern_error; }, between(0, 1), "",
-           "The bridge's sign pattern's error as a fraction of its term: in field-weakening pairs' Rs, and in every "
-           "event's magnet reading (a shared error in the band).");
+           "The bridge's sign pattern's error as a fraction of its term: in the Rs of field-weakening and unipolar "
+           "pairs (one-sided: the error's part even in the pulse does not cancel), and in every event's magnet reading "
+           "(a shared error in the band).");
   inj.real("injection.field_weakening_rs_error",
            [](C& c) -> double& { return c.drive.injection.field_weakening_rs_error; }, between(0, 1), "",
            "Field-weakening pairs: their error apart from the bridge, as a fraction of Rs (a shared error in the band).");
@@ -1232,8 +1233,8 @@ std::string salient_method_warning(const core::DriveConfig& d, core::InjectionMe
       "method = \"{}\", separation = \"{}\" on a machine configured as salient (injection.max_torque_disturbance_Nm "
       "= {:g} N m): only fixed-magnitude pulses hold the torque (the torque-neutral pulses), and only bipolar pairs "
       "cancel the bridge's voltage error that is even in the pulse; on the 30 mohm IPM of the robustness suite each of "
-      "the three other pair methods measured read the winding 8-22 C RMS off, low on average, its error band holding "
-      "the truth as little as 46 % of the time (docs/accuracy.md, \"The robustness suite under the other methods\")",
+      "the three other pair methods measured read the winding 8-19 C RMS off, low on average, its error band holding "
+      "the truth as little as 84 % of the time (docs/accuracy.md, \"The robustness suite under the other methods\")",
       core::to_string(method), core::to_string(separation), budget_Nm);
 }
 

@@ -148,14 +148,19 @@ TEST(EstimatorRobustness, AHeldBridgeVoltageIsASharedErrorInTheBand) {
 // a bus 15 % lower (1 us x 10 kHz x 97.5 V), and unipolar pairs cannot learn it. Held as
 // stored, every estimate read about 25 % low: -40.9 C of mean error, 69 C max, and the band
 // held the truth in none of these 40 s. Referred to the bus by the dead time the compensation
-// assumes (0.9 us), a tenth of it is left (the plant's bridge has 1 us): about 0.1 V, a few C.
+// assumes (0.9 us), a tenth of it is left (the plant's bridge has 1 us): about 0.1 V, which
+// these unipolar estimates read as about 2 % of Rs, -6 C of mean (-6.25 C, max 18.97 C; since
+// unipolar estimates carry the sign pattern's error as a shared one, -6.57 C, max 20.26 C).
+// The bounds stand between that and the failure: the mean within 8 C, the max under a third of
+// the failure's.
 TEST(EstimatorRobustness, AStoredBridgeVoltageFollowsTheBus) {
   const SimulationResult r = run_data("warm-restart-unipolar-bus-low.toml");
   EXPECT_FALSE(r.calibrated);
   ASSERT_GT(r.winding_error_samples, 500U);
   ASSERT_GT(r.estimates_accepted, 20U);
   EXPECT_LT(std::abs(r.winding_error_mean_C), 8.0);
-  EXPECT_LT(r.winding_error_max_C, 20.0);
+  EXPECT_LT(r.winding_error_max_C, 69.0 / 3.0);
+  EXPECT_GE(r.coverage_2sigma, 0.9);
 }
 
 // A bus that steps within an event (650 -> 800 V, the dead time commissioned 25 % short): each

@@ -621,6 +621,40 @@ TEST(InjectionScheduler, UnipolarEventUsesTheVxPrior) {
   EXPECT_NEAR(e.ke_V_s_per_rad, h.plant.ke_V_s_per_rad, 5e-4);
 }
 
+// A unipolar pair is one-sided (0, then -F), as a field-weakening pair is: the sign pattern's
+// error even in the pulse does not cancel, so its share of the bridge's term
+// (field_weakening_pattern_error) widens the estimate's error bar as a shared error. A bipolar
+// pair's estimate does not carry it.
+TEST(InjectionScheduler, AUnipolarEstimateCarriesTheSignPatternsError) {
+  const auto estimate = [](Separation separation, double pattern_error) {
+    InjectionConfig c = test_config();
+    c.separation = separation;
+    c.vx_initial_V = 1.5;
+    c.vx_initial_std_V = 0.01;
+    c.field_weakening_pattern_error = pattern_error;
+    Harness h(c);
+    h.motoring_A = {0.0, 5.0};
+    h.run_until(0.45);
+    EXPECT_EQ(h.estimates.size(), 1U);
+    return h.estimates.empty() ? EventEstimate{} : h.estimates[0];
+  };
+  const EventEstimate without = estimate(Separation::kUnipolar, 0.0);
+  const EventEstimate with = estimate(Separation::kUnipolar, 0.05);
+  ASSERT_EQ(with.outcome, EventOutcome::kPublished);
+  EXPECT_EQ(with.rs_ohm, without.rs_ohm) << "the error bar, not the estimate";
+  EXPECT_GT(with.rs_systematic_std_ohm, without.rs_systematic_std_ohm + 1e-5);
+  EXPECT_GT(with.rs_std_ohm, without.rs_std_ohm);
+  // The shared part grows by what the error bar grows by (both in quadrature).
+  EXPECT_NEAR(with.rs_std_ohm * with.rs_std_ohm - without.rs_std_ohm * without.rs_std_ohm,
+              with.rs_systematic_std_ohm * with.rs_systematic_std_ohm -
+                  without.rs_systematic_std_ohm * without.rs_systematic_std_ohm,
+              1e-12);
+  const EventEstimate bipolar = estimate(Separation::kBipolar, 0.0);
+  const EventEstimate bipolar_with = estimate(Separation::kBipolar, 0.05);
+  EXPECT_EQ(bipolar_with.rs_std_ohm, bipolar.rs_std_ohm);
+  EXPECT_EQ(bipolar_with.rs_systematic_std_ohm, bipolar.rs_systematic_std_ohm);
+}
+
 // Vx's drift between events goes with the bridge's error (InjectionConfig::vx_drift_fraction):
 // the held Vx widens per event by the share of sqrt(Vx^2 + var(Vx)), the Vx held now (not the
 // configured prior's), and an absolute part adds in quadrature: a 0.2 V bridge by 0.13 mV, the

@@ -140,7 +140,8 @@ struct InjectionConfig {
   // bipolar pair's 2 Rs F: the mean of that noise over a recording falls only as 1/sqrt(T).
   double field_weakening_record_min_time_s = 0.12;
   // The sign pattern's error at those speeds, as a fraction of Vx: it enters the estimate's
-  // variance (measured: docs/estimator.md §2).
+  // variance (measured: docs/estimator.md §2), and a unipolar pair's, which does not cancel
+  // the part of it that is even in the pulse either.
   double field_weakening_pattern_error = 0.01;
   // ... and their error apart from the bridge (commissioning errors, sensors), as a fraction
   // of Rs (measured about 0.3 %, docs/accuracy.md).
