@@ -383,7 +383,7 @@ void DriveLoop::on_frame(const hal::CanFrame& frame, std::int64_t now_ns) noexce
     }
   } else if (const auto* injection = std::get_if<protocol::InjectionCommand>(&input)) {
     counters_.commands_accepted[1].bump();
-    const CoreInjectionMethod m = core_injection_method(injection->method);
+    const app::CoreInjectionMethod m = app::core_injection_method(injection->method);
     node_.configure_injection(m.method, m.separation, injection->amplitude_A, injection->interval_s);
     // A request is kept until the step takes it, whatever frame of the stream follows it.
     inputs_.request_injection = inputs_.request_injection || injection->request_now;
@@ -668,19 +668,6 @@ LoopStats DriveLoop::stats() const noexcept {
   s.last_rejection = static_cast<protocol::DecodeStatus>(last >> 16U);
   s.last_rejected_id = last & 0xFFFFU;
   return s;
-}
-
-CoreInjectionMethod core_injection_method(protocol::InjectionMethod method) noexcept {
-  switch (method) {
-    case protocol::InjectionMethod::kFixedMagnitudeBipolar: return {core::InjectionMethod::kFixedMagnitude, core::Separation::kBipolar};
-    case protocol::InjectionMethod::kFixedMagnitudeUnipolar:
-      return {core::InjectionMethod::kFixedMagnitude, core::Separation::kUnipolar};
-    case protocol::InjectionMethod::kFixedAngleBipolar: return {core::InjectionMethod::kFixedAngle, core::Separation::kBipolar};
-    case protocol::InjectionMethod::kFixedAngleUnipolar: return {core::InjectionMethod::kFixedAngle, core::Separation::kUnipolar};
-    case protocol::InjectionMethod::kDc: return {core::InjectionMethod::kDc, core::Separation::kBipolar};
-    case protocol::InjectionMethod::kOff: break;
-  }
-  return {};
 }
 
 }  // namespace pmsm::daemon

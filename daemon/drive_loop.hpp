@@ -76,14 +76,6 @@ struct PublicationRecord {
 };
 using PublicationRing = hal::SpscRing<PublicationRecord, 512>;
 
-// The controller's method and separation for a method of the protocol (INJECTION_COMMAND,
-// INJECTION_REPORT); kOff is core::InjectionMethod::kNone.
-struct CoreInjectionMethod {
-  core::InjectionMethod method = core::InjectionMethod::kNone;
-  core::Separation separation = core::Separation::kBipolar;
-};
-[[nodiscard]] CoreInjectionMethod core_injection_method(hal::protocol::InjectionMethod method) noexcept;
-
 // Sample receive -> command send, in log2 buckets of microseconds: bucket 0 is < 1 us,
 // bucket k is [2^(k-1), 2^k) us, the last one everything above.
 inline constexpr std::size_t kTimingBuckets = 16;

@@ -307,7 +307,7 @@ void Publisher::handle(const PublicationRecord& r) {
       salient_method_warned_ |= bit;
       const core::InjectionConfig& configured = config_.controller.drive.injection;
       if (p.injection->method != app::protocol_method(configured.method, configured.separation)) {
-        const CoreInjectionMethod m = core_injection_method(p.injection->method);
+        const app::CoreInjectionMethod m = app::core_injection_method(p.injection->method);
         if (const std::string w = app::salient_method_warning(config_.controller.drive, m.method, m.separation);
             !w.empty()) {
           spdlog::warn("injection method changed by an INJECTION_COMMAND: {}", w);

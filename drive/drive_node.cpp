@@ -63,6 +63,19 @@ protocol::InjectionMethod protocol_method(core::InjectionMethod method, core::Se
   return protocol::InjectionMethod::kOff;
 }
 
+CoreInjectionMethod core_injection_method(protocol::InjectionMethod method) noexcept {
+  switch (method) {
+    case protocol::InjectionMethod::kFixedMagnitudeBipolar: return {core::InjectionMethod::kFixedMagnitude, core::Separation::kBipolar};
+    case protocol::InjectionMethod::kFixedMagnitudeUnipolar:
+      return {core::InjectionMethod::kFixedMagnitude, core::Separation::kUnipolar};
+    case protocol::InjectionMethod::kFixedAngleBipolar: return {core::InjectionMethod::kFixedAngle, core::Separation::kBipolar};
+    case protocol::InjectionMethod::kFixedAngleUnipolar: return {core::InjectionMethod::kFixedAngle, core::Separation::kUnipolar};
+    case protocol::InjectionMethod::kDc: return {core::InjectionMethod::kDc, core::Separation::kBipolar};
+    case protocol::InjectionMethod::kOff: break;
+  }
+  return {};
+}
+
 DriveNode::DriveNode(const ControllerConfig& config, const core::SupervisorConfig& supervisor, const PublishRates& rates)
     : controller_(config.drive),
       supervisor_(supervisor, config.drive.period_s),

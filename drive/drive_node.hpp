@@ -101,6 +101,13 @@ struct NodeStep {
 
 // The protocol's method code for a pair's method and separation (INJECTION_REPORT Method).
 [[nodiscard]] hal::protocol::InjectionMethod protocol_method(core::InjectionMethod method, core::Separation separation) noexcept;
+// Its inverse: the controller's method and separation for the protocol's (INJECTION_COMMAND,
+// INJECTION_REPORT); kOff is core::InjectionMethod::kNone.
+struct CoreInjectionMethod {
+  core::InjectionMethod method = core::InjectionMethod::kNone;
+  core::Separation separation = core::Separation::kBipolar;
+};
+[[nodiscard]] CoreInjectionMethod core_injection_method(hal::protocol::InjectionMethod method) noexcept;
 
 class DriveNode {
  public:
