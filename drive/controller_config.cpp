@@ -1210,6 +1210,40 @@ std::vector<std::string> configuration_warnings(const ControllerConfig& config) 
   return out;
 }
 
+std::string pair_rejection_advice(const core::OutcomeCounts& counts, const core::DriveConfig& d) {
+  using core::PairOutcome;
+  const auto n = [&counts](PairOutcome o) { return std::uint64_t{counts[static_cast<std::size_t>(o)]}; };
+  const std::uint64_t speed_changes = n(PairOutcome::kRejectedSpeedChange);
+  const std::uint64_t load_changes = n(PairOutcome::kRejectedLoadChange);
+  const std::uint64_t moved = speed_changes + load_changes;
+  const std::uint64_t pairs = n(PairOutcome::kAccepted) + moved + n(PairOutcome::kRejectedResidual) +
+                              n(PairOutcome::kRejectedImplausible) + n(PairOutcome::kRejectedVoltageSaturation) +
+                              n(PairOutcome::kRejectedIllConditioned);
+  if (pairs < kPairRejectionAdviceMinPairs || 2 * moved < pairs) {
+    return {};
+  }
+  std::string text = fmt::format(
+      "{} of {} injection pairs judged were rejected because the speed ({}) or the load ({}) changed between their two "
+      "recordings, so the winding is measured rarely and the thermal model carries the estimate. Either the duty "
+      "cycle leaves few steady spells of a pair's length (the guards: injection.max_speed_change_fraction, "
+      "injection.max_speed_change_rad_s, injection.max_load_change_A)",
+      moved, pairs, speed_changes, load_changes);
+  const double ld_H = d.current.ld_H;
+  const double lq_H = d.current.lq_H;
+  if (!(d.injection.max_torque_disturbance_Nm > 0.0) && ld_H > 0.0 && lq_H > 0.0) {
+    // 3/2 p (Ld - Lq) F iq: the pulse's reluctance torque changes sign between a bipolar pair's
+    // recordings, and the speed loop's answer to it moves the speed and iq between them. Named
+    // whatever the commissioned inductances say: their errors can hide a saliency (measured:
+    // unseen round 6's c3, Lq 1.18 Ld on the machine, 0.95 Ld commissioned).
+    text += fmt::format(
+        ", or the rotor is salient (an interior-magnet rotor; the commissioned Lq is {:.3g} times Ld) and each "
+        "pulse's reluctance torque, 3/2 p (Ld - Lq) F iq, moves the shaft: with a torque budget "
+        "(injection.max_torque_disturbance_Nm) the pulses hold the torque (docs/configuration.md)",
+        lq_H / ld_H);
+  }
+  return text;
+}
+
 std::string salient_method_warning(const core::DriveConfig& d, core::InjectionMethod method, core::Separation separation) {
   // On a machine configured as salient, only fixed-magnitude pulses hold the torque (the
   // torque-neutral pulses), and only bipolar pairs cancel the bridge's error that is even in the

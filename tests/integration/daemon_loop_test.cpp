@@ -692,15 +692,21 @@ TEST(DaemonLoop, AnUnresolvedBridgeSweepIsLoggedWithItsFit) {
 // loader warns of a configured one (app::salient_method_warning): once per method. The reports
 // are handed to the publisher as the pairs of such a command would publish them. The configured
 // method (warned at start), fixed-magnitude bipolar and a round rotor are not logged.
+// A record whose publications hold one INJECTION_REPORT, as a pair's end publishes it.
+PublicationRecord injection_report_record(protocol::InjectionMethod method, protocol::InjectionResult result) {
+  PublicationRecord r;
+  protocol::InjectionReport injection;
+  injection.method = method;
+  injection.result = result;
+  r.publications.injection = injection;
+  return r;
+}
+
 TEST(DaemonLoop, AMethodThatMisleadsOnASalientMachineIsLoggedWithItsFirstReport) {
   LogCapture log;
   Bench bench;
   const auto report = [](protocol::InjectionMethod method) {
-    PublicationRecord r;
-    protocol::InjectionReport injection;
-    injection.method = method;
-    r.publications.injection = injection;
-    return r;
+    return injection_report_record(method, protocol::InjectionResult::kAccepted);
   };
   const std::string changed = "injection method changed by an INJECTION_COMMAND: ";
   const std::string text = changed + "method = \"fixed-angle\", separation = \"unipolar\" on a machine configured as salient";
@@ -728,6 +734,38 @@ TEST(DaemonLoop, AMethodThatMisleadsOnASalientMachineIsLoggedWithItsFirstReport)
   Axis round(bench.bus, 2, 1.0);
   round.publisher().handle(report(protocol::InjectionMethod::kFixedAngleUnipolar));
   EXPECT_EQ(log.lines_with(changed).size(), 2U) << "a round rotor: nothing new";
+}
+
+// Pairs mostly rejected as speed or load changes are explained in the log once, judged over
+// windows of 50 INJECTION_REPORTs: a window of accepted pairs says nothing, the first window
+// mostly rejected says why, the next says nothing more.
+TEST(DaemonLoop, PairsMostlyRejectedAsSpeedOrLoadChangesAreExplainedOnce) {
+  LogCapture log;
+  Bench bench;
+  const auto report = [](protocol::InjectionResult result) {
+    return injection_report_record(protocol::InjectionMethod::kFixedMagnitudeBipolar, result);
+  };
+  const std::string text = "injection pairs judged were rejected because the speed";
+  Axis axis(bench.bus, 1, 1.0);
+  for (int k = 0; k < 50; ++k) {
+    axis.publisher().handle(report(k % 3 == 0 ? protocol::InjectionResult::kRejectedSpeedChange
+                                              : protocol::InjectionResult::kAccepted));
+  }
+  EXPECT_TRUE(log.lines_with(text).empty()) << "17 of 50";
+  for (int k = 0; k < 49; ++k) {
+    axis.publisher().handle(report(k % 2 == 0 ? protocol::InjectionResult::kRejectedLoadChange
+                                              : protocol::InjectionResult::kRejectedSpeedChange));
+  }
+  EXPECT_TRUE(log.lines_with(text).empty()) << "the window is judged at its end";
+  axis.publisher().handle(report(protocol::InjectionResult::kAccepted));
+  ASSERT_EQ(log.lines_with(text).size(), 1U);
+  EXPECT_NE(log.lines_with(text)[0].find("49 of 50 " + text + " (24) or the load (25) changed"), std::string::npos)
+      << log.lines_with(text)[0];
+  EXPECT_NE(log.lines_with(text)[0].find("(said once)"), std::string::npos);
+  for (int k = 0; k < 100; ++k) {
+    axis.publisher().handle(report(protocol::InjectionResult::kRejectedSpeedChange));
+  }
+  EXPECT_EQ(log.lines_with(text).size(), 1U) << "said once";
 }
 
 TEST(DaemonLoop, PlantOutageSafeStateThenRecovery) {

@@ -557,6 +557,41 @@ TEST(ControllerConfig, AMethodThatMisleadsOnASalientMachineIsWarnedAbout) {
                          "configured as salient"));
 }
 
+// A drive whose pairs are mostly rejected as speed or load changes is told why it measures
+// rarely: at least 20 pairs judged (recorded to their end), at least half of them so rejected.
+// Pairs skipped before they began and aborted ones are not judged. Without a torque budget the
+// salient rotor is named as a cause with the commissioned Lq / Ld, whatever it is (commissioning
+// errors can hide a saliency); with one, only the duty cycle is.
+TEST(ControllerConfig, PairsMostlyRejectedAsSpeedOrLoadChangesAreExplained) {
+  using core::PairOutcome;
+  const auto counts = [](std::uint32_t accepted, std::uint32_t speed, std::uint32_t load, std::uint32_t skipped = 0,
+                         std::uint32_t aborted = 0) {
+    core::OutcomeCounts c{};
+    c[static_cast<std::size_t>(PairOutcome::kAccepted)] = accepted;
+    c[static_cast<std::size_t>(PairOutcome::kRejectedSpeedChange)] = speed;
+    c[static_cast<std::size_t>(PairOutcome::kRejectedLoadChange)] = load;
+    c[static_cast<std::size_t>(PairOutcome::kRejectedVoltageHeadroom)] = skipped;
+    c[static_cast<std::size_t>(PairOutcome::kAborted)] = aborted;
+    return c;
+  };
+  const core::DriveConfig round = default_controller_config().drive;  // Ld = Lq by default
+  EXPECT_EQ(pair_rejection_advice(counts(9, 6, 4), round), "") << "19 judged: too few";
+  EXPECT_EQ(pair_rejection_advice(counts(11, 6, 3), round), "") << "9 of 20: under half";
+  const std::string half = pair_rejection_advice(counts(10, 6, 4), round);
+  EXPECT_NE(half.find("10 of 20 injection pairs judged were rejected because the speed (6) or the load (4) changed"),
+            std::string::npos)
+      << half;
+  EXPECT_NE(half.find("injection.max_load_change_A"), std::string::npos) << half;
+  EXPECT_NE(half.find("the rotor is salient (an interior-magnet rotor; the commissioned Lq is 1 times Ld)"),
+            std::string::npos)
+      << half;
+  EXPECT_EQ(pair_rejection_advice(counts(12, 6, 2, 100, 100), round), "") << "skipped and aborted pairs are not judged";
+  const core::DriveConfig budget = parse("[injection]\nmax_torque_disturbance_Nm = 1.5\n").drive;
+  const std::string with_budget = pair_rejection_advice(counts(2, 30, 0), budget);
+  EXPECT_NE(with_budget.find("30 of 32"), std::string::npos) << with_budget;
+  EXPECT_EQ(with_budget.find("salient"), std::string::npos) << "the torque budget is there already: " << with_budget;
+}
+
 // The missing loss's prior and random walk follow the cooling path's conductance: a small
 // pump (6.4 K/W to ambient, about 7 W of loss) gets 0.98 W, not the Table I machine's 50 W,
 // which let it learn a missing loss larger than its whole loss.

@@ -143,6 +143,9 @@ Report run_one(const std::string& path, const Scenario& scenario, const Simulate
                          "calibration in use before it\n",
                          path, core::calibration_failure_name(result.calibration_failure), result.calibration_failure_time_s);
   }
+  if (const std::string advice = pair_rejection_advice(result.pairs, scenario.controller.drive); !advice.empty()) {
+    r.err += fmt::format("simulate: {}: {}\n", path, advice);
+  }
   if (const SimulationResult::FaultSeen* trip = result.first_fault(); trip != nullptr) {
     r.err += fmt::format("simulate: {}: the drive tripped ({} at {:.3f} s) and stayed off; the figures include the run after it\n",
                          path, core::to_string(result.fault_code(*trip)), trip->first_s);
