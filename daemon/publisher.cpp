@@ -315,19 +315,20 @@ void Publisher::handle(const PublicationRecord& r) {
       }
     }
     // Pairs mostly rejected as speed or load changes: why the drive measures rarely. Judged over
-    // windows of kPairReportWindow reports (a duty cycle that changes later is judged afresh),
-    // said once.
+    // windows of kPairJudgedWindow pairs judged (recorded to their end, as the advice counts
+    // them: a drive near its limits reports many skips between two judged pairs), so that a duty
+    // cycle that changes later is judged afresh; said once.
     if (const auto result = static_cast<std::size_t>(p.injection->result);
         !pair_rejection_advised_ && result < pair_results_.size()) {
       ++pair_results_[result];
-      if (++pair_window_reports_ >= kPairReportWindow) {
+      if (app::pair_judged(static_cast<core::PairOutcome>(result)) && ++pair_window_judged_ >= kPairJudgedWindow) {
         if (const std::string advice = app::pair_rejection_advice(pair_results_, config_.controller.drive);
             !advice.empty()) {
           pair_rejection_advised_ = true;
           spdlog::warn("{} (said once)", advice);
         }
         pair_results_ = {};
-        pair_window_reports_ = 0;
+        pair_window_judged_ = 0;
       }
     }
   }

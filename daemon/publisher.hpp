@@ -84,12 +84,12 @@ class Publisher {
   std::chrono::steady_clock::time_point last_report_{};
   bool first_thermal_logged_ = false;
   unsigned salient_method_warned_ = 0;  // INJECTION_REPORT methods judged, one bit each
-  // The INJECTION_REPORTs' results in the present window, by outcome (the same numbering), until
-  // the pairs of a window are mostly rejected as speed or load changes
-  // (app::pair_rejection_advice): said once.
-  static constexpr std::uint32_t kPairReportWindow = 50;
+  // The INJECTION_REPORTs' results in the present window of kPairJudgedWindow judged pairs, by
+  // outcome (the same numbering), until the pairs of a window are mostly rejected as speed or load
+  // changes (app::pair_rejection_advice): said once.
+  static constexpr std::uint32_t kPairJudgedWindow = 50;
   core::OutcomeCounts pair_results_{};
-  std::uint32_t pair_window_reports_ = 0;
+  std::uint32_t pair_window_judged_ = 0;
   bool pair_rejection_advised_ = false;
   bool ambient_held_ = false;  // as last logged
   std::uint32_t ambient_dropouts_ = 0;  // as last logged

@@ -1210,15 +1210,37 @@ std::vector<std::string> configuration_warnings(const ControllerConfig& config) 
   return out;
 }
 
+bool pair_judged(core::PairOutcome o) noexcept {
+  using core::PairOutcome;
+  switch (o) {
+    case PairOutcome::kAccepted:
+    case PairOutcome::kRejectedSpeedChange:
+    case PairOutcome::kRejectedLoadChange:
+    case PairOutcome::kRejectedResidual:
+    case PairOutcome::kRejectedImplausible:
+    case PairOutcome::kRejectedVoltageSaturation:
+    case PairOutcome::kRejectedIllConditioned:
+      return true;
+    case PairOutcome::kRejectedVoltageHeadroom:
+    case PairOutcome::kRejectedCurrentLimit:
+    case PairOutcome::kAborted:
+    case PairOutcome::kSkippedTorqueDisturbance:
+    case PairOutcome::kCount:
+      return false;
+  }
+  return false;
+}
+
 std::string pair_rejection_advice(const core::OutcomeCounts& counts, const core::DriveConfig& d) {
   using core::PairOutcome;
   const auto n = [&counts](PairOutcome o) { return std::uint64_t{counts[static_cast<std::size_t>(o)]}; };
   const std::uint64_t speed_changes = n(PairOutcome::kRejectedSpeedChange);
   const std::uint64_t load_changes = n(PairOutcome::kRejectedLoadChange);
   const std::uint64_t moved = speed_changes + load_changes;
-  const std::uint64_t pairs = n(PairOutcome::kAccepted) + moved + n(PairOutcome::kRejectedResidual) +
-                              n(PairOutcome::kRejectedImplausible) + n(PairOutcome::kRejectedVoltageSaturation) +
-                              n(PairOutcome::kRejectedIllConditioned);
+  std::uint64_t pairs = 0;
+  for (std::size_t k = 0; k < counts.size(); ++k) {
+    pairs += pair_judged(static_cast<PairOutcome>(k)) ? counts[k] : 0U;
+  }
   if (pairs < kPairRejectionAdviceMinPairs || 2 * moved < pairs) {
     return {};
   }
@@ -1234,14 +1256,16 @@ std::string pair_rejection_advice(const core::OutcomeCounts& counts, const core:
     // 3/2 p (Ld - Lq) F iq: the pulse's reluctance torque changes sign between a bipolar pair's
     // recordings, and the speed loop's answer to it moves the speed and iq between them. Named
     // whatever the commissioned inductances say: their errors can hide a saliency (measured:
-    // unseen round 6's c3, Lq 1.18 Ld on the machine, 0.95 Ld commissioned).
+    // unseen round 6's c3, Lq 1.18 Ld on the machine, 0.95 Ld commissioned). On a surface-magnet
+    // rotor a torque budget only limits the pulses under load, hence the "if".
     text += fmt::format(
-        ", or the rotor is salient (an interior-magnet rotor; the commissioned Lq is {:.3g} times Ld) and each "
+        ", or, if the rotor has interior or inset magnets whatever the commissioned Lq / Ld ({:.3g}) says, each "
         "pulse's reluctance torque, 3/2 p (Ld - Lq) F iq, moves the shaft: with a torque budget "
-        "(injection.max_torque_disturbance_Nm) the pulses hold the torque (docs/configuration.md)",
+        "(injection.max_torque_disturbance_Nm) fixed-magnitude pulses hold the torque (injection.torque_neutral; "
+        "docs/configuration.md)",
         lq_H / ld_H);
   }
-  return text;
+  return text + ".";
 }
 
 std::string salient_method_warning(const core::DriveConfig& d, core::InjectionMethod method, core::Separation separation) {

@@ -231,6 +231,9 @@ inline constexpr std::string_view kWindingWarmMeasure =
 // speed loop answers. simulate prints it at the end of a run; pmsm-thermald logs it once, from
 // its INJECTION_REPORTs.
 inline constexpr std::uint32_t kPairRejectionAdviceMinPairs = 20;
+// A pair recorded to its end and judged by the guards and the fit: not skipped before it began
+// (voltage headroom, current limit, torque budget), nor aborted.
+[[nodiscard]] bool pair_judged(core::PairOutcome o) noexcept;
 [[nodiscard]] std::string pair_rejection_advice(const core::OutcomeCounts& pairs, const core::DriveConfig& d);
 
 // The rated torque the speed loop's noise is judged against: Kt (dq) x the rated peak current.

@@ -582,10 +582,25 @@ TEST(ControllerConfig, PairsMostlyRejectedAsSpeedOrLoadChangesAreExplained) {
             std::string::npos)
       << half;
   EXPECT_NE(half.find("injection.max_load_change_A"), std::string::npos) << half;
-  EXPECT_NE(half.find("the rotor is salient (an interior-magnet rotor; the commissioned Lq is 1 times Ld)"),
+  EXPECT_NE(half.find("if the rotor has interior or inset magnets whatever the commissioned Lq / Ld (1) says"),
             std::string::npos)
       << half;
-  EXPECT_EQ(pair_rejection_advice(counts(12, 6, 2, 100, 100), round), "") << "skipped and aborted pairs are not judged";
+  // Skipped and aborted pairs are not judged: counted, 10 of 20 would have been half.
+  EXPECT_EQ(pair_rejection_advice(counts(0, 6, 4, 10, 0), round), "");
+  EXPECT_EQ(pair_rejection_advice(counts(0, 6, 4, 0, 10), round), "");
+  EXPECT_NE(pair_rejection_advice(counts(5, 10, 5, 100, 100), round).find("15 of 20 injection pairs judged"),
+            std::string::npos);
+  // The other rejections are judged: 10 moved of 10 + 10 residual is half.
+  core::OutcomeCounts others = counts(0, 5, 5);
+  others[static_cast<std::size_t>(PairOutcome::kRejectedResidual)] = 4;
+  others[static_cast<std::size_t>(PairOutcome::kRejectedImplausible)] = 2;
+  others[static_cast<std::size_t>(PairOutcome::kRejectedVoltageSaturation)] = 2;
+  others[static_cast<std::size_t>(PairOutcome::kRejectedIllConditioned)] = 2;
+  others[static_cast<std::size_t>(PairOutcome::kRejectedCurrentLimit)] = 7;
+  others[static_cast<std::size_t>(PairOutcome::kSkippedTorqueDisturbance)] = 7;
+  EXPECT_NE(pair_rejection_advice(others, round).find("10 of 20 "), std::string::npos);
+  others[static_cast<std::size_t>(PairOutcome::kRejectedResidual)] = 5;
+  EXPECT_EQ(pair_rejection_advice(others, round), "") << "10 of 21";
   const core::DriveConfig budget = parse("[injection]\nmax_torque_disturbance_Nm = 1.5\n").drive;
   const std::string with_budget = pair_rejection_advice(counts(2, 30, 0), budget);
   EXPECT_NE(with_budget.find("30 of 32"), std::string::npos) << with_budget;
