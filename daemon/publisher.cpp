@@ -321,7 +321,7 @@ void Publisher::handle(const PublicationRecord& r) {
     if (const auto result = static_cast<std::size_t>(p.injection->result);
         !pair_rejection_advised_ && result < pair_results_.size()) {
       ++pair_results_[result];
-      if (app::pair_judged(static_cast<core::PairOutcome>(result)) && ++pair_window_judged_ >= kPairJudgedWindow) {
+      if (core::pair_judged(static_cast<core::PairOutcome>(result)) && ++pair_window_judged_ >= kPairJudgedWindow) {
         if (const std::string advice = app::pair_rejection_advice(pair_results_, config_.controller.drive);
             !advice.empty()) {
           pair_rejection_advised_ = true;

@@ -1210,27 +1210,6 @@ std::vector<std::string> configuration_warnings(const ControllerConfig& config) 
   return out;
 }
 
-bool pair_judged(core::PairOutcome o) noexcept {
-  using core::PairOutcome;
-  switch (o) {
-    case PairOutcome::kAccepted:
-    case PairOutcome::kRejectedSpeedChange:
-    case PairOutcome::kRejectedLoadChange:
-    case PairOutcome::kRejectedResidual:
-    case PairOutcome::kRejectedImplausible:
-    case PairOutcome::kRejectedVoltageSaturation:
-    case PairOutcome::kRejectedIllConditioned:
-      return true;
-    case PairOutcome::kRejectedVoltageHeadroom:
-    case PairOutcome::kRejectedCurrentLimit:
-    case PairOutcome::kAborted:
-    case PairOutcome::kSkippedTorqueDisturbance:
-    case PairOutcome::kCount:
-      return false;
-  }
-  return false;
-}
-
 std::string pair_rejection_advice(const core::OutcomeCounts& counts, const core::DriveConfig& d) {
   using core::PairOutcome;
   const auto n = [&counts](PairOutcome o) { return std::uint64_t{counts[static_cast<std::size_t>(o)]}; };
@@ -1239,7 +1218,7 @@ std::string pair_rejection_advice(const core::OutcomeCounts& counts, const core:
   const std::uint64_t moved = speed_changes + load_changes;
   std::uint64_t pairs = 0;
   for (std::size_t k = 0; k < counts.size(); ++k) {
-    pairs += pair_judged(static_cast<PairOutcome>(k)) ? counts[k] : 0U;
+    pairs += core::pair_judged(static_cast<PairOutcome>(k)) ? counts[k] : 0U;
   }
   if (pairs < kPairRejectionAdviceMinPairs || 2 * moved < pairs) {
     return {};

@@ -224,16 +224,13 @@ inline constexpr std::string_view kWindingWarmMeasure =
                                                  core::Separation separation);
 
 // Why a drive measures rarely, when at least kPairRejectionAdviceMinPairs pairs were judged
-// (recorded to their end: not skipped before they began, nor aborted) and at least half of them
+// (core::pair_judged: recorded to their end) and at least half of them
 // were rejected as speed or load changes between their two recordings; "" otherwise. Two
 // causes: a duty cycle with few steady spells, or (named only without a torque budget,
 // injection.max_torque_disturbance_Nm = 0) a salient rotor whose pulses' reluctance torque the
 // speed loop answers. simulate prints it at the end of a run; pmsm-thermald logs it once, from
 // its INJECTION_REPORTs.
 inline constexpr std::uint32_t kPairRejectionAdviceMinPairs = 20;
-// A pair recorded to its end and judged by the guards and the fit: not skipped before it began
-// (voltage headroom, current limit, torque budget), nor aborted.
-[[nodiscard]] bool pair_judged(core::PairOutcome o) noexcept;
 [[nodiscard]] std::string pair_rejection_advice(const core::OutcomeCounts& pairs, const core::DriveConfig& d);
 
 // The rated torque the speed loop's noise is judged against: Kt (dq) x the rated peak current.

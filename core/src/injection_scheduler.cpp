@@ -52,6 +52,26 @@ std::string_view to_string(PairOutcome o) {
   return "?";
 }
 
+bool pair_judged(PairOutcome o) noexcept {
+  switch (o) {
+    case PairOutcome::kAccepted:
+    case PairOutcome::kRejectedSpeedChange:
+    case PairOutcome::kRejectedLoadChange:
+    case PairOutcome::kRejectedResidual:
+    case PairOutcome::kRejectedImplausible:
+    case PairOutcome::kRejectedVoltageSaturation:
+    case PairOutcome::kRejectedIllConditioned:
+      return true;
+    case PairOutcome::kRejectedVoltageHeadroom:
+    case PairOutcome::kRejectedCurrentLimit:
+    case PairOutcome::kAborted:
+    case PairOutcome::kSkippedTorqueDisturbance:
+    case PairOutcome::kCount:
+      return false;
+  }
+  return false;
+}
+
 std::string_view to_string(AbortCause c) {
   switch (c) {
     case AbortCause::kNone: return "none";

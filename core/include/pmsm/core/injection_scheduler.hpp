@@ -69,6 +69,9 @@ enum class PairOutcome : std::uint8_t {
   kCount = 11,
 };
 [[nodiscard]] std::string_view to_string(PairOutcome o);
+// A pair recorded to its end and judged by the guards and the fit: not skipped before it began
+// (voltage headroom, current limit, torque budget), nor aborted.
+[[nodiscard]] bool pair_judged(PairOutcome o) noexcept;
 
 // Why a pair was aborted (PairOutcome::kAborted), for the logs and `simulate --events`.
 enum class AbortCause : std::uint8_t {
