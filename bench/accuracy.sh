@@ -37,3 +37,7 @@ if compgen -G "bench/scenarios/robustness/*.toml" > /dev/null; then
   echo
   "$build/tools/pmsm-thermal" simulate -j "$jobs" bench/scenarios/robustness/*.toml --markdown --plot-dir docs/accuracy/robustness --quiet
 fi
+echo
+echo "## Self-ventilated machines (a shaft fan; the drive told of it, and not)"
+echo
+"$build/tools/pmsm-thermal" simulate -j "$jobs" bench/scenarios/self-ventilated/*.toml --markdown --quiet

@@ -368,7 +368,20 @@ ConfigSchema<C> build() {
   s.real("thermal.winding_to_housing_K_W", [](C& c) -> double& { return c.drive.thermal.winding_to_housing_K_W; }, between(common::kMinThermalResistance_K_W, 100), "K/W",
          "Controller's model: winding to housing.");
   s.real("thermal.housing_to_ambient_K_W", [](C& c) -> double& { return c.drive.thermal.housing_to_ambient_K_W; }, between(common::kMinThermalResistance_K_W, 100), "K/W",
-         "Controller's model: housing to ambient.");
+         "Controller's model: housing to ambient (with a shaft fan: at thermal.fan_speed_rad_s).");
+  s.real("thermal.fan_speed_rad_s", [](C& c) -> double& { return c.drive.thermal.fan_speed_rad_s; }, between(0, 1e4),
+         "rad/s",
+         "A shaft-mounted fan (a self-ventilated machine, IC411): the mechanical speed at which "
+         "thermal.housing_to_ambient_K_W holds (the data sheet's rated speed); the path's conductance scales as "
+         "fan_standstill_share + (1 - fan_standstill_share) (|speed| / fan_speed_rad_s)^fan_exponent. 0: no shaft fan "
+         "(separately ventilated, water-jacketed or non-ventilated: the path does not depend on the speed).");
+  s.real("thermal.fan_standstill_share", [](C& c) -> double& { return c.drive.thermal.fan_standstill_share; },
+         between(0.01, 1), "",
+         "With a shaft fan: the share of the housing's cooling left at standstill (natural convection; a data sheet's "
+         "torque at zero speed over the rated torque, squared, is about it).");
+  s.real("thermal.fan_exponent", [](C& c) -> double& { return c.drive.thermal.fan_exponent; }, between(0.1, 2), "",
+         "With a shaft fan: how its share of the cooling grows with the speed (0.8: forced convection, the air flow in "
+         "proportion to the speed).");
   s.real("thermal.iron_loss_k1_W_s_rad", [](C& c) -> double& { return c.drive.thermal.iron_loss_k1_W_s_rad; }, at_least(0, 1e4), "W s/rad",
          "Iron loss per mechanical rad/s.");
   s.real("thermal.iron_loss_k2_W_s2_rad2", [](C& c) -> double& { return c.drive.thermal.iron_loss_k2_W_s2_rad2; }, at_least(0, 1e3), "W s^2/rad^2",

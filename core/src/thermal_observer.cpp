@@ -21,9 +21,12 @@ namespace {
 // known loss, time-varying with it. The cooling's error g multiplies the housing's rise, which
 // is a state: the matrix holds the path at the learned conductance (1 + g) Rha^-1, and g's
 // column, the rise it multiplies (the Jacobian's, for the covariance), is set by predict().
-ThermalObserver::Matrix system_matrix(const ThermalModelConfig& c, double copper_loss_W, double cooling_scale = 0.0) {
+// share: the housing's path at the present speed, as a share of the modelled one (a shaft fan's,
+// housing_cooling_share; 1 without one).
+ThermalObserver::Matrix system_matrix(const ThermalModelConfig& c, double copper_loss_W, double cooling_scale,
+                                      double share) {
   const double gwh = 1.0 / c.winding_to_housing_K_W;
-  const double gha = (1.0 + cooling_scale) / c.housing_to_ambient_K_W;
+  const double gha = (1.0 + cooling_scale) * share / c.housing_to_ambient_K_W;
   ThermalObserver::Matrix a = ThermalObserver::Matrix::Zero();
   a(0, 0) = -gwh / c.winding_capacity_J_K;
   a(0, 1) = gwh / c.winding_capacity_J_K;
@@ -40,6 +43,7 @@ ThermalObserver::ThermalObserver(const ThermalModelConfig& config, const Calibra
                                  double initial_temp_C, bool known)
     : config_(config), anchor_C_(initial_temp_C), anchored_(known) {
   set_calibration(calibration);
+  cooling_share_ = housing_cooling_share(config, 0.0);  // until predict() is told a speed
   const double std_C = known ? config.initial_std_C : config.unknown_initial_std_C;
   x_ << initial_temp_C, initial_temp_C, 0.0, 0.0, 0.0, 0.0;
   p_.setZero();
@@ -91,7 +95,9 @@ void ThermalObserver::restore(const ThermalState& state, double downtime_thermal
   const bool cooling_learned = state.has_cooling_error && std::isfinite(state.cooling_scale_error) &&
                                std::isfinite(state.cooling_scale_std) && config_.initial_cooling_scale_std > 0.0;
   const double g = cooling_learned ? std::clamp(state.cooling_scale_error, kMinCoolingScale, kMaxCoolingScale) : 0.0;
-  const Eigen::Matrix2d a = system_matrix(config_, 0.0, g).topLeftCorner<2, 2>();
+  // At rest: a shaft fan stands still over the downtime.
+  cooling_share_ = housing_cooling_share(config_, 0.0);
+  const Eigen::Matrix2d a = system_matrix(config_, 0.0, g, cooling_share_).topLeftCorner<2, 2>();
   const double t = std::max(downtime_thermal_s, 0.0);
   int squarings = 0;
   double h = t;
@@ -315,7 +321,7 @@ double ThermalObserver::housing_loss_floor_W(double iron_loss_W, double ambient_
   // floor is added back.
   // The learned cooling's error g is such a loss too: -g (Th - Ta) / Rha.
   const double rise_C = std::max(x_(1) - ambient_C, 0.0);
-  const double gha = 1.0 / config_.housing_to_ambient_K_W;
+  const double gha = cooling_share_ / config_.housing_to_ambient_K_W;
   return std::max(-iron_loss_W - rise_C * gha - (x_(2) - x_(4) * rise_C * gha), 0.0);
 }
 
@@ -331,10 +337,11 @@ void ThermalObserver::predict(double dt_s, double copper_current_sq_A2, double o
   const double dt = dt_s * config_.time_scale;  // thermal seconds
   const double pcu = copper_loss_W(copper_current_sq_A2);
   last_copper_loss_W_ = pcu;
-  Matrix a = system_matrix(config_, pcu, x_(4));
-  const Eigen::Matrix2d a_model = system_matrix(config_, pcu).topLeftCorner<2, 2>();  // g = 0
+  cooling_share_ = housing_cooling_share(config_, omega_m_rad_s);
+  Matrix a = system_matrix(config_, pcu, x_(4), cooling_share_);
+  const Eigen::Matrix2d a_model = system_matrix(config_, pcu, 0.0, cooling_share_).topLeftCorner<2, 2>();  // g = 0
   const double pfe = iron_loss_W(omega_m_rad_s);
-  const double gha_ch = 1.0 / (config_.housing_to_ambient_K_W * config_.housing_capacity_J_K);
+  const double gha_ch = cooling_share_ / (config_.housing_to_ambient_K_W * config_.housing_capacity_J_K);
   const double cooling = 1.0 + x_(4);  // the learned path's share of the modelled one
   // The inputs: they enter the temperatures' rows alone.
   Eigen::Vector2d u(pcu / config_.winding_capacity_J_K, pfe / config_.housing_capacity_J_K + cooling * ambient_C * gha_ch);
@@ -653,7 +660,8 @@ bool ThermalObserver::time_to_limit_s(double limit_C, double copper_current_sq_A
   const double pcu_copper = 1.5 * winding_resistance_at_C(limit_C) * copper_current_sq_A2 * (1.0 + x_(3));
   const double pfe = iron_loss_W(omega_m_rad_s);
   const double gwh = 1.0 / config_.winding_to_housing_K_W;
-  const double gha = (1.0 + x_(4)) / config_.housing_to_ambient_K_W;  // the learned path
+  // The learned path, at the given speed's share of it (a shaft fan's).
+  const double gha = (1.0 + x_(4)) * housing_cooling_share(config_, omega_m_rad_s) / config_.housing_to_ambient_K_W;
   // The torque held, the copper loss grows with the housing's (and so the magnets')
   // temperature as the flux falls: linearised, gamma W more per kelvin of housing above its
   // present temperature. It stays below half the housing's conductance to ambient, so the
@@ -707,6 +715,14 @@ bool ThermalObserver::time_to_limit_s(double limit_C, double copper_current_sq_A
   }
   *out_s = hi / config_.time_scale;
   return true;
+}
+
+double housing_cooling_share(const ThermalModelConfig& c, double omega_m_rad_s) {
+  if (!(c.fan_speed_rad_s > 0.0)) {
+    return 1.0;
+  }
+  const double s = c.fan_standstill_share;
+  return s + (1.0 - s) * std::pow(std::abs(omega_m_rad_s) / c.fan_speed_rad_s, c.fan_exponent);
 }
 
 double thermal_model_fastest_time_constant_s(const ThermalModelConfig& c) {

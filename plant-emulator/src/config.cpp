@@ -319,6 +319,16 @@ common::ConfigSchema<PlantConfig> build_schema() {
     real("thermal.friction_heat_fraction",
                      PMSM_MEMBER(thermal.friction_heat_fraction), closed(0, 1),
                      "Share of the friction loss heating the housing node.");
+    real("thermal.fan_speed_rad_s", PMSM_MEMBER(thermal.fan_speed_rad_s), closed(0, 1e4),
+         "A shaft-mounted fan (a self-ventilated machine): the mechanical speed at which "
+         "housing_to_ambient_K_W holds; the path's conductance scales as fan_standstill_share + (1 - "
+         "fan_standstill_share) (|w| / fan_speed_rad_s)^fan_exponent. 0: no shaft fan (the path does not depend on "
+         "the speed).");
+    real("thermal.fan_standstill_share", PMSM_MEMBER(thermal.fan_standstill_share), closed(0.01, 1),
+         "With a shaft fan: the share of the housing's path to the ambient left at standstill (natural convection).");
+    real("thermal.fan_exponent", PMSM_MEMBER(thermal.fan_exponent), closed(0.1, 2),
+         "With a shaft fan: how the fan's share of the path grows with the speed (0.8: forced convection, the air "
+         "flow in proportion to the speed).");
   return s;
 }
 

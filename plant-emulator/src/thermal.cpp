@@ -1,6 +1,7 @@
 #include "pmsm/plant/thermal.hpp"
 
 #include <algorithm>
+#include <cmath>
 
 #include <Eigen/Dense>
 #include <unsupported/Eigen/MatrixFunctions>
@@ -60,6 +61,14 @@ void ThermalNetwork::step(const Vector& loss_W, double ambient_C) {
     next[i] = acc;
   }
   temps_C_ = next;
+}
+
+double ThermalNetwork::fan_share(const ThermalConfig& config, double omega_m_rad_s) {
+  if (!(config.fan_speed_rad_s > 0.0)) {
+    return 1.0;
+  }
+  const double s = config.fan_standstill_share;
+  return s + (1.0 - s) * std::pow(std::abs(omega_m_rad_s) / config.fan_speed_rad_s, config.fan_exponent);
 }
 
 double ThermalNetwork::dominant_time_constant_s() const {

@@ -1198,6 +1198,54 @@ TEST(ThermalObserver, AStoredStateIsCooledThroughTheDowntime) {
   EXPECT_NEAR(obs.estimate().winding_C, 20.0, 1.0) << "long enough: at the ambient";
 }
 
+// A self-ventilated machine (thermal.fan_speed_rad_s): at a steady speed its model is the
+// network whose housing-to-ambient path is the fan's share of the modelled one, at rest its
+// natural convection's share; without a fan the share is exactly 1 (no figure of a machine
+// without one moves).
+TEST(ThermalObserver, AShaftFansCoolingFollowsTheSpeed) {
+  ThermalModelConfig plain;
+  EXPECT_EQ(housing_cooling_share(plain, 300.0), 1.0);
+  ThermalModelConfig fan = plain;
+  fan.fan_speed_rad_s = 300.0;
+  fan.fan_standstill_share = 0.35;
+  fan.fan_exponent = 0.8;
+  EXPECT_DOUBLE_EQ(housing_cooling_share(fan, 0.0), 0.35);
+  EXPECT_DOUBLE_EQ(housing_cooling_share(fan, -300.0), 1.0);
+  Calibration cal;
+  for (const double w : {0.0, 60.0, 300.0, 450.0}) {
+    const double share = housing_cooling_share(fan, w);
+    ThermalModelConfig equivalent = plain;
+    equivalent.housing_to_ambient_K_W = plain.housing_to_ambient_K_W / share;
+    ThermalObserver obs(fan, cal, 25.0);
+    const double i2 = 30.0 * 30.0;
+    const double p_iron = obs.iron_loss_W(w);
+    Eigen::Matrix2d a;
+    Eigen::Vector2d b;
+    linear_system(network_of(equivalent, cal), i2, p_iron, 25.0, a, b);
+    for (int k = 0; k < 6000; ++k) obs.predict(0.5, i2, w, 25.0);
+    const Eigen::Vector2d x = analytic(a, b, Eigen::Vector2d(25.0, 25.0), 3000.0);
+    EXPECT_NEAR(obs.estimate().winding_C, x(0), 0.02 * (x(0) - 25.0)) << w;
+    EXPECT_NEAR(obs.estimate().housing_C, x(1), 0.02 * (x(1) - 25.0)) << w;
+    if (w < 300.0) {
+      // The fan's share shows: the same load without the fan's model ends cooler.
+      ThermalObserver without(plain, cal, 25.0);
+      for (int k = 0; k < 6000; ++k) without.predict(0.5, i2, w, 25.0);
+      EXPECT_GT(obs.estimate().housing_C - without.estimate().housing_C, 0.1 * (x(1) - 25.0)) << w;
+    }
+  }
+  // A downtime cools a stopped fan's machine through natural convection alone.
+  Eigen::Matrix2d a;
+  Eigen::Vector2d b;
+  ThermalModelConfig at_rest = plain;
+  at_rest.housing_to_ambient_K_W = plain.housing_to_ambient_K_W / 0.35;
+  linear_system(network_of(at_rest, cal), 0.0, 0.0, 20.0, a, b);
+  ThermalObserver restored(fan, cal, 25.0);
+  restored.restore(ThermalState{120.0, 90.0, 1.0}, 3000.0, 20.0);
+  const Eigen::Vector2d x = analytic(a, b, Eigen::Vector2d(120.0, 90.0), 3000.0);
+  EXPECT_NEAR(restored.estimate().winding_C, x(0), 0.05);
+  EXPECT_NEAR(restored.estimate().housing_C, x(1), 0.05);
+}
+
 // The ambient moved in the downtime (stored at 5 C at night, 30 C at the restart): the truth lies
 // between the network's relaxations towards the two ambients, whatever the ambient did between
 // (it moved monotonically). The restored state takes their middle, and its 2 sigma reaches

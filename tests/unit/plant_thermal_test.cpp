@@ -147,6 +147,51 @@ TEST(plant_thermal, AcceleratedHeatUpFollowsNetwork) {
   EXPECT_NEAR(static_cast<double>(plant.truth().copper_loss_W), p_cu2, 1e-4 * p_cu2);
 }
 
+TEST(plant_thermal, AShaftFanLeavesItsStandstillShareAtRest) {
+  // A self-ventilated machine at standstill: its housing sheds what natural convection alone
+  // passes, fan_standstill_share of the path housing_to_ambient_K_W holds at the fan's speed.
+  // The heat-up of AcceleratedHeatUpFollowsNetwork must follow the network with that path,
+  // within 1 % of the rise, and lie well away from the network without the fan (the plant adds
+  // the fan's part as a heat flow at each step's start temperature).
+  PlantConfig c = heating_config(0.0);
+  c.thermal.fan_speed_rad_s = 314.0;
+  c.thermal.fan_standstill_share = 0.35;
+  Plant plant(c);
+  const double vd = 0.133 * 50.0;
+  for (int i = 0; i < 5000; ++i) {
+    plant.step_with_dq_voltage(vd, 0.0);
+  }
+  const PlantState s1 = plant.state();
+  const Eigen::Vector3d t1(s1.winding_temp_C, s1.housing_temp_C, s1.magnet_temp_C);
+  const double p_cu = 1.5 * 0.133 * (s1.id_A * s1.id_A + s1.iq_A * s1.iq_A);
+  for (int i = 0; i < 25000; ++i) {
+    plant.step_with_dq_voltage(vd, 0.0);
+  }
+  const PlantState s2 = plant.state();
+  const double t_s = (s2.time_s - s1.time_s) * 1000.0;
+  ThermalConfig at_rest = c.thermal;
+  at_rest.housing_to_ambient_K_W = c.thermal.housing_to_ambient_K_W / 0.35;
+  const Eigen::Vector3d expected = Network(at_rest).response(t1, Eigen::Vector3d(p_cu, 0.0, 0.0), 25.0, t_s);
+  EXPECT_NEAR(s2.winding_temp_C, expected(0), 0.01 * (expected(0) - 25.0));
+  EXPECT_NEAR(s2.housing_temp_C, expected(1), 0.01 * (expected(1) - 25.0));
+  EXPECT_NEAR(s2.magnet_temp_C, expected(2), 0.01 * (expected(2) - 25.0));
+  const Eigen::Vector3d without = Network(c.thermal).response(t1, Eigen::Vector3d(p_cu, 0.0, 0.0), 25.0, t_s);
+  EXPECT_GT(s2.housing_temp_C - without(1), 0.2 * (without(1) - 25.0));  // the fan's absence shows
+}
+
+TEST(plant_thermal, AShaftFansShareGrowsWithTheSpeed) {
+  ThermalConfig t;
+  EXPECT_EQ(ThermalNetwork::fan_share(t, 500.0), 1.0);  // no fan: the path holds at every speed
+  t.fan_speed_rad_s = 200.0;
+  t.fan_standstill_share = 0.3;
+  t.fan_exponent = 0.8;
+  EXPECT_DOUBLE_EQ(ThermalNetwork::fan_share(t, 0.0), 0.3);
+  EXPECT_DOUBLE_EQ(ThermalNetwork::fan_share(t, 200.0), 1.0);
+  EXPECT_DOUBLE_EQ(ThermalNetwork::fan_share(t, -200.0), 1.0);  // either direction turns the fan
+  EXPECT_NEAR(ThermalNetwork::fan_share(t, 20.0), 0.3 + 0.7 * std::pow(0.1, 0.8), 1e-12);
+  EXPECT_GT(ThermalNetwork::fan_share(t, 400.0), 1.0);  // beyond its speed the fan moves more air
+}
+
 TEST(plant_thermal, ResistanceFollowsWindingTemperature) {
   // Eq. 1 with alpha = 3.93e-3: the current at constant voltage falls as the winding heats.
   const PlantConfig c = heating_config(3.93e-3);

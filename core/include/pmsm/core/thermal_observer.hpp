@@ -27,6 +27,15 @@ struct ThermalModelConfig {
   double housing_capacity_J_K = 18000.0;
   double winding_to_housing_K_W = 0.055;
   double housing_to_ambient_K_W = 0.125;
+  // A shaft-mounted fan (a self-ventilated machine, IC411): housing_to_ambient_K_W holds at the
+  // mechanical speed fan_speed_rad_s, and the path's conductance scales as
+  // fan_standstill_share + (1 - fan_standstill_share) (|wm| / fan_speed_rad_s)^fan_exponent:
+  // natural convection at rest, forced convection growing with the fan's air flow. 0: no shaft
+  // fan (a separately ventilated, water-jacketed or non-ventilated machine): the path does not
+  // depend on the speed (housing_cooling_share below).
+  double fan_speed_rad_s = 0.0;
+  double fan_standstill_share = 0.35;
+  double fan_exponent = 0.8;
   // Speed-dependent losses on the housing node, P = k1 |wm| + k2 wm^2: iron loss (hysteresis
   // and eddy currents) and the friction heat that stays in the machine.
   double iron_loss_k1_W_s_rad = 0.6;
@@ -371,6 +380,7 @@ class ThermalObserver {
   // The model's rise of winding and housing by the drive's own losses (model_rise_C), K.
   Eigen::Vector2d model_rise_K_ = Eigen::Vector2d::Zero();
   double last_copper_loss_W_ = 0.0;
+  double cooling_share_ = 1.0;  // housing_cooling_share at the last predict()'s speed (restore(): at rest)
   double winding_rate_C_per_s_ = 0.0;
   Matrix p_;
   double since_measurement_s_ = 0.0;
@@ -409,8 +419,13 @@ class ThermalObserver {
   void set_cooling_error(double g, double g_std, double elapsed_thermal_s);
 };
 
+// The housing's path to the ambient at the mechanical speed omega_m_rad_s, as a share of
+// 1 / housing_to_ambient_K_W: exactly 1 without a shaft fan (fan_speed_rad_s 0).
+[[nodiscard]] double housing_cooling_share(const ThermalModelConfig& c, double omega_m_rad_s);
+
 // The thermal model's fastest time constant (thermal seconds): the two-node network's faster
-// mode, about the winding's capacity times its resistance to the housing. The filter's
+// mode, about the winding's capacity times its resistance to the housing (with the housing's
+// path at housing_to_ambient_K_W, whatever a shaft fan makes of it). The filter's
 // prediction (a second-order step) stays accurate while an update's thermal time,
 // thermal.update_s x thermal.acceleration, is at most kMaxThermalStepPerTimeConstant of it;
 // beyond twice it the step diverges (a configuration check refuses that).

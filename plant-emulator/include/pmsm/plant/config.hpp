@@ -202,6 +202,14 @@ struct ThermalConfig {
   double rotor_to_housing_K_W = 0.1;
   double rotor_to_ambient_K_W = 2.0;
   double friction_heat_fraction = 0.5;  // share of the friction loss heating the housing
+  // A shaft-mounted fan (a self-ventilated, IC411 machine): the housing's path to the ambient
+  // is housing_to_ambient_K_W at fan_speed_rad_s and its conductance scales as
+  // standstill_share + (1 - standstill_share) (|w| / fan_speed_rad_s)^fan_exponent
+  // (forced convection over the fins, the air flow in proportion to the shaft speed).
+  // 0: no shaft fan, the path does not depend on the speed.
+  double fan_speed_rad_s = 0.0;
+  double fan_standstill_share = 0.35;  // natural convection's share of the path at fan_speed
+  double fan_exponent = 0.8;           // a turbulent boundary layer's h ~ v^0.8
 };
 
 struct PlantConfig {

@@ -33,8 +33,13 @@ class ThermalNetwork {
   [[nodiscard]] const Vector& temperatures_C() const { return temps_C_; }
   [[nodiscard]] double step_s() const { return step_s_; }
 
+  // The housing's path to the ambient at the mechanical speed omega_m_rad_s, as a share of
+  // 1 / housing_to_ambient_K_W: 1 without a shaft fan (thermal.fan_speed_rad_s 0), else
+  // standstill_share + (1 - standstill_share) (|w| / fan_speed)^exponent.
+  [[nodiscard]] static double fan_share(const ThermalConfig& config, double omega_m_rad_s);
+
   // Slowest time constant of the network (-1/largest eigenvalue of -C^-1·G), in thermal
-  // seconds. For diagnostics and documentation.
+  // seconds, with the housing's path at housing_to_ambient_K_W. For diagnostics and documentation.
   [[nodiscard]] double dominant_time_constant_s() const;
 
  private:
