@@ -1179,6 +1179,17 @@ std::vector<std::string> configuration_warnings(const ControllerConfig& config) 
         t0.housing_to_ambient_K_W, t0.iron_loss_k1_W_s_rad * w + t0.iron_loss_k2_W_s2_rad2 * w * w, w,
         d.motor.continuous_current_A_rms, table_i.continuous_current_A_rms));
   }
+  // A shaft fan's share or exponent given without its speed: no fan is modelled, and the share
+  // the engineer read off the data sheet would be lost without a word.
+  if (!(t.fan_speed_rad_s > 0.0) &&
+      (t.fan_standstill_share != t0.fan_standstill_share || t.fan_exponent != t0.fan_exponent)) {
+    out.push_back(fmt::format(
+        "controller.thermal.fan_standstill_share = {:g} and fan_exponent = {:g} describe a shaft fan, but "
+        "thermal.fan_speed_rad_s is 0 (no shaft fan): they are not used, and the housing's path to the ambient "
+        "(thermal.housing_to_ambient_K_W) holds at every speed; give the fan's speed, the data sheet's rated speed "
+        "(docs/configuration.md, \"A self-ventilated machine\")",
+        t.fan_standstill_share, t.fan_exponent));
+  }
   // Without field weakening (control.field_weakening, off by default) the drive reaches no speed
   // whose EMF takes more than the voltage the bus allows (docs/daemon.md, "Field weakening").
   const double emf_speed_rad_s =

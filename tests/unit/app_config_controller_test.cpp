@@ -524,6 +524,23 @@ nominal_dc_bus_V = 650.0
                          "speed_bandwidth_rad_s"));
 }
 
+// A shaft fan's standstill share or exponent without the fan's speed describes a fan the model
+// does not use: told, with the keys named; the fan given whole, or not at all, is not.
+TEST(ControllerConfig, AShaftFanWithoutItsSpeedIsWarnedAbout) {
+  const std::string_view text = "but thermal.fan_speed_rad_s is 0 (no shaft fan): they are not used";
+  EXPECT_FALSE(any_names(configuration_warnings(default_controller_config()), text));
+  const ControllerConfig share_only = parse("[thermal]\nfan_standstill_share = 0.4\n");
+  EXPECT_EQ(share_only.drive.thermal.fan_speed_rad_s, 0.0);
+  EXPECT_EQ(core::housing_cooling_share(share_only.drive.thermal, 0.0), 1.0) << "no fan modelled";
+  EXPECT_TRUE(any_names(configuration_warnings(share_only),
+                        "controller.thermal.fan_standstill_share = 0.4 and fan_exponent = 0.8 describe a shaft fan, but "
+                        "thermal.fan_speed_rad_s is 0 (no shaft fan): they are not used"));
+  EXPECT_TRUE(any_names(configuration_warnings(parse("[thermal]\nfan_exponent = 1.0\n")), text));
+  const ControllerConfig whole = parse("[thermal]\nfan_speed_rad_s = 314.0\nfan_standstill_share = 0.4\n");
+  EXPECT_FALSE(any_names(configuration_warnings(whole), text));
+  EXPECT_DOUBLE_EQ(core::housing_cooling_share(whole.drive.thermal, 0.0), 0.4);
+}
+
 // A method that does not hold the torque or does not cancel the bridge's even error, on a
 // machine configured as salient (a torque budget), is warned about at load (measured on the
 // 30 mohm IPM: docs/accuracy.md, "The robustness suite under the other methods"); fixed-magnitude
