@@ -1226,6 +1226,14 @@ TEST(ThermalObserver, AShaftFansCoolingFollowsTheSpeed) {
     const Eigen::Vector2d x = analytic(a, b, Eigen::Vector2d(25.0, 25.0), 3000.0);
     EXPECT_NEAR(obs.estimate().winding_C, x(0), 0.02 * (x(0) - 25.0)) << w;
     EXPECT_NEAR(obs.estimate().housing_C, x(1), 0.02 * (x(1) - 25.0)) << w;
+    // The time to a limit at this speed is the equivalent network's, from the same state.
+    ThermalObserver same(equivalent, cal, 25.0);
+    for (int k = 0; k < 6000; ++k) same.predict(0.5, i2, w, 25.0);
+    double t_fan = -1.0;
+    double t_same = -1.0;
+    ASSERT_TRUE(obs.time_to_limit_s(obs.estimate().winding_C + 20.0, 2.0 * i2, w, 25.0, &t_fan)) << w;
+    ASSERT_TRUE(same.time_to_limit_s(same.estimate().winding_C + 20.0, 2.0 * i2, w, 25.0, &t_same)) << w;
+    EXPECT_NEAR(t_fan, t_same, 0.01 * t_same) << w;
     if (w < 300.0) {
       // The fan's share shows: the same load without the fan's model ends cooler.
       ThermalObserver without(plain, cal, 25.0);
