@@ -377,8 +377,9 @@ ConfigSchema<C> build() {
          "(separately ventilated, water-jacketed or non-ventilated: the path does not depend on the speed).");
   s.real("thermal.fan_standstill_share", [](C& c) -> double& { return c.drive.thermal.fan_standstill_share; },
          between(0.01, 1), "",
-         "With a shaft fan: the share of the housing's cooling left at standstill (natural convection; a data sheet's "
-         "torque at zero speed over the rated torque, squared, is about it).");
+         "With a shaft fan: the share of the housing's cooling left at standstill (natural convection; from a data "
+         "sheet's torque at zero speed over the rated torque, k = (T0 / Tn)^2: share = Rha / ((Rwh + Rha) / k - Rwh), "
+         "less than k itself).");
   s.real("thermal.fan_exponent", [](C& c) -> double& { return c.drive.thermal.fan_exponent; }, between(0.1, 2), "",
          "With a shaft fan: how its share of the cooling grows with the speed (0.8: forced convection, the air flow in "
          "proportion to the speed).");
@@ -1189,6 +1190,19 @@ std::vector<std::string> configuration_warnings(const ControllerConfig& config) 
         "(thermal.housing_to_ambient_K_W) holds at every speed; give the fan's speed, the data sheet's rated speed "
         "(docs/configuration.md, \"A self-ventilated machine\")",
         t.fan_standstill_share, t.fan_exponent));
+  }
+  // A fan's speed far from the motor's rated speed: a data sheet's resistance to the ambient
+  // holds at its rated speed, and a speed entered in Hz or in rpm would make the model's fan
+  // six times too slow or ten times too fast (beyond its speed the model cools more: it reads
+  // low).
+  if (t.fan_speed_rad_s > 0.0 &&
+      (t.fan_speed_rad_s < 0.5 * d.motor.rated_speed_rad_s || t.fan_speed_rad_s > 2.0 * d.motor.rated_speed_rad_s)) {
+    out.push_back(fmt::format(
+        "controller.thermal.fan_speed_rad_s = {:g} rad/s lies far from controller.motor.rated_speed_rad_s = {:g} rad/s: "
+        "thermal.housing_to_ambient_K_W holds at the fan's speed, which is the data sheet's rated speed in mechanical "
+        "rad/s (a speed in Hz or rpm moves where the model's cooling is full; docs/configuration.md, \"A self-ventilated "
+        "machine\")",
+        t.fan_speed_rad_s, d.motor.rated_speed_rad_s));
   }
   // Without field weakening (control.field_weakening, off by default) the drive reaches no speed
   // whose EMF takes more than the voltage the bus allows (docs/daemon.md, "Field weakening").

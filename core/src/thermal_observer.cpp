@@ -311,7 +311,7 @@ double ThermalObserver::copper_loss_W(double copper_current_sq_A2) const {
   return 1.5 * winding_resistance_at_C(x_(0)) * copper_current_sq_A2;
 }
 
-double ThermalObserver::housing_loss_floor_W(double iron_loss_W, double ambient_C) const {
+double ThermalObserver::housing_loss_floor_W(double iron_loss_W, double ambient_C, double share) const {
   // A machine makes no cold. The missing loss dP may be negative: the model's iron loss too
   // high, or its cooling path too weak, which takes more heat out the warmer the housing is.
   // But at most all of the iron loss and once more what the modelled path takes out (a cooling
@@ -321,7 +321,7 @@ double ThermalObserver::housing_loss_floor_W(double iron_loss_W, double ambient_
   // floor is added back.
   // The learned cooling's error g is such a loss too: -g (Th - Ta) / Rha.
   const double rise_C = std::max(x_(1) - ambient_C, 0.0);
-  const double gha = cooling_share_ / config_.housing_to_ambient_K_W;
+  const double gha = share / config_.housing_to_ambient_K_W;
   return std::max(-iron_loss_W - rise_C * gha - (x_(2) - x_(4) * rise_C * gha), 0.0);
 }
 
@@ -356,7 +356,7 @@ void ThermalObserver::predict(double dt_s, double copper_current_sq_A2, double o
     const Eigen::Vector2d losses(pcu / config_.winding_capacity_J_K, pfe / config_.housing_capacity_J_K);
     model_rise_K_ = (Eigen::Matrix2d::Identity() + a2 * dt + 0.5 * a2 * a2 * dt * dt) * model_rise_K_ + b2 * losses;
   }
-  if (housing_loss_floor_W(pfe, ambient_C) > 0.0) {
+  if (housing_loss_floor_W(pfe, ambient_C, cooling_share_) > 0.0) {
     // The floor binds (housing_loss_floor_W): the housing gets -max(Th - Ta, 0) / Rha in place
     // of Pfe + dP. dP then has no part in the prediction (its column is 0, so its covariance
     // with the temperatures does not grow on a term that is not there), and above the ambient
@@ -661,7 +661,8 @@ bool ThermalObserver::time_to_limit_s(double limit_C, double copper_current_sq_A
   const double pfe = iron_loss_W(omega_m_rad_s);
   const double gwh = 1.0 / config_.winding_to_housing_K_W;
   // The learned path, at the given speed's share of it (a shaft fan's).
-  const double gha = (1.0 + x_(4)) * housing_cooling_share(config_, omega_m_rad_s) / config_.housing_to_ambient_K_W;
+  const double share = housing_cooling_share(config_, omega_m_rad_s);
+  const double gha = (1.0 + x_(4)) * share / config_.housing_to_ambient_K_W;
   // The torque held, the copper loss grows with the housing's (and so the magnets')
   // temperature as the flux falls: linearised, gamma W more per kelvin of housing above its
   // present temperature. It stays below half the housing's conductance to ambient, so the
@@ -679,7 +680,7 @@ bool ThermalObserver::time_to_limit_s(double limit_C, double copper_current_sq_A
   const double a10 = q;
   const double a11 = -(q + r);
   const double u0 = (pcu - gamma * x_(1)) / config_.winding_capacity_J_K;
-  const double u1 = (pfe + x_(2) + housing_loss_floor_W(pfe, ambient_C) + gha * ambient_C) / config_.housing_capacity_J_K;
+  const double u1 = (pfe + x_(2) + housing_loss_floor_W(pfe, ambient_C, share) + gha * ambient_C) / config_.housing_capacity_J_K;
   const double det = a00 * a11 - a01 * a10;  // p r - q gamma / Cw > 0 by the clamp
   // Steady state: A x_ss + u = 0.
   const double tw_ss = (a01 * u1 - a11 * u0) / det;
@@ -721,15 +722,19 @@ double housing_cooling_share(const ThermalModelConfig& c, double omega_m_rad_s) 
   if (!(c.fan_speed_rad_s > 0.0)) {
     return 1.0;
   }
+  // Held beyond kFanSpeedSpan times the fan's speed: a bounded share keeps the filter's step
+  // inside the check of thermal_model_fastest_time_constant_s whatever the speed reads.
+  const double w = std::min(std::abs(omega_m_rad_s), kFanSpeedSpan * c.fan_speed_rad_s);
   const double s = c.fan_standstill_share;
-  return s + (1.0 - s) * std::pow(std::abs(omega_m_rad_s) / c.fan_speed_rad_s, c.fan_exponent);
+  return s + (1.0 - s) * std::pow(w / c.fan_speed_rad_s, c.fan_exponent);
 }
 
 double thermal_model_fastest_time_constant_s(const ThermalModelConfig& c) {
   // The larger eigenvalue in magnitude of the network's 2x2 matrix (system_matrix's upper left
   // block), real and negative: (|trace| + sqrt(trace^2 - 4 det)) / 2.
   const double gwh = 1.0 / c.winding_to_housing_K_W;
-  const double gha = 1.0 / c.housing_to_ambient_K_W;
+  // The path at its largest share (a shaft fan's at kFanSpeedSpan times its speed; 1 without).
+  const double gha = housing_cooling_share(c, kFanSpeedSpan * c.fan_speed_rad_s) / c.housing_to_ambient_K_W;
   const double a00 = gwh / c.winding_capacity_J_K;
   const double a11 = (gwh + gha) / c.housing_capacity_J_K;
   const double det = a00 * (gha / c.housing_capacity_J_K);

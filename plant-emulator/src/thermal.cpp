@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include <fmt/format.h>
+
 #include <Eigen/Dense>
 #include <unsupported/Eigen/MatrixFunctions>
 
@@ -48,6 +50,24 @@ ThermalNetwork::ThermalNetwork(const ThermalConfig& config, double step_s) : ste
   }
   const double t0 = config.initial_C.value_or(config.ambient_C);
   temps_C_ = {t0, t0, t0};
+  if (config.fan_speed_rad_s > 0.0) {
+    // The shaft fan's part of the housing's path enters a step as a heat flow at the step's start
+    // temperature (Plant): accurate and monotone while a step is a small part of the housing's
+    // own time constant through its path at the largest share; at 1e6 x and 1 kHz on the plant's
+    // defaults a share of 3 would oscillate and one of 5 diverge.
+    const double a = step_s * fan_share(config, kFanSpeedSpan * config.fan_speed_rad_s) /
+                     (config.housing_to_ambient_K_W * config.housing_capacity_J_K);
+    if (!(a <= kMaxFanStepFraction)) {
+      throw ConfigError(fmt::format(
+          "thermal.fan_speed_rad_s: with a shaft fan a thermal step ({} s: thermal.acceleration over the PWM "
+          "frequency) must be at most {} of the housing's time constant through its path at the fan's largest share "
+          "(thermal.housing_capacity_J_K x thermal.housing_to_ambient_K_W / {}, {} s); lower the acceleration",
+          common::format_number(step_s), common::format_number(kMaxFanStepFraction),
+          common::format_number(fan_share(config, kFanSpeedSpan * config.fan_speed_rad_s)),
+          common::format_number(config.housing_to_ambient_K_W * config.housing_capacity_J_K /
+                                fan_share(config, kFanSpeedSpan * config.fan_speed_rad_s))));
+    }
+  }
 }
 
 void ThermalNetwork::step(const Vector& loss_W, double ambient_C) {
@@ -67,8 +87,11 @@ double ThermalNetwork::fan_share(const ThermalConfig& config, double omega_m_rad
   if (!(config.fan_speed_rad_s > 0.0)) {
     return 1.0;
   }
+  // Beyond twice its speed the fan's share is held (kFanSpeedSpan): no extrapolation of its air
+  // flow, and a bounded share keeps the step's explicit part stable (the constructor's check).
+  const double w = std::min(std::abs(omega_m_rad_s), kFanSpeedSpan * config.fan_speed_rad_s);
   const double s = config.fan_standstill_share;
-  return s + (1.0 - s) * std::pow(std::abs(omega_m_rad_s) / config.fan_speed_rad_s, config.fan_exponent);
+  return s + (1.0 - s) * std::pow(w / config.fan_speed_rad_s, config.fan_exponent);
 }
 
 double ThermalNetwork::dominant_time_constant_s() const {

@@ -539,6 +539,38 @@ TEST(ControllerConfig, AShaftFanWithoutItsSpeedIsWarnedAbout) {
   const ControllerConfig whole = parse("[thermal]\nfan_speed_rad_s = 314.0\nfan_standstill_share = 0.4\n");
   EXPECT_FALSE(any_names(configuration_warnings(whole), text));
   EXPECT_DOUBLE_EQ(core::housing_cooling_share(whole.drive.thermal, 0.0), 0.4);
+  // The fan's speed far from the rated speed (Table I's 314 rad/s): 50 (its Hz) is told, half and
+  // twice the rated speed are not.
+  const std::string_view far = "lies far from controller.motor.rated_speed_rad_s = 314 rad/s";
+  EXPECT_FALSE(any_names(configuration_warnings(whole), far));
+  EXPECT_TRUE(any_names(configuration_warnings(parse("[thermal]\nfan_speed_rad_s = 50.0\n")),
+                        "controller.thermal.fan_speed_rad_s = 50 rad/s lies far from"));
+  EXPECT_TRUE(any_names(configuration_warnings(parse("[thermal]\nfan_speed_rad_s = 3000.0\n")), far));
+  EXPECT_FALSE(any_names(configuration_warnings(parse("[thermal]\nfan_speed_rad_s = 157.0\n")), far));
+  EXPECT_FALSE(any_names(configuration_warnings(parse("[thermal]\nfan_speed_rad_s = 628.0\n")), far));
+}
+
+// The filter's step is checked against its model's fastest time constant with a shaft fan's
+// largest share (its speed held at twice the fan's): a fan whose share would make that mode
+// faster than the step allows is refused at load, where an unbounded share diverged in the run
+// (a fan speed of 1 rad/s with exponent 2: the estimate at 3e161 C by 22 s).
+TEST(ControllerConfig, AShaftFansLargestShareBoundsTheFiltersStep) {
+  core::ThermalModelConfig t;
+  t.fan_speed_rad_s = 1.0;
+  t.fan_exponent = 2.0;
+  t.fan_standstill_share = 0.35;
+  EXPECT_DOUBLE_EQ(core::housing_cooling_share(t, 314.0), 0.35 + 0.65 * 4.0) << "held at twice the fan's speed";
+  EXPECT_DOUBLE_EQ(core::housing_cooling_share(t, 2.0), core::housing_cooling_share(t, 314.0));
+  core::ThermalModelConfig plain;
+  EXPECT_LT(core::thermal_model_fastest_time_constant_s(t), core::thermal_model_fastest_time_constant_s(plain));
+  // At an acceleration that takes the step past half the fan's fastest constant, and not past
+  // half the plain model's: refused with the fan, accepted without.
+  const double between = 0.5 * (core::thermal_model_fastest_time_constant_s(t) +
+                                core::thermal_model_fastest_time_constant_s(plain));
+  const double acceleration = core::kMaxThermalStepPerTimeConstant * between / 0.01;  // update_s 0.01 s
+  const std::string keys = "[thermal]\nupdate_s = 0.01\nacceleration = " + std::to_string(acceleration) + "\n";
+  EXPECT_NO_THROW((void)parse(keys));
+  EXPECT_THROW((void)parse(keys + "fan_speed_rad_s = 1.0\nfan_exponent = 2.0\n"), ConfigError);
 }
 
 // A method that does not hold the torque or does not cancel the bridge's even error, on a

@@ -179,6 +179,70 @@ TEST(plant_thermal, AShaftFanLeavesItsStandstillShareAtRest) {
   EXPECT_GT(s2.housing_temp_C - without(1), 0.2 * (without(1) - 25.0));  // the fan's absence shows
 }
 
+TEST(plant_thermal, AShaftFanAtSpeedCoolsAsItsShareSays) {
+  // The shaft held at 100 rad/s by the dynamometer (the reference's fan speed 314 rad/s, share
+  // 0.35 at rest): the housing's path is 0.35 + 0.65 (100 / 314)^0.8 of the fan speed's. A
+  // constant d current heats the winding (no iron loss, alpha 0: the losses hold); the friction's
+  // heat enters the housing. The heat-up must follow the network with that path, and not the
+  // ones at rest or at the fan's speed.
+  PlantConfig c = heating_config(0.0);
+  c.load.speed_rad_s = 100.0;
+  c.thermal.fan_speed_rad_s = 314.0;
+  c.thermal.fan_standstill_share = 0.35;
+  c.motor.magnet_temp_coefficient_per_C = 0.0;  // the magnets' flux, and so the current, hold
+  Plant plant(c);
+  // The winding shorted (no voltage): the EMF drives a constant current through it.
+  const double vd = 0.0;
+  const double vq = 0.0;
+  for (int i = 0; i < 5000; ++i) {
+    plant.step_with_dq_voltage(vd, vq);
+  }
+  const PlantState s1 = plant.state();
+  const Eigen::Vector3d t1(s1.winding_temp_C, s1.housing_temp_C, s1.magnet_temp_C);
+  const double p_w = s1.copper_loss_W;
+  const double p_h = c.thermal.friction_heat_fraction * s1.friction_loss_W;
+  ASSERT_GT(p_w, 100.0);
+  for (int i = 0; i < 25000; ++i) {
+    plant.step_with_dq_voltage(vd, vq);
+  }
+  const PlantState s2 = plant.state();
+  EXPECT_NEAR(s2.copper_loss_W, p_w, 0.01 * p_w) << "a constant loss";
+  const double t_s = (s2.time_s - s1.time_s) * 1000.0;
+  const double share = 0.35 + 0.65 * std::pow(100.0 / 314.0, 0.8);
+  EXPECT_DOUBLE_EQ(ThermalNetwork::fan_share(c.thermal, 100.0), share);
+  const auto response = [&](double s) {
+    ThermalConfig path = c.thermal;
+    path.housing_to_ambient_K_W = c.thermal.housing_to_ambient_K_W / s;
+    return Network(path).response(t1, Eigen::Vector3d(p_w, p_h, 0.0), 25.0, t_s);
+  };
+  const Eigen::Vector3d expected = response(share);
+  EXPECT_NEAR(s2.winding_temp_C, expected(0), 0.01 * (expected(0) - 25.0));
+  EXPECT_NEAR(s2.housing_temp_C, expected(1), 0.01 * (expected(1) - 25.0));
+  EXPECT_GT(response(0.35)(1) - s2.housing_temp_C, 0.05 * (expected(1) - 25.0)) << "not the path at rest";
+  EXPECT_GT(s2.housing_temp_C - response(1.0)(1), 0.05 * (expected(1) - 25.0)) << "nor the fan speed's";
+}
+
+TEST(plant_thermal, AShaftFansStepMustBeShortAgainstTheHousing) {
+  // The fan's part enters each step explicitly: a step that is no small part of the housing's
+  // time constant through its path at the largest share is refused, naming the keys.
+  ThermalConfig t;
+  t.fan_speed_rad_s = 314.0;
+  const double tau_s = t.housing_capacity_J_K * t.housing_to_ambient_K_W /
+                       ThermalNetwork::fan_share(t, ThermalNetwork::kFanSpeedSpan * t.fan_speed_rad_s);
+  EXPECT_NO_THROW(ThermalNetwork(t, 0.9 * ThermalNetwork::kMaxFanStepFraction * tau_s));
+  try {
+    ThermalNetwork(t, 1.1 * ThermalNetwork::kMaxFanStepFraction * tau_s);
+    ADD_FAILURE() << "a step past the bound was taken";
+  } catch (const ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("thermal.fan_speed_rad_s: with a shaft fan a thermal step"), std::string::npos)
+        << e.what();
+  }
+  ThermalConfig plain;  // no fan: any step is exact
+  EXPECT_NO_THROW(ThermalNetwork(plain, 10.0 * tau_s));
+  // Beyond twice its speed the share is held.
+  EXPECT_DOUBLE_EQ(ThermalNetwork::fan_share(t, 5000.0), ThermalNetwork::fan_share(t, 628.0));
+}
+
 TEST(plant_thermal, AShaftFansShareGrowsWithTheSpeed) {
   ThermalConfig t;
   EXPECT_EQ(ThermalNetwork::fan_share(t, 500.0), 1.0);  // no fan: the path holds at every speed

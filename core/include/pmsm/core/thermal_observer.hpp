@@ -361,7 +361,8 @@ class ThermalObserver {
   // What keeps the missing loss dP and the cooling's error g together (dP - g (Th - Ta)/Rha)
   // from taking more heat out of the housing than a machine can lose: the iron loss and once
   // more what the modelled path to the ambient takes out.
-  [[nodiscard]] double housing_loss_floor_W(double iron_loss_W, double ambient_C) const;
+  // share: the housing's path at the speed in question (housing_cooling_share).
+  [[nodiscard]] double housing_loss_floor_W(double iron_loss_W, double ambient_C, double share) const;
   // Eq. 1 for the winding alone (without the cable).
   [[nodiscard]] double winding_resistance_at_C(double temp_C) const;
   ThermalModelConfig config_;
@@ -420,12 +421,15 @@ class ThermalObserver {
 };
 
 // The housing's path to the ambient at the mechanical speed omega_m_rad_s, as a share of
-// 1 / housing_to_ambient_K_W: exactly 1 without a shaft fan (fan_speed_rad_s 0).
+// 1 / housing_to_ambient_K_W: exactly 1 without a shaft fan (fan_speed_rad_s 0); with one,
+// |speed| held at kFanSpeedSpan times the fan's speed beyond it (no extrapolation of the fan's
+// air flow, and a share the filter's step check can bound).
+inline constexpr double kFanSpeedSpan = 2.0;
 [[nodiscard]] double housing_cooling_share(const ThermalModelConfig& c, double omega_m_rad_s);
 
 // The thermal model's fastest time constant (thermal seconds): the two-node network's faster
 // mode, about the winding's capacity times its resistance to the housing (with the housing's
-// path at housing_to_ambient_K_W, whatever a shaft fan makes of it). The filter's
+// path at its largest share: a shaft fan's at kFanSpeedSpan times its speed). The filter's
 // prediction (a second-order step) stays accurate while an update's thermal time,
 // thermal.update_s x thermal.acceleration, is at most kMaxThermalStepPerTimeConstant of it;
 // beyond twice it the step diverges (a configuration check refuses that).

@@ -23,7 +23,8 @@ class ThermalNetwork {
   using Matrix = std::array<std::array<double, kNodes>, kNodes>;
 
   // Prepares the exact discretisation for steps of step_s of thermal time (the caller
-  // multiplies by the acceleration factor).
+  // multiplies by the acceleration factor). Throws ConfigError where a shaft fan's step would be
+  // too long (kMaxFanStepFraction).
   ThermalNetwork(const ThermalConfig& config, double step_s);
 
   // Advances by one step with losses loss_W (held constant over the step) and ambient_C.
@@ -35,7 +36,12 @@ class ThermalNetwork {
 
   // The housing's path to the ambient at the mechanical speed omega_m_rad_s, as a share of
   // 1 / housing_to_ambient_K_W: 1 without a shaft fan (thermal.fan_speed_rad_s 0), else
-  // standstill_share + (1 - standstill_share) (|w| / fan_speed)^exponent.
+  // standstill_share + (1 - standstill_share) (|w| / fan_speed)^exponent, |w| held at
+  // kFanSpeedSpan times the fan's speed beyond it.
+  static constexpr double kFanSpeedSpan = 2.0;
+  // With a fan, a step at most this share of the housing's time constant at the largest share
+  // (the constructor throws ConfigError beyond).
+  static constexpr double kMaxFanStepFraction = 0.05;
   [[nodiscard]] static double fan_share(const ThermalConfig& config, double omega_m_rad_s);
 
   // Slowest time constant of the network (-1/largest eigenvalue of -C^-1·G), in thermal
