@@ -4,6 +4,7 @@
 #include <cmath>
 
 #include "pmsm/core/machine_equations.hpp"
+#include "pmsm/shaft_fan.hpp"
 
 namespace pmsm::core {
 namespace {
@@ -43,7 +44,6 @@ ThermalObserver::ThermalObserver(const ThermalModelConfig& config, const Calibra
                                  double initial_temp_C, bool known)
     : config_(config), anchor_C_(initial_temp_C), anchored_(known) {
   set_calibration(calibration);
-  cooling_share_ = housing_cooling_share(config, 0.0);  // until predict() is told a speed
   const double std_C = known ? config.initial_std_C : config.unknown_initial_std_C;
   x_ << initial_temp_C, initial_temp_C, 0.0, 0.0, 0.0, 0.0;
   p_.setZero();
@@ -96,8 +96,7 @@ void ThermalObserver::restore(const ThermalState& state, double downtime_thermal
                                std::isfinite(state.cooling_scale_std) && config_.initial_cooling_scale_std > 0.0;
   const double g = cooling_learned ? std::clamp(state.cooling_scale_error, kMinCoolingScale, kMaxCoolingScale) : 0.0;
   // At rest: a shaft fan stands still over the downtime.
-  cooling_share_ = housing_cooling_share(config_, 0.0);
-  const Eigen::Matrix2d a = system_matrix(config_, 0.0, g, cooling_share_).topLeftCorner<2, 2>();
+  const Eigen::Matrix2d a = system_matrix(config_, 0.0, g, housing_cooling_share(config_, 0.0)).topLeftCorner<2, 2>();
   const double t = std::max(downtime_thermal_s, 0.0);
   int squarings = 0;
   double h = t;
@@ -337,11 +336,11 @@ void ThermalObserver::predict(double dt_s, double copper_current_sq_A2, double o
   const double dt = dt_s * config_.time_scale;  // thermal seconds
   const double pcu = copper_loss_W(copper_current_sq_A2);
   last_copper_loss_W_ = pcu;
-  cooling_share_ = housing_cooling_share(config_, omega_m_rad_s);
-  Matrix a = system_matrix(config_, pcu, x_(4), cooling_share_);
-  const Eigen::Matrix2d a_model = system_matrix(config_, pcu, 0.0, cooling_share_).topLeftCorner<2, 2>();  // g = 0
+  const double share = housing_cooling_share(config_, omega_m_rad_s);  // a shaft fan's at this speed
+  Matrix a = system_matrix(config_, pcu, x_(4), share);
+  const Eigen::Matrix2d a_model = system_matrix(config_, pcu, 0.0, share).topLeftCorner<2, 2>();  // g = 0
   const double pfe = iron_loss_W(omega_m_rad_s);
-  const double gha_ch = cooling_share_ / (config_.housing_to_ambient_K_W * config_.housing_capacity_J_K);
+  const double gha_ch = share / (config_.housing_to_ambient_K_W * config_.housing_capacity_J_K);
   const double cooling = 1.0 + x_(4);  // the learned path's share of the modelled one
   // The inputs: they enter the temperatures' rows alone.
   Eigen::Vector2d u(pcu / config_.winding_capacity_J_K, pfe / config_.housing_capacity_J_K + cooling * ambient_C * gha_ch);
@@ -356,7 +355,7 @@ void ThermalObserver::predict(double dt_s, double copper_current_sq_A2, double o
     const Eigen::Vector2d losses(pcu / config_.winding_capacity_J_K, pfe / config_.housing_capacity_J_K);
     model_rise_K_ = (Eigen::Matrix2d::Identity() + a2 * dt + 0.5 * a2 * a2 * dt * dt) * model_rise_K_ + b2 * losses;
   }
-  if (housing_loss_floor_W(pfe, ambient_C, cooling_share_) > 0.0) {
+  if (housing_loss_floor_W(pfe, ambient_C, share) > 0.0) {
     // The floor binds (housing_loss_floor_W): the housing gets -max(Th - Ta, 0) / Rha in place
     // of Pfe + dP. dP then has no part in the prediction (its column is 0, so its covariance
     // with the temperatures does not grow on a term that is not there), and above the ambient
@@ -719,14 +718,7 @@ bool ThermalObserver::time_to_limit_s(double limit_C, double copper_current_sq_A
 }
 
 double housing_cooling_share(const ThermalModelConfig& c, double omega_m_rad_s) {
-  if (!(c.fan_speed_rad_s > 0.0)) {
-    return 1.0;
-  }
-  // Held beyond kFanSpeedSpan times the fan's speed: a bounded share keeps the filter's step
-  // inside the check of thermal_model_fastest_time_constant_s whatever the speed reads.
-  const double w = std::min(std::abs(omega_m_rad_s), kFanSpeedSpan * c.fan_speed_rad_s);
-  const double s = c.fan_standstill_share;
-  return s + (1.0 - s) * std::pow(w / c.fan_speed_rad_s, c.fan_exponent);
+  return math::shaft_fan_share(omega_m_rad_s, c.fan_speed_rad_s, c.fan_standstill_share, c.fan_exponent);
 }
 
 double thermal_model_fastest_time_constant_s(const ThermalModelConfig& c) {
@@ -734,7 +726,7 @@ double thermal_model_fastest_time_constant_s(const ThermalModelConfig& c) {
   // block), real and negative: (|trace| + sqrt(trace^2 - 4 det)) / 2.
   const double gwh = 1.0 / c.winding_to_housing_K_W;
   // The path at its largest share (a shaft fan's at kFanSpeedSpan times its speed; 1 without).
-  const double gha = housing_cooling_share(c, kFanSpeedSpan * c.fan_speed_rad_s) / c.housing_to_ambient_K_W;
+  const double gha = housing_cooling_share(c, math::kFanSpeedSpan * c.fan_speed_rad_s) / c.housing_to_ambient_K_W;
   const double a00 = gwh / c.winding_capacity_J_K;
   const double a11 = (gwh + gha) / c.housing_capacity_J_K;
   const double det = a00 * (gha / c.housing_capacity_J_K);

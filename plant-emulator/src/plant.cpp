@@ -1054,7 +1054,7 @@ struct Plant::Impl {
 
     if (cfg.thermal.enabled) {
       const double fr = cfg.iron_loss.rotor_fraction;
-      const ThermalNetwork::Vector loss{
+      ThermalNetwork::Vector loss{
           copper_loss_W,
           (1.0 - fr) * iron_loss_W + cfg.thermal.friction_heat_fraction * friction_loss_W,
           fr * iron_loss_W};
@@ -1063,15 +1063,11 @@ struct Plant::Impl {
         // this period's speed adds or takes enters the housing as a heat flow at the step's start
         // temperature (a step far below the housing's time constant: 4 ms of thermal time a period
         // at 40x and 10 kHz against minutes).
-        ThermalNetwork::Vector with_fan = loss;
         const double extra_W_K =
             (ThermalNetwork::fan_share(cfg.thermal, x.omega_m_rad_s) - 1.0) / cfg.thermal.housing_to_ambient_K_W;
-        with_fan[ThermalNetwork::kHousing] +=
-            extra_W_K * (ambient_C - thermal.temperatures_C()[ThermalNetwork::kHousing]);
-        thermal.step(with_fan, ambient_C);
-      } else {
-        thermal.step(loss, ambient_C);
+        loss[ThermalNetwork::kHousing] += extra_W_K * (ambient_C - thermal.temperatures_C()[ThermalNetwork::kHousing]);
       }
+      thermal.step(loss, ambient_C);
       update_temperature_parameters();
     }
   }

@@ -1,5 +1,7 @@
 #include "pmsm/plant/thermal.hpp"
 
+#include "pmsm/shaft_fan.hpp"
+
 #include <algorithm>
 #include <cmath>
 
@@ -9,6 +11,8 @@
 #include <unsupported/Eigen/MatrixFunctions>
 
 namespace pmsm::plant {
+
+static_assert(ThermalNetwork::kFanSpeedSpan == math::kFanSpeedSpan, "the plant's fan span is the shared formula's");
 
 ThermalNetwork::ThermalNetwork(const ThermalConfig& config, double step_s) : step_s_(step_s) {
   const double g_wh = 1.0 / config.winding_to_housing_K_W;
@@ -55,17 +59,15 @@ ThermalNetwork::ThermalNetwork(const ThermalConfig& config, double step_s) : ste
     // temperature (Plant): accurate and monotone while a step is a small part of the housing's
     // own time constant through its path at the largest share; at 1e6 x and 1 kHz on the plant's
     // defaults a share of 3 would oscillate and one of 5 diverge.
-    const double a = step_s * fan_share(config, kFanSpeedSpan * config.fan_speed_rad_s) /
-                     (config.housing_to_ambient_K_W * config.housing_capacity_J_K);
-    if (!(a <= kMaxFanStepFraction)) {
+    const double largest = fan_share(config, kFanSpeedSpan * config.fan_speed_rad_s);
+    const double tau_s = config.housing_to_ambient_K_W * config.housing_capacity_J_K / largest;
+    if (!(step_s <= kMaxFanStepFraction * tau_s)) {
       throw ConfigError(fmt::format(
           "thermal.fan_speed_rad_s: with a shaft fan a thermal step ({} s: thermal.acceleration over the PWM "
           "frequency) must be at most {} of the housing's time constant through its path at the fan's largest share "
           "(thermal.housing_capacity_J_K x thermal.housing_to_ambient_K_W / {}, {} s); lower the acceleration",
-          common::format_number(step_s), common::format_number(kMaxFanStepFraction),
-          common::format_number(fan_share(config, kFanSpeedSpan * config.fan_speed_rad_s)),
-          common::format_number(config.housing_to_ambient_K_W * config.housing_capacity_J_K /
-                                fan_share(config, kFanSpeedSpan * config.fan_speed_rad_s))));
+          common::format_number(step_s), common::format_number(kMaxFanStepFraction), common::format_number(largest),
+          common::format_number(tau_s)));
     }
   }
 }
@@ -84,14 +86,8 @@ void ThermalNetwork::step(const Vector& loss_W, double ambient_C) {
 }
 
 double ThermalNetwork::fan_share(const ThermalConfig& config, double omega_m_rad_s) {
-  if (!(config.fan_speed_rad_s > 0.0)) {
-    return 1.0;
-  }
-  // Beyond twice its speed the fan's share is held (kFanSpeedSpan): no extrapolation of its air
-  // flow, and a bounded share keeps the step's explicit part stable (the constructor's check).
-  const double w = std::min(std::abs(omega_m_rad_s), kFanSpeedSpan * config.fan_speed_rad_s);
-  const double s = config.fan_standstill_share;
-  return s + (1.0 - s) * std::pow(w / config.fan_speed_rad_s, config.fan_exponent);
+  return math::shaft_fan_share(omega_m_rad_s, config.fan_speed_rad_s, config.fan_standstill_share,
+                               config.fan_exponent);
 }
 
 double ThermalNetwork::dominant_time_constant_s() const {

@@ -381,7 +381,6 @@ class ThermalObserver {
   // The model's rise of winding and housing by the drive's own losses (model_rise_C), K.
   Eigen::Vector2d model_rise_K_ = Eigen::Vector2d::Zero();
   double last_copper_loss_W_ = 0.0;
-  double cooling_share_ = 1.0;  // housing_cooling_share at the last predict()'s speed (restore(): at rest)
   double winding_rate_C_per_s_ = 0.0;
   Matrix p_;
   double since_measurement_s_ = 0.0;
@@ -422,9 +421,8 @@ class ThermalObserver {
 
 // The housing's path to the ambient at the mechanical speed omega_m_rad_s, as a share of
 // 1 / housing_to_ambient_K_W: exactly 1 without a shaft fan (fan_speed_rad_s 0); with one,
-// |speed| held at kFanSpeedSpan times the fan's speed beyond it (no extrapolation of the fan's
-// air flow, and a share the filter's step check can bound).
-inline constexpr double kFanSpeedSpan = 2.0;
+// |speed| held at math::kFanSpeedSpan times the fan's speed beyond it (common/math/pmsm/shaft_fan.hpp,
+// the plant's formula too).
 [[nodiscard]] double housing_cooling_share(const ThermalModelConfig& c, double omega_m_rad_s);
 
 // The thermal model's fastest time constant (thermal seconds): the two-node network's faster

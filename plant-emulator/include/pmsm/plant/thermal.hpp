@@ -37,7 +37,8 @@ class ThermalNetwork {
   // The housing's path to the ambient at the mechanical speed omega_m_rad_s, as a share of
   // 1 / housing_to_ambient_K_W: 1 without a shaft fan (thermal.fan_speed_rad_s 0), else
   // standstill_share + (1 - standstill_share) (|w| / fan_speed)^exponent, |w| held at
-  // kFanSpeedSpan times the fan's speed beyond it.
+  // kFanSpeedSpan times the fan's speed beyond it (common/math/pmsm/shaft_fan.hpp, the drive's
+  // formula too).
   static constexpr double kFanSpeedSpan = 2.0;
   // With a fan, a step at most this share of the housing's time constant at the largest share
   // (the constructor throws ConfigError beyond).
