@@ -43,7 +43,7 @@ std::size_t timing_bucket(std::int64_t ns) noexcept {
 // backlog ahead of a calibration's end, and are taken out of a record that is held.
 bool carries_event(const PublicationRecord& r) noexcept {
   return r.publications.fault_changed || r.publications.calibrating_changed || r.calibration_to_store.has_value() ||
-         r.calibration_failed || r.inverter_sweep.has_value() || r.angle_check.has_value();
+         r.magnet_reference_to_store.has_value() || r.calibration_failed || r.inverter_sweep.has_value() || r.angle_check.has_value();
 }
 
 }  // namespace
@@ -180,11 +180,19 @@ void DriveLoop::step(const hal::SensorSample* sample, std::int64_t received_ns, 
   const bool thermal_state_due =
       node_.uptime_s() >= next_thermal_state_s_ && node_.controller().telemetry().thermal_valid;
   if (p.thermal || p.resistance || p.injection || p.status || p.heartbeat || p.fault_count > 0 ||
-      out.calibration_to_store || out.calibration_failed || node_.controller().inverter_sweep_completed() ||
+      out.calibration_to_store || out.magnet_reference_to_store || out.calibration_failed ||
+      node_.controller().inverter_sweep_completed() ||
       node_.controller().angle_check_completed() || thermal_state_due) {
     PublicationRecord r;
     r.publications = p;
     r.calibration_to_store = out.calibration_to_store;
+    if (out.magnet_reference_to_store) {
+      const core::DriveTelemetry& t = node_.controller().telemetry();
+      r.magnet_reference_to_store = out.magnet_reference_to_store;
+      r.magnet_reference_at_C = t.magnet_reference_at_C;
+      r.magnet_reference_std_C = t.magnet_reference_std_C;
+      r.magnet_reference_events = t.magnet_reference_events;
+    }
     r.inverter_sweep = node_.controller().inverter_sweep_completed();
     r.inverter_sweep_pending = node_.controller().inverter_sweep_pending();
     r.angle_check = node_.controller().angle_check_completed();

@@ -36,6 +36,12 @@ namespace pmsm::daemon {
 struct PublicationRecord {
   app::NodePublications publications;
   std::optional<core::Calibration> calibration_to_store;
+  // The calibration in use took its Ke0 from turning events (it ran at rest), for the log and the
+  // calibration file: where the rotor was taken to be, its standard uncertainty, the events.
+  std::optional<core::Calibration> magnet_reference_to_store;
+  double magnet_reference_at_C = 0.0;
+  double magnet_reference_std_C = 0.0;
+  int magnet_reference_events = 0;
   // The calibration's bridge sweep, in the period it ended (whatever its outcome), for the log.
   std::optional<core::InverterSweepResult> inverter_sweep;
   bool inverter_sweep_pending = false;  // ... and the controller will start it again

@@ -491,20 +491,37 @@ void Publisher::handle(const PublicationRecord& r) {
     if (const std::string w = app::ke0_off_motor_warning(config_.controller.drive, c); !w.empty()) {
       spdlog::warn("{}", w);
     }
-    if (!config_.controller.calibration_file.empty()) {
-      try {
-        app::write_calibration_file(config_.controller.calibration_file, c, config_.source.filename().string(),
-                                    stored_axis(config_));
-        ++stats_.calibrations_stored;
-        spdlog::info("calibration stored in {}", config_.controller.calibration_file);
-      } catch (const app::CalibrationFileNotDurable& e) {
-        ++stats_.calibrations_stored;
-        spdlog::warn("calibration stored, but not flushed to the disk: {}", e.what());
-      } catch (const app::CalibrationFileError& e) {
-        ++stats_.calibration_store_failures;
-        spdlog::error("cannot store the calibration: {} (it is used until the daemon stops)", e.what());
-      }
+    store_calibration(c);
+  }
+  if (r.magnet_reference_to_store) {
+    const core::Calibration& c = *r.magnet_reference_to_store;
+    spdlog::info("magnet reference taken: Ke0 {:.4f} +- {:.4f} V s/rad phase peak at {:.1f} C ({:.4f} line-to-line "
+                 "RMS), from {} turning events with the rotor taken at {:.1f} +- {:.1f} C (between the ambient and "
+                 "the housing's estimate); the calibration ran at rest and measured none; magnet temperatures from now on",
+                 c.ke0_V_s_per_rad, c.ke0_std_V_s_per_rad, c.t0_C, c.ke0_V_s_per_rad * std::sqrt(1.5),
+                 r.magnet_reference_events, r.magnet_reference_at_C, r.magnet_reference_std_C);
+    if (const std::string w = app::ke0_off_motor_warning(config_.controller.drive, c); !w.empty()) {
+      spdlog::warn("{}", w);
     }
+    store_calibration(c);
+  }
+}
+
+void Publisher::store_calibration(const core::Calibration& c) {
+  if (config_.controller.calibration_file.empty()) {
+    return;
+  }
+  try {
+    app::write_calibration_file(config_.controller.calibration_file, c, config_.source.filename().string(),
+                                stored_axis(config_));
+    ++stats_.calibrations_stored;
+    spdlog::info("calibration stored in {}", config_.controller.calibration_file);
+  } catch (const app::CalibrationFileNotDurable& e) {
+    ++stats_.calibrations_stored;
+    spdlog::warn("calibration stored, but not flushed to the disk: {}", e.what());
+  } catch (const app::CalibrationFileError& e) {
+    ++stats_.calibration_store_failures;
+    spdlog::error("cannot store the calibration: {} (it is used until the daemon stops)", e.what());
   }
 }
 

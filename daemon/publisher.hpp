@@ -68,6 +68,8 @@ class Publisher {
   [[nodiscard]] std::string fault_cause(hal::protocol::FaultCode code, double value) const;
   void log_fault(const hal::protocol::FaultReport& f, const PublicationRecord& r);
   void log_refusals(const PublicationRecord& r);
+  // Writes the calibration file (calibration.file), when there is one, and logs how that went.
+  void store_calibration(const core::Calibration& c);
   void report();
   void send_receive_status(const LoopStats& s);
   void reopen_if_due();

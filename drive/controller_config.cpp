@@ -540,6 +540,12 @@ ConfigSchema<C> build() {
   s.real("calibration.magnet_max_age_s", [](C& c) -> double& { return c.drive.magnet_max_age_s; }, positive(1e6), "s",
          "The magnet estimate is published as valid this long (thermal time) after its last EMF measurement; at "
          "standstill (time-based recordings) nothing measures it.");
+  s.real("calibration.magnet_reference_max_std_C", [](C& c) -> double& { return c.drive.magnet_reference_max_std_C; },
+         between(0, 10), "C",
+         "A calibration run that measured no Ke0 (it ran at rest) takes one from the first turning events while the "
+         "drive knows the rotor's temperature better than this standard uncertainty: the rotor between the ambient "
+         "and the housing's estimate, so in the first minutes after the calibration. Every later magnet temperature "
+         "carries that uncertainty in its band. 0: never (docs/estimator.md, the magnet temperature).");
   // [derating]
   s.real("derating.max_current_A", [](C& c) -> double& { return c.drive.derating.max_current_A; }, positive(10000), "A",
          "|i| limit when cold (phase peak).");

@@ -101,6 +101,7 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
   out_.command.reset();
   out_.publications.clear();
   out_.calibration_to_store.reset();
+  out_.magnet_reference_to_store.reset();
   out_.calibration_failed = false;
   advance_ = std::max<std::uint64_t>(1U, in.periods);
 
@@ -237,6 +238,9 @@ const NodeStep& DriveNode::step(const hal::SensorSample* sample, const NodeInput
   }
   if (controller_.calibration_completed()) {
     out_.calibration_to_store = *controller_.calibration_completed();
+  }
+  if (controller_.magnet_reference_completed()) {
+    out_.magnet_reference_to_store = *controller_.magnet_reference_completed();
   }
   out_.calibration_failed = controller_.calibration_just_failed();
   if (real_time_calibration_ && !controller_.telemetry().calibrating) {

@@ -96,6 +96,9 @@ struct NodeStep {
   std::optional<hal::InverterCommand> command;
   NodePublications publications;
   std::optional<core::Calibration> calibration_to_store;  // a calibration just completed
+  // The calibration in use just took its Ke0 from turning events (it had none: it ran at rest),
+  // to be stored as it now stands (DriveController::magnet_reference_completed).
+  std::optional<core::Calibration> magnet_reference_to_store;
   bool calibration_failed = false;                        // a calibration just failed (timed out or refused)
 };
 

@@ -595,6 +595,11 @@ void DriveController::start_calibration(double known_temp_C, bool from_ambient_s
   calibration_ke_count_ = 0;
   calibration_ke_pairs_ = 0;
   calibration_ke_model_var_sum_ = 0.0;
+  magnet_reference_ = {};  // a calibration under way measures its own Ke0, at its own T0
+  magnet_reference_armed_ = false;
+  telemetry_.magnet_reference_at_C = 0.0;
+  telemetry_.magnet_reference_std_C = 0.0;
+  telemetry_.magnet_reference_events = 0;
   calibration_vx_learned_ = false;
   calibration_outside_count_ = 0;
   calibration_outside_side_ = 0;
@@ -1020,7 +1025,107 @@ void DriveController::handle_estimate(const EventEstimate& e) {
   const Calibration& cal = observer_.calibration();
   if (e.has_emf && cal.ke0_V_s_per_rad > 0.0) {
     update_magnet(e, cal);
+  } else if (e.has_emf) {
+    offer_magnet_reference(e);
   }
+}
+
+void DriveController::offer_magnet_reference(const EventEstimate& e) {
+  const Calibration& cal = observer_.calibration();
+  // Only after a calibration run at rest in this run (complete_calibration arms it): its premise,
+  // a machine soaked at T0, is the rotor's too, and the filter restarted there. A stored
+  // calibration without Ke0, a restored or guessed thermal state, say nothing of the rotor.
+  if (!magnet_reference_armed_ || !(config_.magnet_reference_max_std_C > 0.0) || !cal.calibrated) {
+    return;
+  }
+  // Where the rotor is. The drive's thermal model lumps the rotor with the housing (docs/
+  // estimator.md section 7): its heat goes through the air gap and the bearings, so after a
+  // soaked start it lags the housing and lies between the ambient and the housing's estimate
+  // (its own iron loss could lift it above the housing; while the housing has risen only a few
+  // kelvin, that loss has warmed it little). Uniform over that span, and the housing estimate's
+  // own uncertainty. In the first minutes after the calibration the span is a few kelvin: the
+  // window this draws on.
+  const ThermalEstimate th = observer_.estimate();
+  const double lo = std::min(thermal_ambient_C_, th.housing_C);
+  const double hi = std::max(thermal_ambient_C_, th.housing_C);
+  const double reference_C = 0.5 * (lo + hi);
+  const double housing_std = observer_.housing_std_C();
+  const double reference_std = std::sqrt((hi - lo) * (hi - lo) / 12.0 + housing_std * housing_std);
+  const double alpha = config_.magnet_coefficient_per_C;
+  const double scale = 1.0 + alpha * (reference_C - cal.t0_C);
+  if (!(telemetry_.thermal_valid && reference_std < config_.magnet_reference_max_std_C && scale > 0.5)) {
+    // The window closed (the machine warmed, the filter lost its state): what it pooled is taken
+    // when it is enough for a calibration cut short, else dropped for a later window.
+    if (config_.calibration_min_events > 0 && magnet_reference_.events >= config_.calibration_min_events) {
+      adopt_magnet_reference();
+    }
+    magnet_reference_ = {};
+    return;
+  }
+  // Eq. 3's Ke referred to T0 as update_magnet() refers it back: Ke = Ke0 (1 + alpha_m (T - T0)).
+  const double ke0 = e.ke_V_s_per_rad / scale;
+  const double model_var = (e.ke_shared_std_V_s_per_rad * e.ke_shared_std_V_s_per_rad +
+                            e.ke_systematic_std_V_s_per_rad * e.ke_systematic_std_V_s_per_rad) /
+                           (scale * scale);
+  // dKe0 / dT = -Ke0 alpha_m / scale: the rotor's uncertainty in Ke0, the same for the window's
+  // events (adopt_magnet_reference does not divide it by their number).
+  const double reference_var = (ke0 * alpha * reference_std / scale) * (ke0 * alpha * reference_std / scale);
+  // A reading no magnet of this motor gives (not a number, or further from the commissioned
+  // flux than a calibration's Ke0 is warned about, kKe0OffMotor) is passed over; the window
+  // stays open.
+  const double commissioned = config_.motor.pole_pairs * config_.current.flux_linkage_Wb;
+  if (!(std::isfinite(ke0) && ke0 > 0.0 && std::isfinite(model_var) && std::isfinite(reference_var) &&
+        std::abs(ke0 / commissioned - 1.0) <= kKe0OffMotor)) {
+    return;
+  }
+  MagnetReferencePool& p = magnet_reference_;
+  ++p.events;
+  p.pairs += e.ke_pairs;
+  p.ke0_sum += ke0;
+  p.ke0_sq_sum += ke0 * ke0;
+  p.model_var_sum += model_var;
+  p.reference_var_sum += reference_var;
+  p.reference_C_sum += reference_C;
+  p.reference_std_sum += reference_std;
+  pool_ke_scatter(e, e.ke_V_s_per_rad);
+  if (p.events >= config_.calibration_events) {
+    adopt_magnet_reference();
+  }
+}
+
+void DriveController::adopt_magnet_reference() {
+  // As a calibration's Ke0 (calibration_ke0_std): the events' mean; its error the larger of
+  // their scatter and the pooled pair scatter, plus what they share (the events' Rs and Vx
+  // models, and the rotor's temperature, the same span for them all: not divided by N).
+  const MagnetReferencePool& p = magnet_reference_;
+  const double n = p.events;
+  const double ke0 = p.ke0_sum / n;
+  double var = 0.0;
+  if (n >= 3.0) {
+    var = std::max(0.0, (p.ke0_sq_sum - n * ke0 * ke0) / (n - 1.0)) / n;
+  }
+  if (p.pairs > 0) {
+    var = std::max(var, ke0 * ke0 * ke_pair_rel_var() / p.pairs);
+  }
+  var += (p.model_var_sum + p.reference_var_sum) / n;
+  const double std = std::sqrt(var);
+  if (!(std::isfinite(ke0) && ke0 > 0.0 && std::isfinite(std))) {
+    magnet_reference_ = {};
+    return;
+  }
+  Calibration c = observer_.calibration();
+  c.ke0_V_s_per_rad = ke0;
+  c.ke0_std_V_s_per_rad = std;
+  observer_.set_calibration(c);
+  magnet_reference_armed_ = false;
+  report(magnet_reference_done_, c);
+  telemetry_.magnet_reference_at_C = p.reference_C_sum / n;
+  telemetry_.magnet_reference_std_C = p.reference_std_sum / n;
+  telemetry_.magnet_reference_events = p.events;
+  magnet_reference_ = {};
+  magnet_valid_ = false;  // the next EMF reading is the first against this Ke0
+  telemetry_.magnet_valid = false;
+  magnet_reset_ = true;
 }
 
 // The calibration's Rs0 and Ke0 from the events it has published (calibration_events of them, or
@@ -1083,6 +1188,8 @@ void DriveController::complete_calibration() {
   c.ke0_V_s_per_rad = calibration_ke_count_ > 0 ? calibration_ke_sum_ / calibration_ke_count_ : 0.0;
   c.ke0_std_V_s_per_rad = calibration_ke0_std(c.ke0_V_s_per_rad);
   c.calibrated = true;
+  // No EMF in its events (at rest): Ke0 from the first turning events (offer_magnet_reference).
+  magnet_reference_armed_ = !(c.ke0_V_s_per_rad > 0.0);
   if (band_measured_) {
     // The band Rs0 was learned with, when a sweep measured it (this run's, or the stored
     // calibration's when this run's sweep was void).
@@ -1559,6 +1666,7 @@ const DriveOutput& DriveController::step(const DriveInput& in, const DriveComman
     last_estimate_.reset();
     last_event_.reset();
     calibration_done_.reset();
+    magnet_reference_done_.reset();
     sweep_done_.reset();
     check_done_.reset();
     reported_ = false;

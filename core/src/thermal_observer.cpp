@@ -277,6 +277,8 @@ double ThermalObserver::bus_slope_error_std() const {
   return std::sqrt(std::max(p_(kBusSlopeState, kBusSlopeState), 0.0));
 }
 
+double ThermalObserver::housing_std_C() const { return std::sqrt(std::max(p_(1, 1), 0.0)); }
+
 double ThermalObserver::cable_resistance_now_ohm() const {
   // A copper cable at the ambient sensor's temperature, its resistance given at 20 C.
   return cable_resistance_at_C(config_.cable_resistance_20C_ohm,

@@ -29,6 +29,7 @@
 #include <spdlog/sinks/ringbuffer_sink.h>
 #include <spdlog/spdlog.h>
 
+#include "calibration_file.hpp"
 #include "daemon_config.hpp"
 #include "drive_loop.hpp"
 #include "fault_watch.hpp"
@@ -226,6 +227,7 @@ class Axis {
     }
   }
   [[nodiscard]] bool plant_done() const { return plant_done_; }
+  [[nodiscard]] const plant::PlantConfig& plant_config() const { return plant_config_; }
   [[nodiscard]] const DriveLoop& loop() const { return *loop_; }
   [[nodiscard]] DriveLoop& loop() { return *loop_; }
   [[nodiscard]] const Publisher& publisher() const { return *publisher_; }
@@ -650,6 +652,58 @@ TEST(DaemonLoop, ImplausibleMagnetReadingsAreRefusedAndLoggedWithTheirReason) {
   ASSERT_FALSE(refused.empty()) << "no refusal in the daemon's log";
   EXPECT_NE(refused.front().find("outside -60...300 C"), std::string::npos) << refused.front();
   EXPECT_NE(refused.front().find("calibration.ke0_V_s_per_rad"), std::string::npos) << refused.front();
+}
+
+// A drive calibrated at rest (its first run, the rotor held at zero speed: time-based
+// recordings, no EMF) has no Ke0. It takes one from its first turning events while the rotor is
+// near the ambient (docs/estimator.md section 8, "A magnet reference after a calibration at
+// rest"): the daemon logs it with where the rotor was taken to be, stores the calibration again
+// as it now stands, and THERMAL_ESTIMATE carries magnet estimates from then on. Before, the
+// magnets went unmeasured.
+TEST(DaemonLoop, AKe0TakenFromTurningEventsIsLoggedStoredAndPublished) {
+  LogCapture log;
+  const std::filesystem::path file =
+      std::filesystem::temp_directory_path() / ("pmsm-magnet-reference-" + std::to_string(::getpid()) + ".toml");
+  std::filesystem::remove(file);
+  Bench bench;
+  Axis axis(bench.bus, 1, 12.0, 25.0, 5.0, [&](app::ControllerConfig& c) { c.calibration_file = file.string(); });
+  axis.start_daemon();
+  axis.start_plant();
+  std::vector<protocol::AnyDecoded> seen;
+  // No file yet: the daemon calibrates at its first run (startup.calibrate_if_missing), at rest.
+  supervise(bench, {1}, 0.0, 120s, seen, [&] { return axis.publisher().stats().calibrations_stored >= 1U; });
+  ASSERT_EQ(axis.publisher().stats().calibrations_stored, 1U) << "the calibration at rest did not complete";
+  const core::Calibration at_rest = app::read_calibration_file(file);
+  EXPECT_EQ(at_rest.ke0_V_s_per_rad, 0.0) << "the premise: no EMF at rest";
+  supervise(bench, {1}, 94.0, 600s, seen, [&] { return axis.plant_done(); });
+  ASSERT_TRUE(axis.plant_done()) << "the plant did not finish its 12 s in time";
+  const auto until = std::chrono::steady_clock::now() + 5s;
+  while (axis.publisher().stats().calibrations_stored < 2U && std::chrono::steady_clock::now() < until) {
+    std::this_thread::sleep_for(10ms);
+  }
+  axis.stop();
+  std::size_t magnet_estimates = 0;
+  for (const protocol::AnyDecoded& d : seen) {
+    if (const auto* e = as<protocol::ThermalEstimate>(d); e != nullptr && e->valid && e->magnet_valid) {
+      ++magnet_estimates;
+    }
+  }
+  EXPECT_GT(magnet_estimates, 5U) << "no magnet estimate on the bus";
+  const std::vector<std::string> taken = log.lines_with("magnet reference taken");
+  ASSERT_EQ(taken.size(), 1U) << "taken once, and logged";
+  EXPECT_NE(taken.front().find("turning events with the rotor taken at"), std::string::npos) << taken.front();
+  ASSERT_EQ(axis.publisher().stats().calibrations_stored, 2U) << "the calibration, then with its Ke0";
+  const core::Calibration stored = app::read_calibration_file(file);
+  EXPECT_DOUBLE_EQ(stored.rs0_ohm, at_rest.rs0_ohm);
+  EXPECT_DOUBLE_EQ(stored.t0_C, at_rest.t0_C);
+  // The plant's Ke at its magnets' reference temperature (Eq. 3's form: pole pairs times the
+  // flux linkage), referred to T0 by its own law: the stored Ke0 within 1 % (8 C of magnet).
+  const plant::MotorConfig& m = axis.plant_config().motor;
+  const double ke0_true = m.pole_pairs * plant::psi_m_from_Ke(m.ke_V_s_per_rad, m.pole_pairs) *
+                          (1.0 + m.magnet_temp_coefficient_per_C * (stored.t0_C - m.magnet_ref_temp_C));
+  EXPECT_NEAR(stored.ke0_V_s_per_rad / ke0_true, 1.0, 0.01);
+  EXPECT_GT(stored.ke0_std_V_s_per_rad, 0.0);
+  std::filesystem::remove(file);
 }
 
 // A calibration's bridge sweep that resolved no bridge (its Vx error bar above 10 % of Vx:

@@ -807,6 +807,7 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
       calibration_ended = true;
       result.calibrated = true;
       result.calibration = *step.calibration_to_store;
+      result.magnet_reference_time_s = -1.0;  // a Ke0 taken after an earlier calibration is no more
       result.calibration_rs0_std_ohm = tel.calibration_rs0_std_ohm;
       result.calibration_events = tel.calibration_events;
       result.calibration_events_wanted = controller_config.drive.calibration_events;
@@ -816,6 +817,29 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
         try {
           write_calibration_file(scenario.controller.calibration_file, result.calibration,
                                  scenario.source.filename().string());
+          result.calibration_stored = true;
+        } catch (const CalibrationFileError& e) {
+          result.calibration_file_error = e.what();
+        }
+      }
+    }
+    if (step.magnet_reference_to_store) {
+      const core::Calibration& c = *step.magnet_reference_to_store;
+      result.calibration.ke0_V_s_per_rad = c.ke0_V_s_per_rad;
+      result.calibration.ke0_std_V_s_per_rad = c.ke0_std_V_s_per_rad;
+      result.magnet_reference_time_s = t;
+      result.magnet_reference_events = tel.magnet_reference_events;
+      result.magnet_reference_at_C = tel.magnet_reference_at_C;
+      result.magnet_reference_std_C = tel.magnet_reference_std_C;
+      if (options.log_events) {
+        calibration_line = fmt::format("{:10.3f}  magnet reference: Ke0 {:.4f} +- {:.4f} V s/rad at {:.1f} C, from {} "
+                                       "turning events, the rotor taken at {:.1f} +- {:.1f} C",
+                                       t, c.ke0_V_s_per_rad, c.ke0_std_V_s_per_rad, c.t0_C, tel.magnet_reference_events,
+                                       tel.magnet_reference_at_C, tel.magnet_reference_std_C);
+      }
+      if (!scenario.controller.calibration_file.empty()) {
+        try {
+          write_calibration_file(scenario.controller.calibration_file, c, scenario.source.filename().string());
           result.calibration_stored = true;
         } catch (const CalibrationFileError& e) {
           result.calibration_file_error = e.what();
@@ -1036,6 +1060,13 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
     if (truth_rs0 > 0.0) {
       result.calibration_rs0_error_pct = 100.0 * (result.calibration.rs0_ohm / truth_rs0 - 1.0);
     }
+    // Eq. 3's form: pole pairs times the flux linkage, at t0_C by the plant's linear law.
+    const plant::MotorConfig& m = scenario.plant.motor;
+    const double truth_ke0 = m.pole_pairs * plant::psi_m_from_Ke(m.ke_V_s_per_rad, m.pole_pairs) *
+                             (1.0 + m.magnet_temp_coefficient_per_C * (result.calibration.t0_C - m.magnet_ref_temp_C));
+    if (result.calibration.ke0_V_s_per_rad > 0.0 && truth_ke0 > 0.0) {
+      result.calibration_ke0_error_pct = 100.0 * (result.calibration.ke0_V_s_per_rad / truth_ke0 - 1.0);
+    }
   }
   result.injection_loss_W = result.sim_time_s > 0.0 ? injection_energy_J / result.sim_time_s : 0.0;
   result.injection_duty = periods > 0 ? static_cast<double>(injection_periods) / static_cast<double>(periods) : 0.0;
@@ -1156,6 +1187,7 @@ std::string result_json(const SimulationResult& r) {
         .field("rs0_std_ohm", r.calibration_rs0_std_ohm)
         .field("events", r.calibration_events)
         .field("rs0_error_pct", r.calibration_rs0_error_pct)
+        .field("ke0_error_pct", r.calibration_ke0_error_pct)
         .field("t0_C", r.calibration.t0_C)
         .field("t0_rise_std_C", r.calibration.t0_rise_std_C)
         .field("ke0_V_s_per_rad", r.calibration.ke0_V_s_per_rad)
@@ -1165,6 +1197,10 @@ std::string result_json(const SimulationResult& r) {
         .field("vx_std_V", r.calibration.vx_std_V > 0.0 ? r.calibration.vx_std_V : kNan)
         .field("vx_bus_V", r.calibration.vx_std_V > 0.0 && r.calibration.vx_bus_V > 0.0 ? r.calibration.vx_bus_V : kNan)
         .field("angle_correction_rad", r.calibration.angle_correction_measured ? r.calibration.angle_correction_rad : kNan)
+        .field("ke0_from_turning_s", r.magnet_reference_time_s >= 0.0 ? r.magnet_reference_time_s : kNan)
+        .field("ke0_rotor_C", r.magnet_reference_time_s >= 0.0 ? r.magnet_reference_at_C : kNan)
+        .field("ke0_rotor_std_C", r.magnet_reference_time_s >= 0.0 ? r.magnet_reference_std_C : kNan)
+        .field("ke0_events", r.magnet_reference_time_s >= 0.0 ? r.magnet_reference_events : 0)
         .end_object();
   }
   if (r.calibration_failure != core::CalibrationFailure::kNone) {
@@ -1361,10 +1397,18 @@ std::string result_text(const SimulationResult& r) {
     }
   }
   if (r.calibrated) {
-    out += fmt::format("  calibration at {:.2f} s           Rs0 {:.5f} +- {:.5f} ohm at {:.1f} C{}, Ke0 {:.4f} V s/rad{}\n",
+    out += fmt::format("  calibration at {:.2f} s           Rs0 {:.5f} +- {:.5f} ohm at {:.1f} C{}, {}{}\n",
                        r.calibration_time_s, r.calibration.rs0_ohm, r.calibration_rs0_std_ohm, r.calibration.t0_C,
                        t0_rise_text(r.calibration),
-                       r.calibration.ke0_V_s_per_rad, calibration_events_text(r.calibration_events, r.calibration_events_wanted));
+                       r.magnet_reference_time_s >= 0.0 ? std::string("no Ke0 (at rest)")
+                                                        : fmt::format("Ke0 {:.4f} V s/rad", r.calibration.ke0_V_s_per_rad),
+                       calibration_events_text(r.calibration_events, r.calibration_events_wanted));
+    if (r.magnet_reference_time_s >= 0.0) {
+      out += fmt::format("  magnet reference at {:.2f} s      Ke0 {:.4f} +- {:.4f} V s/rad from {} turning events (the rotor "
+                         "taken at {:.1f} +- {:.1f} C; the calibration measured none)\n",
+                         r.magnet_reference_time_s, r.calibration.ke0_V_s_per_rad, r.calibration.ke0_std_V_s_per_rad,
+                         r.magnet_reference_events, r.magnet_reference_at_C, r.magnet_reference_std_C);
+    }
   }
   if (r.calibration_failure == core::CalibrationFailure::kTimeout) {
     out += fmt::format("  calibration failed at {:.2f} s    timeout: fewer published events by calibration.timeout_s than "

@@ -131,6 +131,10 @@ struct SimulationResult {
   // The calibration's Rs0 against the plant's resistance at the calibration's t0_C (%), by the
   // plant's own law: the calibration's bias, which Eq. 1's ratio cancels against the above.
   double calibration_rs0_error_pct = std::numeric_limits<double>::quiet_NaN();
+  // Its Ke0 (a turning calibration's, or one taken from turning events after a calibration at
+  // rest) against the plant's EMF constant at t0_C by the plant's own law (%): the bias every
+  // magnet reading carries, 1 % about 8 C (NaN: no Ke0).
+  double calibration_ke0_error_pct = std::numeric_limits<double>::quiet_NaN();
   double magnet_error_rms_C = 0.0;
   double magnet_error_max_C = 0.0;
   std::size_t magnet_error_samples = 0;
@@ -182,6 +186,13 @@ struct SimulationResult {
   int calibration_events = 0;
   int calibration_events_wanted = 0;  // calibration.events
   int calibration_failure_events = 0;  // a refusal that measured an Rs0: the events it averaged
+  // A calibration that measured no Ke0 took one from turning events later
+  // (DriveController::magnet_reference_completed): when, from how many, and where the rotor was
+  // taken to be (C, and its standard uncertainty); time -1: not taken.
+  double magnet_reference_time_s = -1.0;
+  int magnet_reference_events = 0;
+  double magnet_reference_at_C = 0.0;
+  double magnet_reference_std_C = 0.0;
   // A calibration run that failed (timed out, or refused an uncertain Rs0): why, when, and
   // the Rs0 it had (0 when it timed out before enough events).
   core::CalibrationFailure calibration_failure = core::CalibrationFailure::kNone;

@@ -101,6 +101,13 @@ struct DriveConfig {
   // magnets warm by up to 0.5 C/s of thermal time, and events at low speed come every 2-4 s,
   // so 1 C/sqrt(s). (0.5 left the 48 V servo's band holding the truth 84 % of the time; docs/estimator.md.)
   double magnet_drift_C_per_sqrt_s = 1.0;
+  // A calibration run that measured no Ke0 (at rest, or slower than
+  // injection.min_speed_for_angle_rad_s) takes one from the first turning events while the
+  // drive knows the magnets' temperature better than this standard uncertainty (C): the rotor
+  // between the ambient and the housing's estimate (offer_magnet_reference; docs/estimator.md
+  // section 8, "A magnet reference after a calibration at rest"). 0: never; the magnets then go
+  // unmeasured.
+  double magnet_reference_max_std_C = 5.0;
   // The bridge's voltage error measured before the calibration's events (inverter_sweep.hpp):
   // its zero-current band replaces dead_time.current_band_A.
   InverterSweepConfig inverter_sweep{};
@@ -322,6 +329,12 @@ struct DriveTelemetry {
   double magnet_upper_C = 0.0;       // what the magnets derate on (DriveController::update_magnet)
   std::uint32_t magnet_rejected = 0;  // EMF measurements refused as implausible
   MagnetRefusalReport magnet_last_refusal{};  // the last refused one
+  // The magnet reference taken from turning events (magnet_reference_completed()): the rotor's
+  // temperature the events' Ke was referred from to T0, its standard uncertainty, and how many
+  // events; 0 until one was taken.
+  double magnet_reference_at_C = 0.0;
+  double magnet_reference_std_C = 0.0;
+  int magnet_reference_events = 0;
   OutcomeCounts outcomes{};
   // The pairs of the calibration run in progress, or of the last one that ended, by outcome: why
   // a calibration timed out (pair_outcomes_text).
@@ -517,6 +530,9 @@ class DriveController {
   [[nodiscard]] const std::optional<EventEstimate>& last_event() const { return last_event_; }
   // Set for the one period in which a calibration completed.
   [[nodiscard]] const std::optional<Calibration>& calibration_completed() const { return calibration_done_; }
+  // Set for the one period in which the calibration in use took a Ke0 from turning events
+  // (DriveConfig::magnet_reference_max_std_C): the calibration as it now stands, to be stored.
+  [[nodiscard]] const std::optional<Calibration>& magnet_reference_completed() const { return magnet_reference_done_; }
   // Set for the one period in which the calibration's rotor-angle check ended, whatever its
   // outcome. A check aborted by a stop or a lost sample, or voided by a moving operating point,
   // starts again as the sweep does (kSweepHoldoff_s, kSweepAttempts); angle_check_pending() is
@@ -632,6 +648,11 @@ class DriveController {
   [[nodiscard]] double magnet_var_now_C2() const;
   void publish_magnet_std();
   void pool_ke_scatter(const EventEstimate& e, double ke_ref);
+  // A calibration without Ke0: the event's Ke referred to T0 at the rotor's temperature as the
+  // drive knows it, pooled until calibration_events of them, or calibration_min_events when the
+  // next one no longer qualifies; then Ke0 (adopt_magnet_reference).
+  void offer_magnet_reference(const EventEstimate& e);
+  void adopt_magnet_reference();
   [[nodiscard]] double ke_pair_rel_var() const;
   [[nodiscard]] double magnet_ke0_var_C2() const;
   [[nodiscard]] double calibration_ke0_std(double ke0) const;
@@ -679,6 +700,7 @@ class DriveController {
   std::optional<ResistanceEstimate> last_estimate_;
   std::optional<EventEstimate> last_event_;
   std::optional<Calibration> calibration_done_;
+  std::optional<Calibration> magnet_reference_done_;
   std::optional<InverterSweepResult> sweep_done_;
   InverterSweep sweep_;
   AngleCheck check_;
@@ -797,6 +819,21 @@ class DriveController {
   double ke_pooled_dof_ = 0.0;
   double calibration_ke_sq_sum_ = 0.0;
   bool magnet_valid_ = false;
+  // Turning events pooled for a Ke0 the calibration in use lacks (offer_magnet_reference).
+  struct MagnetReferencePool {
+    int events = 0;
+    int pairs = 0;
+    double ke0_sum = 0.0;           // the events' Ke referred to T0, V s/rad
+    double ke0_sq_sum = 0.0;
+    double model_var_sum = 0.0;     // their shared and systematic Ke variances, referred likewise
+    double reference_var_sum = 0.0; // the rotor temperature's share, (V s/rad)^2
+    double reference_C_sum = 0.0;
+    double reference_std_sum = 0.0;
+  } magnet_reference_{};
+  bool magnet_reference_armed_ = false;  // a calibration run at rest completed; no Ke0 taken since
+  // The farthest a turning event's Ke0 may lie from the commissioned flux's (as the calibration
+  // file's warning, kKe0OffMotorFraction) and still be pooled.
+  static constexpr double kKe0OffMotor = 0.30;
   bool magnet_measured_ = false;  // an estimate exists (valid or aged out): the magnets derate on it
   double magnet_age_s_ = 0.0;  // thermal time since the last EMF measurement, to the last thermal update
   // Calibration.

@@ -311,6 +311,8 @@ class ThermalObserver {
   // before an estimate brought one.
   [[nodiscard]] double bus_slope_error() const { return x_(kBusSlopeState); }
   [[nodiscard]] double bus_slope_error_std() const;
+  // The housing estimate's standard deviation (C), from the filter's covariance.
+  [[nodiscard]] double housing_std_C() const;
 
   // The filter's winding estimate `age_s` controller seconds before its last update, from the
   // history below (linear between updates; before the oldest kept, the oldest), moved by the
