@@ -545,7 +545,9 @@ ConfigSchema<C> build() {
          "A calibration run that measured no Ke0 (it ran at rest) takes one from the first turning events while the "
          "drive knows the rotor's temperature better than this standard uncertainty: the rotor between the ambient "
          "and the housing's estimate, so in the first minutes after the calibration. Every later magnet temperature "
-         "carries that uncertainty in its band. 0: never (docs/estimator.md, the magnet temperature).");
+         "carries that uncertainty in its band. 0: never; set it so for a rotor that carries much of the iron loss "
+         "under a strongly cooled housing, which warms faster than the housing (docs/estimator.md, the magnet "
+         "temperature).");
   // [derating]
   s.real("derating.max_current_A", [](C& c) -> double& { return c.drive.derating.max_current_A; }, positive(10000), "A",
          "|i| limit when cold (phase peak).");

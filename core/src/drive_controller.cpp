@@ -1025,8 +1025,8 @@ void DriveController::handle_estimate(const EventEstimate& e) {
   const Calibration& cal = observer_.calibration();
   if (e.has_emf && cal.ke0_V_s_per_rad > 0.0) {
     update_magnet(e, cal);
-  } else if (e.has_emf) {
-    offer_magnet_reference(e);
+  } else if (magnet_reference_armed_) {
+    offer_magnet_reference(e);  // every published event watches the window; those with EMF fill it
   }
 }
 
@@ -1039,15 +1039,16 @@ void DriveController::offer_magnet_reference(const EventEstimate& e) {
     return;
   }
   // Where the rotor is. The drive's thermal model lumps the rotor with the housing (docs/
-  // estimator.md section 7): its heat goes through the air gap and the bearings, so after a
-  // soaked start it lags the housing and lies between the ambient and the housing's estimate
-  // (its own iron loss could lift it above the housing; while the housing has risen only a few
-  // kelvin, that loss has warmed it little). Uniform over that span, and the housing estimate's
-  // own uncertainty. In the first minutes after the calibration the span is a few kelvin: the
-  // window this draws on.
+  // estimator.md section 7): its heat comes through the air gap and the bearings, so from the
+  // soak at T0 it lags whatever warms or cools it, and lies between T0, the ambient and the
+  // housing's estimate (a coolant that moved since the calibration leaves the rotor behind,
+  // below or above both). Uniform over that span, and the housing estimate's own uncertainty.
+  // In the first minutes after the calibration the span is a few kelvin: the window this draws
+  // on. (Its own iron loss can lift the rotor above the housing: a rotor that carries much of it
+  // under a strong housing cooling is beyond this, docs/estimator.md section 8.)
   const ThermalEstimate th = observer_.estimate();
-  const double lo = std::min(thermal_ambient_C_, th.housing_C);
-  const double hi = std::max(thermal_ambient_C_, th.housing_C);
+  const double lo = std::min({cal.t0_C, thermal_ambient_C_, th.housing_C});
+  const double hi = std::max({cal.t0_C, thermal_ambient_C_, th.housing_C});
   const double reference_C = 0.5 * (lo + hi);
   const double housing_std = observer_.housing_std_C();
   const double reference_std = std::sqrt((hi - lo) * (hi - lo) / 12.0 + housing_std * housing_std);
@@ -1055,12 +1056,19 @@ void DriveController::offer_magnet_reference(const EventEstimate& e) {
   const double scale = 1.0 + alpha * (reference_C - cal.t0_C);
   if (!(telemetry_.thermal_valid && reference_std < config_.magnet_reference_max_std_C && scale > 0.5)) {
     // The window closed (the machine warmed, the filter lost its state): what it pooled is taken
-    // when it is enough for a calibration cut short, else dropped for a later window.
+    // when it is enough for a calibration cut short, else nothing. It does not open again: after
+    // a warm spell the rotor, slowest to cool, may lie above the housing and the ambient, where
+    // the span cannot reach (a screw press whose first EMF came at a flush after 90 minutes of
+    // pressing and 100 of cooling read its magnets 7 K low through such a Ke0).
     if (config_.calibration_min_events > 0 && magnet_reference_.events >= config_.calibration_min_events) {
       adopt_magnet_reference();
     }
     magnet_reference_ = {};
+    magnet_reference_armed_ = false;
     return;
+  }
+  if (!e.has_emf) {
+    return;  // an event without an EMF reading (time-based pairs) only watches the window
   }
   // Eq. 3's Ke referred to T0 as update_magnet() refers it back: Ke = Ke0 (1 + alpha_m (T - T0)).
   const double ke0 = e.ke_V_s_per_rad / scale;
