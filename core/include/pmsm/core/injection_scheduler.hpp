@@ -811,6 +811,14 @@ class InjectionScheduler {
   LqShape lq_shape_;                // the saturation curve's shape and its commissioned b0 (InjectionConfig::lq_map)
   bool lq_resolved_ = false;        // saturation_variance_resolved(), kept as b's variance changes
   double lq_b_H_ = 0.0;             // its saturation: secant lost where s = 1 (LqShape)
+  // The first load that taught the curve (its s), and whether a pair has since come a lever
+  // of 2 kLqUnmodelledFraction / lq_saturation_std_fraction from it: until then pairs are taken
+  // at the anchor's s (learn_lq). kLqUnmodelledFraction: the share of a pair's Lq that the
+  // model does not hold and that pairs at one operating point share (measured on unseen round
+  // 17's spindle: 0.57 % between an event's two levels, 0.3 % between 11000 and 12000 rpm).
+  static constexpr double kLqUnmodelledFraction = 0.005;
+  double lq_s_anchor_ = std::numeric_limits<double>::quiet_NaN();
+  bool lq_lever_reached_ = false;
   double emf_d_Wb_ = 0.0;           // the angle error's EMF share c (InjectionConfig::lq_angle_std_rad)
   double bridge_band_A_ = 0.0;      // set_bridge_band
   std::array<std::array<double, 3>, 3> lq_p_{};  // covariance of (a, b, c): lq_H_, lq_b_H_, emf_d_Wb_
