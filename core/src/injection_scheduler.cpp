@@ -894,39 +894,48 @@ void InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit,
   // The pair measures a - b s_q - c <w> / <w iq> (<vd> holds c <w>): a Kalman update of
   // (a, b, c) with h = (1, -s_q, -<w> / <w iq>), <w> over both recordings.
   //
-  // Until a pair's load lies a lever in s from the first load that taught the curve (twice
-  // kLqUnmodelledFraction over b's prior fraction: 0.05 with the default prior, the distance
-  // from no load to 22 % of the rated current), every pair is taken at that first load's s:
-  // pairs that close together measure one point of the curve, a - b s_anchor. Between closer
-  // loads b would be the difference of two means over the difference of their s, and a pair's
-  // d-axis mean carries half a per cent of Lq that the model does not hold and that does not
-  // average out over pairs at one operating point (the bridge's pattern at an event's two
-  // levels, a term that grows with speed). Read as saturation across the 0.15 A by which an
-  // event's two levels differ in iq (the speed loop's answer to each level's reluctance
-  // torque), it drove b to 1.8 mH on a spindle of 0.68 mH (unseen round 17, case a): the secant
-  // stood at its 0.5 a clamp at the roughing's load, the roughing's own pairs, which measured
-  // 0.68 mH, fell outside the gate, and the winding read 11 C low (docs/estimator.md section
-  // 5.1). Once a pair has reached the lever, every pair is taken at its own s.
-  const bool first = !std::isfinite(lq_s_anchor_);
-  if (!first && !lq_lever_reached_ &&
-      std::abs(s_q - lq_s_anchor_) >= 2.0 * kLqUnmodelledFraction / config_.lq_saturation_std_fraction) {
-    lq_lever_reached_ = true;  // (kept even if the gate below leaves this pair out: the next one at this load comes in)
+  // The loads that have taught the curve are kept as anchors at least a lever apart in s (twice
+  // kLqUnmodelledFraction over b's prior fraction: 0.05 with the default prior and shape, from
+  // no load to 22 % of the current limit). A pair within a lever of an anchor is taken at the
+  // anchor's s; a pair a lever from every anchor is taken at its own and, if it passes the gate,
+  // becomes one. So b learns from the differences between anchors only, never from loads closer
+  // together: between such loads b would be the difference of two means over the difference of
+  // their s, and a pair's d-axis mean carries half a per cent of Lq that the model does not hold
+  // and that does not average out over pairs at one operating point (the bridge's pattern at an
+  // event's two levels, a term that grows with speed). Read as saturation across the 0.15 A by
+  // which an event's two levels differ in iq (the speed loop's answer to each level's
+  // reluctance torque), it drove b to 1.8 mH on a spindle of 0.68 mH (unseen round 17, case a):
+  // the secant stood at its 0.5 a clamp at the roughing's load, the roughing's own pairs, which
+  // measured 0.68 mH, fell outside the gate, and the winding read 11 C low (docs/estimator.md
+  // section 5.1). The prediction takes the pair's own s (the curve as learned), and the pair's
+  // variance the part that b's uncertainty puts between its s and the anchor's.
+  const double lever = 2.0 * kLqUnmodelledFraction / config_.lq_saturation_std_fraction;
+  int nearest = -1;
+  double nearest_ds = std::numeric_limits<double>::infinity();
+  for (int k = 0; k < lq_anchor_count_; ++k) {
+    const double ds = std::abs(s_q - lq_anchors_[static_cast<std::size_t>(k)]);
+    if (ds < nearest_ds) {
+      nearest = k;
+      nearest_ds = ds;
+    }
   }
-  const double s_used = first || lq_lever_reached_ ? s_q : lq_s_anchor_;
+  const bool at_anchor = nearest >= 0 && (nearest_ds < lever || lq_anchor_count_ == kMaxLqAnchors);
+  const double s_used = at_anchor ? lq_anchors_[static_cast<std::size_t>(nearest)] : s_q;
   const double w_mean = 0.5 * (c.omega_e_mean_1_rad_s + c.omega_e_mean_2_rad_s);
   const std::array<double, 3> h{1.0, -s_used, -w_mean / w_iq};
-  const double predicted = lq_H_ - lq_b_H_ * s_used + emf_d_Wb_ * h[2];
+  const double predicted = lq_H_ - lq_b_H_ * s_q + emf_d_Wb_ * h[2];
   std::array<double, 3> ph{};  // P h
   for (std::size_t i = 0; i < 3; ++i) {
     ph[i] = lq_p_[i][0] * h[0] + lq_p_[i][1] * h[1] + lq_p_[i][2] * h[2];
   }
-  const double s = h[0] * ph[0] + h[1] * ph[1] + h[2] * ph[2] + var;  // h P h' + var
+  const double s = h[0] * ph[0] + h[1] * ph[1] + h[2] * ph[2] + var +
+                   (s_q - s_used) * (s_q - s_used) * lq_p_[1][1];  // h P h' + var
   if (lq < 0.5 * config_.lq_H || lq > 2.0 * config_.lq_H || !(s > 0.0) || !std::isfinite(h[2]) ||
       !(std::abs(lq - predicted) <= 4.0 * std::sqrt(s))) {
     return;
   }
-  if (first) {
-    lq_s_anchor_ = s_q;
+  if (!at_anchor) {
+    lq_anchors_[static_cast<std::size_t>(lq_anchor_count_++)] = s_q;
   }
   // A pair whose q current idles inside the bridge's ripple band does not teach c: its d-axis
   // mean keeps a per cent or two of Vx that the bipolar recordings cancel only as far as the

@@ -333,10 +333,15 @@ TEST(EstimatorRobustness, PulsesAreSizedOnTheVoltageTheMachineNeeds) {
 // fit takes the measured iq (docs/estimator.md section 2). On the crusher about half of the
 // pairs meet the limit for a few periods, from the speed loop's steps rather than the pulses;
 // rejected for it, as before, they left 6 estimates in these 40 s (24 now). The estimates must
-// stay unbiased: their mean relative error within 1 % (2.6 C of copper), five times the
-// standard error of a mean of 20 estimates at their 0.6 % scatter.
+// stay unbiased: their mean relative error within 1 % (2.6 C of copper). Judged over the file's
+// seed and five more: the estimates of one run share their errors (the learned Lq, Vx), so one
+// run's mean scatters by about 0.33 % from seed to seed (measured 2026-12-07 with `[scenario] seed`
+// copies of the file on these seeds: -0.06 to -1.08 %,
+// -0.49 % over the six), not by the 0.13 % that 20 independent estimates at 0.6 % would give.
 TEST(EstimatorRobustness, PairsOnTheLoopsVoltageLimitAreMeasuredUnbiased) {
-  const SimulationResult r = run_data("crusher-on-voltage-limit-short.toml");
+  const std::vector<SimulationResult> runs =
+      run_data_seeds("crusher-on-voltage-limit-short.toml", {0U, 901U, 902U, 903U, 904U, 905U});
+  const SimulationResult& r = runs.front();
   ASSERT_TRUE(r.calibrated);
   const std::uint32_t pairs = total_pairs(r);
   ASSERT_GT(pairs, 40U);
@@ -346,13 +351,16 @@ TEST(EstimatorRobustness, PairsOnTheLoopsVoltageLimitAreMeasuredUnbiased) {
   EXPECT_GE(r.estimates_accepted, 16U);
   double sum = 0.0;
   int n = 0;
-  for (const EstimateRow& e : r.estimates) {
-    if (e.time_s > 13.0) {
-      sum += e.rs_est_ohm / e.rs_true_ohm - 1.0;
-      ++n;
+  for (const SimulationResult& run : runs) {
+    ASSERT_TRUE(run.calibrated);
+    for (const EstimateRow& e : run.estimates) {
+      if (e.time_s > 13.0) {
+        sum += e.rs_est_ohm / e.rs_true_ohm - 1.0;
+        ++n;
+      }
     }
   }
-  ASSERT_GE(n, 10);
+  ASSERT_GE(n, 60);
   EXPECT_LT(std::abs(sum / n), 0.01);
 }
 

@@ -811,14 +811,17 @@ class InjectionScheduler {
   LqShape lq_shape_;                // the saturation curve's shape and its commissioned b0 (InjectionConfig::lq_map)
   bool lq_resolved_ = false;        // saturation_variance_resolved(), kept as b's variance changes
   double lq_b_H_ = 0.0;             // its saturation: secant lost where s = 1 (LqShape)
-  // The first load that taught the curve (its s), and whether a pair has since come a lever
-  // of 2 kLqUnmodelledFraction / lq_saturation_std_fraction from it: until then pairs are taken
-  // at the anchor's s (learn_lq). kLqUnmodelledFraction: the share of a pair's Lq that the
-  // model does not hold and that pairs at one operating point share (measured on unseen round
-  // 17's spindle: 0.57 % between an event's two levels, 0.3 % between 11000 and 12000 rpm).
+  // The loads that have taught the curve (their s), at least a lever of 2 kLqUnmodelledFraction
+  // / lq_saturation_std_fraction apart: a pair within a lever of one is taken at its s
+  // (learn_lq). kLqUnmodelledFraction: the share of a pair's Lq that the model does not hold and
+  // that pairs at one operating point share (measured on unseen round 17's spindle: 0.57 %
+  // between an event's two levels, 0.3 % between 11000 and 12000 rpm). With the default lever
+  // (0.05) and s capped at 1.44, at most 29 anchors fit; past kMaxLqAnchors (a prior fraction
+  // above about 0.21) a pair is taken at the nearest.
   static constexpr double kLqUnmodelledFraction = 0.005;
-  double lq_s_anchor_ = std::numeric_limits<double>::quiet_NaN();
-  bool lq_lever_reached_ = false;
+  static constexpr int kMaxLqAnchors = 32;
+  std::array<double, kMaxLqAnchors> lq_anchors_{};
+  int lq_anchor_count_ = 0;
   double emf_d_Wb_ = 0.0;           // the angle error's EMF share c (InjectionConfig::lq_angle_std_rad)
   double bridge_band_A_ = 0.0;      // set_bridge_band
   std::array<std::array<double, 3>, 3> lq_p_{};  // covariance of (a, b, c): lq_H_, lq_b_H_, emf_d_Wb_
