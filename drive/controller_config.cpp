@@ -1244,6 +1244,9 @@ std::vector<std::string> configuration_warnings(const ControllerConfig& config) 
     if (const std::string w = salient_method_warning(d, d.injection.method, d.injection.separation); !w.empty()) {
       out.push_back("controller.injection: " + w);
     }
+    if (const std::string w = salient_flux_map_warning(config); !w.empty()) {
+      out.push_back("controller.motor: " + w);
+    }
   }
   const double rated_peak_A = core::continuous_current_peak_A(d.motor);
   if (d.derating.min_current_A > rated_peak_A) {
@@ -1319,6 +1322,54 @@ std::string salient_method_warning(const core::DriveConfig& d, core::InjectionMe
       "the three other pair methods measured read the winding 8-19 C RMS off, low on average, its error band holding "
       "the truth as little as 84 % of the time (docs/accuracy.md, \"The robustness suite under the other methods\")",
       core::to_string(method), core::to_string(separation), budget_Nm);
+}
+
+double incremental_lq_sensitivity(const core::DriveConfig& d, double speed_rad_s) {
+  // A torque-neutral pulse moves iq by iq (Lq - Ld) dId / psi to first order (the torque
+  // iq (psi + (Ld - Lq) id) held), so a bipolar pair's d-axis fit holds w Lq,inc diq beside the
+  // resistive Rs dId: their ratio, at the rated current and this speed with the commissioned
+  // values, is what a relative error of the incremental Lq reads as in Rs (docs/estimator.md
+  // section 2, "Tried and not kept: a budget on the compensation's error").
+  const double psi_Wb = core::flux_linkage_Wb(d.motor);
+  const double omega_e = d.motor.pole_pairs * speed_rad_s;
+  const double iq_A = core::continuous_current_peak_A(d.motor);
+  const double rho = omega_e * d.motor.lq_H * iq_A * std::abs(d.motor.lq_H - d.motor.ld_H) / (psi_Wb * d.motor.rs_ohm);
+  return std::isfinite(rho) ? rho : 0.0;
+}
+
+double incremental_lq_sensitivity_speed_rad_s(const ControllerConfig& config) {
+  // The rated speed, or below it the speed where the EMF takes the whole voltage: beyond it the
+  // drive weakens the field and the rated current no longer goes into iq.
+  const core::DriveConfig& d = config.drive;
+  const double emf_speed_rad_s =
+      core::voltage_limit_V(d.current, config.nominal_dc_bus_V) / core::emf_constant_dq_V_s_per_rad(d.motor);
+  return std::isfinite(emf_speed_rad_s) ? std::min(d.motor.rated_speed_rad_s, emf_speed_rad_s) : d.motor.rated_speed_rad_s;
+}
+
+std::string salient_flux_map_warning(const ControllerConfig& config) {
+  const core::DriveConfig& d = config.drive;
+  if (!(d.injection.max_torque_disturbance_Nm > 0.0) || !d.injection.torque_neutral ||
+      d.injection.method != core::InjectionMethod::kFixedMagnitude || d.motor.lq_map.points > 0 ||
+      d.motor.lq_rated_H > 0.0) {
+    return {};
+  }
+  const double speed_rad_s = incremental_lq_sensitivity_speed_rad_s(config);
+  const double rho = incremental_lq_sensitivity(d, speed_rad_s);
+  if (!(rho >= kIncrementalLqSensitivityWarning)) {
+    return {};
+  }
+  return fmt::format(
+      "a salient machine (injection.max_torque_disturbance_Nm = {:g} N m) with torque-neutral pulses "
+      "(injection.torque_neutral) and no flux map (motor.lq_map_current_A and motor.lq_map_H, or motor.lq_rated_H): "
+      "each pulse moves iq with its d current, and a pair's Rs takes the incremental Lq's error with it: at the rated "
+      "current ({:.3g} A peak) and {:.0f} rad/s (the rated speed, or the speed where the EMF takes the whole voltage if "
+      "lower) each 1 % of that error reads as {:.1f} % of Rs (a per cent of a copper winding's Rs is about 2.6 K). "
+      "Pairs at one load measure the secant Lq; until pairs at loads far apart resolve the curve the drive takes the "
+      "incremental Lq as that secant, which lies above it on a saturating machine, and its estimates read high by the "
+      "gap, the band saying so: on the robustness suite's 30 mohm IPM, a heavy spell then a cruise at 314 rad/s read "
+      "+7 % of Rs and the winding 12 C high on average, 2 C with its map (docs/configuration.md, \"An interior-magnet "
+      "machine: give its flux map\")",
+      d.injection.max_torque_disturbance_Nm, core::continuous_current_peak_A(d.motor), speed_rad_s, rho);
 }
 
 std::string t0_rise_text(const core::Calibration& c) {

@@ -211,7 +211,8 @@ inline constexpr std::string_view kWindingWarmMeasure =
 // under half or over twice the reference's), as the thermal model left at the reference's
 // values; a rated speed the EMF does not let the drive reach; a speed loop that amplifies the
 // encoder's rounding; a derating floor above the motor's rated peak current; an injection
-// method other than fixed-magnitude bipolar on a machine configured as salient.
+// method other than fixed-magnitude bipolar on a machine configured as salient, or one without
+// its flux map.
 // Warnings, not errors: the drive runs, but its model, derating or estimates are not what
 // the engineer meant. pmsm-thermald logs them at start and under --check; simulate prints them.
 [[nodiscard]] std::vector<std::string> configuration_warnings(const ControllerConfig& config);
@@ -222,6 +223,20 @@ inline constexpr std::string_view kWindingWarmMeasure =
 // it with the first INJECTION_REPORT of another method (an INJECTION_COMMAND picked it).
 [[nodiscard]] std::string salient_method_warning(const core::DriveConfig& d, core::InjectionMethod method,
                                                  core::Separation separation);
+
+// What a relative error of the incremental Lq reads as in a torque-neutral pair's Rs, at the
+// rated current and this (mechanical) speed with the commissioned values:
+// w_e Lq iq |Lq - Ld| / (psi Rs) (3.7 on the robustness suite's 30 mohm IPM at 314 rad/s).
+[[nodiscard]] double incremental_lq_sensitivity(const core::DriveConfig& d, double speed_rad_s);
+// The speed the warning below takes it at: the rated speed, or the speed where the EMF takes the
+// whole voltage (control.nominal_dc_bus_V) if that is lower.
+[[nodiscard]] double incremental_lq_sensitivity_speed_rad_s(const ControllerConfig& config);
+// From this sensitivity on, a salient machine without its flux map is warned about.
+inline constexpr double kIncrementalLqSensitivityWarning = 0.1;
+// Why a salient machine (a torque budget) with torque-neutral fixed-magnitude pulses and no flux
+// map (motor.lq_map_H, motor.lq_rated_H) reads high under load, with the sensitivity above, or ""
+// (a round rotor, a map, another method, or a sensitivity below kIncrementalLqSensitivityWarning).
+[[nodiscard]] std::string salient_flux_map_warning(const ControllerConfig& config);
 
 // Why a drive measures rarely, when at least kPairRejectionAdviceMinPairs pairs were judged
 // (core::pair_judged: recorded to their end) and at least half of them

@@ -606,6 +606,61 @@ TEST(ControllerConfig, AMethodThatMisleadsOnASalientMachineIsWarnedAbout) {
                          "configured as salient"));
 }
 
+// A salient machine with torque-neutral pulses and no flux map is warned about, with what an
+// error of the incremental Lq reads as in Rs at the rated point: w_e Lq iq |Lq - Ld| / (psi Rs).
+// The robustness suite's 30 mohm IPM as commissioned: 4 x 314 rad/s, Lq 0.4275 mH, 141.4 A
+// peak, Lq - Ld 0.1525 mH, psi 0.4925 sqrt 2 / sqrt 3 / 4 = 0.1005 Wb, Rs 31.5 mOhm: 3.66.
+// A map or its rated point, pulses on the d axis alone, no budget, and a saliency too small to
+// matter are not warned about.
+TEST(ControllerConfig, ASalientMachineWithoutItsFluxMapIsWarnedAbout) {
+  constexpr std::string_view kIpm =
+      "[motor]\nrs_ohm = 0.0315\nld_H = 0.275e-3\nlq_H = 0.4275e-3\nke_V_s_per_rad = 0.4925\npole_pairs = 4\n"
+      "continuous_current_A_rms = 100.0\n";
+  const std::string budget = "[control]\nnominal_dc_bus_V = 320.0\n[injection]\nmax_torque_disturbance_Nm = 1.5\n";
+  const std::string rated = "rated_speed_rad_s = 314.0\n";
+  const ControllerConfig ipm = parse(std::string(kIpm) + rated + budget);
+  const double psi = 0.4925 * std::sqrt(2.0) / std::sqrt(3.0) / 4.0;
+  const double expected = 4.0 * 314.0 * 0.4275e-3 * 100.0 * std::sqrt(2.0) * 0.1525e-3 / (psi * 0.0315);
+  // The EMF would take the whole voltage only at about 440 rad/s: the rated speed is taken.
+  EXPECT_EQ(incremental_lq_sensitivity_speed_rad_s(ipm), 314.0);
+  EXPECT_NEAR(incremental_lq_sensitivity(ipm.drive, 314.0), expected, 1e-9 * expected);
+  EXPECT_NEAR(expected, 3.66, 0.01);
+  const std::string_view text = "controller.motor: a salient machine (injection.max_torque_disturbance_Nm = 1.5 N m)";
+  const std::vector<std::string> w = configuration_warnings(ipm);
+  EXPECT_TRUE(any_names(w, text));
+  EXPECT_TRUE(any_names(w, "each 1 % of that error reads as 3.7 % of Rs"));
+  EXPECT_TRUE(any_names(w, "at the rated current (141 A peak) and 314 rad/s"));
+  // A traction motor rated to twice its base speed is taken where the EMF takes the voltage.
+  const ControllerConfig traction = parse(std::string(kIpm) + "rated_speed_rad_s = 900.0\n" + budget);
+  const double emf_speed = incremental_lq_sensitivity_speed_rad_s(traction);
+  EXPECT_GT(emf_speed, 314.0);
+  EXPECT_LT(emf_speed, 900.0);
+  EXPECT_NEAR(incremental_lq_sensitivity(traction.drive, emf_speed), expected * emf_speed / 314.0, 1e-9 * expected);
+  // A map, or its rated point alone, gives the gap.
+  const std::string ipm_text = std::string(kIpm) + rated;
+  EXPECT_FALSE(any_names(configuration_warnings(parse(ipm_text +
+                                                      "lq_map_current_A = [70.0, 141.0]\n"
+                                                      "lq_map_H = [0.42e-3, 0.405e-3]\n" + budget)),
+                         text));
+  EXPECT_FALSE(any_names(configuration_warnings(parse(ipm_text + "lq_rated_H = 0.405e-3\n" + budget)), text));
+  // Pulses on the d axis alone, another method, no budget, a drive that does not inject.
+  EXPECT_FALSE(any_names(configuration_warnings(parse(ipm_text + budget + "torque_neutral = false\n")), text));
+  EXPECT_FALSE(any_names(configuration_warnings(parse(ipm_text + budget + "method = \"fixed-angle\"\n")), text));
+  EXPECT_FALSE(any_names(configuration_warnings(parse(ipm_text)), text));
+  EXPECT_FALSE(any_names(configuration_warnings(parse(ipm_text + budget + "[estimator]\nkind = \"none\"\n")), text));
+  // Table I's w_e Lq / Rs is 39 at its rated speed, and iq Lq / psi 0.76: a saliency of 2 % reads
+  // 0.61, warned about; one of 0.3 % 0.09, and Lq = Ld 0, not.
+  const auto table_i_with = [](std::string_view lq) {
+    return parse("[motor]\nlq_H = " + std::string(lq) + "\n[injection]\nmax_torque_disturbance_Nm = 1.0\n");
+  };
+  EXPECT_NEAR(incremental_lq_sensitivity(table_i_with("5.61e-3").drive, 314.0), 0.61, 0.01);
+  EXPECT_TRUE(any_names(configuration_warnings(table_i_with("5.61e-3")), "a salient machine"));
+  EXPECT_LT(incremental_lq_sensitivity(table_i_with("5.5165e-3").drive, 314.0), kIncrementalLqSensitivityWarning);
+  EXPECT_FALSE(any_names(configuration_warnings(table_i_with("5.5165e-3")), "a salient machine"));
+  EXPECT_EQ(incremental_lq_sensitivity(table_i_with("5.5e-3").drive, 314.0), 0.0);
+  EXPECT_FALSE(any_names(configuration_warnings(table_i_with("5.5e-3")), "a salient machine"));
+}
+
 // A drive whose pairs are mostly rejected as speed or load changes is told why it measures
 // rarely: at least 20 pairs judged (recorded to their end), at least half of them so rejected.
 // Pairs skipped before they began and aborted ones are not judged. Without a torque budget the
