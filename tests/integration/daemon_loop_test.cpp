@@ -42,6 +42,7 @@
 #include "process/plant_node.hpp"
 #include "publisher.hpp"
 #include "scenario.hpp"
+#include "scratch_dir.hpp"
 
 namespace pmsm::daemon {
 namespace {
@@ -536,9 +537,8 @@ TEST(DaemonLoop, HeatUpWithTheAnswerAndTheWaitInOneCallTracksThePlantsTruth) {
 // once the thread drains again. Before, its record was dropped with the periodic ones and the
 // drive ran on a calibration no file kept.
 TEST(DaemonLoop, ACalibrationThatEndsWhileThePublisherStallsIsStoredWhenItResumes) {
-  const std::filesystem::path file =
-      std::filesystem::temp_directory_path() / ("pmsm-stalled-calibration-" + std::to_string(::getpid()) + ".toml");
-  std::filesystem::remove(file);
+  const test::ScratchDir scratch{"pmsm-stalled-calibration"};
+  const std::filesystem::path file = scratch / "file.toml";
   Bench bench;
   Axis axis(bench.bus, 1, 12.0, 25.0, 5.0, [&](app::ControllerConfig& c) { c.calibration_file = file.string(); });
   axis.fill_ring();
@@ -562,16 +562,14 @@ TEST(DaemonLoop, ACalibrationThatEndsWhileThePublisherStallsIsStoredWhenItResume
   EXPECT_EQ(axis.publisher().stats().calibrations_stored, 1U);
   EXPECT_TRUE(std::filesystem::exists(file));
   EXPECT_EQ(axis.loop().stats().events_lost, 0U);
-  std::filesystem::remove(file);
 }
 
 // The thermal state is kept every 10 s of drive time also where nothing else is published (every
 // publish.* period 0, no injection): before, it went out only with another publication, and such
 // a drive wrote it only at a clean stop.
 TEST(DaemonLoop, TheThermalStateIsKeptWhenNothingElseIsPublished) {
-  const std::filesystem::path file =
-      std::filesystem::temp_directory_path() / ("pmsm-quiet-thermal-state-" + std::to_string(::getpid()) + ".toml");
-  std::filesystem::remove(file);
+  const test::ScratchDir scratch{"pmsm-quiet-thermal-state"};
+  const std::filesystem::path file = scratch / "file.toml";
   Bench bench;
   Axis axis(bench.bus, 1, 25.0, 25.0, 5.0, [&](app::ControllerConfig& c) {
     c.thermal_state_file = file.string();
@@ -596,7 +594,6 @@ TEST(DaemonLoop, TheThermalStateIsKeptWhenNothingElseIsPublished) {
   EXPECT_GE(axis.publisher().stats().thermal_states_stored, 2U) << "at 10 s and 20 s of drive time";
   EXPECT_TRUE(std::filesystem::exists(file));
   axis.stop();
-  std::filesystem::remove(file);
 }
 
 // The daemon's log, as an operator reads it (journal): the default logger replaced by a ring
@@ -662,9 +659,8 @@ TEST(DaemonLoop, ImplausibleMagnetReadingsAreRefusedAndLoggedWithTheirReason) {
 // magnets went unmeasured.
 TEST(DaemonLoop, AKe0TakenFromTurningEventsIsLoggedStoredAndPublished) {
   LogCapture log;
-  const std::filesystem::path file =
-      std::filesystem::temp_directory_path() / ("pmsm-magnet-reference-" + std::to_string(::getpid()) + ".toml");
-  std::filesystem::remove(file);
+  const test::ScratchDir scratch{"pmsm-magnet-reference"};
+  const std::filesystem::path file = scratch / "file.toml";
   Bench bench;
   Axis axis(bench.bus, 1, 12.0, 25.0, 5.0, [&](app::ControllerConfig& c) { c.calibration_file = file.string(); });
   axis.start_daemon();
@@ -703,7 +699,6 @@ TEST(DaemonLoop, AKe0TakenFromTurningEventsIsLoggedStoredAndPublished) {
                           (1.0 + m.magnet_temp_coefficient_per_C * (stored.t0_C - m.magnet_ref_temp_C));
   EXPECT_NEAR(stored.ke0_V_s_per_rad / ke0_true, 1.0, 0.01);
   EXPECT_GT(stored.ke0_std_V_s_per_rad, 0.0);
-  std::filesystem::remove(file);
 }
 
 // A calibration's bridge sweep that resolved no bridge (its Vx error bar above 10 % of Vx:

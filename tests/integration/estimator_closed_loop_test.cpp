@@ -17,6 +17,7 @@
 
 #include "calibration_file.hpp"
 #include "run_process.hpp"
+#include "scratch_dir.hpp"
 #include "runner.hpp"
 #include "sanitizers.hpp"
 
@@ -305,10 +306,8 @@ TEST(EstimatorClosedLoop, RejectedPairsAreNeverPublished) {
 // calibration run uses it: with the right file the estimates are right; with a file whose Rs0
 // is 5 % high they all read about 12 C low (Eq. 1: -0.05 / 1.05 / 0.00393 per unit of R/R0).
 TEST(EstimatorClosedLoop, StoredCalibrationIsWrittenAndUsedAtTheNextStart) {
-  const std::filesystem::path dir =
-      std::filesystem::temp_directory_path() / ("pmsm-stored-calibration-" + std::to_string(::getpid()));
-  std::filesystem::remove_all(dir);
-  std::filesystem::create_directories(dir);
+  const pmsm::test::ScratchDir scratch{"pmsm-stored-calibration"};
+  const std::filesystem::path& dir = scratch.path();
   const std::string file = (dir / "calibration.toml").string();
 
   Scenario commissioning = load_scenario(kData / "heatup-short.toml");
@@ -360,7 +359,6 @@ TEST(EstimatorClosedLoop, StoredCalibrationIsWrittenAndUsedAtTheNextStart) {
   const double shift = mean_error(wrong) - mean_error(right);
   EXPECT_LT(shift, -10.0);
   EXPECT_GT(shift, -16.0);
-  std::filesystem::remove_all(dir);
 }
 
 TEST(EstimatorClosedLoop, SameSeedSameResult) {
@@ -575,8 +573,8 @@ TEST(SimulateMemory, ADifferenceWithoutRowsIsNoneNotZero) {
 
 TEST(SimulateCli, JsonFiguresCsvAndPlot) {
   const std::string exe = PMSM_THERMAL_EXE;
-  const std::filesystem::path dir = std::filesystem::temp_directory_path() / "pmsm-simulate-test";
-  std::filesystem::create_directories(dir);
+  const pmsm::test::ScratchDir scratch{"pmsm-simulate-test"};
+  const std::filesystem::path& dir = scratch.path();
   Scenario s = load_scenario(kData / "heatup-short.toml");
   // A short copy of the scenario, next to its data so relative paths still work.
   const std::filesystem::path scenario = kData / "heatup-short.toml";
@@ -622,12 +620,12 @@ TEST(SimulateCli, JsonFiguresCsvAndPlot) {
   }
   EXPECT_GT(empty_rows, 0U) << "the first row has no estimate yet";
   EXPECT_GT(filled_rows, 100U);
-  std::filesystem::remove_all(dir);
 }
 
 TEST(SimulateCli, ABadScenarioNamesTheKeyAndFails) {
   const std::string exe = PMSM_THERMAL_EXE;
-  const std::filesystem::path bad = std::filesystem::temp_directory_path() / "pmsm-bad-scenario.toml";
+  const pmsm::test::ScratchDir scratch{"pmsm-bad-scenario"};
+  const std::filesystem::path bad = scratch / "bad.toml";
   {
     std::ofstream f(bad);
     f << "[scenario]\nduration_s = 1.0\n[operation]\nspeed_rad_s = [[0.0, 10.0]]\n[controller.injection]\nF_A = -3.0\n";
@@ -636,7 +634,6 @@ TEST(SimulateCli, ABadScenarioNamesTheKeyAndFails) {
   EXPECT_NE(r.exit_code, 0);
   EXPECT_NE(r.err.find("controller.injection.F_A"), std::string::npos) << r.err;
   EXPECT_NE(r.err.find(":6:"), std::string::npos) << r.err;
-  std::filesystem::remove(bad);
 }
 
 // A calibration that times out says what would help for the drive's resistance source: for
@@ -644,8 +641,8 @@ TEST(SimulateCli, ABadScenarioNamesTheKeyAndFails) {
 // Rs iq (calibrating unloaded would take that away) and the thermal model alone measures nothing.
 TEST(SimulateCli, ACalibrationTimeoutAdvisesForTheEstimatorKind) {
   const std::string exe = PMSM_THERMAL_EXE;
-  const std::filesystem::path dir = std::filesystem::temp_directory_path() / ("pmsm-cal-advice-" + std::to_string(::getpid()));
-  std::filesystem::create_directories(dir);
+  const pmsm::test::ScratchDir scratch{"pmsm-cal-advice"};
+  const std::filesystem::path& dir = scratch.path();
   for (const auto& [kind, advice] :
        {std::pair<std::string, std::string>{"no-injection", "estimator.kind = \"no-injection\" sees Rs only through Rs iq"},
         {"none", "estimator.kind = \"none\" measures no resistance"}}) {
@@ -663,7 +660,6 @@ TEST(SimulateCli, ACalibrationTimeoutAdvisesForTheEstimatorKind) {
     // Neither makes pairs: no "its pairs: no pair", which read as if something had stopped them.
     EXPECT_EQ(r.err.find("its pairs"), std::string::npos) << r.err;
   }
-  std::filesystem::remove_all(dir);
 }
 
 }  // namespace

@@ -27,6 +27,7 @@
 
 #include "calibration_file.hpp"
 #include "runner.hpp"
+#include "scratch_dir.hpp"
 
 namespace pmsm::app {
 namespace {
@@ -832,10 +833,8 @@ TEST(EstimatorRobustness, ACalibrationCutShortByALoadCompletesOnTheEventsItHas) 
 // reference heat-up, and the rotor's span can add up to its sigma). Ke0 is stored with the
 // calibration. With the key at 0, no magnet is measured (as before).
 TEST(EstimatorRobustness, ACalibrationAtRestTakesKe0FromTheFirstTurningEvents) {
-  const std::filesystem::path dir =
-      std::filesystem::temp_directory_path() / ("pmsm-magnet-reference-" + std::to_string(::getpid()));
-  std::filesystem::remove_all(dir);
-  std::filesystem::create_directories(dir);
+  const pmsm::test::ScratchDir scratch{"pmsm-magnet-reference"};
+  const std::filesystem::path& dir = scratch.path();
   const std::string file = (dir / "calibration.toml").string();
   Scenario s = load_scenario(std::filesystem::path(PMSM_SOURCE_DIR) / "tests/integration/data/calibration-at-rest-short.toml");
   s.controller.calibration_file = file;
@@ -866,7 +865,6 @@ TEST(EstimatorRobustness, ACalibrationAtRestTakesKe0FromTheFirstTurningEvents) {
   EXPECT_DOUBLE_EQ(stored.rs0_ohm, r.calibration.rs0_ohm);
   EXPECT_DOUBLE_EQ(stored.ke0_V_s_per_rad, ke0);
   EXPECT_DOUBLE_EQ(stored.ke0_std_V_s_per_rad, ke0_std);
-  std::filesystem::remove_all(dir);
 
   s.controller.calibration_file.clear();
   // Tighter than the filter ever knows its housing here (2-3 C after the calibration): the

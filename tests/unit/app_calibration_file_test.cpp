@@ -21,6 +21,7 @@
 
 #include "calibration_file.hpp"
 #include "controller_config.hpp"
+#include "scratch_dir.hpp"
 
 namespace pmsm::app {
 namespace {
@@ -29,17 +30,8 @@ namespace fs = std::filesystem;
 
 class CalibrationFile : public ::testing::Test {
  protected:
-  void SetUp() override {
-    dir_ = fs::temp_directory_path() / ("pmsm-calibration-test-" + std::to_string(::getpid()) + "-" +
-                                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-  }
-  void TearDown() override {
-    // A test may have taken the write permission away.
-    ::chmod(dir_.c_str(), 0755);
-    fs::remove_all(dir_);
-  }
+  // (A test may take the write permission away: ScratchDir gives it back before it removes.)
+  void SetUp() override { dir_ = scratch_.path(); }
   void write_text(const fs::path& p, const std::string& text) { std::ofstream(p) << text; }
   static std::string read_text(const fs::path& p) {
     std::ifstream in(p);
@@ -62,6 +54,7 @@ class CalibrationFile : public ::testing::Test {
     for ([[maybe_unused]] const auto& e : fs::directory_iterator(dir_)) ++n;
     return n;
   }
+  pmsm::test::ScratchDir scratch_{"pmsm-calibration-test"};
   fs::path dir_;
 };
 
@@ -892,8 +885,8 @@ TEST(CalibrationWarning, AKe0FarOffTheMotorsEmfConstantIsNamed) {
 
 // A stored calibration whose Rs0 the configured cable takes whole is refused with both named.
 TEST(CalibrationWarning, AStoredRs0ACableTakesWholeIsRefused) {
-  const fs::path dir = fs::temp_directory_path() / ("pmsm-cable-" + std::to_string(::getpid()));
-  fs::create_directories(dir);
+  const pmsm::test::ScratchDir scratch{"pmsm-cable"};
+  const fs::path& dir = scratch.path();
   ControllerConfig config = default_controller_config();
   config.calibration_file = (dir / "calibration.toml").string();
   core::Calibration stored;
@@ -913,7 +906,6 @@ TEST(CalibrationWarning, AStoredRs0ACableTakesWholeIsRefused) {
   }
   config.drive.thermal.cable_resistance_20C_ohm = 0.02;
   EXPECT_EQ(load_stored_calibration(config), StoredCalibration::kLoaded);
-  fs::remove_all(dir);
 }
 
 }  // namespace

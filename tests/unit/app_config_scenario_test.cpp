@@ -11,6 +11,7 @@
 #include "app_config_test_support.hpp"
 #include "drive_node.hpp"
 #include "scenario.hpp"
+#include "scratch_dir.hpp"
 
 namespace pmsm::app {
 namespace {
@@ -205,9 +206,8 @@ TEST(Scenario, BaseCycleIsReported) {
 }
 
 TEST(Scenario, AChainOfMoreThanEightBasesIsReported) {
-  const std::filesystem::path dir =
-      std::filesystem::temp_directory_path() / ("pmsm-scenario-chain-" + std::to_string(::getpid()));
-  std::filesystem::create_directories(dir);
+  const pmsm::test::ScratchDir scratch{"pmsm-scenario-chain"};
+  const std::filesystem::path& dir = scratch.path();
   for (int k = 0; k <= 9; ++k) {
     std::ofstream(dir / ("c" + std::to_string(k) + ".toml"))
         << (k == 0 ? std::string("[scenario]\nduration_s = 1\n")
@@ -221,7 +221,6 @@ TEST(Scenario, AChainOfMoreThanEightBasesIsReported) {
   // Eight bases are fine (the chain's end is no complete scenario: its own error, not the chain's).
   const std::string eight = error_of([&] { (void)load_scenario(dir / "c8.toml"); });
   EXPECT_EQ(eight.find("bases in a chain"), std::string::npos) << eight;
-  std::filesystem::remove_all(dir);
 }
 
 TEST(Scenario, MissingBaseIsReported) {
@@ -529,20 +528,19 @@ TEST(Scenario, CsvSetPoints) {
             path_of("speed_first_row_malformed.csv") +
                 ":1: operation.speed_csv: expected 'time_s,value' (two numbers), got ',100'");
   // A long line is cut in the message, its length said.
-  const std::filesystem::path long_csv = std::filesystem::temp_directory_path() / "pmsm-long-row.csv";
+  const pmsm::test::ScratchDir scratch{"pmsm-csv"};
+  const std::filesystem::path long_csv = scratch / "long-row.csv";
   std::ofstream(long_csv) << "time_s,speed_rad_s\n0," << std::string(1000000, '7') << "x\n";
   const std::string long_error = inline_error("[operation]\nspeed_csv = \"" + long_csv.string() + "\"\n");
-  std::filesystem::remove(long_csv);
   EXPECT_LT(long_error.size(), 400U);
   EXPECT_NE(long_error.find("got '0," + std::string(78, '7') + "... (1000003 bytes)'"), std::string::npos) << long_error;
   // A spreadsheet's byte-order mark before the header, and blank lines of spaces, are no rows
   // ("got '\xEF\xBB\xBF0,0'" and "got '  '" were).
-  const std::filesystem::path bom_csv = std::filesystem::temp_directory_path() / "pmsm-bom.csv";
+  const std::filesystem::path bom_csv = scratch / "bom.csv";
   std::ofstream(bom_csv) << "\xEF\xBB\xBFtime_s,speed_rad_s\r\n0,0\r\n   \r\n2,40\r\n";
   const Scenario bom = parse("[operation]\nspeed_csv = \"" + bom_csv.string() + "\"\n");
   std::ofstream(bom_csv) << "\xEF\xBB\xBF" << "0,0\n1,10\n";
   const Scenario bom_no_header = parse("[operation]\nspeed_csv = \"" + bom_csv.string() + "\"\n");
-  std::filesystem::remove(bom_csv);
   EXPECT_EQ(bom.scenario.speed_rad_s.at(1.0), 20.0);
   EXPECT_EQ(bom_no_header.scenario.speed_rad_s.at(1.0), 10.0);
   const Scenario t = parse("[operation]\nmode = \"torque\"\ntorque_csv = \"speed_profile.csv\"\n");

@@ -9,6 +9,7 @@
 #include <unistd.h>
 
 #include "run_process.hpp"
+#include "scratch_dir.hpp"
 
 namespace pmsm::test {
 namespace {
@@ -123,19 +124,6 @@ TEST(PlanCli, BudgetBeyondTheVoltageLimitSaysSo) {
             std::string::npos);
 }
 
-// A scratch directory removed however the test ends.
-struct ScratchDir {
-  std::filesystem::path path =
-      std::filesystem::temp_directory_path() / ("pmsm-plan-" + std::to_string(::getpid()));
-  ScratchDir() { std::filesystem::create_directories(path); }
-  ~ScratchDir() {
-    std::error_code ignored;
-    std::filesystem::remove_all(path, ignored);
-  }
-  ScratchDir(const ScratchDir&) = delete;
-  ScratchDir& operator=(const ScratchDir&) = delete;
-};
-
 // A drive's own configuration (pmsm-thermald's [controller] section) gives every option the
 // command line does not: the motor, the bus, the voltage fraction, the window and its Tw, the
 // torque budget, the margin (the file's, else the drive's default at the bus planned with),
@@ -143,8 +131,8 @@ struct ScratchDir {
 // and 106 A points: 0.41987 mH at 75 A). A flag still wins; a bad or missing file, or one with
 // no drive in it, is named and refused.
 TEST(PlanCli, BudgetTakesADrivesConfiguration) {
-  const ScratchDir dir;
-  const std::filesystem::path axis = dir.path / "axis.toml";
+  const ScratchDir dir{"pmsm-plan"};
+  const std::filesystem::path axis = dir.path() / "axis.toml";
   std::ofstream(axis) << "[can]\ninterface = \"vcan0\"\n"
                          "[controller.motor]\nrs_ohm = 0.0315\nld_H = 0.275e-3\nlq_H = 0.4275e-3\n"
                          "lq_map_current_A = [35.0, 70.0, 106.0, 141.0]\n"
@@ -195,7 +183,7 @@ TEST(PlanCli, BudgetTakesADrivesConfiguration) {
   EXPECT_NEAR(json_number(turning.out, "max_current_injection_current_A").value_or(-1), 225.0, 1e-9);
   // A motor cable is in what the pulse's voltage drives through: its resistance at the
   // nameplate's temperature (25 C) joins the winding's, as in the drive's own budget.
-  const std::filesystem::path cabled = dir.path / "cabled.toml";
+  const std::filesystem::path cabled = dir.path() / "cabled.toml";
   std::ofstream(cabled) << "[can]\ninterface = \"vcan0\"\n"
                            "[controller.motor]\nrs_ohm = 0.0315\ncable_resistance_ohm = 0.01\n";
   const ProcessResult cable = run_process(kExe + " budget --config " + cabled.string() + " --speed 314 --iq 75 --json");
@@ -203,15 +191,15 @@ TEST(PlanCli, BudgetTakesADrivesConfiguration) {
   EXPECT_NEAR(json_number(cable.out, "rs_ohm").value_or(-1), 0.0315 + 0.01 * (234.5 + 25.0) / (234.5 + 20.0), 1e-9)
       << "(printed to ten digits)";
   // Refused: a bad key (named with its line), a file with no drive in it, a missing file.
-  std::ofstream(dir.path / "bad.toml") << "[controller.motor]\nld_H = -1\n";
-  const ProcessResult bad = run_process(kExe + " budget --config " + (dir.path / "bad.toml").string() + " --speed 3");
+  std::ofstream(dir.path() / "bad.toml") << "[controller.motor]\nld_H = -1\n";
+  const ProcessResult bad = run_process(kExe + " budget --config " + (dir.path() / "bad.toml").string() + " --speed 3");
   EXPECT_EQ(bad.exit_code, 2);
   EXPECT_NE(bad.err.find("bad.toml:2: controller.motor.ld_H: must be in [1e-09, 1], got -1"), std::string::npos) << bad.err;
-  std::ofstream(dir.path / "typo.toml") << "[controler.motor]\nld_H = 1e-3\n";
-  const ProcessResult typo = run_process(kExe + " budget --config " + (dir.path / "typo.toml").string() + " --speed 3");
+  std::ofstream(dir.path() / "typo.toml") << "[controler.motor]\nld_H = 1e-3\n";
+  const ProcessResult typo = run_process(kExe + " budget --config " + (dir.path() / "typo.toml").string() + " --speed 3");
   EXPECT_EQ(typo.exit_code, 2);
   EXPECT_NE(typo.err.find("typo.toml: no [controller] section"), std::string::npos) << typo.err;
-  const ProcessResult missing = run_process(kExe + " budget --config " + (dir.path / "none.toml").string() + " --speed 3");
+  const ProcessResult missing = run_process(kExe + " budget --config " + (dir.path() / "none.toml").string() + " --speed 3");
   EXPECT_EQ(missing.exit_code, 2);
   EXPECT_NE(missing.err.find("--config"), std::string::npos) << missing.err;
 }
@@ -264,8 +252,8 @@ TEST(PlanCli, HumanReadableByDefault) {
 // such named with its file, line and key (docs/scenarios.md), and a calibration asked for at
 // or after the run's end is one it cannot use.
 TEST(SimulateCli, AnUnusableScenarioStopsTheRunBeforeAnythingRuns) {
-  const std::filesystem::path dir = std::filesystem::temp_directory_path() / ("pmsm-sim-cli-" + std::to_string(getpid()));
-  std::filesystem::create_directories(dir);
+  const ScratchDir scratch{"pmsm-sim-cli"};
+  const std::filesystem::path& dir = scratch.path();
   const std::string base = std::string("[scenario]\nbase = \"") + PMSM_SOURCE_DIR + "/bench/scenarios/reference-fm-bipolar.toml\"\n";
   std::ofstream(dir / "ok.toml") << base << "duration_s = 0.6\n";
   std::ofstream(dir / "late.toml") << base << "duration_s = 1\n[operation]\ncalibrate_at_s = 100\n";
@@ -281,7 +269,6 @@ TEST(SimulateCli, AnUnusableScenarioStopsTheRunBeforeAnythingRuns) {
   const ProcessResult ok = run_process(kExe + " simulate --json --quiet " + (dir / "ok.toml").string());
   EXPECT_EQ(ok.exit_code, 0) << ok.err;
   EXPECT_NE(ok.out.find("\"sim_time_s\": 0.6"), std::string::npos) << "ok.toml alone runs: " << ok.out;
-  std::filesystem::remove_all(dir);
 }
 
 // An output is not written over anything the scenario reads or keeps (itself, a base, a CSV,
@@ -289,8 +276,8 @@ TEST(SimulateCli, AnUnusableScenarioStopsTheRunBeforeAnythingRuns) {
 // only the top-level scenario was guarded: --csv over the speed CSV or a base replaced it and
 // exited 0, and --csv '' wrote nothing and said nothing.)
 TEST(SimulateCli, AnOutputIsNotWrittenOverAnInput) {
-  const std::filesystem::path dir = std::filesystem::temp_directory_path() / ("pmsm-sim-out-" + std::to_string(getpid()));
-  std::filesystem::create_directories(dir);
+  const ScratchDir scratch{"pmsm-sim-out"};
+  const std::filesystem::path& dir = scratch.path();
   std::ofstream(dir / "base.toml") << "[scenario]\nbase = \"" << PMSM_SOURCE_DIR
                                    << "/bench/scenarios/reference-fm-bipolar.toml\"\nduration_s = 0.6\n";
   std::ofstream(dir / "speed.csv") << "time_s,speed_rad_s\n0,0\n1,10\n";
@@ -323,7 +310,6 @@ TEST(SimulateCli, AnOutputIsNotWrittenOverAnInput) {
   std::stringstream kept;
   kept << std::ifstream(dir / "speed.csv").rdbuf();
   EXPECT_EQ(kept.str(), "time_s,speed_rad_s\n0,0\n1,10\n");
-  std::filesystem::remove_all(dir);
 }
 
 // A scenario's name and the output's path reach gnuplot's script as strings: a name that closed
@@ -331,8 +317,8 @@ TEST(SimulateCli, AnOutputIsNotWrittenOverAnInput) {
 // gnuplot fail. Now they are quoted, and a name with a line break is refused at load (a
 // control character in any string key is).
 TEST(SimulateCli, TheScenariosNameIsTextInThePlotNotCommands) {
-  const std::filesystem::path dir = std::filesystem::temp_directory_path() / ("pmsm-sim-plot-" + std::to_string(getpid()));
-  std::filesystem::create_directories(dir);
+  const ScratchDir scratch{"pmsm-sim-plot"};
+  const std::filesystem::path& dir = scratch.path();
   const std::filesystem::path pwned = dir / "pwned";
   std::ofstream(dir / "s.toml") << "[scenario]\nbase = \"" << PMSM_SOURCE_DIR
                                 << "/bench/scenarios/reference-fm-bipolar.toml\"\nduration_s = 0.6\n"
@@ -382,7 +368,6 @@ TEST(SimulateCli, TheScenariosNameIsTextInThePlotNotCommands) {
     EXPECT_NE(early.err.find("nothing was run"), std::string::npos) << early.err;
     EXPECT_EQ(early.out, "") << "not run";
   }
-  std::filesystem::remove_all(dir);
 }
 
 struct BadInput {

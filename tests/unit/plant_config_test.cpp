@@ -8,6 +8,7 @@
 #include <string>
 
 #include "pmsm/plant/config.hpp"
+#include "scratch_dir.hpp"
 
 namespace pmsm::plant {
 namespace {
@@ -285,17 +286,11 @@ TEST(plant_config, ValidateChecksConfigsBuiltInCode) {
 
 class PlantConfigCsv : public ::testing::Test {
  protected:
-  void SetUp() override {
-    dir_ = std::filesystem::temp_directory_path() /
-           ("pmsm_plant_config_" + std::to_string(::testing::UnitTest::GetInstance()->random_seed()) +
-            "_" + ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    std::filesystem::create_directories(dir_);
-  }
-  void TearDown() override { std::filesystem::remove_all(dir_); }
   void write(const std::string& name, const std::string& text) {
     std::ofstream(dir_ / name) << text;
   }
-  std::filesystem::path dir_;
+  test::ScratchDir scratch_{"pmsm-plant-config"};
+  std::filesystem::path dir_ = scratch_.path();
 };
 using plant_config_csv = PlantConfigCsv;
 
