@@ -201,6 +201,9 @@ check_warns "[controller.calibration]\nfile = \"$dir/no-such-dir/cal.toml\"\n[co
 # A method that misleads on a machine configured as salient (app::configuration_warnings).
 check_warns "[controller.injection]\nmax_torque_disturbance_Nm = 1.5\nseparation = \"unipolar\"\n" \
   'controller.injection: method = "fixed-magnitude", separation = "unipolar" on a machine configured as salient'
+# A salient machine with torque-neutral pulses and no flux map (app::salient_flux_map_warning).
+check_warns "[controller.motor]\nlq_H = 6.6e-3\n[controller.injection]\nmax_torque_disturbance_Nm = 1.5\n" \
+  'controller.motor: a salient machine (injection.max_torque_disturbance_Nm = 1.5 N m) with torque-neutral pulses'
 # A real-time priority the shipped unit cannot grant (its LimitRTPRIO=): warned, naming the limit.
 limit=$(sed -n 's/^LimitRTPRIO=//p' "$src/systemd/pmsm-thermald@.service")
 check_warns "[rt]\npriority = $((limit + 1))\n" "rt.priority = $((limit + 1)) is above pmsm-thermald@.service's LimitRTPRIO=$limit"
