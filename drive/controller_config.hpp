@@ -228,8 +228,9 @@ inline constexpr std::string_view kWindingWarmMeasure =
 // rated current and this (mechanical) speed with the commissioned values:
 // w_e Lq iq |Lq - Ld| / (psi Rs) (3.7 on the robustness suite's 30 mohm IPM at 314 rad/s).
 [[nodiscard]] double incremental_lq_sensitivity(const core::DriveConfig& d, double speed_rad_s);
-// The speed the warning below takes it at: the rated speed, or the speed where the EMF takes the
-// whole voltage (control.nominal_dc_bus_V) if that is lower.
+// The speed the warning below takes it at: the rated speed, or the speed where the rated current
+// on the q axis takes the whole voltage (control.nominal_dc_bus_V), w_e sqrt(psi^2 + (Lq iq)^2),
+// if that is lower.
 [[nodiscard]] double incremental_lq_sensitivity_speed_rad_s(const ControllerConfig& config);
 // From this sensitivity on, a salient machine without its flux map is warned about.
 inline constexpr double kIncrementalLqSensitivityWarning = 0.1;

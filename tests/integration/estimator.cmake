@@ -2,7 +2,6 @@ pmsm_add_gtest(estimator_closed_loop_test LABEL integration
   SOURCES ${CMAKE_CURRENT_LIST_DIR}/estimator_closed_loop_test.cpp
   LIBS pmsm_sim
   TIMEOUT 300)
-target_include_directories(estimator_closed_loop_test PRIVATE ${PROJECT_SOURCE_DIR}/tests/support)
 target_compile_definitions(estimator_closed_loop_test PRIVATE PMSM_THERMAL_EXE="$<TARGET_FILE:pmsm-thermal>")
 add_dependencies(estimator_closed_loop_test pmsm-thermal)
 

@@ -20,7 +20,8 @@ class ScratchDir {
   explicit ScratchDir(std::string_view prefix) {
     std::string pattern = (std::filesystem::temp_directory_path() / (std::string(prefix) + "-XXXXXX")).string();
     if (::mkdtemp(pattern.data()) == nullptr) {
-      throw std::system_error(errno, std::generic_category(), "mkdtemp " + pattern);
+      const int error = errno;  // (before the message's allocation can change it)
+      throw std::system_error(error, std::generic_category(), "mkdtemp " + pattern);
     }
     path_ = pattern;
   }

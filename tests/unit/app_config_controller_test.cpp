@@ -621,7 +621,8 @@ TEST(ControllerConfig, ASalientMachineWithoutItsFluxMapIsWarnedAbout) {
   const ControllerConfig ipm = parse(std::string(kIpm) + rated + budget);
   const double psi = 0.4925 * std::sqrt(2.0) / std::sqrt(3.0) / 4.0;
   const double expected = 4.0 * 314.0 * 0.4275e-3 * 100.0 * std::sqrt(2.0) * 0.1525e-3 / (psi * 0.0315);
-  // The EMF would take the whole voltage only at about 440 rad/s: the rated speed is taken.
+  // The rated current would take the whole voltage only at about 370 rad/s, 0.95 x 320 V / sqrt 3
+  // over 4 sqrt(psi^2 + (Lq iq)^2): the rated speed is taken.
   EXPECT_EQ(incremental_lq_sensitivity_speed_rad_s(ipm), 314.0);
   EXPECT_NEAR(incremental_lq_sensitivity(ipm.drive, 314.0), expected, 1e-9 * expected);
   EXPECT_NEAR(expected, 3.66, 0.01);
@@ -629,8 +630,9 @@ TEST(ControllerConfig, ASalientMachineWithoutItsFluxMapIsWarnedAbout) {
   const std::vector<std::string> w = configuration_warnings(ipm);
   EXPECT_TRUE(any_names(w, text));
   EXPECT_TRUE(any_names(w, "each 1 % of that error reads as 3.7 % of Rs"));
+  EXPECT_TRUE(any_names(w, "read high by the gap while the machine motors, and low by as much while it generates"));
   EXPECT_TRUE(any_names(w, "at the rated current (141 A peak) and 314 rad/s"));
-  // A traction motor rated to twice its base speed is taken where the EMF takes the voltage.
+  // A traction motor rated to 900 rad/s is taken where the rated current takes the voltage.
   const ControllerConfig traction = parse(std::string(kIpm) + "rated_speed_rad_s = 900.0\n" + budget);
   const double emf_speed = incremental_lq_sensitivity_speed_rad_s(traction);
   EXPECT_GT(emf_speed, 314.0);
@@ -643,6 +645,8 @@ TEST(ControllerConfig, ASalientMachineWithoutItsFluxMapIsWarnedAbout) {
                                                       "lq_map_H = [0.42e-3, 0.405e-3]\n" + budget)),
                          text));
   EXPECT_FALSE(any_names(configuration_warnings(parse(ipm_text + "lq_rated_H = 0.405e-3\n" + budget)), text));
+  // A salient rotor that does not saturate says so: its rated secant is its no-load Lq.
+  EXPECT_FALSE(any_names(configuration_warnings(parse(ipm_text + "lq_rated_H = 0.4275e-3\n" + budget)), text));
   // Pulses on the d axis alone, another method, no budget, a drive that does not inject.
   EXPECT_FALSE(any_names(configuration_warnings(parse(ipm_text + budget + "torque_neutral = false\n")), text));
   EXPECT_FALSE(any_names(configuration_warnings(parse(ipm_text + budget + "method = \"fixed-angle\"\n")), text));

@@ -2,7 +2,6 @@
 pmsm_add_gtest(cli_decode_test LABEL unit
   SOURCES ${CMAKE_CURRENT_LIST_DIR}/cli_decode_test.cpp
   LIBS pmsm::protocol_tools)
-target_include_directories(cli_decode_test PRIVATE ${PROJECT_SOURCE_DIR}/tests/support)
 target_compile_definitions(cli_decode_test PRIVATE PMSM_THERMAL_EXE="$<TARGET_FILE:pmsm-thermal>")
 add_dependencies(cli_decode_test pmsm-thermal)
 # pmsm-thermal command's reading of the daemon's answers, on codec-built frames (label unit).

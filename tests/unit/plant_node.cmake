@@ -7,6 +7,5 @@ pmsm_add_gtest(plant_node_test LABEL unit
 pmsm_add_gtest(plant_cli_test LABEL unit
   SOURCES ${CMAKE_CURRENT_LIST_DIR}/plant_cli_test.cpp
   LIBS pmsm::plant)
-target_include_directories(plant_cli_test PRIVATE ${PROJECT_SOURCE_DIR}/tests/support)
 target_compile_definitions(plant_cli_test PRIVATE PMSM_PLANT_EXE="$<TARGET_FILE:pmsm-plant>")
 add_dependencies(plant_cli_test pmsm-plant)
