@@ -1344,8 +1344,8 @@ double incremental_lq_sensitivity_speed_rad_s(const ControllerConfig& config) {
   const core::DriveConfig& d = config.drive;
   const double psi_Wb = core::flux_linkage_Wb(d.motor);
   const double lq_iq_Wb = d.motor.lq_H * core::continuous_current_peak_A(d.motor);
-  const double base_rad_s = core::voltage_limit_V(d.current, config.nominal_dc_bus_V) /
-                            (d.motor.pole_pairs * std::sqrt(psi_Wb * psi_Wb + lq_iq_Wb * lq_iq_Wb));
+  const double base_rad_s =
+      core::voltage_limit_V(d.current, config.nominal_dc_bus_V) / (d.motor.pole_pairs * std::hypot(psi_Wb, lq_iq_Wb));
   return std::isfinite(base_rad_s) ? std::min(d.motor.rated_speed_rad_s, base_rad_s) : d.motor.rated_speed_rad_s;
 }
 

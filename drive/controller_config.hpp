@@ -235,8 +235,9 @@ inline constexpr std::string_view kWindingWarmMeasure =
 // From this sensitivity on, a salient machine without its flux map is warned about.
 inline constexpr double kIncrementalLqSensitivityWarning = 0.1;
 // Why a salient machine (a torque budget) with torque-neutral fixed-magnitude pulses and no flux
-// map (motor.lq_map_H, motor.lq_rated_H) reads high under load, with the sensitivity above, or ""
-// (a round rotor, a map, another method, or a sensitivity below kIncrementalLqSensitivityWarning).
+// map (motor.lq_map_H, motor.lq_rated_H) reads off under load (high motoring, low generating),
+// with the sensitivity above, or "" (a round rotor, a map, another method, or a sensitivity below
+// kIncrementalLqSensitivityWarning).
 [[nodiscard]] std::string salient_flux_map_warning(const ControllerConfig& config);
 
 // Why a drive measures rarely, when at least kPairRejectionAdviceMinPairs pairs were judged

@@ -31,7 +31,6 @@ namespace fs = std::filesystem;
 class CalibrationFile : public ::testing::Test {
  protected:
   // (A test may take the write permission away: ScratchDir gives it back before it removes.)
-  void SetUp() override { dir_ = scratch_.path(); }
   void write_text(const fs::path& p, const std::string& text) { std::ofstream(p) << text; }
   static std::string read_text(const fs::path& p) {
     std::ifstream in(p);
@@ -55,7 +54,7 @@ class CalibrationFile : public ::testing::Test {
     return n;
   }
   pmsm::test::ScratchDir scratch_{"pmsm-calibration-test"};
-  fs::path dir_;
+  const fs::path dir_ = scratch_.path();
 };
 
 core::Calibration sample() {

@@ -1383,8 +1383,8 @@ double loaded_rs_error(double saturation_std_fraction, double* lq_a, double* lq_
 // other: 0.03 A per ampere of |id| on top, so the large level's pairs sit 0.45 A higher). Read
 // as saturation, the 0.5 % over that contrast in u (0.0015) is a b of 18 mH, and pairs at one
 // load drive b past any prior; the curve then extrapolates it to 60 A. Pairs within a lever in
-// u of 0.05 (the default prior) of the first load are taken at its u: b learns only from loads
-// that far apart, and there, on this plant (no saturation), it stays near zero and the loaded
+// u of 0.05 (the default prior) of a load that taught the curve (an anchor) are taken at its u:
+// b learns only from loads that far apart, and there, on this plant (no saturation), it stays near zero and the loaded
 // Rs is right.
 TEST(InjectionScheduler, PairsAtOneLoadTeachNoSaturation) {
   InjectionConfig c = saturation_test_config();
