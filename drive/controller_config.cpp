@@ -340,9 +340,13 @@ ConfigSchema<C> build() {
   inj.real("injection.lq_saturation_std_fraction",
            [](C& c) -> double& { return c.drive.injection.lq_saturation_std_fraction; }, between(0, 1), "",
            "Prior of the learned Lq's saturation (secant lost at the current limit), as a fraction of Lq, around 0; also the "
-           "uncertainty of motor.lq_rated_H's gap until pairs at two loads resolve the curve. 0: one Lq at every load.");
+           "uncertainty of motor.lq_rated_H's gap until pairs at two loads resolve the curve, and the prior of its bend (a "
+           "further loss in s^2) once pairs at three loads have taught it. 0: one Lq at every load.");
   inj.real("injection.lq_learning_min_voltage_V", [](C& c) -> double& { return c.drive.injection.lq_learning_min_voltage_V; },
            at_least(0, 1000), "V", "Learn Lq only from pairs whose Lq <w iq> is at least this.");
+  inj.boolean("injection.lq_listening", [](C& c) -> bool& { return c.drive.injection.lq_listening; },
+              "Where the torque budget refuses every pulse and no load near it has taught Lq's curve, record a pair with "
+              "no pulse (a listening pair): its d-axis means give the secant Lq at that load (docs/estimator.md section 5.1).");
   inj.real("injection.lq_angle_std_rad", [](C& c) -> double& { return c.drive.injection.lq_angle_std_rad; },
            between(0, 0.1), "rad",
            "Rotor-angle error (electrical) the Lq learner allows for until a rotor-angle check measures it (the check's "

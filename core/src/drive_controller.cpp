@@ -156,6 +156,9 @@ void DriveController::publish_learned() {
   telemetry_.lq_H = scheduler_.lq_H();
   telemetry_.lq_std_H = scheduler_.lq_std_H();
   telemetry_.lq_saturation_H = scheduler_.lq_saturation_H();
+  telemetry_.lq_bend_H = scheduler_.lq_bend_H();
+  telemetry_.lq_listening_pairs = scheduler_.lq_listening_pairs();
+  telemetry_.lq_listening_learned = scheduler_.lq_listening_learned();
   telemetry_.lq_emf_d_Wb = scheduler_.lq_emf_d_Wb();
   telemetry_.lq_emf_d_std_Wb = scheduler_.lq_emf_d_std_Wb();
   telemetry_.calibrated = observer_.calibration().calibrated;

@@ -239,6 +239,7 @@ void InjectionScheduler::set_config(const InjectionConfig& config) {
   config_ = config;
   phase_ = SchedulerPhase::kIdle;
   in_event_ = false;
+  listening_ = false;
   recording_ = 0;
   retry_at_rest_ = false;  // (a calibration's start or end: its own timing)
   rest_since_s_ = -1.0;
@@ -400,7 +401,10 @@ void InjectionScheduler::begin_pair(const SchedulerInput& in) {
   pair_lq_.incremental_H = fit.lq_incremental_H;
   fit.ld_H = config_.ld_H;
   recorder_.start(fit, time_based_ ? MatchBy::kTime : MatchBy::kAngle, direction_);
-  if (field_weakening_) {
+  if (listening_) {
+    level1_ = 0.0;
+    level2_ = 0.0;
+  } else if (field_weakening_) {
     level1_ = -fw_low_level_;
     level2_ = -1.0;
   } else if (config_.separation == Separation::kBipolar) {
@@ -551,7 +555,7 @@ Dq InjectionScheduler::injection_current(const SchedulerInput& in) const {
 
 void InjectionScheduler::abort(SchedulerOutput& out, const SchedulerInput& in, AbortCause cause) {
   const double jitter = (phase_ != SchedulerPhase::kIdle || in_event_) ? refusal_jitter() : 1.0;  // one refusal
-  if (phase_ != SchedulerPhase::kIdle) {
+  if (phase_ != SchedulerPhase::kIdle && !listening_) {
     PairResult r;
     r.outcome = PairOutcome::kAborted;
     r.abort_cause = cause;
@@ -585,6 +589,7 @@ void InjectionScheduler::abort(SchedulerOutput& out, const SchedulerInput& in, A
   }
   phase_ = SchedulerPhase::kIdle;
   in_event_ = false;
+  listening_ = false;
   out.injection_A = {};
   out.active = false;
   out.phase = phase_;
@@ -713,7 +718,7 @@ double InjectionScheduler::lq_incremental_H(double iq_A) const {
 }
 
 double InjectionScheduler::lq_secant_at(const LqShape::At& shape) const {
-  return std::clamp(lq_H_ - lq_b_H_ * shape.s, 0.5 * lq_H_, 1.5 * lq_H_);
+  return std::clamp(lq_H_ - lq_b_H_ * shape.s - lq_b2_H_ * shape.s2(), 0.5 * lq_H_, 1.5 * lq_H_);
 }
 
 bool InjectionScheduler::saturation_variance_resolved() const {
@@ -738,7 +743,7 @@ double InjectionScheduler::lq_incremental_at(const LqShape::At& shape) const {
   if (!lq_resolved_) {
     return std::clamp(secant - lq_shape_.b0_H() * (shape.h - shape.s), 0.5 * secant, secant);
   }
-  return std::clamp(lq_H_ - lq_b_H_ * shape.h, 0.5 * secant, 1.5 * secant);
+  return std::clamp(lq_H_ - lq_b_H_ * shape.h - lq_b2_H_ * shape.h2(), 0.5 * secant, 1.5 * secant);
 }
 
 double InjectionScheduler::unexplained_load_change_A(const PairConditions& c, double delta_iq_A) const {
@@ -794,7 +799,7 @@ void InjectionScheduler::set_angle_prior(double delta_rad, double std_rad) {
   }
   const double psi = config_.flux_linkage_Wb;
   emf_d_Wb_ = psi * delta_rad;
-  for (std::size_t i = 0; i < 3; ++i) {
+  for (std::size_t i = 0; i < kLqStates; ++i) {
     lq_p_[i][2] = 0.0;
     lq_p_[2][i] = 0.0;
   }
@@ -811,29 +816,30 @@ std::array<double, 3> InjectionScheduler::lq_change_H(const LqTerm& t) const {
 }
 
 void InjectionScheduler::LqGradient::add(double d_secant, double d_incremental, double d_emf, const LqShape::At& shape) {
-  // The curve's state (a, b, c): the secant is a - b s and the incremental a - b h (an
-  // incremental not yet resolved is the secant less the commissioned b0 (h - s), about
-  // (b - b0) (h - s) off the true incremental: the same form with b's uncertainty); c enters
-  // on its own.
+  // The curve's state (a, b, c, b2): the secant is a - b s - b2 s2 and the incremental
+  // a - b h - b2 h2 (an incremental not yet resolved is the secant less the commissioned
+  // b0 (h - s), about (b - b0) (h - s) off the true incremental: the same form with b's
+  // uncertainty); c enters on its own; b2's variance is 0 until a third anchor (activate_bend).
   g[0] += d_secant + d_incremental;
   g[1] -= shape.s * d_secant + shape.h * d_incremental;
   g[2] += d_emf;
+  g[3] -= shape.s2() * d_secant + shape.h2() * d_incremental;
 }
 
 double InjectionScheduler::lq_variance(const LqGradient& g) const {
   // Learning off, (a, b, c) keep their priors.
   double var = 0.0;
-  for (std::size_t i = 0; i < 3; ++i) {
-    for (std::size_t j = 0; j < 3; ++j) {
+  for (std::size_t i = 0; i < kLqStates; ++i) {
+    for (std::size_t j = 0; j < kLqStates; ++j) {
       var += g.g[i] * lq_p_[i][j] * g.g[j];
     }
   }
   return std::isfinite(var) ? std::max(var, 0.0) : 0.0;
 }
 
-void InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit, const SchedulerInput& in) {
+bool InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit, const SchedulerInput& in) {
   if (!config_.learn_lq || time_based_) {
-    return;
+    return false;
   }
   const double w_iq = c.omega_e_iq_mean_A_rad_s;
   const double s_q = lq_shape_.at(c.iq_mean_A).s;  // the secant's shape at the pair's load
@@ -846,7 +852,7 @@ void InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit,
   // does not carry.
   const double separated = std::abs(fit.rs_ohm * c.id_mean_A) + std::abs(vx * c.gd_mean);
   if (!(std::abs(lq_secant_H(c.iq_mean_A) * w_iq) >= std::max(config_.lq_learning_min_voltage_V, separated))) {
-    return;
+    return false;
   }
   // <Rs id> over the two recordings, 0.5 (Rs(t1) Id1 + Rs(t2) Id2), with the thermal filter's
   // resistance carried to each recording's time by the model's rate. Not the pair's own Rs:
@@ -878,7 +884,7 @@ void InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit,
                       fit.residual_rms_V * fit.residual_rms_V / independent) /
                      (w_iq * w_iq);
   if (!std::isfinite(lq) || !(var > 0.0)) {
-    return;
+    return false;
   }
   // The curve may have moved since the last pair (a prediction step before the gate, so that
   // a state that has become confidently wrong widens until pairs pass again). The angle error
@@ -887,7 +893,10 @@ void InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit,
   lq_p_[0][0] += drift * drift;
   ++learned_version_;  // (and the update below, if the pair passes the gate)
   if (config_.lq_saturation_std_fraction > 0.0) {
-    lq_p_[1][1] += drift * drift;  // (without the saturation model b stays at 0)
+    lq_p_[1][1] += drift * drift;  // (without the saturation model b and b2 stay at 0)
+    if (lq_bend_active_) {
+      lq_p_[3][3] += drift * drift;
+    }
   }
   lq_resolved_ = saturation_variance_resolved();
   // Gross outliers (a pair that passed its guards but whose means are off) are left out.
@@ -922,20 +931,28 @@ void InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit,
   const bool at_anchor = nearest >= 0 && (nearest_ds < lever || lq_anchor_count_ == kMaxLqAnchors);
   const double s_used = at_anchor ? lq_anchors_[static_cast<std::size_t>(nearest)] : s_q;
   const double w_mean = 0.5 * (c.omega_e_mean_1_rad_s + c.omega_e_mean_2_rad_s);
-  const std::array<double, 3> h{1.0, -s_used, -w_mean / w_iq};
-  const double predicted = lq_H_ - lq_b_H_ * s_q + emf_d_Wb_ * h[2];
-  std::array<double, 3> ph{};  // P h
-  for (std::size_t i = 0; i < 3; ++i) {
-    ph[i] = lq_p_[i][0] * h[0] + lq_p_[i][1] * h[1] + lq_p_[i][2] * h[2];
+  const std::array<double, kLqStates> h{1.0, -s_used, -w_mean / w_iq, -s_used * s_used};
+  const double predicted = lq_H_ - lq_b_H_ * s_q - lq_b2_H_ * s_q * s_q + emf_d_Wb_ * h[2];
+  std::array<double, kLqStates> ph{};  // P h
+  double s = var;                      // h P h' + var, and below what (b, b2) put between s_q and s_used
+  for (std::size_t i = 0; i < kLqStates; ++i) {
+    for (std::size_t j = 0; j < kLqStates; ++j) {
+      ph[i] += lq_p_[i][j] * h[j];
+    }
+    s += h[i] * ph[i];
   }
-  const double s = h[0] * ph[0] + h[1] * ph[1] + h[2] * ph[2] + var +
-                   (s_q - s_used) * (s_q - s_used) * lq_p_[1][1];  // h P h' + var
+  const double d1 = s_q - s_used;
+  const double d2 = s_q * s_q - s_used * s_used;
+  s += d1 * d1 * lq_p_[1][1] + 2.0 * d1 * d2 * lq_p_[1][3] + d2 * d2 * lq_p_[3][3];
   if (lq < 0.5 * config_.lq_H || lq > 2.0 * config_.lq_H || !(s > 0.0) || !std::isfinite(h[2]) ||
       !(std::abs(lq - predicted) <= 4.0 * std::sqrt(s))) {
-    return;
+    return false;
   }
   if (!at_anchor) {
     lq_anchors_[static_cast<std::size_t>(lq_anchor_count_++)] = s_q;
+    if (lq_anchor_count_ == 3 && !lq_bend_active_ && config_.lq_saturation_std_fraction > 0.0) {
+      activate_bend();
+    }
   }
   // A pair whose q current idles inside the bridge's ripple band does not teach c: its d-axis
   // mean keeps a per cent or two of Vx that the bipolar recordings cancel only as far as the
@@ -947,19 +964,86 @@ void InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit,
   // a pair updates a and b with c considered, not estimated (a Schmidt update: c's uncertainty is
   // in s, its gain 0, its variance and mean kept).
   const bool teaches_c = !(std::abs(c.iq_mean_A) < bridge_band_A_);
-  const std::array<double, 3> k{ph[0] / s, ph[1] / s, teaches_c ? ph[2] / s : 0.0};
+  const std::array<double, kLqStates> k{ph[0] / s, ph[1] / s, teaches_c ? ph[2] / s : 0.0, ph[3] / s};
   const double innovation = lq - predicted;
   lq_H_ += k[0] * innovation;
   lq_b_H_ += k[1] * innovation;
   emf_d_Wb_ += k[2] * innovation;
+  lq_b2_H_ += k[3] * innovation;
   // The covariance for any gain, P - K (P h)' - (P h) K' + K s K' (Joseph's form expanded); with
   // every gain the optimal one it is P - (P h)(P h)' / s.
-  for (std::size_t i = 0; i < 3; ++i) {
-    for (std::size_t j = 0; j < 3; ++j) {
+  for (std::size_t i = 0; i < kLqStates; ++i) {
+    for (std::size_t j = 0; j < kLqStates; ++j) {
       lq_p_[i][j] += -k[i] * ph[j] - ph[i] * k[j] + k[i] * k[j] * s;
     }
   }
   lq_resolved_ = saturation_variance_resolved();
+  return true;
+}
+
+void InjectionScheduler::activate_bend() {
+  // Until three loads have taught the curve it is a - b s: two anchors fix a - b s - b2 s^2 at
+  // two points, and any split of the slope between them between b and b2 fits them (the
+  // prior's split moved the incremental at one anchor by the other's distance). With a third,
+  // b2 enters with b's prior, and with it every (a, b) that keeps the first two anchors' secants
+  // what they have learned: a + b2 alpha, b + b2 beta with alpha - beta s - s^2 = 0 at both,
+  // alpha = -s1 s2, beta = -(s1 + s2). The state's mean stays; its covariance takes
+  // v v' var(b2), v = (alpha, beta, 0, 1).
+  const double s1 = lq_anchors_[0];
+  const double s2 = lq_anchors_[1];
+  const double b2_std = config_.lq_saturation_std_fraction * config_.lq_H;
+  const std::array<double, kLqStates> v{-s1 * s2, -(s1 + s2), 0.0, 1.0};
+  for (std::size_t i = 0; i < kLqStates; ++i) {
+    for (std::size_t j = 0; j < kLqStates; ++j) {
+      lq_p_[i][j] += v[i] * v[j] * b2_std * b2_std;
+    }
+  }
+  lq_bend_active_ = true;
+}
+
+bool InjectionScheduler::listens(const SchedulerInput& in) const {
+  if (!config_.learn_lq || !config_.lq_listening || event_listened_ || config_.method != InjectionMethod::kFixedMagnitude ||
+      lq_anchor_count_ >= kMaxLqAnchors || !std::isfinite(winding_rs_ohm_) ||
+      !(std::abs(in.omega_e_rad_s) >= config_.min_speed_for_angle_rad_s)) {
+    return false;
+  }
+  const double iq = in.motoring_ref_A.q;
+  if (!(std::abs(lq_secant_H(iq) * in.omega_e_rad_s * iq) >= config_.lq_learning_min_voltage_V)) {
+    return false;
+  }
+  // A fifth of a lever to spare: the pair's mean iq, by which learn_lq places it, may lie a
+  // little nearer an anchor than the load it was started at (it would then be taken at the
+  // anchor's s, teach no new one, and the next event would listen again).
+  const double s_q = lq_shape_.at(iq).s;
+  const double lever = 2.0 * kLqUnmodelledFraction / config_.lq_saturation_std_fraction;
+  for (int k = 0; k < lq_anchor_count_; ++k) {
+    if (std::abs(s_q - lq_anchors_[static_cast<std::size_t>(k)]) < 1.2 * lever) {
+      return false;
+    }
+  }
+  return true;
+}
+
+void InjectionScheduler::finish_listening(const SchedulerInput& in) {
+  ++listening_pairs_;
+  const PairConditions c = recorder_.conditions();
+  const double omega = 0.5 * std::abs(c.omega_e_mean_1_rad_s + c.omega_e_mean_2_rad_s);
+  const double speed_limit = std::max(config_.max_speed_change_rad_s, config_.max_speed_change_fraction * omega);
+  const FitSums total = recorder_.sums().total();
+  if (c.any_modulation_clipped || !(total.n > 0.0) ||
+      !(std::abs(c.omega_e_mean_1_rad_s - c.omega_e_mean_2_rad_s) <= speed_limit) ||
+      !(unexplained_load_change_A(c, c.iq_mean_1_A - c.iq_mean_2_A) <= config_.max_load_change_A)) {
+    return;
+  }
+  // No pulse, no resistance of its own: the filter's (learn_lq takes it when known, as listens()
+  // asks), and as the noise of <vd> the spread of the two recordings' difference.
+  FitResult fit;
+  fit.rs_ohm = winding_rs_ohm_;
+  fit.var_rs = winding_rs_var_ohm2_;
+  fit.residual_rms_V = std::sqrt(total.yty / total.n);
+  if (learn_lq(c, fit, in)) {
+    ++listening_learned_;
+  }
 }
 
 double InjectionScheduler::vx_variance_at(double bus_offset_V) const {
@@ -1523,6 +1607,7 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
         event_start_s_ = in.time_s;
         event_q_pairs_ = 0;
         event_field_weakening_ = false;
+        event_listened_ = false;
         event_bus_sum_V_ = 0.0;
         event_bus_periods_ = 0;
         event_bus_error_ohm_ = 0.0;
@@ -1582,6 +1667,15 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
           // (finish_event, next period, counts the refusal and jitters a repeated one)
           next_event_s_ = in.time_s + config_.retry_s;
           retry_after_s_ = next_event_s_;
+        }
+        if (b.limiting == PairOutcome::kSkippedTorqueDisturbance && listens(in)) {
+          listening_ = true;
+          event_listened_ = true;
+          f_A_ = 0.0;
+          field_weakening_ = false;
+          fw_low_level_ = 0.0;
+          begin_pair(in);
+          phase_start_s_ = in.time_s;
         }
         break;
       }
@@ -1722,16 +1816,21 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
   }
 
   if (phase_ == SchedulerPhase::kFinish) {
-    out.completed = finish_pair(in);
+    if (listening_) {
+      finish_listening(in);  // (its level was counted refused when it began)
+      listening_ = false;
+    } else {
+      out.completed = finish_pair(in);
+      ++level_index_;
+    }
     phase_ = SchedulerPhase::kIdle;
     recording_ = 0;
-    ++level_index_;
   }
 
   out.phase = phase_;
   out.active = phase_ != SchedulerPhase::kIdle;
   out.injection_A = injection_current(in);
-  if (out.active) {
+  if (out.active && !listening_) {
     // The budget sized the pulse at the pair's start; the motoring current moves on (the speed
     // loop's answer to a set-point or a load, up to the drive's limit), and the pulse on top of
     // it took a 48 V servo, a hoist and the 30 mOhm IPM past their current limits into the

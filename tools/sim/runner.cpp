@@ -1081,6 +1081,9 @@ SimulationResult run_once(const Scenario& scenario, const RunOptions& options, D
   result.lq_H = drive.telemetry().lq_H;
   result.lq_std_H = drive.telemetry().lq_std_H;
   result.lq_saturation_H = drive.telemetry().lq_saturation_H;
+  result.lq_bend_H = drive.telemetry().lq_bend_H;
+  result.lq_listening_pairs = drive.telemetry().lq_listening_pairs;
+  result.lq_listening_learned = drive.telemetry().lq_listening_learned;
   result.lq_emf_d_Wb = drive.telemetry().lq_emf_d_Wb;
   result.lq_emf_d_std_Wb = drive.telemetry().lq_emf_d_std_Wb;
   result.flux_linkage_Wb = scenario.controller.drive.injection.flux_linkage_Wb;
@@ -1303,6 +1306,9 @@ std::string result_json(const SimulationResult& r) {
       .field("lq_H", r.lq_H)
       .field("lq_std_H", r.lq_std_H)
       .field("lq_saturation_H", r.lq_saturation_H)
+      .field("lq_bend_H", r.lq_bend_H)
+      .field("lq_listening_pairs", static_cast<std::uint64_t>(r.lq_listening_pairs))
+      .field("lq_listening_learned", static_cast<std::uint64_t>(r.lq_listening_learned))
       .field("lq_emf_d_Wb", r.lq_emf_d_Wb)
       .field("lq_emf_d_std_Wb", r.lq_emf_d_std_Wb)
       .field("lq_saturation_resolved", r.lq_saturation_resolved)
@@ -1468,7 +1474,7 @@ std::string result_text(const SimulationResult& r) {
                        r.vx_bus_slope, r.vx_bus_slope_std, r.bus_slope_error, r.bus_slope_error_std);
   }
   out += fmt::format("  learned Lq                      {:.3f} +- {:.3f} mH at zero current, {:.3f} mH at the current limit{}\n",
-                     1e3 * r.lq_H, 1e3 * r.lq_std_H, 1e3 * (r.lq_H - r.lq_saturation_H),
+                     1e3 * r.lq_H, 1e3 * r.lq_std_H, 1e3 * (r.lq_H - r.lq_saturation_H - r.lq_bend_H),
                      r.lq_saturation_resolved ? std::string()
                      : r.lq_commissioned_saturation_H > 0.0
                          ? fmt::format(" (not resolved: incremental = secant less the commissioned gap, b0 {:.3f} mH)",

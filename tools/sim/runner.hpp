@@ -224,6 +224,9 @@ struct SimulationResult {
   double lq_H = 0.0;                    // learned q-axis inductance at the end
   double lq_std_H = 0.0;
   double lq_saturation_H = 0.0;         // its saturation: secant lost at the current limit
+  double lq_bend_H = 0.0;               // and its bend (the secant a - b s - b2 s^2)
+  std::uint32_t lq_listening_pairs = 0;    // pairs with no pulse, under a load the torque budget refused
+  std::uint32_t lq_listening_learned = 0;  // those that taught the curve
   double lq_emf_d_Wb = 0.0;             // the angle error's EMF share psi delta learned with it
   double lq_emf_d_std_Wb = 0.0;
   double flux_linkage_Wb = 0.0;         // the commissioned psi, to read it as an angle

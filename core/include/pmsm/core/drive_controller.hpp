@@ -355,6 +355,9 @@ struct DriveTelemetry {
   double lq_H = 0.0;                  // the q-axis inductance the estimator has learned
   double lq_std_H = 0.0;
   double lq_saturation_H = 0.0;       // its saturation: secant Lq lost where s = 1 (core::LqShape)
+  double lq_bend_H = 0.0;             // and its bend: a further lq_bend_H s^2 lost
+  std::uint32_t lq_listening_pairs = 0;    // pairs with no pulse under a load the torque budget refuses
+  std::uint32_t lq_listening_learned = 0;  // those that taught the curve
   double lq_emf_d_Wb = 0.0;           // the angle error's EMF share psi delta learned with it
   double lq_emf_d_std_Wb = 0.0;
   bool lq_saturation_resolved = false;       // by pairs at two loads (else the commissioned gap holds)

@@ -237,8 +237,9 @@ struct InjectionConfig {
   // Saturation: the learned secant Lq is a - b s(iq) and the incremental d psi_q / d iq is
   // a - b h(iq), h = s + iq ds/diq (LqShape). Without a flux map s is u = (iq / current_limit_A)^2,
   // the first term of any symmetric saturation curve (h = 3 u); a map of several points gives
-  // s its own shape. Pairs at different loads determine b (docs/estimator.md §5.1). The prior
-  // of b: 0 +- this fraction of lq_H (0: no saturation model, one Lq).
+  // s its own shape. Pairs at different loads determine b (docs/estimator.md §5.1); pairs at a
+  // third load bring in a bend, a further b2 s^2 lost (incremental b2 (2 s h - s^2)). The prior
+  // of b, and of b2 once it enters: 0 +- this fraction of lq_H (0: no saturation model, one Lq).
   double lq_saturation_std_fraction = 0.2;
   // The commissioned saturation, from a flux map's secant at the rated current
   // (MotorParams::lq_rated_H; 0: not known): b0 = (lq_H - lq_rated_H) / u(rated_current_A).
@@ -254,6 +255,10 @@ struct InjectionConfig {
   LqMap lq_map{};
   double rated_current_A = 45.1;  // peak
   double lq_learning_min_voltage_V = 1.0; // |Lq <w iq>| of a pair, to learn from it
+  // Listening pairs: where the torque budget refuses every pulse (a salient machine under heavy
+  // load) and no load near it has taught the saturation curve, two recordings with no pulse
+  // measure the secant Lq there (learn_lq; docs/estimator.md section 5.1).
+  bool lq_listening = true;
   // The rotor angle's error delta (electrical rad) the Lq learner allows for, as a standard
   // deviation around 0. An encoder off by delta puts the EMF's share c = psi delta on the
   // measured d axis: <vd> holds c <w>, which a pair at one load cannot tell from -Lq <w iq>
@@ -461,6 +466,10 @@ class LqShape {
   struct At {
     double s = 0.0;  // the secant's shape
     double h = 0.0;  // the incremental's
+    // The bend's: the secant's s^2, and its incremental d(s^2 iq)/d iq = s^2 + 2 s iq ds/diq
+    // = 2 s h - s^2 (5 u^2 on the quadratic).
+    [[nodiscard]] double s2() const { return s * s; }
+    [[nodiscard]] double h2() const { return 2.0 * s * h - s * s; }
   };
   LqShape() = default;
   explicit LqShape(const InjectionConfig& c);
@@ -639,9 +648,14 @@ class InjectionScheduler {
   void set_angle_prior(double delta_rad, double std_rad);
   // The saturation model's b: the secant Lq lost where s = 1, the current limit without a map (LqShape).
   [[nodiscard]] double lq_saturation_H() const { return lq_b_H_; }
+  // The curve's bend b2: the secant is a - b s - b2 s^2 (learned with pairs at three loads).
+  [[nodiscard]] double lq_bend_H() const { return lq_b2_H_; }
   // Whether pairs at two loads have resolved it (its variance below a quarter of its prior);
   // until then the incremental Lq is the secant less the commissioned gap 2 b0 u.
   [[nodiscard]] bool lq_saturation_resolved() const { return lq_resolved_; }
+  // Listening pairs recorded to their end, and those that taught the curve.
+  [[nodiscard]] std::uint32_t lq_listening_pairs() const { return listening_pairs_; }
+  [[nodiscard]] std::uint32_t lq_listening_learned() const { return listening_learned_; }
   // Counts the changes of the learned Vx and Lq (and their variances): a reader that publishes
   // them copies them when this moves, not every period.
   [[nodiscard]] std::uint32_t learned_version() const { return learned_version_; }
@@ -677,6 +691,9 @@ class InjectionScheduler {
   void begin_pair(const SchedulerInput& in);
   void abort(SchedulerOutput& out, const SchedulerInput& in, AbortCause cause);
   PairResult finish_pair(const SchedulerInput& in);
+  [[nodiscard]] bool listens(const SchedulerInput& in) const;
+  void activate_bend();
+  void finish_listening(const SchedulerInput& in);
   EventEstimate finish_event(const SchedulerInput& in);
   // Whether the event's estimate comes from the pairs' means (event_means_): the joint fit
   // of Rs and Vx across levels, or the fixed-Vx means of flat pulses.
@@ -700,7 +717,7 @@ class InjectionScheduler {
   [[nodiscard]] double event_pairs_mean(double weighted_sum, double plain_sum) const;
   [[nodiscard]] FitOptions fit_options(bool fit_vx) const;
   [[nodiscard]] bool plausible(double rs_ohm, double margin_ohm) const;
-  void learn_lq(const PairConditions& c, const FitResult& fit, const SchedulerInput& in);
+  bool learn_lq(const PairConditions& c, const FitResult& fit, const SchedulerInput& in);
   // A pair's Lq term (Eq. 37: y moves by S_sec dLq_sec + S_inc dLq_inc, PairConditions) and
   // the Lq it was fitted with.
   struct LqTerm {
@@ -722,10 +739,10 @@ class InjectionScheduler {
   // The learned curve now less the one a pair used: (secant, incremental, EMF share), 0 with
   // learning off.
   [[nodiscard]] std::array<double, 3> lq_change_H(const LqTerm& t) const;
-  // How an estimate moves with the curve's state (a, b, c), summed over the pairs it is made
+  // How an estimate moves with the curve's state (a, b, c, b2), summed over the pairs it is made
   // of: add(dR/dLq_sec, dR/dLq_inc, dR/dc, u) for each.
   struct LqGradient {
-    std::array<double, 3> g{};
+    std::array<double, 4> g{};  // (a, b, c, b2), as lq_p_
     void add(double d_secant, double d_incremental, double d_emf, const LqShape::At& shape);
   };
   // The variance the learned curve's uncertainty leaves in such an estimate.
@@ -811,6 +828,8 @@ class InjectionScheduler {
   LqShape lq_shape_;                // the saturation curve's shape and its commissioned b0 (InjectionConfig::lq_map)
   bool lq_resolved_ = false;        // saturation_variance_resolved(), kept as b's variance changes
   double lq_b_H_ = 0.0;             // its saturation: secant lost where s = 1 (LqShape)
+  double lq_b2_H_ = 0.0;            // its bend: a further b2 s^2 lost (learn_lq)
+  bool lq_bend_active_ = false;     // b2 learned: three anchors (activate_bend)
   // The loads that have taught the curve (their s), at least a lever of 2 kLqUnmodelledFraction
   // / lq_saturation_std_fraction apart: a pair within a lever of one is taken at its s
   // (learn_lq). kLqUnmodelledFraction: the share of a pair's Lq that the model does not hold and
@@ -822,9 +841,16 @@ class InjectionScheduler {
   static constexpr int kMaxLqAnchors = 32;
   std::array<double, kMaxLqAnchors> lq_anchors_{};
   int lq_anchor_count_ = 0;
+  // A listening pair: two recordings with no pulse, under a load where the torque budget refuses
+  // every pulse and no anchor lies within a lever (listens()); it teaches the curve only.
+  bool listening_ = false;
+  bool event_listened_ = false;  // (one per event)
+  std::uint32_t listening_pairs_ = 0;
+  std::uint32_t listening_learned_ = 0;
   double emf_d_Wb_ = 0.0;           // the angle error's EMF share c (InjectionConfig::lq_angle_std_rad)
   double bridge_band_A_ = 0.0;      // set_bridge_band
-  std::array<std::array<double, 3>, 3> lq_p_{};  // covariance of (a, b, c): lq_H_, lq_b_H_, emf_d_Wb_
+  static constexpr std::size_t kLqStates = 4;
+  std::array<std::array<double, kLqStates>, kLqStates> lq_p_{};  // covariance of (a, b, c, b2): lq_H_, lq_b_H_, emf_d_Wb_, lq_b2_H_
   bool time_based_ = false;
   double direction_ = 1.0;
   double f_A_ = 0.0;                // magnitude for this pair
