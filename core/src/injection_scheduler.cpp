@@ -728,7 +728,23 @@ bool InjectionScheduler::saturation_variance_resolved() const {
   // not by falling back to the secant: on the 30 mOhm IPM, whose pairs put c at 0 +- 0.026 deg,
   // b's marginal variance stayed above the quarter and the fallback read 20.7 C RMS (1.8 C
   // resolved).
-  const double var_b = lq_p_[2][2] > 0.0 ? lq_p_[1][1] - lq_p_[1][2] * lq_p_[1][2] / lq_p_[2][2] : lq_p_[1][1];
+  // Given the bend b2 too, once it is a state: it enters with every (a, b) that keeps the first
+  // two anchors' secants (add_bend_prior), which widens b's marginal variance by (s1 + s2)^2
+  // var(b2) without telling the slope between them any less well.
+  double var_b = lq_p_[1][1];
+  const double p22 = lq_p_[2][2];
+  const double p33 = lq_p_[3][3];
+  const double p12 = lq_p_[1][2];
+  const double p13 = lq_p_[1][3];
+  const double p23 = lq_p_[2][3];
+  const double det = p22 * p33 - p23 * p23;
+  if (p22 > 0.0 && p33 > 0.0 && det > 0.0) {
+    var_b -= (p12 * p12 * p33 - 2.0 * p12 * p13 * p23 + p13 * p13 * p22) / det;
+  } else if (p22 > 0.0) {
+    var_b -= p12 * p12 / p22;
+  } else if (p33 > 0.0) {
+    var_b -= p13 * p13 / p33;
+  }
   return var_b < 0.25 * prior * prior;
 }
 
@@ -819,7 +835,7 @@ void InjectionScheduler::LqGradient::add(double d_secant, double d_incremental, 
   // The curve's state (a, b, c, b2): the secant is a - b s - b2 s2 and the incremental
   // a - b h - b2 h2 (an incremental not yet resolved is the secant less the commissioned
   // b0 (h - s), about (b - b0) (h - s) off the true incremental: the same form with b's
-  // uncertainty); c enters on its own; b2's variance is 0 until a third anchor (activate_bend).
+  // uncertainty); c enters on its own; b2's variance is 0 until a third anchor (add_bend_prior).
   g[0] += d_secant + d_incremental;
   g[1] -= shape.s * d_secant + shape.h * d_incremental;
   g[2] += d_emf;
@@ -827,7 +843,7 @@ void InjectionScheduler::LqGradient::add(double d_secant, double d_incremental, 
 }
 
 double InjectionScheduler::lq_variance(const LqGradient& g) const {
-  // Learning off, (a, b, c) keep their priors.
+  // Learning off, (a, b, c, b2) keep their priors.
   double var = 0.0;
   for (std::size_t i = 0; i < kLqStates; ++i) {
     for (std::size_t j = 0; j < kLqStates; ++j) {
@@ -900,8 +916,8 @@ bool InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit,
   }
   lq_resolved_ = saturation_variance_resolved();
   // Gross outliers (a pair that passed its guards but whose means are off) are left out.
-  // The pair measures a - b s_q - c <w> / <w iq> (<vd> holds c <w>): a Kalman update of
-  // (a, b, c) with h = (1, -s_q, -<w> / <w iq>), <w> over both recordings.
+  // The pair measures a - b s_q - b2 s_q^2 - c <w> / <w iq> (<vd> holds c <w>): a Kalman update of
+  // (a, b, c, b2) with h = (1, -s_q, -<w> / <w iq>, -s_q^2), <w> over both recordings.
   //
   // The loads that have taught the curve are kept as anchors at least a lever apart in s (twice
   // kLqUnmodelledFraction over b's prior fraction: 0.05 with the default prior and shape, from
@@ -933,26 +949,40 @@ bool InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit,
   const double w_mean = 0.5 * (c.omega_e_mean_1_rad_s + c.omega_e_mean_2_rad_s);
   const std::array<double, kLqStates> h{1.0, -s_used, -w_mean / w_iq, -s_used * s_used};
   const double predicted = lq_H_ - lq_b_H_ * s_q - lq_b2_H_ * s_q * s_q + emf_d_Wb_ * h[2];
+  // A pair that would be the third anchor is judged and fused with the bend in: a curve that
+  // bends misses the straight line through two anchors by more than their variance says (2.7 %
+  // of Lq at the middle of a u^2 machine's range), and the pair is what teaches b2. The fourth
+  // where the angle's share c is a state: c's 1 / iq and the bend's s^2 both bend what three loads
+  // see, and three loads cannot tell four parameters apart (an encoder 0.3 deg off, learned at 5,
+  // 30 and 60 A, read 3.5 % high at 60 A with the bend at the third).
+  const int bend_anchor = lq_p_[2][2] > 0.0 ? 4 : 3;
+  const bool bends = !at_anchor && lq_anchor_count_ == bend_anchor - 1 && !lq_bend_active_ &&
+                     config_.lq_saturation_std_fraction > 0.0;
+  LqCovariance p = lq_p_;
+  if (bends) {
+    add_bend_prior(p);
+  }
   std::array<double, kLqStates> ph{};  // P h
   double s = var;                      // h P h' + var, and below what (b, b2) put between s_q and s_used
   for (std::size_t i = 0; i < kLqStates; ++i) {
     for (std::size_t j = 0; j < kLqStates; ++j) {
-      ph[i] += lq_p_[i][j] * h[j];
+      ph[i] += p[i][j] * h[j];
     }
     s += h[i] * ph[i];
   }
   const double d1 = s_q - s_used;
   const double d2 = s_q * s_q - s_used * s_used;
-  s += d1 * d1 * lq_p_[1][1] + 2.0 * d1 * d2 * lq_p_[1][3] + d2 * d2 * lq_p_[3][3];
+  s += d1 * d1 * p[1][1] + 2.0 * d1 * d2 * p[1][3] + d2 * d2 * p[3][3];
   if (lq < 0.5 * config_.lq_H || lq > 2.0 * config_.lq_H || !(s > 0.0) || !std::isfinite(h[2]) ||
       !(std::abs(lq - predicted) <= 4.0 * std::sqrt(s))) {
     return false;
   }
   if (!at_anchor) {
     lq_anchors_[static_cast<std::size_t>(lq_anchor_count_++)] = s_q;
-    if (lq_anchor_count_ == 3 && !lq_bend_active_ && config_.lq_saturation_std_fraction > 0.0) {
-      activate_bend();
-    }
+  }
+  if (bends) {
+    lq_bend_active_ = true;
+    lq_p_ = p;
   }
   // A pair whose q current idles inside the bridge's ripple band does not teach c: its d-axis
   // mean keeps a per cent or two of Vx that the bipolar recordings cancel only as far as the
@@ -981,24 +1011,23 @@ bool InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit,
   return true;
 }
 
-void InjectionScheduler::activate_bend() {
+void InjectionScheduler::add_bend_prior(LqCovariance& p) const {
   // Until three loads have taught the curve it is a - b s: two anchors fix a - b s - b2 s^2 at
-  // two points, and any split of the slope between them between b and b2 fits them (the
-  // prior's split moved the incremental at one anchor by the other's distance). With a third,
-  // b2 enters with b's prior, and with it every (a, b) that keeps the first two anchors' secants
-  // what they have learned: a + b2 alpha, b + b2 beta with alpha - beta s - s^2 = 0 at both,
-  // alpha = -s1 s2, beta = -(s1 + s2). The state's mean stays; its covariance takes
-  // v v' var(b2), v = (alpha, beta, 0, 1).
+  // two points, and any split of the slope between b and b2 fits them (the prior's split moved
+  // the incremental at one anchor by the other's distance). With a third, b2 enters with b's
+  // prior, and with it every (a, b) that keeps the first two anchors' secants what they have
+  // learned: a + b2 alpha, b + b2 beta with alpha - beta s - s^2 = 0 at both, alpha = -s1 s2,
+  // beta = -(s1 + s2). The state's mean stays; its covariance takes v v' var(b2),
+  // v = (alpha, beta, 0, 1).
   const double s1 = lq_anchors_[0];
   const double s2 = lq_anchors_[1];
   const double b2_std = config_.lq_saturation_std_fraction * config_.lq_H;
   const std::array<double, kLqStates> v{-s1 * s2, -(s1 + s2), 0.0, 1.0};
   for (std::size_t i = 0; i < kLqStates; ++i) {
     for (std::size_t j = 0; j < kLqStates; ++j) {
-      lq_p_[i][j] += v[i] * v[j] * b2_std * b2_std;
+      p[i][j] += v[i] * v[j] * b2_std * b2_std;
     }
   }
-  lq_bend_active_ = true;
 }
 
 bool InjectionScheduler::listens(const SchedulerInput& in) const {
@@ -1026,6 +1055,13 @@ bool InjectionScheduler::listens(const SchedulerInput& in) const {
 
 void InjectionScheduler::finish_listening(const SchedulerInput& in) {
   ++listening_pairs_;
+  ++learned_version_;  // (the drive publishes the counts with what was learned)
+  if (event_pairs_ == 0 && level_index_ >= std::clamp(config_.level_count, 1, InjectionConfig::kMaxLevels)) {
+    // The event's last level was the one refused: its retry counts from now, not from the
+    // refusal the pair followed.
+    next_event_s_ = std::max(next_event_s_, in.time_s + config_.retry_s);
+    retry_after_s_ = std::max(retry_after_s_, next_event_s_);
+  }
   const PairConditions c = recorder_.conditions();
   const double omega = 0.5 * std::abs(c.omega_e_mean_1_rad_s + c.omega_e_mean_2_rad_s);
   const double speed_limit = std::max(config_.max_speed_change_rad_s, config_.max_speed_change_fraction * omega);
@@ -1523,6 +1559,13 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
   if (config_.method == InjectionMethod::kNone) {
     phase_ = SchedulerPhase::kIdle;
     return out;
+  }
+  if (listening_ && (in.release_motoring || (!time_based_ && direction_ * in.omega_e_rad_s < 0.5 * config_.min_speed_for_angle_rad_s))) {
+    // A listening pair gives way as a pair does, but alone: it injects nothing, and the event's
+    // accepted pairs (a level before the one its torque refused) stand.
+    listening_ = false;
+    phase_ = SchedulerPhase::kIdle;
+    recording_ = 0;
   }
   const bool busy = phase_ != SchedulerPhase::kIdle;
   if (!in.enabled) {

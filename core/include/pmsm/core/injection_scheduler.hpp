@@ -692,7 +692,9 @@ class InjectionScheduler {
   void abort(SchedulerOutput& out, const SchedulerInput& in, AbortCause cause);
   PairResult finish_pair(const SchedulerInput& in);
   [[nodiscard]] bool listens(const SchedulerInput& in) const;
-  void activate_bend();
+  static constexpr std::size_t kLqStates = 4;  // the Lq curve's state (a, b, c, b2)
+  using LqCovariance = std::array<std::array<double, kLqStates>, kLqStates>;
+  void add_bend_prior(LqCovariance& p) const;
   void finish_listening(const SchedulerInput& in);
   EventEstimate finish_event(const SchedulerInput& in);
   // Whether the event's estimate comes from the pairs' means (event_means_): the joint fit
@@ -742,7 +744,7 @@ class InjectionScheduler {
   // How an estimate moves with the curve's state (a, b, c, b2), summed over the pairs it is made
   // of: add(dR/dLq_sec, dR/dLq_inc, dR/dc, u) for each.
   struct LqGradient {
-    std::array<double, 4> g{};  // (a, b, c, b2), as lq_p_
+    std::array<double, kLqStates> g{};  // (a, b, c, b2), as lq_p_
     void add(double d_secant, double d_incremental, double d_emf, const LqShape::At& shape);
   };
   // The variance the learned curve's uncertainty leaves in such an estimate.
@@ -829,7 +831,7 @@ class InjectionScheduler {
   bool lq_resolved_ = false;        // saturation_variance_resolved(), kept as b's variance changes
   double lq_b_H_ = 0.0;             // its saturation: secant lost where s = 1 (LqShape)
   double lq_b2_H_ = 0.0;            // its bend: a further b2 s^2 lost (learn_lq)
-  bool lq_bend_active_ = false;     // b2 learned: three anchors (activate_bend)
+  bool lq_bend_active_ = false;     // b2 learned: three anchors (add_bend_prior)
   // The loads that have taught the curve (their s), at least a lever of 2 kLqUnmodelledFraction
   // / lq_saturation_std_fraction apart: a pair within a lever of one is taken at its s
   // (learn_lq). kLqUnmodelledFraction: the share of a pair's Lq that the model does not hold and
@@ -849,8 +851,7 @@ class InjectionScheduler {
   std::uint32_t listening_learned_ = 0;
   double emf_d_Wb_ = 0.0;           // the angle error's EMF share c (InjectionConfig::lq_angle_std_rad)
   double bridge_band_A_ = 0.0;      // set_bridge_band
-  static constexpr std::size_t kLqStates = 4;
-  std::array<std::array<double, kLqStates>, kLqStates> lq_p_{};  // covariance of (a, b, c, b2): lq_H_, lq_b_H_, emf_d_Wb_, lq_b2_H_
+  LqCovariance lq_p_{};  // covariance of (a, b, c, b2): lq_H_, lq_b_H_, emf_d_Wb_, lq_b2_H_
   bool time_based_ = false;
   double direction_ = 1.0;
   double f_A_ = 0.0;                // magnitude for this pair
