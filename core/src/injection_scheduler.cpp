@@ -737,13 +737,15 @@ bool InjectionScheduler::saturation_variance_resolved() const {
   const double p12 = lq_p_[1][2];
   const double p13 = lq_p_[1][3];
   const double p23 = lq_p_[2][3];
+  // (Both are states only where a rotor-angle check gave c its prior after the bend had entered.
+  // A block near singular, c and b2 all but confounded, is conditioned on b2 alone.)
   const double det = p22 * p33 - p23 * p23;
-  if (p22 > 0.0 && p33 > 0.0 && det > 0.0) {
+  if (p22 > 0.0 && p33 > 0.0 && det > 1e-9 * p22 * p33) {
     var_b -= (p12 * p12 * p33 - 2.0 * p12 * p13 * p23 + p13 * p13 * p22) / det;
-  } else if (p22 > 0.0) {
-    var_b -= p12 * p12 / p22;
   } else if (p33 > 0.0) {
     var_b -= p13 * p13 / p33;
+  } else if (p22 > 0.0) {
+    var_b -= p12 * p12 / p22;
   }
   return var_b < 0.25 * prior * prior;
 }
@@ -951,12 +953,13 @@ bool InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit,
   const double predicted = lq_H_ - lq_b_H_ * s_q - lq_b2_H_ * s_q * s_q + emf_d_Wb_ * h[2];
   // A pair that would be the third anchor is judged and fused with the bend in: a curve that
   // bends misses the straight line through two anchors by more than their variance says (2.7 %
-  // of Lq at the middle of a u^2 machine's range), and the pair is what teaches b2. The fourth
-  // where the angle's share c is a state: c's 1 / iq and the bend's s^2 both bend what three loads
-  // see, and three loads cannot tell four parameters apart (an encoder 0.3 deg off, learned at 5,
-  // 30 and 60 A, read 3.5 % high at 60 A with the bend at the third).
-  const int bend_anchor = lq_p_[2][2] > 0.0 ? 4 : 3;
-  const bool bends = !at_anchor && lq_anchor_count_ == bend_anchor - 1 && !lq_bend_active_ &&
+  // of Lq at the middle of a u^2 machine's range), and the pair is what teaches b2. Not where the
+  // angle's share c is a state: c's 1 / iq and the bend's s^2 both bend what three loads see (an
+  // encoder 0.3 deg off, learned at 5, 30 and 60 A, read 3.5 % high at 60 A with the bend in), and
+  // a fourth anchor would need the bend's prior to keep three secants through c's regressor,
+  // which depends on each pair's speed. c is never a state on a machine configured as salient,
+  // where the incremental Lq matters (docs/estimator.md section 5.1).
+  const bool bends = !at_anchor && lq_anchor_count_ == 2 && !lq_bend_active_ && !(lq_p_[2][2] > 0.0) &&
                      config_.lq_saturation_std_fraction > 0.0;
   LqCovariance p = lq_p_;
   if (bends) {
@@ -1561,11 +1564,24 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
     return out;
   }
   if (listening_ && (in.release_motoring || (!time_based_ && direction_ * in.omega_e_rad_s < 0.5 * config_.min_speed_for_angle_rad_s))) {
-    // A listening pair gives way as a pair does, but alone: it injects nothing, and the event's
-    // accepted pairs (a level before the one its torque refused) stand.
+    // A listening pair gives way as a pair does, and its event ends there, but with what it has:
+    // the listening pair injected nothing, so the event's accepted pairs (a level before the one
+    // its torque refused) stand. No level starts after it: the motoring point that needed the
+    // voltage, or the shaft that lost its speed, would end that pair and the event with it.
     listening_ = false;
     phase_ = SchedulerPhase::kIdle;
     recording_ = 0;
+    level_index_ = std::max(level_index_, std::clamp(config_.level_count, 1, InjectionConfig::kMaxLevels));
+    if (event_pairs_ == 0) {
+      next_event_s_ = std::max(next_event_s_, in.time_s + config_.retry_s);
+      retry_after_s_ = std::max(retry_after_s_, next_event_s_);
+    }
+    if (!in.release_motoring) {  // the speed lost
+      retry_at_rest_ = true;
+      rest_since_s_ = -1.0;
+    }
+    out.phase = phase_;
+    return out;
   }
   const bool busy = phase_ != SchedulerPhase::kIdle;
   if (!in.enabled) {

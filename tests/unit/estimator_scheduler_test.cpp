@@ -1594,42 +1594,72 @@ TEST(InjectionScheduler, ListeningPairsTeachTheCurveWhereTheTorqueBudgetRefusesP
   EXPECT_FALSE(off.resolved);
 }
 
-// An event whose small level passed at 20 A, the load then rising to 60 A where its large level's
-// torque is refused: the listening pair that follows gives way when the motoring point needs the
-// voltage (release_motoring), and the event publishes its accepted pair: the pair injected
-// nothing, so nothing of the event was disturbed.
-TEST(InjectionScheduler, AListeningPairGivesWayWithoutTheEvent) {
+// A listening pair gives way when the motoring point needs the voltage (release_motoring) and
+// ends its event with what the event has: the pair injected nothing. Run with the levels in
+// either order: the small level (4 A) passes at 20 A, the load then rises to 60 A, where the large
+// one's torque (10 A) is refused and a listening pair follows.
+struct GiveWayRun {
+  std::vector<PairResult> pairs;
+  std::vector<EventEstimate> estimates;
+  bool gave_way = false;
+  bool pulse_after = false;  // an injection current after the listening pair gave way
+  std::uint32_t listened = 0;
+};
+
+GiveWayRun give_way_run(const std::array<double, 4>& levels, double iq_start_A) {
   InjectionConfig c = saturation_test_config();
   c.f_A = 10.0;
   c.f_min_A = 2.0;
-  c.levels = {0.4, 1.0, 0.0, 0.0};  // 4 A fits the budget at 20 A, 10 A does not at 60 A
+  c.levels = levels;
   c.lq_H = 8.25e-3;
-  c.max_torque_disturbance_Nm = 1.0;
+  c.max_torque_disturbance_Nm = 1.0;  // 3/2 p (Lq - Ld) F iq: 4 A fits at 20 A, 10 A does not at 60 A
   c.interval_s = 10.0;
   Harness h(c);
   h.plant.lq_H = 8.25e-3;
   h.scheduler.set_winding_resistance(h.plant.rs_ohm, 1e-6 * h.plant.rs_ohm * h.plant.rs_ohm);
-  double iq0 = 20.0;
-  bool gave_way = false;
+  double iq0 = iq_start_A;
+  GiveWayRun r;
   h.hook = [&](Harness& x) {
     if (!x.pairs.empty() && x.pairs.front().outcome == PairOutcome::kAccepted) {
       iq0 = 60.0;
     }
     x.motoring_A = {0.0, iq0};
-    // A listening pair's recording: a recording phase with no injection, at the heavy load.
-    const bool listening = !x.records.empty() && iq0 == 60.0 && x.records.back().out.phase == SchedulerPhase::kRecord1 &&
-                           x.records.back().out.injection_A.d == 0.0;
+    const StepRecord* last = x.records.empty() ? nullptr : &x.records.back();
+    r.pulse_after = r.pulse_after || (r.gave_way && last != nullptr && last->out.injection_A.d != 0.0);
+    // A listening pair's recording: a recording phase with no injection, at the heavy load (a
+    // bipolar pair's first recording carries its pulse).
+    const bool listening = last != nullptr && iq0 == 60.0 && last->out.phase == SchedulerPhase::kRecord1 &&
+                           last->out.injection_A.d == 0.0;
     x.release_motoring = listening;
-    gave_way = gave_way || listening;
+    r.gave_way = r.gave_way || listening;
   };
   h.run_until(1.0);
-  ASSERT_TRUE(gave_way) << "a listening pair started";
-  ASSERT_EQ(h.pairs.size(), 2U);
-  EXPECT_EQ(h.pairs[0].outcome, PairOutcome::kAccepted);
-  EXPECT_EQ(h.pairs[1].outcome, PairOutcome::kSkippedTorqueDisturbance);
-  EXPECT_EQ(h.scheduler.lq_listening_pairs(), 0U) << "ended before its recordings";
-  ASSERT_EQ(h.estimates.size(), 1U);
-  EXPECT_EQ(h.estimates[0].outcome, EventOutcome::kPublished);
+  r.pairs = h.pairs;
+  r.estimates = h.estimates;
+  r.listened = h.scheduler.lq_listening_pairs();
+  return r;
+}
+
+TEST(InjectionScheduler, AListeningPairGivesWayWithTheEventsAcceptedPairs) {
+  // The small level first: accepted at 20 A; the large one refused at 60 A; the event publishes.
+  const GiveWayRun small_first = give_way_run({0.4, 1.0, 0.0, 0.0}, 20.0);
+  ASSERT_TRUE(small_first.gave_way) << "a listening pair started";
+  ASSERT_EQ(small_first.pairs.size(), 2U);
+  EXPECT_EQ(small_first.pairs[0].outcome, PairOutcome::kAccepted);
+  EXPECT_EQ(small_first.pairs[1].outcome, PairOutcome::kSkippedTorqueDisturbance);
+  EXPECT_EQ(small_first.listened, 0U) << "ended before its recordings";
+  ASSERT_EQ(small_first.estimates.size(), 1U);
+  EXPECT_EQ(small_first.estimates[0].outcome, EventOutcome::kPublished);
+  EXPECT_FALSE(small_first.pulse_after);
+  // The large level first, at 60 A from the start: refused, listened to, given way; the small
+  // level does not start after it (its pair would need the voltage the motoring point asked for).
+  const GiveWayRun large_first = give_way_run({1.0, 0.4, 0.0, 0.0}, 60.0);
+  ASSERT_TRUE(large_first.gave_way);
+  ASSERT_EQ(large_first.pairs.size(), 1U);
+  EXPECT_EQ(large_first.pairs[0].outcome, PairOutcome::kSkippedTorqueDisturbance);
+  ASSERT_EQ(large_first.estimates.size(), 1U);
+  EXPECT_EQ(large_first.estimates[0].outcome, EventOutcome::kNoAcceptedPairs);
+  EXPECT_FALSE(large_first.pulse_after);
 }
 
 // Pairs at one load only determine a - b u there, not b: with a commissioning error of
@@ -1660,7 +1690,7 @@ TEST(InjectionScheduler, AnUnresolvedSaturationCurveUsesTheSecant) {
 // third load has brought in the curve's bend to fit the angle's 1 / iq, -46 % (+90 % before the
 // bend). With the state (a prior of 0.29 deg) two loads leave c and the curve partly confounded
 // (+3 % at 30 A), and the third tells them apart: c within its error bar, the incremental right
-// (the bend waits for a fourth load where c is a state).
+// (no bend where c is a state).
 struct AngleRun {
   double rs_error_30 = 0.0;  // published estimates' mean relative error at 30 A ...
   double rs_error_60 = 0.0;  // ... and at 60 A, from the third estimate at each load
