@@ -358,7 +358,7 @@ InjectionScheduler::Budget InjectionScheduler::budget(const SchedulerInput& in, 
     // An event of field-weakening pairs learns no Vx, so its levels have no purpose there:
     // every pair takes the event's largest F (the resistive signal F - lo is all it has).
     double largest = 0.0;
-    for (int k = 0; k < std::clamp(config_.level_count, 1, InjectionConfig::kMaxLevels); ++k) {
+    for (int k = 0; k < event_level_count(); ++k) {
       largest = std::max(largest, config_.levels[static_cast<std::size_t>(k)]);
     }
     const double fw_wanted = config_.f_A * largest;
@@ -655,9 +655,7 @@ PairResult InjectionScheduler::finish_pair(const SchedulerInput& in) {
   // speed loop's answer to a salient machine's reluctance torque adds.
   r.delta_iq_A = c.iq_mean_1_A - c.iq_mean_2_A;
 
-  const double omega = 0.5 * std::abs(c.omega_e_mean_1_rad_s + c.omega_e_mean_2_rad_s);
-  const double speed_limit = std::max(config_.max_speed_change_rad_s,
-                                      config_.max_speed_change_fraction * omega);
+  const double speed_limit = speed_change_limit_rad_s(c);
   if (!fit.valid || fit.condition < config_.min_condition) {
     r.outcome = PairOutcome::kRejectedIllConditioned;
   } else if (c.any_modulation_clipped) {
@@ -936,7 +934,7 @@ bool InjectionScheduler::learn_lq(const PairConditions& c, const FitResult& fit,
   // measured 0.68 mH, fell outside the gate, and the winding read 11 C low (docs/estimator.md
   // section 5.1). The prediction takes the pair's own s (the curve as learned), and the pair's
   // variance the part that b's uncertainty puts between its s and the anchor's.
-  const double lever = 2.0 * kLqUnmodelledFraction / config_.lq_saturation_std_fraction;
+  const double lever = lq_lever();
   int nearest = -1;
   double nearest_ds = std::numeric_limits<double>::infinity();
   for (int k = 0; k < lq_anchor_count_; ++k) {
@@ -1047,7 +1045,7 @@ bool InjectionScheduler::listens(const SchedulerInput& in) const {
   // little nearer an anchor than the load it was started at (it would then be taken at the
   // anchor's s, teach no new one, and the next event would listen again).
   const double s_q = lq_shape_.at(iq).s;
-  const double lever = 2.0 * kLqUnmodelledFraction / config_.lq_saturation_std_fraction;
+  const double lever = lq_lever();
   for (int k = 0; k < lq_anchor_count_; ++k) {
     if (std::abs(s_q - lq_anchors_[static_cast<std::size_t>(k)]) < 1.2 * lever) {
       return false;
@@ -1056,18 +1054,28 @@ bool InjectionScheduler::listens(const SchedulerInput& in) const {
   return true;
 }
 
+double InjectionScheduler::speed_change_limit_rad_s(const PairConditions& c) const {
+  const double omega = 0.5 * std::abs(c.omega_e_mean_1_rad_s + c.omega_e_mean_2_rad_s);
+  return std::max(config_.max_speed_change_rad_s, config_.max_speed_change_fraction * omega);
+}
+
+void InjectionScheduler::retry_after_listening(double now_s) {
+  // An event that ends with a listening pair and no accepted pair retries after the listening
+  // pair, not after the refusal it followed.
+  if (event_pairs_ == 0) {
+    next_event_s_ = std::max(next_event_s_, now_s + config_.retry_s);
+    retry_after_s_ = std::max(retry_after_s_, next_event_s_);
+  }
+}
+
 void InjectionScheduler::finish_listening(const SchedulerInput& in) {
   ++listening_pairs_;
   ++learned_version_;  // (the drive publishes the counts with what was learned)
-  if (event_pairs_ == 0 && level_index_ >= std::clamp(config_.level_count, 1, InjectionConfig::kMaxLevels)) {
-    // The event's last level was the one refused: its retry counts from now, not from the
-    // refusal the pair followed.
-    next_event_s_ = std::max(next_event_s_, in.time_s + config_.retry_s);
-    retry_after_s_ = std::max(retry_after_s_, next_event_s_);
+  if (level_index_ >= event_level_count()) {
+    retry_after_listening(in.time_s);
   }
   const PairConditions c = recorder_.conditions();
-  const double omega = 0.5 * std::abs(c.omega_e_mean_1_rad_s + c.omega_e_mean_2_rad_s);
-  const double speed_limit = std::max(config_.max_speed_change_rad_s, config_.max_speed_change_fraction * omega);
+  const double speed_limit = speed_change_limit_rad_s(c);
   const FitSums total = recorder_.sums().total();
   if (c.any_modulation_clipped || !(total.n > 0.0) ||
       !(std::abs(c.omega_e_mean_1_rad_s - c.omega_e_mean_2_rad_s) <= speed_limit) ||
@@ -1563,7 +1571,7 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
     phase_ = SchedulerPhase::kIdle;
     return out;
   }
-  if (listening_ && (in.release_motoring || (!time_based_ && direction_ * in.omega_e_rad_s < 0.5 * config_.min_speed_for_angle_rad_s))) {
+  if (listening_ && (in.release_motoring || speed_lost(in))) {
     // A listening pair gives way as a pair does, and its event ends there, but with what it has:
     // the listening pair injected nothing, so the event's accepted pairs (a level before the one
     // its torque refused) stand. No level starts after it: the motoring point that needed the
@@ -1571,11 +1579,8 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
     listening_ = false;
     phase_ = SchedulerPhase::kIdle;
     recording_ = 0;
-    level_index_ = std::max(level_index_, std::clamp(config_.level_count, 1, InjectionConfig::kMaxLevels));
-    if (event_pairs_ == 0) {
-      next_event_s_ = std::max(next_event_s_, in.time_s + config_.retry_s);
-      retry_after_s_ = std::max(retry_after_s_, next_event_s_);
-    }
+    level_index_ = std::max(level_index_, event_level_count());
+    retry_after_listening(in.time_s);
     if (!in.release_motoring) {  // the speed lost
       retry_at_rest_ = true;
       rest_since_s_ = -1.0;
@@ -1598,7 +1603,7 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
     abort(out, in, AbortCause::kMotoringNeedsVoltage);
     return out;
   }
-  if (busy && !time_based_ && direction_ * in.omega_e_rad_s < 0.5 * config_.min_speed_for_angle_rad_s) {
+  if (busy && speed_lost(in)) {
     abort(out, in, AbortCause::kSpeedLost);
     return out;
   }
@@ -1672,7 +1677,7 @@ const SchedulerOutput& InjectionScheduler::step(const SchedulerInput& in, const 
         event_bus_error_ohm_ = 0.0;
         next_event_s_ = in.time_s + config_.interval_s;
       }
-      if (level_index_ >= std::clamp(config_.level_count, 1, InjectionConfig::kMaxLevels)) {
+      if (level_index_ >= event_level_count()) {
         // The event's estimate needs each accepted pair's means, and each costs a regression
         // as large as a pair's own fit: one per control period, then the estimate, so that no
         // period carries more than one fit (the worst-case step, docs/performance.md).

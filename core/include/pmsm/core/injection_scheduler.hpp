@@ -32,6 +32,7 @@
 // fused Vx. One estimate is published per event.
 #pragma once
 
+#include <algorithm>
 #include <array>
 #include <cstdint>
 #include <optional>
@@ -692,6 +693,16 @@ class InjectionScheduler {
   void abort(SchedulerOutput& out, const SchedulerInput& in, AbortCause cause);
   PairResult finish_pair(const SchedulerInput& in);
   [[nodiscard]] bool listens(const SchedulerInput& in) const;
+  void retry_after_listening(double now_s);
+  // The speed change a pair's recordings may differ by (the speed-change guard).
+  [[nodiscard]] double speed_change_limit_rad_s(const PairConditions& c) const;
+  // An angle-based pair's rotor stopping or reversing.
+  [[nodiscard]] bool speed_lost(const SchedulerInput& in) const {
+    return !time_based_ && direction_ * in.omega_e_rad_s < 0.5 * config_.min_speed_for_angle_rad_s;
+  }
+  [[nodiscard]] int event_level_count() const { return std::clamp(config_.level_count, 1, InjectionConfig::kMaxLevels); }
+  // The least distance in s between the curve's anchors (learn_lq).
+  [[nodiscard]] double lq_lever() const { return 2.0 * kLqUnmodelledFraction / config_.lq_saturation_std_fraction; }
   static constexpr std::size_t kLqStates = 4;  // the Lq curve's state (a, b, c, b2)
   using LqCovariance = std::array<std::array<double, kLqStates>, kLqStates>;
   void add_bend_prior(LqCovariance& p) const;
