@@ -1074,11 +1074,15 @@ void InjectionScheduler::finish_listening(const SchedulerInput& in) {
   if (level_index_ >= event_level_count()) {
     retry_after_listening(in.time_s);
   }
+  // No speed-change guard: that guard keeps a pulse's pair from reading the motoring voltage's
+  // change between its recordings as resistance. A listening pair separates nothing between its
+  // recordings: it takes the means over both, <vd> against <w iq> sample by sample, and a speed
+  // that moves between them moves both alike (a vehicle accelerating in torque mode refused
+  // every one; docs/estimator.md section 5.1). The load change stays guarded: the pair places
+  // its secant at one load.
   const PairConditions c = recorder_.conditions();
-  const double speed_limit = speed_change_limit_rad_s(c);
   const FitSums total = recorder_.sums().total();
   if (c.any_modulation_clipped || !(total.n > 0.0) ||
-      !(std::abs(c.omega_e_mean_1_rad_s - c.omega_e_mean_2_rad_s) <= speed_limit) ||
       !(unexplained_load_change_A(c, c.iq_mean_1_A - c.iq_mean_2_A) <= config_.max_load_change_A)) {
     return;
   }

@@ -1546,7 +1546,9 @@ struct ListeningRun {
   std::size_t refused_under_load = 0;  // levels reported refused for their torque there
 };
 
-ListeningRun listening_run(bool listening) {
+// accel_e_rad_s2: from the load step on, the shaft accelerates at this rate (electrical) until
+// `until_s`, the run's end.
+ListeningRun listening_run(bool listening, double accel_e_rad_s2 = 0.0, double until_s = 8.0) {
   InjectionConfig c = saturation_test_config();
   c.lq_listening = listening;
   c.f_A = 10.0;
@@ -1560,8 +1562,12 @@ ListeningRun listening_run(bool listening) {
   h.motoring_A = {0.0, 5.0};
   h.run_until(3.0);
   h.motoring_A = {0.0, 60.0};
+  if (accel_e_rad_s2 != 0.0) {
+    h.voltage_limit_V = 2000.0;  // (the speed, not the bus, is what the run is about)
+    h.hook = [accel_e_rad_s2](Harness& x) { x.omega_e_rad_s = 300.0 + accel_e_rad_s2 * (x.time_s - 3.0); };
+  }
   const std::size_t from = h.records.size();
-  h.run_until(8.0);
+  h.run_until(until_s);
   ListeningRun r;
   r.secant_60_H = h.scheduler.lq_secant_H(60.0);
   r.listened = h.scheduler.lq_listening_pairs();
@@ -1592,6 +1598,22 @@ TEST(InjectionScheduler, ListeningPairsTeachTheCurveWhereTheTorqueBudgetRefusesP
   EXPECT_EQ(off.listened, 0U);
   EXPECT_GT(off.secant_60_H - true_secant, 0.5 * 0.825e-3 * u) << "the light load's secant, extrapolated";
   EXPECT_FALSE(off.resolved);
+}
+
+// A vehicle accelerating under its load (torque mode): at 400 rad/s^2 (300 -> 700 rad/s in the
+// run's last second) the speed moves by 23 rad/s between a listening pair's recordings, beyond
+// the pulses' speed-change guard (6.4 rad/s there), which refused it until 2026-12-08. The
+// listening pair takes <vd> against <w iq> over both recordings, sample by sample, so the moving
+// speed is in its regressor: its one pair learns the secant at the load within 0.5 %.
+TEST(InjectionScheduler, AListeningPairLearnsWhileTheShaftAccelerates) {
+  const double u = (60.0 / 80.0) * (60.0 / 80.0);
+  const double true_secant = 8.25e-3 - 0.825e-3 * u;
+  const ListeningRun r = listening_run(true, 400.0, 4.0);
+  EXPECT_GE(r.learned, 1U);
+  EXPECT_EQ(r.learned, r.listened) << "every listening pair learns";
+  EXPECT_EQ(r.pulses_under_load, 0U);
+  EXPECT_NEAR(r.secant_60_H, true_secant, 0.005 * true_secant);
+  EXPECT_TRUE(r.resolved);
 }
 
 // A listening pair gives way when the motoring point needs the voltage (release_motoring) and
