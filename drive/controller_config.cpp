@@ -1375,8 +1375,8 @@ std::string salient_flux_map_warning(const ControllerConfig& config) {
       "resolve the curve the drive takes the incremental Lq as that secant, which lies above it on a saturating "
       "machine: its estimates read high by the gap while the machine motors, and low by as much while it generates "
       "(braking, lowering), the band saying so; two loads give the curve's slope, and only a third its bend. On the "
-      "robustness suite's 30 mohm IPM, after a heavy spell, a cruise at 314 rad/s read the winding 4 C high motoring "
-      "and 5 C low braking (22 and 17 C before listening pairs anchored the curve at the heavy load), within 1 C with "
+      "robustness suite's 30 mohm IPM, after a heavy spell, a cruise at 314 rad/s read the winding 5 C high motoring "
+      "and 4.5 C low braking (22 and 17 C before listening pairs anchored the curve at the heavy load), within 1 C with "
       "its map (docs/configuration.md, \"An interior-magnet machine: give its flux map\"; a salient rotor that does "
       "not saturate says so with motor.lq_rated_H = motor.lq_H)",
       d.injection.max_torque_disturbance_Nm, core::continuous_current_peak_A(d.motor), speed_rad_s, rho);
