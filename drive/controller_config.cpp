@@ -283,7 +283,7 @@ ConfigSchema<C> build() {
               "motoring torque (commissioned Ld, learned Lq); the budget still bounds F by the uncompensated torque. "
               "false: the pulses are on the d-axis alone and the speed loop answers their torque.");
   inj.real("injection.max_speed_change_fraction", [](C& c) -> double& { return c.drive.injection.max_speed_change_fraction; },
-           between(0, 1), "", "Reject a pair whose recordings differ in speed by more than this fraction...");
+           between(0, 1), "", "Reject a pair whose recordings differ in speed by more than this fraction (not a listening pair)...");
   inj.optional_real("injection.max_speed_change_rad_s", [](C& c) -> std::optional<double>& { return c.relative.max_speed_change_rad_s; },
                     at_least(0, 1e6), "rad/s", "0.124 Rs/Lq",
                     "... or by more than this (electrical), whichever is larger (Table I: 3 rad/s).");

@@ -1087,7 +1087,9 @@ void InjectionScheduler::finish_listening(const SchedulerInput& in) {
     return;
   }
   // No pulse, no resistance of its own: the filter's (learn_lq takes it when known, as listens()
-  // asks), and as the noise of <vd> the spread of the two recordings' difference.
+  // asks), and as the noise of <vd> the spread of the two recordings' difference (where the speed
+  // moved between them, that spread holds the curve's present error times the change too: a
+  // wider variance, the safe side).
   FitResult fit;
   fit.rs_ohm = winding_rs_ohm_;
   fit.var_rs = winding_rs_var_ohm2_;

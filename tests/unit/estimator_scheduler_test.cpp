@@ -1544,6 +1544,7 @@ struct ListeningRun {
   bool resolved = false;
   std::size_t pulses_under_load = 0;  // steps with an injection current at the heavy load
   std::size_t refused_under_load = 0;  // levels reported refused for their torque there
+  double speed_gap_rad_s = 0.0;  // the first listening pair's recording 2 mean speed less recording 1's
 };
 
 // accel_e_rad_s2: from the load step on, the shaft accelerates at this rate (electrical) until
@@ -1562,9 +1563,10 @@ ListeningRun listening_run(bool listening, double accel_e_rad_s2 = 0.0, double u
   h.motoring_A = {0.0, 5.0};
   h.run_until(3.0);
   h.motoring_A = {0.0, 60.0};
+  const auto omega_at = [accel_e_rad_s2](double t_s) { return 300.0 + accel_e_rad_s2 * (t_s - 3.0); };
   if (accel_e_rad_s2 != 0.0) {
     h.voltage_limit_V = 2000.0;  // (the speed, not the bus, is what the run is about)
-    h.hook = [accel_e_rad_s2](Harness& x) { x.omega_e_rad_s = 300.0 + accel_e_rad_s2 * (x.time_s - 3.0); };
+    h.hook = [omega_at](Harness& x) { x.omega_e_rad_s = omega_at(x.time_s); };
   }
   const std::size_t from = h.records.size();
   h.run_until(until_s);
@@ -1579,6 +1581,25 @@ ListeningRun listening_run(bool listening, double accel_e_rad_s2 = 0.0, double u
   }
   for (const PairResult& p : h.pairs) {
     r.refused_under_load += p.time_s >= 3.0 && p.outcome == PairOutcome::kSkippedTorqueDisturbance ? 1U : 0U;
+  }
+  // Under the load every recording is a listening pair's (no pulse fits): the first one's two
+  // recordings, each a run of steps in its phase.
+  std::array<double, 2> sum{};
+  std::array<int, 2> n{};
+  int recording = -1;
+  for (std::size_t k = from; k < h.records.size() && recording < 2; ++k) {
+    const SchedulerPhase ph = h.records[k].out.phase;
+    const int which = ph == SchedulerPhase::kRecord1 ? 0 : ph == SchedulerPhase::kRecord2 ? 1 : -1;
+    if (which >= 0) {
+      recording = which;
+      sum[static_cast<std::size_t>(which)] += accel_e_rad_s2 != 0.0 ? omega_at(h.records[k].time_s) : 300.0;
+      ++n[static_cast<std::size_t>(which)];
+    } else if (recording == 1) {
+      recording = 2;  // past the second recording
+    }
+  }
+  if (n[0] > 0 && n[1] > 0) {
+    r.speed_gap_rad_s = sum[1] / n[1] - sum[0] / n[0];
   }
   return r;
 }
@@ -1601,19 +1622,25 @@ TEST(InjectionScheduler, ListeningPairsTeachTheCurveWhereTheTorqueBudgetRefusesP
 }
 
 // A vehicle accelerating under its load (torque mode): at 400 rad/s^2 (300 -> 700 rad/s in the
-// run's last second) the speed moves by 23 rad/s between a listening pair's recordings, beyond
-// the pulses' speed-change guard (6.4 rad/s there), which refused it until 2026-12-08. The
+// run's last second) the speed moves by about 23 rad/s between a listening pair's recordings,
+// beyond the pulses' speed-change guard (max(3 rad/s, 2 %): 6.4 rad/s there), which refused it
+// until 2026-12-08; and braking at 200 rad/s^2 (300 -> 100 rad/s) by about -12 rad/s. The
 // listening pair takes <vd> against <w iq> over both recordings, sample by sample, so the moving
-// speed is in its regressor: its one pair learns the secant at the load within 0.5 %.
+// speed is in its regressor: it learns the secant at the load within 0.5 %.
 TEST(InjectionScheduler, AListeningPairLearnsWhileTheShaftAccelerates) {
   const double u = (60.0 / 80.0) * (60.0 / 80.0);
   const double true_secant = 8.25e-3 - 0.825e-3 * u;
-  const ListeningRun r = listening_run(true, 400.0, 4.0);
-  EXPECT_GE(r.learned, 1U);
-  EXPECT_EQ(r.learned, r.listened) << "every listening pair learns";
-  EXPECT_EQ(r.pulses_under_load, 0U);
-  EXPECT_NEAR(r.secant_60_H, true_secant, 0.005 * true_secant);
-  EXPECT_TRUE(r.resolved);
+  for (const double accel : {400.0, -200.0}) {
+    SCOPED_TRACE(accel);
+    const ListeningRun r = listening_run(true, accel, 4.0);
+    // The premise: the speed moved between the recordings by more than the pulses' guard.
+    EXPECT_GT(std::abs(r.speed_gap_rad_s), std::max(3.0, 0.02 * 300.0));
+    EXPECT_GE(r.learned, 1U);
+    EXPECT_EQ(r.learned, r.listened) << "every listening pair learns";
+    EXPECT_EQ(r.pulses_under_load, 0U);
+    EXPECT_NEAR(r.secant_60_H, true_secant, 0.005 * true_secant);
+    EXPECT_TRUE(r.resolved);
+  }
 }
 
 // A listening pair gives way when the motoring point needs the voltage (release_motoring) and
