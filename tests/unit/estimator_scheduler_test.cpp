@@ -1592,7 +1592,7 @@ ListeningRun listening_run(bool listening, double accel_e_rad_s2 = 0.0, double u
     const int which = ph == SchedulerPhase::kRecord1 ? 0 : ph == SchedulerPhase::kRecord2 ? 1 : -1;
     if (which >= 0) {
       recording = which;
-      sum[static_cast<std::size_t>(which)] += accel_e_rad_s2 != 0.0 ? omega_at(h.records[k].time_s) : 300.0;
+      sum[static_cast<std::size_t>(which)] += omega_at(h.records[k].time_s);  // (300 when not accelerating)
       ++n[static_cast<std::size_t>(which)];
     } else if (recording == 1) {
       recording = 2;  // past the second recording
